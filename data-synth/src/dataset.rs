@@ -1,0 +1,223 @@
+//! Datasets on disk: one `.npz` archive that numpy opens directly (`numpy.load(path)`), holding
+//! ground-truth and start poses, observations, visibility, cameras and a JSON `meta` string
+//! (template id, seed, generator settings, sensor setup). Same content → identical bytes.
+
+use std::path::Path;
+
+use glam::Vec3;
+use lfit_model::observe::{Modality, Sensor};
+use lfit_model::pose::{POSE_DIM, Pose, pose_from_slice};
+use lfit_model::scan::{Mask, VoxelGrid};
+use lfit_model::template::write_atomic;
+use serde::{Deserialize, Serialize};
+
+use crate::error::SynthError;
+use crate::npz::{Array, npz_bytes, read_npz};
+use crate::synth::SynthConfig;
+
+/// Version of the on-disk layout; loading another version is an error.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// Metadata stored as JSON in the `meta` array.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Meta {
+    /// Always `lfit-dataset`.
+    pub format: String,
+    pub version: u32,
+    pub template_id: String,
+    pub template_vertices: usize,
+    /// Generator settings, seed included.
+    pub config: SynthConfig,
+    /// The motion behind each frame (`walk`, ..., or `uniform`).
+    pub frame_motions: Vec<String>,
+}
+
+/// Per-frame observations.
+#[derive(Debug, Clone)]
+pub enum Observations {
+    /// Sparse modalities: one fixed-size vector per frame and its visibility.
+    Sparse { values: Vec<Vec<f64>>, visible: Vec<Vec<bool>> },
+    /// `scan`: per frame, one point per template vertex (noisy) with visibility (holes), the
+    /// squared distance transform of the visible points and K silhouettes.
+    Scan { points: Vec<Vec<Vec3>>, visible: Vec<Vec<bool>>, grids: Vec<VoxelGrid>, silhouettes: Vec<Vec<Mask>> },
+}
+
+/// A synthetic (or converted) dataset.
+#[derive(Debug, Clone)]
+pub struct Dataset {
+    pub meta: Meta,
+    pub sensor: Sensor,
+    pub start_poses: Vec<Pose>,
+    pub gt_poses: Vec<Pose>,
+    pub observations: Observations,
+}
+
+#[derive(Serialize, Deserialize)]
+struct MetaJson {
+    #[serde(flatten)]
+    meta: Meta,
+    sensor: Sensor,
+}
+
+fn flat_poses(poses: &[Pose]) -> Vec<f64> {
+    poses.iter().flat_map(|p| p.iter().copied()).collect()
+}
+
+impl Dataset {
+    pub fn len(&self) -> usize {
+        self.gt_poses.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.gt_poses.is_empty()
+    }
+
+    pub fn modality(&self) -> Modality {
+        self.sensor.modality()
+    }
+
+    /// The arrays of the archive, in a fixed order.
+    pub fn to_arrays(&self) -> Result<Vec<(&'static str, Array)>, SynthError> {
+        let n = self.len();
+        let meta = serde_json::to_string(&MetaJson { meta: self.meta.clone(), sensor: self.sensor.clone() }).map_err(|e| SynthError::Dataset(e.to_string()))?;
+        let mut arrays = vec![
+            ("meta", Array::string(&meta)),
+            ("gt_poses", Array::f64(vec![n, POSE_DIM], &flat_poses(&self.gt_poses))),
+            ("start_poses", Array::f64(vec![n, POSE_DIM], &flat_poses(&self.start_poses))),
+        ];
+        let cams = self.sensor.cameras();
+        let k = cams.len();
+        arrays.push(("camera_intrinsics", Array::f64(vec![k, 4], &cams.iter().flat_map(|c| [c.fx, c.fy, c.cx, c.cy]).collect::<Vec<_>>())));
+        arrays.push(("camera_image_size", Array::u32(vec![k, 2], &cams.iter().flat_map(|c| [c.width, c.height]).collect::<Vec<_>>())));
+        let extrinsics: Vec<f64> = cams.iter().flat_map(|c| (0..3).flat_map(move |r| [c.rotation[r][0], c.rotation[r][1], c.rotation[r][2], c.translation[r]])).collect();
+        arrays.push(("camera_extrinsics", Array::f64(vec![k, 3, 4], &extrinsics)));
+        match &self.observations {
+            Observations::Sparse { values, visible } => {
+                let d = values.first().map_or(0, Vec::len);
+                arrays.push(("observations", Array::f64(vec![n, d], &values.concat())));
+                arrays.push(("visibility", Array::bool(vec![n, d], &visible.concat())));
+            }
+            Observations::Scan { points, visible, grids, silhouettes } => {
+                let v = points.first().map_or(0, Vec::len);
+                let flat: Vec<f32> = points.iter().flatten().flat_map(|p| p.to_array()).collect();
+                arrays.push(("points", Array::f32(vec![n, v, 3], &flat)));
+                arrays.push(("point_visibility", Array::bool(vec![n, v], &visible.concat())));
+                let dims = grids.first().map_or([0; 3], |g| g.dims);
+                let values: Vec<f32> = grids.iter().flat_map(|g| g.values.iter().copied()).collect();
+                arrays.push(("edt", Array::f32(vec![n, dims[2], dims[1], dims[0]], &values)));
+                arrays.push(("edt_origin", Array::f64(vec![n, 3], &grids.iter().flat_map(|g| g.origin).collect::<Vec<_>>())));
+                arrays.push(("edt_spacing", Array::f64(vec![n], &grids.iter().map(|g| g.spacing).collect::<Vec<_>>())));
+                let (w, h) = silhouettes.first().and_then(|s| s.first()).map_or((0, 0), |m| (m.width as usize, m.height as usize));
+                let masks: Vec<u8> = silhouettes.iter().flatten().flat_map(|m| m.data.iter().copied()).collect();
+                arrays.push(("silhouettes", Array::u8(vec![n, k, h, w], masks)));
+            }
+        }
+        Ok(arrays)
+    }
+
+    /// Writes the dataset atomically (temporary file, then rename).
+    pub fn save(&self, path: &Path) -> Result<(), SynthError> {
+        let bytes = npz_bytes(&self.to_arrays()?)?;
+        write_atomic(path, &bytes)?;
+        Ok(())
+    }
+
+    /// Loads and checks a dataset: version, shapes against the metadata, finite numbers.
+    pub fn load(path: &Path) -> Result<Self, SynthError> {
+        let bytes = std::fs::read(path).map_err(|source| SynthError::Read { path: path.to_path_buf(), source })?;
+        Self::from_npz(&bytes).map_err(|e| match e {
+            SynthError::Dataset(why) => SynthError::Dataset(format!("{}: {why}", path.display())),
+            other => other,
+        })
+    }
+
+    pub fn from_npz(bytes: &[u8]) -> Result<Self, SynthError> {
+        let arrays = read_npz(bytes)?;
+        let get = |name: &str| arrays.iter().find(|(n, _)| n == name).map(|(_, a)| a).ok_or_else(|| SynthError::Dataset(format!("missing array '{name}'")));
+        let meta_text = get("meta")?.to_string("meta")?;
+        let MetaJson { meta, sensor } = serde_json::from_str(&meta_text).map_err(|e| SynthError::Dataset(format!("meta: {e}")))?;
+        if meta.format != "lfit-dataset" || meta.version != FORMAT_VERSION {
+            return Err(SynthError::Dataset(format!("format {} version {} is not lfit-dataset version {FORMAT_VERSION}", meta.format, meta.version)));
+        }
+        let n = meta.config.frames;
+        let shape = |name: &str, a: &Array, expected: &[usize]| {
+            if a.shape != expected {
+                return Err(SynthError::Dataset(format!("array '{name}' has shape {:?}, expected {expected:?}", a.shape)));
+            }
+            Ok(())
+        };
+        let poses = |name: &str| -> Result<Vec<Pose>, SynthError> {
+            let a = get(name)?;
+            shape(name, a, &[n, POSE_DIM])?;
+            a.to_f64(name)?
+                .chunks_exact(POSE_DIM)
+                .enumerate()
+                .map(|(i, c)| pose_from_slice(c).map_err(|e| SynthError::Dataset(format!("{name}[{i}]: {e}"))))
+                .collect()
+        };
+        let gt_poses = poses("gt_poses")?;
+        let start_poses = poses("start_poses")?;
+        let observations = match sensor.modality() {
+            Modality::Scan => {
+                let v = meta.template_vertices;
+                let k = sensor.cameras().len();
+                let p = get("points")?;
+                shape("points", p, &[n, v, 3])?;
+                let flat = p.to_f32("points")?;
+                if flat.iter().any(|x| !x.is_finite()) {
+                    return Err(SynthError::Dataset("array 'points' holds a non-finite number".into()));
+                }
+                let points = flat.chunks_exact(3 * v.max(1)).map(|c| c.chunks_exact(3).map(|q| Vec3::new(q[0], q[1], q[2])).collect()).collect();
+                let vis = get("point_visibility")?;
+                shape("point_visibility", vis, &[n, v])?;
+                let visible = vis.to_bool("point_visibility")?.chunks_exact(v.max(1)).map(<[bool]>::to_vec).collect();
+                let edt = get("edt")?;
+                if edt.shape.len() != 4 || edt.shape[0] != n {
+                    return Err(SynthError::Dataset(format!("array 'edt' has shape {:?}, expected [{n}, Z, Y, X]", edt.shape)));
+                }
+                let dims = [edt.shape[3], edt.shape[2], edt.shape[1]];
+                let values = edt.to_f32("edt")?;
+                let origin = get("edt_origin")?;
+                shape("edt_origin", origin, &[n, 3])?;
+                let origin = origin.to_f64("edt_origin")?;
+                let spacing = get("edt_spacing")?;
+                shape("edt_spacing", spacing, &[n])?;
+                let spacing = spacing.to_f64("edt_spacing")?;
+                let per = dims.iter().product::<usize>();
+                let grids = (0..n)
+                    .map(|i| VoxelGrid { origin: [origin[3 * i], origin[3 * i + 1], origin[3 * i + 2]], spacing: spacing[i], dims, values: values[i * per..(i + 1) * per].to_vec() })
+                    .collect();
+                let s = get("silhouettes")?;
+                if s.shape.len() != 4 || s.shape[0] != n || s.shape[1] != k {
+                    return Err(SynthError::Dataset(format!("array 'silhouettes' has shape {:?}, expected [{n}, {k}, H, W]", s.shape)));
+                }
+                let (h, w) = (s.shape[2], s.shape[3]);
+                let data = s.to_u8("silhouettes")?;
+                let silhouettes = (0..n)
+                    .map(|i| (0..k).map(|c| Mask { width: w as u32, height: h as u32, data: data[(i * k + c) * w * h..(i * k + c + 1) * w * h].to_vec() }).collect())
+                    .collect();
+                Observations::Scan { points, visible, grids, silhouettes }
+            }
+            _ => {
+                let o = get("observations")?;
+                if o.shape.len() != 2 || o.shape[0] != n {
+                    return Err(SynthError::Dataset(format!("array 'observations' has shape {:?}, expected [{n}, D]", o.shape)));
+                }
+                let d = o.shape[1];
+                let flat = o.to_f64("observations")?;
+                if let Some(i) = flat.iter().position(|x| !x.is_finite()) {
+                    return Err(SynthError::Dataset(format!("observations[{}][{}] is not finite", i / d.max(1), i % d.max(1))));
+                }
+                let vis = get("visibility")?;
+                shape("visibility", vis, &[n, d])?;
+                let values = flat.chunks_exact(d.max(1)).map(<[f64]>::to_vec).collect();
+                let visible = vis.to_bool("visibility")?.chunks_exact(d.max(1)).map(<[bool]>::to_vec).collect();
+                Observations::Sparse { values, visible }
+            }
+        };
+        if meta.frame_motions.len() != n {
+            return Err(SynthError::Dataset(format!("meta lists {} frame motions for {n} frames", meta.frame_motions.len())));
+        }
+        Ok(Self { meta, sensor, start_poses, gt_poses, observations })
+    }
+}

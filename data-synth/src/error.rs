@@ -1,0 +1,27 @@
+//! Errors of the synthesis crate.
+
+use std::path::PathBuf;
+
+#[derive(Debug, thiserror::Error)]
+pub enum SynthError {
+    #[error(transparent)]
+    Model(#[from] lfit_model::ModelError),
+    #[error("cannot read {path}: {source}")]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("malformed dataset: {0}")]
+    Dataset(String),
+    #[error("unknown scenario '{0}' (expected local, global or sequence)")]
+    UnknownScenario(String),
+    #[error("unknown pose source '{0}' (expected motion or uniform)")]
+    UnknownSource(String),
+    #[error("unknown motion '{0}'")]
+    UnknownMotion(String),
+    #[error("unknown body shape '{0}' (expected one of default, tall, short, heavy, slim, long-legs, long-arms)")]
+    UnknownShape(String),
+    #[error("invalid setting {name} = {value}: {reason}")]
+    Setting { name: &'static str, value: String, reason: String },
+}

@@ -1,0 +1,15 @@
+//! lfit's synthetic data: a procedural motion library, uniform pose sampling, the scenarios of
+//! papers/000 §4, observation synthesis with noise and occlusion per modality, and datasets on
+//! disk as numpy-readable `.npz` archives.
+
+pub mod dataset;
+pub mod error;
+pub mod motion;
+pub mod noise;
+pub mod npz;
+pub mod synth;
+
+pub use dataset::{Dataset, Meta, Observations};
+pub use error::SynthError;
+pub use noise::NoiseConfig;
+pub use synth::{PoseSource, Scenario, SynthConfig, synthesize};

@@ -1,0 +1,23 @@
+//! lfit's body model: the skinned template, the pose space, forward kinematics and skinning on the
+//! CPU and as Burn tensors, and the observation models that turn a pose into what a sensor sees.
+//!
+//! The observation models ([`observe`]) are the only place where pose → observation is computed.
+
+pub mod body;
+pub mod camera;
+pub mod error;
+pub mod observe;
+pub mod pose;
+pub mod rig;
+pub mod scan;
+pub mod skeleton;
+pub mod skinning;
+pub mod template;
+pub mod tensor;
+
+pub use body::{BodyShape, build_template, default_template};
+pub use error::{ModelError, Result};
+pub use pose::{Bounds, DofMask, POSE_DIM, Pose};
+pub use rig::{Joint, JointIndex, Marker, Rig};
+pub use skinning::SkinningMethod;
+pub use template::Template;

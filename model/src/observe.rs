@@ -1,0 +1,401 @@
+//! Observation models (SPEC §4): the one place where pose → predicted observation is computed.
+//!
+//! Synthesis adds noise and occlusion to these predictions; the energy compares them with data.
+//! Every modality has a fixed-size prediction and a visibility mask of the same size, so its
+//! residual `R(θ) = visible ⊙ (predicted − observed)` has a fixed length.
+
+use std::fmt;
+use std::str::FromStr;
+
+use glam::{DAffine3, DMat3, DQuat, DVec3, Vec3};
+use serde::{Deserialize, Serialize};
+
+use crate::camera::{Camera, DEFAULT_RING_SIZE, default_ring};
+use crate::error::{ModelError, Result};
+use crate::pose::Pose;
+use crate::scan::{Mask, VoxelGrid, render_silhouettes};
+use crate::skeleton::{HEAD, L_HAND, R_HAND};
+use crate::skinning::{joint_transforms, posed_joints, skin_lbs_into, skin_lbs_subset, vertex_normals};
+use crate::template::Template;
+
+/// The observation modalities of SPEC §4.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Modality {
+    Markers,
+    Keypoints2d,
+    Hmd,
+    Scan,
+}
+
+impl Modality {
+    pub const ALL: [Modality; 4] = [Modality::Markers, Modality::Keypoints2d, Modality::Hmd, Modality::Scan];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Modality::Markers => "markers",
+            Modality::Keypoints2d => "keypoints2d",
+            Modality::Hmd => "hmd",
+            Modality::Scan => "scan",
+        }
+    }
+}
+
+impl fmt::Display for Modality {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Modality {
+    type Err = ModelError;
+    fn from_str(s: &str) -> Result<Self> {
+        Modality::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| ModelError::UnknownModality(s.to_string()))
+    }
+}
+
+/// Hand visibility of the `hmd` modality (papers/002 §3.2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum HandVisibility {
+    /// Hands always visible.
+    Full,
+    /// Only hands in front of the headset are visible: a hand whose wrist has z ≥ 0 in the
+    /// headset frame (the headset looks along its −z) is behind it and invisible.
+    #[default]
+    HalfSpace,
+}
+
+/// Fixed setup of the `hmd` modality.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HmdSetup {
+    /// Headset position relative to the head joint in the rest frame (eyes: 17 cm up, 9 cm forward).
+    pub offset: [f64; 3],
+    pub visibility: HandVisibility,
+    /// Hand-tip vertices (left, right): the hand vertex furthest from the wrist.
+    pub hand_tips: [u32; 2],
+}
+
+/// Fixed setup of the `scan` modality.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ScanSetup {
+    /// Views whose silhouettes are rendered (papers/000 §3: aligned with the capture cameras).
+    pub cameras: Vec<Camera>,
+    /// Voxel size of the distance-transform grid, metres.
+    pub voxel_size: f64,
+    /// Template vertices whose closest-point vectors form the residual.
+    pub residual_vertices: Vec<u32>,
+}
+
+/// A modality with its sensor setup.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "modality", rename_all = "lowercase")]
+pub enum Sensor {
+    Markers { names: Vec<String>, vertices: Vec<u32> },
+    Keypoints2d { cameras: Vec<Camera> },
+    Hmd(HmdSetup),
+    Scan(ScanSetup),
+}
+
+/// Entries per HMD prediction: head, left wrist and right wrist as 3×4 `[R | t]` (12 each), then
+/// the left and right hand tips (3 each).
+pub const HMD_DIM: usize = 42;
+
+/// A prediction of a sparse modality: a flat vector and, per entry, whether the sensor sees it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SparsePrediction {
+    pub values: Vec<f64>,
+    pub visible: Vec<bool>,
+}
+
+/// What the `scan` sensor sees: the posed surface (vertices, normals) and K silhouettes.
+#[derive(Debug, Clone)]
+pub struct ScanPrediction {
+    pub vertices: Vec<Vec3>,
+    pub normals: Vec<Vec3>,
+    pub silhouettes: Vec<Mask>,
+}
+
+/// A scan observation: the (noisy, holed) point cloud, its squared distance transform and the
+/// silhouettes of the target.
+#[derive(Debug, Clone)]
+pub struct ScanObservation {
+    pub points: Vec<Vec3>,
+    pub grid: VoxelGrid,
+    pub silhouettes: Vec<Mask>,
+}
+
+impl Sensor {
+    /// The default setup of `modality` for `template`.
+    pub fn default_for(modality: Modality, template: &Template) -> Self {
+        match modality {
+            Modality::Markers => Sensor::Markers {
+                names: template.rig.markers.iter().map(|m| m.name.clone()).collect(),
+                vertices: template.rig.markers.iter().map(|m| m.vertex).collect(),
+            },
+            Modality::Keypoints2d => Sensor::Keypoints2d { cameras: default_ring(DEFAULT_RING_SIZE) },
+            Modality::Hmd => Sensor::Hmd(HmdSetup {
+                offset: [0.0, 0.17, 0.09],
+                visibility: HandVisibility::HalfSpace,
+                hand_tips: [hand_tip(template, L_HAND), hand_tip(template, R_HAND)],
+            }),
+            Modality::Scan => Sensor::Scan(ScanSetup {
+                cameras: default_ring(4),
+                voxel_size: 0.02,
+                residual_vertices: (0..template.num_vertices() as u32).step_by(8).collect(),
+            }),
+        }
+    }
+
+    pub fn modality(&self) -> Modality {
+        match self {
+            Sensor::Markers { .. } => Modality::Markers,
+            Sensor::Keypoints2d { .. } => Modality::Keypoints2d,
+            Sensor::Hmd(_) => Modality::Hmd,
+            Sensor::Scan(_) => Modality::Scan,
+        }
+    }
+
+    /// Cameras of the setup (none for markers and hmd).
+    pub fn cameras(&self) -> &[Camera] {
+        match self {
+            Sensor::Keypoints2d { cameras } => cameras,
+            Sensor::Scan(s) => &s.cameras,
+            _ => &[],
+        }
+    }
+
+    /// Length of the residual vector R(θ).
+    pub fn residual_dim(&self, template: &Template) -> usize {
+        match self {
+            Sensor::Markers { vertices, .. } => 3 * vertices.len(),
+            Sensor::Keypoints2d { cameras } => 2 * cameras.len() * template.rig.num_joints(),
+            Sensor::Hmd(_) => HMD_DIM,
+            Sensor::Scan(s) => 3 * s.residual_vertices.len(),
+        }
+    }
+
+    /// Checks the setup against a template (vertex indices in range, valid cameras).
+    pub fn validate(&self, template: &Template) -> Result<()> {
+        let n = template.num_vertices() as u32;
+        let check_vertices = |vs: &[u32], what: &str| match vs.iter().find(|&&v| v >= n) {
+            Some(v) => Err(ModelError::Shape { what: what.to_string(), expected: format!("vertex < {n}"), got: v.to_string() }),
+            None => Ok(()),
+        };
+        match self {
+            Sensor::Markers { names, vertices } => {
+                if names.len() != vertices.len() {
+                    return Err(ModelError::Shape { what: "marker names".into(), expected: vertices.len().to_string(), got: names.len().to_string() });
+                }
+                check_vertices(vertices, "marker vertex")
+            }
+            Sensor::Keypoints2d { cameras } => cameras.iter().enumerate().try_for_each(|(i, c)| c.validate(i)),
+            Sensor::Hmd(h) => check_vertices(&h.hand_tips, "hand tip vertex"),
+            Sensor::Scan(s) => {
+                if !(s.voxel_size.is_finite() && s.voxel_size > 0.0) {
+                    return Err(ModelError::Setting { name: "voxel_size", value: s.voxel_size.to_string(), reason: "must be positive".into() });
+                }
+                check_vertices(&s.residual_vertices, "scan residual vertex")?;
+                s.cameras.iter().enumerate().try_for_each(|(i, c)| c.validate(i))
+            }
+        }
+    }
+
+    /// Predicted observation of a sparse modality at `pose`. `None` for `scan`.
+    pub fn predict_sparse(&self, template: &Template, pose: &Pose) -> Option<SparsePrediction> {
+        let transforms = joint_transforms(template, pose);
+        self.predict_sparse_from(template, &transforms)
+    }
+
+    /// As [`Sensor::predict_sparse`], from precomputed joint transforms.
+    pub fn predict_sparse_from(&self, template: &Template, transforms: &[DAffine3]) -> Option<SparsePrediction> {
+        match self {
+            Sensor::Markers { vertices, .. } => {
+                let pts = skin_lbs_subset(template, transforms, vertices);
+                let values = pts.iter().flat_map(|p| p.as_dvec3().to_array()).collect::<Vec<_>>();
+                let visible = vec![true; values.len()];
+                Some(SparsePrediction { values, visible })
+            }
+            Sensor::Keypoints2d { cameras } => {
+                let joints = posed_joints(template, transforms);
+                let mut values = Vec::with_capacity(2 * cameras.len() * joints.len());
+                let mut visible = Vec::with_capacity(values.capacity());
+                for cam in cameras {
+                    for &p in &joints {
+                        let q = cam.to_camera(p);
+                        let uv = cam.project_camera(q);
+                        let seen = q.z > 0.01 && cam.in_image(uv);
+                        // Behind the camera the projection is meaningless: report 0 and invisible.
+                        let uv = if q.z > 0.01 { uv } else { glam::DVec2::ZERO };
+                        values.extend([uv.x, uv.y]);
+                        visible.extend([seen, seen]);
+                    }
+                }
+                Some(SparsePrediction { values, visible })
+            }
+            Sensor::Hmd(setup) => {
+                let joints = posed_joints(template, transforms);
+                let headset = headset_pose(setup, transforms[HEAD].matrix3, joints[HEAD]);
+                let tips = skin_lbs_subset(template, transforms, &setup.hand_tips);
+                let mut values = Vec::with_capacity(HMD_DIM);
+                push_rigid(&mut values, &headset);
+                let mut visible = vec![true; 12];
+                let device_from_world = headset.inverse();
+                for hand in [L_HAND, R_HAND] {
+                    push_rigid(&mut values, &DAffine3 { matrix3: transforms[hand].matrix3, translation: joints[hand] });
+                    let seen = match setup.visibility {
+                        HandVisibility::Full => true,
+                        HandVisibility::HalfSpace => device_from_world.transform_point3(joints[hand]).z < 0.0,
+                    };
+                    visible.extend([seen; 12]);
+                }
+                for (k, tip) in tips.iter().enumerate() {
+                    values.extend(tip.as_dvec3().to_array());
+                    let seen = visible[12 + 12 * k];
+                    visible.extend([seen; 3]);
+                }
+                Some(SparsePrediction { values, visible })
+            }
+            Sensor::Scan(_) => None,
+        }
+    }
+
+    /// Predicted scan observation at `pose` (posed surface and silhouettes). `None` for sparse
+    /// modalities.
+    pub fn predict_scan(&self, template: &Template, pose: &Pose) -> Option<ScanPrediction> {
+        let Sensor::Scan(setup) = self else { return None };
+        let transforms = joint_transforms(template, pose);
+        let mut vertices = Vec::new();
+        skin_lbs_into(template, &transforms, &mut vertices);
+        let normals = vertex_normals(&vertices, &template.faces);
+        let silhouettes = render_silhouettes(&setup.cameras, &vertices, &template.faces);
+        Some(ScanPrediction { vertices, normals, silhouettes })
+    }
+
+    /// Residual R(θ) of a sparse modality: `observed_visible ⊙ (predicted − observed)`.
+    pub fn sparse_residual(predicted: &SparsePrediction, observed: &[f64], observed_visible: &[bool]) -> Vec<f64> {
+        predicted
+            .values
+            .iter()
+            .zip(observed)
+            .zip(observed_visible)
+            .map(|((p, o), &v)| if v { p - o } else { 0.0 })
+            .collect()
+    }
+
+    /// Residual R(θ) of `scan`: at each residual vertex, the vector from its closest point on the
+    /// target to the vertex, `½ ∇S` for the squared distance transform S (plus the out-of-grid
+    /// offset `v − ⌊v⌋`, papers/000 eq. 4).
+    pub fn scan_residual(&self, predicted: &ScanPrediction, observed: &ScanObservation) -> Vec<f64> {
+        let Sensor::Scan(setup) = self else { return Vec::new() };
+        setup
+            .residual_vertices
+            .iter()
+            .flat_map(|&v| {
+                let p = predicted.vertices[v as usize].as_dvec3();
+                let c = observed.grid.clamp(p);
+                (observed.grid.gradient(c) * 0.5 + (p - c)).to_array()
+            })
+            .collect()
+    }
+}
+
+/// World pose of the headset: the head joint's frame composed with the fixed offset, turned so
+/// that the headset's −z looks where the face looks (+z in the rest pose).
+pub fn headset_pose(setup: &HmdSetup, head_rotation: DMat3, head_position: DVec3) -> DAffine3 {
+    let world_from_head = DAffine3 { matrix3: head_rotation, translation: head_position };
+    let head_from_device = DAffine3 {
+        matrix3: DMat3::from_quat(DQuat::from_rotation_y(std::f64::consts::PI)),
+        translation: DVec3::from_array(setup.offset),
+    };
+    world_from_head * head_from_device
+}
+
+fn push_rigid(values: &mut Vec<f64>, a: &DAffine3) {
+    let m = a.matrix3;
+    for row in 0..3 {
+        values.extend([m.x_axis[row], m.y_axis[row], m.z_axis[row]]);
+    }
+    values.extend(a.translation.to_array());
+}
+
+/// The vertex of `hand` (dominant joint) furthest from the hand joint: the middle-finger tip.
+pub fn hand_tip(template: &Template, hand: usize) -> u32 {
+    let dominant = template.dominant_joint();
+    let wrist = template.rig.joints[hand].rest();
+    let mut best = (f64::MIN, 0u32);
+    for (v, p) in template.vertices.iter().enumerate() {
+        if dominant[v] == hand {
+            let d = (p.as_dvec3() - wrist).length();
+            if d > best.0 {
+                best = (d, v as u32);
+            }
+        }
+    }
+    best.1
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::body::default_template;
+    use crate::pose::{POSE_DIM, rot_offset};
+    use crate::skeleton::{L_SHOULDER, R_SHOULDER};
+
+    #[test]
+    fn modality_names_roundtrip() {
+        for m in Modality::ALL {
+            assert_eq!(m.name().parse::<Modality>().unwrap(), m);
+        }
+        assert!(matches!("lidar".parse::<Modality>(), Err(ModelError::UnknownModality(_))));
+    }
+
+    #[test]
+    fn prediction_sizes_match_residual_dims() {
+        let t = default_template();
+        let pose = [0.0; POSE_DIM];
+        for m in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
+            let s = Sensor::default_for(m, &t);
+            s.validate(&t).unwrap();
+            let p = s.predict_sparse(&t, &pose).unwrap();
+            assert_eq!(p.values.len(), s.residual_dim(&t), "{m}");
+            assert_eq!(p.visible.len(), p.values.len());
+        }
+    }
+
+    #[test]
+    fn keypoints_in_rest_pose_are_all_visible_and_hmd_hands_follow_the_half_space() {
+        let t = default_template();
+        let s = Sensor::default_for(Modality::Keypoints2d, &t);
+        let p = s.predict_sparse(&t, &[0.0; POSE_DIM]).unwrap();
+        assert!(p.visible.iter().all(|&v| v));
+        // Rest pose: hands hang beside the hips, below and beside the headset; they are in front
+        // of the headset plane only if forward of it. Raise the arms forward: visible.
+        let hmd = Sensor::default_for(Modality::Hmd, &t);
+        let mut pose = [0.0; POSE_DIM];
+        let rest = hmd.predict_sparse(&t, &pose).unwrap();
+        assert!(rest.visible[..12].iter().all(|&v| v));
+        // Swing both arms backwards by 60° about the vertical: the wrists go behind the headset.
+        pose[rot_offset(L_SHOULDER) + 1] = 60f64.to_radians();
+        pose[rot_offset(R_SHOULDER) + 1] = -60f64.to_radians();
+        let back = hmd.predict_sparse(&t, &pose).unwrap();
+        assert!(!back.visible[12] && !back.visible[24], "hands behind the headset are hidden");
+        // And forwards: visible.
+        pose[rot_offset(L_SHOULDER) + 1] = -60f64.to_radians();
+        pose[rot_offset(R_SHOULDER) + 1] = 60f64.to_radians();
+        let front = hmd.predict_sparse(&t, &pose).unwrap();
+        assert!(front.visible[12] && front.visible[24] && front.visible[36] && front.visible[39]);
+    }
+
+    #[test]
+    fn headset_looks_forward_at_rest() {
+        let t = default_template();
+        let Sensor::Hmd(setup) = Sensor::default_for(Modality::Hmd, &t) else { unreachable!() };
+        let h = headset_pose(&setup, DMat3::IDENTITY, t.rig.joints[HEAD].rest());
+        let forward = h.matrix3 * DVec3::NEG_Z;
+        assert!((forward - DVec3::Z).length() < 1e-12);
+        // A point 1 m in front of the face has negative z in the headset frame.
+        let p = h.translation + DVec3::Z;
+        assert!(h.inverse().transform_point3(p).z < 0.0);
+    }
+}

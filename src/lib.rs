@@ -1,0 +1,7 @@
+//! lfit: learned pose fitting of a skinned human template. This facade crate holds the command
+//! implementations behind the `lfit` binary; the binary only parses flags and calls them.
+
+pub mod commands;
+
+pub use lfit_model as model;
+pub use lfit_synth as synth;

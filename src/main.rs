@@ -1,0 +1,172 @@
+//! The `lfit` command line: parses flags, calls the library, prints JSON, and reports every error
+//! as one line on stderr with a non-zero exit.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use lfit::commands::{self, SynthArgs};
+use lfit::model::skinning::SkinningMethod;
+
+#[derive(Parser)]
+#[command(name = "lfit", version, about = "Learned pose fitting of a skinned human template: synthesize, train, fit, benchmark")]
+struct Cli {
+    /// Worker threads (default: all cores).
+    #[arg(long, global = true)]
+    threads: Option<usize>,
+    /// Hide progress bars.
+    #[arg(long, short, global = true)]
+    quiet: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Export or pose the skinned template.
+    #[command(subcommand)]
+    Template(TemplateCommand),
+    /// Synthesize a dataset (poses, observations with noise and occlusion) as a numpy .npz file.
+    Synth {
+        /// Observation modality: markers, keypoints2d, hmd or scan.
+        #[arg(long)]
+        modality: String,
+        /// Scenario of papers/000 §4: local, global or sequence.
+        #[arg(long, default_value = "local")]
+        scenario: String,
+        /// Number of frames.
+        #[arg(long, default_value_t = 100)]
+        frames: usize,
+        /// Random seed: the same seed gives an identical file.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Output file (.npz).
+        #[arg(long)]
+        out: PathBuf,
+        /// Pose source: motion (procedural motion library) or uniform (uniform in the global bounds).
+        #[arg(long, default_value = "motion")]
+        source: String,
+        /// Noise and occlusion scale: 0 = noise-free, 1 = the defaults of lfit_synth::NoiseConfig.
+        #[arg(long, default_value_t = 1.0)]
+        noise: f64,
+        /// Frame rate of sequences, Hz.
+        #[arg(long, default_value_t = 30.0)]
+        fps: f64,
+        /// Comma-separated motions to draw from (default: all).
+        #[arg(long)]
+        motions: Option<String>,
+        #[command(flatten)]
+        template: TemplateArg,
+    },
+}
+
+#[derive(clap::Args)]
+struct TemplateArg {
+    /// Template directory (template.obj + rig.json); default: the procedural template.
+    #[arg(long)]
+    template: Option<PathBuf>,
+    /// Body-proportion variant of the procedural template: default, tall, short, heavy, slim,
+    /// long-legs, long-arms.
+    #[arg(long, default_value = "default", conflicts_with = "template")]
+    shape: String,
+}
+
+#[derive(Subcommand)]
+enum TemplateCommand {
+    /// Write the procedural template as template.obj + rig.json.
+    Export {
+        /// Output directory (created if missing).
+        #[arg(long)]
+        out_dir: PathBuf,
+        /// Body-proportion variant (default, tall, short, heavy, slim, long-legs, long-arms).
+        #[arg(long, default_value = "default")]
+        shape: String,
+    },
+    /// Pose the template from {"pose": [57]} or {"poses": [[57], ...]} and write OBJ files
+    /// (several poses: OUT_0000.obj, OUT_0001.obj, ...).
+    Pose {
+        /// Pose JSON file.
+        #[arg(long)]
+        pose: PathBuf,
+        /// Output OBJ path.
+        #[arg(long)]
+        out: PathBuf,
+        /// Skinning: lbs (linear blend, SPEC §3) or dqs (dual quaternion).
+        #[arg(long, default_value = "lbs")]
+        skinning: String,
+        #[command(flatten)]
+        template: TemplateArg,
+    },
+}
+
+fn progress_bar(len: usize, quiet: bool, what: &str) -> ProgressBar {
+    if quiet {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(len as u64);
+    if let Ok(style) = ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} {per_sec} eta {eta}") {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar.set_message(what.to_string());
+    bar
+}
+
+fn run(cli: Cli) -> Result<serde_json::Value> {
+    if let Some(n) = cli.threads {
+        if n == 0 {
+            anyhow::bail!("--threads must be at least 1");
+        }
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
+    }
+    match cli.command {
+        Command::Template(TemplateCommand::Export { out_dir, shape }) => commands::template_export(&out_dir, &shape),
+        Command::Template(TemplateCommand::Pose { pose, out, skinning, template }) => {
+            let method = match skinning.as_str() {
+                "lbs" => SkinningMethod::Linear,
+                "dqs" => SkinningMethod::DualQuaternion,
+                other => anyhow::bail!("unknown skinning '{other}' (expected lbs or dqs)"),
+            };
+            let template = commands::load_template(template.template.as_deref(), &template.shape)?;
+            commands::template_pose(&pose, &out, &template, method)
+        }
+        Command::Synth { modality, scenario, frames, seed, out, source, noise, fps, motions, template } => {
+            let template = commands::load_template(template.template.as_deref(), &template.shape)?;
+            let args = SynthArgs { modality, scenario, source, frames, seed, fps, noise, motions, out };
+            // Settings are checked before the progress bar appears.
+            let bar = progress_bar(frames, cli.quiet, "synth");
+            let result = commands::synth(&args, &template, &|done| bar.set_position(done as u64));
+            bar.finish_and_clear();
+            result
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt().with_env_filter(tracing_subscriber::EnvFilter::from_default_env()).with_writer(std::io::stderr).init();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            use clap::error::ErrorKind;
+            if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand) {
+                let _ = e.print();
+                return if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand { ExitCode::from(2) } else { ExitCode::SUCCESS };
+            }
+            let text = e.to_string();
+            eprintln!("{}", text.lines().next().unwrap_or("error: bad arguments"));
+            return ExitCode::from(2);
+        }
+    };
+    match run(cli) {
+        Ok(summary) => {
+            println!("{}", serde_json::to_string_pretty(&summary).unwrap_or_else(|_| summary.to_string()));
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            let text = format!("{e:#}").replace('\n', " ");
+            eprintln!("error: {text}");
+            ExitCode::from(1)
+        }
+    }
+}
