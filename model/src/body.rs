@@ -77,7 +77,7 @@ pub fn build_template(shape: &BodyShape, id: &str) -> Result<Template> {
     for p in &mut positions {
         p.y -= lowest;
     }
-    let mut joints_rest = skeleton.joints;
+    let mut joints_rest = skeleton.joints.clone();
     for j in &mut joints_rest {
         j.y -= lowest;
     }

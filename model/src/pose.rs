@@ -161,8 +161,12 @@ pub const GLOBAL_TRANSLATION: f64 = 1.25;
 impl Bounds {
     /// The `local` box around `start`.
     pub fn local(start: &Pose) -> Self {
-        let r = LOCAL_ROTATION_DEG.to_radians();
-        let half = |i: usize| if i < 3 { LOCAL_TRANSLATION } else { r };
+        Self::around(start, LOCAL_TRANSLATION, LOCAL_ROTATION_DEG.to_radians())
+    }
+
+    /// A box of half-ranges `translation` (m) and `rotation` (rad) around `start`.
+    pub fn around(start: &Pose, translation: f64, rotation: f64) -> Self {
+        let half = |i: usize| if i < 3 { translation } else { rotation };
         Self {
             lower: (0..POSE_DIM).map(|i| start[i] - half(i)).collect(),
             upper: (0..POSE_DIM).map(|i| start[i] + half(i)).collect(),

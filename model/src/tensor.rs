@@ -394,29 +394,42 @@ pub fn wgpu_available() -> bool {
     wgpu_status().is_ok()
 }
 
-/// `Ok` if the default wgpu device works, otherwise why not. Probed once per process: initialises
-/// the runtime with `Device::wgpu_options().init()` (non-panicking; "already registered" counts as
-/// available), then sums a 3-element tensor inside `catch_unwind` and checks the result.
-pub fn wgpu_status() -> std::result::Result<(), String> {
-    static STATUS: OnceLock<std::result::Result<(), String>> = OnceLock::new();
+/// `Ok(description of the adapter)` if the default wgpu device works, otherwise `Err(why not)`.
+///
+/// Probed once per process, without panicking: initialises the runtime with
+/// `Device::wgpu_options().init_with_setup()` (an "already registered" error counts as
+/// available), then sums a 3-element tensor inside `catch_unwind` and checks the result. The
+/// adapter can be steered with cubecl's `CUBECL_WGPU_DEFAULT_DEVICE` (e.g. `Cpu`,
+/// `DiscreteGpu(0)`).
+pub fn wgpu_status() -> std::result::Result<String, String> {
+    static STATUS: OnceLock<std::result::Result<String, String>> = OnceLock::new();
     STATUS.get_or_init(probe_wgpu).clone()
 }
 
-fn probe_wgpu() -> std::result::Result<(), String> {
+fn probe_wgpu() -> std::result::Result<String, String> {
     use burn::tensor::wgpu::WgpuInitError;
-    match Device::wgpu_options().init() {
+    let adapter = match Device::wgpu_options().init_with_setup() {
+        Ok((_, setup)) => {
+            let info = setup.adapter.get_info();
+            Some(format!(
+                "{} ({:?}, {:?})",
+                info.name, info.device_type, info.backend
+            ))
+        }
         // Registration fails when the runtime already exists (initialised earlier): usable.
-        Ok(_) | Err(WgpuInitError::Registration { .. }) => {}
+        Err(WgpuInitError::Registration { .. }) => None,
         Err(e) => return Err(e.to_string()),
-    }
+    };
     let device = Device::wgpu(DeviceKind::DefaultDevice);
-    let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
+    let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         Tensor::<1>::from_floats([1.0, 2.0, 3.0], &device)
             .sum()
             .try_into_scalar::<f32>()
     }));
     match run {
-        Ok(Ok(v)) if (v - 6.0).abs() < 1e-6 => Ok(()),
+        Ok(Ok(v)) if (v - 6.0).abs() < 1e-6 => Ok(adapter
+            .or_else(|| device.identity().map(|id| id.name))
+            .unwrap_or_else(|| "default wgpu adapter".into())),
         Ok(Ok(v)) => Err(format!("a test reduction returned {v} instead of 6")),
         Ok(Err(e)) => Err(format!("reading a test tensor failed: {e}")),
         Err(panic) => {
@@ -431,6 +444,7 @@ fn probe_wgpu() -> std::result::Result<(), String> {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use glam::{DMat3, DVec3};
     use rand::{Rng, SeedableRng};
@@ -520,7 +534,11 @@ mod tests {
             println!("skipping wgpu: {reason}");
             return;
         }
-        check_agreement("wgpu", &device_from_name("wgpu").unwrap());
+        let adapter = wgpu_status().unwrap();
+        check_agreement(
+            &format!("wgpu on {adapter}"),
+            &device_from_name("wgpu").unwrap(),
+        );
     }
 
     #[test]

@@ -1,0 +1,1846 @@
+//! Procedural motion library (SPEC §8): walk, jog, wave, squat, reach, punch, kick, jump and turn
+//! as smooth functions of time that return pose vectors of the default 18-joint skeleton.
+//!
+//! Every motion is written in a *heading frame*: the body's own rotations, with the root path
+//! (position on the floor and yaw) added on top. One-sided motions are written for a left lead
+//! and mirrored (left ↔ right joints, axis-angle `(x, y, z) → (x, −y, −z)`, `t_x → −t_x`) for a
+//! right lead.
+//!
+//! Conventions (SPEC §3, [`lfit_model::skeleton`]): y up, the subject faces +z, +x is the
+//! subject's left; rotations are axis-angle relative to the parent in the world-aligned rest frame;
+//! the rest pose is an A-pose with the arms 45° below horizontal. So: −x at a hip flexes the thigh
+//! forward, +x at a knee flexes it, +x at an ankle points the toes down, +x on the spine bends the
+//! trunk forward, +y at the root turns the body to its left, +z raises the left arm.
+//!
+//! Amplitudes follow typical adult biomechanics: sagittal gait angles after Winter (*Biomechanics
+//! and Motor Control of Human Gait*, 1991) and Perry (*Gait Analysis*, 1992) — hip about 30°
+//! flexion to 15° extension, knee about 5° at heel strike, a 15° loading bump and about 60° in
+//! swing, ankle within about 10° dorsi- to 15–20° plantar-flexion, pelvis rotation and obliquity
+//! of a few degrees, 2–4 cm vertical excursion of the pelvis, cadence about 108 steps/min at
+//! 1.3 m/s; running after Novacheck (*Gait & Posture* 7, 1998) — more hip flexion, a stance knee
+//! bump of 30–40°, a forward-leaning trunk, elbows near 90°. Peak joint speeds are kept to about
+//! 7 rad/s (brisk, not ballistic, motion) so that sequences at 30 fps stay smooth; where a real
+//! motion is faster (running knees, punches) the timing is stretched rather than the range cut.
+//!
+//! The output always lies inside the rotation limits of [`Bounds::global`]
+//! ([`skeleton::rotation_limits_deg`]); amplitudes are chosen so that the final clamp rarely acts.
+//! Two limits shape the library: the root yaw box is ±50°, so the heading of walks stays within
+//! [`YAW_LIMIT`] (approached smoothly) and a turn sweeps at most about 80° in total (±41°); the
+//! ankle dorsiflexion limit is 10°, so deep squats lift the heels slightly. The root translation is
+//! *not* kept inside the ±1.25 m box: walks leave it; see [`recentre`].
+//!
+//! [`Bounds::global`]: lfit_model::Bounds::global
+
+use std::f64::consts::{FRAC_PI_4, PI, TAU};
+use std::fmt;
+use std::str::FromStr;
+
+use glam::{DQuat, DVec2, DVec3};
+use lfit_model::pose::{POSE_DIM, Pose, rot_offset};
+use lfit_model::skeleton::{
+    self, HEAD, L_ANKLE, L_ELBOW, L_FOOT, L_HAND, L_HIP, L_KNEE, L_SHOULDER, LOWER_TORSO,
+    MIDDLE_TORSO, NUM_JOINTS, ROOT,
+};
+use rand::Rng;
+use serde::{Deserialize, Serialize};
+
+/// Largest |yaw| (rad, about 43°) of the root path of walks and jogs, and of the facing of the
+/// static motions: the root's yaw limit is ±50° ([`skeleton::rotation_limits_deg`]) and the
+/// pelvis adds a few degrees of its own rotation on top of the heading.
+pub const YAW_LIMIT: f64 = 0.75;
+
+/// Half-width (m) of the square that [`recentre`] clamps the root's x and z into (the global
+/// translation box is ±1.25 m, SPEC §3).
+pub const RECENTRE_LIMIT: f64 = 1.2;
+
+/// Standard gravity (m/s²), for the flight phase of [`MotionKind::Jump`].
+const GRAVITY: f64 = 9.81;
+
+/// Thigh and shank lengths (m) of the default template (hip 0.92 m, knee 0.50 m, ankle 0.085 m
+/// above the floor, `lfit_model::body`), for the root drop of crouching motions.
+const THIGH: f64 = 0.42;
+const SHANK: f64 = 0.415;
+
+/// Arm angle of the rest A-pose below horizontal (rad), `lfit_model::BodyShape::arm_angle_deg`.
+const A_POSE: f64 = FRAC_PI_4;
+
+/// The kinds of motion in the library (SPEC §8).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MotionKind {
+    /// Walking along a gently curving path at about 1.3 m/s × speed.
+    Walk,
+    /// Jogging along a gently curving path at about 2.3 m/s × speed.
+    Jog,
+    /// One arm raised, the forearm waving; the other arm relaxed.
+    Wave,
+    /// Repeated squats: hips, knees and ankles flex, the trunk leans forward, the arms go forward.
+    Squat,
+    /// One arm reaches forward/up towards a target and back, with trunk lean and twist.
+    Reach,
+    /// Alternating straight punches from a guard, with trunk twist.
+    Punch,
+    /// One leg kicks forward from a standing position, the arms balance.
+    Kick,
+    /// Counter-movement jumps in place: crouch, take off, fly (root up to about 0.3 m), land.
+    Jump,
+    /// Turning in place back and forth through up to 82° of root yaw, stepping while turning.
+    Turn,
+}
+
+/// Error of [`MotionKind::from_str`]: the name matches no motion kind.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "unknown motion kind '{name}' (expected one of walk, jog, wave, squat, reach, punch, kick, jump, turn)"
+)]
+pub struct UnknownMotionKind {
+    /// The name that was given.
+    pub name: String,
+}
+
+impl MotionKind {
+    /// Every kind, in declaration order.
+    pub const ALL: [MotionKind; 9] = [
+        MotionKind::Walk,
+        MotionKind::Jog,
+        MotionKind::Wave,
+        MotionKind::Squat,
+        MotionKind::Reach,
+        MotionKind::Punch,
+        MotionKind::Kick,
+        MotionKind::Jump,
+        MotionKind::Turn,
+    ];
+
+    /// Lower-case name, as accepted by [`FromStr`] and written by serde.
+    pub const fn name(self) -> &'static str {
+        match self {
+            MotionKind::Walk => "walk",
+            MotionKind::Jog => "jog",
+            MotionKind::Wave => "wave",
+            MotionKind::Squat => "squat",
+            MotionKind::Reach => "reach",
+            MotionKind::Punch => "punch",
+            MotionKind::Kick => "kick",
+            MotionKind::Jump => "jump",
+            MotionKind::Turn => "turn",
+        }
+    }
+
+    /// Whether the root travels along a path (walk, jog); the other kinds stay near the origin.
+    pub const fn is_locomotion(self) -> bool {
+        matches!(self, MotionKind::Walk | MotionKind::Jog)
+    }
+
+    /// Whether [`MotionParams::side`] picks the lead limb (wave, reach, punch, kick); for
+    /// [`MotionKind::Turn`] it picks the first turning direction instead.
+    pub const fn is_one_sided(self) -> bool {
+        matches!(
+            self,
+            MotionKind::Wave | MotionKind::Reach | MotionKind::Punch | MotionKind::Kick
+        )
+    }
+
+    /// Range of [`MotionParams::speed`] drawn by [`MotionParams::sample`]: wide for slow motions,
+    /// narrow where the nominal tempo already brings joint speeds near 7 rad/s (jog, punch).
+    pub const fn speed_range(self) -> (f64, f64) {
+        match self {
+            MotionKind::Walk => (0.75, 1.2),
+            MotionKind::Jog => (0.85, 1.1),
+            MotionKind::Wave => (0.8, 1.25),
+            MotionKind::Squat => (0.7, 1.3),
+            MotionKind::Reach => (0.7, 1.3),
+            MotionKind::Punch => (0.75, 1.2),
+            MotionKind::Kick => (0.7, 1.2),
+            MotionKind::Jump => (0.8, 1.2),
+            MotionKind::Turn => (0.7, 1.3),
+        }
+    }
+}
+
+impl fmt::Display for MotionKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for MotionKind {
+    type Err = UnknownMotionKind;
+
+    /// Parses a kind's name, ignoring ASCII case and surrounding white space.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let name = s.trim();
+        MotionKind::ALL
+            .into_iter()
+            .find(|k| k.name().eq_ignore_ascii_case(name))
+            .ok_or_else(|| UnknownMotionKind {
+                name: s.to_string(),
+            })
+    }
+}
+
+/// Body side of the lead limb of one-sided motions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Side {
+    /// The subject's left (+x).
+    #[default]
+    Left,
+    /// The subject's right (−x).
+    Right,
+}
+
+impl Side {
+    /// The other side.
+    pub const fn opposite(self) -> Side {
+        match self {
+            Side::Left => Side::Right,
+            Side::Right => Side::Left,
+        }
+    }
+
+    /// +1 for left, −1 for right (the sign of a turn towards that side about +y).
+    pub const fn sign(self) -> f64 {
+        match self {
+            Side::Left => 1.0,
+            Side::Right => -1.0,
+        }
+    }
+}
+
+/// The random knobs of one motion. [`motion_pose`] accepts any values (it sanitises them, see
+/// [`MotionParams::sanitized`]); [`MotionParams::sample`] draws them from ranges where the motion
+/// looks natural and stays smooth at 30 fps.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct MotionParams {
+    /// Tempo scale: multiplies the cycle frequency (1 = nominal, e.g. 0.9 gait cycles/s for a walk)
+    /// and, for walk and jog, the forward speed.
+    pub speed: f64,
+    /// Scale of the joint excursions, about 0.6–1.2 (1 = the typical ranges of the module docs).
+    pub amplitude: f64,
+    /// Phase offset of the motion's cycle, rad (2π = one full cycle).
+    pub phase: f64,
+    /// Yaw (rad, about +y; positive turns towards the subject's left) of the root path at t = 0 for
+    /// walk and jog, the constant facing of the static motions, the centre of the yaw sweep of
+    /// turn. Kept within ±[`YAW_LIMIT`].
+    pub heading: f64,
+    /// Turning rate of the path of walk and jog (rad/s) while the heading is near 0; the rate fades
+    /// as the heading nears ±[`YAW_LIMIT`], which it never passes. Ignored by the other kinds.
+    pub curvature: f64,
+    /// Lead side of wave, reach, punch (the first punching arm) and kick; first turning direction
+    /// of turn. Ignored by walk, jog, squat and jump.
+    pub side: Side,
+    /// Kind-specific variation in [0, 1]: target height of reach and punch, arm height of wave,
+    /// depth of squat and jump, height of kick.
+    pub style: f64,
+    /// How far (rad) relaxed arms hang below the rest A-pose (0.35–0.6: 10–25° away from the body).
+    pub arm_drop: f64,
+}
+
+impl Default for MotionParams {
+    /// The nominal motion: speed 1, amplitude 1, phase 0, facing +z on a straight path, left lead.
+    fn default() -> Self {
+        Self {
+            speed: 1.0,
+            amplitude: 1.0,
+            phase: 0.0,
+            heading: 0.0,
+            curvature: 0.0,
+            side: Side::Left,
+            style: 0.5,
+            arm_drop: 0.5,
+        }
+    }
+}
+
+impl MotionParams {
+    /// Draws the parameters of one `kind` motion: speed in [`MotionKind::speed_range`], amplitude
+    /// in [0.6, 1.2), phase in [0, 2π), heading within ±0.6 rad (turn: what its sweep leaves of
+    /// ±[`YAW_LIMIT`]), curvature within ±0.12 rad/s for walk and jog (a radius of 10 m or more at
+    /// 1.3 m/s) and 0 otherwise, a fair side, a uniform style and an arm drop in [0.35, 0.6).
+    ///
+    /// The same number of draws is made for every kind, in a fixed order, so the same RNG state
+    /// gives the same parameters.
+    pub fn sample(kind: MotionKind, rng: &mut impl Rng) -> Self {
+        let speed_u: f64 = rng.random();
+        let amplitude = rng.random_range(0.6..1.2);
+        let phase = rng.random_range(0.0..TAU);
+        let heading_u: f64 = rng.random_range(-1.0..1.0);
+        let curvature_u: f64 = rng.random_range(-1.0..1.0);
+        let side = if rng.random_bool(0.5) {
+            Side::Left
+        } else {
+            Side::Right
+        };
+        let style: f64 = rng.random();
+        let arm_drop = rng.random_range(0.35..0.6);
+
+        let (lo, hi) = kind.speed_range();
+        let heading = match kind {
+            MotionKind::Turn => heading_u * (YAW_LIMIT - turn_half_sweep(amplitude)),
+            _ => heading_u * 0.6,
+        };
+        let curvature = if kind.is_locomotion() {
+            curvature_u * 0.12
+        } else {
+            0.0
+        };
+        Self {
+            speed: lo + (hi - lo) * speed_u,
+            amplitude,
+            phase,
+            heading,
+            curvature,
+            side,
+            style,
+            arm_drop,
+        }
+    }
+
+    /// The parameters [`motion_pose`] actually uses: non-finite values replaced by the
+    /// [`Default`] ones, then speed clamped to [0.05, 3], amplitude to [0, 1.5], heading to
+    /// ±0.98·[`YAW_LIMIT`], curvature to ±0.5 rad/s, style to [0, 1] and arm drop to [0, 0.75].
+    pub fn sanitized(&self) -> Self {
+        let d = Self::default();
+        let pick = |v: f64, default: f64, lo: f64, hi: f64| {
+            if v.is_finite() {
+                v.clamp(lo, hi)
+            } else {
+                default
+            }
+        };
+        let yaw = 0.98 * YAW_LIMIT;
+        Self {
+            speed: pick(self.speed, d.speed, 0.05, 3.0),
+            amplitude: pick(self.amplitude, d.amplitude, 0.0, 1.5),
+            phase: pick(self.phase, d.phase, f64::MIN, f64::MAX).rem_euclid(TAU),
+            heading: pick(self.heading, d.heading, -yaw, yaw),
+            curvature: pick(self.curvature, d.curvature, -0.5, 0.5),
+            side: self.side,
+            style: pick(self.style, d.style, 0.0, 1.0),
+            arm_drop: pick(self.arm_drop, d.arm_drop, 0.0, 0.75),
+        }
+    }
+}
+
+/// The pose of a `kind` motion with parameters `params` at time `time_s` (seconds; any real, a
+/// non-finite time is read as 0).
+///
+/// The result is finite, C1 (at least) in time, and its rotations lie within the limits of
+/// [`lfit_model::Bounds::global`]. The root translation is the rest root position's offset: the
+/// floor path (x, z) plus vertical motion (y); walks travel away from the origin (see
+/// [`recentre`]).
+pub fn motion_pose(kind: MotionKind, params: &MotionParams, time_s: f64) -> Pose {
+    let mut pose = motion_pose_unclamped(kind, params, time_s);
+    clamp_rotations(&mut pose);
+    pose
+}
+
+/// `frames` poses of a motion sampled at `fps` frames per second from `start_time` (s):
+/// frame i is [`motion_pose`] at `start_time + i / fps`. A non-finite or non-positive `fps`
+/// yields `frames` copies of the pose at `start_time`.
+pub fn sequence(
+    kind: MotionKind,
+    params: &MotionParams,
+    fps: f64,
+    frames: usize,
+    start_time: f64,
+) -> Vec<Pose> {
+    let dt = if fps.is_finite() && fps > 0.0 {
+        1.0 / fps
+    } else {
+        0.0
+    };
+    (0..frames)
+        .map(|i| motion_pose(kind, params, start_time + i as f64 * dt))
+        .collect()
+}
+
+/// Shifts the root x and z of every pose by one common offset so that their mean is 0, then
+/// clamps each pose's root x and z into ±[`RECENTRE_LIMIT`] (on a straight walk at constant speed
+/// the clamp acts only on paths longer than 2.4 m: it then holds the ends of the path still).
+/// Root y and the rotations are left alone. Non-finite root values make the offset non-finite;
+/// the poses from [`motion_pose`] are always finite.
+pub fn recentre(poses: &mut [Pose]) {
+    if poses.is_empty() {
+        return;
+    }
+    let n = poses.len() as f64;
+    let mean_x = poses.iter().map(|p| p[0]).sum::<f64>() / n;
+    let mean_z = poses.iter().map(|p| p[2]).sum::<f64>() / n;
+    for p in poses.iter_mut() {
+        p[0] = (p[0] - mean_x).clamp(-RECENTRE_LIMIT, RECENTRE_LIMIT);
+        p[2] = (p[2] - mean_z).clamp(-RECENTRE_LIMIT, RECENTRE_LIMIT);
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Assembly: heading frame → world.
+
+/// A motion's body pose in its heading frame (root rotation and translation relative to the
+/// heading frame) plus the heading frame's yaw and floor position.
+struct Local {
+    body: Body,
+    yaw: f64,
+    path: DVec3,
+}
+
+impl Local {
+    fn fixed(body: Body, yaw: f64) -> Self {
+        Self {
+            body,
+            yaw,
+            path: DVec3::ZERO,
+        }
+    }
+}
+
+/// [`motion_pose`] before the final clamp into the rotation limits.
+fn motion_pose_unclamped(kind: MotionKind, params: &MotionParams, time_s: f64) -> Pose {
+    let p = params.sanitized();
+    let t = if time_s.is_finite() { time_s } else { 0.0 };
+    let Local { body, yaw, path } = match kind {
+        MotionKind::Walk => gait(&WALK, &p, t),
+        MotionKind::Jog => gait(&JOG, &p, t),
+        MotionKind::Wave => wave(&p, t),
+        MotionKind::Squat => squat(&p, t),
+        MotionKind::Reach => reach(&p, t),
+        MotionKind::Punch => punch(&p, t),
+        MotionKind::Kick => kick(&p, t),
+        MotionKind::Jump => jump(&p, t),
+        MotionKind::Turn => turn(&p, t),
+    };
+    let mut pose = if kind.is_one_sided() && p.side == Side::Right {
+        mirror_pose(&body.pose)
+    } else {
+        body.pose
+    };
+    let heading = DQuat::from_rotation_y(yaw);
+    let root = rotvec(heading * DQuat::from_scaled_axis(joint(&pose, ROOT)));
+    set_joint(&mut pose, ROOT, root);
+    let offset = path + heading * DVec3::new(pose[0], pose[1], pose[2]);
+    pose[..3].copy_from_slice(&offset.to_array());
+    pose
+}
+
+/// Clamps every rotation into [`skeleton::rotation_limits_deg`]; returns whether anything moved.
+fn clamp_rotations(pose: &mut Pose) -> bool {
+    let mut clamped = false;
+    for j in 0..NUM_JOINTS {
+        for (axis, (lo, hi)) in skeleton::rotation_limits_deg(j).into_iter().enumerate() {
+            let i = rot_offset(j) + axis;
+            let v = pose[i].clamp(lo.to_radians(), hi.to_radians());
+            clamped |= v != pose[i];
+            pose[i] = v;
+        }
+    }
+    clamped
+}
+
+/// The left–right mirror image of a pose: the sagittal plane x = 0 reflects positions
+/// (`t_x → −t_x`) and axis-angle vectors (`(x, y, z) → (x, −y, −z)`), and left and right joints
+/// swap.
+fn mirror_pose(pose: &Pose) -> Pose {
+    let mut out = [0.0; POSE_DIM];
+    out[0] = -pose[0];
+    out[1] = pose[1];
+    out[2] = pose[2];
+    for j in 0..NUM_JOINTS {
+        set_joint(&mut out, skeleton::mirror(j), mirror_rotvec(joint(pose, j)));
+    }
+    out
+}
+
+fn mirror_rotvec(r: DVec3) -> DVec3 {
+    DVec3::new(r.x, -r.y, -r.z)
+}
+
+fn joint(pose: &Pose, j: usize) -> DVec3 {
+    let o = rot_offset(j);
+    DVec3::new(pose[o], pose[o + 1], pose[o + 2])
+}
+
+fn set_joint(pose: &mut Pose, j: usize, r: DVec3) {
+    let o = rot_offset(j);
+    pose[o..o + 3].copy_from_slice(&r.to_array());
+}
+
+/// The axis-angle vector (log map) of a unit quaternion, with angle in [0, π].
+fn rotvec(q: DQuat) -> DVec3 {
+    let q = if q.w < 0.0 { -q } else { q };
+    let v = q.xyz();
+    let s = v.length();
+    if s < 1e-12 {
+        2.0 * v
+    } else {
+        v * (2.0 * s.atan2(q.w) / s)
+    }
+}
+
+/// A pose under construction, in the heading frame.
+#[derive(Clone)]
+struct Body {
+    pose: Pose,
+}
+
+impl Body {
+    fn new() -> Self {
+        Self {
+            pose: [0.0; POSE_DIM],
+        }
+    }
+
+    /// Sets a midline joint's rotation.
+    fn set(&mut self, j: usize, r: DVec3) {
+        set_joint(&mut self.pose, j, r);
+    }
+
+    /// Sets the rotation of `left_joint` or of its mirror on the right, `r` being given in the
+    /// left side's convention (so the same numbers give mirror-symmetric motions).
+    fn limb(&mut self, side: Side, left_joint: usize, r: DVec3) {
+        match side {
+            Side::Left => set_joint(&mut self.pose, left_joint, r),
+            Side::Right => set_joint(
+                &mut self.pose,
+                skeleton::mirror(left_joint),
+                mirror_rotvec(r),
+            ),
+        }
+    }
+
+    /// Sets the root translation (heading frame).
+    fn translate(&mut self, t: DVec3) {
+        self.pose[..3].copy_from_slice(&t.to_array());
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Small smooth building blocks.
+
+/// A vector of angles given in degrees, in radians.
+fn deg(x: f64, y: f64, z: f64) -> DVec3 {
+    DVec3::new(x, y, z) * (PI / 180.0)
+}
+
+/// A periodic (period 1 in `phase`) von Mises bump: 1 at `centre`, `exp(−2κ)` opposite.
+fn bump(phase: f64, centre: f64, kappa: f64) -> f64 {
+    (kappa * ((TAU * (phase - centre)).cos() - 1.0)).exp()
+}
+
+/// A periodic raised-cosine pulse `((1 + cos)/2)^n`: 1 at `centre`, 0 half a period away.
+fn pulse(phase: f64, centre: f64, n: i32) -> f64 {
+    (0.5 * (1.0 + (TAU * (phase - centre)).cos())).powi(n)
+}
+
+/// `3x² − 2x³`.
+fn smoothstep(x: f64) -> f64 {
+    x * x * (3.0 - 2.0 * x)
+}
+
+/// A periodic 0 → 1 → 0 profile (period 1) that dwells at both ends: 0 at phase 0, 1 at 0.5.
+fn dwell(phase: f64) -> f64 {
+    smoothstep(0.5 * (1.0 - (TAU * phase).cos()))
+}
+
+/// Linear interpolation between two rotation vectors (stays inside any box containing both).
+fn lerp(a: DVec3, b: DVec3, s: f64) -> DVec3 {
+    a + (b - a) * s
+}
+
+/// A key of a piecewise cubic Hermite curve: time, value, derivative.
+#[derive(Debug, Clone, Copy)]
+struct Key {
+    t: f64,
+    v: f64,
+    d: f64,
+}
+
+const fn key(t: f64, v: f64, d: f64) -> Key {
+    Key { t, v, d }
+}
+
+/// The C1 piecewise cubic Hermite curve through `keys` (sorted by time); constant outside.
+fn hermite(keys: &[Key], t: f64) -> f64 {
+    let (Some(first), Some(last)) = (keys.first(), keys.last()) else {
+        return 0.0;
+    };
+    if t <= first.t {
+        return first.v;
+    }
+    for w in keys.windows(2) {
+        let (k0, k1) = (w[0], w[1]);
+        if t <= k1.t {
+            let h = k1.t - k0.t;
+            if h <= 0.0 {
+                return k1.v;
+            }
+            let s = (t - k0.t) / h;
+            let (s2, s3) = (s * s, s * s * s);
+            return (2.0 * s3 - 3.0 * s2 + 1.0) * k0.v
+                + (s3 - 2.0 * s2 + s) * h * k0.d
+                + (3.0 * s2 - 2.0 * s3) * k1.v
+                + (s3 - s2) * h * k1.d;
+        }
+    }
+    last.v
+}
+
+// ---------------------------------------------------------------------------------------------
+// Arms and legs (left-side convention; `Body::limb` mirrors them for the right).
+
+/// Rest direction of the left upper arm (A-pose).
+fn rest_arm() -> DVec3 {
+    DVec3::new(A_POSE.cos(), -A_POSE.sin(), 0.0)
+}
+
+/// Left elbow flexion by `angle` (rad): about the axis perpendicular to the rest arm and to +z,
+/// which brings the forearm forward.
+fn elbow_flex(angle: f64) -> DVec3 {
+    DVec3::new(-A_POSE.sin(), -A_POSE.cos(), 0.0) * angle
+}
+
+/// Left shoulder of a relaxed arm: lowered by `drop` from the A-pose towards the body, then
+/// swung in the sagittal plane by `swing` (rad; negative = forward).
+fn hanging_arm(drop: f64, swing: f64) -> DVec3 {
+    rotvec(DQuat::from_rotation_x(swing) * DQuat::from_rotation_z(-drop))
+}
+
+/// Left shoulder rotation that points the upper arm along `dir` (heading/trunk frame of the
+/// parent). The shortest arc is used when it fits the shoulder's limits; otherwise a humeral
+/// twist (about the rest arm, which leaves the arm's direction unchanged) is searched for the
+/// rotation vector that best fits them.
+fn arm_towards(dir: DVec3) -> DVec3 {
+    let a = rest_arm();
+    let d = dir.try_normalize().unwrap_or(DVec3::Z);
+    let arc = DQuat::from_rotation_arc(a, d);
+    let limits = skeleton::rotation_limits_deg(L_SHOULDER);
+    let usage = |r: DVec3| {
+        r.to_array()
+            .into_iter()
+            .zip(limits)
+            .map(|(v, (lo, hi))| {
+                if v >= 0.0 {
+                    v / hi.to_radians()
+                } else {
+                    v / lo.to_radians()
+                }
+            })
+            .fold(0.0, f64::max)
+    };
+    let best = rotvec(arc);
+    if usage(best) <= 0.95 {
+        return best;
+    }
+    (-40..=40)
+        .map(|k| {
+            let twist = f64::from(k) * 1.5_f64.to_radians();
+            rotvec(arc * DQuat::from_axis_angle(a, twist))
+        })
+        .fold((best, usage(best)), |(b, u), r| {
+            let ur = usage(r);
+            if ur < u { (r, ur) } else { (b, u) }
+        })
+        .0
+}
+
+/// Unit direction from yaw `azimuth` (rad, positive outwards for the left arm) and `elevation`.
+fn direction(azimuth: f64, elevation: f64) -> DVec3 {
+    DVec3::new(
+        azimuth.sin() * elevation.cos(),
+        elevation.sin(),
+        azimuth.cos() * elevation.cos(),
+    )
+}
+
+/// Both relaxed arms, with sagittal swings and elbow flexions per side (rad).
+fn relaxed_arms(body: &mut Body, drop: f64, swing: [f64; 2], elbow: [f64; 2]) {
+    for (i, side) in [Side::Left, Side::Right].into_iter().enumerate() {
+        body.limb(side, L_SHOULDER, hanging_arm(drop, swing[i]));
+        body.limb(side, L_ELBOW, elbow_flex(elbow[i]));
+    }
+}
+
+/// Ankle dorsiflexion per unit of shank lean in a crouch: less than 1 (the heels lift a little)
+/// because the ankle's dorsiflexion limit is only 10°.
+const CROUCH_ANKLE: f64 = 0.45;
+
+/// Hip drop (m, ≥ 0) and backward hip shift (m, ≤ 0 is back) of a crouch whose thigh leans
+/// forward by `alpha` and whose shank leans forward by `beta·alpha` (feet flat and fixed).
+fn crouch_offset(alpha: f64, beta: f64) -> (f64, f64) {
+    let drop = THIGH * (1.0 - alpha.cos()) + SHANK * (1.0 - (beta * alpha).cos());
+    let shift = SHANK * (beta * alpha).sin() - THIGH * alpha.sin();
+    (drop, shift)
+}
+
+/// The thigh angle whose crouch drops the hips by `drop` (m), by bisection on [0, 1.5] rad.
+fn crouch_angle(drop: f64, beta: f64) -> f64 {
+    let (mut lo, mut hi) = (0.0, 1.5);
+    for _ in 0..50 {
+        let mid = 0.5 * (lo + hi);
+        if crouch_offset(mid, beta).0 < drop {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// Crouches both legs (thigh world angle −`alpha`, shank `beta·alpha`) under a root pitched
+/// forward by `pitch`: the hips flex by `alpha + pitch`, the knees by `(1 + beta)·alpha`, the
+/// ankles dorsiflex by about half the shank lean (the ankle limit is 10°: heels lift slightly).
+fn crouch_legs(body: &mut Body, alpha: f64, beta: f64, pitch: f64) {
+    for side in [Side::Left, Side::Right] {
+        body.limb(side, L_HIP, DVec3::new(-alpha - pitch, 0.0, 0.0));
+        body.limb(side, L_KNEE, DVec3::new((1.0 + beta) * alpha, 0.0, 0.0));
+        body.limb(
+            side,
+            L_ANKLE,
+            DVec3::new(-CROUCH_ANKLE * beta * alpha, 0.0, 0.0),
+        );
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Root path of walk and jog.
+
+/// The heading at time `t`: `YAW_LIMIT · tanh(atanh(heading / YAW_LIMIT) + curvature·t / YAW_LIMIT)`,
+/// which starts at `heading` with rate about `curvature` and never leaves ±[`YAW_LIMIT`].
+fn path_yaw(heading: f64, curvature: f64, t: f64) -> f64 {
+    YAW_LIMIT * ((heading / YAW_LIMIT).atanh() + curvature * t / YAW_LIMIT).tanh()
+}
+
+/// `∫₀ᵗ (sin ψ, cos ψ) ds` for the heading ψ of [`path_yaw`]: the (x, z) path of unit speed.
+/// Integrated in `u = atanh(ψ / YAW_LIMIT)`, where the integrand is constant beyond |u| = 20, so
+/// the cost is bounded whatever `t` is.
+fn path_integral(heading: f64, curvature: f64, t: f64) -> DVec2 {
+    let u0 = (heading / YAW_LIMIT).atanh();
+    if curvature.abs() < 1e-9 {
+        let psi = YAW_LIMIT * u0.tanh();
+        return DVec2::new(psi.sin(), psi.cos()) * t;
+    }
+    let du = curvature * t / YAW_LIMIT;
+    let (a, b) = if du >= 0.0 {
+        (u0, u0 + du)
+    } else {
+        (u0 + du, u0)
+    };
+    let integral = integrate_heading(a, b);
+    let signed = if du >= 0.0 { integral } else { -integral };
+    signed * (YAW_LIMIT / curvature)
+}
+
+/// `∫ₐᵇ (sin, cos)(YAW_LIMIT · tanh u) du` for a ≤ b.
+fn integrate_heading(a: f64, b: f64) -> DVec2 {
+    const U: f64 = 20.0;
+    let g = |u: f64| {
+        let psi = YAW_LIMIT * u.tanh();
+        DVec2::new(psi.sin(), psi.cos())
+    };
+    let mut total = DVec2::ZERO;
+    if a < -U {
+        total += g(-U) * (b.min(-U) - a);
+    }
+    if b > U {
+        total += g(U) * (b - a.max(U));
+    }
+    let (lo, hi) = (a.max(-U), b.min(U));
+    if hi > lo {
+        // 5-point Gauss–Legendre on pieces of at most 0.5 in u.
+        const NODES: [f64; 5] = [
+            0.0,
+            -0.538_469_310_105_683,
+            0.538_469_310_105_683,
+            -0.906_179_845_938_664,
+            0.906_179_845_938_664,
+        ];
+        const WEIGHTS: [f64; 5] = [
+            0.568_888_888_888_889,
+            0.478_628_670_499_366,
+            0.478_628_670_499_366,
+            0.236_926_885_056_189,
+            0.236_926_885_056_189,
+        ];
+        let pieces = ((hi - lo) / 0.5).ceil().max(1.0) as usize;
+        let h = (hi - lo) / pieces as f64;
+        for k in 0..pieces {
+            let mid = lo + (k as f64 + 0.5) * h;
+            for (x, w) in NODES.iter().zip(WEIGHTS) {
+                total += g(mid + 0.5 * h * x) * (w * 0.5 * h);
+            }
+        }
+    }
+    total
+}
+
+// ---------------------------------------------------------------------------------------------
+// Walk and jog.
+
+/// Shape of a gait cycle (degrees, metres, Hz, m/s). Phase 0 is the left heel strike; the right
+/// leg runs half a cycle later.
+struct GaitShape {
+    /// Gait cycles per second at speed 1 (a cycle is two steps).
+    freq: f64,
+    /// Forward speed at speed 1 and amplitude 1 (m/s).
+    speed: f64,
+    /// Hip flexion: mean, half range and phase of the peak of the first harmonic, amplitude and
+    /// first peak of the second harmonic (it makes stance extension steadier than a sinusoid).
+    hip_mean: f64,
+    hip_amp: f64,
+    hip_peak: f64,
+    hip_h2: f64,
+    hip_h2_peak: f64,
+    /// Knee flexion: base, loading bump (height, phase) and swing peak (height, phase, width κ).
+    knee_base: f64,
+    knee_stance: f64,
+    knee_stance_at: f64,
+    knee_stance_kappa: f64,
+    knee_swing: f64,
+    knee_swing_at: f64,
+    knee_kappa: f64,
+    /// Ankle: stance dorsiflexion (depth, phase) and push-off plantar-flexion (height, phase).
+    ankle_dorsi: f64,
+    ankle_dorsi_at: f64,
+    ankle_plantar: f64,
+    ankle_plantar_at: f64,
+    /// Phase of mid-stance of the left leg (pelvis obliquity and lateral sway peak there).
+    stance_mid: f64,
+    /// Root vertical excursion (half range, m), mean drop (m) and phase of the lowest point.
+    bob: f64,
+    bob_mean: f64,
+    bob_low_at: f64,
+    /// Lateral sway of the root towards the stance leg (m).
+    sway: f64,
+    /// Pelvis rotation and obliquity half ranges, pelvis forward tilt.
+    pelvis_yaw: f64,
+    pelvis_roll: f64,
+    pelvis_pitch: f64,
+    /// Thorax counter-rotation half range and forward lean.
+    thorax_yaw: f64,
+    trunk_lean: f64,
+    /// Arm swing half range and mean (negative = forward), elbow flexion mean and half range.
+    arm_swing: f64,
+    arm_mean: f64,
+    elbow_mean: f64,
+    elbow_amp: f64,
+}
+
+/// Normal walking (Winter 1991, Perry 1992): 0.9 cycles/s (108 steps/min) at 1.3 m/s. The hip is
+/// the first two Fourier harmonics of the textbook curve, widened to about 33° of flexion and 17°
+/// of extension (5° more than textbook, so that the stance foot slides less under the constant
+/// root speed); knee 4° at heel strike, 18° loading bump, 60° in swing at 72 % of the cycle.
+const WALK: GaitShape = GaitShape {
+    freq: 0.9,
+    speed: 1.3,
+    hip_mean: 8.0,
+    hip_amp: 23.0,
+    hip_peak: -0.017,
+    hip_h2: 3.5,
+    hip_h2_peak: 0.302,
+    knee_base: 4.0,
+    knee_stance: 14.0,
+    knee_stance_at: 0.17,
+    knee_stance_kappa: 4.0,
+    knee_swing: 55.0,
+    knee_swing_at: 0.72,
+    knee_kappa: 3.0,
+    ankle_dorsi: 7.0,
+    ankle_dorsi_at: 0.42,
+    ankle_plantar: 16.0,
+    ankle_plantar_at: 0.62,
+    stance_mid: 0.25,
+    bob: 0.02,
+    bob_mean: 0.01,
+    bob_low_at: 0.0,
+    sway: 0.02,
+    pelvis_yaw: 4.0,
+    pelvis_roll: 3.0,
+    pelvis_pitch: 2.0,
+    thorax_yaw: 5.0,
+    trunk_lean: 2.0,
+    arm_swing: 16.0,
+    arm_mean: -3.0,
+    elbow_mean: 20.0,
+    elbow_amp: 8.0,
+};
+
+/// Easy jogging (Novacheck 1998, slowed for 30 fps): 1.2 cycles/s (144 steps/min) at 2.3 m/s,
+/// stance about 40 % of the cycle, knee near 40° at mid-stance and about 70° in swing.
+const JOG: GaitShape = GaitShape {
+    freq: 1.2,
+    speed: 2.3,
+    hip_mean: 15.0,
+    hip_amp: 24.0,
+    hip_peak: 0.92,
+    hip_h2: 0.0,
+    hip_h2_peak: 0.0,
+    knee_base: 12.0,
+    knee_stance: 25.0,
+    knee_stance_at: 0.17,
+    knee_stance_kappa: 8.0,
+    knee_swing: 58.0,
+    knee_swing_at: 0.7,
+    knee_kappa: 2.0,
+    ankle_dorsi: 8.0,
+    ankle_dorsi_at: 0.2,
+    ankle_plantar: 18.0,
+    ankle_plantar_at: 0.42,
+    stance_mid: 0.18,
+    bob: 0.03,
+    bob_mean: 0.03,
+    bob_low_at: 0.17,
+    sway: 0.015,
+    pelvis_yaw: 5.0,
+    pelvis_roll: 4.0,
+    pelvis_pitch: 5.0,
+    thorax_yaw: 8.0,
+    trunk_lean: 4.0,
+    arm_swing: 20.0,
+    arm_mean: -8.0,
+    elbow_mean: 80.0,
+    elbow_amp: 12.0,
+};
+
+fn gait(shape: &GaitShape, p: &MotionParams, t: f64) -> Local {
+    let a = p.amplitude;
+    // Knee and ankle peaks scale less than the hips: they set the peak joint speeds.
+    let ka = 0.7 + 0.3 * a;
+    let phase = shape.freq * p.speed * t + p.phase / TAU;
+    let mut body = Body::new();
+
+    for (side, offset) in [(Side::Left, 0.0), (Side::Right, 0.5)] {
+        let phi = phase + offset;
+        let swing = (TAU * (phi - shape.hip_peak)).cos(); // 1 at peak hip flexion
+        let stance = (TAU * (phi - shape.stance_mid)).cos(); // 1 at mid-stance
+        let h2 = (2.0 * TAU * (phi - shape.hip_h2_peak)).cos();
+        let hip = deg(
+            -(shape.hip_mean + shape.hip_amp * a * swing + shape.hip_h2 * a * h2),
+            -3.0 * a * swing,
+            -2.5 * a * stance,
+        );
+        let knee = shape.knee_base
+            + ka * (shape.knee_stance * bump(phi, shape.knee_stance_at, shape.knee_stance_kappa)
+                + shape.knee_swing * bump(phi, shape.knee_swing_at, shape.knee_kappa));
+        let ankle = ka
+            * (shape.ankle_plantar * bump(phi, shape.ankle_plantar_at, 8.0)
+                - shape.ankle_dorsi * bump(phi, shape.ankle_dorsi_at, 4.0));
+        let toes = -8.0 * ka * bump(phi, shape.ankle_plantar_at - 0.05, 8.0);
+        body.limb(side, L_HIP, hip);
+        body.limb(side, L_KNEE, deg(knee, 0.0, 0.0));
+        body.limb(side, L_ANKLE, deg(ankle, 0.0, 0.0));
+        body.limb(side, L_FOOT, deg(toes, 0.0, 0.0));
+        // The arm swings against the same-side leg: back while that hip is flexed.
+        let arm = (shape.arm_mean + shape.arm_swing * a * swing).to_radians();
+        let elbow = (shape.elbow_mean - shape.elbow_amp * a * swing).to_radians();
+        body.limb(side, L_SHOULDER, hanging_arm(p.arm_drop, arm));
+        body.limb(side, L_ELBOW, elbow_flex(elbow));
+        body.limb(side, L_HAND, deg(0.0, -4.0 * a * swing, 0.0));
+    }
+
+    // Pelvis turns with the forward leg (left side forward = −y), drops on the swing side.
+    let swing = (TAU * (phase - shape.hip_peak)).cos();
+    let stance = (TAU * (phase - shape.stance_mid)).cos();
+    let pelvis_yaw = -shape.pelvis_yaw * a * swing;
+    let pitch = shape.pelvis_pitch + (TAU * 2.0 * phase).sin();
+    body.set(ROOT, deg(pitch, pelvis_yaw, shape.pelvis_roll * a * stance));
+    let lower_yaw = -0.3 * pelvis_yaw;
+    body.set(
+        LOWER_TORSO,
+        deg(0.0, lower_yaw, -0.5 * shape.pelvis_roll * a * stance),
+    );
+    let thorax_yaw = shape.thorax_yaw * a * swing;
+    body.set(MIDDLE_TORSO, deg(shape.trunk_lean, thorax_yaw, 0.0));
+    body.set(
+        HEAD,
+        deg(
+            -0.8 * (pitch + shape.trunk_lean),
+            -0.8 * (pelvis_yaw + lower_yaw + thorax_yaw),
+            -0.3 * shape.pelvis_roll * a * stance,
+        ),
+    );
+    let bob = -shape.bob_mean - shape.bob * a * (2.0 * TAU * (phase - shape.bob_low_at)).cos();
+    body.translate(DVec3::new(shape.sway * a * stance, bob, 0.0));
+
+    let v = shape.speed * p.speed * (0.55 + 0.45 * a);
+    let path = path_integral(p.heading, p.curvature, t) * v;
+    Local {
+        body,
+        yaw: path_yaw(p.heading, p.curvature, t),
+        path: DVec3::new(path.x, 0.0, path.y),
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Static motions (left lead; mirrored by the caller for a right lead).
+
+/// Standing legs with a slow idle weight shift (about 0.2 Hz, ±1.5 cm).
+fn idle_legs(body: &mut Body, t: f64, phase: f64) -> DVec3 {
+    let shift = (TAU * 0.2 * t + phase).sin();
+    for side in [Side::Left, Side::Right] {
+        body.limb(side, L_HIP, deg(-2.0, 0.0, 1.5 * side.sign() * shift));
+        body.limb(side, L_KNEE, deg(4.0, 0.0, 0.0));
+        body.limb(side, L_ANKLE, deg(-2.0, 0.0, 0.0));
+    }
+    DVec3::new(0.015 * shift, -0.003, 0.0)
+}
+
+/// Wave: the left arm rises (abducted to about horizontal, slightly forward), the forearm stands
+/// up and waves side to side at about 1.8 Hz (±20°); it stays up for half of a 5 s cycle.
+fn wave(p: &MotionParams, t: f64) -> Local {
+    let (a, s) = (p.amplitude, p.speed);
+    let up = dwell(s * t / 5.0 + p.phase / TAU);
+    let osc = (TAU * 1.8 * s * t + p.phase).sin() * (0.7 + 0.3 * a);
+    let mut body = Body::new();
+    let root_shift = idle_legs(&mut body, t, p.phase);
+    body.translate(root_shift);
+
+    let raised = deg(0.0, -10.0 - 8.0 * p.style, 48.0 + 10.0 * p.style);
+    body.limb(
+        Side::Left,
+        L_SHOULDER,
+        lerp(hanging_arm(p.arm_drop, 0.0), raised, up),
+    );
+    let forearm_up = elbow_flex(15f64.to_radians()) + deg(0.0, 0.0, 65.0 + 20.0 * osc);
+    body.limb(
+        Side::Left,
+        L_ELBOW,
+        lerp(elbow_flex(12f64.to_radians()), forearm_up, up),
+    );
+    body.limb(Side::Left, L_HAND, deg(0.0, 0.0, 10.0 * up * osc));
+    let idle = (TAU * 0.2 * t + p.phase).sin();
+    body.limb(
+        Side::Right,
+        L_SHOULDER,
+        hanging_arm(p.arm_drop, (3.0 * idle).to_radians()),
+    );
+    body.limb(Side::Right, L_ELBOW, elbow_flex(12f64.to_radians()));
+    // The trunk bends a little away from the raised arm, the head tilts towards it.
+    body.set(MIDDLE_TORSO, deg(1.0, 0.0, 4.0 * up));
+    body.set(HEAD, deg(0.0, 5.0 * up * a, -6.0 * up));
+    Local::fixed(body, p.heading)
+}
+
+/// Squat: 3.5 s cycles that dwell standing and at the bottom; thighs to 40–66° forward (root
+/// 11–27 cm down), knees to 55–85°, trunk leaning 30–46° forward, hips back, arms forward for
+/// balance; the feet stay planted ([`crouch_offset`]).
+fn squat(p: &MotionParams, t: f64) -> Local {
+    let q = dwell(p.speed * t / 3.5 + p.phase / TAU);
+    let depth = ((0.6 + 0.45 * p.amplitude) * (0.85 + 0.2 * p.style)).min(1.15);
+    let alpha = depth * q;
+    let beta = 0.28;
+    let pitch = 0.35 * alpha;
+    let mut body = Body::new();
+    crouch_legs(&mut body, alpha, beta, pitch);
+    let (drop, shift) = crouch_offset(alpha, beta);
+    body.translate(DVec3::new(0.0, -drop, shift));
+    body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
+    body.set(LOWER_TORSO, DVec3::new(0.2 * alpha, 0.0, 0.0));
+    body.set(MIDDLE_TORSO, DVec3::new(0.15 * alpha, 0.0, 0.0));
+    body.set(HEAD, DVec3::new(-0.3 * alpha, 0.0, 0.0));
+    let forward = arm_towards(direction(17f64.to_radians(), 0.0));
+    for side in [Side::Left, Side::Right] {
+        body.limb(
+            side,
+            L_SHOULDER,
+            lerp(hanging_arm(p.arm_drop, 0.0), forward, 0.9 * q),
+        );
+        body.limb(side, L_ELBOW, elbow_flex((12.0 - 6.0 * q).to_radians()));
+    }
+    Local::fixed(body, p.heading)
+}
+
+/// Reach: over 4 s cycles the left arm reaches out to a target between 10° below and 25° above
+/// shoulder height, 22–28° outwards of the (turned) trunk, holds, and comes back; the trunk leans and turns towards it.
+fn reach(p: &MotionParams, t: f64) -> Local {
+    let a = p.amplitude;
+    let r = dwell(p.speed * t / 4.0 + p.phase / TAU);
+    let elevation = (-10.0 + 35.0 * p.style).to_radians();
+    let azimuth = (22.0 + 6.0 * p.style).to_radians();
+    let mut body = Body::new();
+
+    let pitch = (5.0 * a * r).to_radians();
+    for side in [Side::Left, Side::Right] {
+        body.limb(
+            side,
+            L_HIP,
+            DVec3::new(-pitch, 0.0, 0.0) + deg(-3.0 * r, 0.0, 0.0),
+        );
+        body.limb(side, L_KNEE, deg(6.0 * r, 0.0, 0.0));
+        body.limb(side, L_ANKLE, deg(-3.0 * r, 0.0, 0.0));
+    }
+    body.translate(DVec3::new(0.0, -0.015 * r, 0.06 * a * r));
+    body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
+    body.set(LOWER_TORSO, deg(7.0 * a * r, -6.0 * a * r, -2.0 * a * r));
+    body.set(MIDDLE_TORSO, deg(8.0 * a * r, -9.0 * a * r, -3.0 * a * r));
+    body.set(
+        HEAD,
+        DVec3::new(-0.3 * elevation * r, 0.0, 0.0) + deg(-6.0 * a * r, 9.0 * a * r, 0.0),
+    );
+
+    let target = arm_towards(direction(azimuth, elevation));
+    body.limb(
+        Side::Left,
+        L_SHOULDER,
+        lerp(hanging_arm(p.arm_drop, 0.0), target, r),
+    );
+    let elbow = 12.0 * (1.0 - r) + 4.0 * r + 30.0 * (PI * r).sin();
+    body.limb(Side::Left, L_ELBOW, elbow_flex(elbow.to_radians()));
+    body.limb(Side::Left, L_HAND, deg(0.0, -8.0 * r, 0.0));
+    body.limb(
+        Side::Right,
+        L_SHOULDER,
+        hanging_arm(p.arm_drop, (6.0 * r).to_radians()),
+    );
+    body.limb(
+        Side::Right,
+        L_ELBOW,
+        elbow_flex((15.0 + 10.0 * r).to_radians()),
+    );
+    Local::fixed(body, p.heading)
+}
+
+/// Punch: a guard (upper arms down and forward, elbows bent about 110°, fists at the chest), and
+/// alternating straight punches, left first, 0.7 cycles/s (one punch per arm per cycle), each
+/// with a trunk twist that brings the punching shoulder forward; slightly staggered stance.
+fn punch(p: &MotionParams, t: f64) -> Local {
+    let a = p.amplitude;
+    let phi = 0.7 * p.speed * t + p.phase / TAU;
+    let hits = [pulse(phi, 0.25, 2), pulse(phi, 0.75, 2)];
+    let twist = a * (hits[0] - hits[1]);
+    let mut body = Body::new();
+
+    let guard_shoulder = hanging_arm(35f64.to_radians(), -30f64.to_radians());
+    let elevation = (-5.0 + 15.0 * p.style).to_radians();
+    let target = arm_towards(direction(20f64.to_radians(), elevation));
+    for (side, hit) in [(Side::Left, hits[0]), (Side::Right, hits[1])] {
+        body.limb(side, L_SHOULDER, lerp(guard_shoulder, target, hit));
+        body.limb(
+            side,
+            L_ELBOW,
+            elbow_flex((110.0 - 105.0 * hit).to_radians()),
+        );
+        body.limb(side, L_HAND, deg(0.0, 0.0, -5.0 * hit));
+    }
+    // Left foot forward; knees soft; a small bounce at twice the punch rate.
+    body.limb(Side::Left, L_HIP, deg(-12.0, 0.0, 3.0));
+    body.limb(Side::Right, L_HIP, deg(6.0, 0.0, 3.0));
+    for side in [Side::Left, Side::Right] {
+        body.limb(side, L_KNEE, deg(15.0, 0.0, 0.0));
+        body.limb(side, L_ANKLE, deg(-6.0, 0.0, 0.0));
+    }
+    let bounce = (2.0 * TAU * phi).sin();
+    body.translate(DVec3::new(
+        -0.01 * twist,
+        -0.03 - 0.008 * bounce,
+        0.03 * (hits[0] + hits[1]),
+    ));
+    let root_yaw = -6.0 - 4.0 * twist;
+    let lower_yaw = -8.0 * twist;
+    let thorax_yaw = -12.0 * twist;
+    body.set(ROOT, deg(3.0, root_yaw, 0.0));
+    body.set(LOWER_TORSO, deg(2.0, lower_yaw, 0.0));
+    body.set(MIDDLE_TORSO, deg(3.0, thorax_yaw, 0.0));
+    body.set(
+        HEAD,
+        deg(-6.0, -0.6 * (root_yaw + lower_yaw + thorax_yaw), 0.0),
+    );
+    Local::fixed(body, p.heading)
+}
+
+/// Kick: every 2.4 s the left leg chambers (knee up and bent), snaps forward to 35–80° of hip
+/// flexion with the knee nearly straight and the toes pointed, and comes back down; the trunk
+/// leans back, the standing knee softens, the arms open and counter-swing.
+fn kick(p: &MotionParams, t: f64) -> Local {
+    let phi = p.speed * t / 2.4 + p.phase / TAU;
+    let h = pulse(phi, 0.4, 2);
+    let height = (p.amplitude * (0.85 + 0.25 * p.style)).min(1.15);
+    let mut body = Body::new();
+
+    let pitch = (-10.0 * height * h).to_radians();
+    body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
+    body.set(MIDDLE_TORSO, deg(6.0 * h, 0.0, 0.0));
+    body.set(
+        HEAD,
+        DVec3::new(-0.5 * pitch, 0.0, 0.0) + deg(-3.0 * h, 0.0, 0.0),
+    );
+    body.limb(Side::Left, L_HIP, deg(-70.0 * height * h, 0.0, 0.0));
+    let chamber = 4.0 * h * (1.0 - h);
+    body.limb(Side::Left, L_KNEE, deg(60.0 * chamber + 8.0 * h, 0.0, 0.0));
+    body.limb(Side::Left, L_ANKLE, deg(18.0 * h, 0.0, 0.0));
+    body.limb(Side::Left, L_FOOT, deg(-10.0 * h, 0.0, 0.0));
+    // Standing leg stays vertical under the back-leaning pelvis.
+    // Standing leg: vertical under the back-leaning pelvis, knee soft, adducted under the
+    // pelvis's shift over it.
+    let shift = 0.05 * h;
+    let (bend, _) = crouch_offset(10f64.to_radians() * h, 1.0);
+    body.limb(
+        Side::Right,
+        L_HIP,
+        DVec3::new(-pitch, 0.0, -(shift / (THIGH + SHANK)).asin()) + deg(-10.0 * h, 0.0, 0.0),
+    );
+    body.limb(Side::Right, L_KNEE, deg(20.0 * h, 0.0, 0.0));
+    body.limb(Side::Right, L_ANKLE, deg(-8.0 * h, 0.0, 0.0));
+    body.translate(DVec3::new(-shift, -bend, 0.0));
+
+    let drop = p.arm_drop;
+    body.limb(
+        Side::Left,
+        L_SHOULDER,
+        hanging_arm(drop - (25.0 * h).to_radians(), (20.0 * h).to_radians()),
+    );
+    body.limb(
+        Side::Right,
+        L_SHOULDER,
+        hanging_arm(drop - (30.0 * h).to_radians(), (-25.0 * h).to_radians()),
+    );
+    for side in [Side::Left, Side::Right] {
+        body.limb(side, L_ELBOW, elbow_flex((15.0 + 25.0 * h).to_radians()));
+    }
+    Local::fixed(body, p.heading)
+}
+
+/// Timing (s) and heights (m) of one jump cycle, from the parameters.
+struct JumpPlan {
+    /// Crouch bottom, legs straight (heels start to rise), take-off, landing (toes touch), heels
+    /// down, landing absorbed, standing again, cycle length.
+    t_crouch: f64,
+    t_extended: f64,
+    t_off: f64,
+    t_land: f64,
+    t_touch: f64,
+    t_absorb: f64,
+    t_stand: f64,
+    period: f64,
+    /// Thigh angle at the crouch bottom and at the bottom of the landing absorption (rad).
+    alpha_crouch: f64,
+    alpha_absorb: f64,
+    /// Root rise from standing onto the toes (m) and take-off speed (m/s).
+    toe: f64,
+    v0: f64,
+}
+
+/// Shank lean per unit of thigh lean in the jump's crouch.
+const JUMP_BETA: f64 = 0.3;
+/// Ankle plantar-flexion on the toes (rad, 30°): with the 0.14 m from ankle to the ball of the
+/// foot it lifts the ankle by about [`JumpPlan::toe`].
+const JUMP_PLANTAR: f64 = PI / 6.0;
+
+impl JumpPlan {
+    fn new(p: &MotionParams) -> Self {
+        let s = p.speed;
+        let toe = 0.06;
+        // Apex of the root above standing: 0.21–0.30 m for amplitudes 0.6–1.2.
+        let apex = 0.12 + 0.15 * p.amplitude.min(1.2);
+        let v0 = (2.0 * GRAVITY * (apex - toe).max(0.01)).sqrt();
+        let depth = 0.18 + 0.06 * p.style;
+        // Rising onto the toes and coming down from them: a Hermite segment with end slope v0
+        // neither dips nor overshoots when slope × length ≤ 3 × rise; keep it at 2.8.
+        let on_toes = 2.8 * toe / v0;
+        let t_crouch = 0.6 / s;
+        let t_extended = t_crouch + 0.42;
+        let t_off = t_extended + on_toes;
+        let t_land = t_off + 2.0 * v0 / GRAVITY;
+        let t_touch = t_land + on_toes;
+        let t_absorb = t_touch + 0.3;
+        let t_stand = t_absorb + 0.6 / s;
+        Self {
+            t_crouch,
+            t_extended,
+            t_off,
+            t_land,
+            t_touch,
+            t_absorb,
+            t_stand,
+            period: t_stand + 0.8 / s,
+            alpha_crouch: crouch_angle(depth, JUMP_BETA),
+            alpha_absorb: crouch_angle(0.6 * depth, JUMP_BETA),
+            toe,
+            v0,
+        }
+    }
+}
+
+/// Jump: counter-movement jumps in place. The legs crouch (root 18–24 cm down) and extend with
+/// the feet flat, the heels rise (root 6 cm up on the toes) while the root reaches 1.7–2.1 m/s,
+/// the body flies ballistically (root apex 0.21–0.30 m above standing), lands on the toes, the
+/// heels come down and the legs absorb, then it stands; the arms swing back in the crouch and
+/// forward-up at take-off. On the floor the root height follows the legs' geometry
+/// ([`crouch_offset`]) plus the toe rise, so the feet stay on the floor; it is C1 throughout.
+fn jump(p: &MotionParams, t: f64) -> Local {
+    let plan = JumpPlan::new(p);
+    let tau = (t + p.phase / TAU * plan.period).rem_euclid(plan.period);
+    let flight = plan.t_land - plan.t_off;
+
+    // Thigh angle of the crouch and the landing; zero (straight legs) around the flight.
+    let alpha = hermite(
+        &[
+            key(0.0, 0.0, 0.0),
+            key(plan.t_crouch, plan.alpha_crouch, 0.0),
+            key(plan.t_extended, 0.0, 0.0),
+            key(plan.t_touch, 0.0, 0.0),
+            key(plan.t_absorb, plan.alpha_absorb, 0.0),
+            key(plan.t_stand, 0.0, 0.0),
+        ],
+        tau,
+    );
+    // Root height above the straight-legged stance: on the toes before take-off and after
+    // landing, ballistic in between.
+    let (lift, tuck) = if tau > plan.t_off && tau < plan.t_land {
+        let f = tau - plan.t_off;
+        let y = plan.toe + plan.v0 * f - 0.5 * GRAVITY * f * f;
+        (y, (PI * f / flight).sin().powi(2))
+    } else {
+        let keys = [
+            key(plan.t_extended, 0.0, 0.0),
+            key(plan.t_off, plan.toe, plan.v0),
+            key(plan.t_land, plan.toe, -plan.v0),
+            key(plan.t_touch, 0.0, 0.0),
+        ];
+        (hermite(&keys, tau), 0.0)
+    };
+    // Heels rise with the toe lift (a little ahead of it: the ankle is the faster joint there).
+    let on_toes = hermite(
+        &[
+            key(plan.t_extended - 0.1, 0.0, 0.0),
+            key(plan.t_off, 1.0, 0.0),
+            key(plan.t_land, 1.0, 0.0),
+            key(plan.t_touch + 0.1, 0.0, 0.0),
+        ],
+        tau,
+    );
+    let swing = hermite(
+        &[
+            key(0.0, 0.0, 0.0),
+            key(plan.t_crouch, 45f64.to_radians(), 0.0),
+            key(plan.t_off + 0.05, -55f64.to_radians(), 0.0),
+            key(plan.t_land, -35f64.to_radians(), 0.0),
+            key(plan.t_absorb, -20f64.to_radians(), 0.0),
+            key(plan.t_stand, 0.0, 0.0),
+        ],
+        tau,
+    );
+
+    let mut body = Body::new();
+    let pitch = 0.35 * alpha;
+    for side in [Side::Left, Side::Right] {
+        body.limb(
+            side,
+            L_HIP,
+            DVec3::new(-alpha - pitch, 0.0, 0.0) + deg(-15.0 * tuck, 0.0, 0.0),
+        );
+        body.limb(
+            side,
+            L_KNEE,
+            DVec3::new((1.0 + JUMP_BETA) * alpha, 0.0, 0.0) + deg(20.0 * tuck, 0.0, 0.0),
+        );
+        body.limb(
+            side,
+            L_ANKLE,
+            DVec3::new(
+                -CROUCH_ANKLE * JUMP_BETA * alpha + JUMP_PLANTAR * on_toes,
+                0.0,
+                0.0,
+            ),
+        );
+    }
+    body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
+    body.set(LOWER_TORSO, DVec3::new(0.15 * alpha, 0.0, 0.0));
+    body.set(HEAD, DVec3::new(-0.4 * alpha, 0.0, 0.0));
+    relaxed_arms(&mut body, p.arm_drop, [swing; 2], [20f64.to_radians(); 2]);
+    let (drop, shift) = crouch_offset(alpha, JUMP_BETA);
+    body.translate(DVec3::new(0.0, lift - drop, shift));
+    Local::fixed(body, p.heading)
+}
+
+/// Half of the yaw sweep of a turn (rad): 0.6 × amplitude, at most 0.72 (41°).
+fn turn_half_sweep(amplitude: f64) -> f64 {
+    (0.6 * amplitude).min(0.72)
+}
+
+/// Turn: every 4 s the body turns towards `side` by up to 2 × 41°, holds, and turns back,
+/// stepping in place (about 0.9 steps/s per leg) while the yaw changes; head and thorax lead the
+/// turn. The root yaw limit (±50°) bounds the sweep.
+fn turn(p: &MotionParams, t: f64) -> Local {
+    const K: f64 = 1.8;
+    let sweep = turn_half_sweep(p.amplitude);
+    let centre = p.heading.clamp(-(YAW_LIMIT - sweep), YAW_LIMIT - sweep);
+    let theta = TAU * (0.25 * p.speed * t + p.phase / TAU);
+    let g = (K * theta.sin()).tanh() / K.tanh();
+    // Turning rate relative to its peak (at theta = 0), in [−1, 1].
+    let rate = theta.cos() / (K * theta.sin()).cosh().powi(2);
+    let stepping = rate * rate;
+    let yaw = centre + p.side.sign() * sweep * g;
+
+    let mut body = Body::new();
+    let step_phase = 0.9 * p.speed * t + p.phase / TAU;
+    let lead = p.side.sign() * rate * p.amplitude;
+    for (side, offset) in [(Side::Left, 0.0), (Side::Right, 0.5)] {
+        let lift = pulse(step_phase, offset, 2) * stepping;
+        body.limb(side, L_HIP, deg(-2.0 - 25.0 * lift, 0.0, 0.0));
+        body.limb(side, L_KNEE, deg(4.0 + 45.0 * lift, 0.0, 0.0));
+        body.limb(side, L_ANKLE, deg(-2.0 + 12.0 * lift, 0.0, 0.0));
+    }
+    let sway = (TAU * step_phase).cos();
+    body.translate(DVec3::new(
+        0.02 * stepping * sway,
+        -0.004 - 0.01 * stepping,
+        0.0,
+    ));
+    body.set(ROOT, deg(0.0, 0.0, -2.0 * stepping * sway));
+    body.set(LOWER_TORSO, deg(0.0, 3.0 * lead, 0.0));
+    body.set(MIDDLE_TORSO, deg(1.0, 6.0 * lead, 0.0));
+    body.set(HEAD, deg(0.0, 12.0 * lead, 0.0));
+    let arm = (6.0 * stepping * sway).to_radians();
+    relaxed_arms(
+        &mut body,
+        p.arm_drop,
+        [arm, -arm],
+        [(15f64).to_radians(); 2],
+    );
+    Local {
+        body,
+        yaw,
+        path: DVec3::ZERO,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use lfit_model::skeleton::{R_HIP, R_SHOULDER};
+    use lfit_model::{Bounds, Template};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    const FPS: f64 = 30.0;
+    /// 10 s at 30 fps.
+    const FRAMES: usize = 300;
+    /// Largest per-frame change at 30 fps: 0.25 rad is 7.5 rad/s (≈ 430°/s, the order of peak
+    /// knee speeds in brisk walking), 0.1 m is 3 m/s (a jog's forward speed).
+    const MAX_ROT_STEP: f64 = 0.25;
+    const MAX_TRANS_STEP: f64 = 0.1;
+
+    fn params(kind: MotionKind, seed: u64) -> MotionParams {
+        MotionParams::sample(kind, &mut ChaCha8Rng::seed_from_u64(seed))
+    }
+
+    fn rotations_inside(pose: &Pose, bounds: &Bounds) -> bool {
+        (3..POSE_DIM).all(|i| pose[i] >= bounds.lower[i] && pose[i] <= bounds.upper[i])
+    }
+
+    #[test]
+    fn every_kind_is_finite_and_inside_the_rotation_bounds() {
+        let bounds = Bounds::global();
+        for kind in MotionKind::ALL {
+            for seed in 0..20 {
+                let p = params(kind, seed);
+                for pose in sequence(kind, &p, FPS, FRAMES, 0.0) {
+                    assert!(pose.iter().all(|v| v.is_finite()), "{kind} seed {seed}");
+                    assert!(rotations_inside(&pose, &bounds), "{kind} seed {seed}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_clamp_rarely_acts() {
+        // Amplitudes are designed inside the limits: the final clamp should be a safety net.
+        for kind in MotionKind::ALL {
+            let mut clamped = 0;
+            for seed in 0..20 {
+                let p = params(kind, seed);
+                for i in 0..FRAMES {
+                    let mut pose = motion_pose_unclamped(kind, &p, i as f64 / FPS);
+                    clamped += usize::from(clamp_rotations(&mut pose));
+                }
+            }
+            let fraction = clamped as f64 / (20 * FRAMES) as f64;
+            assert!(
+                fraction < 0.01,
+                "{kind}: {:.2}% of frames clamped",
+                100.0 * fraction
+            );
+        }
+    }
+
+    #[test]
+    fn consecutive_frames_are_close() {
+        for kind in MotionKind::ALL {
+            for seed in 0..20 {
+                let p = params(kind, seed);
+                let poses = sequence(kind, &p, FPS, FRAMES, 0.0);
+                for (f, w) in poses.windows(2).enumerate() {
+                    for (i, (a, b)) in w[0].iter().zip(&w[1]).enumerate() {
+                        let step = (b - a).abs();
+                        let bound = if i < 3 { MAX_TRANS_STEP } else { MAX_ROT_STEP };
+                        assert!(
+                            step < bound,
+                            "{kind} seed {seed} frame {f} {}: step {step:.3}",
+                            lfit_model::pose::dof_name(i)
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn motions_are_continuous_with_continuous_velocity() {
+        // Dense sampling: a jump in value (or in slope) shows up as a first (or second)
+        // difference far above what a bounded velocity (or acceleration) allows.
+        let dt = 1e-3;
+        for kind in MotionKind::ALL {
+            for seed in 0..4 {
+                let p = params(kind, seed);
+                let poses = sequence(kind, &p, 1.0 / dt, 8000, -1.0);
+                for w in poses.windows(3) {
+                    for (i, ((a, b), c)) in w[0].iter().zip(&w[1]).zip(&w[2]).enumerate() {
+                        let d1 = (b - a).abs() / dt;
+                        let d2 = (c - 2.0 * b + a).abs() / (dt * dt);
+                        assert!(d1 < 12.0, "{kind} seed {seed} dof {i}: speed {d1}");
+                        // The motions stay below ~250 rad/s² (a clamp acting would add a kink).
+                        assert!(d2 < 600.0, "{kind} seed {seed} dof {i}: acceleration {d2}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn walking_moves_along_the_heading() {
+        for seed in 0..20 {
+            let p = MotionParams {
+                speed: 1.0,
+                ..params(MotionKind::Walk, seed)
+            };
+            let start = motion_pose(MotionKind::Walk, &p, 0.0);
+            let end = motion_pose(MotionKind::Walk, &p, 3.0);
+            let along = DVec2::new(p.heading.sin(), p.heading.cos());
+            let moved = DVec2::new(end[0] - start[0], end[2] - start[2]);
+            assert!(moved.dot(along) > 1.0, "seed {seed}: {moved}");
+            // Curvature bends the path only a little in 3 s.
+            assert!(moved.perp_dot(along).abs() < 0.5, "seed {seed}: {moved}");
+        }
+        // Jogging is faster than walking.
+        let p = MotionParams::default();
+        let walk = motion_pose(MotionKind::Walk, &p, 3.0);
+        let jog = motion_pose(MotionKind::Jog, &p, 3.0);
+        assert!(jog[2] > 1.5 * walk[2]);
+        // A straight nominal walk goes 1.3 m/s along +z.
+        assert!((walk[2] - 3.9).abs() < 0.05, "{}", walk[2]);
+        assert!(walk[0].abs() < 0.05);
+    }
+
+    #[test]
+    fn static_motions_stay_near_the_origin() {
+        for kind in MotionKind::ALL.into_iter().filter(|k| !k.is_locomotion()) {
+            for seed in 0..20 {
+                let p = params(kind, seed);
+                for pose in sequence(kind, &p, FPS, FRAMES, 0.0) {
+                    let r = DVec2::new(pose[0], pose[2]).length();
+                    assert!(r < 0.3, "{kind} seed {seed}: root {r:.3} m from the origin");
+                }
+            }
+        }
+    }
+
+    fn correlation(a: &[f64], b: &[f64]) -> f64 {
+        let n = a.len() as f64;
+        let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
+        let cov: f64 = a.iter().zip(b).map(|(x, y)| (x - ma) * (y - mb)).sum();
+        let va: f64 = a.iter().map(|x| (x - ma).powi(2)).sum();
+        let vb: f64 = b.iter().map(|y| (y - mb).powi(2)).sum();
+        cov / (va * vb).sqrt()
+    }
+
+    #[test]
+    fn gait_legs_are_in_anti_phase() {
+        for kind in [MotionKind::Walk, MotionKind::Jog] {
+            for seed in 0..20 {
+                let poses = sequence(kind, &params(kind, seed), FPS, FRAMES, 0.0);
+                let left: Vec<f64> = poses.iter().map(|p| p[rot_offset(L_HIP)]).collect();
+                let right: Vec<f64> = poses.iter().map(|p| p[rot_offset(R_HIP)]).collect();
+                let c = correlation(&left, &right);
+                assert!(c < -0.5, "{kind} seed {seed}: hip correlation {c}");
+                // Arms swing against the same-side leg.
+                let arm: Vec<f64> = poses.iter().map(|p| p[rot_offset(L_SHOULDER)]).collect();
+                assert!(correlation(&left, &arm) < -0.5, "{kind} seed {seed}");
+            }
+        }
+    }
+
+    #[test]
+    fn jump_leaves_the_floor_and_squat_goes_down() {
+        for seed in 0..20 {
+            let p = params(MotionKind::Jump, seed);
+            let poses = sequence(MotionKind::Jump, &p, FPS, FRAMES, 0.0);
+            let top = poses.iter().map(|p| p[1]).fold(f64::MIN, f64::max);
+            let bottom = poses.iter().map(|p| p[1]).fold(f64::MAX, f64::min);
+            assert!(top > 0.1 && top < 0.32, "seed {seed}: apex {top}");
+            assert!(bottom < -0.1, "seed {seed}: crouch {bottom}");
+
+            let p = params(MotionKind::Squat, seed);
+            let poses = sequence(MotionKind::Squat, &p, FPS, FRAMES, 0.0);
+            let bottom = poses.iter().map(|p| p[1]).fold(f64::MAX, f64::min);
+            assert!(bottom < -0.1, "seed {seed}: squat bottom {bottom}");
+            assert!(poses.iter().all(|p| p[1] < 0.01));
+        }
+    }
+
+    #[test]
+    fn same_seed_same_motion_different_seed_different_motion() {
+        for kind in MotionKind::ALL {
+            let (a, b, c) = (params(kind, 7), params(kind, 7), params(kind, 8));
+            assert_eq!(a, b);
+            assert_ne!(a, c);
+            let (sa, sb, sc) = (
+                sequence(kind, &a, FPS, 60, 0.5),
+                sequence(kind, &b, FPS, 60, 0.5),
+                sequence(kind, &c, FPS, 60, 0.5),
+            );
+            assert_eq!(sa, sb);
+            assert_ne!(sa, sc);
+        }
+    }
+
+    #[test]
+    fn sampled_params_are_in_their_ranges() {
+        for kind in MotionKind::ALL {
+            let (lo, hi) = kind.speed_range();
+            for seed in 0..50 {
+                let p = params(kind, seed);
+                assert!(p.speed >= lo && p.speed <= hi);
+                assert!((0.6..1.2).contains(&p.amplitude));
+                assert!((0.0..TAU).contains(&p.phase));
+                assert!(p.heading.abs() <= 0.6);
+                assert_eq!(p.curvature != 0.0, kind.is_locomotion());
+                assert_eq!(p.sanitized(), p, "sampled values are already sane");
+            }
+        }
+    }
+
+    #[test]
+    fn names_parse_and_serialise() {
+        for kind in MotionKind::ALL {
+            assert_eq!(kind.name().parse::<MotionKind>(), Ok(kind));
+            assert_eq!(
+                kind.to_string().to_uppercase().parse::<MotionKind>(),
+                Ok(kind)
+            );
+            let json = serde_json::to_string(&kind).expect("serialise");
+            assert_eq!(json, format!("\"{}\"", kind.name()));
+            assert_eq!(serde_json::from_str::<MotionKind>(&json).ok(), Some(kind));
+        }
+        let Err(err) = "moonwalk".parse::<MotionKind>() else {
+            panic!("'moonwalk' parsed");
+        };
+        assert_eq!(err.name, "moonwalk");
+        assert!(err.to_string().contains("walk, jog"));
+        let p = MotionParams {
+            side: Side::Right,
+            ..MotionParams::default()
+        };
+        let json = serde_json::to_string(&p).expect("serialise");
+        assert!(json.contains("\"side\":\"right\""), "{json}");
+        assert_eq!(serde_json::from_str::<MotionParams>(&json).ok(), Some(p));
+    }
+
+    #[test]
+    fn bad_params_and_times_still_give_valid_poses() {
+        let bounds = Bounds::global();
+        let bad = MotionParams {
+            speed: f64::NAN,
+            amplitude: f64::INFINITY,
+            phase: -1e300,
+            heading: 10.0,
+            curvature: f64::NEG_INFINITY,
+            side: Side::Right,
+            style: -3.0,
+            arm_drop: f64::NAN,
+        };
+        for kind in MotionKind::ALL {
+            for t in [f64::NAN, -1e9, -3.3, 0.0, 1e-7, 12.5, 1e7, f64::INFINITY] {
+                for p in [&bad, &MotionParams::default()] {
+                    let pose = motion_pose(kind, p, t);
+                    assert!(pose.iter().all(|v| v.is_finite()), "{kind} t={t}");
+                    assert!(rotations_inside(&pose, &bounds), "{kind} t={t}");
+                }
+            }
+        }
+        assert!(
+            sequence(MotionKind::Walk, &bad, 0.0, 3, 1.0)
+                .windows(2)
+                .all(|w| w[0] == w[1])
+        );
+        assert!(sequence(MotionKind::Walk, &bad, 30.0, 0, 1.0).is_empty());
+    }
+
+    #[test]
+    fn right_lead_mirrors_left_lead() {
+        for kind in MotionKind::ALL.into_iter().filter(|k| k.is_one_sided()) {
+            let left = MotionParams {
+                side: Side::Left,
+                heading: 0.0,
+                ..params(kind, 11)
+            };
+            let right = MotionParams {
+                side: Side::Right,
+                ..left
+            };
+            for i in 0..40 {
+                let t = i as f64 * 0.1;
+                let l = motion_pose(kind, &left, t);
+                let r = motion_pose(kind, &right, t);
+                let m = mirror_pose(&l);
+                assert!(
+                    r.iter().zip(&m).all(|(a, b)| (a - b).abs() < 1e-12),
+                    "{kind}"
+                );
+            }
+        }
+        let p = MotionParams::default();
+        let pose = motion_pose(MotionKind::Walk, &p, 0.7);
+        assert_eq!(mirror_pose(&mirror_pose(&pose)), pose);
+    }
+
+    #[test]
+    fn heading_path_is_exact_for_straight_and_bounded_for_curved_paths() {
+        let straight = path_integral(0.3, 0.0, 2.0);
+        assert!((straight - DVec2::new(0.3f64.sin(), 0.3f64.cos()) * 2.0).length() < 1e-12);
+        // Against a fine trapezoid rule.
+        let (h0, k, t) = (-0.4, 0.11, 9.0);
+        let n = 200_000;
+        let mut trap = DVec2::ZERO;
+        for i in 0..=n {
+            let s = t * i as f64 / n as f64;
+            let psi = path_yaw(h0, k, s);
+            let w = if i == 0 || i == n { 0.5 } else { 1.0 };
+            trap += DVec2::new(psi.sin(), psi.cos()) * (w * t / n as f64);
+        }
+        assert!((path_integral(h0, k, t) - trap).length() < 1e-6);
+        // Far in time the heading saturates, and the cost stays bounded.
+        assert!(path_yaw(0.0, 0.5, 1e9) <= YAW_LIMIT);
+        let far = path_integral(0.0, 0.5, 1e9);
+        assert!(far.is_finite() && (far.length() - 1e9).abs() < 1e3);
+    }
+
+    #[test]
+    fn recentre_zeroes_the_mean_and_clamps() {
+        let p = MotionParams::default();
+        let mut walk = sequence(MotionKind::Walk, &p, FPS, 90, 0.0);
+        let y: Vec<f64> = walk.iter().map(|q| q[1]).collect();
+        recentre(&mut walk);
+        let mean_x = walk.iter().map(|q| q[0]).sum::<f64>() / 90.0;
+        let mean_z = walk.iter().map(|q| q[2]).sum::<f64>() / 90.0;
+        assert!(mean_x.abs() < 1e-12 && mean_z.abs() < 1e-12);
+        assert!(walk.iter().zip(&y).all(|(q, y)| q[1] == *y));
+        let mut long = sequence(MotionKind::Walk, &p, FPS, 300, 0.0);
+        recentre(&mut long);
+        assert!(
+            long.iter()
+                .all(|q| q[0].abs() <= RECENTRE_LIMIT && q[2].abs() <= RECENTRE_LIMIT)
+        );
+        assert!(long.iter().any(|q| q[2] == RECENTRE_LIMIT));
+        recentre(&mut []);
+    }
+
+    // --- Kinematic plausibility through the model's forward kinematics (SPEC §3). ---
+
+    fn joints(template: &Template, pose: &Pose) -> Vec<DVec3> {
+        let transforms = lfit_model::skinning::joint_transforms(template, pose);
+        lfit_model::skinning::posed_joints(template, &transforms)
+    }
+
+    #[test]
+    fn forward_kinematics_look_like_the_motions() {
+        use lfit_model::skeleton::{L_HAND, R_ANKLE, R_HAND};
+        let template = lfit_model::default_template();
+        let rest = joints(&template, &[0.0; POSE_DIM]);
+        let p = MotionParams::default();
+        let run = |kind: MotionKind, p: &MotionParams| -> Vec<Vec<DVec3>> {
+            sequence(kind, p, FPS, 180, 0.0)
+                .iter()
+                .map(|q| joints(&template, q))
+                .collect()
+        };
+
+        // Walk: the ankles stay near the floor level of the rest pose and swap front and back.
+        let walk = run(MotionKind::Walk, &p);
+        let low = walk
+            .iter()
+            .map(|j| j[L_ANKLE].y.min(j[R_ANKLE].y))
+            .fold(f64::MAX, f64::min);
+        let lift = walk.iter().map(|j| j[L_ANKLE].y).fold(f64::MIN, f64::max);
+        assert!((low - rest[L_ANKLE].y).abs() < 0.06, "lowest ankle {low}");
+        assert!(
+            lift - rest[L_ANKLE].y > 0.05,
+            "swing lifts the foot: {lift}"
+        );
+        let ahead: Vec<f64> = walk.iter().map(|j| j[L_ANKLE].z - j[R_ANKLE].z).collect();
+        assert!(ahead.iter().fold(f64::MIN, |m, &v| m.max(v)) > 0.3);
+        assert!(ahead.iter().fold(f64::MAX, |m, &v| m.min(v)) < -0.3);
+
+        // Wave: the waving hand goes above the shoulder; mirrored with a right lead.
+        for (side, hand, shoulder) in [
+            (Side::Left, L_HAND, L_SHOULDER),
+            (Side::Right, R_HAND, R_SHOULDER),
+        ] {
+            let wave = run(MotionKind::Wave, &MotionParams { side, ..p });
+            let up = wave
+                .iter()
+                .map(|j| j[hand].y - j[shoulder].y)
+                .fold(f64::MIN, f64::max);
+            assert!(up > 0.2, "{side:?}: hand {up} above the shoulder");
+        }
+
+        // Squat: the feet stay planted while the hips go down.
+        let squat = run(MotionKind::Squat, &p);
+        for j in &squat {
+            for a in [L_ANKLE, R_ANKLE] {
+                assert!(
+                    (j[a] - rest[a]).length() < 0.05,
+                    "ankle moved {}",
+                    (j[a] - rest[a]).length()
+                );
+            }
+        }
+        assert!(squat.iter().any(|j| j[ROOT].y < rest[ROOT].y - 0.15));
+
+        // Reach and punch: the lead hand goes well in front of the chest.
+        for kind in [MotionKind::Reach, MotionKind::Punch] {
+            let frames = run(kind, &p);
+            let front = frames
+                .iter()
+                .map(|j| j[L_HAND].z - j[MIDDLE_TORSO].z)
+                .fold(f64::MIN, f64::max);
+            assert!(front > 0.4, "{kind}: hand {front} in front");
+        }
+
+        // Kick: the lead foot rises in front of the body.
+        let kick = run(MotionKind::Kick, &p);
+        let foot = kick.iter().map(|j| j[L_ANKLE].y).fold(f64::MIN, f64::max);
+        assert!(foot > 0.5, "kick height {foot}");
+        assert!(kick.iter().any(|j| j[L_ANKLE].z > 0.4));
+
+        // Jump: both feet leave the floor.
+        let jump = run(MotionKind::Jump, &p);
+        let air = jump
+            .iter()
+            .map(|j| j[L_ANKLE].y.min(j[R_ANKLE].y))
+            .fold(f64::MIN, f64::max);
+        assert!(air > rest[L_ANKLE].y + 0.1, "feet at {air}");
+
+        // Turn: the facing (hip line) sweeps more than 60°.
+        let turn = run(MotionKind::Turn, &p);
+        let yaws: Vec<f64> = turn
+            .iter()
+            .map(|j| {
+                let across = j[L_HIP] - j[R_HIP];
+                (-across.z).atan2(across.x)
+            })
+            .collect();
+        let span = yaws.iter().fold(f64::MIN, |m, &v| m.max(v))
+            - yaws.iter().fold(f64::MAX, |m, &v| m.min(v));
+        assert!(span > 60f64.to_radians(), "turn span {}", span.to_degrees());
+    }
+}

@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# The test command of the README, also run by .ci/run. Installs what the tests need, then runs
+# the whole workspace's tests. Works from a cold cache; reuses a build directory outside the clone.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/lfit-target}"
+export CARGO_TERM_COLOR="${CARGO_TERM_COLOR:-never}"
+
+# The wgpu backend's tests run on the CPU through Mesa's lavapipe Vulkan driver.
+if ! ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1; then
+    if command -v apt-get >/dev/null 2>&1; then
+        SUDO=""
+        [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null 2>&1 && SUDO="sudo"
+        echo "installing mesa-vulkan-drivers (lavapipe) for the wgpu tests"
+        $SUDO apt-get update -qq || true
+        DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq mesa-vulkan-drivers libvulkan1 >/dev/null \
+            || echo "warning: could not install mesa-vulkan-drivers; wgpu tests will skip outside CI"
+    fi
+fi
+# In CI the wgpu tests must run, not skip.
+if [ "${CI:-}" = "true" ]; then
+    export LFIT_REQUIRE_WGPU=1
+fi
+
+cargo test --workspace --all-targets "$@"
