@@ -9,12 +9,26 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use support::{lfit_json, path_str};
 
+/// A generic OBJ reader (tobj), as a downstream tool would load the file.
 fn load_obj(path: &std::path::Path) -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
     let (models, _) = tobj::load_obj(path, &tobj::LoadOptions { triangulate: true, ..Default::default() }).expect("generic OBJ reader loads it");
     let mesh = &models[0].mesh;
     let v = mesh.positions.chunks(3).map(|p| [p[0] as f64, p[1] as f64, p[2] as f64]).collect();
     let f = mesh.indices.chunks(3).map(|f| [f[0] as usize, f[1] as usize, f[2] as usize]).collect();
     (v, f)
+}
+
+/// The `v` lines of an OBJ file in file order (the order the rig's weights index).
+fn file_vertices(path: &std::path::Path) -> Vec<[f64; 3]> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .filter(|l| l.starts_with("v "))
+        .map(|l| {
+            let c: Vec<f64> = l.split_whitespace().skip(1).map(|x| x.parse().unwrap()).collect();
+            [c[0], c[1], c[2]]
+        })
+        .collect()
 }
 
 #[test]
@@ -24,6 +38,11 @@ fn exported_template_is_a_closed_manifold_with_18_joints_and_markers() {
     let summary = lfit_json(&["template", "export", "--out-dir", path_str(&out)]);
     let (vertices, faces) = load_obj(&out.join("template.obj"));
     assert_eq!(vertices.len() as u64, summary["vertices"].as_u64().unwrap());
+    // The template numbers its vertices in order of first use, so a reader that renumbers that
+    // way (tobj) keeps the file order that rig.json's weights index.
+    let in_file = file_vertices(&out.join("template.obj"));
+    assert_eq!(vertices.len(), in_file.len());
+    assert!(vertices.iter().zip(&in_file).all(|(a, b)| (0..3).all(|k| (a[k] - b[k]).abs() < 1e-6)), "tobj sees the file's vertex order");
     assert!((3000..=8000).contains(&vertices.len()), "{} vertices", vertices.len());
     let mut edges: HashMap<(usize, usize), usize> = HashMap::new();
     for f in &faces {
@@ -130,7 +149,8 @@ fn posed_template_matches_an_independent_implementation_of_spec_3() {
     let tpl = dir.path().join("tpl");
     lfit_json(&["template", "export", "--out-dir", path_str(&tpl)]);
     let rig: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(tpl.join("rig.json")).unwrap()).unwrap();
-    let (rest, rest_faces) = load_obj(&tpl.join("template.obj"));
+    let rest = file_vertices(&tpl.join("template.obj"));
+    let (_, rest_faces) = load_obj(&tpl.join("template.obj"));
     let mut rng = ChaCha8Rng::seed_from_u64(2024);
     let poses: Vec<Vec<f64>> = (0..4)
         .map(|_| (0..57).map(|i| if i < 3 { rng.random_range(-0.5..0.5) } else { rng.random_range(-0.8..0.8) }).collect())
@@ -141,8 +161,10 @@ fn posed_template_matches_an_independent_implementation_of_spec_3() {
     let summary = lfit_json(&["template", "pose", "--pose", path_str(&pose_file), "--out", path_str(&out), "--template", path_str(&tpl)]);
     assert_eq!(summary["written"].as_array().unwrap().len(), 4);
     for (i, pose) in poses.iter().enumerate() {
-        let (posed, faces) = load_obj(&dir.path().join(format!("posed_{i:04}.obj")));
-        assert_eq!(faces, rest_faces, "vertex order and faces kept");
+        let path = dir.path().join(format!("posed_{i:04}.obj"));
+        let (_, faces) = load_obj(&path);
+        assert_eq!(faces, rest_faces, "faces kept");
+        let posed = file_vertices(&path);
         let expected = reference_pose(&rig, &rest, pose);
         let max = posed.iter().zip(&expected).map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).abs()).fold(0.0, f64::max)).fold(0.0, f64::max);
         assert!(max < 1e-5, "pose {i}: max deviation {max} m");
@@ -154,14 +176,14 @@ fn root_only_pose_moves_the_mesh_rigidly() {
     let dir = tempfile::tempdir().unwrap();
     let tpl = dir.path().join("tpl");
     lfit_json(&["template", "export", "--out-dir", path_str(&tpl)]);
-    let (rest, _) = load_obj(&tpl.join("template.obj"));
+    let rest = file_vertices(&tpl.join("template.obj"));
     let mut pose = vec![0.0; 57];
     pose[..6].copy_from_slice(&[0.3, -0.1, 0.7, 0.4, -1.1, 0.6]);
     let pose_file = dir.path().join("pose.json");
     std::fs::write(&pose_file, serde_json::json!({ "pose": pose }).to_string()).unwrap();
     let out = dir.path().join("posed.obj");
     lfit_json(&["template", "pose", "--pose", path_str(&pose_file), "--out", path_str(&out), "--template", path_str(&tpl)]);
-    let (posed, _) = load_obj(&out);
+    let posed = file_vertices(&out);
     // Rigid: every pairwise distance is kept, and the map is R (x − c_root) + c_root + t.
     let rig: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(tpl.join("rig.json")).unwrap()).unwrap();
     let c = [0, 1, 2].map(|k| rig["joints"][0]["rest_position"][k].as_f64().unwrap());
@@ -178,4 +200,49 @@ fn root_only_pose_moves_the_mesh_rigidly() {
             assert!((n(d0) - n(d1)).abs() < 2e-5);
         }
     }
+}
+
+#[test]
+fn reloaded_template_equals_the_generated_one_and_any_vertex_order_is_kept() {
+    use lfit::model::template::Template;
+    let dir = tempfile::tempdir().unwrap();
+    let tpl = dir.path().join("tpl");
+    lfit_json(&["template", "export", "--out-dir", path_str(&tpl)]);
+    let generated = lfit::model::default_template();
+    let loaded = Template::load(&tpl).unwrap();
+    assert_eq!(loaded.vertices, generated.vertices);
+    assert_eq!(loaded.faces, generated.faces);
+    assert_eq!(loaded.rig, generated.rig);
+
+    // Reverse the vertex order of the files (faces, weights and markers renumbered to match): the
+    // posed mesh must be the same surface, in the reversed order.
+    let n = generated.num_vertices();
+    let rev = |i: usize| n - 1 - i;
+    let mut obj = String::new();
+    for v in generated.vertices.iter().rev() {
+        obj.push_str(&format!("v {} {} {}\n", v.x, v.y, v.z));
+    }
+    for f in &generated.faces {
+        obj.push_str(&format!("f {} {} {}\n", rev(f[0] as usize) + 1, rev(f[1] as usize) + 1, rev(f[2] as usize) + 1));
+    }
+    let mut rig = generated.rig.clone();
+    rig.weights.reverse();
+    for m in &mut rig.markers {
+        m.vertex = rev(m.vertex as usize) as u32;
+    }
+    let other = dir.path().join("reversed");
+    std::fs::create_dir_all(&other).unwrap();
+    std::fs::write(other.join("template.obj"), obj).unwrap();
+    std::fs::write(other.join("rig.json"), serde_json::to_string(&rig).unwrap()).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let pose: Vec<f64> = (0..57).map(|_| rng.random_range(-0.6..0.6)).collect();
+    let pose_file = dir.path().join("p.json");
+    std::fs::write(&pose_file, serde_json::json!({ "pose": pose }).to_string()).unwrap();
+    let a = dir.path().join("a.obj");
+    let b = dir.path().join("b.obj");
+    lfit_json(&["template", "pose", "--pose", path_str(&pose_file), "--out", path_str(&a), "--template", path_str(&tpl)]);
+    lfit_json(&["template", "pose", "--pose", path_str(&pose_file), "--out", path_str(&b), "--template", path_str(&other)]);
+    let (a, mut b) = (file_vertices(&a), file_vertices(&b));
+    b.reverse();
+    assert_eq!(a, b);
 }

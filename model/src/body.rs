@@ -93,7 +93,21 @@ pub fn build_template(shape: &BodyShape, id: &str) -> Result<Template> {
             f.swap(1, 2);
         }
     }
-    let weights = weights.iter().map(|w| top_influences(w)).collect();
+    // Number vertices in order of first use by the faces: OBJ readers that renumber that way
+    // (tobj, many engines) then see the file's own order, which the rig's weights index.
+    let mut new_index = vec![u32::MAX; vertices.len()];
+    let mut order = Vec::with_capacity(vertices.len());
+    for f in &mut faces {
+        for i in f.iter_mut() {
+            if new_index[*i as usize] == u32::MAX {
+                new_index[*i as usize] = order.len() as u32;
+                order.push(*i as usize);
+            }
+            *i = new_index[*i as usize];
+        }
+    }
+    let vertices: Vec<Vec3> = order.iter().map(|&i| vertices[i]).collect();
+    let weights: Vec<Vec<(JointIndex, f64)>> = order.iter().map(|&i| top_influences(&weights[i])).collect();
     let joints = (0..NUM_JOINTS)
         .map(|j| Joint { name: JOINT_NAMES[j].to_string(), parent: PARENTS[j], rest_position: joints_rest[j].to_array() })
         .collect();

@@ -1,6 +1,6 @@
 //! A template: triangle mesh (OBJ) + rig (JSON), validated on load, written atomically.
 
-use std::io::{BufReader, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use glam::{DVec3, Vec3, Vec3A, Vec4};
@@ -154,29 +154,65 @@ fn check_skeleton(rig: &Rig) -> Result<()> {
     Ok(())
 }
 
-/// Reads triangle mesh positions and faces with `tobj` (quads and polygons are triangulated).
+/// Reads the positions (`v`) and faces (`f`, polygons fan-triangulated; `v/vt/vn` and negative
+/// indices accepted) of an OBJ file, keeping the file's vertex order.
+///
+/// Written here rather than with `tobj` because the rig's weights are indexed by the file's
+/// vertex order, and `tobj` renumbers vertices in order of first use by the faces.
 pub fn read_obj(path: &Path) -> Result<(Vec<Vec3>, Vec<[u32; 3]>)> {
-    let file = std::fs::File::open(path).map_err(|e| ModelError::io(path, e))?;
-    let mut reader = BufReader::new(file);
-    let options = tobj::LoadOptions { triangulate: true, ignore_points: true, ignore_lines: true, ..Default::default() };
-    let (models, _) = tobj::load_obj_buf(&mut reader, &options, |_| Err(tobj::LoadError::GenericFailure))
-        .map_err(|e| ModelError::Obj { path: path.to_path_buf(), reason: e.to_string() })?;
+    let text = std::fs::read_to_string(path).map_err(|e| ModelError::io(path, e))?;
+    parse_obj(&text).map_err(|reason| ModelError::Obj { path: path.to_path_buf(), reason })
+}
+
+/// Parses OBJ text; the error names the line.
+pub fn parse_obj(text: &str) -> std::result::Result<(Vec<Vec3>, Vec<[u32; 3]>), String> {
     let mut vertices = Vec::new();
     let mut faces = Vec::new();
-    for model in models {
-        let mesh = model.mesh;
-        if mesh.positions.len() % 3 != 0 {
-            return Err(ModelError::Obj { path: path.to_path_buf(), reason: "positions are not triples".into() });
+    for (n, line) in text.lines().enumerate() {
+        let line_no = n + 1;
+        let mut items = line.split_whitespace();
+        match items.next() {
+            Some("v") => {
+                let coords: Vec<f32> = items
+                    .take(3)
+                    .map(|s| s.parse::<f32>().map_err(|_| format!("line {line_no}: bad vertex coordinate '{s}'")))
+                    .collect::<std::result::Result<_, _>>()?;
+                if coords.len() != 3 {
+                    return Err(format!("line {line_no}: a vertex needs 3 coordinates"));
+                }
+                let v = Vec3::new(coords[0], coords[1], coords[2]);
+                if !v.is_finite() {
+                    return Err(format!("line {line_no}: vertex {} is not finite", vertices.len()));
+                }
+                vertices.push(v);
+            }
+            Some("f") => {
+                let corners: Vec<u32> = items
+                    .map(|item| {
+                        let first = item.split('/').next().unwrap_or("");
+                        let i: i64 = first.parse().map_err(|_| format!("line {line_no}: bad face index '{item}'"))?;
+                        let resolved = if i < 0 { vertices.len() as i64 + i } else { i - 1 };
+                        if i == 0 || resolved < 0 || resolved >= vertices.len() as i64 {
+                            return Err(format!("line {line_no}: face index {i} out of range ({} vertices so far)", vertices.len()));
+                        }
+                        Ok(resolved as u32)
+                    })
+                    .collect::<std::result::Result<_, _>>()?;
+                if corners.len() < 3 {
+                    return Err(format!("line {line_no}: a face needs at least 3 vertices"));
+                }
+                for k in 1..corners.len() - 1 {
+                    faces.push([corners[0], corners[k], corners[k + 1]]);
+                }
+            }
+            _ => {}
         }
-        let base = vertices.len() as u32;
-        vertices.extend(mesh.positions.chunks_exact(3).map(|p| Vec3::new(p[0], p[1], p[2])));
-        faces.extend(mesh.indices.chunks_exact(3).map(|f| [f[0] + base, f[1] + base, f[2] + base]));
     }
     if vertices.is_empty() {
-        return Err(ModelError::Obj { path: path.to_path_buf(), reason: "no vertices".into() });
+        return Err("no vertices".into());
     }
     if faces.is_empty() {
-        return Err(ModelError::Obj { path: path.to_path_buf(), reason: "no faces".into() });
+        return Err("no faces".into());
     }
     Ok((vertices, faces))
 }
@@ -218,4 +254,26 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         return Err(ModelError::io(path, e));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn obj_parser_keeps_vertex_order_and_triangulates() {
+        let text = "# c\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nf 3/1/1 4/2/1 1/3/1 2//1\nf -1 -2 -3\n";
+        let (v, f) = parse_obj(text).unwrap();
+        assert_eq!(v[2], Vec3::new(1.0, 1.0, 0.0));
+        assert_eq!(f, vec![[2, 3, 0], [2, 0, 1], [3, 2, 1]]);
+    }
+
+    #[test]
+    fn obj_parser_names_the_bad_line() {
+        assert!(parse_obj("v 0 0 0\nv 1 0\n").unwrap_err().contains("line 2"));
+        assert!(parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n").unwrap_err().contains("out of range"));
+        assert!(parse_obj("v 0 0 nan\n").unwrap_err().contains("not finite"));
+        assert!(parse_obj("v 0 0 0\n").unwrap_err().contains("no faces"));
+        assert!(parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n").unwrap_err().contains("line 4"));
+    }
 }
