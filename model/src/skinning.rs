@@ -164,3 +164,69 @@ pub fn vertex_normals(vertices: &[Vec3], faces: &[[u32; 3]]) -> Vec<Vec3> {
     }
     normals.iter().map(|n| n.normalize_or_zero()).collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::body::default_template;
+    use crate::pose::POSE_DIM;
+
+    fn test_pose() -> Pose {
+        let mut p = [0.0; POSE_DIM];
+        for (i, v) in p.iter_mut().enumerate() {
+            *v = ((i * 37 % 19) as f64 / 19.0 - 0.5) * 1.2;
+        }
+        p
+    }
+
+    #[test]
+    fn dual_quaternion_equals_linear_blend_where_one_joint_rules() {
+        let t = default_template();
+        let pose = test_pose();
+        let lbs = pose_vertices(&t, &pose, SkinningMethod::Linear);
+        let dqs = pose_vertices(&t, &pose, SkinningMethod::DualQuaternion);
+        let mut single = 0;
+        for (v, list) in t.rig.weights.iter().enumerate() {
+            if list.len() == 1 {
+                single += 1;
+                assert!((lbs[v] - dqs[v]).length() < 1e-5, "vertex {v}");
+            }
+        }
+        assert!(single > 100);
+        // Blended vertices differ (DQS keeps volume at bent joints), but stay close.
+        let max = lbs.iter().zip(&dqs).map(|(a, b)| (*a - *b).length()).fold(0.0, f32::max);
+        assert!(max > 1e-4 && max < 0.1, "{max}");
+    }
+
+    #[test]
+    fn root_only_pose_is_rigid_for_both_methods() {
+        let t = default_template();
+        let mut pose = [0.0; POSE_DIM];
+        pose[..6].copy_from_slice(&[0.1, 0.2, -0.3, 0.5, -0.4, 0.9]);
+        let a = joint_transforms(&t, &pose);
+        let expect: Vec<Vec3> = t.vertices.iter().map(|v| a[0].transform_point3(v.as_dvec3()).as_vec3()).collect();
+        for method in [SkinningMethod::Linear, SkinningMethod::DualQuaternion] {
+            let got = pose_vertices(&t, &pose, method);
+            let max = got.iter().zip(&expect).map(|(a, b)| (*a - *b).length()).fold(0.0, f32::max);
+            assert!(max < 1e-5, "{method:?}: {max}");
+        }
+    }
+
+    #[test]
+    fn posed_joints_follow_the_chain() {
+        // A_j(c_j) = A_parent(c_j): rotating the left shoulder moves the elbow and hand, not the head.
+        let t = default_template();
+        let mut pose = [0.0; POSE_DIM];
+        pose[crate::pose::rot_offset(crate::skeleton::L_SHOULDER) + 2] = 0.7;
+        let j0 = posed_joints(&t, &joint_transforms(&t, &[0.0; POSE_DIM]));
+        let j1 = posed_joints(&t, &joint_transforms(&t, &pose));
+        use crate::skeleton::*;
+        assert!((j0[HEAD] - j1[HEAD]).length() < 1e-12);
+        assert!((j0[L_SHOULDER] - j1[L_SHOULDER]).length() < 1e-12);
+        assert!((j1[L_ELBOW] - j0[L_ELBOW]).length() > 0.1);
+        assert!(j1[L_HAND].y > j0[L_HAND].y, "a positive z rotation raises the left arm");
+        let bone0 = (j0[L_HAND] - j0[L_ELBOW]).length();
+        let bone1 = (j1[L_HAND] - j1[L_ELBOW]).length();
+        assert!((bone0 - bone1).abs() < 1e-12);
+    }
+}
