@@ -417,12 +417,9 @@ fn build_cage(cage: &mut Cage, sk: &Skeleton, s: &BodyShape) {
     let neck_face = cage.quads.len() - 1;
     cage.quads.push([t[2], t[3], t[4], t[5]]);
 
-    // Legs: (height fraction of the leg, x offset from the hip, z, half-width, half-depth, weights).
+    // Legs: (height as a fraction of leg length, half-width, z, half-depth, weights).
     let leg = s.leg_length * h;
-    for (sign, face, hip, knee, ankle, foot) in [
-        (1.0, left_leg_face, L_HIP, L_KNEE, L_ANKLE, L_FOOT),
-        (-1.0, right_leg_face, R_HIP, R_KNEE, R_ANKLE, R_FOOT),
-    ] {
+    for (face, hip, knee, ankle, foot) in [(left_leg_face, L_HIP, L_KNEE, L_ANKLE, L_FOOT), (right_leg_face, R_HIP, R_KNEE, R_ANKLE, R_FOOT)] {
         let x0 = j[hip].x;
         let xa = j[ankle].x;
         let sections: [(f64, f64, f64, f64, [f64; NUM_JOINTS]); 6] = [
@@ -456,7 +453,7 @@ fn build_cage(cage: &mut Cage, sk: &Skeleton, s: &BodyShape) {
             (0.022, 0.19, 0.04, 0.016, w1(foot)),
         ] {
             let sec = Section {
-                center: DVec3::new(fx + sign * 0.0, y * h, z * h),
+                center: DVec3::new(fx, y * h, z * h),
                 u: DVec3::X,
                 v: DVec3::Y,
                 half_u: hw * lg * INFLATE,
@@ -496,7 +493,6 @@ fn build_cage(cage: &mut Cage, sk: &Skeleton, s: &BodyShape) {
             };
             cage.extrude(face, &sec);
         }
-        let _ = elbow;
     }
 
     // Neck and head: (height above the head joint, z, half-width, half-depth, weights).

@@ -40,7 +40,7 @@ impl Camera {
             cy: f64::from(height) / 2.0,
             width,
             height,
-            rotation: r.to_cols_array_2d().transpose_rows(),
+            rotation: [r.row(0).to_array(), r.row(1).to_array(), r.row(2).to_array()],
             translation: t.to_array(),
         }
     }
@@ -91,23 +91,6 @@ impl Camera {
             return fail("rotation is not a proper rotation matrix");
         }
         Ok(())
-    }
-}
-
-trait TransposeRows {
-    fn transpose_rows(self) -> Self;
-}
-
-impl TransposeRows for [[f64; 3]; 3] {
-    /// glam's `to_cols_array_2d` of the transposed matrix gives rows: undo the column layout.
-    fn transpose_rows(self) -> Self {
-        let mut out = [[0.0; 3]; 3];
-        for (i, row) in out.iter_mut().enumerate() {
-            for (j, v) in row.iter_mut().enumerate() {
-                *v = self[j][i];
-            }
-        }
-        out
     }
 }
 
