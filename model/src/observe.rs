@@ -137,7 +137,7 @@ impl Sensor {
             Modality::Hmd => Sensor::Hmd(HmdSetup {
                 offset: [0.0, 0.17, 0.09],
                 visibility: HandVisibility::HalfSpace,
-                hand_tips: [hand_tip(template, L_HAND), hand_tip(template, R_HAND)],
+                hand_tips: hand_tips(template),
             }),
             Modality::Scan => Sensor::Scan(ScanSetup {
                 cameras: default_ring(4),
@@ -319,20 +319,23 @@ fn push_rigid(values: &mut Vec<f64>, a: &DAffine3) {
     values.extend(a.translation.to_array());
 }
 
-/// The vertex of `hand` (dominant joint) furthest from the hand joint: the middle-finger tip.
-pub fn hand_tip(template: &Template, hand: usize) -> u32 {
+/// Hand-tip vertices (left, right): of the vertices dominated by each hand joint, the one
+/// furthest from that joint (the middle-finger tip).
+pub fn hand_tips(template: &Template) -> [u32; 2] {
     let dominant = template.dominant_joint();
-    let wrist = template.rig.joints[hand].rest();
-    let mut best = (f64::MIN, 0u32);
-    for (v, p) in template.vertices.iter().enumerate() {
-        if dominant[v] == hand {
-            let d = (p.as_dvec3() - wrist).length();
-            if d > best.0 {
-                best = (d, v as u32);
+    [L_HAND, R_HAND].map(|hand| {
+        let wrist = template.rig.joints[hand].rest();
+        let mut best = (f64::MIN, 0u32);
+        for (v, p) in template.vertices.iter().enumerate() {
+            if dominant[v] == hand {
+                let d = (p.as_dvec3() - wrist).length();
+                if d > best.0 {
+                    best = (d, v as u32);
+                }
             }
         }
-    }
-    best.1
+        best.1
+    })
 }
 
 #[cfg(test)]
