@@ -41,6 +41,8 @@ pub enum ModelError {
     Setting { name: &'static str, value: String, reason: String },
     #[error("shape mismatch for {what}: expected {expected}, got {got}")]
     Shape { what: String, expected: String, got: String },
+    #[error("target data: {0}")]
+    Target(String),
     #[error("tensor backend: {0}")]
     Backend(String),
 }

@@ -5,6 +5,7 @@
 
 pub mod body;
 pub mod camera;
+pub mod energy;
 pub mod error;
 pub mod observe;
 pub mod pose;
@@ -16,6 +17,7 @@ pub mod template;
 pub mod tensor;
 
 pub use body::{BodyShape, build_template, default_template};
+pub use energy::{Energy, EnergyConfig, Evaluation, Target};
 pub use error::{ModelError, Result};
 pub use pose::{Bounds, DofMask, POSE_DIM, Pose};
 pub use rig::{Joint, JointIndex, Marker, Rig};

@@ -291,13 +291,16 @@ impl Sensor {
         setup
             .residual_vertices
             .iter()
-            .flat_map(|&v| {
-                let p = predicted.vertices[v as usize].as_dvec3();
-                let c = observed.grid.clamp(p);
-                (observed.grid.gradient(c) * 0.5 + (p - c)).to_array()
-            })
+            .flat_map(|&v| closest_point_offset(&observed.grid, predicted.vertices[v as usize].as_dvec3()).to_array())
             .collect()
     }
+}
+
+/// One 3-vector of the `scan` residual: the offset from the target's closest point to `p`,
+/// `½ ∇S(⌊p⌋) + (p − ⌊p⌋)` for the squared distance transform `S` of `grid`.
+pub fn closest_point_offset(grid: &VoxelGrid, p: DVec3) -> DVec3 {
+    let c = grid.clamp(p);
+    grid.gradient(c) * 0.5 + (p - c)
 }
 
 /// World pose of the headset: the head joint's frame composed with the fixed offset, turned so

@@ -31,6 +31,14 @@ pub const MAX_VOXELS: usize = 1 << 26;
 /// near limit as [`Camera::project`].
 pub const NEAR_DEPTH: f64 = 0.01;
 
+/// Trilinear interpolation stencil of a point (see [`VoxelGrid::stencil`]).
+#[derive(Debug, Clone, Copy)]
+pub struct Stencil {
+    pub index: [usize; 8],
+    pub weight: [f64; 8],
+    pub gradient: [DVec3; 8],
+}
+
 /// A scalar field sampled on a regular grid of nodes ("voxel centres").
 ///
 /// Node `(i, j, k)` lies at `origin + spacing · (i, j, k)` and its value is
@@ -253,6 +261,34 @@ impl VoxelGrid {
             g[a] = d / self.spacing;
         }
         g
+    }
+
+    /// The trilinear stencil at `clamp(p)`: the eight corner node indices (into `values`),
+    /// their interpolation weights and the weights' gradients (per metre; zero along axes with a
+    /// single node). `Σ w_c f_c` interpolates any node field `f`, `Σ ∇w_c f_c` is its gradient.
+    pub fn stencil(&self, p: DVec3) -> Stencil {
+        let (lo, hi, t) = self.cell(p);
+        let mut out = Stencil { index: [0; 8], weight: [0.0; 8], gradient: [DVec3::ZERO; 8] };
+        let w = |s: f64, bit: bool| if bit { s } else { 1.0 - s };
+        for n in 0..8 {
+            let bit = |a: usize| n & (1 << a) != 0;
+            let node = |a: usize| if bit(a) { hi[a] } else { lo[a] };
+            out.index[n] = self.index(node(0), node(1), node(2));
+            out.weight[n] = w(t[0], bit(0)) * w(t[1], bit(1)) * w(t[2], bit(2));
+            let mut g = DVec3::ZERO;
+            for a in 0..3 {
+                if self.dims[a] < 2 {
+                    continue;
+                }
+                let mut d = if bit(a) { 1.0 } else { -1.0 } / self.spacing;
+                for b in (0..3).filter(|&b| b != a) {
+                    d *= w(t[b], bit(b));
+                }
+                g[a] = d;
+            }
+            out.gradient[n] = g;
+        }
+        out
     }
 
     /// One summand of papers/000 eq. 4: `S(⌊p⌋) + ‖p − ⌊p⌋‖²`, i.e. [`Self::sample`] extended

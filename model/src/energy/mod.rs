@@ -1,0 +1,864 @@
+//! The energy (SPEC §5): the one objective every fitter minimises.
+//!
+//! `E(θ) = Σ λ_term · term(θ)` with named terms. For `scan` these are the terms of papers/000
+//! eq. (3): `EJ` (eq. 6), `ED` (eq. 4), `ES` (eq. 5), `EP` (eq. 8) and `EA` (eq. 7). The sparse
+//! modalities (`markers`, `keypoints2d`, `hmd`) have a robust `data` term over their residual
+//! groups plus `EP` and `EA`.
+//!
+//! Everything is computed on the CPU in **f64**: the value, the per-term values and the exact
+//! analytic gradient over the 57 pose entries (reverse mode through FK and linear blend skinning,
+//! [`kinematics`]). f64 because the gradient is checked against central finite differences at
+//! ~1e-6 relative accuracy and because L-BFGS line searches compare energies that differ in the
+//! seventh digit near convergence; the cost over f32 is measured in `benches/energy.rs`.
+//! The forward model here is the f64 twin of [`crate::observe`]'s predictions and is tested
+//! against it.
+//!
+//! Every evaluation goes through [`Energy::evaluate`], [`Energy::evaluate_with_gradient`] or
+//! [`Energy::evaluate_batch`], which count evaluations and gradient evaluations.
+
+pub(crate) mod kinematics;
+mod prior;
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use glam::{DMat3, DVec3, Vec3};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+pub use prior::AnglePrior;
+
+use self::kinematics::{Adjoint, Kinematics, rotation_torque};
+pub(crate) use self::prior::{AngleLimits, Penetration};
+use crate::camera::Camera;
+use crate::error::{ModelError, Result};
+use crate::observe::{HMD_DIM, HmdSetup, Modality, Sensor, SparsePrediction, closest_point_offset, headset_pose};
+use crate::pose::{POSE_DIM, Pose};
+use crate::scan::{Mask, VoxelGrid, iou, render_silhouette};
+use crate::skeleton::{HEAD, L_HAND, NUM_JOINTS, R_HAND};
+use crate::skinning::vertex_normals;
+use crate::template::Template;
+
+/// Term weights λ. Defaults: papers/000 §4.1 (λJ = 0.1, λD = 1, λS = 0.01, λP = 1, λA = 1); the
+/// sparse data term has weight 1.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Weights {
+    pub data: f64,
+    pub ej: f64,
+    pub ed: f64,
+    pub es: f64,
+    pub ep: f64,
+    pub ea: f64,
+}
+
+impl Default for Weights {
+    fn default() -> Self {
+        Self { data: 1.0, ej: 0.1, ed: 1.0, es: 0.01, ep: 1.0, ea: 1.0 }
+    }
+}
+
+/// Robust norm of a residual group (a marker, a keypoint, a headset rotation ...), applied to the
+/// group's residual divided by its noise scale σ: `s = ‖r‖ / σ`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case")]
+pub enum Robust {
+    /// `ρ(s) = s²`.
+    L2,
+    /// `ρ(s) = s²` for `s ≤ δ`, `2δs − δ²` above (Huber, scaled to equal s² inside).
+    Huber { delta: f64 },
+}
+
+impl Robust {
+    /// `ρ(s)` and `ρ'(s)/s` (so that `∂ρ/∂r = ρ'(s)/s · r/σ²`).
+    #[inline]
+    fn eval(self, s: f64) -> (f64, f64) {
+        match self {
+            Robust::Huber { delta } if s > delta => (2.0 * delta * s - delta * delta, 2.0 * delta / s),
+            _ => (s * s, 2.0),
+        }
+    }
+}
+
+/// Noise scales σ of the sparse residual groups: the typical error that counts as one unit.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Scales {
+    /// Marker and hand-tip / headset / wrist positions, metres (1 cm).
+    pub position: f64,
+    /// 2D keypoints, pixels (4 px at 640×480).
+    pub pixel: f64,
+    /// HMD rotation matrices, Frobenius norm (0.05 ≈ 2° of rotation).
+    pub rotation: f64,
+}
+
+impl Default for Scales {
+    fn default() -> Self {
+        Self { position: 0.01, pixel: 4.0, rotation: 0.05 }
+    }
+}
+
+/// How the energy is put together. Print it with every result: two results are comparable only
+/// when their energy configurations are equal.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EnergyConfig {
+    pub weights: Weights,
+    /// Robust norm of the sparse data term. Default Huber with δ = 3σ.
+    pub robust: Robust,
+    pub scales: Scales,
+    /// Form of EA. Default [`AnglePrior::Binary`] (papers/000 eq. 7).
+    pub angle_prior: AnglePrior,
+    /// Whether EJ (silhouette 1 − IoU, no gradient) is part of the `scan` energy.
+    pub silhouettes: bool,
+    /// Width in pixels at which EJ renders (heights keep the cameras' aspect ratio).
+    pub silhouette_width: u32,
+    /// EP tests every `penetration_stride`-th template vertex.
+    pub penetration_stride: usize,
+}
+
+impl Default for EnergyConfig {
+    fn default() -> Self {
+        Self {
+            weights: Weights::default(),
+            robust: Robust::Huber { delta: 3.0 },
+            scales: Scales::default(),
+            angle_prior: AnglePrior::Binary,
+            silhouettes: true,
+            silhouette_width: 128,
+            penetration_stride: 4,
+        }
+    }
+}
+
+impl EnergyConfig {
+    /// The variant for gradient-based fitters (L-BFGS, the neural fitter): EJ off (it has no
+    /// gradient) and the smooth hinge form of EA. A run reports which variant it used.
+    pub fn for_gradient(mut self) -> Self {
+        self.silhouettes = false;
+        self.angle_prior = AnglePrior::Hinge;
+        self
+    }
+
+    /// Whether every term of this configuration has a gradient.
+    pub fn is_differentiable(&self) -> bool {
+        !self.silhouettes && self.angle_prior == AnglePrior::Hinge
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        let w = &self.weights;
+        for (name, v) in [("weights.data", w.data), ("weights.ej", w.ej), ("weights.ed", w.ed), ("weights.es", w.es), ("weights.ep", w.ep), ("weights.ea", w.ea)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(ModelError::Setting { name, value: v.to_string(), reason: "must be a finite number ≥ 0".into() });
+            }
+        }
+        for (name, v) in [("scales.position", self.scales.position), ("scales.pixel", self.scales.pixel), ("scales.rotation", self.scales.rotation)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(ModelError::Setting { name, value: v.to_string(), reason: "must be positive".into() });
+            }
+        }
+        if let Robust::Huber { delta } = self.robust
+            && !(delta.is_finite() && delta > 0.0)
+        {
+            return Err(ModelError::Setting { name: "robust.delta", value: delta.to_string(), reason: "must be positive".into() });
+        }
+        if self.silhouette_width < 8 || self.silhouette_width > 4096 {
+            return Err(ModelError::Setting { name: "silhouette_width", value: self.silhouette_width.to_string(), reason: "must be in 8..=4096".into() });
+        }
+        if self.penetration_stride == 0 {
+            return Err(ModelError::Setting { name: "penetration_stride", value: "0".into(), reason: "must be ≥ 1".into() });
+        }
+        Ok(())
+    }
+}
+
+/// What one frame's energy compares the template with.
+#[derive(Debug, Clone)]
+pub enum Target {
+    /// A sparse modality's observation vector and visibility (layout of [`Sensor::predict_sparse`]).
+    Sparse { values: Vec<f64>, visible: Vec<bool> },
+    /// `scan`: the target's squared distance transform and silhouettes (one per sensor camera).
+    Scan { grid: VoxelGrid, silhouettes: Vec<Mask> },
+}
+
+/// Value and named (unweighted) terms of one evaluation; `total = Σ λ_term · term`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Evaluation {
+    pub total: f64,
+    pub terms: Vec<(&'static str, f64)>,
+}
+
+impl Evaluation {
+    pub fn term(&self, name: &str) -> Option<f64> {
+        self.terms.iter().find(|(n, _)| *n == name).map(|&(_, v)| v)
+    }
+}
+
+/// Skinning weights and rest geometry in f64, flattened.
+#[derive(Debug, Clone)]
+pub(crate) struct SkinTable {
+    pub rest: Vec<DVec3>,
+    entries: Vec<(u16, f64)>,
+    offsets: Vec<u32>,
+}
+
+impl SkinTable {
+    fn new(template: &Template) -> Self {
+        let mut entries = Vec::new();
+        let mut offsets = vec![0u32];
+        for list in &template.rig.weights {
+            entries.extend(list.iter().map(|&(j, w)| (j as u16, w)));
+            offsets.push(entries.len() as u32);
+        }
+        Self { rest: template.vertices.iter().map(|v| v.as_dvec3()).collect(), entries, offsets }
+    }
+
+    #[inline]
+    pub fn weights(&self, v: usize) -> &[(u16, f64)] {
+        &self.entries[self.offsets[v] as usize..self.offsets[v + 1] as usize]
+    }
+}
+
+/// One robust group of a sparse residual: `len` entries from `start`, noise scale `sigma`.
+#[derive(Debug, Clone, Copy)]
+struct Group {
+    start: usize,
+    len: usize,
+    sigma: f64,
+}
+
+/// EJ's cameras (scaled to the render size) and target silhouettes (resampled to it).
+#[derive(Debug, Clone)]
+struct SilhouetteTerm {
+    cameras: Vec<Camera>,
+    targets: Vec<Mask>,
+}
+
+/// The energy of one frame: template, sensor, target and configuration, with evaluation counters.
+#[derive(Debug)]
+pub struct Energy {
+    template: Arc<Template>,
+    sensor: Sensor,
+    target: Target,
+    config: EnergyConfig,
+    skin: SkinTable,
+    rest_normals: Vec<DVec3>,
+    groups: Vec<Group>,
+    penetration: Penetration,
+    limits: AngleLimits,
+    silhouettes: Option<SilhouetteTerm>,
+    /// ES direction tensors per grid node (`scan` only), shared by clones.
+    axes: Option<Arc<Vec<[f32; 6]>>>,
+    evaluations: AtomicU64,
+    gradient_evaluations: AtomicU64,
+}
+
+impl Clone for Energy {
+    /// A copy with fresh (zero) counters.
+    fn clone(&self) -> Self {
+        Self {
+            template: self.template.clone(),
+            sensor: self.sensor.clone(),
+            target: self.target.clone(),
+            config: self.config.clone(),
+            skin: self.skin.clone(),
+            rest_normals: self.rest_normals.clone(),
+            groups: self.groups.clone(),
+            penetration: self.penetration.clone(),
+            limits: self.limits.clone(),
+            silhouettes: self.silhouettes.clone(),
+            axes: self.axes.clone(),
+            evaluations: AtomicU64::new(0),
+            gradient_evaluations: AtomicU64::new(0),
+        }
+    }
+}
+
+impl Energy {
+    /// Builds the energy of one frame. Fails when the configuration is invalid, the sensor does
+    /// not fit the template, the target has the wrong shape or modality, or a visible target
+    /// value is not finite.
+    pub fn new(template: Arc<Template>, sensor: Sensor, target: Target, config: EnergyConfig) -> Result<Self> {
+        config.validate()?;
+        sensor.validate(&template)?;
+        if template.rig.num_joints() != NUM_JOINTS {
+            return Err(ModelError::Shape { what: "template joints".into(), expected: NUM_JOINTS.to_string(), got: template.rig.num_joints().to_string() });
+        }
+        let dim = sensor.residual_dim(&template);
+        let mut silhouettes = None;
+        match (&sensor, &target) {
+            (Sensor::Scan(setup), Target::Scan { grid, silhouettes: masks }) => {
+                if grid.values.len() != grid.len() || grid.values.is_empty() {
+                    return Err(ModelError::Target(format!("distance transform has {} values for {:?} nodes", grid.values.len(), grid.dims)));
+                }
+                if let Some(i) = grid.values.iter().position(|v| !v.is_finite()) {
+                    return Err(ModelError::Target(format!("distance transform value {i} is not finite")));
+                }
+                if !(grid.spacing.is_finite() && grid.spacing > 0.0) || grid.origin.iter().any(|o| !o.is_finite()) {
+                    return Err(ModelError::Target("distance transform grid has a non-finite or non-positive origin/spacing".into()));
+                }
+                if masks.len() != setup.cameras.len() {
+                    return Err(ModelError::Shape { what: "target silhouettes".into(), expected: setup.cameras.len().to_string(), got: masks.len().to_string() });
+                }
+                for (k, (m, c)) in masks.iter().zip(&setup.cameras).enumerate() {
+                    if m.width != c.width || m.height != c.height || m.data.len() != (m.width * m.height) as usize {
+                        return Err(ModelError::Shape { what: format!("silhouette {k}"), expected: format!("{}x{}", c.width, c.height), got: format!("{}x{}", m.width, m.height) });
+                    }
+                }
+                if config.silhouettes {
+                    silhouettes = Some(SilhouetteTerm::new(&setup.cameras, masks, config.silhouette_width));
+                }
+            }
+            (Sensor::Scan(_), Target::Sparse { .. }) => return Err(ModelError::Target("a scan energy needs a scan target".into())),
+            (_, Target::Scan { .. }) => return Err(ModelError::Target(format!("a {} energy needs a sparse target", sensor.modality()))),
+            (_, Target::Sparse { values, visible }) => {
+                if values.len() != dim || visible.len() != dim {
+                    return Err(ModelError::Shape { what: format!("{} target", sensor.modality()), expected: dim.to_string(), got: format!("{} values, {} visibility flags", values.len(), visible.len()) });
+                }
+                if let Some(i) = (0..dim).find(|&i| visible[i] && !values[i].is_finite()) {
+                    return Err(ModelError::Target(format!("visible target value {i} is not finite ({})", values[i])));
+                }
+            }
+        }
+        let axes = match &target {
+            Target::Scan { grid, .. } => Some(Arc::new(direction_tensors(grid))),
+            Target::Sparse { .. } => None,
+        };
+        let groups = sparse_groups(&sensor, &template, &config.scales);
+        let rest_normals = vertex_normals(&template.vertices, &template.faces).iter().map(|n| n.as_dvec3()).collect();
+        let penetration = Penetration::new(&template, config.penetration_stride);
+        Ok(Self {
+            skin: SkinTable::new(&template),
+            template,
+            sensor,
+            target,
+            config,
+            rest_normals,
+            groups,
+            penetration,
+            limits: AngleLimits::new(),
+            silhouettes,
+            axes,
+            evaluations: AtomicU64::new(0),
+            gradient_evaluations: AtomicU64::new(0),
+        })
+    }
+
+    pub fn template(&self) -> &Arc<Template> {
+        &self.template
+    }
+
+    pub fn sensor(&self) -> &Sensor {
+        &self.sensor
+    }
+
+    pub fn target(&self) -> &Target {
+        &self.target
+    }
+
+    pub fn config(&self) -> &EnergyConfig {
+        &self.config
+    }
+
+    pub fn modality(&self) -> Modality {
+        self.sensor.modality()
+    }
+
+    /// Names of the terms, in the order of [`Evaluation::terms`].
+    pub fn term_names(&self) -> Vec<&'static str> {
+        match self.sensor {
+            Sensor::Scan(_) => {
+                let mut names = vec!["ED", "ES"];
+                if self.silhouettes.is_some() {
+                    names.push("EJ");
+                }
+                names.extend(["EP", "EA"]);
+                names
+            }
+            _ => vec!["data", "EP", "EA"],
+        }
+    }
+
+    /// Evaluations so far (every call of an `evaluate*` method counts one per pose).
+    pub fn evaluations(&self) -> u64 {
+        self.evaluations.load(Ordering::Relaxed)
+    }
+
+    /// Gradient evaluations so far.
+    pub fn gradient_evaluations(&self) -> u64 {
+        self.gradient_evaluations.load(Ordering::Relaxed)
+    }
+
+    pub fn reset_counters(&self) {
+        self.evaluations.store(0, Ordering::Relaxed);
+        self.gradient_evaluations.store(0, Ordering::Relaxed);
+    }
+
+    /// Value and terms at `pose` (one counted evaluation).
+    pub fn evaluate(&self, pose: &Pose) -> Evaluation {
+        self.evaluations.fetch_add(1, Ordering::Relaxed);
+        self.compute(pose, false).0
+    }
+
+    /// Value, terms and exact gradient over all 57 pose entries (one counted evaluation and one
+    /// counted gradient evaluation). Terms without a gradient (EJ, binary EA) contribute their
+    /// value but nothing to the gradient: use [`EnergyConfig::for_gradient`] for gradient methods.
+    pub fn evaluate_with_gradient(&self, pose: &Pose) -> (Evaluation, Pose) {
+        self.evaluations.fetch_add(1, Ordering::Relaxed);
+        self.gradient_evaluations.fetch_add(1, Ordering::Relaxed);
+        let (e, g) = self.compute(pose, true);
+        (e, g.unwrap_or([0.0; POSE_DIM]))
+    }
+
+    /// Totals of many poses, evaluated in parallel (rayon); counts one evaluation per pose.
+    pub fn evaluate_batch(&self, poses: &[Pose]) -> Vec<f64> {
+        self.evaluations.fetch_add(poses.len() as u64, Ordering::Relaxed);
+        poses.par_iter().map(|p| self.compute(p, false).0.total).collect()
+    }
+
+    /// The residual vector R(θ) of SPEC §4, computed by the observation model ([`crate::observe`]);
+    /// not counted as an evaluation.
+    pub fn residual(&self, pose: &Pose) -> Vec<f64> {
+        match (&self.sensor, &self.target) {
+            (Sensor::Scan(setup), Target::Scan { grid, .. }) => {
+                let kin = Kinematics::new(&self.template, pose);
+                setup
+                    .residual_vertices
+                    .iter()
+                    .flat_map(|&v| closest_point_offset(grid, kin.skin(self.skin.weights(v as usize), self.skin.rest[v as usize])).to_array())
+                    .collect()
+            }
+            (_, Target::Sparse { values, visible }) => match self.sensor.predict_sparse(&self.template, pose) {
+                Some(pred) => Sensor::sparse_residual(&pred, values, visible),
+                None => Vec::new(),
+            },
+            _ => Vec::new(),
+        }
+    }
+
+    /// The sparse prediction computed by the energy's own f64 forward model (the one its
+    /// gradient differentiates); `None` for `scan`. Tested against [`Sensor::predict_sparse`].
+    pub fn predict(&self, pose: &Pose) -> Option<SparsePrediction> {
+        let kin = Kinematics::new(&self.template, pose);
+        let values = self.sparse_prediction(&kin)?;
+        Some(SparsePrediction { visible: vec![true; values.len()], values })
+    }
+
+    fn compute(&self, pose: &Pose, want_grad: bool) -> (Evaluation, Option<Pose>) {
+        let kin = Kinematics::new(&self.template, pose);
+        let mut adj = want_grad.then(|| Adjoint::new(NUM_JOINTS));
+        let mut grad_direct = [0.0; POSE_DIM];
+        let w = self.config.weights;
+        let mut terms = Vec::with_capacity(5);
+        let mut total = 0.0;
+        let posed = match &self.target {
+            Target::Sparse { values, visible } => {
+                let data = self.sparse_data(&kin, values, visible, adj.as_mut().map(|a| (a, w.data)));
+                terms.push(("data", data));
+                total += w.data * data;
+                None
+            }
+            Target::Scan { grid, .. } => {
+                let posed: Vec<DVec3> = (0..self.skin.rest.len()).map(|v| kin.skin(self.skin.weights(v), self.skin.rest[v])).collect();
+                let (ed, es) = self.surface_terms(&kin, &posed, grid, adj.as_mut().map(|a| (a, w.ed, w.es)));
+                terms.push(("ED", ed));
+                terms.push(("ES", es));
+                total += w.ed * ed + w.es * es;
+                if let Some(sil) = &self.silhouettes {
+                    let ej = sil.evaluate(&posed, &self.template.faces);
+                    terms.push(("EJ", ej));
+                    total += w.ej * ej;
+                }
+                Some(posed)
+            }
+        };
+        let ep = self.penetration.evaluate(&kin, &self.skin, posed.as_deref(), adj.as_mut().map(|a| (a, w.ep)));
+        terms.push(("EP", ep));
+        total += w.ep * ep;
+        let ea = self.limits.evaluate(pose, self.config.angle_prior, want_grad.then_some((&mut grad_direct, w.ea)));
+        terms.push(("EA", ea));
+        total += w.ea * ea;
+        let grad = adj.map(|a| {
+            let mut g = a.finish(&self.template, &kin);
+            for (gi, di) in g.iter_mut().zip(grad_direct) {
+                *gi += di;
+            }
+            g
+        });
+        (Evaluation { total, terms }, grad)
+    }
+
+    /// The f64 sparse prediction (layout of [`Sensor::predict_sparse`]).
+    fn sparse_prediction(&self, kin: &Kinematics) -> Option<Vec<f64>> {
+        match &self.sensor {
+            Sensor::Markers { vertices, .. } => Some(
+                vertices
+                    .iter()
+                    .flat_map(|&v| kin.skin(self.skin.weights(v as usize), self.skin.rest[v as usize]).to_array())
+                    .collect(),
+            ),
+            Sensor::Keypoints2d { cameras } => {
+                let mut out = Vec::with_capacity(2 * cameras.len() * NUM_JOINTS);
+                for cam in cameras {
+                    for &p in &kin.joints {
+                        let (uv, _) = project(cam, p);
+                        out.extend(uv);
+                    }
+                }
+                Some(out)
+            }
+            Sensor::Hmd(setup) => {
+                let mut out = Vec::with_capacity(HMD_DIM);
+                for (rot, pos) in hmd_devices(setup, kin) {
+                    for row in 0..3 {
+                        out.extend([rot.x_axis[row], rot.y_axis[row], rot.z_axis[row]]);
+                    }
+                    out.extend(pos.to_array());
+                }
+                for &tip in &setup.hand_tips {
+                    out.extend(kin.skin(self.skin.weights(tip as usize), self.skin.rest[tip as usize]).to_array());
+                }
+                Some(out)
+            }
+            Sensor::Scan(_) => None,
+        }
+    }
+
+    /// The robust data term of a sparse modality: mean of `ρ(‖r_g‖/σ_g)` over visible groups.
+    fn sparse_data(&self, kin: &Kinematics, values: &[f64], visible: &[bool], adj: Option<(&mut Adjoint, f64)>) -> f64 {
+        let Some(pred) = self.sparse_prediction(kin) else { return 0.0 };
+        let seen: Vec<&Group> = self.groups.iter().filter(|g| visible[g.start]).collect();
+        if seen.is_empty() {
+            return 0.0;
+        }
+        let n = seen.len() as f64;
+        // ∂data/∂prediction, entry by entry.
+        let mut dpred = if adj.is_some() { vec![0.0; pred.len()] } else { Vec::new() };
+        let mut sum = 0.0;
+        for g in &seen {
+            let r = (g.start..g.start + g.len).map(|i| (pred[i] - values[i]) / g.sigma);
+            let s = r.map(|x| x * x).sum::<f64>().sqrt();
+            let (rho, dr) = self.config.robust.eval(s);
+            sum += rho;
+            if !dpred.is_empty() {
+                for i in g.start..g.start + g.len {
+                    dpred[i] = dr * (pred[i] - values[i]) / (g.sigma * g.sigma) / n;
+                }
+            }
+        }
+        if let Some((adj, scale)) = adj {
+            for d in &mut dpred {
+                *d *= scale;
+            }
+            self.backprop_sparse(kin, &dpred, adj);
+        }
+        sum / n
+    }
+
+    /// Pushes `∂E/∂prediction` back onto the joints.
+    fn backprop_sparse(&self, kin: &Kinematics, dpred: &[f64], adj: &mut Adjoint) {
+        let vec3 = |i: usize| DVec3::new(dpred[i], dpred[i + 1], dpred[i + 2]);
+        match &self.sensor {
+            Sensor::Markers { vertices, .. } => {
+                for (k, &v) in vertices.iter().enumerate() {
+                    let g = vec3(3 * k);
+                    if g != DVec3::ZERO {
+                        adj.skinned_point(kin, self.skin.weights(v as usize), self.skin.rest[v as usize], g);
+                    }
+                }
+            }
+            Sensor::Keypoints2d { cameras } => {
+                for (c, cam) in cameras.iter().enumerate() {
+                    let rot = cam.rot();
+                    for (j, &p) in kin.joints.iter().enumerate() {
+                        let i = 2 * (c * NUM_JOINTS + j);
+                        let (gu, gv) = (dpred[i], dpred[i + 1]);
+                        if gu == 0.0 && gv == 0.0 {
+                            continue;
+                        }
+                        let (_, dq) = project(cam, p);
+                        let gq = dq[0] * gu + dq[1] * gv;
+                        adj.point(j, p, rot.transpose() * gq, 1.0);
+                    }
+                }
+            }
+            Sensor::Hmd(setup) => {
+                for (d, ((rot, pos), joint)) in hmd_devices(setup, kin).into_iter().zip([HEAD, L_HAND, R_HAND]).enumerate() {
+                    let o = 12 * d;
+                    let g = DMat3::from_cols(
+                        DVec3::new(dpred[o], dpred[o + 3], dpred[o + 6]),
+                        DVec3::new(dpred[o + 1], dpred[o + 4], dpred[o + 7]),
+                        DVec3::new(dpred[o + 2], dpred[o + 5], dpred[o + 8]),
+                    );
+                    adj.torque(joint, rotation_torque(rot, g));
+                    adj.point(joint, pos, vec3(o + 9), 1.0);
+                }
+                for (k, &tip) in setup.hand_tips.iter().enumerate() {
+                    let g = vec3(36 + 3 * k);
+                    adj.skinned_point(kin, self.skin.weights(tip as usize), self.skin.rest[tip as usize], g);
+                }
+            }
+            Sensor::Scan(_) => {}
+        }
+    }
+
+    /// ED (papers/000 eq. 4) and ES (eq. 5) over all template vertices.
+    fn surface_terms(&self, kin: &Kinematics, posed: &[DVec3], grid: &VoxelGrid, adj: Option<(&mut Adjoint, f64, f64)>) -> (f64, f64) {
+        let v_count = posed.len() as f64;
+        let (lo, hi) = (grid.box_min(), grid.box_max());
+        let axes: &[[f32; 6]] = self.axes.as_ref().map_or(&[], |a| a.as_slice());
+        let mut ed_sum = 0.0;
+        let mut es_sum = 0.0;
+        let want = adj.is_some();
+        // Per vertex: ∂ED_sum/∂v, ∂ES_v/∂v and ∂ES_v/∂(unnormalised normal).
+        let mut grads: Vec<[DVec3; 3]> = if want { Vec::with_capacity(posed.len()) } else { Vec::new() };
+        for (v, &p) in posed.iter().enumerate() {
+            let c = p.clamp(lo, hi);
+            let st = grid.stencil(c);
+            let mut s = 0.0;
+            let mut ds = DVec3::ZERO;
+            for n in 0..8 {
+                let value = f64::from(grid.values[st.index[n]]);
+                s += st.weight[n] * value;
+                ds += st.gradient[n] * value;
+            }
+            ed_sum += s + p.distance_squared(c);
+            // ES: 1 − nᵀ T n with T the interpolated direction tensor of ∇S; 1 outside the grid.
+            let n_raw = kin.skin_direction(self.skin.weights(v), self.rest_normals[v]);
+            let nl = n_raw.length();
+            let mut g_es = [DVec3::ZERO; 2];
+            if c == p && nl > 1e-12 && !axes.is_empty() {
+                let n = n_raw / nl;
+                let mut align = 0.0;
+                let mut d_align = DVec3::ZERO;
+                let mut tn = DVec3::ZERO;
+                for k in 0..8 {
+                    let t = axes[st.index[k]];
+                    let tk = DMat3::from_cols(
+                        DVec3::new(f64::from(t[0]), f64::from(t[1]), f64::from(t[2])),
+                        DVec3::new(f64::from(t[1]), f64::from(t[3]), f64::from(t[4])),
+                        DVec3::new(f64::from(t[2]), f64::from(t[4]), f64::from(t[5])),
+                    );
+                    let q = n.dot(tk * n);
+                    align += st.weight[k] * q;
+                    d_align += st.gradient[k] * q;
+                    tn += st.weight[k] * (tk * n);
+                }
+                es_sum += 1.0 - align;
+                if want {
+                    let de_dn = tn * -2.0;
+                    g_es = [-d_align, (de_dn - n * n.dot(de_dn)) / nl];
+                }
+            } else {
+                es_sum += 1.0;
+            }
+            if want {
+                // ∂/∂p of S(⌊p⌋) + ‖p − ⌊p⌋‖²: the interpolant's gradient along unclamped axes,
+                // plus 2(p − ⌊p⌋) along clamped ones.
+                for a in 0..3 {
+                    if p[a] != c[a] {
+                        ds[a] = 0.0;
+                    }
+                }
+                grads.push([ds + 2.0 * (p - c), g_es[0], g_es[1]]);
+            }
+        }
+        let ed = (ed_sum.max(0.0) / v_count).sqrt();
+        let es = es_sum / v_count;
+        if let Some((adj, wd, ws)) = adj {
+            let ed_scale = if ed > 0.0 { wd / (2.0 * ed * v_count) } else { 0.0 };
+            let es_scale = ws / v_count;
+            for (v, [ded, des, den]) in grads.into_iter().enumerate() {
+                let weights = self.skin.weights(v);
+                let gp = ded * ed_scale + des * es_scale;
+                if gp != DVec3::ZERO {
+                    adj.skinned_point(kin, weights, self.skin.rest[v], gp);
+                }
+                if den != DVec3::ZERO {
+                    adj.skinned_direction(kin, weights, self.rest_normals[v], den * es_scale);
+                }
+            }
+        }
+        (ed, es)
+    }
+}
+
+/// The direction field of ES as sign-free tensors `u uᵀ` per node (`u` the unit central-difference
+/// gradient of S; zero where that gradient vanishes), stored as `[xx, xy, xz, yy, yz, zz]`.
+///
+/// papers/000 eq. (5) compares `∇S(⌊v⌋)` with the vertex normal. The gradient of a squared
+/// distance transform vanishes on the surface and flips sign across it, so its normalised
+/// trilinear interpolant is discontinuous exactly where ES matters; interpolating `u uᵀ` instead
+/// gives the same `⟨u, n⟩²` at the nodes, stays continuous, and has an exact gradient. Nodes on
+/// the surface take the mean tensor of their off-surface neighbours.
+fn direction_tensors(grid: &VoxelGrid) -> Vec<[f32; 6]> {
+    let [nx, ny, nz] = grid.dims;
+    let value = |i: usize, j: usize, k: usize| f64::from(grid.values[grid.index(i, j, k)]);
+    let diff = |i: usize, n: usize, at: &dyn Fn(usize) -> f64| -> f64 {
+        if n < 2 {
+            0.0
+        } else if i == 0 {
+            at(1) - at(0)
+        } else if i == n - 1 {
+            at(n - 1) - at(n - 2)
+        } else {
+            0.5 * (at(i + 1) - at(i - 1))
+        }
+    };
+    let mut out = vec![[0f32; 6]; grid.values.len()];
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let g = DVec3::new(
+                    diff(i, nx, &|x| value(x, j, k)),
+                    diff(j, ny, &|y| value(i, y, k)),
+                    diff(k, nz, &|z| value(i, j, z)),
+                );
+                let l = g.length();
+                if l > 1e-12 {
+                    let u = g / l;
+                    out[grid.index(i, j, k)] = [u.x * u.x, u.x * u.y, u.x * u.z, u.y * u.y, u.y * u.z, u.z * u.z].map(|v| v as f32);
+                }
+            }
+        }
+    }
+    // Site nodes (S = 0, on the target surface) have no usable gradient: give them the mean
+    // tensor of their non-site face neighbours, which agree across the surface because u uᵀ
+    // ignores the sign flip.
+    let mut filled = out.clone();
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let at = grid.index(i, j, k);
+                if grid.values[at] > 0.0 {
+                    continue;
+                }
+                let mut sum = [0f32; 6];
+                let mut count = 0.0f32;
+                let neighbours = [
+                    (i.wrapping_sub(1), j, k),
+                    (i + 1, j, k),
+                    (i, j.wrapping_sub(1), k),
+                    (i, j + 1, k),
+                    (i, j, k.wrapping_sub(1)),
+                    (i, j, k + 1),
+                ];
+                for (a, b, c) in neighbours {
+                    if a < nx && b < ny && c < nz {
+                        let n = grid.index(a, b, c);
+                        if grid.values[n] > 0.0 {
+                            for (s, v) in sum.iter_mut().zip(out[n]) {
+                                *s += v;
+                            }
+                            count += 1.0;
+                        }
+                    }
+                }
+                filled[at] = if count > 0.0 { sum.map(|v| v / count) } else { [0.0; 6] };
+            }
+        }
+    }
+    filled
+}
+
+/// Projection of world point `p` by `cam` and the rows `∂(u, v)/∂q` of its derivative with respect
+/// to the camera-frame point `q`. Depths are floored at 1 cm (in front of the camera), where the
+/// derivative along depth is zero.
+fn project(cam: &Camera, p: DVec3) -> ([f64; 2], [DVec3; 2]) {
+    let q = cam.to_camera(p);
+    let floor = 0.01;
+    let (z, dz) = if q.z > floor { (q.z, 1.0) } else { (floor, 0.0) };
+    let u = cam.fx * q.x / z + cam.cx;
+    let v = cam.fy * q.y / z + cam.cy;
+    let du = DVec3::new(cam.fx / z, 0.0, -dz * cam.fx * q.x / (z * z));
+    let dv = DVec3::new(0.0, cam.fy / z, -dz * cam.fy * q.y / (z * z));
+    ([u, v], [du, dv])
+}
+
+/// Headset and both wrists as (rotation, position), in the order of the `hmd` prediction.
+fn hmd_devices(setup: &HmdSetup, kin: &Kinematics) -> [(DMat3, DVec3); 3] {
+    let headset = headset_pose(setup, kin.world[HEAD], kin.joints[HEAD]);
+    [
+        (headset.matrix3, headset.translation),
+        (kin.world[L_HAND], kin.joints[L_HAND]),
+        (kin.world[R_HAND], kin.joints[R_HAND]),
+    ]
+}
+
+/// Robust groups of a sparse residual (in the layout of [`Sensor::predict_sparse`]).
+fn sparse_groups(sensor: &Sensor, template: &Template, scales: &Scales) -> Vec<Group> {
+    let groups = |count: usize, len: usize, sigma: f64| (0..count).map(move |k| Group { start: k * len, len, sigma });
+    match sensor {
+        Sensor::Markers { vertices, .. } => groups(vertices.len(), 3, scales.position).collect(),
+        Sensor::Keypoints2d { cameras } => groups(cameras.len() * template.rig.num_joints(), 2, scales.pixel).collect(),
+        Sensor::Hmd(_) => {
+            let mut out = Vec::new();
+            for d in 0..3 {
+                out.push(Group { start: 12 * d, len: 9, sigma: scales.rotation });
+                out.push(Group { start: 12 * d + 9, len: 3, sigma: scales.position });
+            }
+            out.extend((0..2).map(|k| Group { start: 36 + 3 * k, len: 3, sigma: scales.position }));
+            out
+        }
+        Sensor::Scan(_) => Vec::new(),
+    }
+}
+
+impl SilhouetteTerm {
+    fn new(cameras: &[Camera], masks: &[Mask], width: u32) -> Self {
+        let mut scaled = Vec::with_capacity(cameras.len());
+        let mut targets = Vec::with_capacity(cameras.len());
+        for (cam, mask) in cameras.iter().zip(masks) {
+            let s = f64::from(width) / f64::from(cam.width.max(1));
+            let height = ((f64::from(cam.height) * s).round() as u32).max(1);
+            let mut c = *cam;
+            c.fx *= s;
+            c.fy *= s;
+            c.cx *= s;
+            c.cy *= s;
+            c.width = width;
+            c.height = height;
+            targets.push(resample_mask(mask, width, height));
+            scaled.push(c);
+        }
+        Self { cameras: scaled, targets }
+    }
+
+    /// EJ of papers/000 eq. (6): mean over views of `1 − IoU`.
+    fn evaluate(&self, posed: &[DVec3], faces: &[[u32; 3]]) -> f64 {
+        let verts: Vec<Vec3> = posed.iter().map(|p| p.as_vec3()).collect();
+        let sum: f64 = self
+            .cameras
+            .iter()
+            .zip(&self.targets)
+            .map(|(cam, target)| 1.0 - iou(&render_silhouette(cam, &verts, faces), target))
+            .sum();
+        sum / self.cameras.len().max(1) as f64
+    }
+}
+
+/// Resamples a mask to `width × height`: a small pixel is inside when at least half of the
+/// source pixels whose centres fall in its footprint are inside.
+fn resample_mask(mask: &Mask, width: u32, height: u32) -> Mask {
+    let mut out = Mask::new(width, height);
+    let sx = f64::from(mask.width) / f64::from(width);
+    let sy = f64::from(mask.height) / f64::from(height);
+    let mut inside = vec![0u32; (width * height) as usize];
+    let mut total = vec![0u32; (width * height) as usize];
+    for y in 0..mask.height {
+        let ty = (((f64::from(y) + 0.5) / sy) as u32).min(height - 1);
+        for x in 0..mask.width {
+            let tx = (((f64::from(x) + 0.5) / sx) as u32).min(width - 1);
+            let i = (tx + width * ty) as usize;
+            total[i] += 1;
+            inside[i] += u32::from(mask.get(x, y));
+        }
+    }
+    for (o, (&a, &t)) in out.data.iter_mut().zip(inside.iter().zip(&total)) {
+        *o = u8::from(t > 0 && 2 * a >= t);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,196 @@
+//! The prior terms of papers/000 eq. (3): EP (ellipsoid self-penetration, eq. 8) and EA
+//! (joint-angle prior, eq. 7).
+
+use glam::{DMat3, DVec3};
+use serde::{Deserialize, Serialize};
+
+use super::SkinTable;
+use super::kinematics::{Adjoint, Kinematics};
+use crate::pose::{Bounds, POSE_DIM, Pose, rot_offset};
+use crate::template::Template;
+
+/// Form of the joint-angle prior EA.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum AnglePrior {
+    /// papers/000 eq. (7): `α_j = 1` when any rotation component of joint j lies outside its
+    /// limits, else 0. Piecewise constant: no gradient.
+    #[default]
+    Binary,
+    /// A smooth counterpart for gradient methods: `Σ_j Σ_axes (max(0, r − hi)² + max(0, lo − r)²)`
+    /// in rad².
+    Hinge,
+}
+
+/// Fewest dominant vertices a segment needs to get an ellipsoid.
+const MIN_SEGMENT_VERTICES: usize = 8;
+/// A surface sample of an ellipsoid with semi-axis `a` has variance `a²/3` along that axis, so
+/// the ellipsoid through a segment's vertices is `(y − μ)ᵀ (3Σ)⁻¹ (y − μ) ≤ 1`; we shrink it by
+/// this factor so that it sits inside the flesh of the segment rather than on its skin.
+const ELLIPSOID_SHRINK: f64 = 0.85;
+
+/// One body-segment ellipsoid in the rest pose: `{y : (y − μ)ᵀ Q (y − μ) < 1}`.
+#[derive(Debug, Clone)]
+pub(crate) struct Ellipsoid {
+    pub(crate) joint: usize,
+    pub(crate) centre: DVec3,
+    pub(crate) q: DMat3,
+    /// Radius of a sphere around `centre` that holds the ellipsoid.
+    pub(crate) radius: f64,
+}
+
+/// EP of papers/000 eq. (8) with per-segment ellipsoids fitted to the vertices whose dominant
+/// skinning weight belongs to the segment's joint.
+///
+/// `ρ_j(v) = (1 − q_j(v))²` when the posed vertex `v` is inside the posed ellipsoid of joint j
+/// (`q < 1`, `q` its ellipsoidal radius squared), else 0 — smooth (C¹) so EP has an exact gradient.
+/// A vertex is not tested against its own segment, the segments adjacent to it in the skeleton,
+/// or an ellipsoid it already lies in at rest. EP is averaged over the tested vertices (a
+/// fixed subset, every `stride`-th vertex) so its scale does not depend on the mesh resolution.
+#[derive(Debug, Clone)]
+pub(crate) struct Penetration {
+    pub(crate) ellipsoids: Vec<Ellipsoid>,
+    /// Tested vertices and, per vertex, the ellipsoids (indices into `ellipsoids`) it is tested
+    /// against.
+    pub(crate) tests: Vec<(u32, Vec<u16>)>,
+    count: usize,
+}
+
+impl Penetration {
+    pub fn new(template: &Template, stride: usize) -> Self {
+        let dominant = template.dominant_joint();
+        let nj = template.rig.num_joints();
+        let mut ellipsoids = Vec::new();
+        for j in 0..nj {
+            let pts: Vec<DVec3> = template
+                .vertices
+                .iter()
+                .zip(&dominant)
+                .filter(|&(_, &d)| d == j)
+                .map(|(v, _)| v.as_dvec3())
+                .collect();
+            if pts.len() < MIN_SEGMENT_VERTICES {
+                continue;
+            }
+            let mu = pts.iter().copied().sum::<DVec3>() / pts.len() as f64;
+            let mut cov = DMat3::ZERO;
+            for p in &pts {
+                let d = *p - mu;
+                cov += DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+            }
+            let shape = cov * (3.0 * ELLIPSOID_SHRINK * ELLIPSOID_SHRINK / pts.len() as f64);
+            if shape.determinant().abs() < 1e-18 {
+                continue;
+            }
+            // The largest semi-axis is at most sqrt(trace(shape)).
+            let radius = (shape.x_axis.x + shape.y_axis.y + shape.z_axis.z).sqrt();
+            ellipsoids.push(Ellipsoid { joint: j, centre: mu, q: shape.inverse(), radius });
+        }
+        let parent = |j: usize| template.rig.joints[j].parent;
+        let adjacent = |a: usize, b: usize| a == b || parent(a) == Some(b) || parent(b) == Some(a);
+        let step = stride.max(1);
+        let mut tests = Vec::new();
+        for v in (0..template.num_vertices()).step_by(step) {
+            let x = template.vertices[v].as_dvec3();
+            let list: Vec<u16> = ellipsoids
+                .iter()
+                .enumerate()
+                .filter(|(_, e)| !adjacent(e.joint, dominant[v]))
+                .filter(|(_, e)| {
+                    let d = x - e.centre;
+                    d.dot(e.q * d) >= 1.0
+                })
+                .map(|(i, _)| i as u16)
+                .collect();
+            tests.push((v as u32, list));
+        }
+        let count = tests.len().max(1);
+        Self { ellipsoids, tests, count }
+    }
+
+    /// EP at the posed vertices (`posed`, indexed like the template, or skinned here when `None`),
+    /// accumulating its gradient (times the given scale) into the adjoint when given.
+    pub fn evaluate(&self, kin: &Kinematics, skin: &SkinTable, posed: Option<&[DVec3]>, mut adjoint: Option<(&mut Adjoint, f64)>) -> f64 {
+        // Posed ellipsoids: centre A_j(μ), matrix W_j Q W_jᵀ.
+        let posed_ell: Vec<(DVec3, DMat3)> = self
+            .ellipsoids
+            .iter()
+            .map(|e| {
+                let w = kin.world[e.joint];
+                (kin.transforms[e.joint].transform_point3(e.centre), w * e.q * w.transpose())
+            })
+            .collect();
+        let mut sum = 0.0;
+        for (v, list) in &self.tests {
+            let v = *v as usize;
+            let p = match posed {
+                Some(all) => all[v],
+                None => kin.skin(skin.weights(v), skin.rest[v]),
+            };
+            for &i in list {
+                let e = &self.ellipsoids[i as usize];
+                let (c, q) = posed_ell[i as usize];
+                let d = p - c;
+                if d.length_squared() >= e.radius * e.radius {
+                    continue;
+                }
+                let qd = q * d;
+                let s = d.dot(qd);
+                if s >= 1.0 {
+                    continue;
+                }
+                sum += (1.0 - s) * (1.0 - s);
+                if let Some((adj, scale)) = adjoint.as_mut() {
+                    // dρ/ds = −2(1 − s); ds/dp = 2 Q d; the ellipsoid's own motion enters as a
+                    // point force at its centre and the torque h × d (see kinematics.rs).
+                    let h = qd * (-4.0 * (1.0 - s) * *scale / self.count as f64);
+                    adj.skinned_point(kin, skin.weights(v), skin.rest[v], h);
+                    adj.point(e.joint, c, -h, 1.0);
+                    adj.torque(e.joint, h.cross(d));
+                }
+            }
+        }
+        sum / self.count as f64
+    }
+}
+
+/// EA of papers/000 eq. (7) over every joint except the root (whose rotation is the body's
+/// global orientation, not an inter-joint angle), with the per-axis limits of the `global`
+/// bounds (papers/000 Table 1, [`crate::skeleton::rotation_limits_deg`]).
+#[derive(Debug, Clone)]
+pub(crate) struct AngleLimits {
+    lower: Vec<f64>,
+    upper: Vec<f64>,
+}
+
+impl AngleLimits {
+    pub fn new() -> Self {
+        let b = Bounds::global();
+        Self { lower: b.lower, upper: b.upper }
+    }
+
+    /// Value and, for [`AnglePrior::Hinge`], gradient (times `scale`) added into `grad`.
+    pub fn evaluate(&self, pose: &Pose, form: AnglePrior, grad: Option<(&mut Pose, f64)>) -> f64 {
+        let joints = (POSE_DIM - 3) / 3;
+        match form {
+            AnglePrior::Binary => (1..joints)
+                .filter(|&j| (0..3).any(|a| {
+                    let i = rot_offset(j) + a;
+                    pose[i] < self.lower[i] || pose[i] > self.upper[i]
+                }))
+                .count() as f64,
+            AnglePrior::Hinge => {
+                let mut sum = 0.0;
+                let mut g = grad;
+                for i in rot_offset(1)..POSE_DIM {
+                    let over = (pose[i] - self.upper[i]).max(0.0) - (self.lower[i] - pose[i]).max(0.0);
+                    sum += over * over;
+                    if let Some((gr, scale)) = g.as_mut() {
+                        gr[i] += 2.0 * over * *scale;
+                    }
+                }
+                sum
+            }
+        }
+    }
+}

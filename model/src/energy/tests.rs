@@ -1,0 +1,318 @@
+use std::sync::Arc;
+
+use proptest::prelude::*;
+
+use super::*;
+use crate::body::default_template;
+use crate::pose::rot_offset;
+use crate::scan::{distance_transform, render_silhouettes};
+use crate::skeleton::{L_ELBOW, L_SHOULDER, R_KNEE};
+use crate::skinning::{SkinningMethod, pose_vertices};
+
+fn template() -> Arc<Template> {
+    static T: std::sync::OnceLock<Arc<Template>> = std::sync::OnceLock::new();
+    T.get_or_init(|| Arc::new(default_template())).clone()
+}
+
+/// A walking-like ground-truth pose.
+fn gt_pose() -> Pose {
+    let mut p = [0.0; POSE_DIM];
+    p[0] = 0.05;
+    p[1] = -0.02;
+    p[2] = 0.1;
+    p[rot_offset(0) + 1] = 0.4;
+    p[rot_offset(R_KNEE)] = 0.5;
+    p[rot_offset(L_SHOULDER) + 2] = -0.3;
+    p[rot_offset(L_ELBOW) + 1] = 0.6;
+    p[rot_offset(HEAD)] = 0.2;
+    p
+}
+
+fn target_for(sensor: &Sensor, pose: &Pose) -> Target {
+    let t = template();
+    match sensor {
+        Sensor::Scan(setup) => {
+            let verts = pose_vertices(&t, pose, SkinningMethod::Linear);
+            let grid = distance_transform(&verts, setup.voxel_size, crate::scan::DEFAULT_BOX_SCALE).unwrap();
+            let silhouettes = render_silhouettes(&setup.cameras, &verts, &t.faces);
+            Target::Scan { grid, silhouettes }
+        }
+        _ => {
+            let pred = sensor.predict_sparse(&t, pose).unwrap();
+            Target::Sparse { values: pred.values, visible: pred.visible }
+        }
+    }
+}
+
+fn energy(modality: Modality, config: EnergyConfig) -> Energy {
+    let t = template();
+    let sensor = Sensor::default_for(modality, &t);
+    let target = target_for(&sensor, &gt_pose());
+    Energy::new(t, sensor, target, config).unwrap()
+}
+
+/// Only `term` weighted (1), everything else 0, in the differentiable variant.
+fn isolate(term: &str) -> EnergyConfig {
+    let mut c = EnergyConfig::default().for_gradient();
+    c.weights = Weights { data: 0.0, ej: 0.0, ed: 0.0, es: 0.0, ep: 0.0, ea: 0.0 };
+    match term {
+        "data" => c.weights.data = 1.0,
+        "ED" => c.weights.ed = 1.0,
+        "ES" => c.weights.es = 1.0,
+        "EP" => c.weights.ep = 1.0,
+        "EA" => c.weights.ea = 1.0,
+        _ => c.weights = Weights::default(),
+    }
+    c
+}
+
+/// Central finite differences of the total, step `h`.
+fn fd_gradient(e: &Energy, pose: &Pose, h: f64) -> Pose {
+    let mut g = [0.0; POSE_DIM];
+    for i in 0..POSE_DIM {
+        let mut a = *pose;
+        let mut b = *pose;
+        a[i] += h;
+        b[i] -= h;
+        g[i] = (e.evaluate(&a).total - e.evaluate(&b).total) / (2.0 * h);
+    }
+    g
+}
+
+/// Asserts analytic ≈ finite differences: per entry `|a − fd| ≤ rel · max‖fd‖ + abs`.
+/// For `scan`, the median of three step sizes: ED and ES interpolate trilinearly (C⁰ across cell
+/// faces), and a difference that straddles a face is off by a kink; two clean steps outvote it.
+fn check_gradient(e: &Energy, pose: &Pose, rel: f64, label: &str) {
+    let (_, g) = e.evaluate_with_gradient(pose);
+    let fd = if e.modality() == Modality::Scan {
+        let f = [1e-7, 1.37e-7, 1.71e-7].map(|h| fd_gradient(e, pose, h));
+        let mut m = [0.0; POSE_DIM];
+        for i in 0..POSE_DIM {
+            let mut v = [f[0][i], f[1][i], f[2][i]];
+            v.sort_by(f64::total_cmp);
+            m[i] = v[1];
+        }
+        m
+    } else {
+        fd_gradient(e, pose, 1e-6)
+    };
+    let scale = fd.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    for i in 0..POSE_DIM {
+        assert!((g[i] - fd[i]).abs() <= rel * scale + 1e-9, "{label}: entry {i} ({}): analytic {} vs fd {} (scale {scale})", crate::pose::dof_name(i), g[i], fd[i]);
+    }
+}
+
+/// A pose near the ground truth, perturbed by `u ∈ [−1, 1]^57` (8 cm, 0.25 rad at most).
+fn perturbed(u: &[f64]) -> Pose {
+    let mut p = gt_pose();
+    for (i, v) in u.iter().enumerate() {
+        p[i] += if i < 3 { 0.08 * v } else { 0.25 * v };
+    }
+    p
+}
+
+/// The left arm swung into the body: of a small grid of shoulder/elbow angles, the pose with the
+/// largest EP.
+fn penetrating_pose() -> Pose {
+    static P: std::sync::OnceLock<Pose> = std::sync::OnceLock::new();
+    *P.get_or_init(|| {
+        let e = energy(Modality::Markers, isolate("EP"));
+        let mut best = (0.0, gt_pose());
+        for sx in [-1.2, -0.6, 0.0, 0.6, 1.2] {
+            for sz in [-0.6, -1.0, -1.4] {
+                for ey in [0.0, 1.0, 2.0] {
+                    let mut p = gt_pose();
+                    p[rot_offset(L_SHOULDER)] = sx;
+                    p[rot_offset(L_SHOULDER) + 2] = sz;
+                    p[rot_offset(L_ELBOW) + 1] = ey;
+                    let ep = e.evaluate(&p).total;
+                    if ep > best.0 {
+                        best = (ep, p);
+                    }
+                }
+            }
+        }
+        best.1
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 6, ..ProptestConfig::default() })]
+
+    #[test]
+    fn sparse_gradients_match_finite_differences(u in prop::collection::vec(-1.0f64..1.0, POSE_DIM)) {
+        let pose = perturbed(&u);
+        for m in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
+            for term in ["data", "EP", "EA", "total"] {
+                check_gradient(&energy(m, isolate(term)), &pose, 2e-6, &format!("{m} {term}"));
+            }
+        }
+    }
+
+    #[test]
+    fn scan_gradients_match_finite_differences(u in prop::collection::vec(-1.0f64..1.0, POSE_DIM)) {
+        let pose = perturbed(&u);
+        for term in ["ED", "ES", "EP", "EA", "total"] {
+            check_gradient(&energy(Modality::Scan, isolate(term)), &pose, 1e-4, &format!("scan {term}"));
+        }
+    }
+}
+
+#[test]
+fn penetration_and_hinge_gradients_when_active() {
+    let pose = penetrating_pose();
+    for m in [Modality::Markers, Modality::Scan] {
+        let e = energy(m, isolate("EP"));
+        let ev = e.evaluate(&pose);
+        assert!(ev.term("EP").unwrap() > 1e-3, "{m}: EP = {:?}", ev.term("EP"));
+        check_gradient(&e, &pose, 1e-5, &format!("{m} EP active"));
+    }
+    let mut pose = gt_pose();
+    pose[rot_offset(HEAD)] = 0.8; // beyond ±25°
+    let e = energy(Modality::Hmd, isolate("EA"));
+    assert!(e.evaluate(&pose).term("EA").unwrap() > 0.1);
+    check_gradient(&e, &pose, 1e-6, "EA hinge active");
+}
+
+#[test]
+fn energy_prediction_matches_the_observation_model() {
+    let t = template();
+    for m in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
+        let e = energy(m, EnergyConfig::default());
+        for pose in [gt_pose(), penetrating_pose()] {
+            let ours = e.predict(&pose).unwrap().values;
+            let theirs = e.sensor().predict_sparse(&t, &pose).unwrap().values;
+            assert_eq!(ours.len(), theirs.len());
+            // observe.rs skins in f32: agree to f32 precision (positions in m, pixels, rotations).
+            let tol = if m == Modality::Keypoints2d { 2e-3 } else { 1e-5 };
+            for (i, (a, b)) in ours.iter().zip(&theirs).enumerate() {
+                assert!((a - b).abs() < tol, "{m} entry {i}: {a} vs {b}");
+            }
+        }
+    }
+}
+
+#[test]
+fn noise_free_target_has_zero_data_term_at_ground_truth() {
+    for m in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
+        let e = energy(m, EnergyConfig::default());
+        let at_gt = e.evaluate(&gt_pose());
+        assert!(at_gt.term("data").unwrap() < 1e-8, "{m}: {at_gt:?}");
+        let off = e.evaluate(&perturbed(&[0.3; POSE_DIM]));
+        assert!(off.term("data").unwrap() > 1.0, "{m}: {off:?}");
+    }
+    // Scan: ED at the ground truth is the node quantisation of the distance transform (< 1 voxel).
+    let e = energy(Modality::Scan, EnergyConfig::default());
+    let at_gt = e.evaluate(&gt_pose());
+    assert!(at_gt.term("ED").unwrap() < 0.02, "{at_gt:?}");
+    assert!(at_gt.term("EJ").unwrap() < 0.1, "{at_gt:?}");
+    let off = e.evaluate(&perturbed(&[0.3; POSE_DIM]));
+    for term in ["ED", "ES", "EJ"] {
+        assert!(off.term(term).unwrap() > at_gt.term(term).unwrap(), "{term}: {off:?} vs {at_gt:?}");
+    }
+}
+
+#[test]
+fn huber_caps_the_influence_of_an_outlier() {
+    let t = template();
+    let sensor = Sensor::default_for(Modality::Markers, &t);
+    let Target::Sparse { mut values, visible } = target_for(&sensor, &gt_pose()) else { unreachable!() };
+    values[0] += 1.0; // one marker 1 m off
+    let mut l2 = EnergyConfig::default();
+    l2.robust = Robust::L2;
+    let e_l2 = Energy::new(t.clone(), sensor.clone(), Target::Sparse { values: values.clone(), visible: visible.clone() }, l2).unwrap();
+    let e_h = Energy::new(t, sensor, Target::Sparse { values, visible }, EnergyConfig::default()).unwrap();
+    let n = 39.0;
+    // L2: (100 σ)² / n; Huber δ = 3: (2·3·100 − 9) / n.
+    assert!((e_l2.evaluate(&gt_pose()).term("data").unwrap() - 10000.0 / n).abs() < 1e-3);
+    assert!((e_h.evaluate(&gt_pose()).term("data").unwrap() - 591.0 / n).abs() < 1e-3);
+}
+
+#[test]
+fn binary_angle_prior_counts_joints_outside_their_limits() {
+    let e = energy(Modality::Markers, EnergyConfig::default());
+    let mut pose = gt_pose();
+    assert_eq!(e.evaluate(&pose).term("EA"), Some(0.0));
+    pose[rot_offset(HEAD)] = 0.8;
+    pose[rot_offset(R_KNEE) + 1] = -0.9;
+    assert_eq!(e.evaluate(&pose).term("EA"), Some(2.0));
+    // The root's global orientation is not an inter-joint angle.
+    pose[rot_offset(0) + 2] = 3.0;
+    assert_eq!(e.evaluate(&pose).term("EA"), Some(2.0));
+}
+
+#[test]
+fn penetration_is_zero_at_rest_and_in_the_ground_truth() {
+    let e = energy(Modality::Markers, EnergyConfig::default());
+    assert_eq!(e.evaluate(&[0.0; POSE_DIM]).term("EP"), Some(0.0));
+    assert_eq!(e.evaluate(&gt_pose()).term("EP"), Some(0.0));
+    assert!(e.evaluate(&penetrating_pose()).term("EP").unwrap() > 0.0);
+}
+
+#[test]
+fn counters_count_every_evaluation() {
+    let e = energy(Modality::Markers, EnergyConfig::default());
+    let poses = vec![gt_pose(); 17];
+    let batch = e.evaluate_batch(&poses);
+    assert_eq!(batch.len(), 17);
+    assert!(batch.iter().all(|&v| v == batch[0]));
+    e.evaluate(&gt_pose());
+    e.evaluate_with_gradient(&gt_pose());
+    assert_eq!(e.evaluations(), 19);
+    assert_eq!(e.gradient_evaluations(), 1);
+    let copy = e.clone();
+    assert_eq!(copy.evaluations(), 0);
+    e.reset_counters();
+    assert_eq!(e.evaluations(), 0);
+}
+
+#[test]
+fn batch_and_single_evaluations_agree() {
+    let e = energy(Modality::Scan, EnergyConfig::default());
+    let poses: Vec<Pose> = (0..4).map(|k| perturbed(&[0.1 * k as f64; POSE_DIM])).collect();
+    let batch = e.evaluate_batch(&poses);
+    for (p, b) in poses.iter().zip(batch) {
+        assert_eq!(e.evaluate(p).total, b);
+    }
+}
+
+#[test]
+fn bad_targets_are_refused_with_a_reason() {
+    let t = template();
+    let sensor = Sensor::default_for(Modality::Markers, &t);
+    let short = Target::Sparse { values: vec![0.0; 5], visible: vec![true; 5] };
+    let err = Energy::new(t.clone(), sensor.clone(), short, EnergyConfig::default()).unwrap_err().to_string();
+    assert!(err.contains("expected 117"), "{err}");
+    let Target::Sparse { mut values, visible } = target_for(&sensor, &gt_pose()) else { unreachable!() };
+    values[4] = f64::NAN;
+    let err = Energy::new(t.clone(), sensor.clone(), Target::Sparse { values, visible }, EnergyConfig::default()).unwrap_err().to_string();
+    assert!(err.contains("value 4 is not finite"), "{err}");
+    let scan = Sensor::default_for(Modality::Scan, &t);
+    let err = Energy::new(t.clone(), sensor, target_for(&scan, &gt_pose()), EnergyConfig::default()).unwrap_err().to_string();
+    assert!(err.contains("sparse target"), "{err}");
+    let mut bad = EnergyConfig::default();
+    bad.weights.ed = -1.0;
+    let err = Energy::new(t.clone(), scan.clone(), target_for(&scan, &gt_pose()), bad).unwrap_err().to_string();
+    assert!(err.contains("weights.ed"), "{err}");
+    // A NaN hidden behind invisibility is fine: it is not data.
+    let sensor = Sensor::default_for(Modality::Hmd, &t);
+    let Target::Sparse { mut values, mut visible } = target_for(&sensor, &gt_pose()) else { unreachable!() };
+    values[20] = f64::NAN;
+    visible[20] = false;
+    assert!(Energy::new(t, sensor, Target::Sparse { values, visible }, EnergyConfig::default()).is_ok());
+}
+
+#[test]
+fn resampled_masks_keep_the_silhouette_area() {
+    let mut m = Mask::new(640, 480);
+    for y in 100..300 {
+        for x in 200..400 {
+            m.data[x + 640 * y] = 1;
+        }
+    }
+    let small = resample_mask(&m, 128, 96);
+    // 200×200 px at scale 0.2 → 40×40 px.
+    assert_eq!(small.count(), 1600);
+    assert!(small.get(50, 30) && !small.get(10, 10));
+}
+
