@@ -2,6 +2,8 @@
 //! implementations behind the `lfit` binary; the binary only parses flags and calls them.
 
 pub mod commands;
+pub mod fit;
 
+pub use lfit_fitters as fitters;
 pub use lfit_model as model;
 pub use lfit_synth as synth;

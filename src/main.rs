@@ -8,6 +8,7 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use lfit::commands::{self, SynthArgs};
+use lfit::fit;
 use lfit::model::skinning::SkinningMethod;
 
 #[derive(Parser)]
@@ -60,6 +61,83 @@ enum Command {
         #[command(flatten)]
         template: TemplateArg,
     },
+    /// Fit frames of a dataset with a classical method; writes per-frame pose, energy, terms,
+    /// V2V/MPJPE against the ground truth, evaluations and time.
+    Fit(FitCmd),
+    /// Run one optimizer on a standard test function (sphere, ellipsoid, rosenbrock, rastrigin)
+    /// on [-5, 5]^d from 0, optimum at (1, ..., 1) with value 0.
+    Optimize {
+        #[arg(long)]
+        function: String,
+        #[arg(long)]
+        dim: usize,
+        #[arg(long)]
+        method: String,
+        #[arg(long)]
+        budget: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long, default_value = "nevergrad")]
+        preset: String,
+        /// Print JSON (the only output format; accepted for scripts).
+        #[arg(long)]
+        json: bool,
+    },
+    /// Serve one frame's energy as JSON lines on stdin/stdout so that external optimizers (e.g.
+    /// nevergrad) minimise the identical objective: {"describe": true} -> {"dim", "lower",
+    /// "upper", "start", "names"}; {"x": [...]} -> {"energy", "terms"} (add "gradient": true for
+    /// the gradient). A bad line gets {"error": ...} and the server keeps serving.
+    ObjectiveServer {
+        #[arg(long)]
+        data: PathBuf,
+        #[arg(long)]
+        frame: usize,
+        /// Energy configuration JSON; default papers/000 §4.1.
+        #[arg(long)]
+        energy: Option<PathBuf>,
+        /// Use the differentiable energy variant (EJ off, hinge EA).
+        #[arg(long)]
+        gradient: bool,
+        /// Refuse evaluations after this many.
+        #[arg(long)]
+        budget: Option<usize>,
+        #[arg(long)]
+        template: Option<PathBuf>,
+    },
+}
+
+#[derive(clap::Args)]
+struct FitCmd {
+    /// Dataset (.npz from `lfit synth`).
+    #[arg(long)]
+    data: PathBuf,
+    /// Method: random, one-plus-one, de, pso, cma, tbpsa, powell, cma-powell, ngo, apf, psapf, lbfgs.
+    #[arg(long)]
+    method: String,
+    /// Energy evaluations per frame (exact for zeroth-order methods; a cap for L-BFGS).
+    #[arg(long)]
+    budget: usize,
+    /// holistic, grouped (papers/000 Algorithm 1) or hierarchical (papers/001 §3.3).
+    #[arg(long, default_value = "holistic")]
+    strategy: String,
+    /// Optimizer settings: nevergrad (papers/000) or paper001 (papers/001 Table 3).
+    #[arg(long, default_value = "nevergrad")]
+    preset: String,
+    /// Frames: A..B (B excluded), A-B (B included), I, or a comma list; default all.
+    #[arg(long)]
+    frames: Option<String>,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Result JSON file.
+    #[arg(long)]
+    out: PathBuf,
+    /// Energy configuration JSON (weights, robust norm, ...); default papers/000 §4.1 (and the
+    /// differentiable variant for lbfgs).
+    #[arg(long)]
+    energy: Option<PathBuf>,
+    /// Template directory, if the dataset was not made with the procedural template.
+    #[arg(long)]
+    template: Option<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -140,6 +218,35 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             bar.finish_and_clear();
             result
         }
+        Command::Fit(c) => {
+            let args = fit::FitArgs {
+                data: c.data,
+                method: c.method,
+                budget: c.budget,
+                strategy: c.strategy,
+                preset: c.preset,
+                frames: c.frames,
+                seed: c.seed,
+                out: c.out,
+                energy: c.energy,
+                template: c.template,
+            };
+            let bar = progress_bar(0, cli.quiet, "fit");
+            let result = fit::fit(&args, &|done, total| {
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+            });
+            bar.finish_and_clear();
+            result
+        }
+        Command::Optimize { function, dim, method, budget, seed, preset, json: _ } => {
+            fit::optimize(&fit::OptimizeArgs { function, dim, method, preset, budget, seed })
+        }
+        Command::ObjectiveServer { data, frame, energy, gradient, budget, template } => {
+            let args = fit::ServerArgs { data, frame, energy, gradient, budget, template };
+            let stdin = std::io::stdin();
+            fit::objective_server(&args, stdin.lock(), std::io::stdout().lock()).map(|_| serde_json::Value::Null)
+        }
     }
 }
 
@@ -159,6 +266,7 @@ fn main() -> ExitCode {
         }
     };
     match run(cli) {
+        Ok(serde_json::Value::Null) => ExitCode::SUCCESS,
         Ok(summary) => {
             println!("{}", serde_json::to_string_pretty(&summary).unwrap_or_else(|_| summary.to_string()));
             ExitCode::SUCCESS

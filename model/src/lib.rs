@@ -7,6 +7,7 @@ pub mod body;
 pub mod camera;
 pub mod energy;
 pub mod error;
+pub mod metrics;
 pub mod observe;
 pub mod pose;
 pub mod rig;

@@ -410,6 +410,12 @@ impl Energy {
         (e, g.unwrap_or([0.0; POSE_DIM]))
     }
 
+    /// Value and terms for reporting a result, **not** counted: fitters never call it while
+    /// searching, only to report the terms of the pose they return.
+    pub fn inspect(&self, pose: &Pose) -> Evaluation {
+        self.compute(pose, false).0
+    }
+
     /// Totals of many poses, evaluated in parallel (rayon); counts one evaluation per pose.
     pub fn evaluate_batch(&self, poses: &[Pose]) -> Vec<f64> {
         self.evaluations.fetch_add(poses.len() as u64, Ordering::Relaxed);

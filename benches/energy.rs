@@ -1,0 +1,113 @@
+//! Energy and optimizer throughput (issue 3's benchmark figures):
+//! energy evaluations per second per modality on the default template (one thread, all threads),
+//! gradient evaluations per second, EJ alone (4 views at 128 px wide), and optimizer overhead per
+//! evaluation at d = 43 with a zero-cost function.
+//! Run with `cargo bench --bench energy`.
+
+use std::hint::black_box;
+use std::sync::Arc;
+
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use lfit::fitters::optim::{self, Method, Preset, Problem};
+use lfit::model::energy::{Energy, EnergyConfig, Target};
+use lfit::model::observe::{Modality, Sensor};
+use lfit::model::pose::{POSE_DIM, Pose};
+use lfit::model::scan::{DEFAULT_BOX_SCALE, distance_transform, render_silhouettes};
+use lfit::model::skinning::{SkinningMethod, pose_vertices};
+use lfit::model::{Template, default_template};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+fn random_poses(n: usize, spread: f64) -> Vec<Pose> {
+    let mut rng = ChaCha8Rng::seed_from_u64(42);
+    (0..n)
+        .map(|_| {
+            let mut p = [0.0; POSE_DIM];
+            for v in p.iter_mut() {
+                *v = rng.random_range(-spread..spread);
+            }
+            p
+        })
+        .collect()
+}
+
+fn energy(template: &Arc<Template>, modality: Modality, config: EnergyConfig) -> Energy {
+    let sensor = Sensor::default_for(modality, template);
+    let gt = random_poses(1, 0.2)[0];
+    let target = match &sensor {
+        Sensor::Scan(setup) => {
+            let verts = pose_vertices(template, &gt, SkinningMethod::Linear);
+            let grid = distance_transform(&verts, setup.voxel_size, DEFAULT_BOX_SCALE).expect("grid");
+            Target::Scan { grid, silhouettes: render_silhouettes(&setup.cameras, &verts, &template.faces) }
+        }
+        _ => {
+            let p = sensor.predict_sparse(template, &gt).expect("sparse");
+            Target::Sparse { values: p.values, visible: p.visible }
+        }
+    };
+    Energy::new(template.clone(), sensor, target, config).expect("energy")
+}
+
+fn bench(c: &mut Criterion) {
+    let template = Arc::new(default_template());
+    let poses = random_poses(64, 0.3);
+    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("pool");
+    let threads = rayon::current_num_threads();
+    let mut group = c.benchmark_group("energy");
+    group.throughput(Throughput::Elements(poses.len() as u64));
+    let mut no_ej = EnergyConfig::default();
+    no_ej.silhouettes = false;
+    let cases = [
+        ("markers", energy(&template, Modality::Markers, EnergyConfig::default())),
+        ("keypoints2d", energy(&template, Modality::Keypoints2d, EnergyConfig::default())),
+        ("hmd", energy(&template, Modality::Hmd, EnergyConfig::default())),
+        ("scan_without_EJ", energy(&template, Modality::Scan, no_ej)),
+        ("scan_with_EJ", energy(&template, Modality::Scan, EnergyConfig::default())),
+    ];
+    for (name, e) in &cases {
+        group.bench_function(BenchmarkId::new(*name, "1_thread"), |b| b.iter(|| one.install(|| black_box(e.evaluate_batch(&poses)))));
+        group.bench_function(BenchmarkId::new(*name, format!("{threads}_threads")), |b| b.iter(|| black_box(e.evaluate_batch(&poses))));
+    }
+    group.finish();
+
+    let mut group = c.benchmark_group("gradient");
+    group.throughput(Throughput::Elements(poses.len() as u64));
+    for (name, e) in &cases[..4] {
+        let e = Energy::clone(e);
+        group.bench_function(BenchmarkId::new(*name, "1_thread"), |b| {
+            b.iter(|| {
+                for p in &poses {
+                    black_box(e.evaluate_with_gradient(p));
+                }
+            })
+        });
+        group.bench_function(BenchmarkId::new(*name, format!("{threads}_threads")), |b| {
+            b.iter(|| black_box(poses.par_iter().map(|p| e.evaluate_with_gradient(p).0.total).sum::<f64>()))
+        });
+    }
+    group.finish();
+
+    // EJ's own cost is the difference of the scan rows with and without EJ above.
+    let mut group = c.benchmark_group("optimizer_overhead_d43");
+    let evals = 4_000usize;
+    group.throughput(Throughput::Elements(evals as u64));
+    for method in [Method::RandomSearch, Method::OnePlusOne, Method::DE, Method::PSO, Method::CMA, Method::TBPSA, Method::Powell, Method::APF] {
+        group.bench_function(method.as_str(), |b| {
+            b.iter(|| {
+                let problem = Problem::new(optim::Bounds::uniform(43, -1.0, 1.0).expect("bounds"), vec![0.0; 43], vec![0.1; 43]).expect("problem");
+                let mut opt = optim::build(method, Preset::Nevergrad, &problem, evals, 1, None).expect("build");
+                let f = |x: &[f64]| x[0] * 0.0;
+                black_box(optim::minimize(opt.as_mut(), &f, evals, false).expect("run"))
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(10).warm_up_time(std::time::Duration::from_secs(1)).measurement_time(std::time::Duration::from_secs(3));
+    targets = bench
+}
+criterion_main!(benches);

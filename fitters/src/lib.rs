@@ -1,0 +1,28 @@
+//! lfit's classical fitters (SPEC §6): the zeroth-order optimizers of papers/000 and papers/001
+//! behind one ask/tell interface ([`optim`]), the holistic / grouped / hierarchical strategies,
+//! and L-BFGS with the energy's exact gradient. Every fitter minimises the same
+//! [`lfit_model::energy::Energy`] and every evaluation goes through its counter.
+
+pub mod error;
+pub mod fitter;
+pub mod lbfgs;
+pub mod optim;
+pub mod zeroth;
+
+pub use error::FitError;
+pub use fitter::{FitRequest, FitResult, Fitter, Strategy, split_budget};
+pub use lbfgs::LbfgsFitter;
+pub use optim::{Method, Preset};
+pub use zeroth::ZerothOrderFitter;
+
+/// Every method `build_fitter` knows.
+pub const METHOD_NAMES: [&str; 12] = ["random", "one-plus-one", "de", "pso", "cma", "tbpsa", "powell", "cma-powell", "ngo", "apf", "psapf", "lbfgs"];
+
+/// The fitter called `method` (one of [`METHOD_NAMES`]) with `preset` and `strategy`.
+pub fn build_fitter(method: &str, preset: Preset, strategy: Strategy) -> Result<Box<dyn Fitter>, FitError> {
+    if method == "lbfgs" {
+        return Ok(Box::new(LbfgsFitter { strategy, ..LbfgsFitter::default() }));
+    }
+    let m: Method = method.parse().map_err(|_| FitError::UnknownMethod(method.to_string()))?;
+    Ok(Box::new(ZerothOrderFitter::new(m, preset, strategy)))
+}

@@ -1,0 +1,121 @@
+//! Every optimizer × strategy on the real energy: exact budgets, poses inside the bounds, fixed
+//! DOFs untouched, same seed → same result; and a first check that fitting actually fits.
+
+use std::sync::Arc;
+
+use lfit_fitters::{FitRequest, METHOD_NAMES, Preset, Strategy, build_fitter};
+use lfit_model::energy::{Energy, EnergyConfig, Target};
+use lfit_model::observe::{Modality, Sensor};
+use lfit_model::pose::{Bounds, DofMask, POSE_DIM, Pose, rot_offset};
+use lfit_model::{Template, default_template};
+
+fn template() -> Arc<Template> {
+    static T: std::sync::OnceLock<Arc<Template>> = std::sync::OnceLock::new();
+    T.get_or_init(|| Arc::new(default_template())).clone()
+}
+
+fn truth() -> Pose {
+    let mut p = [0.0; POSE_DIM];
+    p[0] = 0.1;
+    p[rot_offset(0) + 1] = 0.3;
+    p[rot_offset(5)] = 0.4;
+    p[rot_offset(16) + 1] = 0.5;
+    p
+}
+
+fn markers_energy(config: EnergyConfig) -> Energy {
+    let t = template();
+    let sensor = Sensor::default_for(Modality::Markers, &t);
+    let pred = sensor.predict_sparse(&t, &truth()).unwrap();
+    Energy::new(t, sensor, Target::Sparse { values: pred.values, visible: pred.visible }, config).unwrap()
+}
+
+/// A start 0.1 rad / 5 cm away from the truth on every DOF free in `local43` (the others match
+/// the truth, so the truth is reachable).
+fn start() -> Pose {
+    let mut s = truth();
+    for i in DofMask::local43().free {
+        s[i] += if i < 3 { 0.05 } else { 0.1 * if i % 2 == 0 { 1.0 } else { -1.0 } };
+    }
+    s
+}
+
+#[test]
+fn every_method_and_strategy_spends_exactly_its_budget_inside_the_bounds() {
+    let mask = DofMask::local43();
+    // A box that excludes the truth on some DOFs, so methods push against its faces.
+    let s = start();
+    let mut bounds = Bounds::around(&s, 0.03, 0.05);
+    bounds.upper[rot_offset(5)] = s[rot_offset(5)] + 0.01;
+    for method in METHOD_NAMES {
+        for strategy in Strategy::ALL {
+            for budget in [1usize, 13, 200] {
+                let config = if method == "lbfgs" { EnergyConfig::default().for_gradient() } else { EnergyConfig::default() };
+                let energy = markers_energy(config);
+                let fitter = build_fitter(method, Preset::Nevergrad, strategy).unwrap();
+                let request = FitRequest { energy: &energy, start: s, mask: mask.clone(), bounds: bounds.clone(), budget, seed: 7 };
+                let r = fitter.fit(&request).unwrap_or_else(|e| panic!("{method}/{strategy}/{budget}: {e}"));
+                let label = format!("{method}/{strategy} budget {budget}");
+                if method == "lbfgs" {
+                    assert!(r.evaluations <= budget as u64 && r.evaluations >= 1, "{label}: {}", r.evaluations);
+                    assert_eq!(r.gradient_evaluations + 1, r.evaluations.max(1), "{label}: the start is a value-only evaluation");
+                } else {
+                    assert_eq!(r.evaluations, budget as u64, "{label}");
+                    assert_eq!(r.gradient_evaluations, 0, "{label}");
+                }
+                assert_eq!(energy.evaluations(), r.evaluations, "{label}: every evaluation goes through the counter");
+                for i in 0..POSE_DIM {
+                    let v = r.pose[i];
+                    assert!(v >= bounds.lower[i] && v <= bounds.upper[i], "{label}: entry {i} = {v} outside [{}, {}]", bounds.lower[i], bounds.upper[i]);
+                    if !mask.free.contains(&i) {
+                        assert_eq!(v, s[i], "{label}: fixed entry {i} moved");
+                    }
+                }
+                // The reported energy is the energy of the reported pose, never worse than the start.
+                let mut p = [0.0; POSE_DIM];
+                p.copy_from_slice(&r.pose);
+                assert_eq!(energy.inspect(&p).total, r.energy, "{label}");
+                assert!(r.energy <= energy.inspect(&s).total + 1e-12, "{label}");
+                assert!(r.trace.windows(2).all(|w| w[1].1 <= w[0].1 && w[1].0 > w[0].0), "{label}: trace {:?}", r.trace);
+            }
+        }
+    }
+}
+
+#[test]
+fn same_seed_same_fit_different_seed_different_fit() {
+    for method in ["cma", "pso", "de", "apf"] {
+        let run = |seed| {
+            let energy = markers_energy(EnergyConfig::default());
+            let fitter = build_fitter(method, Preset::Nevergrad, Strategy::Holistic).unwrap();
+            let request = FitRequest { energy: &energy, start: start(), mask: DofMask::local43(), bounds: Bounds::local(&start()), budget: 300, seed };
+            fitter.fit(&request).unwrap()
+        };
+        let (a, b, c) = (run(1), run(1), run(2));
+        assert_eq!(a.pose, b.pose, "{method}");
+        assert_eq!(a.trace, b.trace, "{method}");
+        assert_ne!(a.pose, c.pose, "{method}");
+    }
+}
+
+#[test]
+fn cma_and_lbfgs_recover_the_truth_from_a_nearby_start() {
+    let energy = markers_energy(EnergyConfig::default());
+    let fitter = build_fitter("cma", Preset::Nevergrad, Strategy::Holistic).unwrap();
+    let request = FitRequest { energy: &energy, start: start(), mask: DofMask::local43(), bounds: Bounds::local(&start()), budget: 4000, seed: 3 };
+    let r = fitter.fit(&request).unwrap();
+    let mut pose = [0.0; POSE_DIM];
+    pose.copy_from_slice(&r.pose);
+    let v2v = lfit_model::metrics::v2v_mm(&template(), &pose, &truth());
+    let v2v0 = lfit_model::metrics::v2v_mm(&template(), &start(), &truth());
+    assert!(v2v < 0.25 * v2v0, "cma: V2V {v2v:.1} mm from {v2v0:.1} mm");
+
+    let energy = markers_energy(EnergyConfig::default().for_gradient());
+    let fitter = build_fitter("lbfgs", Preset::Nevergrad, Strategy::Holistic).unwrap();
+    let request = FitRequest { energy: &energy, start: start(), mask: DofMask::local43(), bounds: Bounds::local(&start()), budget: 300, seed: 3 };
+    let r = fitter.fit(&request).unwrap();
+    pose.copy_from_slice(&r.pose);
+    let v2v = lfit_model::metrics::v2v_mm(&template(), &pose, &truth());
+    assert!(v2v < 2.0, "lbfgs: V2V {v2v:.2} mm");
+    assert!(r.energy < 1e-6, "lbfgs: energy {}", r.energy);
+}

@@ -1,0 +1,361 @@
+//! `lfit fit`, `lfit objective-server` and `lfit optimize`: datasets → energies → fitters.
+
+use std::io::{BufRead, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{Context, Result, bail};
+use lfit_fitters::optim::{self, Method, Preset};
+use lfit_fitters::{FitRequest, Strategy, build_fitter};
+use lfit_model::energy::{Energy, EnergyConfig, Target};
+use lfit_model::metrics::{mpjpe_mm, v2v_mm};
+use lfit_model::pose::{Bounds, DofMask, POSE_DIM, Pose, dof_name};
+use lfit_model::template::{Template, write_atomic};
+use lfit_synth::{Dataset, Observations, Scenario};
+use serde_json::{Map, Value, json};
+
+/// The template a dataset was synthesised with: `--template DIR` when given (its id must match
+/// the dataset's), else the procedural body named by the dataset's template id.
+pub fn template_for(dataset: &Dataset, dir: Option<&Path>) -> Result<Arc<Template>> {
+    let template = match dir {
+        Some(d) => crate::commands::load_template(Some(d), "default")?,
+        None => {
+            let id = &dataset.meta.template_id;
+            let shape = match id.strip_prefix("default") {
+                Some("") => "default",
+                Some(rest) if rest.starts_with('+') => &rest[1..],
+                _ => bail!("dataset was made with template '{id}': pass that template with --template DIR"),
+            };
+            crate::commands::load_template(None, shape)?
+        }
+    };
+    if template.id != dataset.meta.template_id || template.num_vertices() != dataset.meta.template_vertices {
+        bail!(
+            "dataset was made with template '{}' ({} vertices), not '{}' ({} vertices)",
+            dataset.meta.template_id,
+            dataset.meta.template_vertices,
+            template.id,
+            template.num_vertices()
+        );
+    }
+    Ok(Arc::new(template))
+}
+
+/// The energy of frame `frame` of `dataset`.
+pub fn energy_for_frame(dataset: &Dataset, template: Arc<Template>, frame: usize, config: EnergyConfig) -> Result<Energy> {
+    if frame >= dataset.len() {
+        bail!("frame {frame} is out of range: the dataset has {} frames", dataset.len());
+    }
+    let target = match &dataset.observations {
+        Observations::Sparse { values, visible } => Target::Sparse { values: values[frame].clone(), visible: visible[frame].clone() },
+        Observations::Scan { grids, silhouettes, .. } => Target::Scan { grid: grids[frame].clone(), silhouettes: silhouettes[frame].clone() },
+    };
+    Energy::new(template, dataset.sensor.clone(), target, config).with_context(|| format!("frame {frame}"))
+}
+
+/// Free DOFs of a scenario (papers/000 §4: 43 local, 41 global).
+pub fn scenario_mask(scenario: Scenario) -> DofMask {
+    match scenario {
+        Scenario::Global => DofMask::global41(),
+        Scenario::Local | Scenario::Sequence => DofMask::local43(),
+    }
+}
+
+/// Search box of a scenario around a start pose.
+pub fn scenario_bounds(scenario: Scenario, start: &Pose) -> Bounds {
+    match scenario {
+        Scenario::Global => Bounds::global(),
+        Scenario::Local | Scenario::Sequence => Bounds::local(start),
+    }
+}
+
+/// Parses `--frames`: `A..B` (B excluded), `A-B` (B included), `I`, or a comma list of those.
+pub fn parse_frames(spec: Option<&str>, len: usize) -> Result<Vec<usize>> {
+    let Some(spec) = spec else { return Ok((0..len).collect()) };
+    let mut out = Vec::new();
+    for part in spec.split(',').map(str::trim) {
+        let num = |s: &str| s.trim().parse::<usize>().with_context(|| format!("--frames: '{s}' is not a frame index"));
+        let (a, b) = if let Some((a, b)) = part.split_once("..") {
+            (num(a)?, num(b)?)
+        } else if let Some((a, b)) = part.split_once('-') {
+            (num(a)?, num(b)? + 1)
+        } else {
+            let i = num(part)?;
+            (i, i + 1)
+        };
+        if a >= b {
+            bail!("--frames: empty range '{part}'");
+        }
+        if b > len {
+            bail!("--frames: '{part}' goes past the last frame ({} frames)", len);
+        }
+        out.extend(a..b);
+    }
+    Ok(out)
+}
+
+/// Reads an energy configuration JSON file (unknown keys refused).
+pub fn read_energy_config(path: Option<&Path>, gradient: bool) -> Result<EnergyConfig> {
+    let config = match path {
+        Some(p) => {
+            let text = std::fs::read_to_string(p).with_context(|| format!("cannot read {}", p.display()))?;
+            serde_json::from_str(&text).with_context(|| format!("malformed energy configuration {}", p.display()))?
+        }
+        None if gradient => EnergyConfig::default().for_gradient(),
+        None => EnergyConfig::default(),
+    };
+    config.validate()?;
+    Ok(config)
+}
+
+fn terms_json(terms: &[(&'static str, f64)]) -> Value {
+    Value::Object(terms.iter().map(|(k, v)| ((*k).to_string(), json!(v))).collect::<Map<_, _>>())
+}
+
+/// Arguments of `lfit fit`.
+#[derive(Debug, Clone)]
+pub struct FitArgs {
+    pub data: PathBuf,
+    pub method: String,
+    pub budget: usize,
+    pub strategy: String,
+    pub preset: String,
+    pub frames: Option<String>,
+    pub seed: u64,
+    pub out: PathBuf,
+    pub energy: Option<PathBuf>,
+    pub template: Option<PathBuf>,
+}
+
+/// `lfit fit`: fits every selected frame, writes the result JSON atomically and returns a summary.
+pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
+    // Settings first, before any work.
+    if args.budget == 0 {
+        bail!("--budget must be at least 1 evaluation");
+    }
+    let strategy: Strategy = args.strategy.parse()?;
+    let preset: Preset = args.preset.parse().map_err(|_| lfit_fitters::FitError::UnknownPreset(args.preset.clone()))?;
+    let fitter = build_fitter(&args.method, preset, strategy)?;
+    let gradient = args.method == "lbfgs";
+    let config = read_energy_config(args.energy.as_deref(), gradient)?;
+    let dataset = Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))?;
+    let frames = parse_frames(args.frames.as_deref(), dataset.len())?;
+    let template = template_for(&dataset, args.template.as_deref())?;
+    let scenario = dataset.meta.config.scenario;
+    let mask = scenario_mask(scenario);
+    let mut rows = Vec::with_capacity(frames.len());
+    let mut previous: Option<(usize, Pose)> = None;
+    let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
+    for (k, &frame) in frames.iter().enumerate() {
+        let energy = energy_for_frame(&dataset, template.clone(), frame, config.clone())?;
+        // Sequence fitting (papers/000 §4.3): warm start from the previous frame's solution.
+        let start = match (scenario, previous) {
+            (Scenario::Sequence, Some((p, pose))) if p + 1 == frame => pose,
+            _ => dataset.start_poses[frame],
+        };
+        let bounds = scenario_bounds(scenario, &start);
+        let seed = args.seed ^ (frame as u64).wrapping_mul(0xD1B5_4A32_D192_ED03);
+        let request = FitRequest { energy: &energy, start, mask: mask.clone(), bounds, budget: args.budget, seed };
+        let start_energy = energy.inspect(&start).total;
+        let result = fitter.fit(&request)?;
+        let mut pose = [0.0; POSE_DIM];
+        pose.copy_from_slice(&result.pose);
+        let gt = &dataset.gt_poses[frame];
+        let v2v = v2v_mm(&template, &pose, gt);
+        let mpjpe = mpjpe_mm(&template, &pose, gt);
+        sum_v2v += v2v;
+        sum_mpjpe += mpjpe;
+        sum_e += result.energy;
+        sum_t += result.time_s;
+        rows.push(json!({
+            "frame": frame,
+            "pose": result.pose,
+            "energy": result.energy,
+            "start_energy": start_energy,
+            "terms": terms_json(&result.terms),
+            "v2v_mm": v2v,
+            "mpjpe_mm": mpjpe,
+            "evaluations": result.evaluations,
+            "gradient_evaluations": result.gradient_evaluations,
+            "iterations": result.iterations,
+            "time_s": result.time_s,
+            "trace": result.trace,
+        }));
+        previous = Some((frame, pose));
+        progress(k + 1, frames.len());
+    }
+    let n = frames.len().max(1) as f64;
+    let summary = json!({
+        "frames": frames.len(),
+        "mean_v2v_mm": sum_v2v / n,
+        "mean_mpjpe_mm": sum_mpjpe / n,
+        "mean_energy": sum_e / n,
+        "mean_time_s": sum_t / n,
+    });
+    let out = json!({
+        "method": fitter.name(),
+        "budget": args.budget,
+        "strategy": strategy.name(),
+        "preset": preset.as_str(),
+        "seed": args.seed,
+        "data": args.data,
+        "modality": dataset.modality().name(),
+        "scenario": scenario.to_string(),
+        "mask": mask.name,
+        "energy_config": config,
+        "energy_variant": if config.is_differentiable() { "gradient (EJ off, hinge EA)" } else { "paper (papers/000 eq. 3)" },
+        "summary": summary,
+        "frames": rows,
+    });
+    let bytes = serde_json::to_vec_pretty(&out)?;
+    write_atomic(&args.out, &bytes)?;
+    Ok(json!({ "out": args.out, "method": fitter.name(), "budget": args.budget, "summary": summary }))
+}
+
+/// Arguments of `lfit objective-server`.
+#[derive(Debug, Clone)]
+pub struct ServerArgs {
+    pub data: PathBuf,
+    pub frame: usize,
+    pub energy: Option<PathBuf>,
+    pub gradient: bool,
+    pub budget: Option<usize>,
+    pub template: Option<PathBuf>,
+}
+
+/// The energy, free DOFs, box and start of one frame, as served to external optimizers.
+pub struct Served {
+    pub energy: Energy,
+    pub mask: DofMask,
+    pub lower: Vec<f64>,
+    pub upper: Vec<f64>,
+    pub start: Pose,
+    pub budget: Option<usize>,
+}
+
+impl Served {
+    pub fn new(args: &ServerArgs) -> Result<Self> {
+        if args.budget == Some(0) {
+            bail!("--budget must be at least 1 evaluation");
+        }
+        let config = read_energy_config(args.energy.as_deref(), args.gradient)?;
+        let dataset = Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))?;
+        let template = template_for(&dataset, args.template.as_deref())?;
+        let energy = energy_for_frame(&dataset, template, args.frame, config)?;
+        let scenario = dataset.meta.config.scenario;
+        let start = dataset.start_poses[args.frame];
+        let mask = scenario_mask(scenario);
+        let (lower, upper) = scenario_bounds(scenario, &start).restrict(&mask);
+        Ok(Self { energy, mask, lower, upper, start, budget: args.budget })
+    }
+
+    /// Answers one request line; errors are answers too (`{"error": ...}`), so the server keeps
+    /// serving.
+    pub fn answer(&self, line: &str) -> Value {
+        match self.try_answer(line) {
+            Ok(v) => v,
+            Err(e) => json!({ "error": format!("{e:#}") }),
+        }
+    }
+
+    fn try_answer(&self, line: &str) -> Result<Value> {
+        let request: Value = serde_json::from_str(line).context("malformed JSON line")?;
+        if request.get("describe").and_then(Value::as_bool) == Some(true) {
+            return Ok(json!({
+                "dim": self.mask.dim(),
+                "lower": self.lower,
+                "upper": self.upper,
+                "start": self.mask.gather(&self.start),
+                "names": self.mask.free.iter().map(|&i| dof_name(i)).collect::<Vec<_>>(),
+                "modality": self.energy.modality().name(),
+                "energy_config": self.energy.config(),
+                "evaluations": self.energy.evaluations(),
+            }));
+        }
+        let Some(x) = request.get("x") else { bail!("expected {{\"x\": [...]}} or {{\"describe\": true}}") };
+        let x = x.as_array().context("\"x\" is not an array")?;
+        if x.len() != self.mask.dim() {
+            bail!("x has {} numbers, expected {}", x.len(), self.mask.dim());
+        }
+        let mut values = Vec::with_capacity(x.len());
+        for (i, v) in x.iter().enumerate() {
+            match v.as_f64() {
+                Some(f) if f.is_finite() => values.push(f),
+                _ => bail!("x[{i}] is not a finite number ({v})"),
+            }
+        }
+        if let Some(b) = self.budget
+            && self.energy.evaluations() >= b as u64
+        {
+            bail!("budget of {b} evaluations spent");
+        }
+        let mut pose = self.start;
+        self.mask.scatter(&values, &mut pose);
+        let want_grad = request.get("gradient").and_then(Value::as_bool) == Some(true);
+        if want_grad {
+            let (ev, g) = self.energy.evaluate_with_gradient(&pose);
+            Ok(json!({ "energy": ev.total, "terms": terms_json(&ev.terms), "gradient": self.mask.gather(&g) }))
+        } else {
+            let ev = self.energy.evaluate(&pose);
+            Ok(json!({ "energy": ev.total, "terms": terms_json(&ev.terms) }))
+        }
+    }
+}
+
+/// `lfit objective-server`: JSON lines on stdin → JSON lines on stdout until end of input.
+pub fn objective_server(args: &ServerArgs, input: impl BufRead, mut output: impl Write) -> Result<Value> {
+    let served = Served::new(args)?;
+    for line in input.lines() {
+        let line = line.context("reading stdin")?;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let answer = served.answer(&line);
+        writeln!(output, "{answer}").context("writing stdout")?;
+        output.flush().context("writing stdout")?;
+    }
+    Ok(json!({ "evaluations": served.energy.evaluations() }))
+}
+
+/// Arguments of `lfit optimize`.
+#[derive(Debug, Clone)]
+pub struct OptimizeArgs {
+    pub function: String,
+    pub dim: usize,
+    pub method: String,
+    pub preset: String,
+    pub budget: usize,
+    pub seed: u64,
+}
+
+/// `lfit optimize`: one optimizer on a standard test function (domain [−5, 5]^d, start 0, optimum
+/// at (1, …, 1) with value 0).
+pub fn optimize(args: &OptimizeArgs) -> Result<Value> {
+    if args.budget == 0 {
+        bail!("--budget must be at least 1 evaluation");
+    }
+    if args.dim == 0 {
+        bail!("--dim must be at least 1");
+    }
+    let function = optim::testfns::ALL
+        .iter()
+        .find(|(name, _)| *name == args.function)
+        .map(|&(_, f)| f)
+        .with_context(|| format!("unknown function '{}' (expected sphere, ellipsoid, rosenbrock or rastrigin)", args.function))?;
+    let method: Method = args.method.parse().map_err(|_| lfit_fitters::FitError::UnknownMethod(args.method.clone()))?;
+    let preset: Preset = args.preset.parse().map_err(|_| lfit_fitters::FitError::UnknownPreset(args.preset.clone()))?;
+    let problem = optim::testfns::problem(args.dim);
+    let mut opt = optim::build(method, preset, &problem, args.budget, args.seed, None)?;
+    let f = |x: &[f64]| function(x);
+    let out = optim::minimize(opt.as_mut(), &f, args.budget, false)?;
+    Ok(json!({
+        "function": args.function,
+        "dim": args.dim,
+        "method": opt.name(),
+        "seed": args.seed,
+        "best_value": out.best_value,
+        "best_x": out.best_x,
+        "evaluations": out.evaluations,
+        "trace": out.trace,
+    }))
+}
