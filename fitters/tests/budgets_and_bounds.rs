@@ -117,5 +117,6 @@ fn cma_and_lbfgs_recover_the_truth_from_a_nearby_start() {
     pose.copy_from_slice(&r.pose);
     let v2v = lfit_model::metrics::v2v_mm(&template(), &pose, &truth());
     assert!(v2v < 2.0, "lbfgs: V2V {v2v:.2} mm");
-    assert!(r.energy < 1e-6, "lbfgs: energy {}", r.energy);
+    let e0 = energy.inspect(&start()).total;
+    assert!(r.energy < 1e-3 * e0, "lbfgs: energy {} from {e0} after {} evaluations", r.energy, r.evaluations);
 }
