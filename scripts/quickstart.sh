@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The README's main command, until `lfit quickstart` exists: the most complete pipeline so far.
-# Exports the procedural template, poses it, and synthesizes a small dataset per modality.
+# Exports the procedural template, poses it, synthesizes a small dataset per modality, and fits 20
+# frames of the markers set with CMA-ES, PSO and L-BFGS on the same energy.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/lfit-target}"
@@ -23,4 +24,9 @@ for m in markers keypoints2d hmd; do
 done
 "$LFIT" synth --modality hmd --scenario sequence --frames 300 --seed 2 --out "$OUT/hmd_sequence.npz"
 "$LFIT" synth --modality scan --scenario global --frames 4 --seed 3 --out "$OUT/scan.npz"
-echo "wrote $OUT: template/, posed.obj and datasets (open them with numpy.load)"
+for spec in "cma 2000" "pso 2000" "lbfgs 200"; do
+    set -- $spec
+    echo "fitting markers.npz frames 0..20 with $1 (budget $2 per frame):"
+    "$LFIT" fit --data "$OUT/markers.npz" --method "$1" --budget "$2" --frames 0..20 --out "$OUT/fit_$1.json" -q
+done
+echo "wrote $OUT: template/, posed.obj, datasets (open them with numpy.load) and fit_*.json results"
