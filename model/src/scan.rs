@@ -263,6 +263,31 @@ impl VoxelGrid {
         g
     }
 
+    /// The corner indices and interpolation weights of [`Self::stencil`], without the weights'
+    /// gradients (the value-only fast path).
+    pub fn stencil_weights(&self, p: DVec3) -> ([usize; 8], [f64; 8]) {
+        let (lo, hi, t) = self.cell(p);
+        let mut index = [0usize; 8];
+        let mut weight = [0.0; 8];
+        let base = self.index(lo[0], lo[1], lo[2]);
+        let step = [hi[0] - lo[0], self.dims[0] * (hi[1] - lo[1]), self.dims[0] * self.dims[1] * (hi[2] - lo[2])];
+        for n in 0..8 {
+            let mut i = base;
+            let mut w = 1.0;
+            for a in 0..3 {
+                if n & (1 << a) != 0 {
+                    i += step[a];
+                    w *= t[a];
+                } else {
+                    w *= 1.0 - t[a];
+                }
+            }
+            index[n] = i;
+            weight[n] = w;
+        }
+        (index, weight)
+    }
+
     /// The trilinear stencil at `clamp(p)`: the eight corner node indices (into `values`),
     /// their interpolation weights and the weights' gradients (per metre; zero along axes with a
     /// single node). `Σ w_c f_c` interpolates any node field `f`, `Σ ∇w_c f_c` is its gradient.

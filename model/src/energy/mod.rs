@@ -618,6 +618,40 @@ impl Energy {
         let want = adj.is_some();
         // Per vertex: ∂ED_sum/∂v, ∂ES_v/∂v and ∂ES_v/∂(unnormalised normal).
         let mut grads: Vec<[DVec3; 3]> = if want { Vec::with_capacity(posed.len()) } else { Vec::new() };
+        if !want {
+            // Value-only fast path: weights without their gradients, the tensor interpolated
+            // first and one quadratic form per vertex.
+            for (v, &p) in posed.iter().enumerate() {
+                let c = p.clamp(lo, hi);
+                let (index, weight) = grid.stencil_weights(c);
+                let mut s = 0.0;
+                for n in 0..8 {
+                    s += weight[n] * f64::from(grid.values[index[n]]);
+                }
+                ed_sum += s + p.distance_squared(c);
+                if c != p || axes.is_empty() {
+                    es_sum += 1.0;
+                    continue;
+                }
+                let n_raw = kin.skin_direction(self.skin.weights(v), self.rest_normals[v]);
+                let nl2 = n_raw.length_squared();
+                if nl2 <= 1e-24 {
+                    es_sum += 1.0;
+                    continue;
+                }
+                let mut t = [0.0f64; 6];
+                for k in 0..8 {
+                    let a = axes[index[k]];
+                    for (ti, ai) in t.iter_mut().zip(a) {
+                        *ti += weight[k] * f64::from(ai);
+                    }
+                }
+                let (x, y, z) = (n_raw.x, n_raw.y, n_raw.z);
+                let q = t[0] * x * x + t[3] * y * y + t[5] * z * z + 2.0 * (t[1] * x * y + t[2] * x * z + t[4] * y * z);
+                es_sum += 1.0 - q / nl2;
+            }
+            return ((ed_sum.max(0.0) / v_count).sqrt(), es_sum / v_count);
+        }
         for (v, &p) in posed.iter().enumerate() {
             let c = p.clamp(lo, hi);
             let st = grid.stencil(c);

@@ -53,6 +53,8 @@ pub(crate) struct Penetration {
     /// Tested vertices and, per vertex, the ellipsoids (indices into `ellipsoids`) it is tested
     /// against.
     pub(crate) tests: Vec<(u32, Vec<u16>)>,
+    /// Ranges of `tests` that share a dominant joint.
+    segments: Vec<(usize, usize)>,
     count: usize,
 }
 
@@ -90,7 +92,11 @@ impl Penetration {
         let adjacent = |a: usize, b: usize| a == b || parent(a) == Some(b) || parent(b) == Some(a);
         let step = stride.max(1);
         let mut tests = Vec::new();
-        for v in (0..template.num_vertices()).step_by(step) {
+        // Vertices grouped by their dominant joint, so that a whole segment can be skipped
+        // against a far ellipsoid (see `evaluate`).
+        let mut order: Vec<usize> = (0..template.num_vertices()).step_by(step).collect();
+        order.sort_by_key(|&v| (dominant[v], v));
+        for v in order {
             let x = template.vertices[v].as_dvec3();
             let list: Vec<u16> = ellipsoids
                 .iter()
@@ -105,7 +111,17 @@ impl Penetration {
             tests.push((v as u32, list));
         }
         let count = tests.len().max(1);
-        Self { ellipsoids, tests, count }
+        let mut segments: Vec<(usize, usize)> = Vec::new();
+        let mut k = 0;
+        while k < tests.len() {
+            let d = dominant[tests[k].0 as usize];
+            let start = k;
+            while k < tests.len() && dominant[tests[k].0 as usize] == d {
+                k += 1;
+            }
+            segments.push((start, k));
+        }
+        Self { ellipsoids, tests, segments, count }
     }
 
     /// EP at the posed vertices (`posed`, indexed like the template, or skinned here when `None`),
@@ -121,32 +137,55 @@ impl Penetration {
             })
             .collect();
         let mut sum = 0.0;
-        for (v, list) in &self.tests {
-            let v = *v as usize;
-            let p = match posed {
-                Some(all) => all[v],
-                None => kin.skin(skin.weights(v), skin.rest[v]),
-            };
-            for &i in list {
-                let e = &self.ellipsoids[i as usize];
-                let (c, q) = posed_ell[i as usize];
-                let d = p - c;
-                if d.length_squared() >= e.radius * e.radius {
-                    continue;
+        let mut points: Vec<DVec3> = Vec::new();
+        let mut near = vec![false; self.ellipsoids.len()];
+        for &(first, last) in &self.segments {
+            // Broad phase: the segment's posed vertices' bounding sphere against each
+            // ellipsoid's bounding sphere.
+            points.clear();
+            points.extend(self.tests[first..last].iter().map(|(v, _)| {
+                let v = *v as usize;
+                match posed {
+                    Some(all) => all[v],
+                    None => kin.skin(skin.weights(v), skin.rest[v]),
                 }
-                let qd = q * d;
-                let s = d.dot(qd);
-                if s >= 1.0 {
-                    continue;
-                }
-                sum += (1.0 - s) * (1.0 - s);
-                if let Some((adj, scale)) = adjoint.as_mut() {
-                    // dρ/ds = −2(1 − s); ds/dp = 2 Q d; the ellipsoid's own motion enters as a
-                    // point force at its centre and the torque h × d (see kinematics.rs).
-                    let h = qd * (-4.0 * (1.0 - s) * *scale / self.count as f64);
-                    adj.skinned_point(kin, skin.weights(v), skin.rest[v], h);
-                    adj.point(e.joint, c, -h, 1.0);
-                    adj.torque(e.joint, h.cross(d));
+            }));
+            let centre = points.iter().copied().sum::<DVec3>() / points.len().max(1) as f64;
+            let reach = points.iter().map(|p| p.distance_squared(centre)).fold(0.0, f64::max).sqrt();
+            let mut any = false;
+            for (i, e) in self.ellipsoids.iter().enumerate() {
+                near[i] = posed_ell[i].0.distance(centre) < reach + e.radius;
+                any |= near[i];
+            }
+            if !any {
+                continue;
+            }
+            for ((v, list), &p) in self.tests[first..last].iter().zip(&points) {
+                let v = *v as usize;
+                for &i in list {
+                    if !near[i as usize] {
+                        continue;
+                    }
+                    let e = &self.ellipsoids[i as usize];
+                    let (c, q) = posed_ell[i as usize];
+                    let d = p - c;
+                    if d.length_squared() >= e.radius * e.radius {
+                        continue;
+                    }
+                    let qd = q * d;
+                    let s = d.dot(qd);
+                    if s >= 1.0 {
+                        continue;
+                    }
+                    sum += (1.0 - s) * (1.0 - s);
+                    if let Some((adj, scale)) = adjoint.as_mut() {
+                        // dρ/ds = −2(1 − s); ds/dp = 2 Q d; the ellipsoid's own motion enters as a
+                        // point force at its centre and the torque h × d (see kinematics.rs).
+                        let h = qd * (-4.0 * (1.0 - s) * *scale / self.count as f64);
+                        adj.skinned_point(kin, skin.weights(v), skin.rest[v], h);
+                        adj.point(e.joint, c, -h, 1.0);
+                        adj.torque(e.joint, h.cross(d));
+                    }
                 }
             }
         }
