@@ -57,7 +57,13 @@ pub(crate) struct Kinematics {
 }
 
 impl Kinematics {
+    /// The posed skeleton; `factors` (needed only for gradients) is left empty unless
+    /// `with_factors`.
     pub fn new(template: &Template, pose: &Pose) -> Self {
+        Self::build(template, pose, true)
+    }
+
+    pub fn build(template: &Template, pose: &Pose, with_factors: bool) -> Self {
         let n = template.rig.joints.len();
         let mut world: Vec<DMat3> = Vec::with_capacity(n);
         let mut transforms: Vec<DAffine3> = Vec::with_capacity(n);
@@ -74,7 +80,9 @@ impl Kinematics {
                 Some(p) => (world[p], transforms[p].transform_point3(c)),
             };
             let w = parent_rot * local;
-            factors.push(parent_rot * left_jacobian(r));
+            if with_factors {
+                factors.push(parent_rot * left_jacobian(r));
+            }
             world.push(w);
             transforms.push(DAffine3 { matrix3: w, translation: anchor - w * c });
             joints.push(anchor);
@@ -88,10 +96,18 @@ impl Kinematics {
         weights.iter().fold(DVec3::ZERO, |acc, &(j, w)| acc + w * self.transforms[j as usize].transform_point3(x))
     }
 
-    /// Linear blend of rest direction `d` (`Σ w_j W_j d`), not normalised.
+    /// Linear blend skinning of rest point `x` and rest direction `d` together: the blended
+    /// affine map `Σ w_j A_j` applied to both (its linear part is `Σ w_j W_j`).
     #[inline]
-    pub fn skin_direction(&self, weights: &[(u16, f64)], d: DVec3) -> DVec3 {
-        weights.iter().fold(DVec3::ZERO, |acc, &(j, w)| acc + w * (self.world[j as usize] * d))
+    pub fn skin_both(&self, weights: &[(u16, f64)], x: DVec3, d: DVec3) -> (DVec3, DVec3) {
+        let mut m = glam::DMat3::ZERO;
+        let mut t = DVec3::ZERO;
+        for &(j, w) in weights {
+            let a = &self.transforms[j as usize];
+            m += a.matrix3 * w;
+            t += a.translation * w;
+        }
+        (m * x + t, m * d)
     }
 }
 

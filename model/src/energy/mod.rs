@@ -113,7 +113,8 @@ pub struct EnergyConfig {
     pub silhouettes: bool,
     /// Width in pixels at which EJ renders (heights keep the cameras' aspect ratio).
     pub silhouette_width: u32,
-    /// EP tests every `penetration_stride`-th template vertex.
+    /// EP tests every `penetration_stride`-th template vertex (default 16: 195 of the default
+    /// template's 3,106, a coarse proxy like the paper's; EP dominates the sparse energies' cost).
     pub penetration_stride: usize,
 }
 
@@ -126,7 +127,7 @@ impl Default for EnergyConfig {
             angle_prior: AnglePrior::Binary,
             silhouettes: true,
             silhouette_width: 128,
-            penetration_stride: 4,
+            penetration_stride: 16,
         }
     }
 }
@@ -451,7 +452,7 @@ impl Energy {
     }
 
     fn compute(&self, pose: &Pose, want_grad: bool) -> (Evaluation, Option<Pose>) {
-        let kin = Kinematics::new(&self.template, pose);
+        let kin = Kinematics::build(&self.template, pose, want_grad);
         let mut adj = want_grad.then(|| Adjoint::new(NUM_JOINTS));
         let mut grad_direct = [0.0; POSE_DIM];
         let w = self.config.weights;
@@ -465,8 +466,9 @@ impl Energy {
                 None
             }
             Target::Scan { grid, .. } => {
-                let posed: Vec<DVec3> = (0..self.skin.rest.len()).map(|v| kin.skin(self.skin.weights(v), self.skin.rest[v])).collect();
-                let (ed, es) = self.surface_terms(&kin, &posed, grid, adj.as_mut().map(|a| (a, w.ed, w.es)));
+                let (posed, normals): (Vec<DVec3>, Vec<DVec3>) =
+                    (0..self.skin.rest.len()).map(|v| kin.skin_both(self.skin.weights(v), self.skin.rest[v], self.rest_normals[v])).unzip();
+                let (ed, es) = self.surface_terms(&posed, &normals, grid, adj.as_mut().map(|a| (a, &kin, w.ed, w.es)));
                 terms.push(("ED", ed));
                 terms.push(("ES", es));
                 total += w.ed * ed + w.es * es;
@@ -609,7 +611,7 @@ impl Energy {
     }
 
     /// ED (papers/000 eq. 4) and ES (eq. 5) over all template vertices.
-    fn surface_terms(&self, kin: &Kinematics, posed: &[DVec3], grid: &VoxelGrid, adj: Option<(&mut Adjoint, f64, f64)>) -> (f64, f64) {
+    fn surface_terms(&self, posed: &[DVec3], normals: &[DVec3], grid: &VoxelGrid, adj: Option<(&mut Adjoint, &Kinematics, f64, f64)>) -> (f64, f64) {
         let v_count = posed.len() as f64;
         let (lo, hi) = (grid.box_min(), grid.box_max());
         let axes: &[[f32; 6]] = self.axes.as_ref().map_or(&[], |a| a.as_slice());
@@ -633,7 +635,7 @@ impl Energy {
                     es_sum += 1.0;
                     continue;
                 }
-                let n_raw = kin.skin_direction(self.skin.weights(v), self.rest_normals[v]);
+                let n_raw = normals[v];
                 let nl2 = n_raw.length_squared();
                 if nl2 <= 1e-24 {
                     es_sum += 1.0;
@@ -664,7 +666,7 @@ impl Energy {
             }
             ed_sum += s + p.distance_squared(c);
             // ES: 1 − nᵀ T n with T the interpolated direction tensor of ∇S; 1 outside the grid.
-            let n_raw = kin.skin_direction(self.skin.weights(v), self.rest_normals[v]);
+            let n_raw = normals[v];
             let nl = n_raw.length();
             let mut g_es = [DVec3::ZERO; 2];
             if c == p && nl > 1e-12 && !axes.is_empty() {
@@ -705,7 +707,7 @@ impl Energy {
         }
         let ed = (ed_sum.max(0.0) / v_count).sqrt();
         let es = es_sum / v_count;
-        if let Some((adj, wd, ws)) = adj {
+        if let Some((adj, kin, wd, ws)) = adj {
             let ed_scale = if ed > 0.0 { wd / (2.0 * ed * v_count) } else { 0.0 };
             let es_scale = ws / v_count;
             for (v, [ded, des, den]) in grads.into_iter().enumerate() {
