@@ -819,11 +819,11 @@ fn project(cam: &Camera, p: DVec3) -> ([f64; 2], [DVec3; 2]) {
 
 /// Headset and both wrists as (rotation, position), in the order of the `hmd` prediction.
 fn hmd_devices(setup: &HmdSetup, kin: &Kinematics) -> [(DMat3, DVec3); 3] {
-    let headset = headset_pose(setup, kin.world[HEAD], kin.joints[HEAD]);
+    let headset = headset_pose(setup, kin.world(HEAD), kin.joints[HEAD]);
     [
         (headset.matrix3, headset.translation),
-        (kin.world[L_HAND], kin.joints[L_HAND]),
-        (kin.world[R_HAND], kin.joints[R_HAND]),
+        (kin.world(L_HAND), kin.joints[L_HAND]),
+        (kin.world(R_HAND), kin.joints[R_HAND]),
     ]
 }
 

@@ -132,7 +132,7 @@ impl Penetration {
             .ellipsoids
             .iter()
             .map(|e| {
-                let w = kin.world[e.joint];
+                let w = kin.world(e.joint);
                 (kin.transforms[e.joint].transform_point3(e.centre), w * e.q * w.transpose())
             })
             .collect();
