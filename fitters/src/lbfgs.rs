@@ -97,7 +97,9 @@ impl Objective<'_> {
     }
 }
 
-impl CostFunction for Objective<'_> {
+// `Executor::new` takes the problem by value; it gets a shared reference so the tracker can be
+// read after the run.
+impl CostFunction for &Objective<'_> {
     type Param = Vec<f64>;
     type Output = f64;
     fn cost(&self, x: &Vec<f64>) -> Result<f64, argmin::core::Error> {
@@ -105,7 +107,7 @@ impl CostFunction for Objective<'_> {
     }
 }
 
-impl Gradient for Objective<'_> {
+impl Gradient for &Objective<'_> {
     type Param = Vec<f64>;
     type Gradient = Vec<f64>;
     fn gradient(&self, x: &Vec<f64>) -> Result<Vec<f64>, argmin::core::Error> {
@@ -144,22 +146,5 @@ impl StageSolver for LbfgsFitter {
             pose[i] = st.best.1[k];
         }
         Ok(StageOutcome { best: st.best.0, trace: st.trace, iterations: if iterations > 0 { iterations } else { st.count as u64 } })
-    }
-}
-
-// `Executor::new` takes the problem by value; a shared reference implements the traits too.
-impl CostFunction for &Objective<'_> {
-    type Param = Vec<f64>;
-    type Output = f64;
-    fn cost(&self, x: &Vec<f64>) -> Result<f64, argmin::core::Error> {
-        (*self).cost(x)
-    }
-}
-
-impl Gradient for &Objective<'_> {
-    type Param = Vec<f64>;
-    type Gradient = Vec<f64>;
-    fn gradient(&self, x: &Vec<f64>) -> Result<Vec<f64>, argmin::core::Error> {
-        (*self).gradient(x)
     }
 }
