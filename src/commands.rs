@@ -25,6 +25,15 @@ pub fn load_template(dir: Option<&Path>, shape: &str) -> Result<Template> {
     }
 }
 
+/// The `--shape` whose procedural template has id `id` (`default` or `default+<shape>`); `None`
+/// for a template loaded from a directory.
+pub fn shape_of_template_id(id: &str) -> Option<&str> {
+    match id.strip_prefix("default")? {
+        "" => Some("default"),
+        rest => rest.strip_prefix('+'),
+    }
+}
+
 /// `lfit template export`: writes `template.obj` + `rig.json`.
 pub fn template_export(out_dir: &Path, shape: &str) -> Result<Value> {
     let template = load_template(None, shape)?;

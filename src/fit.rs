@@ -21,10 +21,8 @@ pub fn template_for(dataset: &Dataset, dir: Option<&Path>) -> Result<Arc<Templat
         Some(d) => crate::commands::load_template(Some(d), "default")?,
         None => {
             let id = &dataset.meta.template_id;
-            let shape = match id.strip_prefix("default") {
-                Some("") => "default",
-                Some(rest) if rest.starts_with('+') => &rest[1..],
-                _ => bail!("dataset was made with template '{id}': pass that template with --template DIR"),
+            let Some(shape) = crate::commands::shape_of_template_id(id) else {
+                bail!("dataset was made with template '{id}': pass that template with --template DIR");
             };
             crate::commands::load_template(None, shape)?
         }
