@@ -4,6 +4,8 @@
 //! evaluation at d = 43 with a zero-cost function.
 //! Run with `cargo bench --bench energy`.
 
+mod support;
+
 use std::hint::black_box;
 use std::sync::Arc;
 
@@ -11,26 +13,11 @@ use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_m
 use lfit::fitters::optim::{self, Method, Preset, Problem};
 use lfit::model::energy::{Energy, EnergyConfig, Target};
 use lfit::model::observe::{Modality, Sensor};
-use lfit::model::pose::{POSE_DIM, Pose};
 use lfit::model::scan::{DEFAULT_BOX_SCALE, distance_transform, render_silhouettes};
 use lfit::model::skinning::{SkinningMethod, pose_vertices};
 use lfit::model::{Template, default_template};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
-
-fn random_poses(n: usize, spread: f64) -> Vec<Pose> {
-    let mut rng = ChaCha8Rng::seed_from_u64(42);
-    (0..n)
-        .map(|_| {
-            let mut p = [0.0; POSE_DIM];
-            for v in p.iter_mut() {
-                *v = rng.random_range(-spread..spread);
-            }
-            p
-        })
-        .collect()
-}
+use support::random_poses;
 
 fn energy(template: &Arc<Template>, modality: Modality, config: EnergyConfig) -> Energy {
     let sensor = Sensor::default_for(modality, template);

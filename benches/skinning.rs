@@ -2,33 +2,20 @@
 //! full meshes per second on one thread and on all threads, and marker sets per second.
 //! Run with `cargo bench --bench skinning`.
 
+mod support;
+
 use std::hint::black_box;
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use lfit::model::pose::{POSE_DIM, Pose};
 use lfit::model::skinning::{SkinningMethod, joint_transforms, pose_vertices_batch, skin_lbs_into, skin_lbs_subset};
 use lfit::model::default_template;
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
-
-fn random_poses(n: usize) -> Vec<Pose> {
-    let mut rng = ChaCha8Rng::seed_from_u64(42);
-    (0..n)
-        .map(|_| {
-            let mut p = [0.0; POSE_DIM];
-            for v in p.iter_mut() {
-                *v = rng.random_range(-0.5..0.5);
-            }
-            p
-        })
-        .collect()
-}
+use support::random_poses;
 
 fn bench(c: &mut Criterion) {
     let template = default_template();
     let markers: Vec<u32> = template.rig.markers.iter().map(|m| m.vertex).collect();
-    let poses = random_poses(256);
+    let poses = random_poses(256, 0.5);
     let threads = rayon::current_num_threads();
 
     let mut group = c.benchmark_group("full_mesh");
