@@ -57,10 +57,6 @@ pub(crate) struct Kinematics {
 }
 
 impl Kinematics {
-    pub fn new(template: &Template, pose: &Pose) -> Self {
-        Self::build(template, pose, true)
-    }
-
     /// The posed skeleton; `factors` (needed only for gradients) is left empty unless
     /// `with_factors`.
     pub fn build(template: &Template, pose: &Pose, with_factors: bool) -> Self {

@@ -428,7 +428,7 @@ impl Energy {
     pub fn residual(&self, pose: &Pose) -> Vec<f64> {
         match (&self.sensor, &self.target) {
             (Sensor::Scan(setup), Target::Scan { grid, .. }) => {
-                let kin = Kinematics::new(&self.template, pose);
+                let kin = Kinematics::build(&self.template, pose, false);
                 setup
                     .residual_vertices
                     .iter()
@@ -446,7 +446,7 @@ impl Energy {
     /// The sparse prediction computed by the energy's own f64 forward model (the one its
     /// gradient differentiates); `None` for `scan`. Tested against [`Sensor::predict_sparse`].
     pub fn predict(&self, pose: &Pose) -> Option<SparsePrediction> {
-        let kin = Kinematics::new(&self.template, pose);
+        let kin = Kinematics::build(&self.template, pose, false);
         let values = self.sparse_prediction(&kin)?;
         Some(SparsePrediction { visible: vec![true; values.len()], values })
     }
