@@ -608,6 +608,31 @@ mod tests {
     use rand_distr::StandardNormal;
     use rand_chacha::ChaCha8Rng;
 
+    #[test]
+    fn stencils_reproduce_sample_and_gradient() {
+        // The energy interpolates through `stencil`/`stencil_weights`; they must agree with the
+        // trilinear `sample` and `gradient`, inside the box and (clamped) outside it.
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let points: Vec<Vec3> = (0..200).map(|_| Vec3::new(rng.random_range(-0.3..0.3), rng.random_range(0.0..1.7), rng.random_range(-0.2..0.2))).collect();
+        let grid = distance_transform(&points, 0.03, DEFAULT_BOX_SCALE).unwrap();
+        for _ in 0..500 {
+            let p = DVec3::new(rng.random_range(-0.6..0.6), rng.random_range(-0.3..2.0), rng.random_range(-0.5..0.5));
+            let c = grid.clamp(p);
+            let st = grid.stencil(c);
+            let (index, weight) = grid.stencil_weights(c);
+            assert_eq!(index, st.index);
+            let value = |i: usize| f64::from(grid.values[i]);
+            let (mut s, mut g) = (0.0, DVec3::ZERO);
+            for n in 0..8 {
+                assert!((weight[n] - st.weight[n]).abs() < 1e-15);
+                s += st.weight[n] * value(st.index[n]);
+                g += st.gradient[n] * value(st.index[n]);
+            }
+            assert!((s - grid.sample(p)).abs() <= 1e-12 * (1.0 + s.abs()), "{p}: {s} vs {}", grid.sample(p));
+            assert!((g - grid.gradient(p)).length() <= 1e-9 * (1.0 + g.length()), "{p}: {g} vs {}", grid.gradient(p));
+        }
+    }
+
     /// Squared integer distance from every node to the nearest site, by brute force.
     fn brute_force(dims: [usize; 3], sites: &[[usize; 3]]) -> Vec<f64> {
         let mut out = Vec::new();
