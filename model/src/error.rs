@@ -45,6 +45,10 @@ pub enum ModelError {
     Target(String),
     #[error("tensor backend: {0}")]
     Backend(String),
+    #[error("{0}")]
+    Config(String),
+    #[error("checkpoint {path}: {reason}")]
+    Checkpoint { path: PathBuf, reason: String },
 }
 
 impl ModelError {

@@ -8,6 +8,7 @@ pub mod camera;
 pub mod energy;
 pub mod error;
 pub mod metrics;
+pub mod network;
 pub mod observe;
 pub mod pose;
 pub mod rig;

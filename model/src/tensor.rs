@@ -385,7 +385,7 @@ pub fn device_from_name(name: &str) -> Result<Device> {
 
 /// Burn's deprecated ndarray CPU device (still the reference CPU backend here).
 #[allow(deprecated)]
-fn ndarray_device() -> Device {
+pub fn ndarray_device() -> Device {
     Device::ndarray()
 }
 

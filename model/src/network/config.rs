@@ -1,0 +1,197 @@
+//! The neural fitter's configuration (SPEC §7): sizes and every ablation switch of papers/002.
+//!
+//! Defaults are papers/002's where it states one (N = 5, supp. §6.7; stacks of 2 GRUs with 1024
+//! units and initializers of 2 × 256 units, §3.5; dropout 0.5 on the GRU hidden states and an
+//! output-layer gain of 0.01, supp. §6.4; vector λ/γ from one shared network, supp. Table A.1).
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{ModelError, Result};
+use crate::observe::Modality;
+use crate::pose::POSE_DIM;
+
+/// The recurrent core `f` (and `fλγ`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CoreKind {
+    /// A stack of layer-normalized GRU cells (papers/002 supp. eq. 12).
+    Gru,
+    /// A residual MLP without memory: every iteration sees only its current inputs.
+    ResidualMlp,
+}
+
+/// How `Δθ`, `g`, `λ` and `γ` make the update `θn − θ(n−1)`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum UpdateRule {
+    /// `u = Δθ` (LGD: λ = 1, γ = 0; papers/002 Table 5 "Δθn").
+    DeltaOnly,
+    /// `u = λ ⊙ Δθ − γ ⊙ g` (papers/002 eq. 1).
+    Eq1,
+    /// `u = λ ⊙ Δθ + (1 − λ) ⊙ (−γ ⊙ g)`, `λ = σ(·)` (supp. eq. 10, first line).
+    Convex,
+    /// `u = γ ⊙ [λ ⊙ Δθ/‖Δθ‖ + (1 − λ) ⊙ (−g/‖g‖)]`, `λ = σ(·)` (supp. eq. 10, second line).
+    ConvexNormalized,
+}
+
+/// Whether γ is predicted or fixed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum GammaMode {
+    Learned,
+    /// `γ = gamma_constant` for every parameter (papers/002 Table 6 "constant").
+    Constant,
+}
+
+/// One value of λ (γ) per pose parameter, or one for all (supp. Table A.1).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StepShape {
+    Vector,
+    Scalar,
+}
+
+/// Where θ0 comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StartMode {
+    /// θ0 = Φ(D) (papers/002 Alg. 1).
+    Phi,
+    /// θ0 is a given pose (the scenario's start pose, or the previous frame's result).
+    Given,
+    /// Training draws Φ(D) or the given pose per sample with probability ½; inference may use
+    /// either. This is what the shipped checkpoints use, so one network serves both starts.
+    Mixed,
+}
+
+/// Everything that determines the network's structure and update rule.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NetConfig {
+    /// Observation modality the network was built for.
+    pub modality: Modality,
+    /// Length of the modality's residual vector R(θ) (also the observation vector's length).
+    pub residual_dim: usize,
+    /// Fitting iterations N.
+    pub iterations: usize,
+    pub core: CoreKind,
+    /// Layers of the core (GRU cells or residual blocks).
+    pub layers: usize,
+    /// Units per layer of the core.
+    pub hidden: usize,
+    /// Units per hidden layer of Φ and Φh (2 layers, ReLU, BatchNorm).
+    pub init_width: usize,
+    pub update: UpdateRule,
+    pub gamma: GammaMode,
+    /// γ when `gamma = constant`.
+    pub gamma_constant: f64,
+    /// γ at initialisation when learned (the head's output is ≈ 0 at first, so this is where
+    /// training starts from).
+    pub gamma_init: f64,
+    pub step_shape: StepShape,
+    /// One network for λ and γ (true) or one each.
+    pub shared_lambda_gamma: bool,
+    /// Separate weights for every iteration instead of one set shared by all.
+    pub per_step_weights: bool,
+    pub start: StartMode,
+    /// Dropout probability on the hidden states of the core during training.
+    pub dropout: f64,
+    /// Gain of the Xavier-uniform initialisation of the output layers.
+    pub output_gain: f64,
+    /// Normalised input features are clipped to ±this.
+    pub feature_clip: f64,
+}
+
+impl Default for NetConfig {
+    fn default() -> Self {
+        Self {
+            modality: Modality::Markers,
+            residual_dim: 0,
+            iterations: 5,
+            core: CoreKind::Gru,
+            layers: 2,
+            hidden: 1024,
+            init_width: 256,
+            update: UpdateRule::Eq1,
+            gamma: GammaMode::Learned,
+            gamma_constant: 1e-4,
+            gamma_init: 1e-4,
+            step_shape: StepShape::Vector,
+            shared_lambda_gamma: true,
+            per_step_weights: false,
+            start: StartMode::Phi,
+            dropout: 0.5,
+            output_gain: 0.01,
+            feature_clip: 10.0,
+        }
+    }
+}
+
+impl NetConfig {
+    /// Length of the observation features D: observed values (0 where invisible) and visibility.
+    pub fn obs_features(&self) -> usize {
+        2 * self.residual_dim
+    }
+
+    /// Input of the core at every iteration: `[R(θ), g, θ, D]`.
+    pub fn core_inputs(&self) -> usize {
+        self.residual_dim + 2 * POSE_DIM + self.obs_features()
+    }
+
+    /// Input of the λ/γ network: `[R(θ), R(θ + Δθ)]` (papers/002 eq. 2).
+    pub fn step_inputs(&self) -> usize {
+        2 * self.residual_dim
+    }
+
+    /// Outputs per λ or γ: one per pose parameter, or one.
+    pub fn step_outputs(&self) -> usize {
+        match self.step_shape {
+            StepShape::Vector => POSE_DIM,
+            StepShape::Scalar => 1,
+        }
+    }
+
+    /// Whether the update rule uses λ/γ at all (so whether the λ/γ network exists).
+    pub fn has_step_network(&self) -> bool {
+        self.update != UpdateRule::DeltaOnly
+    }
+
+    /// Whether the network predicts γ.
+    pub fn learns_gamma(&self) -> bool {
+        self.has_step_network() && self.gamma == GammaMode::Learned
+    }
+
+    /// Number of weight sets of the per-iteration networks.
+    pub fn weight_sets(&self) -> usize {
+        if self.per_step_weights { self.iterations } else { 1 }
+    }
+
+    /// Rejects configurations the network cannot be built from, naming the field.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |what: &str, why: String| Err(ModelError::Config(format!("network config: {what} {why}")));
+        if self.residual_dim == 0 {
+            return bad("residual_dim", "must be positive".into());
+        }
+        if self.iterations == 0 || self.iterations > 100 {
+            return bad("iterations", format!("must be in 1..=100, got {}", self.iterations));
+        }
+        if self.layers == 0 || self.layers > 8 {
+            return bad("layers", format!("must be in 1..=8, got {}", self.layers));
+        }
+        if self.hidden == 0 || self.hidden > 8192 || self.init_width == 0 || self.init_width > 8192 {
+            return bad("hidden/init_width", "must be in 1..=8192".into());
+        }
+        if !(0.0..1.0).contains(&self.dropout) {
+            return bad("dropout", format!("must be in [0, 1), got {}", self.dropout));
+        }
+        for (name, v) in [("gamma_constant", self.gamma_constant), ("gamma_init", self.gamma_init), ("output_gain", self.output_gain), ("feature_clip", self.feature_clip)] {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(name, format!("must be positive, got {v}"));
+            }
+        }
+        if self.modality == Modality::Scan {
+            return bad("modality", "scan has no neural fitter (its residual is not an observation vector)".into());
+        }
+        Ok(())
+    }
+}

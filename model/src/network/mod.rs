@@ -1,0 +1,20 @@
+//! The neural fitter of papers/002 (SPEC §7) as Burn modules: configuration and ablation
+//! switches, the layer-normalized GRU, the initializers, the update rule, the fitting loop and
+//! checkpoints.
+
+pub mod checkpoint;
+pub mod config;
+pub mod features;
+pub mod layers;
+pub mod net;
+pub mod unroll;
+
+pub use checkpoint::{Checkpoint, CheckpointMeta};
+pub use config::{CoreKind, GammaMode, NetConfig, StartMode, StepShape, UpdateRule};
+pub use features::{FeatureStats, Norm, observation_features};
+pub use layers::Dropout;
+pub use net::{NeuralNet, State, StepSizes};
+pub use unroll::{Constraints, Unrolled, unroll};
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,195 @@
+//! The fitting loop of papers/002 Alg. 1 on a batch of frames: the network runs on the tensor
+//! device, the energy (residuals R and exact gradients g, detached) on the CPU with rayon. Both
+//! training (autodiff device, dropout) and inference use this one loop.
+
+use burn::tensor::{Device, Tensor, TensorData};
+use rayon::prelude::*;
+
+use super::features::{FeatureStats, observation_features};
+use super::layers::Dropout;
+use super::net::NeuralNet;
+use crate::energy::Energy;
+use crate::error::{ModelError, Result};
+use crate::pose::{Bounds, POSE_DIM, Pose};
+
+/// Per-frame limits at inference: which DOFs may move and the box they stay in.
+#[derive(Debug, Clone)]
+pub struct Constraints {
+    pub free: Vec<[bool; POSE_DIM]>,
+    pub bounds: Vec<Bounds>,
+}
+
+/// What the loop produced.
+#[derive(Debug, Clone)]
+pub struct Unrolled {
+    /// θ0 … θN, `[B, 57]` each (differentiable on an autodiff device).
+    pub poses: Vec<Tensor<2>>,
+    /// The same poses on the host, `[N + 1][B]`.
+    pub host: Vec<Vec<Pose>>,
+    /// Per frame, the observation-model evaluations made for residuals (2 per iteration); the
+    /// energy counts its own gradient evaluations.
+    pub residual_evaluations: u64,
+}
+
+fn rows_tensor(rows: &[f32], batch: usize, device: &Device) -> Tensor<2> {
+    let d = if batch == 0 { 0 } else { rows.len() / batch };
+    Tensor::from_data(TensorData::new(rows.to_vec(), [batch, d]), device)
+}
+
+fn to_host(t: &Tensor<2>) -> Result<Vec<Pose>> {
+    let [batch, d] = t.dims();
+    let values = t.clone().detach().try_into_vec_as::<f32>().map_err(|e| ModelError::Backend(format!("cannot read poses: {e}")))?;
+    if d != POSE_DIM {
+        return Err(ModelError::Shape { what: "pose tensor".into(), expected: format!("[{batch}, {POSE_DIM}]"), got: format!("[{batch}, {d}]") });
+    }
+    Ok(values
+        .chunks_exact(POSE_DIM)
+        .map(|c| {
+            let mut p = [0.0; POSE_DIM];
+            for (a, &b) in p.iter_mut().zip(c) {
+                *a = f64::from(b);
+            }
+            p
+        })
+        .collect())
+}
+
+fn poses_tensor(poses: &[Pose], device: &Device) -> Tensor<2> {
+    let v: Vec<f32> = poses.iter().flat_map(|p| p.iter().map(|&x| x as f32)).collect();
+    rows_tensor(&v, poses.len(), device)
+}
+
+/// Runs N iterations on `energies` (one frame each). `starts[i]` is the given θ0 of frame `i`
+/// (`None`: θ0 = Φ(D)). `constraints` freezes DOFs and clamps every iterate into bounds.
+pub fn unroll(
+    net: &NeuralNet,
+    stats: &FeatureStats,
+    energies: &[&Energy],
+    starts: &[Option<Pose>],
+    constraints: Option<&Constraints>,
+    device: &Device,
+    dropout: &mut Dropout<'_>,
+) -> Result<Unrolled> {
+    let c = &net.config;
+    let batch = energies.len();
+    if batch == 0 || starts.len() != batch {
+        return Err(ModelError::Shape { what: "neural fitter batch".into(), expected: format!("{batch} start entries, at least one frame"), got: starts.len().to_string() });
+    }
+    if let Some(e) = energies.iter().find(|e| e.modality() != c.modality) {
+        return Err(ModelError::Config(format!("the network fits {} data, this frame is {}", c.modality, e.modality())));
+    }
+    let dim = c.residual_dim;
+    let clip = c.feature_clip as f32;
+
+    // Observation features D, normalised once per frame.
+    let obs_rows: Vec<Vec<f64>> = energies.iter().map(|e| observation_features(e)).collect();
+    if let Some(r) = obs_rows.iter().find(|r| r.len() != 2 * dim) {
+        return Err(ModelError::Shape { what: "observation features".into(), expected: (2 * dim).to_string(), got: r.len().to_string() });
+    }
+    let mut obs_norm = Vec::with_capacity(batch);
+    for r in &obs_rows {
+        let mut v = Vec::with_capacity(2 * dim);
+        stats.observation.push(r, clip, &mut v);
+        obs_norm.push(v);
+    }
+    let obs = rows_tensor(&obs_norm.concat(), batch, device);
+
+    let (phi, mut state) = net.initial(obs);
+    let given: Vec<Pose> = starts.iter().map(|s| s.unwrap_or([0.0; POSE_DIM])).collect();
+    let use_given: Vec<f32> = starts.iter().map(|s| if s.is_some() { 1.0 } else { 0.0 }).collect();
+    let mut theta = if use_given.iter().all(|&g| g == 1.0) {
+        poses_tensor(&given, device)
+    } else if use_given.iter().all(|&g| g == 0.0) {
+        phi
+    } else {
+        let m = rows_tensor(&use_given, batch, device);
+        poses_tensor(&given, device) * m.clone() + phi * m.neg().add_scalar(1.0)
+    };
+
+    let (free, lower, upper) = match constraints {
+        Some(k) => {
+            if k.free.len() != batch || k.bounds.len() != batch {
+                return Err(ModelError::Shape { what: "constraints".into(), expected: batch.to_string(), got: k.free.len().to_string() });
+            }
+            let f: Vec<f32> = k.free.iter().flat_map(|m| m.iter().map(|&b| if b { 1.0 } else { 0.0 })).collect();
+            let lo: Vec<f32> = k.bounds.iter().flat_map(|b| b.lower.iter().map(|&x| x as f32)).collect();
+            let hi: Vec<f32> = k.bounds.iter().flat_map(|b| b.upper.iter().map(|&x| x as f32)).collect();
+            if lo.len() != batch * POSE_DIM || hi.len() != batch * POSE_DIM {
+                return Err(ModelError::Shape { what: "bounds".into(), expected: POSE_DIM.to_string(), got: (lo.len() / batch).to_string() });
+            }
+            (Some(rows_tensor(&f, batch, device)), Some(rows_tensor(&lo, batch, device)), Some(rows_tensor(&hi, batch, device)))
+        }
+        None => (None, None, None),
+    };
+    let constrain = |t: Tensor<2>| match (&lower, &upper) {
+        (Some(lo), Some(hi)) => t.max_pair(lo.clone()).min_pair(hi.clone()),
+        _ => t,
+    };
+    theta = constrain(theta);
+
+    let mut host = vec![to_host(&theta)?];
+    let mut poses = vec![theta.clone()];
+    for n in 0..c.iterations {
+        let current = host.last().cloned().unwrap_or_default();
+        // R(θ) and g(θ) on the CPU (detached inputs).
+        let evals: Vec<(Vec<f64>, Pose)> = energies
+            .par_iter()
+            .zip(current.par_iter())
+            .map(|(e, p)| {
+                let (_, mut g) = e.evaluate_with_gradient(p);
+                for x in g.iter_mut() {
+                    if !x.is_finite() {
+                        *x = 0.0;
+                    }
+                }
+                (e.residual(p), g)
+            })
+            .collect();
+        let mut core_in = Vec::with_capacity(batch * c.core_inputs());
+        for ((r, g), (p, d)) in evals.iter().zip(current.iter().zip(&obs_norm)) {
+            if r.len() != dim {
+                return Err(ModelError::Shape { what: "residual".into(), expected: dim.to_string(), got: r.len().to_string() });
+            }
+            stats.residual.push(r, clip, &mut core_in);
+            stats.gradient.push(g, clip, &mut core_in);
+            stats.pose.push(p, clip, &mut core_in);
+            core_in.extend_from_slice(d);
+        }
+        let mut delta = net.propose(n, rows_tensor(&core_in, batch, device), &mut state, dropout);
+        let mut grad = poses_tensor(&evals.iter().map(|(_, g)| *g).collect::<Vec<_>>(), device);
+        if let Some(f) = &free {
+            delta = delta * f.clone();
+            grad = grad * f.clone();
+        }
+
+        let sizes = if c.has_step_network() {
+            // R(θ + Δθ): where the network alone would go (papers/002 eq. 2).
+            let delta_host = to_host(&delta)?;
+            let tried: Vec<Vec<f64>> = energies
+                .par_iter()
+                .zip(current.par_iter().zip(delta_host.par_iter()))
+                .map(|(e, (p, d))| {
+                    let mut q = *p;
+                    for (a, b) in q.iter_mut().zip(d) {
+                        *a += b;
+                    }
+                    e.residual(&q)
+                })
+                .collect();
+            let mut step_in = Vec::with_capacity(batch * c.step_inputs());
+            for ((r, _), r2) in evals.iter().zip(&tried) {
+                stats.residual.push(r, clip, &mut step_in);
+                stats.residual.push(r2, clip, &mut step_in);
+            }
+            net.step_sizes(n, rows_tensor(&step_in, batch, device), &mut state, dropout)
+        } else {
+            net.step_sizes(n, Tensor::zeros([batch, 1], device), &mut state, dropout)
+        };
+        let step = net.update(delta, grad, &sizes);
+        theta = constrain(theta + step);
+        host.push(to_host(&theta)?);
+        poses.push(theta.clone());
+    }
+    let per_iteration = if c.has_step_network() { 2 } else { 1 };
+    Ok(Unrolled { poses, host, residual_evaluations: (per_iteration * c.iterations) as u64 })
+}
