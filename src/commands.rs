@@ -153,3 +153,21 @@ pub fn visible_fraction(dataset: &Dataset) -> f64 {
     let seen: usize = flags.iter().map(|v| v.iter().filter(|&&b| b).count()).sum();
     if total == 0 { 0.0 } else { seen as f64 / total as f64 }
 }
+
+/// `lfit train`: trains a neural fitter as `config_path` says and writes checkpoints to `out`.
+pub fn train(config_path: &Path, out: &Path, device: &str, resume: bool, steps: Option<usize>, seed: Option<u64>, report: &(dyn Fn(lfit_train::Event) + Sync)) -> Result<Value> {
+    let mut config = lfit_train::TrainConfig::load(config_path)?;
+    if let Some(s) = steps {
+        config.steps = s;
+    }
+    if let Some(s) = seed {
+        config.seed = s;
+    }
+    config.validate()?;
+    let dev = lfit_model::tensor::device_from_name(device)?;
+    let template = std::sync::Arc::new(load_template(None, "default")?);
+    let command = std::env::args().collect::<Vec<_>>().join(" ");
+    let options = lfit_train::RunOptions { out: out.to_path_buf(), device_name: device.to_string(), resume, command };
+    let summary = lfit_train::train(&config, template, &dev, &options, report)?;
+    Ok(json!({ "out": out, "summary": summary }))
+}

@@ -61,6 +61,28 @@ enum Command {
         #[command(flatten)]
         template: TemplateArg,
     },
+    /// Train a neural fitter (papers/002) from a JSON config; writes a checkpoint directory
+    /// (config.json, weights.bpk, stats.json, metrics.json, metrics.csv, resume state).
+    Train {
+        /// Training config JSON (see checkpoints/*/train.json and configs/).
+        #[arg(long)]
+        config: PathBuf,
+        /// Checkpoint directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Tensor backend: ndarray, flex (CPU) or wgpu (GPU, or a software Vulkan driver).
+        #[arg(long, default_value = "flex")]
+        device: String,
+        /// Continue the run in --out from its last checkpoint.
+        #[arg(long)]
+        resume: bool,
+        /// Override the config's steps.
+        #[arg(long)]
+        steps: Option<usize>,
+        /// Override the config's seed.
+        #[arg(long)]
+        seed: Option<u64>,
+    },
     /// Fit frames of a dataset with a classical method; writes per-frame pose, energy, terms,
     /// V2V/MPJPE against the ground truth, evaluations and time.
     Fit(FitCmd),
@@ -235,6 +257,23 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             let result = fit::fit(&args, &|done, total| {
                 bar.set_length(total as u64);
                 bar.set_position(done as u64);
+            });
+            bar.finish_and_clear();
+            result
+        }
+        Command::Train { config, out, device, resume, steps, seed } => {
+            let bar = progress_bar(0, cli.quiet, "train");
+            let result = commands::train(&config, &out, &device, resume, steps, seed, &|event| match event {
+                lfit::train::Event::Step { step, steps, loss } => {
+                    bar.set_length(steps as u64);
+                    bar.set_position(step as u64);
+                    bar.set_message(format!("train loss {loss:.1}"));
+                }
+                lfit::train::Event::Validation { step, validation } => {
+                    let v = |x: &[f64]| x.iter().map(|v| format!("{v:.1}")).collect::<Vec<_>>().join(" ");
+                    bar.println(format!("step {step}: validation V2V mm per iteration [{}], MPJPE [{}]", v(&validation.v2v_mm), v(&validation.mpjpe_mm)));
+                }
+                lfit::train::Event::Checkpoint { .. } => {}
             });
             bar.finish_and_clear();
             result
