@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
 use lfit_fitters::optim::{self, Method, Preset};
-use lfit_fitters::{FitRequest, Strategy, build_fitter};
+use lfit_fitters::{FitRequest, Fitter, Strategy, build_fitter};
 use lfit_model::energy::{Energy, EnergyConfig, Target};
 use lfit_model::metrics::{mpjpe_mm, v2v_mm};
 use lfit_model::pose::{Bounds, DofMask, POSE_DIM, Pose, dof_name};
@@ -123,6 +123,11 @@ pub struct FitArgs {
     pub out: PathBuf,
     pub energy: Option<PathBuf>,
     pub template: Option<PathBuf>,
+    /// Neural fitter: checkpoint directory, θ0 source, backend, frames per network pass.
+    pub checkpoint: Option<PathBuf>,
+    pub neural_start: String,
+    pub device: String,
+    pub batch: usize,
 }
 
 /// `lfit fit`: fits every selected frame, writes the result JSON atomically and returns a summary.
@@ -133,8 +138,27 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     }
     let strategy: Strategy = args.strategy.parse()?;
     let preset: Preset = args.preset.parse().map_err(|_| lfit_fitters::FitError::UnknownPreset(args.preset.clone()))?;
-    let fitter = build_fitter(&args.method, preset, strategy)?;
-    let gradient = args.method == "lbfgs";
+    if args.batch == 0 {
+        bail!("--batch must be at least 1");
+    }
+    let neural = args.method == "neural";
+    let (neural_fitter, classic): (Option<lfit_infer::NeuralFitter>, Option<Box<dyn Fitter>>) = if neural {
+        let dir = args.checkpoint.as_deref().context("--method neural needs --checkpoint DIR")?;
+        let start: lfit_infer::Start = args.neural_start.parse().map_err(anyhow::Error::msg)?;
+        let device = lfit_model::tensor::device_from_name(&args.device)?;
+        (Some(lfit_infer::NeuralFitter::load(dir, &device, start)?), None)
+    } else {
+        if args.checkpoint.is_some() {
+            bail!("--checkpoint is only for --method neural");
+        }
+        (None, Some(build_fitter(&args.method, preset, strategy)?))
+    };
+    let fitter: &dyn Fitter = match (&neural_fitter, &classic) {
+        (Some(n), _) => n,
+        (None, Some(c)) => c.as_ref(),
+        (None, None) => bail!("no fitter"),
+    };
+    let gradient = args.method == "lbfgs" || neural;
     let config = read_energy_config(args.energy.as_deref(), gradient)?;
     let dataset = Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))?;
     let frames = parse_frames(args.frames.as_deref(), dataset.len())?;
@@ -144,43 +168,79 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     let mut rows = Vec::with_capacity(frames.len());
     let mut previous: Option<(usize, Pose)> = None;
     let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
-    for (k, &frame) in frames.iter().enumerate() {
-        let energy = energy_for_frame(&dataset, template.clone(), frame, config.clone())?;
-        // Sequence fitting (papers/000 §4.3): warm start from the previous frame's solution.
-        let start = match (scenario, previous) {
-            (Scenario::Sequence, Some((p, pose))) if p + 1 == frame => pose,
-            _ => dataset.start_poses[frame],
+    // Frames go through the network `--batch` at a time, except in sequences, where each frame
+    // starts from the previous result.
+    let chunk = if neural && scenario != Scenario::Sequence { args.batch } else { 1 };
+    let mut done = 0;
+    for group in frames.chunks(chunk) {
+        let mut energies = Vec::with_capacity(group.len());
+        let mut starts = Vec::with_capacity(group.len());
+        for &frame in group {
+            energies.push(energy_for_frame(&dataset, template.clone(), frame, config.clone())?);
+            // Sequence fitting (papers/000 §4.3): warm start from the previous frame's solution.
+            starts.push(match (scenario, previous) {
+                (Scenario::Sequence, Some((p, pose))) if p + 1 == frame => pose,
+                _ => dataset.start_poses[frame],
+            });
+        }
+        let requests: Vec<FitRequest<'_>> = group
+            .iter()
+            .zip(&energies)
+            .zip(&starts)
+            .map(|((&frame, energy), &start)| FitRequest {
+                energy,
+                start,
+                mask: mask.clone(),
+                bounds: scenario_bounds(scenario, &start),
+                budget: args.budget,
+                seed: args.seed ^ (frame as u64).wrapping_mul(0xD1B5_4A32_D192_ED03),
+            })
+            .collect();
+        let start_energies: Vec<f64> = requests.iter().map(|r| r.energy.inspect(&r.start).total).collect();
+        let results = match &neural_fitter {
+            Some(n) => n.fit_batch(&requests)?,
+            None => requests.iter().map(|r| fitter.fit(r)).collect::<Result<Vec<_>, _>>()?,
         };
-        let bounds = scenario_bounds(scenario, &start);
-        let seed = args.seed ^ (frame as u64).wrapping_mul(0xD1B5_4A32_D192_ED03);
-        let request = FitRequest { energy: &energy, start, mask: mask.clone(), bounds, budget: args.budget, seed };
-        let start_energy = energy.inspect(&start).total;
-        let result = fitter.fit(&request)?;
-        let mut pose = [0.0; POSE_DIM];
-        pose.copy_from_slice(&result.pose);
-        let gt = &dataset.gt_poses[frame];
-        let v2v = v2v_mm(&template, &pose, gt);
-        let mpjpe = mpjpe_mm(&template, &pose, gt);
-        sum_v2v += v2v;
-        sum_mpjpe += mpjpe;
-        sum_e += result.energy;
-        sum_t += result.time_s;
-        rows.push(json!({
-            "frame": frame,
-            "pose": result.pose,
-            "energy": result.energy,
-            "start_energy": start_energy,
-            "terms": terms_json(&result.terms),
-            "v2v_mm": v2v,
-            "mpjpe_mm": mpjpe,
-            "evaluations": result.evaluations,
-            "gradient_evaluations": result.gradient_evaluations,
-            "iterations": result.iterations,
-            "time_s": result.time_s,
-            "trace": result.trace,
-        }));
-        previous = Some((frame, pose));
-        progress(k + 1, frames.len());
+        for ((&frame, result), start_energy) in group.iter().zip(results).zip(start_energies) {
+            let mut pose = [0.0; POSE_DIM];
+            pose.copy_from_slice(&result.pose);
+            let gt = &dataset.gt_poses[frame];
+            let v2v = v2v_mm(&template, &pose, gt);
+            let mpjpe = mpjpe_mm(&template, &pose, gt);
+            sum_v2v += v2v;
+            sum_mpjpe += mpjpe;
+            sum_e += result.energy;
+            sum_t += result.time_s;
+            let mut row = json!({
+                "frame": frame,
+                "pose": result.pose,
+                "energy": result.energy,
+                "start_energy": start_energy,
+                "terms": terms_json(&result.terms),
+                "v2v_mm": v2v,
+                "mpjpe_mm": mpjpe,
+                "evaluations": result.evaluations,
+                "gradient_evaluations": result.gradient_evaluations,
+                "iterations": result.iterations,
+                "time_s": result.time_s,
+                "trace": result.trace,
+            });
+            if !result.iterates.is_empty() {
+                let per = |f: fn(&Template, &Pose, &Pose) -> f64| -> Vec<f64> {
+                    result.iterates.iter().map(|p| {
+                        let mut q = [0.0; POSE_DIM];
+                        q.copy_from_slice(p);
+                        f(&template, &q, gt)
+                    }).collect()
+                };
+                row["v2v_mm_per_iteration"] = json!(per(v2v_mm));
+                row["mpjpe_mm_per_iteration"] = json!(per(mpjpe_mm));
+            }
+            rows.push(row);
+            previous = Some((frame, pose));
+            done += 1;
+            progress(done, frames.len());
+        }
     }
     let n = frames.len().max(1) as f64;
     let summary = json!({
@@ -190,7 +250,7 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         "mean_energy": sum_e / n,
         "mean_time_s": sum_t / n,
     });
-    let out = json!({
+    let mut out = json!({
         "method": fitter.name(),
         "budget": args.budget,
         "strategy": strategy.name(),
@@ -205,6 +265,11 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         "summary": summary,
         "frames": rows,
     });
+    if neural {
+        out["checkpoint"] = json!(args.checkpoint);
+        out["device"] = json!(args.device);
+        out["batch"] = json!(chunk);
+    }
     let bytes = serde_json::to_vec_pretty(&out)?;
     write_atomic(&args.out, &bytes)?;
     Ok(json!({ "out": args.out, "method": fitter.name(), "budget": args.budget, "summary": summary }))

@@ -133,7 +133,8 @@ struct FitCmd {
     /// Dataset (.npz from `lfit synth`).
     #[arg(long)]
     data: PathBuf,
-    /// Method: random, one-plus-one, de, pso, cma, tbpsa, powell, cma-powell, ngo, apf, psapf, lbfgs.
+    /// Method: random, one-plus-one, de, pso, cma, tbpsa, powell, cma-powell, ngo, apf, psapf,
+    /// lbfgs, or neural (with --checkpoint).
     #[arg(long)]
     method: String,
     /// Energy evaluations per frame (exact for zeroth-order methods; a cap for L-BFGS).
@@ -160,6 +161,19 @@ struct FitCmd {
     /// Template directory, if the dataset was not made with the procedural template.
     #[arg(long)]
     template: Option<PathBuf>,
+    /// Neural fitter checkpoint directory (--method neural), e.g. checkpoints/markers.
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Neural fitter's θ0: phi (its initializer Φ(D)) or given (the scenario's start pose; in
+    /// sequences the previous frame's result).
+    #[arg(long, default_value = "phi")]
+    neural_start: String,
+    /// Tensor backend of the neural fitter: ndarray, flex or wgpu.
+    #[arg(long, default_value = "flex")]
+    device: String,
+    /// Frames per network pass of the neural fitter (sequences always go one by one).
+    #[arg(long, default_value_t = 1)]
+    batch: usize,
 }
 
 #[derive(clap::Args)]
@@ -252,6 +266,10 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 out: c.out,
                 energy: c.energy,
                 template: c.template,
+                checkpoint: c.checkpoint,
+                neural_start: c.neural_start,
+                device: c.device,
+                batch: c.batch,
             };
             let bar = progress_bar(0, cli.quiet, "fit");
             let result = fit::fit(&args, &|done, total| {

@@ -19,4 +19,6 @@ pub enum FitError {
     Optimizer(#[from] crate::optim::OptimError),
     #[error("L-BFGS: {0}")]
     Lbfgs(String),
+    #[error("neural fitter: {0}")]
+    Neural(String),
 }

@@ -47,6 +47,10 @@ pub struct FitResult {
     pub time_s: f64,
     /// `(evaluations so far, best energy)` whenever the best improves.
     pub trace: Vec<(u64, f64)>,
+    /// Iterative fitters that have iterates (the neural fitter): the pose after every
+    /// iteration, θ0 first; empty otherwise.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub iterates: Vec<Vec<f64>>,
 }
 
 /// A fitting method.
@@ -243,6 +247,7 @@ pub(crate) fn run_staged(name: String, solver: &dyn StageSolver, strategy: Strat
         iterations,
         time_s,
         trace,
+        iterates: Vec::new(),
     })
 }
 
