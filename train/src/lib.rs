@@ -318,8 +318,12 @@ pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, opt
         let ck = checkpoint::load(&options.out, &ad).map_err(|e| TrainError::Resume { dir: options.out.clone(), reason: e.to_string() })?;
         let state: TrainState = serde_json::from_slice(&std::fs::read(options.out.join(STATE_FILE)).map_err(|e| TrainError::Resume { dir: options.out.clone(), reason: format!("no {STATE_FILE}: {e}") })?)
             .map_err(|e| TrainError::Resume { dir: options.out.clone(), reason: format!("malformed {STATE_FILE}: {e}") })?;
-        if state.config != *config {
-            return Err(TrainError::Resume { dir: options.out.clone(), reason: "the checkpoint was trained with another config (pass the same --config)".into() });
+        // Only `steps` may change (to extend a run); everything else must be the same config.
+        if (TrainConfig { steps: config.steps, ..state.config.clone() }) != *config {
+            return Err(TrainError::Resume { dir: options.out.clone(), reason: "the checkpoint was trained with another config (pass the same --config; only --steps may change)".into() });
+        }
+        if state.step >= config.steps {
+            return Err(TrainError::Resume { dir: options.out.clone(), reason: format!("the run already has {} steps (ask for more with --steps)", state.step) });
         }
         ck.check_compatible(&options.out, config.modality, net_config.residual_dim, &template).map_err(|e| TrainError::Resume { dir: options.out.clone(), reason: e.to_string() })?;
         let bytes = std::fs::read(options.out.join(OPTIMIZER_FILE)).map_err(|e| TrainError::Resume { dir: options.out.clone(), reason: format!("no {OPTIMIZER_FILE}: {e}") })?;

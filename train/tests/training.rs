@@ -1,0 +1,131 @@
+//! Training behaviour: a CI-sized run must learn, resume must continue exactly where a run
+//! stopped, and a diverging run must stop with a clear error and an intact checkpoint.
+
+use std::sync::{Arc, Mutex};
+
+use lfit_model::network::checkpoint;
+use lfit_model::network::{NetConfig, StartMode};
+use lfit_model::observe::Modality;
+use lfit_model::tensor::ndarray_device;
+use lfit_model::{Template, default_template};
+use lfit_train::{Event, RunOptions, TrainConfig, TrainError, train};
+
+fn small(steps: usize) -> TrainConfig {
+    TrainConfig {
+        modality: Modality::Markers,
+        network: NetConfig { hidden: 48, layers: 1, init_width: 64, iterations: 3, start: StartMode::Phi, dropout: 0.0, ..NetConfig::default() },
+        steps,
+        batch: 16,
+        learning_rate: 2e-3,
+        lr_decay_at: 1.0,
+        val_frames: 32,
+        val_every: 10,
+        checkpoint_every: 10,
+        stats_frames: 32,
+        seed: 3,
+        ..TrainConfig::default()
+    }
+}
+
+fn options(out: &std::path::Path, resume: bool) -> RunOptions {
+    RunOptions { out: out.to_path_buf(), device_name: "ndarray".into(), resume, command: "test".into() }
+}
+
+fn template() -> Arc<Template> {
+    Arc::new(default_template())
+}
+
+#[test]
+fn a_short_run_halves_the_validation_error() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let out = tmp.path().join("run");
+    let events = Mutex::new(Vec::new());
+    let summary = train(&small(80), template(), &ndarray_device(), &options(&out, false), &|e| events.lock().expect("lock").push(e)).expect("train");
+    let first = *summary.first_validation.v2v_mm.last().expect("v2v");
+    let last = *summary.final_validation.v2v_mm.last().expect("v2v");
+    eprintln!("validation V2V after the last iteration: {first:.1} mm -> {last:.1} mm ({:.0} samples/s)", summary.samples_per_s);
+    assert!(last <= 0.5 * first, "training must cut validation V2V by at least half: {first:.1} -> {last:.1} mm");
+    // The iterations help: the last iterate beats Φ's θ0.
+    assert!(summary.final_validation.v2v_mm[3] < summary.final_validation.v2v_mm[0]);
+    // Checkpoint with card, CSV with validation rows, loadable.
+    let ck = checkpoint::load(&out, &ndarray_device()).expect("checkpoint");
+    assert_eq!(ck.metrics["steps"], 80);
+    assert_eq!(ck.metrics["validation"]["v2v_mm"].as_array().map(Vec::len), Some(4));
+    let csv = std::fs::read_to_string(out.join("metrics.csv")).expect("csv");
+    assert_eq!(csv.lines().filter(|l| l.contains(",train,")).count(), 80);
+    assert_eq!(csv.lines().filter(|l| l.contains(",validation,")).count(), 8);
+    let events = events.into_inner().expect("events");
+    assert_eq!(events.iter().filter(|e| matches!(e, Event::Checkpoint { .. })).count(), 8);
+}
+
+#[test]
+fn resuming_continues_exactly_where_the_run_stopped() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let straight = tmp.path().join("straight");
+    let split = tmp.path().join("split");
+    let device = ndarray_device();
+    let config = TrainConfig { val_every: 5, checkpoint_every: 5, ..small(10) };
+    train(&config, template(), &device, &options(&straight, false), &|_| {}).expect("straight");
+    train(&TrainConfig { steps: 5, ..config.clone() }, template(), &device, &options(&split, false), &|_| {}).expect("first half");
+    let resumed = train(&config, template(), &device, &options(&split, true), &|_| {}).expect("resume");
+    let a = checkpoint::load(&straight, &device).expect("a");
+    let b = checkpoint::load(&split, &device).expect("b");
+    assert_eq!(a.metrics["validation"], b.metrics["validation"], "same data, same optimizer state: identical results");
+    assert_eq!(resumed.steps, 10);
+    let csv = std::fs::read_to_string(split.join("metrics.csv")).expect("csv");
+    assert_eq!(csv.lines().filter(|l| l.contains(",train,")).count(), 10, "{csv}");
+
+    // Resuming with another config, or a finished run, is refused with one line.
+    let other = TrainConfig { learning_rate: 0.1, ..config.clone() };
+    let e = train(&other, template(), &device, &options(&split, true), &|_| {}).expect_err("other config");
+    assert!(e.to_string().contains("another config"), "{e}");
+    let e = train(&config, template(), &device, &options(&split, true), &|_| {}).expect_err("done");
+    assert!(e.to_string().contains("already has 10 steps"), "{e}");
+    let e = train(&config, template(), &device, &options(&tmp.path().join("none"), true), &|_| {}).expect_err("missing");
+    assert!(matches!(e, TrainError::Resume { .. }), "{e}");
+}
+
+#[test]
+fn a_diverging_run_stops_and_keeps_its_last_checkpoint() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let out = tmp.path().join("run");
+    let device = ndarray_device();
+    let config = TrainConfig { learning_rate: 1e30, checkpoint_every: 1, val_every: 1000, ..small(50) };
+    let e = train(&config, template(), &device, &options(&out, false), &|_| {}).expect_err("must stop");
+    let TrainError::NotFinite { step, last_good, .. } = &e else { panic!("expected NotFinite, got {e}") };
+    assert!(*step >= 1 && *last_good == *step, "{e}");
+    let text = e.to_string();
+    assert!(text.contains("training stopped") && text.contains("last good checkpoint"), "{text}");
+    assert_eq!(text.lines().count(), 1);
+    let ck = checkpoint::load(&out, &device).expect("the last checkpoint is intact");
+    assert_eq!(ck.metrics["steps"], *last_good);
+}
+
+#[test]
+fn bad_configs_are_one_line_errors() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let p = tmp.path().join("c.json");
+    for (text, want) in [
+        ("{", "malformed JSON"),
+        (r#"{"batch": 1}"#, "batch"),
+        (r#"{"steps": 0}"#, "steps"),
+        (r#"{"modality": "scan"}"#, "scan"),
+        (r#"{"learning_rate": -1}"#, "learning_rate"),
+        (r#"{"bogus": 1}"#, "unknown field"),
+        (r#"{"network": {"dropout": 1.5}}"#, ""),
+    ] {
+        std::fs::write(&p, text).expect("write");
+        let r = TrainConfig::load(&p);
+        if want.is_empty() {
+            // Network settings are checked when the run starts.
+            let config = r.expect("parses");
+            let e = train(&config, template(), &ndarray_device(), &options(&tmp.path().join("x"), false), &|_| {}).expect_err("dropout");
+            assert!(e.to_string().contains("dropout"), "{e}");
+            continue;
+        }
+        let e = r.expect_err(text);
+        assert!(e.to_string().contains(want), "{text}: {e}");
+        assert_eq!(e.to_string().lines().count(), 1);
+    }
+    assert!(TrainConfig::load(&tmp.path().join("missing.json")).expect_err("missing").to_string().contains("cannot read"));
+}
