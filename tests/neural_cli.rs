@@ -1,0 +1,86 @@
+//! `lfit train` and `lfit fit --method neural` end to end: a tiny training run, fitting with its
+//! checkpoint per frame, batched and along a sequence, and the errors of bad checkpoints.
+
+mod support;
+
+use support::{assert_one_line_error, lfit, lfit_json, path_str};
+
+fn tiny_config(dir: &std::path::Path, modality: &str) -> std::path::PathBuf {
+    let p = dir.join(format!("{modality}.json"));
+    let text = format!(
+        r#"{{"modality": "{modality}", "network": {{"hidden": 32, "layers": 1, "init_width": 32, "iterations": 3, "start": "mixed", "dropout": 0.0}},
+            "steps": 12, "batch": 8, "val_frames": 8, "val_every": 6, "checkpoint_every": 6, "stats_frames": 16, "seed": 2}}"#
+    );
+    std::fs::write(&p, text).expect("config");
+    p
+}
+
+#[test]
+fn train_then_fit_with_the_checkpoint() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let ck = d.join("ck");
+    let summary = lfit_json(&["-q", "train", "--config", path_str(&tiny_config(d, "markers")), "--out", path_str(&ck), "--device", "ndarray"]);
+    assert_eq!(summary["summary"]["steps"], 12);
+    for f in ["config.json", "weights.bpk", "stats.json", "metrics.json", "metrics.csv"] {
+        assert!(ck.join(f).exists(), "{f}");
+    }
+    let data = d.join("m.npz");
+    lfit_json(&["-q", "synth", "--modality", "markers", "--frames", "6", "--seed", "9", "--out", path_str(&data)]);
+
+    // Per frame and batched give the same poses (one network, inference mode).
+    let one = d.join("one.json");
+    let many = d.join("many.json");
+    let common = ["-q", "fit", "--data", path_str(&data), "--method", "neural", "--checkpoint", path_str(&ck), "--budget", "6", "--device", "ndarray"];
+    lfit_json(&[&common[..], &["--out", path_str(&one)]].concat());
+    lfit_json(&[&common[..], &["--out", path_str(&many), "--batch", "4"]].concat());
+    let a: serde_json::Value = serde_json::from_slice(&std::fs::read(&one).expect("one")).expect("json");
+    let b: serde_json::Value = serde_json::from_slice(&std::fs::read(&many).expect("many")).expect("json");
+    assert_eq!(a["method"], "neural");
+    let frames = a["frames"].as_array().expect("frames");
+    assert_eq!(frames.len(), 6);
+    for (fa, fb) in frames.iter().zip(b["frames"].as_array().expect("frames")) {
+        let (pa, pb) = (fa["pose"].as_array().expect("pose"), fb["pose"].as_array().expect("pose"));
+        for (x, y) in pa.iter().zip(pb) {
+            assert!((x.as_f64().expect("x") - y.as_f64().expect("y")).abs() < 1e-4, "batched and per-frame fits differ");
+        }
+        assert_eq!(fa["iterations"], 3);
+        assert_eq!(fa["evaluations"], 6, "2 evaluations per iteration");
+        assert_eq!(fa["gradient_evaluations"], 3);
+        assert_eq!(fa["v2v_mm_per_iteration"].as_array().map(Vec::len), Some(4));
+        assert_eq!(fa["trace"].as_array().map(Vec::len), Some(4));
+    }
+    assert_eq!(b["batch"], 4);
+
+    // From the scenario's start pose, the fit stays in the local box.
+    let given = d.join("given.json");
+    lfit_json(&[&common[..], &["--out", path_str(&given), "--neural-start", "given"]].concat());
+
+    // Errors: budget below N iterations, wrong modality, missing and broken checkpoints.
+    let out = lfit(&["-q", "fit", "--data", path_str(&data), "--method", "neural", "--checkpoint", path_str(&ck), "--budget", "2", "--out", path_str(&d.join("x.json"))]);
+    assert_one_line_error(&out, "budget 2 is below");
+    let hmd = d.join("h.npz");
+    lfit_json(&["-q", "synth", "--modality", "hmd", "--frames", "2", "--out", path_str(&hmd)]);
+    let out = lfit(&["-q", "fit", "--data", path_str(&hmd), "--method", "neural", "--checkpoint", path_str(&ck), "--budget", "10", "--out", path_str(&d.join("x.json"))]);
+    assert_one_line_error(&out, "trained for markers data, not hmd");
+    let out = lfit(&["-q", "fit", "--data", path_str(&data), "--method", "neural", "--budget", "10", "--out", path_str(&d.join("x.json"))]);
+    assert_one_line_error(&out, "needs --checkpoint");
+    let out = lfit(&["-q", "fit", "--data", path_str(&data), "--method", "neural", "--checkpoint", path_str(&d.join("nope")), "--budget", "10", "--out", path_str(&d.join("x.json"))]);
+    assert_one_line_error(&out, "no such checkpoint");
+    let w = ck.join("weights.bpk");
+    let bytes = std::fs::read(&w).expect("weights");
+    std::fs::write(&w, &bytes[..bytes.len() / 3]).expect("truncate");
+    let out = lfit(&["-q", "fit", "--data", path_str(&data), "--method", "neural", "--checkpoint", path_str(&ck), "--budget", "10", "--out", path_str(&d.join("x.json"))]);
+    assert_one_line_error(&out, "weights");
+    assert!(!d.join("x.json").exists(), "no result file is written on error");
+    let out = lfit(&["-q", "fit", "--data", path_str(&data), "--method", "neural", "--checkpoint", path_str(&ck), "--neural-start", "middle", "--budget", "10", "--out", path_str(&d.join("x.json"))]);
+    assert_one_line_error(&out, "unknown neural start");
+
+    // Bad training inputs.
+    let out = lfit(&["-q", "train", "--config", path_str(&d.join("missing.json")), "--out", path_str(&d.join("t"))]);
+    assert_one_line_error(&out, "cannot read");
+    let out = lfit(&["-q", "train", "--config", path_str(&tiny_config(d, "markers")), "--out", path_str(&d.join("t")), "--device", "tpu"]);
+    assert_one_line_error(&out, "tpu");
+    let out = lfit(&["-q", "train", "--config", path_str(&tiny_config(d, "scan")), "--out", path_str(&d.join("t"))]);
+    assert_one_line_error(&out, "scan");
+}
