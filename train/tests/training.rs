@@ -129,3 +129,60 @@ fn bad_configs_are_one_line_errors() {
     }
     assert!(TrainConfig::load(&tmp.path().join("missing.json")).expect_err("missing").to_string().contains("cannot read"));
 }
+
+/// The tensor loss against a host computation of the same terms with the CPU skinning.
+#[test]
+fn tensor_loss_matches_a_cpu_computation() {
+    use lfit_model::pose::{POSE_DIM, Pose};
+    use lfit_model::skinning::{joint_transforms, posed_joints, skin_lbs_into};
+    use lfit_model::tensor::poses_to_tensor;
+    use lfit_train::{Loss, LossWeights};
+    use rand::{Rng, SeedableRng};
+    let template = default_template();
+    let device = ndarray_device();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+    let mut pose = || -> Pose { std::array::from_fn(|_| rng.random_range(-0.4..0.4)) };
+    let (pred, truth) = ([pose(), pose()], [pose(), pose()]);
+    let only = |v: f64, e: f64, t: f64, r: f64, tr: f64| LossWeights { vertices: v, edges: e, transforms: t, rotations: r, translation: tr };
+    let value = |w: LossWeights| -> f64 {
+        let loss = Loss::new(&template, w, &device);
+        let t = loss.truth(poses_to_tensor(&truth, &device));
+        f64::from(loss.step(poses_to_tensor(&pred, &device), &t).into_scalar::<f32>())
+    };
+    let skin = |p: &Pose| {
+        let mut v = Vec::new();
+        skin_lbs_into(&template, &joint_transforms(&template, p), &mut v);
+        v
+    };
+    // Vertices: mean |Δ| over B × V × 3 entries.
+    let (mut sum, mut n) = (0.0, 0.0);
+    let edges = lfit_train::loss::mesh_edges(&template);
+    let (mut esum, mut en) = (0.0, 0.0);
+    let (mut jsum, mut jn) = (0.0, 0.0);
+    for (p, g) in pred.iter().zip(&truth) {
+        let (a, b) = (skin(p), skin(g));
+        for (x, y) in a.iter().zip(&b) {
+            sum += f64::from((*x - *y).abs().element_sum());
+            n += 3.0;
+        }
+        for &(i, j) in &edges {
+            let d = (a[i as usize] - a[j as usize]) - (b[i as usize] - b[j as usize]);
+            esum += f64::from(d.abs().element_sum());
+            en += 3.0;
+        }
+        let (ja, jb) = (posed_joints(&template, &joint_transforms(&template, p)), posed_joints(&template, &joint_transforms(&template, g)));
+        for (x, y) in ja.iter().zip(&jb) {
+            jsum += (*x - *y).abs().element_sum();
+            jn += 3.0;
+        }
+    }
+    let close = |got: f64, want: f64, what: &str| assert!((got - want).abs() <= 1e-4 * want.abs().max(1.0), "{what}: tensor {got} vs cpu {want}");
+    close(value(only(1.0, 0.0, 0.0, 0.0, 0.0)), sum / n, "vertices");
+    close(value(only(0.0, 1.0, 0.0, 0.0, 0.0)), esum / en, "edges");
+    let tr: f64 = pred.iter().zip(&truth).map(|(p, g)| (0..3).map(|k| (p[k] - g[k]).abs()).sum::<f64>()).sum::<f64>() / 6.0;
+    close(value(only(0.0, 0.0, 0.0, 0.0, 1.0)), tr, "translation");
+    // Transforms = world rotations + joint positions; check the sum is at least the joint part.
+    let t = value(only(0.0, 0.0, 1.0, 0.0, 0.0));
+    assert!(t > jsum / jn && t.is_finite(), "{t} vs joints {}", jsum / jn);
+    assert!(POSE_DIM == 57);
+}

@@ -284,3 +284,39 @@ fn same_seed_same_network_and_dropout_is_seeded() {
     assert!((120..280).contains(&zeros), "about half dropped, got {zeros}/400");
     assert!(d1.iter().all(|&v| v == 0.0 || v == 2.0), "kept entries are scaled by 1/(1-p)");
 }
+
+/// The same weights on another backend give the same fit: ndarray is the reference; flex always,
+/// wgpu when an adapter exists (required in CI).
+#[test]
+fn backends_agree_on_the_fitting_loop() {
+    use crate::tensor::{device_from_name, wgpu_status};
+    let template = Arc::new(default_template());
+    let energies = marker_energies(&template, 3, 21);
+    let refs: Vec<&Energy> = energies.iter().collect();
+    let dim = Sensor::default_for(Modality::Markers, &template).residual_dim(&template);
+    let config = small_config(Modality::Markers, dim);
+    let reference = ndarray_device();
+    let net = NeuralNet::new(&config, 8, &reference).expect("net");
+    let bytes = super::checkpoint::weights_bytes(&net).expect("bytes");
+    let starts = [None, Some([0.02; POSE_DIM]), None];
+    let want = unroll(&net, &unit_stats(dim), &refs, &starts, None, &reference, &mut Dropout::off()).expect("reference").host;
+    let mut devices = vec![("flex".to_string(), device_from_name("flex").expect("flex"))];
+    match wgpu_status() {
+        Ok(adapter) => devices.push((format!("wgpu on {adapter}"), device_from_name("wgpu").expect("wgpu"))),
+        Err(reason) => {
+            assert!(std::env::var("LFIT_REQUIRE_WGPU").as_deref() != Ok("1"), "LFIT_REQUIRE_WGPU=1 but wgpu is unavailable: {reason}");
+            println!("skipping wgpu: {reason}");
+        }
+    }
+    for (name, device) in devices {
+        let other = super::checkpoint::net_from_bytes(&config, bytes.clone(), &device, std::path::Path::new("mem")).expect("load");
+        let got = unroll(&other, &unit_stats(dim), &refs, &starts, None, &device, &mut Dropout::off()).expect("unroll").host;
+        for (n, (a, b)) in want.iter().zip(&got).enumerate() {
+            for (pa, pb) in a.iter().zip(b) {
+                for (x, y) in pa.iter().zip(pb) {
+                    assert!((x - y).abs() < 2e-3, "{name}, iteration {n}: {x} vs {y}");
+                }
+            }
+        }
+    }
+}
