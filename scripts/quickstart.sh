@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The README's main command, until `lfit quickstart` exists: the most complete pipeline so far.
-# Exports the procedural template, poses it, synthesizes a small dataset per modality, and fits 20
-# frames of the markers set with CMA-ES, PSO and L-BFGS on the same energy.
+# Exports the procedural template, poses it, synthesizes a small dataset per modality, fits 20
+# frames of the markers set with CMA-ES, PSO and L-BFGS on the same energy, and fits every frame
+# of the markers, keypoints2d and hmd sets with the shipped neural fitters (checkpoints/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/lfit-target}"
@@ -29,4 +30,8 @@ for spec in "cma 2000" "pso 2000" "lbfgs 200"; do
     echo "fitting markers.npz frames 0..20 with $1 (budget $2 per frame):"
     "$LFIT" fit --data "$OUT/markers.npz" --method "$1" --budget "$2" --frames 0..20 --out "$OUT/fit_$1.json" -q
 done
-echo "wrote $OUT: template/, posed.obj, datasets (open them with numpy.load) and fit_*.json results"
+for m in markers keypoints2d hmd; do
+    echo "fitting $m.npz (200 frames) with the shipped neural fitter checkpoints/$m (5 iterations, from the start pose):"
+    "$LFIT" fit --data "$OUT/$m.npz" --method neural --checkpoint "checkpoints/$m" --neural-start given --budget 10 --out "$OUT/fit_neural_$m.json" -q
+done
+echo "wrote $OUT: template/, posed.obj, datasets (open them with numpy.load) and fit_*.json results (fit_neural_*.json: neural fitter)"

@@ -1,0 +1,49 @@
+//! The checkpoints shipped in `checkpoints/`: one per sparse modality, each at most 10 MB, with
+//! config, weights, statistics and a metrics card, loading on the default template and fitting
+//! held-out frames well below their start error.
+
+mod support;
+
+use std::path::Path;
+
+use support::{lfit_json, path_str};
+
+const MODALITIES: [&str; 3] = ["markers", "keypoints2d", "hmd"];
+
+#[test]
+fn every_shipped_checkpoint_is_complete_small_and_fits_its_modality() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    for m in MODALITIES {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("checkpoints").join(m);
+        let mut size = 0;
+        for f in ["config.json", "weights.bpk", "stats.json", "metrics.json", "train.json"] {
+            let meta = std::fs::metadata(dir.join(f)).unwrap_or_else(|e| panic!("{m}/{f}: {e}"));
+            size += meta.len();
+        }
+        for e in std::fs::read_dir(&dir).expect("dir").flatten() {
+            size += e.metadata().map(|x| x.len()).unwrap_or(0);
+        }
+        assert!(size <= 2 * 10_000_000, "{m}: {size} bytes");
+        let weights = std::fs::metadata(dir.join("weights.bpk")).expect("weights").len();
+        assert!(weights <= 10_000_000, "{m}: weights {weights} bytes > 10 MB");
+        let card: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("metrics.json")).expect("card")).expect("json");
+        for key in ["command", "seed", "steps", "time_s", "device", "validation"] {
+            assert!(!card[key].is_null(), "{m}: metrics card lacks {key}");
+        }
+        let v2v = card["validation"]["v2v_mm"].as_array().expect("v2v");
+        assert_eq!(v2v.len(), 6, "{m}: N = 5 iterations plus θ0");
+
+        // Held-out frames (a seed no training run uses): the fit from the start pose ends far
+        // below the start error.
+        let data = tmp.path().join(format!("{m}.npz"));
+        lfit_json(&["-q", "synth", "--modality", m, "--frames", "24", "--seed", "9100", "--out", path_str(&data)]);
+        let out = tmp.path().join(format!("{m}.json"));
+        lfit_json(&["-q", "fit", "--data", path_str(&data), "--method", "neural", "--neural-start", "given", "--checkpoint", path_str(&dir), "--budget", "10", "--out", path_str(&out)]);
+        let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json");
+        let frames = r["frames"].as_array().expect("frames");
+        let mean = |k: usize| frames.iter().map(|f| f["v2v_mm_per_iteration"][k].as_f64().expect("v2v")).sum::<f64>() / frames.len() as f64;
+        let (start, end) = (mean(0), mean(5));
+        eprintln!("{m}: V2V {start:.1} mm at the start pose -> {end:.1} mm after 5 iterations");
+        assert!(end < 0.7 * start, "{m}: the shipped fitter must cut V2V by 30 %: {start:.1} -> {end:.1}");
+    }
+}
