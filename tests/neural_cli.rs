@@ -56,6 +56,30 @@ fn train_then_fit_with_the_checkpoint() {
     let given = d.join("given.json");
     lfit_json(&[&common[..], &["--out", path_str(&given), "--neural-start", "given"]].concat());
 
+    // Sequences go frame by frame, each starting from the previous result (a frame's start
+    // energy is then the energy of the previous frame's pose on this frame, not the dataset's
+    // start pose).
+    let seq = d.join("seq.npz");
+    lfit_json(&["-q", "synth", "--modality", "markers", "--scenario", "sequence", "--frames", "4", "--seed", "5", "--out", path_str(&seq)]);
+    let seq_out = d.join("seq.json");
+    lfit_json(&["-q", "fit", "--data", path_str(&seq), "--method", "neural", "--neural-start", "given", "--checkpoint", path_str(&ck), "--budget", "6", "--device", "ndarray", "--batch", "4", "--out", path_str(&seq_out)]);
+    let s: serde_json::Value = serde_json::from_slice(&std::fs::read(&seq_out).expect("seq")).expect("json");
+    assert_eq!(s["batch"], 1, "sequences are fitted one frame at a time");
+    assert_eq!(s["method"], "neural-given");
+    let sf = s["frames"].as_array().expect("frames");
+    let dataset = lfit::synth::Dataset::load(&seq).expect("dataset");
+    let template = lfit::model::default_template();
+    for k in 1..sf.len() {
+        // θ0 of frame k is frame k−1's result: the error of the first iterate is that pose's.
+        let mut prev = [0.0; lfit::model::POSE_DIM];
+        for (p, v) in prev.iter_mut().zip(sf[k - 1]["pose"].as_array().expect("pose")) {
+            *p = v.as_f64().expect("number");
+        }
+        let want = lfit::model::metrics::v2v_mm(&template, &prev, &dataset.gt_poses[k]);
+        let got = sf[k]["v2v_mm_per_iteration"][0].as_f64().expect("v2v");
+        assert!((want - got).abs() < 0.05, "frame {k}: θ0 error {got} mm, previous result's {want} mm");
+    }
+
     // Errors: budget below N iterations, wrong modality, missing and broken checkpoints.
     let out = lfit(&["-q", "fit", "--data", path_str(&data), "--method", "neural", "--checkpoint", path_str(&ck), "--budget", "2", "--out", path_str(&d.join("x.json"))]);
     assert_one_line_error(&out, "budget 2 is below");
