@@ -6,7 +6,6 @@
 
 pub mod loss;
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
@@ -47,8 +46,6 @@ pub enum TrainError {
     NotFinite { value: f64, step: usize, last_good: usize, dir: PathBuf },
     #[error("cannot resume from {dir}: {reason}")]
     Resume { dir: PathBuf, reason: String },
-    #[error("{path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
 }
 
 pub type Result<T, E = TrainError> = std::result::Result<T, E>;
@@ -295,10 +292,6 @@ pub struct Summary {
     pub parameters: usize,
 }
 
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
-    move |source| TrainError::Io { path: path.to_path_buf(), source }
-}
-
 /// Trains a network on `template` as configured and writes checkpoints to `options.out`.
 pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, options: &RunOptions, report: &(dyn Fn(Event) + Sync)) -> Result<Summary> {
     config.validate()?;
@@ -373,7 +366,8 @@ pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, opt
             "batch": config.batch,
             "time_s": elapsed,
             "device": options.device_name,
-            "samples_per_s": if elapsed > 0.0 { ((step - 0) * config.batch) as f64 / elapsed } else { 0.0 },
+            "samples_per_s": if elapsed > 0.0 { (step * config.batch) as f64 / elapsed } else { 0.0 },
+            "build": if cfg!(debug_assertions) { "debug" } else { "release" },
             "parameters": net.parameters(),
             "validation": {"frames": config.val_frames, "seed": seeds::validation(config.seed), "start": "phi",
                             "iteration": (0..=n_iter).collect::<Vec<_>>(), "v2v_mm": validation.v2v_mm, "mpjpe_mm": validation.mpjpe_mm},
@@ -440,7 +434,6 @@ pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, opt
     }
     let time_s = started.elapsed().as_secs_f64();
     let steps_run = config.steps - start_step;
-    let _ = std::io::stderr().flush();
     Ok(Summary {
         steps: config.steps,
         time_s,
@@ -449,9 +442,4 @@ pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, opt
         final_validation: last_validation,
         parameters: net.parameters(),
     })
-}
-
-#[doc(hidden)]
-pub fn _io_error(path: &Path, e: std::io::Error) -> TrainError {
-    io(path)(e)
 }
