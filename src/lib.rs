@@ -3,6 +3,7 @@
 
 pub mod commands;
 pub mod fit;
+pub mod stats;
 
 pub use lfit_fitters as fitters;
 pub use lfit_model as model;
