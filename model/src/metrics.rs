@@ -1,5 +1,10 @@
-//! Error metrics of SPEC §9, in millimetres: V2V (mean vertex-to-vertex distance) and MPJPE (mean
-//! per-joint position error) between a fitted and a ground-truth pose of the same template.
+//! Error metrics of SPEC §9, in millimetres: V2V (mean vertex-to-vertex distance), MPJPE (mean
+//! per-joint position error), PA-MPJPE (MPJPE after the similarity transform that best aligns the
+//! joints, Umeyama 1991) and the RMS Hausdorff distance of papers/000 eq. (1)–(2) between a fitted
+//! and a ground-truth pose of the same template.
+
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
 
 use crate::pose::Pose;
 use crate::skinning::{joint_transforms, posed_joints, skin_lbs_into};
@@ -22,6 +27,72 @@ pub fn mpjpe_mm(template: &Template, fitted: &Pose, truth: &Pose) -> f64 {
     1000.0 * a.iter().zip(&b).map(|(p, q)| p.distance(*q)).sum::<f64>() / n
 }
 
+/// MPJPE after Procrustes alignment (rotation, uniform scale, translation) of the fitted joints
+/// onto the true ones, in mm.
+pub fn pa_mpjpe_mm(template: &Template, fitted: &Pose, truth: &Pose) -> f64 {
+    let a = posed_joints(template, &joint_transforms(template, fitted));
+    let b = posed_joints(template, &joint_transforms(template, truth));
+    let aligned = procrustes_align(&a, &b);
+    let n = a.len().max(1) as f64;
+    1000.0 * aligned.iter().zip(&b).map(|(p, q)| p.distance(*q)).sum::<f64>() / n
+}
+
+/// `p` mapped by the similarity `s R p + t` that minimises `Σ |s R p_i + t − q_i|²` (Umeyama).
+pub fn procrustes_align(p: &[DVec3], q: &[DVec3]) -> Vec<DVec3> {
+    let n = p.len().min(q.len());
+    if n == 0 {
+        return Vec::new();
+    }
+    let nf = n as f64;
+    let mp = p.iter().copied().sum::<DVec3>() / nf;
+    let mq = q.iter().copied().sum::<DVec3>() / nf;
+    let mut cov = nalgebra::Matrix3::<f64>::zeros();
+    let mut var_p = 0.0;
+    for (a, b) in p.iter().zip(q) {
+        let (x, y) = (*a - mp, *b - mq);
+        cov += nalgebra::Vector3::new(y.x, y.y, y.z) * nalgebra::Vector3::new(x.x, x.y, x.z).transpose();
+        var_p += x.length_squared();
+    }
+    cov /= nf;
+    var_p /= nf;
+    let svd = cov.svd(true, true);
+    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else { return p.to_vec() };
+    let mut sign = nalgebra::Matrix3::<f64>::identity();
+    if u.determinant() * vt.determinant() < 0.0 {
+        sign[(2, 2)] = -1.0;
+    }
+    let r = u * sign * vt;
+    let scale = if var_p > 0.0 { (svd.singular_values.component_mul(&sign.diagonal())).sum() / var_p } else { 1.0 };
+    p.iter()
+        .map(|a| {
+            let x = *a - mp;
+            let y = r * nalgebra::Vector3::new(x.x, x.y, x.z) * scale;
+            DVec3::new(y.x, y.y, y.z) + mq
+        })
+        .collect()
+}
+
+/// RMS Hausdorff-like distance of papers/000 eq. (1)–(2) between the fitted and true posed
+/// meshes, in mm: `max(dist(A, B), dist(B, A))` with `dist(A, B) = sqrt(mean_{v∈A} min_{u∈B}
+/// |v − u|²)` over vertices.
+pub fn hausdorff_rms_mm(template: &Template, fitted: &Pose, truth: &Pose) -> f64 {
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    skin_lbs_into(template, &joint_transforms(template, fitted), &mut a);
+    skin_lbs_into(template, &joint_transforms(template, truth), &mut b);
+    1000.0 * rms_directed(&a, &b).max(rms_directed(&b, &a))
+}
+
+fn rms_directed(a: &[Vec3], b: &[Vec3]) -> f64 {
+    if a.is_empty() || b.is_empty() {
+        return 0.0;
+    }
+    let sum: f64 = a
+        .par_iter()
+        .map(|v| b.iter().map(|u| f64::from(v.distance_squared(*u))).fold(f64::INFINITY, f64::min))
+        .sum();
+    (sum / a.len() as f64).sqrt()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -38,5 +109,50 @@ mod tests {
         assert!((v2v_mm(&t, &moved, &zero) - 50.0).abs() < 1e-3);
         assert!((mpjpe_mm(&t, &moved, &zero) - 50.0).abs() < 1e-9);
         assert_eq!(v2v_mm(&t, &zero, &zero), 0.0);
+    }
+
+    #[test]
+    fn procrustes_undoes_a_similarity_and_never_raises_the_rms_joint_error() {
+        let t = default_template();
+        let mut rng_pose = [0.0; POSE_DIM];
+        for (i, v) in rng_pose.iter_mut().enumerate() {
+            *v = ((i * 37 % 11) as f64 - 5.0) * 0.04;
+        }
+        let joints = posed_joints(&t, &joint_transforms(&t, &rng_pose));
+        let r = glam::DQuat::from_euler(glam::EulerRot::YXZ, 0.7, -0.3, 0.2);
+        let moved: Vec<DVec3> = joints.iter().map(|p| r * *p * 1.3 + DVec3::new(0.2, -0.1, 0.5)).collect();
+        let back = procrustes_align(&moved, &joints);
+        for (a, b) in back.iter().zip(&joints) {
+            assert!(a.distance(*b) < 1e-9, "{a} vs {b}");
+        }
+        // A pure root translation and rotation of the whole body: PA-MPJPE 0, MPJPE not.
+        let mut turned = rng_pose;
+        turned[0] += 0.1;
+        turned[4] += 0.5;
+        assert!(pa_mpjpe_mm(&t, &turned, &rng_pose) < 1e-6);
+        assert!(mpjpe_mm(&t, &turned, &rng_pose) > 50.0);
+        let mut bent = rng_pose;
+        bent[3 + 3 * 5] += 0.6;
+        assert!(pa_mpjpe_mm(&t, &bent, &rng_pose) > 0.0);
+        // The alignment minimises the squared joint error, so it cannot raise the RMS error.
+        let rms = |a: &Pose, b: &Pose, align: bool| {
+            let (ja, jb) = (posed_joints(&t, &joint_transforms(&t, a)), posed_joints(&t, &joint_transforms(&t, b)));
+            let ja = if align { procrustes_align(&ja, &jb) } else { ja };
+            (ja.iter().zip(&jb).map(|(p, q)| p.distance_squared(*q)).sum::<f64>() / ja.len() as f64).sqrt()
+        };
+        assert!(rms(&bent, &rng_pose, true) <= rms(&bent, &rng_pose, false) + 1e-12);
+    }
+
+    #[test]
+    fn hausdorff_is_zero_for_the_same_pose_and_bounded_by_a_translation() {
+        let t = default_template();
+        let zero = [0.0; POSE_DIM];
+        assert_eq!(hausdorff_rms_mm(&t, &zero, &zero), 0.0);
+        let mut moved = zero;
+        moved[2] = 0.05;
+        let h = hausdorff_rms_mm(&t, &moved, &zero);
+        // Nearest vertices are at most the 50 mm shift away, and closer than that on the sides.
+        assert!(h > 0.0 && h <= 50.0 + 1e-3, "{h}");
+        assert!(h <= v2v_mm(&t, &moved, &zero) + 1e-3);
     }
 }
