@@ -171,3 +171,32 @@ pub fn train(config_path: &Path, out: &Path, device: &str, resume: bool, steps: 
     let summary = lfit_train::train(&config, template, &dev, &options, report)?;
     Ok(json!({ "out": out, "summary": summary }))
 }
+
+/// Writes `report.md` and `summary.json` of a finished sweep into `out`.
+pub fn write_report(config: &crate::bench::BenchConfig, runs: &[crate::bench::Run], out: &Path) -> Result<Value> {
+    let (_, energy_name) = config.energy_config()?;
+    let command = std::env::args().collect::<Vec<_>>().join(" ");
+    let (md, summary) = crate::report::report(config, runs, &energy_name, &command);
+    write_atomic(&out.join("report.md"), md.as_bytes())?;
+    write_atomic(&out.join("summary.json"), &serde_json::to_vec_pretty(&summary)?)?;
+    Ok(summary)
+}
+
+/// `lfit bench`: runs a sweep (or one shard) and, unsharded, writes the report.
+pub fn bench(config_path: &Path, out: &Path, shard: Option<&str>, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<Value> {
+    let shard = crate::bench::parse_shard(shard)?;
+    let config = crate::bench::BenchConfig::load(config_path)?;
+    let runs = crate::bench::run(&config, out, shard, progress)?;
+    if shard.1 > 1 {
+        return Ok(json!({ "out": out, "shard": format!("{}/{}", shard.0, shard.1), "runs": runs.len(), "next": "lfit bench merge --out DIR SHARD_DIRS..." }));
+    }
+    let summary = write_report(&config, &runs, out)?;
+    Ok(json!({ "out": out, "runs": runs.len(), "report": out.join("report.md"), "friedman": summary["friedman"] }))
+}
+
+/// `lfit bench merge`: merges shard directories and writes the report.
+pub fn bench_merge(shards: &[PathBuf], out: &Path) -> Result<Value> {
+    let (config, runs) = crate::bench::merge(shards, out)?;
+    write_report(&config, &runs, out)?;
+    Ok(json!({ "out": out, "runs": runs.len(), "report": out.join("report.md") }))
+}

@@ -4,6 +4,8 @@
 pub mod commands;
 pub mod fit;
 pub mod stats;
+pub mod bench;
+pub mod report;
 
 pub use lfit_fitters as fitters;
 pub use lfit_model as model;

@@ -83,6 +83,23 @@ enum Command {
         #[arg(long)]
         seed: Option<u64>,
     },
+    /// Run a benchmark sweep (methods × strategies × budgets × repetitions × frames) from a TOML
+    /// config: runs.csv (resumable), report.md and summary.json with the papers' tables and
+    /// statistics. `lfit bench merge --out DIR SHARD...` merges `--shard i/n` runs.
+    #[command(args_conflicts_with_subcommands = true)]
+    Bench {
+        #[command(subcommand)]
+        action: Option<BenchAction>,
+        /// Bench config (TOML).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Output directory (re-running with the same config resumes).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Run only shard i of n (0-based), e.g. 3/16 for a Slurm array task.
+        #[arg(long)]
+        shard: Option<String>,
+    },
     /// Fit frames of a dataset with a classical method; writes per-frame pose, energy, terms,
     /// V2V/MPJPE against the ground truth, evaluations and time.
     Fit(FitCmd),
@@ -125,6 +142,18 @@ enum Command {
         budget: Option<usize>,
         #[arg(long)]
         template: Option<PathBuf>,
+    },
+}
+
+#[derive(Subcommand)]
+enum BenchAction {
+    /// Merge the output directories of sharded runs into one report.
+    Merge {
+        #[arg(long)]
+        out: PathBuf,
+        /// Shard output directories.
+        #[arg(required = true)]
+        shards: Vec<PathBuf>,
     },
 }
 
@@ -292,6 +321,17 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                     bar.println(format!("step {step}: validation V2V mm per iteration [{}], MPJPE [{}]", v(&validation.v2v_mm), v(&validation.mpjpe_mm)));
                 }
                 lfit::train::Event::Checkpoint { .. } => {}
+            });
+            bar.finish_and_clear();
+            result
+        }
+        Command::Bench { action: Some(BenchAction::Merge { out, shards }), .. } => commands::bench_merge(&shards, &out),
+        Command::Bench { action: None, config, out, shard } => {
+            let (Some(config), Some(out)) = (config, out) else { anyhow::bail!("lfit bench needs --config FILE and --out DIR (or: lfit bench merge)") };
+            let bar = progress_bar(0, cli.quiet, "bench");
+            let result = commands::bench(&config, &out, shard.as_deref(), &|done, total| {
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
             });
             bar.finish_and_clear();
             result

@@ -1,0 +1,481 @@
+//! `lfit bench`: methods × strategies × budgets × repetitions × frames on one energy
+//! configuration (SPEC §9). Runs in parallel, appends every finished run to `runs.csv` so a killed
+//! run resumes where it stopped, shards with `--shard i/n`, and merges shards
+//! (`lfit bench merge`). The report is written by [`crate::report`].
+
+use std::collections::{BTreeMap, HashSet};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+
+use anyhow::{Context, Result, bail};
+use lfit_fitters::optim::Preset;
+use lfit_fitters::{FitRequest, Fitter, METHOD_NAMES, Strategy, build_fitter};
+use lfit_model::energy::{Energy, EnergyConfig};
+use lfit_model::metrics::{hausdorff_rms_mm, mpjpe_mm, pa_mpjpe_mm, v2v_mm};
+use lfit_model::pose::{POSE_DIM, Pose};
+use lfit_model::template::write_atomic;
+use lfit_synth::{Dataset, Scenario};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::fit::{energy_for_frame, parse_frames, read_energy_config, scenario_bounds, scenario_mask, template_for};
+
+/// Dataset to synthesise when the config names none.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SynthSpec {
+    pub modality: String,
+    #[serde(default = "default_scenario")]
+    pub scenario: String,
+    pub frames: usize,
+    #[serde(default)]
+    pub seed: u64,
+    #[serde(default = "one_f")]
+    pub noise: f64,
+}
+
+fn default_scenario() -> String {
+    "local".into()
+}
+fn one_f() -> f64 {
+    1.0
+}
+fn one() -> usize {
+    1
+}
+fn alpha() -> f64 {
+    0.05
+}
+fn holistic() -> Vec<String> {
+    vec!["holistic".into()]
+}
+fn true_() -> bool {
+    true
+}
+
+/// `BENCH.toml`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BenchConfig {
+    pub name: String,
+    /// Dataset (.npz); or `[synth]` to generate one into the output directory.
+    pub data: Option<PathBuf>,
+    pub synth: Option<SynthSpec>,
+    pub methods: Vec<String>,
+    pub budgets: Vec<usize>,
+    #[serde(default = "one")]
+    pub repetitions: usize,
+    /// Frames (`A..B`, `A-B`, `I`, comma list); default all.
+    pub frames: Option<String>,
+    #[serde(default = "holistic")]
+    pub strategies: Vec<String>,
+    #[serde(default)]
+    pub preset: Option<String>,
+    /// `paper` (papers/000 eq. 3), `gradient` (EJ off, hinge EA) or a JSON file; default
+    /// `gradient` when a gradient method (lbfgs, neural) is in the list, else `paper`.
+    pub energy: Option<String>,
+    /// Neural fitter checkpoint (required with method `neural`).
+    pub checkpoint: Option<PathBuf>,
+    #[serde(default)]
+    pub neural_start: Option<String>,
+    #[serde(default)]
+    pub seed: u64,
+    #[serde(default = "alpha")]
+    pub alpha: f64,
+    /// Run fits in parallel (rayon); false for timing studies.
+    #[serde(default = "true_")]
+    pub parallel: bool,
+}
+
+impl BenchConfig {
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read bench config {}", path.display()))?;
+        let config: Self = toml::from_str(&text).map_err(|e| anyhow::anyhow!("malformed bench config {}: {}", path.display(), e.message()))?;
+        config.validate().with_context(|| format!("bench config {}", path.display()))?;
+        Ok(config)
+    }
+
+    /// Every setting checked before any work starts.
+    pub fn validate(&self) -> Result<()> {
+        if self.methods.is_empty() {
+            bail!("methods: need at least one");
+        }
+        for m in &self.methods {
+            if m != "neural" && !METHOD_NAMES.contains(&m.as_str()) {
+                bail!("unknown method '{m}' (expected one of: {}, neural)", METHOD_NAMES.join(", "));
+            }
+        }
+        if self.budgets.is_empty() || self.budgets.contains(&0) {
+            bail!("budgets: need at least one, each at least 1 evaluation (got {:?})", self.budgets);
+        }
+        if self.repetitions == 0 {
+            bail!("repetitions must be at least 1");
+        }
+        for s in &self.strategies {
+            s.parse::<Strategy>()?;
+        }
+        if self.strategies.is_empty() {
+            bail!("strategies: need at least one");
+        }
+        self.preset()?;
+        match (&self.data, &self.synth) {
+            (Some(d), None) if !d.exists() => bail!("data file {} does not exist", d.display()),
+            (Some(_), Some(_)) => bail!("give either data or [synth], not both"),
+            (None, None) => bail!("give data = \"FILE.npz\" or a [synth] section"),
+            (None, Some(s)) if s.frames == 0 => bail!("synth.frames must be at least 1"),
+            _ => {}
+        }
+        if self.methods.iter().any(|m| m == "neural") {
+            let Some(c) = &self.checkpoint else { bail!("method neural needs checkpoint = \"DIR\"") };
+            if !c.join("config.json").exists() {
+                bail!("checkpoint {} has no config.json", c.display());
+            }
+            self.neural_start()?;
+        }
+        if !(self.alpha > 0.0 && self.alpha < 1.0) {
+            bail!("alpha must be in (0, 1), got {}", self.alpha);
+        }
+        self.energy_config()?;
+        Ok(())
+    }
+
+    fn preset(&self) -> Result<Preset> {
+        let p = self.preset.as_deref().unwrap_or("nevergrad");
+        p.parse().map_err(|_| lfit_fitters::FitError::UnknownPreset(p.to_string()).into())
+    }
+
+    fn neural_start(&self) -> Result<lfit_infer::Start> {
+        self.neural_start.as_deref().unwrap_or("given").parse().map_err(anyhow::Error::msg)
+    }
+
+    /// The one energy configuration of the benchmark and its name.
+    pub fn energy_config(&self) -> Result<(EnergyConfig, String)> {
+        let gradient_method = self.methods.iter().any(|m| m == "lbfgs" || m == "neural");
+        match self.energy.as_deref() {
+            None if gradient_method => Ok((EnergyConfig::default().for_gradient(), "gradient".into())),
+            None | Some("paper") => Ok((EnergyConfig::default(), "paper".into())),
+            Some("gradient") => Ok((EnergyConfig::default().for_gradient(), "gradient".into())),
+            Some(path) => Ok((read_energy_config(Some(Path::new(path)), false)?, path.to_string())),
+        }
+    }
+}
+
+/// One fit of the sweep.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Job {
+    pub method: usize,
+    pub strategy: usize,
+    pub budget: usize,
+    pub rep: usize,
+    pub frame: usize,
+}
+
+/// One row of `runs.csv`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Run {
+    pub method: String,
+    pub strategy: String,
+    pub budget: usize,
+    pub rep: usize,
+    pub frame: usize,
+    pub seed: u64,
+    pub energy: f64,
+    pub start_energy: f64,
+    pub v2v_mm: f64,
+    pub mpjpe_mm: f64,
+    pub pa_mpjpe_mm: f64,
+    pub hausdorff_mm: f64,
+    pub evaluations: u64,
+    pub gradient_evaluations: u64,
+    pub iterations: u64,
+    pub time_s: f64,
+    /// `(evaluations, best energy)`.
+    pub trace: Vec<(u64, f64)>,
+    /// V2V (mm) of every iterate (neural fitter only).
+    pub v2v_per_iteration: Vec<f64>,
+}
+
+pub const CSV_HEADER: &str = "method,strategy,budget,rep,frame,seed,energy,start_energy,v2v_mm,mpjpe_mm,pa_mpjpe_mm,hausdorff_mm,evaluations,gradient_evaluations,iterations,time_s,trace,v2v_per_iteration";
+
+impl Run {
+    pub fn key(&self) -> (String, String, usize, usize, usize) {
+        (self.method.clone(), self.strategy.clone(), self.budget, self.rep, self.frame)
+    }
+
+    pub fn to_csv(&self) -> String {
+        let trace = self.trace.iter().map(|(e, v)| format!("{e}:{v:e}")).collect::<Vec<_>>().join(";");
+        let iters = self.v2v_per_iteration.iter().map(|v| format!("{v:.4}")).collect::<Vec<_>>().join(";");
+        format!(
+            "{},{},{},{},{},{},{:e},{:e},{:.4},{:.4},{:.4},{:.4},{},{},{},{:.6},{trace},{iters}",
+            self.method, self.strategy, self.budget, self.rep, self.frame, self.seed, self.energy, self.start_energy, self.v2v_mm, self.mpjpe_mm, self.pa_mpjpe_mm, self.hausdorff_mm, self.evaluations, self.gradient_evaluations, self.iterations, self.time_s
+        )
+    }
+
+    pub fn from_csv(line: &str) -> Option<Self> {
+        let f: Vec<&str> = line.split(',').collect();
+        if f.len() != 18 {
+            return None;
+        }
+        let trace = if f[16].is_empty() {
+            Vec::new()
+        } else {
+            f[16].split(';').map(|p| p.split_once(':').and_then(|(e, v)| Some((e.parse().ok()?, v.parse().ok()?)))).collect::<Option<Vec<_>>>()?
+        };
+        let iters = if f[17].is_empty() { Vec::new() } else { f[17].split(';').map(|v| v.parse().ok()).collect::<Option<Vec<f64>>>()? };
+        Some(Self {
+            method: f[0].to_string(),
+            strategy: f[1].to_string(),
+            budget: f[2].parse().ok()?,
+            rep: f[3].parse().ok()?,
+            frame: f[4].parse().ok()?,
+            seed: f[5].parse().ok()?,
+            energy: f[6].parse().ok()?,
+            start_energy: f[7].parse().ok()?,
+            v2v_mm: f[8].parse().ok()?,
+            mpjpe_mm: f[9].parse().ok()?,
+            pa_mpjpe_mm: f[10].parse().ok()?,
+            hausdorff_mm: f[11].parse().ok()?,
+            evaluations: f[12].parse().ok()?,
+            gradient_evaluations: f[13].parse().ok()?,
+            iterations: f[14].parse().ok()?,
+            time_s: f[15].parse().ok()?,
+            trace,
+            v2v_per_iteration: iters,
+        })
+    }
+}
+
+/// Reads the complete rows of a `runs.csv` (a torn last line from a killed run is dropped).
+pub fn read_runs(path: &Path) -> Result<Vec<Run>> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
+    };
+    let mut lines: Vec<&str> = text.split('\n').collect();
+    // Only lines ended by '\n' are complete.
+    lines.pop();
+    let mut runs = Vec::new();
+    for (i, line) in lines.iter().enumerate() {
+        if i == 0 {
+            if *line != CSV_HEADER {
+                bail!("{} is not an lfit bench runs.csv (unexpected header)", path.display());
+            }
+            continue;
+        }
+        match Run::from_csv(line) {
+            Some(r) => runs.push(r),
+            None => bail!("{}: malformed row {}", path.display(), i + 1),
+        }
+    }
+    Ok(runs)
+}
+
+/// Which jobs this process runs: `i/n` (0-based shard `i` of `n`).
+pub fn parse_shard(spec: Option<&str>) -> Result<(usize, usize)> {
+    let Some(s) = spec else { return Ok((0, 1)) };
+    let parsed = s.split_once('/').and_then(|(a, b)| Some((a.trim().parse::<usize>().ok()?, b.trim().parse::<usize>().ok()?)));
+    match parsed {
+        Some((i, n)) if n >= 1 && i < n => Ok((i, n)),
+        _ => bail!("--shard must be i/n with 0 ≤ i < n, got '{s}'"),
+    }
+}
+
+/// Runs the sweep (or one shard of it) into `out`; returns the rows of this shard, sorted.
+pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(dyn Fn(usize, usize) + Sync)) -> Result<Vec<Run>> {
+    config.validate()?;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let config_json = serde_json::to_vec_pretty(config)?;
+    let saved = out.join("bench.json");
+    if let Ok(prev) = std::fs::read(&saved)
+        && prev != config_json
+    {
+        bail!("{} holds a different benchmark (bench.json differs); use another --out", out.display());
+    }
+    write_atomic(&saved, &config_json)?;
+    let data = match (&config.data, &config.synth) {
+        (Some(d), _) => d.clone(),
+        (None, Some(s)) => {
+            let path = out.join("data.npz");
+            if !path.exists() {
+                let template = crate::commands::load_template(None, "default")?;
+                let args = crate::commands::SynthArgs { modality: s.modality.clone(), scenario: s.scenario.clone(), source: "motion".into(), frames: s.frames, seed: s.seed, fps: 30.0, noise: s.noise, motions: None, out: path.clone() };
+                crate::commands::synth(&args, &template, &|_| {})?;
+            }
+            path
+        }
+        (None, None) => bail!("no data"),
+    };
+    let dataset = Dataset::load(&data).with_context(|| format!("dataset {}", data.display()))?;
+    let frames = parse_frames(config.frames.as_deref(), dataset.len())?;
+    let template = template_for(&dataset, None)?;
+    let (energy_config, _) = config.energy_config()?;
+    let scenario = dataset.meta.config.scenario;
+    if scenario == Scenario::Sequence {
+        bail!("bench fits frames independently; sequence datasets need warm starts (use lfit fit)");
+    }
+    let strategies: Vec<Strategy> = config.strategies.iter().map(|s| s.parse()).collect::<Result<_, _>>()?;
+    let preset = config.preset()?;
+    let mut fitters: Vec<Vec<Box<dyn Fitter>>> = Vec::new();
+    for m in &config.methods {
+        let mut per = Vec::new();
+        for &s in &strategies {
+            per.push(if m == "neural" {
+                let device = lfit_model::tensor::device_from_name("flex")?;
+                let dir = config.checkpoint.as_deref().context("checkpoint")?;
+                Box::new(lfit_infer::NeuralFitter::load(dir, &device, config.neural_start()?)?) as Box<dyn Fitter>
+            } else {
+                build_fitter(m, preset, s)?
+            });
+        }
+        fitters.push(per);
+    }
+    let energies: Vec<Energy> = frames.iter().map(|&f| energy_for_frame(&dataset, template.clone(), f, energy_config.clone())).collect::<Result<_>>()?;
+
+    let mut jobs = Vec::new();
+    for method in 0..config.methods.len() {
+        for strategy in 0..strategies.len() {
+            // Strategies do not apply to the neural fitter and L-BFGS runs are deterministic in
+            // the strategy only; keep one strategy for the neural fitter.
+            if config.methods[method] == "neural" && strategy > 0 {
+                continue;
+            }
+            for budget in 0..config.budgets.len() {
+                for rep in 0..config.repetitions {
+                    for frame in 0..frames.len() {
+                        jobs.push(Job { method, strategy, budget, rep, frame });
+                    }
+                }
+            }
+        }
+    }
+    let mine: Vec<(usize, Job)> = jobs.into_iter().enumerate().filter(|(i, _)| i % shard.1 == shard.0).collect();
+    let csv = out.join("runs.csv");
+    let existing = read_runs(&csv)?;
+    let done: HashSet<(String, String, usize, usize, usize)> = existing.iter().map(Run::key).collect();
+    let name = |j: &Job| (config.methods[j.method].clone(), if config.methods[j.method] == "neural" { "-".to_string() } else { config.strategies[j.strategy].clone() }, config.budgets[j.budget], j.rep, frames[j.frame]);
+    let todo: Vec<&(usize, Job)> = mine.iter().filter(|(_, j)| !done.contains(&name(j))).collect();
+    // Rewrite the file with the complete rows (drops a torn last line), then append.
+    {
+        let mut text = String::from(CSV_HEADER);
+        text.push('\n');
+        for r in &existing {
+            text.push_str(&r.to_csv());
+            text.push('\n');
+        }
+        write_atomic(&csv, text.as_bytes())?;
+    }
+    let file = Mutex::new(std::fs::OpenOptions::new().append(true).open(&csv).with_context(|| format!("cannot append to {}", csv.display()))?);
+    let counter = std::sync::atomic::AtomicUsize::new(mine.len() - todo.len());
+    let total = mine.len();
+    progress(counter.load(std::sync::atomic::Ordering::Relaxed), total);
+    let template_ref: &Arc<lfit_model::Template> = &template;
+    let work = |(_, job): &&(usize, Job)| -> Result<()> {
+        let (method, strategy, budget, rep, frame) = name(job);
+        let energy = energies[job.frame].clone();
+        let start = dataset.start_poses[frame];
+        let seed = config.seed ^ (frame as u64).wrapping_mul(0xD1B5_4A32_D192_ED03) ^ (rep as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        let request = FitRequest { energy: &energy, start, mask: scenario_mask(scenario), bounds: scenario_bounds(scenario, &start), budget, seed };
+        let start_energy = energy.inspect(&start).total;
+        let result = fitters[job.method][job.strategy].fit(&request).with_context(|| format!("{method} on frame {frame}"))?;
+        let mut pose: Pose = [0.0; POSE_DIM];
+        pose.copy_from_slice(&result.pose);
+        let gt = &dataset.gt_poses[frame];
+        let v2v_per_iteration = result
+            .iterates
+            .iter()
+            .map(|p| {
+                let mut q = [0.0; POSE_DIM];
+                q.copy_from_slice(p);
+                v2v_mm(template_ref, &q, gt)
+            })
+            .collect();
+        let row = Run {
+            method,
+            strategy,
+            budget,
+            rep,
+            frame,
+            seed,
+            energy: result.energy,
+            start_energy,
+            v2v_mm: v2v_mm(template_ref, &pose, gt),
+            mpjpe_mm: mpjpe_mm(template_ref, &pose, gt),
+            pa_mpjpe_mm: pa_mpjpe_mm(template_ref, &pose, gt),
+            hausdorff_mm: hausdorff_rms_mm(template_ref, &pose, gt),
+            evaluations: result.evaluations,
+            gradient_evaluations: result.gradient_evaluations,
+            iterations: result.iterations,
+            time_s: result.time_s,
+            trace: result.trace,
+            v2v_per_iteration,
+        };
+        let mut line = row.to_csv();
+        line.push('\n');
+        {
+            let mut f = file.lock().map_err(|_| anyhow::anyhow!("runs.csv lock poisoned"))?;
+            f.write_all(line.as_bytes())?;
+            f.flush()?;
+        }
+        let n = counter.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+        progress(n, total);
+        Ok(())
+    };
+    if config.parallel {
+        todo.par_iter().try_for_each(work)?;
+    } else {
+        todo.iter().try_for_each(|j| work(&j))?;
+    }
+    drop(file);
+    let mut runs = read_runs(&csv)?;
+    sort_runs(config, &mut runs);
+    write_runs(&csv, &runs)?;
+    Ok(runs)
+}
+
+/// Canonical order: as the config lists methods, strategies and budgets, then rep, frame.
+pub fn sort_runs(config: &BenchConfig, runs: &mut [Run]) {
+    let pos = |list: &[String], x: &str| list.iter().position(|m| m == x).unwrap_or(usize::MAX);
+    let budget_pos = |b: usize| config.budgets.iter().position(|&x| x == b).unwrap_or(usize::MAX);
+    runs.sort_by_key(|r| (pos(&config.methods, &r.method), pos(&config.strategies, &r.strategy), budget_pos(r.budget), r.rep, r.frame));
+}
+
+pub fn write_runs(path: &Path, runs: &[Run]) -> Result<()> {
+    let mut text = String::from(CSV_HEADER);
+    text.push('\n');
+    for r in runs {
+        text.push_str(&r.to_csv());
+        text.push('\n');
+    }
+    write_atomic(path, text.as_bytes())?;
+    Ok(())
+}
+
+/// Merges shard directories into `out`: same `bench.json` everywhere, rows deduplicated.
+pub fn merge(shards: &[PathBuf], out: &Path) -> Result<(BenchConfig, Vec<Run>)> {
+    if shards.is_empty() {
+        bail!("bench merge needs at least one shard directory");
+    }
+    let mut config: Option<(Vec<u8>, BenchConfig)> = None;
+    let mut rows: BTreeMap<(String, String, usize, usize, usize), Run> = BTreeMap::new();
+    for dir in shards {
+        let bytes = std::fs::read(dir.join("bench.json")).with_context(|| format!("{} is not a bench output (no bench.json)", dir.display()))?;
+        let c: BenchConfig = serde_json::from_slice(&bytes).with_context(|| format!("malformed {}/bench.json", dir.display()))?;
+        match &config {
+            Some((b, _)) if *b != bytes => bail!("{} ran another benchmark than {}", dir.display(), shards[0].display()),
+            Some(_) => {}
+            None => config = Some((bytes, c)),
+        }
+        for r in read_runs(&dir.join("runs.csv"))? {
+            rows.insert(r.key(), r);
+        }
+    }
+    let (bytes, config) = config.context("no shard")?;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    write_atomic(&out.join("bench.json"), &bytes)?;
+    let mut runs: Vec<Run> = rows.into_values().collect();
+    sort_runs(&config, &mut runs);
+    write_runs(&out.join("runs.csv"), &runs)?;
+    Ok((config, runs))
+}
