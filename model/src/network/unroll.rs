@@ -11,6 +11,7 @@ use super::net::NeuralNet;
 use crate::energy::Energy;
 use crate::error::{ModelError, Result};
 use crate::pose::{Bounds, POSE_DIM, Pose};
+use crate::tensor::{poses_to_tensor, tensor_to_rows};
 
 /// Per-frame limits at inference: which DOFs may move and the box they stay in.
 #[derive(Debug, Clone)]
@@ -36,27 +37,13 @@ fn rows_tensor(rows: &[f32], batch: usize, device: &Device) -> Tensor<2> {
     Tensor::from_data(TensorData::new(rows.to_vec(), [batch, d]), device)
 }
 
+/// The poses of a `[B, 57]` tensor on the host (detached).
 fn to_host(t: &Tensor<2>) -> Result<Vec<Pose>> {
     let [batch, d] = t.dims();
-    let values = t.clone().detach().try_into_vec_as::<f32>().map_err(|e| ModelError::Backend(format!("cannot read poses: {e}")))?;
     if d != POSE_DIM {
         return Err(ModelError::Shape { what: "pose tensor".into(), expected: format!("[{batch}, {POSE_DIM}]"), got: format!("[{batch}, {d}]") });
     }
-    Ok(values
-        .chunks_exact(POSE_DIM)
-        .map(|c| {
-            let mut p = [0.0; POSE_DIM];
-            for (a, &b) in p.iter_mut().zip(c) {
-                *a = f64::from(b);
-            }
-            p
-        })
-        .collect())
-}
-
-fn poses_tensor(poses: &[Pose], device: &Device) -> Tensor<2> {
-    let v: Vec<f32> = poses.iter().flat_map(|p| p.iter().map(|&x| x as f32)).collect();
-    rows_tensor(&v, poses.len(), device)
+    Ok(tensor_to_rows(t.clone().detach())?.iter().map(|row| std::array::from_fn(|i| f64::from(row[i]))).collect())
 }
 
 /// Runs N iterations on `energies` (one frame each). `starts[i]` is the given θ0 of frame `i`
@@ -98,12 +85,12 @@ pub fn unroll(
     let given: Vec<Pose> = starts.iter().map(|s| s.unwrap_or([0.0; POSE_DIM])).collect();
     let use_given: Vec<f32> = starts.iter().map(|s| if s.is_some() { 1.0 } else { 0.0 }).collect();
     let mut theta = if use_given.iter().all(|&g| g == 1.0) {
-        poses_tensor(&given, device)
+        poses_to_tensor(&given, device)
     } else if use_given.iter().all(|&g| g == 0.0) {
         phi
     } else {
         let m = rows_tensor(&use_given, batch, device);
-        poses_tensor(&given, device) * m.clone() + phi * m.neg().add_scalar(1.0)
+        poses_to_tensor(&given, device) * m.clone() + phi * m.neg().add_scalar(1.0)
     };
 
     let (free, lower, upper) = match constraints {
@@ -156,7 +143,7 @@ pub fn unroll(
             core_in.extend_from_slice(d);
         }
         let mut delta = net.propose(n, rows_tensor(&core_in, batch, device), &mut state, dropout);
-        let mut grad = poses_tensor(&evals.iter().map(|(_, g)| *g).collect::<Vec<_>>(), device);
+        let mut grad = poses_to_tensor(&evals.iter().map(|(_, g)| *g).collect::<Vec<_>>(), device);
         if let Some(f) = &free {
             delta = delta * f.clone();
             grad = grad * f.clone();
