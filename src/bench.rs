@@ -19,7 +19,7 @@ use lfit_synth::{Dataset, Scenario};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::fit::{energy_for_frame, parse_frames, read_energy_config, scenario_bounds, scenario_mask, template_for};
+use crate::fit::{energy_for_frame, frame_seed, iterate_errors, parse_frames, read_energy_config, scenario_bounds, scenario_mask, template_for};
 
 /// Dataset to synthesise when the config names none.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -317,30 +317,23 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
     }
     let strategies: Vec<Strategy> = config.strategies.iter().map(|s| s.parse()).collect::<Result<_, _>>()?;
     let preset = config.preset()?;
+    // One fitter per method and strategy; the neural fitter has no strategies, so it is loaded
+    // once and its jobs use strategy 0 only.
     let mut fitters: Vec<Vec<Box<dyn Fitter>>> = Vec::new();
     for m in &config.methods {
-        let mut per = Vec::new();
-        for &s in &strategies {
-            per.push(if m == "neural" {
-                let device = lfit_model::tensor::device_from_name("flex")?;
-                let dir = config.checkpoint.as_deref().context("checkpoint")?;
-                Box::new(lfit_infer::NeuralFitter::load(dir, &device, config.neural_start()?)?) as Box<dyn Fitter>
-            } else {
-                build_fitter(m, preset, s)?
-            });
+        if m == "neural" {
+            let device = lfit_model::tensor::device_from_name("flex")?;
+            let dir = config.checkpoint.as_deref().context("checkpoint")?;
+            fitters.push(vec![Box::new(lfit_infer::NeuralFitter::load(dir, &device, config.neural_start()?)?)]);
+        } else {
+            fitters.push(strategies.iter().map(|&s| build_fitter(m, preset, s)).collect::<Result<_, _>>()?);
         }
-        fitters.push(per);
     }
     let energies: Vec<Energy> = frames.iter().map(|&f| energy_for_frame(&dataset, template.clone(), f, energy_config.clone())).collect::<Result<_>>()?;
 
     let mut jobs = Vec::new();
     for method in 0..config.methods.len() {
-        for strategy in 0..strategies.len() {
-            // Strategies do not apply to the neural fitter and L-BFGS runs are deterministic in
-            // the strategy only; keep one strategy for the neural fitter.
-            if config.methods[method] == "neural" && strategy > 0 {
-                continue;
-            }
+        for strategy in 0..fitters[method].len() {
             for budget in 0..config.budgets.len() {
                 for rep in 0..config.repetitions {
                     for frame in 0..frames.len() {
@@ -375,22 +368,14 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
         let (method, strategy, budget, rep, frame) = name(job);
         let energy = energies[job.frame].clone();
         let start = dataset.start_poses[frame];
-        let seed = config.seed ^ (frame as u64).wrapping_mul(0xD1B5_4A32_D192_ED03) ^ (rep as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        let seed = frame_seed(config.seed, frame) ^ (rep as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
         let request = FitRequest { energy: &energy, start, mask: scenario_mask(scenario), bounds: scenario_bounds(scenario, &start), budget, seed };
         let start_energy = energy.inspect(&start).total;
         let result = fitters[job.method][job.strategy].fit(&request).with_context(|| format!("{method} on frame {frame}"))?;
         let mut pose: Pose = [0.0; POSE_DIM];
         pose.copy_from_slice(&result.pose);
         let gt = &dataset.gt_poses[frame];
-        let v2v_per_iteration = result
-            .iterates
-            .iter()
-            .map(|p| {
-                let mut q = [0.0; POSE_DIM];
-                q.copy_from_slice(p);
-                v2v_mm(template_ref, &q, gt)
-            })
-            .collect();
+        let v2v_per_iteration = iterate_errors(template_ref, &result.iterates, gt, v2v_mm);
         let row = Run {
             method,
             strategy,

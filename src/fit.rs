@@ -110,6 +110,23 @@ fn terms_json(terms: &[(&'static str, f64)]) -> Value {
     Value::Object(terms.iter().map(|(k, v)| ((*k).to_string(), json!(v))).collect::<Map<_, _>>())
 }
 
+/// The seed of one frame's fit: the run's seed mixed with the frame index.
+pub fn frame_seed(seed: u64, frame: usize) -> u64 {
+    seed ^ (frame as u64).wrapping_mul(0xD1B5_4A32_D192_ED03)
+}
+
+/// An error metric (`v2v_mm`, `mpjpe_mm`, ...) of every iterate of a fit against the truth.
+pub fn iterate_errors(template: &Template, iterates: &[Vec<f64>], truth: &Pose, metric: fn(&Template, &Pose, &Pose) -> f64) -> Vec<f64> {
+    iterates
+        .iter()
+        .map(|p| {
+            let mut q = [0.0; POSE_DIM];
+            q.copy_from_slice(p);
+            metric(template, &q, truth)
+        })
+        .collect()
+}
+
 /// Arguments of `lfit fit`.
 #[derive(Debug, Clone)]
 pub struct FitArgs {
@@ -193,7 +210,7 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
                 mask: mask.clone(),
                 bounds: scenario_bounds(scenario, &start),
                 budget: args.budget,
-                seed: args.seed ^ (frame as u64).wrapping_mul(0xD1B5_4A32_D192_ED03),
+                seed: frame_seed(args.seed, frame),
             })
             .collect();
         let start_energies: Vec<f64> = requests.iter().map(|r| r.energy.inspect(&r.start).total).collect();
@@ -226,15 +243,8 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
                 "trace": result.trace,
             });
             if !result.iterates.is_empty() {
-                let per = |f: fn(&Template, &Pose, &Pose) -> f64| -> Vec<f64> {
-                    result.iterates.iter().map(|p| {
-                        let mut q = [0.0; POSE_DIM];
-                        q.copy_from_slice(p);
-                        f(&template, &q, gt)
-                    }).collect()
-                };
-                row["v2v_mm_per_iteration"] = json!(per(v2v_mm));
-                row["mpjpe_mm_per_iteration"] = json!(per(mpjpe_mm));
+                row["v2v_mm_per_iteration"] = json!(iterate_errors(&template, &result.iterates, gt, v2v_mm));
+                row["mpjpe_mm_per_iteration"] = json!(iterate_errors(&template, &result.iterates, gt, mpjpe_mm));
             }
             rows.push(row);
             previous = Some((frame, pose));
