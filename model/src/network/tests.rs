@@ -103,19 +103,24 @@ pub(crate) fn small_config(modality: Modality, residual_dim: usize) -> NetConfig
     NetConfig { modality, residual_dim, iterations: 2, hidden: 16, init_width: 8, layers: 2, dropout: 0.5, ..NetConfig::default() }
 }
 
-fn marker_energies(template: &Arc<Template>, n: usize, seed: u64) -> Vec<Energy> {
-    let sensor = Sensor::default_for(Modality::Markers, template);
+/// The default template, `n` marker energies of random poses (noise-free targets) and the
+/// markers' residual dimension.
+fn marker_frames(n: usize, seed: u64) -> (Arc<Template>, Vec<Energy>, usize) {
+    let template = Arc::new(default_template());
+    let sensor = Sensor::default_for(Modality::Markers, &template);
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    (0..n)
+    let energies = (0..n)
         .map(|_| {
             let mut pose: Pose = [0.0; POSE_DIM];
             for v in pose.iter_mut() {
                 *v = rng.random_range(-0.2..0.2);
             }
-            let pred = sensor.predict_sparse(template, &pose).expect("sparse");
+            let pred = sensor.predict_sparse(&template, &pose).expect("sparse");
             Energy::new(template.clone(), sensor.clone(), Target::Sparse { values: pred.values, visible: pred.visible }, EnergyConfig::default().for_gradient()).expect("energy")
         })
-        .collect()
+        .collect();
+    let dim = sensor.residual_dim(&template);
+    (template, energies, dim)
 }
 
 fn unit_stats(dim: usize) -> FeatureStats {
@@ -126,10 +131,8 @@ fn unit_stats(dim: usize) -> FeatureStats {
 #[test]
 fn every_variant_builds_and_runs_with_the_right_shapes() {
     let device = ndarray_device();
-    let template = Arc::new(default_template());
-    let energies = marker_energies(&template, 3, 1);
+    let (_, energies, dim) = marker_frames(3, 1);
     let refs: Vec<&Energy> = energies.iter().collect();
-    let dim = Sensor::default_for(Modality::Markers, &template).residual_dim(&template);
     let base = small_config(Modality::Markers, dim);
     let mut variants = Vec::new();
     for update in [UpdateRule::DeltaOnly, UpdateRule::Eq1, UpdateRule::Convex, UpdateRule::ConvexNormalized] {
@@ -203,10 +206,8 @@ fn save_checkpoint(dir: &std::path::Path, net: &NeuralNet, stats: &FeatureStats,
 #[test]
 fn checkpoint_round_trip_gives_identical_outputs_and_mismatches_are_clear_errors() {
     let device = ndarray_device();
-    let template = Arc::new(default_template());
-    let energies = marker_energies(&template, 2, 5);
+    let (template, energies, dim) = marker_frames(2, 5);
     let refs: Vec<&Energy> = energies.iter().collect();
-    let dim = Sensor::default_for(Modality::Markers, &template).residual_dim(&template);
     let config = small_config(Modality::Markers, dim);
     let net = NeuralNet::new(&config, 11, &device).expect("net");
     let mut stats = unit_stats(dim);
@@ -262,10 +263,8 @@ fn checkpoint_round_trip_gives_identical_outputs_and_mismatches_are_clear_errors
 #[test]
 fn same_seed_same_network_and_dropout_is_seeded() {
     let device = ndarray_device();
-    let template = Arc::new(default_template());
-    let energies = marker_energies(&template, 2, 9);
+    let (_, energies, dim) = marker_frames(2, 9);
     let refs: Vec<&Energy> = energies.iter().collect();
-    let dim = Sensor::default_for(Modality::Markers, &template).residual_dim(&template);
     let config = small_config(Modality::Markers, dim);
     let run_net = |seed| {
         let net = NeuralNet::new(&config, seed, &device).expect("net");
@@ -290,10 +289,8 @@ fn same_seed_same_network_and_dropout_is_seeded() {
 #[test]
 fn backends_agree_on_the_fitting_loop() {
     use crate::tensor::{device_from_name, wgpu_status};
-    let template = Arc::new(default_template());
-    let energies = marker_energies(&template, 3, 21);
+    let (_, energies, dim) = marker_frames(3, 21);
     let refs: Vec<&Energy> = energies.iter().collect();
-    let dim = Sensor::default_for(Modality::Markers, &template).residual_dim(&template);
     let config = small_config(Modality::Markers, dim);
     let reference = ndarray_device();
     let net = NeuralNet::new(&config, 8, &reference).expect("net");
