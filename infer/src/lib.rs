@@ -73,7 +73,7 @@ impl NeuralFitter {
         }
         let net = &self.checkpoint.net;
         let n = net.config.iterations;
-        let per_iteration = if net.config.has_step_network() { 2 } else { 1 };
+        let per_iteration = net.config.evaluations_per_iteration();
         for r in requests {
             self.check(r.energy).map_err(neural)?;
             if r.budget == 0 {

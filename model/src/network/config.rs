@@ -156,6 +156,12 @@ impl NetConfig {
         self.update != UpdateRule::DeltaOnly
     }
 
+    /// Evaluations of the observation model one iteration costs: the gradient evaluation at θ,
+    /// plus R(θ + Δθ) for the λ/γ network when the rule has one.
+    pub fn evaluations_per_iteration(&self) -> usize {
+        if self.has_step_network() { 2 } else { 1 }
+    }
+
     /// Whether the network predicts γ.
     pub fn learns_gamma(&self) -> bool {
         self.has_step_network() && self.gamma == GammaMode::Learned

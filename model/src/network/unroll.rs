@@ -177,6 +177,5 @@ pub fn unroll(
         host.push(to_host(&theta)?);
         poses.push(theta.clone());
     }
-    let per_iteration = if c.has_step_network() { 2 } else { 1 };
-    Ok(Unrolled { poses, host, residual_evaluations: (per_iteration * c.iterations) as u64 })
+    Ok(Unrolled { poses, host, residual_evaluations: (c.evaluations_per_iteration() * c.iterations) as u64 })
 }
