@@ -86,14 +86,47 @@ pub struct BenchConfig {
     /// Run fits in parallel (rayon); false for timing studies.
     #[serde(default = "true_")]
     pub parallel: bool,
+    /// Smaller sizes for `--quick` (presets); resolved away before a run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub quick: Option<QuickSize>,
+}
+
+/// The `[quick]` section: what `--quick` replaces.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QuickSize {
+    /// Frames to synthesise (`[synth] frames`).
+    pub frames: Option<usize>,
+    pub repetitions: Option<usize>,
+    pub budgets: Option<Vec<usize>>,
 }
 
 impl BenchConfig {
-    pub fn load(path: &Path) -> Result<Self> {
+    /// Reads and validates a config; `quick` applies its `[quick]` section.
+    pub fn load(path: &Path, quick: bool) -> Result<Self> {
         let text = std::fs::read_to_string(path).with_context(|| format!("cannot read bench config {}", path.display()))?;
         let config: Self = toml::from_str(&text).map_err(|e| anyhow::anyhow!("malformed bench config {}: {}", path.display(), e.message()))?;
+        let config = config.resolve(quick);
         config.validate().with_context(|| format!("bench config {}", path.display()))?;
         Ok(config)
+    }
+
+    /// The config to run: with `quick`, the `[quick]` sizes replace the full ones; the section
+    /// itself is dropped either way.
+    pub fn resolve(mut self, quick: bool) -> Self {
+        if let (true, Some(q)) = (quick, self.quick.take()) {
+            if let (Some(f), Some(s)) = (q.frames, self.synth.as_mut()) {
+                s.frames = f;
+            }
+            if let Some(r) = q.repetitions {
+                self.repetitions = r;
+            }
+            if let Some(b) = q.budgets {
+                self.budgets = b;
+            }
+        }
+        self.quick = None;
+        self
     }
 
     /// Every setting checked before any work starts.
@@ -102,8 +135,19 @@ impl BenchConfig {
             bail!("methods: need at least one");
         }
         for m in &self.methods {
-            if m != "neural" && !METHOD_NAMES.contains(&m.as_str()) {
-                bail!("unknown method '{m}' (expected one of: {}, neural)", METHOD_NAMES.join(", "));
+            let (name, pin) = match m.split_once(':') {
+                Some((n, s)) => (n, Some(s)),
+                None => (m.as_str(), None),
+            };
+            if name != "neural" && !METHOD_NAMES.contains(&name) {
+                bail!("unknown method '{name}' (expected one of: {}, neural; optionally NAME:STRATEGY)", METHOD_NAMES.join(", "));
+            }
+            match pin {
+                Some(_) if name == "neural" => bail!("method '{m}': the neural fitter has no strategies"),
+                Some(s) => {
+                    s.parse::<Strategy>().with_context(|| format!("method '{m}'"))?;
+                }
+                None => {}
             }
         }
         if self.budgets.is_empty() || self.budgets.contains(&0) {
@@ -119,6 +163,7 @@ impl BenchConfig {
             bail!("strategies: need at least one");
         }
         self.preset()?;
+        self.entries()?;
         match (&self.data, &self.synth) {
             (Some(d), None) if !d.exists() => bail!("data file {} does not exist", d.display()),
             (Some(_), Some(_)) => bail!("give either data or [synth], not both"),
@@ -138,6 +183,37 @@ impl BenchConfig {
         }
         self.energy_config()?;
         Ok(())
+    }
+
+    /// The sweep's lines, `(method, strategy)` in config order: a method crossed with every
+    /// strategy, a `method:strategy` entry with its own, and `neural` with `-`.
+    pub fn entries(&self) -> Result<Vec<(String, String)>> {
+        let mut out: Vec<(String, String)> = Vec::new();
+        for m in &self.methods {
+            let add: Vec<(String, String)> = match m.split_once(':') {
+                Some((n, s)) => vec![(n.to_string(), s.parse::<Strategy>()?.to_string())],
+                None if m == "neural" => vec![(m.clone(), "-".into())],
+                None => self.strategies.iter().map(|s| Ok((m.clone(), s.parse::<Strategy>()?.to_string()))).collect::<Result<_>>()?,
+            };
+            for e in add {
+                if out.contains(&e) {
+                    bail!("methods: '{}' with strategy '{}' is listed twice", e.0, e.1);
+                }
+                out.push(e);
+            }
+        }
+        Ok(out)
+    }
+
+    /// Whether report labels name the strategy (the sweep has more than one).
+    pub fn shows_strategy(&self) -> bool {
+        let mut seen: Vec<String> = Vec::new();
+        for (_, s) in self.entries().unwrap_or_default() {
+            if s != "-" && !seen.contains(&s) {
+                seen.push(s);
+            }
+        }
+        seen.len() > 1
     }
 
     fn preset(&self) -> Result<Preset> {
@@ -161,14 +237,14 @@ impl BenchConfig {
     }
 }
 
-/// One fit of the sweep.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct Job {
-    pub method: usize,
-    pub strategy: usize,
-    pub budget: usize,
-    pub rep: usize,
-    pub frame: usize,
+/// The work of one parallel task: one entry (method with strategy), budget and repetition on
+/// one frame, or on every frame in order for a sequence (indices into the selected frames).
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct Unit {
+    entry: usize,
+    budget: usize,
+    rep: usize,
+    frames: Vec<usize>,
 }
 
 /// One row of `runs.csv`.
@@ -312,43 +388,42 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
     let template = template_for(&dataset, None)?;
     let (energy_config, _) = config.energy_config()?;
     let scenario = dataset.meta.config.scenario;
-    if scenario == Scenario::Sequence {
-        bail!("bench fits frames independently; sequence datasets need warm starts (use lfit fit)");
-    }
-    let strategies: Vec<Strategy> = config.strategies.iter().map(|s| s.parse()).collect::<Result<_, _>>()?;
+    let entries = config.entries()?;
     let preset = config.preset()?;
-    // One fitter per method and strategy; the neural fitter has no strategies, so it is loaded
-    // once and its jobs use strategy 0 only.
-    let mut fitters: Vec<Vec<Box<dyn Fitter>>> = Vec::new();
-    for m in &config.methods {
+    // One fitter per entry; the neural checkpoint is loaded once.
+    let mut fitters: Vec<Box<dyn Fitter>> = Vec::new();
+    for (m, s) in &entries {
         if m == "neural" {
             let device = lfit_model::tensor::device_from_name("flex")?;
             let dir = config.checkpoint.as_deref().context("checkpoint")?;
-            fitters.push(vec![Box::new(lfit_infer::NeuralFitter::load(dir, &device, config.neural_start()?)?)]);
+            fitters.push(Box::new(lfit_infer::NeuralFitter::load(dir, &device, config.neural_start()?)?));
         } else {
-            fitters.push(strategies.iter().map(|&s| build_fitter(m, preset, s)).collect::<Result<_, _>>()?);
+            fitters.push(build_fitter(m, preset, s.parse()?)?);
         }
     }
     let energies: Vec<Energy> = frames.iter().map(|&f| energy_for_frame(&dataset, template.clone(), f, energy_config.clone())).collect::<Result<_>>()?;
 
-    let mut jobs = Vec::new();
-    for method in 0..config.methods.len() {
-        for strategy in 0..fitters[method].len() {
-            for budget in 0..config.budgets.len() {
-                for rep in 0..config.repetitions {
-                    for frame in 0..frames.len() {
-                        jobs.push(Job { method, strategy, budget, rep, frame });
-                    }
+    // A unit of work: one frame, or in a sequence the whole chain of frames, where each frame
+    // starts from the previous frame's result (papers/000 §4.3 warm start).
+    let chains = scenario == Scenario::Sequence;
+    let mut units: Vec<Unit> = Vec::new();
+    for entry in 0..entries.len() {
+        for budget in 0..config.budgets.len() {
+            for rep in 0..config.repetitions {
+                if chains {
+                    units.push(Unit { entry, budget, rep, frames: (0..frames.len()).collect() });
+                } else {
+                    units.extend((0..frames.len()).map(|f| Unit { entry, budget, rep, frames: vec![f] }));
                 }
             }
         }
     }
-    let mine: Vec<(usize, Job)> = jobs.into_iter().enumerate().filter(|(i, _)| i % shard.1 == shard.0).collect();
+    let mine: Vec<Unit> = units.into_iter().enumerate().filter(|(i, _)| i % shard.1 == shard.0).map(|(_, u)| u).collect();
     let csv = out.join("runs.csv");
     let existing = read_runs(&csv)?;
     let done: HashSet<(String, String, usize, usize, usize)> = existing.iter().map(Run::key).collect();
-    let name = |j: &Job| (config.methods[j.method].clone(), if config.methods[j.method] == "neural" { "-".to_string() } else { config.strategies[j.strategy].clone() }, config.budgets[j.budget], j.rep, frames[j.frame]);
-    let todo: Vec<&(usize, Job)> = mine.iter().filter(|(_, j)| !done.contains(&name(j))).collect();
+    let key = |u: &Unit, f: usize| (entries[u.entry].0.clone(), entries[u.entry].1.clone(), config.budgets[u.budget], u.rep, frames[f]);
+    let todo: Vec<&Unit> = mine.iter().filter(|u| u.frames.iter().any(|&f| !done.contains(&key(u, f)))).collect();
     // Rewrite the file with the complete rows (drops a torn last line), then append.
     {
         let mut text = String::from(CSV_HEADER);
@@ -360,57 +435,68 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
         write_atomic(&csv, text.as_bytes())?;
     }
     let file = Mutex::new(std::fs::OpenOptions::new().append(true).open(&csv).with_context(|| format!("cannot append to {}", csv.display()))?);
-    let counter = std::sync::atomic::AtomicUsize::new(mine.len() - todo.len());
-    let total = mine.len();
+    let total: usize = mine.iter().map(|u| u.frames.len()).sum();
+    let counter = std::sync::atomic::AtomicUsize::new(mine.iter().flat_map(|u| u.frames.iter().map(move |&f| (u, f))).filter(|(u, f)| done.contains(&key(u, *f))).count());
     progress(counter.load(std::sync::atomic::Ordering::Relaxed), total);
     let template_ref: &Arc<lfit_model::Template> = &template;
-    let work = |(_, job): &&(usize, Job)| -> Result<()> {
-        let (method, strategy, budget, rep, frame) = name(job);
-        let energy = energies[job.frame].clone();
-        let start = dataset.start_poses[frame];
-        let seed = frame_seed(config.seed, frame) ^ (rep as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-        let request = FitRequest { energy: &energy, start, mask: scenario_mask(scenario), bounds: scenario_bounds(scenario, &start), budget, seed };
-        let start_energy = energy.inspect(&start).total;
-        let result = fitters[job.method][job.strategy].fit(&request).with_context(|| format!("{method} on frame {frame}"))?;
-        let mut pose: Pose = [0.0; POSE_DIM];
-        pose.copy_from_slice(&result.pose);
-        let gt = &dataset.gt_poses[frame];
-        let v2v_per_iteration = iterate_errors(template_ref, &result.iterates, gt, v2v_mm);
-        let row = Run {
-            method,
-            strategy,
-            budget,
-            rep,
-            frame,
-            seed,
-            energy: result.energy,
-            start_energy,
-            v2v_mm: v2v_mm(template_ref, &pose, gt),
-            mpjpe_mm: mpjpe_mm(template_ref, &pose, gt),
-            pa_mpjpe_mm: pa_mpjpe_mm(template_ref, &pose, gt),
-            hausdorff_mm: hausdorff_rms_mm(template_ref, &pose, gt),
-            evaluations: result.evaluations,
-            gradient_evaluations: result.gradient_evaluations,
-            iterations: result.iterations,
-            time_s: result.time_s,
-            trace: result.trace,
-            v2v_per_iteration,
-        };
-        let mut line = row.to_csv();
-        line.push('\n');
-        {
-            let mut f = file.lock().map_err(|_| anyhow::anyhow!("runs.csv lock poisoned"))?;
-            f.write_all(line.as_bytes())?;
-            f.flush()?;
+    let work = |unit: &&Unit| -> Result<()> {
+        let mut previous: Option<(usize, Pose)> = None;
+        for &fi in &unit.frames {
+            let (method, strategy, budget, rep, frame) = key(unit, fi);
+            let energy = &energies[fi];
+            let start = match previous {
+                Some((p, pose)) if chains && p + 1 == frame => pose,
+                _ => dataset.start_poses[frame],
+            };
+            let seed = frame_seed(config.seed, frame) ^ (rep as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+            let request = FitRequest { energy, start, mask: scenario_mask(scenario), bounds: scenario_bounds(scenario, &start), budget, seed };
+            let start_energy = energy.inspect(&start).total;
+            let result = fitters[unit.entry].fit(&request).with_context(|| format!("{method} on frame {frame}"))?;
+            let mut pose: Pose = [0.0; POSE_DIM];
+            pose.copy_from_slice(&result.pose);
+            previous = Some((frame, pose));
+            if done.contains(&(method.clone(), strategy.clone(), budget, rep, frame)) {
+                // Resumed chain: this row is already in the CSV; the fit only rebuilt the warm start.
+                continue;
+            }
+            let gt = &dataset.gt_poses[frame];
+            let v2v_per_iteration = iterate_errors(template_ref, &result.iterates, gt, v2v_mm);
+            let row = Run {
+                method,
+                strategy,
+                budget,
+                rep,
+                frame,
+                seed,
+                energy: result.energy,
+                start_energy,
+                v2v_mm: v2v_mm(template_ref, &pose, gt),
+                mpjpe_mm: mpjpe_mm(template_ref, &pose, gt),
+                pa_mpjpe_mm: pa_mpjpe_mm(template_ref, &pose, gt),
+                hausdorff_mm: hausdorff_rms_mm(template_ref, &pose, gt),
+                evaluations: result.evaluations,
+                gradient_evaluations: result.gradient_evaluations,
+                iterations: result.iterations,
+                time_s: result.time_s,
+                trace: result.trace,
+                v2v_per_iteration,
+            };
+            let mut line = row.to_csv();
+            line.push('\n');
+            {
+                let mut f = file.lock().map_err(|_| anyhow::anyhow!("runs.csv lock poisoned"))?;
+                f.write_all(line.as_bytes())?;
+                f.flush()?;
+            }
+            let n = counter.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            progress(n, total);
         }
-        let n = counter.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-        progress(n, total);
         Ok(())
     };
     if config.parallel {
         todo.par_iter().try_for_each(work)?;
     } else {
-        todo.iter().try_for_each(|j| work(&j))?;
+        todo.iter().try_for_each(work)?;
     }
     drop(file);
     let mut runs = read_runs(&csv)?;
@@ -421,9 +507,10 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
 
 /// Canonical order: as the config lists methods, strategies and budgets, then rep, frame.
 pub fn sort_runs(config: &BenchConfig, runs: &mut [Run]) {
-    let pos = |list: &[String], x: &str| list.iter().position(|m| m == x).unwrap_or(usize::MAX);
+    let entries = config.entries().unwrap_or_default();
+    let pos = |r: &Run| entries.iter().position(|(m, s)| *m == r.method && *s == r.strategy).unwrap_or(usize::MAX);
     let budget_pos = |b: usize| config.budgets.iter().position(|&x| x == b).unwrap_or(usize::MAX);
-    runs.sort_by_key(|r| (pos(&config.methods, &r.method), pos(&config.strategies, &r.strategy), budget_pos(r.budget), r.rep, r.frame));
+    runs.sort_by_key(|r| (pos(r), budget_pos(r.budget), r.rep, r.frame));
 }
 
 pub fn write_runs(path: &Path, runs: &[Run]) -> Result<()> {

@@ -179,19 +179,59 @@ pub fn write_report(config: &crate::bench::BenchConfig, runs: &[crate::bench::Ru
     let (md, summary) = crate::report::report(config, runs, &energy_name, &command);
     write_atomic(&out.join("report.md"), md.as_bytes())?;
     write_atomic(&out.join("summary.json"), &serde_json::to_vec_pretty(&summary)?)?;
+    crate::plots::write_plots(config, runs, out).context("writing the bench plots")?;
     Ok(summary)
 }
 
-/// `lfit bench`: runs a sweep (or one shard) and, unsharded, writes the report.
-pub fn bench(config_path: &Path, out: &Path, shard: Option<&str>, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<Value> {
+/// Where `lfit bench` takes its sweep from.
+#[derive(Debug, Clone)]
+pub enum BenchSource {
+    Config(PathBuf),
+    Preset(String),
+}
+
+/// `lfit bench`: runs a sweep (or one shard) and, unsharded, writes the report. A preset with
+/// several parts runs each into `out/<part>`. Every part is validated before any work starts.
+pub fn bench(source: &BenchSource, quick: bool, out: &Path, shard: Option<&str>, progress: &(dyn Fn(&str, usize, usize) + Sync)) -> Result<Value> {
     let shard = crate::bench::parse_shard(shard)?;
-    let config = crate::bench::BenchConfig::load(config_path)?;
-    let runs = crate::bench::run(&config, out, shard, progress)?;
-    if shard.1 > 1 {
-        return Ok(json!({ "out": out, "shard": format!("{}/{}", shard.0, shard.1), "runs": runs.len(), "next": "lfit bench merge --out DIR SHARD_DIRS..." }));
+    let parts: Vec<(String, crate::bench::BenchConfig)> = match source {
+        BenchSource::Config(path) => vec![(String::new(), crate::bench::BenchConfig::load(path, quick)?)],
+        BenchSource::Preset(name) => crate::presets::load(name, quick)?,
+    };
+    let mut results = Vec::new();
+    for (part, config) in &parts {
+        let dir = if part.is_empty() { out.to_path_buf() } else { out.join(part) };
+        let label = if part.is_empty() { config.name.clone() } else { format!("{} {part}", config.name) };
+        let runs = crate::bench::run(config, &dir, shard, &|done, total| progress(&label, done, total))?;
+        if shard.1 > 1 {
+            results.push(json!({ "out": dir, "shard": format!("{}/{}", shard.0, shard.1), "runs": runs.len(), "next": "lfit bench merge --out DIR SHARD_DIRS..." }));
+            continue;
+        }
+        let summary = write_report(config, &runs, &dir)?;
+        results.push(json!({ "out": dir, "runs": runs.len(), "report": dir.join("report.md"), "friedman": summary["friedman"] }));
     }
-    let summary = write_report(&config, &runs, out)?;
-    Ok(json!({ "out": out, "runs": runs.len(), "report": out.join("report.md"), "friedman": summary["friedman"] }))
+    Ok(if results.len() == 1 { results.remove(0) } else { json!({ "parts": results }) })
+}
+
+/// `lfit bench presets`: the built-in presets with their sizes.
+pub fn bench_presets() -> Result<Value> {
+    let mut list = Vec::new();
+    for name in crate::presets::names() {
+        let full = crate::presets::load(name, false)?;
+        let quick = crate::presets::load(name, true)?;
+        let size = |parts: &[(String, crate::bench::BenchConfig)]| -> Vec<Value> {
+            parts
+                .iter()
+                .map(|(p, c)| {
+                    json!({ "part": p, "methods": c.methods, "strategies": c.strategies, "budgets": c.budgets, "repetitions": c.repetitions,
+                            "frames": c.synth.as_ref().map(|s| s.frames), "modality": c.synth.as_ref().map(|s| s.modality.clone()),
+                            "scenario": c.synth.as_ref().map(|s| s.scenario.clone()) })
+                })
+                .collect()
+        };
+        list.push(json!({ "name": name, "full": size(&full), "quick": size(&quick) }));
+    }
+    Ok(json!({ "presets": list }))
 }
 
 /// `lfit bench merge`: merges shard directories and writes the report.

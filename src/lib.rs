@@ -5,7 +5,9 @@ pub mod commands;
 pub mod fit;
 pub mod stats;
 pub mod bench;
+pub mod presets;
 pub mod report;
+pub mod plots;
 
 pub use lfit_fitters as fitters;
 pub use lfit_model as model;

@@ -91,8 +91,16 @@ enum Command {
         #[command(subcommand)]
         action: Option<BenchAction>,
         /// Bench config (TOML).
-        #[arg(long)]
+        #[arg(long, conflicts_with = "preset")]
         config: Option<PathBuf>,
+        /// A built-in study instead of a config: zeroth-order-local, zeroth-order-global,
+        /// zeroth-order-sequence, ea-vs-pf, learned-vs-classical (`lfit bench presets` lists them).
+        #[arg(long)]
+        preset: Option<String>,
+        /// Use the config's `[quick]` sizes (presets: minutes on 2 cores instead of the paper's
+        /// protocol).
+        #[arg(long)]
+        quick: bool,
         /// Output directory (re-running with the same config resumes).
         #[arg(long)]
         out: Option<PathBuf>,
@@ -147,6 +155,8 @@ enum Command {
 
 #[derive(Subcommand)]
 enum BenchAction {
+    /// List the built-in presets with their full and quick sizes.
+    Presets,
     /// Merge the output directories of sharded runs into one report.
     Merge {
         #[arg(long)]
@@ -326,10 +336,17 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             result
         }
         Command::Bench { action: Some(BenchAction::Merge { out, shards }), .. } => commands::bench_merge(&shards, &out),
-        Command::Bench { action: None, config, out, shard } => {
-            let (Some(config), Some(out)) = (config, out) else { anyhow::bail!("lfit bench needs --config FILE and --out DIR (or: lfit bench merge)") };
+        Command::Bench { action: Some(BenchAction::Presets), .. } => commands::bench_presets(),
+        Command::Bench { action: None, config, preset, quick, out, shard } => {
+            let source = match (config, preset) {
+                (Some(c), None) => commands::BenchSource::Config(c),
+                (None, Some(p)) => commands::BenchSource::Preset(p),
+                _ => anyhow::bail!("lfit bench needs --config FILE or --preset NAME (or: lfit bench presets | merge)"),
+            };
+            let Some(out) = out else { anyhow::bail!("lfit bench needs --out DIR") };
             let bar = progress_bar(0, cli.quiet, "bench");
-            let result = commands::bench(&config, &out, shard.as_deref(), &|done, total| {
+            let result = commands::bench(&source, quick, &out, shard.as_deref(), &|what, done, total| {
+                bar.set_message(what.to_string());
                 bar.set_length(total as u64);
                 bar.set_position(done as u64);
             });

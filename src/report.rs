@@ -18,8 +18,8 @@ use crate::bench::{BenchConfig, Run};
 use crate::stats::{friedman, relative_performance, verdict, wilcoxon};
 
 /// The method label of a row: the method, with its strategy when the sweep has several.
-fn label(config: &BenchConfig, r: &Run) -> String {
-    if config.strategies.len() > 1 && r.strategy != "-" { format!("{} ({})", r.method, r.strategy) } else { r.method.clone() }
+pub(crate) fn label(config: &BenchConfig, r: &Run) -> String {
+    if config.shows_strategy() && r.strategy != "-" { format!("{} ({})", r.method, r.strategy) } else { r.method.clone() }
 }
 
 fn mean(v: &[f64]) -> f64 {
@@ -27,7 +27,7 @@ fn mean(v: &[f64]) -> f64 {
 }
 
 /// Labels in config order.
-fn labels(config: &BenchConfig, runs: &[Run]) -> Vec<String> {
+pub(crate) fn labels(config: &BenchConfig, runs: &[Run]) -> Vec<String> {
     let mut out: Vec<String> = Vec::new();
     for r in runs {
         let l = label(config, r);

@@ -16,7 +16,7 @@ pub use optim::{Method, Preset};
 pub use zeroth::ZerothOrderFitter;
 
 /// Every method `build_fitter` knows.
-pub const METHOD_NAMES: [&str; 12] = ["random", "one-plus-one", "de", "pso", "cma", "tbpsa", "powell", "cma-powell", "ngo", "apf", "psapf", "lbfgs"];
+pub const METHOD_NAMES: [&str; 13] = ["random", "one-plus-one", "de", "pso", "cma", "tbpsa", "powell", "cma-powell", "ngo", "shiwa", "apf", "psapf", "lbfgs"];
 
 /// The fitter called `method` (one of [`METHOD_NAMES`]) with `preset` and `strategy`.
 pub fn build_fitter(method: &str, preset: Preset, strategy: Strategy) -> Result<Box<dyn Fitter>, FitError> {

@@ -7,7 +7,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::pose::Pose;
-use crate::skinning::{joint_transforms, posed_joints, skin_lbs_into};
+use crate::skinning::{joint_transforms, posed_joints, skin_lbs_into, skin_lbs_subset};
 use crate::template::Template;
 
 /// Mean distance between corresponding posed vertices, in mm.
@@ -93,6 +93,29 @@ fn rms_directed(a: &[Vec3], b: &[Vec3]) -> f64 {
     (sum / a.len() as f64).sqrt()
 }
 
+/// Vertices whose largest skinning weight belongs to `joint`: the body part of papers/002's
+/// part errors (H = head, L / R = hands).
+pub fn part_vertices(template: &Template, joint: usize) -> Vec<u32> {
+    template.dominant_joint().iter().enumerate().filter(|(_, j)| **j == joint).map(|(v, _)| v as u32).collect()
+}
+
+/// V2V (mm) over the vertices `subset` only.
+pub fn v2v_subset_mm(template: &Template, fitted: &Pose, truth: &Pose, subset: &[u32]) -> f64 {
+    let a = skin_lbs_subset(template, &joint_transforms(template, fitted), subset);
+    let b = skin_lbs_subset(template, &joint_transforms(template, truth), subset);
+    let n = a.len().max(1) as f64;
+    1000.0 * a.iter().zip(&b).map(|(p, q)| f64::from(p.distance(*q))).sum::<f64>() / n
+}
+
+/// Ground penetration (mm, papers/002 Tables 3–6 "GrPe"): the mean depth below the floor plane
+/// y = 0 (where the template stands) of the posed vertices that lie below it; 0 when none do.
+pub fn ground_penetration_mm(template: &Template, pose: &Pose) -> f64 {
+    let mut v = Vec::new();
+    skin_lbs_into(template, &joint_transforms(template, pose), &mut v);
+    let below: Vec<f64> = v.iter().filter(|p| p.y < 0.0).map(|p| -f64::from(p.y)).collect();
+    if below.is_empty() { 0.0 } else { 1000.0 * below.iter().sum::<f64>() / below.len() as f64 }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -154,5 +177,33 @@ mod tests {
         // Nearest vertices are at most the 50 mm shift away, and closer than that on the sides.
         assert!(h > 0.0 && h <= 50.0 + 1e-3, "{h}");
         assert!(h <= v2v_mm(&t, &moved, &zero) + 1e-3);
+    }
+
+    #[test]
+    fn part_errors_see_only_their_part_and_ground_penetration_measures_depth() {
+        let t = default_template();
+        let head = part_vertices(&t, crate::skeleton::HEAD);
+        let hand = part_vertices(&t, crate::skeleton::R_HAND);
+        assert!(!head.is_empty() && !hand.is_empty());
+        assert!(head.iter().all(|v| !hand.contains(v)));
+        let rest = [0.0; crate::pose::POSE_DIM];
+        // Bending the right elbow moves the right hand but not the head.
+        let mut bent = rest;
+        bent[3 + 3 * crate::skeleton::R_ELBOW + 1] = 0.8;
+        assert!(v2v_subset_mm(&t, &bent, &rest, &hand) > 10.0);
+        assert!(v2v_subset_mm(&t, &bent, &rest, &head) < 1e-6);
+        // The whole-body V2V is the vertex-weighted mean of disjoint parts' V2V.
+        let all: Vec<u32> = (0..t.num_vertices() as u32).collect();
+        assert!((v2v_subset_mm(&t, &bent, &rest, &all) - v2v_mm(&t, &bent, &rest)).abs() < 1e-6);
+        // Standing on the floor: nothing below it (within the template's rounding); sinking the
+        // root by 5 cm puts the soles 5 cm deep.
+        assert!(ground_penetration_mm(&t, &rest) < 1.0);
+        let mut sunk = rest;
+        sunk[1] -= 0.05;
+        let g = ground_penetration_mm(&t, &sunk);
+        assert!(g > 1.0 && g <= 50.0 + 1e-3, "{g}");
+        let mut lifted = rest;
+        lifted[1] += 0.05;
+        assert_eq!(ground_penetration_mm(&t, &lifted), 0.0);
     }
 }

@@ -22,6 +22,7 @@
 //! | `powell`       | [`powell`]              | Numerical Recipes §10.7 / scipy `fmin_powell` |
 //! | `cma-powell`   | [`chain`]               | nevergrad `ChainCMAPowell` |
 //! | `ngo`          | [`ngo`]                 | nevergrad `NGO` (continuous, bounded, noise-free branch) |
+//! | `shiwa`        | [`ngo`]                 | nevergrad `Shiwa` (its rule; = NGO's pick below 60 DOFs) |
 //! | `apf`          | [`apf`]                 | Deutscher & Reid; papers/001 §4.1.1, Table 3 |
 //! | `psapf`        | [`psapf`]               | Bandouch et al.; papers/001 §4.1.2, Table 3 |
 //!
@@ -235,13 +236,14 @@ pub enum Method {
     Powell,
     CMAPowell,
     NGO,
+    Shiwa,
     APF,
     PSAPF,
 }
 
 impl Method {
     /// All methods, in declaration order.
-    pub const ALL: [Method; 11] = [
+    pub const ALL: [Method; 12] = [
         Method::RandomSearch,
         Method::OnePlusOne,
         Method::DE,
@@ -251,6 +253,7 @@ impl Method {
         Method::Powell,
         Method::CMAPowell,
         Method::NGO,
+        Method::Shiwa,
         Method::APF,
         Method::PSAPF,
     ];
@@ -267,6 +270,7 @@ impl Method {
             Method::Powell => "powell",
             Method::CMAPowell => "cma-powell",
             Method::NGO => "ngo",
+            Method::Shiwa => "shiwa",
             Method::APF => "apf",
             Method::PSAPF => "psapf",
         }
@@ -364,6 +368,7 @@ pub fn build(
         Method::Powell => Box::new(powell::build_powell(problem, seed)),
         Method::CMAPowell => Box::new(chain::CmaPowell::new(problem, preset, budget, seed)),
         Method::NGO => Box::new(ngo::Ngo::new(problem, preset, budget, seed)?),
+        Method::Shiwa => Box::new(ngo::Ngo::shiwa(problem, preset, budget, seed)?),
         Method::APF => Box::new(apf::Apf::new(problem, apf::ApfConfig::default(), budget, seed)),
         Method::PSAPF => {
             let parts = match partitions {

@@ -57,7 +57,7 @@ fn validation_errors_name_the_bad_value() {
 
 #[test]
 fn method_names_round_trip() {
-    let names = ["random", "one-plus-one", "de", "pso", "cma", "tbpsa", "powell", "cma-powell", "ngo", "apf", "psapf"];
+    let names = ["random", "one-plus-one", "de", "pso", "cma", "tbpsa", "powell", "cma-powell", "ngo", "shiwa", "apf", "psapf"];
     for (m, n) in Method::ALL.iter().zip(names) {
         assert_eq!(m.as_str(), n);
         assert_eq!(m.to_string(), n);

@@ -51,6 +51,16 @@ pub enum StepShape {
     Scalar,
 }
 
+impl StepShape {
+    /// Values per step size.
+    pub fn outputs(self) -> usize {
+        match self {
+            StepShape::Vector => POSE_DIM,
+            StepShape::Scalar => 1,
+        }
+    }
+}
+
 /// Where θ0 comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -88,7 +98,11 @@ pub struct NetConfig {
     /// γ at initialisation when learned (the head's output is ≈ 0 at first, so this is where
     /// training starts from).
     pub gamma_init: f64,
+    /// Shape of λ, and of γ unless `gamma_shape` says otherwise.
     pub step_shape: StepShape,
+    /// Shape of γ when it differs from λ's (supp. Table A.1 rows 1–2); `None`: `step_shape`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gamma_shape: Option<StepShape>,
     /// One network for λ and γ (true) or one each.
     pub shared_lambda_gamma: bool,
     /// Separate weights for every iteration instead of one set shared by all.
@@ -117,6 +131,7 @@ impl Default for NetConfig {
             gamma_constant: 1e-4,
             gamma_init: 1e-4,
             step_shape: StepShape::Vector,
+            gamma_shape: None,
             shared_lambda_gamma: true,
             per_step_weights: false,
             start: StartMode::Phi,
@@ -143,12 +158,14 @@ impl NetConfig {
         2 * self.residual_dim
     }
 
-    /// Outputs per λ or γ: one per pose parameter, or one.
+    /// Outputs of λ: one per pose parameter, or one.
     pub fn step_outputs(&self) -> usize {
-        match self.step_shape {
-            StepShape::Vector => POSE_DIM,
-            StepShape::Scalar => 1,
-        }
+        self.step_shape.outputs()
+    }
+
+    /// Outputs of γ: one per pose parameter, or one.
+    pub fn gamma_outputs(&self) -> usize {
+        self.gamma_shape.unwrap_or(self.step_shape).outputs()
     }
 
     /// Whether the update rule uses λ/γ at all (so whether the λ/γ network exists).

@@ -106,19 +106,19 @@ impl NeuralNet {
         let mut cores = Vec::new();
         let mut delta_heads = Vec::new();
         let mut steps = Vec::new();
-        let k = c.step_outputs();
+        let (k, kg) = (c.step_outputs(), c.gamma_outputs());
         for _ in 0..c.weight_sets() {
             cores.push(Core::new(c, c.core_inputs(), &mut rng, device));
             delta_heads.push(xavier_linear(c.hidden, POSE_DIM, c.output_gain, &mut rng, device));
             if c.has_step_network() {
                 let shared = c.shared_lambda_gamma || !c.learns_gamma();
-                let lambda_out = if shared && c.learns_gamma() { 2 * k } else { k };
+                let lambda_out = if shared && c.learns_gamma() { k + kg } else { k };
                 let lambda_core = Core::new(c, c.step_inputs(), &mut rng, device);
                 let lambda_head = xavier_linear(c.hidden, lambda_out, c.output_gain, &mut rng, device);
                 let (gamma_core, gamma_head) = if shared {
                     (None, None)
                 } else {
-                    (Some(Core::new(c, c.step_inputs(), &mut rng, device)), Some(xavier_linear(c.hidden, k, c.output_gain, &mut rng, device)))
+                    (Some(Core::new(c, c.step_inputs(), &mut rng, device)), Some(xavier_linear(c.hidden, kg, c.output_gain, &mut rng, device)))
                 };
                 steps.push(StepNet { lambda_core, lambda_head, gamma_core, gamma_head });
             }
@@ -169,11 +169,11 @@ impl NeuralNet {
         }
         let s = self.set(n);
         let net = &self.steps[s];
-        let k = c.step_outputs();
+        let (k, kg) = (c.step_outputs(), c.gamma_outputs());
         let out = net.lambda_head.forward(net.lambda_core.forward(inputs.clone(), &mut state.lambda, dropout));
         let (a, b) = match (&net.gamma_core, &net.gamma_head) {
             (Some(core), Some(head)) => (out, Some(head.forward(core.forward(inputs, &mut state.gamma, dropout)))),
-            _ if c.learns_gamma() => (out.clone().narrow(1, 0, k), Some(out.narrow(1, k, k))),
+            _ if c.learns_gamma() => (out.clone().narrow(1, 0, k), Some(out.narrow(1, k, kg))),
             _ => (out, None),
         };
         let lambda = match c.update {
@@ -184,7 +184,7 @@ impl NeuralNet {
             Some(b) => softplus(b, 1.0).mul_scalar(c.gamma_init / LN2),
             None => {
                 let [batch, _] = lambda.dims();
-                Tensor::full([batch, k], c.gamma_constant, &lambda.device())
+                Tensor::full([batch, kg], c.gamma_constant, &lambda.device())
             }
         };
         StepSizes { lambda: Some(lambda), gamma: Some(gamma) }

@@ -145,6 +145,11 @@ fn every_variant_builds_and_runs_with_the_right_shapes() {
     variants.push(NetConfig { layers: 1, hidden: 24, ..base.clone() });
     variants.push(NetConfig { per_step_weights: true, iterations: 3, ..base.clone() });
     variants.push(NetConfig { step_shape: StepShape::Scalar, shared_lambda_gamma: false, update: UpdateRule::Convex, ..base.clone() });
+    // supp. Table A.1: λ and γ of different shapes, from one network or two.
+    for shared_lambda_gamma in [false, true] {
+        variants.push(NetConfig { gamma_shape: Some(StepShape::Scalar), shared_lambda_gamma, ..base.clone() });
+        variants.push(NetConfig { step_shape: StepShape::Scalar, gamma_shape: Some(StepShape::Vector), shared_lambda_gamma, ..base.clone() });
+    }
     for config in variants {
         let net = NeuralNet::new(&config, 3, &device).expect("net");
         assert_eq!(net.cores.len(), config.weight_sets(), "{config:?}");
