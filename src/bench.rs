@@ -443,7 +443,9 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
         let mut previous: Option<(usize, Pose)> = None;
         for &fi in &unit.frames {
             let (method, strategy, budget, rep, frame) = key(unit, fi);
-            let energy = &energies[fi];
+            // Each fit gets its own copy: the evaluation counter lives in the energy, and
+            // parallel fits of one frame must not share it.
+            let energy = &energies[fi].clone();
             let start = match previous {
                 Some((p, pose)) if chains && p + 1 == frame => pose,
                 _ => dataset.start_poses[frame],

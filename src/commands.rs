@@ -240,3 +240,45 @@ pub fn bench_merge(shards: &[PathBuf], out: &Path) -> Result<Value> {
     write_report(&config, &runs, out)?;
     Ok(json!({ "out": out, "runs": runs.len(), "report": out.join("report.md") }))
 }
+
+/// `lfit quickstart`: the README's main job. Synthesises a small held-out set per sparse
+/// modality, fits it with the shipped neural fitter, L-BFGS, CMA-ES and PSO on the same energy
+/// (the `learned-vs-classical` preset at `frames` frames and one `budget`), writes each part's
+/// report and plots under `out/<modality>/` and returns the comparison table (Markdown).
+pub fn quickstart(out: &Path, frames: usize, budget: usize, progress: &(dyn Fn(&str, usize, usize) + Sync)) -> Result<(String, Value)> {
+    if frames == 0 || budget == 0 {
+        anyhow::bail!("--frames and --budget must be at least 1");
+    }
+    let mut parts = crate::presets::load("learned-vs-classical", true)?;
+    for (_, c) in &mut parts {
+        if let Some(s) = c.synth.as_mut() {
+            s.frames = frames;
+        }
+        c.budgets = vec![budget];
+        c.validate()?;
+    }
+    let mut table = String::from("| modality | method | V2V (mm) | MPJPE (mm) | final energy | evaluations | time / frame (ms) |\n|---|---|---|---|---|---|---|\n");
+    let mut results = Vec::new();
+    for (part, config) in &parts {
+        let dir = out.join(part);
+        let runs = crate::bench::run(config, &dir, (0, 1), &|done, total| progress(part, done, total))?;
+        write_report(config, &runs, &dir)?;
+        for (method, _) in config.entries()? {
+            let rows: Vec<&crate::bench::Run> = runs.iter().filter(|r| r.method == method).collect();
+            let n = rows.len().max(1) as f64;
+            let mean = |f: fn(&crate::bench::Run) -> f64| rows.iter().map(|r| f(r)).sum::<f64>() / n;
+            let label = if method == "neural" { format!("neural (checkpoints/{part}, N iterations)") } else { format!("{method} @{budget}") };
+            table.push_str(&format!(
+                "| {part} | {label} | {:.1} | {:.1} | {:.4} | {:.0} | {:.2} |\n",
+                mean(|r| r.v2v_mm),
+                mean(|r| r.mpjpe_mm),
+                mean(|r| r.energy),
+                mean(|r| r.evaluations as f64),
+                1000.0 * mean(|r| r.time_s)
+            ));
+        }
+        results.push(json!({ "modality": part, "out": dir, "report": dir.join("report.md"), "runs": runs.len() }));
+    }
+    write_atomic(&out.join("comparison.md"), table.as_bytes())?;
+    Ok((table, json!({ "out": out, "parts": results, "comparison": out.join("comparison.md") })))
+}

@@ -5,6 +5,7 @@ pub mod commands;
 pub mod fit;
 pub mod stats;
 pub mod bench;
+pub mod ablate;
 pub mod presets;
 pub mod report;
 pub mod plots;

@@ -83,6 +83,49 @@ enum Command {
         #[arg(long)]
         seed: Option<u64>,
     },
+    /// The main job, from nothing: synthesise a small held-out set per sparse modality (markers,
+    /// keypoints2d, hmd), fit it with the shipped neural fitter, L-BFGS, CMA-ES and PSO on the
+    /// same energy, print the comparison table and write reports and plots under --out.
+    Quickstart {
+        #[arg(long, default_value = "out/quickstart")]
+        out: PathBuf,
+        /// Frames per modality.
+        #[arg(long, default_value_t = 50)]
+        frames: usize,
+        /// Evaluations per frame for L-BFGS, CMA-ES and PSO.
+        #[arg(long, default_value_t = 2000)]
+        budget: usize,
+    },
+    /// Train and evaluate the neural fitter's ablation variants (SPEC §7) at a reduced size and
+    /// write papers/002 Tables 3–6 (HMD) and A.1 (keypoints2d) to OUT/ablation.md (+ .json).
+    /// Re-running with the same --out reuses the variants already trained and evaluated.
+    Ablate {
+        #[arg(long)]
+        out: PathBuf,
+        /// Minutes per variant on 2 cores: 300 steps, batch 32, 64 units, 200 test frames
+        /// (default: the shipped size, 1500 steps, batch 64, 128 units, 500 test frames).
+        #[arg(long)]
+        quick: bool,
+        /// Override the training steps per variant.
+        #[arg(long)]
+        steps: Option<usize>,
+        /// Override the batch size.
+        #[arg(long)]
+        batch: Option<usize>,
+        /// Override the GRU/MLP width.
+        #[arg(long)]
+        hidden: Option<usize>,
+        /// Override the number of test frames.
+        #[arg(long)]
+        test_frames: Option<usize>,
+        /// Only these variants (comma list, e.g. hmd-base,hmd-per-step).
+        #[arg(long, value_delimiter = ',')]
+        only: Vec<String>,
+        #[arg(long, default_value = "flex")]
+        device: String,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
     /// Run a benchmark sweep (methods × strategies × budgets × repetitions × frames) from a TOML
     /// config: runs.csv (resumable), report.md and summary.json with the papers' tables and
     /// statistics. `lfit bench merge --out DIR SHARD...` merges `--shard i/n` runs.
@@ -317,6 +360,36 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             });
             bar.finish_and_clear();
             result
+        }
+        Command::Quickstart { out, frames, budget } => {
+            let bar = progress_bar(0, cli.quiet, "quickstart");
+            let result = commands::quickstart(&out, frames, budget, &|what, done, total| {
+                bar.set_message(what.to_string());
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+            });
+            bar.finish_and_clear();
+            // The table is the result: stdout, also with -q.
+            let (table, summary) = result?;
+            println!("{table}");
+            if !cli.quiet {
+                eprintln!("Reports and plots: {0}/<modality>/report.md and {0}/<modality>/plots/; summary: {0}/comparison.md", out.display());
+            }
+            let _ = summary;
+            Ok(serde_json::Value::Null)
+        }
+        Command::Ablate { out, quick, steps, batch, hidden, test_frames, only, device, seed } => {
+            let mut size = lfit::ablate::AblateSize::new(quick);
+            size.steps = steps.unwrap_or(size.steps);
+            size.batch = batch.unwrap_or(size.batch);
+            size.hidden = hidden.unwrap_or(size.hidden);
+            size.test_frames = test_frames.unwrap_or(size.test_frames);
+            let quiet = cli.quiet;
+            lfit::ablate::run(&lfit::ablate::AblateArgs { out, size, device, only, seed }, &|msg| {
+                if !quiet {
+                    eprintln!("ablate: {msg}");
+                }
+            })
         }
         Command::Train { config, out, device, resume, steps, seed } => {
             let bar = progress_bar(0, cli.quiet, "train");

@@ -429,7 +429,7 @@ impl Figure for EnergyFigure {
             .margin(20)
             .x_label_area_size(55)
             .y_label_area_size(85)
-            .build_cartesian_2d((1.0..x_hi).log_scale(), (y_lo..y_hi).log_scale())?;
+            .build_cartesian_2d(LogAxis::new(1.0, x_hi), LogAxis::new(y_lo, y_hi))?;
         chart
             .configure_mesh()
             .x_desc("energy evaluations (log scale)")
@@ -512,7 +512,7 @@ impl Figure for BoxFigure {
         match self.metric {
             BoxMetric::Energy => {
                 let (lo, hi) = log_range(values()).unwrap_or((0.1, 10.0));
-                self.draw_on(root, (lo..hi).log_scale(), "final energy (log scale)")
+                self.draw_on(root, LogAxis::new(lo, hi), "final energy (log scale)")
             }
             BoxMetric::V2v => {
                 let hi = values().filter(|v| v.is_finite()).fold(0.0, f64::max);
@@ -520,6 +520,56 @@ impl Figure for BoxFigure {
                 self.draw_on(root, 0.0..hi, "V2V error (mm)")
             }
         }
+    }
+}
+
+/// A log axis with ticks at 1-2-5 × 10^k, or at powers of ten when those are too many:
+/// plotters' own log axis labels only from the first power of ten inside the range up, so a
+/// range such as 0.3–30 would show no label below 1.
+struct LogAxis {
+    log: LogCoord<f64>,
+    lo: f64,
+    hi: f64,
+}
+
+impl LogAxis {
+    fn new(lo: f64, hi: f64) -> Self {
+        Self { log: (lo..hi).log_scale().into(), lo, hi }
+    }
+}
+
+/// Log ticks in `lo..=hi`, at most `max` of them unless even every power of ten is too many, in
+/// which case every few powers of ten.
+fn log_ticks(lo: f64, hi: f64, max: usize, light: bool) -> Vec<f64> {
+    let (k0, k1) = (lo.log10().floor() as i32, hi.log10().ceil() as i32);
+    let at = |mantissas: &[f64], step: usize| -> Vec<f64> {
+        (k0..=k1).step_by(step).flat_map(|k| mantissas.iter().map(move |m| m * 10f64.powi(k))).filter(|v| (lo..=hi).contains(v)).collect()
+    };
+    let mantissas: &[&[f64]] = if light { &[&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0], &[1.0]] } else { &[&[1.0, 2.0, 5.0], &[1.0]] };
+    for m in mantissas {
+        let ticks = at(m, 1);
+        if ticks.len() <= max {
+            return ticks;
+        }
+    }
+    let step = ((k1 - k0 + 1) as usize).div_ceil(max.max(1));
+    at(&[1.0], step)
+}
+
+impl Ranged for LogAxis {
+    type FormatOption = DefaultFormatting;
+    type ValueType = f64;
+
+    fn map(&self, value: &f64, limit: (i32, i32)) -> i32 {
+        self.log.map(value, limit)
+    }
+
+    fn key_points<Hint: KeyPointHint>(&self, hint: Hint) -> Vec<f64> {
+        log_ticks(self.lo, self.hi, hint.max_num_points(), hint.weight().allow_light_points())
+    }
+
+    fn range(&self) -> std::ops::Range<f64> {
+        self.lo..self.hi
     }
 }
 
@@ -732,6 +782,14 @@ mod tests {
         assert_eq!((g.first(), g.last()), (Some(&1), Some(&600)));
         assert!(g.windows(2).all(|w| w[0] < w[1]));
         assert_eq!(log_grid(1, GRID_POINTS), vec![1]);
+    }
+
+    #[test]
+    fn log_ticks_label_every_decade_part() {
+        assert_eq!(log_ticks(0.3, 27.0, 10, false), vec![0.5, 1.0, 2.0, 5.0, 10.0, 20.0]);
+        assert_eq!(log_ticks(1.0, 600.0, 10, false), vec![1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0]);
+        assert_eq!(log_ticks(1.0, 1e5, 5, false), vec![1.0, 100.0, 1e4]);
+        assert_eq!(log_ticks(1e-12, 30.0, 10, false).len(), 7);
     }
 
     #[test]

@@ -128,3 +128,94 @@ fn bad_bench_configs_fail_before_any_work() {
     let out = lfit(&["-q", "bench", "--config", path_str(&c), "--out", path_str(&d.join("o")), "--shard", "3/3"]);
     assert_one_line_error(&out, "--shard");
 }
+
+/// `frame,energy` of every row of `method` in a runs.csv.
+fn energies(path: &Path, method: &str) -> Vec<(usize, String)> {
+    std::fs::read_to_string(path)
+        .expect("csv")
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect::<Vec<_>>())
+        .filter(|f| f[0] == method)
+        .map(|f| (f[4].parse().expect("frame"), f[6].to_string()))
+        .collect()
+}
+
+#[test]
+fn sequences_run_as_warm_started_chains_like_lfit_fit_and_resume_mid_chain() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let data = d.join("seq.npz");
+    lfit_json(&["-q", "synth", "--modality", "markers", "--scenario", "sequence", "--frames", "6", "--seed", "3", "--out", path_str(&data)]);
+    let body = format!("name = \"seq\"\nmethods = [\"cma\", \"pso:hierarchical\"]\nbudgets = [150]\nseed = 7\ndata = \"{}\"\n", path_str(&data));
+    let cfg = config(d, "seq.toml", &body);
+    let full = d.join("full");
+    let summary = lfit_json(&["-q", "bench", "--config", path_str(&cfg), "--out", path_str(&full)]);
+    assert_eq!(summary["runs"], 2 * 6);
+    // The chain is the same computation as `lfit fit` on the sequence (same seeds): frame k
+    // starts from frame k−1's result, so every energy matches to the last digit.
+    let fit = d.join("fit.json");
+    lfit_json(&["-q", "fit", "--data", path_str(&data), "--method", "cma", "--budget", "150", "--seed", "7", "--out", path_str(&fit)]);
+    let fitted: serde_json::Value = serde_json::from_slice(&std::fs::read(&fit).expect("fit")).expect("json");
+    let bench = energies(&full.join("runs.csv"), "cma");
+    assert_eq!(bench.len(), 6);
+    for (frame, e) in &bench {
+        let want = fitted["frames"][*frame]["energy"].as_f64().expect("energy");
+        assert_eq!(e.parse::<f64>().expect("e"), want, "frame {frame}");
+    }
+    // Parallel fits of one frame count their evaluations apart: the budget holds exactly.
+    for line in std::fs::read_to_string(full.join("runs.csv")).expect("csv").lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        assert!(f[12].parse::<u64>().expect("evaluations") <= 150, "{line}");
+    }
+    // The pinned strategy is in the rows and the labels.
+    let csv = std::fs::read_to_string(full.join("runs.csv")).expect("csv");
+    assert!(csv.contains("\npso,hierarchical,150,0,0,"), "{csv}");
+    let md = std::fs::read_to_string(full.join("report.md")).expect("report");
+    assert!(md.contains("pso (hierarchical)") && md.contains("cma (holistic)"), "{md}");
+
+    // A run stopped after 2 rows of a chain re-fits the chain for its warm starts but keeps the
+    // rows it has, and ends with the same CSV.
+    let resumed = d.join("resumed");
+    std::fs::create_dir_all(&resumed).expect("dir");
+    std::fs::copy(full.join("bench.json"), resumed.join("bench.json")).expect("copy");
+    let text: Vec<String> = std::fs::read_to_string(full.join("runs.csv")).expect("csv").lines().take(3).map(|l| format!("{l}\n")).collect();
+    std::fs::write(resumed.join("runs.csv"), text.concat()).expect("partial");
+    lfit_json(&["-q", "bench", "--config", path_str(&cfg), "--out", path_str(&resumed)]);
+    assert_eq!(csv_without_time(&resumed.join("runs.csv")), csv_without_time(&full.join("runs.csv")));
+}
+
+#[test]
+fn presets_list_validate_and_refuse_bad_names() {
+    let list = lfit_json(&["-q", "bench", "presets"]);
+    let names: Vec<&str> = list["presets"].as_array().expect("list").iter().map(|p| p["name"].as_str().expect("name")).collect();
+    assert_eq!(names, ["zeroth-order-local", "zeroth-order-global", "zeroth-order-sequence", "ea-vs-pf", "learned-vs-classical"]);
+    for p in list["presets"].as_array().expect("list") {
+        assert!(p["quick"][0]["frames"].as_u64() < p["full"][0]["frames"].as_u64(), "{p}");
+    }
+    let tmp = tempfile::tempdir().expect("tmp");
+    let out_dir = tmp.path().join("o");
+    let out = lfit(&["-q", "bench", "--preset", "zeroth-order", "--out", path_str(&out_dir)]);
+    assert_one_line_error(&out, "unknown preset 'zeroth-order'");
+    assert!(!out_dir.exists());
+    let c = config(tmp.path(), "c.toml", "name = \"x\"\nmethods = [\"neural:grouped\"]\nbudgets = [5]\n[synth]\nmodality = \"markers\"\nframes = 2\n");
+    let out = lfit(&["-q", "bench", "--config", path_str(&c), "--out", path_str(&out_dir)]);
+    assert_one_line_error(&out, "no strategies");
+    let c = config(tmp.path(), "c.toml", "name = \"x\"\nmethods = [\"cma\", \"cma:holistic\"]\nbudgets = [5]\n[synth]\nmodality = \"markers\"\nframes = 2\n");
+    let out = lfit(&["-q", "bench", "--config", path_str(&c), "--out", path_str(&out_dir)]);
+    assert_one_line_error(&out, "listed twice");
+    assert!(!out_dir.exists());
+}
+
+#[test]
+fn quick_sizes_apply_to_user_configs_too() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let c = config(d, "q.toml", "name = \"q\"\nmethods = [\"pso\"]\nbudgets = [400]\n[synth]\nmodality = \"markers\"\nframes = 5\n[quick]\nframes = 2\nbudgets = [50]\n");
+    let quick = lfit_json(&["-q", "bench", "--config", path_str(&c), "--quick", "--out", path_str(&d.join("quick"))]);
+    assert_eq!(quick["runs"], 2);
+    let csv = std::fs::read_to_string(d.join("quick/runs.csv")).expect("csv");
+    assert!(csv.contains("\npso,holistic,50,0,1,"), "{csv}");
+    let full = lfit_json(&["-q", "bench", "--config", path_str(&c), "--out", path_str(&d.join("full"))]);
+    assert_eq!(full["runs"], 5);
+}
