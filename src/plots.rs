@@ -17,6 +17,7 @@ use lfit_model::template::write_atomic;
 use plotters::coord::Shift;
 use plotters::coord::ranged1d::{AsRangedCoord, DefaultFormatting, KeyPointHint, ValueFormatter};
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use crate::bench::{BenchConfig, Run};
 use crate::report::{label, labels};
@@ -441,8 +442,10 @@ impl Figure for EnergyFigure {
             .light_line_style(BLACK.mix(0.04))
             .bold_line_style(BLACK.mix(0.12))
             .draw()?;
+        // Fainter bands when many overlap, so the lower ones still show through.
+        let alpha = (0.6 / self.bands.len().max(1) as f64).clamp(0.08, 0.2);
         for band in &self.bands {
-            chart.draw_series(std::iter::once(Polygon::new(band.polygon(), band.color.mix(0.18).filled())))?;
+            chart.draw_series(std::iter::once(Polygon::new(band.polygon(), band.color.mix(alpha).filled())))?;
         }
         for band in &self.bands {
             chart
@@ -619,8 +622,10 @@ impl BoxFigure {
         }
         let room = (SIZE.0 - 140) / n.max(1) as u32;
         let vertical = widest + 10 > room;
-        let (x_label_style, x_area) = if vertical { (label_style.transform(FontTransform::Rotate90), widest + 50) } else { (label_style.clone(), 55) };
-        let x_fmt = |v: &f64| names.get(v.round().max(0.0) as usize).map_or_else(String::new, |s| (*s).to_string());
+        let x_area = if vertical { widest + 55 } else { 55 };
+        // Vertical names are drawn below instead: the mesh anchors a label before rotating it,
+        // which would centre the name on the axis line.
+        let x_fmt = |v: &f64| if vertical { String::new() } else { names.get(v.round().max(0.0) as usize).map_or_else(String::new, |s| (*s).to_string()) };
 
         let x = Categories { n, linear: (-0.5..n as f64 - 0.5).into() };
         let mut chart = ChartBuilder::on(root)
@@ -636,8 +641,7 @@ impl BoxFigure {
             .y_desc(y_desc)
             .x_label_formatter(&x_fmt)
             .y_label_formatter(&fmt_tick)
-            .x_label_style(x_label_style)
-            .label_style(text(LABEL_PX))
+            .label_style(label_style.clone())
             .axis_desc_style(text(DESC_PX))
             .light_line_style(BLACK.mix(0.04))
             .bold_line_style(BLACK.mix(0.12))
@@ -646,6 +650,13 @@ impl BoxFigure {
             let r = chart.y_range();
             (r.start, r.end)
         };
+        if vertical {
+            let style = label_style.transform(FontTransform::Rotate270).pos(Pos::new(HPos::Right, VPos::Center));
+            for (i, name) in names.iter().enumerate() {
+                let (px, py) = chart.backend_coord(&(i as f64, y_lo));
+                root.draw(&Text::new(*name, (px, py + 10), style.clone()))?;
+            }
+        }
         // Dashed separators between budget groups.
         for (i, pair) in self.boxes.windows(2).enumerate() {
             if pair[0].budget != pair[1].budget {
@@ -844,6 +855,17 @@ mod tests {
         for (pa, pb) in wa.iter().zip(&wb).filter(|(p, _)| p.extension().is_some_and(|e| e == "svg")) {
             assert!(read(pa) == read(pb), "{} differs between runs", pa.display());
         }
+    }
+
+    #[test]
+    fn crowded_category_names_turn_vertical() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let names: Vec<String> = (0..5).map(|i| format!("a-rather-long-method-{i}")).collect();
+        let methods: Vec<&str> = names.iter().map(String::as_str).collect();
+        write_plots(&config("[\"holistic\"]"), &runs(&methods), dir.path()).expect("plots");
+        let svg = String::from_utf8(read(&dir.path().join("plots/boxplot_v2v_mm.svg"))).expect("UTF-8");
+        assert!(svg.contains("rotate(270"), "vertical category names");
+        assert!(names.iter().all(|n| svg.contains(&format!("{n} @ 400"))));
     }
 
     #[test]
