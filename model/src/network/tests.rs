@@ -172,7 +172,7 @@ fn every_variant_builds_and_runs_with_the_right_shapes() {
         let sizes = net.step_sizes(0, Tensor::zeros([3, config.step_inputs()], &device), &mut state, &mut Dropout::off());
         if config.has_step_network() {
             assert_eq!(sizes.lambda.expect("lambda").dims(), [3, config.step_outputs()]);
-            assert_eq!(sizes.gamma.expect("gamma").dims(), [3, config.step_outputs()]);
+            assert_eq!(sizes.gamma.expect("gamma").dims(), [3, config.gamma_outputs()]);
         }
     }
 }
