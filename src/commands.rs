@@ -267,7 +267,7 @@ pub fn quickstart(out: &Path, frames: usize, budget: usize, progress: &(dyn Fn(&
             let rows: Vec<&crate::bench::Run> = runs.iter().filter(|r| r.method == method).collect();
             let n = rows.len().max(1) as f64;
             let mean = |f: fn(&crate::bench::Run) -> f64| rows.iter().map(|r| f(r)).sum::<f64>() / n;
-            let label = if method == "neural" { format!("neural (checkpoints/{part}, N iterations)") } else { format!("{method} @{budget}") };
+            let label = if method == "neural" { format!("neural (checkpoints/{part}, N = {})", rows.first().map_or(0, |r| r.iterations)) } else { format!("{method} @{budget}") };
             table.push_str(&format!(
                 "| {part} | {label} | {:.1} | {:.1} | {:.4} | {:.0} | {:.2} |\n",
                 mean(|r| r.v2v_mm),
