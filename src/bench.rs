@@ -442,7 +442,9 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
     let work = |unit: &&Unit| -> Result<()> {
         let mut previous: Option<(usize, Pose)> = None;
         for &fi in &unit.frames {
-            let (method, strategy, budget, rep, frame) = key(unit, fi);
+            let k = key(unit, fi);
+            let resumed = done.contains(&k);
+            let (method, strategy, budget, rep, frame) = k;
             // Each fit gets its own copy: the evaluation counter lives in the energy, and
             // parallel fits of one frame must not share it.
             let energy = &energies[fi].clone();
@@ -457,7 +459,7 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
             let mut pose: Pose = [0.0; POSE_DIM];
             pose.copy_from_slice(&result.pose);
             previous = Some((frame, pose));
-            if done.contains(&(method.clone(), strategy.clone(), budget, rep, frame)) {
+            if resumed {
                 // Resumed chain: this row is already in the CSV; the fit only rebuilt the warm start.
                 continue;
             }

@@ -244,8 +244,9 @@ pub fn bench_merge(shards: &[PathBuf], out: &Path) -> Result<Value> {
 /// `lfit quickstart`: the README's main job. Synthesises a small held-out set per sparse
 /// modality, fits it with the shipped neural fitter, L-BFGS, CMA-ES and PSO on the same energy
 /// (the `learned-vs-classical` preset at `frames` frames and one `budget`), writes each part's
-/// report and plots under `out/<modality>/` and returns the comparison table (Markdown).
-pub fn quickstart(out: &Path, frames: usize, budget: usize, progress: &(dyn Fn(&str, usize, usize) + Sync)) -> Result<(String, Value)> {
+/// report and plots under `out/<modality>/` and `out/comparison.md`, and returns the comparison
+/// table (Markdown): the rows of each report's papers/002 Table 2.
+pub fn quickstart(out: &Path, frames: usize, budget: usize, progress: &(dyn Fn(&str, usize, usize) + Sync)) -> Result<String> {
     if frames == 0 || budget == 0 {
         anyhow::bail!("--frames and --budget must be at least 1");
     }
@@ -258,27 +259,29 @@ pub fn quickstart(out: &Path, frames: usize, budget: usize, progress: &(dyn Fn(&
         c.validate()?;
     }
     let mut table = String::from("| modality | method | V2V (mm) | MPJPE (mm) | final energy | evaluations | time / frame (ms) |\n|---|---|---|---|---|---|---|\n");
-    let mut results = Vec::new();
     for (part, config) in &parts {
         let dir = out.join(part);
         let runs = crate::bench::run(config, &dir, (0, 1), &|done, total| progress(part, done, total))?;
-        write_report(config, &runs, &dir)?;
-        for (method, _) in config.entries()? {
-            let rows: Vec<&crate::bench::Run> = runs.iter().filter(|r| r.method == method).collect();
-            let n = rows.len().max(1) as f64;
-            let mean = |f: fn(&crate::bench::Run) -> f64| rows.iter().map(|r| f(r)).sum::<f64>() / n;
-            let label = if method == "neural" { format!("neural (checkpoints/{part}, N = {})", rows.first().map_or(0, |r| r.iterations)) } else { format!("{method} @{budget}") };
+        let summary = write_report(config, &runs, &dir)?;
+        for row in summary["table"].as_array().map(Vec::as_slice).unwrap_or_default() {
+            let method = row["method"].as_str().unwrap_or_default();
+            let label = if method == "neural" {
+                let n = runs.iter().find(|r| r.method == "neural").map_or(0, |r| r.iterations);
+                format!("neural (checkpoints/{part}, N = {n})")
+            } else {
+                format!("{method} @{budget}")
+            };
+            let f = |key: &str| row[key].as_f64().unwrap_or(f64::NAN);
             table.push_str(&format!(
                 "| {part} | {label} | {:.1} | {:.1} | {:.4} | {:.0} | {:.2} |\n",
-                mean(|r| r.v2v_mm),
-                mean(|r| r.mpjpe_mm),
-                mean(|r| r.energy),
-                mean(|r| r.evaluations as f64),
-                1000.0 * mean(|r| r.time_s)
+                f("v2v_mm"),
+                f("mpjpe_mm"),
+                f("energy"),
+                f("evaluations"),
+                f("time_ms")
             ));
         }
-        results.push(json!({ "modality": part, "out": dir, "report": dir.join("report.md"), "runs": runs.len() }));
     }
     write_atomic(&out.join("comparison.md"), table.as_bytes())?;
-    Ok((table, json!({ "out": out, "parts": results, "comparison": out.join("comparison.md") })))
+    Ok(table)
 }

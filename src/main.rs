@@ -309,6 +309,15 @@ fn progress_bar(len: usize, quiet: bool, what: &str) -> ProgressBar {
     bar
 }
 
+/// Progress of a run in parts (`what`: the part), shown on `bar`.
+fn part_progress(bar: &ProgressBar) -> impl Fn(&str, usize, usize) + Sync + '_ {
+    move |what, done, total| {
+        bar.set_message(what.to_string());
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    }
+}
+
 fn run(cli: Cli) -> Result<serde_json::Value> {
     if let Some(n) = cli.threads {
         if n == 0 {
@@ -363,19 +372,13 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
         }
         Command::Quickstart { out, frames, budget } => {
             let bar = progress_bar(0, cli.quiet, "quickstart");
-            let result = commands::quickstart(&out, frames, budget, &|what, done, total| {
-                bar.set_message(what.to_string());
-                bar.set_length(total as u64);
-                bar.set_position(done as u64);
-            });
+            let result = commands::quickstart(&out, frames, budget, &part_progress(&bar));
             bar.finish_and_clear();
             // The table is the result: stdout, also with -q.
-            let (table, summary) = result?;
-            println!("{table}");
+            println!("{}", result?);
             if !cli.quiet {
                 eprintln!("Reports and plots: {0}/<modality>/report.md and {0}/<modality>/plots/; summary: {0}/comparison.md", out.display());
             }
-            let _ = summary;
             Ok(serde_json::Value::Null)
         }
         Command::Ablate { out, quick, steps, batch, hidden, test_frames, only, device, seed } => {
@@ -418,11 +421,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             };
             let Some(out) = out else { anyhow::bail!("lfit bench needs --out DIR") };
             let bar = progress_bar(0, cli.quiet, "bench");
-            let result = commands::bench(&source, quick, &out, shard.as_deref(), &|what, done, total| {
-                bar.set_message(what.to_string());
-                bar.set_length(total as u64);
-                bar.set_position(done as u64);
-            });
+            let result = commands::bench(&source, quick, &out, shard.as_deref(), &part_progress(&bar));
             bar.finish_and_clear();
             result
         }
