@@ -225,6 +225,7 @@ pub fn run(args: &AblateArgs, progress: &(dyn Fn(&str) + Sync)) -> Result<Value>
     let selected: Vec<&Variant> = VARIANTS.iter().filter(|v| args.only.is_empty() || args.only.iter().any(|o| o == v.name)).collect();
     // Every config is checked before any training starts.
     let configs: Vec<TrainConfig> = selected.iter().map(|v| variant_config(v, &args.size, args.seed)).collect::<Result<_>>()?;
+    let device = lfit_model::tensor::device_from_name(&args.device)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
     let size_file = args.out.join("size.json");
     let size_json = serde_json::to_vec_pretty(&json!({ "size": args.size, "seed": args.seed }))?;
@@ -232,7 +233,6 @@ pub fn run(args: &AblateArgs, progress: &(dyn Fn(&str) + Sync)) -> Result<Value>
         Ok(prev) if prev != size_json => bail!("{} holds an ablation of another size or seed (size.json differs); use another --out", args.out.display()),
         _ => write_atomic(&size_file, &size_json)?,
     }
-    let device = lfit_model::tensor::device_from_name(&args.device)?;
     let template = Arc::new(crate::commands::load_template(None, "default")?);
     let mut sets: BTreeMap<String, lfit_train::Frames> = BTreeMap::new();
     let mut evals: Vec<Eval> = Vec::new();

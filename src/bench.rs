@@ -106,6 +106,9 @@ impl BenchConfig {
     pub fn load(path: &Path, quick: bool) -> Result<Self> {
         let text = std::fs::read_to_string(path).with_context(|| format!("cannot read bench config {}", path.display()))?;
         let config: Self = toml::from_str(&text).map_err(|e| anyhow::anyhow!("malformed bench config {}: {}", path.display(), e.message()))?;
+        if quick && config.quick.is_none() {
+            bail!("--quick: bench config {} has no [quick] section", path.display());
+        }
         let config = config.resolve(quick);
         config.validate().with_context(|| format!("bench config {}", path.display()))?;
         Ok(config)

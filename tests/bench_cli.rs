@@ -218,4 +218,9 @@ fn quick_sizes_apply_to_user_configs_too() {
     assert!(csv.contains("\npso,holistic,50,0,1,"), "{csv}");
     let full = lfit_json(&["-q", "bench", "--config", path_str(&c), "--out", path_str(&d.join("full"))]);
     assert_eq!(full["runs"], 5);
+    // --quick on a config without a [quick] section is a bad flag, not a silent full-size run.
+    let plain = config(d, "p.toml", "name = \"p\"\nmethods = [\"pso\"]\nbudgets = [40]\n[synth]\nmodality = \"markers\"\nframes = 2\n");
+    let out_dir = d.join("plain");
+    assert_one_line_error(&lfit(&["-q", "bench", "--config", path_str(&plain), "--quick", "--out", path_str(&out_dir)]), "no [quick] section");
+    assert!(!out_dir.exists());
 }

@@ -58,4 +58,7 @@ fn ablate_trains_each_variant_once_and_writes_the_papers_tables() {
     assert_one_line_error(&lfit(&other), "another size");
     let out = lfit(&["-q", "ablate", "--out", path_str(&tmp.path().join("x")), "--only", "hmd-bogus"]);
     assert_one_line_error(&out, "unknown variant 'hmd-bogus'");
+    let bad_device = tmp.path().join("dev");
+    assert_one_line_error(&lfit(&["-q", "ablate", "--out", path_str(&bad_device), "--device", "tpu"]), "tpu");
+    assert!(!bad_device.exists(), "nothing is written before the arguments are valid");
 }
