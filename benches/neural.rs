@@ -35,7 +35,7 @@ fn fitter(modality: Modality, device_name: &str, frames: &lfit::train::Frames) -
     let stats: FeatureStats = measure_stats(frames);
     let meta = CheckpointMeta { format: "lfit-checkpoint".into(), version: 1, template_id: template.id.clone(), template_vertices: template.num_vertices(), network: net.clone() };
     let checkpoint = Checkpoint { meta, stats, net: NeuralNet::new(&net, 0, &device).expect("net"), metrics: serde_json::Value::Null };
-    NeuralFitter { checkpoint, dir, device, start: Start::Given }
+    NeuralFitter::from_checkpoint(checkpoint, &dir, &device, Start::Given)
 }
 
 fn requests<'a>(energies: &'a [Energy], frames: &lfit::train::Frames, budget: usize) -> Vec<FitRequest<'a>> {

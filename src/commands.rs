@@ -48,6 +48,24 @@ pub fn template_export(out_dir: &Path, shape: &str) -> Result<Value> {
     }))
 }
 
+/// `lfit export-onnx`: the checkpoint's network as ONNX graphs in `out` (see
+/// `lfit_infer::onnx::export`); each file is written atomically.
+pub fn export_onnx(checkpoint_dir: &Path, out: &Path) -> Result<Value> {
+    let ckpt = lfit_model::network::checkpoint::load(checkpoint_dir, &lfit_model::tensor::ndarray_device())?;
+    let exported = lfit_infer::onnx::export::export(&ckpt.net, &ckpt.meta, &ckpt.stats)?;
+    lfit_infer::onnx::export::write(out, &exported)?;
+    let c = &ckpt.meta.network;
+    Ok(json!({
+        "checkpoint": checkpoint_dir,
+        "out": out,
+        "files": exported.files.iter().map(|(n, b)| json!({ "file": n, "bytes": b.len() })).collect::<Vec<_>>(),
+        "opset": lfit_infer::onnx::OPSET,
+        "modality": c.modality.name(),
+        "iterations": c.iterations,
+        "residual_dim": c.residual_dim,
+    }))
+}
+
 /// Reads `{"pose": [57 numbers]}` or `{"poses": [[57 numbers], ...]}`.
 pub fn read_pose_file(path: &Path) -> Result<Vec<Pose>> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;

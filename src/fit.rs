@@ -145,6 +145,9 @@ pub struct FitArgs {
     pub neural_start: String,
     pub device: String,
     pub batch: usize,
+    /// `burn` or `ort`, and ONNX Runtime's intra-op threads.
+    pub runtime: String,
+    pub ort_threads: Option<usize>,
 }
 
 /// `lfit fit`: fits every selected frame, writes the result JSON atomically and returns a summary.
@@ -162,11 +165,27 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     let (neural_fitter, classic): (Option<lfit_infer::NeuralFitter>, Option<Box<dyn Fitter>>) = if neural {
         let dir = args.checkpoint.as_deref().context("--method neural needs --checkpoint DIR")?;
         let start: lfit_infer::Start = args.neural_start.parse().map_err(anyhow::Error::msg)?;
-        let device = lfit_model::tensor::device_from_name(&args.device)?;
-        (Some(lfit_infer::NeuralFitter::load(dir, &device, start)?), None)
+        let runtime: lfit_infer::Runtime = args.runtime.parse().map_err(anyhow::Error::msg)?;
+        if args.ort_threads == Some(0) {
+            bail!("--ort-threads must be at least 1");
+        }
+        let fitter = match runtime {
+            lfit_infer::Runtime::Burn => {
+                if args.ort_threads.is_some() {
+                    bail!("--ort-threads is only for --runtime ort");
+                }
+                let device = lfit_model::tensor::device_from_name(&args.device)?;
+                lfit_infer::NeuralFitter::load(dir, &device, start)?
+            }
+            lfit_infer::Runtime::Ort => lfit_infer::NeuralFitter::load_ort(dir, start, lfit_infer::onnx::runtime::SessionOptions { threads: args.ort_threads })?,
+        };
+        (Some(fitter), None)
     } else {
         if args.checkpoint.is_some() {
             bail!("--checkpoint is only for --method neural");
+        }
+        if args.runtime != "burn" || args.ort_threads.is_some() {
+            bail!("--runtime and --ort-threads are only for --method neural");
         }
         (None, Some(build_fitter(&args.method, preset, strategy)?))
     };
@@ -277,7 +296,8 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     });
     if neural {
         out["checkpoint"] = json!(args.checkpoint);
-        out["device"] = json!(args.device);
+        out["device"] = json!(if args.runtime == "burn" { args.device.as_str() } else { "cpu" });
+        out["runtime"] = json!(args.runtime);
         out["batch"] = json!(chunk);
     }
     let bytes = serde_json::to_vec_pretty(&out)?;

@@ -154,6 +154,17 @@ enum Command {
     /// Fit frames of a dataset with a classical method; writes per-frame pose, energy, terms,
     /// V2V/MPJPE against the ground truth, evaluations and time.
     Fit(FitCmd),
+    /// Export a neural fitter checkpoint as standard ONNX (opset 17): init.onnx (Φ, Φh),
+    /// propose.onnx (f and the Δθ head) and step.onnx (fλγ and the update), with the feature
+    /// statistics, DOF mask, N and modality in the metadata (docs/onnx.md).
+    ExportOnnx {
+        /// Checkpoint directory, e.g. checkpoints/markers.
+        #[arg(long)]
+        checkpoint: PathBuf,
+        /// Output directory (created if missing).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Run one optimizer on a standard test function (sphere, ellipsoid, rosenbrock, rastrigin)
     /// on [-5, 5]^d from 0, optimum at (1, ..., 1) with value 0.
     Optimize {
@@ -256,6 +267,13 @@ struct FitCmd {
     /// Frames per network pass of the neural fitter (sequences always go one by one).
     #[arg(long, default_value_t = 1)]
     batch: usize,
+    /// What runs the neural fitter's network: burn (on --device) or ort (ONNX Runtime on the
+    /// CPU; --checkpoint may then also be a directory written by `lfit export-onnx`).
+    #[arg(long, default_value = "burn")]
+    runtime: String,
+    /// Intra-op threads of ONNX Runtime (default: its own, one per core).
+    #[arg(long)]
+    ort_threads: Option<usize>,
 }
 
 #[derive(clap::Args)]
@@ -361,6 +379,8 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 neural_start: c.neural_start,
                 device: c.device,
                 batch: c.batch,
+                runtime: c.runtime,
+                ort_threads: c.ort_threads,
             };
             let bar = progress_bar(0, cli.quiet, "fit");
             let result = fit::fit(&args, &|done, total| {
@@ -370,6 +390,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             bar.finish_and_clear();
             result
         }
+        Command::ExportOnnx { checkpoint, out } => commands::export_onnx(&checkpoint, &out),
         Command::Quickstart { out, frames, budget } => {
             let bar = progress_bar(0, cli.quiet, "quickstart");
             let result = commands::quickstart(&out, frames, budget, &part_progress(&bar));

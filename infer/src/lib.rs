@@ -1,15 +1,19 @@
 //! Inference with a trained neural fitter (SPEC §7): [`NeuralFitter`] loads a checkpoint onto a
 //! backend (`ndarray`, `flex`, `wgpu`) and fits frames through the same [`Fitter`] abstraction
 //! as the classical methods — per frame, as one batch of frames, or along a sequence (each frame
-//! starting from the previous result).
+//! starting from the previous result). The same loop runs with the network in ONNX Runtime
+//! ([`onnx`], `--runtime ort`).
+
+pub mod onnx;
 
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 use std::time::Instant;
 
 use burn::tensor::Device;
 use lfit_fitters::{FitError, FitRequest, FitResult, Fitter};
-use lfit_model::network::checkpoint::{self, Checkpoint};
-use lfit_model::network::{Constraints, Dropout, unroll};
+use lfit_model::network::checkpoint::{self, Checkpoint, CheckpointMeta};
+use lfit_model::network::{Constraints, Dropout, FeatureStats, NeuralNet, unroll};
 use lfit_model::pose::{Bounds, POSE_DIM, Pose};
 use lfit_model::{Energy, ModelError};
 
@@ -33,12 +37,41 @@ impl std::str::FromStr for Start {
     }
 }
 
-/// A trained fitter on a device.
+/// What executes the network.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Runtime {
+    /// Burn on the fitter's device (ndarray, flex, wgpu).
+    Burn,
+    /// ONNX Runtime (CPU) on the exported graphs.
+    Ort,
+}
+
+impl std::str::FromStr for Runtime {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "burn" => Ok(Runtime::Burn),
+            "ort" | "onnxruntime" => Ok(Runtime::Ort),
+            _ => Err(format!("unknown runtime '{s}' (expected burn or ort)")),
+        }
+    }
+}
+
+/// The network of a fitter, in Burn or in ONNX Runtime sessions.
+#[derive(Debug)]
+pub enum Engine {
+    Burn { net: NeuralNet, device: Device },
+    /// Sessions need exclusive access to run; frames of one batch share one call.
+    Ort(Mutex<onnx::runtime::OrtNetwork>),
+}
+
+/// A trained fitter.
 #[derive(Debug)]
 pub struct NeuralFitter {
-    pub checkpoint: Checkpoint,
+    pub meta: CheckpointMeta,
+    pub stats: FeatureStats,
+    pub engine: Engine,
     pub dir: PathBuf,
-    pub device: Device,
     pub start: Start,
 }
 
@@ -47,21 +80,60 @@ fn neural(e: impl std::fmt::Display) -> FitError {
 }
 
 impl NeuralFitter {
-    /// Loads the checkpoint in `dir` onto `device`.
+    /// Loads the checkpoint in `dir` onto `device` (Burn).
     pub fn load(dir: &Path, device: &Device, start: Start) -> Result<Self, ModelError> {
-        let checkpoint = checkpoint::load(dir, device)?;
-        Ok(Self { checkpoint, dir: dir.to_path_buf(), device: device.clone(), start })
+        Ok(Self::from_checkpoint(checkpoint::load(dir, device)?, dir, device, start))
+    }
+
+    /// A loaded checkpoint on `device` (Burn).
+    pub fn from_checkpoint(checkpoint: Checkpoint, dir: &Path, device: &Device, start: Start) -> Self {
+        let Checkpoint { meta, stats, net, .. } = checkpoint;
+        Self { meta, stats, engine: Engine::Burn { net, device: device.clone() }, dir: dir.to_path_buf(), start }
+    }
+
+    /// The fitter with its network in ONNX Runtime: `dir` is a checkpoint (exported to ONNX in
+    /// memory) or a directory written by `lfit export-onnx`.
+    pub fn load_ort(dir: &Path, start: Start, options: onnx::runtime::SessionOptions) -> Result<Self, onnx::OnnxError> {
+        let network = if dir.join(checkpoint::CONFIG_FILE).is_file() {
+            let ckpt = checkpoint::load(dir, &lfit_model::tensor::ndarray_device()).map_err(|e| onnx::OnnxError::Io(e.to_string()))?;
+            let exported = onnx::export::export(&ckpt.net, &ckpt.meta, &ckpt.stats)?;
+            onnx::runtime::OrtNetwork::from_exported(&exported, dir, options)?
+        } else if dir.join("init.onnx").is_file() {
+            onnx::runtime::OrtNetwork::load_dir(dir, options)?
+        } else {
+            return Err(onnx::OnnxError::model(dir, "neither a checkpoint (config.json) nor an lfit ONNX export (init.onnx)"));
+        };
+        Ok(Self { meta: network.meta.clone(), stats: network.stats.clone(), engine: Engine::Ort(Mutex::new(network)), dir: dir.to_path_buf(), start })
+    }
+
+    /// The Burn network, if this fitter runs on Burn.
+    pub fn burn_net(&self) -> Option<&NeuralNet> {
+        match &self.engine {
+            Engine::Burn { net, .. } => Some(net),
+            Engine::Ort(_) => None,
+        }
     }
 
     /// Iterations N of one fit.
     pub fn iterations(&self) -> usize {
-        self.checkpoint.meta.network.iterations
+        self.meta.network.iterations
     }
 
     /// Checks that the checkpoint fits an energy (modality, residual size, template).
     pub fn check(&self, energy: &Energy) -> Result<(), ModelError> {
         let template = energy.template();
-        self.checkpoint.check_compatible(&self.dir, energy.modality(), energy.sensor().residual_dim(template), template)
+        self.meta.check_compatible(&self.dir, energy.modality(), energy.sensor().residual_dim(template), template)
+    }
+
+    /// θ0 … θN of every frame, `[N + 1][B]`, from the engine.
+    fn run(&self, energies: &[&Energy], starts: &[Option<Pose>], constraints: &Constraints) -> Result<Vec<Vec<Pose>>, FitError> {
+        match &self.engine {
+            Engine::Burn { net, device } => Ok(unroll(net, &self.stats, energies, starts, Some(constraints), device, &mut Dropout::off()).map_err(neural)?.host),
+            Engine::Ort(network) => {
+                let mut network = network.lock().map_err(|_| FitError::Neural("the ONNX Runtime session was poisoned by an earlier failure".into()))?;
+                onnx::runtime::unroll_ort(&mut network, energies, starts, Some(constraints)).map_err(neural)
+            }
+        }
     }
 
     /// Fits a batch of frames in one pass of the network; every result carries the batch's wall
@@ -71,9 +143,8 @@ impl NeuralFitter {
         if requests.is_empty() {
             return Ok(Vec::new());
         }
-        let net = &self.checkpoint.net;
-        let n = net.config.iterations;
-        let per_iteration = net.config.evaluations_per_iteration();
+        let n = self.meta.network.iterations;
+        let per_iteration = self.meta.network.evaluations_per_iteration();
         for r in requests {
             self.check(r.energy).map_err(neural)?;
             if r.budget == 0 {
@@ -115,19 +186,27 @@ impl NeuralFitter {
                 .collect(),
             bounds: requests.iter().map(|r| r.bounds.clone()).collect::<Vec<Bounds>>(),
         };
-        let out = unroll(net, &self.checkpoint.stats, &energies, &starts, Some(&constraints), &self.device, &mut Dropout::off()).map_err(neural)?;
+        let mut host = self.run(&energies, &starts, &constraints)?;
+        // The loop clamps in f32; clamp again in f64 so that every iterate is exactly inside
+        // the request's bounds (the two differ by at most an f32 rounding).
+        for iterate in host.iter_mut() {
+            for (p, r) in iterate.iter_mut().zip(requests) {
+                r.bounds.clamp(p);
+            }
+        }
+        let residual_evaluations = (per_iteration * n) as u64;
         let time_s = timer.elapsed().as_secs_f64() / requests.len() as f64;
         let name = self.name();
         Ok(requests
             .iter()
             .enumerate()
             .map(|(i, r)| {
-                let pose = out.host[n][i];
+                let pose = host[n][i];
                 let report = r.energy.inspect(&pose);
-                let evaluations = r.energy.evaluations() - e0[i].0 + out.residual_evaluations - n as u64;
+                let evaluations = r.energy.evaluations() - e0[i].0 + residual_evaluations - n as u64;
                 // Energy of every iterate (reporting only: `inspect` is not counted); the x axis
                 // is the evaluations used to reach it.
-                let trace = (0..=n).map(|k| ((per_iteration * k) as u64, r.energy.inspect(&out.host[k][i]).total)).collect();
+                let trace = (0..=n).map(|k| ((per_iteration * k) as u64, r.energy.inspect(&host[k][i]).total)).collect();
                 FitResult {
                     method: name.clone(),
                     pose: pose.to_vec(),
@@ -138,7 +217,7 @@ impl NeuralFitter {
                     iterations: n as u64,
                     time_s,
                     trace,
-                    iterates: out.host.iter().map(|h| h[i].to_vec()).collect(),
+                    iterates: host.iter().map(|h| h[i].to_vec()).collect(),
                 }
             })
             .collect())
@@ -147,9 +226,13 @@ impl NeuralFitter {
 
 impl Fitter for NeuralFitter {
     fn name(&self) -> String {
-        match self.start {
-            Start::Phi => "neural".into(),
-            Start::Given => "neural-given".into(),
+        let base = match self.start {
+            Start::Phi => "neural",
+            Start::Given => "neural-given",
+        };
+        match self.engine {
+            Engine::Burn { .. } => base.into(),
+            Engine::Ort(_) => format!("{base}-ort"),
         }
     }
 

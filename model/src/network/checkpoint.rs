@@ -167,15 +167,23 @@ impl Checkpoint {
     /// Checks that this checkpoint fits data of `modality` with a residual of `residual_dim`
     /// entries on `template`.
     pub fn check_compatible(&self, dir: &Path, modality: Modality, residual_dim: usize, template: &Template) -> Result<()> {
-        let n = &self.meta.network;
+        self.meta.check_compatible(dir, modality, residual_dim, template)
+    }
+}
+
+impl CheckpointMeta {
+    /// Checks that the network fits data of `modality` with a residual of `residual_dim`
+    /// entries on `template` (`dir` names the checkpoint in errors).
+    pub fn check_compatible(&self, dir: &Path, modality: Modality, residual_dim: usize, template: &Template) -> Result<()> {
+        let n = &self.network;
         if n.modality != modality {
             return Err(err(dir, format!("was trained for {} data, not {modality}", n.modality)));
         }
         if n.residual_dim != residual_dim {
             return Err(err(dir, format!("expects a residual of {} values, the data's sensor gives {residual_dim}", n.residual_dim)));
         }
-        if self.meta.template_vertices != template.num_vertices() {
-            return Err(err(dir, format!("was trained on template '{}' ({} vertices), not '{}' ({} vertices)", self.meta.template_id, self.meta.template_vertices, template.id, template.num_vertices())));
+        if self.template_vertices != template.num_vertices() {
+            return Err(err(dir, format!("was trained on template '{}' ({} vertices), not '{}' ({} vertices)", self.template_id, self.template_vertices, template.id, template.num_vertices())));
         }
         Ok(())
     }

@@ -5,6 +5,7 @@
 use burn::tensor::{Device, Tensor, TensorData};
 use rayon::prelude::*;
 
+use super::config::NetConfig;
 use super::features::{FeatureStats, observation_features};
 use super::layers::Dropout;
 use super::net::NeuralNet;
@@ -46,6 +47,111 @@ fn to_host(t: &Tensor<2>) -> Result<Vec<Pose>> {
     Ok(tensor_to_rows(t.clone().detach())?.iter().map(|row| std::array::from_fn(|i| f64::from(row[i]))).collect())
 }
 
+/// Checks a batch against the network: at least one frame, one start entry per frame, and every
+/// frame of the network's modality.
+pub fn check_batch(config: &NetConfig, energies: &[&Energy], starts: &[Option<Pose>]) -> Result<()> {
+    let batch = energies.len();
+    if batch == 0 || starts.len() != batch {
+        return Err(ModelError::Shape { what: "neural fitter batch".into(), expected: format!("{batch} start entries, at least one frame"), got: starts.len().to_string() });
+    }
+    if let Some(e) = energies.iter().find(|e| e.modality() != config.modality) {
+        return Err(ModelError::Config(format!("the network fits {} data, this frame is {}", config.modality, e.modality())));
+    }
+    Ok(())
+}
+
+/// The normalised observation features D of every frame.
+pub fn observation_rows(config: &NetConfig, stats: &FeatureStats, energies: &[&Energy]) -> Result<Vec<Vec<f32>>> {
+    let dim = config.residual_dim;
+    let mut out = Vec::with_capacity(energies.len());
+    for e in energies {
+        let r = observation_features(e);
+        if r.len() != 2 * dim {
+            return Err(ModelError::Shape { what: "observation features".into(), expected: (2 * dim).to_string(), got: r.len().to_string() });
+        }
+        let mut v = Vec::with_capacity(2 * dim);
+        stats.observation.push(&r, config.feature_clip as f32, &mut v);
+        out.push(v);
+    }
+    Ok(out)
+}
+
+/// The per-frame limits as `[B, 57]` rows: free mask (1/0), lower and upper bounds.
+pub fn constraint_rows(constraints: &Constraints, batch: usize) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
+    let k = constraints;
+    if k.free.len() != batch || k.bounds.len() != batch {
+        return Err(ModelError::Shape { what: "constraints".into(), expected: batch.to_string(), got: k.free.len().to_string() });
+    }
+    let f: Vec<f32> = k.free.iter().flat_map(|m| m.iter().map(|&b| if b { 1.0 } else { 0.0 })).collect();
+    let lo: Vec<f32> = k.bounds.iter().flat_map(|b| b.lower.iter().map(|&x| x as f32)).collect();
+    let hi: Vec<f32> = k.bounds.iter().flat_map(|b| b.upper.iter().map(|&x| x as f32)).collect();
+    if lo.len() != batch * POSE_DIM || hi.len() != batch * POSE_DIM {
+        return Err(ModelError::Shape { what: "bounds".into(), expected: POSE_DIM.to_string(), got: (lo.len() / batch).to_string() });
+    }
+    Ok((f, lo, hi))
+}
+
+/// R(θ) and g(θ) (non-finite entries zeroed) of every frame at its current pose, on the CPU.
+pub fn evaluate(energies: &[&Energy], current: &[Pose]) -> Vec<(Vec<f64>, Pose)> {
+    energies
+        .par_iter()
+        .zip(current.par_iter())
+        .map(|(e, p)| {
+            let (_, mut g) = e.evaluate_with_gradient(p);
+            for x in g.iter_mut() {
+                if !x.is_finite() {
+                    *x = 0.0;
+                }
+            }
+            (e.residual(p), g)
+        })
+        .collect()
+}
+
+/// The normalised core inputs `[R(θ), g, θ, D]`, `[B, core_inputs]` row-major.
+pub fn core_rows(config: &NetConfig, stats: &FeatureStats, evals: &[(Vec<f64>, Pose)], current: &[Pose], obs: &[Vec<f32>]) -> Result<Vec<f32>> {
+    let clip = config.feature_clip as f32;
+    let mut core_in = Vec::with_capacity(evals.len() * config.core_inputs());
+    for ((r, g), (p, d)) in evals.iter().zip(current.iter().zip(obs)) {
+        if r.len() != config.residual_dim {
+            return Err(ModelError::Shape { what: "residual".into(), expected: config.residual_dim.to_string(), got: r.len().to_string() });
+        }
+        stats.residual.push(r, clip, &mut core_in);
+        stats.gradient.push(g, clip, &mut core_in);
+        stats.pose.push(p, clip, &mut core_in);
+        core_in.extend_from_slice(d);
+    }
+    Ok(core_in)
+}
+
+/// The normalised λ/γ inputs `[R(θ), R(θ + Δθ)]` (papers/002 eq. 2: where the network alone
+/// would go), `[B, step_inputs]` row-major.
+pub fn step_rows(config: &NetConfig, stats: &FeatureStats, energies: &[&Energy], current: &[Pose], evals: &[(Vec<f64>, Pose)], delta: &[Pose]) -> Vec<f32> {
+    let clip = config.feature_clip as f32;
+    let tried: Vec<Vec<f64>> = energies
+        .par_iter()
+        .zip(current.par_iter().zip(delta.par_iter()))
+        .map(|(e, (p, d))| {
+            let mut q = *p;
+            for (a, b) in q.iter_mut().zip(d) {
+                *a += b;
+            }
+            e.residual(&q)
+        })
+        .collect();
+    let mut step_in = Vec::with_capacity(energies.len() * config.step_inputs());
+    for ((r, _), r2) in evals.iter().zip(&tried) {
+        stats.residual.push(r, clip, &mut step_in);
+        stats.residual.push(r2, clip, &mut step_in);
+    }
+    step_in
+}
+
+/// Poses of `[B, 57]` f32 rows.
+pub fn rows_to_poses(rows: &[f32]) -> Vec<Pose> {
+    rows.chunks_exact(POSE_DIM).map(|r| std::array::from_fn(|i| f64::from(r[i]))).collect()
+}
+
 /// Runs N iterations on `energies` (one frame each). `starts[i]` is the given θ0 of frame `i`
 /// (`None`: θ0 = Φ(D)). `constraints` freezes DOFs and clamps every iterate into bounds.
 pub fn unroll(
@@ -58,27 +164,11 @@ pub fn unroll(
     dropout: &mut Dropout<'_>,
 ) -> Result<Unrolled> {
     let c = &net.config;
+    check_batch(c, energies, starts)?;
     let batch = energies.len();
-    if batch == 0 || starts.len() != batch {
-        return Err(ModelError::Shape { what: "neural fitter batch".into(), expected: format!("{batch} start entries, at least one frame"), got: starts.len().to_string() });
-    }
-    if let Some(e) = energies.iter().find(|e| e.modality() != c.modality) {
-        return Err(ModelError::Config(format!("the network fits {} data, this frame is {}", c.modality, e.modality())));
-    }
-    let dim = c.residual_dim;
-    let clip = c.feature_clip as f32;
 
     // Observation features D, normalised once per frame.
-    let obs_rows: Vec<Vec<f64>> = energies.iter().map(|e| observation_features(e)).collect();
-    if let Some(r) = obs_rows.iter().find(|r| r.len() != 2 * dim) {
-        return Err(ModelError::Shape { what: "observation features".into(), expected: (2 * dim).to_string(), got: r.len().to_string() });
-    }
-    let mut obs_norm = Vec::with_capacity(batch);
-    for r in &obs_rows {
-        let mut v = Vec::with_capacity(2 * dim);
-        stats.observation.push(r, clip, &mut v);
-        obs_norm.push(v);
-    }
+    let obs_norm = observation_rows(c, stats, energies)?;
     let obs = rows_tensor(&obs_norm.concat(), batch, device);
 
     let (phi, mut state) = net.initial(obs);
@@ -95,15 +185,7 @@ pub fn unroll(
 
     let (free, lower, upper) = match constraints {
         Some(k) => {
-            if k.free.len() != batch || k.bounds.len() != batch {
-                return Err(ModelError::Shape { what: "constraints".into(), expected: batch.to_string(), got: k.free.len().to_string() });
-            }
-            let f: Vec<f32> = k.free.iter().flat_map(|m| m.iter().map(|&b| if b { 1.0 } else { 0.0 })).collect();
-            let lo: Vec<f32> = k.bounds.iter().flat_map(|b| b.lower.iter().map(|&x| x as f32)).collect();
-            let hi: Vec<f32> = k.bounds.iter().flat_map(|b| b.upper.iter().map(|&x| x as f32)).collect();
-            if lo.len() != batch * POSE_DIM || hi.len() != batch * POSE_DIM {
-                return Err(ModelError::Shape { what: "bounds".into(), expected: POSE_DIM.to_string(), got: (lo.len() / batch).to_string() });
-            }
+            let (f, lo, hi) = constraint_rows(k, batch)?;
             (Some(rows_tensor(&f, batch, device)), Some(rows_tensor(&lo, batch, device)), Some(rows_tensor(&hi, batch, device)))
         }
         None => (None, None, None),
@@ -119,29 +201,8 @@ pub fn unroll(
     for n in 0..c.iterations {
         let current = host.last().cloned().unwrap_or_default();
         // R(θ) and g(θ) on the CPU (detached inputs).
-        let evals: Vec<(Vec<f64>, Pose)> = energies
-            .par_iter()
-            .zip(current.par_iter())
-            .map(|(e, p)| {
-                let (_, mut g) = e.evaluate_with_gradient(p);
-                for x in g.iter_mut() {
-                    if !x.is_finite() {
-                        *x = 0.0;
-                    }
-                }
-                (e.residual(p), g)
-            })
-            .collect();
-        let mut core_in = Vec::with_capacity(batch * c.core_inputs());
-        for ((r, g), (p, d)) in evals.iter().zip(current.iter().zip(&obs_norm)) {
-            if r.len() != dim {
-                return Err(ModelError::Shape { what: "residual".into(), expected: dim.to_string(), got: r.len().to_string() });
-            }
-            stats.residual.push(r, clip, &mut core_in);
-            stats.gradient.push(g, clip, &mut core_in);
-            stats.pose.push(p, clip, &mut core_in);
-            core_in.extend_from_slice(d);
-        }
+        let evals = evaluate(energies, &current);
+        let core_in = core_rows(c, stats, &evals, &current, &obs_norm)?;
         let mut delta = net.propose(n, rows_tensor(&core_in, batch, device), &mut state, dropout);
         let mut grad = poses_to_tensor(&evals.iter().map(|(_, g)| *g).collect::<Vec<_>>(), device);
         if let Some(f) = &free {
@@ -150,24 +211,7 @@ pub fn unroll(
         }
 
         let sizes = if c.has_step_network() {
-            // R(θ + Δθ): where the network alone would go (papers/002 eq. 2).
-            let delta_host = to_host(&delta)?;
-            let tried: Vec<Vec<f64>> = energies
-                .par_iter()
-                .zip(current.par_iter().zip(delta_host.par_iter()))
-                .map(|(e, (p, d))| {
-                    let mut q = *p;
-                    for (a, b) in q.iter_mut().zip(d) {
-                        *a += b;
-                    }
-                    e.residual(&q)
-                })
-                .collect();
-            let mut step_in = Vec::with_capacity(batch * c.step_inputs());
-            for ((r, _), r2) in evals.iter().zip(&tried) {
-                stats.residual.push(r, clip, &mut step_in);
-                stats.residual.push(r2, clip, &mut step_in);
-            }
+            let step_in = step_rows(c, stats, energies, &current, &evals, &to_host(&delta)?);
             net.step_sizes(n, rows_tensor(&step_in, batch, device), &mut state, dropout)
         } else {
             net.step_sizes(n, Tensor::zeros([batch, 1], device), &mut state, dropout)

@@ -1,0 +1,331 @@
+//! The fitting loop of papers/002 Alg. 1 with the network executed by ONNX Runtime (`ort`,
+//! `load-dynamic`): the energy side (residuals, gradients, features, masks, bounds) is the very
+//! code of the Burn loop ([`lfit_model::network::unroll`]'s helpers); only the three network
+//! calls go to ONNX Runtime sessions of the graphs from [`super::export`].
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use lfit_model::network::checkpoint::{self, CheckpointMeta};
+use lfit_model::network::features::FeatureStats;
+use lfit_model::network::unroll::{check_batch, constraint_rows, core_rows, evaluate, observation_rows, rows_to_poses, step_rows};
+use lfit_model::network::{Constraints, CoreKind};
+use lfit_model::pose::{POSE_DIM, Pose};
+use lfit_model::{Energy, ModelError};
+use ort::environment::Environment;
+use ort::session::Session;
+use ort::session::builder::GraphOptimizationLevel;
+use ort::value::Tensor;
+use prost::Message;
+
+use super::export::{Exported, file_name};
+use super::proto::ModelProto;
+use super::{FORMAT, ORT_RELEASE, OnnxError, VERSION, keys};
+
+/// Where the ONNX Runtime library is looked for: `ORT_DYLIB_PATH`, else where
+/// `scripts/fetch-onnxruntime.sh` puts it (`$LFIT_TOOLS_DIR` or `~/.cache/lfit-tools`).
+pub fn library_path() -> PathBuf {
+    if let Some(p) = std::env::var_os("ORT_DYLIB_PATH") {
+        return PathBuf::from(p);
+    }
+    let tools = std::env::var_os("LFIT_TOOLS_DIR")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache/lfit-tools")))
+        .unwrap_or_else(|| PathBuf::from(".cache/lfit-tools"));
+    tools.join(format!("onnxruntime-{ORT_RELEASE}")).join(format!("libonnxruntime.so.{ORT_RELEASE}"))
+}
+
+static ENVIRONMENT: OnceLock<Result<Environment, String>> = OnceLock::new();
+
+/// The process-wide ONNX Runtime environment, loading the library on first use.
+pub fn environment() -> Result<&'static Environment, OnnxError> {
+    let result = ENVIRONMENT.get_or_init(|| {
+        let path = library_path();
+        let how = format!("get it with scripts/fetch-onnxruntime.sh (the onnxruntime=={ORT_RELEASE} wheel from PyPI) or set ORT_DYLIB_PATH to libonnxruntime.so");
+        if !path.is_file() {
+            return Err(format!("ONNX Runtime library not found at {}: {how}", path.display()));
+        }
+        let builder = ort::init_from(&path).map_err(|e| format!("cannot load the ONNX Runtime library {}: {e}; {how}", path.display()))?;
+        builder.with_name("lfit").with_telemetry(false).build().map_err(|e| format!("cannot start ONNX Runtime: {e}"))
+    });
+    result.as_ref().map_err(|e| OnnxError::Library(e.clone()))
+}
+
+/// Metadata of one exported graph, checked against this build's format and version.
+#[derive(Debug, Clone)]
+pub struct GraphInfo {
+    pub role: String,
+    pub weight_set: usize,
+    pub checkpoint: String,
+    pub stats: String,
+}
+
+/// Reads and checks the metadata of an ONNX file's bytes (`origin` names it in errors).
+pub fn graph_info(bytes: &[u8], origin: &Path) -> Result<GraphInfo, OnnxError> {
+    let model = ModelProto::decode(bytes).map_err(|e| OnnxError::model(origin, format!("not an ONNX model: {e}")))?;
+    let get = |k: &str| model.metadata_props.iter().find(|p| p.key == k).map(|p| p.value.clone());
+    match get(keys::FORMAT) {
+        Some(f) if f == FORMAT => {}
+        Some(f) => return Err(OnnxError::model(origin, format!("metadata {} is '{f}', not '{FORMAT}'", keys::FORMAT))),
+        None => return Err(OnnxError::model(origin, format!("not an lfit export (no {} metadata)", keys::FORMAT))),
+    }
+    let version = get(keys::VERSION).unwrap_or_default();
+    if version != VERSION.to_string() {
+        return Err(OnnxError::model(origin, format!("lfit ONNX version '{version}' is not supported (this build reads version {VERSION})")));
+    }
+    let field = |k: &str| get(k).ok_or_else(|| OnnxError::model(origin, format!("metadata lacks {k}")));
+    let weight_set = field(keys::WEIGHT_SET)?.parse().map_err(|_| OnnxError::model(origin, format!("metadata {} is not a number", keys::WEIGHT_SET)))?;
+    Ok(GraphInfo { role: field(keys::ROLE)?, weight_set, checkpoint: field(keys::CHECKPOINT)?, stats: field(keys::FEATURE_STATS)? })
+}
+
+/// The exported graphs of one checkpoint in ONNX Runtime sessions.
+#[derive(Debug)]
+pub struct OrtNetwork {
+    pub meta: CheckpointMeta,
+    pub stats: FeatureStats,
+    init: Session,
+    propose: Vec<Session>,
+    step: Vec<Session>,
+}
+
+/// Outputs of the step graph.
+#[derive(Debug, Clone)]
+pub struct StepOut {
+    pub update: Vec<f32>,
+    pub lambda: Vec<f32>,
+    pub gamma: Vec<f32>,
+}
+
+/// Recurrent state of a batch: per GRU layer of `f`, of fλ(γ) and of a separate fγ.
+#[derive(Debug, Clone, Default)]
+pub struct OrtState {
+    pub core: Vec<Vec<f32>>,
+    pub lambda: Vec<Vec<f32>>,
+    pub gamma: Vec<Vec<f32>>,
+}
+
+fn runtime(e: impl std::fmt::Display) -> OnnxError {
+    OnnxError::Runtime(e.to_string())
+}
+
+/// Settings of the ONNX Runtime sessions.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SessionOptions {
+    /// Intra-op threads (`None`: ONNX Runtime's default, one per core).
+    pub threads: Option<usize>,
+}
+
+fn session(bytes: &[u8], options: SessionOptions) -> Result<Session, OnnxError> {
+    let env = environment()?;
+    let mut builder = Session::builder(env).map_err(runtime)?.with_optimization_level(GraphOptimizationLevel::All).map_err(runtime)?;
+    if let Some(t) = options.threads {
+        builder = builder.with_intra_threads(t).map_err(runtime)?;
+    }
+    builder.commit_from_memory(bytes).map_err(runtime)
+}
+
+impl OrtNetwork {
+    /// Sessions of exported graphs (`origin`: where they came from, for errors).
+    pub fn from_exported(exported: &Exported, origin: &Path, options: SessionOptions) -> Result<Self, OnnxError> {
+        let mut infos = Vec::new();
+        for (name, bytes) in &exported.files {
+            infos.push((name.clone(), graph_info(bytes, &origin.join(name))?));
+        }
+        let init_info = infos.iter().find(|(_, i)| i.role == "init").map(|(_, i)| i.clone()).ok_or_else(|| OnnxError::model(origin, "no init.onnx"))?;
+        let meta: CheckpointMeta = serde_json::from_str(&init_info.checkpoint).map_err(|e| OnnxError::model(&origin.join("init.onnx"), format!("malformed {} metadata: {e}", keys::CHECKPOINT)))?;
+        if meta.format != checkpoint::FORMAT || meta.version != checkpoint::VERSION {
+            return Err(OnnxError::model(origin, format!("exported from checkpoint version {} of format '{}', this build reads {} version {}", meta.version, meta.format, checkpoint::FORMAT, checkpoint::VERSION)));
+        }
+        meta.network.validate().map_err(|e| OnnxError::model(origin, e.to_string()))?;
+        let stats: FeatureStats = serde_json::from_str(&init_info.stats).map_err(|e| OnnxError::model(origin, format!("malformed {} metadata: {e}", keys::FEATURE_STATS)))?;
+        stats.validate(meta.network.residual_dim).map_err(|e| OnnxError::model(origin, e.to_string()))?;
+        for (name, info) in &infos {
+            if info.checkpoint != init_info.checkpoint || info.stats != init_info.stats {
+                return Err(OnnxError::model(&origin.join(name), "exported from another checkpoint than init.onnx"));
+            }
+        }
+        let c = &meta.network;
+        let sets = c.weight_sets();
+        let find = |role: &str, s: usize| -> Result<&[u8], OnnxError> {
+            let name = if role == "init" { "init.onnx".to_string() } else { file_name(role, s, sets) };
+            exported
+                .files
+                .iter()
+                .zip(&infos)
+                .find(|((n, _), (_, i))| *n == name && i.role == role && i.weight_set == s)
+                .map(|((_, b), _)| b.as_slice())
+                .ok_or_else(|| OnnxError::model(origin, format!("missing {name}")))
+        };
+        let init = session(find("init", 0)?, options)?;
+        let mut propose = Vec::new();
+        let mut step = Vec::new();
+        for s in 0..sets {
+            propose.push(session(find("propose", s)?, options)?);
+            if c.has_step_network() {
+                step.push(session(find("step", s)?, options)?);
+            }
+        }
+        Ok(Self { meta, stats, init, propose, step })
+    }
+
+    /// Sessions of a directory written by `lfit export-onnx`.
+    pub fn load_dir(dir: &Path, options: SessionOptions) -> Result<Self, OnnxError> {
+        let init = dir.join("init.onnx");
+        let bytes = std::fs::read(&init).map_err(|e| OnnxError::model(&init, format!("cannot read: {e}")))?;
+        let info = graph_info(&bytes, &init)?;
+        let meta: CheckpointMeta = serde_json::from_str(&info.checkpoint).map_err(|e| OnnxError::model(&init, format!("malformed {} metadata: {e}", keys::CHECKPOINT)))?;
+        let sets = meta.network.weight_sets();
+        let mut files = vec![("init.onnx".to_string(), bytes)];
+        for s in 0..sets {
+            let mut roles = vec!["propose"];
+            if meta.network.has_step_network() {
+                roles.push("step");
+            }
+            for role in roles {
+                let name = file_name(role, s, sets);
+                let path = dir.join(&name);
+                files.push((name, std::fs::read(&path).map_err(|e| OnnxError::model(&path, format!("cannot read: {e}")))?));
+            }
+        }
+        Self::from_exported(&Exported { files }, dir, options)
+    }
+
+    fn gru_layers(&self) -> usize {
+        if self.meta.network.core == CoreKind::Gru { self.meta.network.layers } else { 0 }
+    }
+
+    fn set(&self, n: usize) -> usize {
+        if self.meta.network.per_step_weights { n.min(self.propose.len() - 1) } else { 0 }
+    }
+
+    /// θ0 = Φ(D) `[B, 57]` and the initial state, from normalised observations `[B, 2R]`.
+    pub fn initial(&mut self, obs: &[f32], batch: usize) -> Result<(Vec<f32>, OrtState), OnnxError> {
+        let c = self.meta.network.clone();
+        let layers = self.gru_layers();
+        let inputs = vec![("obs".to_string(), tensor(obs, batch, c.obs_features())?)];
+        let mut out = self.init.run(inputs).map_err(runtime)?;
+        let theta0 = extract(&mut out, "theta0", batch * POSE_DIM)?;
+        let core = (0..layers).map(|l| extract(&mut out, &format!("h0.{l}"), batch * c.hidden)).collect::<Result<Vec<_>, _>>()?;
+        let zeros = || (0..layers).map(|_| vec![0.0f32; batch * c.hidden]).collect::<Vec<_>>();
+        let separate = !c.shared_lambda_gamma && c.learns_gamma();
+        Ok((theta0, OrtState { core, lambda: if c.has_step_network() { zeros() } else { Vec::new() }, gamma: if separate { zeros() } else { Vec::new() } }))
+    }
+
+    /// Δθ of iteration `n` from the normalised core inputs; updates the core state.
+    pub fn propose(&mut self, n: usize, core_in: &[f32], batch: usize, state: &mut OrtState) -> Result<Vec<f32>, OnnxError> {
+        let c = self.meta.network.clone();
+        let s = self.set(n);
+        let mut inputs = vec![("core_in".to_string(), tensor(core_in, batch, c.core_inputs())?)];
+        for (l, h) in state.core.iter().enumerate() {
+            inputs.push((format!("h.{l}"), tensor(h, batch, c.hidden)?));
+        }
+        let mut out = self.propose[s].run(inputs).map_err(runtime)?;
+        let delta = extract(&mut out, "delta", batch * POSE_DIM)?;
+        for l in 0..state.core.len() {
+            state.core[l] = extract(&mut out, &format!("h_next.{l}"), batch * c.hidden)?;
+        }
+        Ok(delta)
+    }
+
+    /// λ, γ and the update of iteration `n`; updates the λ/γ states. `delta` and `grad` are
+    /// already masked.
+    pub fn step(&mut self, n: usize, step_in: &[f32], delta: &[f32], grad: &[f32], batch: usize, state: &mut OrtState) -> Result<StepOut, OnnxError> {
+        let c = self.meta.network.clone();
+        let s = self.set(n);
+        let mut inputs = vec![
+            ("step_in".to_string(), tensor(step_in, batch, c.step_inputs())?),
+            ("delta".to_string(), tensor(delta, batch, POSE_DIM)?),
+            ("grad".to_string(), tensor(grad, batch, POSE_DIM)?),
+        ];
+        for (l, h) in state.lambda.iter().enumerate() {
+            inputs.push((format!("lambda_h.{l}"), tensor(h, batch, c.hidden)?));
+        }
+        for (l, h) in state.gamma.iter().enumerate() {
+            inputs.push((format!("gamma_h.{l}"), tensor(h, batch, c.hidden)?));
+        }
+        let mut out = self.step[s].run(inputs).map_err(runtime)?;
+        let result = StepOut {
+            update: extract(&mut out, "update", batch * POSE_DIM)?,
+            lambda: extract(&mut out, "lambda", batch * c.step_outputs())?,
+            gamma: extract(&mut out, "gamma", batch * c.gamma_outputs())?,
+        };
+        for l in 0..state.lambda.len() {
+            state.lambda[l] = extract(&mut out, &format!("lambda_h_next.{l}"), batch * c.hidden)?;
+        }
+        for l in 0..state.gamma.len() {
+            state.gamma[l] = extract(&mut out, &format!("gamma_h_next.{l}"), batch * c.hidden)?;
+        }
+        Ok(result)
+    }
+}
+
+fn tensor(values: &[f32], batch: usize, width: usize) -> Result<Tensor<f32>, OnnxError> {
+    if values.len() != batch * width {
+        return Err(OnnxError::Runtime(format!("input of {} values for a [{batch}, {width}] tensor", values.len())));
+    }
+    Tensor::from_array(([batch, width], values.to_vec())).map_err(runtime)
+}
+
+fn extract(out: &mut ort::session::SessionOutputs<'_>, name: &str, len: usize) -> Result<Vec<f32>, OnnxError> {
+    let value = out.get(name).ok_or_else(|| OnnxError::Runtime(format!("the graph has no output '{name}'")))?;
+    let (_, data) = value.try_extract_tensor::<f32>().map_err(runtime)?;
+    if data.len() != len {
+        return Err(OnnxError::Runtime(format!("output '{name}' has {} values, expected {len}", data.len())));
+    }
+    Ok(data.to_vec())
+}
+
+/// Runs N iterations through ONNX Runtime on `energies`, exactly as
+/// [`lfit_model::network::unroll`] does through Burn; returns θ0 … θN per frame (`[N + 1][B]`).
+pub fn unroll_ort(net: &mut OrtNetwork, energies: &[&Energy], starts: &[Option<Pose>], constraints: Option<&Constraints>) -> Result<Vec<Vec<Pose>>, OnnxError> {
+    let model = |e: ModelError| OnnxError::Runtime(e.to_string());
+    let c = net.meta.network.clone();
+    let stats = net.stats.clone();
+    check_batch(&c, energies, starts).map_err(model)?;
+    let batch = energies.len();
+    let obs_norm = observation_rows(&c, &stats, energies).map_err(model)?;
+    let (phi, mut state) = net.initial(&obs_norm.concat(), batch)?;
+    // θ0: the given pose where there is one, Φ(D) elsewhere (in f32, as the Burn loop).
+    let mut theta: Vec<f32> = Vec::with_capacity(batch * POSE_DIM);
+    for (i, s) in starts.iter().enumerate() {
+        match s {
+            Some(p) => theta.extend(p.iter().map(|&v| v as f32)),
+            None => theta.extend_from_slice(&phi[i * POSE_DIM..(i + 1) * POSE_DIM]),
+        }
+    }
+    let limits = constraints.map(|k| constraint_rows(k, batch)).transpose().map_err(model)?;
+    let constrain = |t: &mut [f32]| {
+        if let Some((_, lo, hi)) = &limits {
+            for ((v, l), h) in t.iter_mut().zip(lo).zip(hi) {
+                *v = v.max(*l).min(*h);
+            }
+        }
+    };
+    constrain(&mut theta);
+    let mut host = vec![rows_to_poses(&theta)];
+    for n in 0..c.iterations {
+        let current = host.last().cloned().unwrap_or_default();
+        let evals = evaluate(energies, &current);
+        let core_in = core_rows(&c, &stats, &evals, &current, &obs_norm).map_err(model)?;
+        let mut delta = net.propose(n, &core_in, batch, &mut state)?;
+        let mut grad: Vec<f32> = evals.iter().flat_map(|(_, g)| g.iter().map(|&v| v as f32)).collect();
+        if let Some((free, _, _)) = &limits {
+            for ((d, g), f) in delta.iter_mut().zip(grad.iter_mut()).zip(free) {
+                *d *= f;
+                *g *= f;
+            }
+        }
+        let update = if c.has_step_network() {
+            let step_in = step_rows(&c, &stats, energies, &current, &evals, &rows_to_poses(&delta));
+            net.step(n, &step_in, &delta, &grad, batch, &mut state)?.update
+        } else {
+            delta
+        };
+        for (t, u) in theta.iter_mut().zip(&update) {
+            *t += u;
+        }
+        constrain(&mut theta);
+        host.push(rows_to_poses(&theta));
+    }
+    Ok(host)
+}
