@@ -23,4 +23,16 @@ if [ "${CI:-}" = "true" ]; then
     export LFIT_REQUIRE_WGPU=1
 fi
 
+# ONNX Runtime for the --runtime ort tests: libonnxruntime.so from the onnxruntime==1.31.1 wheel
+# on PyPI (and the Python package, for the docs/onnx_step.py example test). Without it those
+# tests skip with a reason locally; in CI (CI=true) they fail.
+if [ -z "${ORT_DYLIB_PATH:-}" ]; then
+    if ort_lib="$(./scripts/fetch-onnxruntime.sh --python)"; then
+        export ORT_DYLIB_PATH="$ort_lib"
+        export LFIT_ORT_PYTHONPATH="$(dirname "$ort_lib")/python"
+    else
+        echo "warning: could not fetch ONNX Runtime; the ONNX Runtime tests will skip outside CI"
+    fi
+fi
+
 cargo test --workspace --all-targets "$@"

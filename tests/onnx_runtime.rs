@@ -348,3 +348,77 @@ fn bad_exports_and_a_missing_library_are_one_line_errors() {
     assert_one_line_error(&out, "unknown runtime 'tensorrt'");
     assert!(!result.exists(), "no result written by failed fits");
 }
+
+/// `PYTHONPATH` under which `python3` imports onnxruntime and numpy (the package that
+/// scripts/fetch-onnxruntime.sh --python installs), if any; in CI its absence is a failure.
+fn python_ready() -> Option<String> {
+    let path = std::env::var("LFIT_ORT_PYTHONPATH").unwrap_or_else(|_| library_path().with_file_name("python").to_string_lossy().into_owned());
+    let ok = std::process::Command::new("python3").args(["-c", "import onnxruntime, numpy"]).env("PYTHONPATH", &path).output().map(|o| o.status.success()).unwrap_or(false);
+    if ok {
+        return Some(path);
+    }
+    let required = std::env::var("CI").as_deref() == Ok("true") || std::env::var_os("LFIT_REQUIRE_ORT").is_some();
+    assert!(!required, "python3 cannot import onnxruntime (PYTHONPATH={path}); CI must run the Python example (scripts/fetch-onnxruntime.sh --python)");
+    eprintln!("skipping: python3 cannot import onnxruntime and numpy (PYTHONPATH={path}; run scripts/fetch-onnxruntime.sh --python)");
+    None
+}
+
+#[test]
+fn the_python_example_runs_the_exported_step_as_burn_does() {
+    let Some(pythonpath) = python_ready() else { return };
+    let tmp = tempfile::tempdir().expect("tmp");
+    for (k, m) in ["markers", "keypoints2d"].iter().enumerate() {
+        let onnx = tmp.path().join(m);
+        lfit_json(&["-q", "export-onnx", "--checkpoint", path_str(&shipped(m)), "--out", path_str(&onnx)]);
+        let ckpt = checkpoint::load(&shipped(m), &ndarray_device()).expect("checkpoint");
+        let (net, stats, c) = (&ckpt.net, &ckpt.stats, &ckpt.net.config);
+        let frames = frames_for(m.parse().expect("modality"), 1, 0x007A_0000 + k as u64);
+        let energy = &frames.energies[0];
+        let pose = frames.dataset.start_poses[0];
+        let mask = DofMask::local43();
+        let free: Vec<f32> = (0..POSE_DIM).map(|i| if mask.free.contains(&i) { 1.0 } else { 0.0 }).collect();
+
+        // Burn, first iteration from the start pose.
+        let obs = observation_rows(c, stats, &[energy]).expect("obs").concat();
+        let (theta0, mut state) = net.initial(rows(&obs, 1));
+        let evals = evaluate(&[energy], &[pose]);
+        let core_in = core_rows(c, stats, &evals, &[pose], &[obs.clone()]).expect("core");
+        let delta = net.propose(0, rows(&core_in, 1), &mut state, &mut Dropout::off()) * rows(&free, 1);
+        let grad = poses_to_tensor(&[evals[0].1], &ndarray_device()) * rows(&free, 1);
+        let delta_host = rows_to_poses(&flat(&delta));
+        let step_in = step_rows(c, stats, &[energy], &[pose], &evals, &delta_host);
+        let sizes = net.step_sizes(0, rows(&step_in, 1), &mut state, &mut Dropout::off());
+        let update = net.update(delta.clone(), grad, &sizes);
+        let mut tried = pose;
+        for (a, b) in tried.iter_mut().zip(&delta_host[0]) {
+            *a += b;
+        }
+
+        let sample = serde_json::json!({
+            "observation": lfit::model::network::observation_features(energy),
+            "residual": evals[0].0,
+            "gradient": evals[0].1.to_vec(),
+            "pose": pose.to_vec(),
+            "residual_tried": energy.residual(&tried),
+            "free": free,
+        });
+        let sample_path = tmp.path().join(format!("{m}-sample.json"));
+        std::fs::write(&sample_path, serde_json::to_vec(&sample).expect("json")).expect("write");
+        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/onnx_step.py");
+        let out = std::process::Command::new("python3")
+            .args([path_str(&script), "--onnx", path_str(&onnx), "--sample", path_str(&sample_path)])
+            .env("PYTHONPATH", &pythonpath)
+            .output()
+            .expect("python3 runs");
+        assert!(out.status.success(), "{m}: docs/onnx_step.py failed: {}", String::from_utf8_lossy(&out.stderr));
+        let py: serde_json::Value = serde_json::from_slice(&out.stdout).expect("the example prints JSON");
+        let get = |key: &str| -> Vec<f32> { py[key].as_array().unwrap_or_else(|| panic!("{m}: no {key}")).iter().map(|v| v.as_f64().expect("number") as f32).collect() };
+        let mut worst = assert_close(&format!("{m}: θ0 (Python)"), &flat(&theta0), &get("theta0"), STEP_TOLERANCE);
+        worst = worst.max(assert_close(&format!("{m}: Δθ (Python)"), &flat(&delta), &get("delta"), STEP_TOLERANCE));
+        worst = worst.max(assert_close(&format!("{m}: λ (Python)"), &flat(sizes.lambda.as_ref().expect("λ")), &get("lambda"), STEP_TOLERANCE));
+        worst = worst.max(assert_close(&format!("{m}: γ (Python)"), &flat(sizes.gamma.as_ref().expect("γ")), &get("gamma"), STEP_TOLERANCE));
+        worst = worst.max(assert_close(&format!("{m}: update (Python)"), &flat(&update), &get("update"), STEP_TOLERANCE));
+        assert_eq!(py["iterations"], c.iterations);
+        eprintln!("{m}: docs/onnx_step.py vs Burn, worst difference {worst:e}");
+    }
+}
