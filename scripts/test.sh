@@ -35,4 +35,14 @@ if [ -z "${ORT_DYLIB_PATH:-}" ]; then
     fi
 fi
 
+# The Khronos glTF validator (npm gltf-validator, pinned) for the `lfit export --format gltf`
+# tests. Without node/npm or the network that test skips with a reason locally; in CI it fails.
+if [ -z "${LFIT_GLTF_VALIDATOR:-}" ]; then
+    if gltf_validator="$(./scripts/fetch-gltf-validator.sh)"; then
+        export LFIT_GLTF_VALIDATOR="$gltf_validator"
+    else
+        echo "warning: could not install gltf-validator (see above); the glTF validator test will skip outside CI"
+    fi
+fi
+
 cargo test --workspace --all-targets "$@"

@@ -9,6 +9,7 @@ pub mod ablate;
 pub mod presets;
 pub mod report;
 pub mod plots;
+pub mod export;
 
 pub use lfit_fitters as fitters;
 pub use lfit_model as model;

@@ -165,6 +165,26 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Export fitted poses (the result JSON of `lfit fit`, or {"pose"}/{"poses"}) checked against
+    /// their dataset: posed OBJ meshes (OUT/frame_NNNNN.obj) or one skinned, animated binary glTF
+    /// 2.0 file (OUT/<poses file stem>.glb) keyed at frame / fps.
+    Export {
+        /// Dataset the poses were fitted on (.npz from `lfit synth`): template, frame rate.
+        #[arg(long)]
+        data: PathBuf,
+        /// Result JSON of `lfit fit`, or {"pose": [57]} / {"poses": [[57], ...]} (frames 0..n).
+        #[arg(long)]
+        poses: PathBuf,
+        /// obj or gltf.
+        #[arg(long)]
+        format: String,
+        /// Output directory (created if missing).
+        #[arg(long)]
+        out: PathBuf,
+        /// Template directory, if the dataset was not made with the procedural template.
+        #[arg(long)]
+        template: Option<PathBuf>,
+    },
     /// Run one optimizer on a standard test function (sphere, ellipsoid, rosenbrock, rastrigin)
     /// on [-5, 5]^d from 0, optimum at (1, ..., 1) with value 0.
     Optimize {
@@ -449,6 +469,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
         Command::Optimize { function, dim, method, budget, seed, preset, json: _ } => {
             fit::optimize(&fit::OptimizeArgs { function, dim, method, preset, budget, seed })
         }
+        Command::Export { data, poses, format, out, template } => lfit::export::export(&lfit::export::ExportArgs { data, poses, format, out, template }),
         Command::ObjectiveServer { data, frame, energy, gradient, budget, template } => {
             let args = fit::ServerArgs { data, frame, energy, gradient, budget, template };
             let stdin = std::io::stdin();
