@@ -4,6 +4,11 @@
 //! modality (`checkpoints/<modality>`), or a freshly initialised network of the same
 //! configuration (`configs/<modality>.json`, same cost) when the checkpoint is absent.
 //! Run with `cargo bench --bench neural` (LFIT_BENCH_MODALITY=markers|keypoints2d|hmd).
+//!
+//! Issue 6 adds ONNX Runtime (`ort`, when libonnxruntime is found, see
+//! scripts/fetch-onnxruntime.sh) to the same run: whole fits (`fit-*`, the energy included) and
+//! the network alone (`network-*`: Φ/Φh and N × (f, fλγ, update) on fixed features, outputs read
+//! back to the host), each at batch 1 and 256, for ndarray, flex and ort.
 
 use std::hint::black_box;
 use std::path::Path;
@@ -17,7 +22,12 @@ use lfit::model::network::checkpoint::{Checkpoint, CheckpointMeta};
 use lfit::model::network::{FeatureStats, NeuralNet};
 use lfit::model::observe::{Modality, Sensor};
 use lfit::model::pose::{Bounds, DofMask};
-use lfit::model::tensor::{device_from_name, wgpu_available};
+use lfit::infer::onnx::runtime::{SessionOptions, library_path};
+use lfit::model::network::unroll::{core_rows, evaluate, observation_rows, step_rows};
+use lfit::model::network::Dropout;
+use lfit::model::pose::{POSE_DIM, Pose};
+use lfit::model::tensor::{device_from_name, tensor_to_rows, wgpu_available};
+use burn::tensor::{Tensor, TensorData};
 use lfit::model::{Energy, default_template};
 use lfit::train::{TrainConfig, base_energy, measure_stats, synth_frames};
 
@@ -58,10 +68,23 @@ fn bench(c: &mut Criterion) {
     if wgpu_available() {
         devices.push("wgpu");
     }
+    let ort_ok = library_path().is_file();
+    if !ort_ok {
+        eprintln!("ort: skipped, no ONNX Runtime library at {} (scripts/fetch-onnxruntime.sh)", library_path().display());
+    }
+    network_only(c, modality, &frames, &devices, ort_ok);
     let mut group = c.benchmark_group(format!("fit-{}", modality.name()));
     group.sample_size(10);
-    for name in devices {
-        let f = fitter(modality, name, &frames);
+    let mut engines: Vec<&str> = devices.clone();
+    if ort_ok {
+        engines.push("ort");
+    }
+    for name in engines {
+        let f = if name == "ort" {
+            NeuralFitter::load_ort(&Path::new("checkpoints").join(modality.name()), Start::Given, SessionOptions::default()).expect("ort fitter")
+        } else {
+            fitter(modality, name, &frames)
+        };
         group.throughput(Throughput::Elements(1));
         group.bench_function(BenchmarkId::new(format!("neural-{name}"), "batch1"), |b| {
             let mut i = 0;
@@ -84,6 +107,91 @@ fn bench(c: &mut Criterion) {
                 black_box(fitter.fit(&reqs[i]).expect("fit"))
             })
         });
+    }
+    group.finish();
+}
+
+/// Features of iteration 0 for every frame (reused for every iteration: the cost of the network
+/// does not depend on the values).
+struct Inputs {
+    obs: Vec<f32>,
+    core: Vec<f32>,
+    step: Vec<f32>,
+    grad: Vec<f32>,
+}
+
+fn inputs(f: &NeuralFitter, frames: &lfit::train::Frames) -> Inputs {
+    let c = &f.meta.network;
+    let energies: Vec<&Energy> = frames.energies.iter().collect();
+    let poses: Vec<Pose> = frames.dataset.start_poses.clone();
+    let obs = observation_rows(c, &f.stats, &energies).expect("obs");
+    let evals = evaluate(&energies, &poses);
+    let core = core_rows(c, &f.stats, &evals, &poses, &obs).expect("core");
+    let delta_poses: Vec<Pose> = poses.iter().map(|_| [1e-3; POSE_DIM]).collect();
+    let step = step_rows(c, &f.stats, &energies, &poses, &evals, &delta_poses);
+    let grad = evals.iter().flat_map(|(_, g)| g.iter().map(|&v| v as f32)).collect();
+    Inputs { obs: obs.concat(), core, step, grad }
+}
+
+fn take(v: &[f32], batch: usize, total: usize) -> Vec<f32> {
+    v[..v.len() / total * batch].to_vec()
+}
+
+/// The network alone: Φ/Φh, then N × (f, fλγ, update), at batch 1 and 256, per engine.
+fn network_only(c: &mut Criterion, modality: Modality, frames: &lfit::train::Frames, devices: &[&str], ort_ok: bool) {
+    let total = frames.energies.len();
+    let mut group = c.benchmark_group(format!("network-{}", modality.name()));
+    group.sample_size(20);
+    for name in devices {
+        let f = fitter(modality, name, frames);
+        let input = inputs(&f, frames);
+        let net = f.burn_net().expect("burn");
+        let device = device_from_name(name).expect("device");
+        for batch in [1usize, total] {
+            let rows = |v: &[f32]| {
+                let data = take(v, batch, total);
+                let d = data.len() / batch;
+                Tensor::<2>::from_data(TensorData::new(data, [batch, d]), &device)
+            };
+            let (obs, core, step, grad) = (rows(&input.obs), rows(&input.core), rows(&input.step), rows(&input.grad));
+            group.throughput(Throughput::Elements(batch as u64));
+            group.bench_function(BenchmarkId::new(format!("neural-{name}"), format!("batch{batch}")), |b| {
+                b.iter(|| {
+                    let (theta0, mut state) = net.initial(obs.clone());
+                    let mut out = tensor_to_rows(theta0).expect("rows");
+                    for n in 0..net.config.iterations {
+                        // As in the fitting loop: Δθ and θ come back to the host every iteration.
+                        let d = net.propose(n, core.clone(), &mut state, &mut Dropout::off());
+                        black_box(tensor_to_rows(d.clone()).expect("rows"));
+                        let sizes = net.step_sizes(n, step.clone(), &mut state, &mut Dropout::off());
+                        out = tensor_to_rows(net.update(d, grad.clone(), &sizes)).expect("rows");
+                    }
+                    black_box(out)
+                })
+            });
+        }
+    }
+    if ort_ok {
+        let f = NeuralFitter::load_ort(&Path::new("checkpoints").join(modality.name()), Start::Given, SessionOptions::default()).expect("ort fitter");
+        let input = inputs(&f, frames);
+        let lfit::infer::Engine::Ort(network) = &f.engine else { panic!("ort engine") };
+        let mut ort = network.lock().expect("sessions");
+        let iterations = f.meta.network.iterations;
+        for batch in [1usize, total] {
+            let (obs, core, step, grad) = (take(&input.obs, batch, total), take(&input.core, batch, total), take(&input.step, batch, total), take(&input.grad, batch, total));
+            group.throughput(Throughput::Elements(batch as u64));
+            group.bench_function(BenchmarkId::new("neural-ort", format!("batch{batch}")), |b| {
+                b.iter(|| {
+                    let (theta0, mut state) = ort.initial(&obs, batch).expect("init");
+                    let mut out = theta0;
+                    for n in 0..iterations {
+                        let d = ort.propose(n, &core, batch, &mut state).expect("propose");
+                        out = ort.step(n, &step, &d, &grad, batch, &mut state).expect("step").update;
+                    }
+                    black_box(out)
+                })
+            });
+        }
     }
     group.finish();
 }
