@@ -88,8 +88,11 @@ fn lockstep(net: &NeuralNet, stats: &FeatureStats, ort: &mut OrtNetwork, energie
         let evals = evaluate(energies, &current);
         let core_in = core_rows(c, stats, &evals, &current, &(0..batch).map(|i| obs[i * 2 * c.residual_dim..(i + 1) * 2 * c.residual_dim].to_vec()).collect::<Vec<_>>()).expect("core rows");
         // The same states on both sides: copy Burn's into the ORT state.
-        let sync = |s: &lfit::model::network::State| OrtState { core: s.core.iter().map(flat).collect(), lambda: s.lambda.iter().map(flat).collect(), gamma: if ort_state_gamma(c) { s.gamma.iter().map(flat).collect() } else { Vec::new() } };
-        ort_state = sync(&state);
+        ort_state = OrtState {
+            core: state.core.iter().map(flat).collect(),
+            lambda: state.lambda.iter().map(flat).collect(),
+            gamma: if ort_state_gamma(c) { state.gamma.iter().map(flat).collect() } else { Vec::new() },
+        };
         let delta = net.propose(n, rows(&core_in, batch), &mut state, &mut Dropout::off());
         let delta_ort = ort.propose(n, &core_in, batch, &mut ort_state).expect("ort propose");
         worst = worst.max(assert_close(&format!("Δθ of iteration {n}"), &flat(&delta), &delta_ort, STEP_TOLERANCE));
@@ -382,7 +385,7 @@ fn the_python_example_runs_the_exported_step_as_burn_does() {
         let obs = observation_rows(c, stats, &[energy]).expect("obs").concat();
         let (theta0, mut state) = net.initial(rows(&obs, 1));
         let evals = evaluate(&[energy], &[pose]);
-        let core_in = core_rows(c, stats, &evals, &[pose], &[obs.clone()]).expect("core");
+        let core_in = core_rows(c, stats, &evals, &[pose], std::slice::from_ref(&obs)).expect("core");
         let delta = net.propose(0, rows(&core_in, 1), &mut state, &mut Dropout::off()) * rows(&free, 1);
         let grad = poses_to_tensor(&[evals[0].1], &ndarray_device()) * rows(&free, 1);
         let delta_host = rows_to_poses(&flat(&delta));

@@ -60,7 +60,7 @@ impl std::str::FromStr for Runtime {
 /// The network of a fitter, in Burn or in ONNX Runtime sessions.
 #[derive(Debug)]
 pub enum Engine {
-    Burn { net: NeuralNet, device: Device },
+    Burn { net: Box<NeuralNet>, device: Device },
     /// Sessions need exclusive access to run; frames of one batch share one call.
     Ort(Mutex<onnx::runtime::OrtNetwork>),
 }
@@ -88,7 +88,7 @@ impl NeuralFitter {
     /// A loaded checkpoint on `device` (Burn).
     pub fn from_checkpoint(checkpoint: Checkpoint, dir: &Path, device: &Device, start: Start) -> Self {
         let Checkpoint { meta, stats, net, .. } = checkpoint;
-        Self { meta, stats, engine: Engine::Burn { net, device: device.clone() }, dir: dir.to_path_buf(), start }
+        Self { meta, stats, engine: Engine::Burn { net: Box::new(net), device: device.clone() }, dir: dir.to_path_buf(), start }
     }
 
     /// The fitter with its network in ONNX Runtime: `dir` is a checkpoint (exported to ONNX in
@@ -109,7 +109,7 @@ impl NeuralFitter {
     /// The Burn network, if this fitter runs on Burn.
     pub fn burn_net(&self) -> Option<&NeuralNet> {
         match &self.engine {
-            Engine::Burn { net, .. } => Some(net),
+            Engine::Burn { net, .. } => Some(net.as_ref()),
             Engine::Ort(_) => None,
         }
     }
