@@ -62,7 +62,7 @@ impl std::str::FromStr for Runtime {
 pub enum Engine {
     Burn { net: Box<NeuralNet>, device: Device },
     /// Sessions need exclusive access to run; frames of one batch share one call.
-    Ort(Mutex<onnx::runtime::OrtNetwork>),
+    Ort(Box<Mutex<onnx::runtime::OrtNetwork>>),
 }
 
 /// A trained fitter.
@@ -95,15 +95,14 @@ impl NeuralFitter {
     /// memory) or a directory written by `lfit export-onnx`.
     pub fn load_ort(dir: &Path, start: Start, options: onnx::runtime::SessionOptions) -> Result<Self, onnx::OnnxError> {
         let network = if dir.join(checkpoint::CONFIG_FILE).is_file() {
-            let ckpt = checkpoint::load(dir, &lfit_model::tensor::ndarray_device()).map_err(|e| onnx::OnnxError::Io(e.to_string()))?;
-            let exported = onnx::export::export(&ckpt.net, &ckpt.meta, &ckpt.stats)?;
+            let (_, exported) = onnx::export::export_checkpoint(dir)?;
             onnx::runtime::OrtNetwork::from_exported(&exported, dir, options)?
         } else if dir.join("init.onnx").is_file() {
             onnx::runtime::OrtNetwork::load_dir(dir, options)?
         } else {
             return Err(onnx::OnnxError::model(dir, "neither a checkpoint (config.json) nor an lfit ONNX export (init.onnx)"));
         };
-        Ok(Self { meta: network.meta.clone(), stats: network.stats.clone(), engine: Engine::Ort(Mutex::new(network)), dir: dir.to_path_buf(), start })
+        Ok(Self { meta: network.meta.clone(), stats: network.stats.clone(), engine: Engine::Ort(Box::new(Mutex::new(network))), dir: dir.to_path_buf(), start })
     }
 
     /// The Burn network, if this fitter runs on Burn.

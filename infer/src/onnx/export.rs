@@ -10,9 +10,8 @@
 //! All inputs are the *normalised* features of [`lfit_model::network::features`] (the statistics
 //! are in the metadata), except `delta` (the masked output of `propose`) and `grad` (the raw,
 //! masked energy gradient). One iteration n of papers/002 Alg. 1 is: R(θ), g(θ) from the energy;
-//! `propose`; R(θ + Δθ) from the energy; `step`; θ ← clamp(θ + update). With per-step weights
-//! there is one `propose.s.onnx`/`step.s.onnx` per iteration. The Δθ-only rule has no `step`
-//! graph (update = Δθ).
+//! `propose`; R(θ + Δθ) from the energy; `step`; θ ← clamp(θ + update). The file list is
+//! [`graph_files`].
 //!
 //! The layer-normalized GRU (supp. eq. 12) is written out with `Gemm`, `LayerNormalization`,
 //! `Sigmoid`, `Tanh`, `Mul`, `Sub` and `Add`; Φ/Φh use `Gemm`, `BatchNormalization` (running
@@ -22,9 +21,9 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use lfit_model::network::checkpoint::{self, CheckpointMeta};
-use lfit_model::network::config::{CoreKind, UpdateRule};
+use lfit_model::network::config::UpdateRule;
 use lfit_model::network::features::FeatureStats;
-use lfit_model::network::NeuralNet;
+use lfit_model::network::{NetConfig, NeuralNet};
 use lfit_model::network::layers::{InitMlp, LnGruCell};
 use lfit_model::network::net::Core;
 use lfit_model::pose::{DofMask, POSE_DIM, dof_name};
@@ -41,9 +40,20 @@ pub struct Exported {
     pub files: Vec<(String, Vec<u8>)>,
 }
 
-/// File of a role and weight set (`sets` weight sets in all).
-pub fn file_name(role: &str, set: usize, sets: usize) -> String {
-    if sets > 1 { format!("{role}.{set}.onnx") } else { format!("{role}.onnx") }
+/// The graphs of a network configuration as `(role, weight set, file name)`, init first:
+/// `init.onnx`, then per weight set `propose` and (with a λ/γ network) `step`, numbered
+/// `propose.s.onnx` when there are several sets.
+pub fn graph_files(c: &NetConfig) -> Vec<(&'static str, usize, String)> {
+    let sets = c.weight_sets();
+    let name = |role: &str, s: usize| if sets > 1 { format!("{role}.{s}.onnx") } else { format!("{role}.onnx") };
+    let mut files = vec![("init", 0, "init.onnx".to_string())];
+    for s in 0..sets {
+        files.push(("propose", s, name("propose", s)));
+        if c.has_step_network() {
+            files.push(("step", s, name("step", s)));
+        }
+    }
+    files
 }
 
 fn gru_cell(g: &mut Graph, x: &str, h: &str, cell: &LnGruCell, p: &str) -> Result<String, OnnxError> {
@@ -102,10 +112,6 @@ fn state_inputs(g: &mut Graph, prefix: &str, layers: usize, hidden: usize) -> Ve
     (0..layers).map(|l| g.input(&format!("{prefix}.{l}"), hidden, "GRU state of this layer (zeros before the first iteration of fλγ)")).collect()
 }
 
-fn gru_layers(net: &NeuralNet) -> usize {
-    if net.config.core == CoreKind::Gru { net.config.layers } else { 0 }
-}
-
 fn init_graph(net: &NeuralNet) -> Result<Graph, OnnxError> {
     let c = &net.config;
     let mut g = Graph::new("lfit_init");
@@ -135,7 +141,7 @@ fn propose_graph(net: &NeuralNet, set: usize) -> Result<Graph, OnnxError> {
     let c = &net.config;
     let mut g = Graph::new("lfit_propose");
     let x = g.input("core_in", c.core_inputs(), "normalised [R(θ), g(θ), θ, D]");
-    let states = state_inputs(&mut g, "h", gru_layers(net), c.hidden);
+    let states = state_inputs(&mut g, "h", c.recurrent_layers(), c.hidden);
     let (out, next) = core(&mut g, &x, &states, &net.cores[set], "f")?;
     let delta = g.linear(&out, &net.delta_heads[set], "delta_head")?;
     g.output(&delta, "delta", POSE_DIM, "Δθ (multiply by the DOF mask before using it)");
@@ -153,9 +159,9 @@ fn step_graph(net: &NeuralNet, set: usize) -> Result<Graph, OnnxError> {
     let x = g.input("step_in", c.step_inputs(), "normalised [R(θ), R(θ + Δθ)]");
     let delta = g.input("delta", POSE_DIM, "Δθ from propose, masked");
     let grad = g.input("grad", POSE_DIM, "energy gradient g(θ), raw, masked");
-    let layers = gru_layers(net);
+    let layers = c.recurrent_layers();
     let lambda_states = state_inputs(&mut g, "lambda_h", layers, c.hidden);
-    let separate = step.gamma_core.is_some();
+    let separate = c.separate_gamma_network();
     let gamma_states = if separate { state_inputs(&mut g, "gamma_h", layers, c.hidden) } else { Vec::new() };
 
     let (out, lambda_next) = core(&mut g, &x, &lambda_states, &step.lambda_core, "f_lambda")?;
@@ -292,16 +298,24 @@ pub fn export(net: &NeuralNet, meta: &CheckpointMeta, stats: &FeatureStats) -> R
     if meta.network != net.config {
         return Err(OnnxError::Export("the network does not match the checkpoint's config.json".into()));
     }
-    let c = &net.config;
-    let sets = c.weight_sets();
-    let mut files = vec![("init.onnx".to_string(), model(init_graph(net)?, metadata(meta, stats, "init", 0)?, "lfit neural fitter: θ0 = Φ(D), h0 = Φh(D) (papers/002 §3.5)"))];
-    for s in 0..sets {
-        files.push((file_name("propose", s, sets), model(propose_graph(net, s)?, metadata(meta, stats, "propose", s)?, "lfit neural fitter: Δθn, hn = f([R, g, θ, D], h(n−1)) (papers/002 Alg. 1)")));
-        if c.has_step_network() {
-            files.push((file_name("step", s, sets), model(step_graph(net, s)?, metadata(meta, stats, "step", s)?, "lfit neural fitter: λ, γ = fλγ(R(θ), R(θ + Δθ)) and the update u (papers/002 eq. 1–2)")));
-        }
+    let mut files = Vec::new();
+    for (role, s, name) in graph_files(&net.config) {
+        let (graph, doc) = match role {
+            "init" => (init_graph(net)?, "lfit neural fitter: θ0 = Φ(D), h0 = Φh(D) (papers/002 §3.5)"),
+            "propose" => (propose_graph(net, s)?, "lfit neural fitter: Δθn, hn = f([R, g, θ, D], h(n−1)) (papers/002 Alg. 1)"),
+            _ => (step_graph(net, s)?, "lfit neural fitter: λ, γ = fλγ(R(θ), R(θ + Δθ)) and the update u (papers/002 eq. 1–2)"),
+        };
+        files.push((name, model(graph, metadata(meta, stats, role, s)?, doc)));
     }
     Ok(Exported { files })
+}
+
+/// Loads the checkpoint in `dir` (on the ndarray backend) and exports it; returns its metadata
+/// with the graphs.
+pub fn export_checkpoint(dir: &Path) -> Result<(CheckpointMeta, Exported), OnnxError> {
+    let ckpt = checkpoint::load(dir, &lfit_model::tensor::ndarray_device()).map_err(|e| OnnxError::Io(e.to_string()))?;
+    let exported = export(&ckpt.net, &ckpt.meta, &ckpt.stats)?;
+    Ok((ckpt.meta, exported))
 }
 
 /// Writes the exported files into `dir` (created if missing); each file appears complete or not

@@ -9,7 +9,7 @@ use std::sync::OnceLock;
 use lfit_model::network::checkpoint::{self, CheckpointMeta};
 use lfit_model::network::features::FeatureStats;
 use lfit_model::network::unroll::{check_batch, constraint_rows, core_rows, evaluate, observation_rows, rows_to_poses, step_rows};
-use lfit_model::network::{Constraints, CoreKind};
+use lfit_model::network::Constraints;
 use lfit_model::pose::{POSE_DIM, Pose};
 use lfit_model::{Energy, ModelError};
 use ort::environment::Environment;
@@ -18,7 +18,7 @@ use ort::session::builder::GraphOptimizationLevel;
 use ort::value::Tensor;
 use prost::Message;
 
-use super::export::{Exported, file_name};
+use super::export::{Exported, graph_files};
 use super::proto::ModelProto;
 use super::{FORMAT, ORT_RELEASE, OnnxError, VERSION, keys};
 
@@ -78,6 +78,13 @@ pub fn graph_info(bytes: &[u8], origin: &Path) -> Result<GraphInfo, OnnxError> {
     Ok(GraphInfo { role: field(keys::ROLE)?, weight_set, checkpoint: field(keys::CHECKPOINT)?, stats: field(keys::FEATURE_STATS)? })
 }
 
+impl GraphInfo {
+    /// The checkpoint's `config.json` carried in the metadata (`origin` names the file).
+    pub fn meta(&self, origin: &Path) -> Result<CheckpointMeta, OnnxError> {
+        serde_json::from_str(&self.checkpoint).map_err(|e| OnnxError::model(origin, format!("malformed {} metadata: {e}", keys::CHECKPOINT)))
+    }
+}
+
 /// The exported graphs of one checkpoint in ONNX Runtime sessions.
 #[derive(Debug)]
 pub struct OrtNetwork {
@@ -132,7 +139,7 @@ impl OrtNetwork {
             infos.push((name.clone(), graph_info(bytes, &origin.join(name))?));
         }
         let init_info = infos.iter().find(|(_, i)| i.role == "init").map(|(_, i)| i.clone()).ok_or_else(|| OnnxError::model(origin, "no init.onnx"))?;
-        let meta: CheckpointMeta = serde_json::from_str(&init_info.checkpoint).map_err(|e| OnnxError::model(&origin.join("init.onnx"), format!("malformed {} metadata: {e}", keys::CHECKPOINT)))?;
+        let meta = init_info.meta(&origin.join("init.onnx"))?;
         if meta.format != checkpoint::FORMAT || meta.version != checkpoint::VERSION {
             return Err(OnnxError::model(origin, format!("exported from checkpoint version {} of format '{}', this build reads {} version {}", meta.version, meta.format, checkpoint::FORMAT, checkpoint::VERSION)));
         }
@@ -144,27 +151,23 @@ impl OrtNetwork {
                 return Err(OnnxError::model(&origin.join(name), "exported from another checkpoint than init.onnx"));
             }
         }
-        let c = &meta.network;
-        let sets = c.weight_sets();
-        let find = |role: &str, s: usize| -> Result<&[u8], OnnxError> {
-            let name = if role == "init" { "init.onnx".to_string() } else { file_name(role, s, sets) };
-            exported
+        let (mut init, mut propose, mut step) = (None, Vec::new(), Vec::new());
+        for (role, s, name) in graph_files(&meta.network) {
+            let bytes = exported
                 .files
                 .iter()
                 .zip(&infos)
                 .find(|((n, _), (_, i))| *n == name && i.role == role && i.weight_set == s)
                 .map(|((_, b), _)| b.as_slice())
-                .ok_or_else(|| OnnxError::model(origin, format!("missing {name}")))
-        };
-        let init = session(find("init", 0)?, options)?;
-        let mut propose = Vec::new();
-        let mut step = Vec::new();
-        for s in 0..sets {
-            propose.push(session(find("propose", s)?, options)?);
-            if c.has_step_network() {
-                step.push(session(find("step", s)?, options)?);
+                .ok_or_else(|| OnnxError::model(origin, format!("missing {name}")))?;
+            let session = session(bytes, options)?;
+            match role {
+                "init" => init = Some(session),
+                "propose" => propose.push(session),
+                _ => step.push(session),
             }
         }
+        let init = init.ok_or_else(|| OnnxError::model(origin, "no init.onnx"))?;
         Ok(Self { meta, stats, init, propose, step })
     }
 
@@ -172,49 +175,31 @@ impl OrtNetwork {
     pub fn load_dir(dir: &Path, options: SessionOptions) -> Result<Self, OnnxError> {
         let init = dir.join("init.onnx");
         let bytes = std::fs::read(&init).map_err(|e| OnnxError::model(&init, format!("cannot read: {e}")))?;
-        let info = graph_info(&bytes, &init)?;
-        let meta: CheckpointMeta = serde_json::from_str(&info.checkpoint).map_err(|e| OnnxError::model(&init, format!("malformed {} metadata: {e}", keys::CHECKPOINT)))?;
-        let sets = meta.network.weight_sets();
+        let meta = graph_info(&bytes, &init)?.meta(&init)?;
         let mut files = vec![("init.onnx".to_string(), bytes)];
-        for s in 0..sets {
-            let mut roles = vec!["propose"];
-            if meta.network.has_step_network() {
-                roles.push("step");
-            }
-            for role in roles {
-                let name = file_name(role, s, sets);
-                let path = dir.join(&name);
-                files.push((name, std::fs::read(&path).map_err(|e| OnnxError::model(&path, format!("cannot read: {e}")))?));
-            }
+        for (_, _, name) in graph_files(&meta.network).into_iter().skip(1) {
+            let path = dir.join(&name);
+            files.push((name, std::fs::read(&path).map_err(|e| OnnxError::model(&path, format!("cannot read: {e}")))?));
         }
         Self::from_exported(&Exported { files }, dir, options)
     }
 
-    fn gru_layers(&self) -> usize {
-        if self.meta.network.core == CoreKind::Gru { self.meta.network.layers } else { 0 }
-    }
-
-    fn set(&self, n: usize) -> usize {
-        if self.meta.network.per_step_weights { n.min(self.propose.len() - 1) } else { 0 }
-    }
-
     /// θ0 = Φ(D) `[B, 57]` and the initial state, from normalised observations `[B, 2R]`.
     pub fn initial(&mut self, obs: &[f32], batch: usize) -> Result<(Vec<f32>, OrtState), OnnxError> {
-        let c = self.meta.network.clone();
-        let layers = self.gru_layers();
+        let c = &self.meta.network;
+        let layers = c.recurrent_layers();
         let inputs = vec![("obs".to_string(), tensor(obs, batch, c.obs_features())?)];
         let mut out = self.init.run(inputs).map_err(runtime)?;
         let theta0 = extract(&mut out, "theta0", batch * POSE_DIM)?;
         let core = (0..layers).map(|l| extract(&mut out, &format!("h0.{l}"), batch * c.hidden)).collect::<Result<Vec<_>, _>>()?;
         let zeros = || (0..layers).map(|_| vec![0.0f32; batch * c.hidden]).collect::<Vec<_>>();
-        let separate = !c.shared_lambda_gamma && c.learns_gamma();
-        Ok((theta0, OrtState { core, lambda: if c.has_step_network() { zeros() } else { Vec::new() }, gamma: if separate { zeros() } else { Vec::new() } }))
+        Ok((theta0, OrtState { core, lambda: if c.has_step_network() { zeros() } else { Vec::new() }, gamma: if c.separate_gamma_network() { zeros() } else { Vec::new() } }))
     }
 
     /// Δθ of iteration `n` from the normalised core inputs; updates the core state.
     pub fn propose(&mut self, n: usize, core_in: &[f32], batch: usize, state: &mut OrtState) -> Result<Vec<f32>, OnnxError> {
-        let c = self.meta.network.clone();
-        let s = self.set(n);
+        let c = &self.meta.network;
+        let s = c.weight_set(n);
         let mut inputs = vec![("core_in".to_string(), tensor(core_in, batch, c.core_inputs())?)];
         for (l, h) in state.core.iter().enumerate() {
             inputs.push((format!("h.{l}"), tensor(h, batch, c.hidden)?));
@@ -230,8 +215,8 @@ impl OrtNetwork {
     /// λ, γ and the update of iteration `n`; updates the λ/γ states. `delta` and `grad` are
     /// already masked.
     pub fn step(&mut self, n: usize, step_in: &[f32], delta: &[f32], grad: &[f32], batch: usize, state: &mut OrtState) -> Result<StepOut, OnnxError> {
-        let c = self.meta.network.clone();
-        let s = self.set(n);
+        let c = &self.meta.network;
+        let s = c.weight_set(n);
         let mut inputs = vec![
             ("step_in".to_string(), tensor(step_in, batch, c.step_inputs())?),
             ("delta".to_string(), tensor(delta, batch, POSE_DIM)?),

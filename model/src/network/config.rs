@@ -189,6 +189,21 @@ impl NetConfig {
         if self.per_step_weights { self.iterations } else { 1 }
     }
 
+    /// The weight set iteration `n` (0-based) uses.
+    pub fn weight_set(&self, n: usize) -> usize {
+        if self.per_step_weights { n.min(self.iterations - 1) } else { 0 }
+    }
+
+    /// Recurrent layers of each core: the GRU's layers, none for the residual MLP.
+    pub fn recurrent_layers(&self) -> usize {
+        if self.core == CoreKind::Gru { self.layers } else { 0 }
+    }
+
+    /// Whether γ has a core and head of its own (learned γ, not shared with λ).
+    pub fn separate_gamma_network(&self) -> bool {
+        self.learns_gamma() && !self.shared_lambda_gamma
+    }
+
     /// Rejects configurations the network cannot be built from, naming the field.
     pub fn validate(&self) -> Result<()> {
         let bad = |what: &str, why: String| Err(ModelError::Config(format!("network config: {what} {why}")));

@@ -111,7 +111,7 @@ impl NeuralNet {
             cores.push(Core::new(c, c.core_inputs(), &mut rng, device));
             delta_heads.push(xavier_linear(c.hidden, POSE_DIM, c.output_gain, &mut rng, device));
             if c.has_step_network() {
-                let shared = c.shared_lambda_gamma || !c.learns_gamma();
+                let shared = !c.separate_gamma_network();
                 let lambda_out = if shared && c.learns_gamma() { k + kg } else { k };
                 let lambda_core = Core::new(c, c.step_inputs(), &mut rng, device);
                 let lambda_head = xavier_linear(c.hidden, lambda_out, c.output_gain, &mut rng, device);
@@ -131,10 +131,6 @@ impl NeuralNet {
         self.num_params()
     }
 
-    fn set(&self, n: usize) -> usize {
-        if self.config.per_step_weights { n.min(self.cores.len() - 1) } else { 0 }
-    }
-
     /// θ0 = Φ(D) `[B, 57]` and the initial state (h0 = Φh(D) for `f`, zeros for `fλγ`).
     pub fn initial(&self, obs: Tensor<2>) -> (Tensor<2>, State) {
         let [batch, _] = obs.dims();
@@ -148,13 +144,13 @@ impl NeuralNet {
             }
             None => Vec::new(),
         };
-        let zeros = || if c.core == CoreKind::Gru { (0..c.layers).map(|_| Tensor::zeros([batch, c.hidden], &device)).collect() } else { Vec::new() };
+        let zeros = || (0..c.recurrent_layers()).map(|_| Tensor::zeros([batch, c.hidden], &device)).collect();
         (theta0, State { core, lambda: zeros(), gamma: zeros() })
     }
 
     /// Δθn `[B, 57]` from the core inputs `[R, g, θ, D]` (normalised) of iteration `n` (0-based).
     pub fn propose(&self, n: usize, inputs: Tensor<2>, state: &mut State, dropout: &mut Dropout<'_>) -> Tensor<2> {
-        let s = self.set(n);
+        let s = self.config.weight_set(n);
         let h = self.cores[s].forward(inputs, &mut state.core, dropout);
         self.delta_heads[s].forward(h)
     }
@@ -167,7 +163,7 @@ impl NeuralNet {
         if !c.has_step_network() {
             return StepSizes { lambda: None, gamma: None };
         }
-        let s = self.set(n);
+        let s = self.config.weight_set(n);
         let net = &self.steps[s];
         let (k, kg) = (c.step_outputs(), c.gamma_outputs());
         let out = net.lambda_head.forward(net.lambda_core.forward(inputs.clone(), &mut state.lambda, dropout));
