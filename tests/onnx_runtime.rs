@@ -26,7 +26,7 @@ use lfit::model::tensor::{ndarray_device, poses_to_tensor, tensor_to_rows};
 use lfit::model::{Energy, default_template, metrics::v2v_mm};
 use lfit::train::{Frames, base_energy, measure_stats, synth_frames};
 use prost::Message;
-use support::{assert_one_line_error, lfit, lfit_json, path_str};
+use support::{assert_one_line_error, lfit, lfit_json, path_str, skip_unless_required};
 
 const MODALITIES: [&str; 3] = ["markers", "keypoints2d", "hmd"];
 const STEP_TOLERANCE: f32 = 1e-4;
@@ -37,9 +37,7 @@ fn ort_ready() -> bool {
     if path.is_file() {
         return true;
     }
-    let required = std::env::var("CI").as_deref() == Ok("true") || std::env::var_os("LFIT_REQUIRE_ORT").is_some();
-    assert!(!required, "ONNX Runtime library missing at {} (CI must run the ONNX Runtime tests; scripts/test.sh fetches it)", path.display());
-    eprintln!("skipping: ONNX Runtime library not found at {} (run scripts/fetch-onnxruntime.sh or set ORT_DYLIB_PATH)", path.display());
+    skip_unless_required(&format!("ONNX Runtime library not found at {} (run scripts/fetch-onnxruntime.sh or set ORT_DYLIB_PATH)", path.display()), Some("LFIT_REQUIRE_ORT"));
     false
 }
 
@@ -91,7 +89,7 @@ fn lockstep(net: &NeuralNet, stats: &FeatureStats, ort: &mut OrtNetwork, energie
         ort_state = OrtState {
             core: state.core.iter().map(flat).collect(),
             lambda: state.lambda.iter().map(flat).collect(),
-            gamma: if ort_state_gamma(c) { state.gamma.iter().map(flat).collect() } else { Vec::new() },
+            gamma: if c.separate_gamma_network() { state.gamma.iter().map(flat).collect() } else { Vec::new() },
         };
         let delta = net.propose(n, rows(&core_in, batch), &mut state, &mut Dropout::off());
         let delta_ort = ort.propose(n, &core_in, batch, &mut ort_state).expect("ort propose");
@@ -126,10 +124,6 @@ fn lockstep(net: &NeuralNet, stats: &FeatureStats, ort: &mut OrtNetwork, energie
         }
     }
     worst
-}
-
-fn ort_state_gamma(c: &NetConfig) -> bool {
-    !c.shared_lambda_gamma && c.learns_gamma()
 }
 
 #[test]
@@ -360,9 +354,7 @@ fn python_ready() -> Option<String> {
     if ok {
         return Some(path);
     }
-    let required = std::env::var("CI").as_deref() == Ok("true") || std::env::var_os("LFIT_REQUIRE_ORT").is_some();
-    assert!(!required, "python3 cannot import onnxruntime (PYTHONPATH={path}); CI must run the Python example (scripts/fetch-onnxruntime.sh --python)");
-    eprintln!("skipping: python3 cannot import onnxruntime and numpy (PYTHONPATH={path}; run scripts/fetch-onnxruntime.sh --python)");
+    skip_unless_required(&format!("python3 cannot import onnxruntime and numpy (PYTHONPATH={path}; run scripts/fetch-onnxruntime.sh --python)"), Some("LFIT_REQUIRE_ORT"));
     None
 }
 

@@ -7,7 +7,7 @@ use std::collections::HashMap;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use support::{lfit_json, path_str};
+use support::{lfit_json, obj_vertices, path_str};
 
 /// A generic OBJ reader (tobj), as a downstream tool would load the file.
 fn load_obj(path: &std::path::Path) -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
@@ -16,19 +16,6 @@ fn load_obj(path: &std::path::Path) -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
     let v = mesh.positions.chunks(3).map(|p| [p[0] as f64, p[1] as f64, p[2] as f64]).collect();
     let f = mesh.indices.chunks(3).map(|f| [f[0] as usize, f[1] as usize, f[2] as usize]).collect();
     (v, f)
-}
-
-/// The `v` lines of an OBJ file in file order (the order the rig's weights index).
-fn file_vertices(path: &std::path::Path) -> Vec<[f64; 3]> {
-    std::fs::read_to_string(path)
-        .unwrap()
-        .lines()
-        .filter(|l| l.starts_with("v "))
-        .map(|l| {
-            let c: Vec<f64> = l.split_whitespace().skip(1).map(|x| x.parse().unwrap()).collect();
-            [c[0], c[1], c[2]]
-        })
-        .collect()
 }
 
 #[test]
@@ -40,7 +27,7 @@ fn exported_template_is_a_closed_manifold_with_18_joints_and_markers() {
     assert_eq!(vertices.len() as u64, summary["vertices"].as_u64().unwrap());
     // The template numbers its vertices in order of first use, so a reader that renumbers that
     // way (tobj) keeps the file order that rig.json's weights index.
-    let in_file = file_vertices(&out.join("template.obj"));
+    let in_file = obj_vertices(&out.join("template.obj"));
     assert_eq!(vertices.len(), in_file.len());
     assert!(vertices.iter().zip(&in_file).all(|(a, b)| (0..3).all(|k| (a[k] - b[k]).abs() < 1e-6)), "tobj sees the file's vertex order");
     assert!((3000..=8000).contains(&vertices.len()), "{} vertices", vertices.len());
@@ -149,7 +136,7 @@ fn posed_template_matches_an_independent_implementation_of_spec_3() {
     let tpl = dir.path().join("tpl");
     lfit_json(&["template", "export", "--out-dir", path_str(&tpl)]);
     let rig: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(tpl.join("rig.json")).unwrap()).unwrap();
-    let rest = file_vertices(&tpl.join("template.obj"));
+    let rest = obj_vertices(&tpl.join("template.obj"));
     let (_, rest_faces) = load_obj(&tpl.join("template.obj"));
     let mut rng = ChaCha8Rng::seed_from_u64(2024);
     let poses: Vec<Vec<f64>> = (0..4)
@@ -164,7 +151,7 @@ fn posed_template_matches_an_independent_implementation_of_spec_3() {
         let path = dir.path().join(format!("posed_{i:04}.obj"));
         let (_, faces) = load_obj(&path);
         assert_eq!(faces, rest_faces, "faces kept");
-        let posed = file_vertices(&path);
+        let posed = obj_vertices(&path);
         let expected = reference_pose(&rig, &rest, pose);
         let max = posed.iter().zip(&expected).map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).abs()).fold(0.0, f64::max)).fold(0.0, f64::max);
         assert!(max < 1e-5, "pose {i}: max deviation {max} m");
@@ -176,14 +163,14 @@ fn root_only_pose_moves_the_mesh_rigidly() {
     let dir = tempfile::tempdir().unwrap();
     let tpl = dir.path().join("tpl");
     lfit_json(&["template", "export", "--out-dir", path_str(&tpl)]);
-    let rest = file_vertices(&tpl.join("template.obj"));
+    let rest = obj_vertices(&tpl.join("template.obj"));
     let mut pose = vec![0.0; 57];
     pose[..6].copy_from_slice(&[0.3, -0.1, 0.7, 0.4, -1.1, 0.6]);
     let pose_file = dir.path().join("pose.json");
     std::fs::write(&pose_file, serde_json::json!({ "pose": pose }).to_string()).unwrap();
     let out = dir.path().join("posed.obj");
     lfit_json(&["template", "pose", "--pose", path_str(&pose_file), "--out", path_str(&out), "--template", path_str(&tpl)]);
-    let posed = file_vertices(&out);
+    let posed = obj_vertices(&out);
     // Rigid: every pairwise distance is kept, and the map is R (x − c_root) + c_root + t.
     let rig: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(tpl.join("rig.json")).unwrap()).unwrap();
     let c = [0, 1, 2].map(|k| rig["joints"][0]["rest_position"][k].as_f64().unwrap());
@@ -242,7 +229,7 @@ fn reloaded_template_equals_the_generated_one_and_any_vertex_order_is_kept() {
     let b = dir.path().join("b.obj");
     lfit_json(&["template", "pose", "--pose", path_str(&pose_file), "--out", path_str(&a), "--template", path_str(&tpl)]);
     lfit_json(&["template", "pose", "--pose", path_str(&pose_file), "--out", path_str(&b), "--template", path_str(&other)]);
-    let (a, mut b) = (file_vertices(&a), file_vertices(&b));
+    let (a, mut b) = (obj_vertices(&a), obj_vertices(&b));
     b.reverse();
     assert_eq!(a, b);
 }

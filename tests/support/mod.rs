@@ -28,6 +28,27 @@ pub fn assert_one_line_error(out: &Output, needle: &str) {
     assert!(lines[0].to_lowercase().contains(&needle.to_lowercase()), "'{needle}' not in: {}", lines[0]);
 }
 
+/// The `v` lines of an OBJ file, in file order.
+pub fn obj_vertices(path: &Path) -> Vec<[f64; 3]> {
+    std::fs::read_to_string(path)
+        .expect("readable OBJ")
+        .lines()
+        .filter(|l| l.starts_with("v "))
+        .map(|l| {
+            let c: Vec<f64> = l.split_whitespace().skip(1).map(|x| x.parse().expect("a number")).collect();
+            [c[0], c[1], c[2]]
+        })
+        .collect()
+}
+
+/// A test cannot run because a component is missing (`reason`): fails when `CI=true` or the
+/// environment variable `require` is set, since CI must run it; otherwise prints why it skips.
+pub fn skip_unless_required(reason: &str, require: Option<&str>) {
+    let required = std::env::var("CI").as_deref() == Ok("true") || require.is_some_and(|v| std::env::var_os(v).is_some());
+    assert!(!required, "required here but unavailable: {reason}");
+    eprintln!("skipping: {reason}");
+}
+
 pub fn path_str(p: &Path) -> &str {
     p.to_str().expect("utf-8 temp path")
 }
