@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use lfit_model::observe::{Modality, Sensor};
-use lfit_model::pose::{Pose, pose_from_slice};
+use lfit_model::pose::{POSE_DIM, Pose, pose_from_slice};
 use lfit_model::skinning::{SkinningMethod, pose_vertices_batch};
 use lfit_model::template::{Template, write_atomic, write_obj};
 use lfit_model::{BodyShape, build_template};
@@ -51,10 +51,9 @@ pub fn template_export(out_dir: &Path, shape: &str) -> Result<Value> {
 /// `lfit export-onnx`: the checkpoint's network as ONNX graphs in `out` (see
 /// `lfit_infer::onnx::export`); each file is written atomically.
 pub fn export_onnx(checkpoint_dir: &Path, out: &Path) -> Result<Value> {
-    let ckpt = lfit_model::network::checkpoint::load(checkpoint_dir, &lfit_model::tensor::ndarray_device())?;
-    let exported = lfit_infer::onnx::export::export(&ckpt.net, &ckpt.meta, &ckpt.stats)?;
+    let (meta, exported) = lfit_infer::onnx::export::export_checkpoint(checkpoint_dir)?;
     lfit_infer::onnx::export::write(out, &exported)?;
-    let c = &ckpt.meta.network;
+    let c = &meta.network;
     Ok(json!({
         "checkpoint": checkpoint_dir,
         "out": out,
@@ -70,15 +69,7 @@ pub fn export_onnx(checkpoint_dir: &Path, out: &Path) -> Result<Value> {
 pub fn read_pose_file(path: &Path) -> Result<Vec<Pose>> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     let value: Value = serde_json::from_str(&text).with_context(|| format!("malformed pose JSON {}", path.display()))?;
-    let parse = |v: &Value, what: &str| -> Result<Pose> {
-        let items = v.as_array().with_context(|| format!("{}: {what} is not an array of numbers", path.display()))?;
-        let numbers = items
-            .iter()
-            .enumerate()
-            .map(|(i, x)| x.as_f64().with_context(|| format!("{}: {what}[{i}] is not a number", path.display())))
-            .collect::<Result<Vec<f64>>>()?;
-        pose_from_slice(&numbers).with_context(|| format!("{}: {what}", path.display()))
-    };
+    let parse = |v: &Value, what: &str| pose_from_json(v, what, path);
     match (value.get("pose"), value.get("poses")) {
         (Some(p), None) => Ok(vec![parse(p, "pose")?]),
         (None, Some(Value::Array(list))) if !list.is_empty() => {
@@ -86,6 +77,17 @@ pub fn read_pose_file(path: &Path) -> Result<Vec<Pose>> {
         }
         _ => bail!("{}: expected {{\"pose\": [57 numbers]}} or {{\"poses\": [[57 numbers], ...]}}", path.display()),
     }
+}
+
+/// A pose from a JSON array of 57 finite numbers; errors name the file and `what` it is.
+pub fn pose_from_json(v: &Value, what: &str, path: &Path) -> Result<Pose> {
+    let items = v.as_array().with_context(|| format!("{}: {what} is missing or not an array of {POSE_DIM} numbers", path.display()))?;
+    let numbers = items
+        .iter()
+        .enumerate()
+        .map(|(i, x)| x.as_f64().with_context(|| format!("{}: {what}[{i}] is not a finite number: {x} is not a number", path.display())))
+        .collect::<Result<Vec<f64>>>()?;
+    pose_from_slice(&numbers).with_context(|| format!("{}: {what}", path.display()))
 }
 
 /// Output path of pose `i` of `n`: `out` itself for one pose, `stem_0000.obj`, ... for several.

@@ -41,7 +41,7 @@ use std::str::FromStr;
 
 use anyhow::{Context, Result, bail};
 use glam::{DQuat, DVec3, Vec3};
-use lfit_model::pose::{POSE_DIM, Pose, pose_from_slice, rot_offset};
+use lfit_model::pose::{POSE_DIM, Pose, rot_offset};
 use lfit_model::skinning::{SkinningMethod, pose_vertices_batch, vertex_normals};
 use lfit_model::template::{Template, write_atomic, write_obj};
 use lfit_synth::Dataset;
@@ -119,15 +119,7 @@ pub fn read_fitted_poses(path: &Path) -> Result<FittedPoses> {
             .get("frame")
             .and_then(Value::as_u64)
             .with_context(|| format!("{}: frames[{i}].frame is missing or not a non-negative integer", path.display()))?;
-        let numbers = row
-            .get("pose")
-            .and_then(Value::as_array)
-            .with_context(|| format!("{}: frames[{i}].pose is missing or not an array of {POSE_DIM} numbers", path.display()))?
-            .iter()
-            .enumerate()
-            .map(|(k, x)| x.as_f64().with_context(|| format!("{}: frames[{i}].pose[{k}] is not a finite number: {x}", path.display())))
-            .collect::<Result<Vec<f64>>>()?;
-        let pose = pose_from_slice(&numbers).with_context(|| format!("{}: frames[{i}] (frame {frame}) pose", path.display()))?;
+        let pose = crate::commands::pose_from_json(row.get("pose").unwrap_or(&Value::Null), &format!("frames[{i}].pose"), path)?;
         let frame = usize::try_from(frame).with_context(|| format!("{}: frames[{i}].frame {frame} is too large", path.display()))?;
         frames.push((i, frame, pose));
     }
