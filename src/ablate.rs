@@ -16,7 +16,7 @@ use anyhow::{Context, Result, bail};
 use lfit_fitters::FitRequest;
 use lfit_model::Template;
 use lfit_model::metrics::{ground_penetration_mm, mpjpe_mm, pa_mpjpe_mm, part_vertices, v2v_mm, v2v_subset_mm};
-use lfit_model::network::{CoreKind, GammaMode, NetConfig, StartMode, StepShape, UpdateRule};
+use lfit_nn::{CoreKind, GammaMode, NetConfig, StartMode, StepShape, UpdateRule};
 use lfit_model::observe::{Modality, Sensor};
 use lfit_model::pose::{Bounds, DofMask, POSE_DIM, Pose};
 use lfit_model::skeleton::{HEAD, L_HAND, R_HAND};
@@ -225,7 +225,7 @@ pub fn run(args: &AblateArgs, progress: &(dyn Fn(&str) + Sync)) -> Result<Value>
     let selected: Vec<&Variant> = VARIANTS.iter().filter(|v| args.only.is_empty() || args.only.iter().any(|o| o == v.name)).collect();
     // Every config is checked before any training starts.
     let configs: Vec<TrainConfig> = selected.iter().map(|v| variant_config(v, &args.size, args.seed)).collect::<Result<_>>()?;
-    let device = lfit_model::tensor::device_from_name(&args.device)?;
+    let device = lfit_nn::tensor::device_from_name(&args.device)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
     let size_file = args.out.join("size.json");
     let size_json = serde_json::to_vec_pretty(&json!({ "size": args.size, "seed": args.seed }))?;

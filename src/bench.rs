@@ -397,7 +397,7 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
     let mut fitters: Vec<Box<dyn Fitter>> = Vec::new();
     for (m, s) in &entries {
         if m == "neural" {
-            let device = lfit_model::tensor::device_from_name("flex")?;
+            let device = lfit_nn::tensor::device_from_name("flex")?;
             let dir = config.checkpoint.as_deref().context("checkpoint")?;
             fitters.push(Box::new(lfit_infer::NeuralFitter::load(dir, &device, config.neural_start()?)?));
         } else {

@@ -184,7 +184,7 @@ pub fn train(config_path: &Path, out: &Path, device: &str, resume: bool, steps: 
         config.seed = s;
     }
     config.validate()?;
-    let dev = lfit_model::tensor::device_from_name(device)?;
+    let dev = lfit_nn::tensor::device_from_name(device)?;
     let template = std::sync::Arc::new(load_template(None, "default")?);
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     let options = lfit_train::RunOptions { out: out.to_path_buf(), device_name: device.to_string(), resume, command };

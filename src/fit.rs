@@ -174,7 +174,7 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
                 if args.ort_threads.is_some() {
                     bail!("--ort-threads is only for --runtime ort");
                 }
-                let device = lfit_model::tensor::device_from_name(&args.device)?;
+                let device = lfit_nn::tensor::device_from_name(&args.device)?;
                 lfit_infer::NeuralFitter::load(dir, &device, start)?
             }
             lfit_infer::Runtime::Ort => lfit_infer::NeuralFitter::load_ort(dir, start, lfit_infer::onnx::runtime::SessionOptions { threads: args.ort_threads })?,

@@ -13,6 +13,7 @@ pub mod export;
 
 pub use lfit_fitters as fitters;
 pub use lfit_model as model;
+pub use lfit_nn as nn;
 pub use lfit_synth as synth;
 pub use lfit_infer as infer;
 pub use lfit_train as train;

@@ -17,12 +17,12 @@ use lfit::infer::onnx::export::export;
 use lfit::infer::onnx::proto::{ModelProto, StringStringEntryProto};
 use lfit::infer::onnx::runtime::{OrtNetwork, OrtState, SessionOptions, library_path};
 use lfit::infer::{NeuralFitter, Start};
-use lfit::model::network::checkpoint::{self, CheckpointMeta};
-use lfit::model::network::unroll::{core_rows, evaluate, observation_rows, rows_to_poses, step_rows};
-use lfit::model::network::{CoreKind, Dropout, FeatureStats, GammaMode, NetConfig, NeuralNet, StepShape, UpdateRule};
+use lfit::nn::checkpoint::{self, CheckpointMeta};
+use lfit::nn::unroll::{core_rows, evaluate, observation_rows, rows_to_poses, step_rows};
+use lfit::nn::{CoreKind, Dropout, FeatureStats, GammaMode, NetConfig, NeuralNet, StepShape, UpdateRule};
 use lfit::model::observe::{Modality, Sensor};
 use lfit::model::pose::{Bounds, DofMask, POSE_DIM};
-use lfit::model::tensor::{ndarray_device, poses_to_tensor, tensor_to_rows};
+use lfit::nn::tensor::{ndarray_device, poses_to_tensor, tensor_to_rows};
 use lfit::model::{Energy, default_template, metrics::v2v_mm};
 use lfit::train::{Frames, base_energy, measure_stats, synth_frames};
 use prost::Message;
@@ -390,7 +390,7 @@ fn the_python_example_runs_the_exported_step_as_burn_does() {
         }
 
         let sample = serde_json::json!({
-            "observation": lfit::model::network::observation_features(energy),
+            "observation": lfit::nn::observation_features(energy),
             "residual": evals[0].0,
             "gradient": evals[0].1.to_vec(),
             "pose": pose.to_vec(),

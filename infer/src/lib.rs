@@ -12,8 +12,8 @@ use std::time::Instant;
 
 use burn::tensor::Device;
 use lfit_fitters::{FitError, FitRequest, FitResult, Fitter};
-use lfit_model::network::checkpoint::{self, Checkpoint, CheckpointMeta};
-use lfit_model::network::{Constraints, Dropout, FeatureStats, NeuralNet, unroll};
+use lfit_nn::checkpoint::{self, Checkpoint, CheckpointMeta};
+use lfit_nn::{Constraints, Dropout, FeatureStats, NeuralNet, unroll};
 use lfit_model::pose::{Bounds, POSE_DIM, Pose};
 use lfit_model::{Energy, ModelError};
 

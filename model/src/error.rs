@@ -47,12 +47,14 @@ pub enum ModelError {
     Backend(String),
     #[error("{0}")]
     Config(String),
+    #[error("model file {path}: {reason}")]
+    ModelFile { path: PathBuf, reason: String },
     #[error("checkpoint {path}: {reason}")]
     Checkpoint { path: PathBuf, reason: String },
 }
 
 impl ModelError {
-    pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Self::Io { path: path.into(), source }
     }
 }

@@ -15,7 +15,7 @@ use crate::error::{ModelError, Result};
 use crate::pose::Pose;
 use crate::scan::{Mask, VoxelGrid, render_silhouettes};
 use crate::skeleton::{HEAD, L_HAND, R_HAND};
-use crate::skinning::{joint_transforms, posed_joints, skin_lbs_into, skin_lbs_subset, vertex_normals};
+use crate::skinning::{Posed, joint_transforms, posed_joints, skin_lbs_into, skin_lbs_subset, vertex_normals};
 use crate::template::Template;
 
 /// The observation modalities of SPEC §4.
@@ -208,7 +208,7 @@ impl Sensor {
     }
 
     /// As [`Sensor::predict_sparse`], from precomputed joint transforms.
-    pub fn predict_sparse_from(&self, template: &Template, transforms: &[DAffine3]) -> Option<SparsePrediction> {
+    pub fn predict_sparse_from(&self, template: &Template, transforms: &Posed) -> Option<SparsePrediction> {
         match self {
             Sensor::Markers { vertices, .. } => {
                 let pts = skin_lbs_subset(template, transforms, vertices);

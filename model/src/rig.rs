@@ -74,6 +74,11 @@ impl Rig {
     /// with one root first, finite rest positions, unique names, weights non-negative, finite,
     /// in range and summing to 1 ± [`WEIGHT_SUM_TOLERANCE`], markers on existing vertices.
     pub fn validate(&self, num_vertices: usize) -> Result<()> {
+        self.validate_with(num_vertices, MAX_INFLUENCES)
+    }
+
+    /// [`Rig::validate`] with another cap on influences per vertex (model files may have more).
+    pub fn validate_with(&self, num_vertices: usize, max_influences: usize) -> Result<()> {
         if self.joints.is_empty() {
             return Err(ModelError::Joint { index: 0, name: String::new(), reason: "the rig has no joints".into() });
         }
@@ -112,8 +117,8 @@ impl Rig {
             if list.is_empty() {
                 return Err(fail("no influences".into()));
             }
-            if list.len() > MAX_INFLUENCES {
-                return Err(fail(format!("{} influences, at most {MAX_INFLUENCES} allowed", list.len())));
+            if list.len() > max_influences {
+                return Err(fail(format!("{} influences, at most {max_influences} allowed", list.len())));
             }
             let mut sum = 0.0;
             for &(joint, w) in list {

@@ -11,7 +11,7 @@
 use glam::{Affine3A, DAffine3, DMat3, DQuat, DVec3, Mat3A, Vec3, Vec3A};
 use rayon::prelude::*;
 
-use crate::pose::{Pose, rot_offset};
+use crate::pose::rot_offset;
 use crate::template::Template;
 
 /// `R = exp([r]x)`, the rotation of axis-angle vector `r`.
@@ -30,30 +30,74 @@ pub enum SkinningMethod {
     DualQuaternion,
 }
 
-/// The affine maps `A_j` of every joint (world position of a rest-pose point carried by joint j),
-/// as `x ↦ W_j x + (A_parent(j)(c_j) − W_j c_j)`.
-pub fn joint_transforms(template: &Template, pose: &Pose) -> Vec<DAffine3> {
+/// A posed skeleton: the affine maps `A_j` of every joint (world position of a rest-pose point
+/// carried by joint j, `x ↦ W_j x + (A_parent(j)(c_j) − W_j c_j)`), the posed joint centres
+/// `A_j(c_j)`, and what the rest geometry of a morphable model needs ([`crate::morph`]): the rest
+/// joints `c(β, ψ)`, the coefficients `[β; ψ]` and the pose feature `R(θ) − I`.
+///
+/// Dereferences to the slice of `A_j`.
+#[derive(Debug, Clone)]
+pub struct Posed {
+    pub transforms: Vec<DAffine3>,
+    pub joints: Vec<DVec3>,
+    pub rest_joints: Vec<DVec3>,
+    pub coeffs: Vec<f64>,
+    pub pose_feature: Vec<f64>,
+}
+
+impl std::ops::Deref for Posed {
+    type Target = [DAffine3];
+    fn deref(&self) -> &[DAffine3] {
+        &self.transforms
+    }
+}
+
+impl Posed {
+    /// Rest position of vertex `v` for this parameter vector (`T(β, ψ) + P (R(θ) − I)`), f64.
+    #[inline]
+    pub fn rest_vertex(&self, template: &Template, v: usize) -> DVec3 {
+        template.morph.rest_vertex(v, template.vertices[v].as_dvec3(), &self.coeffs, &self.pose_feature)
+    }
+}
+
+/// Forward kinematics of SPEC §3/§3a for a parameter vector `params` laid out as
+/// [`Template::layout`]: translation, rotations, then β and ψ (missing trailing coefficients
+/// count as zero; the callers that read user input check lengths).
+pub fn joint_transforms(template: &Template, params: &[f64]) -> Posed {
     let rig = &template.rig;
-    let mut world_rot: Vec<DMat3> = Vec::with_capacity(rig.joints.len());
-    let mut transforms: Vec<DAffine3> = Vec::with_capacity(rig.joints.len());
-    let t = DVec3::new(pose[0], pose[1], pose[2]);
+    let nj = rig.joints.len();
+    let morph = &template.morph;
+    let k = morph.coefficients();
+    let mut coeffs = Vec::new();
+    if k > 0 {
+        coeffs = params.get(3 + 3 * nj..).unwrap_or(&[]).iter().copied().take(k).collect();
+        coeffs.resize(k, 0.0);
+    }
+    let base = template.joint_rest();
+    let rest_joints = morph.rest_joints(&base, &coeffs);
+    let pose_feature = if morph.posedirs.is_some() { crate::morph::pose_feature(params, nj) } else { Vec::new() };
+    let mut world_rot: Vec<DMat3> = Vec::with_capacity(nj);
+    let mut transforms: Vec<DAffine3> = Vec::with_capacity(nj);
+    let mut joints: Vec<DVec3> = Vec::with_capacity(nj);
+    let t = DVec3::new(params[0], params[1], params[2]);
     for (j, joint) in rig.joints.iter().enumerate() {
         let o = rot_offset(j);
-        let local = exp_map(DVec3::new(pose[o], pose[o + 1], pose[o + 2]));
-        let c = joint.rest();
+        let local = exp_map(DVec3::new(params[o], params[o + 1], params[o + 2]));
+        let c = rest_joints[j];
         let (w, anchor) = match joint.parent {
             None => (local, c + t),
             Some(p) => (world_rot[p] * local, transforms[p].transform_point3(c)),
         };
         world_rot.push(w);
         transforms.push(DAffine3 { matrix3: w, translation: anchor - w * c });
+        joints.push(anchor);
     }
-    transforms
+    Posed { transforms, joints, rest_joints, coeffs, pose_feature }
 }
 
 /// Posed joint positions `A_j(c_j)`.
-pub fn posed_joints(template: &Template, transforms: &[DAffine3]) -> Vec<DVec3> {
-    template.rig.joints.iter().zip(transforms).map(|(j, a)| a.transform_point3(j.rest())).collect()
+pub fn posed_joints(_template: &Template, posed: &Posed) -> Vec<DVec3> {
+    posed.joints.clone()
 }
 
 fn to_f32(transforms: &[DAffine3]) -> Vec<Affine3A> {
@@ -84,16 +128,32 @@ fn blend_vertex(template: &Template, a: &[Affine3A], v: usize, rest: Vec3A) -> V
     out
 }
 
-/// Linear blend skinning of every vertex into `out` (resized to the vertex count).
-pub fn skin_lbs_into(template: &Template, transforms: &[DAffine3], out: &mut Vec<Vec3>) {
-    let a = to_f32(transforms);
+/// Linear blend skinning of a morphable model's vertex, in f64 (its rest point depends on the
+/// parameters).
+#[inline]
+fn blend_vertex_f64(template: &Template, posed: &Posed, v: usize) -> DVec3 {
+    let rest = posed.rest_vertex(template, v);
+    template.rig.weights[v].iter().fold(DVec3::ZERO, |acc, &(j, w)| acc + w * posed.transforms[j].transform_point3(rest))
+}
+
+/// Linear blend skinning of every vertex into `out` (resized to the vertex count). A rigid
+/// template (no blend shapes) skins in f32 SIMD; a morphable one in f64.
+pub fn skin_lbs_into(template: &Template, posed: &Posed, out: &mut Vec<Vec3>) {
     out.clear();
-    out.extend(template.rest_a().enumerate().map(|(v, rest)| Vec3::from(blend_vertex(template, &a, v, rest))));
+    if !template.skins_in_f64() {
+        let a = to_f32(posed);
+        out.extend(template.rest_a().enumerate().map(|(v, rest)| Vec3::from(blend_vertex(template, &a, v, rest))));
+    } else {
+        out.extend((0..template.num_vertices()).map(|v| blend_vertex_f64(template, posed, v).as_vec3()));
+    }
 }
 
 /// Linear blend skinning of the listed vertices only (markers, hand tips, EDT samples).
-pub fn skin_lbs_subset(template: &Template, transforms: &[DAffine3], vertices: &[u32]) -> Vec<Vec3> {
-    let a = to_f32(transforms);
+pub fn skin_lbs_subset(template: &Template, posed: &Posed, vertices: &[u32]) -> Vec<Vec3> {
+    if template.skins_in_f64() {
+        return vertices.iter().map(|&v| blend_vertex_f64(template, posed, v as usize).as_vec3()).collect();
+    }
+    let a = to_f32(posed);
     vertices
         .iter()
         .map(|&v| Vec3::from(blend_vertex(template, &a, v as usize, Vec3A::from(template.vertices[v as usize]))))
@@ -110,20 +170,26 @@ fn dual_quat(a: &DAffine3) -> (DQuat, DQuat) {
 
 /// Dual-quaternion skinning of every vertex (blended with antipodality correction against the
 /// vertex's first influence).
-pub fn skin_dqs_into(template: &Template, transforms: &[DAffine3], out: &mut Vec<Vec3>) {
-    let dqs: Vec<(DQuat, DQuat)> = transforms.iter().map(dual_quat).collect();
+pub fn skin_dqs_into(template: &Template, posed: &Posed, out: &mut Vec<Vec3>) {
+    let dqs: Vec<(DQuat, DQuat)> = posed.iter().map(dual_quat).collect();
+    let rigid = template.morph.is_rigid();
     out.clear();
     out.extend(template.vertices.iter().enumerate().map(|(v, rest)| {
-        let joints = template.influence_joints[v];
-        let w = template.influence_weights[v];
-        let pivot = dqs[joints[0] as usize].0;
+        let rest = if rigid { rest.as_dvec3() } else { posed.rest_vertex(template, v) };
+        // The packed f32 weights (as before) unless the vertex has more than 4 influences.
+        let list: Vec<(usize, f64)> = if template.wide {
+            template.rig.weights[v].clone()
+        } else {
+            let (joints, w) = (template.influence_joints[v], template.influence_weights[v]);
+            (0..4).map(|k| (joints[k] as usize, f64::from(w[k]))).collect()
+        };
+        let pivot = dqs[list[0].0].0;
         let (mut real, mut dual) = (DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0), DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0));
-        for k in 0..4 {
-            let wk = f64::from(w[k]);
+        for &(j, wk) in &list {
             if wk == 0.0 {
                 continue;
             }
-            let (r, d) = dqs[joints[k] as usize];
+            let (r, d) = dqs[j];
             let s = if r.dot(pivot) < 0.0 { -wk } else { wk };
             real = real + r * s;
             dual = dual + d * s;
@@ -131,13 +197,13 @@ pub fn skin_dqs_into(template: &Template, transforms: &[DAffine3], out: &mut Vec
         let norm = real.length();
         let (real, dual) = (real / norm, dual / norm);
         let t = (dual * 2.0) * real.conjugate();
-        let p = real * rest.as_dvec3() + DVec3::new(t.x, t.y, t.z);
+        let p = real * rest + DVec3::new(t.x, t.y, t.z);
         p.as_vec3()
     }));
 }
 
-/// Posed vertices of one pose with the given method.
-pub fn pose_vertices(template: &Template, pose: &Pose, method: SkinningMethod) -> Vec<Vec3> {
+/// Posed vertices of one parameter vector with the given method.
+pub fn pose_vertices(template: &Template, pose: &[f64], method: SkinningMethod) -> Vec<Vec3> {
     let transforms = joint_transforms(template, pose);
     let mut out = Vec::with_capacity(template.num_vertices());
     match method {
@@ -148,8 +214,8 @@ pub fn pose_vertices(template: &Template, pose: &Pose, method: SkinningMethod) -
 }
 
 /// Posed vertices of many poses in parallel (rayon).
-pub fn pose_vertices_batch(template: &Template, poses: &[Pose], method: SkinningMethod) -> Vec<Vec<Vec3>> {
-    poses.par_iter().map(|p| pose_vertices(template, p, method)).collect()
+pub fn pose_vertices_batch<P: AsRef<[f64]> + Sync>(template: &Template, poses: &[P], method: SkinningMethod) -> Vec<Vec<Vec3>> {
+    poses.par_iter().map(|p| pose_vertices(template, p.as_ref(), method)).collect()
 }
 
 /// Area-weighted vertex normals of a posed mesh.
@@ -169,7 +235,7 @@ pub fn vertex_normals(vertices: &[Vec3], faces: &[[u32; 3]]) -> Vec<Vec3> {
 mod tests {
     use super::*;
     use crate::body::default_template;
-    use crate::pose::POSE_DIM;
+    use crate::pose::{POSE_DIM, Pose};
 
     fn test_pose() -> Pose {
         let mut p = [0.0; POSE_DIM];

@@ -1,11 +1,17 @@
-//! A template: triangle mesh (OBJ) + rig (JSON), validated on load, written atomically.
+//! A template (a model): triangle mesh + rig, and for a morphable model its blend shapes and
+//! joint regressor ([`Morph`]). Read from a directory (`template.obj` + `rig.json`) or from a
+//! model file in the SMPL-family `.npz` layout ([`crate::modelfile`]); validated on load, written
+//! atomically.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use glam::{DVec3, Vec3, Vec3A, Vec4};
 
 use crate::error::{ModelError, Result};
+use crate::layout::Layout;
+use crate::morph::Morph;
 use crate::rig::{JointIndex, MAX_INFLUENCES, Rig};
 use crate::skeleton::{self, NUM_JOINTS};
 
@@ -23,6 +29,12 @@ pub struct Template {
     /// Triangles, counter-clockwise seen from outside.
     pub faces: Vec<[u32; 3]>,
     pub rig: Rig,
+    /// Blend shapes, pose correctives and joint regressor ([`Morph::none`] for a rigid template).
+    pub morph: Arc<Morph>,
+    /// Joint limits, part labels, mirror map, joint map and provenance.
+    pub info: crate::info::ModelInfo,
+    /// Whether some vertex has more than 4 influences (then skinning runs in f64 on the rig's lists).
+    pub(crate) wide: bool,
     /// Packed influences for the skinning loops: joint indices and weights, zero-padded to 4.
     pub(crate) influence_joints: Vec<[u16; MAX_INFLUENCES]>,
     pub(crate) influence_weights: Vec<Vec4>,
@@ -50,21 +62,86 @@ impl Template {
         if faces.is_empty() {
             return Err(ModelError::Face { face: 0, reason: "the mesh has no triangles".into() });
         }
-        rig.validate(vertices.len())?;
-        check_skeleton(&rig)?;
+        rig.validate_with(vertices.len(), crate::modelfile::MAX_FILE_INFLUENCES)?;
+        let wide = rig.weights.iter().any(|l| l.len() > MAX_INFLUENCES);
         let mut influence_joints = Vec::with_capacity(vertices.len());
         let mut influence_weights = Vec::with_capacity(vertices.len());
         for list in &rig.weights {
             let mut joints = [0u16; MAX_INFLUENCES];
             let mut weights = [0f32; MAX_INFLUENCES];
-            for (k, &(j, w)) in list.iter().enumerate() {
+            for (k, &(j, w)) in list.iter().take(MAX_INFLUENCES).enumerate() {
                 joints[k] = j as u16;
                 weights[k] = w as f32;
             }
             influence_joints.push(joints);
             influence_weights.push(Vec4::from_array(weights));
         }
-        Ok(Self { id: id.into(), vertices, faces, rig, influence_joints, influence_weights })
+        let info = crate::info::ModelInfo::fallback(&rig);
+        Ok(Self { id: id.into(), vertices, faces, rig, morph: Arc::new(Morph::none()), info, wide, influence_joints, influence_weights })
+    }
+
+    /// The same template with blend shapes and model information; checks their sizes.
+    pub fn with_morph(mut self, morph: Morph, info: crate::info::ModelInfo) -> Result<Self> {
+        let (v, j) = (self.vertices.len(), self.rig.num_joints());
+        let k = morph.coefficients();
+        let shape_err = |what: &str, expected: usize, got: usize| ModelError::Shape { what: what.into(), expected: expected.to_string(), got: got.to_string() };
+        if !morph.rest.is_empty() && morph.rest.len() != v {
+            return Err(shape_err("morph rest vertices", v, morph.rest.len()));
+        }
+        if morph.dirs.len() != 3 * v * k {
+            return Err(shape_err("shape/expression directions", 3 * v * k, morph.dirs.len()));
+        }
+        if let Some(pd) = &morph.posedirs
+            && pd.len() != 3 * v * 9 * (j - 1)
+        {
+            return Err(shape_err("pose correctives", 3 * v * 9 * (j - 1), pd.len()));
+        }
+        if let Some(r) = &morph.regressor
+            && (r.rows != j || r.cols != v)
+        {
+            return Err(ModelError::Shape { what: "J_regressor".into(), expected: format!("({j}, {v})"), got: format!("({}, {})", r.rows, r.cols) });
+        }
+        info.validate(j, v)?;
+        self.morph = Arc::new(morph);
+        self.info = info;
+        Ok(self)
+    }
+
+    /// Whether skinning runs in f64 on the rig's weight lists: a morphable model (its rest points
+    /// depend on the parameters) or one with more than 4 influences per vertex. Otherwise it runs
+    /// in f32 SIMD on the packed influences.
+    pub fn skins_in_f64(&self) -> bool {
+        self.wide || !self.morph.is_rigid()
+    }
+
+    /// The parameter layout: translation, one rotation per joint, β, ψ.
+    pub fn layout(&self) -> Layout {
+        Layout {
+            joints: self.rig.joints.iter().map(|j| j.name.clone()).collect(),
+            shape: self.morph.shape,
+            expression: self.morph.expression,
+        }
+    }
+
+    /// Whether this is the 18-joint skeleton of papers/000 (names and parents), rigid (no shape
+    /// or expression): the model every part of lfit supports.
+    pub fn is_default_skeleton(&self) -> bool {
+        check_skeleton(&self.rig).is_ok() && self.morph.coefficients() == 0 && self.morph.posedirs.is_none()
+    }
+
+    /// Refuses a model that is not [`Template::is_default_skeleton`], naming `what` needs it.
+    pub fn require_default_skeleton(&self, what: &str) -> Result<()> {
+        check_skeleton(&self.rig)?;
+        if self.morph.coefficients() > 0 || self.morph.posedirs.is_some() {
+            return Err(ModelError::Config(format!(
+                "{what} supports rigid 18-joint templates only so far; '{}' has {} shape, {} expression coefficients{}",
+                self.id,
+                self.morph.shape,
+                self.morph.expression,
+                if self.morph.posedirs.is_some() { " and pose correctives" } else { "" }
+            )));
+        }
+        Ok(())
     }
 
     pub fn num_vertices(&self) -> usize {
@@ -102,12 +179,22 @@ impl Template {
             .collect()
     }
 
+    /// Loads a model: a directory with `template.obj` + `rig.json`, or a model file in the
+    /// SMPL-family `.npz` layout ([`crate::modelfile`]). A pickled `.pkl` is refused with a hint.
+    pub fn load(path: &Path) -> Result<Self> {
+        if path.is_dir() {
+            return Self::load_dir(path);
+        }
+        crate::modelfile::load(path)
+    }
+
     /// Loads `template.obj` + `rig.json` from `dir`.
-    pub fn load(dir: &Path) -> Result<Self> {
+    pub fn load_dir(dir: &Path) -> Result<Self> {
         let obj_path = dir.join(OBJ_FILE);
         let rig_path = dir.join(RIG_FILE);
         let (vertices, faces) = read_obj(&obj_path)?;
         let rig = read_rig(&rig_path)?;
+        rig.validate(vertices.len())?;
         let id = dir.file_name().map_or_else(|| "custom".to_string(), |n| n.to_string_lossy().into_owned());
         Self::new(id, vertices, faces, rig)
     }
@@ -126,7 +213,7 @@ impl Template {
     }
 }
 
-/// The pose vector is defined for the 18-joint skeleton: another template must share its tree.
+/// The default skeleton's tree: 18 joints with its names' parents.
 fn check_skeleton(rig: &Rig) -> Result<()> {
     if rig.joints.len() != NUM_JOINTS {
         let index = rig.joints.len().min(NUM_JOINTS - 1);
@@ -134,7 +221,7 @@ fn check_skeleton(rig: &Rig) -> Result<()> {
         return Err(ModelError::Joint {
             index,
             name,
-            reason: format!("the rig has {} joints; lfit's pose vector needs the 18-joint skeleton of papers/000", rig.joints.len()),
+            reason: format!("the rig has {} joints; this needs the 18-joint skeleton of papers/000", rig.joints.len()),
         });
     }
     for (index, joint) in rig.joints.iter().enumerate() {

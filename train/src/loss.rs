@@ -1,5 +1,5 @@
 //! The per-step training loss of papers/002 supp. eq. (13)–(18), through the tensor FK + LBS of
-//! [`lfit_model::tensor`]:
+//! [`lfit_nn::tensor`]:
 //!
 //! ```text
 //! L   = Σ_{n=0..N} L_n                                           (13)
@@ -13,7 +13,7 @@
 
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use lfit_model::Template;
-use lfit_model::tensor::{SkinnedBatch, TensorSkinning, rodrigues};
+use lfit_nn::tensor::{SkinnedBatch, TensorSkinning, rodrigues};
 use serde::{Deserialize, Serialize};
 
 /// Loss weights (papers/002 supp. §6.2).

@@ -3,10 +3,10 @@
 
 use std::sync::{Arc, Mutex};
 
-use lfit_model::network::checkpoint;
-use lfit_model::network::{NetConfig, StartMode};
+use lfit_nn::checkpoint;
+use lfit_nn::{NetConfig, StartMode};
 use lfit_model::observe::Modality;
-use lfit_model::tensor::ndarray_device;
+use lfit_nn::tensor::ndarray_device;
 use lfit_model::{Template, default_template};
 use lfit_train::{Event, RunOptions, TrainConfig, TrainError, train};
 
@@ -135,7 +135,7 @@ fn bad_configs_are_one_line_errors() {
 fn tensor_loss_matches_a_cpu_computation() {
     use lfit_model::pose::{POSE_DIM, Pose};
     use lfit_model::skinning::{joint_transforms, posed_joints, skin_lbs_into};
-    use lfit_model::tensor::poses_to_tensor;
+    use lfit_nn::tensor::poses_to_tensor;
     use lfit_train::{Loss, LossWeights};
     use rand::{Rng, SeedableRng};
     let template = default_template();

@@ -7,7 +7,7 @@
 //! | `propose.onnx` | `core_in` `[B, R+114+2R]`, `h.l` | `delta` `[B, 57]`, `h_next.l` |
 //! | `step.onnx` | `step_in` `[B, 2R]`, `delta`, `grad` `[B, 57]`, `lambda_h.l`, `gamma_h.l` | `update` `[B, 57]`, `lambda`, `gamma`, `lambda_h_next.l`, `gamma_h_next.l` |
 //!
-//! All inputs are the *normalised* features of [`lfit_model::network::features`] (the statistics
+//! All inputs are the *normalised* features of [`lfit_nn::features`] (the statistics
 //! are in the metadata), except `delta` (the masked output of `propose`) and `grad` (the raw,
 //! masked energy gradient). One iteration n of papers/002 Alg. 1 is: R(θ), g(θ) from the energy;
 //! `propose`; R(θ + Δθ) from the energy; `step`; θ ← clamp(θ + update). The file list is
@@ -20,12 +20,12 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use lfit_model::network::checkpoint::{self, CheckpointMeta};
-use lfit_model::network::config::UpdateRule;
-use lfit_model::network::features::FeatureStats;
-use lfit_model::network::{NetConfig, NeuralNet};
-use lfit_model::network::layers::{InitMlp, LnGruCell};
-use lfit_model::network::net::Core;
+use lfit_nn::checkpoint::{self, CheckpointMeta};
+use lfit_nn::config::UpdateRule;
+use lfit_nn::features::FeatureStats;
+use lfit_nn::{NetConfig, NeuralNet};
+use lfit_nn::layers::{InitMlp, LnGruCell};
+use lfit_nn::net::Core;
 use lfit_model::pose::{DofMask, POSE_DIM, dof_name};
 use prost::Message;
 
@@ -313,7 +313,7 @@ pub fn export(net: &NeuralNet, meta: &CheckpointMeta, stats: &FeatureStats) -> R
 /// Loads the checkpoint in `dir` (on the ndarray backend) and exports it; returns its metadata
 /// with the graphs.
 pub fn export_checkpoint(dir: &Path) -> Result<(CheckpointMeta, Exported), OnnxError> {
-    let ckpt = checkpoint::load(dir, &lfit_model::tensor::ndarray_device()).map_err(|e| OnnxError::Io(e.to_string()))?;
+    let ckpt = checkpoint::load(dir, &lfit_nn::tensor::ndarray_device()).map_err(|e| OnnxError::Io(e.to_string()))?;
     let exported = export(&ckpt.net, &ckpt.meta, &ckpt.stats)?;
     Ok((ckpt.meta, exported))
 }

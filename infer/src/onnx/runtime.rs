@@ -1,15 +1,15 @@
 //! The fitting loop of papers/002 Alg. 1 with the network executed by ONNX Runtime (`ort`,
 //! `load-dynamic`): the energy side (residuals, gradients, features, masks, bounds) is the very
-//! code of the Burn loop ([`lfit_model::network::unroll`]'s helpers); only the three network
+//! code of the Burn loop ([`lfit_nn::unroll`]'s helpers); only the three network
 //! calls go to ONNX Runtime sessions of the graphs from [`super::export`].
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use lfit_model::network::checkpoint::{self, CheckpointMeta};
-use lfit_model::network::features::FeatureStats;
-use lfit_model::network::unroll::{check_batch, constraint_rows, core_rows, evaluate, observation_rows, rows_to_poses, step_rows};
-use lfit_model::network::Constraints;
+use lfit_nn::checkpoint::{self, CheckpointMeta};
+use lfit_nn::features::FeatureStats;
+use lfit_nn::unroll::{check_batch, constraint_rows, core_rows, evaluate, observation_rows, rows_to_poses, step_rows};
+use lfit_nn::Constraints;
 use lfit_model::pose::{POSE_DIM, Pose};
 use lfit_model::{Energy, ModelError};
 use ort::environment::Environment;
@@ -261,7 +261,7 @@ fn extract(out: &mut ort::session::SessionOutputs<'_>, name: &str, len: usize) -
 }
 
 /// Runs N iterations through ONNX Runtime on `energies`, exactly as
-/// [`lfit_model::network::unroll`] does through Burn; returns θ0 … θN per frame (`[N + 1][B]`).
+/// [`lfit_nn::unroll`] does through Burn; returns θ0 … θN per frame (`[N + 1][B]`).
 pub fn unroll_ort(net: &mut OrtNetwork, energies: &[&Energy], starts: &[Option<Pose>], constraints: Option<&Constraints>) -> Result<Vec<Vec<Pose>>, OnnxError> {
     let model = |e: ModelError| OnnxError::Runtime(e.to_string());
     let c = net.meta.network.clone();

@@ -15,7 +15,7 @@
 use glam::{DAffine3, DMat3, DVec3};
 
 use crate::pose::{POSE_DIM, Pose, rot_offset};
-use crate::skinning::{joint_transforms, posed_joints};
+use crate::skinning::joint_transforms;
 use crate::template::Template;
 
 /// `[v]×`, the matrix of `x ↦ v × x`.
@@ -60,8 +60,9 @@ impl Kinematics {
     /// The posed skeleton; `factors` (needed only for gradients) is left empty unless
     /// `with_factors`.
     pub fn build(template: &Template, pose: &Pose, with_factors: bool) -> Self {
-        let transforms = joint_transforms(template, pose);
-        let joints = posed_joints(template, &transforms);
+        let posed = joint_transforms(template, pose);
+        let joints = posed.joints.clone();
+        let transforms = posed.transforms;
         let factors = if with_factors {
             template
                 .rig

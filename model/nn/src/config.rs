@@ -6,9 +6,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{ModelError, Result};
-use crate::observe::Modality;
-use crate::pose::POSE_DIM;
+use lfit_model::error::{ModelError, Result};
+use lfit_model::observe::Modality;
+use lfit_model::pose::POSE_DIM;
 
 /// The recurrent core `f` (and `fλγ`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -11,12 +11,12 @@ use burn::store::{BurnpackStore, ModuleSnapshot};
 use burn::tensor::{Bytes, Device};
 use serde::{Deserialize, Serialize};
 
-use super::config::NetConfig;
-use super::features::FeatureStats;
-use super::net::NeuralNet;
-use crate::error::{ModelError, Result};
-use crate::observe::Modality;
-use crate::template::Template;
+use crate::config::NetConfig;
+use crate::features::FeatureStats;
+use crate::net::NeuralNet;
+use lfit_model::error::{ModelError, Result};
+use lfit_model::observe::Modality;
+use lfit_model::template::Template;
 
 pub const FORMAT: &str = "lfit-checkpoint";
 pub const VERSION: u32 = 1;

@@ -9,17 +9,17 @@ use burn::tensor::{Device, Tensor, TensorData};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::checkpoint::{self, checkpoint_files, write_dir};
-use super::config::*;
-use super::features::{FeatureStats, Norm};
-use super::layers::{Dropout, LnGruCell};
-use super::net::NeuralNet;
-use super::unroll::unroll;
-use crate::energy::{Energy, EnergyConfig, Target};
-use crate::observe::{Modality, Sensor};
-use crate::pose::{POSE_DIM, Pose};
+use crate::checkpoint::{self, checkpoint_files, write_dir};
+use crate::config::*;
+use crate::features::{FeatureStats, Norm};
+use crate::layers::{Dropout, LnGruCell};
+use crate::net::NeuralNet;
+use crate::unroll::unroll;
+use lfit_model::energy::{Energy, EnergyConfig, Target};
+use lfit_model::observe::{Modality, Sensor};
+use lfit_model::pose::{POSE_DIM, Pose};
 use crate::tensor::ndarray_device;
-use crate::{Template, default_template};
+use lfit_model::{Template, default_template};
 
 fn vals(t: Tensor<1>) -> Vec<f64> {
     t.try_into_vec_as::<f32>().expect("read").into_iter().map(f64::from).collect()
@@ -187,7 +187,7 @@ fn eq1_update_is_lambda_delta_minus_gamma_grad() {
     let grad: Vec<f32> = (0..POSE_DIM).map(|i| 1.0 - i as f32 * 0.02).collect();
     let lambda: Vec<f32> = (0..POSE_DIM).map(|i| 0.5 + i as f32 * 0.01).collect();
     let gamma: Vec<f32> = (0..POSE_DIM).map(|i| 0.1 * i as f32).collect();
-    let sizes = super::net::StepSizes { lambda: Some(t(lambda.clone())), gamma: Some(t(gamma.clone())) };
+    let sizes = crate::net::StepSizes { lambda: Some(t(lambda.clone())), gamma: Some(t(gamma.clone())) };
     let u = net.update(t(delta.clone()), t(grad.clone()), &sizes).try_into_vec_as::<f32>().expect("read");
     for i in 0..POSE_DIM {
         let want = lambda[i] * delta[i] - gamma[i] * grad[i];
@@ -299,7 +299,7 @@ fn backends_agree_on_the_fitting_loop() {
     let config = small_config(Modality::Markers, dim);
     let reference = ndarray_device();
     let net = NeuralNet::new(&config, 8, &reference).expect("net");
-    let bytes = super::checkpoint::weights_bytes(&net).expect("bytes");
+    let bytes = crate::checkpoint::weights_bytes(&net).expect("bytes");
     let starts = [None, Some([0.02; POSE_DIM]), None];
     let want = unroll(&net, &unit_stats(dim), &refs, &starts, None, &reference, &mut Dropout::off()).expect("reference").host;
     let mut devices = vec![("flex".to_string(), device_from_name("flex").expect("flex"))];
@@ -311,7 +311,7 @@ fn backends_agree_on_the_fitting_loop() {
         }
     }
     for (name, device) in devices {
-        let other = super::checkpoint::net_from_bytes(&config, bytes.clone(), &device, std::path::Path::new("mem")).expect("load");
+        let other = crate::checkpoint::net_from_bytes(&config, bytes.clone(), &device, std::path::Path::new("mem")).expect("load");
         let got = unroll(&other, &unit_stats(dim), &refs, &starts, None, &device, &mut Dropout::off()).expect("unroll").host;
         for (n, (a, b)) in want.iter().zip(&got).enumerate() {
             for (pa, pb) in a.iter().zip(b) {

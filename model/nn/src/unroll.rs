@@ -5,13 +5,13 @@
 use burn::tensor::{Device, Tensor, TensorData};
 use rayon::prelude::*;
 
-use super::config::NetConfig;
-use super::features::{FeatureStats, observation_features};
-use super::layers::Dropout;
-use super::net::NeuralNet;
-use crate::energy::Energy;
-use crate::error::{ModelError, Result};
-use crate::pose::{Bounds, POSE_DIM, Pose};
+use crate::config::NetConfig;
+use crate::features::{FeatureStats, observation_features};
+use crate::layers::Dropout;
+use crate::net::NeuralNet;
+use lfit_model::energy::Energy;
+use lfit_model::error::{ModelError, Result};
+use lfit_model::pose::{Bounds, POSE_DIM, Pose};
 use crate::tensor::{poses_to_tensor, tensor_to_rows};
 
 /// Per-frame limits at inference: which DOFs may move and the box they stay in.

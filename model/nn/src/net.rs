@@ -7,7 +7,7 @@
 //! θn      = θ(n−1) + u(Δθn, g(n−1), λ, γ)
 //! ```
 //!
-//! This file holds the modules and the update rule; [`super::unroll`] runs the loop with the
+//! This file holds the modules and the update rule; [`crate::unroll`] runs the loop with the
 //! energy's residuals and gradients.
 
 use burn::module::Module;
@@ -17,10 +17,10 @@ use burn::tensor::{Device, Tensor};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use super::config::{CoreKind, NetConfig, UpdateRule};
-use super::layers::{Dropout, GruStack, InitMlp, ResidualMlp, xavier_linear};
-use crate::error::Result;
-use crate::pose::POSE_DIM;
+use crate::config::{CoreKind, NetConfig, UpdateRule};
+use crate::layers::{Dropout, GruStack, InitMlp, ResidualMlp, xavier_linear};
+use lfit_model::error::Result;
+use lfit_model::pose::POSE_DIM;
 
 /// A recurrent core (GRU stack) or a memoryless one (residual MLP); exactly one is set.
 #[derive(Module, Debug)]

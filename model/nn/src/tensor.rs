@@ -1,5 +1,5 @@
 //! Batched, differentiable forward kinematics and linear blend skinning as Burn tensors, exactly
-//! the formula of SPEC §3 that [`crate::skinning`] evaluates on the CPU:
+//! the formula of SPEC §3 that [`lfit_model::skinning`] evaluates on the CPU:
 //!
 //! ```text
 //! pose vector (57 numbers): [t_x, t_y, t_z, r_0 (3), ..., r_17 (3)]
@@ -20,9 +20,9 @@ use std::sync::OnceLock;
 use burn::tensor::{Device, DeviceKind, Tensor, TensorData};
 use glam::Vec3;
 
-use crate::error::{ModelError, Result};
-use crate::pose::Pose;
-use crate::template::Template;
+use lfit_model::error::{ModelError, Result};
+use lfit_model::pose::Pose;
+use lfit_model::template::Template;
 
 /// Added to `|r|^2` before the square root in [`rodrigues`], so that the angle, its gradient and
 /// the Rodrigues coefficients stay finite at `r = 0` (the angle there is `1e-6` rad, far below
@@ -324,7 +324,7 @@ pub fn poses_to_tensor(poses: &[Pose], device: &Device) -> Tensor<2> {
         .flat_map(|p| p.iter().map(|&v| v as f32))
         .collect();
     Tensor::from_data(
-        TensorData::new(values, [poses.len(), crate::pose::POSE_DIM]),
+        TensorData::new(values, [poses.len(), lfit_model::pose::POSE_DIM]),
         device,
     )
 }
@@ -451,8 +451,8 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     use super::*;
-    use crate::pose::{POSE_DIM, rot_offset};
-    use crate::skinning::{SkinningMethod, joint_transforms, pose_vertices, posed_joints};
+    use lfit_model::pose::{POSE_DIM, rot_offset};
+    use lfit_model::skinning::{SkinningMethod, joint_transforms, pose_vertices, posed_joints};
 
     fn random_pose(rng: &mut ChaCha8Rng) -> Pose {
         let mut pose = [0.0; POSE_DIM];
@@ -481,7 +481,7 @@ mod tests {
 
     /// Max |tensor - CPU| over joints and vertices of all poses.
     fn max_errors(device: &Device) -> (f32, f32) {
-        let template = crate::default_template();
+        let template = lfit_model::default_template();
         let skin = TensorSkinning::new(&template, device);
         let poses = test_poses();
         let out = skin.forward(poses_to_tensor(&poses, device));
@@ -543,7 +543,7 @@ mod tests {
 
     #[test]
     fn world_rotations_match_cpu() {
-        let template = crate::default_template();
+        let template = lfit_model::default_template();
         let device = device_from_name("flex").unwrap();
         let skin = TensorSkinning::new(&template, &device);
         let poses = test_poses();
@@ -681,7 +681,7 @@ mod tests {
 
     #[test]
     fn gradient_matches_finite_differences() {
-        let template = crate::default_template();
+        let template = lfit_model::default_template();
         let device = device_from_name("ndarray").unwrap().autodiff();
         let skin = TensorSkinning::new(&template, &device);
         let mut rng = ChaCha8Rng::seed_from_u64(11);

@@ -1,12 +1,16 @@
 //! The neural fitter of papers/002 (SPEC §7) as Burn modules: configuration and ablation
 //! switches, the layer-normalized GRU, the initializers, the update rule, the fitting loop and
-//! checkpoints.
+//! checkpoints; and FK + skinning as Burn tensors ([`tensor`]) for the training losses.
+//!
+//! The only lfit crate besides `train` and `infer` that compiles Burn: the body model, the
+//! observation models and the energy (`lfit-model`) do not.
 
 pub mod checkpoint;
 pub mod config;
 pub mod features;
 pub mod layers;
 pub mod net;
+pub mod tensor;
 pub mod unroll;
 
 pub use checkpoint::{Checkpoint, CheckpointMeta};

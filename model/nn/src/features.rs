@@ -4,9 +4,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::energy::{Energy, Target};
-use crate::error::{ModelError, Result};
-use crate::pose::POSE_DIM;
+use lfit_model::energy::{Energy, Target};
+use lfit_model::error::{ModelError, Result};
+use lfit_model::pose::POSE_DIM;
 
 /// Per-entry mean and standard deviation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
