@@ -12,17 +12,27 @@ use lfit_model::{BodyShape, build_template};
 use lfit_synth::{Dataset, NoiseConfig, Observations, PoseSource, Scenario, SynthConfig, synthesize};
 use serde_json::{Value, json};
 
-/// The template a command works on: a directory (`--template`), or the default body in a named
-/// proportion variant (`--shape`).
-pub fn load_template(dir: Option<&Path>, shape: &str) -> Result<Template> {
-    match dir {
-        Some(dir) => Template::load(dir).with_context(|| format!("template {}", dir.display())),
+/// The model a command works on: a template directory or a model file in the SMPL-family `.npz`
+/// layout (`--template`), or the default body in a named proportion variant (`--shape`).
+pub fn load_model(path: Option<&Path>, shape: &str) -> Result<Template> {
+    match path {
+        Some(path) => Template::load(path).with_context(|| format!("template {}", path.display())),
         None => {
             let body = BodyShape::named(shape).ok_or_else(|| lfit_synth::SynthError::UnknownShape(shape.to_string()))?;
             let id = if shape == "default" { "default".to_string() } else { format!("default+{shape}") };
             Ok(build_template(&body, &id)?)
         }
     }
+}
+
+/// [`load_model`] for the commands that work on the rigid 18-joint skeleton only so far
+/// (synthesis, fitting, training, benchmarks): another model is a one-line error.
+pub fn load_template(path: Option<&Path>, shape: &str) -> Result<Template> {
+    let template = load_model(path, shape)?;
+    if let Some(path) = path {
+        template.require_default_skeleton("this command").with_context(|| format!("template {}", path.display()))?;
+    }
+    Ok(template)
 }
 
 /// The `--shape` whose procedural template has id `id` (`default` or `default+<shape>`); `None`
@@ -34,12 +44,25 @@ pub fn shape_of_template_id(id: &str) -> Option<&str> {
     }
 }
 
-/// `lfit template export`: writes `template.obj` + `rig.json`.
-pub fn template_export(out_dir: &Path, shape: &str) -> Result<Value> {
-    let template = load_template(None, shape)?;
-    template.save(out_dir)?;
+/// Output format of `lfit template export`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum TemplateFormat {
+    /// `template.obj` + `rig.json` in a directory (SPEC §3).
+    Dir,
+    /// One model file in the SMPL-family `.npz` layout (SPEC §3a).
+    Npz,
+}
+
+/// `lfit template export`: writes `template.obj` + `rig.json` into `out`, or one `.npz` model file.
+pub fn template_export(out: &Path, shape: &str, format: TemplateFormat) -> Result<Value> {
+    let template = load_model(None, shape)?;
+    match format {
+        TemplateFormat::Dir => template.save(out)?,
+        TemplateFormat::Npz => lfit_model::modelfile::save(&template, out)?,
+    }
     Ok(json!({
-        "out_dir": out_dir,
+        "out": out,
+        "format": match format { TemplateFormat::Dir => "dir", TemplateFormat::Npz => "npz" },
         "template": template.id,
         "vertices": template.num_vertices(),
         "triangles": template.faces.len(),
@@ -100,9 +123,66 @@ pub fn numbered_path(out: &Path, i: usize, n: usize) -> PathBuf {
     out.with_file_name(format!("{stem}_{i:04}.{ext}"))
 }
 
+/// Reads a parameter file for `template`: `{"pose": [3 + 3J], "shape": [≤ B], "expression":
+/// [≤ E]}` or `{"poses": [[...], ...], "shapes": [[...], ...], "expressions": [[...], ...]}`
+/// (`shape`/`expression` optional, zero-padded to B/E; longer is an error). Returns full
+/// parameter vectors in the model's layout.
+pub fn read_params_file(path: &Path, template: &Template) -> Result<Vec<Vec<f64>>> {
+    let layout = template.layout();
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let value: Value = serde_json::from_str(&text).with_context(|| format!("malformed pose JSON {}", path.display()))?;
+    let pd = layout.pose_dim();
+    let numbers = |v: &Value, what: &str, len: Option<usize>, max: usize| -> Result<Vec<f64>> {
+        let items = v.as_array().with_context(|| format!("{}: {what} is not an array of numbers", path.display()))?;
+        let out = items
+            .iter()
+            .enumerate()
+            .map(|(i, x)| x.as_f64().filter(|x| x.is_finite()).with_context(|| format!("{}: {what}[{i}] is not a finite number: {x} is not a number", path.display())))
+            .collect::<Result<Vec<f64>>>()?;
+        if let Some(n) = len
+            && out.len() != n
+        {
+            bail!("{}: {what} has {} numbers, expected {n} (3 + 3 × {} joints of '{}')", path.display(), out.len(), layout.num_joints(), template.id);
+        }
+        if out.len() > max {
+            bail!("{}: {what} has {} numbers, but the model '{}' has only {max}", path.display(), out.len(), template.id);
+        }
+        Ok(out)
+    };
+    let one = |pose: &Value, shape: Option<&Value>, expr: Option<&Value>, suffix: &str| -> Result<Vec<f64>> {
+        let mut params = numbers(pose, &format!("pose{suffix}"), Some(pd), pd)?;
+        let mut block = |v: Option<&Value>, what: &str, n: usize| -> Result<()> {
+            let mut b = match v {
+                Some(v) => numbers(v, &format!("{what}{suffix}"), None, n)?,
+                None => Vec::new(),
+            };
+            b.resize(n, 0.0);
+            params.extend(b);
+            Ok(())
+        };
+        block(shape, "shape", layout.shape)?;
+        block(expr, "expression", layout.expression)?;
+        Ok(params)
+    };
+    match (value.get("pose"), value.get("poses")) {
+        (Some(p), None) => Ok(vec![one(p, value.get("shape"), value.get("expression"), "")?]),
+        (None, Some(Value::Array(list))) if !list.is_empty() => {
+            let nth = |key: &str, i: usize| -> Result<Option<&Value>> {
+                match value.get(key) {
+                    None => Ok(None),
+                    Some(Value::Array(rows)) if rows.len() == list.len() => Ok(Some(&rows[i])),
+                    Some(_) => bail!("{}: {key} must be a list with one entry per pose ({})", path.display(), list.len()),
+                }
+            };
+            list.iter().enumerate().map(|(i, p)| one(p, nth("shapes", i)?, nth("expressions", i)?, &format!("s[{i}]"))).collect()
+        }
+        _ => bail!("{}: expected {{\"pose\": [{pd} numbers]}} or {{\"poses\": [[{pd} numbers], ...]}}", path.display()),
+    }
+}
+
 /// `lfit template pose`: poses the template and writes one OBJ per pose (vertex order kept).
 pub fn template_pose(pose_file: &Path, out: &Path, template: &Template, method: SkinningMethod) -> Result<Value> {
-    let poses = read_pose_file(pose_file)?;
+    let poses = read_params_file(pose_file, template)?;
     let meshes = pose_vertices_batch(template, &poses, method);
     let mut written = Vec::with_capacity(meshes.len());
     for (i, vertices) in meshes.iter().enumerate() {

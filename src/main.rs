@@ -298,7 +298,8 @@ struct FitCmd {
 
 #[derive(clap::Args)]
 struct TemplateArg {
-    /// Template directory (template.obj + rig.json); default: the procedural template.
+    /// Template directory (template.obj + rig.json) or model file (SMPL-family .npz layout);
+    /// default: the procedural template.
     #[arg(long)]
     template: Option<PathBuf>,
     /// Body-proportion variant of the procedural template: default, tall, short, heavy, slim,
@@ -309,17 +310,27 @@ struct TemplateArg {
 
 #[derive(Subcommand)]
 enum TemplateCommand {
-    /// Write the procedural template as template.obj + rig.json.
+    /// Write the procedural template as template.obj + rig.json (--format dir) or as one model
+    /// file in the SMPL-family .npz layout (--format npz).
     Export {
-        /// Output directory (created if missing).
-        #[arg(long)]
-        out_dir: PathBuf,
+        /// Output directory (created if missing), for --format dir.
+        #[arg(long, required_unless_present = "out")]
+        out_dir: Option<PathBuf>,
+        /// Output .npz file, for --format npz.
+        #[arg(long, conflicts_with = "out_dir")]
+        out: Option<PathBuf>,
+        /// dir (template.obj + rig.json) or npz (SMPL-family model file: v_template, f, weights,
+        /// kintree_table, J_regressor, and lfit's joint names, limits, parts, markers).
+        #[arg(long, value_enum, default_value = "dir")]
+        format: commands::TemplateFormat,
         /// Body-proportion variant (default, tall, short, heavy, slim, long-legs, long-arms).
         #[arg(long, default_value = "default")]
         shape: String,
     },
-    /// Pose the template from {"pose": [57]} or {"poses": [[57], ...]} and write OBJ files
-    /// (several poses: OUT_0000.obj, OUT_0001.obj, ...).
+    /// Pose the template from {"pose": [3+3J], "shape": [B], "expression": [E]} or
+    /// {"poses": [[3+3J], ...], "shapes": [[B], ...]} (57 pose numbers on the default template;
+    /// shape and expression optional, zero-padded) and write OBJ files (several poses:
+    /// OUT_0000.obj, OUT_0001.obj, ...).
     Pose {
         /// Pose JSON file.
         #[arg(long)]
@@ -364,14 +375,22 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
     }
     match cli.command {
-        Command::Template(TemplateCommand::Export { out_dir, shape }) => commands::template_export(&out_dir, &shape),
+        Command::Template(TemplateCommand::Export { out_dir, out, format, shape }) => {
+            let path = match (format, out_dir, out) {
+                (commands::TemplateFormat::Dir, Some(dir), None) => dir,
+                (commands::TemplateFormat::Npz, None, Some(file)) => file,
+                (commands::TemplateFormat::Dir, _, _) => anyhow::bail!("--format dir writes a directory: give --out-dir DIR"),
+                (commands::TemplateFormat::Npz, _, _) => anyhow::bail!("--format npz writes one file: give --out FILE.npz"),
+            };
+            commands::template_export(&path, &shape, format)
+        }
         Command::Template(TemplateCommand::Pose { pose, out, skinning, template }) => {
             let method = match skinning.as_str() {
                 "lbs" => SkinningMethod::Linear,
                 "dqs" => SkinningMethod::DualQuaternion,
                 other => anyhow::bail!("unknown skinning '{other}' (expected lbs or dqs)"),
             };
-            let template = commands::load_template(template.template.as_deref(), &template.shape)?;
+            let template = commands::load_model(template.template.as_deref(), &template.shape)?;
             commands::template_pose(&pose, &out, &template, method)
         }
         Command::Synth { modality, scenario, frames, seed, out, source, noise, fps, motions, template } => {

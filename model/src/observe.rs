@@ -12,9 +12,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::camera::{Camera, DEFAULT_RING_SIZE, default_ring};
 use crate::error::{ModelError, Result};
-use crate::pose::Pose;
 use crate::scan::{Mask, VoxelGrid, render_silhouettes};
-use crate::skeleton::{HEAD, L_HAND, R_HAND};
+use crate::skeleton::{L_HAND, R_HAND};
 use crate::skinning::{Posed, joint_transforms, posed_joints, skin_lbs_into, skin_lbs_subset, vertex_normals};
 use crate::template::Template;
 
@@ -135,7 +134,7 @@ impl Sensor {
             },
             Modality::Keypoints2d => Sensor::Keypoints2d { cameras: default_ring(DEFAULT_RING_SIZE) },
             Modality::Hmd => Sensor::Hmd(HmdSetup {
-                offset: [0.0, 0.17, 0.09],
+                offset: template.info.hmd_offset,
                 visibility: HandVisibility::HalfSpace,
                 hand_tips: hand_tips(template),
             }),
@@ -202,7 +201,7 @@ impl Sensor {
     }
 
     /// Predicted observation of a sparse modality at `pose`. `None` for `scan`.
-    pub fn predict_sparse(&self, template: &Template, pose: &Pose) -> Option<SparsePrediction> {
+    pub fn predict_sparse(&self, template: &Template, pose: &[f64]) -> Option<SparsePrediction> {
         let transforms = joint_transforms(template, pose);
         self.predict_sparse_from(template, &transforms)
     }
@@ -234,14 +233,15 @@ impl Sensor {
                 Some(SparsePrediction { values, visible })
             }
             Sensor::Hmd(setup) => {
+                let [head, l_hand, r_hand] = template.hmd_joints().ok()?;
                 let joints = posed_joints(template, transforms);
-                let headset = headset_pose(setup, transforms[HEAD].matrix3, joints[HEAD]);
+                let headset = headset_pose(setup, transforms[head].matrix3, joints[head]);
                 let tips = skin_lbs_subset(template, transforms, &setup.hand_tips);
                 let mut values = Vec::with_capacity(HMD_DIM);
                 push_rigid(&mut values, &headset);
                 let mut visible = vec![true; 12];
                 let device_from_world = headset.inverse();
-                for hand in [L_HAND, R_HAND] {
+                for hand in [l_hand, r_hand] {
                     push_rigid(&mut values, &DAffine3 { matrix3: transforms[hand].matrix3, translation: joints[hand] });
                     let seen = match setup.visibility {
                         HandVisibility::Full => true,
@@ -262,7 +262,7 @@ impl Sensor {
 
     /// Predicted scan observation at `pose` (posed surface and silhouettes). `None` for sparse
     /// modalities.
-    pub fn predict_scan(&self, template: &Template, pose: &Pose) -> Option<ScanPrediction> {
+    pub fn predict_scan(&self, template: &Template, pose: &[f64]) -> Option<ScanPrediction> {
         let Sensor::Scan(setup) = self else { return None };
         let transforms = joint_transforms(template, pose);
         let mut vertices = Vec::new();
@@ -322,15 +322,32 @@ fn push_rigid(values: &mut Vec<f64>, a: &DAffine3) {
     values.extend(a.translation.to_array());
 }
 
-/// Hand-tip vertices (left, right): of the vertices dominated by each hand joint, the one
-/// furthest from that joint (the middle-finger tip).
+/// Hand-tip vertices (left, right): the model file's `hand_tips` when it names them; otherwise,
+/// of the vertices dominated by each hand joint (the model's joint mapped to the papers/000 hand)
+/// or a joint below it, the one furthest from that joint (the middle-finger tip). Vertex 0 when
+/// the model maps no hand.
 pub fn hand_tips(template: &Template) -> [u32; 2] {
+    if let Some(t) = template.info.hand_tips {
+        return t;
+    }
     let dominant = template.dominant_joint();
-    [L_HAND, R_HAND].map(|hand| {
-        let wrist = template.rig.joints[hand].rest();
+    let rig = &template.rig;
+    [L_HAND, R_HAND].map(|h| {
+        let Some(hand) = template.info.joint_map.get(h).copied().flatten() else { return 0 };
+        // Joints in the subtree of `hand` (parents precede children).
+        let mut inside = vec![false; rig.num_joints()];
+        inside[hand] = true;
+        for (j, joint) in rig.joints.iter().enumerate() {
+            if let Some(p) = joint.parent
+                && inside[p]
+            {
+                inside[j] = true;
+            }
+        }
+        let wrist = rig.joints[hand].rest();
         let mut best = (f64::MIN, 0u32);
         for (v, p) in template.vertices.iter().enumerate() {
-            if dominant[v] == hand {
+            if inside[dominant[v]] {
                 let d = (p.as_dvec3() - wrist).length();
                 if d > best.0 {
                     best = (d, v as u32);
@@ -397,7 +414,7 @@ mod tests {
     fn headset_looks_forward_at_rest() {
         let t = default_template();
         let Sensor::Hmd(setup) = Sensor::default_for(Modality::Hmd, &t) else { unreachable!() };
-        let h = headset_pose(&setup, DMat3::IDENTITY, t.rig.joints[HEAD].rest());
+        let h = headset_pose(&setup, DMat3::IDENTITY, t.rig.joints[crate::skeleton::HEAD].rest());
         let forward = h.matrix3 * DVec3::NEG_Z;
         assert!((forward - DVec3::Z).length() < 1e-12);
         // A point 1 m in front of the face has negative z in the headset frame.

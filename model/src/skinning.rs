@@ -73,8 +73,7 @@ pub fn joint_transforms(template: &Template, params: &[f64]) -> Posed {
         coeffs = params.get(3 + 3 * nj..).unwrap_or(&[]).iter().copied().take(k).collect();
         coeffs.resize(k, 0.0);
     }
-    let base = template.joint_rest();
-    let rest_joints = morph.rest_joints(&base, &coeffs);
+    let rest_joints = if coeffs.is_empty() { template.joint_rest() } else { morph.rest_joints(&template.joint_rest(), &coeffs) };
     let pose_feature = if morph.posedirs.is_some() { crate::morph::pose_feature(params, nj) } else { Vec::new() };
     let mut world_rot: Vec<DMat3> = Vec::with_capacity(nj);
     let mut transforms: Vec<DAffine3> = Vec::with_capacity(nj);

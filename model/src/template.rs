@@ -114,6 +114,22 @@ impl Template {
         self.wide || !self.morph.is_rigid()
     }
 
+    /// Head, left wrist and right wrist joints (the `hmd` modality's devices), through the joint
+    /// map to the papers/000 skeleton.
+    pub fn hmd_joints(&self) -> Result<[usize; 3]> {
+        let mut out = [0; 3];
+        for (o, j) in out.iter_mut().zip([skeleton::HEAD, skeleton::L_HAND, skeleton::R_HAND]) {
+            *o = self.info.joint_map.get(j).copied().flatten().ok_or_else(|| {
+                ModelError::Config(format!(
+                    "model '{}' maps no joint to the papers/000 '{}' that the hmd modality needs (lfit key 'joint_map')",
+                    self.id,
+                    skeleton::JOINT_NAMES[j]
+                ))
+            })?;
+        }
+        Ok(out)
+    }
+
     /// The parameter layout: translation, one rotation per joint, β, ψ.
     pub fn layout(&self) -> Layout {
         Layout {

@@ -10,12 +10,26 @@
 //! `(p − J_k) × ∂E/∂p` for points, `d × ∂E/∂d` for directions and the torque of rotations. The
 //! root translation moves every point by `δt`, so its gradient is the sum of all point forces.
 //! [`Adjoint`] accumulates forces and moments per joint and [`Adjoint::finish`] turns them into the
-//! 57-entry pose gradient in `O(joints)`.
+//! pose gradient in `O(joints)`.
+//!
+//! **Morphable models** (SPEC §3a). A point carried by joint j from rest point `x` is
+//! `p = W_j (x − c_j) + J_j` with `J_j = c_0 + t + Σ_{k ∈ chain(j), k ≠ 0} W_parent(k) (c_k − c_parent(k))`,
+//! so `∂p/∂x = W_j` and `∂p/∂c_k = W_parent(k) − W_k` for every k on the chain from the root
+//! (`W_parent(root) = I`). With `F_k` the force summed over the subtree of k, the gradient with
+//! respect to the rest joint `c_k` is `(W_parent(k) − W_k)ᵀ F_k` plus the rest-point gradients of
+//! points whose rest position *is* `c_k` (posed joints). Rest vertices collect `Σ_j w_j W_jᵀ g`.
+//! Both flow to `[β; ψ]` through the directions (`∂T_v/∂β` and `J_regressor ∂T/∂β`), and the rest
+//! vertices to the joint rotations through the pose correctives: `∂(R_j − I)` under
+//! `δr_j` is `[Jl(r_j) δr_j]× R_j`, so `∂E/∂r_j += Jl(r_j)ᵀ τ(R_j, G_j)` with `G_j` the gradient
+//! of the 9 feature entries of joint j ([`rotation_torque`]).
+
+use std::sync::Arc;
 
 use glam::{DAffine3, DMat3, DVec3};
 
-use crate::pose::{POSE_DIM, Pose, rot_offset};
-use crate::skinning::joint_transforms;
+use crate::morph::Morph;
+use crate::pose::rot_offset;
+use crate::skinning::{exp_map, joint_transforms};
 use crate::template::Template;
 
 /// `[v]×`, the matrix of `x ↦ v × x`.
@@ -48,20 +62,24 @@ pub(crate) fn rotation_torque(r: DMat3, g: DMat3) -> DVec3 {
 
 /// Posed skeleton in f64: the affine maps `A_j` of [`joint_transforms`] (whose linear parts are
 /// the world rotations `W_j`), the joint centres `J_j` and the Jacobian factors
-/// `W_parent(j) Jl(r_j)`.
+/// `W_parent(j) Jl(r_j)`; for a morphable model also what its rest geometry depends on.
 #[derive(Debug, Clone)]
 pub(crate) struct Kinematics {
     pub transforms: Vec<DAffine3>,
     pub joints: Vec<DVec3>,
     pub factors: Vec<DMat3>,
+    /// Rest joints `c(β, ψ)`.
+    pub rest_joints: Vec<DVec3>,
+    /// The morph, coefficients `[β; ψ]` and pose feature when the rest geometry moves.
+    pub morph: Option<(Arc<Morph>, Vec<f64>, Vec<f64>)>,
 }
 
 impl Kinematics {
     /// The posed skeleton; `factors` (needed only for gradients) is left empty unless
     /// `with_factors`.
-    pub fn build(template: &Template, pose: &Pose, with_factors: bool) -> Self {
+    pub fn build(template: &Template, pose: &[f64], with_factors: bool) -> Self {
         let posed = joint_transforms(template, pose);
-        let joints = posed.joints.clone();
+        let joints = posed.joints;
         let transforms = posed.transforms;
         let factors = if with_factors {
             template
@@ -78,7 +96,17 @@ impl Kinematics {
         } else {
             Vec::new()
         };
-        Self { transforms, joints, factors }
+        let morph = (!template.morph.is_rigid()).then(|| (template.morph.clone(), posed.coeffs, posed.pose_feature));
+        Self { transforms, joints, factors, rest_joints: posed.rest_joints, morph }
+    }
+
+    /// Rest position of vertex `v`: the table's (rigid model) or `T(β, ψ) + P (R(θ) − I)`.
+    #[inline]
+    pub fn rest(&self, table: &[DVec3], v: usize) -> DVec3 {
+        match &self.morph {
+            None => table[v],
+            Some((m, c, f)) => m.rest_vertex(v, table[v], c, f),
+        }
     }
 
     /// World rotation `W_j` of joint `j`.
@@ -108,35 +136,58 @@ impl Kinematics {
     }
 }
 
-/// Per-joint forces and moments of the reverse pass.
+/// Per-joint forces and moments of the reverse pass; for a morphable model also the gradients
+/// of the rest joints and of the rest vertices.
 #[derive(Debug, Clone)]
 pub(crate) struct Adjoint {
     force: Vec<DVec3>,
     moment: Vec<DVec3>,
+    /// `∂E/∂c_k` from points whose rest position is a joint centre (posed joints, joint-carried
+    /// offsets); the chain part is added in [`Adjoint::finish`].
+    joint_rest: Vec<DVec3>,
+    /// `(v, ∂E/∂T_P,v)`, only when the rest geometry moves.
+    rest: Option<Vec<(u32, DVec3)>>,
 }
 
 impl Adjoint {
-    pub fn new(joints: usize) -> Self {
-        Self { force: vec![DVec3::ZERO; joints], moment: vec![DVec3::ZERO; joints] }
+    pub fn new(joints: usize, morphable: bool) -> Self {
+        Self { force: vec![DVec3::ZERO; joints], moment: vec![DVec3::ZERO; joints], joint_rest: vec![DVec3::ZERO; joints], rest: morphable.then(Vec::new) }
     }
 
-    /// A point `p` (world position) carried by `joint` with weight `w` and gradient `g`.
+    /// A point `p` (world position) carried by `joint` with weight `w` and gradient `g`, whose
+    /// rest position does not depend on the parameters.
     #[inline]
     pub fn point(&mut self, joint: usize, p: DVec3, g: DVec3, w: f64) {
         self.force[joint] += w * g;
         self.moment[joint] += w * p.cross(g);
     }
 
-    /// A skinned rest point `x` with gradient `g` of its posed position.
+    /// A point carried by `joint` whose rest position is `c_joint` plus a constant offset (the
+    /// posed joint centre itself, a headset, a segment ellipsoid's centre).
     #[inline]
-    pub fn skinned_point(&mut self, kin: &Kinematics, weights: &[(u16, f64)], x: DVec3, g: DVec3) {
+    pub fn joint_point(&mut self, kin: &Kinematics, joint: usize, p: DVec3, g: DVec3) {
+        self.point(joint, p, g, 1.0);
+        self.joint_rest[joint] += kin.world(joint).transpose() * g;
+    }
+
+    /// Skinned rest vertex `v` (rest point `x`) with gradient `g` of its posed position.
+    #[inline]
+    pub fn skinned_point(&mut self, kin: &Kinematics, weights: &[(u16, f64)], v: usize, x: DVec3, g: DVec3) {
+        let mut rest_g = DVec3::ZERO;
         for &(j, w) in weights {
             let j = j as usize;
             self.point(j, kin.transforms[j].transform_point3(x), g, w);
+            if self.rest.is_some() {
+                rest_g += w * (kin.world(j).transpose() * g);
+            }
+        }
+        if let Some(r) = &mut self.rest {
+            r.push((v as u32, rest_g));
         }
     }
 
-    /// A skinned rest direction `d` with gradient `g` of its (unnormalised) posed direction.
+    /// A skinned rest direction `d` with gradient `g` of its (unnormalised) posed direction. Rest
+    /// directions (normals) are those of the β = ψ = 0 mesh, constant in the joint frames.
     #[inline]
     pub fn skinned_direction(&mut self, kin: &Kinematics, weights: &[(u16, f64)], d: DVec3, g: DVec3) {
         for &(j, w) in weights {
@@ -151,22 +202,87 @@ impl Adjoint {
         self.moment[joint] += tau;
     }
 
-    /// The pose gradient: subtree sums, moments about each joint centre, then the exp-map factor.
-    pub fn finish(mut self, template: &Template, kin: &Kinematics) -> Pose {
-        let mut grad = [0.0; POSE_DIM];
+    /// The gradient over the whole parameter vector (`3 + 3J + B + E` entries): subtree sums,
+    /// moments about each joint centre, the exp-map factor; then rest joints and rest vertices
+    /// through the directions and the pose correctives.
+    pub fn finish(mut self, template: &Template, kin: &Kinematics, pose: &[f64]) -> Vec<f64> {
+        let nj = template.rig.joints.len();
+        let morph = &template.morph;
+        let k = morph.coefficients();
+        let mut grad = vec![0.0; 3 + 3 * nj + k];
+        let track_joints = k > 0 && !morph.joint_dirs.is_empty();
         // Parents precede children, so a backward sweep accumulates whole subtrees.
-        for j in (0..template.rig.joints.len()).rev() {
+        for j in (0..nj).rev() {
             let m = self.moment[j] - kin.joints[j].cross(self.force[j]);
             let g = kin.factors[j].transpose() * m;
             let o = rot_offset(j);
             grad[o..o + 3].copy_from_slice(&g.to_array());
-            if let Some(p) = template.rig.joints[j].parent {
+            let parent = template.rig.joints[j].parent;
+            if track_joints {
+                let wp = parent.map_or(DMat3::IDENTITY, |p| kin.world(p));
+                self.joint_rest[j] += (wp - kin.world(j)).transpose() * self.force[j];
+            }
+            if let Some(p) = parent {
                 let (f, mo) = (self.force[j], self.moment[j]);
                 self.force[p] += f;
                 self.moment[p] += mo;
             }
         }
         grad[0..3].copy_from_slice(&self.force[0].to_array());
+        let Some((m, coeffs, feature)) = &kin.morph else { return grad };
+        let rest = self.rest.take().unwrap_or_default();
+        let base = 3 + 3 * nj;
+        if k > 0 {
+            let gc = &mut grad[base..base + k];
+            for &(v, g) in &rest {
+                let v = v as usize;
+                for a in 0..3 {
+                    if g[a] != 0.0 {
+                        for (o, d) in gc.iter_mut().zip(&m.dirs[(3 * v + a) * k..(3 * v + a + 1) * k]) {
+                            *o += g[a] * d;
+                        }
+                    }
+                }
+            }
+            if track_joints {
+                for (j, g) in self.joint_rest.iter().enumerate() {
+                    for a in 0..3 {
+                        for (o, d) in gc.iter_mut().zip(&m.joint_dirs[(3 * j + a) * k..(3 * j + a + 1) * k]) {
+                            *o += g[a] * d;
+                        }
+                    }
+                }
+            }
+        }
+        let _ = coeffs;
+        if let Some(pd) = &m.posedirs
+            && !feature.is_empty()
+        {
+            let n = feature.len();
+            let mut gf = vec![0.0; n];
+            for &(v, g) in &rest {
+                let v = v as usize;
+                for a in 0..3 {
+                    if g[a] != 0.0 {
+                        for (o, d) in gf.iter_mut().zip(&pd[(3 * v + a) * n..(3 * v + a + 1) * n]) {
+                            *o += g[a] * d;
+                        }
+                    }
+                }
+            }
+            for j in 1..nj {
+                let f = &gf[9 * (j - 1)..9 * j];
+                // The feature is row-major: f[3 row + col] = ∂E/∂R[row][col].
+                let gm = DMat3::from_cols(DVec3::new(f[0], f[3], f[6]), DVec3::new(f[1], f[4], f[7]), DVec3::new(f[2], f[5], f[8]));
+                let o = rot_offset(j);
+                let r = DVec3::new(pose[o], pose[o + 1], pose[o + 2]);
+                let tau = rotation_torque(exp_map(r), gm);
+                let g = left_jacobian(r).transpose() * tau;
+                for a in 0..3 {
+                    grad[o + a] += g[a];
+                }
+            }
+        }
         grad
     }
 }

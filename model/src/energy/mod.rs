@@ -33,9 +33,7 @@ pub(crate) use self::prior::{AngleLimits, Penetration};
 use crate::camera::Camera;
 use crate::error::{ModelError, Result};
 use crate::observe::{HMD_DIM, HmdSetup, Modality, Sensor, SparsePrediction, closest_point_offset, headset_pose};
-use crate::pose::{POSE_DIM, Pose};
 use crate::scan::{Mask, VoxelGrid, iou, render_silhouette};
-use crate::skeleton::{HEAD, L_HAND, NUM_JOINTS, R_HAND};
 use crate::skinning::vertex_normals;
 use crate::template::Template;
 
@@ -50,11 +48,34 @@ pub struct Weights {
     pub es: f64,
     pub ep: f64,
     pub ea: f64,
+    /// Gaussian prior `Σ β²` of a morphable model's shape coefficients (unused without them;
+    /// not written when at its default, so rigid-template configurations print as before).
+    #[serde(skip_serializing_if = "is_default_shape_weight")]
+    pub shape: f64,
+    /// Gaussian prior `Σ ψ²` of the expression coefficients.
+    #[serde(skip_serializing_if = "is_default_expression_weight")]
+    pub expression: f64,
+}
+
+/// Default weight of the shape prior: ours. With the sparse data term a mean of squared
+/// σ-normalised residuals (≈ 1 per group at 1σ), 0.01 lets ±3 standard deviations of shape cost
+/// 0.09 per coefficient: weak next to the data, strong enough to keep unobserved directions near
+/// the mean (papers/002 eq. 9 regularises Θ with a tuned `w‖Θ‖²` in the same way).
+pub const DEFAULT_SHAPE_WEIGHT: f64 = 0.01;
+/// Default weight of the expression prior (same reasoning as [`DEFAULT_SHAPE_WEIGHT`]).
+pub const DEFAULT_EXPRESSION_WEIGHT: f64 = 0.01;
+
+fn is_default_shape_weight(w: &f64) -> bool {
+    *w == DEFAULT_SHAPE_WEIGHT
+}
+
+fn is_default_expression_weight(w: &f64) -> bool {
+    *w == DEFAULT_EXPRESSION_WEIGHT
 }
 
 impl Default for Weights {
     fn default() -> Self {
-        Self { data: 1.0, ej: 0.1, ed: 1.0, es: 0.01, ep: 1.0, ea: 1.0 }
+        Self { data: 1.0, ej: 0.1, ed: 1.0, es: 0.01, ep: 1.0, ea: 1.0, shape: DEFAULT_SHAPE_WEIGHT, expression: DEFAULT_EXPRESSION_WEIGHT }
     }
 }
 
@@ -148,7 +169,7 @@ impl EnergyConfig {
 
     pub fn validate(&self) -> Result<()> {
         let w = &self.weights;
-        for (name, v) in [("weights.data", w.data), ("weights.ej", w.ej), ("weights.ed", w.ed), ("weights.es", w.es), ("weights.ep", w.ep), ("weights.ea", w.ea)] {
+        for (name, v) in [("weights.data", w.data), ("weights.ej", w.ej), ("weights.ed", w.ed), ("weights.es", w.es), ("weights.ep", w.ep), ("weights.ea", w.ea), ("weights.shape", w.shape), ("weights.expression", w.expression)] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(ModelError::Setting { name, value: v.to_string(), reason: "must be a finite number ≥ 0".into() });
             }
@@ -247,6 +268,8 @@ pub struct Energy {
     groups: Vec<Group>,
     penetration: Penetration,
     limits: AngleLimits,
+    /// Head, left and right wrist joints of the `hmd` modality.
+    hmd_joints: [usize; 3],
     silhouettes: Option<SilhouetteTerm>,
     /// ES direction tensors per grid node (`scan` only), shared by clones.
     axes: Option<Arc<Vec<[f32; 6]>>>,
@@ -267,6 +290,7 @@ impl Clone for Energy {
             groups: self.groups.clone(),
             penetration: self.penetration.clone(),
             limits: self.limits.clone(),
+            hmd_joints: self.hmd_joints,
             silhouettes: self.silhouettes.clone(),
             axes: self.axes.clone(),
             evaluations: AtomicU64::new(0),
@@ -282,9 +306,10 @@ impl Energy {
     pub fn new(template: Arc<Template>, sensor: Sensor, target: Target, config: EnergyConfig) -> Result<Self> {
         config.validate()?;
         sensor.validate(&template)?;
-        if template.rig.num_joints() != NUM_JOINTS {
-            return Err(ModelError::Shape { what: "template joints".into(), expected: NUM_JOINTS.to_string(), got: template.rig.num_joints().to_string() });
-        }
+        let hmd_joints = match &sensor {
+            Sensor::Hmd(_) => template.hmd_joints()?,
+            _ => [0; 3],
+        };
         let dim = sensor.residual_dim(&template);
         let mut silhouettes = None;
         match (&sensor, &target) {
@@ -328,7 +353,9 @@ impl Energy {
         let groups = sparse_groups(&sensor, &template, &config.scales);
         let rest_normals = vertex_normals(&template.vertices, &template.faces).iter().map(|n| n.as_dvec3()).collect();
         let penetration = Penetration::new(&template, config.penetration_stride);
+        let limits = AngleLimits::new(&template);
         Ok(Self {
+            limits,
             skin: SkinTable::new(&template),
             template,
             sensor,
@@ -337,7 +364,7 @@ impl Energy {
             rest_normals,
             groups,
             penetration,
-            limits: AngleLimits::new(),
+            hmd_joints,
             silhouettes,
             axes,
             evaluations: AtomicU64::new(0),
@@ -415,44 +442,51 @@ impl Energy {
         self.gradient_evaluations.store(0, Ordering::Relaxed);
     }
 
+    /// Length of the parameter vector the energy takes (`3 + 3J + B + E`, the template's
+    /// [`crate::layout::Layout::dim`]; 57 on the default template).
+    pub fn dim(&self) -> usize {
+        self.template.layout().dim()
+    }
+
     /// Value and terms at `pose` (one counted evaluation).
-    pub fn evaluate(&self, pose: &Pose) -> Evaluation {
+    pub fn evaluate(&self, pose: &[f64]) -> Evaluation {
         self.evaluations.fetch_add(1, Ordering::Relaxed);
         self.compute(pose, false).0
     }
 
-    /// Value, terms and exact gradient over all 57 pose entries (one counted evaluation and one
-    /// counted gradient evaluation). Terms without a gradient (EJ, binary EA) contribute their
-    /// value but nothing to the gradient: use [`EnergyConfig::for_gradient`] for gradient methods.
-    pub fn evaluate_with_gradient(&self, pose: &Pose) -> (Evaluation, Pose) {
+    /// Value, terms and exact gradient over every parameter entry (translation, rotations, β, ψ;
+    /// one counted evaluation and one counted gradient evaluation). Terms without a gradient
+    /// (EJ, binary EA) contribute their value but nothing to the gradient: use
+    /// [`EnergyConfig::for_gradient`] for gradient methods.
+    pub fn evaluate_with_gradient(&self, pose: &[f64]) -> (Evaluation, Vec<f64>) {
         self.evaluations.fetch_add(1, Ordering::Relaxed);
         self.gradient_evaluations.fetch_add(1, Ordering::Relaxed);
         let (e, g) = self.compute(pose, true);
-        (e, g.unwrap_or([0.0; POSE_DIM]))
+        (e, g.unwrap_or_else(|| vec![0.0; pose.len()]))
     }
 
     /// Value and terms for reporting a result, **not** counted: fitters never call it while
     /// searching, only to report the terms of the pose they return.
-    pub fn inspect(&self, pose: &Pose) -> Evaluation {
+    pub fn inspect(&self, pose: &[f64]) -> Evaluation {
         self.compute(pose, false).0
     }
 
     /// Totals of many poses, evaluated in parallel (rayon); counts one evaluation per pose.
-    pub fn evaluate_batch(&self, poses: &[Pose]) -> Vec<f64> {
+    pub fn evaluate_batch<P: AsRef<[f64]> + Sync>(&self, poses: &[P]) -> Vec<f64> {
         self.evaluations.fetch_add(poses.len() as u64, Ordering::Relaxed);
-        poses.par_iter().map(|p| self.compute(p, false).0.total).collect()
+        poses.par_iter().map(|p| self.compute(p.as_ref(), false).0.total).collect()
     }
 
     /// The residual vector R(θ) of SPEC §4, computed by the observation model ([`crate::observe`]);
     /// not counted as an evaluation.
-    pub fn residual(&self, pose: &Pose) -> Vec<f64> {
+    pub fn residual(&self, pose: &[f64]) -> Vec<f64> {
         match (&self.sensor, &self.target) {
             (Sensor::Scan(setup), Target::Scan { grid, .. }) => {
                 let kin = Kinematics::build(&self.template, pose, false);
                 setup
                     .residual_vertices
                     .iter()
-                    .flat_map(|&v| closest_point_offset(grid, kin.skin(self.skin.weights(v as usize), self.skin.rest[v as usize])).to_array())
+                    .flat_map(|&v| closest_point_offset(grid, kin.skin(self.skin.weights(v as usize), kin.rest(&self.skin.rest, v as usize))).to_array())
                     .collect()
             }
             (_, Target::Sparse { values, visible }) => match self.sensor.predict_sparse(&self.template, pose) {
@@ -465,18 +499,19 @@ impl Energy {
 
     /// The sparse prediction computed by the energy's own f64 forward model (the one its
     /// gradient differentiates); `None` for `scan`. Tested against [`Sensor::predict_sparse`].
-    pub fn predict(&self, pose: &Pose) -> Option<SparsePrediction> {
+    pub fn predict(&self, pose: &[f64]) -> Option<SparsePrediction> {
         let kin = Kinematics::build(&self.template, pose, false);
         let values = self.sparse_prediction(&kin)?;
         Some(SparsePrediction { visible: vec![true; values.len()], values })
     }
 
-    fn compute(&self, pose: &Pose, want_grad: bool) -> (Evaluation, Option<Pose>) {
+    fn compute(&self, pose: &[f64], want_grad: bool) -> (Evaluation, Option<Vec<f64>>) {
         let kin = Kinematics::build(&self.template, pose, want_grad);
-        let mut adj = want_grad.then(|| Adjoint::new(NUM_JOINTS));
-        let mut grad_direct = [0.0; POSE_DIM];
+        let nj = self.template.rig.num_joints();
+        let mut adj = want_grad.then(|| Adjoint::new(nj, kin.morph.is_some()));
+        let mut grad_direct = vec![0.0; if want_grad { pose.len() } else { 0 }];
         let w = self.config.weights;
-        let mut terms = Vec::with_capacity(5);
+        let mut terms = Vec::with_capacity(7);
         let mut total = 0.0;
         let posed = match &self.target {
             Target::Sparse { values, visible } => {
@@ -487,7 +522,7 @@ impl Energy {
             }
             Target::Scan { grid, .. } => {
                 let (posed, normals): (Vec<DVec3>, Vec<DVec3>) =
-                    (0..self.skin.rest.len()).map(|v| kin.skin_both(self.skin.weights(v), self.skin.rest[v], self.rest_normals[v])).unzip();
+                    (0..self.skin.rest.len()).map(|v| kin.skin_both(self.skin.weights(v), kin.rest(&self.skin.rest, v), self.rest_normals[v])).unzip();
                 let (ed, es) = self.surface_terms(&posed, &normals, grid, adj.as_mut().map(|a| (a, &kin, w.ed, w.es)));
                 terms.push(("ED", ed));
                 terms.push(("ES", es));
@@ -503,12 +538,33 @@ impl Energy {
         let ep = self.penetration.evaluate(&kin, &self.skin, posed.as_deref(), adj.as_mut().map(|a| (a, w.ep)));
         terms.push(("EP", ep));
         total += w.ep * ep;
-        let ea = self.limits.evaluate(pose, self.config.angle_prior, want_grad.then_some((&mut grad_direct, w.ea)));
+        let ea = self.limits.evaluate(pose, self.config.angle_prior, want_grad.then_some((grad_direct.as_mut_slice(), w.ea)));
         terms.push(("EA", ea));
         total += w.ea * ea;
+        // Gaussian priors of the shape and expression coefficients (unit variance in the model's
+        // units: PCA standard deviations for a PCA space), only on models that have them.
+        let layout_shape = self.template.morph.shape;
+        let layout_expr = self.template.morph.expression;
+        let base = 3 + 3 * nj;
+        for (name, weight, range) in [("shape", w.shape, base..base + layout_shape), ("expression", w.expression, base + layout_shape..base + layout_shape + layout_expr)] {
+            if range.is_empty() {
+                continue;
+            }
+            let value: f64 = pose.get(range.clone()).unwrap_or(&[]).iter().map(|b| b * b).sum();
+            terms.push((name, value));
+            total += weight * value;
+            if want_grad {
+                for i in range {
+                    if let Some(&b) = pose.get(i) {
+                        grad_direct[i] += 2.0 * weight * b;
+                    }
+                }
+            }
+        }
         let grad = adj.map(|a| {
-            let mut g = a.finish(&self.template, &kin);
-            for (gi, di) in g.iter_mut().zip(grad_direct) {
+            let mut g = a.finish(&self.template, &kin, pose);
+            g.resize(pose.len(), 0.0);
+            for (gi, di) in g.iter_mut().zip(&grad_direct) {
                 *gi += di;
             }
             g
@@ -522,11 +578,11 @@ impl Energy {
             Sensor::Markers { vertices, .. } => Some(
                 vertices
                     .iter()
-                    .flat_map(|&v| kin.skin(self.skin.weights(v as usize), self.skin.rest[v as usize]).to_array())
+                    .flat_map(|&v| kin.skin(self.skin.weights(v as usize), kin.rest(&self.skin.rest, v as usize)).to_array())
                     .collect(),
             ),
             Sensor::Keypoints2d { cameras } => {
-                let mut out = Vec::with_capacity(2 * cameras.len() * NUM_JOINTS);
+                let mut out = Vec::with_capacity(2 * cameras.len() * kin.joints.len());
                 for cam in cameras {
                     for &p in &kin.joints {
                         let (uv, _) = project(cam, p);
@@ -537,14 +593,14 @@ impl Energy {
             }
             Sensor::Hmd(setup) => {
                 let mut out = Vec::with_capacity(HMD_DIM);
-                for (rot, pos) in hmd_devices(setup, kin) {
+                for (rot, pos) in hmd_devices(setup, kin, self.hmd_joints) {
                     for row in 0..3 {
                         out.extend([rot.x_axis[row], rot.y_axis[row], rot.z_axis[row]]);
                     }
                     out.extend(pos.to_array());
                 }
                 for &tip in &setup.hand_tips {
-                    out.extend(kin.skin(self.skin.weights(tip as usize), self.skin.rest[tip as usize]).to_array());
+                    out.extend(kin.skin(self.skin.weights(tip as usize), kin.rest(&self.skin.rest, tip as usize)).to_array());
                 }
                 Some(out)
             }
@@ -591,7 +647,7 @@ impl Energy {
                 for (k, &v) in vertices.iter().enumerate() {
                     let g = vec3(3 * k);
                     if g != DVec3::ZERO {
-                        adj.skinned_point(kin, self.skin.weights(v as usize), self.skin.rest[v as usize], g);
+                        adj.skinned_point(kin, self.skin.weights(v as usize), v as usize, kin.rest(&self.skin.rest, v as usize), g);
                     }
                 }
             }
@@ -599,19 +655,19 @@ impl Energy {
                 for (c, cam) in cameras.iter().enumerate() {
                     let rot = cam.rot();
                     for (j, &p) in kin.joints.iter().enumerate() {
-                        let i = 2 * (c * NUM_JOINTS + j);
+                        let i = 2 * (c * kin.joints.len() + j);
                         let (gu, gv) = (dpred[i], dpred[i + 1]);
                         if gu == 0.0 && gv == 0.0 {
                             continue;
                         }
                         let (_, dq) = project(cam, p);
                         let gq = dq[0] * gu + dq[1] * gv;
-                        adj.point(j, p, rot.transpose() * gq, 1.0);
+                        adj.joint_point(kin, j, p, rot.transpose() * gq);
                     }
                 }
             }
             Sensor::Hmd(setup) => {
-                for (d, ((rot, pos), joint)) in hmd_devices(setup, kin).into_iter().zip([HEAD, L_HAND, R_HAND]).enumerate() {
+                for (d, ((rot, pos), joint)) in hmd_devices(setup, kin, self.hmd_joints).into_iter().zip(self.hmd_joints).enumerate() {
                     let o = 12 * d;
                     let g = DMat3::from_cols(
                         DVec3::new(dpred[o], dpred[o + 3], dpred[o + 6]),
@@ -619,11 +675,11 @@ impl Energy {
                         DVec3::new(dpred[o + 2], dpred[o + 5], dpred[o + 8]),
                     );
                     adj.torque(joint, rotation_torque(rot, g));
-                    adj.point(joint, pos, vec3(o + 9), 1.0);
+                    adj.joint_point(kin, joint, pos, vec3(o + 9));
                 }
                 for (k, &tip) in setup.hand_tips.iter().enumerate() {
                     let g = vec3(36 + 3 * k);
-                    adj.skinned_point(kin, self.skin.weights(tip as usize), self.skin.rest[tip as usize], g);
+                    adj.skinned_point(kin, self.skin.weights(tip as usize), tip as usize, kin.rest(&self.skin.rest, tip as usize), g);
                 }
             }
             Sensor::Scan(_) => {}
@@ -734,7 +790,7 @@ impl Energy {
                 let weights = self.skin.weights(v);
                 let gp = ded * ed_scale + des * es_scale;
                 if gp != DVec3::ZERO {
-                    adj.skinned_point(kin, weights, self.skin.rest[v], gp);
+                    adj.skinned_point(kin, weights, v, kin.rest(&self.skin.rest, v), gp);
                 }
                 if den != DVec3::ZERO {
                     adj.skinned_direction(kin, weights, self.rest_normals[v], den * es_scale);
@@ -838,12 +894,12 @@ fn project(cam: &Camera, p: DVec3) -> ([f64; 2], [DVec3; 2]) {
 }
 
 /// Headset and both wrists as (rotation, position), in the order of the `hmd` prediction.
-fn hmd_devices(setup: &HmdSetup, kin: &Kinematics) -> [(DMat3, DVec3); 3] {
-    let headset = headset_pose(setup, kin.world(HEAD), kin.joints[HEAD]);
+fn hmd_devices(setup: &HmdSetup, kin: &Kinematics, [head, left, right]: [usize; 3]) -> [(DMat3, DVec3); 3] {
+    let headset = headset_pose(setup, kin.world(head), kin.joints[head]);
     [
         (headset.matrix3, headset.translation),
-        (kin.world(L_HAND), kin.joints[L_HAND]),
-        (kin.world(R_HAND), kin.joints[R_HAND]),
+        (kin.world(left), kin.joints[left]),
+        (kin.world(right), kin.joints[right]),
     ]
 }
 

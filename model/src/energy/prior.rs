@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use super::SkinTable;
 use super::kinematics::{Adjoint, Kinematics};
-use crate::pose::{Bounds, POSE_DIM, Pose, rot_offset};
+use crate::pose::rot_offset;
 use crate::template::Template;
 
 /// Form of the joint-angle prior EA.
@@ -37,6 +37,9 @@ pub(crate) struct Ellipsoid {
     pub(crate) q: DMat3,
     /// Radius of a sphere around `centre` that holds the ellipsoid.
     pub(crate) radius: f64,
+    /// The joint's rest position when the ellipsoid was fitted: on a morphable model the
+    /// ellipsoid moves with its joint, `centre + c_j(β, ψ) − joint_rest`.
+    pub(crate) joint_rest: DVec3,
 }
 
 /// EP of papers/000 eq. (8) with per-segment ellipsoids fitted to the vertices whose dominant
@@ -86,7 +89,7 @@ impl Penetration {
             }
             // The largest semi-axis is at most sqrt(trace(shape)).
             let radius = (shape.x_axis.x + shape.y_axis.y + shape.z_axis.z).sqrt();
-            ellipsoids.push(Ellipsoid { joint: j, centre: mu, q: shape.inverse(), radius });
+            ellipsoids.push(Ellipsoid { joint: j, centre: mu, q: shape.inverse(), radius, joint_rest: template.rig.joints[j].rest() });
         }
         let parent = |j: usize| template.rig.joints[j].parent;
         let adjacent = |a: usize, b: usize| a == b || parent(a) == Some(b) || parent(b) == Some(a);
@@ -133,7 +136,7 @@ impl Penetration {
             .iter()
             .map(|e| {
                 let w = kin.world(e.joint);
-                (kin.transforms[e.joint].transform_point3(e.centre), w * e.q * w.transpose())
+                (kin.transforms[e.joint].transform_point3(e.centre + (kin.rest_joints[e.joint] - e.joint_rest)), w * e.q * w.transpose())
             })
             .collect();
         let mut sum = 0.0;
@@ -147,7 +150,7 @@ impl Penetration {
                 let v = *v as usize;
                 match posed {
                     Some(all) => all[v],
-                    None => kin.skin(skin.weights(v), skin.rest[v]),
+                    None => kin.skin(skin.weights(v), kin.rest(&skin.rest, v)),
                 }
             }));
             let centre = points.iter().copied().sum::<DVec3>() / points.len().max(1) as f64;
@@ -182,8 +185,8 @@ impl Penetration {
                         // dρ/ds = −2(1 − s); ds/dp = 2 Q d; the ellipsoid's own motion enters as a
                         // point force at its centre and the torque h × d (see kinematics.rs).
                         let h = qd * (-4.0 * (1.0 - s) * *scale / self.count as f64);
-                        adj.skinned_point(kin, skin.weights(v), skin.rest[v], h);
-                        adj.point(e.joint, c, -h, 1.0);
+                        adj.skinned_point(kin, skin.weights(v), v, kin.rest(&skin.rest, v), h);
+                        adj.joint_point(kin, e.joint, c, -h);
                         adj.torque(e.joint, h.cross(d));
                     }
                 }
@@ -203,14 +206,26 @@ pub(crate) struct AngleLimits {
 }
 
 impl AngleLimits {
-    pub fn new() -> Self {
-        let b = Bounds::global();
-        Self { lower: b.lower, upper: b.upper }
+    /// The template's per-joint limits ([`crate::info::ModelInfo::limits_deg`]; papers/000
+    /// Table 1 on the default skeleton), over the rotation entries.
+    pub fn new(template: &Template) -> Self {
+        let limits = &template.info.limits_deg;
+        let n = 3 + 3 * limits.len();
+        let mut lower = vec![f64::NEG_INFINITY; n];
+        let mut upper = vec![f64::INFINITY; n];
+        for (j, l) in limits.iter().enumerate() {
+            for a in 0..3 {
+                lower[rot_offset(j) + a] = l[a][0].to_radians();
+                upper[rot_offset(j) + a] = l[a][1].to_radians();
+            }
+        }
+        Self { lower, upper }
     }
 
     /// Value and, for [`AnglePrior::Hinge`], gradient (times `scale`) added into `grad`.
-    pub fn evaluate(&self, pose: &Pose, form: AnglePrior, grad: Option<(&mut Pose, f64)>) -> f64 {
-        let joints = (POSE_DIM - 3) / 3;
+    pub fn evaluate(&self, pose: &[f64], form: AnglePrior, grad: Option<(&mut [f64], f64)>) -> f64 {
+        let end = self.lower.len();
+        let joints = (end - 3) / 3;
         match form {
             AnglePrior::Binary => (1..joints)
                 .filter(|&j| (0..3).any(|a| {
@@ -221,7 +236,7 @@ impl AngleLimits {
             AnglePrior::Hinge => {
                 let mut sum = 0.0;
                 let mut g = grad;
-                for i in rot_offset(1)..POSE_DIM {
+                for i in rot_offset(1)..end {
                     let over = (pose[i] - self.upper[i]).max(0.0) - (self.lower[i] - pose[i]).max(0.0);
                     sum += over * over;
                     if let Some((gr, scale)) = g.as_mut() {
