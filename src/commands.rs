@@ -17,6 +17,7 @@ use serde_json::{Value, json};
 pub fn load_model(path: Option<&Path>, shape: &str) -> Result<Template> {
     match path {
         Some(path) => Template::load(path).with_context(|| format!("template {}", path.display())),
+        None if shape == "morphable" => Ok(lfit_model::body::morphable_default_template()?.0),
         None => {
             let body = BodyShape::named(shape).ok_or_else(|| lfit_synth::SynthError::UnknownShape(shape.to_string()))?;
             let id = if shape == "default" { "default".to_string() } else { format!("default+{shape}") };

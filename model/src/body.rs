@@ -57,7 +57,8 @@ impl BodyShape {
         })
     }
 
-    /// Names accepted by [`BodyShape::named`].
+    /// Names accepted by [`BodyShape::named`] (and `morphable`, the shape space of
+    /// [`morphable_default_template`], where a template is asked for).
     pub const NAMES: [&'static str; 7] = ["default", "tall", "short", "heavy", "slim", "long-legs", "long-arms"];
 }
 
@@ -120,6 +121,76 @@ pub fn build_template(shape: &BodyShape, id: &str) -> Result<Template> {
         build_template(&BodyShape::default(), "default")?.rig.markers
     };
     Template::new(id, vertices, faces, rig)
+}
+
+/// Shape coefficients of the morphable default template.
+pub const MORPHABLE_SHAPE_DIM: usize = 8;
+
+/// Body-proportion samples behind the morphable default template's shape space.
+pub const MORPHABLE_SAMPLES: usize = 64;
+
+/// The morphable default template (id `default+morphable`): the default template as the mean
+/// (β = 0 poses exactly like it), and a shape space of [`MORPHABLE_SHAPE_DIM`] directions from
+/// a PCA of [`MORPHABLE_SAMPLES`] random body-proportion variants (height 0.88–1.12, legs
+/// 0.9–1.1, arms 0.9–1.12, trunk 0.92–1.08, girth 0.8–1.3, limb girth 0.8–1.25, head 0.92–1.08:
+/// our ranges, bracketing the named variants; seed fixed). Directions are scaled to one standard
+/// deviation of the samples, so β ~ N(0, I) is the sampled population. The rest joints follow the
+/// shape through a joint regressor fitted on the mean ([`crate::modelfile::fit_regressor`]).
+/// Returns the template and the fraction of the samples' variance each direction explains.
+pub fn morphable_default_template() -> Result<(Template, Vec<f64>)> {
+    use rand::{Rng, SeedableRng};
+    let mean = default_template();
+    let v = mean.num_vertices();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5eed_b0d1);
+    let mut rows: Vec<Vec<f64>> = Vec::with_capacity(MORPHABLE_SAMPLES);
+    for _ in 0..MORPHABLE_SAMPLES {
+        let shape = BodyShape {
+            height: rng.random_range(0.88..1.12),
+            leg_length: rng.random_range(0.9..1.1),
+            arm_length: rng.random_range(0.9..1.12),
+            torso_length: rng.random_range(0.92..1.08),
+            girth: rng.random_range(0.8..1.3),
+            limb_girth: rng.random_range(0.8..1.25),
+            head: rng.random_range(0.92..1.08),
+            ..BodyShape::default()
+        };
+        let t = build_template(&shape, "sample")?;
+        rows.push(t.vertices.iter().zip(&mean.vertices).flat_map(|(a, b)| (a.as_dvec3() - b.as_dvec3()).to_array()).collect());
+    }
+    // PCA of the deviations from the mean template through the N × N Gram matrix.
+    let n = rows.len();
+    let gram = nalgebra::DMatrix::from_fn(n, n, |i, j| rows[i].iter().zip(&rows[j]).map(|(a, b)| a * b).sum::<f64>() / n as f64);
+    let eig = nalgebra::SymmetricEigen::new(gram);
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+    let total: f64 = eig.eigenvalues.iter().map(|l| l.max(0.0)).sum();
+    let k = MORPHABLE_SHAPE_DIM;
+    let mut dirs = vec![0.0; 3 * v * k];
+    let mut explained = Vec::with_capacity(k);
+    for (c, &e) in order.iter().take(k).enumerate() {
+        explained.push(eig.eigenvalues[e].max(0.0) / total);
+        // d = Xᵀ a / √N: the principal direction scaled by its standard deviation.
+        let a = eig.eigenvectors.column(e);
+        // A fixed sign: the direction's largest component positive.
+        let mut col = vec![0.0; 3 * v];
+        for (i, row) in rows.iter().enumerate() {
+            for (o, x) in col.iter_mut().zip(row) {
+                *o += a[i] * x / (n as f64).sqrt();
+            }
+        }
+        let big = col.iter().copied().fold(0.0f64, |m, x| if x.abs() > m.abs() { x } else { m });
+        let sign = if big < 0.0 { -1.0 } else { 1.0 };
+        for (r, x) in col.iter().enumerate() {
+            dirs[r * k + c] = sign * x;
+        }
+    }
+    let reg = crate::modelfile::fit_regressor(&mean);
+    let rest = mean.vertices.iter().map(|p| p.as_dvec3()).collect();
+    let mut info = mean.info.clone();
+    info.provenance = format!("lfit procedural default template with a PCA shape space of {MORPHABLE_SAMPLES} body-proportion variants");
+    let mut t = mean.with_morph(crate::morph::Morph::new(rest, k, 0, dirs, None, Some(reg)), info)?;
+    t.id = "default+morphable".into();
+    Ok((t, explained))
 }
 
 /// Signed volume of a closed triangle mesh (positive when faces wind counter-clockwise from outside).
@@ -593,6 +664,39 @@ fn place_markers(template: &Template, joints: &[DVec3], sk: &Skeleton) -> Vec<Ma
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_morphable_default_template_spans_the_proportion_variants() {
+        let (t, explained) = morphable_default_template().unwrap();
+        assert_eq!(t.layout().dim(), 57 + MORPHABLE_SHAPE_DIM);
+        let cumulative: f64 = explained.iter().sum();
+        println!("morphable default template: variance explained {explained:.4?}, total {cumulative:.5}");
+        assert!(explained.windows(2).all(|w| w[0] >= w[1]));
+        assert!(cumulative > 0.99, "{cumulative}");
+        // β = 0 is the default template, exactly.
+        let d = default_template();
+        let pose: Vec<f64> = (0..57).map(|i| ((i * 37 % 19) as f64 / 19.0 - 0.5) * 0.8).collect();
+        let mut x = pose.clone();
+        x.extend([0.0; MORPHABLE_SHAPE_DIM]);
+        let a = crate::skinning::pose_vertices(&d, &pose, crate::SkinningMethod::Linear);
+        let b = crate::skinning::pose_vertices(&t, &x, crate::SkinningMethod::Linear);
+        let worst = a.iter().zip(&b).map(|(p, q)| (*p - *q).length()).fold(0.0, f32::max);
+        assert!(worst < 1e-5, "{worst}");
+        // The tall variant is close to the span: its least-squares coefficients reproduce it
+        // within a few millimetres, and the first direction changes the height.
+        let tall = build_template(&BodyShape::named("tall").unwrap(), "tall").unwrap();
+        let k = MORPHABLE_SHAPE_DIM;
+        let m = &t.morph;
+        let dev: Vec<f64> = tall.vertices.iter().zip(&d.vertices).flat_map(|(p, q)| (p.as_dvec3() - q.as_dvec3()).to_array()).collect();
+        let a_mat = nalgebra::DMatrix::from_fn(dev.len(), k, |r, c| m.dirs[r * k + c]);
+        let beta = a_mat.clone().svd(true, true).solve(&nalgebra::DVector::from_vec(dev.clone()), 1e-12).unwrap();
+        let fit = &a_mat * &beta;
+        let worst = (0..dev.len() / 3).map(|v| ((fit[3 * v] - dev[3 * v]).powi(2) + (fit[3 * v + 1] - dev[3 * v + 1]).powi(2) + (fit[3 * v + 2] - dev[3 * v + 2]).powi(2)).sqrt()).fold(0.0, f64::max);
+        println!("tall variant in the shape space: worst vertex error {:.2} mm, β = {:.2?}", worst * 1e3, beta.as_slice());
+        assert!(worst < 0.01, "{worst}");
+        let ys: Vec<f64> = (0..d.num_vertices()).map(|v| m.dirs[(3 * v + 1) * k]).collect();
+        assert!(ys.iter().copied().fold(f64::MIN, f64::max) > 0.01, "the first direction moves vertices");
+    }
 
     #[test]
     fn default_template_is_a_closed_two_manifold_of_the_right_size() {
