@@ -25,7 +25,7 @@ use lfit::model::pose::{Bounds, DofMask};
 use lfit::infer::onnx::runtime::{SessionOptions, library_path};
 use lfit::nn::unroll::{core_rows, evaluate, observation_rows, step_rows};
 use lfit::nn::Dropout;
-use lfit::model::pose::{POSE_DIM, Pose};
+use lfit::model::pose::{POSE_DIM, Pose, as_pose};
 use lfit::nn::tensor::{device_from_name, tensor_to_rows, wgpu_available};
 use burn::tensor::{Tensor, TensorData};
 use lfit::model::{Energy, default_template};
@@ -52,7 +52,7 @@ fn requests<'a>(energies: &'a [Energy], frames: &lfit::train::Frames, budget: us
     energies
         .iter()
         .zip(&frames.dataset.start_poses)
-        .map(|(energy, &start)| FitRequest { energy, start, mask: DofMask::local43(), bounds: Bounds::local(&start), budget, seed: 1 })
+        .map(|(energy, start)| FitRequest { energy, start: start.clone(), mask: DofMask::local43(), bounds: Bounds::local(start), budget, seed: 1 })
         .collect()
 }
 
@@ -123,7 +123,7 @@ struct Inputs {
 fn inputs(f: &NeuralFitter, frames: &lfit::train::Frames) -> Inputs {
     let c = &f.meta.network;
     let energies: Vec<&Energy> = frames.energies.iter().collect();
-    let poses: Vec<Pose> = frames.dataset.start_poses.clone();
+    let poses: Vec<Pose> = frames.dataset.start_poses.iter().map(|p| as_pose(p)).collect();
     let obs = observation_rows(c, &f.stats, &energies).expect("obs");
     let evals = evaluate(&energies, &poses);
     let core = core_rows(c, &f.stats, &evals, &poses, &obs).expect("core");

@@ -182,7 +182,7 @@ fn evaluate(dir: &Path, name: &str, frames: &lfit_train::Frames, template: &Arc<
         .energies
         .iter()
         .enumerate()
-        .map(|(i, e)| FitRequest { energy: e, start: frames.dataset.start_poses[i], mask: DofMask::full57(), bounds: Bounds::global(), budget: usize::MAX, seed: i as u64 })
+        .map(|(i, e)| FitRequest { energy: e, start: frames.dataset.start_poses[i].clone(), mask: DofMask::full57(), bounds: Bounds::global(), budget: usize::MAX, seed: i as u64 })
         .collect();
     let mut poses: Vec<Pose> = Vec::with_capacity(n);
     for chunk in requests.chunks(64) {
@@ -194,7 +194,7 @@ fn evaluate(dir: &Path, name: &str, frames: &lfit_train::Frames, template: &Arc<
     }
     let parts = [part_vertices(template, HEAD), part_vertices(template, L_HAND), part_vertices(template, R_HAND)];
     let gt = &frames.dataset.gt_poses;
-    let mean = |f: &dyn Fn(&Pose, &Pose) -> f64| poses.iter().zip(gt).map(|(p, g)| f(p, g)).sum::<f64>() / n.max(1) as f64;
+    let mean = |f: &dyn Fn(&Pose, &[f64]) -> f64| poses.iter().zip(gt).map(|(p, g)| f(p, g)).sum::<f64>() / n.max(1) as f64;
     let card: Value = serde_json::from_slice(&std::fs::read(dir.join("metrics.json")).with_context(|| format!("{}/metrics.json", dir.display()))?)?;
     Ok(Eval {
         variant: name.to_string(),

@@ -13,7 +13,6 @@ use lfit_fitters::optim::Preset;
 use lfit_fitters::{FitRequest, Fitter, METHOD_NAMES, Strategy, build_fitter};
 use lfit_model::energy::{Energy, EnergyConfig};
 use lfit_model::metrics::{hausdorff_rms_mm, mpjpe_mm, pa_mpjpe_mm, v2v_mm};
-use lfit_model::pose::{POSE_DIM, Pose};
 use lfit_model::template::write_atomic;
 use lfit_synth::{Dataset, Scenario};
 use rayon::prelude::*;
@@ -443,7 +442,7 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
     progress(counter.load(std::sync::atomic::Ordering::Relaxed), total);
     let template_ref: &Arc<lfit_model::Template> = &template;
     let work = |unit: &&Unit| -> Result<()> {
-        let mut previous: Option<(usize, Pose)> = None;
+        let mut previous: Option<(usize, Vec<f64>)> = None;
         for &fi in &unit.frames {
             let k = key(unit, fi);
             let resumed = done.contains(&k);
@@ -451,17 +450,17 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
             // Each fit gets its own copy: the evaluation counter lives in the energy, and
             // parallel fits of one frame must not share it.
             let energy = &energies[fi].clone();
-            let start = match previous {
+            let start = match previous.take() {
                 Some((p, pose)) if chains && p + 1 == frame => pose,
-                _ => dataset.start_poses[frame],
+                _ => dataset.start_poses[frame].clone(),
             };
             let seed = frame_seed(config.seed, frame) ^ (rep as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-            let request = FitRequest { energy, start, mask: scenario_mask(scenario), bounds: scenario_bounds(scenario, &start), budget, seed };
+            let bounds = scenario_bounds(scenario, template_ref, &start);
             let start_energy = energy.inspect(&start).total;
+            let request = FitRequest { energy, start, mask: scenario_mask(scenario, template_ref), bounds, budget, seed };
             let result = fitters[unit.entry].fit(&request).with_context(|| format!("{method} on frame {frame}"))?;
-            let mut pose: Pose = [0.0; POSE_DIM];
-            pose.copy_from_slice(&result.pose);
-            previous = Some((frame, pose));
+            let pose = result.pose.clone();
+            previous = Some((frame, pose.clone()));
             if resumed {
                 // Resumed chain: this row is already in the CSV; the fit only rebuilt the warm start.
                 continue;

@@ -9,7 +9,7 @@ use lfit_fitters::optim::{self, Method, Preset};
 use lfit_fitters::{FitRequest, Fitter, Strategy, build_fitter};
 use lfit_model::energy::{Energy, EnergyConfig, Target};
 use lfit_model::metrics::{mpjpe_mm, v2v_mm};
-use lfit_model::pose::{Bounds, DofMask, POSE_DIM, Pose, dof_name};
+use lfit_model::pose::{Bounds, DofMask, MaskKind};
 use lfit_model::template::{Template, write_atomic};
 use lfit_synth::{Dataset, Observations, Scenario};
 use serde_json::{Map, Value, json};
@@ -18,16 +18,20 @@ use serde_json::{Map, Value, json};
 /// the dataset's), else the procedural body named by the dataset's template id.
 pub fn template_for(dataset: &Dataset, dir: Option<&Path>) -> Result<Arc<Template>> {
     let template = match dir {
-        Some(d) => crate::commands::load_template(Some(d), "default")?,
+        Some(d) => crate::commands::load_model(Some(d), "default")?,
         None => {
             let id = &dataset.meta.template_id;
             let Some(shape) = crate::commands::shape_of_template_id(id) else {
                 bail!("dataset was made with template '{id}': pass that template with --template DIR");
             };
-            crate::commands::load_template(None, shape)?
+            crate::commands::load_model(None, shape)?
         }
     };
-    if template.id != dataset.meta.template_id || template.num_vertices() != dataset.meta.template_vertices {
+    let layout = template.layout();
+    if template.id != dataset.meta.template_id
+        || template.num_vertices() != dataset.meta.template_vertices
+        || (layout.pose_dim(), layout.shape, layout.expression) != (dataset.meta.pose_dim, dataset.meta.shape_dim, dataset.meta.expression_dim)
+    {
         bail!(
             "dataset was made with template '{}' ({} vertices), not '{}' ({} vertices)",
             dataset.meta.template_id,
@@ -51,20 +55,43 @@ pub fn energy_for_frame(dataset: &Dataset, template: Arc<Template>, frame: usize
     Energy::new(template, dataset.sensor.clone(), target, config).with_context(|| format!("frame {frame}"))
 }
 
-/// Free DOFs of a scenario (papers/000 §4: 43 local, 41 global).
-pub fn scenario_mask(scenario: Scenario) -> DofMask {
+/// Free entries of a scenario (papers/000 §4: 43 local, 41 global on the default template; the
+/// same rules through the joint map on another model, with its shape and expression free).
+pub fn scenario_mask(scenario: Scenario, template: &Template) -> DofMask {
+    let kind = match scenario {
+        Scenario::Global => MaskKind::Global,
+        Scenario::Local | Scenario::Sequence => MaskKind::Local,
+    };
+    DofMask::standard(kind, template, true)
+}
+
+/// Search box of a scenario around a start (shape and expression within their own box).
+pub fn scenario_bounds(scenario: Scenario, template: &Template, start: &[f64]) -> Bounds {
     match scenario {
-        Scenario::Global => DofMask::global41(),
-        Scenario::Local | Scenario::Sequence => DofMask::local43(),
+        Scenario::Global => Bounds::global_for(template),
+        Scenario::Local | Scenario::Sequence => Bounds::local_in(&template.layout(), start),
     }
 }
 
-/// Search box of a scenario around a start pose.
-pub fn scenario_bounds(scenario: Scenario, start: &Pose) -> Bounds {
-    match scenario {
-        Scenario::Global => Bounds::global(),
-        Scenario::Local | Scenario::Sequence => Bounds::local(start),
+/// The JSON fields of a parameter vector: `pose`, and `shape`/`expression` when the model has them.
+pub fn params_json(template: &Template, params: &[f64]) -> Map<String, Value> {
+    let l = template.layout();
+    let mut m = Map::new();
+    m.insert("pose".into(), json!(params[..l.pose_dim()]));
+    if l.shape > 0 {
+        m.insert("shape".into(), json!(params[l.range(lfit_model::Block::Shape)]));
     }
+    if l.expression > 0 {
+        m.insert("expression".into(), json!(params[l.range(lfit_model::Block::Expression)]));
+    }
+    m
+}
+
+/// RMS difference of the shape and expression coefficients, `None` without them.
+pub fn coefficient_rms(template: &Template, fitted: &[f64], truth: &[f64]) -> Option<f64> {
+    let l = template.layout();
+    let r = l.pose_dim()..l.dim();
+    (!r.is_empty()).then(|| (fitted[r.clone()].iter().zip(&truth[r.clone()]).map(|(a, b)| (a - b) * (a - b)).sum::<f64>() / r.len() as f64).sqrt())
 }
 
 /// Parses `--frames`: `A..B` (B excluded), `A-B` (B included), `I`, or a comma list of those.
@@ -116,15 +143,8 @@ pub fn frame_seed(seed: u64, frame: usize) -> u64 {
 }
 
 /// An error metric (`v2v_mm`, `mpjpe_mm`, ...) of every iterate of a fit against the truth.
-pub fn iterate_errors(template: &Template, iterates: &[Vec<f64>], truth: &Pose, metric: fn(&Template, &Pose, &Pose) -> f64) -> Vec<f64> {
-    iterates
-        .iter()
-        .map(|p| {
-            let mut q = [0.0; POSE_DIM];
-            q.copy_from_slice(p);
-            metric(template, &q, truth)
-        })
-        .collect()
+pub fn iterate_errors(template: &Template, iterates: &[Vec<f64>], truth: &[f64], metric: fn(&Template, &[f64], &[f64]) -> f64) -> Vec<f64> {
+    iterates.iter().map(|p| metric(template, p, truth)).collect()
 }
 
 /// Arguments of `lfit fit`.
@@ -200,9 +220,10 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     let frames = parse_frames(args.frames.as_deref(), dataset.len())?;
     let template = template_for(&dataset, args.template.as_deref())?;
     let scenario = dataset.meta.config.scenario;
-    let mask = scenario_mask(scenario);
+    let mask = scenario_mask(scenario, &template);
     let mut rows = Vec::with_capacity(frames.len());
-    let mut previous: Option<(usize, Pose)> = None;
+    let mut previous: Option<(usize, Vec<f64>)> = None;
+    let mut sum_coeff = 0.0;
     let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
     // Frames go through the network `--batch` at a time, except in sequences, where each frame
     // starts from the previous result.
@@ -214,20 +235,20 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         for &frame in group {
             energies.push(energy_for_frame(&dataset, template.clone(), frame, config.clone())?);
             // Sequence fitting (papers/000 §4.3): warm start from the previous frame's solution.
-            starts.push(match (scenario, previous) {
-                (Scenario::Sequence, Some((p, pose))) if p + 1 == frame => pose,
-                _ => dataset.start_poses[frame],
+            starts.push(match (scenario, &previous) {
+                (Scenario::Sequence, Some((p, pose))) if p + 1 == frame => pose.clone(),
+                _ => dataset.start_poses[frame].clone(),
             });
         }
         let requests: Vec<FitRequest<'_>> = group
             .iter()
             .zip(&energies)
             .zip(&starts)
-            .map(|((&frame, energy), &start)| FitRequest {
+            .map(|((&frame, energy), start)| FitRequest {
                 energy,
-                start,
+                start: start.clone(),
                 mask: mask.clone(),
-                bounds: scenario_bounds(scenario, &start),
+                bounds: scenario_bounds(scenario, &template, start),
                 budget: args.budget,
                 seed: frame_seed(args.seed, frame),
             })
@@ -238,18 +259,17 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
             None => requests.iter().map(|r| fitter.fit(r)).collect::<Result<Vec<_>, _>>()?,
         };
         for ((&frame, result), start_energy) in group.iter().zip(results).zip(start_energies) {
-            let mut pose = [0.0; POSE_DIM];
-            pose.copy_from_slice(&result.pose);
+            let pose = result.pose.clone();
             let gt = &dataset.gt_poses[frame];
             let v2v = v2v_mm(&template, &pose, gt);
             let mpjpe = mpjpe_mm(&template, &pose, gt);
+            let coeff = coefficient_rms(&template, &pose, gt);
             sum_v2v += v2v;
             sum_mpjpe += mpjpe;
             sum_e += result.energy;
             sum_t += result.time_s;
             let mut row = json!({
                 "frame": frame,
-                "pose": result.pose,
                 "energy": result.energy,
                 "start_energy": start_energy,
                 "terms": terms_json(&result.terms),
@@ -261,6 +281,13 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
                 "time_s": result.time_s,
                 "trace": result.trace,
             });
+            if let Value::Object(fields) = &mut row {
+                fields.extend(params_json(&template, &pose));
+            }
+            if let Some(c) = coeff {
+                row["shape_rms"] = json!(c);
+                sum_coeff += c;
+            }
             if !result.iterates.is_empty() {
                 row["v2v_mm_per_iteration"] = json!(iterate_errors(&template, &result.iterates, gt, v2v_mm));
                 row["mpjpe_mm_per_iteration"] = json!(iterate_errors(&template, &result.iterates, gt, mpjpe_mm));
@@ -272,13 +299,16 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         }
     }
     let n = frames.len().max(1) as f64;
-    let summary = json!({
+    let mut summary = json!({
         "frames": frames.len(),
         "mean_v2v_mm": sum_v2v / n,
         "mean_mpjpe_mm": sum_mpjpe / n,
         "mean_energy": sum_e / n,
         "mean_time_s": sum_t / n,
     });
+    if template.layout().dim() > template.layout().pose_dim() {
+        summary["mean_shape_rms"] = json!(sum_coeff / n);
+    }
     let mut out = json!({
         "method": fitter.name(),
         "budget": args.budget,
@@ -322,7 +352,7 @@ pub struct Served {
     pub mask: DofMask,
     pub lower: Vec<f64>,
     pub upper: Vec<f64>,
-    pub start: Pose,
+    pub start: Vec<f64>,
     pub budget: Option<usize>,
 }
 
@@ -334,11 +364,11 @@ impl Served {
         let config = read_energy_config(args.energy.as_deref(), args.gradient)?;
         let dataset = Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))?;
         let template = template_for(&dataset, args.template.as_deref())?;
-        let energy = energy_for_frame(&dataset, template, args.frame, config)?;
+        let energy = energy_for_frame(&dataset, template.clone(), args.frame, config)?;
         let scenario = dataset.meta.config.scenario;
-        let start = dataset.start_poses[args.frame];
-        let mask = scenario_mask(scenario);
-        let (lower, upper) = scenario_bounds(scenario, &start).restrict(&mask);
+        let start = dataset.start_poses[args.frame].clone();
+        let mask = scenario_mask(scenario, &template);
+        let (lower, upper) = scenario_bounds(scenario, &template, &start).restrict(&mask);
         Ok(Self { energy, mask, lower, upper, start, budget: args.budget })
     }
 
@@ -359,7 +389,7 @@ impl Served {
                 "lower": self.lower,
                 "upper": self.upper,
                 "start": self.mask.gather(&self.start),
-                "names": self.mask.free.iter().map(|&i| dof_name(i)).collect::<Vec<_>>(),
+                "names": self.mask.free.iter().map(|&i| self.energy.template().layout().name(i)).collect::<Vec<_>>(),
                 "modality": self.energy.modality().name(),
                 "energy_config": self.energy.config(),
                 "evaluations": self.energy.evaluations(),
@@ -382,7 +412,7 @@ impl Served {
         {
             bail!("budget of {b} evaluations spent");
         }
-        let mut pose = self.start;
+        let mut pose = self.start.clone();
         self.mask.scatter(&values, &mut pose);
         let want_grad = request.get("gradient").and_then(Value::as_bool) == Some(true);
         if want_grad {

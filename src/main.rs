@@ -394,7 +394,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             commands::template_pose(&pose, &out, &template, method)
         }
         Command::Synth { modality, scenario, frames, seed, out, source, noise, fps, motions, template } => {
-            let template = commands::load_template(template.template.as_deref(), &template.shape)?;
+            let template = commands::load_model(template.template.as_deref(), &template.shape)?;
             let args = SynthArgs { modality, scenario, source, frames, seed, fps, noise, motions, out };
             // Settings are checked before the progress bar appears.
             let bar = progress_bar(frames, cli.quiet, "synth");

@@ -401,8 +401,11 @@ fn bad_model_files_are_one_line_errors_and_write_nothing() {
     let junk = dir.path().join("junk.npz");
     std::fs::write(&junk, b"not a zip").unwrap();
     refused_file(dir.path(), &junk, pose.clone(), "not an .npz");
-    // Commands not yet generalised refuse another skeleton with a one-line error.
-    let o = lfit(&["synth", "--modality", "markers", "--frames", "2", "--template", path_str(&path), "--out", path_str(&dir.path().join("d.npz"))]);
-    assert_one_line_error(&o, "18-joint");
-    assert!(!dir.path().join("d.npz").exists());
+    // Synthesis runs on the model; a checkpoint trained on the default template is refused on it.
+    let d = dir.path().join("d.npz");
+    lfit_json(&["synth", "--modality", "keypoints2d", "--source", "uniform", "--frames", "2", "--template", path_str(&path), "--out", path_str(&d)]);
+    let ckpt = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("checkpoints/keypoints2d");
+    let o = lfit(&["fit", "--data", path_str(&d), "--template", path_str(&path), "--method", "neural", "--checkpoint", path_str(&ckpt), "--budget", "10", "--out", path_str(&dir.path().join("never.json"))]);
+    assert_one_line_error(&o, "checkpoint");
+    assert!(!dir.path().join("never.json").exists());
 }

@@ -21,7 +21,7 @@ use lfit::nn::checkpoint::{self, CheckpointMeta};
 use lfit::nn::unroll::{core_rows, evaluate, observation_rows, rows_to_poses, step_rows};
 use lfit::nn::{CoreKind, Dropout, FeatureStats, GammaMode, NetConfig, NeuralNet, StepShape, UpdateRule};
 use lfit::model::observe::{Modality, Sensor};
-use lfit::model::pose::{Bounds, DofMask, POSE_DIM};
+use lfit::model::pose::{Bounds, DofMask, POSE_DIM, as_pose};
 use lfit::nn::tensor::{ndarray_device, poses_to_tensor, tensor_to_rows};
 use lfit::model::{Energy, default_template, metrics::v2v_mm};
 use lfit::train::{Frames, base_energy, measure_stats, synth_frames};
@@ -137,7 +137,7 @@ fn every_step_of_every_shipped_checkpoint_matches_burn_within_1e_4() {
         let mut ort = OrtNetwork::from_exported(&exported, &shipped(m), SessionOptions::default()).expect("sessions");
         let frames = frames_for(m.parse().expect("modality"), 8, 0x0077_0000 + k as u64);
         let energies: Vec<&Energy> = frames.energies.iter().collect();
-        let worst = lockstep(&ckpt.net, &ckpt.stats, &mut ort, &energies, &frames.dataset.start_poses);
+        let worst = lockstep(&ckpt.net, &ckpt.stats, &mut ort, &energies, &frames.dataset.start_poses.iter().map(|p| as_pose(p)).collect::<Vec<_>>());
         eprintln!("{m}: worst |Burn − ORT| over θ0, h0 and {} iterations of Δθ, λ, γ, update, states: {worst:e}", ckpt.meta.network.iterations);
     }
 }
@@ -157,7 +157,7 @@ fn full_fits_with_onnx_runtime_end_within_1_mm_v2v_of_burn_per_shipped_checkpoin
             .energies
             .iter()
             .zip(&frames.dataset.start_poses)
-            .map(|(energy, &start)| FitRequest { energy, start, mask: DofMask::local43(), bounds: Bounds::local(&start), budget: 10, seed: 0 })
+            .map(|(energy, start)| FitRequest { energy, start: start.clone(), mask: DofMask::local43(), bounds: Bounds::local(start), budget: 10, seed: 0 })
             .collect();
         let a = burn.fit_batch(&requests).expect("burn fit");
         let b = ort.fit_batch(&requests).expect("ort fit");
@@ -219,7 +219,7 @@ fn every_ablation_variant_exports_and_matches_burn() {
         let expected_files = 1 + config.weight_sets() * if config.has_step_network() { 2 } else { 1 };
         assert_eq!(exported.files.len(), expected_files, "{name}: files");
         let mut ort = OrtNetwork::from_exported(&exported, Path::new(name), SessionOptions::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
-        let worst = lockstep(&net, &stats, &mut ort, &energies, &frames.dataset.start_poses);
+        let worst = lockstep(&net, &stats, &mut ort, &energies, &frames.dataset.start_poses.iter().map(|p| as_pose(p)).collect::<Vec<_>>());
         eprintln!("{name}: worst difference {worst:e}");
     }
 }
@@ -369,7 +369,7 @@ fn the_python_example_runs_the_exported_step_as_burn_does() {
         let (net, stats, c) = (&ckpt.net, &ckpt.stats, &ckpt.net.config);
         let frames = frames_for(m.parse().expect("modality"), 1, 0x007A_0000 + k as u64);
         let energy = &frames.energies[0];
-        let pose = frames.dataset.start_poses[0];
+        let pose = as_pose(&frames.dataset.start_poses[0]);
         let mask = DofMask::local43();
         let free: Vec<f32> = (0..POSE_DIM).map(|i| if mask.free.contains(&i) { 1.0 } else { 0.0 }).collect();
 

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use glam::Vec3;
 use lfit_model::observe::{Modality, Sensor};
-use lfit_model::pose::{POSE_DIM, Pose, pose_from_slice};
+use lfit_model::pose::POSE_DIM;
 use lfit_model::scan::{Mask, VoxelGrid};
 use lfit_model::template::write_atomic;
 use serde::{Deserialize, Serialize};
@@ -30,6 +30,34 @@ pub struct Meta {
     pub config: SynthConfig,
     /// The motion behind each frame (`walk`, ..., or `uniform`).
     pub frame_motions: Vec<String>,
+    /// Pose entries per frame (`3 + 3J`); absent in files of the default skeleton (57).
+    #[serde(default = "default_pose_dim", skip_serializing_if = "is_default_pose_dim")]
+    pub pose_dim: usize,
+    /// Shape coefficients per frame (`gt_shape`, `start_shape`); absent when 0.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub shape_dim: usize,
+    /// Expression coefficients per frame (`gt_expression`, `start_expression`); absent when 0.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub expression_dim: usize,
+}
+
+fn default_pose_dim() -> usize {
+    POSE_DIM
+}
+
+fn is_default_pose_dim(d: &usize) -> bool {
+    *d == POSE_DIM
+}
+
+fn is_zero(d: &usize) -> bool {
+    *d == 0
+}
+
+impl Meta {
+    /// Length of a frame's full parameter vector: pose, shape, expression.
+    pub fn param_dim(&self) -> usize {
+        self.pose_dim + self.shape_dim + self.expression_dim
+    }
 }
 
 /// Per-frame observations.
@@ -47,8 +75,12 @@ pub enum Observations {
 pub struct Dataset {
     pub meta: Meta,
     pub sensor: Sensor,
-    pub start_poses: Vec<Pose>,
-    pub gt_poses: Vec<Pose>,
+    /// Per frame, the fitters' start: a full parameter vector in the model's layout (pose, then
+    /// shape and expression, mean = 0).
+    pub start_poses: Vec<Vec<f64>>,
+    /// Per frame, the ground truth: pose, shape and expression (on disk `gt_poses`, `gt_shape`,
+    /// `gt_expression`).
+    pub gt_poses: Vec<Vec<f64>>,
     pub observations: Observations,
 }
 
@@ -59,8 +91,9 @@ struct MetaJson {
     sensor: Sensor,
 }
 
-fn flat_poses(poses: &[Pose]) -> Vec<f64> {
-    poses.iter().flat_map(|p| p.iter().copied()).collect()
+/// Entries `range` of every row, flattened.
+fn flat_block(rows: &[Vec<f64>], range: std::ops::Range<usize>) -> Vec<f64> {
+    rows.iter().flat_map(|p| p[range.clone()].iter().copied()).collect()
 }
 
 impl Dataset {
@@ -80,11 +113,24 @@ impl Dataset {
     pub fn to_arrays(&self) -> Result<Vec<(&'static str, Array)>, SynthError> {
         let n = self.len();
         let meta = serde_json::to_string(&MetaJson { meta: self.meta.clone(), sensor: self.sensor.clone() }).map_err(|e| SynthError::Dataset(e.to_string()))?;
+        let m = &self.meta;
+        let (p, b, e) = (m.pose_dim, m.shape_dim, m.expression_dim);
+        if let Some(i) = self.gt_poses.iter().chain(&self.start_poses).position(|r| r.len() != m.param_dim()) {
+            return Err(SynthError::Dataset(format!("row {i} has the wrong number of parameters (expected {})", m.param_dim())));
+        }
         let mut arrays = vec![
             ("meta", Array::string(&meta)),
-            ("gt_poses", Array::f64(vec![n, POSE_DIM], &flat_poses(&self.gt_poses))),
-            ("start_poses", Array::f64(vec![n, POSE_DIM], &flat_poses(&self.start_poses))),
+            ("gt_poses", Array::f64(vec![n, p], &flat_block(&self.gt_poses, 0..p))),
+            ("start_poses", Array::f64(vec![n, p], &flat_block(&self.start_poses, 0..p))),
         ];
+        if b > 0 {
+            arrays.push(("gt_shape", Array::f64(vec![n, b], &flat_block(&self.gt_poses, p..p + b))));
+            arrays.push(("start_shape", Array::f64(vec![n, b], &flat_block(&self.start_poses, p..p + b))));
+        }
+        if e > 0 {
+            arrays.push(("gt_expression", Array::f64(vec![n, e], &flat_block(&self.gt_poses, p + b..p + b + e))));
+            arrays.push(("start_expression", Array::f64(vec![n, e], &flat_block(&self.start_poses, p + b..p + b + e))));
+        }
         let cams = self.sensor.cameras();
         let k = cams.len();
         arrays.push(("camera_intrinsics", Array::f64(vec![k, 4], &cams.iter().flat_map(|c| [c.fx, c.fy, c.cx, c.cy]).collect::<Vec<_>>())));
@@ -146,17 +192,28 @@ impl Dataset {
             }
             Ok(())
         };
-        let poses = |name: &str| -> Result<Vec<Pose>, SynthError> {
+        let block = |name: &str, width: usize| -> Result<Vec<Vec<f64>>, SynthError> {
+            if width == 0 {
+                return Ok(vec![Vec::new(); n]);
+            }
             let a = get(name)?;
-            shape(name, a, &[n, POSE_DIM])?;
-            a.to_f64(name)?
-                .chunks_exact(POSE_DIM)
-                .enumerate()
-                .map(|(i, c)| pose_from_slice(c).map_err(|e| SynthError::Dataset(format!("{name}[{i}]: {e}"))))
-                .collect()
+            shape(name, a, &[n, width])?;
+            let flat = a.to_f64(name)?;
+            if let Some(i) = flat.iter().position(|x| !x.is_finite()) {
+                return Err(SynthError::Dataset(format!("{name}[{}]: value {} is not finite ({})", i / width, i % width, flat[i])));
+            }
+            Ok(flat.chunks_exact(width).map(<[f64]>::to_vec).collect())
         };
-        let gt_poses = poses("gt_poses")?;
-        let start_poses = poses("start_poses")?;
+        let rows = |pose: &str, shape_key: &str, expr_key: &str| -> Result<Vec<Vec<f64>>, SynthError> {
+            let mut out = block(pose, meta.pose_dim)?;
+            for (r, (b, e)) in out.iter_mut().zip(block(shape_key, meta.shape_dim)?.into_iter().zip(block(expr_key, meta.expression_dim)?)) {
+                r.extend(b);
+                r.extend(e);
+            }
+            Ok(out)
+        };
+        let gt_poses = rows("gt_poses", "gt_shape", "gt_expression")?;
+        let start_poses = rows("start_poses", "start_shape", "start_expression")?;
         let observations = match sensor.modality() {
             Modality::Scan => {
                 let v = meta.template_vertices;

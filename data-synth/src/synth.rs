@@ -8,10 +8,12 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::Vec3;
 use lfit_model::observe::{Modality, Sensor};
-use lfit_model::pose::{Bounds, LOCAL_ROTATION_DEG, LOCAL_TRANSLATION, POSE_DIM, Pose};
+use lfit_model::layout::Layout;
+use lfit_model::pose::{Bounds, LOCAL_ROTATION_DEG, LOCAL_TRANSLATION, POSE_DIM, Pose, SHAPE_BOUND};
 use lfit_model::scan::{VoxelGrid, squared_edt};
 use lfit_model::Template;
 use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, StandardNormal};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -126,6 +128,9 @@ fn stream(seed: u64, index: u64) -> ChaCha8Rng {
 }
 
 const POSE_STREAM: u64 = 1 << 32;
+/// Streams of the shape and expression draws (apart from the pose streams, so a rigid model's
+/// poses are what they were before models had shape).
+const SHAPE_STREAM: u64 = 3 << 32;
 
 /// Generates a dataset; `progress` is called with the number of frames done.
 pub fn synthesize(config: &SynthConfig, template: &Template, sensor: &Sensor, progress: &(dyn Fn(usize) + Sync)) -> Result<Dataset, SynthError> {
@@ -134,8 +139,11 @@ pub fn synthesize(config: &SynthConfig, template: &Template, sensor: &Sensor, pr
     if sensor.modality() != config.modality {
         return Err(SynthError::Setting { name: "sensor", value: sensor.modality().to_string(), reason: format!("does not match modality {}", config.modality) });
     }
-    let (starts, targets, motions) = scenario_poses(config);
+    let (starts, targets, motions) = scenario_poses(config, template)?;
     let done = AtomicUsize::new(0);
+    if let Some(i) = (0..config.frames).find(|&i| targets[i].len() != template.layout().dim()) {
+        return Err(SynthError::Setting { name: "template", value: template.id.clone(), reason: format!("frame {i} has {} parameters", targets[i].len()) });
+    }
     let frames: Vec<FrameObs> = (0..config.frames)
         .into_par_iter()
         .map(|i| {
@@ -166,6 +174,9 @@ pub fn synthesize(config: &SynthConfig, template: &Template, sensor: &Sensor, pr
             template_vertices: template.num_vertices(),
             config: config.clone(),
             frame_motions: motions,
+            pose_dim: template.layout().pose_dim(),
+            shape_dim: template.layout().shape,
+            expression_dim: template.layout().expression,
         },
         sensor: sensor.clone(),
         start_poses: starts,
@@ -174,10 +185,55 @@ pub fn synthesize(config: &SynthConfig, template: &Template, sensor: &Sensor, pr
     })
 }
 
-/// Start poses, targets and the motion behind each frame.
-fn scenario_poses(config: &SynthConfig) -> (Vec<Pose>, Vec<Pose>, Vec<String>) {
-    let global = Bounds::global();
+/// A pose of the default skeleton (the motion library's) on `template`'s skeleton: the root
+/// translation, and each papers/000 joint's rotation on the model joint its joint map names
+/// (joints it does not name stay at rest). The identity on the default skeleton.
+pub fn retarget(pose: &Pose, template: &Template, layout: &Layout) -> Vec<f64> {
+    if layout.pose_dim() == POSE_DIM && template.info.joint_map.iter().enumerate().all(|(j, m)| *m == Some(j)) {
+        return pose.to_vec();
+    }
+    let mut out = vec![0.0; layout.pose_dim()];
+    out[..3].copy_from_slice(&pose[..3]);
+    for (j, m) in template.info.joint_map.iter().enumerate() {
+        if let Some(m) = *m {
+            let (a, b) = (layout.rotation_offset(m), lfit_model::pose::rot_offset(j));
+            out[a..a + 3].copy_from_slice(&pose[b..b + 3]);
+        }
+    }
+    out
+}
+
+/// Shape and expression coefficients of a subject: `N(0, I)` (the shape prior), clipped to
+/// ±[`SHAPE_BOUND`]; none for a model without them (and then no random number is drawn).
+fn subject_coefficients(layout: &Layout, seed: u64, index: u64) -> Vec<f64> {
+    let k = layout.shape + layout.expression;
+    if k == 0 {
+        return Vec::new();
+    }
+    let mut rng = stream(seed, SHAPE_STREAM + index);
+    (0..k).map(|_| StandardNormal.sample(&mut rng)).map(|x: f64| x.clamp(-SHAPE_BOUND, SHAPE_BOUND)).collect()
+}
+
+/// Start parameters, targets and the motion behind each frame, in `template`'s layout. Targets
+/// carry the subject's shape and expression; starts have the mean (zero) coefficients: a fitter
+/// does not know them.
+fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<(Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<String>), SynthError> {
+    let layout = template.layout();
+    let global = Bounds::global_for(template);
+    let pd = layout.pose_dim();
     let n = config.frames;
+    if config.source == PoseSource::Motion && template.info.joint_map.iter().all(Option::is_none) {
+        return Err(SynthError::Setting {
+            name: "source",
+            value: "motion".into(),
+            reason: format!("model '{}' maps none of its joints to the papers/000 skeleton (lfit key 'joint_map'): use --source uniform", template.id),
+        });
+    }
+    let with_coefficients = |mut pose: Vec<f64>, coefficients: &[f64]| {
+        pose.extend_from_slice(coefficients);
+        pose
+    };
+    let zeros = vec![0.0; layout.shape + layout.expression];
     if config.scenario == Scenario::Sequence {
         let mut rng = stream(config.seed, POSE_STREAM);
         let kind = config.motions[rng.random_range(0..config.motions.len())];
@@ -190,11 +246,19 @@ fn scenario_poses(config: &SynthConfig) -> (Vec<Pose>, Vec<Pose>, Vec<String>) {
             p[0] -= mx / (n + 1) as f64;
             p[2] -= mz / (n + 1) as f64;
         }
+        // One subject for the whole sequence; every frame starts from the previous frame's truth.
+        let subject = subject_coefficients(&layout, config.seed, 0);
+        let poses: Vec<Vec<f64>> = poses
+            .iter()
+            .map(|p| {
+                with_coefficients(retarget(p, template, &layout), &subject)
+            })
+            .collect();
         let starts = poses[..n].to_vec();
         let targets = poses[1..].to_vec();
-        return (starts, targets, vec![kind.name().to_string(); n]);
+        return Ok((starts, targets, vec![kind.name().to_string(); n]));
     }
-    let per_frame: Vec<(Pose, Pose, String)> = (0..n)
+    let per_frame: Vec<(Vec<f64>, Vec<f64>, String)> = (0..n)
         .into_par_iter()
         .map(|i| {
             let mut rng = stream(config.seed, POSE_STREAM + 1 + i as u64);
@@ -213,23 +277,23 @@ fn scenario_poses(config: &SynthConfig) -> (Vec<Pose>, Vec<Pose>, Vec<String>) {
                         p[0] += x - tx;
                         p[2] += z - tz;
                     }
-                    (target, previous, kind.name().to_string())
+                    (retarget(&target, template, &layout), retarget(&previous, template, &layout), kind.name().to_string())
                 }
                 PoseSource::Uniform => {
-                    let mut target = [0.0; POSE_DIM];
+                    let mut target = vec![0.0; pd];
                     for (k, v) in target.iter_mut().enumerate() {
                         let (lo, hi) = if k == 1 { (-0.3, 0.3) } else { (global.lower[k], global.upper[k]) };
                         *v = rng.random_range(lo..hi);
                     }
-                    let mut previous = target;
+                    let mut previous = target.clone();
                     let local = Bounds::local(&target);
-                    for k in 0..POSE_DIM {
+                    for k in 0..pd {
                         previous[k] = rng.random_range(local.lower[k]..local.upper[k]);
                     }
                     (target, previous, "uniform".to_string())
                 }
             };
-            global.clamp(&mut target);
+            global.clamp(&mut target[..]);
             let start = match config.scenario {
                 Scenario::Local => {
                     // A hair inside the box, so that the target lies in the start's local box
@@ -239,9 +303,10 @@ fn scenario_poses(config: &SynthConfig) -> (Vec<Pose>, Vec<Pose>, Vec<String>) {
                     Bounds::around(&target, LOCAL_TRANSLATION * shrink, LOCAL_ROTATION_DEG.to_radians() * shrink).clamp(&mut s);
                     s
                 }
-                _ => [0.0; POSE_DIM],
+                _ => vec![0.0; pd],
             };
-            (start, target, name)
+            let subject = subject_coefficients(&layout, config.seed, 1 + i as u64);
+            (with_coefficients(start, &zeros), with_coefficients(target, &subject), name)
         })
         .collect();
     let mut starts = Vec::with_capacity(n);
@@ -252,7 +317,7 @@ fn scenario_poses(config: &SynthConfig) -> (Vec<Pose>, Vec<Pose>, Vec<String>) {
         targets.push(t);
         names.push(m);
     }
-    (starts, targets, names)
+    Ok((starts, targets, names))
 }
 
 enum FrameObs {
@@ -260,7 +325,7 @@ enum FrameObs {
     Scan { points: Vec<Vec3>, visible: Vec<bool>, silhouettes: Vec<lfit_model::scan::Mask> },
 }
 
-fn observe_frame(template: &Template, sensor: &Sensor, target: &Pose, noise: &NoiseConfig, rng: &mut ChaCha8Rng) -> FrameObs {
+fn observe_frame(template: &Template, sensor: &Sensor, target: &[f64], noise: &NoiseConfig, rng: &mut ChaCha8Rng) -> FrameObs {
     match sensor {
         Sensor::Scan(_) => {
             let Some(pred) = sensor.predict_scan(template, target) else { unreachable!("scan sensor") };
@@ -334,7 +399,7 @@ mod tests {
             for source in [PoseSource::Motion, PoseSource::Uniform] {
                 let mut c = SynthConfig::new(Modality::Markers, scenario, 40, 5);
                 c.source = source;
-                let (starts, targets, _) = scenario_poses(&c);
+                let (starts, targets, _) = scenario_poses(&c, &t).unwrap();
                 for (s, g) in starts.iter().zip(&targets) {
                     assert!(Bounds::global().contains(g), "{scenario} {source:?}");
                     match scenario {
@@ -345,11 +410,38 @@ mod tests {
             }
         }
         let c = SynthConfig::new(Modality::Markers, Scenario::Sequence, 30, 5);
-        let (starts, targets, _) = scenario_poses(&c);
+        let (starts, targets, _) = scenario_poses(&c, &t).unwrap();
         for i in 1..30 {
             assert_eq!(starts[i], targets[i - 1]);
         }
-        let _ = t;
+    }
+
+    #[test]
+    fn other_models_get_retargeted_motion_uniform_poses_and_shapes_from_the_prior() {
+        let (m, _) = lfit_model::body::morphable_default_template().unwrap();
+        let layout = m.layout();
+        let mut c = SynthConfig::new(Modality::Markers, Scenario::Local, 200, 5);
+        let (starts, targets, _) = scenario_poses(&c, &m).unwrap();
+        let global = Bounds::global_for(&m);
+        let mut second_moment = 0.0;
+        for (s, g) in starts.iter().zip(&targets) {
+            assert_eq!((s.len(), g.len()), (65, 65));
+            assert!(global.contains(g));
+            assert!(Bounds::local_in(&layout, s).contains(g));
+            assert!(s[57..].iter().all(|&b| b == 0.0), "starts have the mean shape");
+            second_moment += g[57..].iter().map(|b| b * b).sum::<f64>();
+        }
+        // β ~ N(0, I): the mean of β² over 200 × 8 draws is near 1.
+        let mean_sq = second_moment / (200.0 * 8.0);
+        assert!((0.85..1.15).contains(&mean_sq), "{mean_sq}");
+        // The rigid template's poses are the same poses, so old datasets are reproduced.
+        let d = lfit_model::default_template();
+        let (_, rigid, _) = scenario_poses(&c, &d).unwrap();
+        for (a, b) in rigid.iter().zip(&targets) {
+            assert_eq!(&a[..], &b[..57]);
+        }
+        c.source = PoseSource::Uniform;
+        assert!(scenario_poses(&c, &m).is_ok());
     }
 
     #[test]

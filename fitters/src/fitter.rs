@@ -6,11 +6,9 @@ use std::str::FromStr;
 use std::time::Instant;
 
 use lfit_model::energy::Energy;
-use lfit_model::pose::{Bounds, DofMask, POSE_DIM, Pose, rot_offset};
-use lfit_model::skeleton::{
-    HEAD, L_ANKLE, L_ELBOW, L_FOOT, L_HAND, L_HIP, L_KNEE, L_SHOULDER, LOWER_TORSO, MIDDLE_TORSO, R_ANKLE, R_ELBOW, R_FOOT,
-    R_HAND, R_HIP, R_KNEE, R_SHOULDER, ROOT,
-};
+use lfit_model::layout::{Block, Layout};
+use lfit_model::pose::{Bounds, DofMask, rot_offset};
+use lfit_model::template::Template;
 use serde::Serialize;
 
 use crate::error::FitError;
@@ -19,12 +17,16 @@ use crate::error::FitError;
 pub const TRANSLATION_STEP: f64 = 0.1;
 /// Initial mutation step of every rotation, degrees (papers/000 §4.1: "3° angle").
 pub const ROTATION_STEP_DEG: f64 = 3.0;
+/// Initial mutation step of shape and expression coefficients, standard deviations (ours: a
+/// tenth of the ±3 box, as 3° is of a typical joint range).
+pub const SHAPE_STEP: f64 = 0.3;
 
 /// What one fit is asked to do.
 #[derive(Debug, Clone)]
 pub struct FitRequest<'a> {
     pub energy: &'a Energy,
-    pub start: Pose,
+    /// Start parameters in the energy's layout (`Energy::dim` entries).
+    pub start: Vec<f64>,
     /// Free DOFs; the others keep their start values.
     pub mask: DofMask,
     /// Box on every pose entry; the start is clamped into it.
@@ -86,39 +88,46 @@ impl Strategy {
         }
     }
 
-    /// The stages as (pose entries, budget weight). Entries not free in `mask` are dropped, and so
-    /// are stages left empty.
-    pub fn stages(self, mask: &DofMask) -> Vec<(Vec<usize>, f64)> {
-        let joints = |js: &[usize], translation: bool| -> Vec<usize> {
-            let mut out: Vec<usize> = if translation { vec![0, 1, 2] } else { Vec::new() };
-            for &j in js {
+    /// The stages as (parameter entries, budget weight), on the joints' part labels
+    /// ([`lfit_model::info::ModelInfo::parts`]): grouped = `torso` (with the root translation,
+    /// and the shape and expression coefficients), then `left_leg`, `right_leg`, `left_arm`,
+    /// `right_arm`; hierarchical = the root joint with the translation (and shape/expression),
+    /// the rest of `torso`, then the arms and the legs. Entries not free in `mask` are dropped,
+    /// and so are stages left empty. Joints with other labels join the torso stage.
+    pub fn stages(self, mask: &DofMask, template: &Template) -> Vec<(Vec<usize>, f64)> {
+        let layout = template.layout();
+        let parts = &template.info.parts;
+        let coefficients: Vec<usize> = layout.range(Block::Shape).chain(layout.range(Block::Expression)).collect();
+        let entries = |joints: &[usize], with_root_entries: bool| -> Vec<usize> {
+            let mut out: Vec<usize> = if with_root_entries { [0, 1, 2].into_iter().chain(coefficients.iter().copied()).collect() } else { Vec::new() };
+            for &j in joints {
                 out.extend(rot_offset(j)..rot_offset(j) + 3);
             }
             out.retain(|i| mask.free.contains(i));
             out.sort_unstable();
             out
         };
-        let left_leg = [L_HIP, L_KNEE, L_ANKLE, L_FOOT];
-        let right_leg = [R_HIP, R_KNEE, R_ANKLE, R_FOOT];
-        let left_arm = [L_SHOULDER, L_ELBOW, L_HAND];
-        let right_arm = [R_SHOULDER, R_ELBOW, R_HAND];
+        let with_part = |name: &str| -> Vec<usize> { (0..layout.num_joints()).filter(|&j| parts[j] == name).collect() };
+        let limbs = ["left_leg", "right_leg", "left_arm", "right_arm"];
+        let torso: Vec<usize> = (0..layout.num_joints()).filter(|&j| !limbs.contains(&parts[j].as_str())).collect();
         let stages: Vec<(Vec<usize>, f64)> = match self {
             Strategy::Holistic => vec![(mask.free.clone(), 1.0)],
             Strategy::Grouped => vec![
-                (joints(&[ROOT, LOWER_TORSO, MIDDLE_TORSO, HEAD], true), 3.0),
-                (joints(&left_leg, false), 2.0),
-                (joints(&right_leg, false), 2.0),
-                (joints(&left_arm, false), 2.0),
-                (joints(&right_arm, false), 2.0),
+                (entries(&torso, true), 3.0),
+                (entries(&with_part("left_leg"), false), 2.0),
+                (entries(&with_part("right_leg"), false), 2.0),
+                (entries(&with_part("left_arm"), false), 2.0),
+                (entries(&with_part("right_arm"), false), 2.0),
             ],
             Strategy::Hierarchical => {
+                let rest_of_torso: Vec<usize> = torso.iter().copied().filter(|&j| j != 0).collect();
                 let steps = [
-                    joints(&[ROOT], true),
-                    joints(&[LOWER_TORSO, MIDDLE_TORSO, HEAD], false),
-                    joints(&left_arm, false),
-                    joints(&right_arm, false),
-                    joints(&left_leg, false),
-                    joints(&right_leg, false),
+                    entries(&[0], true),
+                    entries(&rest_of_torso, false),
+                    entries(&with_part("left_arm"), false),
+                    entries(&with_part("right_arm"), false),
+                    entries(&with_part("left_leg"), false),
+                    entries(&with_part("right_leg"), false),
                 ];
                 steps.into_iter().map(|s| {
                     let w = s.len() as f64;
@@ -162,27 +171,42 @@ pub fn split_budget(budget: usize, weights: &[f64]) -> Vec<usize> {
     out
 }
 
-/// The per-entry initial step (papers/000 §4.1) of pose entries `dofs`.
-pub fn steps(dofs: &[usize]) -> Vec<f64> {
-    dofs.iter().map(|&i| if i < 3 { TRANSLATION_STEP } else { ROTATION_STEP_DEG.to_radians() }).collect()
+/// The per-entry initial step (papers/000 §4.1) of parameter entries `dofs`: translation,
+/// rotations, and [`SHAPE_STEP`] for shape and expression.
+pub fn steps(dofs: &[usize], layout: &Layout) -> Vec<f64> {
+    dofs.iter()
+        .map(|&i| match layout.block_of(i) {
+            Some(Block::Translation) => TRANSLATION_STEP,
+            Some(Block::Shape | Block::Expression) => SHAPE_STEP,
+            _ => ROTATION_STEP_DEG.to_radians(),
+        })
+        .collect()
 }
 
-/// Checks a request: budget ≥ 1, bounds of the right shape with lower ≤ upper, finite start.
-pub fn check_request(request: &FitRequest<'_>) -> Result<Pose, FitError> {
+/// Checks a request: budget ≥ 1, a start and bounds of the energy's length with lower ≤ upper,
+/// finite start, mask inside it.
+pub fn check_request(request: &FitRequest<'_>) -> Result<Vec<f64>, FitError> {
     if request.budget == 0 {
         return Err(FitError::Budget(0));
     }
-    let b = &request.bounds;
-    if b.lower.len() != POSE_DIM || b.upper.len() != POSE_DIM {
-        return Err(FitError::Bounds(format!("bounds have {}/{} entries, expected {POSE_DIM}", b.lower.len(), b.upper.len())));
+    let dim = request.energy.dim();
+    if request.start.len() != dim {
+        return Err(FitError::Start(format!("start has {} entries, the model's parameter vector {dim}", request.start.len())));
     }
-    if let Some(i) = (0..POSE_DIM).find(|&i| !(b.lower[i] <= b.upper[i]) || !b.lower[i].is_finite() || !b.upper[i].is_finite()) {
+    let b = &request.bounds;
+    if b.lower.len() != dim || b.upper.len() != dim {
+        return Err(FitError::Bounds(format!("bounds have {}/{} entries, expected {dim}", b.lower.len(), b.upper.len())));
+    }
+    if let Some(i) = (0..dim).find(|&i| !(b.lower[i] <= b.upper[i]) || !b.lower[i].is_finite() || !b.upper[i].is_finite()) {
         return Err(FitError::Bounds(format!("entry {i}: [{}, {}]", b.lower[i], b.upper[i])));
+    }
+    if let Some(&i) = request.mask.free.iter().find(|&&i| i >= dim) {
+        return Err(FitError::Start(format!("mask '{}' frees entry {i}, beyond the model's {dim}", request.mask.name)));
     }
     if let Some(i) = request.start.iter().position(|v| !v.is_finite()) {
         return Err(FitError::Start(format!("start pose entry {i} is not finite")));
     }
-    let mut start = request.start;
+    let mut start = request.start.clone();
     b.clamp(&mut start);
     Ok(start)
 }
@@ -190,7 +214,7 @@ pub fn check_request(request: &FitRequest<'_>) -> Result<Pose, FitError> {
 /// One stage: optimise `dofs` of `pose` (in place) within `bounds` using at most `budget`
 /// evaluations of `energy`; returns the trace in evaluations relative to the stage start.
 pub(crate) trait StageSolver: Sync {
-    fn solve(&self, energy: &Energy, pose: &mut Pose, dofs: &[usize], bounds: &Bounds, budget: usize, seed: u64) -> Result<StageOutcome, FitError>;
+    fn solve(&self, energy: &Energy, pose: &mut [f64], dofs: &[usize], bounds: &Bounds, budget: usize, seed: u64) -> Result<StageOutcome, FitError>;
 }
 
 pub(crate) struct StageOutcome {
@@ -205,7 +229,7 @@ pub(crate) fn run_staged(name: String, solver: &dyn StageSolver, strategy: Strat
     let energy = request.energy;
     let (e0, g0) = (energy.evaluations(), energy.gradient_evaluations());
     let timer = Instant::now();
-    let stages = strategy.stages(&request.mask);
+    let stages = strategy.stages(&request.mask, energy.template());
     let weights: Vec<f64> = stages.iter().map(|(_, w)| *w).collect();
     // The start is evaluation 1, so a fit is never worse than its start; the stages share the rest.
     let mut best = energy.evaluate(&pose).total;
@@ -219,7 +243,7 @@ pub(crate) fn run_staged(name: String, solver: &dyn StageSolver, strategy: Strat
         let offset = energy.evaluations() - e0;
         // Stage seeds differ but follow from the request's seed.
         let seed = request.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(k as u64);
-        let before = pose;
+        let before = pose.clone();
         let out = solver.solve(energy, &mut pose, dofs, &request.bounds, budget, seed)?;
         iterations += out.iterations;
         if out.best < best {
@@ -239,7 +263,7 @@ pub(crate) fn run_staged(name: String, solver: &dyn StageSolver, strategy: Strat
     let report = energy.inspect(&pose);
     Ok(FitResult {
         method: name,
-        pose: pose.to_vec(),
+        pose,
         energy: report.total,
         terms: report.terms,
         evaluations: energy.evaluations() - e0,
@@ -266,14 +290,29 @@ mod tests {
 
     #[test]
     fn strategies_cover_every_free_dof_once() {
+        let t = lfit_model::default_template();
         for mask in [DofMask::full57(), DofMask::local43(), DofMask::global41()] {
             for s in Strategy::ALL {
-                let mut all: Vec<usize> = s.stages(&mask).into_iter().flat_map(|(d, _)| d).collect();
+                let mut all: Vec<usize> = s.stages(&mask, &t).into_iter().flat_map(|(d, _)| d).collect();
                 all.sort_unstable();
                 assert_eq!(all, mask.free, "{s} on {}", mask.name);
             }
         }
-        assert_eq!(Strategy::Grouped.stages(&DofMask::local43()).len(), 5);
-        assert_eq!(Strategy::Hierarchical.stages(&DofMask::local43()).len(), 6);
+        assert_eq!(Strategy::Grouped.stages(&DofMask::local43(), &t).len(), 5);
+        assert_eq!(Strategy::Hierarchical.stages(&DofMask::local43(), &t).len(), 6);
+        // papers/000 Algorithm 1's groups on the default skeleton: torso + root, then the limbs.
+        let g = Strategy::Grouped.stages(&DofMask::full57(), &t);
+        assert_eq!(g[0].0, [0, 1, 2].into_iter().chain(rot_offset(0)..rot_offset(4)).collect::<Vec<_>>());
+        assert_eq!(g[1].0, (rot_offset(8)..rot_offset(12)).collect::<Vec<_>>());
+        // On a morphable model the shape coefficients go with the torso and root.
+        let (m, _) = lfit_model::body::morphable_default_template().unwrap();
+        let mask = DofMask::parse_for("local", &m).unwrap();
+        for s in Strategy::ALL {
+            let stages = s.stages(&mask, &m);
+            let mut all: Vec<usize> = stages.iter().flat_map(|(d, _)| d.clone()).collect();
+            all.sort_unstable();
+            assert_eq!(all, mask.free, "{s}");
+            assert!(stages[0].0.contains(&57), "{s}: shape in the first stage");
+        }
     }
 }

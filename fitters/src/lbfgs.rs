@@ -11,7 +11,7 @@ use argmin::core::{CostFunction, Executor, Gradient, State};
 use argmin::solver::linesearch::MoreThuenteLineSearch;
 use argmin::solver::quasinewton::LBFGS;
 use lfit_model::energy::Energy;
-use lfit_model::pose::{Bounds, Pose};
+use lfit_model::pose::Bounds;
 
 use crate::error::FitError;
 use crate::fitter::{FitRequest, FitResult, Fitter, StageOutcome, StageSolver, Strategy, run_staged};
@@ -51,7 +51,7 @@ struct Tracker {
 
 struct Objective<'a> {
     energy: &'a Energy,
-    base: Pose,
+    base: Vec<f64>,
     dofs: &'a [usize],
     lower: Vec<f64>,
     upper: Vec<f64>,
@@ -72,7 +72,7 @@ impl Objective<'_> {
         if st.count >= self.budget {
             return Err(argmin::core::Error::msg(BUDGET_SPENT));
         }
-        let mut pose = self.base;
+        let mut pose = self.base.clone();
         let mut clipped = Vec::with_capacity(x.len());
         for (k, &i) in self.dofs.iter().enumerate() {
             let c = if x[k].is_finite() { x[k].clamp(self.lower[k], self.upper[k]) } else { self.base[i] };
@@ -116,11 +116,11 @@ impl Gradient for &Objective<'_> {
 }
 
 impl StageSolver for LbfgsFitter {
-    fn solve(&self, energy: &Energy, pose: &mut Pose, dofs: &[usize], bounds: &Bounds, budget: usize, _seed: u64) -> Result<StageOutcome, FitError> {
+    fn solve(&self, energy: &Energy, pose: &mut [f64], dofs: &[usize], bounds: &Bounds, budget: usize, _seed: u64) -> Result<StageOutcome, FitError> {
         let x0: Vec<f64> = dofs.iter().map(|&i| pose[i]).collect();
         let objective = Objective {
             energy,
-            base: *pose,
+            base: pose.to_vec(),
             dofs,
             lower: dofs.iter().map(|&i| bounds.lower[i]).collect(),
             upper: dofs.iter().map(|&i| bounds.upper[i]).collect(),

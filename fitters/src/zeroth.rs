@@ -2,7 +2,7 @@
 //! free DOFs of the pose, every candidate scored by the energy (batched in parallel).
 
 use lfit_model::energy::Energy;
-use lfit_model::pose::{Bounds, DofMask, Pose};
+use lfit_model::pose::{Bounds, DofMask};
 
 use crate::error::FitError;
 use crate::fitter::{FitRequest, FitResult, Fitter, StageOutcome, StageSolver, Strategy, run_staged, steps};
@@ -40,24 +40,24 @@ impl Fitter for ZerothOrderFitter {
 }
 
 impl StageSolver for ZerothOrderFitter {
-    fn solve(&self, energy: &Energy, pose: &mut Pose, dofs: &[usize], bounds: &Bounds, budget: usize, seed: u64) -> Result<StageOutcome, FitError> {
+    fn solve(&self, energy: &Energy, pose: &mut [f64], dofs: &[usize], bounds: &Bounds, budget: usize, seed: u64) -> Result<StageOutcome, FitError> {
         let lower: Vec<f64> = dofs.iter().map(|&i| bounds.lower[i]).collect();
         let upper: Vec<f64> = dofs.iter().map(|&i| bounds.upper[i]).collect();
         let start: Vec<f64> = dofs.iter().map(|&i| pose[i]).collect();
-        let problem = Problem::new(optim::Bounds::new(lower, upper)?, start, steps(dofs))?;
+        let problem = Problem::new(optim::Bounds::new(lower, upper)?, start, steps(dofs, &energy.template().layout()))?;
         // PSAPF partitions its stage by the hierarchical steps of papers/001 §3.3.
         let partitions = (self.method == Method::PSAPF).then(|| {
             let mask = DofMask { name: "stage".into(), free: dofs.to_vec() };
             Strategy::Hierarchical
-                .stages(&mask)
+                .stages(&mask, energy.template())
                 .into_iter()
                 .map(|(s, _)| s.iter().filter_map(|i| dofs.iter().position(|d| d == i)).collect::<Vec<usize>>())
                 .collect::<Vec<_>>()
         });
         let mut opt = optim::build(self.method, self.preset, &problem, budget, seed, partitions)?;
-        let base = *pose;
+        let base = pose.to_vec();
         let f = |x: &[f64]| {
-            let mut p = base;
+            let mut p = base.clone();
             for (k, &i) in dofs.iter().enumerate() {
                 p[i] = x[k];
             }

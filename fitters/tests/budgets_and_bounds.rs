@@ -53,7 +53,7 @@ fn every_method_and_strategy_spends_exactly_its_budget_inside_the_bounds() {
                 let config = if method == "lbfgs" { EnergyConfig::default().for_gradient() } else { EnergyConfig::default() };
                 let energy = markers_energy(config);
                 let fitter = build_fitter(method, Preset::Nevergrad, strategy).unwrap();
-                let request = FitRequest { energy: &energy, start: s, mask: mask.clone(), bounds: bounds.clone(), budget, seed: 7 };
+                let request = FitRequest { energy: &energy, start: s.to_vec(), mask: mask.clone(), bounds: bounds.clone(), budget, seed: 7 };
                 let r = fitter.fit(&request).unwrap_or_else(|e| panic!("{method}/{strategy}/{budget}: {e}"));
                 let label = format!("{method}/{strategy} budget {budget}");
                 if method == "lbfgs" {
@@ -88,7 +88,7 @@ fn same_seed_same_fit_different_seed_different_fit() {
         let run = |seed| {
             let energy = markers_energy(EnergyConfig::default());
             let fitter = build_fitter(method, Preset::Nevergrad, Strategy::Holistic).unwrap();
-            let request = FitRequest { energy: &energy, start: start(), mask: DofMask::local43(), bounds: Bounds::local(&start()), budget: 300, seed };
+            let request = FitRequest { energy: &energy, start: start().to_vec(), mask: DofMask::local43(), bounds: Bounds::local(&start()), budget: 300, seed };
             fitter.fit(&request).unwrap()
         };
         let (a, b, c) = (run(1), run(1), run(2));
@@ -102,7 +102,7 @@ fn same_seed_same_fit_different_seed_different_fit() {
 fn cma_and_lbfgs_recover_the_truth_from_a_nearby_start() {
     let energy = markers_energy(EnergyConfig::default());
     let fitter = build_fitter("cma", Preset::Nevergrad, Strategy::Holistic).unwrap();
-    let request = FitRequest { energy: &energy, start: start(), mask: DofMask::local43(), bounds: Bounds::local(&start()), budget: 4000, seed: 3 };
+    let request = FitRequest { energy: &energy, start: start().to_vec(), mask: DofMask::local43(), bounds: Bounds::local(&start()), budget: 4000, seed: 3 };
     let r = fitter.fit(&request).unwrap();
     let mut pose = [0.0; POSE_DIM];
     pose.copy_from_slice(&r.pose);
@@ -112,7 +112,7 @@ fn cma_and_lbfgs_recover_the_truth_from_a_nearby_start() {
 
     let energy = markers_energy(EnergyConfig::default().for_gradient());
     let fitter = build_fitter("lbfgs", Preset::Nevergrad, Strategy::Holistic).unwrap();
-    let request = FitRequest { energy: &energy, start: start(), mask: DofMask::local43(), bounds: Bounds::local(&start()), budget: 300, seed: 3 };
+    let request = FitRequest { energy: &energy, start: start().to_vec(), mask: DofMask::local43(), bounds: Bounds::local(&start()), budget: 300, seed: 3 };
     let r = fitter.fit(&request).unwrap();
     pose.copy_from_slice(&r.pose);
     let v2v = lfit_model::metrics::v2v_mm(&template(), &pose, &truth());

@@ -152,6 +152,13 @@ impl NeuralFitter {
             if r.budget < per_iteration * n {
                 return Err(FitError::Neural(format!("budget {} is below the {} evaluations of {n} iterations", r.budget, per_iteration * n)));
             }
+            if r.energy.dim() != POSE_DIM || r.start.len() != POSE_DIM {
+                return Err(FitError::Neural(format!(
+                    "the neural fitter supports the rigid 18-joint template only so far; '{}' has {} parameters",
+                    r.energy.template().id,
+                    r.energy.dim()
+                )));
+            }
             if r.bounds.lower.len() != POSE_DIM || r.bounds.upper.len() != POSE_DIM {
                 return Err(FitError::Bounds(format!("need {POSE_DIM} lower and upper values")));
             }
@@ -165,7 +172,7 @@ impl NeuralFitter {
         let starts: Vec<Option<Pose>> = requests
             .iter()
             .map(|r| {
-                let mut s = r.start;
+                let mut s = lfit_model::pose::as_pose(&r.start);
                 r.bounds.clamp(&mut s);
                 (self.start == Start::Given).then_some(s)
             })

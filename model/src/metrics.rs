@@ -6,12 +6,12 @@
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
-use crate::pose::Pose;
+
 use crate::skinning::{joint_transforms, posed_joints, skin_lbs_into, skin_lbs_subset};
 use crate::template::Template;
 
 /// Mean distance between corresponding posed vertices, in mm.
-pub fn v2v_mm(template: &Template, fitted: &Pose, truth: &Pose) -> f64 {
+pub fn v2v_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> f64 {
     let (mut a, mut b) = (Vec::new(), Vec::new());
     skin_lbs_into(template, &joint_transforms(template, fitted), &mut a);
     skin_lbs_into(template, &joint_transforms(template, truth), &mut b);
@@ -20,7 +20,7 @@ pub fn v2v_mm(template: &Template, fitted: &Pose, truth: &Pose) -> f64 {
 }
 
 /// Mean distance between corresponding posed joint centres, in mm.
-pub fn mpjpe_mm(template: &Template, fitted: &Pose, truth: &Pose) -> f64 {
+pub fn mpjpe_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> f64 {
     let a = posed_joints(template, &joint_transforms(template, fitted));
     let b = posed_joints(template, &joint_transforms(template, truth));
     let n = a.len().max(1) as f64;
@@ -29,7 +29,7 @@ pub fn mpjpe_mm(template: &Template, fitted: &Pose, truth: &Pose) -> f64 {
 
 /// MPJPE after Procrustes alignment (rotation, uniform scale, translation) of the fitted joints
 /// onto the true ones, in mm.
-pub fn pa_mpjpe_mm(template: &Template, fitted: &Pose, truth: &Pose) -> f64 {
+pub fn pa_mpjpe_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> f64 {
     let a = posed_joints(template, &joint_transforms(template, fitted));
     let b = posed_joints(template, &joint_transforms(template, truth));
     let aligned = procrustes_align(&a, &b);
@@ -75,7 +75,7 @@ pub fn procrustes_align(p: &[DVec3], q: &[DVec3]) -> Vec<DVec3> {
 /// RMS Hausdorff-like distance of papers/000 eq. (1)–(2) between the fitted and true posed
 /// meshes, in mm: `max(dist(A, B), dist(B, A))` with `dist(A, B) = sqrt(mean_{v∈A} min_{u∈B}
 /// |v − u|²)` over vertices.
-pub fn hausdorff_rms_mm(template: &Template, fitted: &Pose, truth: &Pose) -> f64 {
+pub fn hausdorff_rms_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> f64 {
     let (mut a, mut b) = (Vec::new(), Vec::new());
     skin_lbs_into(template, &joint_transforms(template, fitted), &mut a);
     skin_lbs_into(template, &joint_transforms(template, truth), &mut b);
@@ -100,7 +100,7 @@ pub fn part_vertices(template: &Template, joint: usize) -> Vec<u32> {
 }
 
 /// V2V (mm) over the vertices `subset` only.
-pub fn v2v_subset_mm(template: &Template, fitted: &Pose, truth: &Pose, subset: &[u32]) -> f64 {
+pub fn v2v_subset_mm(template: &Template, fitted: &[f64], truth: &[f64], subset: &[u32]) -> f64 {
     let a = skin_lbs_subset(template, &joint_transforms(template, fitted), subset);
     let b = skin_lbs_subset(template, &joint_transforms(template, truth), subset);
     let n = a.len().max(1) as f64;
@@ -109,7 +109,7 @@ pub fn v2v_subset_mm(template: &Template, fitted: &Pose, truth: &Pose, subset: &
 
 /// Ground penetration (mm, papers/002 Tables 3–6 "GrPe"): the mean depth below the floor plane
 /// y = 0 (where the template stands) of the posed vertices that lie below it; 0 when none do.
-pub fn ground_penetration_mm(template: &Template, pose: &Pose) -> f64 {
+pub fn ground_penetration_mm(template: &Template, pose: &[f64]) -> f64 {
     let mut v = Vec::new();
     skin_lbs_into(template, &joint_transforms(template, pose), &mut v);
     let below: Vec<f64> = v.iter().filter(|p| p.y < 0.0).map(|p| -f64::from(p.y)).collect();
@@ -158,7 +158,7 @@ mod tests {
         bent[3 + 3 * 5] += 0.6;
         assert!(pa_mpjpe_mm(&t, &bent, &rng_pose) > 0.0);
         // The alignment minimises the squared joint error, so it cannot raise the RMS error.
-        let rms = |a: &Pose, b: &Pose, align: bool| {
+        let rms = |a: &[f64], b: &[f64], align: bool| {
             let (ja, jb) = (posed_joints(&t, &joint_transforms(&t, a)), posed_joints(&t, &joint_transforms(&t, b)));
             let ja = if align { procrustes_align(&ja, &jb) } else { ja };
             (ja.iter().zip(&jb).map(|(p, q)| p.distance_squared(*q)).sum::<f64>() / ja.len() as f64).sqrt()

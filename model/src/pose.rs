@@ -6,7 +6,9 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
+use crate::layout::{Block, Layout};
 use crate::skeleton::{self, NUM_JOINTS};
+use crate::template::Template;
 
 /// Length of the pose vector: root translation + 3 per joint.
 pub const POSE_DIM: usize = 3 + 3 * NUM_JOINTS;
@@ -30,6 +32,13 @@ pub fn pose_from_slice(values: &[f64]) -> Result<Pose> {
     let mut pose = [0.0; POSE_DIM];
     pose.copy_from_slice(values);
     Ok(pose)
+}
+
+/// A parameter vector of the rigid default skeleton as a [`Pose`] (its first 57 entries; a
+/// shorter vector is padded with zeros). For the parts of lfit that still work on that template
+/// only, which check the model before they get here.
+pub fn as_pose(v: &[f64]) -> Pose {
+    std::array::from_fn(|i| v.get(i).copied().unwrap_or(0.0))
 }
 
 /// Human-readable name of pose entry `i` (`t_x`, `l_knee.rx`, ...).
@@ -91,15 +100,103 @@ impl DofMask {
         false
     }
 
+    /// The mask `kind` of papers/000 §4 on any model: its rules (drop both feet, two of the three
+    /// DOFs of both ankles and both hands, and for `global` of Middle Torso, each keeping the axis
+    /// of [`skeleton::KEPT_AXIS`]) apply to the model joints that its joint map puts in those
+    /// places; the shape and expression entries are free when `shape_free`. On the default
+    /// skeleton this is exactly `full57`, `local43` and `global41`; elsewhere the name is the
+    /// kind and the count (`local65`).
+    pub fn standard(kind: MaskKind, template: &Template, shape_free: bool) -> Self {
+        let layout = template.layout();
+        let map = &template.info.joint_map;
+        let role = |j: usize| map.iter().position(|m| *m == Some(j));
+        let dropped = |i: usize| -> bool {
+            let Some((j, axis)) = layout.rotation_of(i) else { return false };
+            let Some(r) = role(j) else { return false };
+            match kind {
+                MaskKind::Full => false,
+                MaskKind::Local | MaskKind::Global => {
+                    if skeleton::is_foot(r) {
+                        return true;
+                    }
+                    if skeleton::is_ankle(r) || skeleton::is_hand(r) || (kind == MaskKind::Global && r == skeleton::MIDDLE_TORSO) {
+                        return Some(axis) != skeleton::KEPT_AXIS[r];
+                    }
+                    false
+                }
+            }
+        };
+        let free: Vec<usize> = (0..layout.dim())
+            .filter(|&i| match layout.block_of(i) {
+                Some(Block::Shape | Block::Expression) => shape_free,
+                _ => !dropped(i),
+            })
+            .collect();
+        let name = if layout.dim() == POSE_DIM && template.is_default_skeleton() {
+            match kind {
+                MaskKind::Full => "full57".to_string(),
+                MaskKind::Local => "local43".to_string(),
+                MaskKind::Global => "global41".to_string(),
+            }
+        } else {
+            format!("{}{}", kind.name(), free.len())
+        };
+        Self { name, free }
+    }
+
+    /// Parses a mask for `template`: `full`, `local`, `global` (shape and expression free; with
+    /// `:pose` appended, fixed), the default skeleton's `full57`, `local43`, `global41`, or a
+    /// comma-separated list of indices or entry names (`l_knee.rx`, `shape.0`).
+    pub fn parse_for(spec: &str, template: &Template) -> Result<Self> {
+        let (base, pose_only) = match spec.strip_suffix(":pose") {
+            Some(b) => (b, true),
+            None => (spec, false),
+        };
+        let kind = match base {
+            "full" | "full57" => Some(MaskKind::Full),
+            "local" | "local43" => Some(MaskKind::Local),
+            "global" | "global41" => Some(MaskKind::Global),
+            _ => None,
+        };
+        if let Some(kind) = kind {
+            let mask = Self::standard(kind, template, !pose_only);
+            if base.ends_with(char::is_numeric) && mask.name != base {
+                return Err(ModelError::Mask(format!("'{base}' is the default skeleton's mask; on '{}' use '{}'", template.id, kind.name())));
+            }
+            return Ok(mask);
+        }
+        let layout = template.layout();
+        let mut free = Vec::new();
+        for item in spec.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+            let index = match item.parse::<usize>() {
+                Ok(i) => i,
+                Err(_) => layout.index_of(item).ok_or_else(|| ModelError::Mask(format!("unknown entry '{item}' (names like t_x, {}.rx, shape.0)", layout.joints[0])))?,
+            };
+            if index >= layout.dim() {
+                return Err(ModelError::Mask(format!("index {index} out of range 0..{}", layout.dim())));
+            }
+            free.push(index);
+        }
+        if free.is_empty() {
+            return Err(ModelError::UnknownMask(spec.to_string()));
+        }
+        Self::custom_in(free, layout.dim())
+    }
+
     /// A user mask from explicit indices.
-    pub fn custom(mut free: Vec<usize>) -> Result<Self> {
+    pub fn custom(free: Vec<usize>) -> Result<Self> {
+        Self::custom_in(free, POSE_DIM)
+    }
+
+    /// A user mask from explicit indices into a parameter vector of `dim` entries.
+    pub fn custom_in(mut free: Vec<usize>, dim: usize) -> Result<Self> {
         free.sort_unstable();
         free.dedup();
         if free.is_empty() {
             return Err(ModelError::Mask("a mask must free at least one DOF".into()));
         }
-        if let Some(&bad) = free.iter().find(|&&i| i >= POSE_DIM) {
-            return Err(ModelError::Mask(format!("index {bad} out of range 0..{POSE_DIM}")));
+        if let Some(&bad) = free.iter().find(|&&i| i >= dim) {
+            return Err(ModelError::Mask(format!("index {bad} out of range 0..{dim}")));
         }
         Ok(Self { name: "custom".into(), free })
     }
@@ -132,17 +229,39 @@ impl DofMask {
     }
 
     /// The free entries of `pose`.
-    pub fn gather(&self, pose: &Pose) -> Vec<f64> {
+    pub fn gather(&self, pose: &[f64]) -> Vec<f64> {
         self.free.iter().map(|&i| pose[i]).collect()
     }
 
     /// Writes `x` (one value per free DOF) into `pose`, leaving the fixed entries as they are.
-    pub fn scatter(&self, x: &[f64], pose: &mut Pose) {
+    pub fn scatter(&self, x: &[f64], pose: &mut [f64]) {
         for (&i, &v) in self.free.iter().zip(x) {
             pose[i] = v;
         }
     }
 }
+
+/// The standard masks of papers/000 §4 ([`DofMask::standard`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MaskKind {
+    Full,
+    Local,
+    Global,
+}
+
+impl MaskKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            MaskKind::Full => "full",
+            MaskKind::Local => "local",
+            MaskKind::Global => "global",
+        }
+    }
+}
+
+/// Box of every shape and expression coefficient, in standard deviations of the model's shape
+/// space: ±3, the range of the shape prior's mass that SMPL-family fitting works in.
+pub const SHAPE_BOUND: f64 = 3.0;
 
 /// A box constraint per pose entry (fixed entries keep their box too, so a mask can change).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -159,18 +278,52 @@ pub const LOCAL_ROTATION_DEG: f64 = 15.0;
 pub const GLOBAL_TRANSLATION: f64 = 1.25;
 
 impl Bounds {
-    /// The `local` box around `start`.
-    pub fn local(start: &Pose) -> Self {
+    /// The `local` box around `start` (a pose of the default skeleton: translation then
+    /// rotations; see [`Bounds::local_in`] for any layout).
+    pub fn local(start: &[f64]) -> Self {
         Self::around(start, LOCAL_TRANSLATION, LOCAL_ROTATION_DEG.to_radians())
     }
 
-    /// A box of half-ranges `translation` (m) and `rotation` (rad) around `start`.
-    pub fn around(start: &Pose, translation: f64, rotation: f64) -> Self {
+    /// A box of half-ranges `translation` (m, the first 3 entries) and `rotation` (rad, every
+    /// other entry) around `start`.
+    pub fn around(start: &[f64], translation: f64, rotation: f64) -> Self {
         let half = |i: usize| if i < 3 { translation } else { rotation };
         Self {
-            lower: (0..POSE_DIM).map(|i| start[i] - half(i)).collect(),
-            upper: (0..POSE_DIM).map(|i| start[i] + half(i)).collect(),
+            lower: (0..start.len()).map(|i| start[i] - half(i)).collect(),
+            upper: (0..start.len()).map(|i| start[i] + half(i)).collect(),
         }
+    }
+
+    /// The `local` box around `start` for a model with this layout: translation ±0.4 m, rotations
+    /// ±15° around the start, shape and expression within ±[`SHAPE_BOUND`].
+    pub fn local_in(layout: &Layout, start: &[f64]) -> Self {
+        Self::around_in(layout, start, LOCAL_TRANSLATION, LOCAL_ROTATION_DEG.to_radians())
+    }
+
+    /// [`Bounds::around`] for any layout: shape and expression within ±[`SHAPE_BOUND`].
+    pub fn around_in(layout: &Layout, start: &[f64], translation: f64, rotation: f64) -> Self {
+        let mut b = Self::around(&start[..layout.pose_dim()], translation, rotation);
+        b.lower.resize(layout.dim(), -SHAPE_BOUND);
+        b.upper.resize(layout.dim(), SHAPE_BOUND);
+        b
+    }
+
+    /// The `global` box of `template`: translation ±1.25 m, rotations within the model's
+    /// per-joint limits, shape and expression within ±[`SHAPE_BOUND`]. On the default template
+    /// this is [`Bounds::global`].
+    pub fn global_for(template: &Template) -> Self {
+        let layout = template.layout();
+        let mut lower = vec![-GLOBAL_TRANSLATION; 3];
+        let mut upper = vec![GLOBAL_TRANSLATION; 3];
+        for l in &template.info.limits_deg {
+            for range in l {
+                lower.push(range[0].to_radians());
+                upper.push(range[1].to_radians());
+            }
+        }
+        lower.resize(layout.dim(), -SHAPE_BOUND);
+        upper.resize(layout.dim(), SHAPE_BOUND);
+        Self { lower, upper }
     }
 
     /// The `global` box: translation ±1.25 m around the template's rest root position, rotations
@@ -188,13 +341,13 @@ impl Bounds {
         Self { lower, upper }
     }
 
-    pub fn contains(&self, pose: &Pose) -> bool {
-        (0..POSE_DIM).all(|i| pose[i] >= self.lower[i] && pose[i] <= self.upper[i])
+    pub fn contains(&self, pose: &[f64]) -> bool {
+        pose.len() == self.lower.len() && (0..pose.len()).all(|i| pose[i] >= self.lower[i] && pose[i] <= self.upper[i])
     }
 
     /// Clamps every entry of `pose` into the box.
-    pub fn clamp(&self, pose: &mut Pose) {
-        for i in 0..POSE_DIM {
+    pub fn clamp(&self, pose: &mut [f64]) {
+        for i in 0..pose.len().min(self.lower.len()) {
             pose[i] = pose[i].clamp(self.lower[i], self.upper[i]);
         }
     }
@@ -217,6 +370,30 @@ mod tests {
         assert_eq!(DofMask::global41().dim(), 41);
         let g = DofMask::global41();
         assert!(DofMask::local43().free.iter().filter(|i| !g.free.contains(i)).all(|&i| (i - 3) / 3 == skeleton::MIDDLE_TORSO));
+    }
+
+    #[test]
+    fn standard_masks_on_the_default_and_on_other_models() {
+        let d = crate::default_template();
+        assert_eq!(DofMask::standard(MaskKind::Local, &d, true), DofMask::local43());
+        assert_eq!(DofMask::standard(MaskKind::Global, &d, false), DofMask::global41());
+        assert_eq!(DofMask::standard(MaskKind::Full, &d, true), DofMask::full57());
+        assert_eq!(DofMask::parse_for("local43", &d).unwrap(), DofMask::local43());
+        assert_eq!(Bounds::global_for(&d), Bounds::global());
+        let (m, _) = crate::body::morphable_default_template().unwrap();
+        let local = DofMask::parse_for("local", &m).unwrap();
+        assert_eq!(local.name, "local51");
+        assert_eq!(&local.free[..43], &DofMask::local43().free[..]);
+        assert_eq!(DofMask::parse_for("local:pose", &m).unwrap().free, DofMask::local43().free);
+        assert!(DofMask::parse_for("local43", &m).unwrap_err().to_string().contains("use 'local'"));
+        assert_eq!(DofMask::parse_for("shape.0,t_x", &m).unwrap().free, vec![0, 57]);
+        let g = Bounds::global_for(&m);
+        assert_eq!(g.lower.len(), 65);
+        assert_eq!((g.lower[60], g.upper[60]), (-SHAPE_BOUND, SHAPE_BOUND));
+        let smpl = crate::morph::smpl_like(1, 120, 3, false);
+        let l = DofMask::standard(MaskKind::Local, &smpl, true);
+        // SMPL's feet drop 6, ankles and wrists keep one axis each (−8): 3 + 72 + 3 − 14.
+        assert_eq!(l.dim(), 3 + 72 + 3 - 14, "{}", l.name);
     }
 
     #[test]

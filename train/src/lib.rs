@@ -19,7 +19,7 @@ use lfit_model::metrics::{mpjpe_mm, v2v_mm};
 use lfit_nn::checkpoint::{self, checkpoint_files, write_dir};
 use lfit_nn::{Dropout, FeatureStats, NetConfig, NeuralNet, StartMode, observation_features, unroll};
 use lfit_model::observe::{Modality, Sensor};
-use lfit_model::pose::{POSE_DIM, Pose};
+use lfit_model::pose::{POSE_DIM, Pose, as_pose};
 use lfit_nn::tensor::poses_to_tensor;
 use lfit_model::Template;
 use lfit_synth::{Dataset, NoiseConfig, Observations, Scenario, SynthConfig, synthesize};
@@ -203,8 +203,8 @@ pub fn measure_stats(frames: &Frames) -> FeatureStats {
         .par_iter()
         .enumerate()
         .map(|(i, e)| {
-            let start = d.start_poses[i];
-            let gt = d.gt_poses[i];
+            let start = as_pose(&d.start_poses[i]);
+            let gt = as_pose(&d.gt_poses[i]);
             let mut half = start;
             for (h, g) in half.iter_mut().zip(&gt) {
                 *h = 0.5 * (*h + g);
@@ -240,11 +240,11 @@ pub struct Validation {
 /// V2V/MPJPE after every iteration.
 pub fn validate(net: &NeuralNet, stats: &FeatureStats, frames: &Frames, from_start: bool, device: &Device) -> Result<Validation> {
     let refs: Vec<&Energy> = frames.energies.iter().collect();
-    let starts: Vec<Option<Pose>> = frames.dataset.start_poses.iter().map(|s| from_start.then_some(*s)).collect();
+    let starts: Vec<Option<Pose>> = frames.dataset.start_poses.iter().map(|s| from_start.then(|| as_pose(s))).collect();
     let out = unroll(net, stats, &refs, &starts, None, device, &mut Dropout::off())?;
     let template = frames.energies[0].template();
     let gt = &frames.dataset.gt_poses;
-    let per = |f: fn(&Template, &Pose, &Pose) -> f64| -> Vec<f64> {
+    let per = |f: fn(&Template, &[f64], &[f64]) -> f64| -> Vec<f64> {
         out.host.iter().map(|poses| poses.par_iter().zip(gt.par_iter()).map(|(p, g)| f(template, p, g)).sum::<f64>() / gt.len() as f64).collect()
     };
     Ok(Validation { v2v_mm: per(v2v_mm), mpjpe_mm: per(mpjpe_mm) })
@@ -295,6 +295,7 @@ pub struct Summary {
 /// Trains a network on `template` as configured and writes checkpoints to `options.out`.
 pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, options: &RunOptions, report: &(dyn Fn(Event) + Sync)) -> Result<Summary> {
     config.validate()?;
+    template.require_default_skeleton("lfit train")?;
     let sensor = Sensor::default_for(config.modality, &template);
     let mut net_config = config.network.clone();
     net_config.modality = config.modality;
@@ -398,12 +399,12 @@ pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, opt
             .iter()
             .map(|s| match net_config.start {
                 StartMode::Phi => None,
-                StartMode::Given => Some(*s),
-                StartMode::Mixed => rng.random_bool(0.5).then_some(*s),
+                StartMode::Given => Some(as_pose(s)),
+                StartMode::Mixed => rng.random_bool(0.5).then(|| as_pose(s)),
             })
             .collect();
         let refs: Vec<&Energy> = frames.energies.iter().collect();
-        let truth = loss.truth(poses_to_tensor(&frames.dataset.gt_poses, &ad));
+        let truth = loss.truth(poses_to_tensor(&frames.dataset.gt_poses.iter().map(|g| as_pose(g)).collect::<Vec<_>>(), &ad));
         let out = unroll(&net, &stats, &refs, &starts, None, &ad, &mut Dropout { p: net_config.dropout, rng: Some(&mut rng) })?;
         let total = loss.total(&out.poses, &truth);
         let value = f64::from(total.clone().detach().try_into_scalar::<f32>().map_err(|e| lfit_model::ModelError::Backend(format!("cannot read the loss: {e}")))?);

@@ -57,6 +57,13 @@ pub fn check_batch(config: &NetConfig, energies: &[&Energy], starts: &[Option<Po
     if let Some(e) = energies.iter().find(|e| e.modality() != config.modality) {
         return Err(ModelError::Config(format!("the network fits {} data, this frame is {}", config.modality, e.modality())));
     }
+    if let Some(e) = energies.iter().find(|e| e.dim() != POSE_DIM) {
+        return Err(ModelError::Config(format!(
+            "the neural fitter supports the rigid 18-joint template only so far; '{}' has {} parameters",
+            e.template().id,
+            e.dim()
+        )));
+    }
     Ok(())
 }
 
@@ -97,12 +104,9 @@ pub fn evaluate(energies: &[&Energy], current: &[Pose]) -> Vec<(Vec<f64>, Pose)>
         .par_iter()
         .zip(current.par_iter())
         .map(|(e, p)| {
-            let (_, mut g) = e.evaluate_with_gradient(p);
-            for x in g.iter_mut() {
-                if !x.is_finite() {
-                    *x = 0.0;
-                }
-            }
+            let (_, g) = e.evaluate_with_gradient(p);
+            // check_batch admits energies of POSE_DIM parameters only.
+            let g: Pose = std::array::from_fn(|i| g.get(i).copied().filter(|x| x.is_finite()).unwrap_or(0.0));
             (e.residual(p), g)
         })
         .collect()
