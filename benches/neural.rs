@@ -25,7 +25,7 @@ use lfit::model::pose::{Bounds, DofMask};
 use lfit::infer::onnx::runtime::{SessionOptions, library_path};
 use lfit::nn::unroll::{core_rows, evaluate, observation_rows, step_rows};
 use lfit::nn::Dropout;
-use lfit::model::pose::{POSE_DIM, Pose, as_pose};
+
 use lfit::nn::tensor::{device_from_name, tensor_to_rows, wgpu_available};
 use burn::tensor::{Tensor, TensorData};
 use lfit::model::{Energy, default_template};
@@ -43,7 +43,7 @@ fn fitter(modality: Modality, device_name: &str, frames: &lfit::train::Frames) -
     net.modality = modality;
     net.residual_dim = Sensor::default_for(modality, template).residual_dim(template);
     let stats: FeatureStats = measure_stats(frames);
-    let meta = CheckpointMeta { format: "lfit-checkpoint".into(), version: 1, template_id: template.id.clone(), template_vertices: template.num_vertices(), network: net.clone() };
+    let meta = CheckpointMeta { format: "lfit-checkpoint".into(), version: 1, template_id: template.id.clone(), template_vertices: template.num_vertices(), network: net.clone(), model: None };
     let checkpoint = Checkpoint { meta, stats, net: NeuralNet::new(&net, 0, &device).expect("net"), metrics: serde_json::Value::Null };
     NeuralFitter::from_checkpoint(checkpoint, &dir, &device, Start::Given)
 }
@@ -123,11 +123,11 @@ struct Inputs {
 fn inputs(f: &NeuralFitter, frames: &lfit::train::Frames) -> Inputs {
     let c = &f.meta.network;
     let energies: Vec<&Energy> = frames.energies.iter().collect();
-    let poses: Vec<Pose> = frames.dataset.start_poses.iter().map(|p| as_pose(p)).collect();
+    let poses: Vec<Vec<f64>> = frames.dataset.start_poses.clone();
     let obs = observation_rows(c, &f.stats, &energies).expect("obs");
     let evals = evaluate(&energies, &poses);
     let core = core_rows(c, &f.stats, &evals, &poses, &obs).expect("core");
-    let delta_poses: Vec<Pose> = poses.iter().map(|_| [1e-3; POSE_DIM]).collect();
+    let delta_poses: Vec<Vec<f64>> = poses.iter().map(|_| vec![1e-3; c.param_dim]).collect();
     let step = step_rows(c, &f.stats, &energies, &poses, &evals, &delta_poses);
     let grad = evals.iter().flat_map(|(_, g)| g.iter().map(|&v| v as f32)).collect();
     Inputs { obs: obs.concat(), core, step, grad }

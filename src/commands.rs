@@ -5,7 +5,6 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use lfit_model::observe::{Modality, Sensor};
-use lfit_model::pose::{POSE_DIM, Pose, pose_from_slice};
 use lfit_model::skinning::{SkinningMethod, pose_vertices_batch};
 use lfit_model::template::{Template, write_atomic, write_obj};
 use lfit_model::{BodyShape, build_template};
@@ -89,31 +88,6 @@ pub fn export_onnx(checkpoint_dir: &Path, out: &Path) -> Result<Value> {
     }))
 }
 
-/// Reads `{"pose": [57 numbers]}` or `{"poses": [[57 numbers], ...]}`.
-pub fn read_pose_file(path: &Path) -> Result<Vec<Pose>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let value: Value = serde_json::from_str(&text).with_context(|| format!("malformed pose JSON {}", path.display()))?;
-    let parse = |v: &Value, what: &str| pose_from_json(v, what, path);
-    match (value.get("pose"), value.get("poses")) {
-        (Some(p), None) => Ok(vec![parse(p, "pose")?]),
-        (None, Some(Value::Array(list))) if !list.is_empty() => {
-            list.iter().enumerate().map(|(i, p)| parse(p, &format!("poses[{i}]"))).collect()
-        }
-        _ => bail!("{}: expected {{\"pose\": [57 numbers]}} or {{\"poses\": [[57 numbers], ...]}}", path.display()),
-    }
-}
-
-/// A pose from a JSON array of 57 finite numbers; errors name the file and `what` it is.
-pub fn pose_from_json(v: &Value, what: &str, path: &Path) -> Result<Pose> {
-    let items = v.as_array().with_context(|| format!("{}: {what} is missing or not an array of {POSE_DIM} numbers", path.display()))?;
-    let numbers = items
-        .iter()
-        .enumerate()
-        .map(|(i, x)| x.as_f64().with_context(|| format!("{}: {what}[{i}] is not a finite number: {x} is not a number", path.display())))
-        .collect::<Result<Vec<f64>>>()?;
-    pose_from_slice(&numbers).with_context(|| format!("{}: {what}", path.display()))
-}
-
 /// Output path of pose `i` of `n`: `out` itself for one pose, `stem_0000.obj`, ... for several.
 pub fn numbered_path(out: &Path, i: usize, n: usize) -> PathBuf {
     if n == 1 {
@@ -124,17 +98,14 @@ pub fn numbered_path(out: &Path, i: usize, n: usize) -> PathBuf {
     out.with_file_name(format!("{stem}_{i:04}.{ext}"))
 }
 
-/// Reads a parameter file for `template`: `{"pose": [3 + 3J], "shape": [≤ B], "expression":
-/// [≤ E]}` or `{"poses": [[...], ...], "shapes": [[...], ...], "expressions": [[...], ...]}`
-/// (`shape`/`expression` optional, zero-padded to B/E; longer is an error). Returns full
-/// parameter vectors in the model's layout.
-pub fn read_params_file(path: &Path, template: &Template) -> Result<Vec<Vec<f64>>> {
+/// One parameter vector of `template` from JSON values: `pose` (3 + 3J numbers) and optional
+/// `shape`/`expression` (at most B/E numbers, zero-padded). `suffix` goes after the field names
+/// in errors (`poses[3]`), which also name `path`.
+pub fn params_from_json(template: &Template, pose: &Value, shape: Option<&Value>, expr: Option<&Value>, suffix: &str, path: &Path) -> Result<Vec<f64>> {
     let layout = template.layout();
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let value: Value = serde_json::from_str(&text).with_context(|| format!("malformed pose JSON {}", path.display()))?;
     let pd = layout.pose_dim();
     let numbers = |v: &Value, what: &str, len: Option<usize>, max: usize| -> Result<Vec<f64>> {
-        let items = v.as_array().with_context(|| format!("{}: {what} is not an array of numbers", path.display()))?;
+        let items = v.as_array().with_context(|| format!("{}: {what} is missing or not an array of numbers", path.display()))?;
         let out = items
             .iter()
             .enumerate()
@@ -150,23 +121,28 @@ pub fn read_params_file(path: &Path, template: &Template) -> Result<Vec<Vec<f64>
         }
         Ok(out)
     };
-    let one = |pose: &Value, shape: Option<&Value>, expr: Option<&Value>, suffix: &str| -> Result<Vec<f64>> {
-        let mut params = numbers(pose, &format!("pose{suffix}"), Some(pd), pd)?;
-        let mut block = |v: Option<&Value>, what: &str, n: usize| -> Result<()> {
-            let mut b = match v {
-                Some(v) => numbers(v, &format!("{what}{suffix}"), None, n)?,
-                None => Vec::new(),
-            };
-            b.resize(n, 0.0);
-            params.extend(b);
-            Ok(())
+    let mut params = numbers(pose, &format!("pose{suffix}"), Some(pd), pd)?;
+    for (v, what, n) in [(shape, "shape", layout.shape), (expr, "expression", layout.expression)] {
+        let mut b = match v {
+            Some(v) => numbers(v, &format!("{what}{suffix}"), None, n)?,
+            None => Vec::new(),
         };
-        block(shape, "shape", layout.shape)?;
-        block(expr, "expression", layout.expression)?;
-        Ok(params)
-    };
+        b.resize(n, 0.0);
+        params.extend(b);
+    }
+    Ok(params)
+}
+
+/// Reads a parameter file for `template`: `{"pose": [3 + 3J], "shape": [≤ B], "expression":
+/// [≤ E]}` or `{"poses": [[...], ...], "shapes": [[...], ...], "expressions": [[...], ...]}`
+/// (`shape`/`expression` optional, zero-padded to B/E; longer is an error). Returns full
+/// parameter vectors in the model's layout.
+pub fn read_params_file(path: &Path, template: &Template) -> Result<Vec<Vec<f64>>> {
+    let pd = template.layout().pose_dim();
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let value: Value = serde_json::from_str(&text).with_context(|| format!("malformed pose JSON {}", path.display()))?;
     match (value.get("pose"), value.get("poses")) {
-        (Some(p), None) => Ok(vec![one(p, value.get("shape"), value.get("expression"), "")?]),
+        (Some(p), None) => Ok(vec![params_from_json(template, p, value.get("shape"), value.get("expression"), "", path)?]),
         (None, Some(Value::Array(list))) if !list.is_empty() => {
             let nth = |key: &str, i: usize| -> Result<Option<&Value>> {
                 match value.get(key) {
@@ -175,7 +151,7 @@ pub fn read_params_file(path: &Path, template: &Template) -> Result<Vec<Vec<f64>
                     Some(_) => bail!("{}: {key} must be a list with one entry per pose ({})", path.display(), list.len()),
                 }
             };
-            list.iter().enumerate().map(|(i, p)| one(p, nth("shapes", i)?, nth("expressions", i)?, &format!("s[{i}]"))).collect()
+            list.iter().enumerate().map(|(i, p)| params_from_json(template, p, nth("shapes", i)?, nth("expressions", i)?, &format!("s[{i}]"), path)).collect()
         }
         _ => bail!("{}: expected {{\"pose\": [{pd} numbers]}} or {{\"poses\": [[{pd} numbers], ...]}}", path.display()),
     }
@@ -256,7 +232,8 @@ pub fn visible_fraction(dataset: &Dataset) -> f64 {
 }
 
 /// `lfit train`: trains a neural fitter as `config_path` says and writes checkpoints to `out`.
-pub fn train(config_path: &Path, out: &Path, device: &str, resume: bool, steps: Option<usize>, seed: Option<u64>, report: &(dyn Fn(lfit_train::Event) + Sync)) -> Result<Value> {
+#[allow(clippy::too_many_arguments)]
+pub fn train(config_path: &Path, out: &Path, device: &str, resume: bool, steps: Option<usize>, seed: Option<u64>, template: &Template, report: &(dyn Fn(lfit_train::Event) + Sync)) -> Result<Value> {
     let mut config = lfit_train::TrainConfig::load(config_path)?;
     if let Some(s) = steps {
         config.steps = s;
@@ -266,7 +243,7 @@ pub fn train(config_path: &Path, out: &Path, device: &str, resume: bool, steps: 
     }
     config.validate()?;
     let dev = lfit_nn::tensor::device_from_name(device)?;
-    let template = std::sync::Arc::new(load_template(None, "default")?);
+    let template = std::sync::Arc::new(template.clone());
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     let options = lfit_train::RunOptions { out: out.to_path_buf(), device_name: device.to_string(), resume, command };
     let summary = lfit_train::train(&config, template, &dev, &options, report)?;

@@ -3,7 +3,8 @@
 //! The poses come from the result JSON of `lfit fit` (`{"modality", "frames": [{"frame", "pose"},
 //! ...]}`) or from the `{"pose"}` / `{"poses"}` file of `lfit template pose` (frames 0..n). They are
 //! checked against the dataset (`--data`) before anything is written: frame indices in range,
-//! same modality, 57 finite numbers per pose, no duplicate frames, at least one frame.
+//! same modality, the model's pose length (57 on the default template), no duplicate frames, at
+//! least one frame.
 //!
 //! # The glTF skin reproduces SPEC §3's linear blend skinning
 //!
@@ -41,7 +42,7 @@ use std::str::FromStr;
 
 use anyhow::{Context, Result, bail};
 use glam::{DQuat, DVec3, Vec3};
-use lfit_model::pose::{POSE_DIM, Pose, rot_offset};
+use lfit_model::pose::rot_offset;
 use lfit_model::skinning::{SkinningMethod, pose_vertices_batch, vertex_normals};
 use lfit_model::template::{Template, write_atomic, write_obj};
 use lfit_synth::Dataset;
@@ -88,18 +89,20 @@ pub struct ExportArgs {
 #[derive(Debug, Clone)]
 pub struct FittedPoses {
     pub modality: Option<String>,
-    pub frames: Vec<(usize, Pose)>,
+    /// Frame index and full parameter vector (pose, then shape and expression).
+    pub frames: Vec<(usize, Vec<f64>)>,
 }
 
 /// Reads the result JSON of `lfit fit` (`"frames": [{"frame", "pose"}, ...]`) or a
-/// `{"pose"}` / `{"poses"}` file (frames 0..n). Poses must be 57 finite numbers; frames must be
-/// unique and at least one.
-pub fn read_fitted_poses(path: &Path) -> Result<FittedPoses> {
+/// `{"pose"}` / `{"poses"}` file (frames 0..n), for `template`: poses must be `3 + 3J` finite
+/// numbers (57 on the default template), with the model's `shape`/`expression` next to them;
+/// frames must be unique and at least one.
+pub fn read_fitted_poses(path: &Path, template: &Template) -> Result<FittedPoses> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     let value: Value = serde_json::from_str(&text).with_context(|| format!("malformed poses JSON {}", path.display()))?;
     let Some(rows) = value.get("frames") else {
         if value.get("pose").is_some() || value.get("poses").is_some() {
-            let poses = crate::commands::read_pose_file(path)?;
+            let poses = crate::commands::read_params_file(path, template)?;
             return Ok(FittedPoses { modality: None, frames: poses.into_iter().enumerate().collect() });
         }
         bail!("{}: expected the result JSON of `lfit fit` (\"frames\": [{{\"frame\", \"pose\"}}, ...]) or {{\"pose\"}} / {{\"poses\"}}", path.display());
@@ -119,7 +122,8 @@ pub fn read_fitted_poses(path: &Path) -> Result<FittedPoses> {
             .get("frame")
             .and_then(Value::as_u64)
             .with_context(|| format!("{}: frames[{i}].frame is missing or not a non-negative integer", path.display()))?;
-        let pose = crate::commands::pose_from_json(row.get("pose").unwrap_or(&Value::Null), &format!("frames[{i}].pose"), path)?;
+        let pose = crate::commands::params_from_json(template, row.get("pose").unwrap_or(&Value::Null), row.get("shape"), row.get("expression"), "", path)
+            .with_context(|| format!("frames[{i}]"))?;
         let frame = usize::try_from(frame).with_context(|| format!("{}: frames[{i}].frame {frame} is too large", path.display()))?;
         frames.push((i, frame, pose));
     }
@@ -149,9 +153,9 @@ pub fn check_against_dataset(poses: &FittedPoses, poses_path: &Path, dataset: &D
 pub fn export(args: &ExportArgs) -> Result<Value> {
     let format: ExportFormat = args.format.parse()?;
     let dataset = Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))?;
-    let fitted = read_fitted_poses(&args.poses)?;
-    check_against_dataset(&fitted, &args.poses, &dataset, &args.data)?;
     let template = crate::fit::template_for(&dataset, args.template.as_deref())?;
+    let fitted = read_fitted_poses(&args.poses, &template)?;
+    check_against_dataset(&fitted, &args.poses, &dataset, &args.data)?;
     let fps = dataset.meta.config.fps;
     if !(fps.is_finite() && fps > 0.0) {
         bail!("dataset {}: frame rate {fps} is not a positive number", args.data.display());
@@ -160,7 +164,7 @@ pub fn export(args: &ExportArgs) -> Result<Value> {
     // Everything is built in memory first, so a failure leaves `out` untouched.
     let files: Vec<(PathBuf, Vec<u8>)> = match format {
         ExportFormat::Obj => {
-            let poses: Vec<Pose> = fitted.frames.iter().map(|&(_, p)| p).collect();
+            let poses: Vec<&[f64]> = fitted.frames.iter().map(|(_, p)| p.as_slice()).collect();
             let meshes = pose_vertices_batch(&template, &poses, SkinningMethod::Linear);
             fitted
                 .frames
@@ -176,7 +180,18 @@ pub fn export(args: &ExportArgs) -> Result<Value> {
         }
         ExportFormat::Gltf => {
             let name = args.poses.file_stem().map_or_else(|| "motion".to_string(), |s| s.to_string_lossy().into_owned());
-            let bytes = gltf_animation(&template, &fitted.frames, fps, &name)?;
+            // A glTF skin has one bind mesh: the subject's mean shape over the exported frames
+            // (pose correctives, if the model has them, are not expressible and left out).
+            let layout = template.layout();
+            let k = layout.dim() - layout.pose_dim();
+            let mut mean = vec![0.0; k];
+            for (_, p) in &fitted.frames {
+                for (m, v) in mean.iter_mut().zip(&p[layout.pose_dim()..]) {
+                    *m += v / fitted.frames.len() as f64;
+                }
+            }
+            let shaped = template.shaped(&mean)?;
+            let bytes = gltf_animation(&shaped, &fitted.frames, fps, &name)?;
             vec![(args.out.join(format!("{name}.glb")), bytes)]
         }
     };
@@ -288,7 +303,7 @@ fn packed_influences(list: &[(usize, f64)]) -> ([u16; 4], [f32; 4]) {
 /// rest mesh (POSITION, NORMAL, indices, JOINTS_0, WEIGHTS_0), one node per rig joint, a skin,
 /// and an animation named `name` with translation + rotation channels per joint (LINEAR) keyed at
 /// `frame / fps` seconds.
-pub fn gltf_animation(template: &Template, frames: &[(usize, Pose)], fps: f64, name: &str) -> Result<Vec<u8>> {
+pub fn gltf_animation(template: &Template, frames: &[(usize, Vec<f64>)], fps: f64, name: &str) -> Result<Vec<u8>> {
     if frames.is_empty() {
         bail!("no frames to export");
     }
@@ -297,8 +312,8 @@ pub fn gltf_animation(template: &Template, frames: &[(usize, Pose)], fps: f64, n
     if num_joints > usize::from(u16::MAX) {
         bail!("the rig has {num_joints} joints; glTF JOINTS_0 holds at most {}", u16::MAX);
     }
-    if rot_offset(num_joints) > POSE_DIM {
-        bail!("the rig has {num_joints} joints but a pose holds rotations for {}", (POSE_DIM - 3) / 3);
+    if let Some((f, p)) = frames.iter().find(|(_, p)| p.len() < rot_offset(num_joints)) {
+        bail!("the rig has {num_joints} joints but the pose of frame {f} holds rotations for {}", p.len().saturating_sub(3) / 3);
     }
     let times: Vec<f32> = frames.iter().map(|&(f, _)| (f as f64 / fps) as f32).collect();
     if let Some(w) = times.windows(2).find(|w| w[1] <= w[0]) {

@@ -82,6 +82,8 @@ enum Command {
         /// Override the config's seed.
         #[arg(long)]
         seed: Option<u64>,
+        #[command(flatten)]
+        template: TemplateArg,
     },
     /// The main job, from nothing: synthesise a small held-out set per sparse modality (markers,
     /// keypoints2d, hmd), fit it with the shipped neural fitter, L-BFGS, CMA-ES and PSO on the
@@ -454,9 +456,10 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 }
             })
         }
-        Command::Train { config, out, device, resume, steps, seed } => {
+        Command::Train { config, out, device, resume, steps, seed, template } => {
+            let template = commands::load_model(template.template.as_deref(), &template.shape)?;
             let bar = progress_bar(0, cli.quiet, "train");
-            let result = commands::train(&config, &out, &device, resume, steps, seed, &|event| match event {
+            let result = commands::train(&config, &out, &device, resume, steps, seed, &template, &|event| match event {
                 lfit::train::Event::Step { step, steps, loss } => {
                     bar.set_length(steps as u64);
                     bar.set_position(step as u64);

@@ -8,7 +8,6 @@
 mod support;
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -376,28 +375,9 @@ fn export_gltf_reproduces_lbs_for_large_rotations_from_a_poses_file() {
     }
 }
 
-/// The npm prefix holding gltf-validator: `LFIT_GLTF_VALIDATOR` (set by scripts/test.sh), else
-/// the default of scripts/fetch-gltf-validator.sh; `Err(reason)` when it or node is missing.
-fn validator() -> Result<PathBuf, String> {
-    let prefix = match std::env::var_os("LFIT_GLTF_VALIDATOR") {
-        Some(p) => PathBuf::from(p),
-        None => {
-            let tools = std::env::var_os("LFIT_TOOLS_DIR").map(PathBuf::from).or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/lfit-tools")));
-            tools.ok_or("neither LFIT_GLTF_VALIDATOR nor HOME is set")?.join("gltf-validator")
-        }
-    };
-    if !prefix.join("node_modules/gltf-validator/package.json").is_file() {
-        return Err(format!("gltf-validator is not installed under {} (run scripts/fetch-gltf-validator.sh)", prefix.display()));
-    }
-    match Command::new("node").arg("--version").output() {
-        Ok(o) if o.status.success() => Ok(prefix),
-        _ => Err("node is not installed".into()),
-    }
-}
-
 #[test]
 fn export_gltf_passes_the_khronos_validator() {
-    let prefix = match validator() {
+    let prefix = match support::gltf_validator() {
         Ok(p) => p,
         Err(reason) => {
             skip_unless_required(&format!("the glTF validator is unavailable: {reason}"), None);
@@ -409,11 +389,7 @@ fn export_gltf_passes_the_khronos_validator() {
     let results = fit_results(dir.path(), &data);
     let out = dir.path().join("gltf");
     export(&data, &results, "gltf", &out);
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/validate-gltf.mjs");
-    let run = Command::new("node").arg(&script).arg(out.join("results.glb")).env("LFIT_GLTF_VALIDATOR", &prefix).output().expect("node runs");
-    let stdout = String::from_utf8_lossy(&run.stdout);
-    assert!(run.status.code() == Some(0) || run.status.code() == Some(1), "validator failed to run: {}", String::from_utf8_lossy(&run.stderr));
-    let report: Value = serde_json::from_str(&stdout).expect("the validator prints a JSON report");
+    let (report, stdout) = support::validate_glb(&prefix, &out.join("results.glb"));
     let issues = &report["issues"];
     let codes: Vec<String> = issues["messages"].as_array().unwrap().iter().map(|m| format!("{} {} {}", m["severity"], m["code"], m["pointer"])).collect();
     eprintln!(

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use support::{assert_one_line_error, lfit, lfit_json, obj_vertices, path_str};
+use support::{assert_one_line_error, lfit, lfit_json, obj_vertices, path_str, skip_unless_required};
 
 const J: usize = 24;
 const V: usize = 240;
@@ -408,4 +408,55 @@ fn bad_model_files_are_one_line_errors_and_write_nothing() {
     let o = lfit(&["fit", "--data", path_str(&d), "--template", path_str(&path), "--method", "neural", "--checkpoint", path_str(&ckpt), "--budget", "10", "--out", path_str(&dir.path().join("never.json"))]);
     assert_one_line_error(&o, "checkpoint");
     assert!(!dir.path().join("never.json").exists());
+}
+
+#[test]
+fn a_24_joint_model_runs_end_to_end_synth_fit_train_neural_export() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, model) = setup(dir.path());
+    let m = path_str(&model);
+    let data = dir.path().join("d.npz");
+    lfit_json(&["synth", "--modality", "keypoints2d", "--source", "uniform", "--frames", "6", "--seed", "3", "--template", m, "--out", path_str(&data)]);
+    // Every classical method on the same energy.
+    let d = path_str(&data);
+    for method in lfit::fitters::METHOD_NAMES {
+        let out = dir.path().join(format!("{method}.json"));
+        let s = lfit_json(&["fit", "--data", d, "--template", m, "--method", method, "--budget", "40", "--frames", "0..2", "--out", path_str(&out)]);
+        let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+        assert_eq!(r["frames"][0]["pose"].as_array().unwrap().len(), 3 + 3 * J, "{method}");
+        assert_eq!(r["frames"][0]["shape"].as_array().unwrap().len(), B, "{method}");
+        assert!(s["summary"]["mean_energy"].as_f64().unwrap().is_finite(), "{method}");
+    }
+    // A short training run on this model, then the neural fitter with its checkpoint.
+    let config = dir.path().join("train.json");
+    std::fs::write(&config, serde_json::json!({
+        "modality": "keypoints2d",
+        "network": {"hidden": 32, "layers": 1, "init_width": 32, "iterations": 3, "start": "mixed", "dropout": 0.0},
+        "steps": 60, "batch": 8, "val_frames": 8, "val_every": 30, "checkpoint_every": 30, "stats_frames": 32, "seed": 1
+    }).to_string()).unwrap();
+    let ckpt = dir.path().join("ckpt");
+    lfit_json(&["--quiet", "train", "--config", path_str(&config), "--template", m, "--device", "ndarray", "--out", path_str(&ckpt)]);
+    let meta: serde_json::Value = serde_json::from_slice(&std::fs::read(ckpt.join("config.json")).unwrap()).unwrap();
+    assert_eq!(meta["network"]["param_dim"], 3 + 3 * J + B);
+    assert_eq!(meta["model"]["layout"]["shape"], B);
+    let results = dir.path().join("neural.json");
+    lfit_json(&["fit", "--data", d, "--template", m, "--method", "neural", "--checkpoint", path_str(&ckpt), "--device", "ndarray", "--budget", "6", "--out", path_str(&results)]);
+    // The checkpoint refuses another model with one line (here the default template's data).
+    let other = dir.path().join("default.npz");
+    lfit_json(&["synth", "--modality", "keypoints2d", "--frames", "2", "--out", path_str(&other)]);
+    let o = lfit(&["fit", "--data", path_str(&other), "--method", "neural", "--checkpoint", path_str(&ckpt), "--device", "ndarray", "--budget", "6", "--out", path_str(&dir.path().join("never.json"))]);
+    assert_one_line_error(&o, "was trained on model 'smpl_like'");
+    // glTF of the fitted motion on the 24-joint skeleton and the subject's shape.
+    let gltf = dir.path().join("gltf");
+    lfit_json(&["export", "--data", d, "--template", m, "--poses", path_str(&results), "--format", "gltf", "--out", path_str(&gltf)]);
+    match support::gltf_validator() {
+        Ok(prefix) => {
+            let (report, stdout) = support::validate_glb(&prefix, &gltf.join("neural.glb"));
+            let issues = &report["issues"];
+            println!("24-joint model glTF: gltf-validator {}: {} errors, {} warnings", report["validatorVersion"], issues["numErrors"], issues["numWarnings"]);
+            assert_eq!(issues["numErrors"], 0, "{stdout}");
+            assert_eq!(report["info"]["hasSkins"], true);
+        }
+        Err(reason) => skip_unless_required(&format!("the glTF validator is unavailable: {reason}"), None),
+    }
 }

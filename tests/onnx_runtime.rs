@@ -21,7 +21,7 @@ use lfit::nn::checkpoint::{self, CheckpointMeta};
 use lfit::nn::unroll::{core_rows, evaluate, observation_rows, rows_to_poses, step_rows};
 use lfit::nn::{CoreKind, Dropout, FeatureStats, GammaMode, NetConfig, NeuralNet, StepShape, UpdateRule};
 use lfit::model::observe::{Modality, Sensor};
-use lfit::model::pose::{Bounds, DofMask, POSE_DIM, as_pose};
+use lfit::model::pose::{Bounds, DofMask, POSE_DIM};
 use lfit::nn::tensor::{ndarray_device, poses_to_tensor, tensor_to_rows};
 use lfit::model::{Energy, default_template, metrics::v2v_mm};
 use lfit::train::{Frames, base_energy, measure_stats, synth_frames};
@@ -70,7 +70,7 @@ fn assert_close(what: &str, burn: &[f32], ort: &[f32], tol: f32) -> f32 {
 
 /// Runs the loop of papers/002 Alg. 1 with Burn, and at every network call gives ONNX Runtime
 /// the same inputs and states, comparing every output. Returns the worst difference.
-fn lockstep(net: &NeuralNet, stats: &FeatureStats, ort: &mut OrtNetwork, energies: &[&Energy], starts: &[lfit::model::pose::Pose]) -> f32 {
+fn lockstep(net: &NeuralNet, stats: &FeatureStats, ort: &mut OrtNetwork, energies: &[&Energy], starts: &[Vec<f64>]) -> f32 {
     let c = &net.config;
     let batch = energies.len();
     let device = ndarray_device();
@@ -97,10 +97,10 @@ fn lockstep(net: &NeuralNet, stats: &FeatureStats, ort: &mut OrtNetwork, energie
         for (l, h) in state.core.iter().enumerate() {
             worst = worst.max(assert_close(&format!("h of f, layer {l}, iteration {n}"), &flat(h), &ort_state.core[l], STEP_TOLERANCE));
         }
-        let grad_host: Vec<_> = evals.iter().map(|(_, g)| *g).collect();
+        let grad_host: Vec<_> = evals.iter().map(|(_, g)| g.clone()).collect();
         let grad = poses_to_tensor(&grad_host, &device);
         let step = if c.has_step_network() {
-            let step_in = step_rows(c, stats, energies, &current, &evals, &rows_to_poses(&flat(&delta)));
+            let step_in = step_rows(c, stats, energies, &current, &evals, &rows_to_poses(&flat(&delta), c.param_dim));
             let sizes = net.step_sizes(n, rows(&step_in, batch), &mut state, &mut Dropout::off());
             let out = ort.step(n, &step_in, &flat(&delta), &flat(&grad), batch, &mut ort_state).expect("ort step");
             let update = net.update(delta, grad, &sizes);
@@ -137,7 +137,7 @@ fn every_step_of_every_shipped_checkpoint_matches_burn_within_1e_4() {
         let mut ort = OrtNetwork::from_exported(&exported, &shipped(m), SessionOptions::default()).expect("sessions");
         let frames = frames_for(m.parse().expect("modality"), 8, 0x0077_0000 + k as u64);
         let energies: Vec<&Energy> = frames.energies.iter().collect();
-        let worst = lockstep(&ckpt.net, &ckpt.stats, &mut ort, &energies, &frames.dataset.start_poses.iter().map(|p| as_pose(p)).collect::<Vec<_>>());
+        let worst = lockstep(&ckpt.net, &ckpt.stats, &mut ort, &energies, &frames.dataset.start_poses);
         eprintln!("{m}: worst |Burn − ORT| over θ0, h0 and {} iterations of Δθ, λ, γ, update, states: {worst:e}", ckpt.meta.network.iterations);
     }
 }
@@ -214,12 +214,12 @@ fn every_ablation_variant_exports_and_matches_burn() {
         };
         perturb(&mut net.phi.bn1, 1.0);
         perturb(&mut net.phi.bn2, 2.0);
-        let meta = CheckpointMeta { format: checkpoint::FORMAT.into(), version: checkpoint::VERSION, template_id: template.id.clone(), template_vertices: template.num_vertices(), network: config.clone() };
+        let meta = CheckpointMeta { format: checkpoint::FORMAT.into(), version: checkpoint::VERSION, template_id: template.id.clone(), template_vertices: template.num_vertices(), network: config.clone(), model: None };
         let exported = export(&net, &meta, &stats).unwrap_or_else(|e| panic!("{name}: {e}"));
         let expected_files = 1 + config.weight_sets() * if config.has_step_network() { 2 } else { 1 };
         assert_eq!(exported.files.len(), expected_files, "{name}: files");
         let mut ort = OrtNetwork::from_exported(&exported, Path::new(name), SessionOptions::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
-        let worst = lockstep(&net, &stats, &mut ort, &energies, &frames.dataset.start_poses.iter().map(|p| as_pose(p)).collect::<Vec<_>>());
+        let worst = lockstep(&net, &stats, &mut ort, &energies, &frames.dataset.start_poses);
         eprintln!("{name}: worst difference {worst:e}");
     }
 }
@@ -369,22 +369,22 @@ fn the_python_example_runs_the_exported_step_as_burn_does() {
         let (net, stats, c) = (&ckpt.net, &ckpt.stats, &ckpt.net.config);
         let frames = frames_for(m.parse().expect("modality"), 1, 0x007A_0000 + k as u64);
         let energy = &frames.energies[0];
-        let pose = as_pose(&frames.dataset.start_poses[0]);
+        let pose = frames.dataset.start_poses[0].clone();
         let mask = DofMask::local43();
         let free: Vec<f32> = (0..POSE_DIM).map(|i| if mask.free.contains(&i) { 1.0 } else { 0.0 }).collect();
 
         // Burn, first iteration from the start pose.
         let obs = observation_rows(c, stats, &[energy]).expect("obs").concat();
         let (theta0, mut state) = net.initial(rows(&obs, 1));
-        let evals = evaluate(&[energy], &[pose]);
-        let core_in = core_rows(c, stats, &evals, &[pose], std::slice::from_ref(&obs)).expect("core");
+        let evals = evaluate(&[energy], std::slice::from_ref(&pose));
+        let core_in = core_rows(c, stats, &evals, std::slice::from_ref(&pose), std::slice::from_ref(&obs)).expect("core");
         let delta = net.propose(0, rows(&core_in, 1), &mut state, &mut Dropout::off()) * rows(&free, 1);
-        let grad = poses_to_tensor(&[evals[0].1], &ndarray_device()) * rows(&free, 1);
-        let delta_host = rows_to_poses(&flat(&delta));
-        let step_in = step_rows(c, stats, &[energy], &[pose], &evals, &delta_host);
+        let grad = poses_to_tensor(&[evals[0].1.clone()], &ndarray_device()) * rows(&free, 1);
+        let delta_host = rows_to_poses(&flat(&delta), c.param_dim);
+        let step_in = step_rows(c, stats, &[energy], std::slice::from_ref(&pose), &evals, &delta_host);
         let sizes = net.step_sizes(0, rows(&step_in, 1), &mut state, &mut Dropout::off());
         let update = net.update(delta.clone(), grad, &sizes);
-        let mut tried = pose;
+        let mut tried = pose.clone();
         for (a, b) in tried.iter_mut().zip(&delta_host[0]) {
             *a += b;
         }

@@ -14,7 +14,7 @@ use burn::tensor::Device;
 use lfit_fitters::{FitError, FitRequest, FitResult, Fitter};
 use lfit_nn::checkpoint::{self, Checkpoint, CheckpointMeta};
 use lfit_nn::{Constraints, Dropout, FeatureStats, NeuralNet, unroll};
-use lfit_model::pose::{Bounds, POSE_DIM, Pose};
+use lfit_model::pose::Bounds;
 use lfit_model::{Energy, ModelError};
 
 /// Where θ0 comes from at inference.
@@ -125,7 +125,7 @@ impl NeuralFitter {
     }
 
     /// θ0 … θN of every frame, `[N + 1][B]`, from the engine.
-    fn run(&self, energies: &[&Energy], starts: &[Option<Pose>], constraints: &Constraints) -> Result<Vec<Vec<Pose>>, FitError> {
+    fn run(&self, energies: &[&Energy], starts: &[Option<Vec<f64>>], constraints: &Constraints) -> Result<Vec<Vec<Vec<f64>>>, FitError> {
         match &self.engine {
             Engine::Burn { net, device } => Ok(unroll(net, &self.stats, energies, starts, Some(constraints), device, &mut Dropout::off()).map_err(neural)?.host),
             Engine::Ort(network) => {
@@ -152,15 +152,17 @@ impl NeuralFitter {
             if r.budget < per_iteration * n {
                 return Err(FitError::Neural(format!("budget {} is below the {} evaluations of {n} iterations", r.budget, per_iteration * n)));
             }
-            if r.energy.dim() != POSE_DIM || r.start.len() != POSE_DIM {
+            let dim = self.meta.network.param_dim;
+            if r.energy.dim() != dim || r.start.len() != dim {
                 return Err(FitError::Neural(format!(
-                    "the neural fitter supports the rigid 18-joint template only so far; '{}' has {} parameters",
+                    "checkpoint {} predicts {dim} parameters, the model '{}' has {}: it was trained on another model",
+                    self.dir.display(),
                     r.energy.template().id,
                     r.energy.dim()
                 )));
             }
-            if r.bounds.lower.len() != POSE_DIM || r.bounds.upper.len() != POSE_DIM {
-                return Err(FitError::Bounds(format!("need {POSE_DIM} lower and upper values")));
+            if r.bounds.lower.len() != dim || r.bounds.upper.len() != dim {
+                return Err(FitError::Bounds(format!("need {dim} lower and upper values")));
             }
             if r.start.iter().any(|v| !v.is_finite()) {
                 return Err(FitError::Start("not finite".into()));
@@ -169,10 +171,10 @@ impl NeuralFitter {
         let timer = Instant::now();
         let e0: Vec<(u64, u64)> = requests.iter().map(|r| (r.energy.evaluations(), r.energy.gradient_evaluations())).collect();
         let energies: Vec<&Energy> = requests.iter().map(|r| r.energy).collect();
-        let starts: Vec<Option<Pose>> = requests
+        let starts: Vec<Option<Vec<f64>>> = requests
             .iter()
             .map(|r| {
-                let mut s = lfit_model::pose::as_pose(&r.start);
+                let mut s = r.start.clone();
                 r.bounds.clamp(&mut s);
                 (self.start == Start::Given).then_some(s)
             })
@@ -181,9 +183,9 @@ impl NeuralFitter {
             free: requests
                 .iter()
                 .map(|r| {
-                    let mut f = [false; POSE_DIM];
+                    let mut f = vec![false; r.start.len()];
                     for &i in &r.mask.free {
-                        if i < POSE_DIM {
+                        if i < f.len() {
                             f[i] = true;
                         }
                     }
@@ -207,7 +209,7 @@ impl NeuralFitter {
             .iter()
             .enumerate()
             .map(|(i, r)| {
-                let pose = host[n][i];
+                let pose = host[n][i].clone();
                 let report = r.energy.inspect(&pose);
                 let evaluations = r.energy.evaluations() - e0[i].0 + residual_evaluations - n as u64;
                 // Energy of every iterate (reporting only: `inspect` is not counted); the x axis
@@ -215,7 +217,7 @@ impl NeuralFitter {
                 let trace = (0..=n).map(|k| ((per_iteration * k) as u64, r.energy.inspect(&host[k][i]).total)).collect();
                 FitResult {
                     method: name.clone(),
-                    pose: pose.to_vec(),
+                    pose,
                     energy: report.total,
                     terms: report.terms,
                     evaluations,
@@ -223,7 +225,7 @@ impl NeuralFitter {
                     iterations: n as u64,
                     time_s,
                     trace,
-                    iterates: host.iter().map(|h| h[i].to_vec()).collect(),
+                    iterates: host.iter().map(|h| h[i].clone()).collect(),
                 }
             })
             .collect())

@@ -33,11 +33,21 @@ pub struct BodyShape {
     pub head: f64,
     /// Arm abduction of the rest A-pose, degrees below horizontal.
     pub arm_angle_deg: f64,
+    /// Depth scale of the trunk (front to back), on top of `girth`.
+    #[serde(default = "one")]
+    pub chest_depth: f64,
+    /// Scale of the shoulders' distance from the midline, on top of `girth`.
+    #[serde(default = "one")]
+    pub shoulder_width: f64,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 impl Default for BodyShape {
     fn default() -> Self {
-        Self { height: 1.0, leg_length: 1.0, arm_length: 1.0, torso_length: 1.0, girth: 1.0, limb_girth: 1.0, head: 1.0, arm_angle_deg: 45.0 }
+        Self { height: 1.0, leg_length: 1.0, arm_length: 1.0, torso_length: 1.0, girth: 1.0, limb_girth: 1.0, head: 1.0, arm_angle_deg: 45.0, chest_depth: 1.0, shoulder_width: 1.0 }
     }
 }
 
@@ -132,8 +142,9 @@ pub const MORPHABLE_SAMPLES: usize = 64;
 /// The morphable default template (id `default+morphable`): the default template as the mean
 /// (β = 0 poses exactly like it), and a shape space of [`MORPHABLE_SHAPE_DIM`] directions from
 /// a PCA of [`MORPHABLE_SAMPLES`] random body-proportion variants (height 0.88–1.12, legs
-/// 0.9–1.1, arms 0.9–1.12, trunk 0.92–1.08, girth 0.8–1.3, limb girth 0.8–1.25, head 0.92–1.08:
-/// our ranges, bracketing the named variants; seed fixed). Directions are scaled to one standard
+/// 0.9–1.1, arms 0.9–1.12, trunk 0.92–1.08, girth 0.8–1.3, limb girth 0.8–1.25, head 0.92–1.08,
+/// chest depth 0.85–1.2, shoulder width 0.9–1.12: our ranges, bracketing the named variants;
+/// seed fixed; nine proportions, so the eight directions all carry variance). Directions are scaled to one standard
 /// deviation of the samples, so β ~ N(0, I) is the sampled population. The rest joints follow the
 /// shape through a joint regressor fitted on the mean ([`crate::modelfile::fit_regressor`]).
 /// Returns the template and the fraction of the samples' variance each direction explains.
@@ -152,6 +163,8 @@ pub fn morphable_default_template() -> Result<(Template, Vec<f64>)> {
             girth: rng.random_range(0.8..1.3),
             limb_girth: rng.random_range(0.8..1.25),
             head: rng.random_range(0.92..1.08),
+            chest_depth: rng.random_range(0.85..1.2),
+            shoulder_width: rng.random_range(0.9..1.12),
             ..BodyShape::default()
         };
         let t = build_template(&shape, "sample")?;
@@ -250,7 +263,7 @@ impl Skeleton {
         let arm_up = DVec3::new(angle.sin(), angle.cos(), 0.0);
         let arm = s.arm_length * h;
         let (upper_arm, forearm, hand) = (0.28 * arm, 0.25 * arm, 0.18 * arm);
-        let shoulder = DVec3::new(0.19 * g, hip_y + 0.50 * torso, -0.01 * g);
+        let shoulder = DVec3::new(0.19 * g * s.shoulder_width, hip_y + 0.50 * torso, -0.01 * g);
         for (side, sign) in [(0usize, -1.0), (3usize, 1.0)] {
             let m = DVec3::new(sign, 1.0, 1.0);
             joints[R_SHOULDER + side] = shoulder * m;
@@ -456,7 +469,7 @@ fn build_cage(cage: &mut Cage, sk: &Skeleton, s: &BodyShape) {
     let mut ring_ids: Vec<[u32; 8]> = Vec::new();
     for (dy, w, a, d, wt) in rings {
         let y = hip_y + dy * torso;
-        let (w, a, d) = (w * g * INFLATE, a * g * INFLATE, d * g * INFLATE);
+        let (w, a, d) = (w * g * INFLATE, a * g * INFLATE, d * g * INFLATE * s.chest_depth);
         let z0 = -0.01 * g;
         let pts = [(w, d), (a, d), (-a, d), (-w, d), (-w, -d), (-a, -d), (a, -d), (w, -d)];
         ring_ids.push(pts.map(|(x, z)| cage.add_vertex(DVec3::new(x, y, z + z0), wt)));
@@ -673,6 +686,8 @@ mod tests {
         println!("morphable default template: variance explained {explained:.4?}, total {cumulative:.5}");
         assert!(explained.windows(2).all(|w| w[0] >= w[1]));
         assert!(cumulative > 0.99, "{cumulative}");
+        // Every direction carries variance: none is unobservable.
+        assert!(explained[MORPHABLE_SHAPE_DIM - 1] > 1e-4, "{explained:?}");
         // β = 0 is the default template, exactly.
         let d = default_template();
         let pose: Vec<f64> = (0..57).map(|i| ((i * 37 % 19) as f64 / 19.0 - 0.5) * 0.8).collect();

@@ -232,11 +232,13 @@ mod tests {
     }
 }
 
-/// A random SMPL-like model for tests: 24 joints in SMPL's tree and names, `v` vertices around a
-/// standing body's box, 1–6 influences per vertex, B shape columns, optional pose correctives, a
-/// sparse regressor (5 vertices per joint), 30 markers.
-#[cfg(test)]
-pub(crate) fn smpl_like(seed: u64, v: usize, b: usize, with_posedirs: bool) -> crate::template::Template {
+/// A random SMPL-like model for tests and benchmarks: 24 joints in SMPL's tree and names, `v`
+/// vertices in a standing body's box, 1–6 influences per vertex, `b` shape columns, optional pose
+/// correctives, a sparse regressor (5 vertices per joint), 30 markers. Same seed, same model.
+///
+/// # Panics
+/// Never for `v ≥ 3`.
+pub fn smpl_like(seed: u64, v: usize, b: usize, with_posedirs: bool) -> crate::template::Template {
     use rand::{Rng, SeedableRng};
     const PARENTS: [i64; 24] = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21];
     let j = PARENTS.len();

@@ -19,6 +19,15 @@ use crate::skeleton::{self, NUM_JOINTS};
 pub const OBJ_FILE: &str = "template.obj";
 pub const RIG_FILE: &str = "rig.json";
 
+/// What identifies a model: id, parameter layout and a hash of its arrays
+/// ([`Template::signature`]).
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct ModelSignature {
+    pub id: String,
+    pub layout: Layout,
+    pub hash: String,
+}
+
 /// A skinned template mesh.
 #[derive(Debug, Clone)]
 pub struct Template {
@@ -114,6 +123,50 @@ impl Template {
         self.wide || !self.morph.is_rigid()
     }
 
+    /// The model's signature: its parameter layout and a hash of every array that shapes its
+    /// output (rest vertices, faces, joints, weights, blend shapes, regressor). A checkpoint
+    /// stores it; fitting with another model is refused.
+    pub fn signature(&self) -> ModelSignature {
+        // FNV-1a, 64 bit: stable across runs and platforms (little-endian bytes of every value).
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut eat = |bytes: &[u8]| {
+            for &b in bytes {
+                h ^= u64::from(b);
+                h = h.wrapping_mul(0x0000_0100_0000_01b3);
+            }
+        };
+        for v in &self.vertices {
+            for x in v.to_array() {
+                eat(&x.to_le_bytes());
+            }
+        }
+        for f in &self.faces {
+            for i in f {
+                eat(&i.to_le_bytes());
+            }
+        }
+        for j in &self.rig.joints {
+            eat(j.name.as_bytes());
+            eat(&j.parent.map_or(u64::MAX, |p| p as u64).to_le_bytes());
+            for x in j.rest_position {
+                eat(&x.to_le_bytes());
+            }
+        }
+        for list in &self.rig.weights {
+            for &(j, w) in list {
+                eat(&(j as u64).to_le_bytes());
+                eat(&w.to_le_bytes());
+            }
+        }
+        let m = &self.morph;
+        for x in m.rest.iter().flat_map(|p| p.to_array()).chain(m.dirs.iter().copied()).chain(m.posedirs.iter().flatten().copied()).chain(m.joint_dirs.iter().copied()) {
+            eat(&x.to_le_bytes());
+        }
+        eat(&(m.shape as u64).to_le_bytes());
+        eat(&(m.expression as u64).to_le_bytes());
+        ModelSignature { id: self.id.clone(), layout: self.layout(), hash: format!("{h:016x}") }
+    }
+
     /// Head, left wrist and right wrist joints (the `hmd` modality's devices), through the joint
     /// map to the papers/000 skeleton.
     pub fn hmd_joints(&self) -> Result<[usize; 3]> {
@@ -128,6 +181,29 @@ impl Template {
             })?;
         }
         Ok(out)
+    }
+
+    /// The rigid template of one subject: rest vertices `T(β, ψ)` and rest joints `c(β, ψ)` for
+    /// the coefficients `coeffs` (`[β; ψ]`, zero-padded), without blend shapes or pose
+    /// correctives (what a glTF skin can hold). `self` when the model has no coefficients.
+    pub fn shaped(&self, coeffs: &[f64]) -> Result<Self> {
+        let k = self.morph.coefficients();
+        if k == 0 {
+            let mut t = self.clone();
+            t.morph = Arc::new(Morph::none());
+            return Ok(t);
+        }
+        let mut c = coeffs.to_vec();
+        c.resize(k, 0.0);
+        let vertices: Vec<Vec3> = (0..self.num_vertices()).map(|v| self.morph.rest_vertex(v, self.vertices[v].as_dvec3(), &c, &[]).as_vec3()).collect();
+        let joints = self.morph.rest_joints(&self.joint_rest(), &c);
+        let mut rig = self.rig.clone();
+        for (j, p) in rig.joints.iter_mut().zip(&joints) {
+            j.rest_position = p.to_array();
+        }
+        let mut t = Self::new(self.id.clone(), vertices, self.faces.clone(), rig)?;
+        t.info = self.info.clone();
+        Ok(t)
     }
 
     /// The parameter layout: translation, one rotation per joint, β, ψ.

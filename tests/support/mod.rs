@@ -1,7 +1,7 @@
 //! Shared helpers of the integration tests: run the `lfit` binary, temporary directories.
 #![allow(dead_code)]
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 /// Runs `lfit` with `args` and returns its output.
@@ -51,4 +51,32 @@ pub fn skip_unless_required(reason: &str, require: Option<&str>) {
 
 pub fn path_str(p: &Path) -> &str {
     p.to_str().expect("utf-8 temp path")
+}
+
+/// The npm prefix holding gltf-validator: `LFIT_GLTF_VALIDATOR` (set by scripts/test.sh), else
+/// the default of scripts/fetch-gltf-validator.sh; `Err(reason)` when it or node is missing.
+pub fn gltf_validator() -> Result<PathBuf, String> {
+    let prefix = match std::env::var_os("LFIT_GLTF_VALIDATOR") {
+        Some(p) => PathBuf::from(p),
+        None => {
+            let tools = std::env::var_os("LFIT_TOOLS_DIR").map(PathBuf::from).or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/lfit-tools")));
+            tools.ok_or("neither LFIT_GLTF_VALIDATOR nor HOME is set")?.join("gltf-validator")
+        }
+    };
+    if !prefix.join("node_modules/gltf-validator/package.json").is_file() {
+        return Err(format!("gltf-validator is not installed under {} (run scripts/fetch-gltf-validator.sh)", prefix.display()));
+    }
+    match Command::new("node").arg("--version").output() {
+        Ok(o) if o.status.success() => Ok(prefix),
+        _ => Err("node is not installed".into()),
+    }
+}
+
+/// Runs the Khronos validator (scripts/validate-gltf.mjs) on `glb`: its JSON report and stdout.
+pub fn validate_glb(prefix: &Path, glb: &Path) -> (serde_json::Value, String) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/validate-gltf.mjs");
+    let run = Command::new("node").arg(&script).arg(glb).env("LFIT_GLTF_VALIDATOR", prefix).output().expect("node runs");
+    let stdout = String::from_utf8_lossy(&run.stdout).into_owned();
+    assert!(run.status.code() == Some(0) || run.status.code() == Some(1), "validator failed to run: {}", String::from_utf8_lossy(&run.stderr));
+    (serde_json::from_str(&stdout).expect("the validator prints a JSON report"), stdout)
 }

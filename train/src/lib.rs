@@ -19,7 +19,6 @@ use lfit_model::metrics::{mpjpe_mm, v2v_mm};
 use lfit_nn::checkpoint::{self, checkpoint_files, write_dir};
 use lfit_nn::{Dropout, FeatureStats, NetConfig, NeuralNet, StartMode, observation_features, unroll};
 use lfit_model::observe::{Modality, Sensor};
-use lfit_model::pose::{POSE_DIM, Pose, as_pose};
 use lfit_nn::tensor::poses_to_tensor;
 use lfit_model::Template;
 use lfit_synth::{Dataset, NoiseConfig, Observations, Scenario, SynthConfig, synthesize};
@@ -203,14 +202,14 @@ pub fn measure_stats(frames: &Frames) -> FeatureStats {
         .par_iter()
         .enumerate()
         .map(|(i, e)| {
-            let start = as_pose(&d.start_poses[i]);
-            let gt = as_pose(&d.gt_poses[i]);
-            let mut half = start;
-            for (h, g) in half.iter_mut().zip(&gt) {
+            let start = d.start_poses[i].clone();
+            let gt = &d.gt_poses[i];
+            let mut half = start.clone();
+            for (h, g) in half.iter_mut().zip(gt) {
                 *h = 0.5 * (*h + g);
             }
             let (mut r, mut g, mut p) = (Vec::new(), Vec::new(), Vec::new());
-            for pose in [start, [0.0; POSE_DIM], half] {
+            for pose in [start, vec![0.0; gt.len()], half] {
                 r.push(e.residual(&pose));
                 g.push(e.evaluate_with_gradient(&pose).1.to_vec());
                 p.push(pose.to_vec());
@@ -240,7 +239,7 @@ pub struct Validation {
 /// V2V/MPJPE after every iteration.
 pub fn validate(net: &NeuralNet, stats: &FeatureStats, frames: &Frames, from_start: bool, device: &Device) -> Result<Validation> {
     let refs: Vec<&Energy> = frames.energies.iter().collect();
-    let starts: Vec<Option<Pose>> = frames.dataset.start_poses.iter().map(|s| from_start.then(|| as_pose(s))).collect();
+    let starts: Vec<Option<Vec<f64>>> = frames.dataset.start_poses.iter().map(|s| from_start.then(|| s.clone())).collect();
     let out = unroll(net, stats, &refs, &starts, None, device, &mut Dropout::off())?;
     let template = frames.energies[0].template();
     let gt = &frames.dataset.gt_poses;
@@ -295,11 +294,11 @@ pub struct Summary {
 /// Trains a network on `template` as configured and writes checkpoints to `options.out`.
 pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, options: &RunOptions, report: &(dyn Fn(Event) + Sync)) -> Result<Summary> {
     config.validate()?;
-    template.require_default_skeleton("lfit train")?;
     let sensor = Sensor::default_for(config.modality, &template);
     let mut net_config = config.network.clone();
     net_config.modality = config.modality;
     net_config.residual_dim = sensor.residual_dim(&template);
+    net_config.param_dim = template.layout().dim();
     net_config.validate()?;
     let base = base_energy(&template, &sensor)?;
     let ad = device.clone().autodiff();
@@ -393,18 +392,18 @@ pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, opt
     for step in start_step..config.steps {
         let frames = synth_frames(&template, &sensor, &base, config.batch, seeds::batch(config.seed, step), config.noise)?;
         let mut rng = ChaCha8Rng::seed_from_u64(seeds::batch(config.seed, step) ^ 0x5EED);
-        let starts: Vec<Option<Pose>> = frames
+        let starts: Vec<Option<Vec<f64>>> = frames
             .dataset
             .start_poses
             .iter()
             .map(|s| match net_config.start {
                 StartMode::Phi => None,
-                StartMode::Given => Some(as_pose(s)),
-                StartMode::Mixed => rng.random_bool(0.5).then(|| as_pose(s)),
+                StartMode::Given => Some(s.clone()),
+                StartMode::Mixed => rng.random_bool(0.5).then(|| s.clone()),
             })
             .collect();
         let refs: Vec<&Energy> = frames.energies.iter().collect();
-        let truth = loss.truth(poses_to_tensor(&frames.dataset.gt_poses.iter().map(|g| as_pose(g)).collect::<Vec<_>>(), &ad));
+        let truth = loss.truth(poses_to_tensor(&frames.dataset.gt_poses, &ad));
         let out = unroll(&net, &stats, &refs, &starts, None, &ad, &mut Dropout { p: net_config.dropout, rng: Some(&mut rng) })?;
         let total = loss.total(&out.poses, &truth);
         let value = f64::from(total.clone().detach().try_into_scalar::<f32>().map_err(|e| lfit_model::ModelError::Backend(format!("cannot read the loss: {e}")))?);

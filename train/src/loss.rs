@@ -64,10 +64,11 @@ pub fn mesh_edges(template: &Template) -> Vec<(u32, u32)> {
     edges
 }
 
-fn local_rotations(poses: Tensor<2>) -> Tensor<3> {
-    let [batch, dim] = poses.dims();
-    let joints = (dim - 3) / 3;
-    rodrigues(poses.narrow(1, 3, dim - 3).reshape([batch * joints, 3])).reshape([batch, joints * 3, 3])
+/// The parent-relative rotation matrices of the joints (the pose part of a parameter vector;
+/// shape and expression coefficients after it are not rotations).
+fn local_rotations(poses: Tensor<2>, joints: usize) -> Tensor<3> {
+    let [batch, _] = poses.dims();
+    rodrigues(poses.narrow(1, 3, 3 * joints).reshape([batch * joints, 3])).reshape([batch, joints * 3, 3])
 }
 
 impl Loss {
@@ -85,15 +86,17 @@ impl Loss {
         vertices.clone().select(1, self.edge_a.clone()) - vertices.select(1, self.edge_b.clone())
     }
 
-    /// Forward model of the ground-truth poses `[B, 57]` (detached).
+    /// Forward model of the ground-truth parameter vectors `[B, param_dim]` (detached).
     pub fn truth(&self, poses: Tensor<2>) -> Truth {
         let poses = poses.detach();
         let skinned = self.skinning.forward(poses.clone());
         let edges = self.edge_vectors(skinned.vertices.clone());
-        Truth { local: local_rotations(poses.clone()), edges, skinned, poses }
+        Truth { local: local_rotations(poses.clone(), self.skinning.num_joints()), edges, skinned, poses }
     }
 
-    /// `L_n` of one iterate `[B, 57]`: a scalar tensor `[1]`, and its five weighted parts.
+    /// `L_n` of one iterate `[B, param_dim]`: a scalar tensor `[1]`, and its five weighted parts.
+    /// Shape and expression are learned through the vertex, edge and joint terms (the mesh and
+    /// the skeleton they change).
     pub fn step(&self, poses: Tensor<2>, truth: &Truth) -> Tensor<1> {
         let w = &self.weights;
         let out = self.skinning.forward(poses.clone());
@@ -101,7 +104,7 @@ impl Loss {
         let lm = l1(out.vertices.clone(), truth.skinned.vertices.clone());
         let le = l1(self.edge_vectors(out.vertices), truth.edges.clone());
         let lt = (out.world_rotations - truth.skinned.world_rotations.clone()).abs().mean() + l1(out.joints, truth.skinned.joints.clone());
-        let lr = l1(local_rotations(poses.clone()), truth.local.clone());
+        let lr = l1(local_rotations(poses.clone(), self.skinning.num_joints()), truth.local.clone());
         let ltr = (poses.narrow(1, 0, 3) - truth.poses.clone().narrow(1, 0, 3)).abs().mean();
         lm.mul_scalar(w.vertices) + le.mul_scalar(w.edges) + lt.mul_scalar(w.transforms) + lr.mul_scalar(w.rotations) + ltr.mul_scalar(w.translation)
     }

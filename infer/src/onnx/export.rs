@@ -126,7 +126,7 @@ fn init_graph(net: &NeuralNet) -> Result<Graph, OnnxError> {
     };
     let (y, p) = mlp(&mut g, &net.phi, "phi")?;
     let theta0 = g.linear(&y, &net.phi.out, &format!("{p}.out"))?;
-    g.output(&theta0, "theta0", POSE_DIM, "θ0 = Φ(D)");
+    g.output(&theta0, "theta0", c.param_dim, "θ0 = Φ(D)");
     if let Some(phi_h) = &net.phi_h {
         let (y, p) = mlp(&mut g, phi_h, "phi_h")?;
         for l in 0..c.layers {
@@ -144,7 +144,7 @@ fn propose_graph(net: &NeuralNet, set: usize) -> Result<Graph, OnnxError> {
     let states = state_inputs(&mut g, "h", c.recurrent_layers(), c.hidden);
     let (out, next) = core(&mut g, &x, &states, &net.cores[set], "f")?;
     let delta = g.linear(&out, &net.delta_heads[set], "delta_head")?;
-    g.output(&delta, "delta", POSE_DIM, "Δθ (multiply by the DOF mask before using it)");
+    g.output(&delta, "delta", c.param_dim, "Δθ (multiply by the DOF mask before using it)");
     for (l, h) in next.iter().enumerate() {
         g.output(h, &format!("h_next.{l}"), c.hidden, "new state of this GRU layer of f");
     }
@@ -157,8 +157,8 @@ fn step_graph(net: &NeuralNet, set: usize) -> Result<Graph, OnnxError> {
     let (k, kg) = (c.step_outputs(), c.gamma_outputs());
     let mut g = Graph::new("lfit_step");
     let x = g.input("step_in", c.step_inputs(), "normalised [R(θ), R(θ + Δθ)]");
-    let delta = g.input("delta", POSE_DIM, "Δθ from propose, masked");
-    let grad = g.input("grad", POSE_DIM, "energy gradient g(θ), raw, masked");
+    let delta = g.input("delta", c.param_dim, "Δθ from propose, masked");
+    let grad = g.input("grad", c.param_dim, "energy gradient g(θ), raw, masked");
     let layers = c.recurrent_layers();
     let lambda_states = state_inputs(&mut g, "lambda_h", layers, c.hidden);
     let separate = c.separate_gamma_network();
@@ -235,7 +235,7 @@ fn step_graph(net: &NeuralNet, set: usize) -> Result<Graph, OnnxError> {
             g.mul(&gamma, &diff)
         }
     };
-    g.output(&update, "update", POSE_DIM, "θn − θ(n−1) before clamping to the bounds");
+    g.output(&update, "update", c.param_dim, "θn − θ(n−1) before clamping to the bounds");
     g.output(&lambda, "lambda", k, "λ");
     g.output(&gamma, "gamma", kg, "γ");
     for (l, h) in lambda_next.iter().enumerate() {
@@ -251,11 +251,21 @@ fn step_graph(net: &NeuralNet, set: usize) -> Result<Graph, OnnxError> {
 fn metadata(meta: &CheckpointMeta, stats: &FeatureStats, role: &str, set: usize) -> Result<Vec<StringStringEntryProto>, OnnxError> {
     let c = &meta.network;
     let json = |v: serde_json::Result<String>| v.map_err(|e| OnnxError::Export(format!("cannot serialise metadata: {e}")));
-    let mask = DofMask::full57();
+    // Entry names from the model's layout; checkpoints without a model signature are of the
+    // default template (57 entries).
+    let names: Vec<String> = match &meta.model {
+        Some(sig) => sig.layout.names(),
+        None => (0..POSE_DIM).map(dof_name).collect(),
+    };
+    let mask = if c.param_dim == POSE_DIM && meta.model.as_ref().is_none_or(|m| m.layout.shape + m.layout.expression == 0) {
+        DofMask::full57()
+    } else {
+        DofMask { name: format!("full{}", c.param_dim), free: (0..c.param_dim).collect() }
+    };
     let dof = serde_json::json!({
         "mask": mask.name,
         "free": mask.free,
-        "names": (0..POSE_DIM).map(dof_name).collect::<Vec<_>>(),
+        "names": names,
         "note": "the network updates every pose parameter; a fit multiplies Δθ and g by its own mask of free DOFs (1 free, 0 frozen) and clamps θ into its bounds after each update",
     });
     let entries: BTreeMap<&str, String> = BTreeMap::from([

@@ -10,7 +10,6 @@ use lfit_nn::checkpoint::{self, CheckpointMeta};
 use lfit_nn::features::FeatureStats;
 use lfit_nn::unroll::{check_batch, constraint_rows, core_rows, evaluate, observation_rows, rows_to_poses, step_rows};
 use lfit_nn::Constraints;
-use lfit_model::pose::{POSE_DIM, Pose};
 use lfit_model::{Energy, ModelError};
 use ort::environment::Environment;
 use ort::session::Session;
@@ -145,7 +144,7 @@ impl OrtNetwork {
         }
         meta.network.validate().map_err(|e| OnnxError::model(origin, e.to_string()))?;
         let stats: FeatureStats = serde_json::from_str(&init_info.stats).map_err(|e| OnnxError::model(origin, format!("malformed {} metadata: {e}", keys::FEATURE_STATS)))?;
-        stats.validate(meta.network.residual_dim).map_err(|e| OnnxError::model(origin, e.to_string()))?;
+        stats.validate(meta.network.residual_dim, meta.network.param_dim).map_err(|e| OnnxError::model(origin, e.to_string()))?;
         for (name, info) in &infos {
             if info.checkpoint != init_info.checkpoint || info.stats != init_info.stats {
                 return Err(OnnxError::model(&origin.join(name), "exported from another checkpoint than init.onnx"));
@@ -184,13 +183,13 @@ impl OrtNetwork {
         Self::from_exported(&Exported { files }, dir, options)
     }
 
-    /// θ0 = Φ(D) `[B, 57]` and the initial state, from normalised observations `[B, 2R]`.
+    /// θ0 = Φ(D) `[B, param_dim]` and the initial state, from normalised observations `[B, 2R]`.
     pub fn initial(&mut self, obs: &[f32], batch: usize) -> Result<(Vec<f32>, OrtState), OnnxError> {
         let c = &self.meta.network;
         let layers = c.recurrent_layers();
         let inputs = vec![("obs".to_string(), tensor(obs, batch, c.obs_features())?)];
         let mut out = self.init.run(inputs).map_err(runtime)?;
-        let theta0 = extract(&mut out, "theta0", batch * POSE_DIM)?;
+        let theta0 = extract(&mut out, "theta0", batch * c.param_dim)?;
         let core = (0..layers).map(|l| extract(&mut out, &format!("h0.{l}"), batch * c.hidden)).collect::<Result<Vec<_>, _>>()?;
         let zeros = || (0..layers).map(|_| vec![0.0f32; batch * c.hidden]).collect::<Vec<_>>();
         Ok((theta0, OrtState { core, lambda: if c.has_step_network() { zeros() } else { Vec::new() }, gamma: if c.separate_gamma_network() { zeros() } else { Vec::new() } }))
@@ -205,7 +204,7 @@ impl OrtNetwork {
             inputs.push((format!("h.{l}"), tensor(h, batch, c.hidden)?));
         }
         let mut out = self.propose[s].run(inputs).map_err(runtime)?;
-        let delta = extract(&mut out, "delta", batch * POSE_DIM)?;
+        let delta = extract(&mut out, "delta", batch * c.param_dim)?;
         for l in 0..state.core.len() {
             state.core[l] = extract(&mut out, &format!("h_next.{l}"), batch * c.hidden)?;
         }
@@ -219,8 +218,8 @@ impl OrtNetwork {
         let s = c.weight_set(n);
         let mut inputs = vec![
             ("step_in".to_string(), tensor(step_in, batch, c.step_inputs())?),
-            ("delta".to_string(), tensor(delta, batch, POSE_DIM)?),
-            ("grad".to_string(), tensor(grad, batch, POSE_DIM)?),
+            ("delta".to_string(), tensor(delta, batch, c.param_dim)?),
+            ("grad".to_string(), tensor(grad, batch, c.param_dim)?),
         ];
         for (l, h) in state.lambda.iter().enumerate() {
             inputs.push((format!("lambda_h.{l}"), tensor(h, batch, c.hidden)?));
@@ -230,7 +229,7 @@ impl OrtNetwork {
         }
         let mut out = self.step[s].run(inputs).map_err(runtime)?;
         let result = StepOut {
-            update: extract(&mut out, "update", batch * POSE_DIM)?,
+            update: extract(&mut out, "update", batch * c.param_dim)?,
             lambda: extract(&mut out, "lambda", batch * c.step_outputs())?,
             gamma: extract(&mut out, "gamma", batch * c.gamma_outputs())?,
         };
@@ -262,7 +261,7 @@ fn extract(out: &mut ort::session::SessionOutputs<'_>, name: &str, len: usize) -
 
 /// Runs N iterations through ONNX Runtime on `energies`, exactly as
 /// [`lfit_nn::unroll`] does through Burn; returns θ0 … θN per frame (`[N + 1][B]`).
-pub fn unroll_ort(net: &mut OrtNetwork, energies: &[&Energy], starts: &[Option<Pose>], constraints: Option<&Constraints>) -> Result<Vec<Vec<Pose>>, OnnxError> {
+pub fn unroll_ort(net: &mut OrtNetwork, energies: &[&Energy], starts: &[Option<Vec<f64>>], constraints: Option<&Constraints>) -> Result<Vec<Vec<Vec<f64>>>, OnnxError> {
     let model = |e: ModelError| OnnxError::Runtime(e.to_string());
     let c = net.meta.network.clone();
     let stats = net.stats.clone();
@@ -271,14 +270,15 @@ pub fn unroll_ort(net: &mut OrtNetwork, energies: &[&Energy], starts: &[Option<P
     let obs_norm = observation_rows(&c, &stats, energies).map_err(model)?;
     let (phi, mut state) = net.initial(&obs_norm.concat(), batch)?;
     // θ0: the given pose where there is one, Φ(D) elsewhere (in f32, as the Burn loop).
-    let mut theta: Vec<f32> = Vec::with_capacity(batch * POSE_DIM);
+    let dim = c.param_dim;
+    let mut theta: Vec<f32> = Vec::with_capacity(batch * dim);
     for (i, s) in starts.iter().enumerate() {
         match s {
             Some(p) => theta.extend(p.iter().map(|&v| v as f32)),
-            None => theta.extend_from_slice(&phi[i * POSE_DIM..(i + 1) * POSE_DIM]),
+            None => theta.extend_from_slice(&phi[i * dim..(i + 1) * dim]),
         }
     }
-    let limits = constraints.map(|k| constraint_rows(k, batch)).transpose().map_err(model)?;
+    let limits = constraints.map(|k| constraint_rows(k, batch, dim)).transpose().map_err(model)?;
     let constrain = |t: &mut [f32]| {
         if let Some((_, lo, hi)) = &limits {
             for ((v, l), h) in t.iter_mut().zip(lo).zip(hi) {
@@ -287,7 +287,7 @@ pub fn unroll_ort(net: &mut OrtNetwork, energies: &[&Energy], starts: &[Option<P
         }
     };
     constrain(&mut theta);
-    let mut host = vec![rows_to_poses(&theta)];
+    let mut host = vec![rows_to_poses(&theta, dim)];
     for n in 0..c.iterations {
         let current = host.last().cloned().unwrap_or_default();
         let evals = evaluate(energies, &current);
@@ -301,7 +301,7 @@ pub fn unroll_ort(net: &mut OrtNetwork, energies: &[&Energy], starts: &[Option<P
             }
         }
         let update = if c.has_step_network() {
-            let step_in = step_rows(&c, &stats, energies, &current, &evals, &rows_to_poses(&delta));
+            let step_in = step_rows(&c, &stats, energies, &current, &evals, &rows_to_poses(&delta, dim));
             net.step(n, &step_in, &delta, &grad, batch, &mut state)?.update
         } else {
             delta
@@ -310,7 +310,7 @@ pub fn unroll_ort(net: &mut OrtNetwork, energies: &[&Energy], starts: &[Option<P
             *t += u;
         }
         constrain(&mut theta);
-        host.push(rows_to_poses(&theta));
+        host.push(rows_to_poses(&theta, dim));
     }
     Ok(host)
 }

@@ -35,6 +35,10 @@ pub struct CheckpointMeta {
     pub template_id: String,
     pub template_vertices: usize,
     pub network: NetConfig,
+    /// The model's signature (layout and hash of its arrays); checkpoints written before models
+    /// were data have none and are checked by vertex count and parameter length.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model: Option<lfit_model::template::ModelSignature>,
 }
 
 /// A loaded checkpoint.
@@ -125,7 +129,7 @@ pub fn write_dir(dir: &Path, files: &[(&str, Vec<u8>)]) -> Result<()> {
 
 /// The files of a checkpoint (config, weights, stats, metrics).
 pub fn checkpoint_files(net: &NeuralNet, stats: &FeatureStats, template: &Template, metrics: &serde_json::Value) -> Result<Vec<(&'static str, Vec<u8>)>> {
-    let meta = CheckpointMeta { format: FORMAT.into(), version: VERSION, template_id: template.id.clone(), template_vertices: template.num_vertices(), network: net.config.clone() };
+    let meta = CheckpointMeta::new(template, net.config.clone());
     let json = |v: serde_json::Result<String>| v.map(String::into_bytes).map_err(|e| ModelError::Backend(format!("cannot serialise checkpoint: {e}")));
     Ok(vec![
         (CONFIG_FILE, json(serde_json::to_string_pretty(&meta))?),
@@ -154,7 +158,7 @@ pub fn load(dir: &Path, device: &Device) -> Result<Checkpoint> {
     }
     meta.network.validate().map_err(|e| err(dir, e.to_string()))?;
     let stats: FeatureStats = serde_json::from_slice(&read(dir, STATS_FILE)?).map_err(|e| err(dir, format!("malformed {STATS_FILE}: {e}")))?;
-    stats.validate(meta.network.residual_dim).map_err(|e| err(dir, e.to_string()))?;
+    stats.validate(meta.network.residual_dim, meta.network.param_dim).map_err(|e| err(dir, e.to_string()))?;
     let net = net_from_bytes(&meta.network, read(dir, WEIGHTS_FILE)?, device, dir)?;
     let metrics = match std::fs::read(dir.join(METRICS_FILE)) {
         Ok(b) => serde_json::from_slice(&b).map_err(|e| err(dir, format!("malformed {METRICS_FILE}: {e}")))?,
@@ -172,10 +176,24 @@ impl Checkpoint {
 }
 
 impl CheckpointMeta {
+    /// The metadata of a network trained on `template`.
+    pub fn new(template: &Template, network: NetConfig) -> Self {
+        Self { format: FORMAT.into(), version: VERSION, template_id: template.id.clone(), template_vertices: template.num_vertices(), network, model: Some(template.signature()) }
+    }
+
     /// Checks that the network fits data of `modality` with a residual of `residual_dim`
     /// entries on `template` (`dir` names the checkpoint in errors).
     pub fn check_compatible(&self, dir: &Path, modality: Modality, residual_dim: usize, template: &Template) -> Result<()> {
         let n = &self.network;
+        if let Some(sig) = &self.model {
+            let here = template.signature();
+            if *sig != here {
+                return Err(err(dir, format!("was trained on model '{}' ({} parameters, hash {}), not '{}' ({} parameters, hash {})", sig.id, sig.layout.dim(), sig.hash, here.id, here.layout.dim(), here.hash)));
+            }
+        }
+        if n.param_dim != template.layout().dim() {
+            return Err(err(dir, format!("predicts {} parameters, the model '{}' has {}", n.param_dim, template.id, template.layout().dim())));
+        }
         if n.modality != modality {
             return Err(err(dir, format!("was trained for {} data, not {modality}", n.modality)));
         }

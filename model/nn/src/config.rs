@@ -52,10 +52,10 @@ pub enum StepShape {
 }
 
 impl StepShape {
-    /// Values per step size.
-    pub fn outputs(self) -> usize {
+    /// Values per step size for a parameter vector of `dim` entries.
+    pub fn outputs(self, dim: usize) -> usize {
         match self {
-            StepShape::Vector => POSE_DIM,
+            StepShape::Vector => dim,
             StepShape::Scalar => 1,
         }
     }
@@ -82,6 +82,9 @@ pub struct NetConfig {
     pub modality: Modality,
     /// Length of the modality's residual vector R(θ) (also the observation vector's length).
     pub residual_dim: usize,
+    /// Length of the parameter vector θ the network predicts: the model's `3 + 3J + B + E`
+    /// (57 on the default template, the value of checkpoints that predate the field).
+    pub param_dim: usize,
     /// Fitting iterations N.
     pub iterations: usize,
     pub core: CoreKind,
@@ -121,6 +124,7 @@ impl Default for NetConfig {
         Self {
             modality: Modality::Markers,
             residual_dim: 0,
+            param_dim: POSE_DIM,
             iterations: 5,
             core: CoreKind::Gru,
             layers: 2,
@@ -150,7 +154,7 @@ impl NetConfig {
 
     /// Input of the core at every iteration: `[R(θ), g, θ, D]`.
     pub fn core_inputs(&self) -> usize {
-        self.residual_dim + 2 * POSE_DIM + self.obs_features()
+        self.residual_dim + 2 * self.param_dim + self.obs_features()
     }
 
     /// Input of the λ/γ network: `[R(θ), R(θ + Δθ)]` (papers/002 eq. 2).
@@ -158,14 +162,14 @@ impl NetConfig {
         2 * self.residual_dim
     }
 
-    /// Outputs of λ: one per pose parameter, or one.
+    /// Outputs of λ: one per parameter, or one.
     pub fn step_outputs(&self) -> usize {
-        self.step_shape.outputs()
+        self.step_shape.outputs(self.param_dim)
     }
 
-    /// Outputs of γ: one per pose parameter, or one.
+    /// Outputs of γ: one per parameter, or one.
     pub fn gamma_outputs(&self) -> usize {
-        self.gamma_shape.unwrap_or(self.step_shape).outputs()
+        self.gamma_shape.unwrap_or(self.step_shape).outputs(self.param_dim)
     }
 
     /// Whether the update rule uses λ/γ at all (so whether the λ/γ network exists).
@@ -209,6 +213,9 @@ impl NetConfig {
         let bad = |what: &str, why: String| Err(ModelError::Config(format!("network config: {what} {why}")));
         if self.residual_dim == 0 {
             return bad("residual_dim", "must be positive".into());
+        }
+        if self.param_dim < 6 {
+            return bad("param_dim", format!("must be at least 6 (translation and one joint), got {}", self.param_dim));
         }
         if self.iterations == 0 || self.iterations > 100 {
             return bad("iterations", format!("must be in 1..=100, got {}", self.iterations));

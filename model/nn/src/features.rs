@@ -6,7 +6,6 @@ use serde::{Deserialize, Serialize};
 
 use lfit_model::energy::{Energy, Target};
 use lfit_model::error::{ModelError, Result};
-use lfit_model::pose::POSE_DIM;
 
 /// Per-entry mean and standard deviation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -71,12 +70,13 @@ pub struct FeatureStats {
 }
 
 impl FeatureStats {
-    /// Checks the lengths against a residual dimension; one-line error naming the mismatch.
-    pub fn validate(&self, residual_dim: usize) -> Result<()> {
+    /// Checks the lengths against a residual and a parameter dimension; one-line error naming
+    /// the mismatch.
+    pub fn validate(&self, residual_dim: usize, param_dim: usize) -> Result<()> {
         self.observation.check("observation", 2 * residual_dim)?;
         self.residual.check("residual", residual_dim)?;
-        self.gradient.check("gradient", POSE_DIM)?;
-        self.pose.check("pose", POSE_DIM)
+        self.gradient.check("gradient", param_dim)?;
+        self.pose.check("pose", param_dim)
     }
 
     /// Statistics from samples of observations, and of residuals, gradients and poses at the

@@ -20,7 +20,6 @@ use rand_chacha::ChaCha8Rng;
 use crate::config::{CoreKind, NetConfig, UpdateRule};
 use crate::layers::{Dropout, GruStack, InitMlp, ResidualMlp, xavier_linear};
 use lfit_model::error::Result;
-use lfit_model::pose::POSE_DIM;
 
 /// A recurrent core (GRU stack) or a memoryless one (residual MLP); exactly one is set.
 #[derive(Module, Debug)]
@@ -101,7 +100,7 @@ impl NeuralNet {
         config.validate()?;
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let c = config;
-        let phi = InitMlp::new(c.obs_features(), c.init_width, POSE_DIM, c.output_gain, &mut rng, device);
+        let phi = InitMlp::new(c.obs_features(), c.init_width, c.param_dim, c.output_gain, &mut rng, device);
         let phi_h = (c.core == CoreKind::Gru).then(|| InitMlp::new(c.obs_features(), c.init_width, c.layers * c.hidden, 1.0, &mut rng, device));
         let mut cores = Vec::new();
         let mut delta_heads = Vec::new();
@@ -109,7 +108,7 @@ impl NeuralNet {
         let (k, kg) = (c.step_outputs(), c.gamma_outputs());
         for _ in 0..c.weight_sets() {
             cores.push(Core::new(c, c.core_inputs(), &mut rng, device));
-            delta_heads.push(xavier_linear(c.hidden, POSE_DIM, c.output_gain, &mut rng, device));
+            delta_heads.push(xavier_linear(c.hidden, c.param_dim, c.output_gain, &mut rng, device));
             if c.has_step_network() {
                 let shared = !c.separate_gamma_network();
                 let lambda_out = if shared && c.learns_gamma() { k + kg } else { k };

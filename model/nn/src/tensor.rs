@@ -10,6 +10,10 @@
 //! posed vertex v: sum_j w_vj A_j(v)
 //! ```
 //!
+//! A morphable model (SPEC §3a) adds its blend shapes per batch row: rest vertices
+//! `T + [S E] [β; ψ] + P (R(θ) − I)` and rest joints `c + (J_regressor [S E]) [β; ψ]`, with the
+//! parameters laid out `[pose (3 + 3J) | β | ψ]`.
+//!
 //! Everything is plain tensor arithmetic, so on a `device.autodiff()` device the outputs are
 //! differentiable with respect to the poses (and finite at the zero pose, see [`rodrigues`]).
 //! Tensors are `f32` on whatever [`Device`] the caller picks; [`device_from_name`] maps the CLI
@@ -21,7 +25,6 @@ use burn::tensor::{Device, DeviceKind, Tensor, TensorData};
 use glam::Vec3;
 
 use lfit_model::error::{ModelError, Result};
-use lfit_model::pose::Pose;
 use lfit_model::template::Template;
 
 /// Added to `|r|^2` before the square root in [`rodrigues`], so that the angle, its gradient and
@@ -55,6 +58,12 @@ pub struct TensorSkinning {
     order: Vec<usize>,
     num_vertices: usize,
     device: Device,
+    /// B + E of a morphable model, with its directions: `[K, 3V]` and `[K, 3J]`.
+    coefficients: usize,
+    dirs: Option<Tensor<2>>,
+    joint_dirs: Option<Tensor<2>>,
+    /// Pose correctives `[9(J − 1), 3V]`.
+    posedirs: Option<Tensor<2>>,
 }
 
 /// The outputs of [`TensorSkinning::forward`] for a batch of `B` poses.
@@ -123,6 +132,28 @@ impl TensorSkinning {
             })
             .collect();
 
+        // Row-major (3V) × K on the CPU side; transposed here so that a batch of coefficients
+        // `[B, K]` multiplies it directly.
+        let morph = &template.morph;
+        let k = morph.coefficients();
+        let transpose = |m: &[f64], rows: usize, cols: usize| -> Tensor<2> {
+            let mut t = vec![0f32; rows * cols];
+            for r in 0..rows {
+                for c in 0..cols {
+                    t[c * rows + r] = m[r * cols + c] as f32;
+                }
+            }
+            Tensor::<2>::from_data(TensorData::new(t, [cols, rows]), device)
+        };
+        let dirs = (k > 0).then(|| transpose(&morph.dirs, 3 * num_vertices, k));
+        let joint_dirs = (k > 0 && !morph.joint_dirs.is_empty()).then(|| transpose(&morph.joint_dirs, 3 * num_joints, k));
+        let posedirs = morph.posedirs.as_ref().map(|pd| transpose(pd, 3 * num_vertices, 9 * (num_joints - 1)));
+        let rest_vertices = if morph.rest.is_empty() {
+            rest_vertices
+        } else {
+            let r: Vec<f32> = morph.rest.iter().flat_map(|v| v.as_vec3().to_array()).collect();
+            Tensor::<2>::from_data(TensorData::new(r, [num_vertices, 3]), device)
+        };
         Self {
             rest_vertices,
             weights,
@@ -135,7 +166,16 @@ impl TensorSkinning {
             offsets_row,
             num_vertices,
             device: device.clone(),
+            coefficients: k,
+            dirs,
+            joint_dirs,
+            posedirs,
         }
+    }
+
+    /// Length of a parameter vector: `3 + 3J + B + E`.
+    pub fn param_dim(&self) -> usize {
+        self.pose_dim() + self.coefficients
     }
 
     /// Number of joints `J`.
@@ -158,24 +198,28 @@ impl TensorSkinning {
         &self.device
     }
 
-    /// Forward kinematics and linear blend skinning of a batch of poses `[B, 57]`.
+    /// Forward kinematics and linear blend skinning of a batch of parameter vectors
+    /// `[B, 3 + 3J + B + E]` (`[B, 57]` on the default template).
     ///
     /// The joint chain is walked joint by joint (parents first) on `[B, ...]` tensors; the
     /// per-joint affine maps `[B, J, 12]` (rows of `[W_j | A_parent(j)(c_j) - W_j c_j]`) are then
-    /// blended with one `[V, J] x [J, B*12]` matmul and applied to the rest vertices.
+    /// blended with one `[V, J] x [J, B*12]` matmul and applied to the rest vertices (per batch
+    /// row for a morphable model).
     ///
     /// # Panics
     ///
-    /// If `poses` is not `[B, 3 + 3 J]` or lives on another device than the template tensors.
+    /// If `poses` is not `[B, param_dim]` or lives on another device than the template tensors.
     pub fn forward(&self, poses: Tensor<2>) -> SkinnedBatch {
         let [batch, dim] = poses.dims();
         let num_joints = self.num_joints();
         assert_eq!(
             dim,
-            self.pose_dim(),
+            self.param_dim(),
             "TensorSkinning::forward: poses must be [batch, {}], got [{batch}, {dim}]",
-            self.pose_dim()
+            self.param_dim()
         );
+        let k = self.coefficients;
+        let coeffs = (k > 0).then(|| poses.clone().narrow(1, self.pose_dim(), k)); // [B, K]
 
         let translation = poses.clone().narrow(1, 0, 3); // [B, 3]
         let local = rodrigues(
@@ -185,13 +229,39 @@ impl TensorSkinning {
         )
         .reshape([batch, num_joints, 3, 3]);
 
+        // Rest joints: constant rows, or per batch row `c + JD [β; ψ]` ([B, J, 3]).
+        let shaped_joints: Option<Tensor<3>> = match (&coeffs, &self.joint_dirs) {
+            (Some(c), Some(jd)) => Some(
+                self.joint_rest.clone().reshape([1, num_joints, 3]) + c.clone().matmul(jd.clone()).reshape([batch, num_joints, 3]),
+            ),
+            _ => None,
+        };
+        let center = |j: usize| -> Tensor<3> {
+            match &shaped_joints {
+                Some(c) => c.clone().narrow(1, j, 1), // [B, 1, 3]
+                None => self.centers_row[j].clone(),
+            }
+        };
+        let offset = |j: usize, p: usize| -> Tensor<3> {
+            match &shaped_joints {
+                Some(_) => center(j) - center(p),
+                None => self.offsets_row[j].clone(),
+            }
+        };
+
         let mut world: Vec<Option<Tensor<3>>> = vec![None; num_joints]; // W_j, [B, 3, 3]
         let mut anchor: Vec<Option<Tensor<2>>> = vec![None; num_joints]; // A_j(c_j), [B, 3]
         for &j in &self.order {
             let r = local.clone().narrow(1, j, 1).reshape([batch, 3, 3]);
             let (w, a) = match self.parents[j] {
                 // A_root(c_root) = c_root + t.
-                None => (r, translation.clone() + self.centers[j].clone()),
+                None => (
+                    r,
+                    match &shaped_joints {
+                        Some(_) => translation.clone() + center(j).reshape([batch, 3]),
+                        None => translation.clone() + self.centers[j].clone(),
+                    },
+                ),
                 // A_parent(c_j) = A_parent(c_parent) + W_parent (c_j - c_parent).
                 Some(p) => {
                     let wp = world[p]
@@ -200,10 +270,7 @@ impl TensorSkinning {
                     let ap = anchor[p]
                         .clone()
                         .expect("parents come first in the topological order");
-                    (
-                        wp.clone().matmul(r),
-                        ap + mat_vec_row(wp, self.offsets_row[j].clone()),
-                    )
+                    (wp.clone().matmul(r), ap + mat_vec_row(wp, offset(j, p)))
                 }
             };
             world[j] = Some(w);
@@ -216,7 +283,7 @@ impl TensorSkinning {
 
         // Translation of A_j: A_parent(j)(c_j) - W_j c_j (the posed joint minus the rotated centre).
         let translations: Vec<Tensor<2>> = (0..num_joints)
-            .map(|j| anchor[j].clone() - mat_vec_row(world[j].clone(), self.centers_row[j].clone()))
+            .map(|j| anchor[j].clone() - mat_vec_row(world[j].clone(), center(j)))
             .collect();
 
         let world_rotations: Tensor<4> = Tensor::stack(world, 1); // [B, J, 3, 3]
@@ -238,13 +305,33 @@ impl TensorSkinning {
             .matmul(affine.swap_dims(0, 1).reshape([num_joints, batch * 12]))
             .reshape([self.num_vertices, batch, 3, 4])
             .swap_dims(0, 1);
-        let rest = self
-            .rest_homogeneous
-            .clone()
-            .reshape([1, self.num_vertices, 1, 4]);
-        let vertices = (blended * rest)
-            .sum_dim(3)
-            .reshape([batch, self.num_vertices, 3]);
+        let v = self.num_vertices;
+        // Rest vertices: the template's, or per batch row T + dirs [β; ψ] + P (R − I).
+        let mut offsets: Option<Tensor<2>> = None; // [B, 3V]
+        if let (Some(c), Some(d)) = (&coeffs, &self.dirs) {
+            offsets = Some(c.clone().matmul(d.clone()));
+        }
+        if let Some(pd) = &self.posedirs {
+            let eye = Tensor::<2>::eye(3, &self.device).reshape([1, 1, 3, 3]);
+            let feature = (local.clone().narrow(1, 1, num_joints - 1) - eye).reshape([batch, 9 * (num_joints - 1)]);
+            let o = feature.matmul(pd.clone());
+            offsets = Some(match offsets {
+                Some(prev) => prev + o,
+                None => o,
+            });
+        }
+        let vertices = match offsets {
+            None => {
+                let rest = self.rest_homogeneous.clone().reshape([1, v, 1, 4]);
+                (blended * rest).sum_dim(3).reshape([batch, v, 3])
+            }
+            Some(o) => {
+                let rest = self.rest_vertices.clone().reshape([1, v, 3]) + o.reshape([batch, v, 3]); // [B, V, 3]
+                let rot = blended.clone().narrow(3, 0, 3); // [B, V, 3, 3]
+                let trans = blended.narrow(3, 3, 1).reshape([batch, v, 3]);
+                (rot * rest.reshape([batch, v, 1, 3])).sum_dim(3).reshape([batch, v, 3]) + trans
+            }
+        };
 
         SkinnedBatch {
             joints,
@@ -317,16 +404,15 @@ pub fn rodrigues(r: Tensor<2>) -> Tensor<3> {
     eye + k * a.reshape([n, 1, 1]) + k2 * b.reshape([n, 1, 1])
 }
 
-/// Poses as an `f32` tensor `[B, 57]` on `device`.
-pub fn poses_to_tensor(poses: &[Pose], device: &Device) -> Tensor<2> {
+/// Parameter vectors of one length as an `f32` tensor `[B, D]` on `device` (`[B, 57]` for
+/// poses of the default template).
+pub fn poses_to_tensor<P: AsRef<[f64]>>(poses: &[P], device: &Device) -> Tensor<2> {
+    let dim = poses.first().map_or(0, |p| p.as_ref().len());
     let values: Vec<f32> = poses
         .iter()
-        .flat_map(|p| p.iter().map(|&v| v as f32))
+        .flat_map(|p| p.as_ref().iter().map(|&v| v as f32))
         .collect();
-    Tensor::from_data(
-        TensorData::new(values, [poses.len(), lfit_model::pose::POSE_DIM]),
-        device,
-    )
+    Tensor::from_data(TensorData::new(values, [poses.len(), dim]), device)
 }
 
 /// Reads a `[B, N, 3]` tensor (posed joints or vertices) back to the host as `B` lists of points.
@@ -451,8 +537,39 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     use super::*;
-    use lfit_model::pose::{POSE_DIM, rot_offset};
+    use lfit_model::pose::{POSE_DIM, Pose, rot_offset};
     use lfit_model::skinning::{SkinningMethod, joint_transforms, pose_vertices, posed_joints};
+
+    #[test]
+    fn a_morphable_model_with_another_skeleton_agrees_with_the_cpu() {
+        // 24 joints, 6 shape coefficients, pose correctives, up to 6 influences per vertex.
+        let device = ndarray_device();
+        for posedirs in [false, true] {
+            let template = lfit_model::morph::smpl_like(3, 300, 6, posedirs);
+            let skin = TensorSkinning::new(&template, &device);
+            assert_eq!(skin.param_dim(), 3 + 72 + 6);
+            let mut rng = ChaCha8Rng::seed_from_u64(5);
+            let params: Vec<Vec<f64>> = (0..6)
+                .map(|_| (0..skin.param_dim()).map(|i| if i < 75 { rng.random_range(-1.0..1.0) } else { rng.random_range(-3.0..3.0) }).collect())
+                .collect();
+            let out = skin.forward(poses_to_tensor(&params, &device));
+            let joints = tensor_to_vec3s(out.joints).unwrap();
+            let vertices = tensor_to_vec3s(out.vertices).unwrap();
+            let (mut je, mut ve) = (0f32, 0f32);
+            for (b, p) in params.iter().enumerate() {
+                let cj = joint_transforms(&template, p).joints;
+                let cv = pose_vertices(&template, p, SkinningMethod::Linear);
+                for (g, c) in joints[b].iter().zip(&cj) {
+                    je = je.max((*g - c.as_vec3()).abs().max_element());
+                }
+                for (g, c) in vertices[b].iter().zip(&cv) {
+                    ve = ve.max((*g - *c).abs().max_element());
+                }
+            }
+            println!("morphable 24-joint model (posedirs {posedirs}): max |joint diff| {je:.3e} m, max |vertex diff| {ve:.3e} m");
+            assert!(je < 1e-5 && ve < 1e-5, "{je} {ve}");
+        }
+    }
 
     fn random_pose(rng: &mut ChaCha8Rng) -> Pose {
         let mut pose = [0.0; POSE_DIM];

@@ -155,7 +155,7 @@ fn every_variant_builds_and_runs_with_the_right_shapes() {
         assert_eq!(net.cores.len(), config.weight_sets(), "{config:?}");
         assert_eq!(net.steps.len(), if config.has_step_network() { config.weight_sets() } else { 0 });
         assert_eq!(net.phi_h.is_some(), config.core == CoreKind::Gru);
-        let given = [None, Some([0.05; POSE_DIM]), None];
+        let given = [None, Some(vec![0.05; POSE_DIM]), None];
         let out = unroll(&net, &unit_stats(dim), &refs, &given, None, &device, &mut Dropout::off()).expect("unroll");
         assert_eq!(out.poses.len(), config.iterations + 1);
         assert_eq!(out.host.len(), config.iterations + 1);
@@ -300,7 +300,7 @@ fn backends_agree_on_the_fitting_loop() {
     let reference = ndarray_device();
     let net = NeuralNet::new(&config, 8, &reference).expect("net");
     let bytes = crate::checkpoint::weights_bytes(&net).expect("bytes");
-    let starts = [None, Some([0.02; POSE_DIM]), None];
+    let starts = [None, Some(vec![0.02; POSE_DIM]), None];
     let want = unroll(&net, &unit_stats(dim), &refs, &starts, None, &reference, &mut Dropout::off()).expect("reference").host;
     let mut devices = vec![("flex".to_string(), device_from_name("flex").expect("flex"))];
     match wgpu_status() {

@@ -11,23 +11,23 @@ use crate::layers::Dropout;
 use crate::net::NeuralNet;
 use lfit_model::energy::Energy;
 use lfit_model::error::{ModelError, Result};
-use lfit_model::pose::{Bounds, POSE_DIM, Pose};
+use lfit_model::pose::Bounds;
 use crate::tensor::{poses_to_tensor, tensor_to_rows};
 
 /// Per-frame limits at inference: which DOFs may move and the box they stay in.
 #[derive(Debug, Clone)]
 pub struct Constraints {
-    pub free: Vec<[bool; POSE_DIM]>,
+    pub free: Vec<Vec<bool>>,
     pub bounds: Vec<Bounds>,
 }
 
 /// What the loop produced.
 #[derive(Debug, Clone)]
 pub struct Unrolled {
-    /// θ0 … θN, `[B, 57]` each (differentiable on an autodiff device).
+    /// θ0 … θN, `[B, param_dim]` each (differentiable on an autodiff device).
     pub poses: Vec<Tensor<2>>,
-    /// The same poses on the host, `[N + 1][B]`.
-    pub host: Vec<Vec<Pose>>,
+    /// The same parameter vectors on the host, `[N + 1][B]`.
+    pub host: Vec<Vec<Vec<f64>>>,
     /// Per frame, the observation-model evaluations made for residuals (2 per iteration); the
     /// energy counts its own gradient evaluations.
     pub residual_evaluations: u64,
@@ -38,18 +38,18 @@ fn rows_tensor(rows: &[f32], batch: usize, device: &Device) -> Tensor<2> {
     Tensor::from_data(TensorData::new(rows.to_vec(), [batch, d]), device)
 }
 
-/// The poses of a `[B, 57]` tensor on the host (detached).
-fn to_host(t: &Tensor<2>) -> Result<Vec<Pose>> {
+/// The parameter vectors of a `[B, dim]` tensor on the host (detached).
+fn to_host(t: &Tensor<2>, dim: usize) -> Result<Vec<Vec<f64>>> {
     let [batch, d] = t.dims();
-    if d != POSE_DIM {
-        return Err(ModelError::Shape { what: "pose tensor".into(), expected: format!("[{batch}, {POSE_DIM}]"), got: format!("[{batch}, {d}]") });
+    if d != dim {
+        return Err(ModelError::Shape { what: "pose tensor".into(), expected: format!("[{batch}, {dim}]"), got: format!("[{batch}, {d}]") });
     }
-    Ok(tensor_to_rows(t.clone().detach())?.iter().map(|row| std::array::from_fn(|i| f64::from(row[i]))).collect())
+    Ok(tensor_to_rows(t.clone().detach())?.iter().map(|row| row.iter().map(|&x| f64::from(x)).collect()).collect())
 }
 
 /// Checks a batch against the network: at least one frame, one start entry per frame, and every
 /// frame of the network's modality.
-pub fn check_batch(config: &NetConfig, energies: &[&Energy], starts: &[Option<Pose>]) -> Result<()> {
+pub fn check_batch(config: &NetConfig, energies: &[&Energy], starts: &[Option<Vec<f64>>]) -> Result<()> {
     let batch = energies.len();
     if batch == 0 || starts.len() != batch {
         return Err(ModelError::Shape { what: "neural fitter batch".into(), expected: format!("{batch} start entries, at least one frame"), got: starts.len().to_string() });
@@ -57,12 +57,16 @@ pub fn check_batch(config: &NetConfig, energies: &[&Energy], starts: &[Option<Po
     if let Some(e) = energies.iter().find(|e| e.modality() != config.modality) {
         return Err(ModelError::Config(format!("the network fits {} data, this frame is {}", config.modality, e.modality())));
     }
-    if let Some(e) = energies.iter().find(|e| e.dim() != POSE_DIM) {
+    if let Some(e) = energies.iter().find(|e| e.dim() != config.param_dim) {
         return Err(ModelError::Config(format!(
-            "the neural fitter supports the rigid 18-joint template only so far; '{}' has {} parameters",
+            "the network predicts {} parameters, the model '{}' has {}: it was trained on another model",
+            config.param_dim,
             e.template().id,
             e.dim()
         )));
+    }
+    if let Some(s) = starts.iter().flatten().find(|s| s.len() != config.param_dim) {
+        return Err(ModelError::Shape { what: "start".into(), expected: config.param_dim.to_string(), got: s.len().to_string() });
     }
     Ok(())
 }
@@ -83,8 +87,8 @@ pub fn observation_rows(config: &NetConfig, stats: &FeatureStats, energies: &[&E
     Ok(out)
 }
 
-/// The per-frame limits as `[B, 57]` rows: free mask (1/0), lower and upper bounds.
-pub fn constraint_rows(constraints: &Constraints, batch: usize) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
+/// The per-frame limits as `[B, dim]` rows: free mask (1/0), lower and upper bounds.
+pub fn constraint_rows(constraints: &Constraints, batch: usize, dim: usize) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
     let k = constraints;
     if k.free.len() != batch || k.bounds.len() != batch {
         return Err(ModelError::Shape { what: "constraints".into(), expected: batch.to_string(), got: k.free.len().to_string() });
@@ -92,28 +96,31 @@ pub fn constraint_rows(constraints: &Constraints, batch: usize) -> Result<(Vec<f
     let f: Vec<f32> = k.free.iter().flat_map(|m| m.iter().map(|&b| if b { 1.0 } else { 0.0 })).collect();
     let lo: Vec<f32> = k.bounds.iter().flat_map(|b| b.lower.iter().map(|&x| x as f32)).collect();
     let hi: Vec<f32> = k.bounds.iter().flat_map(|b| b.upper.iter().map(|&x| x as f32)).collect();
-    if lo.len() != batch * POSE_DIM || hi.len() != batch * POSE_DIM {
-        return Err(ModelError::Shape { what: "bounds".into(), expected: POSE_DIM.to_string(), got: (lo.len() / batch).to_string() });
+    if lo.len() != batch * dim || hi.len() != batch * dim || f.len() != batch * dim {
+        return Err(ModelError::Shape { what: "bounds".into(), expected: dim.to_string(), got: (lo.len() / batch.max(1)).to_string() });
     }
     Ok((f, lo, hi))
 }
 
 /// R(θ) and g(θ) (non-finite entries zeroed) of every frame at its current pose, on the CPU.
-pub fn evaluate(energies: &[&Energy], current: &[Pose]) -> Vec<(Vec<f64>, Pose)> {
+pub fn evaluate(energies: &[&Energy], current: &[Vec<f64>]) -> Vec<(Vec<f64>, Vec<f64>)> {
     energies
         .par_iter()
         .zip(current.par_iter())
         .map(|(e, p)| {
-            let (_, g) = e.evaluate_with_gradient(p);
-            // check_batch admits energies of POSE_DIM parameters only.
-            let g: Pose = std::array::from_fn(|i| g.get(i).copied().filter(|x| x.is_finite()).unwrap_or(0.0));
+            let (_, mut g) = e.evaluate_with_gradient(p);
+            for x in g.iter_mut() {
+                if !x.is_finite() {
+                    *x = 0.0;
+                }
+            }
             (e.residual(p), g)
         })
         .collect()
 }
 
 /// The normalised core inputs `[R(θ), g, θ, D]`, `[B, core_inputs]` row-major.
-pub fn core_rows(config: &NetConfig, stats: &FeatureStats, evals: &[(Vec<f64>, Pose)], current: &[Pose], obs: &[Vec<f32>]) -> Result<Vec<f32>> {
+pub fn core_rows(config: &NetConfig, stats: &FeatureStats, evals: &[(Vec<f64>, Vec<f64>)], current: &[Vec<f64>], obs: &[Vec<f32>]) -> Result<Vec<f32>> {
     let clip = config.feature_clip as f32;
     let mut core_in = Vec::with_capacity(evals.len() * config.core_inputs());
     for ((r, g), (p, d)) in evals.iter().zip(current.iter().zip(obs)) {
@@ -130,13 +137,13 @@ pub fn core_rows(config: &NetConfig, stats: &FeatureStats, evals: &[(Vec<f64>, P
 
 /// The normalised λ/γ inputs `[R(θ), R(θ + Δθ)]` (papers/002 eq. 2: where the network alone
 /// would go), `[B, step_inputs]` row-major.
-pub fn step_rows(config: &NetConfig, stats: &FeatureStats, energies: &[&Energy], current: &[Pose], evals: &[(Vec<f64>, Pose)], delta: &[Pose]) -> Vec<f32> {
+pub fn step_rows(config: &NetConfig, stats: &FeatureStats, energies: &[&Energy], current: &[Vec<f64>], evals: &[(Vec<f64>, Vec<f64>)], delta: &[Vec<f64>]) -> Vec<f32> {
     let clip = config.feature_clip as f32;
     let tried: Vec<Vec<f64>> = energies
         .par_iter()
         .zip(current.par_iter().zip(delta.par_iter()))
         .map(|(e, (p, d))| {
-            let mut q = *p;
+            let mut q = p.clone();
             for (a, b) in q.iter_mut().zip(d) {
                 *a += b;
             }
@@ -151,9 +158,9 @@ pub fn step_rows(config: &NetConfig, stats: &FeatureStats, energies: &[&Energy],
     step_in
 }
 
-/// Poses of `[B, 57]` f32 rows.
-pub fn rows_to_poses(rows: &[f32]) -> Vec<Pose> {
-    rows.chunks_exact(POSE_DIM).map(|r| std::array::from_fn(|i| f64::from(r[i]))).collect()
+/// Parameter vectors of `[B, dim]` f32 rows.
+pub fn rows_to_poses(rows: &[f32], dim: usize) -> Vec<Vec<f64>> {
+    rows.chunks_exact(dim.max(1)).map(|r| r.iter().map(|&x| f64::from(x)).collect()).collect()
 }
 
 /// Runs N iterations on `energies` (one frame each). `starts[i]` is the given θ0 of frame `i`
@@ -162,7 +169,7 @@ pub fn unroll(
     net: &NeuralNet,
     stats: &FeatureStats,
     energies: &[&Energy],
-    starts: &[Option<Pose>],
+    starts: &[Option<Vec<f64>>],
     constraints: Option<&Constraints>,
     device: &Device,
     dropout: &mut Dropout<'_>,
@@ -176,7 +183,8 @@ pub fn unroll(
     let obs = rows_tensor(&obs_norm.concat(), batch, device);
 
     let (phi, mut state) = net.initial(obs);
-    let given: Vec<Pose> = starts.iter().map(|s| s.unwrap_or([0.0; POSE_DIM])).collect();
+    let dim = c.param_dim;
+    let given: Vec<Vec<f64>> = starts.iter().map(|s| s.clone().unwrap_or_else(|| vec![0.0; dim])).collect();
     let use_given: Vec<f32> = starts.iter().map(|s| if s.is_some() { 1.0 } else { 0.0 }).collect();
     let mut theta = if use_given.iter().all(|&g| g == 1.0) {
         poses_to_tensor(&given, device)
@@ -189,7 +197,7 @@ pub fn unroll(
 
     let (free, lower, upper) = match constraints {
         Some(k) => {
-            let (f, lo, hi) = constraint_rows(k, batch)?;
+            let (f, lo, hi) = constraint_rows(k, batch, dim)?;
             (Some(rows_tensor(&f, batch, device)), Some(rows_tensor(&lo, batch, device)), Some(rows_tensor(&hi, batch, device)))
         }
         None => (None, None, None),
@@ -200,7 +208,7 @@ pub fn unroll(
     };
     theta = constrain(theta);
 
-    let mut host = vec![to_host(&theta)?];
+    let mut host = vec![to_host(&theta, dim)?];
     let mut poses = vec![theta.clone()];
     for n in 0..c.iterations {
         let current = host.last().cloned().unwrap_or_default();
@@ -208,21 +216,21 @@ pub fn unroll(
         let evals = evaluate(energies, &current);
         let core_in = core_rows(c, stats, &evals, &current, &obs_norm)?;
         let mut delta = net.propose(n, rows_tensor(&core_in, batch, device), &mut state, dropout);
-        let mut grad = poses_to_tensor(&evals.iter().map(|(_, g)| *g).collect::<Vec<_>>(), device);
+        let mut grad = poses_to_tensor(&evals.iter().map(|(_, g)| g.as_slice()).collect::<Vec<_>>(), device);
         if let Some(f) = &free {
             delta = delta * f.clone();
             grad = grad * f.clone();
         }
 
         let sizes = if c.has_step_network() {
-            let step_in = step_rows(c, stats, energies, &current, &evals, &to_host(&delta)?);
+            let step_in = step_rows(c, stats, energies, &current, &evals, &to_host(&delta, dim)?);
             net.step_sizes(n, rows_tensor(&step_in, batch, device), &mut state, dropout)
         } else {
             net.step_sizes(n, Tensor::zeros([batch, 1], device), &mut state, dropout)
         };
         let step = net.update(delta, grad, &sizes);
         theta = constrain(theta + step);
-        host.push(to_host(&theta)?);
+        host.push(to_host(&theta, dim)?);
         poses.push(theta.clone());
     }
     Ok(Unrolled { poses, host, residual_evaluations: (c.evaluations_per_iteration() * c.iterations) as u64 })

@@ -416,3 +416,33 @@ mod morphable {
         }
     }
 }
+
+mod morphable_default {
+    //! The energy's gradient on the morphable default template (β through the fitted joint
+    //! regressor), against central finite differences.
+    use super::*;
+
+    #[test]
+    fn markers_gradient_covers_the_shape_coefficients() {
+        let (m, _) = crate::body::morphable_default_template().unwrap();
+        let m = Arc::new(m);
+        let mut truth = gt_pose().to_vec();
+        truth.extend([1.5, -1.0, 0.5, 2.0, -0.7, 0.3, -1.2, 0.8]);
+        let sensor = Sensor::default_for(Modality::Markers, &m);
+        let pred = sensor.predict_sparse(&m, &truth).unwrap();
+        let e = Energy::new(m.clone(), sensor, Target::Sparse { values: pred.values.clone(), visible: pred.visible.clone() }, EnergyConfig::default().for_gradient()).unwrap();
+        assert!(e.evaluate(&truth).term("data").unwrap() < 1e-8);
+        let mut x = perturbed(&[0.3; 57]).to_vec();
+        x.extend([0.0; 8]);
+        let (_, g) = e.evaluate_with_gradient(&x);
+        let h = 1e-6;
+        let scale = g.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        for i in 0..x.len() {
+            let (mut a, mut b) = (x.clone(), x.clone());
+            a[i] += h;
+            b[i] -= h;
+            let fd = (e.evaluate(&a).total - e.evaluate(&b).total) / (2.0 * h);
+            assert!((g[i] - fd).abs() <= 1e-5 * scale + 1e-8, "entry {i} ({}): {} vs {fd}", m.layout().name(i), g[i]);
+        }
+    }
+}
