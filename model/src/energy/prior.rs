@@ -129,14 +129,26 @@ impl Penetration {
 
     /// EP at the posed vertices (`posed`, indexed like the template, or skinned here when `None`),
     /// accumulating its gradient (times the given scale) into the adjoint when given.
-    pub fn evaluate(&self, kin: &Kinematics, skin: &SkinTable, posed: Option<&[DVec3]>, mut adjoint: Option<(&mut Adjoint, f64)>) -> f64 {
+    pub fn evaluate(&self, kin: &Kinematics, skin: &SkinTable, posed: Option<&[DVec3]>, adjoint: Option<(&mut Adjoint, f64)>) -> f64 {
+        // One instance per kind of rest geometry, so the rigid template's loop is exactly the
+        // plain table lookup it always was.
+        if kin.morph.is_none() {
+            self.evaluate_with(kin, skin, posed, adjoint, true, |v| skin.rest[v])
+        } else {
+            self.evaluate_with(kin, skin, posed, adjoint, false, |v| kin.rest(&skin.rest, v))
+        }
+    }
+
+    fn evaluate_with<R: Fn(usize) -> DVec3>(&self, kin: &Kinematics, skin: &SkinTable, posed: Option<&[DVec3]>, mut adjoint: Option<(&mut Adjoint, f64)>, rigid: bool, rest: R) -> f64 {
         // Posed ellipsoids: centre A_j(μ), matrix W_j Q W_jᵀ.
         let posed_ell: Vec<(DVec3, DMat3)> = self
             .ellipsoids
             .iter()
             .map(|e| {
                 let w = kin.world(e.joint);
-                (kin.transforms[e.joint].transform_point3(e.centre + (kin.rest_joints[e.joint] - e.joint_rest)), w * e.q * w.transpose())
+                // On a morphable model the ellipsoid moves with its joint's rest position.
+                let centre = if rigid { e.centre } else { e.centre + (kin.rest_joints[e.joint] - e.joint_rest) };
+                (kin.transforms[e.joint].transform_point3(centre), w * e.q * w.transpose())
             })
             .collect();
         let mut sum = 0.0;
@@ -150,7 +162,7 @@ impl Penetration {
                 let v = *v as usize;
                 match posed {
                     Some(all) => all[v],
-                    None => kin.skin(skin.weights(v), kin.rest(&skin.rest, v)),
+                    None => kin.skin(skin.weights(v), rest(v)),
                 }
             }));
             let centre = points.iter().copied().sum::<DVec3>() / points.len().max(1) as f64;
@@ -185,7 +197,7 @@ impl Penetration {
                         // dρ/ds = −2(1 − s); ds/dp = 2 Q d; the ellipsoid's own motion enters as a
                         // point force at its centre and the torque h × d (see kinematics.rs).
                         let h = qd * (-4.0 * (1.0 - s) * *scale / self.count as f64);
-                        adj.skinned_point(kin, skin.weights(v), v, kin.rest(&skin.rest, v), h);
+                        adj.skinned_point(kin, skin.weights(v), v, rest(v), h);
                         adj.joint_point(kin, e.joint, c, -h);
                         adj.torque(e.joint, h.cross(d));
                     }
