@@ -92,9 +92,27 @@ fn bench(c: &mut Criterion) {
     group.finish();
 }
 
+/// Energy evaluations per second on the 24-joint SMPL-like model (6,890 vertices, B = 10, 30
+/// markers) with and without pose correctives.
+fn bench_smpl24(c: &mut Criterion) {
+    for posedirs in [false, true] {
+        let model = Arc::new(lfit::model::morph::smpl_like(3, 6890, 10, posedirs));
+        let dim = model.layout().dim();
+        let params: Vec<Vec<f64>> = random_poses(64, 0.3).iter().map(|p| (0..dim).map(|i| if i < 75 { p[i % p.len()] } else { 0.5 }).collect()).collect();
+        let sensor = Sensor::default_for(Modality::Markers, &model);
+        let pred = sensor.predict_sparse(&model, &params[0]).expect("sparse");
+        let e = Energy::new(model.clone(), sensor, Target::Sparse { values: pred.values, visible: pred.visible }, EnergyConfig::default().for_gradient()).expect("energy");
+        let mut group = c.benchmark_group(format!("smpl24_markers{}", if posedirs { "_posedirs" } else { "" }));
+        group.throughput(Throughput::Elements(params.len() as u64));
+        group.bench_function("value", |b| b.iter(|| params.iter().map(|p| e.evaluate(p).total).sum::<f64>()));
+        group.bench_function("gradient", |b| b.iter(|| params.iter().map(|p| e.evaluate_with_gradient(p).0.total).sum::<f64>()));
+        group.finish();
+    }
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(10).warm_up_time(std::time::Duration::from_secs(1)).measurement_time(std::time::Duration::from_secs(3));
-    targets = bench
+    targets = bench, bench_smpl24
 }
 criterion_main!(benches);

@@ -1,5 +1,6 @@
 //! Posing throughput of the CPU path (SPEC §3 FK + LBS) on the default template:
-//! full meshes per second on one thread and on all threads, and marker sets per second.
+//! full meshes per second on one thread and on all threads, and marker sets per second; and on
+//! a 24-joint SMPL-layout model (6,890 vertices, B = 10) with and without pose correctives.
 //! Run with `cargo bench --bench skinning`.
 
 mod support;
@@ -49,6 +50,32 @@ fn bench(c: &mut Criterion) {
         b.iter(|| black_box(pose_vertices_batch(&template, &poses, SkinningMethod::DualQuaternion)))
     });
     group.finish();
+
+    // The 24-joint SMPL-like test model (lfit_model::morph::smpl_like), f64 skinning with β.
+    for posedirs in [false, true] {
+        let model = lfit::model::morph::smpl_like(3, 6890, 10, posedirs);
+        let params: Vec<Vec<f64>> = random_poses(64, 0.5)
+            .iter()
+            .map(|p| {
+                let mut v: Vec<f64> = (0..model.layout().pose_dim()).map(|i| p[i % p.len()]).collect();
+                v.extend((0..10).map(|k| (k as f64 - 4.5) * 0.4));
+                v
+            })
+            .collect();
+        let mut group = c.benchmark_group(format!("smpl24_full_mesh{}", if posedirs { "_posedirs" } else { "" }));
+        group.throughput(Throughput::Elements(params.len() as u64));
+        group.bench_function(BenchmarkId::new("lbs", "1_thread"), |b| {
+            let mut out = Vec::with_capacity(model.num_vertices());
+            b.iter(|| {
+                for p in &params {
+                    let a = joint_transforms(&model, p);
+                    skin_lbs_into(&model, &a, &mut out);
+                    black_box(&out);
+                }
+            })
+        });
+        group.finish();
+    }
 
     let mut group = c.benchmark_group("marker_set");
     group.throughput(Throughput::Elements(poses.len() as u64));
