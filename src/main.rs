@@ -255,7 +255,8 @@ struct FitCmd {
     /// Energy evaluations per frame (exact for zeroth-order methods; a cap for L-BFGS).
     #[arg(long)]
     budget: usize,
-    /// holistic, grouped (papers/000 Algorithm 1) or hierarchical (papers/001 §3.3).
+    /// holistic, grouped (papers/000 Algorithm 1), hierarchical (papers/001 §3.3) or shape-first
+    /// (morphable models: translation and shape, then everything).
     #[arg(long, default_value = "holistic")]
     strategy: String,
     /// Optimizer settings: nevergrad (papers/000) or paper001 (papers/001 Table 3).

@@ -1,10 +1,11 @@
 //! Shape recovery on the morphable default template (8 PCA shape directions): noise-free
 //! `markers` frames with random β ~ N(0, I) and random local-scenario poses, fitted by L-BFGS
-//! with β free from the mean shape. Measured (seed 4, 10 frames, budget 1500): 4 frames reach
-//! sub-millimetre V2V and recover β to ≤ 0.18 RMS (the prior's own error, the RMS of β, is
-//! ≈ 1); the others stop in local minima where root height, body height and joints pressed
-//! against the ±15° local box trade off (a tall subject fitted from the mean shape). The test
-//! asserts that share and that the converged frames recover β, and prints every frame.
+//! with β free from the mean shape, in two stages (`--strategy shape-first`: translation and β
+//! with the pose at its start, then everything). Fitting everything at once from the mean shape
+//! stops in local minima on more frames (root height, body height and joints pressed against
+//! the ±15° local box trade off for a tall subject): on 200 frames 91 reach ≤ 1 mm holistically,
+//! 116 shape-first. The test asserts the median V2V, the share of frames within 1 mm and the
+//! median β error, and prints every frame.
 
 mod support;
 
@@ -16,7 +17,7 @@ fn lbfgs_with_shape_free_recovers_pose_and_shape_from_markers() {
     let data = dir.path().join("m.npz");
     lfit_json(&["synth", "--modality", "markers", "--scenario", "local", "--shape", "morphable", "--noise", "0", "--frames", "10", "--seed", "4", "--out", path_str(&data)]);
     let out = dir.path().join("r.json");
-    lfit_json(&["fit", "--data", path_str(&data), "--method", "lbfgs", "--budget", "1500", "--out", path_str(&out)]);
+    lfit_json(&["fit", "--data", path_str(&data), "--method", "lbfgs", "--strategy", "shape-first", "--budget", "1500", "--out", path_str(&out)]);
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
     assert_eq!(r["mask"], "local51", "43 pose DOFs and 8 shape coefficients are free");
     let frames = r["frames"].as_array().unwrap();
@@ -40,8 +41,9 @@ fn lbfgs_with_shape_free_recovers_pose_and_shape_from_markers() {
     shape.sort_by(f64::total_cmp);
     let (mv, ms) = (v2v[v2v.len() / 2], shape[shape.len() / 2]);
     println!("L-BFGS, β free, {} noise-free markers frames: median V2V {mv:.3} mm, {good} frames ≤ 1 mm; median β RMS error {ms:.4} (prior: {prior_rms:.3})", v2v.len());
-    let _ = (mv, ms);
-    assert!(good >= 4, "{good} of {} frames within 1 mm", v2v.len());
+    assert!(mv <= 1.0, "median V2V {mv} mm");
+    assert!(good >= 6, "{good} of {} frames within 1 mm", v2v.len());
+    assert!(ms <= prior_rms / 5.0, "median β RMS error {ms} vs the prior's {prior_rms}");
     // Where the fit converges, β is recovered: at least 5× below the prior's error.
     for f in frames.iter().filter(|f| f["v2v_mm"].as_f64().unwrap() <= 1.0) {
         let e = f["shape_rms"].as_f64().unwrap();

@@ -75,6 +75,10 @@ pub enum Strategy {
     /// the budget is split in proportion to each step's free DOFs (papers/001 does not state its
     /// split).
     Hierarchical,
+    /// For morphable models: first the translation with the shape and expression coefficients
+    /// (the pose held at its start), then every free entry (1/3 and 2/3 of the budget). Holistic
+    /// on a model without coefficients.
+    ShapeFirst,
 }
 
 impl Strategy {
@@ -85,6 +89,7 @@ impl Strategy {
             Strategy::Holistic => "holistic",
             Strategy::Grouped => "grouped",
             Strategy::Hierarchical => "hierarchical",
+            Strategy::ShapeFirst => "shape-first",
         }
     }
 
@@ -119,6 +124,11 @@ impl Strategy {
                 (entries(&with_part("left_arm"), false), 2.0),
                 (entries(&with_part("right_arm"), false), 2.0),
             ],
+            Strategy::ShapeFirst => {
+                let mut first: Vec<usize> = [0, 1, 2].into_iter().chain(coefficients.iter().copied()).filter(|i| mask.free.contains(i)).collect();
+                first.sort_unstable();
+                if coefficients.is_empty() { vec![(mask.free.clone(), 1.0)] } else { vec![(first, 1.0), (mask.free.clone(), 2.0)] }
+            }
             Strategy::Hierarchical => {
                 let rest_of_torso: Vec<usize> = torso.iter().copied().filter(|&j| j != 0).collect();
                 let steps = [
@@ -148,7 +158,7 @@ impl fmt::Display for Strategy {
 impl FromStr for Strategy {
     type Err = FitError;
     fn from_str(s: &str) -> Result<Self, FitError> {
-        Strategy::ALL.into_iter().find(|k| k.name() == s).ok_or_else(|| FitError::UnknownStrategy(s.to_string()))
+        Strategy::ALL.into_iter().chain([Strategy::ShapeFirst]).find(|k| k.name() == s).ok_or_else(|| FitError::UnknownStrategy(s.to_string()))
     }
 }
 
@@ -314,5 +324,11 @@ mod tests {
             assert_eq!(all, mask.free, "{s}");
             assert!(stages[0].0.contains(&57), "{s}: shape in the first stage");
         }
+        // Shape first: translation and β, then everything; holistic without coefficients.
+        let sf = Strategy::ShapeFirst.stages(&mask, &m);
+        assert_eq!(sf[0].0, [0, 1, 2].into_iter().chain(57..65).collect::<Vec<_>>());
+        assert_eq!(sf[1].0, mask.free);
+        assert_eq!(Strategy::ShapeFirst.stages(&DofMask::local43(), &t), vec![(DofMask::local43().free, 1.0)]);
+        assert_eq!("shape-first".parse::<Strategy>().unwrap(), Strategy::ShapeFirst);
     }
 }
