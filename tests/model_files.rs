@@ -441,6 +441,28 @@ fn a_24_joint_model_runs_end_to_end_synth_fit_train_neural_export() {
     assert_eq!(meta["model"]["layout"]["shape"], B);
     let results = dir.path().join("neural.json");
     lfit_json(&["fit", "--data", d, "--template", m, "--method", "neural", "--checkpoint", path_str(&ckpt), "--device", "ndarray", "--budget", "6", "--out", path_str(&results)]);
+    // The same checkpoint through ONNX: exported graphs of 85 parameters, run in ONNX Runtime,
+    // give the Burn fit (when the library is at hand; required in CI).
+    let onnx = dir.path().join("onnx");
+    lfit_json(&["export-onnx", "--checkpoint", path_str(&ckpt), "--out", path_str(&onnx)]);
+    if lfit::infer::onnx::runtime::library_path().is_file() {
+        let ort_results = dir.path().join("ort.json");
+        lfit_json(&["fit", "--data", d, "--template", m, "--method", "neural", "--runtime", "ort", "--checkpoint", path_str(&onnx), "--budget", "6", "--out", path_str(&ort_results)]);
+        let a: serde_json::Value = serde_json::from_slice(&std::fs::read(&results).unwrap()).unwrap();
+        let b: serde_json::Value = serde_json::from_slice(&std::fs::read(&ort_results).unwrap()).unwrap();
+        let mut worst = 0.0f64;
+        for (fa, fb) in a["frames"].as_array().unwrap().iter().zip(b["frames"].as_array().unwrap()) {
+            for key in ["pose", "shape"] {
+                for (x, y) in fa[key].as_array().unwrap().iter().zip(fb[key].as_array().unwrap()) {
+                    worst = worst.max((x.as_f64().unwrap() - y.as_f64().unwrap()).abs());
+                }
+            }
+        }
+        println!("24-joint model, Burn vs ONNX Runtime: worst parameter difference {worst:.2e}");
+        assert!(worst < 1e-3, "{worst}");
+    } else {
+        skip_unless_required("ONNX Runtime library not found (run scripts/fetch-onnxruntime.sh or set ORT_DYLIB_PATH)", Some("LFIT_REQUIRE_ORT"));
+    }
     // The checkpoint refuses another model with one line (here the default template's data).
     let other = dir.path().join("default.npz");
     lfit_json(&["synth", "--modality", "keypoints2d", "--frames", "2", "--out", path_str(&other)]);

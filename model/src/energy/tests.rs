@@ -398,6 +398,29 @@ mod morphable {
     }
 
     #[test]
+    fn gradients_cover_expression_coefficients_too() {
+        // The same model with its 6 directions split into 3 shape and 3 expression columns.
+        let base = smpl_like(4, 150, 6, true);
+        let m = base.morph.as_ref().clone();
+        let morph = crate::morph::Morph::new(m.rest.clone(), 3, 3, m.dirs.clone(), m.posedirs.clone(), m.regressor.clone());
+        let info = base.info.clone();
+        let t = Arc::new(base.with_morph(morph, info).unwrap());
+        let l = t.layout();
+        assert_eq!((l.shape, l.expression), (3, 3));
+        let truth = params(&t, 1, 1.0);
+        let x = params(&t, 2, 0.5);
+        let sensor = Sensor::default_for(Modality::Markers, &t);
+        let pred = sensor.predict_sparse(&t, &truth).unwrap();
+        let e = Energy::new(t.clone(), sensor, Target::Sparse { values: pred.values.clone(), visible: vec![true; pred.values.len()] }, EnergyConfig::default().for_gradient()).unwrap();
+        check(&e, &x, "markers/expression");
+        let ev = e.evaluate(&x);
+        let psi: f64 = x[l.range(crate::layout::Block::Expression)].iter().map(|v| v * v).sum();
+        assert!((ev.term("expression").unwrap() - psi).abs() < 1e-12);
+        let (_, g) = e.evaluate_with_gradient(&x);
+        assert!(g[l.range(crate::layout::Block::Expression)].iter().any(|v| v.abs() > 1e-6), "ψ has gradient");
+    }
+
+    #[test]
     fn the_energy_prediction_matches_the_observation_model_and_the_shape_prior_counts() {
         let t = Arc::new(smpl_like(5, 150, 4, true));
         let x = params(&t, 9, 1.0);
