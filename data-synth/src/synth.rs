@@ -214,10 +214,13 @@ fn subject_coefficients(layout: &Layout, seed: u64, index: u64) -> Vec<f64> {
     (0..k).map(|_| StandardNormal.sample(&mut rng)).map(|x: f64| x.clamp(-SHAPE_BOUND, SHAPE_BOUND)).collect()
 }
 
+/// Per frame: start parameters, target parameters, and the motion behind the frame.
+type ScenarioPoses = (Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<String>);
+
 /// Start parameters, targets and the motion behind each frame, in `template`'s layout. Targets
 /// carry the subject's shape and expression; starts have the mean (zero) coefficients: a fitter
 /// does not know them.
-fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<(Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<String>), SynthError> {
+fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioPoses, SynthError> {
     let layout = template.layout();
     let global = Bounds::global_for(template);
     let pd = layout.pose_dim();

@@ -193,45 +193,6 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn sparse_rows_round_trip_and_apply() {
-        let dense = [0.5, 0.0, 0.5, 0.0, 0.0, 1.0];
-        let m = SparseRows::from_dense(2, 3, &dense);
-        assert_eq!(m.to_dense(), dense);
-        let x = [DVec3::X, DVec3::Y, DVec3::Z];
-        assert_eq!(m.apply(&x), vec![DVec3::new(0.5, 0.0, 0.5), DVec3::Z]);
-    }
-
-    #[test]
-    fn joints_follow_the_regressed_shape() {
-        // Two vertices, one joint at their mean; β moves vertex 1 by +1 along y.
-        let rest = vec![DVec3::ZERO, DVec3::X];
-        let dirs = vec![0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
-        let reg = SparseRows::from_dense(1, 2, &[0.5, 0.5]);
-        let m = Morph::new(rest, 1, 0, dirs, None, Some(reg));
-        let c = m.rest_joints(&[DVec3::new(0.5, 0.0, 0.0)], &[2.0]);
-        assert!((c[0] - DVec3::new(0.5, 1.0, 0.0)).length() < 1e-15);
-        assert_eq!(m.rest_vertex(1, DVec3::ZERO, &[2.0], &[]), DVec3::new(1.0, 2.0, 0.0));
-    }
-
-    #[test]
-    fn pose_feature_is_zero_at_rest_and_row_major() {
-        let mut p = vec![0.0; 3 + 3 * 3];
-        assert!(pose_feature(&p, 3).iter().all(|&v| v == 0.0));
-        p[6 + 2] = std::f64::consts::FRAC_PI_2; // joint 1 about z: R = [[0,-1,0],[1,0,0],[0,0,1]]
-        let f = pose_feature(&p, 3);
-        assert_eq!(f.len(), 18);
-        let expect = [-1.0, -1.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, 0.0];
-        for (a, b) in f[..9].iter().zip(expect) {
-            assert!((a - b).abs() < 1e-12, "{f:?}");
-        }
-    }
-}
-
 /// A random SMPL-like model for tests and benchmarks: 24 joints in SMPL's tree and names, `v`
 /// vertices in a standing body's box, 1–6 influences per vertex, `b` shape columns, optional pose
 /// correctives, a sparse regressor (5 vertices per joint), 30 markers. Same seed, same model.
@@ -276,4 +237,43 @@ pub fn smpl_like(seed: u64, v: usize, b: usize, with_posedirs: bool) -> crate::t
     let posedirs = with_posedirs.then(|| (0..3 * v * 9 * (j - 1)).map(|_| rng.random_range(-0.01..0.01)).collect());
     let info = crate::info::ModelInfo::fallback(&t.rig);
     t.with_morph(Morph::new(rest, b, 0, dirs, posedirs, Some(reg)), info).expect("consistent test morph")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sparse_rows_round_trip_and_apply() {
+        let dense = [0.5, 0.0, 0.5, 0.0, 0.0, 1.0];
+        let m = SparseRows::from_dense(2, 3, &dense);
+        assert_eq!(m.to_dense(), dense);
+        let x = [DVec3::X, DVec3::Y, DVec3::Z];
+        assert_eq!(m.apply(&x), vec![DVec3::new(0.5, 0.0, 0.5), DVec3::Z]);
+    }
+
+    #[test]
+    fn joints_follow_the_regressed_shape() {
+        // Two vertices, one joint at their mean; β moves vertex 1 by +1 along y.
+        let rest = vec![DVec3::ZERO, DVec3::X];
+        let dirs = vec![0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+        let reg = SparseRows::from_dense(1, 2, &[0.5, 0.5]);
+        let m = Morph::new(rest, 1, 0, dirs, None, Some(reg));
+        let c = m.rest_joints(&[DVec3::new(0.5, 0.0, 0.0)], &[2.0]);
+        assert!((c[0] - DVec3::new(0.5, 1.0, 0.0)).length() < 1e-15);
+        assert_eq!(m.rest_vertex(1, DVec3::ZERO, &[2.0], &[]), DVec3::new(1.0, 2.0, 0.0));
+    }
+
+    #[test]
+    fn pose_feature_is_zero_at_rest_and_row_major() {
+        let mut p = vec![0.0; 3 + 3 * 3];
+        assert!(pose_feature(&p, 3).iter().all(|&v| v == 0.0));
+        p[6 + 2] = std::f64::consts::FRAC_PI_2; // joint 1 about z: R = [[0,-1,0],[1,0,0],[0,0,1]]
+        let f = pose_feature(&p, 3);
+        assert_eq!(f.len(), 18);
+        let expect = [-1.0, -1.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, 0.0];
+        for (a, b) in f[..9].iter().zip(expect) {
+            assert!((a - b).abs() < 1e-12, "{f:?}");
+        }
+    }
 }
