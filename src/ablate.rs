@@ -233,7 +233,7 @@ pub fn run(args: &AblateArgs, progress: &(dyn Fn(&str) + Sync)) -> Result<Value>
         Ok(prev) if prev != size_json => bail!("{} holds an ablation of another size or seed (size.json differs); use another --out", args.out.display()),
         _ => write_atomic(&size_file, &size_json)?,
     }
-    let template = Arc::new(crate::commands::load_template(None, "default")?);
+    let template = Arc::new(crate::commands::load_model(None, "default")?);
     let mut sets: BTreeMap<String, lfit_train::Frames> = BTreeMap::new();
     let mut evals: Vec<Eval> = Vec::new();
     for (variant, config) in selected.iter().zip(&configs) {

@@ -377,7 +377,7 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
         (None, Some(s)) => {
             let path = out.join("data.npz");
             if !path.exists() {
-                let template = crate::commands::load_template(None, "default")?;
+                let template = crate::commands::load_model(None, "default")?;
                 let args = crate::commands::SynthArgs { modality: s.modality.clone(), scenario: s.scenario.clone(), source: "motion".into(), frames: s.frames, seed: s.seed, fps: 30.0, noise: s.noise, motions: None, out: path.clone() };
                 crate::commands::synth(&args, &template, &|_| {})?;
             }

@@ -25,16 +25,6 @@ pub fn load_model(path: Option<&Path>, shape: &str) -> Result<Template> {
     }
 }
 
-/// [`load_model`] for the commands that work on the rigid 18-joint skeleton only so far
-/// (synthesis, fitting, training, benchmarks): another model is a one-line error.
-pub fn load_template(path: Option<&Path>, shape: &str) -> Result<Template> {
-    let template = load_model(path, shape)?;
-    if let Some(path) = path {
-        template.require_default_skeleton("this command").with_context(|| format!("template {}", path.display()))?;
-    }
-    Ok(template)
-}
-
 /// The `--shape` whose procedural template has id `id` (`default` or `default+<shape>`); `None`
 /// for a template loaded from a directory.
 pub fn shape_of_template_id(id: &str) -> Option<&str> {

@@ -306,7 +306,7 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         "mean_energy": sum_e / n,
         "mean_time_s": sum_t / n,
     });
-    if template.layout().dim() > template.layout().pose_dim() {
+    if template.morph.coefficients() > 0 {
         summary["mean_shape_rms"] = json!(sum_coeff / n);
     }
     let mut out = json!({

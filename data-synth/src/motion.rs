@@ -1747,8 +1747,7 @@ mod tests {
     // --- Kinematic plausibility through the model's forward kinematics (SPEC §3). ---
 
     fn joints(template: &Template, pose: &Pose) -> Vec<DVec3> {
-        let transforms = lfit_model::skinning::joint_transforms(template, pose);
-        lfit_model::skinning::posed_joints(template, &transforms)
+        lfit_model::skinning::joint_transforms(template, pose).joints
     }
 
     #[test]

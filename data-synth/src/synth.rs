@@ -141,7 +141,8 @@ pub fn synthesize(config: &SynthConfig, template: &Template, sensor: &Sensor, pr
     }
     let (starts, targets, motions) = scenario_poses(config, template)?;
     let done = AtomicUsize::new(0);
-    if let Some(i) = (0..config.frames).find(|&i| targets[i].len() != template.layout().dim()) {
+    let layout = template.layout();
+    if let Some(i) = (0..config.frames).find(|&i| targets[i].len() != layout.dim()) {
         return Err(SynthError::Setting { name: "template", value: template.id.clone(), reason: format!("frame {i} has {} parameters", targets[i].len()) });
     }
     let frames: Vec<FrameObs> = (0..config.frames)
@@ -174,9 +175,9 @@ pub fn synthesize(config: &SynthConfig, template: &Template, sensor: &Sensor, pr
             template_vertices: template.num_vertices(),
             config: config.clone(),
             frame_motions: motions,
-            pose_dim: template.layout().pose_dim(),
-            shape_dim: template.layout().shape,
-            expression_dim: template.layout().expression,
+            pose_dim: layout.pose_dim(),
+            shape_dim: layout.shape,
+            expression_dim: layout.expression,
         },
         sensor: sensor.clone(),
         start_poses: starts,

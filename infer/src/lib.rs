@@ -144,22 +144,25 @@ impl NeuralFitter {
         }
         let n = self.meta.network.iterations;
         let per_iteration = self.meta.network.evaluations_per_iteration();
+        // The compatibility check hashes the whole model (its signature): once per distinct
+        // model and sensor of the batch, not once per frame.
+        let mut checked: Vec<(*const lfit_model::Template, lfit_model::observe::Modality, usize)> = Vec::new();
         for r in requests {
-            self.check(r.energy).map_err(neural)?;
+            let key = (std::sync::Arc::as_ptr(r.energy.template()), r.energy.modality(), r.energy.sensor().residual_dim(r.energy.template()));
+            if !checked.contains(&key) {
+                self.check(r.energy).map_err(neural)?;
+                checked.push(key);
+            }
             if r.budget == 0 {
                 return Err(FitError::Budget(0));
             }
             if r.budget < per_iteration * n {
                 return Err(FitError::Neural(format!("budget {} is below the {} evaluations of {n} iterations", r.budget, per_iteration * n)));
             }
+            // `check` matched the model's parameter count with the network's; the start must match too.
             let dim = self.meta.network.param_dim;
-            if r.energy.dim() != dim || r.start.len() != dim {
-                return Err(FitError::Neural(format!(
-                    "checkpoint {} predicts {dim} parameters, the model '{}' has {}: it was trained on another model",
-                    self.dir.display(),
-                    r.energy.template().id,
-                    r.energy.dim()
-                )));
+            if r.start.len() != dim {
+                return Err(FitError::Start(format!("start has {} entries, the model's parameter vector {dim}", r.start.len())));
             }
             if r.bounds.lower.len() != dim || r.bounds.upper.len() != dim {
                 return Err(FitError::Bounds(format!("need {dim} lower and upper values")));

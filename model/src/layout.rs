@@ -57,7 +57,7 @@ impl Layout {
 
     /// Index of the first number of joint `j`'s rotation.
     pub fn rotation_offset(&self, j: usize) -> usize {
-        3 + 3 * j
+        crate::pose::rot_offset(j)
     }
 
     /// Index of β₀.

@@ -7,7 +7,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 
-use crate::skinning::{joint_transforms, posed_joints, skin_lbs_into, skin_lbs_subset};
+use crate::skinning::{joint_transforms, skin_lbs_into, skin_lbs_subset};
 use crate::template::Template;
 
 /// Mean distance between corresponding posed vertices, in mm.
@@ -21,8 +21,8 @@ pub fn v2v_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> f64 {
 
 /// Mean distance between corresponding posed joint centres, in mm.
 pub fn mpjpe_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> f64 {
-    let a = posed_joints(template, &joint_transforms(template, fitted));
-    let b = posed_joints(template, &joint_transforms(template, truth));
+    let a = joint_transforms(template, fitted).joints;
+    let b = joint_transforms(template, truth).joints;
     let n = a.len().max(1) as f64;
     1000.0 * a.iter().zip(&b).map(|(p, q)| p.distance(*q)).sum::<f64>() / n
 }
@@ -30,8 +30,8 @@ pub fn mpjpe_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> f64 {
 /// MPJPE after Procrustes alignment (rotation, uniform scale, translation) of the fitted joints
 /// onto the true ones, in mm.
 pub fn pa_mpjpe_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> f64 {
-    let a = posed_joints(template, &joint_transforms(template, fitted));
-    let b = posed_joints(template, &joint_transforms(template, truth));
+    let a = joint_transforms(template, fitted).joints;
+    let b = joint_transforms(template, truth).joints;
     let aligned = procrustes_align(&a, &b);
     let n = a.len().max(1) as f64;
     1000.0 * aligned.iter().zip(&b).map(|(p, q)| p.distance(*q)).sum::<f64>() / n
@@ -141,7 +141,7 @@ mod tests {
         for (i, v) in rng_pose.iter_mut().enumerate() {
             *v = ((i * 37 % 11) as f64 - 5.0) * 0.04;
         }
-        let joints = posed_joints(&t, &joint_transforms(&t, &rng_pose));
+        let joints = joint_transforms(&t, &rng_pose).joints;
         let r = glam::DQuat::from_euler(glam::EulerRot::YXZ, 0.7, -0.3, 0.2);
         let moved: Vec<DVec3> = joints.iter().map(|p| r * *p * 1.3 + DVec3::new(0.2, -0.1, 0.5)).collect();
         let back = procrustes_align(&moved, &joints);
@@ -159,7 +159,7 @@ mod tests {
         assert!(pa_mpjpe_mm(&t, &bent, &rng_pose) > 0.0);
         // The alignment minimises the squared joint error, so it cannot raise the RMS error.
         let rms = |a: &[f64], b: &[f64], align: bool| {
-            let (ja, jb) = (posed_joints(&t, &joint_transforms(&t, a)), posed_joints(&t, &joint_transforms(&t, b)));
+            let (ja, jb) = (joint_transforms(&t, a).joints, joint_transforms(&t, b).joints);
             let ja = if align { procrustes_align(&ja, &jb) } else { ja };
             (ja.iter().zip(&jb).map(|(p, q)| p.distance_squared(*q)).sum::<f64>() / ja.len() as f64).sqrt()
         };

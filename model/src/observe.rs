@@ -14,7 +14,7 @@ use crate::camera::{Camera, DEFAULT_RING_SIZE, default_ring};
 use crate::error::{ModelError, Result};
 use crate::scan::{Mask, VoxelGrid, render_silhouettes};
 use crate::skeleton::{L_HAND, R_HAND};
-use crate::skinning::{Posed, joint_transforms, posed_joints, skin_lbs_into, skin_lbs_subset, vertex_normals};
+use crate::skinning::{Posed, joint_transforms, skin_lbs_into, skin_lbs_subset, vertex_normals};
 use crate::template::Template;
 
 /// The observation modalities of SPEC §4.
@@ -216,11 +216,11 @@ impl Sensor {
                 Some(SparsePrediction { values, visible })
             }
             Sensor::Keypoints2d { cameras } => {
-                let joints = posed_joints(template, transforms);
+                let joints = &transforms.joints;
                 let mut values = Vec::with_capacity(2 * cameras.len() * joints.len());
                 let mut visible = Vec::with_capacity(values.capacity());
                 for cam in cameras {
-                    for &p in &joints {
+                    for &p in joints {
                         let q = cam.to_camera(p);
                         let uv = cam.project_camera(q);
                         let seen = q.z > 0.01 && cam.in_image(uv);
@@ -234,7 +234,7 @@ impl Sensor {
             }
             Sensor::Hmd(setup) => {
                 let [head, l_hand, r_hand] = template.hmd_joints().ok()?;
-                let joints = posed_joints(template, transforms);
+                let joints = &transforms.joints;
                 let headset = headset_pose(setup, transforms[head].matrix3, joints[head]);
                 let tips = skin_lbs_subset(template, transforms, &setup.hand_tips);
                 let mut values = Vec::with_capacity(HMD_DIM);

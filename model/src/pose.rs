@@ -70,34 +70,37 @@ impl DofMask {
     /// papers/000 §4: drop all 3 DOFs of both feet and 2 DOFs each of both ankles and both hands
     /// (each keeps its flexion axis, see [`skeleton::KEPT_AXIS`]): 43 free.
     pub fn local43() -> Self {
-        let free = (0..POSE_DIM).filter(|&i| !Self::dropped_local(i)).collect();
+        let free = (0..POSE_DIM).filter(|&i| !Self::dropped_default(MaskKind::Local, i)).collect();
         Self { name: "local43".into(), free }
     }
 
     /// papers/000 §4.2: `local43` minus 2 DOFs of Middle Torso: 41 free.
     pub fn global41() -> Self {
-        let mt = skeleton::MIDDLE_TORSO;
-        let keep = skeleton::KEPT_AXIS[mt].unwrap_or(0);
-        let free = (0..POSE_DIM)
-            .filter(|&i| !Self::dropped_local(i))
-            .filter(|&i| !(i >= rot_offset(mt) && i < rot_offset(mt) + 3 && i != rot_offset(mt) + keep))
-            .collect();
+        let free = (0..POSE_DIM).filter(|&i| !Self::dropped_default(MaskKind::Global, i)).collect();
         Self { name: "global41".into(), free }
     }
 
-    fn dropped_local(i: usize) -> bool {
-        if i < 3 {
-            return false;
+    /// Whether pose entry `i` of the default skeleton is dropped by `kind`.
+    fn dropped_default(kind: MaskKind, i: usize) -> bool {
+        i >= 3 && Self::drops(kind, (i - 3) / 3, (i - 3) % 3)
+    }
+
+    /// papers/000 §4's rule: whether `kind` drops rotation axis `axis` of the joint in the place of
+    /// papers/000 joint `role` (both feet whole; two of the three DOFs of the ankles and hands, and
+    /// for `global` of Middle Torso, each keeping [`skeleton::KEPT_AXIS`]).
+    fn drops(kind: MaskKind, role: usize, axis: usize) -> bool {
+        match kind {
+            MaskKind::Full => false,
+            MaskKind::Local | MaskKind::Global => {
+                if skeleton::is_foot(role) {
+                    return true;
+                }
+                if skeleton::is_ankle(role) || skeleton::is_hand(role) || (kind == MaskKind::Global && role == skeleton::MIDDLE_TORSO) {
+                    return Some(axis) != skeleton::KEPT_AXIS[role];
+                }
+                false
+            }
         }
-        let j = (i - 3) / 3;
-        let axis = (i - 3) % 3;
-        if skeleton::is_foot(j) {
-            return true;
-        }
-        if skeleton::is_ankle(j) || skeleton::is_hand(j) {
-            return Some(axis) != skeleton::KEPT_AXIS[j];
-        }
-        false
     }
 
     /// The mask `kind` of papers/000 §4 on any model: its rules (drop both feet, two of the three
@@ -112,19 +115,7 @@ impl DofMask {
         let role = |j: usize| map.iter().position(|m| *m == Some(j));
         let dropped = |i: usize| -> bool {
             let Some((j, axis)) = layout.rotation_of(i) else { return false };
-            let Some(r) = role(j) else { return false };
-            match kind {
-                MaskKind::Full => false,
-                MaskKind::Local | MaskKind::Global => {
-                    if skeleton::is_foot(r) {
-                        return true;
-                    }
-                    if skeleton::is_ankle(r) || skeleton::is_hand(r) || (kind == MaskKind::Global && r == skeleton::MIDDLE_TORSO) {
-                        return Some(axis) != skeleton::KEPT_AXIS[r];
-                    }
-                    false
-                }
-            }
+            role(j).is_some_and(|r| Self::drops(kind, r, axis))
         };
         let free: Vec<usize> = (0..layout.dim())
             .filter(|&i| match layout.block_of(i) {
@@ -312,33 +303,27 @@ impl Bounds {
     /// per-joint limits, shape and expression within ±[`SHAPE_BOUND`]. On the default template
     /// this is [`Bounds::global`].
     pub fn global_for(template: &Template) -> Self {
-        let layout = template.layout();
+        Self::global_from_limits(&template.info.limits_deg, template.morph.coefficients())
+    }
+
+    /// Translation ±1.25 m, rotations within `limits_deg` (per joint and axis), then
+    /// `coefficients` shape/expression entries within ±[`SHAPE_BOUND`].
+    fn global_from_limits(limits_deg: &[[[f64; 2]; 3]], coefficients: usize) -> Self {
         let mut lower = vec![-GLOBAL_TRANSLATION; 3];
         let mut upper = vec![GLOBAL_TRANSLATION; 3];
-        for l in &template.info.limits_deg {
-            for range in l {
-                lower.push(range[0].to_radians());
-                upper.push(range[1].to_radians());
-            }
+        for range in limits_deg.iter().flatten() {
+            lower.push(range[0].to_radians());
+            upper.push(range[1].to_radians());
         }
-        lower.resize(layout.dim(), -SHAPE_BOUND);
-        upper.resize(layout.dim(), SHAPE_BOUND);
+        lower.extend(std::iter::repeat_n(-SHAPE_BOUND, coefficients));
+        upper.extend(std::iter::repeat_n(SHAPE_BOUND, coefficients));
         Self { lower, upper }
     }
 
     /// The `global` box: translation ±1.25 m around the template's rest root position, rotations
     /// within the per-joint limits of papers/000 Table 1 ([`skeleton::rotation_limits_deg`]).
     pub fn global() -> Self {
-        let mut lower = vec![-GLOBAL_TRANSLATION; POSE_DIM];
-        let mut upper = vec![GLOBAL_TRANSLATION; POSE_DIM];
-        for j in 0..NUM_JOINTS {
-            let limits = skeleton::rotation_limits_deg(j);
-            for a in 0..3 {
-                lower[rot_offset(j) + a] = limits[a].0.to_radians();
-                upper[rot_offset(j) + a] = limits[a].1.to_radians();
-            }
-        }
-        Self { lower, upper }
+        Self::global_from_limits(&crate::info::ModelInfo::default_skeleton().limits_deg, 0)
     }
 
     pub fn contains(&self, pose: &[f64]) -> bool {

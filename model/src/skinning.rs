@@ -94,11 +94,6 @@ pub fn joint_transforms(template: &Template, params: &[f64]) -> Posed {
     Posed { transforms, joints, rest_joints, coeffs, pose_feature }
 }
 
-/// Posed joint positions `A_j(c_j)`.
-pub fn posed_joints(_template: &Template, posed: &Posed) -> Vec<DVec3> {
-    posed.joints.clone()
-}
-
 fn to_f32(transforms: &[DAffine3]) -> Vec<Affine3A> {
     transforms
         .iter()
@@ -283,8 +278,8 @@ mod tests {
         let t = default_template();
         let mut pose = [0.0; POSE_DIM];
         pose[crate::pose::rot_offset(crate::skeleton::L_SHOULDER) + 2] = 0.7;
-        let j0 = posed_joints(&t, &joint_transforms(&t, &[0.0; POSE_DIM]));
-        let j1 = posed_joints(&t, &joint_transforms(&t, &pose));
+        let j0 = joint_transforms(&t, &[0.0; POSE_DIM]).joints;
+        let j1 = joint_transforms(&t, &pose).joints;
         use crate::skeleton::*;
         assert!((j0[HEAD] - j1[HEAD]).length() < 1e-12);
         assert!((j0[L_SHOULDER] - j1[L_SHOULDER]).length() < 1e-12);

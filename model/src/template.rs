@@ -206,6 +206,12 @@ impl Template {
         Ok(t)
     }
 
+    /// Length of the parameter vector, `3 + 3J + B + E` ([`Layout::dim`] without building the
+    /// layout's names).
+    pub fn param_dim(&self) -> usize {
+        3 + 3 * self.rig.num_joints() + self.morph.coefficients()
+    }
+
     /// The parameter layout: translation, one rotation per joint, β, ψ.
     pub fn layout(&self) -> Layout {
         Layout {
@@ -219,21 +225,6 @@ impl Template {
     /// or expression): the model every part of lfit supports.
     pub fn is_default_skeleton(&self) -> bool {
         check_skeleton(&self.rig).is_ok() && self.morph.coefficients() == 0 && self.morph.posedirs.is_none()
-    }
-
-    /// Refuses a model that is not [`Template::is_default_skeleton`], naming `what` needs it.
-    pub fn require_default_skeleton(&self, what: &str) -> Result<()> {
-        check_skeleton(&self.rig)?;
-        if self.morph.coefficients() > 0 || self.morph.posedirs.is_some() {
-            return Err(ModelError::Config(format!(
-                "{what} supports rigid 18-joint templates only so far; '{}' has {} shape, {} expression coefficients{}",
-                self.id,
-                self.morph.shape,
-                self.morph.expression,
-                if self.morph.posedirs.is_some() { " and pose correctives" } else { "" }
-            )));
-        }
-        Ok(())
     }
 
     pub fn num_vertices(&self) -> usize {

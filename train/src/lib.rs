@@ -298,7 +298,7 @@ pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, opt
     let mut net_config = config.network.clone();
     net_config.modality = config.modality;
     net_config.residual_dim = sensor.residual_dim(&template);
-    net_config.param_dim = template.layout().dim();
+    net_config.param_dim = template.param_dim();
     net_config.validate()?;
     let base = base_energy(&template, &sensor)?;
     let ad = device.clone().autodiff();

@@ -191,8 +191,8 @@ impl CheckpointMeta {
                 return Err(err(dir, format!("was trained on model '{}' ({} parameters, hash {}), not '{}' ({} parameters, hash {})", sig.id, sig.layout.dim(), sig.hash, here.id, here.layout.dim(), here.hash)));
             }
         }
-        if n.param_dim != template.layout().dim() {
-            return Err(err(dir, format!("predicts {} parameters, the model '{}' has {}", n.param_dim, template.id, template.layout().dim())));
+        if n.param_dim != template.param_dim() {
+            return Err(err(dir, format!("predicts {} parameters, the model '{}' has {}", n.param_dim, template.id, template.param_dim())));
         }
         if n.modality != modality {
             return Err(err(dir, format!("was trained for {} data, not {modality}", n.modality)));

@@ -136,6 +136,22 @@ impl Kinematics {
     }
 }
 
+/// `out += Mᵀ g` for a row-major `(3n) × out.len()` matrix `m` (rows `3i + axis`) and gradients
+/// `g_i` of points `i`: how point gradients reach the coefficients of the directions (`[S E]`,
+/// `J_regressor [S E]`) or of the pose correctives.
+fn add_transposed(out: &mut [f64], m: &[f64], gradients: impl Iterator<Item = (usize, DVec3)>) {
+    let k = out.len();
+    for (i, g) in gradients {
+        for a in 0..3 {
+            if g[a] != 0.0 {
+                for (o, d) in out.iter_mut().zip(&m[(3 * i + a) * k..(3 * i + a + 1) * k]) {
+                    *o += g[a] * d;
+                }
+            }
+        }
+    }
+}
+
 /// Per-joint forces and moments of the reverse pass; for a morphable model also the gradients
 /// of the rest joints and of the rest vertices.
 #[derive(Debug, Clone)]
@@ -229,47 +245,21 @@ impl Adjoint {
             }
         }
         grad[0..3].copy_from_slice(&self.force[0].to_array());
-        let Some((m, coeffs, feature)) = &kin.morph else { return grad };
+        let Some((m, _, feature)) = &kin.morph else { return grad };
         let rest = self.rest.take().unwrap_or_default();
         let base = 3 + 3 * nj;
         if k > 0 {
             let gc = &mut grad[base..base + k];
-            for &(v, g) in &rest {
-                let v = v as usize;
-                for a in 0..3 {
-                    if g[a] != 0.0 {
-                        for (o, d) in gc.iter_mut().zip(&m.dirs[(3 * v + a) * k..(3 * v + a + 1) * k]) {
-                            *o += g[a] * d;
-                        }
-                    }
-                }
-            }
+            add_transposed(gc, &m.dirs, rest.iter().map(|&(v, g)| (v as usize, g)));
             if track_joints {
-                for (j, g) in self.joint_rest.iter().enumerate() {
-                    for a in 0..3 {
-                        for (o, d) in gc.iter_mut().zip(&m.joint_dirs[(3 * j + a) * k..(3 * j + a + 1) * k]) {
-                            *o += g[a] * d;
-                        }
-                    }
-                }
+                add_transposed(gc, &m.joint_dirs, self.joint_rest.iter().copied().enumerate());
             }
         }
-        let _ = coeffs;
         if let Some(pd) = &m.posedirs
             && !feature.is_empty()
         {
-            let n = feature.len();
-            let mut gf = vec![0.0; n];
-            for &(v, g) in &rest {
-                let v = v as usize;
-                for a in 0..3 {
-                    if g[a] != 0.0 {
-                        for (o, d) in gf.iter_mut().zip(&pd[(3 * v + a) * n..(3 * v + a + 1) * n]) {
-                            *o += g[a] * d;
-                        }
-                    }
-                }
-            }
+            let mut gf = vec![0.0; feature.len()];
+            add_transposed(&mut gf, pd, rest.iter().map(|&(v, g)| (v as usize, g)));
             for j in 1..nj {
                 let f = &gf[9 * (j - 1)..9 * j];
                 // The feature is row-major: f[3 row + col] = ∂E/∂R[row][col].

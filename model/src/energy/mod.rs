@@ -442,10 +442,10 @@ impl Energy {
         self.gradient_evaluations.store(0, Ordering::Relaxed);
     }
 
-    /// Length of the parameter vector the energy takes (`3 + 3J + B + E`, the template's
-    /// [`crate::layout::Layout::dim`]; 57 on the default template).
+    /// Length of the parameter vector the energy takes (`3 + 3J + B + E`,
+    /// [`Template::param_dim`]; 57 on the default template).
     pub fn dim(&self) -> usize {
-        self.template.layout().dim()
+        self.template.param_dim()
     }
 
     /// Value and terms at `pose` (one counted evaluation).

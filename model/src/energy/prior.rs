@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use super::SkinTable;
 use super::kinematics::{Adjoint, Kinematics};
-use crate::pose::rot_offset;
+use crate::pose::{Bounds, rot_offset};
 use crate::template::Template;
 
 /// Form of the joint-angle prior EA.
@@ -218,20 +218,14 @@ pub(crate) struct AngleLimits {
 }
 
 impl AngleLimits {
-    /// The template's per-joint limits ([`crate::info::ModelInfo::limits_deg`]; papers/000
-    /// Table 1 on the default skeleton), over the rotation entries.
+    /// The rotation limits of the template's `global` box ([`Bounds::global_for`]: the model's
+    /// per-joint limits, papers/000 Table 1 on the default skeleton), over the pose entries.
     pub fn new(template: &Template) -> Self {
-        let limits = &template.info.limits_deg;
-        let n = 3 + 3 * limits.len();
-        let mut lower = vec![f64::NEG_INFINITY; n];
-        let mut upper = vec![f64::INFINITY; n];
-        for (j, l) in limits.iter().enumerate() {
-            for a in 0..3 {
-                lower[rot_offset(j) + a] = l[a][0].to_radians();
-                upper[rot_offset(j) + a] = l[a][1].to_radians();
-            }
-        }
-        Self { lower, upper }
+        let pose_dim = 3 + 3 * template.rig.num_joints();
+        let mut b = Bounds::global_for(template);
+        b.lower.truncate(pose_dim);
+        b.upper.truncate(pose_dim);
+        Self { lower: b.lower, upper: b.upper }
     }
 
     /// Value and, for [`AnglePrior::Hinge`], gradient (times `scale`) added into `grad`.
