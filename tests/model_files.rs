@@ -397,6 +397,19 @@ fn bad_model_files_are_one_line_errors_and_write_nothing() {
     let pkl = dir.path().join("model.pkl");
     std::fs::write(&pkl, b"\x80\x02}q\x00.").unwrap();
     refused_file(dir.path(), &pkl, pose.clone(), ".pkl");
+    // Sensors the model cannot serve: markers on a model without any, hmd on a model whose joint
+    // names map nothing to the papers/000 head and hands.
+    let d = dir.path().join("d.npz");
+    let o = lfit(&["synth", "--modality", "markers", "--source", "uniform", "--frames", "2", "--template", path_str(&path), "--out", path_str(&d)]);
+    assert_one_line_error(&o, "has no markers");
+    let names: Vec<String> = (0..J).map(|j| format!("bone{j:02}")).collect();
+    let bytes: Vec<u8> = names.iter().flat_map(|n| n.chars().map(|c| c as u32).flat_map(u32::to_le_bytes)).collect();
+    let renamed: Vec<_> = good.iter().cloned().chain([("joint_names".to_string(), npy("<U6", false, &[J], &bytes))]).collect();
+    let unmapped = dir.path().join("unmapped.npz");
+    write_npz(&unmapped, &renamed);
+    let o = lfit(&["synth", "--modality", "hmd", "--source", "uniform", "--frames", "2", "--template", path_str(&unmapped), "--out", path_str(&d)]);
+    assert_one_line_error(&o, "maps no joint to the papers/000 'head'");
+    assert!(!d.exists());
     // Not a zip at all.
     let junk = dir.path().join("junk.npz");
     std::fs::write(&junk, b"not a zip").unwrap();

@@ -186,10 +186,19 @@ impl Sensor {
                 if names.len() != vertices.len() {
                     return Err(ModelError::Shape { what: "marker names".into(), expected: vertices.len().to_string(), got: names.len().to_string() });
                 }
+                if vertices.is_empty() {
+                    return Err(ModelError::Config(format!(
+                        "model '{}' has no markers for the markers modality (a rig's \"markers\", or the model file's marker_names/marker_vertices)",
+                        template.id
+                    )));
+                }
                 check_vertices(vertices, "marker vertex")
             }
             Sensor::Keypoints2d { cameras } => cameras.iter().enumerate().try_for_each(|(i, c)| c.validate(i)),
-            Sensor::Hmd(h) => check_vertices(&h.hand_tips, "hand tip vertex"),
+            Sensor::Hmd(h) => {
+                template.hmd_joints()?;
+                check_vertices(&h.hand_tips, "hand tip vertex")
+            }
             Sensor::Scan(s) => {
                 if !(s.voxel_size.is_finite() && s.voxel_size > 0.0) {
                     return Err(ModelError::Setting { name: "voxel_size", value: s.voxel_size.to_string(), reason: "must be positive".into() });
