@@ -431,6 +431,25 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_shaped_template_poses_like_the_morphable_model_at_its_coefficients() {
+        // Without pose correctives a subject's rigid template is the morphable model at fixed β.
+        let m = crate::morph::smpl_like(2, 200, 4, false);
+        let beta = [1.5, -2.0, 0.7, 0.0];
+        let shaped = m.shaped(&beta).unwrap();
+        assert!(shaped.morph.is_rigid());
+        let mut params: Vec<f64> = (0..m.layout().pose_dim()).map(|i| ((i * 7 % 11) as f64 / 11.0 - 0.5) * 0.8).collect();
+        let pose = params.clone();
+        params.extend(beta);
+        let a = crate::skinning::pose_vertices(&m, &params, crate::SkinningMethod::Linear);
+        let b = crate::skinning::pose_vertices(&shaped, &pose, crate::SkinningMethod::Linear);
+        let worst = a.iter().zip(&b).map(|(p, q)| (*p - *q).length()).fold(0.0, f32::max);
+        assert!(worst < 1e-5, "{worst}");
+        // And β changes the mesh, so the comparison means something.
+        let c = crate::skinning::pose_vertices(&m.shaped(&[0.0; 4]).unwrap(), &pose, crate::SkinningMethod::Linear);
+        assert!(a.iter().zip(&c).map(|(p, q)| (*p - *q).length()).fold(0.0, f32::max) > 1e-3);
+    }
+
+    #[test]
     fn obj_parser_keeps_vertex_order_and_triangulates() {
         let text = "# c\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nf 3/1/1 4/2/1 1/3/1 2//1\nf -1 -2 -3\n";
         let (v, f) = parse_obj(text).unwrap();
