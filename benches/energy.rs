@@ -25,12 +25,19 @@ fn energy(template: &Arc<Template>, modality: Modality, config: EnergyConfig) ->
     let target = match &sensor {
         Sensor::Scan(setup) => {
             let verts = pose_vertices(template, &gt, SkinningMethod::Linear);
-            let grid = distance_transform(&verts, setup.voxel_size, DEFAULT_BOX_SCALE).expect("grid");
-            Target::Scan { grid, silhouettes: render_silhouettes(&setup.cameras, &verts, &template.faces) }
+            let grid =
+                distance_transform(&verts, setup.voxel_size, DEFAULT_BOX_SCALE).expect("grid");
+            Target::Scan {
+                grid,
+                silhouettes: render_silhouettes(&setup.cameras, &verts, &template.faces),
+            }
         }
         _ => {
             let p = sensor.predict_sparse(template, &gt).expect("sparse");
-            Target::Sparse { values: p.values, visible: p.visible }
+            Target::Sparse {
+                values: p.values,
+                visible: p.visible,
+            }
         }
     };
     Energy::new(template.clone(), sensor, target, config).expect("energy")
@@ -39,22 +46,41 @@ fn energy(template: &Arc<Template>, modality: Modality, config: EnergyConfig) ->
 fn bench(c: &mut Criterion) {
     let template = Arc::new(default_template());
     let poses = random_poses(64, 0.3);
-    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("pool");
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
     let threads = rayon::current_num_threads();
     let mut group = c.benchmark_group("energy");
     group.throughput(Throughput::Elements(poses.len() as u64));
     let mut no_ej = EnergyConfig::default();
     no_ej.silhouettes = false;
     let cases = [
-        ("markers", energy(&template, Modality::Markers, EnergyConfig::default())),
-        ("keypoints2d", energy(&template, Modality::Keypoints2d, EnergyConfig::default())),
-        ("hmd", energy(&template, Modality::Hmd, EnergyConfig::default())),
+        (
+            "markers",
+            energy(&template, Modality::Markers, EnergyConfig::default()),
+        ),
+        (
+            "keypoints2d",
+            energy(&template, Modality::Keypoints2d, EnergyConfig::default()),
+        ),
+        (
+            "hmd",
+            energy(&template, Modality::Hmd, EnergyConfig::default()),
+        ),
         ("scan_without_EJ", energy(&template, Modality::Scan, no_ej)),
-        ("scan_with_EJ", energy(&template, Modality::Scan, EnergyConfig::default())),
+        (
+            "scan_with_EJ",
+            energy(&template, Modality::Scan, EnergyConfig::default()),
+        ),
     ];
     for (name, e) in &cases {
-        group.bench_function(BenchmarkId::new(*name, "1_thread"), |b| b.iter(|| one.install(|| black_box(e.evaluate_batch(&poses)))));
-        group.bench_function(BenchmarkId::new(*name, format!("{threads}_threads")), |b| b.iter(|| black_box(e.evaluate_batch(&poses))));
+        group.bench_function(BenchmarkId::new(*name, "1_thread"), |b| {
+            b.iter(|| one.install(|| black_box(e.evaluate_batch(&poses))))
+        });
+        group.bench_function(BenchmarkId::new(*name, format!("{threads}_threads")), |b| {
+            b.iter(|| black_box(e.evaluate_batch(&poses)))
+        });
     }
     group.finish();
 
@@ -70,7 +96,14 @@ fn bench(c: &mut Criterion) {
             })
         });
         group.bench_function(BenchmarkId::new(*name, format!("{threads}_threads")), |b| {
-            b.iter(|| black_box(poses.par_iter().map(|p| e.evaluate_with_gradient(p).0.total).sum::<f64>()))
+            b.iter(|| {
+                black_box(
+                    poses
+                        .par_iter()
+                        .map(|p| e.evaluate_with_gradient(p).0.total)
+                        .sum::<f64>(),
+                )
+            })
         });
     }
     group.finish();
@@ -79,11 +112,26 @@ fn bench(c: &mut Criterion) {
     let mut group = c.benchmark_group("optimizer_overhead_d43");
     let evals = 4_000usize;
     group.throughput(Throughput::Elements(evals as u64));
-    for method in [Method::RandomSearch, Method::OnePlusOne, Method::DE, Method::PSO, Method::CMA, Method::TBPSA, Method::Powell, Method::APF] {
+    for method in [
+        Method::RandomSearch,
+        Method::OnePlusOne,
+        Method::DE,
+        Method::PSO,
+        Method::CMA,
+        Method::TBPSA,
+        Method::Powell,
+        Method::APF,
+    ] {
         group.bench_function(method.as_str(), |b| {
             b.iter(|| {
-                let problem = Problem::new(optim::Bounds::uniform(43, -1.0, 1.0).expect("bounds"), vec![0.0; 43], vec![0.1; 43]).expect("problem");
-                let mut opt = optim::build(method, Preset::Nevergrad, &problem, evals, 1, None).expect("build");
+                let problem = Problem::new(
+                    optim::Bounds::uniform(43, -1.0, 1.0).expect("bounds"),
+                    vec![0.0; 43],
+                    vec![0.1; 43],
+                )
+                .expect("problem");
+                let mut opt = optim::build(method, Preset::Nevergrad, &problem, evals, 1, None)
+                    .expect("build");
                 let f = |x: &[f64]| x[0] * 0.0;
                 black_box(optim::minimize(opt.as_mut(), &f, evals, false).expect("run"))
             })
@@ -98,14 +146,42 @@ fn bench_smpl24(c: &mut Criterion) {
     for posedirs in [false, true] {
         let model = Arc::new(lfit::model::morph::smpl_like(3, 6890, 10, posedirs));
         let dim = model.layout().dim();
-        let params: Vec<Vec<f64>> = random_poses(64, 0.3).iter().map(|p| (0..dim).map(|i| if i < 75 { p[i % p.len()] } else { 0.5 }).collect()).collect();
+        let params: Vec<Vec<f64>> = random_poses(64, 0.3)
+            .iter()
+            .map(|p| {
+                (0..dim)
+                    .map(|i| if i < 75 { p[i % p.len()] } else { 0.5 })
+                    .collect()
+            })
+            .collect();
         let sensor = Sensor::default_for(Modality::Markers, &model);
         let pred = sensor.predict_sparse(&model, &params[0]).expect("sparse");
-        let e = Energy::new(model.clone(), sensor, Target::Sparse { values: pred.values, visible: pred.visible }, EnergyConfig::default().for_gradient()).expect("energy");
-        let mut group = c.benchmark_group(format!("smpl24_markers{}", if posedirs { "_posedirs" } else { "" }));
+        let e = Energy::new(
+            model.clone(),
+            sensor,
+            Target::Sparse {
+                values: pred.values,
+                visible: pred.visible,
+            },
+            EnergyConfig::default().for_gradient(),
+        )
+        .expect("energy");
+        let mut group = c.benchmark_group(format!(
+            "smpl24_markers{}",
+            if posedirs { "_posedirs" } else { "" }
+        ));
         group.throughput(Throughput::Elements(params.len() as u64));
-        group.bench_function("value", |b| b.iter(|| params.iter().map(|p| e.evaluate(p).total).sum::<f64>()));
-        group.bench_function("gradient", |b| b.iter(|| params.iter().map(|p| e.evaluate_with_gradient(p).0.total).sum::<f64>()));
+        group.bench_function("value", |b| {
+            b.iter(|| params.iter().map(|p| e.evaluate(p).total).sum::<f64>())
+        });
+        group.bench_function("gradient", |b| {
+            b.iter(|| {
+                params
+                    .iter()
+                    .map(|p| e.evaluate_with_gradient(p).0.total)
+                    .sum::<f64>()
+            })
+        });
         group.finish();
     }
 }

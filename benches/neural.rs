@@ -17,18 +17,18 @@ use std::sync::Arc;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use lfit::fitters::optim::Preset;
 use lfit::fitters::{FitRequest, Strategy, build_fitter};
+use lfit::infer::onnx::runtime::{SessionOptions, library_path};
 use lfit::infer::{NeuralFitter, Start};
-use lfit::nn::checkpoint::{Checkpoint, CheckpointMeta};
-use lfit::nn::{FeatureStats, NeuralNet};
 use lfit::model::observe::{Modality, Sensor};
 use lfit::model::pose::{Bounds, DofMask};
-use lfit::infer::onnx::runtime::{SessionOptions, library_path};
-use lfit::nn::unroll::{core_rows, evaluate, observation_rows, step_rows};
 use lfit::nn::Dropout;
+use lfit::nn::checkpoint::{Checkpoint, CheckpointMeta};
+use lfit::nn::unroll::{core_rows, evaluate, observation_rows, step_rows};
+use lfit::nn::{FeatureStats, NeuralNet};
 
-use lfit::nn::tensor::{device_from_name, tensor_to_rows, wgpu_available};
 use burn::tensor::{Tensor, TensorData};
 use lfit::model::{Energy, default_template};
+use lfit::nn::tensor::{device_from_name, tensor_to_rows, wgpu_available};
 use lfit::train::{TrainConfig, base_energy, measure_stats, synth_frames};
 
 fn fitter(modality: Modality, device_name: &str, frames: &lfit::train::Frames) -> NeuralFitter {
@@ -37,31 +37,59 @@ fn fitter(modality: Modality, device_name: &str, frames: &lfit::train::Frames) -
     if dir.join("config.json").exists() {
         return NeuralFitter::load(&dir, &device, Start::Given).expect("checkpoint");
     }
-    let config = TrainConfig::load(&Path::new("configs").join(format!("{}.json", modality.name()))).expect("config");
+    let config = TrainConfig::load(&Path::new("configs").join(format!("{}.json", modality.name())))
+        .expect("config");
     let template = frames.energies[0].template();
     let mut net = config.network.clone();
     net.modality = modality;
     net.residual_dim = Sensor::default_for(modality, template).residual_dim(template);
     let stats: FeatureStats = measure_stats(frames);
-    let meta = CheckpointMeta { format: "lfit-checkpoint".into(), version: 1, template_id: template.id.clone(), template_vertices: template.num_vertices(), network: net.clone(), model: None };
-    let checkpoint = Checkpoint { meta, stats, net: NeuralNet::new(&net, 0, &device).expect("net"), metrics: serde_json::Value::Null };
+    let meta = CheckpointMeta {
+        format: "lfit-checkpoint".into(),
+        version: 1,
+        template_id: template.id.clone(),
+        template_vertices: template.num_vertices(),
+        network: net.clone(),
+        model: None,
+    };
+    let checkpoint = Checkpoint {
+        meta,
+        stats,
+        net: NeuralNet::new(&net, 0, &device).expect("net"),
+        metrics: serde_json::Value::Null,
+    };
     NeuralFitter::from_checkpoint(checkpoint, &dir, &device, Start::Given)
 }
 
-fn requests<'a>(energies: &'a [Energy], frames: &lfit::train::Frames, budget: usize) -> Vec<FitRequest<'a>> {
+fn requests<'a>(
+    energies: &'a [Energy],
+    frames: &lfit::train::Frames,
+    budget: usize,
+) -> Vec<FitRequest<'a>> {
     energies
         .iter()
         .zip(&frames.dataset.start_poses)
-        .map(|(energy, start)| FitRequest { energy, start: start.clone(), mask: DofMask::local43(), bounds: Bounds::local(start), budget, seed: 1 })
+        .map(|(energy, start)| FitRequest {
+            energy,
+            start: start.clone(),
+            mask: DofMask::local43(),
+            bounds: Bounds::local(start),
+            budget,
+            seed: 1,
+        })
         .collect()
 }
 
 fn bench(c: &mut Criterion) {
-    let modality: Modality = std::env::var("LFIT_BENCH_MODALITY").unwrap_or_else(|_| "markers".into()).parse().expect("modality");
+    let modality: Modality = std::env::var("LFIT_BENCH_MODALITY")
+        .unwrap_or_else(|_| "markers".into())
+        .parse()
+        .expect("modality");
     let template = Arc::new(default_template());
     let sensor = Sensor::default_for(modality, &template);
     let base = base_energy(&template, &sensor).expect("energy");
-    let frames = synth_frames(&template, &sensor, &base, 256, 0x7E57_0000_0000_0001, 1.0).expect("frames");
+    let frames =
+        synth_frames(&template, &sensor, &base, 256, 0x7E57_0000_0000_0001, 1.0).expect("frames");
     let energies = frames.energies.clone();
     let all = requests(&energies, &frames, 10);
     let mut devices = vec!["ndarray", "flex"];
@@ -70,7 +98,10 @@ fn bench(c: &mut Criterion) {
     }
     let ort_ok = library_path().is_file();
     if !ort_ok {
-        eprintln!("ort: skipped, no ONNX Runtime library at {} (scripts/fetch-onnxruntime.sh)", library_path().display());
+        eprintln!(
+            "ort: skipped, no ONNX Runtime library at {} (scripts/fetch-onnxruntime.sh)",
+            library_path().display()
+        );
     }
     network_only(c, modality, &frames, &devices, ort_ok);
     let mut group = c.benchmark_group(format!("fit-{}", modality.name()));
@@ -81,7 +112,12 @@ fn bench(c: &mut Criterion) {
     }
     for name in engines {
         let f = if name == "ort" {
-            NeuralFitter::load_ort(&Path::new("checkpoints").join(modality.name()), Start::Given, SessionOptions::default()).expect("ort fitter")
+            NeuralFitter::load_ort(
+                &Path::new("checkpoints").join(modality.name()),
+                Start::Given,
+                SessionOptions::default(),
+            )
+            .expect("ort fitter")
         } else {
             fitter(modality, name, &frames)
         };
@@ -94,7 +130,10 @@ fn bench(c: &mut Criterion) {
             })
         });
         group.throughput(Throughput::Elements(all.len() as u64));
-        group.bench_function(BenchmarkId::new(format!("neural-{name}"), "batch256"), |b| b.iter(|| black_box(f.fit_batch(&all).expect("fit"))));
+        group.bench_function(
+            BenchmarkId::new(format!("neural-{name}"), "batch256"),
+            |b| b.iter(|| black_box(f.fit_batch(&all).expect("fit"))),
+        );
     }
     group.throughput(Throughput::Elements(1));
     for (method, budget) in [("lbfgs", 1000), ("cma", 4000)] {
@@ -129,8 +168,16 @@ fn inputs(f: &NeuralFitter, frames: &lfit::train::Frames) -> Inputs {
     let core = core_rows(c, &f.stats, &evals, &poses, &obs).expect("core");
     let delta_poses: Vec<Vec<f64>> = poses.iter().map(|_| vec![1e-3; c.param_dim]).collect();
     let step = step_rows(c, &f.stats, &energies, &poses, &evals, &delta_poses);
-    let grad = evals.iter().flat_map(|(_, g)| g.iter().map(|&v| v as f32)).collect();
-    Inputs { obs: obs.concat(), core, step, grad }
+    let grad = evals
+        .iter()
+        .flat_map(|(_, g)| g.iter().map(|&v| v as f32))
+        .collect();
+    Inputs {
+        obs: obs.concat(),
+        core,
+        step,
+        grad,
+    }
 }
 
 fn take(v: &[f32], batch: usize, total: usize) -> Vec<f32> {
@@ -138,7 +185,13 @@ fn take(v: &[f32], batch: usize, total: usize) -> Vec<f32> {
 }
 
 /// The network alone: Φ/Φh, then N × (f, fλγ, update), at batch 1 and 256, per engine.
-fn network_only(c: &mut Criterion, modality: Modality, frames: &lfit::train::Frames, devices: &[&str], ort_ok: bool) {
+fn network_only(
+    c: &mut Criterion,
+    modality: Modality,
+    frames: &lfit::train::Frames,
+    devices: &[&str],
+    ort_ok: bool,
+) {
     let total = frames.energies.len();
     let mut group = c.benchmark_group(format!("network-{}", modality.name()));
     group.sample_size(20);
@@ -153,44 +206,72 @@ fn network_only(c: &mut Criterion, modality: Modality, frames: &lfit::train::Fra
                 let d = data.len() / batch;
                 Tensor::<2>::from_data(TensorData::new(data, [batch, d]), &device)
             };
-            let (obs, core, step, grad) = (rows(&input.obs), rows(&input.core), rows(&input.step), rows(&input.grad));
+            let (obs, core, step, grad) = (
+                rows(&input.obs),
+                rows(&input.core),
+                rows(&input.step),
+                rows(&input.grad),
+            );
             group.throughput(Throughput::Elements(batch as u64));
-            group.bench_function(BenchmarkId::new(format!("neural-{name}"), format!("batch{batch}")), |b| {
-                b.iter(|| {
-                    let (theta0, mut state) = net.initial(obs.clone());
-                    let mut out = tensor_to_rows(theta0).expect("rows");
-                    for n in 0..net.config.iterations {
-                        // As in the fitting loop: Δθ and θ come back to the host every iteration.
-                        let d = net.propose(n, core.clone(), &mut state, &mut Dropout::off());
-                        black_box(tensor_to_rows(d.clone()).expect("rows"));
-                        let sizes = net.step_sizes(n, step.clone(), &mut state, &mut Dropout::off());
-                        out = tensor_to_rows(net.update(d, grad.clone(), &sizes)).expect("rows");
-                    }
-                    black_box(out)
-                })
-            });
+            group.bench_function(
+                BenchmarkId::new(format!("neural-{name}"), format!("batch{batch}")),
+                |b| {
+                    b.iter(|| {
+                        let (theta0, mut state) = net.initial(obs.clone());
+                        let mut out = tensor_to_rows(theta0).expect("rows");
+                        for n in 0..net.config.iterations {
+                            // As in the fitting loop: Δθ and θ come back to the host every iteration.
+                            let d = net.propose(n, core.clone(), &mut state, &mut Dropout::off());
+                            black_box(tensor_to_rows(d.clone()).expect("rows"));
+                            let sizes =
+                                net.step_sizes(n, step.clone(), &mut state, &mut Dropout::off());
+                            out =
+                                tensor_to_rows(net.update(d, grad.clone(), &sizes)).expect("rows");
+                        }
+                        black_box(out)
+                    })
+                },
+            );
         }
     }
     if ort_ok {
-        let f = NeuralFitter::load_ort(&Path::new("checkpoints").join(modality.name()), Start::Given, SessionOptions::default()).expect("ort fitter");
+        let f = NeuralFitter::load_ort(
+            &Path::new("checkpoints").join(modality.name()),
+            Start::Given,
+            SessionOptions::default(),
+        )
+        .expect("ort fitter");
         let input = inputs(&f, frames);
-        let lfit::infer::Engine::Ort(network) = &f.engine else { panic!("ort engine") };
+        let lfit::infer::Engine::Ort(network) = &f.engine else {
+            panic!("ort engine")
+        };
         let mut ort = network.lock().expect("sessions");
         let iterations = f.meta.network.iterations;
         for batch in [1usize, total] {
-            let (obs, core, step, grad) = (take(&input.obs, batch, total), take(&input.core, batch, total), take(&input.step, batch, total), take(&input.grad, batch, total));
+            let (obs, core, step, grad) = (
+                take(&input.obs, batch, total),
+                take(&input.core, batch, total),
+                take(&input.step, batch, total),
+                take(&input.grad, batch, total),
+            );
             group.throughput(Throughput::Elements(batch as u64));
-            group.bench_function(BenchmarkId::new("neural-ort", format!("batch{batch}")), |b| {
-                b.iter(|| {
-                    let (theta0, mut state) = ort.initial(&obs, batch).expect("init");
-                    let mut out = theta0;
-                    for n in 0..iterations {
-                        let d = ort.propose(n, &core, batch, &mut state).expect("propose");
-                        out = ort.step(n, &step, &d, &grad, batch, &mut state).expect("step").update;
-                    }
-                    black_box(out)
-                })
-            });
+            group.bench_function(
+                BenchmarkId::new("neural-ort", format!("batch{batch}")),
+                |b| {
+                    b.iter(|| {
+                        let (theta0, mut state) = ort.initial(&obs, batch).expect("init");
+                        let mut out = theta0;
+                        for n in 0..iterations {
+                            let d = ort.propose(n, &core, batch, &mut state).expect("propose");
+                            out = ort
+                                .step(n, &step, &d, &grad, batch, &mut state)
+                                .expect("step")
+                                .update;
+                        }
+                        black_box(out)
+                    })
+                },
+            );
         }
     }
     group.finish();

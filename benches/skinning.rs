@@ -8,8 +8,10 @@ mod support;
 use std::hint::black_box;
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use lfit::model::skinning::{SkinningMethod, joint_transforms, pose_vertices_batch, skin_lbs_into, skin_lbs_subset};
 use lfit::model::default_template;
+use lfit::model::skinning::{
+    SkinningMethod, joint_transforms, pose_vertices_batch, skin_lbs_into, skin_lbs_subset,
+};
 use rayon::prelude::*;
 use support::random_poses;
 
@@ -33,22 +35,42 @@ fn bench(c: &mut Criterion) {
     });
     group.bench_function(BenchmarkId::new("lbs", format!("{threads}_threads")), |b| {
         b.iter(|| {
-            poses.par_chunks(poses.len().div_ceil(threads)).for_each(|chunk| {
-                let mut out = Vec::with_capacity(template.num_vertices());
-                for p in chunk {
-                    let a = joint_transforms(&template, p);
-                    skin_lbs_into(&template, &a, &mut out);
-                    black_box(&out);
-                }
-            })
+            poses
+                .par_chunks(poses.len().div_ceil(threads))
+                .for_each(|chunk| {
+                    let mut out = Vec::with_capacity(template.num_vertices());
+                    for p in chunk {
+                        let a = joint_transforms(&template, p);
+                        skin_lbs_into(&template, &a, &mut out);
+                        black_box(&out);
+                    }
+                })
         })
     });
-    group.bench_function(BenchmarkId::new("lbs_batch_api", format!("{threads}_threads")), |b| {
-        b.iter(|| black_box(pose_vertices_batch(&template, &poses, SkinningMethod::Linear)))
-    });
-    group.bench_function(BenchmarkId::new("dqs_batch_api", format!("{threads}_threads")), |b| {
-        b.iter(|| black_box(pose_vertices_batch(&template, &poses, SkinningMethod::DualQuaternion)))
-    });
+    group.bench_function(
+        BenchmarkId::new("lbs_batch_api", format!("{threads}_threads")),
+        |b| {
+            b.iter(|| {
+                black_box(pose_vertices_batch(
+                    &template,
+                    &poses,
+                    SkinningMethod::Linear,
+                ))
+            })
+        },
+    );
+    group.bench_function(
+        BenchmarkId::new("dqs_batch_api", format!("{threads}_threads")),
+        |b| {
+            b.iter(|| {
+                black_box(pose_vertices_batch(
+                    &template,
+                    &poses,
+                    SkinningMethod::DualQuaternion,
+                ))
+            })
+        },
+    );
     group.finish();
 
     // The 24-joint SMPL-like test model (lfit_model::morph::smpl_like), f64 skinning with β.
@@ -57,12 +79,17 @@ fn bench(c: &mut Criterion) {
         let params: Vec<Vec<f64>> = random_poses(64, 0.5)
             .iter()
             .map(|p| {
-                let mut v: Vec<f64> = (0..model.layout().pose_dim()).map(|i| p[i % p.len()]).collect();
+                let mut v: Vec<f64> = (0..model.layout().pose_dim())
+                    .map(|i| p[i % p.len()])
+                    .collect();
                 v.extend((0..10).map(|k| (k as f64 - 4.5) * 0.4));
                 v
             })
             .collect();
-        let mut group = c.benchmark_group(format!("smpl24_full_mesh{}", if posedirs { "_posedirs" } else { "" }));
+        let mut group = c.benchmark_group(format!(
+            "smpl24_full_mesh{}",
+            if posedirs { "_posedirs" } else { "" }
+        ));
         group.throughput(Throughput::Elements(params.len() as u64));
         group.bench_function(BenchmarkId::new("lbs", "1_thread"), |b| {
             let mut out = Vec::with_capacity(model.num_vertices());

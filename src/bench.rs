@@ -18,7 +18,10 @@ use lfit_synth::{Dataset, Scenario};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::fit::{energy_for_frame, frame_seed, iterate_errors, parse_frames, read_energy_config, scenario_bounds, scenario_mask, template_for};
+use crate::fit::{
+    energy_for_frame, frame_seed, iterate_errors, parse_frames, read_energy_config,
+    scenario_bounds, scenario_mask, template_for,
+};
 
 /// Dataset to synthesise when the config names none.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -103,13 +106,21 @@ pub struct QuickSize {
 impl BenchConfig {
     /// Reads and validates a config; `quick` applies its `[quick]` section.
     pub fn load(path: &Path, quick: bool) -> Result<Self> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read bench config {}", path.display()))?;
-        let config: Self = toml::from_str(&text).map_err(|e| anyhow::anyhow!("malformed bench config {}: {}", path.display(), e.message()))?;
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read bench config {}", path.display()))?;
+        let config: Self = toml::from_str(&text).map_err(|e| {
+            anyhow::anyhow!("malformed bench config {}: {}", path.display(), e.message())
+        })?;
         if quick && config.quick.is_none() {
-            bail!("--quick: bench config {} has no [quick] section", path.display());
+            bail!(
+                "--quick: bench config {} has no [quick] section",
+                path.display()
+            );
         }
         let config = config.resolve(quick);
-        config.validate().with_context(|| format!("bench config {}", path.display()))?;
+        config
+            .validate()
+            .with_context(|| format!("bench config {}", path.display()))?;
         Ok(config)
     }
 
@@ -142,18 +153,27 @@ impl BenchConfig {
                 None => (m.as_str(), None),
             };
             if name != "neural" && !METHOD_NAMES.contains(&name) {
-                bail!("unknown method '{name}' (expected one of: {}, neural; optionally NAME:STRATEGY)", METHOD_NAMES.join(", "));
+                bail!(
+                    "unknown method '{name}' (expected one of: {}, neural; optionally NAME:STRATEGY)",
+                    METHOD_NAMES.join(", ")
+                );
             }
             match pin {
-                Some(_) if name == "neural" => bail!("method '{m}': the neural fitter has no strategies"),
+                Some(_) if name == "neural" => {
+                    bail!("method '{m}': the neural fitter has no strategies")
+                }
                 Some(s) => {
-                    s.parse::<Strategy>().with_context(|| format!("method '{m}'"))?;
+                    s.parse::<Strategy>()
+                        .with_context(|| format!("method '{m}'"))?;
                 }
                 None => {}
             }
         }
         if self.budgets.is_empty() || self.budgets.contains(&0) {
-            bail!("budgets: need at least one, each at least 1 evaluation (got {:?})", self.budgets);
+            bail!(
+                "budgets: need at least one, each at least 1 evaluation (got {:?})",
+                self.budgets
+            );
         }
         if self.repetitions == 0 {
             bail!("repetitions must be at least 1");
@@ -174,7 +194,9 @@ impl BenchConfig {
             _ => {}
         }
         if self.methods.iter().any(|m| m == "neural") {
-            let Some(c) = &self.checkpoint else { bail!("method neural needs checkpoint = \"DIR\"") };
+            let Some(c) = &self.checkpoint else {
+                bail!("method neural needs checkpoint = \"DIR\"")
+            };
             if !c.join("config.json").exists() {
                 bail!("checkpoint {} has no config.json", c.display());
             }
@@ -195,7 +217,11 @@ impl BenchConfig {
             let add: Vec<(String, String)> = match m.split_once(':') {
                 Some((n, s)) => vec![(n.to_string(), s.parse::<Strategy>()?.to_string())],
                 None if m == "neural" => vec![(m.clone(), "-".into())],
-                None => self.strategies.iter().map(|s| Ok((m.clone(), s.parse::<Strategy>()?.to_string()))).collect::<Result<_>>()?,
+                None => self
+                    .strategies
+                    .iter()
+                    .map(|s| Ok((m.clone(), s.parse::<Strategy>()?.to_string())))
+                    .collect::<Result<_>>()?,
             };
             for e in add {
                 if out.contains(&e) {
@@ -220,21 +246,31 @@ impl BenchConfig {
 
     fn preset(&self) -> Result<Preset> {
         let p = self.preset.as_deref().unwrap_or("nevergrad");
-        p.parse().map_err(|_| lfit_fitters::FitError::UnknownPreset(p.to_string()).into())
+        p.parse()
+            .map_err(|_| lfit_fitters::FitError::UnknownPreset(p.to_string()).into())
     }
 
     fn neural_start(&self) -> Result<lfit_infer::Start> {
-        self.neural_start.as_deref().unwrap_or("given").parse().map_err(anyhow::Error::msg)
+        self.neural_start
+            .as_deref()
+            .unwrap_or("given")
+            .parse()
+            .map_err(anyhow::Error::msg)
     }
 
     /// The one energy configuration of the benchmark and its name.
     pub fn energy_config(&self) -> Result<(EnergyConfig, String)> {
         let gradient_method = self.methods.iter().any(|m| m == "lbfgs" || m == "neural");
         match self.energy.as_deref() {
-            None if gradient_method => Ok((EnergyConfig::default().for_gradient(), "gradient".into())),
+            None if gradient_method => {
+                Ok((EnergyConfig::default().for_gradient(), "gradient".into()))
+            }
             None | Some("paper") => Ok((EnergyConfig::default(), "paper".into())),
             Some("gradient") => Ok((EnergyConfig::default().for_gradient(), "gradient".into())),
-            Some(path) => Ok((read_energy_config(Some(Path::new(path)), false)?, path.to_string())),
+            Some(path) => Ok((
+                read_energy_config(Some(Path::new(path)), false)?,
+                path.to_string(),
+            )),
         }
     }
 }
@@ -278,15 +314,46 @@ pub const CSV_HEADER: &str = "method,strategy,budget,rep,frame,seed,energy,start
 
 impl Run {
     pub fn key(&self) -> (String, String, usize, usize, usize) {
-        (self.method.clone(), self.strategy.clone(), self.budget, self.rep, self.frame)
+        (
+            self.method.clone(),
+            self.strategy.clone(),
+            self.budget,
+            self.rep,
+            self.frame,
+        )
     }
 
     pub fn to_csv(&self) -> String {
-        let trace = self.trace.iter().map(|(e, v)| format!("{e}:{v:e}")).collect::<Vec<_>>().join(";");
-        let iters = self.v2v_per_iteration.iter().map(|v| format!("{v:.4}")).collect::<Vec<_>>().join(";");
+        let trace = self
+            .trace
+            .iter()
+            .map(|(e, v)| format!("{e}:{v:e}"))
+            .collect::<Vec<_>>()
+            .join(";");
+        let iters = self
+            .v2v_per_iteration
+            .iter()
+            .map(|v| format!("{v:.4}"))
+            .collect::<Vec<_>>()
+            .join(";");
         format!(
             "{},{},{},{},{},{},{:e},{:e},{:.4},{:.4},{:.4},{:.4},{},{},{},{:.6},{trace},{iters}",
-            self.method, self.strategy, self.budget, self.rep, self.frame, self.seed, self.energy, self.start_energy, self.v2v_mm, self.mpjpe_mm, self.pa_mpjpe_mm, self.hausdorff_mm, self.evaluations, self.gradient_evaluations, self.iterations, self.time_s
+            self.method,
+            self.strategy,
+            self.budget,
+            self.rep,
+            self.frame,
+            self.seed,
+            self.energy,
+            self.start_energy,
+            self.v2v_mm,
+            self.mpjpe_mm,
+            self.pa_mpjpe_mm,
+            self.hausdorff_mm,
+            self.evaluations,
+            self.gradient_evaluations,
+            self.iterations,
+            self.time_s
         )
     }
 
@@ -298,9 +365,22 @@ impl Run {
         let trace = if f[16].is_empty() {
             Vec::new()
         } else {
-            f[16].split(';').map(|p| p.split_once(':').and_then(|(e, v)| Some((e.parse().ok()?, v.parse().ok()?)))).collect::<Option<Vec<_>>>()?
+            f[16]
+                .split(';')
+                .map(|p| {
+                    p.split_once(':')
+                        .and_then(|(e, v)| Some((e.parse().ok()?, v.parse().ok()?)))
+                })
+                .collect::<Option<Vec<_>>>()?
         };
-        let iters = if f[17].is_empty() { Vec::new() } else { f[17].split(';').map(|v| v.parse().ok()).collect::<Option<Vec<f64>>>()? };
+        let iters = if f[17].is_empty() {
+            Vec::new()
+        } else {
+            f[17]
+                .split(';')
+                .map(|v| v.parse().ok())
+                .collect::<Option<Vec<f64>>>()?
+        };
         Some(Self {
             method: f[0].to_string(),
             strategy: f[1].to_string(),
@@ -338,7 +418,10 @@ pub fn read_runs(path: &Path) -> Result<Vec<Run>> {
     for (i, line) in lines.iter().enumerate() {
         if i == 0 {
             if *line != CSV_HEADER {
-                bail!("{} is not an lfit bench runs.csv (unexpected header)", path.display());
+                bail!(
+                    "{} is not an lfit bench runs.csv (unexpected header)",
+                    path.display()
+                );
             }
             continue;
         }
@@ -353,7 +436,12 @@ pub fn read_runs(path: &Path) -> Result<Vec<Run>> {
 /// Which jobs this process runs: `i/n` (0-based shard `i` of `n`).
 pub fn parse_shard(spec: Option<&str>) -> Result<(usize, usize)> {
     let Some(s) = spec else { return Ok((0, 1)) };
-    let parsed = s.split_once('/').and_then(|(a, b)| Some((a.trim().parse::<usize>().ok()?, b.trim().parse::<usize>().ok()?)));
+    let parsed = s.split_once('/').and_then(|(a, b)| {
+        Some((
+            a.trim().parse::<usize>().ok()?,
+            b.trim().parse::<usize>().ok()?,
+        ))
+    });
     match parsed {
         Some((i, n)) if n >= 1 && i < n => Ok((i, n)),
         _ => bail!("--shard must be i/n with 0 ≤ i < n, got '{s}'"),
@@ -361,7 +449,12 @@ pub fn parse_shard(spec: Option<&str>) -> Result<(usize, usize)> {
 }
 
 /// Runs the sweep (or one shard of it) into `out`; returns the rows of this shard, sorted.
-pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(dyn Fn(usize, usize) + Sync)) -> Result<Vec<Run>> {
+pub fn run(
+    config: &BenchConfig,
+    out: &Path,
+    shard: (usize, usize),
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Vec<Run>> {
     config.validate()?;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let config_json = serde_json::to_vec_pretty(config)?;
@@ -369,7 +462,10 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
     if let Ok(prev) = std::fs::read(&saved)
         && prev != config_json
     {
-        bail!("{} holds a different benchmark (bench.json differs); use another --out", out.display());
+        bail!(
+            "{} holds a different benchmark (bench.json differs); use another --out",
+            out.display()
+        );
     }
     write_atomic(&saved, &config_json)?;
     let data = match (&config.data, &config.synth) {
@@ -378,7 +474,17 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
             let path = out.join("data.npz");
             if !path.exists() {
                 let template = crate::commands::load_model(None, "default")?;
-                let args = crate::commands::SynthArgs { modality: s.modality.clone(), scenario: s.scenario.clone(), source: "motion".into(), frames: s.frames, seed: s.seed, fps: 30.0, noise: s.noise, motions: None, out: path.clone() };
+                let args = crate::commands::SynthArgs {
+                    modality: s.modality.clone(),
+                    scenario: s.scenario.clone(),
+                    source: "motion".into(),
+                    frames: s.frames,
+                    seed: s.seed,
+                    fps: 30.0,
+                    noise: s.noise,
+                    motions: None,
+                    out: path.clone(),
+                };
                 crate::commands::synth(&args, &template, &|_| {})?;
             }
             path
@@ -398,12 +504,19 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
         if m == "neural" {
             let device = lfit_nn::tensor::device_from_name("flex")?;
             let dir = config.checkpoint.as_deref().context("checkpoint")?;
-            fitters.push(Box::new(lfit_infer::NeuralFitter::load(dir, &device, config.neural_start()?)?));
+            fitters.push(Box::new(lfit_infer::NeuralFitter::load(
+                dir,
+                &device,
+                config.neural_start()?,
+            )?));
         } else {
             fitters.push(build_fitter(m, preset, s.parse()?)?);
         }
     }
-    let energies: Vec<Energy> = frames.iter().map(|&f| energy_for_frame(&dataset, template.clone(), f, energy_config.clone())).collect::<Result<_>>()?;
+    let energies: Vec<Energy> = frames
+        .iter()
+        .map(|&f| energy_for_frame(&dataset, template.clone(), f, energy_config.clone()))
+        .collect::<Result<_>>()?;
 
     // A unit of work: one frame, or in a sequence the whole chain of frames, where each frame
     // starts from the previous frame's result (papers/000 §4.3 warm start).
@@ -413,19 +526,46 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
         for budget in 0..config.budgets.len() {
             for rep in 0..config.repetitions {
                 if chains {
-                    units.push(Unit { entry, budget, rep, frames: (0..frames.len()).collect() });
+                    units.push(Unit {
+                        entry,
+                        budget,
+                        rep,
+                        frames: (0..frames.len()).collect(),
+                    });
                 } else {
-                    units.extend((0..frames.len()).map(|f| Unit { entry, budget, rep, frames: vec![f] }));
+                    units.extend((0..frames.len()).map(|f| Unit {
+                        entry,
+                        budget,
+                        rep,
+                        frames: vec![f],
+                    }));
                 }
             }
         }
     }
-    let mine: Vec<Unit> = units.into_iter().enumerate().filter(|(i, _)| i % shard.1 == shard.0).map(|(_, u)| u).collect();
+    let mine: Vec<Unit> = units
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| i % shard.1 == shard.0)
+        .map(|(_, u)| u)
+        .collect();
     let csv = out.join("runs.csv");
     let existing = read_runs(&csv)?;
-    let done: HashSet<(String, String, usize, usize, usize)> = existing.iter().map(Run::key).collect();
-    let key = |u: &Unit, f: usize| (entries[u.entry].0.clone(), entries[u.entry].1.clone(), config.budgets[u.budget], u.rep, frames[f]);
-    let todo: Vec<&Unit> = mine.iter().filter(|u| u.frames.iter().any(|&f| !done.contains(&key(u, f)))).collect();
+    let done: HashSet<(String, String, usize, usize, usize)> =
+        existing.iter().map(Run::key).collect();
+    let key = |u: &Unit, f: usize| {
+        (
+            entries[u.entry].0.clone(),
+            entries[u.entry].1.clone(),
+            config.budgets[u.budget],
+            u.rep,
+            frames[f],
+        )
+    };
+    let todo: Vec<&Unit> = mine
+        .iter()
+        .filter(|u| u.frames.iter().any(|&f| !done.contains(&key(u, f))))
+        .collect();
     // Rewrite the file with the complete rows (drops a torn last line), then append.
     {
         let mut text = String::from(CSV_HEADER);
@@ -436,9 +576,19 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
         }
         write_atomic(&csv, text.as_bytes())?;
     }
-    let file = Mutex::new(std::fs::OpenOptions::new().append(true).open(&csv).with_context(|| format!("cannot append to {}", csv.display()))?);
+    let file = Mutex::new(
+        std::fs::OpenOptions::new()
+            .append(true)
+            .open(&csv)
+            .with_context(|| format!("cannot append to {}", csv.display()))?,
+    );
     let total: usize = mine.iter().map(|u| u.frames.len()).sum();
-    let counter = std::sync::atomic::AtomicUsize::new(mine.iter().flat_map(|u| u.frames.iter().map(move |&f| (u, f))).filter(|(u, f)| done.contains(&key(u, *f))).count());
+    let counter = std::sync::atomic::AtomicUsize::new(
+        mine.iter()
+            .flat_map(|u| u.frames.iter().map(move |&f| (u, f)))
+            .filter(|(u, f)| done.contains(&key(u, *f)))
+            .count(),
+    );
     progress(counter.load(std::sync::atomic::Ordering::Relaxed), total);
     let template_ref: &Arc<lfit_model::Template> = &template;
     let work = |unit: &&Unit| -> Result<()> {
@@ -454,11 +604,21 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
                 Some((p, pose)) if chains && p + 1 == frame => pose,
                 _ => dataset.start_poses[frame].clone(),
             };
-            let seed = frame_seed(config.seed, frame) ^ (rep as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+            let seed =
+                frame_seed(config.seed, frame) ^ (rep as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
             let bounds = scenario_bounds(scenario, template_ref, &start);
             let start_energy = energy.inspect(&start).total;
-            let request = FitRequest { energy, start, mask: scenario_mask(scenario, template_ref), bounds, budget, seed };
-            let result = fitters[unit.entry].fit(&request).with_context(|| format!("{method} on frame {frame}"))?;
+            let request = FitRequest {
+                energy,
+                start,
+                mask: scenario_mask(scenario, template_ref),
+                bounds,
+                budget,
+                seed,
+            };
+            let result = fitters[unit.entry]
+                .fit(&request)
+                .with_context(|| format!("{method} on frame {frame}"))?;
             let pose = result.pose.clone();
             previous = Some((frame, pose.clone()));
             if resumed {
@@ -490,7 +650,9 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
             let mut line = row.to_csv();
             line.push('\n');
             {
-                let mut f = file.lock().map_err(|_| anyhow::anyhow!("runs.csv lock poisoned"))?;
+                let mut f = file
+                    .lock()
+                    .map_err(|_| anyhow::anyhow!("runs.csv lock poisoned"))?;
                 f.write_all(line.as_bytes())?;
                 f.flush()?;
             }
@@ -514,8 +676,19 @@ pub fn run(config: &BenchConfig, out: &Path, shard: (usize, usize), progress: &(
 /// Canonical order: as the config lists methods, strategies and budgets, then rep, frame.
 pub fn sort_runs(config: &BenchConfig, runs: &mut [Run]) {
     let entries = config.entries().unwrap_or_default();
-    let pos = |r: &Run| entries.iter().position(|(m, s)| *m == r.method && *s == r.strategy).unwrap_or(usize::MAX);
-    let budget_pos = |b: usize| config.budgets.iter().position(|&x| x == b).unwrap_or(usize::MAX);
+    let pos = |r: &Run| {
+        entries
+            .iter()
+            .position(|(m, s)| *m == r.method && *s == r.strategy)
+            .unwrap_or(usize::MAX)
+    };
+    let budget_pos = |b: usize| {
+        config
+            .budgets
+            .iter()
+            .position(|&x| x == b)
+            .unwrap_or(usize::MAX)
+    };
     runs.sort_by_key(|r| (pos(r), budget_pos(r.budget), r.rep, r.frame));
 }
 
@@ -538,10 +711,16 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<(BenchConfig, Vec<Run>)> 
     let mut config: Option<(Vec<u8>, BenchConfig)> = None;
     let mut rows: BTreeMap<(String, String, usize, usize, usize), Run> = BTreeMap::new();
     for dir in shards {
-        let bytes = std::fs::read(dir.join("bench.json")).with_context(|| format!("{} is not a bench output (no bench.json)", dir.display()))?;
-        let c: BenchConfig = serde_json::from_slice(&bytes).with_context(|| format!("malformed {}/bench.json", dir.display()))?;
+        let bytes = std::fs::read(dir.join("bench.json"))
+            .with_context(|| format!("{} is not a bench output (no bench.json)", dir.display()))?;
+        let c: BenchConfig = serde_json::from_slice(&bytes)
+            .with_context(|| format!("malformed {}/bench.json", dir.display()))?;
         match &config {
-            Some((b, _)) if *b != bytes => bail!("{} ran another benchmark than {}", dir.display(), shards[0].display()),
+            Some((b, _)) if *b != bytes => bail!(
+                "{} ran another benchmark than {}",
+                dir.display(),
+                shards[0].display()
+            ),
             Some(_) => {}
             None => config = Some((bytes, c)),
         }

@@ -8,7 +8,9 @@ use lfit_model::observe::{Modality, Sensor};
 use lfit_model::skinning::{SkinningMethod, pose_vertices_batch};
 use lfit_model::template::{Template, write_atomic, write_obj};
 use lfit_model::{BodyShape, build_template};
-use lfit_synth::{Dataset, NoiseConfig, Observations, PoseSource, Scenario, SynthConfig, synthesize};
+use lfit_synth::{
+    Dataset, NoiseConfig, Observations, PoseSource, Scenario, SynthConfig, synthesize,
+};
 use serde_json::{Value, json};
 
 /// The model a command works on: a template directory or a model file in the SMPL-family `.npz`
@@ -18,8 +20,13 @@ pub fn load_model(path: Option<&Path>, shape: &str) -> Result<Template> {
         Some(path) => Template::load(path).with_context(|| format!("template {}", path.display())),
         None if shape == "morphable" => Ok(lfit_model::body::morphable_default_template()?.0),
         None => {
-            let body = BodyShape::named(shape).ok_or_else(|| lfit_synth::SynthError::UnknownShape(shape.to_string()))?;
-            let id = if shape == "default" { "default".to_string() } else { format!("default+{shape}") };
+            let body = BodyShape::named(shape)
+                .ok_or_else(|| lfit_synth::SynthError::UnknownShape(shape.to_string()))?;
+            let id = if shape == "default" {
+                "default".to_string()
+            } else {
+                format!("default+{shape}")
+            };
             Ok(build_template(&body, &id)?)
         }
     }
@@ -83,36 +90,73 @@ pub fn numbered_path(out: &Path, i: usize, n: usize) -> PathBuf {
     if n == 1 {
         return out.to_path_buf();
     }
-    let stem = out.file_stem().map_or_else(|| "posed".into(), |s| s.to_string_lossy().into_owned());
-    let ext = out.extension().map_or_else(|| "obj".into(), |s| s.to_string_lossy().into_owned());
+    let stem = out
+        .file_stem()
+        .map_or_else(|| "posed".into(), |s| s.to_string_lossy().into_owned());
+    let ext = out
+        .extension()
+        .map_or_else(|| "obj".into(), |s| s.to_string_lossy().into_owned());
     out.with_file_name(format!("{stem}_{i:04}.{ext}"))
 }
 
 /// One parameter vector of `template` from JSON values: `pose` (3 + 3J numbers) and optional
 /// `shape`/`expression` (at most B/E numbers, zero-padded). `suffix` goes after the field names
 /// in errors (`poses[3]`), which also name `path`.
-pub fn params_from_json(template: &Template, pose: &Value, shape: Option<&Value>, expr: Option<&Value>, suffix: &str, path: &Path) -> Result<Vec<f64>> {
+pub fn params_from_json(
+    template: &Template,
+    pose: &Value,
+    shape: Option<&Value>,
+    expr: Option<&Value>,
+    suffix: &str,
+    path: &Path,
+) -> Result<Vec<f64>> {
     let layout = template.layout();
     let pd = layout.pose_dim();
     let numbers = |v: &Value, what: &str, len: Option<usize>, max: usize| -> Result<Vec<f64>> {
-        let items = v.as_array().with_context(|| format!("{}: {what} is missing or not an array of numbers", path.display()))?;
+        let items = v.as_array().with_context(|| {
+            format!(
+                "{}: {what} is missing or not an array of numbers",
+                path.display()
+            )
+        })?;
         let out = items
             .iter()
             .enumerate()
-            .map(|(i, x)| x.as_f64().filter(|x| x.is_finite()).with_context(|| format!("{}: {what}[{i}] is not a finite number: {x} is not a number", path.display())))
+            .map(|(i, x)| {
+                x.as_f64().filter(|x| x.is_finite()).with_context(|| {
+                    format!(
+                        "{}: {what}[{i}] is not a finite number: {x} is not a number",
+                        path.display()
+                    )
+                })
+            })
             .collect::<Result<Vec<f64>>>()?;
         if let Some(n) = len
             && out.len() != n
         {
-            bail!("{}: {what} has {} numbers, expected {n} (3 + 3 × {} joints of '{}')", path.display(), out.len(), layout.num_joints(), template.id);
+            bail!(
+                "{}: {what} has {} numbers, expected {n} (3 + 3 × {} joints of '{}')",
+                path.display(),
+                out.len(),
+                layout.num_joints(),
+                template.id
+            );
         }
         if out.len() > max {
-            bail!("{}: {what} has {} numbers, but the model '{}' has only {max}", path.display(), out.len(), template.id);
+            bail!(
+                "{}: {what} has {} numbers, but the model '{}' has only {max}",
+                path.display(),
+                out.len(),
+                template.id
+            );
         }
         Ok(out)
     };
     let mut params = numbers(pose, &format!("pose{suffix}"), Some(pd), pd)?;
-    for (v, what, n) in [(shape, "shape", layout.shape), (expr, "expression", layout.expression)] {
+    for (v, what, n) in [
+        (shape, "shape", layout.shape),
+        (expr, "expression", layout.expression),
+    ] {
         let mut b = match v {
             Some(v) => numbers(v, &format!("{what}{suffix}"), None, n)?,
             None => Vec::new(),
@@ -129,37 +173,80 @@ pub fn params_from_json(template: &Template, pose: &Value, shape: Option<&Value>
 /// parameter vectors in the model's layout.
 pub fn read_params_file(path: &Path, template: &Template) -> Result<Vec<Vec<f64>>> {
     let pd = template.layout().pose_dim();
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let value: Value = serde_json::from_str(&text).with_context(|| format!("malformed pose JSON {}", path.display()))?;
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let value: Value = serde_json::from_str(&text)
+        .with_context(|| format!("malformed pose JSON {}", path.display()))?;
     match (value.get("pose"), value.get("poses")) {
-        (Some(p), None) => Ok(vec![params_from_json(template, p, value.get("shape"), value.get("expression"), "", path)?]),
+        (Some(p), None) => Ok(vec![params_from_json(
+            template,
+            p,
+            value.get("shape"),
+            value.get("expression"),
+            "",
+            path,
+        )?]),
         (None, Some(Value::Array(list))) if !list.is_empty() => {
             let nth = |key: &str, i: usize| -> Result<Option<&Value>> {
                 match value.get(key) {
                     None => Ok(None),
                     Some(Value::Array(rows)) if rows.len() == list.len() => Ok(Some(&rows[i])),
-                    Some(_) => bail!("{}: {key} must be a list with one entry per pose ({})", path.display(), list.len()),
+                    Some(_) => bail!(
+                        "{}: {key} must be a list with one entry per pose ({})",
+                        path.display(),
+                        list.len()
+                    ),
                 }
             };
-            list.iter().enumerate().map(|(i, p)| params_from_json(template, p, nth("shapes", i)?, nth("expressions", i)?, &format!("s[{i}]"), path)).collect()
+            list.iter()
+                .enumerate()
+                .map(|(i, p)| {
+                    params_from_json(
+                        template,
+                        p,
+                        nth("shapes", i)?,
+                        nth("expressions", i)?,
+                        &format!("s[{i}]"),
+                        path,
+                    )
+                })
+                .collect()
         }
-        _ => bail!("{}: expected {{\"pose\": [{pd} numbers]}} or {{\"poses\": [[{pd} numbers], ...]}}", path.display()),
+        _ => bail!(
+            "{}: expected {{\"pose\": [{pd} numbers]}} or {{\"poses\": [[{pd} numbers], ...]}}",
+            path.display()
+        ),
     }
 }
 
 /// `lfit template pose`: poses the template and writes one OBJ per pose (vertex order kept).
-pub fn template_pose(pose_file: &Path, out: &Path, template: &Template, method: SkinningMethod) -> Result<Value> {
+pub fn template_pose(
+    pose_file: &Path,
+    out: &Path,
+    template: &Template,
+    method: SkinningMethod,
+) -> Result<Value> {
     let poses = read_params_file(pose_file, template)?;
     let meshes = pose_vertices_batch(template, &poses, method);
     let mut written = Vec::with_capacity(meshes.len());
     for (i, vertices) in meshes.iter().enumerate() {
         let path = numbered_path(out, i, meshes.len());
         let mut bytes = Vec::new();
-        write_obj(&mut bytes, &format!("lfit template '{}' posed ({method:?} skinning), pose {i}", template.id), vertices, &template.faces);
+        write_obj(
+            &mut bytes,
+            &format!(
+                "lfit template '{}' posed ({method:?} skinning), pose {i}",
+                template.id
+            ),
+            vertices,
+            &template.faces,
+        );
         write_atomic(&path, &bytes)?;
         written.push(path);
     }
-    Ok(json!({ "template": template.id, "poses": poses.len(), "skinning": method, "written": written }))
+    Ok(
+        json!({ "template": template.id, "poses": poses.len(), "skinning": method, "written": written }),
+    )
 }
 
 /// Settings of `lfit synth` beyond the template.
@@ -177,7 +264,11 @@ pub struct SynthArgs {
 }
 
 /// `lfit synth`: generates a dataset and writes it atomically; `progress` gets frames done.
-pub fn synth(args: &SynthArgs, template: &Template, progress: &(dyn Fn(usize) + Sync)) -> Result<Value> {
+pub fn synth(
+    args: &SynthArgs,
+    template: &Template,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Value> {
     let modality: Modality = args.modality.parse()?;
     let scenario: Scenario = args.scenario.parse()?;
     let mut config = SynthConfig::new(modality, scenario, args.frames, args.seed);
@@ -187,7 +278,11 @@ pub fn synth(args: &SynthArgs, template: &Template, progress: &(dyn Fn(usize) + 
     if let Some(list) = &args.motions {
         config.motions = list
             .split(',')
-            .map(|m| m.trim().parse().map_err(|_| lfit_synth::SynthError::UnknownMotion(m.trim().to_string())))
+            .map(|m| {
+                m.trim()
+                    .parse()
+                    .map_err(|_| lfit_synth::SynthError::UnknownMotion(m.trim().to_string()))
+            })
             .collect::<Result<_, _>>()?;
     }
     config.validate()?;
@@ -214,16 +309,31 @@ pub fn synth(args: &SynthArgs, template: &Template, progress: &(dyn Fn(usize) + 
 /// Fraction of observation entries (or scan points) that are visible.
 pub fn visible_fraction(dataset: &Dataset) -> f64 {
     let flags: Vec<&Vec<bool>> = match &dataset.observations {
-        Observations::Sparse { visible, .. } | Observations::Scan { visible, .. } => visible.iter().collect(),
+        Observations::Sparse { visible, .. } | Observations::Scan { visible, .. } => {
+            visible.iter().collect()
+        }
     };
     let total: usize = flags.iter().map(|v| v.len()).sum();
     let seen: usize = flags.iter().map(|v| v.iter().filter(|&&b| b).count()).sum();
-    if total == 0 { 0.0 } else { seen as f64 / total as f64 }
+    if total == 0 {
+        0.0
+    } else {
+        seen as f64 / total as f64
+    }
 }
 
 /// `lfit train`: trains a neural fitter as `config_path` says and writes checkpoints to `out`.
 #[allow(clippy::too_many_arguments)]
-pub fn train(config_path: &Path, out: &Path, device: &str, resume: bool, steps: Option<usize>, seed: Option<u64>, template: &Template, report: &(dyn Fn(lfit_train::Event) + Sync)) -> Result<Value> {
+pub fn train(
+    config_path: &Path,
+    out: &Path,
+    device: &str,
+    resume: bool,
+    steps: Option<usize>,
+    seed: Option<u64>,
+    template: &Template,
+    report: &(dyn Fn(lfit_train::Event) + Sync),
+) -> Result<Value> {
     let mut config = lfit_train::TrainConfig::load(config_path)?;
     if let Some(s) = steps {
         config.steps = s;
@@ -235,18 +345,30 @@ pub fn train(config_path: &Path, out: &Path, device: &str, resume: bool, steps: 
     let dev = lfit_nn::tensor::device_from_name(device)?;
     let template = std::sync::Arc::new(template.clone());
     let command = std::env::args().collect::<Vec<_>>().join(" ");
-    let options = lfit_train::RunOptions { out: out.to_path_buf(), device_name: device.to_string(), resume, command };
+    let options = lfit_train::RunOptions {
+        out: out.to_path_buf(),
+        device_name: device.to_string(),
+        resume,
+        command,
+    };
     let summary = lfit_train::train(&config, template, &dev, &options, report)?;
     Ok(json!({ "out": out, "summary": summary }))
 }
 
 /// Writes `report.md` and `summary.json` of a finished sweep into `out`.
-pub fn write_report(config: &crate::bench::BenchConfig, runs: &[crate::bench::Run], out: &Path) -> Result<Value> {
+pub fn write_report(
+    config: &crate::bench::BenchConfig,
+    runs: &[crate::bench::Run],
+    out: &Path,
+) -> Result<Value> {
     let (_, energy_name) = config.energy_config()?;
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     let (md, summary) = crate::report::report(config, runs, &energy_name, &command);
     write_atomic(&out.join("report.md"), md.as_bytes())?;
-    write_atomic(&out.join("summary.json"), &serde_json::to_vec_pretty(&summary)?)?;
+    write_atomic(
+        &out.join("summary.json"),
+        &serde_json::to_vec_pretty(&summary)?,
+    )?;
     crate::plots::write_plots(config, runs, out).context("writing the bench plots")?;
     Ok(summary)
 }
@@ -260,17 +382,35 @@ pub enum BenchSource {
 
 /// `lfit bench`: runs a sweep (or one shard) and, unsharded, writes the report. A preset with
 /// several parts runs each into `out/<part>`. Every part is validated before any work starts.
-pub fn bench(source: &BenchSource, quick: bool, out: &Path, shard: Option<&str>, progress: &(dyn Fn(&str, usize, usize) + Sync)) -> Result<Value> {
+pub fn bench(
+    source: &BenchSource,
+    quick: bool,
+    out: &Path,
+    shard: Option<&str>,
+    progress: &(dyn Fn(&str, usize, usize) + Sync),
+) -> Result<Value> {
     let shard = crate::bench::parse_shard(shard)?;
     let parts: Vec<(String, crate::bench::BenchConfig)> = match source {
-        BenchSource::Config(path) => vec![(String::new(), crate::bench::BenchConfig::load(path, quick)?)],
+        BenchSource::Config(path) => {
+            vec![(String::new(), crate::bench::BenchConfig::load(path, quick)?)]
+        }
         BenchSource::Preset(name) => crate::presets::load(name, quick)?,
     };
     let mut results = Vec::new();
     for (part, config) in &parts {
-        let dir = if part.is_empty() { out.to_path_buf() } else { out.join(part) };
-        let label = if part.is_empty() { config.name.clone() } else { format!("{} {part}", config.name) };
-        let runs = crate::bench::run(config, &dir, shard, &|done, total| progress(&label, done, total))?;
+        let dir = if part.is_empty() {
+            out.to_path_buf()
+        } else {
+            out.join(part)
+        };
+        let label = if part.is_empty() {
+            config.name.clone()
+        } else {
+            format!("{} {part}", config.name)
+        };
+        let runs = crate::bench::run(config, &dir, shard, &|done, total| {
+            progress(&label, done, total)
+        })?;
         if shard.1 > 1 {
             results.push(json!({ "out": dir, "shard": format!("{}/{}", shard.0, shard.1), "runs": runs.len(), "next": "lfit bench merge --out DIR SHARD_DIRS..." }));
             continue;
@@ -278,7 +418,11 @@ pub fn bench(source: &BenchSource, quick: bool, out: &Path, shard: Option<&str>,
         let summary = write_report(config, &runs, &dir)?;
         results.push(json!({ "out": dir, "runs": runs.len(), "report": dir.join("report.md"), "friedman": summary["friedman"] }));
     }
-    Ok(if results.len() == 1 { results.remove(0) } else { json!({ "parts": results }) })
+    Ok(if results.len() == 1 {
+        results.remove(0)
+    } else {
+        json!({ "parts": results })
+    })
 }
 
 /// `lfit bench presets`: the built-in presets with their sizes.
@@ -314,7 +458,12 @@ pub fn bench_merge(shards: &[PathBuf], out: &Path) -> Result<Value> {
 /// (the `learned-vs-classical` preset at `frames` frames and one `budget`), writes each part's
 /// report and plots under `out/<modality>/` and `out/comparison.md`, and returns the comparison
 /// table (Markdown): the rows of each report's papers/002 Table 2.
-pub fn quickstart(out: &Path, frames: usize, budget: usize, progress: &(dyn Fn(&str, usize, usize) + Sync)) -> Result<String> {
+pub fn quickstart(
+    out: &Path,
+    frames: usize,
+    budget: usize,
+    progress: &(dyn Fn(&str, usize, usize) + Sync),
+) -> Result<String> {
     if frames == 0 || budget == 0 {
         anyhow::bail!("--frames and --budget must be at least 1");
     }
@@ -326,15 +475,26 @@ pub fn quickstart(out: &Path, frames: usize, budget: usize, progress: &(dyn Fn(&
         c.budgets = vec![budget];
         c.validate()?;
     }
-    let mut table = String::from("| modality | method | V2V (mm) | MPJPE (mm) | final energy | evaluations | time / frame (ms) |\n|---|---|---|---|---|---|---|\n");
+    let mut table = String::from(
+        "| modality | method | V2V (mm) | MPJPE (mm) | final energy | evaluations | time / frame (ms) |\n|---|---|---|---|---|---|---|\n",
+    );
     for (part, config) in &parts {
         let dir = out.join(part);
-        let runs = crate::bench::run(config, &dir, (0, 1), &|done, total| progress(part, done, total))?;
+        let runs = crate::bench::run(config, &dir, (0, 1), &|done, total| {
+            progress(part, done, total)
+        })?;
         let summary = write_report(config, &runs, &dir)?;
-        for row in summary["table"].as_array().map(Vec::as_slice).unwrap_or_default() {
+        for row in summary["table"]
+            .as_array()
+            .map(Vec::as_slice)
+            .unwrap_or_default()
+        {
             let method = row["method"].as_str().unwrap_or_default();
             let label = if method == "neural" {
-                let n = runs.iter().find(|r| r.method == "neural").map_or(0, |r| r.iterations);
+                let n = runs
+                    .iter()
+                    .find(|r| r.method == "neural")
+                    .map_or(0, |r| r.iterations);
                 format!("neural (checkpoints/{part}, N = {n})")
             } else {
                 format!("{method} @{budget}")

@@ -98,53 +98,107 @@ pub struct FittedPoses {
 /// numbers (57 on the default template), with the model's `shape`/`expression` next to them;
 /// frames must be unique and at least one.
 pub fn read_fitted_poses(path: &Path, template: &Template) -> Result<FittedPoses> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let value: Value = serde_json::from_str(&text).with_context(|| format!("malformed poses JSON {}", path.display()))?;
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let value: Value = serde_json::from_str(&text)
+        .with_context(|| format!("malformed poses JSON {}", path.display()))?;
     let Some(rows) = value.get("frames") else {
         if value.get("pose").is_some() || value.get("poses").is_some() {
             let poses = crate::commands::read_params_file(path, template)?;
-            return Ok(FittedPoses { modality: None, frames: poses.into_iter().enumerate().collect() });
+            return Ok(FittedPoses {
+                modality: None,
+                frames: poses.into_iter().enumerate().collect(),
+            });
         }
-        bail!("{}: expected the result JSON of `lfit fit` (\"frames\": [{{\"frame\", \"pose\"}}, ...]) or {{\"pose\"}} / {{\"poses\"}}", path.display());
+        bail!(
+            "{}: expected the result JSON of `lfit fit` (\"frames\": [{{\"frame\", \"pose\"}}, ...]) or {{\"pose\"}} / {{\"poses\"}}",
+            path.display()
+        );
     };
     let modality = match value.get("modality") {
         None => None,
         Some(Value::String(m)) => Some(m.clone()),
         Some(other) => bail!("{}: \"modality\" is not a string: {other}", path.display()),
     };
-    let rows = rows.as_array().with_context(|| format!("{}: \"frames\" is not an array", path.display()))?;
+    let rows = rows
+        .as_array()
+        .with_context(|| format!("{}: \"frames\" is not an array", path.display()))?;
     if rows.is_empty() {
-        bail!("{}: \"frames\" is empty: no fitted frames to export", path.display());
+        bail!(
+            "{}: \"frames\" is empty: no fitted frames to export",
+            path.display()
+        );
     }
     let mut frames = Vec::with_capacity(rows.len());
     for (i, row) in rows.iter().enumerate() {
-        let frame = row
-            .get("frame")
-            .and_then(Value::as_u64)
-            .with_context(|| format!("{}: frames[{i}].frame is missing or not a non-negative integer", path.display()))?;
-        let pose = crate::commands::params_from_json(template, row.get("pose").unwrap_or(&Value::Null), row.get("shape"), row.get("expression"), "", path)
-            .with_context(|| format!("frames[{i}]"))?;
-        let frame = usize::try_from(frame).with_context(|| format!("{}: frames[{i}].frame {frame} is too large", path.display()))?;
+        let frame = row.get("frame").and_then(Value::as_u64).with_context(|| {
+            format!(
+                "{}: frames[{i}].frame is missing or not a non-negative integer",
+                path.display()
+            )
+        })?;
+        let pose = crate::commands::params_from_json(
+            template,
+            row.get("pose").unwrap_or(&Value::Null),
+            row.get("shape"),
+            row.get("expression"),
+            "",
+            path,
+        )
+        .with_context(|| format!("frames[{i}]"))?;
+        let frame = usize::try_from(frame).with_context(|| {
+            format!("{}: frames[{i}].frame {frame} is too large", path.display())
+        })?;
         frames.push((i, frame, pose));
     }
     frames.sort_by_key(|&(i, frame, _)| (frame, i));
     if let Some(w) = frames.windows(2).find(|w| w[0].1 == w[1].1) {
-        bail!("{}: frame {} appears twice (frames[{}] and frames[{}])", path.display(), w[0].1, w[0].0, w[1].0);
+        bail!(
+            "{}: frame {} appears twice (frames[{}] and frames[{}])",
+            path.display(),
+            w[0].1,
+            w[0].0,
+            w[1].0
+        );
     }
-    Ok(FittedPoses { modality, frames: frames.into_iter().map(|(_, frame, pose)| (frame, pose)).collect() })
+    Ok(FittedPoses {
+        modality,
+        frames: frames
+            .into_iter()
+            .map(|(_, frame, pose)| (frame, pose))
+            .collect(),
+    })
 }
 
 /// Checks that `poses` (read from `poses_path`) were fitted on `dataset` (read from `data_path`):
 /// same modality, every frame index in range.
-pub fn check_against_dataset(poses: &FittedPoses, poses_path: &Path, dataset: &Dataset, data_path: &Path) -> Result<()> {
+pub fn check_against_dataset(
+    poses: &FittedPoses,
+    poses_path: &Path,
+    dataset: &Dataset,
+    data_path: &Path,
+) -> Result<()> {
     let modality = dataset.modality().name();
     if let Some(m) = &poses.modality
         && m != modality
     {
-        bail!("{}: modality '{m}' differs from the dataset's modality '{modality}' ({})", poses_path.display(), data_path.display());
+        bail!(
+            "{}: modality '{m}' differs from the dataset's modality '{modality}' ({})",
+            poses_path.display(),
+            data_path.display()
+        );
     }
-    if let Some(&(frame, _)) = poses.frames.iter().find(|(frame, _)| *frame >= dataset.len()) {
-        bail!("{}: frame {frame} is out of range: the dataset {} has {} frames", poses_path.display(), data_path.display(), dataset.len());
+    if let Some(&(frame, _)) = poses
+        .frames
+        .iter()
+        .find(|(frame, _)| *frame >= dataset.len())
+    {
+        bail!(
+            "{}: frame {frame} is out of range: the dataset {} has {} frames",
+            poses_path.display(),
+            data_path.display(),
+            dataset.len()
+        );
     }
     Ok(())
 }
@@ -152,13 +206,17 @@ pub fn check_against_dataset(poses: &FittedPoses, poses_path: &Path, dataset: &D
 /// `lfit export`: reads and checks everything, then writes OBJ files or one `.glb` into `out`.
 pub fn export(args: &ExportArgs) -> Result<Value> {
     let format: ExportFormat = args.format.parse()?;
-    let dataset = Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))?;
+    let dataset =
+        Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))?;
     let template = crate::fit::template_for(&dataset, args.template.as_deref())?;
     let fitted = read_fitted_poses(&args.poses, &template)?;
     check_against_dataset(&fitted, &args.poses, &dataset, &args.data)?;
     let fps = dataset.meta.config.fps;
     if !(fps.is_finite() && fps > 0.0) {
-        bail!("dataset {}: frame rate {fps} is not a positive number", args.data.display());
+        bail!(
+            "dataset {}: frame rate {fps} is not a positive number",
+            args.data.display()
+        );
     }
     let frame_list: Vec<usize> = fitted.frames.iter().map(|&(f, _)| f).collect();
     // Everything is built in memory first, so a failure leaves `out` untouched.
@@ -172,14 +230,21 @@ pub fn export(args: &ExportArgs) -> Result<Value> {
                 .zip(&meshes)
                 .map(|(&(frame, _), vertices)| {
                     let mut bytes = Vec::new();
-                    let comment = format!("lfit export: template '{}' posed (Linear skinning), frame {frame} of {}", template.id, args.poses.display());
+                    let comment = format!(
+                        "lfit export: template '{}' posed (Linear skinning), frame {frame} of {}",
+                        template.id,
+                        args.poses.display()
+                    );
                     write_obj(&mut bytes, &comment, vertices, &template.faces);
                     (args.out.join(format!("frame_{frame:05}.obj")), bytes)
                 })
                 .collect()
         }
         ExportFormat::Gltf => {
-            let name = args.poses.file_stem().map_or_else(|| "motion".to_string(), |s| s.to_string_lossy().into_owned());
+            let name = args.poses.file_stem().map_or_else(
+                || "motion".to_string(),
+                |s| s.to_string_lossy().into_owned(),
+            );
             // A glTF skin has one bind mesh: the subject's mean shape over the exported frames
             // (pose correctives, if the model has them, are not expressible and left out).
             let layout = template.layout();
@@ -195,7 +260,8 @@ pub fn export(args: &ExportArgs) -> Result<Value> {
             vec![(args.out.join(format!("{name}.glb")), bytes)]
         }
     };
-    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
     let mut written = Vec::with_capacity(files.len());
     for (path, bytes) in &files {
         write_atomic(path, bytes)?;
@@ -234,7 +300,15 @@ struct BinBuilder {
 
 impl BinBuilder {
     /// Appends `data` as a new buffer view and an accessor over it; returns the accessor index.
-    fn accessor(&mut self, data: &[u8], component_type: u32, count: usize, kind: &str, target: Option<u32>, min_max: Option<(Vec<f32>, Vec<f32>)>) -> usize {
+    fn accessor(
+        &mut self,
+        data: &[u8],
+        component_type: u32,
+        count: usize,
+        kind: &str,
+        target: Option<u32>,
+        min_max: Option<(Vec<f32>, Vec<f32>)>,
+    ) -> usize {
         let offset = self.bytes.len();
         self.bytes.extend_from_slice(data);
         while !self.bytes.len().is_multiple_of(4) {
@@ -255,7 +329,14 @@ impl BinBuilder {
         self.accessors.len() - 1
     }
 
-    fn floats(&mut self, values: &[f32], count: usize, kind: &str, target: Option<u32>, min_max: Option<(Vec<f32>, Vec<f32>)>) -> usize {
+    fn floats(
+        &mut self,
+        values: &[f32],
+        count: usize,
+        kind: &str,
+        target: Option<u32>,
+        min_max: Option<(Vec<f32>, Vec<f32>)>,
+    ) -> usize {
         let data: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
         self.accessor(&data, FLOAT, count, kind, target, min_max)
     }
@@ -303,40 +384,110 @@ fn packed_influences(list: &[(usize, f64)]) -> ([u16; 4], [f32; 4]) {
 /// rest mesh (POSITION, NORMAL, indices, JOINTS_0, WEIGHTS_0), one node per rig joint, a skin,
 /// and an animation named `name` with translation + rotation channels per joint (LINEAR) keyed at
 /// `frame / fps` seconds.
-pub fn gltf_animation(template: &Template, frames: &[(usize, Vec<f64>)], fps: f64, name: &str) -> Result<Vec<u8>> {
+pub fn gltf_animation(
+    template: &Template,
+    frames: &[(usize, Vec<f64>)],
+    fps: f64,
+    name: &str,
+) -> Result<Vec<u8>> {
     if frames.is_empty() {
         bail!("no frames to export");
     }
     let rig = &template.rig;
     let num_joints = rig.num_joints();
     if num_joints > usize::from(u16::MAX) {
-        bail!("the rig has {num_joints} joints; glTF JOINTS_0 holds at most {}", u16::MAX);
+        bail!(
+            "the rig has {num_joints} joints; glTF JOINTS_0 holds at most {}",
+            u16::MAX
+        );
     }
-    if let Some((f, p)) = frames.iter().find(|(_, p)| p.len() < rot_offset(num_joints)) {
-        bail!("the rig has {num_joints} joints but the pose of frame {f} holds rotations for {}", p.len().saturating_sub(3) / 3);
+    if let Some((f, p)) = frames
+        .iter()
+        .find(|(_, p)| p.len() < rot_offset(num_joints))
+    {
+        bail!(
+            "the rig has {num_joints} joints but the pose of frame {f} holds rotations for {}",
+            p.len().saturating_sub(3) / 3
+        );
     }
-    let times: Vec<f32> = frames.iter().map(|&(f, _)| (f as f64 / fps) as f32).collect();
+    let times: Vec<f32> = frames
+        .iter()
+        .map(|&(f, _)| (f as f64 / fps) as f32)
+        .collect();
     if let Some(w) = times.windows(2).find(|w| w[1] <= w[0]) {
-        bail!("frame times {} and {} s are not strictly increasing in single precision (fps {fps})", w[0], w[1]);
+        bail!(
+            "frame times {} and {} s are not strictly increasing in single precision (fps {fps})",
+            w[0],
+            w[1]
+        );
     }
     let mut bin = BinBuilder::default();
 
     // The mesh in its rest (bind) pose.
-    let positions: Vec<f32> = template.vertices.iter().flat_map(|v| v.to_array()).collect();
-    let position = bin.floats(&positions, template.num_vertices(), "VEC3", Some(ARRAY_BUFFER), Some(bounds(&positions, 3)));
+    let positions: Vec<f32> = template
+        .vertices
+        .iter()
+        .flat_map(|v| v.to_array())
+        .collect();
+    let position = bin.floats(
+        &positions,
+        template.num_vertices(),
+        "VEC3",
+        Some(ARRAY_BUFFER),
+        Some(bounds(&positions, 3)),
+    );
     // A vertex without a normal (on no face of non-zero area) gets +y: glTF normals must be unit.
     let normals: Vec<f32> = vertex_normals(&template.vertices, &template.faces)
         .into_iter()
         .flat_map(|n| if n == Vec3::ZERO { Vec3::Y } else { n }.to_array())
         .collect();
-    let normal = bin.floats(&normals, template.num_vertices(), "VEC3", Some(ARRAY_BUFFER), None);
-    let (joints, weights): (Vec<[u16; 4]>, Vec<[f32; 4]>) = rig.weights.iter().map(|list| packed_influences(list)).unzip();
-    let joint_bytes: Vec<u8> = joints.iter().flatten().flat_map(|j| j.to_le_bytes()).collect();
-    let joints_0 = bin.accessor(&joint_bytes, UNSIGNED_SHORT, joints.len(), "VEC4", Some(ARRAY_BUFFER), None);
+    let normal = bin.floats(
+        &normals,
+        template.num_vertices(),
+        "VEC3",
+        Some(ARRAY_BUFFER),
+        None,
+    );
+    let (joints, weights): (Vec<[u16; 4]>, Vec<[f32; 4]>) = rig
+        .weights
+        .iter()
+        .map(|list| packed_influences(list))
+        .unzip();
+    let joint_bytes: Vec<u8> = joints
+        .iter()
+        .flatten()
+        .flat_map(|j| j.to_le_bytes())
+        .collect();
+    let joints_0 = bin.accessor(
+        &joint_bytes,
+        UNSIGNED_SHORT,
+        joints.len(),
+        "VEC4",
+        Some(ARRAY_BUFFER),
+        None,
+    );
     let weights_flat: Vec<f32> = weights.iter().flatten().copied().collect();
-    let weights_0 = bin.floats(&weights_flat, weights.len(), "VEC4", Some(ARRAY_BUFFER), None);
-    let index_bytes: Vec<u8> = template.faces.iter().flatten().flat_map(|i| i.to_le_bytes()).collect();
-    let indices = bin.accessor(&index_bytes, UNSIGNED_INT, 3 * template.faces.len(), "SCALAR", Some(ELEMENT_ARRAY_BUFFER), None);
+    let weights_0 = bin.floats(
+        &weights_flat,
+        weights.len(),
+        "VEC4",
+        Some(ARRAY_BUFFER),
+        None,
+    );
+    let index_bytes: Vec<u8> = template
+        .faces
+        .iter()
+        .flatten()
+        .flat_map(|i| i.to_le_bytes())
+        .collect();
+    let indices = bin.accessor(
+        &index_bytes,
+        UNSIGNED_INT,
+        3 * template.faces.len(),
+        "SCALAR",
+        Some(ELEMENT_ARRAY_BUFFER),
+        None,
+    );
 
     // Inverse bind matrices translate(−c_j), column-major.
     let rest: Vec<DVec3> = template.joint_rest();
@@ -344,7 +495,9 @@ pub fn gltf_animation(template: &Template, frames: &[(usize, Vec<f64>)], fps: f6
         .iter()
         .flat_map(|c| {
             let c = c.as_vec3();
-            [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -c.x, -c.y, -c.z, 1.0]
+            [
+                1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -c.x, -c.y, -c.z, 1.0,
+            ]
         })
         .collect();
     let inverse_bind = bin.floats(&ibm, num_joints, "MAT4", None, None);
@@ -363,7 +516,11 @@ pub fn gltf_animation(template: &Template, frames: &[(usize, Vec<f64>)], fps: f6
         let translations: Vec<f32> = frames
             .iter()
             .flat_map(|(_, pose)| {
-                let t = if rig.joints[j].parent.is_none() { DVec3::new(pose[0], pose[1], pose[2]) } else { DVec3::ZERO };
+                let t = if rig.joints[j].parent.is_none() {
+                    DVec3::new(pose[0], pose[1], pose[2])
+                } else {
+                    DVec3::ZERO
+                };
                 (local_rest(j) + t).as_vec3().to_array()
             })
             .collect();
@@ -372,7 +529,8 @@ pub fn gltf_animation(template: &Template, frames: &[(usize, Vec<f64>)], fps: f6
         let rotations: Vec<f32> = frames
             .iter()
             .flat_map(|(_, pose)| {
-                let mut q = DQuat::from_scaled_axis(DVec3::new(pose[o], pose[o + 1], pose[o + 2])).normalize();
+                let mut q = DQuat::from_scaled_axis(DVec3::new(pose[o], pose[o + 1], pose[o + 2]))
+                    .normalize();
                 // q and −q are the same rotation; keep consecutive keys in one hemisphere so that
                 // interpolation between them takes the short way.
                 if previous.is_some_and(|p| p.dot(q) < 0.0) {
@@ -384,9 +542,14 @@ pub fn gltf_animation(template: &Template, frames: &[(usize, Vec<f64>)], fps: f6
             .collect();
         let translation_output = bin.floats(&translations, frames.len(), "VEC3", None, None);
         let rotation_output = bin.floats(&rotations, frames.len(), "VEC4", None, None);
-        for (output, path) in [(translation_output, "translation"), (rotation_output, "rotation")] {
+        for (output, path) in [
+            (translation_output, "translation"),
+            (rotation_output, "rotation"),
+        ] {
             samplers.push(json!({ "input": input, "output": output, "interpolation": "LINEAR" }));
-            channels.push(json!({ "sampler": samplers.len() - 1, "target": { "node": j, "path": path } }));
+            channels.push(
+                json!({ "sampler": samplers.len() - 1, "target": { "node": j, "path": path } }),
+            );
         }
     }
 
@@ -440,7 +603,10 @@ pub fn glb_bytes(document: &Value, bin: &[u8]) -> Result<Vec<u8>> {
         bin.push(0);
     }
     let total = 12 + 8 + json.len() + if bin.is_empty() { 0 } else { 8 + bin.len() };
-    let length = |n: usize| u32::try_from(n).with_context(|| format!("the glTF file would be {n} bytes, over GLB's 4 GiB limit"));
+    let length = |n: usize| {
+        u32::try_from(n)
+            .with_context(|| format!("the glTF file would be {n} bytes, over GLB's 4 GiB limit"))
+    };
     let mut out = Vec::with_capacity(total);
     out.extend_from_slice(&GLB_MAGIC.to_le_bytes());
     out.extend_from_slice(&2u32.to_le_bytes());
@@ -466,7 +632,10 @@ mod tests {
         let (j, w) = packed_influences(&[(3, 0.2), (5, 0.7), (3, 0.1)]);
         assert_eq!(j, [5, 3, 0, 0]);
         assert_eq!(w[2..], [0.0, 0.0]);
-        assert!((w[0] - 0.7).abs() < 1e-7 && (w[1] - 0.3).abs() < 1e-7, "{w:?}");
+        assert!(
+            (w[0] - 0.7).abs() < 1e-7 && (w[1] - 0.3).abs() < 1e-7,
+            "{w:?}"
+        );
         // Weights summing to 1 + 1e-4 (SPEC §3's tolerance) come out normalized.
         let (_, w) = packed_influences(&[(0, 0.3), (1, 0.3), (2, 0.2), (4, 0.2001)]);
         let sum: f64 = w.iter().map(|&x| f64::from(x)).sum();
@@ -478,13 +647,19 @@ mod tests {
         let bytes = glb_bytes(&json!({ "asset": { "version": "2.0" } }), &[1, 2, 3, 4, 5]).unwrap();
         assert_eq!(bytes.len() % 4, 0);
         assert_eq!(&bytes[0..4], b"glTF");
-        assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize, bytes.len());
+        assert_eq!(
+            u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize,
+            bytes.len()
+        );
         let json_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
         assert_eq!(json_len % 4, 0);
         assert_eq!(&bytes[16..20], b"JSON");
         let json_end = 20 + json_len;
         assert_eq!(bytes[json_end - 1], b' ');
-        assert_eq!(u32::from_le_bytes(bytes[json_end..json_end + 4].try_into().unwrap()), 8);
+        assert_eq!(
+            u32::from_le_bytes(bytes[json_end..json_end + 4].try_into().unwrap()),
+            8
+        );
         assert_eq!(&bytes[json_end + 4..json_end + 8], b"BIN\0");
         assert_eq!(&bytes[json_end + 8..], &[1, 2, 3, 4, 5, 0, 0, 0]);
     }

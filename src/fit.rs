@@ -22,7 +22,9 @@ pub fn template_for(dataset: &Dataset, dir: Option<&Path>) -> Result<Arc<Templat
         None => {
             let id = &dataset.meta.template_id;
             let Some(shape) = crate::commands::shape_of_template_id(id) else {
-                bail!("dataset was made with template '{id}': pass that template with --template DIR");
+                bail!(
+                    "dataset was made with template '{id}': pass that template with --template DIR"
+                );
             };
             crate::commands::load_model(None, shape)?
         }
@@ -30,7 +32,12 @@ pub fn template_for(dataset: &Dataset, dir: Option<&Path>) -> Result<Arc<Templat
     let layout = template.layout();
     if template.id != dataset.meta.template_id
         || template.num_vertices() != dataset.meta.template_vertices
-        || (layout.pose_dim(), layout.shape, layout.expression) != (dataset.meta.pose_dim, dataset.meta.shape_dim, dataset.meta.expression_dim)
+        || (layout.pose_dim(), layout.shape, layout.expression)
+            != (
+                dataset.meta.pose_dim,
+                dataset.meta.shape_dim,
+                dataset.meta.expression_dim,
+            )
     {
         bail!(
             "dataset was made with template '{}' ({} vertices), not '{}' ({} vertices)",
@@ -44,15 +51,32 @@ pub fn template_for(dataset: &Dataset, dir: Option<&Path>) -> Result<Arc<Templat
 }
 
 /// The energy of frame `frame` of `dataset`.
-pub fn energy_for_frame(dataset: &Dataset, template: Arc<Template>, frame: usize, config: EnergyConfig) -> Result<Energy> {
+pub fn energy_for_frame(
+    dataset: &Dataset,
+    template: Arc<Template>,
+    frame: usize,
+    config: EnergyConfig,
+) -> Result<Energy> {
     if frame >= dataset.len() {
-        bail!("frame {frame} is out of range: the dataset has {} frames", dataset.len());
+        bail!(
+            "frame {frame} is out of range: the dataset has {} frames",
+            dataset.len()
+        );
     }
     let target = match &dataset.observations {
-        Observations::Sparse { values, visible } => Target::Sparse { values: values[frame].clone(), visible: visible[frame].clone() },
-        Observations::Scan { grids, silhouettes, .. } => Target::Scan { grid: grids[frame].clone(), silhouettes: silhouettes[frame].clone() },
+        Observations::Sparse { values, visible } => Target::Sparse {
+            values: values[frame].clone(),
+            visible: visible[frame].clone(),
+        },
+        Observations::Scan {
+            grids, silhouettes, ..
+        } => Target::Scan {
+            grid: grids[frame].clone(),
+            silhouettes: silhouettes[frame].clone(),
+        },
     };
-    Energy::new(template, dataset.sensor.clone(), target, config).with_context(|| format!("frame {frame}"))
+    Energy::new(template, dataset.sensor.clone(), target, config)
+        .with_context(|| format!("frame {frame}"))
 }
 
 /// Free entries of a scenario (papers/000 §4: 43 local, 41 global on the default template; the
@@ -79,10 +103,16 @@ pub fn params_json(template: &Template, params: &[f64]) -> Map<String, Value> {
     let mut m = Map::new();
     m.insert("pose".into(), json!(params[..l.pose_dim()]));
     if l.shape > 0 {
-        m.insert("shape".into(), json!(params[l.range(lfit_model::Block::Shape)]));
+        m.insert(
+            "shape".into(),
+            json!(params[l.range(lfit_model::Block::Shape)]),
+        );
     }
     if l.expression > 0 {
-        m.insert("expression".into(), json!(params[l.range(lfit_model::Block::Expression)]));
+        m.insert(
+            "expression".into(),
+            json!(params[l.range(lfit_model::Block::Expression)]),
+        );
     }
     m
 }
@@ -91,15 +121,29 @@ pub fn params_json(template: &Template, params: &[f64]) -> Map<String, Value> {
 pub fn coefficient_rms(template: &Template, fitted: &[f64], truth: &[f64]) -> Option<f64> {
     let l = template.layout();
     let r = l.pose_dim()..l.dim();
-    (!r.is_empty()).then(|| (fitted[r.clone()].iter().zip(&truth[r.clone()]).map(|(a, b)| (a - b) * (a - b)).sum::<f64>() / r.len() as f64).sqrt())
+    (!r.is_empty()).then(|| {
+        (fitted[r.clone()]
+            .iter()
+            .zip(&truth[r.clone()])
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>()
+            / r.len() as f64)
+            .sqrt()
+    })
 }
 
 /// Parses `--frames`: `A..B` (B excluded), `A-B` (B included), `I`, or a comma list of those.
 pub fn parse_frames(spec: Option<&str>, len: usize) -> Result<Vec<usize>> {
-    let Some(spec) = spec else { return Ok((0..len).collect()) };
+    let Some(spec) = spec else {
+        return Ok((0..len).collect());
+    };
     let mut out = Vec::new();
     for part in spec.split(',').map(str::trim) {
-        let num = |s: &str| s.trim().parse::<usize>().with_context(|| format!("--frames: '{s}' is not a frame index"));
+        let num = |s: &str| {
+            s.trim()
+                .parse::<usize>()
+                .with_context(|| format!("--frames: '{s}' is not a frame index"))
+        };
         let (a, b) = if let Some((a, b)) = part.split_once("..") {
             (num(a)?, num(b)?)
         } else if let Some((a, b)) = part.split_once('-') {
@@ -112,7 +156,10 @@ pub fn parse_frames(spec: Option<&str>, len: usize) -> Result<Vec<usize>> {
             bail!("--frames: empty range '{part}'");
         }
         if b > len {
-            bail!("--frames: '{part}' goes past the last frame ({} frames)", len);
+            bail!(
+                "--frames: '{part}' goes past the last frame ({} frames)",
+                len
+            );
         }
         out.extend(a..b);
     }
@@ -123,8 +170,10 @@ pub fn parse_frames(spec: Option<&str>, len: usize) -> Result<Vec<usize>> {
 pub fn read_energy_config(path: Option<&Path>, gradient: bool) -> Result<EnergyConfig> {
     let config = match path {
         Some(p) => {
-            let text = std::fs::read_to_string(p).with_context(|| format!("cannot read {}", p.display()))?;
-            serde_json::from_str(&text).with_context(|| format!("malformed energy configuration {}", p.display()))?
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("cannot read {}", p.display()))?;
+            serde_json::from_str(&text)
+                .with_context(|| format!("malformed energy configuration {}", p.display()))?
         }
         None if gradient => EnergyConfig::default().for_gradient(),
         None => EnergyConfig::default(),
@@ -134,7 +183,12 @@ pub fn read_energy_config(path: Option<&Path>, gradient: bool) -> Result<EnergyC
 }
 
 fn terms_json(terms: &[(&'static str, f64)]) -> Value {
-    Value::Object(terms.iter().map(|(k, v)| ((*k).to_string(), json!(v))).collect::<Map<_, _>>())
+    Value::Object(
+        terms
+            .iter()
+            .map(|(k, v)| ((*k).to_string(), json!(v)))
+            .collect::<Map<_, _>>(),
+    )
 }
 
 /// The seed of one frame's fit: the run's seed mixed with the frame index.
@@ -143,8 +197,16 @@ pub fn frame_seed(seed: u64, frame: usize) -> u64 {
 }
 
 /// An error metric (`v2v_mm`, `mpjpe_mm`, ...) of every iterate of a fit against the truth.
-pub fn iterate_errors(template: &Template, iterates: &[Vec<f64>], truth: &[f64], metric: fn(&Template, &[f64], &[f64]) -> f64) -> Vec<f64> {
-    iterates.iter().map(|p| metric(template, p, truth)).collect()
+pub fn iterate_errors(
+    template: &Template,
+    iterates: &[Vec<f64>],
+    truth: &[f64],
+    metric: fn(&Template, &[f64], &[f64]) -> f64,
+) -> Vec<f64> {
+    iterates
+        .iter()
+        .map(|p| metric(template, p, truth))
+        .collect()
 }
 
 /// Arguments of `lfit fit`.
@@ -177,38 +239,51 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         bail!("--budget must be at least 1 evaluation");
     }
     let strategy: Strategy = args.strategy.parse()?;
-    let preset: Preset = args.preset.parse().map_err(|_| lfit_fitters::FitError::UnknownPreset(args.preset.clone()))?;
+    let preset: Preset = args
+        .preset
+        .parse()
+        .map_err(|_| lfit_fitters::FitError::UnknownPreset(args.preset.clone()))?;
     if args.batch == 0 {
         bail!("--batch must be at least 1");
     }
     let neural = args.method == "neural";
-    let (neural_fitter, classic): (Option<lfit_infer::NeuralFitter>, Option<Box<dyn Fitter>>) = if neural {
-        let dir = args.checkpoint.as_deref().context("--method neural needs --checkpoint DIR")?;
-        let start: lfit_infer::Start = args.neural_start.parse().map_err(anyhow::Error::msg)?;
-        let runtime: lfit_infer::Runtime = args.runtime.parse().map_err(anyhow::Error::msg)?;
-        if args.ort_threads == Some(0) {
-            bail!("--ort-threads must be at least 1");
-        }
-        let fitter = match runtime {
-            lfit_infer::Runtime::Burn => {
-                if args.ort_threads.is_some() {
-                    bail!("--ort-threads is only for --runtime ort");
-                }
-                let device = lfit_nn::tensor::device_from_name(&args.device)?;
-                lfit_infer::NeuralFitter::load(dir, &device, start)?
+    let (neural_fitter, classic): (Option<lfit_infer::NeuralFitter>, Option<Box<dyn Fitter>>) =
+        if neural {
+            let dir = args
+                .checkpoint
+                .as_deref()
+                .context("--method neural needs --checkpoint DIR")?;
+            let start: lfit_infer::Start = args.neural_start.parse().map_err(anyhow::Error::msg)?;
+            let runtime: lfit_infer::Runtime = args.runtime.parse().map_err(anyhow::Error::msg)?;
+            if args.ort_threads == Some(0) {
+                bail!("--ort-threads must be at least 1");
             }
-            lfit_infer::Runtime::Ort => lfit_infer::NeuralFitter::load_ort(dir, start, lfit_infer::onnx::runtime::SessionOptions { threads: args.ort_threads })?,
+            let fitter = match runtime {
+                lfit_infer::Runtime::Burn => {
+                    if args.ort_threads.is_some() {
+                        bail!("--ort-threads is only for --runtime ort");
+                    }
+                    let device = lfit_nn::tensor::device_from_name(&args.device)?;
+                    lfit_infer::NeuralFitter::load(dir, &device, start)?
+                }
+                lfit_infer::Runtime::Ort => lfit_infer::NeuralFitter::load_ort(
+                    dir,
+                    start,
+                    lfit_infer::onnx::runtime::SessionOptions {
+                        threads: args.ort_threads,
+                    },
+                )?,
+            };
+            (Some(fitter), None)
+        } else {
+            if args.checkpoint.is_some() {
+                bail!("--checkpoint is only for --method neural");
+            }
+            if args.runtime != "burn" || args.ort_threads.is_some() {
+                bail!("--runtime and --ort-threads are only for --method neural");
+            }
+            (None, Some(build_fitter(&args.method, preset, strategy)?))
         };
-        (Some(fitter), None)
-    } else {
-        if args.checkpoint.is_some() {
-            bail!("--checkpoint is only for --method neural");
-        }
-        if args.runtime != "burn" || args.ort_threads.is_some() {
-            bail!("--runtime and --ort-threads are only for --method neural");
-        }
-        (None, Some(build_fitter(&args.method, preset, strategy)?))
-    };
     let fitter: &dyn Fitter = match (&neural_fitter, &classic) {
         (Some(n), _) => n,
         (None, Some(c)) => c.as_ref(),
@@ -216,7 +291,8 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     };
     let gradient = args.method == "lbfgs" || neural;
     let config = read_energy_config(args.energy.as_deref(), gradient)?;
-    let dataset = Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))?;
+    let dataset =
+        Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))?;
     let frames = parse_frames(args.frames.as_deref(), dataset.len())?;
     let template = template_for(&dataset, args.template.as_deref())?;
     let scenario = dataset.meta.config.scenario;
@@ -227,13 +303,22 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
     // Frames go through the network `--batch` at a time, except in sequences, where each frame
     // starts from the previous result.
-    let chunk = if neural && scenario != Scenario::Sequence { args.batch } else { 1 };
+    let chunk = if neural && scenario != Scenario::Sequence {
+        args.batch
+    } else {
+        1
+    };
     let mut done = 0;
     for group in frames.chunks(chunk) {
         let mut energies = Vec::with_capacity(group.len());
         let mut starts = Vec::with_capacity(group.len());
         for &frame in group {
-            energies.push(energy_for_frame(&dataset, template.clone(), frame, config.clone())?);
+            energies.push(energy_for_frame(
+                &dataset,
+                template.clone(),
+                frame,
+                config.clone(),
+            )?);
             // Sequence fitting (papers/000 §4.3): warm start from the previous frame's solution.
             starts.push(match (scenario, &previous) {
                 (Scenario::Sequence, Some((p, pose))) if p + 1 == frame => pose.clone(),
@@ -253,10 +338,16 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
                 seed: frame_seed(args.seed, frame),
             })
             .collect();
-        let start_energies: Vec<f64> = requests.iter().map(|r| r.energy.inspect(&r.start).total).collect();
+        let start_energies: Vec<f64> = requests
+            .iter()
+            .map(|r| r.energy.inspect(&r.start).total)
+            .collect();
         let results = match &neural_fitter {
             Some(n) => n.fit_batch(&requests)?,
-            None => requests.iter().map(|r| fitter.fit(r)).collect::<Result<Vec<_>, _>>()?,
+            None => requests
+                .iter()
+                .map(|r| fitter.fit(r))
+                .collect::<Result<Vec<_>, _>>()?,
         };
         for ((&frame, result), start_energy) in group.iter().zip(results).zip(start_energies) {
             let pose = result.pose.clone();
@@ -289,8 +380,10 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
                 sum_coeff += c;
             }
             if !result.iterates.is_empty() {
-                row["v2v_mm_per_iteration"] = json!(iterate_errors(&template, &result.iterates, gt, v2v_mm));
-                row["mpjpe_mm_per_iteration"] = json!(iterate_errors(&template, &result.iterates, gt, mpjpe_mm));
+                row["v2v_mm_per_iteration"] =
+                    json!(iterate_errors(&template, &result.iterates, gt, v2v_mm));
+                row["mpjpe_mm_per_iteration"] =
+                    json!(iterate_errors(&template, &result.iterates, gt, mpjpe_mm));
             }
             rows.push(row);
             previous = Some((frame, pose));
@@ -326,13 +419,19 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     });
     if neural {
         out["checkpoint"] = json!(args.checkpoint);
-        out["device"] = json!(if args.runtime == "burn" { args.device.as_str() } else { "cpu" });
+        out["device"] = json!(if args.runtime == "burn" {
+            args.device.as_str()
+        } else {
+            "cpu"
+        });
         out["runtime"] = json!(args.runtime);
         out["batch"] = json!(chunk);
     }
     let bytes = serde_json::to_vec_pretty(&out)?;
     write_atomic(&args.out, &bytes)?;
-    Ok(json!({ "out": args.out, "method": fitter.name(), "budget": args.budget, "summary": summary }))
+    Ok(
+        json!({ "out": args.out, "method": fitter.name(), "budget": args.budget, "summary": summary }),
+    )
 }
 
 /// Arguments of `lfit objective-server`.
@@ -362,14 +461,22 @@ impl Served {
             bail!("--budget must be at least 1 evaluation");
         }
         let config = read_energy_config(args.energy.as_deref(), args.gradient)?;
-        let dataset = Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))?;
+        let dataset = Dataset::load(&args.data)
+            .with_context(|| format!("dataset {}", args.data.display()))?;
         let template = template_for(&dataset, args.template.as_deref())?;
         let energy = energy_for_frame(&dataset, template.clone(), args.frame, config)?;
         let scenario = dataset.meta.config.scenario;
         let start = dataset.start_poses[args.frame].clone();
         let mask = scenario_mask(scenario, &template);
         let (lower, upper) = scenario_bounds(scenario, &template, &start).restrict(&mask);
-        Ok(Self { energy, mask, lower, upper, start, budget: args.budget })
+        Ok(Self {
+            energy,
+            mask,
+            lower,
+            upper,
+            start,
+            budget: args.budget,
+        })
     }
 
     /// Answers one request line; errors are answers too (`{"error": ...}`), so the server keeps
@@ -395,7 +502,9 @@ impl Served {
                 "evaluations": self.energy.evaluations(),
             }));
         }
-        let Some(x) = request.get("x") else { bail!("expected {{\"x\": [...]}} or {{\"describe\": true}}") };
+        let Some(x) = request.get("x") else {
+            bail!("expected {{\"x\": [...]}} or {{\"describe\": true}}")
+        };
         let x = x.as_array().context("\"x\" is not an array")?;
         if x.len() != self.mask.dim() {
             bail!("x has {} numbers, expected {}", x.len(), self.mask.dim());
@@ -417,7 +526,9 @@ impl Served {
         let want_grad = request.get("gradient").and_then(Value::as_bool) == Some(true);
         if want_grad {
             let (ev, g) = self.energy.evaluate_with_gradient(&pose);
-            Ok(json!({ "energy": ev.total, "terms": terms_json(&ev.terms), "gradient": self.mask.gather(&g) }))
+            Ok(
+                json!({ "energy": ev.total, "terms": terms_json(&ev.terms), "gradient": self.mask.gather(&g) }),
+            )
         } else {
             let ev = self.energy.evaluate(&pose);
             Ok(json!({ "energy": ev.total, "terms": terms_json(&ev.terms) }))
@@ -426,7 +537,11 @@ impl Served {
 }
 
 /// `lfit objective-server`: JSON lines on stdin → JSON lines on stdout until end of input.
-pub fn objective_server(args: &ServerArgs, input: impl BufRead, mut output: impl Write) -> Result<Value> {
+pub fn objective_server(
+    args: &ServerArgs,
+    input: impl BufRead,
+    mut output: impl Write,
+) -> Result<Value> {
     let served = Served::new(args)?;
     for line in input.lines() {
         let line = line.context("reading stdin")?;
@@ -464,9 +579,20 @@ pub fn optimize(args: &OptimizeArgs) -> Result<Value> {
         .iter()
         .find(|(name, _)| *name == args.function)
         .map(|&(_, f)| f)
-        .with_context(|| format!("unknown function '{}' (expected sphere, ellipsoid, rosenbrock or rastrigin)", args.function))?;
-    let method: Method = args.method.parse().map_err(|_| lfit_fitters::FitError::UnknownMethod(args.method.clone()))?;
-    let preset: Preset = args.preset.parse().map_err(|_| lfit_fitters::FitError::UnknownPreset(args.preset.clone()))?;
+        .with_context(|| {
+            format!(
+                "unknown function '{}' (expected sphere, ellipsoid, rosenbrock or rastrigin)",
+                args.function
+            )
+        })?;
+    let method: Method = args
+        .method
+        .parse()
+        .map_err(|_| lfit_fitters::FitError::UnknownMethod(args.method.clone()))?;
+    let preset: Preset = args
+        .preset
+        .parse()
+        .map_err(|_| lfit_fitters::FitError::UnknownPreset(args.preset.clone()))?;
     let problem = optim::testfns::problem(args.dim);
     let mut opt = optim::build(method, preset, &problem, args.budget, args.seed, None)?;
     let f = |x: &[f64]| function(x);

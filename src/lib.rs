@@ -1,19 +1,19 @@
 //! lfit: learned pose fitting of a skinned human template. This facade crate holds the command
 //! implementations behind the `lfit` binary; the binary only parses flags and calls them.
 
-pub mod commands;
-pub mod fit;
-pub mod stats;
-pub mod bench;
 pub mod ablate;
+pub mod bench;
+pub mod commands;
+pub mod export;
+pub mod fit;
+pub mod plots;
 pub mod presets;
 pub mod report;
-pub mod plots;
-pub mod export;
+pub mod stats;
 
 pub use lfit_fitters as fitters;
+pub use lfit_infer as infer;
 pub use lfit_model as model;
 pub use lfit_nn as nn;
 pub use lfit_synth as synth;
-pub use lfit_infer as infer;
 pub use lfit_train as train;

@@ -12,7 +12,11 @@ use lfit::fit;
 use lfit::model::skinning::SkinningMethod;
 
 #[derive(Parser)]
-#[command(name = "lfit", version, about = "Learned pose fitting of a skinned human template: synthesize, train, fit, benchmark")]
+#[command(
+    name = "lfit",
+    version,
+    about = "Learned pose fitting of a skinned human template: synthesize, train, fit, benchmark"
+)]
 struct Cli {
     /// Worker threads (default: all cores).
     #[arg(long, global = true)]
@@ -354,7 +358,9 @@ fn progress_bar(len: usize, quiet: bool, what: &str) -> ProgressBar {
         return ProgressBar::hidden();
     }
     let bar = ProgressBar::new(len as u64);
-    if let Ok(style) = ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} {per_sec} eta {eta}") {
+    if let Ok(style) =
+        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} {per_sec} eta {eta}")
+    {
         bar.set_style(style.progress_chars("=> "));
     }
     bar.set_message(what.to_string());
@@ -375,19 +381,35 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
         if n == 0 {
             anyhow::bail!("--threads must be at least 1");
         }
-        rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build_global()?;
     }
     match cli.command {
-        Command::Template(TemplateCommand::Export { out_dir, out, format, shape }) => {
+        Command::Template(TemplateCommand::Export {
+            out_dir,
+            out,
+            format,
+            shape,
+        }) => {
             let path = match (format, out_dir, out) {
                 (commands::TemplateFormat::Dir, Some(dir), None) => dir,
                 (commands::TemplateFormat::Npz, None, Some(file)) => file,
-                (commands::TemplateFormat::Dir, _, _) => anyhow::bail!("--format dir writes a directory: give --out-dir DIR"),
-                (commands::TemplateFormat::Npz, _, _) => anyhow::bail!("--format npz writes one file: give --out FILE.npz"),
+                (commands::TemplateFormat::Dir, _, _) => {
+                    anyhow::bail!("--format dir writes a directory: give --out-dir DIR")
+                }
+                (commands::TemplateFormat::Npz, _, _) => {
+                    anyhow::bail!("--format npz writes one file: give --out FILE.npz")
+                }
             };
             commands::template_export(&path, &shape, format)
         }
-        Command::Template(TemplateCommand::Pose { pose, out, skinning, template }) => {
+        Command::Template(TemplateCommand::Pose {
+            pose,
+            out,
+            skinning,
+            template,
+        }) => {
             let method = match skinning.as_str() {
                 "lbs" => SkinningMethod::Linear,
                 "dqs" => SkinningMethod::DualQuaternion,
@@ -396,9 +418,30 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             let template = commands::load_model(template.template.as_deref(), &template.shape)?;
             commands::template_pose(&pose, &out, &template, method)
         }
-        Command::Synth { modality, scenario, frames, seed, out, source, noise, fps, motions, template } => {
+        Command::Synth {
+            modality,
+            scenario,
+            frames,
+            seed,
+            out,
+            source,
+            noise,
+            fps,
+            motions,
+            template,
+        } => {
             let template = commands::load_model(template.template.as_deref(), &template.shape)?;
-            let args = SynthArgs { modality, scenario, source, frames, seed, fps, noise, motions, out };
+            let args = SynthArgs {
+                modality,
+                scenario,
+                source,
+                frames,
+                seed,
+                fps,
+                noise,
+                motions,
+                out,
+            };
             // Settings are checked before the progress bar appears.
             let bar = progress_bar(frames, cli.quiet, "synth");
             let result = commands::synth(&args, &template, &|done| bar.set_position(done as u64));
@@ -433,83 +476,205 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             result
         }
         Command::ExportOnnx { checkpoint, out } => commands::export_onnx(&checkpoint, &out),
-        Command::Quickstart { out, frames, budget } => {
+        Command::Quickstart {
+            out,
+            frames,
+            budget,
+        } => {
             let bar = progress_bar(0, cli.quiet, "quickstart");
             let result = commands::quickstart(&out, frames, budget, &part_progress(&bar));
             bar.finish_and_clear();
             // The table is the result: stdout, also with -q.
             println!("{}", result?);
             if !cli.quiet {
-                eprintln!("Reports and plots: {0}/<modality>/report.md and {0}/<modality>/plots/; summary: {0}/comparison.md", out.display());
+                eprintln!(
+                    "Reports and plots: {0}/<modality>/report.md and {0}/<modality>/plots/; summary: {0}/comparison.md",
+                    out.display()
+                );
             }
             Ok(serde_json::Value::Null)
         }
-        Command::Ablate { out, quick, steps, batch, hidden, test_frames, only, device, seed } => {
+        Command::Ablate {
+            out,
+            quick,
+            steps,
+            batch,
+            hidden,
+            test_frames,
+            only,
+            device,
+            seed,
+        } => {
             let mut size = lfit::ablate::AblateSize::new(quick);
             size.steps = steps.unwrap_or(size.steps);
             size.batch = batch.unwrap_or(size.batch);
             size.hidden = hidden.unwrap_or(size.hidden);
             size.test_frames = test_frames.unwrap_or(size.test_frames);
             let quiet = cli.quiet;
-            lfit::ablate::run(&lfit::ablate::AblateArgs { out, size, device, only, seed }, &|msg| {
-                if !quiet {
-                    eprintln!("ablate: {msg}");
-                }
-            })
+            lfit::ablate::run(
+                &lfit::ablate::AblateArgs {
+                    out,
+                    size,
+                    device,
+                    only,
+                    seed,
+                },
+                &|msg| {
+                    if !quiet {
+                        eprintln!("ablate: {msg}");
+                    }
+                },
+            )
         }
-        Command::Train { config, out, device, resume, steps, seed, template } => {
+        Command::Train {
+            config,
+            out,
+            device,
+            resume,
+            steps,
+            seed,
+            template,
+        } => {
             let template = commands::load_model(template.template.as_deref(), &template.shape)?;
             let bar = progress_bar(0, cli.quiet, "train");
-            let result = commands::train(&config, &out, &device, resume, steps, seed, &template, &|event| match event {
-                lfit::train::Event::Step { step, steps, loss } => {
-                    bar.set_length(steps as u64);
-                    bar.set_position(step as u64);
-                    bar.set_message(format!("train loss {loss:.1}"));
-                }
-                lfit::train::Event::Validation { step, validation } => {
-                    let v = |x: &[f64]| x.iter().map(|v| format!("{v:.1}")).collect::<Vec<_>>().join(" ");
-                    bar.println(format!("step {step}: validation V2V mm per iteration [{}], MPJPE [{}]", v(&validation.v2v_mm), v(&validation.mpjpe_mm)));
-                }
-                lfit::train::Event::Checkpoint { .. } => {}
-            });
+            let result = commands::train(
+                &config,
+                &out,
+                &device,
+                resume,
+                steps,
+                seed,
+                &template,
+                &|event| match event {
+                    lfit::train::Event::Step { step, steps, loss } => {
+                        bar.set_length(steps as u64);
+                        bar.set_position(step as u64);
+                        bar.set_message(format!("train loss {loss:.1}"));
+                    }
+                    lfit::train::Event::Validation { step, validation } => {
+                        let v = |x: &[f64]| {
+                            x.iter()
+                                .map(|v| format!("{v:.1}"))
+                                .collect::<Vec<_>>()
+                                .join(" ")
+                        };
+                        bar.println(format!(
+                            "step {step}: validation V2V mm per iteration [{}], MPJPE [{}]",
+                            v(&validation.v2v_mm),
+                            v(&validation.mpjpe_mm)
+                        ));
+                    }
+                    lfit::train::Event::Checkpoint { .. } => {}
+                },
+            );
             bar.finish_and_clear();
             result
         }
-        Command::Bench { action: Some(BenchAction::Merge { out, shards }), .. } => commands::bench_merge(&shards, &out),
-        Command::Bench { action: Some(BenchAction::Presets), .. } => commands::bench_presets(),
-        Command::Bench { action: None, config, preset, quick, out, shard } => {
+        Command::Bench {
+            action: Some(BenchAction::Merge { out, shards }),
+            ..
+        } => commands::bench_merge(&shards, &out),
+        Command::Bench {
+            action: Some(BenchAction::Presets),
+            ..
+        } => commands::bench_presets(),
+        Command::Bench {
+            action: None,
+            config,
+            preset,
+            quick,
+            out,
+            shard,
+        } => {
             let source = match (config, preset) {
                 (Some(c), None) => commands::BenchSource::Config(c),
                 (None, Some(p)) => commands::BenchSource::Preset(p),
-                _ => anyhow::bail!("lfit bench needs --config FILE or --preset NAME (or: lfit bench presets | merge)"),
+                _ => anyhow::bail!(
+                    "lfit bench needs --config FILE or --preset NAME (or: lfit bench presets | merge)"
+                ),
             };
-            let Some(out) = out else { anyhow::bail!("lfit bench needs --out DIR") };
+            let Some(out) = out else {
+                anyhow::bail!("lfit bench needs --out DIR")
+            };
             let bar = progress_bar(0, cli.quiet, "bench");
-            let result = commands::bench(&source, quick, &out, shard.as_deref(), &part_progress(&bar));
+            let result =
+                commands::bench(&source, quick, &out, shard.as_deref(), &part_progress(&bar));
             bar.finish_and_clear();
             result
         }
-        Command::Optimize { function, dim, method, budget, seed, preset, json: _ } => {
-            fit::optimize(&fit::OptimizeArgs { function, dim, method, preset, budget, seed })
-        }
-        Command::Export { data, poses, format, out, template } => lfit::export::export(&lfit::export::ExportArgs { data, poses, format, out, template }),
-        Command::ObjectiveServer { data, frame, energy, gradient, budget, template } => {
-            let args = fit::ServerArgs { data, frame, energy, gradient, budget, template };
+        Command::Optimize {
+            function,
+            dim,
+            method,
+            budget,
+            seed,
+            preset,
+            json: _,
+        } => fit::optimize(&fit::OptimizeArgs {
+            function,
+            dim,
+            method,
+            preset,
+            budget,
+            seed,
+        }),
+        Command::Export {
+            data,
+            poses,
+            format,
+            out,
+            template,
+        } => lfit::export::export(&lfit::export::ExportArgs {
+            data,
+            poses,
+            format,
+            out,
+            template,
+        }),
+        Command::ObjectiveServer {
+            data,
+            frame,
+            energy,
+            gradient,
+            budget,
+            template,
+        } => {
+            let args = fit::ServerArgs {
+                data,
+                frame,
+                energy,
+                gradient,
+                budget,
+                template,
+            };
             let stdin = std::io::stdin();
-            fit::objective_server(&args, stdin.lock(), std::io::stdout().lock()).map(|_| serde_json::Value::Null)
+            fit::objective_server(&args, stdin.lock(), std::io::stdout().lock())
+                .map(|_| serde_json::Value::Null)
         }
     }
 }
 
 fn main() -> ExitCode {
-    tracing_subscriber::fmt().with_env_filter(tracing_subscriber::EnvFilter::from_default_env()).with_writer(std::io::stderr).init();
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+        .with_writer(std::io::stderr)
+        .init();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {
             use clap::error::ErrorKind;
-            if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand) {
+            if matches!(
+                e.kind(),
+                ErrorKind::DisplayHelp
+                    | ErrorKind::DisplayVersion
+                    | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+            ) {
                 let _ = e.print();
-                return if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand { ExitCode::from(2) } else { ExitCode::SUCCESS };
+                return if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand {
+                    ExitCode::from(2)
+                } else {
+                    ExitCode::SUCCESS
+                };
             }
             let text = e.to_string();
             eprintln!("{}", text.lines().next().unwrap_or("error: bad arguments"));
@@ -519,7 +684,10 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(serde_json::Value::Null) => ExitCode::SUCCESS,
         Ok(summary) => {
-            println!("{}", serde_json::to_string_pretty(&summary).unwrap_or_else(|_| summary.to_string()));
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&summary).unwrap_or_else(|_| summary.to_string())
+            );
             ExitCode::SUCCESS
         }
         Err(e) => {

@@ -80,7 +80,9 @@ pub fn write_plots(config: &BenchConfig, runs: &[Run], out: &Path) -> Result<Vec
 
 fn remove_if_present(path: &Path) -> Result<()> {
     match std::fs::remove_file(path) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(e).with_context(|| format!("cannot remove stale {}", path.display())),
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            Err(e).with_context(|| format!("cannot remove stale {}", path.display()))
+        }
         _ => Ok(()),
     }
 }
@@ -104,7 +106,9 @@ fn ensure_font() -> Result<()> {
 /// Quantile `p` of sorted values, interpolating linearly between closest ranks (numpy's default,
 /// Hyndman–Fan type 7).
 fn quantile(sorted: &[f64], p: f64) -> f64 {
-    let Some(last) = sorted.len().checked_sub(1) else { return f64::NAN };
+    let Some(last) = sorted.len().checked_sub(1) else {
+        return f64::NAN;
+    };
     let h = last as f64 * p.clamp(0.0, 1.0);
     let lo = h.floor() as usize;
     let hi = (lo + 1).min(last);
@@ -125,7 +129,11 @@ fn quartiles(values: &[f64]) -> Option<Quartiles> {
         return None;
     }
     v.sort_by(f64::total_cmp);
-    Some(Quartiles { q1: quantile(&v, 0.25), median: quantile(&v, 0.5), q3: quantile(&v, 0.75) })
+    Some(Quartiles {
+        q1: quantile(&v, 0.25),
+        median: quantile(&v, 0.5),
+        q3: quantile(&v, 0.75),
+    })
 }
 
 /// Tukey box: quartiles, whiskers at the most extreme values within 1.5 IQR of the box, and the
@@ -144,12 +152,21 @@ fn box_stats(values: &[f64]) -> Option<BoxStats> {
     let fence = 1.5 * (q.q3 - q.q1);
     let (lo_fence, hi_fence) = (q.q1 - fence, q.q3 + fence);
     let finite: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
-    let inside = || finite.iter().copied().filter(|x| (lo_fence..=hi_fence).contains(x));
+    let inside = || {
+        finite
+            .iter()
+            .copied()
+            .filter(|x| (lo_fence..=hi_fence).contains(x))
+    };
     Some(BoxStats {
         q,
         whisker_lo: inside().fold(q.q1, f64::min),
         whisker_hi: inside().fold(q.q3, f64::max),
-        outliers: finite.iter().copied().filter(|x| !(lo_fence..=hi_fence).contains(x)).collect(),
+        outliers: finite
+            .iter()
+            .copied()
+            .filter(|x| !(lo_fence..=hi_fence).contains(x))
+            .collect(),
         n: finite.len(),
     })
 }
@@ -167,13 +184,19 @@ fn trace_at(trace: &[(u64, f64)], e: u64) -> Option<f64> {
 fn log_grid(max: u64, points: usize) -> Vec<u64> {
     let max = max.max(1);
     let steps = points.max(2) - 1;
-    let mut grid: Vec<u64> = (0..=steps).map(|i| ((max as f64).powf(i as f64 / steps as f64).round() as u64).clamp(1, max)).collect();
+    let mut grid: Vec<u64> = (0..=steps)
+        .map(|i| ((max as f64).powf(i as f64 / steps as f64).round() as u64).clamp(1, max))
+        .collect();
     grid.dedup();
     grid
 }
 
 fn mean(v: &[f64]) -> f64 {
-    if v.is_empty() { f64::NAN } else { v.iter().sum::<f64>() / v.len() as f64 }
+    if v.is_empty() {
+        f64::NAN
+    } else {
+        v.iter().sum::<f64>() / v.len() as f64
+    }
 }
 
 /// `1000`, `2.5`, `0.001`, `1e-5`, `3e6`: short tick labels for log and linear axes.
@@ -187,12 +210,21 @@ fn fmt_tick(v: &f64) -> String {
     }
     let decimals = (2 - a.log10().floor() as i32).max(0) as usize;
     let s = format!("{v:.decimals$}");
-    if s.contains('.') { s.trim_end_matches('0').trim_end_matches('.').to_string() } else { s }
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
 }
 
 /// A log axis range around the positive values, with a little room on either side.
 fn log_range(values: impl IntoIterator<Item = f64>) -> Option<(f64, f64)> {
-    let (lo, hi) = values.into_iter().filter(|v| v.is_finite() && *v > 0.0).fold((f64::INFINITY, 0.0f64), |(lo, hi), v| (lo.min(v), hi.max(v)));
+    let (lo, hi) = values
+        .into_iter()
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .fold((f64::INFINITY, 0.0f64), |(lo, hi), v| {
+            (lo.min(v), hi.max(v))
+        });
     if !lo.is_finite() {
         return None;
     }
@@ -244,26 +276,58 @@ struct EnergyFigure {
 fn energy_figure(config: &BenchConfig, runs: &[Run]) -> Option<EnergyFigure> {
     let budget = runs.iter().map(|r| r.budget).max()?;
     let grid = log_grid(budget as u64, GRID_POINTS);
-    let mut fig = EnergyFigure { budget, bands: Vec::new(), markers: Vec::new() };
+    let mut fig = EnergyFigure {
+        budget,
+        bands: Vec::new(),
+        markers: Vec::new(),
+    };
     for (i, l) in labels(config, runs).iter().enumerate() {
-        let rs: Vec<&Run> = runs.iter().filter(|r| r.budget == budget && label(config, r) == *l).collect();
-        let traced: Vec<&[(u64, f64)]> = rs.iter().map(|r| r.trace.as_slice()).filter(|t| !t.is_empty()).collect();
+        let rs: Vec<&Run> = runs
+            .iter()
+            .filter(|r| r.budget == budget && label(config, r) == *l)
+            .collect();
+        let traced: Vec<&[(u64, f64)]> = rs
+            .iter()
+            .map(|r| r.trace.as_slice())
+            .filter(|t| !t.is_empty())
+            .collect();
         if !traced.is_empty() {
             let points: Vec<(f64, Quartiles)> = grid
                 .iter()
                 .filter_map(|&e| {
-                    let at: Vec<f64> = traced.iter().filter_map(|t| trace_at(t, e)).map(|v| v.max(ENERGY_FLOOR)).collect();
+                    let at: Vec<f64> = traced
+                        .iter()
+                        .filter_map(|t| trace_at(t, e))
+                        .map(|v| v.max(ENERGY_FLOOR))
+                        .collect();
                     quartiles(&at).map(|q| (e as f64, q))
                 })
                 .collect();
             if !points.is_empty() {
-                fig.bands.push(Band { name: format!("{l} (n = {})", traced.len()), color: color(i), points });
+                fig.bands.push(Band {
+                    name: format!("{l} (n = {})", traced.len()),
+                    color: color(i),
+                    points,
+                });
             }
         } else {
-            let x = quartiles(&rs.iter().map(|r| r.evaluations.max(1) as f64).collect::<Vec<_>>());
-            let y = quartiles(&rs.iter().map(|r| r.energy.max(ENERGY_FLOOR)).collect::<Vec<_>>());
+            let x = quartiles(
+                &rs.iter()
+                    .map(|r| r.evaluations.max(1) as f64)
+                    .collect::<Vec<_>>(),
+            );
+            let y = quartiles(
+                &rs.iter()
+                    .map(|r| r.energy.max(ENERGY_FLOOR))
+                    .collect::<Vec<_>>(),
+            );
             if let (Some(x), Some(y)) = (x, y) {
-                fig.markers.push(Marker { name: format!("{l} (n = {}, no trace)", rs.len()), color: color(i), x, y });
+                fig.markers.push(Marker {
+                    name: format!("{l} (n = {}, no trace)", rs.len()),
+                    color: color(i),
+                    x,
+                    y,
+                });
             }
         }
     }
@@ -288,12 +352,32 @@ fn iteration_figure(config: &BenchConfig, runs: &[Run]) -> Option<IterationFigur
         .iter()
         .enumerate()
         .map(|(i, (l, b))| {
-            let rs: Vec<&Run> = runs.iter().filter(|r| !r.v2v_per_iteration.is_empty() && r.budget == *b && label(config, r) == *l).collect();
-            let len = rs.iter().map(|r| r.v2v_per_iteration.len()).max().unwrap_or(0);
-            let points = (0..len)
-                .filter_map(|k| quartiles(&rs.iter().filter_map(|r| r.v2v_per_iteration.get(k).copied()).collect::<Vec<_>>()).map(|q| (k as f64, q)))
+            let rs: Vec<&Run> = runs
+                .iter()
+                .filter(|r| {
+                    !r.v2v_per_iteration.is_empty() && r.budget == *b && label(config, r) == *l
+                })
                 .collect();
-            Band { name: format!("{l} @ {b} (n = {})", rs.len()), color: color(i), points }
+            let len = rs
+                .iter()
+                .map(|r| r.v2v_per_iteration.len())
+                .max()
+                .unwrap_or(0);
+            let points = (0..len)
+                .filter_map(|k| {
+                    quartiles(
+                        &rs.iter()
+                            .filter_map(|r| r.v2v_per_iteration.get(k).copied())
+                            .collect::<Vec<_>>(),
+                    )
+                    .map(|q| (k as f64, q))
+                })
+                .collect();
+            Band {
+                name: format!("{l} @ {b} (n = {})", rs.len()),
+                color: color(i),
+                points,
+            }
         })
         .collect();
     (!bands.is_empty()).then_some(IterationFigure { bands })
@@ -346,9 +430,16 @@ fn box_figure(config: &BenchConfig, runs: &[Run], metric: BoxMetric) -> Option<B
     for &b in &budgets {
         for (i, l) in labels(config, runs).iter().enumerate() {
             let mut frames: Vec<(usize, Vec<f64>)> = Vec::new();
-            for r in runs.iter().filter(|r| r.budget == b && label(config, r) == *l) {
+            for r in runs
+                .iter()
+                .filter(|r| r.budget == b && label(config, r) == *l)
+            {
                 let v = metric.value(r);
-                let v = if metric == BoxMetric::Energy { v.max(ENERGY_FLOOR) } else { v };
+                let v = if metric == BoxMetric::Energy {
+                    v.max(ENERGY_FLOOR)
+                } else {
+                    v
+                };
                 match frames.iter_mut().find(|(f, _)| *f == r.frame) {
                     Some((_, vs)) => vs.push(v),
                     None => frames.push((r.frame, vec![v])),
@@ -356,11 +447,20 @@ fn box_figure(config: &BenchConfig, runs: &[Run], metric: BoxMetric) -> Option<B
             }
             let means: Vec<f64> = frames.iter().map(|(_, vs)| mean(vs)).collect();
             if let Some(stats) = box_stats(&means) {
-                boxes.push(BoxCategory { name: format!("{l} @ {b}"), budget: b, color: color(i), stats });
+                boxes.push(BoxCategory {
+                    name: format!("{l} @ {b}"),
+                    budget: b,
+                    color: color(i),
+                    stats,
+                });
             }
         }
     }
-    (!boxes.is_empty()).then_some(BoxFigure { metric, repetitions: config.repetitions, boxes })
+    (!boxes.is_empty()).then_some(BoxFigure {
+        metric,
+        repetitions: config.repetitions,
+        boxes,
+    })
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -379,7 +479,9 @@ fn save(fig: &impl Figure, dir: &Path, name: &str) -> Result<[PathBuf; 2]> {
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, SIZE).into_drawing_area();
-        fig.draw(&root).and_then(|()| root.present()).map_err(|e| anyhow!("cannot draw {}: {e}", svg_path.display()))?;
+        fig.draw(&root)
+            .and_then(|()| root.present())
+            .map_err(|e| anyhow!("cannot draw {}: {e}", svg_path.display()))?;
     }
     write_atomic(&svg_path, svg.as_bytes())?;
 
@@ -392,7 +494,10 @@ fn save(fig: &impl Figure, dir: &Path, name: &str) -> Result<[PathBuf; 2]> {
     };
     let result = drawn
         .map_err(|e| anyhow!("cannot draw {}: {e}", png_path.display()))
-        .and_then(|()| std::fs::rename(&tmp, &png_path).with_context(|| format!("cannot write {}", png_path.display())));
+        .and_then(|()| {
+            std::fs::rename(&tmp, &png_path)
+                .with_context(|| format!("cannot write {}", png_path.display()))
+        });
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
@@ -405,7 +510,9 @@ fn text(px: u32) -> TextStyle<'static> {
 }
 
 /// The series legend in the top right corner, where descending curves leave room.
-fn draw_legend<'a, DB: DrawingBackend + 'a, X: Ranged, Y: Ranged>(chart: &mut ChartContext<'a, DB, Cartesian2d<X, Y>>) -> DrawResult<DB> {
+fn draw_legend<'a, DB: DrawingBackend + 'a, X: Ranged, Y: Ranged>(
+    chart: &mut ChartContext<'a, DB, Cartesian2d<X, Y>>,
+) -> DrawResult<DB> {
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperRight)
@@ -422,9 +529,18 @@ fn legend_line(color: RGBColor) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)
 impl Figure for EnergyFigure {
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> DrawResult<DB> {
         root.fill(&WHITE)?;
-        let ys = self.bands.iter().flat_map(|b| b.points.iter().flat_map(|(_, q)| [q.q1, q.q3])).chain(self.markers.iter().flat_map(|m| [m.y.q1, m.y.q3]));
+        let ys = self
+            .bands
+            .iter()
+            .flat_map(|b| b.points.iter().flat_map(|(_, q)| [q.q1, q.q3]))
+            .chain(self.markers.iter().flat_map(|m| [m.y.q1, m.y.q3]));
         let (y_lo, y_hi) = log_range(ys).unwrap_or((0.1, 10.0));
-        let x_hi = self.markers.iter().map(|m| m.x.q3 * 1.2).fold(self.budget as f64, f64::max).max(2.0);
+        let x_hi = self
+            .markers
+            .iter()
+            .map(|m| m.x.q3 * 1.2)
+            .fold(self.budget as f64, f64::max)
+            .max(2.0);
         let mut chart = ChartBuilder::on(root)
             .caption(format!("Best energy vs evaluations at budget {} (median, IQR band over frames × repetitions)", self.budget), text(TITLE_PX))
             .margin(20)
@@ -445,11 +561,17 @@ impl Figure for EnergyFigure {
         // Fainter bands when many overlap, so the lower ones still show through.
         let alpha = (0.6 / self.bands.len().max(1) as f64).clamp(0.08, 0.2);
         for band in &self.bands {
-            chart.draw_series(std::iter::once(Polygon::new(band.polygon(), band.color.mix(alpha).filled())))?;
+            chart.draw_series(std::iter::once(Polygon::new(
+                band.polygon(),
+                band.color.mix(alpha).filled(),
+            )))?;
         }
         for band in &self.bands {
             chart
-                .draw_series(LineSeries::new(band.points.iter().map(|(x, q)| (*x, q.median)), band.color.stroke_width(2)))?
+                .draw_series(LineSeries::new(
+                    band.points.iter().map(|(x, q)| (*x, q.median)),
+                    band.color.stroke_width(2),
+                ))?
                 .label(band.name.as_str())
                 .legend(legend_line(band.color));
         }
@@ -462,7 +584,11 @@ impl Figure for EnergyFigure {
             chart.draw_series(bars)?;
             let color = m.color;
             chart
-                .draw_series(std::iter::once(Circle::new((m.x.median, m.y.median), 5, color.filled())))?
+                .draw_series(std::iter::once(Circle::new(
+                    (m.x.median, m.y.median),
+                    5,
+                    color.filled(),
+                )))?
                 .label(m.name.as_str())
                 .legend(move |(x, y)| Circle::new((x + 10, y), 5, color.filled()));
         }
@@ -473,11 +599,25 @@ impl Figure for EnergyFigure {
 impl Figure for IterationFigure {
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> DrawResult<DB> {
         root.fill(&WHITE)?;
-        let last = self.bands.iter().flat_map(|b| b.points.iter().map(|(x, _)| *x as u32)).max().unwrap_or(0).max(1);
-        let y_hi = self.bands.iter().flat_map(|b| b.points.iter().map(|(_, q)| q.q3)).filter(|v| v.is_finite()).fold(0.0, f64::max);
+        let last = self
+            .bands
+            .iter()
+            .flat_map(|b| b.points.iter().map(|(x, _)| *x as u32))
+            .max()
+            .unwrap_or(0)
+            .max(1);
+        let y_hi = self
+            .bands
+            .iter()
+            .flat_map(|b| b.points.iter().map(|(_, q)| q.q3))
+            .filter(|v| v.is_finite())
+            .fold(0.0, f64::max);
         let y_hi = if y_hi > 0.0 { y_hi * 1.1 } else { 1.0 };
         let mut chart = ChartBuilder::on(root)
-            .caption("Neural fitter V2V per iteration (median, IQR band over frames × repetitions)", text(TITLE_PX))
+            .caption(
+                "Neural fitter V2V per iteration (median, IQR band over frames × repetitions)",
+                text(TITLE_PX),
+            )
             .margin(20)
             .x_label_area_size(55)
             .y_label_area_size(85)
@@ -494,13 +634,26 @@ impl Figure for IterationFigure {
             .draw()?;
         let at = |x: f64| x as u32;
         for band in &self.bands {
-            let poly: Vec<(u32, f64)> = band.polygon().into_iter().map(|(x, y)| (at(x), y)).collect();
-            chart.draw_series(std::iter::once(Polygon::new(poly, band.color.mix(0.18).filled())))?;
+            let poly: Vec<(u32, f64)> = band
+                .polygon()
+                .into_iter()
+                .map(|(x, y)| (at(x), y))
+                .collect();
+            chart.draw_series(std::iter::once(Polygon::new(
+                poly,
+                band.color.mix(0.18).filled(),
+            )))?;
         }
         for band in &self.bands {
             let color = band.color;
             chart
-                .draw_series(LineSeries::new(band.points.iter().map(|(x, q)| (at(*x), q.median)), color.stroke_width(2)).point_size(3))?
+                .draw_series(
+                    LineSeries::new(
+                        band.points.iter().map(|(x, q)| (at(*x), q.median)),
+                        color.stroke_width(2),
+                    )
+                    .point_size(3),
+                )?
                 .label(band.name.as_str())
                 .legend(legend_line(color));
         }
@@ -511,7 +664,13 @@ impl Figure for IterationFigure {
 impl Figure for BoxFigure {
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> DrawResult<DB> {
         root.fill(&WHITE)?;
-        let values = || self.boxes.iter().flat_map(|b| [b.stats.whisker_lo, b.stats.whisker_hi].into_iter().chain(b.stats.outliers.iter().copied()));
+        let values = || {
+            self.boxes.iter().flat_map(|b| {
+                [b.stats.whisker_lo, b.stats.whisker_hi]
+                    .into_iter()
+                    .chain(b.stats.outliers.iter().copied())
+            })
+        };
         match self.metric {
             BoxMetric::Energy => {
                 let (lo, hi) = log_range(values()).unwrap_or((0.1, 10.0));
@@ -537,7 +696,11 @@ struct LogAxis {
 
 impl LogAxis {
     fn new(lo: f64, hi: f64) -> Self {
-        Self { log: (lo..hi).log_scale().into(), lo, hi }
+        Self {
+            log: (lo..hi).log_scale().into(),
+            lo,
+            hi,
+        }
     }
 }
 
@@ -546,9 +709,17 @@ impl LogAxis {
 fn log_ticks(lo: f64, hi: f64, max: usize, light: bool) -> Vec<f64> {
     let (k0, k1) = (lo.log10().floor() as i32, hi.log10().ceil() as i32);
     let at = |mantissas: &[f64], step: usize| -> Vec<f64> {
-        (k0..=k1).step_by(step).flat_map(|k| mantissas.iter().map(move |m| m * 10f64.powi(k))).filter(|v| (lo..=hi).contains(v)).collect()
+        (k0..=k1)
+            .step_by(step)
+            .flat_map(|k| mantissas.iter().map(move |m| m * 10f64.powi(k)))
+            .filter(|v| (lo..=hi).contains(v))
+            .collect()
     };
-    let mantissas: &[&[f64]] = if light { &[&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0], &[1.0]] } else { &[&[1.0, 2.0, 5.0], &[1.0]] };
+    let mantissas: &[&[f64]] = if light {
+        &[&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0], &[1.0]]
+    } else {
+        &[&[1.0, 2.0, 5.0], &[1.0]]
+    };
     for m in mantissas {
         let ticks = at(m, 1);
         if ticks.len() <= max {
@@ -568,7 +739,12 @@ impl Ranged for LogAxis {
     }
 
     fn key_points<Hint: KeyPointHint>(&self, hint: Hint) -> Vec<f64> {
-        log_ticks(self.lo, self.hi, hint.max_num_points(), hint.weight().allow_light_points())
+        log_ticks(
+            self.lo,
+            self.hi,
+            hint.max_num_points(),
+            hint.weight().allow_light_points(),
+        )
     }
 
     fn range(&self) -> std::ops::Range<f64> {
@@ -593,7 +769,11 @@ impl Ranged for Categories {
     }
 
     fn key_points<Hint: KeyPointHint>(&self, hint: Hint) -> Vec<f64> {
-        if hint.weight().allow_light_points() { Vec::new() } else { (0..self.n).map(|i| i as f64).collect() }
+        if hint.weight().allow_light_points() {
+            Vec::new()
+        } else {
+            (0..self.n).map(|i| i as f64).collect()
+        }
     }
 
     fn range(&self) -> std::ops::Range<f64> {
@@ -625,9 +805,20 @@ impl BoxFigure {
         let x_area = if vertical { widest + 55 } else { 55 };
         // Vertical names are drawn below instead: the mesh anchors a label before rotating it,
         // which would centre the name on the axis line.
-        let x_fmt = |v: &f64| if vertical { String::new() } else { names.get(v.round().max(0.0) as usize).map_or_else(String::new, |s| (*s).to_string()) };
+        let x_fmt = |v: &f64| {
+            if vertical {
+                String::new()
+            } else {
+                names
+                    .get(v.round().max(0.0) as usize)
+                    .map_or_else(String::new, |s| (*s).to_string())
+            }
+        };
 
-        let x = Categories { n, linear: (-0.5..n as f64 - 0.5).into() };
+        let x = Categories {
+            n,
+            linear: (-0.5..n as f64 - 0.5).into(),
+        };
         let mut chart = ChartBuilder::on(root)
             .caption(format!("{what} per frame, mean over {} repetition(s): box = quartiles, whiskers = 1.5 IQR", self.repetitions), text(TITLE_PX))
             .margin(20)
@@ -651,7 +842,9 @@ impl BoxFigure {
             (r.start, r.end)
         };
         if vertical {
-            let style = label_style.transform(FontTransform::Rotate270).pos(Pos::new(HPos::Right, VPos::Center));
+            let style = label_style
+                .transform(FontTransform::Rotate270)
+                .pos(Pos::new(HPos::Right, VPos::Center));
             for (i, name) in names.iter().enumerate() {
                 let (px, py) = chart.backend_coord(&(i as f64, y_lo));
                 root.draw(&Text::new(*name, (px, py + 10), style.clone()))?;
@@ -661,7 +854,12 @@ impl BoxFigure {
         for (i, pair) in self.boxes.windows(2).enumerate() {
             if pair[0].budget != pair[1].budget {
                 let xs = i as f64 + 0.5;
-                chart.draw_series(DashedLineSeries::new([(xs, y_lo), (xs, y_hi)], 6, 4, BLACK.mix(0.35).stroke_width(1)))?;
+                chart.draw_series(DashedLineSeries::new(
+                    [(xs, y_lo), (xs, y_hi)],
+                    6,
+                    4,
+                    BLACK.mix(0.35).stroke_width(1),
+                ))?;
             }
         }
         for (i, b) in self.boxes.iter().enumerate() {
@@ -669,17 +867,27 @@ impl BoxFigure {
             let (half, cap) = (0.28, 0.14);
             let line = b.color.stroke_width(2);
             chart.draw_series([
-                Rectangle::new([(x - half, s.q.q1), (x + half, s.q.q3)], b.color.mix(0.3).filled()),
+                Rectangle::new(
+                    [(x - half, s.q.q1), (x + half, s.q.q3)],
+                    b.color.mix(0.3).filled(),
+                ),
                 Rectangle::new([(x - half, s.q.q1), (x + half, s.q.q3)], line),
             ])?;
             chart.draw_series([
-                PathElement::new(vec![(x - half, s.q.median), (x + half, s.q.median)], BLACK.stroke_width(2)),
+                PathElement::new(
+                    vec![(x - half, s.q.median), (x + half, s.q.median)],
+                    BLACK.stroke_width(2),
+                ),
                 PathElement::new(vec![(x, s.q.q1), (x, s.whisker_lo)], line),
                 PathElement::new(vec![(x, s.q.q3), (x, s.whisker_hi)], line),
                 PathElement::new(vec![(x - cap, s.whisker_lo), (x + cap, s.whisker_lo)], line),
                 PathElement::new(vec![(x - cap, s.whisker_hi), (x + cap, s.whisker_hi)], line),
             ])?;
-            chart.draw_series(s.outliers.iter().map(|&v| Circle::new((x, v), 3, b.color.stroke_width(1))))?;
+            chart.draw_series(
+                s.outliers
+                    .iter()
+                    .map(|&v| Circle::new((x, v), 3, b.color.stroke_width(1))),
+            )?;
         }
         Ok(())
     }
@@ -704,7 +912,14 @@ mod tests {
         let scale = if method == "cma" { 1.0 } else { 2.5 };
         let trace = match method {
             "neural" => Vec::new(),
-            _ => (0..=8).map(|i| ((i * budget / 8).max(1) as u64, scale * (1.0 + k) * 0.6f64.powi(i as i32))).collect(),
+            _ => (0..=8)
+                .map(|i| {
+                    (
+                        (i * budget / 8).max(1) as u64,
+                        scale * (1.0 + k) * 0.6f64.powi(i as i32),
+                    )
+                })
+                .collect(),
         };
         let energy = trace.last().map_or(0.05 * (1.0 + k), |t| t.1);
         Run {
@@ -725,7 +940,11 @@ mod tests {
             iterations: 8,
             time_s: 0.01,
             trace,
-            v2v_per_iteration: if method == "neural" { (0..5).map(|i| 40.0 / (1.0 + i as f64) + k).collect() } else { Vec::new() },
+            v2v_per_iteration: if method == "neural" {
+                (0..5).map(|i| 40.0 / (1.0 + i as f64) + k).collect()
+            } else {
+                Vec::new()
+            },
         }
     }
 
@@ -761,13 +980,34 @@ mod tests {
     #[test]
     fn quantiles_match_numpy_linear_interpolation() {
         let q = quartiles(&[10.0, 1.0, 4.0, 3.0, 2.0]).expect("quartiles");
-        assert_eq!(q, Quartiles { q1: 2.0, median: 3.0, q3: 4.0 });
+        assert_eq!(
+            q,
+            Quartiles {
+                q1: 2.0,
+                median: 3.0,
+                q3: 4.0
+            }
+        );
         // numpy.quantile([1, 2, 3, 4], [0.25, 0.5, 0.75]) = [1.75, 2.5, 3.25].
         let q = quartiles(&[4.0, 2.0, 1.0, 3.0, f64::NAN]).expect("quartiles");
-        assert_eq!(q, Quartiles { q1: 1.75, median: 2.5, q3: 3.25 });
+        assert_eq!(
+            q,
+            Quartiles {
+                q1: 1.75,
+                median: 2.5,
+                q3: 3.25
+            }
+        );
         assert_eq!(quantile(&[1.0, 2.0, 3.0, 4.0, 10.0], 0.0), 1.0);
         assert_eq!(quantile(&[1.0, 2.0, 3.0, 4.0, 10.0], 1.0), 10.0);
-        assert_eq!(quartiles(&[7.0]), Some(Quartiles { q1: 7.0, median: 7.0, q3: 7.0 }));
+        assert_eq!(
+            quartiles(&[7.0]),
+            Some(Quartiles {
+                q1: 7.0,
+                median: 7.0,
+                q3: 7.0
+            })
+        );
         assert_eq!(quartiles(&[]), None);
         assert_eq!(quartiles(&[f64::NAN]), None);
     }
@@ -776,14 +1016,29 @@ mod tests {
     fn box_whiskers_stop_at_one_and_a_half_iqr() {
         let s = box_stats(&[1.0, 2.0, 3.0, 4.0, 10.0]).expect("box");
         // IQR 2 → fences −1 and 7: 10 is an outlier, the upper whisker ends at 4.
-        assert_eq!((s.whisker_lo, s.whisker_hi, s.outliers.clone(), s.n), (1.0, 4.0, vec![10.0], 5));
+        assert_eq!(
+            (s.whisker_lo, s.whisker_hi, s.outliers.clone(), s.n),
+            (1.0, 4.0, vec![10.0], 5)
+        );
     }
 
     #[test]
     fn trace_resamples_as_a_step_function() {
         let trace = [(10, 5.0), (20, 3.0), (40, 1.0)];
         let at = |e| trace_at(&trace, e);
-        assert_eq!([at(1), at(9), at(10), at(19), at(20), at(39), at(40), at(1000)], [5.0, 5.0, 5.0, 5.0, 3.0, 3.0, 1.0, 1.0].map(Some));
+        assert_eq!(
+            [
+                at(1),
+                at(9),
+                at(10),
+                at(19),
+                at(20),
+                at(39),
+                at(40),
+                at(1000)
+            ],
+            [5.0, 5.0, 5.0, 5.0, 3.0, 3.0, 1.0, 1.0].map(Some)
+        );
         assert_eq!(trace_at(&[], 5), None);
     }
 
@@ -797,8 +1052,14 @@ mod tests {
 
     #[test]
     fn log_ticks_label_every_decade_part() {
-        assert_eq!(log_ticks(0.3, 27.0, 10, false), vec![0.5, 1.0, 2.0, 5.0, 10.0, 20.0]);
-        assert_eq!(log_ticks(1.0, 600.0, 10, false), vec![1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0]);
+        assert_eq!(
+            log_ticks(0.3, 27.0, 10, false),
+            vec![0.5, 1.0, 2.0, 5.0, 10.0, 20.0]
+        );
+        assert_eq!(
+            log_ticks(1.0, 600.0, 10, false),
+            vec![1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0]
+        );
         assert_eq!(log_ticks(1.0, 1e5, 5, false), vec![1.0, 100.0, 1e4]);
         assert_eq!(log_ticks(1e-12, 30.0, 10, false).len(), 7);
     }
@@ -806,15 +1067,39 @@ mod tests {
     #[test]
     fn tick_labels_are_short() {
         let t = |v: f64| fmt_tick(&v);
-        assert_eq!([t(1000.0), t(2.5), t(0.001), t(1e-5), t(3e6), t(0.0), t(100.0)], ["1000", "2.5", "0.001", "1e-5", "3e6", "0", "100"]);
+        assert_eq!(
+            [
+                t(1000.0),
+                t(2.5),
+                t(0.001),
+                t(1e-5),
+                t(3e6),
+                t(0.0),
+                t(100.0)
+            ],
+            ["1000", "2.5", "0.001", "1e-5", "3e6", "0", "100"]
+        );
     }
 
     #[test]
     fn writes_every_plot_as_png_and_svg() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let written = write_plots(&config("[\"holistic\"]"), &runs(&["cma", "pso", "neural"]), dir.path()).expect("plots");
-        let names = ["energy_vs_evaluations", "neural_error_per_iteration", "boxplot_energy", "boxplot_v2v_mm"];
-        let expected: Vec<PathBuf> = names.iter().flat_map(|n| ["png", "svg"].map(|e| dir.path().join("plots").join(format!("{n}.{e}")))).collect();
+        let written = write_plots(
+            &config("[\"holistic\"]"),
+            &runs(&["cma", "pso", "neural"]),
+            dir.path(),
+        )
+        .expect("plots");
+        let names = [
+            "energy_vs_evaluations",
+            "neural_error_per_iteration",
+            "boxplot_energy",
+            "boxplot_v2v_mm",
+        ];
+        let expected: Vec<PathBuf> = names
+            .iter()
+            .flat_map(|n| ["png", "svg"].map(|e| dir.path().join("plots").join(format!("{n}.{e}"))))
+            .collect();
         assert_eq!(written, expected);
         for path in &expected {
             let bytes = read(path);
@@ -822,14 +1107,26 @@ mod tests {
                 assert_eq!(png_size(&bytes), SIZE, "{}", path.display());
             } else {
                 let svg = String::from_utf8(bytes).expect("UTF-8 SVG");
-                assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"), "{}", path.display());
-                let methods: &[&str] = if path.to_string_lossy().contains("neural_error") { &["neural"] } else { &["cma", "pso", "neural"] };
+                assert!(
+                    svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"),
+                    "{}",
+                    path.display()
+                );
+                let methods: &[&str] = if path.to_string_lossy().contains("neural_error") {
+                    &["neural"]
+                } else {
+                    &["cma", "pso", "neural"]
+                };
                 for m in methods {
                     assert!(svg.contains(m), "{} lacks the label {m}", path.display());
                 }
             }
         }
-        let leftovers: Vec<_> = std::fs::read_dir(dir.path().join("plots")).expect("plots dir").filter_map(|e| e.ok()).filter(|e| e.file_name().to_string_lossy().starts_with('.')).collect();
+        let leftovers: Vec<_> = std::fs::read_dir(dir.path().join("plots"))
+            .expect("plots dir")
+            .filter_map(|e| e.ok())
+            .filter(|e| e.file_name().to_string_lossy().starts_with('.'))
+            .collect();
         assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
     }
 
@@ -837,10 +1134,20 @@ mod tests {
     fn neural_plot_needs_per_iteration_errors() {
         let dir = tempfile::tempdir().expect("tempdir");
         let plots = dir.path().join("plots");
-        write_plots(&config("[\"holistic\"]"), &runs(&["cma", "neural"]), dir.path()).expect("plots");
+        write_plots(
+            &config("[\"holistic\"]"),
+            &runs(&["cma", "neural"]),
+            dir.path(),
+        )
+        .expect("plots");
         assert!(plots.join("neural_error_per_iteration.svg").exists());
         // Rewritten without per-iteration errors: no figure, and the stale one is gone.
-        let written = write_plots(&config("[\"holistic\"]"), &runs(&["cma", "pso"]), dir.path()).expect("plots");
+        let written = write_plots(
+            &config("[\"holistic\"]"),
+            &runs(&["cma", "pso"]),
+            dir.path(),
+        )
+        .expect("plots");
         assert_eq!(written.len(), 6);
         assert!(!plots.join("neural_error_per_iteration.svg").exists());
         assert!(!plots.join("neural_error_per_iteration.png").exists());
@@ -848,22 +1155,36 @@ mod tests {
 
     #[test]
     fn same_runs_give_identical_svgs() {
-        let (a, b) = (tempfile::tempdir().expect("tempdir"), tempfile::tempdir().expect("tempdir"));
+        let (a, b) = (
+            tempfile::tempdir().expect("tempdir"),
+            tempfile::tempdir().expect("tempdir"),
+        );
         let rs = runs(&["cma", "pso", "neural"]);
         let wa = write_plots(&config("[\"holistic\"]"), &rs, a.path()).expect("plots");
         let wb = write_plots(&config("[\"holistic\"]"), &rs, b.path()).expect("plots");
-        for (pa, pb) in wa.iter().zip(&wb).filter(|(p, _)| p.extension().is_some_and(|e| e == "svg")) {
-            assert!(read(pa) == read(pb), "{} differs between runs", pa.display());
+        for (pa, pb) in wa
+            .iter()
+            .zip(&wb)
+            .filter(|(p, _)| p.extension().is_some_and(|e| e == "svg"))
+        {
+            assert!(
+                read(pa) == read(pb),
+                "{} differs between runs",
+                pa.display()
+            );
         }
     }
 
     #[test]
     fn crowded_category_names_turn_vertical() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let names: Vec<String> = (0..5).map(|i| format!("a-rather-long-method-{i}")).collect();
+        let names: Vec<String> = (0..5)
+            .map(|i| format!("a-rather-long-method-{i}"))
+            .collect();
         let methods: Vec<&str> = names.iter().map(String::as_str).collect();
         write_plots(&config("[\"holistic\"]"), &runs(&methods), dir.path()).expect("plots");
-        let svg = String::from_utf8(read(&dir.path().join("plots/boxplot_v2v_mm.svg"))).expect("UTF-8");
+        let svg =
+            String::from_utf8(read(&dir.path().join("plots/boxplot_v2v_mm.svg"))).expect("UTF-8");
         assert!(svg.contains("rotate(270"), "vertical category names");
         assert!(names.iter().all(|n| svg.contains(&format!("{n} @ 400"))));
     }
@@ -879,7 +1200,11 @@ mod tests {
         rs[0].trace = vec![(1, 0.0)];
         rs[0].energy = 0.0;
         write_plots(&config("[\"holistic\", \"hierarchical\"]"), &rs, dir.path()).expect("plots");
-        let svg = String::from_utf8(read(&dir.path().join("plots/energy_vs_evaluations.svg"))).expect("UTF-8");
-        assert!(svg.contains("cma (hierarchical)") && svg.contains("no trace"), "labels in the energy plot");
+        let svg = String::from_utf8(read(&dir.path().join("plots/energy_vs_evaluations.svg")))
+            .expect("UTF-8");
+        assert!(
+            svg.contains("cma (hierarchical)") && svg.contains("no trace"),
+            "labels in the energy plot"
+        );
     }
 }

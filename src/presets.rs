@@ -11,16 +11,46 @@ use crate::bench::BenchConfig;
 /// `(preset, [(part, TOML)])`: a preset with several parts (one per modality) writes each part
 /// into its own subdirectory of `--out`.
 pub const PRESETS: &[(&str, &[(&str, &str)])] = &[
-    ("zeroth-order-local", &[("", include_str!("../benches/presets/zeroth-order-local.toml"))]),
-    ("zeroth-order-global", &[("", include_str!("../benches/presets/zeroth-order-global.toml"))]),
-    ("zeroth-order-sequence", &[("", include_str!("../benches/presets/zeroth-order-sequence.toml"))]),
-    ("ea-vs-pf", &[("", include_str!("../benches/presets/ea-vs-pf.toml"))]),
+    (
+        "zeroth-order-local",
+        &[(
+            "",
+            include_str!("../benches/presets/zeroth-order-local.toml"),
+        )],
+    ),
+    (
+        "zeroth-order-global",
+        &[(
+            "",
+            include_str!("../benches/presets/zeroth-order-global.toml"),
+        )],
+    ),
+    (
+        "zeroth-order-sequence",
+        &[(
+            "",
+            include_str!("../benches/presets/zeroth-order-sequence.toml"),
+        )],
+    ),
+    (
+        "ea-vs-pf",
+        &[("", include_str!("../benches/presets/ea-vs-pf.toml"))],
+    ),
     (
         "learned-vs-classical",
         &[
-            ("markers", include_str!("../benches/presets/learned-vs-classical-markers.toml")),
-            ("keypoints2d", include_str!("../benches/presets/learned-vs-classical-keypoints2d.toml")),
-            ("hmd", include_str!("../benches/presets/learned-vs-classical-hmd.toml")),
+            (
+                "markers",
+                include_str!("../benches/presets/learned-vs-classical-markers.toml"),
+            ),
+            (
+                "keypoints2d",
+                include_str!("../benches/presets/learned-vs-classical-keypoints2d.toml"),
+            ),
+            (
+                "hmd",
+                include_str!("../benches/presets/learned-vs-classical-hmd.toml"),
+            ),
         ],
     ),
 ];
@@ -35,16 +65,22 @@ pub fn names() -> Vec<&'static str> {
 /// the source tree the binary was built from (so a preset runs from anywhere in a checkout).
 pub fn load(name: &str, quick: bool) -> Result<Vec<(String, BenchConfig)>> {
     let Some((_, parts)) = PRESETS.iter().find(|(n, _)| *n == name) else {
-        bail!("unknown preset '{name}' (expected one of: {})", names().join(", "));
+        bail!(
+            "unknown preset '{name}' (expected one of: {})",
+            names().join(", ")
+        );
     };
     let mut out = Vec::new();
     for (part, text) in parts.iter() {
-        let config: BenchConfig = toml::from_str(text).map_err(|e| anyhow::anyhow!("preset {name} {part}: {}", e.message()))?;
+        let config: BenchConfig = toml::from_str(text)
+            .map_err(|e| anyhow::anyhow!("preset {name} {part}: {}", e.message()))?;
         let mut config = config.resolve(quick);
         if let Some(c) = &config.checkpoint {
             config.checkpoint = Some(find_shipped(c)?);
         }
-        config.validate().with_context(|| format!("preset {name} {part}"))?;
+        config
+            .validate()
+            .with_context(|| format!("preset {name} {part}"))?;
         out.push((part.to_string(), config));
     }
     Ok(out)
@@ -60,7 +96,11 @@ pub fn find_shipped(path: &Path) -> Result<PathBuf> {
     if built.exists() {
         return Ok(built);
     }
-    bail!("{} not found in the working directory nor in {} (run from the lfit checkout)", path.display(), env!("CARGO_MANIFEST_DIR"))
+    bail!(
+        "{} not found in the working directory nor in {} (run from the lfit checkout)",
+        path.display(),
+        env!("CARGO_MANIFEST_DIR")
+    )
 }
 
 #[cfg(test)]
@@ -71,7 +111,8 @@ mod tests {
     fn every_preset_parses_and_validates_at_both_sizes() {
         for (name, parts) in PRESETS {
             for quick in [false, true] {
-                let loaded = load(name, quick).unwrap_or_else(|e| panic!("{name} quick={quick}: {e:#}"));
+                let loaded =
+                    load(name, quick).unwrap_or_else(|e| panic!("{name} quick={quick}: {e:#}"));
                 assert_eq!(loaded.len(), parts.len());
                 for (_, c) in &loaded {
                     assert!(c.quick.is_none(), "{name}: [quick] must be resolved away");
@@ -92,12 +133,18 @@ mod tests {
         assert_eq!(full.synth.as_ref().unwrap().frames, 10);
         assert_eq!(quick.budgets, full.budgets);
         assert_eq!(quick.methods, full.methods);
-        assert!(quick.repetitions * quick.synth.as_ref().unwrap().frames < full.repetitions * full.synth.as_ref().unwrap().frames);
+        assert!(
+            quick.repetitions * quick.synth.as_ref().unwrap().frames
+                < full.repetitions * full.synth.as_ref().unwrap().frames
+        );
         let global = &load("zeroth-order-global", false).unwrap()[0].1;
         assert_eq!(global.methods.len(), 9);
         assert_eq!(global.strategies, vec!["grouped".to_string()]);
         let seq = &load("zeroth-order-sequence", false).unwrap()[0].1;
-        assert_eq!((seq.methods.len(), seq.budgets.as_slice(), seq.repetitions), (5, &[4000][..], 1));
+        assert_eq!(
+            (seq.methods.len(), seq.budgets.as_slice(), seq.repetitions),
+            (5, &[4000][..], 1)
+        );
         let pf = &load("ea-vs-pf", false).unwrap()[0].1;
         assert_eq!(pf.budgets, vec![500, 1500, 3000]);
         assert_eq!(pf.entries().unwrap().len(), 8);
@@ -105,13 +152,19 @@ mod tests {
         let parts: Vec<&str> = lvc.iter().map(|(p, _)| p.as_str()).collect();
         assert_eq!(parts, ["markers", "keypoints2d", "hmd"]);
         for (p, c) in &lvc {
-            assert!(c.checkpoint.as_ref().unwrap().join("config.json").exists(), "{p}");
+            assert!(
+                c.checkpoint.as_ref().unwrap().join("config.json").exists(),
+                "{p}"
+            );
         }
     }
 
     #[test]
     fn unknown_preset_names_the_choices() {
         let e = load("zeroth-order", false).unwrap_err().to_string();
-        assert!(e.contains("unknown preset 'zeroth-order'") && e.contains("ea-vs-pf"), "{e}");
+        assert!(
+            e.contains("unknown preset 'zeroth-order'") && e.contains("ea-vs-pf"),
+            "{e}"
+        );
     }
 }

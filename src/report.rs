@@ -19,11 +19,19 @@ use crate::stats::{friedman, relative_performance, verdict, wilcoxon};
 
 /// The method label of a row: the method, with its strategy when the sweep has several.
 pub(crate) fn label(config: &BenchConfig, r: &Run) -> String {
-    if config.shows_strategy() && r.strategy != "-" { format!("{} ({})", r.method, r.strategy) } else { r.method.clone() }
+    if config.shows_strategy() && r.strategy != "-" {
+        format!("{} ({})", r.method, r.strategy)
+    } else {
+        r.method.clone()
+    }
 }
 
 fn mean(v: &[f64]) -> f64 {
-    if v.is_empty() { f64::NAN } else { v.iter().sum::<f64>() / v.len() as f64 }
+    if v.is_empty() {
+        f64::NAN
+    } else {
+        v.iter().sum::<f64>() / v.len() as f64
+    }
 }
 
 /// Labels in config order.
@@ -39,16 +47,32 @@ pub(crate) fn labels(config: &BenchConfig, runs: &[Run]) -> Vec<String> {
 }
 
 /// Per label: frame → mean over repetitions of `f`.
-fn per_instance(config: &BenchConfig, runs: &[Run], budget: usize, f: fn(&Run) -> f64) -> BTreeMap<String, BTreeMap<usize, f64>> {
+fn per_instance(
+    config: &BenchConfig,
+    runs: &[Run],
+    budget: usize,
+    f: fn(&Run) -> f64,
+) -> BTreeMap<String, BTreeMap<usize, f64>> {
     let mut acc: BTreeMap<String, BTreeMap<usize, Vec<f64>>> = BTreeMap::new();
     for r in runs.iter().filter(|r| r.budget == budget) {
-        acc.entry(label(config, r)).or_default().entry(r.frame).or_default().push(f(r));
+        acc.entry(label(config, r))
+            .or_default()
+            .entry(r.frame)
+            .or_default()
+            .push(f(r));
     }
-    acc.into_iter().map(|(l, m)| (l, m.into_iter().map(|(k, v)| (k, mean(&v))).collect())).collect()
+    acc.into_iter()
+        .map(|(l, m)| (l, m.into_iter().map(|(k, v)| (k, mean(&v))).collect()))
+        .collect()
 }
 
 /// `report.md` and `summary.json`.
-pub fn report(config: &BenchConfig, runs: &[Run], energy_name: &str, command: &str) -> (String, Value) {
+pub fn report(
+    config: &BenchConfig,
+    runs: &[Run],
+    energy_name: &str,
+    command: &str,
+) -> (String, Value) {
     let mut md = String::new();
     let labels = labels(config, runs);
     let frames: Vec<usize> = {
@@ -76,32 +100,66 @@ pub fn report(config: &BenchConfig, runs: &[Run], energy_name: &str, command: &s
 
     // papers/000 Table 2 and Table 4.
     for (title, what, f) in [
-        ("Average final energy (papers/000 Table 2)", "energy", (|r: &Run| r.energy) as fn(&Run) -> f64),
-        ("RMS Hausdorff distance, mm (papers/000 Table 4)", "hausdorff_mm", |r: &Run| r.hausdorff_mm),
+        (
+            "Average final energy (papers/000 Table 2)",
+            "energy",
+            (|r: &Run| r.energy) as fn(&Run) -> f64,
+        ),
+        (
+            "RMS Hausdorff distance, mm (papers/000 Table 4)",
+            "hausdorff_mm",
+            |r: &Run| r.hausdorff_mm,
+        ),
     ] {
         let _ = writeln!(md, "## {title}\n");
         for &b in &config.budgets {
             let mut rows: Vec<(String, f64)> = labels
                 .iter()
-                .map(|l| (l.clone(), mean(&runs.iter().filter(|r| r.budget == b && label(config, r) == *l).map(f).collect::<Vec<_>>())))
+                .map(|l| {
+                    (
+                        l.clone(),
+                        mean(
+                            &runs
+                                .iter()
+                                .filter(|r| r.budget == b && label(config, r) == *l)
+                                .map(f)
+                                .collect::<Vec<_>>(),
+                        ),
+                    )
+                })
                 .filter(|(_, v)| v.is_finite())
                 .collect();
             rows.sort_by(|a, b| a.1.total_cmp(&b.1));
-            let Some(best) = rows.first().map(|r| r.1) else { continue };
+            let Some(best) = rows.first().map(|r| r.1) else {
+                continue;
+            };
             let _ = writeln!(md, "B = {b}\n\n| method | RP | {what} |\n|---|---|---|");
             for (l, v) in &rows {
-                let _ = writeln!(md, "| {l} | {:+.2}% | {v:.5} |", 100.0 * relative_performance(*v, best));
+                let _ = writeln!(
+                    md,
+                    "| {l} | {:+.2}% | {v:.5} |",
+                    100.0 * relative_performance(*v, best)
+                );
             }
             md.push('\n');
         }
     }
 
     // papers/002 Table 2 form.
-    let _ = writeln!(md, "## Errors, evaluations and time per frame (papers/002 Table 2)\n");
-    let _ = writeln!(md, "| method | budget | V2V (mm) | MPJPE (mm) | PA-MPJPE (mm) | RMS Hausdorff (mm) | energy | evaluations | time / frame (ms) |\n|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(
+        md,
+        "## Errors, evaluations and time per frame (papers/002 Table 2)\n"
+    );
+    let _ = writeln!(
+        md,
+        "| method | budget | V2V (mm) | MPJPE (mm) | PA-MPJPE (mm) | RMS Hausdorff (mm) | energy | evaluations | time / frame (ms) |\n|---|---|---|---|---|---|---|---|---|"
+    );
     for &b in &config.budgets {
         for l in &labels {
-            let rs: Vec<&Run> = runs.iter().filter(|r| r.budget == b && label(config, r) == *l).collect();
+            let rs: Vec<&Run> = runs
+                .iter()
+                .filter(|r| r.budget == b && label(config, r) == *l)
+                .collect();
             if rs.is_empty() {
                 continue;
             }
@@ -125,24 +183,61 @@ pub fn report(config: &BenchConfig, runs: &[Run], energy_name: &str, command: &s
     }
     md.push('\n');
     // Neural error per iteration.
-    let neural: Vec<&Run> = runs.iter().filter(|r| !r.v2v_per_iteration.is_empty()).collect();
+    let neural: Vec<&Run> = runs
+        .iter()
+        .filter(|r| !r.v2v_per_iteration.is_empty())
+        .collect();
     if let Some(first) = neural.first() {
         let k = first.v2v_per_iteration.len();
-        let per: Vec<f64> = (0..k).map(|i| mean(&neural.iter().filter_map(|r| r.v2v_per_iteration.get(i).copied()).collect::<Vec<_>>())).collect();
-        let _ = writeln!(md, "Neural fitter V2V (mm) after each iteration (θ0 first; papers/002 Fig. 4): {}\n", per.iter().map(|v| format!("{v:.1}")).collect::<Vec<_>>().join(" → "));
+        let per: Vec<f64> = (0..k)
+            .map(|i| {
+                mean(
+                    &neural
+                        .iter()
+                        .filter_map(|r| r.v2v_per_iteration.get(i).copied())
+                        .collect::<Vec<_>>(),
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            md,
+            "Neural fitter V2V (mm) after each iteration (θ0 first; papers/002 Fig. 4): {}\n",
+            per.iter()
+                .map(|v| format!("{v:.1}"))
+                .collect::<Vec<_>>()
+                .join(" → ")
+        );
     }
 
     // papers/000 Table 3: Wilcoxon matrix on per-frame means over repetitions.
-    let _ = writeln!(md, "## Wilcoxon signed-rank tests on per-frame mean energies (papers/000 Table 3)\n");
-    let _ = writeln!(md, "Cell: the row method is better (+), worse (−) or not significantly different (≈) than the column method at α = {}.\n", config.alpha);
+    let _ = writeln!(
+        md,
+        "## Wilcoxon signed-rank tests on per-frame mean energies (papers/000 Table 3)\n"
+    );
+    let _ = writeln!(
+        md,
+        "Cell: the row method is better (+), worse (−) or not significantly different (≈) than the column method at α = {}.\n",
+        config.alpha
+    );
     for &b in &config.budgets {
         let inst = per_instance(config, runs, b, |r| r.energy);
         let present: Vec<&String> = labels.iter().filter(|l| inst.contains_key(*l)).collect();
         let paired = |a: &str, c: &str| -> (Vec<f64>, Vec<f64>) {
             let (ma, mc) = (&inst[a], &inst[c]);
-            ma.iter().filter_map(|(f, va)| mc.get(f).map(|vc| (*va, *vc))).unzip()
+            ma.iter()
+                .filter_map(|(f, va)| mc.get(f).map(|vc| (*va, *vc)))
+                .unzip()
         };
-        let _ = writeln!(md, "B = {b}\n\n| | {} |\n|---|{}", present.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(" | "), "---|".repeat(present.len()));
+        let _ = writeln!(
+            md,
+            "B = {b}\n\n| | {} |\n|---|{}",
+            present
+                .iter()
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>()
+                .join(" | "),
+            "---|".repeat(present.len())
+        );
         for a in &present {
             let mut line = format!("| {a} |");
             for c in &present {
@@ -163,14 +258,44 @@ pub fn report(config: &BenchConfig, runs: &[Run], energy_name: &str, command: &s
         md.push('\n');
 
         // papers/001 Table 4: Friedman + Holm over the frames every method has.
-        let common: Vec<usize> = frames.iter().copied().filter(|f| present.iter().all(|l| inst[*l].contains_key(f))).collect();
-        let blocks: Vec<Vec<f64>> = common.iter().map(|f| present.iter().map(|l| inst[*l][f]).collect()).collect();
+        let common: Vec<usize> = frames
+            .iter()
+            .copied()
+            .filter(|f| present.iter().all(|l| inst[*l].contains_key(f)))
+            .collect();
+        let blocks: Vec<Vec<f64>> = common
+            .iter()
+            .map(|f| present.iter().map(|l| inst[*l][f]).collect())
+            .collect();
         if let Some(fr) = friedman(&blocks, config.alpha) {
-            let _ = writeln!(md, "Friedman test (papers/001 Table 4), B = {b}: statistic {:.3} (χ² with {} d.o.f.), p = {:.3e}, over {} frames.\n", fr.statistic, present.len() - 1, fr.p, common.len());
-            let _ = writeln!(md, "| method | rank | p-value | Holm-adjusted p | α/(position−1) | significant |\n|---|---|---|---|---|---|");
-            let _ = writeln!(md, "| {} (control) | {:.3} | - | - | - | - |", present[fr.control], fr.ranks[fr.control]);
+            let _ = writeln!(
+                md,
+                "Friedman test (papers/001 Table 4), B = {b}: statistic {:.3} (χ² with {} d.o.f.), p = {:.3e}, over {} frames.\n",
+                fr.statistic,
+                present.len() - 1,
+                fr.p,
+                common.len()
+            );
+            let _ = writeln!(
+                md,
+                "| method | rank | p-value | Holm-adjusted p | α/(position−1) | significant |\n|---|---|---|---|---|---|"
+            );
+            let _ = writeln!(
+                md,
+                "| {} (control) | {:.3} | - | - | - | - |",
+                present[fr.control], fr.ranks[fr.control]
+            );
             for h in &fr.holm {
-                let _ = writeln!(md, "| {} | {:.3} | {:.3e} | {:.3e} | {:.4} | {} |", present[h.method], h.rank, h.p, h.p_adjusted, h.threshold, if h.significant { "yes" } else { "no" });
+                let _ = writeln!(
+                    md,
+                    "| {} | {:.3} | {:.3e} | {:.3e} | {:.4} | {} |",
+                    present[h.method],
+                    h.rank,
+                    h.p,
+                    h.p_adjusted,
+                    h.threshold,
+                    if h.significant { "yes" } else { "no" }
+                );
             }
             md.push('\n');
             fried.push(json!({

@@ -67,7 +67,12 @@ pub fn wilcoxon(x: &[f64], y: &[f64]) -> Option<Wilcoxon> {
     if x.len() != y.len() {
         return None;
     }
-    let d: Vec<f64> = x.iter().zip(y).map(|(a, b)| a - b).filter(|d| *d != 0.0).collect();
+    let d: Vec<f64> = x
+        .iter()
+        .zip(y)
+        .map(|(a, b)| a - b)
+        .filter(|d| *d != 0.0)
+        .collect();
     let zeros = x.len() - d.len();
     let n = d.len();
     if n == 0 {
@@ -75,7 +80,12 @@ pub fn wilcoxon(x: &[f64], y: &[f64]) -> Option<Wilcoxon> {
     }
     let abs: Vec<f64> = d.iter().map(|v| v.abs()).collect();
     let (ranks, ties) = average_ranks(&abs);
-    let w_plus: f64 = d.iter().zip(&ranks).filter(|(v, _)| **v > 0.0).map(|(_, r)| r).sum();
+    let w_plus: f64 = d
+        .iter()
+        .zip(&ranks)
+        .filter(|(v, _)| **v > 0.0)
+        .map(|(_, r)| r)
+        .sum();
     let total = (n * (n + 1)) as f64 / 2.0;
     let w_minus = total - w_plus;
     let has_ties = ties.iter().any(|&t| t > 1);
@@ -87,7 +97,13 @@ pub fn wilcoxon(x: &[f64], y: &[f64]) -> Option<Wilcoxon> {
         let cdf: f64 = counts[..=k].iter().sum::<f64>() / all;
         let sf: f64 = counts[k..].iter().sum::<f64>() / all;
         let p = (2.0 * cdf.min(sf)).min(1.0);
-        return Some(Wilcoxon { statistic, p, n, exact: true, direction: w_plus - w_minus });
+        return Some(Wilcoxon {
+            statistic,
+            p,
+            n,
+            exact: true,
+            direction: w_plus - w_minus,
+        });
     }
     let nf = n as f64;
     let mean = nf * (nf + 1.0) / 4.0;
@@ -96,7 +112,13 @@ pub fn wilcoxon(x: &[f64], y: &[f64]) -> Option<Wilcoxon> {
     let z = (w_plus - mean) / se;
     let normal = Normal::standard();
     let p = (2.0 * normal.sf(z.abs())).min(1.0);
-    Some(Wilcoxon { statistic, p, n, exact: false, direction: w_plus - w_minus })
+    Some(Wilcoxon {
+        statistic,
+        p,
+        n,
+        exact: false,
+        direction: w_plus - w_minus,
+    })
 }
 
 /// Verdict of papers/000 Table 3 for "row vs column" on losses (lower is better) at level `alpha`:
@@ -161,10 +183,18 @@ pub fn friedman(blocks: &[Vec<f64>], alpha: f64) -> Option<Friedman> {
     if correction > 0.0 {
         statistic /= correction;
     }
-    let p = ChiSquared::new(kf - 1.0).ok().map_or(f64::NAN, |c| c.sf(statistic));
+    let p = ChiSquared::new(kf - 1.0)
+        .ok()
+        .map_or(f64::NAN, |c| c.sf(statistic));
 
     let (control, holm) = holm_post_hoc(&ranks, n, alpha);
-    Some(Friedman { statistic, p, ranks, holm, control })
+    Some(Friedman {
+        statistic,
+        p,
+        ranks,
+        holm,
+        control,
+    })
 }
 
 /// Holm's step-down post-hoc test of every method against the best-ranked one (the control),
@@ -183,7 +213,14 @@ pub fn holm_post_hoc(ranks: &[f64], n: usize, alpha: f64) -> (usize, Vec<HolmRow
         .enumerate()
         .map(|(i, &m)| {
             let z = (ranks[m] - ranks[control]) / se;
-            HolmRow { method: m, rank: ranks[m], p: (2.0 * normal.sf(z.abs())).min(1.0), threshold: alpha / (i + 1) as f64, p_adjusted: 0.0, significant: false }
+            HolmRow {
+                method: m,
+                rank: ranks[m],
+                p: (2.0 * normal.sf(z.abs())).min(1.0),
+                threshold: alpha / (i + 1) as f64,
+                p_adjusted: 0.0,
+                significant: false,
+            }
         })
         .collect();
     // Holm step-down on the p-values sorted ascending.
@@ -204,7 +241,11 @@ pub fn holm_post_hoc(ranks: &[f64], n: usize, alpha: f64) -> (usize, Vec<HolmRow
 
 /// Relative performance of papers/000 Table 2: `(value − best) / best`, as a fraction.
 pub fn relative_performance(value: f64, best: f64) -> f64 {
-    if best == 0.0 { if value == 0.0 { 0.0 } else { f64::INFINITY } } else { (value - best) / best.abs() }
+    if best == 0.0 {
+        if value == 0.0 { 0.0 } else { f64::INFINITY }
+    } else {
+        (value - best) / best.abs()
+    }
 }
 
 #[cfg(test)]
@@ -216,8 +257,12 @@ mod tests {
 
     #[test]
     fn wilcoxon_exact_matches_scipy() {
-        let x = [12.0, 14.125, 9.75, 16.0, 11.25, 13.5, 10.5, 16.75, 13.0, 14.5];
-        let y = [12.5, 14.0, 11.0, 17.5, 11.0, 15.75, 10.125, 18.375, 14.75, 15.875];
+        let x = [
+            12.0, 14.125, 9.75, 16.0, 11.25, 13.5, 10.5, 16.75, 13.0, 14.5,
+        ];
+        let y = [
+            12.5, 14.0, 11.0, 17.5, 11.0, 15.75, 10.125, 18.375, 14.75, 15.875,
+        ];
         let w = wilcoxon(&x, &y).expect("test");
         assert!(w.exact);
         assert_eq!(w.statistic, 6.0);
@@ -231,7 +276,9 @@ mod tests {
     #[test]
     fn wilcoxon_with_ties_and_zeros_matches_scipy_asymptotic() {
         let a: Vec<f64> = (1..=16).map(f64::from).collect();
-        let b = [1.5, 2.0, 2.0, 5.0, 4.0, 8.0, 6.0, 6.0, 12.0, 9.0, 11.0, 14.0, 10.0, 13.0, 16.0, 20.0];
+        let b = [
+            1.5, 2.0, 2.0, 5.0, 4.0, 8.0, 6.0, 6.0, 12.0, 9.0, 11.0, 14.0, 10.0, 13.0, 16.0, 20.0,
+        ];
         let w = wilcoxon(&a, &b).expect("test");
         assert!(!w.exact);
         // scipy.stats.wilcoxon(a, b, method='asymptotic') -> 47.5, 0.749948406918076
@@ -242,8 +289,26 @@ mod tests {
 
     #[test]
     fn wilcoxon_large_sample_uses_the_normal_approximation_like_scipy() {
-        let u = [2.040919, -2.555665, 0.418099, -0.56777, -0.452649, -0.215597, -2.019986, -0.231932, -0.865213, 3.323, 0.225787, -0.352631, -0.281287, -0.668046, -1.055151, -0.390801, 0.481945, -0.238554, 0.957759, -0.199802, 0.02426, 1.545821, 0.545106, -0.505229, -0.182839, 0.540525, 1.935088, -0.26962, -0.243559, 1.002314, -0.88646, -0.29172, 0.882539, 0.58035, 0.091517, 0.670104, -2.828162, 1.021307, -0.959645, -1.66862, 0.276446, 0.700545, -0.444767, -1.076406, 0.026125, -0.052747, 1.405598, 0.747408, 0.193816, 1.111633, -0.205523, -0.9259, 0.584058, 0.582538, -0.214829, -0.782809, 0.229154, -2.493894, 0.690125, 0.491368];
-        let v = [1.421491, -2.324988, 0.136049, 0.010841, -1.269733, -0.472844, -1.465196, 0.546268, -1.744216, 3.27398, 0.589797, -0.457239, 0.714033, -1.06366, -0.677885, -0.715004, 1.384927, -0.049379, 0.971633, -0.858895, 1.065172, 2.12221, 1.121887, 0.263712, 0.191774, 0.420902, 1.734967, -0.46972, 0.641477, 0.472123, -0.984645, -0.252342, 1.194848, 1.068025, -0.333032, 0.005098, -2.630369, 1.828089, -0.381116, -1.360794, 0.317868, 1.047162, -0.366435, -0.467803, -0.171099, 0.214373, 1.550208, 1.219088, 0.506135, 2.586651, 0.743804, 0.022469, -0.235694, 0.61238, -0.319134, -0.316448, -0.710359, -1.706645, 1.423616, 0.040333];
+        let u = [
+            2.040919, -2.555665, 0.418099, -0.56777, -0.452649, -0.215597, -2.019986, -0.231932,
+            -0.865213, 3.323, 0.225787, -0.352631, -0.281287, -0.668046, -1.055151, -0.390801,
+            0.481945, -0.238554, 0.957759, -0.199802, 0.02426, 1.545821, 0.545106, -0.505229,
+            -0.182839, 0.540525, 1.935088, -0.26962, -0.243559, 1.002314, -0.88646, -0.29172,
+            0.882539, 0.58035, 0.091517, 0.670104, -2.828162, 1.021307, -0.959645, -1.66862,
+            0.276446, 0.700545, -0.444767, -1.076406, 0.026125, -0.052747, 1.405598, 0.747408,
+            0.193816, 1.111633, -0.205523, -0.9259, 0.584058, 0.582538, -0.214829, -0.782809,
+            0.229154, -2.493894, 0.690125, 0.491368,
+        ];
+        let v = [
+            1.421491, -2.324988, 0.136049, 0.010841, -1.269733, -0.472844, -1.465196, 0.546268,
+            -1.744216, 3.27398, 0.589797, -0.457239, 0.714033, -1.06366, -0.677885, -0.715004,
+            1.384927, -0.049379, 0.971633, -0.858895, 1.065172, 2.12221, 1.121887, 0.263712,
+            0.191774, 0.420902, 1.734967, -0.46972, 0.641477, 0.472123, -0.984645, -0.252342,
+            1.194848, 1.068025, -0.333032, 0.005098, -2.630369, 1.828089, -0.381116, -1.360794,
+            0.317868, 1.047162, -0.366435, -0.467803, -0.171099, 0.214373, 1.550208, 1.219088,
+            0.506135, 2.586651, 0.743804, 0.022469, -0.235694, 0.61238, -0.319134, -0.316448,
+            -0.710359, -1.706645, 1.423616, 0.040333,
+        ];
         let w = wilcoxon(&u, &v).expect("test");
         assert!(!w.exact);
         // scipy.stats.wilcoxon(u, v) (n = 60 > 50: asymptotic) -> 607.0, 0.023367405214037344
@@ -263,7 +328,11 @@ mod tests {
         ];
         let f = friedman(&data, 0.05).expect("test");
         // scipy.stats.friedmanchisquare(*data.T) -> 15.508474576271187, 0.0014298638363596451
-        assert!((f.statistic - 15.508474576271187).abs() < 1e-9, "{}", f.statistic);
+        assert!(
+            (f.statistic - 15.508474576271187).abs() < 1e-9,
+            "{}",
+            f.statistic
+        );
         assert!((f.p - 0.0014298638363596451).abs() < 1e-9, "{}", f.p);
         let want = [1.58333333333, 1.41666666667, 3.83333333333, 3.16666666667];
         for (r, w) in f.ranks.iter().zip(want) {
@@ -277,9 +346,22 @@ mod tests {
         let ranks = [11.0f64, 21.0, 27.0, 32.0, 46.0, 53.0, 63.0, 71.0].map(|r| r / 9.0);
         let (control, holm) = holm_post_hoc(&ranks, 9, 0.05);
         assert_eq!(control, 0);
-        let want_p = [0.3359238131517356, 0.12365771040283347, 0.043308142810791976, 0.0007574950058146071, 5.312128159411714e-05, 5.623957756679217e-07, 7.764036537930667e-09];
+        let want_p = [
+            0.3359238131517356,
+            0.12365771040283347,
+            0.043308142810791976,
+            0.0007574950058146071,
+            5.312128159411714e-05,
+            5.623957756679217e-07,
+            7.764036537930667e-09,
+        ];
         for (h, w) in holm.iter().zip(want_p) {
-            assert!((h.p - w).abs() < 1e-6 * w.max(1e-300) + 1e-15, "method {}: {} vs {w}", h.method, h.p);
+            assert!(
+                (h.p - w).abs() < 1e-6 * w.max(1e-300) + 1e-15,
+                "method {}: {} vs {w}",
+                h.method,
+                h.p
+            );
         }
         // The paper's thresholds α/(position − 1): 0.050, 0.025, 0.016, 0.012, 0.010, 0.008, 0.007.
         assert!((holm[2].threshold - 0.05 / 3.0).abs() < 1e-15);
@@ -293,6 +375,9 @@ mod tests {
         let (r, t) = average_ranks(&[3.0, 1.0, 3.0, 2.0]);
         assert_eq!(r, vec![3.5, 1.0, 3.5, 2.0]);
         assert_eq!(t, vec![1, 1, 2]);
-        assert!((relative_performance(0.03681, 0.03540) - 0.03983).abs() < 1e-4, "papers/000 Table 2: Disc 1+1 +3.99%");
+        assert!(
+            (relative_performance(0.03681, 0.03540) - 0.03983).abs() < 1e-4,
+            "papers/000 Table 2: Disc 1+1 +3.99%"
+        );
     }
 }

@@ -19,12 +19,22 @@ fn pose_file(dir: &std::path::Path) -> std::path::PathBuf {
 
 fn pose_with(tpl: &std::path::Path, dir: &std::path::Path) -> std::process::Output {
     let pose = pose_file(dir);
-    lfit(&["template", "pose", "--pose", path_str(&pose), "--out", path_str(&dir.join("o.obj")), "--template", path_str(tpl)])
+    lfit(&[
+        "template",
+        "pose",
+        "--pose",
+        path_str(&pose),
+        "--out",
+        path_str(&dir.join("o.obj")),
+        "--template",
+        path_str(tpl),
+    ])
 }
 
 fn edit_rig(tpl: &std::path::Path, edit: impl FnOnce(&mut serde_json::Value)) {
     let path = tpl.join("rig.json");
-    let mut rig: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let mut rig: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
     edit(&mut rig);
     std::fs::write(path, rig.to_string()).unwrap();
 }
@@ -35,7 +45,11 @@ fn malformed_obj() {
     let tpl = exported(dir.path());
     std::fs::write(tpl.join("template.obj"), "v 0 0 0\nv 1 0 0\nf 1 2 x\n").unwrap();
     assert_one_line_error(&pose_with(&tpl, dir.path()), "template.obj");
-    std::fs::write(tpl.join("template.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n").unwrap();
+    std::fs::write(
+        tpl.join("template.obj"),
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n",
+    )
+    .unwrap();
     assert_one_line_error(&pose_with(&tpl, dir.path()), "template.obj");
 }
 
@@ -53,9 +67,13 @@ fn rig_with_a_cycle() {
 fn rig_with_bad_weights() {
     let dir = tempfile::tempdir().unwrap();
     let tpl = exported(dir.path());
-    edit_rig(&tpl, |r| r["weights"][17] = serde_json::json!([[0, 0.7], [1, 0.7]]));
+    edit_rig(&tpl, |r| {
+        r["weights"][17] = serde_json::json!([[0, 0.7], [1, 0.7]])
+    });
     assert_one_line_error(&pose_with(&tpl, dir.path()), "vertex 17");
-    edit_rig(&tpl, |r| r["weights"][17] = serde_json::json!([[0, 1.5], [1, -0.5]]));
+    edit_rig(&tpl, |r| {
+        r["weights"][17] = serde_json::json!([[0, 1.5], [1, -0.5]])
+    });
     assert_one_line_error(&pose_with(&tpl, dir.path()), "negative");
     edit_rig(&tpl, |r| r["weights"][17] = serde_json::json!([[99, 1.0]]));
     assert_one_line_error(&pose_with(&tpl, dir.path()), "out of range");
@@ -79,13 +97,34 @@ fn nan_and_wrong_length_in_pose_files() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("p.json");
     std::fs::write(&p, r#"{"pose": [1, 2, 3]}"#).unwrap();
-    let out = lfit(&["template", "pose", "--pose", path_str(&p), "--out", path_str(&dir.path().join("o.obj"))]);
+    let out = lfit(&[
+        "template",
+        "pose",
+        "--pose",
+        path_str(&p),
+        "--out",
+        path_str(&dir.path().join("o.obj")),
+    ]);
     assert_one_line_error(&out, "57");
     std::fs::write(&p, r#"{"pose": [1, 2, "x"]}"#).unwrap();
-    let out = lfit(&["template", "pose", "--pose", path_str(&p), "--out", path_str(&dir.path().join("o.obj"))]);
+    let out = lfit(&[
+        "template",
+        "pose",
+        "--pose",
+        path_str(&p),
+        "--out",
+        path_str(&dir.path().join("o.obj")),
+    ]);
     assert_one_line_error(&out, "not a number");
     std::fs::write(&p, "{\"pose\": [").unwrap();
-    let out = lfit(&["template", "pose", "--pose", path_str(&p), "--out", path_str(&dir.path().join("o.obj"))]);
+    let out = lfit(&[
+        "template",
+        "pose",
+        "--pose",
+        path_str(&p),
+        "--out",
+        path_str(&dir.path().join("o.obj")),
+    ]);
     assert_one_line_error(&out, "malformed pose json");
 }
 
@@ -93,17 +132,59 @@ fn nan_and_wrong_length_in_pose_files() {
 fn unknown_modality_scenario_and_flags() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("d.npz");
-    let o = lfit(&["synth", "--modality", "lidar", "--frames", "2", "--out", path_str(&out)]);
+    let o = lfit(&[
+        "synth",
+        "--modality",
+        "lidar",
+        "--frames",
+        "2",
+        "--out",
+        path_str(&out),
+    ]);
     assert_one_line_error(&o, "unknown modality 'lidar'");
-    let o = lfit(&["synth", "--modality", "markers", "--scenario", "orbit", "--frames", "2", "--out", path_str(&out)]);
+    let o = lfit(&[
+        "synth",
+        "--modality",
+        "markers",
+        "--scenario",
+        "orbit",
+        "--frames",
+        "2",
+        "--out",
+        path_str(&out),
+    ]);
     assert_one_line_error(&o, "unknown scenario 'orbit'");
-    let o = lfit(&["synth", "--modality", "markers", "--frames", "0", "--out", path_str(&out)]);
+    let o = lfit(&[
+        "synth",
+        "--modality",
+        "markers",
+        "--frames",
+        "0",
+        "--out",
+        path_str(&out),
+    ]);
     assert_one_line_error(&o, "frames");
-    let o = lfit(&["synth", "--modality", "markers", "--frames", "2", "--noise=-1", "--out", path_str(&out)]);
+    let o = lfit(&[
+        "synth",
+        "--modality",
+        "markers",
+        "--frames",
+        "2",
+        "--noise=-1",
+        "--out",
+        path_str(&out),
+    ]);
     assert_one_line_error(&o, "noise");
     let o = lfit(&["synth", "--modality", "markers", "--bogus-flag"]);
     assert_one_line_error(&o, "bogus-flag");
-    let o = lfit(&["template", "export", "--out-dir", path_str(dir.path()), "--shape", "giant"]);
+    let o = lfit(&[
+        "template",
+        "export",
+        "--out-dir",
+        path_str(dir.path()),
+        "--shape",
+        "giant",
+    ]);
     assert_one_line_error(&o, "giant");
     assert!(!out.exists(), "nothing written on a refused command");
 }
@@ -111,10 +192,26 @@ fn unknown_modality_scenario_and_flags() {
 #[test]
 fn missing_files() {
     let dir = tempfile::tempdir().unwrap();
-    let o = lfit(&["template", "pose", "--pose", "/nonexistent/pose.json", "--out", path_str(&dir.path().join("o.obj"))]);
+    let o = lfit(&[
+        "template",
+        "pose",
+        "--pose",
+        "/nonexistent/pose.json",
+        "--out",
+        path_str(&dir.path().join("o.obj")),
+    ]);
     assert_one_line_error(&o, "/nonexistent/pose.json");
     let pose = pose_file(dir.path());
-    let o = lfit(&["template", "pose", "--pose", path_str(&pose), "--out", path_str(&dir.path().join("o.obj")), "--template", "/nonexistent/tpl"]);
+    let o = lfit(&[
+        "template",
+        "pose",
+        "--pose",
+        path_str(&pose),
+        "--out",
+        path_str(&dir.path().join("o.obj")),
+        "--template",
+        "/nonexistent/tpl",
+    ]);
     assert_one_line_error(&o, "/nonexistent/tpl");
 }
 
@@ -125,7 +222,14 @@ fn a_failed_write_keeps_the_old_file() {
     std::fs::write(&target, "old content").unwrap();
     let p = dir.path().join("p.json");
     std::fs::write(&p, r#"{"pose": [1, 2, 3]}"#).unwrap();
-    let o = lfit(&["template", "pose", "--pose", path_str(&p), "--out", path_str(&target)]);
+    let o = lfit(&[
+        "template",
+        "pose",
+        "--pose",
+        path_str(&p),
+        "--out",
+        path_str(&target),
+    ]);
     assert!(!o.status.success());
     assert_eq!(std::fs::read_to_string(&target).unwrap(), "old content");
 }

@@ -31,12 +31,21 @@ fn csv_without_time(path: &Path) -> Vec<String> {
     std::fs::read_to_string(path)
         .expect("csv")
         .lines()
-        .map(|l| l.split(',').enumerate().filter(|(i, _)| *i != 15).map(|(_, f)| f).collect::<Vec<_>>().join(","))
+        .map(|l| {
+            l.split(',')
+                .enumerate()
+                .filter(|(i, _)| *i != 15)
+                .map(|(_, f)| f)
+                .collect::<Vec<_>>()
+                .join(",")
+        })
         .collect()
 }
 
 fn rows(path: &Path) -> usize {
-    std::fs::read_to_string(path).map(|t| t.lines().count().saturating_sub(1)).unwrap_or(0)
+    std::fs::read_to_string(path)
+        .map(|t| t.lines().count().saturating_sub(1))
+        .unwrap_or(0)
 }
 
 #[test]
@@ -45,13 +54,30 @@ fn a_killed_run_resumes_to_the_same_csv_and_shards_merge_to_the_same_report() {
     let d = tmp.path();
     let cfg = config(d, "b.toml", SWEEP);
     let full = d.join("full");
-    let summary = lfit_json(&["-q", "bench", "--config", path_str(&cfg), "--out", path_str(&full)]);
+    let summary = lfit_json(&[
+        "-q",
+        "bench",
+        "--config",
+        path_str(&cfg),
+        "--out",
+        path_str(&full),
+    ]);
     assert_eq!(summary["runs"], 3 * 2 * 2 * 8);
     assert_eq!(rows(&full.join("runs.csv")), 96);
 
     // Kill a run once it has written some rows, then restart it.
     let killed = d.join("killed");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_lfit")).args(["-q", "bench", "--config", path_str(&cfg), "--out", path_str(&killed)]).spawn().expect("spawn");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_lfit"))
+        .args([
+            "-q",
+            "bench",
+            "--config",
+            path_str(&cfg),
+            "--out",
+            path_str(&killed),
+        ])
+        .spawn()
+        .expect("spawn");
     let t0 = Instant::now();
     while rows(&killed.join("runs.csv")) < 10 && t0.elapsed() < Duration::from_secs(60) {
         std::thread::sleep(Duration::from_millis(5));
@@ -64,14 +90,33 @@ fn a_killed_run_resumes_to_the_same_csv_and_shards_merge_to_the_same_report() {
     let mut text = std::fs::read_to_string(killed.join("runs.csv")).expect("csv");
     text.push_str("pso,holistic,300,1,");
     std::fs::write(killed.join("runs.csv"), text).expect("torn");
-    lfit_json(&["-q", "bench", "--config", path_str(&cfg), "--out", path_str(&killed)]);
-    assert_eq!(csv_without_time(&killed.join("runs.csv")), csv_without_time(&full.join("runs.csv")));
+    lfit_json(&[
+        "-q",
+        "bench",
+        "--config",
+        path_str(&cfg),
+        "--out",
+        path_str(&killed),
+    ]);
+    assert_eq!(
+        csv_without_time(&killed.join("runs.csv")),
+        csv_without_time(&full.join("runs.csv"))
+    );
 
     // Three shards and a merge give the same rows and the same statistics.
     let mut shard_dirs = Vec::new();
     for i in 0..3 {
         let s = d.join(format!("shard{i}"));
-        lfit_json(&["-q", "bench", "--config", path_str(&cfg), "--out", path_str(&s), "--shard", &format!("{i}/3")]);
+        lfit_json(&[
+            "-q",
+            "bench",
+            "--config",
+            path_str(&cfg),
+            "--out",
+            path_str(&s),
+            "--shard",
+            &format!("{i}/3"),
+        ]);
         assert!(rows(&s.join("runs.csv")) == 32, "shard {i}");
         shard_dirs.push(s);
     }
@@ -79,26 +124,68 @@ fn a_killed_run_resumes_to_the_same_csv_and_shards_merge_to_the_same_report() {
     let mut args = vec!["-q", "bench", "merge", "--out", path_str(&merged)];
     args.extend(shard_dirs.iter().map(|s| path_str(s)));
     lfit_json(&args);
-    assert_eq!(csv_without_time(&merged.join("runs.csv")), csv_without_time(&full.join("runs.csv")));
-    let a: serde_json::Value = serde_json::from_slice(&std::fs::read(full.join("summary.json")).expect("a")).expect("json");
-    let b: serde_json::Value = serde_json::from_slice(&std::fs::read(merged.join("summary.json")).expect("b")).expect("json");
+    assert_eq!(
+        csv_without_time(&merged.join("runs.csv")),
+        csv_without_time(&full.join("runs.csv"))
+    );
+    let a: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(full.join("summary.json")).expect("a"))
+            .expect("json");
+    let b: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(merged.join("summary.json")).expect("b"))
+            .expect("json");
     assert_eq!(a["wilcoxon"], b["wilcoxon"]);
     assert_eq!(a["friedman"], b["friedman"]);
     // The summary has every pairwise test per budget, and the report the papers' tables.
     assert_eq!(a["wilcoxon"].as_array().map(Vec::len), Some(3 * 2));
     assert_eq!(a["friedman"].as_array().map(Vec::len), Some(2));
     let md = std::fs::read_to_string(full.join("report.md")).expect("report");
-    for needle in ["papers/000 Table 2", "papers/000 Table 3", "papers/000 Table 4", "papers/001 Table 4", "papers/002 Table 2", "| pso |"] {
+    for needle in [
+        "papers/000 Table 2",
+        "papers/000 Table 3",
+        "papers/000 Table 4",
+        "papers/001 Table 4",
+        "papers/002 Table 2",
+        "| pso |",
+    ] {
         assert!(md.contains(needle), "report lacks {needle}");
     }
 
     // Another config in the same directory is refused; a shard of another sweep is not merged.
-    let other = config(d, "other.toml", &SWEEP.replace("budgets = [300, 600]", "budgets = [300]"));
-    let out = lfit(&["-q", "bench", "--config", path_str(&other), "--out", path_str(&full)]);
+    let other = config(
+        d,
+        "other.toml",
+        &SWEEP.replace("budgets = [300, 600]", "budgets = [300]"),
+    );
+    let out = lfit(&[
+        "-q",
+        "bench",
+        "--config",
+        path_str(&other),
+        "--out",
+        path_str(&full),
+    ]);
     assert_one_line_error(&out, "different benchmark");
     let o2 = d.join("o2");
-    lfit_json(&["-q", "bench", "--config", path_str(&other), "--out", path_str(&o2), "--shard", "0/50"]);
-    let out = lfit(&["-q", "bench", "merge", "--out", path_str(&d.join("m2")), path_str(&shard_dirs[0]), path_str(&o2)]);
+    lfit_json(&[
+        "-q",
+        "bench",
+        "--config",
+        path_str(&other),
+        "--out",
+        path_str(&o2),
+        "--shard",
+        "0/50",
+    ]);
+    let out = lfit(&[
+        "-q",
+        "bench",
+        "merge",
+        "--out",
+        path_str(&d.join("m2")),
+        path_str(&shard_dirs[0]),
+        path_str(&o2),
+    ]);
     assert_one_line_error(&out, "another benchmark");
 }
 
@@ -108,24 +195,66 @@ fn bad_bench_configs_fail_before_any_work() {
     let d = tmp.path();
     let base = "name = \"x\"\nbudgets = [100]\n[synth]\nmodality = \"markers\"\nframes = 2\n";
     for (body, needle) in [
-        (format!("methods = [\"cmaes\"]\n{base}"), "unknown method 'cmaes'"),
-        (format!("methods = [\"cma\"]\n{}", base.replace("[100]", "[100, 0]")), "budgets"),
-        ("methods = [\"cma\"]\nname = \"x\"\nbudgets = [10]\ndata = \"/nonexistent.npz\"\n".to_string(), "does not exist"),
-        (format!("methods = [\"neural\"]\n{base}"), "needs checkpoint"),
-        (format!("methods = [\"cma\"]\nstrategies = [\"sideways\"]\n{base}"), "sideways"),
+        (
+            format!("methods = [\"cmaes\"]\n{base}"),
+            "unknown method 'cmaes'",
+        ),
+        (
+            format!("methods = [\"cma\"]\n{}", base.replace("[100]", "[100, 0]")),
+            "budgets",
+        ),
+        (
+            "methods = [\"cma\"]\nname = \"x\"\nbudgets = [10]\ndata = \"/nonexistent.npz\"\n"
+                .to_string(),
+            "does not exist",
+        ),
+        (
+            format!("methods = [\"neural\"]\n{base}"),
+            "needs checkpoint",
+        ),
+        (
+            format!("methods = [\"cma\"]\nstrategies = [\"sideways\"]\n{base}"),
+            "sideways",
+        ),
         (format!("methods = [\"cma\"]\nbogus = 1\n{base}"), "bogus"),
         ("methods = [".to_string(), "malformed bench config"),
     ] {
         let c = config(d, "c.toml", &body);
         let out_dir = d.join("out");
-        let out = lfit(&["-q", "bench", "--config", path_str(&c), "--out", path_str(&out_dir)]);
+        let out = lfit(&[
+            "-q",
+            "bench",
+            "--config",
+            path_str(&c),
+            "--out",
+            path_str(&out_dir),
+        ]);
         assert_one_line_error(&out, needle);
-        assert!(!out_dir.exists(), "{needle}: nothing may be written before the config is valid");
+        assert!(
+            !out_dir.exists(),
+            "{needle}: nothing may be written before the config is valid"
+        );
     }
-    let out = lfit(&["-q", "bench", "--config", path_str(&d.join("missing.toml")), "--out", path_str(&d.join("o"))]);
+    let out = lfit(&[
+        "-q",
+        "bench",
+        "--config",
+        path_str(&d.join("missing.toml")),
+        "--out",
+        path_str(&d.join("o")),
+    ]);
     assert_one_line_error(&out, "cannot read");
     let c = config(d, "ok.toml", &format!("methods = [\"cma\"]\n{base}"));
-    let out = lfit(&["-q", "bench", "--config", path_str(&c), "--out", path_str(&d.join("o")), "--shard", "3/3"]);
+    let out = lfit(&[
+        "-q",
+        "bench",
+        "--config",
+        path_str(&c),
+        "--out",
+        path_str(&d.join("o")),
+        "--shard",
+        "3/3",
+    ]);
     assert_one_line_error(&out, "--shard");
 }
 
@@ -146,17 +275,54 @@ fn sequences_run_as_warm_started_chains_like_lfit_fit_and_resume_mid_chain() {
     let tmp = tempfile::tempdir().expect("tmp");
     let d = tmp.path();
     let data = d.join("seq.npz");
-    lfit_json(&["-q", "synth", "--modality", "markers", "--scenario", "sequence", "--frames", "6", "--seed", "3", "--out", path_str(&data)]);
-    let body = format!("name = \"seq\"\nmethods = [\"cma\", \"pso:hierarchical\"]\nbudgets = [150]\nseed = 7\ndata = \"{}\"\n", path_str(&data));
+    lfit_json(&[
+        "-q",
+        "synth",
+        "--modality",
+        "markers",
+        "--scenario",
+        "sequence",
+        "--frames",
+        "6",
+        "--seed",
+        "3",
+        "--out",
+        path_str(&data),
+    ]);
+    let body = format!(
+        "name = \"seq\"\nmethods = [\"cma\", \"pso:hierarchical\"]\nbudgets = [150]\nseed = 7\ndata = \"{}\"\n",
+        path_str(&data)
+    );
     let cfg = config(d, "seq.toml", &body);
     let full = d.join("full");
-    let summary = lfit_json(&["-q", "bench", "--config", path_str(&cfg), "--out", path_str(&full)]);
+    let summary = lfit_json(&[
+        "-q",
+        "bench",
+        "--config",
+        path_str(&cfg),
+        "--out",
+        path_str(&full),
+    ]);
     assert_eq!(summary["runs"], 2 * 6);
     // The chain is the same computation as `lfit fit` on the sequence (same seeds): frame k
     // starts from frame k−1's result, so every energy matches to the last digit.
     let fit = d.join("fit.json");
-    lfit_json(&["-q", "fit", "--data", path_str(&data), "--method", "cma", "--budget", "150", "--seed", "7", "--out", path_str(&fit)]);
-    let fitted: serde_json::Value = serde_json::from_slice(&std::fs::read(&fit).expect("fit")).expect("json");
+    lfit_json(&[
+        "-q",
+        "fit",
+        "--data",
+        path_str(&data),
+        "--method",
+        "cma",
+        "--budget",
+        "150",
+        "--seed",
+        "7",
+        "--out",
+        path_str(&fit),
+    ]);
+    let fitted: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&fit).expect("fit")).expect("json");
     let bench = energies(&full.join("runs.csv"), "cma");
     assert_eq!(bench.len(), 6);
     for (frame, e) in &bench {
@@ -164,7 +330,11 @@ fn sequences_run_as_warm_started_chains_like_lfit_fit_and_resume_mid_chain() {
         assert_eq!(e.parse::<f64>().expect("e"), want, "frame {frame}");
     }
     // Parallel fits of one frame count their evaluations apart: the budget holds exactly.
-    for line in std::fs::read_to_string(full.join("runs.csv")).expect("csv").lines().skip(1) {
+    for line in std::fs::read_to_string(full.join("runs.csv"))
+        .expect("csv")
+        .lines()
+        .skip(1)
+    {
         let f: Vec<&str> = line.split(',').collect();
         assert!(f[12].parse::<u64>().expect("evaluations") <= 150, "{line}");
     }
@@ -172,37 +342,101 @@ fn sequences_run_as_warm_started_chains_like_lfit_fit_and_resume_mid_chain() {
     let csv = std::fs::read_to_string(full.join("runs.csv")).expect("csv");
     assert!(csv.contains("\npso,hierarchical,150,0,0,"), "{csv}");
     let md = std::fs::read_to_string(full.join("report.md")).expect("report");
-    assert!(md.contains("pso (hierarchical)") && md.contains("cma (holistic)"), "{md}");
+    assert!(
+        md.contains("pso (hierarchical)") && md.contains("cma (holistic)"),
+        "{md}"
+    );
 
     // A run stopped after 2 rows of a chain re-fits the chain for its warm starts but keeps the
     // rows it has, and ends with the same CSV.
     let resumed = d.join("resumed");
     std::fs::create_dir_all(&resumed).expect("dir");
     std::fs::copy(full.join("bench.json"), resumed.join("bench.json")).expect("copy");
-    let text: Vec<String> = std::fs::read_to_string(full.join("runs.csv")).expect("csv").lines().take(3).map(|l| format!("{l}\n")).collect();
+    let text: Vec<String> = std::fs::read_to_string(full.join("runs.csv"))
+        .expect("csv")
+        .lines()
+        .take(3)
+        .map(|l| format!("{l}\n"))
+        .collect();
     std::fs::write(resumed.join("runs.csv"), text.concat()).expect("partial");
-    lfit_json(&["-q", "bench", "--config", path_str(&cfg), "--out", path_str(&resumed)]);
-    assert_eq!(csv_without_time(&resumed.join("runs.csv")), csv_without_time(&full.join("runs.csv")));
+    lfit_json(&[
+        "-q",
+        "bench",
+        "--config",
+        path_str(&cfg),
+        "--out",
+        path_str(&resumed),
+    ]);
+    assert_eq!(
+        csv_without_time(&resumed.join("runs.csv")),
+        csv_without_time(&full.join("runs.csv"))
+    );
 }
 
 #[test]
 fn presets_list_validate_and_refuse_bad_names() {
     let list = lfit_json(&["-q", "bench", "presets"]);
-    let names: Vec<&str> = list["presets"].as_array().expect("list").iter().map(|p| p["name"].as_str().expect("name")).collect();
-    assert_eq!(names, ["zeroth-order-local", "zeroth-order-global", "zeroth-order-sequence", "ea-vs-pf", "learned-vs-classical"]);
+    let names: Vec<&str> = list["presets"]
+        .as_array()
+        .expect("list")
+        .iter()
+        .map(|p| p["name"].as_str().expect("name"))
+        .collect();
+    assert_eq!(
+        names,
+        [
+            "zeroth-order-local",
+            "zeroth-order-global",
+            "zeroth-order-sequence",
+            "ea-vs-pf",
+            "learned-vs-classical"
+        ]
+    );
     for p in list["presets"].as_array().expect("list") {
-        assert!(p["quick"][0]["frames"].as_u64() < p["full"][0]["frames"].as_u64(), "{p}");
+        assert!(
+            p["quick"][0]["frames"].as_u64() < p["full"][0]["frames"].as_u64(),
+            "{p}"
+        );
     }
     let tmp = tempfile::tempdir().expect("tmp");
     let out_dir = tmp.path().join("o");
-    let out = lfit(&["-q", "bench", "--preset", "zeroth-order", "--out", path_str(&out_dir)]);
+    let out = lfit(&[
+        "-q",
+        "bench",
+        "--preset",
+        "zeroth-order",
+        "--out",
+        path_str(&out_dir),
+    ]);
     assert_one_line_error(&out, "unknown preset 'zeroth-order'");
     assert!(!out_dir.exists());
-    let c = config(tmp.path(), "c.toml", "name = \"x\"\nmethods = [\"neural:grouped\"]\nbudgets = [5]\n[synth]\nmodality = \"markers\"\nframes = 2\n");
-    let out = lfit(&["-q", "bench", "--config", path_str(&c), "--out", path_str(&out_dir)]);
+    let c = config(
+        tmp.path(),
+        "c.toml",
+        "name = \"x\"\nmethods = [\"neural:grouped\"]\nbudgets = [5]\n[synth]\nmodality = \"markers\"\nframes = 2\n",
+    );
+    let out = lfit(&[
+        "-q",
+        "bench",
+        "--config",
+        path_str(&c),
+        "--out",
+        path_str(&out_dir),
+    ]);
     assert_one_line_error(&out, "no strategies");
-    let c = config(tmp.path(), "c.toml", "name = \"x\"\nmethods = [\"cma\", \"cma:holistic\"]\nbudgets = [5]\n[synth]\nmodality = \"markers\"\nframes = 2\n");
-    let out = lfit(&["-q", "bench", "--config", path_str(&c), "--out", path_str(&out_dir)]);
+    let c = config(
+        tmp.path(),
+        "c.toml",
+        "name = \"x\"\nmethods = [\"cma\", \"cma:holistic\"]\nbudgets = [5]\n[synth]\nmodality = \"markers\"\nframes = 2\n",
+    );
+    let out = lfit(&[
+        "-q",
+        "bench",
+        "--config",
+        path_str(&c),
+        "--out",
+        path_str(&out_dir),
+    ]);
     assert_one_line_error(&out, "listed twice");
     assert!(!out_dir.exists());
 }
@@ -211,16 +445,50 @@ fn presets_list_validate_and_refuse_bad_names() {
 fn quick_sizes_apply_to_user_configs_too() {
     let tmp = tempfile::tempdir().expect("tmp");
     let d = tmp.path();
-    let c = config(d, "q.toml", "name = \"q\"\nmethods = [\"pso\"]\nbudgets = [400]\n[synth]\nmodality = \"markers\"\nframes = 5\n[quick]\nframes = 2\nbudgets = [50]\n");
-    let quick = lfit_json(&["-q", "bench", "--config", path_str(&c), "--quick", "--out", path_str(&d.join("quick"))]);
+    let c = config(
+        d,
+        "q.toml",
+        "name = \"q\"\nmethods = [\"pso\"]\nbudgets = [400]\n[synth]\nmodality = \"markers\"\nframes = 5\n[quick]\nframes = 2\nbudgets = [50]\n",
+    );
+    let quick = lfit_json(&[
+        "-q",
+        "bench",
+        "--config",
+        path_str(&c),
+        "--quick",
+        "--out",
+        path_str(&d.join("quick")),
+    ]);
     assert_eq!(quick["runs"], 2);
     let csv = std::fs::read_to_string(d.join("quick/runs.csv")).expect("csv");
     assert!(csv.contains("\npso,holistic,50,0,1,"), "{csv}");
-    let full = lfit_json(&["-q", "bench", "--config", path_str(&c), "--out", path_str(&d.join("full"))]);
+    let full = lfit_json(&[
+        "-q",
+        "bench",
+        "--config",
+        path_str(&c),
+        "--out",
+        path_str(&d.join("full")),
+    ]);
     assert_eq!(full["runs"], 5);
     // --quick on a config without a [quick] section is a bad flag, not a silent full-size run.
-    let plain = config(d, "p.toml", "name = \"p\"\nmethods = [\"pso\"]\nbudgets = [40]\n[synth]\nmodality = \"markers\"\nframes = 2\n");
+    let plain = config(
+        d,
+        "p.toml",
+        "name = \"p\"\nmethods = [\"pso\"]\nbudgets = [40]\n[synth]\nmodality = \"markers\"\nframes = 2\n",
+    );
     let out_dir = d.join("plain");
-    assert_one_line_error(&lfit(&["-q", "bench", "--config", path_str(&plain), "--quick", "--out", path_str(&out_dir)]), "no [quick] section");
+    assert_one_line_error(
+        &lfit(&[
+            "-q",
+            "bench",
+            "--config",
+            path_str(&plain),
+            "--quick",
+            "--out",
+            path_str(&out_dir),
+        ]),
+        "no [quick] section",
+    );
     assert!(!out_dir.exists());
 }

@@ -12,7 +12,9 @@ use std::path::{Path, PathBuf};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde_json::{Value, json};
-use support::{assert_one_line_error, lfit, lfit_json, obj_vertices, path_str, skip_unless_required};
+use support::{
+    assert_one_line_error, lfit, lfit_json, obj_vertices, path_str, skip_unless_required,
+};
 
 const FPS: f64 = 25.0;
 const FRAMES: usize = 6;
@@ -22,14 +24,42 @@ fn dataset(dir: &Path, modality: &str) -> PathBuf {
     let out = dir.join(format!("{modality}.npz"));
     let frames = FRAMES.to_string();
     let fps = FPS.to_string();
-    lfit_json(&["synth", "--modality", modality, "--scenario", "sequence", "--frames", &frames, "--fps", &fps, "--seed", "4", "--out", path_str(&out), "-q"]);
+    lfit_json(&[
+        "synth",
+        "--modality",
+        modality,
+        "--scenario",
+        "sequence",
+        "--frames",
+        &frames,
+        "--fps",
+        &fps,
+        "--seed",
+        "4",
+        "--out",
+        path_str(&out),
+        "-q",
+    ]);
     out
 }
 
 /// A real `lfit fit` result on frames 0, 2 and 5 (a gap the animation must keep).
 fn fit_results(dir: &Path, data: &Path) -> PathBuf {
     let out = dir.join("results.json");
-    lfit_json(&["fit", "--data", path_str(data), "--method", "random", "--budget", "4", "--frames", "0,2,5", "--out", path_str(&out), "-q"]);
+    lfit_json(&[
+        "fit",
+        "--data",
+        path_str(data),
+        "--method",
+        "random",
+        "--budget",
+        "4",
+        "--frames",
+        "0,2,5",
+        "--out",
+        path_str(&out),
+        "-q",
+    ]);
     out
 }
 
@@ -43,7 +73,17 @@ fn result_poses(results: &Value) -> Vec<(usize, Vec<f64>)> {
         .as_array()
         .unwrap()
         .iter()
-        .map(|r| (r["frame"].as_u64().unwrap() as usize, r["pose"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect()))
+        .map(|r| {
+            (
+                r["frame"].as_u64().unwrap() as usize,
+                r["pose"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|x| x.as_f64().unwrap())
+                    .collect(),
+            )
+        })
         .collect()
 }
 
@@ -52,7 +92,14 @@ fn template_pose(dir: &Path, pose: &[f64], tag: &str) -> PathBuf {
     let file = dir.join(format!("pose_{tag}.json"));
     std::fs::write(&file, json!({ "pose": pose }).to_string()).unwrap();
     let out = dir.join(format!("posed_{tag}.obj"));
-    lfit_json(&["template", "pose", "--pose", path_str(&file), "--out", path_str(&out)]);
+    lfit_json(&[
+        "template",
+        "pose",
+        "--pose",
+        path_str(&file),
+        "--out",
+        path_str(&out),
+    ]);
     out
 }
 
@@ -60,7 +107,12 @@ fn template_pose(dir: &Path, pose: &[f64], tag: &str) -> PathBuf {
 
 type M4 = [[f64; 4]; 4];
 
-const IDENTITY: M4 = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
+const IDENTITY: M4 = [
+    [1.0, 0.0, 0.0, 0.0],
+    [0.0, 1.0, 0.0, 0.0],
+    [0.0, 0.0, 1.0, 0.0],
+    [0.0, 0.0, 0.0, 1.0],
+];
 
 fn mul(a: &M4, b: &M4) -> M4 {
     let mut c = [[0.0; 4]; 4];
@@ -76,9 +128,21 @@ fn mul(a: &M4, b: &M4) -> M4 {
 fn trs(t: [f64; 3], q: [f64; 4], s: [f64; 3]) -> M4 {
     let [x, y, z, w] = q;
     let r = [
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
-        [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
-        [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)],
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - z * w),
+            2.0 * (x * z + y * w),
+        ],
+        [
+            2.0 * (x * y + z * w),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - x * w),
+        ],
+        [
+            2.0 * (x * z - y * w),
+            2.0 * (y * z + x * w),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
     ];
     let mut m = IDENTITY;
     for i in 0..3 {
@@ -105,21 +169,36 @@ fn u32_at(b: &[u8], at: usize) -> u32 {
 fn parse_glb(bytes: &[u8]) -> Glb {
     assert_eq!(&bytes[0..4], b"glTF", "magic");
     assert_eq!(u32_at(bytes, 4), 2, "GLB version");
-    assert_eq!(u32_at(bytes, 8) as usize, bytes.len(), "header length is the file length");
+    assert_eq!(
+        u32_at(bytes, 8) as usize,
+        bytes.len(),
+        "header length is the file length"
+    );
     let json_len = u32_at(bytes, 12) as usize;
     assert_eq!(u32_at(bytes, 16), 0x4E4F_534A, "first chunk is JSON");
     assert_eq!(json_len % 4, 0, "JSON chunk is 4-byte aligned");
     let json = &bytes[20..20 + json_len];
-    let doc: Value = serde_json::from_slice(json).expect("the JSON chunk parses (space padding is whitespace)");
+    let doc: Value =
+        serde_json::from_slice(json).expect("the JSON chunk parses (space padding is whitespace)");
     let at = 20 + json_len;
     let bin_len = u32_at(bytes, at) as usize;
     assert_eq!(u32_at(bytes, at + 4), 0x004E_4942, "second chunk is BIN");
     assert_eq!(bin_len % 4, 0);
-    assert_eq!(at + 8 + bin_len, bytes.len(), "no bytes after the BIN chunk");
+    assert_eq!(
+        at + 8 + bin_len,
+        bytes.len(),
+        "no bytes after the BIN chunk"
+    );
     let bin = bytes[at + 8..].to_vec();
     let declared = doc["buffers"][0]["byteLength"].as_u64().unwrap() as usize;
-    assert!(declared <= bin.len() && bin.len() - declared < 4, "buffer 0 is the BIN chunk");
-    assert!(doc["buffers"][0].get("uri").is_none(), "buffer 0 of a GLB has no uri");
+    assert!(
+        declared <= bin.len() && bin.len() - declared < 4,
+        "buffer 0 is the BIN chunk"
+    );
+    assert!(
+        doc["buffers"][0].get("uri").is_none(),
+        "buffer 0 of a GLB has no uri"
+    );
     Glb { doc, bin }
 }
 
@@ -145,17 +224,38 @@ impl Glb {
             5125 => (4, |b| f64::from(u32::from_le_bytes(b.try_into().unwrap()))),
             other => panic!("componentType {other}"),
         };
-        let start = view["byteOffset"].as_u64().unwrap_or(0) as usize + a["byteOffset"].as_u64().unwrap_or(0) as usize;
+        let start = view["byteOffset"].as_u64().unwrap_or(0) as usize
+            + a["byteOffset"].as_u64().unwrap_or(0) as usize;
         let stride = view["byteStride"].as_u64().map_or(n * size, |s| s as usize);
         let count = a["count"].as_u64().unwrap() as usize;
-        assert!(start + stride * (count - 1) + n * size <= view["byteOffset"].as_u64().unwrap_or(0) as usize + view["byteLength"].as_u64().unwrap() as usize, "accessor {index} inside its view");
-        (0..count).map(|e| (0..n).map(|k| read(&self.bin[start + e * stride + k * size..start + e * stride + (k + 1) * size])).collect()).collect()
+        assert!(
+            start + stride * (count - 1) + n * size
+                <= view["byteOffset"].as_u64().unwrap_or(0) as usize
+                    + view["byteLength"].as_u64().unwrap() as usize,
+            "accessor {index} inside its view"
+        );
+        (0..count)
+            .map(|e| {
+                (0..n)
+                    .map(|k| {
+                        read(
+                            &self.bin[start + e * stride + k * size
+                                ..start + e * stride + (k + 1) * size],
+                        )
+                    })
+                    .collect()
+            })
+            .collect()
     }
 
     /// Local TRS of every node at animation time `t` (animation 0): the node's own values,
     /// overridden by the channels sampled per glTF §3.11 (LINEAR: lerp, slerp for rotation).
     fn local_trs(&self, t: f64) -> Vec<([f64; 3], [f64; 4], [f64; 3])> {
-        let vec = |v: &Value, default: &[f64]| -> Vec<f64> { v.as_array().map_or(default.to_vec(), |a| a.iter().map(|x| x.as_f64().unwrap()).collect()) };
+        let vec = |v: &Value, default: &[f64]| -> Vec<f64> {
+            v.as_array().map_or(default.to_vec(), |a| {
+                a.iter().map(|x| x.as_f64().unwrap()).collect()
+            })
+        };
         let mut trs: Vec<([f64; 3], [f64; 4], [f64; 3])> = self.doc["nodes"]
             .as_array()
             .unwrap()
@@ -165,20 +265,31 @@ impl Glb {
                 let t = vec(&n["translation"], &[0.0; 3]);
                 let r = vec(&n["rotation"], &[0.0, 0.0, 0.0, 1.0]);
                 let s = vec(&n["scale"], &[1.0; 3]);
-                ([t[0], t[1], t[2]], [r[0], r[1], r[2], r[3]], [s[0], s[1], s[2]])
+                (
+                    [t[0], t[1], t[2]],
+                    [r[0], r[1], r[2], r[3]],
+                    [s[0], s[1], s[2]],
+                )
             })
             .collect();
         let anim = &self.doc["animations"][0];
         for channel in anim["channels"].as_array().unwrap() {
             let sampler = &anim["samplers"][channel["sampler"].as_u64().unwrap() as usize];
             assert_eq!(sampler["interpolation"], "LINEAR");
-            let times: Vec<f64> = self.accessor(sampler["input"].as_u64().unwrap() as usize).into_iter().map(|v| v[0]).collect();
+            let times: Vec<f64> = self
+                .accessor(sampler["input"].as_u64().unwrap() as usize)
+                .into_iter()
+                .map(|v| v[0])
+                .collect();
             let values = self.accessor(sampler["output"].as_u64().unwrap() as usize);
             assert_eq!(times.len(), values.len());
             let (i, u) = match times.iter().position(|&k| k > t) {
                 Some(0) => (0, 0.0),
                 None => (times.len() - 1, 0.0),
-                Some(next) => (next - 1, (t - times[next - 1]) / (times[next] - times[next - 1])),
+                Some(next) => (
+                    next - 1,
+                    (t - times[next - 1]) / (times[next] - times[next - 1]),
+                ),
             };
             let a = &values[i];
             let b = values.get(i + 1).unwrap_or(a);
@@ -198,7 +309,8 @@ impl Glb {
         let local = self.local_trs(t);
         let nodes = self.doc["nodes"].as_array().unwrap();
         let mut global: Vec<Option<M4>> = vec![None; nodes.len()];
-        let mut stack: Vec<(usize, M4)> = self.doc["scenes"][self.doc["scene"].as_u64().unwrap() as usize]["nodes"]
+        let mut stack: Vec<(usize, M4)> = self.doc["scenes"]
+            [self.doc["scene"].as_u64().unwrap() as usize]["nodes"]
             .as_array()
             .unwrap()
             .iter()
@@ -209,21 +321,38 @@ impl Glb {
             let g = mul(&parent, &trs(t, r, s));
             assert!(global[n].is_none(), "node {n} reached twice");
             global[n] = Some(g);
-            for c in nodes[n]["children"].as_array().map(Vec::as_slice).unwrap_or_default() {
+            for c in nodes[n]["children"]
+                .as_array()
+                .map(Vec::as_slice)
+                .unwrap_or_default()
+            {
                 stack.push((c.as_u64().unwrap() as usize, g));
             }
         }
-        global.into_iter().enumerate().map(|(n, g)| g.unwrap_or_else(|| panic!("node {n} is not in the scene"))).collect()
+        global
+            .into_iter()
+            .enumerate()
+            .map(|(n, g)| g.unwrap_or_else(|| panic!("node {n} is not in the scene")))
+            .collect()
     }
 
     /// Skinned positions of mesh 0 / primitive 0 at time `t` (glTF §3.7.3: joint matrix =
     /// inverse(global(mesh node)) · global(joint) · IBM; vertex = Σ w_k · jointMatrix_k · v).
     fn skinned(&self, t: f64) -> Vec<[f64; 3]> {
         let globals = self.globals(t);
-        let mesh_node = self.doc["nodes"].as_array().unwrap().iter().position(|n| n.get("mesh").is_some()).unwrap();
+        let mesh_node = self.doc["nodes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .position(|n| n.get("mesh").is_some())
+            .unwrap();
         let mesh_global = globals[mesh_node];
-        assert_eq!(mesh_global, IDENTITY, "the skinned mesh node is untransformed (so its inverse is the identity)");
-        let skin = &self.doc["skins"][self.doc["nodes"][mesh_node]["skin"].as_u64().unwrap() as usize];
+        assert_eq!(
+            mesh_global, IDENTITY,
+            "the skinned mesh node is untransformed (so its inverse is the identity)"
+        );
+        let skin =
+            &self.doc["skins"][self.doc["nodes"][mesh_node]["skin"].as_u64().unwrap() as usize];
         let ibm = self.accessor(skin["inverseBindMatrices"].as_u64().unwrap() as usize);
         let joint_matrices: Vec<M4> = skin["joints"]
             .as_array()
@@ -237,8 +366,13 @@ impl Glb {
             })
             .collect();
         let prim = &self.doc["meshes"][0]["primitives"][0];
-        let attribute = |name: &str| self.accessor(prim["attributes"][name].as_u64().unwrap() as usize);
-        let (positions, joints, weights) = (attribute("POSITION"), attribute("JOINTS_0"), attribute("WEIGHTS_0"));
+        let attribute =
+            |name: &str| self.accessor(prim["attributes"][name].as_u64().unwrap() as usize);
+        let (positions, joints, weights) = (
+            attribute("POSITION"),
+            attribute("JOINTS_0"),
+            attribute("WEIGHTS_0"),
+        );
         positions
             .iter()
             .zip(&joints)
@@ -266,7 +400,10 @@ fn slerp(a: &[f64], b: &[f64], u: f64) -> [f64; 4] {
         (1.0 - u, u)
     } else {
         let theta = dot.acos();
-        (((1.0 - u) * theta).sin() / theta.sin(), (u * theta).sin() / theta.sin())
+        (
+            ((1.0 - u) * theta).sin() / theta.sin(),
+            (u * theta).sin() / theta.sin(),
+        )
     };
     let q = [0, 1, 2, 3].map(|k| wa * a[k] + wb * sign * b[k]);
     let n = q.iter().map(|x| x * x).sum::<f64>().sqrt();
@@ -275,11 +412,24 @@ fn slerp(a: &[f64], b: &[f64], u: f64) -> [f64; 4] {
 
 fn max_deviation(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
     assert_eq!(a.len(), b.len());
-    a.iter().zip(b).map(|(p, q)| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt()).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt())
+        .fold(0.0, f64::max)
 }
 
 fn export(data: &Path, poses: &Path, format: &str, out: &Path) -> Value {
-    lfit_json(&["export", "--data", path_str(data), "--poses", path_str(poses), "--format", format, "--out", path_str(out)])
+    lfit_json(&[
+        "export",
+        "--data",
+        path_str(data),
+        "--poses",
+        path_str(poses),
+        "--format",
+        format,
+        "--out",
+        path_str(out),
+    ])
 }
 
 #[test]
@@ -301,12 +451,21 @@ fn export_gltf_skinned_by_an_independent_reader_equals_template_pose() {
     let rig = read_json(&tpl.join("rig.json"));
     let joints = rig["joints"].as_array().unwrap();
     let skin = &glb.doc["skins"][0];
-    let skin_joints: Vec<usize> = skin["joints"].as_array().unwrap().iter().map(|j| j.as_u64().unwrap() as usize).collect();
+    let skin_joints: Vec<usize> = skin["joints"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|j| j.as_u64().unwrap() as usize)
+        .collect();
     assert_eq!(skin_joints.len(), joints.len());
     let nodes = glb.doc["nodes"].as_array().unwrap();
     let mut parent_of = vec![None; nodes.len()];
     for (n, node) in nodes.iter().enumerate() {
-        for c in node["children"].as_array().map(Vec::as_slice).unwrap_or_default() {
+        for c in node["children"]
+            .as_array()
+            .map(Vec::as_slice)
+            .unwrap_or_default()
+        {
             parent_of[c.as_u64().unwrap() as usize] = Some(n);
         }
     }
@@ -320,20 +479,40 @@ fn export_gltf_skinned_by_an_independent_reader_equals_template_pose() {
     assert_eq!(skin["skeleton"].as_u64(), Some(root as u64));
     let scene_roots = &glb.doc["scenes"][0]["nodes"];
     let mesh_node = nodes.iter().position(|n| n.get("mesh").is_some()).unwrap();
-    assert!(parent_of[mesh_node].is_none(), "the skinned mesh node is a scene root");
+    assert!(
+        parent_of[mesh_node].is_none(),
+        "the skinned mesh node is a scene root"
+    );
     for n in [root, mesh_node] {
-        assert!(scene_roots.as_array().unwrap().contains(&json!(n)), "node {n} is a scene root");
+        assert!(
+            scene_roots.as_array().unwrap().contains(&json!(n)),
+            "node {n} is a scene root"
+        );
     }
     for key in ["translation", "rotation", "scale", "matrix"] {
-        assert!(nodes[mesh_node].get(key).is_none(), "the skinned mesh node has no {key}");
+        assert!(
+            nodes[mesh_node].get(key).is_none(),
+            "the skinned mesh node has no {key}"
+        );
     }
 
     // Time keys are frame / fps of the result's frames (gaps kept), strictly increasing.
     let anim = &glb.doc["animations"][0];
-    assert_eq!(anim["channels"].as_array().unwrap().len(), 2 * joints.len(), "translation + rotation per joint");
+    assert_eq!(
+        anim["channels"].as_array().unwrap().len(),
+        2 * joints.len(),
+        "translation + rotation per joint"
+    );
     for sampler in anim["samplers"].as_array().unwrap() {
-        let times: Vec<f64> = glb.accessor(sampler["input"].as_u64().unwrap() as usize).into_iter().map(|v| v[0]).collect();
-        let expected: Vec<f64> = poses.iter().map(|(f, _)| f64::from((*f as f64 / FPS) as f32)).collect();
+        let times: Vec<f64> = glb
+            .accessor(sampler["input"].as_u64().unwrap() as usize)
+            .into_iter()
+            .map(|v| v[0])
+            .collect();
+        let expected: Vec<f64> = poses
+            .iter()
+            .map(|(f, _)| f64::from((*f as f64 / FPS) as f32))
+            .collect();
         assert_eq!(times, expected);
         assert!(times.windows(2).all(|w| w[0] < w[1]));
     }
@@ -345,7 +524,10 @@ fn export_gltf_skinned_by_an_independent_reader_equals_template_pose() {
         let expected = obj_vertices(&template_pose(dir.path(), pose, &frame.to_string()));
         let max = max_deviation(&skinned, &expected);
         eprintln!("frame {frame}: glTF skinning vs lfit template pose, max deviation {max:.2e} m");
-        assert!(max < 1e-4, "frame {frame}: glTF skinning deviates from lfit template pose by {max} m");
+        assert!(
+            max < 1e-4,
+            "frame {frame}: glTF skinning deviates from lfit template pose by {max} m"
+        );
     }
     // Half-way between frames 2 and 5 the animation interpolates: the mesh differs from both ends.
     let mid = glb.skinned(3.5 / FPS);
@@ -360,7 +542,19 @@ fn export_gltf_reproduces_lbs_for_large_rotations_from_a_poses_file() {
     let dir = tempfile::tempdir().unwrap();
     let data = dataset(dir.path(), "markers");
     let mut rng = ChaCha8Rng::seed_from_u64(77);
-    let poses: Vec<Vec<f64>> = (0..4).map(|_| (0..57).map(|i| if i < 3 { rng.random_range(-2.0..2.0) } else { rng.random_range(-2.5..2.5) }).collect()).collect();
+    let poses: Vec<Vec<f64>> = (0..4)
+        .map(|_| {
+            (0..57)
+                .map(|i| {
+                    if i < 3 {
+                        rng.random_range(-2.0..2.0)
+                    } else {
+                        rng.random_range(-2.5..2.5)
+                    }
+                })
+                .collect()
+        })
+        .collect();
     let file = dir.path().join("wild.json");
     std::fs::write(&file, json!({ "poses": poses }).to_string()).unwrap();
     let out = dir.path().join("gltf");
@@ -380,7 +574,10 @@ fn export_gltf_passes_the_khronos_validator() {
     let prefix = match support::gltf_validator() {
         Ok(p) => p,
         Err(reason) => {
-            skip_unless_required(&format!("the glTF validator is unavailable: {reason}"), None);
+            skip_unless_required(
+                &format!("the glTF validator is unavailable: {reason}"),
+                None,
+            );
             return;
         }
     };
@@ -391,10 +588,19 @@ fn export_gltf_passes_the_khronos_validator() {
     export(&data, &results, "gltf", &out);
     let (report, stdout) = support::validate_glb(&prefix, &out.join("results.glb"));
     let issues = &report["issues"];
-    let codes: Vec<String> = issues["messages"].as_array().unwrap().iter().map(|m| format!("{} {} {}", m["severity"], m["code"], m["pointer"])).collect();
+    let codes: Vec<String> = issues["messages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| format!("{} {} {}", m["severity"], m["code"], m["pointer"]))
+        .collect();
     eprintln!(
         "gltf-validator {}: {} errors, {} warnings, {} infos, {} hints; messages (severity 0 error .. 3 hint): {codes:?}",
-        report["validatorVersion"], issues["numErrors"], issues["numWarnings"], issues["numInfos"], issues["numHints"]
+        report["validatorVersion"],
+        issues["numErrors"],
+        issues["numWarnings"],
+        issues["numInfos"],
+        issues["numHints"]
     );
     assert_eq!(issues["numErrors"], 0, "{stdout}");
     assert_eq!(issues["numWarnings"], 0, "{stdout}");
@@ -410,23 +616,50 @@ fn export_obj_writes_one_template_pose_mesh_per_fitted_frame() {
     let poses = result_poses(&read_json(&results));
     let out = dir.path().join("obj");
     let summary = export(&data, &results, "obj", &out);
-    let mut files: Vec<String> = std::fs::read_dir(&out).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    let mut files: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
     files.sort();
-    assert_eq!(files, ["frame_00000.obj", "frame_00002.obj", "frame_00005.obj"]);
+    assert_eq!(
+        files,
+        ["frame_00000.obj", "frame_00002.obj", "frame_00005.obj"]
+    );
     assert_eq!(summary["written"].as_array().unwrap().len(), poses.len());
     // Same LBS and the same writer: every vertex and face line is byte-identical.
-    let body = |p: &Path| std::fs::read_to_string(p).unwrap().lines().filter(|l| !l.starts_with('#')).map(str::to_string).collect::<Vec<_>>();
+    let body = |p: &Path| {
+        std::fs::read_to_string(p)
+            .unwrap()
+            .lines()
+            .filter(|l| !l.starts_with('#'))
+            .map(str::to_string)
+            .collect::<Vec<_>>()
+    };
     for (frame, pose) in &poses {
         let expected = template_pose(dir.path(), pose, &frame.to_string());
-        assert_eq!(body(&out.join(format!("frame_{frame:05}.obj"))), body(&expected), "frame {frame}");
+        assert_eq!(
+            body(&out.join(format!("frame_{frame:05}.obj"))),
+            body(&expected),
+            "frame {frame}"
+        );
     }
     // A {"poses": [...]} file is frames 0..n.
     let file = dir.path().join("two.json");
-    std::fs::write(&file, json!({ "poses": [poses[1].1, poses[0].1] }).to_string()).unwrap();
+    std::fs::write(
+        &file,
+        json!({ "poses": [poses[1].1, poses[0].1] }).to_string(),
+    )
+    .unwrap();
     let out2 = dir.path().join("obj2");
     export(&data, &file, "obj", &out2);
-    assert_eq!(body(&out2.join("frame_00000.obj")), body(&out.join("frame_00002.obj")));
-    assert_eq!(body(&out2.join("frame_00001.obj")), body(&out.join("frame_00000.obj")));
+    assert_eq!(
+        body(&out2.join("frame_00000.obj")),
+        body(&out.join("frame_00002.obj"))
+    );
+    assert_eq!(
+        body(&out2.join("frame_00001.obj")),
+        body(&out.join("frame_00000.obj"))
+    );
     assert_eq!(std::fs::read_dir(&out2).unwrap().count(), 2);
 }
 
@@ -448,20 +681,79 @@ fn export_refuses_results_that_do_not_match_the_dataset_before_writing() {
         edit(&mut v);
         write(name, &v.to_string())
     };
-    let run = |data: &Path, poses: &Path, format: &str| lfit(&["export", "--data", path_str(data), "--poses", path_str(poses), "--format", format, "--out", path_str(&out)]);
+    let run = |data: &Path, poses: &Path, format: &str| {
+        lfit(&[
+            "export",
+            "--data",
+            path_str(data),
+            "--poses",
+            path_str(poses),
+            "--format",
+            format,
+            "--out",
+            path_str(&out),
+        ])
+    };
 
     let cases: Vec<(PathBuf, PathBuf, &str, &str)> = vec![
-        (data.clone(), edited("beyond.json", &|v| v["frames"][1]["frame"] = json!(FRAMES + 3)), "gltf", "out of range"),
+        (
+            data.clone(),
+            edited("beyond.json", &|v| {
+                v["frames"][1]["frame"] = json!(FRAMES + 3)
+            }),
+            "gltf",
+            "out of range",
+        ),
         (other_modality.clone(), results.clone(), "gltf", "modality"),
         (other_modality.clone(), results.clone(), "obj", "modality"),
-        (data.clone(), write("malformed.json", "{\"frames\": [{\"frame\": 0, \"pose\": [0, 1,"), "gltf", "malformed"),
+        (
+            data.clone(),
+            write(
+                "malformed.json",
+                "{\"frames\": [{\"frame\": 0, \"pose\": [0, 1,",
+            ),
+            "gltf",
+            "malformed",
+        ),
         (data.clone(), results.clone(), "bad", "format"),
-        (data.clone(), edited("short.json", &|v| v["frames"][0]["pose"] = json!(vec![0.0; 56])), "obj", "57"),
-        (data.clone(), edited("nan.json", &|v| v["frames"][2]["pose"][7] = Value::Null), "gltf", "not a finite number"),
-        (data.clone(), edited("dup.json", &|v| v["frames"][1]["frame"] = json!(0)), "gltf", "twice"),
-        (data.clone(), edited("empty.json", &|v| v["frames"] = json!([])), "gltf", "empty"),
-        (data.clone(), write("neither.json", "{\"x\": 1}"), "obj", "expected"),
-        (data.clone(), dir.path().join("missing.json"), "obj", "cannot read"),
+        (
+            data.clone(),
+            edited("short.json", &|v| {
+                v["frames"][0]["pose"] = json!(vec![0.0; 56])
+            }),
+            "obj",
+            "57",
+        ),
+        (
+            data.clone(),
+            edited("nan.json", &|v| v["frames"][2]["pose"][7] = Value::Null),
+            "gltf",
+            "not a finite number",
+        ),
+        (
+            data.clone(),
+            edited("dup.json", &|v| v["frames"][1]["frame"] = json!(0)),
+            "gltf",
+            "twice",
+        ),
+        (
+            data.clone(),
+            edited("empty.json", &|v| v["frames"] = json!([])),
+            "gltf",
+            "empty",
+        ),
+        (
+            data.clone(),
+            write("neither.json", "{\"x\": 1}"),
+            "obj",
+            "expected",
+        ),
+        (
+            data.clone(),
+            dir.path().join("missing.json"),
+            "obj",
+            "cannot read",
+        ),
     ];
     for (data, poses, format, needle) in &cases {
         let output = run(data, poses, format);

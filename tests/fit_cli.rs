@@ -8,9 +8,27 @@ use std::process::{Command, Stdio};
 
 use support::{assert_one_line_error, lfit, lfit_json, path_str};
 
-fn dataset(dir: &std::path::Path, modality: &str, scenario: &str, frames: usize) -> std::path::PathBuf {
+fn dataset(
+    dir: &std::path::Path,
+    modality: &str,
+    scenario: &str,
+    frames: usize,
+) -> std::path::PathBuf {
     let out = dir.join(format!("{modality}_{scenario}.npz"));
-    lfit_json(&["synth", "--modality", modality, "--scenario", scenario, "--frames", &frames.to_string(), "--seed", "3", "--out", path_str(&out), "-q"]);
+    lfit_json(&[
+        "synth",
+        "--modality",
+        modality,
+        "--scenario",
+        scenario,
+        "--frames",
+        &frames.to_string(),
+        "--seed",
+        "3",
+        "--out",
+        path_str(&out),
+        "-q",
+    ]);
     out
 }
 
@@ -20,14 +38,37 @@ fn fit_writes_the_result_contract_and_never_ends_above_the_start() {
     let data = dataset(dir.path(), "markers", "local", 3);
     for (method, budget) in [("cma", 600), ("lbfgs", 60)] {
         let out = dir.path().join(format!("{method}.json"));
-        lfit_json(&["fit", "--data", path_str(&data), "--method", method, "--budget", &budget.to_string(), "--frames", "0..2", "--out", path_str(&out), "-q"]);
-        let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+        lfit_json(&[
+            "fit",
+            "--data",
+            path_str(&data),
+            "--method",
+            method,
+            "--budget",
+            &budget.to_string(),
+            "--frames",
+            "0..2",
+            "--out",
+            path_str(&out),
+            "-q",
+        ]);
+        let r: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
         assert_eq!(r["method"], method);
         assert_eq!(r["budget"], budget);
         let frames = r["frames"].as_array().unwrap();
         assert_eq!(frames.len(), 2);
         for f in frames {
-            for key in ["frame", "pose", "energy", "terms", "v2v_mm", "mpjpe_mm", "evaluations", "time_s"] {
+            for key in [
+                "frame",
+                "pose",
+                "energy",
+                "terms",
+                "v2v_mm",
+                "mpjpe_mm",
+                "evaluations",
+                "time_s",
+            ] {
                 assert!(f.get(key).is_some(), "{method}: missing {key}");
             }
             assert_eq!(f["pose"].as_array().unwrap().len(), 57);
@@ -36,10 +77,17 @@ fn fit_writes_the_result_contract_and_never_ends_above_the_start() {
                 assert_eq!(evals, budget as u64, "zeroth-order budgets are exact");
             } else {
                 // Evaluation 1 is the start (value only); every later one has its gradient.
-                assert!(evals <= budget as u64 && f["gradient_evaluations"].as_u64().unwrap() + 1 == evals, "{f}");
+                assert!(
+                    evals <= budget as u64
+                        && f["gradient_evaluations"].as_u64().unwrap() + 1 == evals,
+                    "{f}"
+                );
             }
             // Never worse than the start (the start is evaluation 1); L-BFGS strictly better.
-            let (e, e0) = (f["energy"].as_f64().unwrap(), f["start_energy"].as_f64().unwrap());
+            let (e, e0) = (
+                f["energy"].as_f64().unwrap(),
+                f["start_energy"].as_f64().unwrap(),
+            );
             assert!(e <= e0, "{method}: {f}");
             if method == "lbfgs" {
                 assert!(e < 0.9 * e0, "{method}: {f}");
@@ -54,22 +102,64 @@ fn sequence_fitting_warm_starts_from_the_previous_frame() {
     let dir = tempfile::tempdir().unwrap();
     let data = dataset(dir.path(), "hmd", "sequence", 3);
     let out = dir.path().join("seq.json");
-    lfit_json(&["fit", "--data", path_str(&data), "--method", "lbfgs", "--budget", "40", "--out", path_str(&out), "-q"]);
-    let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    lfit_json(&[
+        "fit",
+        "--data",
+        path_str(&data),
+        "--method",
+        "lbfgs",
+        "--budget",
+        "40",
+        "--out",
+        path_str(&out),
+        "-q",
+    ]);
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     assert_eq!(r["scenario"], "sequence");
     assert_eq!(r["frames"].as_array().unwrap().len(), 3);
 }
 
 #[test]
 fn optimize_reports_value_point_and_trace() {
-    let r = lfit_json(&["optimize", "--function", "sphere", "--dim", "10", "--method", "cma", "--budget", "3000", "--seed", "1", "--json"]);
+    let r = lfit_json(&[
+        "optimize",
+        "--function",
+        "sphere",
+        "--dim",
+        "10",
+        "--method",
+        "cma",
+        "--budget",
+        "3000",
+        "--seed",
+        "1",
+        "--json",
+    ]);
     assert!(r["best_value"].as_f64().unwrap() < 1e-8, "{r}");
     assert_eq!(r["evaluations"], 3000);
     let x = r["best_x"].as_array().unwrap();
     assert!(x.iter().all(|v| (v.as_f64().unwrap() - 1.0).abs() < 1e-3));
     let trace = r["trace"].as_array().unwrap();
-    assert!(trace.windows(2).all(|w| w[1][1].as_f64() <= w[0][1].as_f64()));
-    let again = lfit_json(&["optimize", "--function", "sphere", "--dim", "10", "--method", "cma", "--budget", "3000", "--seed", "1", "--json"]);
+    assert!(
+        trace
+            .windows(2)
+            .all(|w| w[1][1].as_f64() <= w[0][1].as_f64())
+    );
+    let again = lfit_json(&[
+        "optimize",
+        "--function",
+        "sphere",
+        "--dim",
+        "10",
+        "--method",
+        "cma",
+        "--budget",
+        "3000",
+        "--seed",
+        "1",
+        "--json",
+    ]);
     assert_eq!(r, again, "same seed, same result");
 }
 
@@ -83,16 +173,74 @@ fn bad_input_to_fit_and_optimize() {
         args.extend_from_slice(extra);
         lfit(&args)
     };
-    assert_one_line_error(&fit(&["--method", "gradient-descent", "--budget", "10"]), "unknown method 'gradient-descent'");
+    assert_one_line_error(
+        &fit(&["--method", "gradient-descent", "--budget", "10"]),
+        "unknown method 'gradient-descent'",
+    );
     assert_one_line_error(&fit(&["--method", "cma", "--budget", "0"]), "budget");
-    assert_one_line_error(&fit(&["--method", "cma", "--budget", "10", "--strategy", "greedy"]), "unknown strategy");
-    assert_one_line_error(&fit(&["--method", "cma", "--budget", "10", "--frames", "0..5"]), "frames");
+    assert_one_line_error(
+        &fit(&["--method", "cma", "--budget", "10", "--strategy", "greedy"]),
+        "unknown strategy",
+    );
+    assert_one_line_error(
+        &fit(&["--method", "cma", "--budget", "10", "--frames", "0..5"]),
+        "frames",
+    );
     assert!(!out.exists(), "no result file after a failed run");
-    let missing = lfit(&["fit", "--data", "/nonexistent/x.npz", "--method", "cma", "--budget", "10", "--out", path_str(&out)]);
+    let missing = lfit(&[
+        "fit",
+        "--data",
+        "/nonexistent/x.npz",
+        "--method",
+        "cma",
+        "--budget",
+        "10",
+        "--out",
+        path_str(&out),
+    ]);
     assert_one_line_error(&missing, "x.npz");
-    assert_one_line_error(&lfit(&["optimize", "--function", "himmelblau", "--dim", "3", "--method", "cma", "--budget", "10"]), "unknown function");
-    assert_one_line_error(&lfit(&["optimize", "--function", "sphere", "--dim", "3", "--method", "nope", "--budget", "10"]), "unknown method");
-    assert_one_line_error(&lfit(&["optimize", "--function", "sphere", "--dim", "3", "--method", "cma", "--budget", "0"]), "budget");
+    assert_one_line_error(
+        &lfit(&[
+            "optimize",
+            "--function",
+            "himmelblau",
+            "--dim",
+            "3",
+            "--method",
+            "cma",
+            "--budget",
+            "10",
+        ]),
+        "unknown function",
+    );
+    assert_one_line_error(
+        &lfit(&[
+            "optimize",
+            "--function",
+            "sphere",
+            "--dim",
+            "3",
+            "--method",
+            "nope",
+            "--budget",
+            "10",
+        ]),
+        "unknown method",
+    );
+    assert_one_line_error(
+        &lfit(&[
+            "optimize",
+            "--function",
+            "sphere",
+            "--dim",
+            "3",
+            "--method",
+            "cma",
+            "--budget",
+            "0",
+        ]),
+        "budget",
+    );
 }
 
 #[test]
@@ -100,7 +248,13 @@ fn objective_server_answers_and_survives_bad_lines() {
     let dir = tempfile::tempdir().unwrap();
     let data = dataset(dir.path(), "markers", "local", 2);
     let mut child = Command::new(env!("CARGO_BIN_EXE_lfit"))
-        .args(["objective-server", "--data", path_str(&data), "--frame", "1"])
+        .args([
+            "objective-server",
+            "--data",
+            path_str(&data),
+            "--frame",
+            "1",
+        ])
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -121,23 +275,59 @@ fn objective_server_answers_and_survives_bad_lines() {
     }
     drop(stdin);
     let out = child.wait_with_output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let answers: Vec<serde_json::Value> = String::from_utf8(out.stdout).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let answers: Vec<serde_json::Value> = String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
     assert_eq!(answers.len(), lines.len());
     let d = &answers[0];
     assert_eq!(d["dim"], 43);
     assert_eq!(d["lower"].as_array().unwrap().len(), 43);
     assert_eq!(d["names"][0], "t_x");
-    assert!(answers[1]["error"].as_str().unwrap().contains("malformed JSON"));
-    assert!(answers[2]["error"].as_str().unwrap().contains("expected 43"));
-    assert!(answers[3]["error"].as_str().unwrap().contains("expected 43"));
-    assert!(answers[4]["error"].as_str().unwrap().contains("x[0] is not a finite number"));
+    assert!(
+        answers[1]["error"]
+            .as_str()
+            .unwrap()
+            .contains("malformed JSON")
+    );
+    assert!(
+        answers[2]["error"]
+            .as_str()
+            .unwrap()
+            .contains("expected 43")
+    );
+    assert!(
+        answers[3]["error"]
+            .as_str()
+            .unwrap()
+            .contains("expected 43")
+    );
+    assert!(
+        answers[4]["error"]
+            .as_str()
+            .unwrap()
+            .contains("x[0] is not a finite number")
+    );
     let e = answers[5]["energy"].as_f64().unwrap();
     assert!(e.is_finite() && answers[5]["terms"]["data"].is_number());
     // The start pose's energy equals what `fit` reports as start_energy for that frame.
     let start = serde_json::to_string(&d["start"]).unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_lfit"))
-        .args(["objective-server", "--data", path_str(&data), "--frame", "1", "--budget", "1"])
+        .args([
+            "objective-server",
+            "--data",
+            path_str(&data),
+            "--frame",
+            "1",
+            "--budget",
+            "1",
+        ])
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .spawn()
@@ -147,12 +337,40 @@ fn objective_server_answers_and_survives_bad_lines() {
     writeln!(stdin, r#"{{"x": {start}}}"#).unwrap();
     drop(stdin);
     let out = child.wait_with_output().unwrap();
-    let answers: Vec<serde_json::Value> = String::from_utf8(out.stdout).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let answers: Vec<serde_json::Value> = String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
     let fit_out = dir.path().join("f.json");
-    lfit_json(&["fit", "--data", path_str(&data), "--method", "random", "--budget", "1", "--frames", "1", "--out", path_str(&fit_out), "-q"]);
-    let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&fit_out).unwrap()).unwrap();
+    lfit_json(&[
+        "fit",
+        "--data",
+        path_str(&data),
+        "--method",
+        "random",
+        "--budget",
+        "1",
+        "--frames",
+        "1",
+        "--out",
+        path_str(&fit_out),
+        "-q",
+    ]);
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&fit_out).unwrap()).unwrap();
     assert_eq!(answers[0]["energy"], r["frames"][0]["start_energy"]);
-    assert!(answers[1]["error"].as_str().unwrap().contains("budget"), "{}", answers[1]);
-    let bad = lfit(&["objective-server", "--data", path_str(&data), "--frame", "7"]);
+    assert!(
+        answers[1]["error"].as_str().unwrap().contains("budget"),
+        "{}",
+        answers[1]
+    );
+    let bad = lfit(&[
+        "objective-server",
+        "--data",
+        path_str(&data),
+        "--frame",
+        "7",
+    ]);
     assert_one_line_error(&bad, "frame 7 is out of range");
 }

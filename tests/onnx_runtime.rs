@@ -17,13 +17,15 @@ use lfit::infer::onnx::export::export;
 use lfit::infer::onnx::proto::{ModelProto, StringStringEntryProto};
 use lfit::infer::onnx::runtime::{OrtNetwork, OrtState, SessionOptions, library_path};
 use lfit::infer::{NeuralFitter, Start};
-use lfit::nn::checkpoint::{self, CheckpointMeta};
-use lfit::nn::unroll::{core_rows, evaluate, observation_rows, rows_to_poses, step_rows};
-use lfit::nn::{CoreKind, Dropout, FeatureStats, GammaMode, NetConfig, NeuralNet, StepShape, UpdateRule};
 use lfit::model::observe::{Modality, Sensor};
 use lfit::model::pose::{Bounds, DofMask, POSE_DIM};
-use lfit::nn::tensor::{ndarray_device, poses_to_tensor, tensor_to_rows};
 use lfit::model::{Energy, default_template, metrics::v2v_mm};
+use lfit::nn::checkpoint::{self, CheckpointMeta};
+use lfit::nn::tensor::{ndarray_device, poses_to_tensor, tensor_to_rows};
+use lfit::nn::unroll::{core_rows, evaluate, observation_rows, rows_to_poses, step_rows};
+use lfit::nn::{
+    CoreKind, Dropout, FeatureStats, GammaMode, NetConfig, NeuralNet, StepShape, UpdateRule,
+};
 use lfit::train::{Frames, base_energy, measure_stats, synth_frames};
 use prost::Message;
 use support::{assert_one_line_error, lfit, lfit_json, path_str, skip_unless_required};
@@ -37,12 +39,20 @@ fn ort_ready() -> bool {
     if path.is_file() {
         return true;
     }
-    skip_unless_required(&format!("ONNX Runtime library not found at {} (run scripts/fetch-onnxruntime.sh or set ORT_DYLIB_PATH)", path.display()), Some("LFIT_REQUIRE_ORT"));
+    skip_unless_required(
+        &format!(
+            "ONNX Runtime library not found at {} (run scripts/fetch-onnxruntime.sh or set ORT_DYLIB_PATH)",
+            path.display()
+        ),
+        Some("LFIT_REQUIRE_ORT"),
+    );
     false
 }
 
 fn shipped(m: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("checkpoints").join(m)
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("checkpoints")
+        .join(m)
 }
 
 fn frames_for(modality: Modality, n: usize, seed: u64) -> Frames {
@@ -53,7 +63,10 @@ fn frames_for(modality: Modality, n: usize, seed: u64) -> Frames {
 }
 
 fn rows(data: &[f32], batch: usize) -> Tensor<2> {
-    Tensor::from_data(TensorData::new(data.to_vec(), [batch, data.len() / batch]), &ndarray_device())
+    Tensor::from_data(
+        TensorData::new(data.to_vec(), [batch, data.len() / batch]),
+        &ndarray_device(),
+    )
 }
 
 fn flat(t: &Tensor<2>) -> Vec<f32> {
@@ -62,15 +75,28 @@ fn flat(t: &Tensor<2>) -> Vec<f32> {
 
 fn assert_close(what: &str, burn: &[f32], ort: &[f32], tol: f32) -> f32 {
     assert_eq!(burn.len(), ort.len(), "{what}: lengths");
-    let worst = burn.iter().zip(ort).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
-    assert!(worst <= tol, "{what}: Burn and ONNX Runtime differ by {worst:e} > {tol:e}");
+    let worst = burn
+        .iter()
+        .zip(ort)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(
+        worst <= tol,
+        "{what}: Burn and ONNX Runtime differ by {worst:e} > {tol:e}"
+    );
     assert!(burn.iter().all(|v| v.is_finite()), "{what}: not finite");
     worst
 }
 
 /// Runs the loop of papers/002 Alg. 1 with Burn, and at every network call gives ONNX Runtime
 /// the same inputs and states, comparing every output. Returns the worst difference.
-fn lockstep(net: &NeuralNet, stats: &FeatureStats, ort: &mut OrtNetwork, energies: &[&Energy], starts: &[Vec<f64>]) -> f32 {
+fn lockstep(
+    net: &NeuralNet,
+    stats: &FeatureStats,
+    ort: &mut OrtNetwork,
+    energies: &[&Energy],
+    starts: &[Vec<f64>],
+) -> f32 {
     let c = &net.config;
     let batch = energies.len();
     let device = ndarray_device();
@@ -79,39 +105,110 @@ fn lockstep(net: &NeuralNet, stats: &FeatureStats, ort: &mut OrtNetwork, energie
     let (theta0_ort, mut ort_state) = ort.initial(&obs, batch).expect("ort init");
     let mut worst = assert_close("θ0 = Φ(D)", &flat(&theta0), &theta0_ort, STEP_TOLERANCE);
     for (l, h) in state.core.iter().enumerate() {
-        worst = worst.max(assert_close(&format!("h0.{l} = Φh(D)"), &flat(h), &ort_state.core[l], STEP_TOLERANCE));
+        worst = worst.max(assert_close(
+            &format!("h0.{l} = Φh(D)"),
+            &flat(h),
+            &ort_state.core[l],
+            STEP_TOLERANCE,
+        ));
     }
     let mut current = starts.to_vec();
     for n in 0..c.iterations {
         let evals = evaluate(energies, &current);
-        let core_in = core_rows(c, stats, &evals, &current, &(0..batch).map(|i| obs[i * 2 * c.residual_dim..(i + 1) * 2 * c.residual_dim].to_vec()).collect::<Vec<_>>()).expect("core rows");
+        let core_in = core_rows(
+            c,
+            stats,
+            &evals,
+            &current,
+            &(0..batch)
+                .map(|i| obs[i * 2 * c.residual_dim..(i + 1) * 2 * c.residual_dim].to_vec())
+                .collect::<Vec<_>>(),
+        )
+        .expect("core rows");
         // The same states on both sides: copy Burn's into the ORT state.
         ort_state = OrtState {
             core: state.core.iter().map(flat).collect(),
             lambda: state.lambda.iter().map(flat).collect(),
-            gamma: if c.separate_gamma_network() { state.gamma.iter().map(flat).collect() } else { Vec::new() },
+            gamma: if c.separate_gamma_network() {
+                state.gamma.iter().map(flat).collect()
+            } else {
+                Vec::new()
+            },
         };
         let delta = net.propose(n, rows(&core_in, batch), &mut state, &mut Dropout::off());
-        let delta_ort = ort.propose(n, &core_in, batch, &mut ort_state).expect("ort propose");
-        worst = worst.max(assert_close(&format!("Δθ of iteration {n}"), &flat(&delta), &delta_ort, STEP_TOLERANCE));
+        let delta_ort = ort
+            .propose(n, &core_in, batch, &mut ort_state)
+            .expect("ort propose");
+        worst = worst.max(assert_close(
+            &format!("Δθ of iteration {n}"),
+            &flat(&delta),
+            &delta_ort,
+            STEP_TOLERANCE,
+        ));
         for (l, h) in state.core.iter().enumerate() {
-            worst = worst.max(assert_close(&format!("h of f, layer {l}, iteration {n}"), &flat(h), &ort_state.core[l], STEP_TOLERANCE));
+            worst = worst.max(assert_close(
+                &format!("h of f, layer {l}, iteration {n}"),
+                &flat(h),
+                &ort_state.core[l],
+                STEP_TOLERANCE,
+            ));
         }
         let grad_host: Vec<_> = evals.iter().map(|(_, g)| g.clone()).collect();
         let grad = poses_to_tensor(&grad_host, &device);
         let step = if c.has_step_network() {
-            let step_in = step_rows(c, stats, energies, &current, &evals, &rows_to_poses(&flat(&delta), c.param_dim));
+            let step_in = step_rows(
+                c,
+                stats,
+                energies,
+                &current,
+                &evals,
+                &rows_to_poses(&flat(&delta), c.param_dim),
+            );
             let sizes = net.step_sizes(n, rows(&step_in, batch), &mut state, &mut Dropout::off());
-            let out = ort.step(n, &step_in, &flat(&delta), &flat(&grad), batch, &mut ort_state).expect("ort step");
+            let out = ort
+                .step(
+                    n,
+                    &step_in,
+                    &flat(&delta),
+                    &flat(&grad),
+                    batch,
+                    &mut ort_state,
+                )
+                .expect("ort step");
             let update = net.update(delta, grad, &sizes);
-            worst = worst.max(assert_close(&format!("λ of iteration {n}"), &flat(sizes.lambda.as_ref().expect("λ")), &out.lambda, STEP_TOLERANCE));
-            worst = worst.max(assert_close(&format!("γ of iteration {n}"), &flat(sizes.gamma.as_ref().expect("γ")), &out.gamma, STEP_TOLERANCE));
-            worst = worst.max(assert_close(&format!("update of iteration {n}"), &flat(&update), &out.update, STEP_TOLERANCE));
+            worst = worst.max(assert_close(
+                &format!("λ of iteration {n}"),
+                &flat(sizes.lambda.as_ref().expect("λ")),
+                &out.lambda,
+                STEP_TOLERANCE,
+            ));
+            worst = worst.max(assert_close(
+                &format!("γ of iteration {n}"),
+                &flat(sizes.gamma.as_ref().expect("γ")),
+                &out.gamma,
+                STEP_TOLERANCE,
+            ));
+            worst = worst.max(assert_close(
+                &format!("update of iteration {n}"),
+                &flat(&update),
+                &out.update,
+                STEP_TOLERANCE,
+            ));
             for (l, h) in state.lambda.iter().enumerate() {
-                worst = worst.max(assert_close(&format!("h of fλγ, layer {l}, iteration {n}"), &flat(h), &ort_state.lambda[l], STEP_TOLERANCE));
+                worst = worst.max(assert_close(
+                    &format!("h of fλγ, layer {l}, iteration {n}"),
+                    &flat(h),
+                    &ort_state.lambda[l],
+                    STEP_TOLERANCE,
+                ));
             }
             for (l, h) in ort_state.gamma.iter().enumerate() {
-                worst = worst.max(assert_close(&format!("h of fγ, layer {l}, iteration {n}"), &flat(&state.gamma[l]), h, STEP_TOLERANCE));
+                worst = worst.max(assert_close(
+                    &format!("h of fγ, layer {l}, iteration {n}"),
+                    &flat(&state.gamma[l]),
+                    h,
+                    STEP_TOLERANCE,
+                ));
             }
             flat(&update)
         } else {
@@ -134,11 +231,21 @@ fn every_step_of_every_shipped_checkpoint_matches_burn_within_1e_4() {
     for (k, m) in MODALITIES.iter().enumerate() {
         let ckpt = checkpoint::load(&shipped(m), &ndarray_device()).expect("checkpoint");
         let exported = export(&ckpt.net, &ckpt.meta, &ckpt.stats).expect("export");
-        let mut ort = OrtNetwork::from_exported(&exported, &shipped(m), SessionOptions::default()).expect("sessions");
+        let mut ort = OrtNetwork::from_exported(&exported, &shipped(m), SessionOptions::default())
+            .expect("sessions");
         let frames = frames_for(m.parse().expect("modality"), 8, 0x0077_0000 + k as u64);
         let energies: Vec<&Energy> = frames.energies.iter().collect();
-        let worst = lockstep(&ckpt.net, &ckpt.stats, &mut ort, &energies, &frames.dataset.start_poses);
-        eprintln!("{m}: worst |Burn − ORT| over θ0, h0 and {} iterations of Δθ, λ, γ, update, states: {worst:e}", ckpt.meta.network.iterations);
+        let worst = lockstep(
+            &ckpt.net,
+            &ckpt.stats,
+            &mut ort,
+            &energies,
+            &frames.dataset.start_poses,
+        );
+        eprintln!(
+            "{m}: worst |Burn − ORT| over θ0, h0 and {} iterations of Δθ, λ, γ, update, states: {worst:e}",
+            ckpt.meta.network.iterations
+        );
     }
 }
 
@@ -152,19 +259,32 @@ fn full_fits_with_onnx_runtime_end_within_1_mm_v2v_of_burn_per_shipped_checkpoin
         let modality: Modality = m.parse().expect("modality");
         let frames = frames_for(modality, 32, 0x0078_0000 + k as u64);
         let burn = NeuralFitter::load(&dir, &ndarray_device(), Start::Given).expect("burn");
-        let ort = NeuralFitter::load_ort(&dir, Start::Given, SessionOptions::default()).expect("ort");
+        let ort =
+            NeuralFitter::load_ort(&dir, Start::Given, SessionOptions::default()).expect("ort");
         let requests: Vec<FitRequest<'_>> = frames
             .energies
             .iter()
             .zip(&frames.dataset.start_poses)
-            .map(|(energy, start)| FitRequest { energy, start: start.clone(), mask: DofMask::local43(), bounds: Bounds::local(start), budget: 10, seed: 0 })
+            .map(|(energy, start)| FitRequest {
+                energy,
+                start: start.clone(),
+                mask: DofMask::local43(),
+                bounds: Bounds::local(start),
+                budget: 10,
+                seed: 0,
+            })
             .collect();
         let a = burn.fit_batch(&requests).expect("burn fit");
         let b = ort.fit_batch(&requests).expect("ort fit");
         let template = frames.energies[0].template();
         let mut worst = 0.0f64;
         let (mut start_err, mut fit_err) = (0.0, 0.0);
-        for (((ra, rb), gt), r) in a.iter().zip(&b).zip(&frames.dataset.gt_poses).zip(&requests) {
+        for (((ra, rb), gt), r) in a
+            .iter()
+            .zip(&b)
+            .zip(&frames.dataset.gt_poses)
+            .zip(&requests)
+        {
             let pa: lfit::model::pose::Pose = std::array::from_fn(|i| ra.pose[i]);
             let pb: lfit::model::pose::Pose = std::array::from_fn(|i| rb.pose[i]);
             worst = worst.max(v2v_mm(template, &pa, &pb));
@@ -173,8 +293,13 @@ fn full_fits_with_onnx_runtime_end_within_1_mm_v2v_of_burn_per_shipped_checkpoin
             assert_eq!(ra.evaluations, rb.evaluations, "{m}: the same evaluations");
             assert!(r.bounds.contains(&pb), "{m}: ORT result outside the bounds");
         }
-        assert!(fit_err < 0.7 * start_err, "{m}: the ORT fits must improve on the start: {start_err} -> {fit_err}");
-        eprintln!("{m}: 32 frames, worst V2V between the Burn and ONNX Runtime fits {worst:.2e} mm");
+        assert!(
+            fit_err < 0.7 * start_err,
+            "{m}: the ORT fits must improve on the start: {start_err} -> {fit_err}"
+        );
+        eprintln!(
+            "{m}: 32 frames, worst V2V between the Burn and ONNX Runtime fits {worst:.2e} mm"
+        );
         assert!(worst <= 1.0, "{m}: fits {worst} mm V2V apart (> 1e-3 m)");
         assert_eq!(b[0].method, "neural-given-ort");
     }
@@ -190,36 +315,125 @@ fn every_ablation_variant_exports_and_matches_burn() {
     let stats = measure_stats(&frames);
     let energies: Vec<&Energy> = frames.energies.iter().collect();
     let template = frames.energies[0].template();
-    let base = NetConfig { modality: Modality::Markers, residual_dim: energies[0].sensor().residual_dim(template), iterations: 3, hidden: 24, init_width: 16, layers: 2, ..NetConfig::default() };
+    let base = NetConfig {
+        modality: Modality::Markers,
+        residual_dim: energies[0].sensor().residual_dim(template),
+        iterations: 3,
+        hidden: 24,
+        init_width: 16,
+        layers: 2,
+        ..NetConfig::default()
+    };
     let variants: Vec<(&str, NetConfig)> = vec![
         ("eq1 vector shared", base.clone()),
-        ("residual MLP core", NetConfig { core: CoreKind::ResidualMlp, ..base.clone() }),
-        ("per-step weights", NetConfig { per_step_weights: true, ..base.clone() }),
-        ("separate λ and γ", NetConfig { shared_lambda_gamma: false, ..base.clone() }),
-        ("Δθ only", NetConfig { update: UpdateRule::DeltaOnly, ..base.clone() }),
-        ("convex", NetConfig { update: UpdateRule::Convex, ..base.clone() }),
-        ("convex normalized, scalar", NetConfig { update: UpdateRule::ConvexNormalized, step_shape: StepShape::Scalar, ..base.clone() }),
-        ("constant γ", NetConfig { gamma: GammaMode::Constant, ..base.clone() }),
-        ("scalar γ, vector λ", NetConfig { gamma_shape: Some(StepShape::Scalar), ..base.clone() }),
-        ("one GRU layer", NetConfig { layers: 1, ..base.clone() }),
+        (
+            "residual MLP core",
+            NetConfig {
+                core: CoreKind::ResidualMlp,
+                ..base.clone()
+            },
+        ),
+        (
+            "per-step weights",
+            NetConfig {
+                per_step_weights: true,
+                ..base.clone()
+            },
+        ),
+        (
+            "separate λ and γ",
+            NetConfig {
+                shared_lambda_gamma: false,
+                ..base.clone()
+            },
+        ),
+        (
+            "Δθ only",
+            NetConfig {
+                update: UpdateRule::DeltaOnly,
+                ..base.clone()
+            },
+        ),
+        (
+            "convex",
+            NetConfig {
+                update: UpdateRule::Convex,
+                ..base.clone()
+            },
+        ),
+        (
+            "convex normalized, scalar",
+            NetConfig {
+                update: UpdateRule::ConvexNormalized,
+                step_shape: StepShape::Scalar,
+                ..base.clone()
+            },
+        ),
+        (
+            "constant γ",
+            NetConfig {
+                gamma: GammaMode::Constant,
+                ..base.clone()
+            },
+        ),
+        (
+            "scalar γ, vector λ",
+            NetConfig {
+                gamma_shape: Some(StepShape::Scalar),
+                ..base.clone()
+            },
+        ),
+        (
+            "one GRU layer",
+            NetConfig {
+                layers: 1,
+                ..base.clone()
+            },
+        ),
     ];
     for (name, config) in variants {
         let mut net = NeuralNet::new(&config, 7, &ndarray_device()).expect("net");
         let perturb = |bn: &mut burn::nn::BatchNorm, seed: f32| {
             let [c] = bn.gamma.val().dims();
-            let mean: Vec<f32> = (0..c).map(|i| ((i as f32 + seed) * 0.37).sin() * 0.3).collect();
-            let var: Vec<f32> = (0..c).map(|i| 0.5 + ((i as f32 + seed) * 0.61).cos().abs()).collect();
-            bn.running_mean = burn::module::RunningState::new(Tensor::from_data(TensorData::new(mean, [c]), &ndarray_device()));
-            bn.running_var = burn::module::RunningState::new(Tensor::from_data(TensorData::new(var, [c]), &ndarray_device()));
+            let mean: Vec<f32> = (0..c)
+                .map(|i| ((i as f32 + seed) * 0.37).sin() * 0.3)
+                .collect();
+            let var: Vec<f32> = (0..c)
+                .map(|i| 0.5 + ((i as f32 + seed) * 0.61).cos().abs())
+                .collect();
+            bn.running_mean = burn::module::RunningState::new(Tensor::from_data(
+                TensorData::new(mean, [c]),
+                &ndarray_device(),
+            ));
+            bn.running_var = burn::module::RunningState::new(Tensor::from_data(
+                TensorData::new(var, [c]),
+                &ndarray_device(),
+            ));
         };
         perturb(&mut net.phi.bn1, 1.0);
         perturb(&mut net.phi.bn2, 2.0);
-        let meta = CheckpointMeta { format: checkpoint::FORMAT.into(), version: checkpoint::VERSION, template_id: template.id.clone(), template_vertices: template.num_vertices(), network: config.clone(), model: None };
+        let meta = CheckpointMeta {
+            format: checkpoint::FORMAT.into(),
+            version: checkpoint::VERSION,
+            template_id: template.id.clone(),
+            template_vertices: template.num_vertices(),
+            network: config.clone(),
+            model: None,
+        };
         let exported = export(&net, &meta, &stats).unwrap_or_else(|e| panic!("{name}: {e}"));
-        let expected_files = 1 + config.weight_sets() * if config.has_step_network() { 2 } else { 1 };
+        let expected_files =
+            1 + config.weight_sets() * if config.has_step_network() { 2 } else { 1 };
         assert_eq!(exported.files.len(), expected_files, "{name}: files");
-        let mut ort = OrtNetwork::from_exported(&exported, Path::new(name), SessionOptions::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
-        let worst = lockstep(&net, &stats, &mut ort, &energies, &frames.dataset.start_poses);
+        let mut ort =
+            OrtNetwork::from_exported(&exported, Path::new(name), SessionOptions::default())
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let worst = lockstep(
+            &net,
+            &stats,
+            &mut ort,
+            &energies,
+            &frames.dataset.start_poses,
+        );
         eprintln!("{name}: worst difference {worst:e}");
     }
 }
@@ -227,7 +441,10 @@ fn every_ablation_variant_exports_and_matches_burn() {
 fn with_metadata(bytes: &[u8], key: &str, value: &str) -> Vec<u8> {
     let mut model = ModelProto::decode(bytes).expect("decode");
     model.metadata_props.retain(|p| p.key != key);
-    model.metadata_props.push(StringStringEntryProto { key: key.into(), value: value.into() });
+    model.metadata_props.push(StringStringEntryProto {
+        key: key.into(),
+        value: value.into(),
+    });
     model.encode_to_vec()
 }
 
@@ -235,32 +452,86 @@ fn with_metadata(bytes: &[u8], key: &str, value: &str) -> Vec<u8> {
 fn export_onnx_writes_standard_opset_17_graphs_with_the_metadata() {
     let tmp = tempfile::tempdir().expect("tmp");
     let out = tmp.path().join("onnx");
-    let summary = lfit_json(&["-q", "export-onnx", "--checkpoint", path_str(&shipped("markers")), "--out", path_str(&out)]);
+    let summary = lfit_json(&[
+        "-q",
+        "export-onnx",
+        "--checkpoint",
+        path_str(&shipped("markers")),
+        "--out",
+        path_str(&out),
+    ]);
     assert_eq!(summary["files"].as_array().expect("files").len(), 3);
-    let config: serde_json::Value = serde_json::from_slice(&std::fs::read(shipped("markers").join("config.json")).expect("config")).expect("json");
-    let standard = ["Gemm", "LayerNormalization", "BatchNormalization", "Relu", "Sigmoid", "Tanh", "Softplus", "Add", "Sub", "Mul", "Identity"];
-    for (file, role) in [("init.onnx", "init"), ("propose.onnx", "propose"), ("step.onnx", "step")] {
-        let model = ModelProto::decode(std::fs::read(out.join(file)).expect("read").as_slice()).expect("decode");
+    let config: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(shipped("markers").join("config.json")).expect("config"),
+    )
+    .expect("json");
+    let standard = [
+        "Gemm",
+        "LayerNormalization",
+        "BatchNormalization",
+        "Relu",
+        "Sigmoid",
+        "Tanh",
+        "Softplus",
+        "Add",
+        "Sub",
+        "Mul",
+        "Identity",
+    ];
+    for (file, role) in [
+        ("init.onnx", "init"),
+        ("propose.onnx", "propose"),
+        ("step.onnx", "step"),
+    ] {
+        let model = ModelProto::decode(std::fs::read(out.join(file)).expect("read").as_slice())
+            .expect("decode");
         assert_eq!(model.opset_import.len(), 1);
         assert_eq!(model.opset_import[0].domain, "", "the default ONNX domain");
         assert!(model.opset_import[0].version >= 17);
         let graph = model.graph.as_ref().expect("graph");
         for node in &graph.node {
-            assert!(standard.contains(&node.op_type.as_str()) && node.domain.is_empty(), "{file}: non-standard op {}", node.op_type);
+            assert!(
+                standard.contains(&node.op_type.as_str()) && node.domain.is_empty(),
+                "{file}: non-standard op {}",
+                node.op_type
+            );
         }
-        let meta = |k: &str| model.metadata_props.iter().find(|p| p.key == k).map(|p| p.value.clone()).unwrap_or_else(|| panic!("{file}: no {k}"));
+        let meta = |k: &str| {
+            model
+                .metadata_props
+                .iter()
+                .find(|p| p.key == k)
+                .map(|p| p.value.clone())
+                .unwrap_or_else(|| panic!("{file}: no {k}"))
+        };
         assert_eq!(meta("lfit.role"), role);
         assert_eq!(meta("lfit.modality"), "markers");
-        assert_eq!(meta("lfit.iterations"), config["network"]["iterations"].to_string());
+        assert_eq!(
+            meta("lfit.iterations"),
+            config["network"]["iterations"].to_string()
+        );
         let stats: FeatureStats = serde_json::from_str(&meta("lfit.feature_stats")).expect("stats");
-        let shipped_stats: FeatureStats = serde_json::from_slice(&std::fs::read(shipped("markers").join("stats.json")).expect("stats")).expect("json");
-        assert_eq!(stats, shipped_stats, "{file}: the checkpoint's feature statistics");
+        let shipped_stats: FeatureStats = serde_json::from_slice(
+            &std::fs::read(shipped("markers").join("stats.json")).expect("stats"),
+        )
+        .expect("json");
+        assert_eq!(
+            stats, shipped_stats,
+            "{file}: the checkpoint's feature statistics"
+        );
         let mask: serde_json::Value = serde_json::from_str(&meta("lfit.dof_mask")).expect("mask");
         assert_eq!(mask["free"].as_array().expect("free").len(), POSE_DIM);
         // The GRU is written out with LayerNormalization (six per cell), not as an ONNX GRU op.
         if role == "propose" {
-            let ln = graph.node.iter().filter(|n| n.op_type == "LayerNormalization").count();
-            assert_eq!(ln, 6 * config["network"]["layers"].as_u64().expect("layers") as usize);
+            let ln = graph
+                .node
+                .iter()
+                .filter(|n| n.op_type == "LayerNormalization")
+                .count();
+            assert_eq!(
+                ln,
+                6 * config["network"]["layers"].as_u64().expect("layers") as usize
+            );
         }
     }
 }
@@ -272,12 +543,47 @@ fn fit_with_runtime_ort_matches_runtime_burn_and_runs_an_exported_directory() {
     }
     let tmp = tempfile::tempdir().expect("tmp");
     let data = tmp.path().join("hmd.npz");
-    lfit_json(&["-q", "synth", "--modality", "hmd", "--frames", "12", "--seed", "9200", "--out", path_str(&data)]);
+    lfit_json(&[
+        "-q",
+        "synth",
+        "--modality",
+        "hmd",
+        "--frames",
+        "12",
+        "--seed",
+        "9200",
+        "--out",
+        path_str(&data),
+    ]);
     let onnx = tmp.path().join("onnx");
-    lfit_json(&["-q", "export-onnx", "--checkpoint", path_str(&shipped("hmd")), "--out", path_str(&onnx)]);
+    lfit_json(&[
+        "-q",
+        "export-onnx",
+        "--checkpoint",
+        path_str(&shipped("hmd")),
+        "--out",
+        path_str(&onnx),
+    ]);
     let run = |runtime: &str, checkpoint: &Path, name: &str| -> serde_json::Value {
         let out = tmp.path().join(name);
-        let mut args = vec!["-q", "fit", "--data", path_str(&data), "--method", "neural", "--checkpoint", path_str(checkpoint), "--budget", "10", "--batch", "4", "--runtime", runtime, "--out", path_str(&out)];
+        let mut args = vec![
+            "-q",
+            "fit",
+            "--data",
+            path_str(&data),
+            "--method",
+            "neural",
+            "--checkpoint",
+            path_str(checkpoint),
+            "--budget",
+            "10",
+            "--batch",
+            "4",
+            "--runtime",
+            runtime,
+            "--out",
+            path_str(&out),
+        ];
         if runtime == "burn" {
             args.extend(["--device", "ndarray"]);
         }
@@ -289,12 +595,25 @@ fn fit_with_runtime_ort_matches_runtime_burn_and_runs_an_exported_directory() {
     let ort_dir = run("ort", &onnx, "ort-dir.json");
     assert_eq!(ort["runtime"], "ort");
     assert_eq!(ort["method"], "neural-ort");
-    let (fb, fo, fd) = (burn["frames"].as_array().expect("f"), ort["frames"].as_array().expect("f"), ort_dir["frames"].as_array().expect("f"));
+    let (fb, fo, fd) = (
+        burn["frames"].as_array().expect("f"),
+        ort["frames"].as_array().expect("f"),
+        ort_dir["frames"].as_array().expect("f"),
+    );
     assert_eq!(fb.len(), 12);
     for ((b, o), d) in fb.iter().zip(fo).zip(fd) {
-        assert_eq!(o["pose"], d["pose"], "the exported directory runs exactly the in-memory export");
+        assert_eq!(
+            o["pose"], d["pose"],
+            "the exported directory runs exactly the in-memory export"
+        );
         let diff = (b["v2v_mm"].as_f64().expect("v2v") - o["v2v_mm"].as_f64().expect("v2v")).abs();
-        assert!(diff < 1.0, "frame {}: V2V to the truth {} (burn) vs {} (ort)", b["frame"], b["v2v_mm"], o["v2v_mm"]);
+        assert!(
+            diff < 1.0,
+            "frame {}: V2V to the truth {} (burn) vs {} (ort)",
+            b["frame"],
+            b["v2v_mm"],
+            o["v2v_mm"]
+        );
     }
 }
 
@@ -307,24 +626,71 @@ fn bad_exports_and_a_missing_library_are_one_line_errors() {
     for f in ["weights.bpk", "stats.json", "metrics.json"] {
         std::fs::copy(shipped("markers").join(f), ckpt.join(f)).expect("copy");
     }
-    let config = std::fs::read_to_string(shipped("markers").join("config.json")).expect("config").replace("\"version\": 1", "\"version\": 9");
+    let config = std::fs::read_to_string(shipped("markers").join("config.json"))
+        .expect("config")
+        .replace("\"version\": 1", "\"version\": 9");
     std::fs::write(ckpt.join("config.json"), config).expect("write");
     let out_dir = tmp.path().join("out");
-    let out = lfit(&["export-onnx", "--checkpoint", path_str(&ckpt), "--out", path_str(&out_dir)]);
+    let out = lfit(&[
+        "export-onnx",
+        "--checkpoint",
+        path_str(&ckpt),
+        "--out",
+        path_str(&out_dir),
+    ]);
     assert_one_line_error(&out, "version 9");
-    assert!(!out_dir.exists(), "nothing written for a refused checkpoint");
+    assert!(
+        !out_dir.exists(),
+        "nothing written for a refused checkpoint"
+    );
 
     // An export whose metadata says another lfit ONNX version.
     let onnx = tmp.path().join("onnx");
-    lfit_json(&["-q", "export-onnx", "--checkpoint", path_str(&shipped("markers")), "--out", path_str(&onnx)]);
+    lfit_json(&[
+        "-q",
+        "export-onnx",
+        "--checkpoint",
+        path_str(&shipped("markers")),
+        "--out",
+        path_str(&onnx),
+    ]);
     let init = std::fs::read(onnx.join("init.onnx")).expect("init");
-    std::fs::write(onnx.join("init.onnx"), with_metadata(&init, "lfit.version", "2")).expect("write");
+    std::fs::write(
+        onnx.join("init.onnx"),
+        with_metadata(&init, "lfit.version", "2"),
+    )
+    .expect("write");
     let data = tmp.path().join("m.npz");
-    lfit_json(&["-q", "synth", "--modality", "markers", "--frames", "2", "--seed", "1", "--out", path_str(&data)]);
+    lfit_json(&[
+        "-q",
+        "synth",
+        "--modality",
+        "markers",
+        "--frames",
+        "2",
+        "--seed",
+        "1",
+        "--out",
+        path_str(&data),
+    ]);
     let result = tmp.path().join("r.json");
     let fit = |checkpoint: &Path, env: Option<(&str, &str)>| {
         let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_lfit"));
-        cmd.args(["fit", "--data", path_str(&data), "--method", "neural", "--checkpoint", path_str(checkpoint), "--budget", "10", "--runtime", "ort", "--out", path_str(&result)]);
+        cmd.args([
+            "fit",
+            "--data",
+            path_str(&data),
+            "--method",
+            "neural",
+            "--checkpoint",
+            path_str(checkpoint),
+            "--budget",
+            "10",
+            "--runtime",
+            "ort",
+            "--out",
+            path_str(&result),
+        ]);
         if let Some((k, v)) = env {
             cmd.env(k, v);
         }
@@ -336,12 +702,35 @@ fn bad_exports_and_a_missing_library_are_one_line_errors() {
     std::fs::write(onnx.join("init.onnx"), b"not a model").expect("write");
     assert_one_line_error(&fit(&onnx, None), "not an ONNX model");
     // A missing library names how to get it.
-    let out = fit(&shipped("markers"), Some(("ORT_DYLIB_PATH", "/nonexistent/libonnxruntime.so")));
-    assert_one_line_error(&out, "ONNX Runtime library not found at /nonexistent/libonnxruntime.so");
+    let out = fit(
+        &shipped("markers"),
+        Some(("ORT_DYLIB_PATH", "/nonexistent/libonnxruntime.so")),
+    );
+    assert_one_line_error(
+        &out,
+        "ONNX Runtime library not found at /nonexistent/libonnxruntime.so",
+    );
     let text = String::from_utf8_lossy(&out.stderr);
-    assert!(text.contains("fetch-onnxruntime.sh") && text.contains("onnxruntime==1.31.1"), "{text}");
+    assert!(
+        text.contains("fetch-onnxruntime.sh") && text.contains("onnxruntime==1.31.1"),
+        "{text}"
+    );
     // A bad runtime name.
-    let out = lfit(&["fit", "--data", path_str(&data), "--method", "neural", "--checkpoint", path_str(&shipped("markers")), "--budget", "10", "--runtime", "tensorrt", "--out", path_str(&result)]);
+    let out = lfit(&[
+        "fit",
+        "--data",
+        path_str(&data),
+        "--method",
+        "neural",
+        "--checkpoint",
+        path_str(&shipped("markers")),
+        "--budget",
+        "10",
+        "--runtime",
+        "tensorrt",
+        "--out",
+        path_str(&result),
+    ]);
     assert_one_line_error(&out, "unknown runtime 'tensorrt'");
     assert!(!result.exists(), "no result written by failed fits");
 }
@@ -349,39 +738,80 @@ fn bad_exports_and_a_missing_library_are_one_line_errors() {
 /// `PYTHONPATH` under which `python3` imports onnxruntime and numpy (the package that
 /// scripts/fetch-onnxruntime.sh --python installs), if any; in CI its absence is a failure.
 fn python_ready() -> Option<String> {
-    let path = std::env::var("LFIT_ORT_PYTHONPATH").unwrap_or_else(|_| library_path().with_file_name("python").to_string_lossy().into_owned());
-    let ok = std::process::Command::new("python3").args(["-c", "import onnxruntime, numpy"]).env("PYTHONPATH", &path).output().map(|o| o.status.success()).unwrap_or(false);
+    let path = std::env::var("LFIT_ORT_PYTHONPATH").unwrap_or_else(|_| {
+        library_path()
+            .with_file_name("python")
+            .to_string_lossy()
+            .into_owned()
+    });
+    let ok = std::process::Command::new("python3")
+        .args(["-c", "import onnxruntime, numpy"])
+        .env("PYTHONPATH", &path)
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false);
     if ok {
         return Some(path);
     }
-    skip_unless_required(&format!("python3 cannot import onnxruntime and numpy (PYTHONPATH={path}; run scripts/fetch-onnxruntime.sh --python)"), Some("LFIT_REQUIRE_ORT"));
+    skip_unless_required(
+        &format!(
+            "python3 cannot import onnxruntime and numpy (PYTHONPATH={path}; run scripts/fetch-onnxruntime.sh --python)"
+        ),
+        Some("LFIT_REQUIRE_ORT"),
+    );
     None
 }
 
 #[test]
 fn the_python_example_runs_the_exported_step_as_burn_does() {
-    let Some(pythonpath) = python_ready() else { return };
+    let Some(pythonpath) = python_ready() else {
+        return;
+    };
     let tmp = tempfile::tempdir().expect("tmp");
     for (k, m) in ["markers", "keypoints2d"].iter().enumerate() {
         let onnx = tmp.path().join(m);
-        lfit_json(&["-q", "export-onnx", "--checkpoint", path_str(&shipped(m)), "--out", path_str(&onnx)]);
+        lfit_json(&[
+            "-q",
+            "export-onnx",
+            "--checkpoint",
+            path_str(&shipped(m)),
+            "--out",
+            path_str(&onnx),
+        ]);
         let ckpt = checkpoint::load(&shipped(m), &ndarray_device()).expect("checkpoint");
         let (net, stats, c) = (&ckpt.net, &ckpt.stats, &ckpt.net.config);
         let frames = frames_for(m.parse().expect("modality"), 1, 0x007A_0000 + k as u64);
         let energy = &frames.energies[0];
         let pose = frames.dataset.start_poses[0].clone();
         let mask = DofMask::local43();
-        let free: Vec<f32> = (0..POSE_DIM).map(|i| if mask.free.contains(&i) { 1.0 } else { 0.0 }).collect();
+        let free: Vec<f32> = (0..POSE_DIM)
+            .map(|i| if mask.free.contains(&i) { 1.0 } else { 0.0 })
+            .collect();
 
         // Burn, first iteration from the start pose.
         let obs = observation_rows(c, stats, &[energy]).expect("obs").concat();
         let (theta0, mut state) = net.initial(rows(&obs, 1));
         let evals = evaluate(&[energy], std::slice::from_ref(&pose));
-        let core_in = core_rows(c, stats, &evals, std::slice::from_ref(&pose), std::slice::from_ref(&obs)).expect("core");
-        let delta = net.propose(0, rows(&core_in, 1), &mut state, &mut Dropout::off()) * rows(&free, 1);
+        let core_in = core_rows(
+            c,
+            stats,
+            &evals,
+            std::slice::from_ref(&pose),
+            std::slice::from_ref(&obs),
+        )
+        .expect("core");
+        let delta =
+            net.propose(0, rows(&core_in, 1), &mut state, &mut Dropout::off()) * rows(&free, 1);
         let grad = poses_to_tensor(&[evals[0].1.clone()], &ndarray_device()) * rows(&free, 1);
         let delta_host = rows_to_poses(&flat(&delta), c.param_dim);
-        let step_in = step_rows(c, stats, &[energy], std::slice::from_ref(&pose), &evals, &delta_host);
+        let step_in = step_rows(
+            c,
+            stats,
+            &[energy],
+            std::slice::from_ref(&pose),
+            &evals,
+            &delta_host,
+        );
         let sizes = net.step_sizes(0, rows(&step_in, 1), &mut state, &mut Dropout::off());
         let update = net.update(delta.clone(), grad, &sizes);
         let mut tried = pose.clone();
@@ -401,18 +831,61 @@ fn the_python_example_runs_the_exported_step_as_burn_does() {
         std::fs::write(&sample_path, serde_json::to_vec(&sample).expect("json")).expect("write");
         let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/onnx_step.py");
         let out = std::process::Command::new("python3")
-            .args([path_str(&script), "--onnx", path_str(&onnx), "--sample", path_str(&sample_path)])
+            .args([
+                path_str(&script),
+                "--onnx",
+                path_str(&onnx),
+                "--sample",
+                path_str(&sample_path),
+            ])
             .env("PYTHONPATH", &pythonpath)
             .output()
             .expect("python3 runs");
-        assert!(out.status.success(), "{m}: docs/onnx_step.py failed: {}", String::from_utf8_lossy(&out.stderr));
-        let py: serde_json::Value = serde_json::from_slice(&out.stdout).expect("the example prints JSON");
-        let get = |key: &str| -> Vec<f32> { py[key].as_array().unwrap_or_else(|| panic!("{m}: no {key}")).iter().map(|v| v.as_f64().expect("number") as f32).collect() };
-        let mut worst = assert_close(&format!("{m}: θ0 (Python)"), &flat(&theta0), &get("theta0"), STEP_TOLERANCE);
-        worst = worst.max(assert_close(&format!("{m}: Δθ (Python)"), &flat(&delta), &get("delta"), STEP_TOLERANCE));
-        worst = worst.max(assert_close(&format!("{m}: λ (Python)"), &flat(sizes.lambda.as_ref().expect("λ")), &get("lambda"), STEP_TOLERANCE));
-        worst = worst.max(assert_close(&format!("{m}: γ (Python)"), &flat(sizes.gamma.as_ref().expect("γ")), &get("gamma"), STEP_TOLERANCE));
-        worst = worst.max(assert_close(&format!("{m}: update (Python)"), &flat(&update), &get("update"), STEP_TOLERANCE));
+        assert!(
+            out.status.success(),
+            "{m}: docs/onnx_step.py failed: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let py: serde_json::Value =
+            serde_json::from_slice(&out.stdout).expect("the example prints JSON");
+        let get = |key: &str| -> Vec<f32> {
+            py[key]
+                .as_array()
+                .unwrap_or_else(|| panic!("{m}: no {key}"))
+                .iter()
+                .map(|v| v.as_f64().expect("number") as f32)
+                .collect()
+        };
+        let mut worst = assert_close(
+            &format!("{m}: θ0 (Python)"),
+            &flat(&theta0),
+            &get("theta0"),
+            STEP_TOLERANCE,
+        );
+        worst = worst.max(assert_close(
+            &format!("{m}: Δθ (Python)"),
+            &flat(&delta),
+            &get("delta"),
+            STEP_TOLERANCE,
+        ));
+        worst = worst.max(assert_close(
+            &format!("{m}: λ (Python)"),
+            &flat(sizes.lambda.as_ref().expect("λ")),
+            &get("lambda"),
+            STEP_TOLERANCE,
+        ));
+        worst = worst.max(assert_close(
+            &format!("{m}: γ (Python)"),
+            &flat(sizes.gamma.as_ref().expect("γ")),
+            &get("gamma"),
+            STEP_TOLERANCE,
+        ));
+        worst = worst.max(assert_close(
+            &format!("{m}: update (Python)"),
+            &flat(&update),
+            &get("update"),
+            STEP_TOLERANCE,
+        ));
         assert_eq!(py["iterations"], c.iterations);
         eprintln!("{m}: docs/onnx_step.py vs Burn, worst difference {worst:e}");
     }

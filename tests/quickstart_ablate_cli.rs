@@ -8,24 +8,62 @@ use support::{assert_one_line_error, lfit, lfit_json, path_str};
 fn quickstart_compares_every_method_on_every_sparse_modality() {
     let tmp = tempfile::tempdir().expect("tmp");
     let out_dir = tmp.path().join("qs");
-    let out = lfit(&["-q", "quickstart", "--out", path_str(&out_dir), "--frames", "3", "--budget", "60"]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = lfit(&[
+        "-q",
+        "quickstart",
+        "--out",
+        path_str(&out_dir),
+        "--frames",
+        "3",
+        "--budget",
+        "60",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let table = String::from_utf8_lossy(&out.stdout);
     for m in ["markers", "keypoints2d", "hmd"] {
-        for method in ["| neural (checkpoints/MOD, N = 5) |", "| lbfgs @60 |", "| cma @60 |", "| pso @60 |"] {
+        for method in [
+            "| neural (checkpoints/MOD, N = 5) |",
+            "| lbfgs @60 |",
+            "| cma @60 |",
+            "| pso @60 |",
+        ] {
             let method = method.replace("MOD", m);
-            assert!(table.lines().any(|l| l.starts_with(&format!("| {m} |")) && l.contains(&method)), "{m} {method}:\n{table}");
+            assert!(
+                table
+                    .lines()
+                    .any(|l| l.starts_with(&format!("| {m} |")) && l.contains(&method)),
+                "{m} {method}:\n{table}"
+            );
         }
         let dir = out_dir.join(m);
         let md = std::fs::read_to_string(dir.join("report.md")).expect("report");
         assert!(md.contains("papers/002 Table 2"), "{md}");
         let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("csv");
         assert_eq!(csv.lines().count(), 1 + 4 * 3);
-        assert!(dir.join("plots/energy_vs_evaluations.svg").exists() && dir.join("plots/energy_vs_evaluations.png").exists());
+        assert!(
+            dir.join("plots/energy_vs_evaluations.svg").exists()
+                && dir.join("plots/energy_vs_evaluations.png").exists()
+        );
         assert!(dir.join("plots/neural_error_per_iteration.png").exists());
     }
-    assert_eq!(std::fs::read_to_string(out_dir.join("comparison.md")).expect("comparison").trim(), table.trim());
-    let out = lfit(&["-q", "quickstart", "--out", path_str(&tmp.path().join("z")), "--frames", "0"]);
+    assert_eq!(
+        std::fs::read_to_string(out_dir.join("comparison.md"))
+            .expect("comparison")
+            .trim(),
+        table.trim()
+    );
+    let out = lfit(&[
+        "-q",
+        "quickstart",
+        "--out",
+        path_str(&tmp.path().join("z")),
+        "--frames",
+        "0",
+    ]);
     assert_one_line_error(&out, "--frames");
 }
 
@@ -33,32 +71,94 @@ fn quickstart_compares_every_method_on_every_sparse_modality() {
 fn ablate_trains_each_variant_once_and_writes_the_papers_tables() {
     let tmp = tempfile::tempdir().expect("tmp");
     let out_dir = tmp.path().join("abl");
-    let args = ["-q", "ablate", "--out", path_str(&out_dir), "--steps", "2", "--batch", "4", "--hidden", "8", "--test-frames", "6", "--device", "ndarray", "--only", "hmd-base,hmd-delta-only,kp-vl-sg-separate"];
+    let args = [
+        "-q",
+        "ablate",
+        "--out",
+        path_str(&out_dir),
+        "--steps",
+        "2",
+        "--batch",
+        "4",
+        "--hidden",
+        "8",
+        "--test-frames",
+        "6",
+        "--device",
+        "ndarray",
+        "--only",
+        "hmd-base,hmd-delta-only,kp-vl-sg-separate",
+    ];
     let summary = lfit_json(&args);
     assert_eq!(summary["variants"], 3);
     let md = std::fs::read_to_string(out_dir.join("ablation.md")).expect("md");
-    for needle in ["Table 5 (HMD)", "| +Δθn |", "| +Eq. 1 |", "| Shared |", "Table A.1", "| ✓ | ✗ | ✗ |", "2 steps × batch 4"] {
+    for needle in [
+        "Table 5 (HMD)",
+        "| +Δθn |",
+        "| +Eq. 1 |",
+        "| Shared |",
+        "Table A.1",
+        "| ✓ | ✗ | ✗ |",
+        "2 steps × batch 4",
+    ] {
         assert!(md.contains(needle), "{needle}:\n{md}");
     }
-    assert!(!md.contains("| ResNet |"), "only the variants run have rows");
-    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out_dir.join("ablation.json")).expect("json")).expect("json");
+    assert!(
+        !md.contains("| ResNet |"),
+        "only the variants run have rows"
+    );
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out_dir.join("ablation.json")).expect("json"))
+            .expect("json");
     let v = json["variants"].as_array().expect("variants");
     assert_eq!(v.len(), 3);
     // Δθ-only has no λ/γ network, so fewer parameters than the base.
-    let params = |name: &str| v.iter().find(|e| e["variant"] == name).and_then(|e| e["parameters"].as_u64()).expect("parameters");
+    let params = |name: &str| {
+        v.iter()
+            .find(|e| e["variant"] == name)
+            .and_then(|e| e["parameters"].as_u64())
+            .expect("parameters")
+    };
     assert!(params("hmd-delta-only") < params("hmd-base"));
     // A re-run trains nothing: the weights are untouched.
     let weights = out_dir.join("hmd-base/weights.bpk");
-    let before = std::fs::metadata(&weights).and_then(|m| m.modified()).expect("mtime");
+    let before = std::fs::metadata(&weights)
+        .and_then(|m| m.modified())
+        .expect("mtime");
     lfit_json(&args);
-    assert_eq!(std::fs::metadata(&weights).and_then(|m| m.modified()).expect("mtime"), before);
+    assert_eq!(
+        std::fs::metadata(&weights)
+            .and_then(|m| m.modified())
+            .expect("mtime"),
+        before
+    );
     // Another size in the same directory, or an unknown variant, is refused.
     let mut other = args.to_vec();
     other[5] = "3";
     assert_one_line_error(&lfit(&other), "another size");
-    let out = lfit(&["-q", "ablate", "--out", path_str(&tmp.path().join("x")), "--only", "hmd-bogus"]);
+    let out = lfit(&[
+        "-q",
+        "ablate",
+        "--out",
+        path_str(&tmp.path().join("x")),
+        "--only",
+        "hmd-bogus",
+    ]);
     assert_one_line_error(&out, "unknown variant 'hmd-bogus'");
     let bad_device = tmp.path().join("dev");
-    assert_one_line_error(&lfit(&["-q", "ablate", "--out", path_str(&bad_device), "--device", "tpu"]), "tpu");
-    assert!(!bad_device.exists(), "nothing is written before the arguments are valid");
+    assert_one_line_error(
+        &lfit(&[
+            "-q",
+            "ablate",
+            "--out",
+            path_str(&bad_device),
+            "--device",
+            "tpu",
+        ]),
+        "tpu",
+    );
+    assert!(
+        !bad_device.exists(),
+        "nothing is written before the arguments are valid"
+    );
 }

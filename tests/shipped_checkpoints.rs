@@ -14,16 +14,35 @@ const MODALITIES: [&str; 3] = ["markers", "keypoints2d", "hmd"];
 fn every_shipped_checkpoint_is_complete_small_and_fits_its_modality() {
     let tmp = tempfile::tempdir().expect("tmp");
     for m in MODALITIES {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("checkpoints").join(m);
-        for f in ["config.json", "weights.bpk", "stats.json", "metrics.json", "train.json"] {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("checkpoints")
+            .join(m);
+        for f in [
+            "config.json",
+            "weights.bpk",
+            "stats.json",
+            "metrics.json",
+            "train.json",
+        ] {
             assert!(dir.join(f).is_file(), "{m}/{f} is missing");
         }
         // The whole checkpoint directory, every file counted once, is at most 10 MB.
-        let size: u64 = std::fs::read_dir(&dir).expect("dir").flatten().map(|e| e.metadata().map(|x| x.len()).unwrap_or(0)).sum();
+        let size: u64 = std::fs::read_dir(&dir)
+            .expect("dir")
+            .flatten()
+            .map(|e| e.metadata().map(|x| x.len()).unwrap_or(0))
+            .sum();
         assert!(size <= 10_000_000, "{m}: {size} bytes");
-        let weights = std::fs::metadata(dir.join("weights.bpk")).expect("weights").len();
-        assert!(weights <= 10_000_000, "{m}: weights {weights} bytes > 10 MB");
-        let card: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("metrics.json")).expect("card")).expect("json");
+        let weights = std::fs::metadata(dir.join("weights.bpk"))
+            .expect("weights")
+            .len();
+        assert!(
+            weights <= 10_000_000,
+            "{m}: weights {weights} bytes > 10 MB"
+        );
+        let card: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.join("metrics.json")).expect("card"))
+                .expect("json");
         for key in ["command", "seed", "steps", "time_s", "device", "validation"] {
             assert!(!card[key].is_null(), "{m}: metrics card lacks {key}");
         }
@@ -33,14 +52,50 @@ fn every_shipped_checkpoint_is_complete_small_and_fits_its_modality() {
         // Held-out frames (a seed no training run uses): the fit from the start pose ends far
         // below the start error.
         let data = tmp.path().join(format!("{m}.npz"));
-        lfit_json(&["-q", "synth", "--modality", m, "--frames", "24", "--seed", "9100", "--out", path_str(&data)]);
+        lfit_json(&[
+            "-q",
+            "synth",
+            "--modality",
+            m,
+            "--frames",
+            "24",
+            "--seed",
+            "9100",
+            "--out",
+            path_str(&data),
+        ]);
         let out = tmp.path().join(format!("{m}.json"));
-        lfit_json(&["-q", "fit", "--data", path_str(&data), "--method", "neural", "--neural-start", "given", "--checkpoint", path_str(&dir), "--budget", "10", "--out", path_str(&out)]);
-        let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json");
+        lfit_json(&[
+            "-q",
+            "fit",
+            "--data",
+            path_str(&data),
+            "--method",
+            "neural",
+            "--neural-start",
+            "given",
+            "--checkpoint",
+            path_str(&dir),
+            "--budget",
+            "10",
+            "--out",
+            path_str(&out),
+        ]);
+        let r: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json");
         let frames = r["frames"].as_array().expect("frames");
-        let mean = |k: usize| frames.iter().map(|f| f["v2v_mm_per_iteration"][k].as_f64().expect("v2v")).sum::<f64>() / frames.len() as f64;
+        let mean = |k: usize| {
+            frames
+                .iter()
+                .map(|f| f["v2v_mm_per_iteration"][k].as_f64().expect("v2v"))
+                .sum::<f64>()
+                / frames.len() as f64
+        };
         let (start, end) = (mean(0), mean(5));
         eprintln!("{m}: V2V {start:.1} mm at the start pose -> {end:.1} mm after 5 iterations");
-        assert!(end < 0.7 * start, "{m}: the shipped fitter must cut V2V by 30 %: {start:.1} -> {end:.1}");
+        assert!(
+            end < 0.7 * start,
+            "{m}: the shipped fitter must cut V2V by 30 %: {start:.1} -> {end:.1}"
+        );
     }
 }

@@ -11,10 +11,25 @@ use support::{lfit_json, obj_vertices, path_str};
 
 /// A generic OBJ reader (tobj), as a downstream tool would load the file.
 fn load_obj(path: &std::path::Path) -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
-    let (models, _) = tobj::load_obj(path, &tobj::LoadOptions { triangulate: true, ..Default::default() }).expect("generic OBJ reader loads it");
+    let (models, _) = tobj::load_obj(
+        path,
+        &tobj::LoadOptions {
+            triangulate: true,
+            ..Default::default()
+        },
+    )
+    .expect("generic OBJ reader loads it");
     let mesh = &models[0].mesh;
-    let v = mesh.positions.chunks(3).map(|p| [p[0] as f64, p[1] as f64, p[2] as f64]).collect();
-    let f = mesh.indices.chunks(3).map(|f| [f[0] as usize, f[1] as usize, f[2] as usize]).collect();
+    let v = mesh
+        .positions
+        .chunks(3)
+        .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
+        .collect();
+    let f = mesh
+        .indices
+        .chunks(3)
+        .map(|f| [f[0] as usize, f[1] as usize, f[2] as usize])
+        .collect();
     (v, f)
 }
 
@@ -29,8 +44,18 @@ fn exported_template_is_a_closed_manifold_with_18_joints_and_markers() {
     // way (tobj) keeps the file order that rig.json's weights index.
     let in_file = obj_vertices(&out.join("template.obj"));
     assert_eq!(vertices.len(), in_file.len());
-    assert!(vertices.iter().zip(&in_file).all(|(a, b)| (0..3).all(|k| (a[k] - b[k]).abs() < 1e-6)), "tobj sees the file's vertex order");
-    assert!((3000..=8000).contains(&vertices.len()), "{} vertices", vertices.len());
+    assert!(
+        vertices
+            .iter()
+            .zip(&in_file)
+            .all(|(a, b)| (0..3).all(|k| (a[k] - b[k]).abs() < 1e-6)),
+        "tobj sees the file's vertex order"
+    );
+    assert!(
+        (3000..=8000).contains(&vertices.len()),
+        "{} vertices",
+        vertices.len()
+    );
     let mut edges: HashMap<(usize, usize), usize> = HashMap::new();
     for f in &faces {
         for k in 0..3 {
@@ -40,7 +65,8 @@ fn exported_template_is_a_closed_manifold_with_18_joints_and_markers() {
     }
     let bad = edges.values().filter(|&&c| c != 2).count();
     assert_eq!(bad, 0, "edges without exactly two faces");
-    let rig: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("rig.json")).unwrap()).unwrap();
+    let rig: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("rig.json")).unwrap()).unwrap();
     assert_eq!(rig["joints"].as_array().unwrap().len(), 18);
     let markers = rig["markers"].as_array().unwrap().len();
     assert!((36..=44).contains(&markers), "{markers} markers");
@@ -77,7 +103,9 @@ fn rodrigues(r: [f64; 3]) -> M3 {
     let mut m = [[0.0; 3]; 3];
     for i in 0..3 {
         for j in 0..3 {
-            m[i][j] = f64::from(u8::from(i == j)) + theta.sin() * kx[i][j] + (1.0 - theta.cos()) * kx2[i][j];
+            m[i][j] = f64::from(u8::from(i == j))
+                + theta.sin() * kx[i][j]
+                + (1.0 - theta.cos()) * kx2[i][j];
         }
     }
     m
@@ -94,8 +122,14 @@ fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 /// Posed vertices per SPEC §3 from rig.json + rest vertices.
 fn reference_pose(rig: &serde_json::Value, rest: &[[f64; 3]], pose: &[f64]) -> Vec<[f64; 3]> {
     let joints = rig["joints"].as_array().unwrap();
-    let c: Vec<[f64; 3]> = joints.iter().map(|j| [0, 1, 2].map(|k| j["rest_position"][k].as_f64().unwrap())).collect();
-    let parent: Vec<Option<usize>> = joints.iter().map(|j| j["parent"].as_u64().map(|p| p as usize)).collect();
+    let c: Vec<[f64; 3]> = joints
+        .iter()
+        .map(|j| [0, 1, 2].map(|k| j["rest_position"][k].as_f64().unwrap()))
+        .collect();
+    let parent: Vec<Option<usize>> = joints
+        .iter()
+        .map(|j| j["parent"].as_u64().map(|p| p as usize))
+        .collect();
     let t = [pose[0], pose[1], pose[2]];
     let mut w: Vec<M3> = Vec::new();
     // A_j(x) = anchor_j + W_j (x − c_j), anchor_root = c_root + t, anchor_j = A_parent(c_j).
@@ -135,17 +169,41 @@ fn posed_template_matches_an_independent_implementation_of_spec_3() {
     let dir = tempfile::tempdir().unwrap();
     let tpl = dir.path().join("tpl");
     lfit_json(&["template", "export", "--out-dir", path_str(&tpl)]);
-    let rig: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(tpl.join("rig.json")).unwrap()).unwrap();
+    let rig: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(tpl.join("rig.json")).unwrap()).unwrap();
     let rest = obj_vertices(&tpl.join("template.obj"));
     let (_, rest_faces) = load_obj(&tpl.join("template.obj"));
     let mut rng = ChaCha8Rng::seed_from_u64(2024);
     let poses: Vec<Vec<f64>> = (0..4)
-        .map(|_| (0..57).map(|i| if i < 3 { rng.random_range(-0.5..0.5) } else { rng.random_range(-0.8..0.8) }).collect())
+        .map(|_| {
+            (0..57)
+                .map(|i| {
+                    if i < 3 {
+                        rng.random_range(-0.5..0.5)
+                    } else {
+                        rng.random_range(-0.8..0.8)
+                    }
+                })
+                .collect()
+        })
         .collect();
     let pose_file = dir.path().join("poses.json");
-    std::fs::write(&pose_file, serde_json::to_string(&serde_json::json!({ "poses": poses })).unwrap()).unwrap();
+    std::fs::write(
+        &pose_file,
+        serde_json::to_string(&serde_json::json!({ "poses": poses })).unwrap(),
+    )
+    .unwrap();
     let out = dir.path().join("posed.obj");
-    let summary = lfit_json(&["template", "pose", "--pose", path_str(&pose_file), "--out", path_str(&out), "--template", path_str(&tpl)]);
+    let summary = lfit_json(&[
+        "template",
+        "pose",
+        "--pose",
+        path_str(&pose_file),
+        "--out",
+        path_str(&out),
+        "--template",
+        path_str(&tpl),
+    ]);
     assert_eq!(summary["written"].as_array().unwrap().len(), 4);
     for (i, pose) in poses.iter().enumerate() {
         let path = dir.path().join(format!("posed_{i:04}.obj"));
@@ -153,7 +211,11 @@ fn posed_template_matches_an_independent_implementation_of_spec_3() {
         assert_eq!(faces, rest_faces, "faces kept");
         let posed = obj_vertices(&path);
         let expected = reference_pose(&rig, &rest, pose);
-        let max = posed.iter().zip(&expected).map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).abs()).fold(0.0, f64::max)).fold(0.0, f64::max);
+        let max = posed
+            .iter()
+            .zip(&expected)
+            .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).abs()).fold(0.0, f64::max))
+            .fold(0.0, f64::max);
         assert!(max < 1e-5, "pose {i}: max deviation {max} m");
     }
 }
@@ -169,10 +231,20 @@ fn root_only_pose_moves_the_mesh_rigidly() {
     let pose_file = dir.path().join("pose.json");
     std::fs::write(&pose_file, serde_json::json!({ "pose": pose }).to_string()).unwrap();
     let out = dir.path().join("posed.obj");
-    lfit_json(&["template", "pose", "--pose", path_str(&pose_file), "--out", path_str(&out), "--template", path_str(&tpl)]);
+    lfit_json(&[
+        "template",
+        "pose",
+        "--pose",
+        path_str(&pose_file),
+        "--out",
+        path_str(&out),
+        "--template",
+        path_str(&tpl),
+    ]);
     let posed = obj_vertices(&out);
     // Rigid: every pairwise distance is kept, and the map is R (x − c_root) + c_root + t.
-    let rig: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(tpl.join("rig.json")).unwrap()).unwrap();
+    let rig: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(tpl.join("rig.json")).unwrap()).unwrap();
     let c = [0, 1, 2].map(|k| rig["joints"][0]["rest_position"][k].as_f64().unwrap());
     let r = rodrigues([0.4, -1.1, 0.6]);
     for (x, y) in rest.iter().zip(&posed) {
@@ -210,7 +282,12 @@ fn reloaded_template_equals_the_generated_one_and_any_vertex_order_is_kept() {
         obj.push_str(&format!("v {} {} {}\n", v.x, v.y, v.z));
     }
     for f in &generated.faces {
-        obj.push_str(&format!("f {} {} {}\n", rev(f[0] as usize) + 1, rev(f[1] as usize) + 1, rev(f[2] as usize) + 1));
+        obj.push_str(&format!(
+            "f {} {} {}\n",
+            rev(f[0] as usize) + 1,
+            rev(f[1] as usize) + 1,
+            rev(f[2] as usize) + 1
+        ));
     }
     let mut rig = generated.rig.clone();
     rig.weights.reverse();
@@ -227,8 +304,26 @@ fn reloaded_template_equals_the_generated_one_and_any_vertex_order_is_kept() {
     std::fs::write(&pose_file, serde_json::json!({ "pose": pose }).to_string()).unwrap();
     let a = dir.path().join("a.obj");
     let b = dir.path().join("b.obj");
-    lfit_json(&["template", "pose", "--pose", path_str(&pose_file), "--out", path_str(&a), "--template", path_str(&tpl)]);
-    lfit_json(&["template", "pose", "--pose", path_str(&pose_file), "--out", path_str(&b), "--template", path_str(&other)]);
+    lfit_json(&[
+        "template",
+        "pose",
+        "--pose",
+        path_str(&pose_file),
+        "--out",
+        path_str(&a),
+        "--template",
+        path_str(&tpl),
+    ]);
+    lfit_json(&[
+        "template",
+        "pose",
+        "--pose",
+        path_str(&pose_file),
+        "--out",
+        path_str(&b),
+        "--template",
+        path_str(&other),
+    ]);
     let (a, mut b) = (obj_vertices(&a), obj_vertices(&b));
     b.reverse();
     assert_eq!(a, b);

@@ -31,7 +31,10 @@ pub struct Meta {
     /// The motion behind each frame (`walk`, ..., or `uniform`).
     pub frame_motions: Vec<String>,
     /// Pose entries per frame (`3 + 3J`); absent in files of the default skeleton (57).
-    #[serde(default = "default_pose_dim", skip_serializing_if = "is_default_pose_dim")]
+    #[serde(
+        default = "default_pose_dim",
+        skip_serializing_if = "is_default_pose_dim"
+    )]
     pub pose_dim: usize,
     /// Shape coefficients per frame (`gt_shape`, `start_shape`); absent when 0.
     #[serde(default, skip_serializing_if = "is_zero")]
@@ -64,10 +67,18 @@ impl Meta {
 #[derive(Debug, Clone)]
 pub enum Observations {
     /// Sparse modalities: one fixed-size vector per frame and its visibility.
-    Sparse { values: Vec<Vec<f64>>, visible: Vec<Vec<bool>> },
+    Sparse {
+        values: Vec<Vec<f64>>,
+        visible: Vec<Vec<bool>>,
+    },
     /// `scan`: per frame, one point per template vertex (noisy) with visibility (holes), the
     /// squared distance transform of the visible points and K silhouettes.
-    Scan { points: Vec<Vec<Vec3>>, visible: Vec<Vec<bool>>, grids: Vec<VoxelGrid>, silhouettes: Vec<Vec<Mask>> },
+    Scan {
+        points: Vec<Vec<Vec3>>,
+        visible: Vec<Vec<bool>>,
+        grids: Vec<VoxelGrid>,
+        silhouettes: Vec<Vec<Mask>>,
+    },
 }
 
 /// A synthetic (or converted) dataset.
@@ -93,7 +104,9 @@ struct MetaJson {
 
 /// Entries `range` of every row, flattened.
 fn flat_block(rows: &[Vec<f64>], range: std::ops::Range<usize>) -> Vec<f64> {
-    rows.iter().flat_map(|p| p[range.clone()].iter().copied()).collect()
+    rows.iter()
+        .flat_map(|p| p[range.clone()].iter().copied())
+        .collect()
 }
 
 impl Dataset {
@@ -112,30 +125,90 @@ impl Dataset {
     /// The arrays of the archive, in a fixed order.
     pub fn to_arrays(&self) -> Result<Vec<(&'static str, Array)>, SynthError> {
         let n = self.len();
-        let meta = serde_json::to_string(&MetaJson { meta: self.meta.clone(), sensor: self.sensor.clone() }).map_err(|e| SynthError::Dataset(e.to_string()))?;
+        let meta = serde_json::to_string(&MetaJson {
+            meta: self.meta.clone(),
+            sensor: self.sensor.clone(),
+        })
+        .map_err(|e| SynthError::Dataset(e.to_string()))?;
         let m = &self.meta;
         let (p, b, e) = (m.pose_dim, m.shape_dim, m.expression_dim);
-        if let Some(i) = self.gt_poses.iter().chain(&self.start_poses).position(|r| r.len() != m.param_dim()) {
-            return Err(SynthError::Dataset(format!("row {i} has the wrong number of parameters (expected {})", m.param_dim())));
+        if let Some(i) = self
+            .gt_poses
+            .iter()
+            .chain(&self.start_poses)
+            .position(|r| r.len() != m.param_dim())
+        {
+            return Err(SynthError::Dataset(format!(
+                "row {i} has the wrong number of parameters (expected {})",
+                m.param_dim()
+            )));
         }
         let mut arrays = vec![
             ("meta", Array::string(&meta)),
-            ("gt_poses", Array::f64(vec![n, p], &flat_block(&self.gt_poses, 0..p))),
-            ("start_poses", Array::f64(vec![n, p], &flat_block(&self.start_poses, 0..p))),
+            (
+                "gt_poses",
+                Array::f64(vec![n, p], &flat_block(&self.gt_poses, 0..p)),
+            ),
+            (
+                "start_poses",
+                Array::f64(vec![n, p], &flat_block(&self.start_poses, 0..p)),
+            ),
         ];
         if b > 0 {
-            arrays.push(("gt_shape", Array::f64(vec![n, b], &flat_block(&self.gt_poses, p..p + b))));
-            arrays.push(("start_shape", Array::f64(vec![n, b], &flat_block(&self.start_poses, p..p + b))));
+            arrays.push((
+                "gt_shape",
+                Array::f64(vec![n, b], &flat_block(&self.gt_poses, p..p + b)),
+            ));
+            arrays.push((
+                "start_shape",
+                Array::f64(vec![n, b], &flat_block(&self.start_poses, p..p + b)),
+            ));
         }
         if e > 0 {
-            arrays.push(("gt_expression", Array::f64(vec![n, e], &flat_block(&self.gt_poses, p + b..p + b + e))));
-            arrays.push(("start_expression", Array::f64(vec![n, e], &flat_block(&self.start_poses, p + b..p + b + e))));
+            arrays.push((
+                "gt_expression",
+                Array::f64(vec![n, e], &flat_block(&self.gt_poses, p + b..p + b + e)),
+            ));
+            arrays.push((
+                "start_expression",
+                Array::f64(vec![n, e], &flat_block(&self.start_poses, p + b..p + b + e)),
+            ));
         }
         let cams = self.sensor.cameras();
         let k = cams.len();
-        arrays.push(("camera_intrinsics", Array::f64(vec![k, 4], &cams.iter().flat_map(|c| [c.fx, c.fy, c.cx, c.cy]).collect::<Vec<_>>())));
-        arrays.push(("camera_image_size", Array::u32(vec![k, 2], &cams.iter().flat_map(|c| [c.width, c.height]).collect::<Vec<_>>())));
-        let extrinsics: Vec<f64> = cams.iter().flat_map(|c| (0..3).flat_map(move |r| [c.rotation[r][0], c.rotation[r][1], c.rotation[r][2], c.translation[r]])).collect();
+        arrays.push((
+            "camera_intrinsics",
+            Array::f64(
+                vec![k, 4],
+                &cams
+                    .iter()
+                    .flat_map(|c| [c.fx, c.fy, c.cx, c.cy])
+                    .collect::<Vec<_>>(),
+            ),
+        ));
+        arrays.push((
+            "camera_image_size",
+            Array::u32(
+                vec![k, 2],
+                &cams
+                    .iter()
+                    .flat_map(|c| [c.width, c.height])
+                    .collect::<Vec<_>>(),
+            ),
+        ));
+        let extrinsics: Vec<f64> = cams
+            .iter()
+            .flat_map(|c| {
+                (0..3).flat_map(move |r| {
+                    [
+                        c.rotation[r][0],
+                        c.rotation[r][1],
+                        c.rotation[r][2],
+                        c.translation[r],
+                    ]
+                })
+            })
+            .collect();
         arrays.push(("camera_extrinsics", Array::f64(vec![k, 3, 4], &extrinsics)));
         match &self.observations {
             Observations::Sparse { values, visible } => {
@@ -143,18 +216,51 @@ impl Dataset {
                 arrays.push(("observations", Array::f64(vec![n, d], &values.concat())));
                 arrays.push(("visibility", Array::bool(vec![n, d], &visible.concat())));
             }
-            Observations::Scan { points, visible, grids, silhouettes } => {
+            Observations::Scan {
+                points,
+                visible,
+                grids,
+                silhouettes,
+            } => {
                 let v = points.first().map_or(0, Vec::len);
                 let flat: Vec<f32> = points.iter().flatten().flat_map(|p| p.to_array()).collect();
                 arrays.push(("points", Array::f32(vec![n, v, 3], &flat)));
-                arrays.push(("point_visibility", Array::bool(vec![n, v], &visible.concat())));
+                arrays.push((
+                    "point_visibility",
+                    Array::bool(vec![n, v], &visible.concat()),
+                ));
                 let dims = grids.first().map_or([0; 3], |g| g.dims);
-                let values: Vec<f32> = grids.iter().flat_map(|g| g.values.iter().copied()).collect();
-                arrays.push(("edt", Array::f32(vec![n, dims[2], dims[1], dims[0]], &values)));
-                arrays.push(("edt_origin", Array::f64(vec![n, 3], &grids.iter().flat_map(|g| g.origin).collect::<Vec<_>>())));
-                arrays.push(("edt_spacing", Array::f64(vec![n], &grids.iter().map(|g| g.spacing).collect::<Vec<_>>())));
-                let (w, h) = silhouettes.first().and_then(|s| s.first()).map_or((0, 0), |m| (m.width as usize, m.height as usize));
-                let masks: Vec<u8> = silhouettes.iter().flatten().flat_map(|m| m.data.iter().copied()).collect();
+                let values: Vec<f32> = grids
+                    .iter()
+                    .flat_map(|g| g.values.iter().copied())
+                    .collect();
+                arrays.push((
+                    "edt",
+                    Array::f32(vec![n, dims[2], dims[1], dims[0]], &values),
+                ));
+                arrays.push((
+                    "edt_origin",
+                    Array::f64(
+                        vec![n, 3],
+                        &grids.iter().flat_map(|g| g.origin).collect::<Vec<_>>(),
+                    ),
+                ));
+                arrays.push((
+                    "edt_spacing",
+                    Array::f64(
+                        vec![n],
+                        &grids.iter().map(|g| g.spacing).collect::<Vec<_>>(),
+                    ),
+                ));
+                let (w, h) = silhouettes
+                    .first()
+                    .and_then(|s| s.first())
+                    .map_or((0, 0), |m| (m.width as usize, m.height as usize));
+                let masks: Vec<u8> = silhouettes
+                    .iter()
+                    .flatten()
+                    .flat_map(|m| m.data.iter().copied())
+                    .collect();
                 arrays.push(("silhouettes", Array::u8(vec![n, k, h, w], masks)));
             }
         }
@@ -170,7 +276,10 @@ impl Dataset {
 
     /// Loads and checks a dataset: version, shapes against the metadata, finite numbers.
     pub fn load(path: &Path) -> Result<Self, SynthError> {
-        let bytes = std::fs::read(path).map_err(|source| SynthError::Read { path: path.to_path_buf(), source })?;
+        let bytes = std::fs::read(path).map_err(|source| SynthError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
         Self::from_npz(&bytes).map_err(|e| match e {
             SynthError::Dataset(why) => SynthError::Dataset(format!("{}: {why}", path.display())),
             other => other,
@@ -179,16 +288,29 @@ impl Dataset {
 
     pub fn from_npz(bytes: &[u8]) -> Result<Self, SynthError> {
         let arrays = read_npz(bytes)?;
-        let get = |name: &str| arrays.iter().find(|(n, _)| n == name).map(|(_, a)| a).ok_or_else(|| SynthError::Dataset(format!("missing array '{name}'")));
+        let get = |name: &str| {
+            arrays
+                .iter()
+                .find(|(n, _)| n == name)
+                .map(|(_, a)| a)
+                .ok_or_else(|| SynthError::Dataset(format!("missing array '{name}'")))
+        };
         let meta_text = get("meta")?.to_string("meta")?;
-        let MetaJson { meta, sensor } = serde_json::from_str(&meta_text).map_err(|e| SynthError::Dataset(format!("meta: {e}")))?;
+        let MetaJson { meta, sensor } = serde_json::from_str(&meta_text)
+            .map_err(|e| SynthError::Dataset(format!("meta: {e}")))?;
         if meta.format != "lfit-dataset" || meta.version != FORMAT_VERSION {
-            return Err(SynthError::Dataset(format!("format {} version {} is not lfit-dataset version {FORMAT_VERSION}", meta.format, meta.version)));
+            return Err(SynthError::Dataset(format!(
+                "format {} version {} is not lfit-dataset version {FORMAT_VERSION}",
+                meta.format, meta.version
+            )));
         }
         let n = meta.config.frames;
         let shape = |name: &str, a: &Array, expected: &[usize]| {
             if a.shape != expected {
-                return Err(SynthError::Dataset(format!("array '{name}' has shape {:?}, expected {expected:?}", a.shape)));
+                return Err(SynthError::Dataset(format!(
+                    "array '{name}' has shape {:?}, expected {expected:?}",
+                    a.shape
+                )));
             }
             Ok(())
         };
@@ -200,18 +322,28 @@ impl Dataset {
             shape(name, a, &[n, width])?;
             let flat = a.to_f64(name)?;
             if let Some(i) = flat.iter().position(|x| !x.is_finite()) {
-                return Err(SynthError::Dataset(format!("{name}[{}]: value {} is not finite ({})", i / width, i % width, flat[i])));
+                return Err(SynthError::Dataset(format!(
+                    "{name}[{}]: value {} is not finite ({})",
+                    i / width,
+                    i % width,
+                    flat[i]
+                )));
             }
             Ok(flat.chunks_exact(width).map(<[f64]>::to_vec).collect())
         };
-        let rows = |pose: &str, shape_key: &str, expr_key: &str| -> Result<Vec<Vec<f64>>, SynthError> {
-            let mut out = block(pose, meta.pose_dim)?;
-            for (r, (b, e)) in out.iter_mut().zip(block(shape_key, meta.shape_dim)?.into_iter().zip(block(expr_key, meta.expression_dim)?)) {
-                r.extend(b);
-                r.extend(e);
-            }
-            Ok(out)
-        };
+        let rows =
+            |pose: &str, shape_key: &str, expr_key: &str| -> Result<Vec<Vec<f64>>, SynthError> {
+                let mut out = block(pose, meta.pose_dim)?;
+                for (r, (b, e)) in out.iter_mut().zip(
+                    block(shape_key, meta.shape_dim)?
+                        .into_iter()
+                        .zip(block(expr_key, meta.expression_dim)?),
+                ) {
+                    r.extend(b);
+                    r.extend(e);
+                }
+                Ok(out)
+            };
         let gt_poses = rows("gt_poses", "gt_shape", "gt_expression")?;
         let start_poses = rows("start_poses", "start_shape", "start_expression")?;
         let observations = match sensor.modality() {
@@ -222,15 +354,31 @@ impl Dataset {
                 shape("points", p, &[n, v, 3])?;
                 let flat = p.to_f32("points")?;
                 if flat.iter().any(|x| !x.is_finite()) {
-                    return Err(SynthError::Dataset("array 'points' holds a non-finite number".into()));
+                    return Err(SynthError::Dataset(
+                        "array 'points' holds a non-finite number".into(),
+                    ));
                 }
-                let points = flat.chunks_exact(3 * v.max(1)).map(|c| c.chunks_exact(3).map(|q| Vec3::new(q[0], q[1], q[2])).collect()).collect();
+                let points = flat
+                    .chunks_exact(3 * v.max(1))
+                    .map(|c| {
+                        c.chunks_exact(3)
+                            .map(|q| Vec3::new(q[0], q[1], q[2]))
+                            .collect()
+                    })
+                    .collect();
                 let vis = get("point_visibility")?;
                 shape("point_visibility", vis, &[n, v])?;
-                let visible = vis.to_bool("point_visibility")?.chunks_exact(v.max(1)).map(<[bool]>::to_vec).collect();
+                let visible = vis
+                    .to_bool("point_visibility")?
+                    .chunks_exact(v.max(1))
+                    .map(<[bool]>::to_vec)
+                    .collect();
                 let edt = get("edt")?;
                 if edt.shape.len() != 4 || edt.shape[0] != n {
-                    return Err(SynthError::Dataset(format!("array 'edt' has shape {:?}, expected [{n}, Z, Y, X]", edt.shape)));
+                    return Err(SynthError::Dataset(format!(
+                        "array 'edt' has shape {:?}, expected [{n}, Z, Y, X]",
+                        edt.shape
+                    )));
                 }
                 let dims = [edt.shape[3], edt.shape[2], edt.shape[1]];
                 let values = edt.to_f32("edt")?;
@@ -242,39 +390,80 @@ impl Dataset {
                 let spacing = spacing.to_f64("edt_spacing")?;
                 let per = dims.iter().product::<usize>();
                 let grids = (0..n)
-                    .map(|i| VoxelGrid { origin: [origin[3 * i], origin[3 * i + 1], origin[3 * i + 2]], spacing: spacing[i], dims, values: values[i * per..(i + 1) * per].to_vec() })
+                    .map(|i| VoxelGrid {
+                        origin: [origin[3 * i], origin[3 * i + 1], origin[3 * i + 2]],
+                        spacing: spacing[i],
+                        dims,
+                        values: values[i * per..(i + 1) * per].to_vec(),
+                    })
                     .collect();
                 let s = get("silhouettes")?;
                 if s.shape.len() != 4 || s.shape[0] != n || s.shape[1] != k {
-                    return Err(SynthError::Dataset(format!("array 'silhouettes' has shape {:?}, expected [{n}, {k}, H, W]", s.shape)));
+                    return Err(SynthError::Dataset(format!(
+                        "array 'silhouettes' has shape {:?}, expected [{n}, {k}, H, W]",
+                        s.shape
+                    )));
                 }
                 let (h, w) = (s.shape[2], s.shape[3]);
                 let data = s.to_u8("silhouettes")?;
                 let silhouettes = (0..n)
-                    .map(|i| (0..k).map(|c| Mask { width: w as u32, height: h as u32, data: data[(i * k + c) * w * h..(i * k + c + 1) * w * h].to_vec() }).collect())
+                    .map(|i| {
+                        (0..k)
+                            .map(|c| Mask {
+                                width: w as u32,
+                                height: h as u32,
+                                data: data[(i * k + c) * w * h..(i * k + c + 1) * w * h].to_vec(),
+                            })
+                            .collect()
+                    })
                     .collect();
-                Observations::Scan { points, visible, grids, silhouettes }
+                Observations::Scan {
+                    points,
+                    visible,
+                    grids,
+                    silhouettes,
+                }
             }
             _ => {
                 let o = get("observations")?;
                 if o.shape.len() != 2 || o.shape[0] != n {
-                    return Err(SynthError::Dataset(format!("array 'observations' has shape {:?}, expected [{n}, D]", o.shape)));
+                    return Err(SynthError::Dataset(format!(
+                        "array 'observations' has shape {:?}, expected [{n}, D]",
+                        o.shape
+                    )));
                 }
                 let d = o.shape[1];
                 let flat = o.to_f64("observations")?;
                 if let Some(i) = flat.iter().position(|x| !x.is_finite()) {
-                    return Err(SynthError::Dataset(format!("observations[{}][{}] is not finite", i / d.max(1), i % d.max(1))));
+                    return Err(SynthError::Dataset(format!(
+                        "observations[{}][{}] is not finite",
+                        i / d.max(1),
+                        i % d.max(1)
+                    )));
                 }
                 let vis = get("visibility")?;
                 shape("visibility", vis, &[n, d])?;
                 let values = flat.chunks_exact(d.max(1)).map(<[f64]>::to_vec).collect();
-                let visible = vis.to_bool("visibility")?.chunks_exact(d.max(1)).map(<[bool]>::to_vec).collect();
+                let visible = vis
+                    .to_bool("visibility")?
+                    .chunks_exact(d.max(1))
+                    .map(<[bool]>::to_vec)
+                    .collect();
                 Observations::Sparse { values, visible }
             }
         };
         if meta.frame_motions.len() != n {
-            return Err(SynthError::Dataset(format!("meta lists {} frame motions for {n} frames", meta.frame_motions.len())));
+            return Err(SynthError::Dataset(format!(
+                "meta lists {} frame motions for {n} frames",
+                meta.frame_motions.len()
+            )));
         }
-        Ok(Self { meta, sensor, start_poses, gt_poses, observations })
+        Ok(Self {
+            meta,
+            sensor,
+            start_poses,
+            gt_poses,
+            observations,
+        })
     }
 }

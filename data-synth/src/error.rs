@@ -18,10 +18,18 @@ pub enum SynthError {
     UnknownScenario(String),
     #[error("unknown pose source '{0}' (expected motion or uniform)")]
     UnknownSource(String),
-    #[error("unknown motion '{0}' (expected walk, jog, wave, squat, reach, punch, kick, jump or turn)")]
+    #[error(
+        "unknown motion '{0}' (expected walk, jog, wave, squat, reach, punch, kick, jump or turn)"
+    )]
     UnknownMotion(String),
-    #[error("unknown body shape '{0}' (expected one of default, tall, short, heavy, slim, long-legs, long-arms)")]
+    #[error(
+        "unknown body shape '{0}' (expected one of default, tall, short, heavy, slim, long-legs, long-arms)"
+    )]
     UnknownShape(String),
     #[error("invalid setting {name} = {value}: {reason}")]
-    Setting { name: &'static str, value: String, reason: String },
+    Setting {
+        name: &'static str,
+        value: String,
+        reason: String,
+    },
 }

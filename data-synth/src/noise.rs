@@ -69,7 +69,11 @@ impl NoiseConfig {
     /// Scales every magnitude and rate by `s` (0 = noise-free, 1 = defaults).
     pub fn scaled(s: f64) -> Result<Self, SynthError> {
         if !(s.is_finite() && s >= 0.0) {
-            return Err(SynthError::Setting { name: "noise", value: s.to_string(), reason: "must be a finite number ≥ 0".into() });
+            return Err(SynthError::Setting {
+                name: "noise",
+                value: s.to_string(),
+                reason: "must be a finite number ≥ 0".into(),
+            });
         }
         let d = Self::default();
         Ok(Self {
@@ -95,13 +99,21 @@ fn gaussian(rng: &mut impl Rng, sigma: f64) -> f64 {
 }
 
 fn gaussian3(rng: &mut impl Rng, sigma: f64) -> DVec3 {
-    DVec3::new(gaussian(rng, sigma), gaussian(rng, sigma), gaussian(rng, sigma))
+    DVec3::new(
+        gaussian(rng, sigma),
+        gaussian(rng, sigma),
+        gaussian(rng, sigma),
+    )
 }
 
 /// A random direction (uniform on the sphere).
 fn unit(rng: &mut impl Rng) -> DVec3 {
     loop {
-        let v = DVec3::new(StandardNormal.sample(rng), StandardNormal.sample(rng), StandardNormal.sample(rng));
+        let v = DVec3::new(
+            StandardNormal.sample(rng),
+            StandardNormal.sample(rng),
+            StandardNormal.sample(rng),
+        );
         if v.length_squared() > 1e-12 {
             return v.normalize();
         }
@@ -111,12 +123,24 @@ fn unit(rng: &mut impl Rng) -> DVec3 {
 /// Corrupts groups of `stride` values (a 3D marker or a 2D keypoint): Gaussian noise `sigma`,
 /// outliers (uniform displacement up to `outlier_scale` along a random direction) and dropouts
 /// (visibility cleared). Invisible groups are reported as zeros.
-pub fn corrupt_points(values: &mut [f64], visible: &mut [bool], stride: usize, sigma: f64, outlier_scale: f64, cfg: &NoiseConfig, rng: &mut impl Rng) {
+pub fn corrupt_points(
+    values: &mut [f64],
+    visible: &mut [bool],
+    stride: usize,
+    sigma: f64,
+    outlier_scale: f64,
+    cfg: &NoiseConfig,
+    rng: &mut impl Rng,
+) {
     for (group, vis) in values.chunks_mut(stride).zip(visible.chunks_mut(stride)) {
         let dropped = cfg.drop_rate > 0.0 && rng.random::<f64>() < cfg.drop_rate;
         let outlier = cfg.outlier_rate > 0.0 && rng.random::<f64>() < cfg.outlier_rate;
         let dir = unit(rng);
-        let magnitude = if outlier { rng.random::<f64>() * outlier_scale } else { 0.0 };
+        let magnitude = if outlier {
+            rng.random::<f64>() * outlier_scale
+        } else {
+            0.0
+        };
         for (k, v) in group.iter_mut().enumerate() {
             *v += gaussian(rng, sigma) + magnitude * dir[k % 3];
         }
@@ -169,7 +193,13 @@ pub fn jitter_points(points: &mut [Vec3], sigma: f64, rng: &mut impl Rng) {
 
 /// Clears the visibility of points within `count` random spheres of `radius` centred on visible
 /// points (holes of a scan).
-pub fn punch_holes(points: &[Vec3], visible: &mut [bool], count: usize, radius: f64, rng: &mut impl Rng) {
+pub fn punch_holes(
+    points: &[Vec3],
+    visible: &mut [bool],
+    count: usize,
+    radius: f64,
+    rng: &mut impl Rng,
+) {
     let r2 = (radius * radius) as f32;
     for _ in 0..count {
         let candidates: Vec<usize> = (0..points.len()).filter(|&i| visible[i]).collect();
@@ -194,7 +224,12 @@ mod tests {
     #[test]
     fn noise_free_config_changes_nothing() {
         let cfg = NoiseConfig::scaled(0.0).unwrap();
-        let none = NoiseConfig { outlier_scale_m: cfg.outlier_scale_m, outlier_scale_px: cfg.outlier_scale_px, scan_hole_radius: cfg.scan_hole_radius, ..NoiseConfig::none() };
+        let none = NoiseConfig {
+            outlier_scale_m: cfg.outlier_scale_m,
+            outlier_scale_px: cfg.outlier_scale_px,
+            scan_hole_radius: cfg.scan_hole_radius,
+            ..NoiseConfig::none()
+        };
         assert_eq!(cfg, none, "every rate and σ is zero");
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let mut v = vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0];
@@ -207,13 +242,22 @@ mod tests {
 
     #[test]
     fn point_noise_has_the_requested_spread_and_drop_rate() {
-        let cfg = NoiseConfig { outlier_rate: 0.0, drop_rate: 0.2, ..NoiseConfig::default() };
+        let cfg = NoiseConfig {
+            outlier_rate: 0.0,
+            drop_rate: 0.2,
+            ..NoiseConfig::default()
+        };
         let mut rng = ChaCha8Rng::seed_from_u64(7);
         let n = 20_000;
         let mut v = vec![0.0; 3 * n];
         let mut vis = vec![true; 3 * n];
         corrupt_points(&mut v, &mut vis, 3, 0.005, 0.0, &cfg, &mut rng);
-        let kept: Vec<f64> = v.iter().zip(&vis).filter(|(_, b)| **b).map(|(x, _)| *x).collect();
+        let kept: Vec<f64> = v
+            .iter()
+            .zip(&vis)
+            .filter(|(_, b)| **b)
+            .map(|(x, _)| *x)
+            .collect();
         let sd = (kept.iter().map(|x| x * x).sum::<f64>() / kept.len() as f64).sqrt();
         assert!((sd - 0.005).abs() < 0.0002, "{sd}");
         let drop = 1.0 - kept.len() as f64 / (3 * n) as f64;
@@ -222,7 +266,10 @@ mod tests {
 
     #[test]
     fn hmd_rotations_stay_orthonormal() {
-        let cfg = NoiseConfig { rotation_sigma_deg: 5.0, ..NoiseConfig::default() };
+        let cfg = NoiseConfig {
+            rotation_sigma_deg: 5.0,
+            ..NoiseConfig::default()
+        };
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let mut v = vec![0.0; 42];
         for b in 0..3 {
@@ -232,7 +279,17 @@ mod tests {
         }
         corrupt_hmd(&mut v, &[true; 42], &cfg, &mut rng);
         for b in 0..3 {
-            let r = DMat3::from_cols_array(&[v[12 * b], v[12 * b + 3], v[12 * b + 6], v[12 * b + 1], v[12 * b + 4], v[12 * b + 7], v[12 * b + 2], v[12 * b + 5], v[12 * b + 8]]);
+            let r = DMat3::from_cols_array(&[
+                v[12 * b],
+                v[12 * b + 3],
+                v[12 * b + 6],
+                v[12 * b + 1],
+                v[12 * b + 4],
+                v[12 * b + 7],
+                v[12 * b + 2],
+                v[12 * b + 5],
+                v[12 * b + 8],
+            ]);
             assert!((r * r.transpose()).abs_diff_eq(DMat3::IDENTITY, 1e-12));
             assert!(!r.abs_diff_eq(DMat3::IDENTITY, 1e-6));
         }

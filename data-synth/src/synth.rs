@@ -7,18 +7,20 @@ use std::str::FromStr;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::Vec3;
-use lfit_model::observe::{Modality, Sensor};
-use lfit_model::layout::Layout;
-use lfit_model::pose::{Bounds, LOCAL_ROTATION_DEG, LOCAL_TRANSLATION, POSE_DIM, Pose, SHAPE_BOUND};
-use lfit_model::scan::{VoxelGrid, squared_edt};
 use lfit_model::Template;
+use lfit_model::layout::Layout;
+use lfit_model::observe::{Modality, Sensor};
+use lfit_model::pose::{
+    Bounds, LOCAL_ROTATION_DEG, LOCAL_TRANSLATION, POSE_DIM, Pose, SHAPE_BOUND,
+};
+use lfit_model::scan::{VoxelGrid, squared_edt};
 use rand::{Rng, SeedableRng};
-use rand_distr::{Distribution, StandardNormal};
 use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::dataset::{Dataset, Meta, Observations, FORMAT_VERSION};
+use crate::dataset::{Dataset, FORMAT_VERSION, Meta, Observations};
 use crate::error::SynthError;
 use crate::motion::{MotionKind, MotionParams, motion_pose};
 use crate::noise::{NoiseConfig, corrupt_hmd, corrupt_points, jitter_points, punch_holes};
@@ -99,11 +101,26 @@ pub struct SynthConfig {
 
 impl SynthConfig {
     pub fn new(modality: Modality, scenario: Scenario, frames: usize, seed: u64) -> Self {
-        Self { modality, scenario, source: PoseSource::Motion, frames, seed, fps: 30.0, noise: NoiseConfig::default(), motions: MotionKind::ALL.to_vec() }
+        Self {
+            modality,
+            scenario,
+            source: PoseSource::Motion,
+            frames,
+            seed,
+            fps: 30.0,
+            noise: NoiseConfig::default(),
+            motions: MotionKind::ALL.to_vec(),
+        }
     }
 
     pub fn validate(&self) -> Result<(), SynthError> {
-        let setting = |name, value: String, reason: &str| Err(SynthError::Setting { name, value, reason: reason.into() });
+        let setting = |name, value: String, reason: &str| {
+            Err(SynthError::Setting {
+                name,
+                value,
+                reason: reason.into(),
+            })
+        };
         if self.frames == 0 {
             return setting("frames", "0".into(), "must be at least 1");
         }
@@ -114,7 +131,11 @@ impl SynthConfig {
             return setting("motions", "[]".into(), "need at least one motion");
         }
         if self.scenario == Scenario::Sequence && self.source == PoseSource::Uniform {
-            return setting("source", "uniform".into(), "sequences need smooth motion: use --source motion");
+            return setting(
+                "source",
+                "uniform".into(),
+                "sequences need smooth motion: use --source motion",
+            );
         }
         Ok(())
     }
@@ -133,17 +154,30 @@ const POSE_STREAM: u64 = 1 << 32;
 const SHAPE_STREAM: u64 = 3 << 32;
 
 /// Generates a dataset; `progress` is called with the number of frames done.
-pub fn synthesize(config: &SynthConfig, template: &Template, sensor: &Sensor, progress: &(dyn Fn(usize) + Sync)) -> Result<Dataset, SynthError> {
+pub fn synthesize(
+    config: &SynthConfig,
+    template: &Template,
+    sensor: &Sensor,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Dataset, SynthError> {
     config.validate()?;
     sensor.validate(template)?;
     if sensor.modality() != config.modality {
-        return Err(SynthError::Setting { name: "sensor", value: sensor.modality().to_string(), reason: format!("does not match modality {}", config.modality) });
+        return Err(SynthError::Setting {
+            name: "sensor",
+            value: sensor.modality().to_string(),
+            reason: format!("does not match modality {}", config.modality),
+        });
     }
     let (starts, targets, motions) = scenario_poses(config, template)?;
     let done = AtomicUsize::new(0);
     let layout = template.layout();
     if let Some(i) = (0..config.frames).find(|&i| targets[i].len() != layout.dim()) {
-        return Err(SynthError::Setting { name: "template", value: template.id.clone(), reason: format!("frame {i} has {} parameters", targets[i].len()) });
+        return Err(SynthError::Setting {
+            name: "template",
+            value: template.id.clone(),
+            reason: format!("frame {i} has {} parameters", targets[i].len()),
+        });
     }
     let frames: Vec<FrameObs> = (0..config.frames)
         .into_par_iter()
@@ -190,7 +224,14 @@ pub fn synthesize(config: &SynthConfig, template: &Template, sensor: &Sensor, pr
 /// translation, and each papers/000 joint's rotation on the model joint its joint map names
 /// (joints it does not name stay at rest). The identity on the default skeleton.
 pub fn retarget(pose: &Pose, template: &Template, layout: &Layout) -> Vec<f64> {
-    if layout.pose_dim() == POSE_DIM && template.info.joint_map.iter().enumerate().all(|(j, m)| *m == Some(j)) {
+    if layout.pose_dim() == POSE_DIM
+        && template
+            .info
+            .joint_map
+            .iter()
+            .enumerate()
+            .all(|(j, m)| *m == Some(j))
+    {
         return pose.to_vec();
     }
     let mut out = vec![0.0; layout.pose_dim()];
@@ -212,7 +253,10 @@ fn subject_coefficients(layout: &Layout, seed: u64, index: u64) -> Vec<f64> {
         return Vec::new();
     }
     let mut rng = stream(seed, SHAPE_STREAM + index);
-    (0..k).map(|_| StandardNormal.sample(&mut rng)).map(|x: f64| x.clamp(-SHAPE_BOUND, SHAPE_BOUND)).collect()
+    (0..k)
+        .map(|_| StandardNormal.sample(&mut rng))
+        .map(|x: f64| x.clamp(-SHAPE_BOUND, SHAPE_BOUND))
+        .collect()
 }
 
 /// Per frame: start parameters, target parameters, and the motion behind the frame.
@@ -230,7 +274,10 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
         return Err(SynthError::Setting {
             name: "source",
             value: "motion".into(),
-            reason: format!("model '{}' maps none of its joints to the papers/000 skeleton (lfit key 'joint_map'): use --source uniform", template.id),
+            reason: format!(
+                "model '{}' maps none of its joints to the papers/000 skeleton (lfit key 'joint_map'): use --source uniform",
+                template.id
+            ),
         });
     }
     let with_coefficients = |mut pose: Vec<f64>, coefficients: &[f64]| {
@@ -244,8 +291,12 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
         let params = MotionParams::sample(kind, &mut rng);
         let t0 = rng.random_range(0.0..2.0);
         // One frame before the first, so that frame 0 also has a previous pose to start from.
-        let mut poses: Vec<Pose> = (0..=n).map(|k| motion_pose(kind, &params, t0 + (k as f64 - 1.0) / config.fps)).collect();
-        let (mx, mz) = poses.iter().fold((0.0, 0.0), |(x, z), p| (x + p[0], z + p[2]));
+        let mut poses: Vec<Pose> = (0..=n)
+            .map(|k| motion_pose(kind, &params, t0 + (k as f64 - 1.0) / config.fps))
+            .collect();
+        let (mx, mz) = poses
+            .iter()
+            .fold((0.0, 0.0), |(x, z), p| (x + p[0], z + p[2]));
         for p in &mut poses {
             p[0] -= mx / (n + 1) as f64;
             p[2] -= mz / (n + 1) as f64;
@@ -254,9 +305,7 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
         let subject = subject_coefficients(&layout, config.seed, 0);
         let poses: Vec<Vec<f64>> = poses
             .iter()
-            .map(|p| {
-                with_coefficients(retarget(p, template, &layout), &subject)
-            })
+            .map(|p| with_coefficients(retarget(p, template, &layout), &subject))
             .collect();
         let starts = poses[..n].to_vec();
         let targets = poses[1..].to_vec();
@@ -281,12 +330,20 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
                         p[0] += x - tx;
                         p[2] += z - tz;
                     }
-                    (retarget(&target, template, &layout), retarget(&previous, template, &layout), kind.name().to_string())
+                    (
+                        retarget(&target, template, &layout),
+                        retarget(&previous, template, &layout),
+                        kind.name().to_string(),
+                    )
                 }
                 PoseSource::Uniform => {
                     let mut target = vec![0.0; pd];
                     for (k, v) in target.iter_mut().enumerate() {
-                        let (lo, hi) = if k == 1 { (-0.3, 0.3) } else { (global.lower[k], global.upper[k]) };
+                        let (lo, hi) = if k == 1 {
+                            (-0.3, 0.3)
+                        } else {
+                            (global.lower[k], global.upper[k])
+                        };
                         *v = rng.random_range(lo..hi);
                     }
                     let mut previous = target.clone();
@@ -304,13 +361,22 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
                     // despite rounding.
                     let shrink = 1.0 - 1e-9;
                     let mut s = previous;
-                    Bounds::around(&target, LOCAL_TRANSLATION * shrink, LOCAL_ROTATION_DEG.to_radians() * shrink).clamp(&mut s);
+                    Bounds::around(
+                        &target,
+                        LOCAL_TRANSLATION * shrink,
+                        LOCAL_ROTATION_DEG.to_radians() * shrink,
+                    )
+                    .clamp(&mut s);
                     s
                 }
                 _ => vec![0.0; pd],
             };
             let subject = subject_coefficients(&layout, config.seed, 1 + i as u64);
-            (with_coefficients(start, &zeros), with_coefficients(target, &subject), name)
+            (
+                with_coefficients(start, &zeros),
+                with_coefficients(target, &subject),
+                name,
+            )
         })
         .collect();
     let mut starts = Vec::with_capacity(n);
@@ -326,25 +392,65 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
 
 enum FrameObs {
     Sparse(Vec<f64>, Vec<bool>),
-    Scan { points: Vec<Vec3>, visible: Vec<bool>, silhouettes: Vec<lfit_model::scan::Mask> },
+    Scan {
+        points: Vec<Vec3>,
+        visible: Vec<bool>,
+        silhouettes: Vec<lfit_model::scan::Mask>,
+    },
 }
 
-fn observe_frame(template: &Template, sensor: &Sensor, target: &[f64], noise: &NoiseConfig, rng: &mut ChaCha8Rng) -> FrameObs {
+fn observe_frame(
+    template: &Template,
+    sensor: &Sensor,
+    target: &[f64],
+    noise: &NoiseConfig,
+    rng: &mut ChaCha8Rng,
+) -> FrameObs {
     match sensor {
         Sensor::Scan(_) => {
-            let Some(pred) = sensor.predict_scan(template, target) else { unreachable!("scan sensor") };
+            let Some(pred) = sensor.predict_scan(template, target) else {
+                unreachable!("scan sensor")
+            };
             let mut points = pred.vertices;
             let mut visible = vec![true; points.len()];
             jitter_points(&mut points, noise.point_sigma, rng);
-            punch_holes(&points, &mut visible, noise.scan_holes, noise.scan_hole_radius, rng);
-            FrameObs::Scan { points, visible, silhouettes: pred.silhouettes }
+            punch_holes(
+                &points,
+                &mut visible,
+                noise.scan_holes,
+                noise.scan_hole_radius,
+                rng,
+            );
+            FrameObs::Scan {
+                points,
+                visible,
+                silhouettes: pred.silhouettes,
+            }
         }
         _ => {
-            let Some(pred) = sensor.predict_sparse(template, target) else { unreachable!("sparse sensor") };
+            let Some(pred) = sensor.predict_sparse(template, target) else {
+                unreachable!("sparse sensor")
+            };
             let (mut values, mut visible) = (pred.values, pred.visible);
             match sensor.modality() {
-                Modality::Markers => corrupt_points(&mut values, &mut visible, 3, noise.point_sigma, noise.outlier_scale_m, noise, rng),
-                Modality::Keypoints2d => corrupt_points(&mut values, &mut visible, 2, noise.pixel_sigma, noise.outlier_scale_px, noise, rng),
+                Modality::Markers => corrupt_points(
+                    &mut values,
+                    &mut visible,
+                    3,
+                    noise.point_sigma,
+                    noise.outlier_scale_m,
+                    noise,
+                    rng,
+                ),
+                Modality::Keypoints2d => corrupt_points(
+                    &mut values,
+                    &mut visible,
+                    2,
+                    noise.pixel_sigma,
+                    noise.outlier_scale_px,
+                    noise,
+                    rng,
+                ),
                 _ => corrupt_hmd(&mut values, &visible, noise, rng),
             }
             FrameObs::Sparse(values, visible)
@@ -355,19 +461,39 @@ fn observe_frame(template: &Template, sensor: &Sensor, target: &[f64], noise: &N
 /// Builds the per-frame distance transforms on grids of one common size, each centred on its
 /// frame's (visible) point cloud, so that the dataset stores them as one `[N, Z, Y, X]` array.
 fn assemble_scan(frames: Vec<FrameObs>, sensor: &Sensor) -> Result<Observations, SynthError> {
-    let Sensor::Scan(setup) = sensor else { unreachable!("scan sensor") };
+    let Sensor::Scan(setup) = sensor else {
+        unreachable!("scan sensor")
+    };
     let mut points = Vec::with_capacity(frames.len());
     let mut visible = Vec::with_capacity(frames.len());
     let mut silhouettes = Vec::with_capacity(frames.len());
     for f in frames {
-        if let FrameObs::Scan { points: p, visible: v, silhouettes: s } = f {
+        if let FrameObs::Scan {
+            points: p,
+            visible: v,
+            silhouettes: s,
+        } = f
+        {
             points.push(p);
             visible.push(v);
             silhouettes.push(s);
         }
     }
-    let clouds: Vec<Vec<Vec3>> = points.iter().zip(&visible).map(|(p, v)| p.iter().zip(v).filter(|(_, b)| **b).map(|(p, _)| *p).collect()).collect();
-    let boxes = clouds.iter().map(|c| VoxelGrid::around_points(c, setup.voxel_size, lfit_model::scan::DEFAULT_BOX_SCALE)).collect::<Result<Vec<_>, _>>()?;
+    let clouds: Vec<Vec<Vec3>> = points
+        .iter()
+        .zip(&visible)
+        .map(|(p, v)| {
+            p.iter()
+                .zip(v)
+                .filter(|(_, b)| **b)
+                .map(|(p, _)| *p)
+                .collect()
+        })
+        .collect();
+    let boxes = clouds
+        .iter()
+        .map(|c| VoxelGrid::around_points(c, setup.voxel_size, lfit_model::scan::DEFAULT_BOX_SCALE))
+        .collect::<Result<Vec<_>, _>>()?;
     let mut dims = [0usize; 3];
     for b in &boxes {
         for k in 0..3 {
@@ -383,12 +509,22 @@ fn assemble_scan(frames: Vec<FrameObs>, sensor: &Sensor) -> Result<Observations,
                 let centre = b.origin[k] + (b.dims[k] - 1) as f64 * b.spacing / 2.0;
                 origin[k] = centre - (dims[k] - 1) as f64 * b.spacing / 2.0;
             }
-            let mut grid = VoxelGrid { origin, spacing: b.spacing, dims, values: vec![0.0; dims.iter().product()] };
+            let mut grid = VoxelGrid {
+                origin,
+                spacing: b.spacing,
+                dims,
+                values: vec![0.0; dims.iter().product()],
+            };
             squared_edt(&mut grid, cloud);
             grid
         })
         .collect();
-    Ok(Observations::Scan { points, visible, grids, silhouettes })
+    Ok(Observations::Scan {
+        points,
+        visible,
+        grids,
+        silhouettes,
+    })
 }
 
 #[cfg(test)]
@@ -432,7 +568,10 @@ mod tests {
             assert_eq!((s.len(), g.len()), (65, 65));
             assert!(global.contains(g));
             assert!(Bounds::local_in(&layout, s).contains(g));
-            assert!(s[57..].iter().all(|&b| b == 0.0), "starts have the mean shape");
+            assert!(
+                s[57..].iter().all(|&b| b == 0.0),
+                "starts have the mean shape"
+            );
             second_moment += g[57..].iter().map(|b| b * b).sum::<f64>();
         }
         // β ~ N(0, I): the mean of β² over 200 × 8 draws is near 1.
@@ -450,7 +589,11 @@ mod tests {
 
     #[test]
     fn bad_configs_are_refused() {
-        assert!(SynthConfig::new(Modality::Hmd, Scenario::Local, 0, 1).validate().is_err());
+        assert!(
+            SynthConfig::new(Modality::Hmd, Scenario::Local, 0, 1)
+                .validate()
+                .is_err()
+        );
         let mut c = SynthConfig::new(Modality::Hmd, Scenario::Sequence, 3, 1);
         c.source = PoseSource::Uniform;
         assert!(c.validate().is_err());

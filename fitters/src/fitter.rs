@@ -82,7 +82,11 @@ pub enum Strategy {
 }
 
 impl Strategy {
-    pub const ALL: [Strategy; 3] = [Strategy::Holistic, Strategy::Grouped, Strategy::Hierarchical];
+    pub const ALL: [Strategy; 3] = [
+        Strategy::Holistic,
+        Strategy::Grouped,
+        Strategy::Hierarchical,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -102,9 +106,19 @@ impl Strategy {
     pub fn stages(self, mask: &DofMask, template: &Template) -> Vec<(Vec<usize>, f64)> {
         let layout = template.layout();
         let parts = &template.info.parts;
-        let coefficients: Vec<usize> = layout.range(Block::Shape).chain(layout.range(Block::Expression)).collect();
+        let coefficients: Vec<usize> = layout
+            .range(Block::Shape)
+            .chain(layout.range(Block::Expression))
+            .collect();
         let entries = |joints: &[usize], with_root_entries: bool| -> Vec<usize> {
-            let mut out: Vec<usize> = if with_root_entries { [0, 1, 2].into_iter().chain(coefficients.iter().copied()).collect() } else { Vec::new() };
+            let mut out: Vec<usize> = if with_root_entries {
+                [0, 1, 2]
+                    .into_iter()
+                    .chain(coefficients.iter().copied())
+                    .collect()
+            } else {
+                Vec::new()
+            };
             for &j in joints {
                 out.extend(rot_offset(j)..rot_offset(j) + 3);
             }
@@ -112,9 +126,15 @@ impl Strategy {
             out.sort_unstable();
             out
         };
-        let with_part = |name: &str| -> Vec<usize> { (0..layout.num_joints()).filter(|&j| parts[j] == name).collect() };
+        let with_part = |name: &str| -> Vec<usize> {
+            (0..layout.num_joints())
+                .filter(|&j| parts[j] == name)
+                .collect()
+        };
         let limbs = ["left_leg", "right_leg", "left_arm", "right_arm"];
-        let torso: Vec<usize> = (0..layout.num_joints()).filter(|&j| !limbs.contains(&parts[j].as_str())).collect();
+        let torso: Vec<usize> = (0..layout.num_joints())
+            .filter(|&j| !limbs.contains(&parts[j].as_str()))
+            .collect();
         let stages: Vec<(Vec<usize>, f64)> = match self {
             Strategy::Holistic => vec![(mask.free.clone(), 1.0)],
             Strategy::Grouped => vec![
@@ -125,9 +145,17 @@ impl Strategy {
                 (entries(&with_part("right_arm"), false), 2.0),
             ],
             Strategy::ShapeFirst => {
-                let mut first: Vec<usize> = [0, 1, 2].into_iter().chain(coefficients.iter().copied()).filter(|i| mask.free.contains(i)).collect();
+                let mut first: Vec<usize> = [0, 1, 2]
+                    .into_iter()
+                    .chain(coefficients.iter().copied())
+                    .filter(|i| mask.free.contains(i))
+                    .collect();
                 first.sort_unstable();
-                if coefficients.is_empty() { vec![(mask.free.clone(), 1.0)] } else { vec![(first, 1.0), (mask.free.clone(), 2.0)] }
+                if coefficients.is_empty() {
+                    vec![(mask.free.clone(), 1.0)]
+                } else {
+                    vec![(first, 1.0), (mask.free.clone(), 2.0)]
+                }
             }
             Strategy::Hierarchical => {
                 let rest_of_torso: Vec<usize> = torso.iter().copied().filter(|&j| j != 0).collect();
@@ -139,10 +167,13 @@ impl Strategy {
                     entries(&with_part("left_leg"), false),
                     entries(&with_part("right_leg"), false),
                 ];
-                steps.into_iter().map(|s| {
-                    let w = s.len() as f64;
-                    (s, w)
-                }).collect()
+                steps
+                    .into_iter()
+                    .map(|s| {
+                        let w = s.len() as f64;
+                        (s, w)
+                    })
+                    .collect()
             }
         };
         stages.into_iter().filter(|(s, _)| !s.is_empty()).collect()
@@ -158,7 +189,11 @@ impl fmt::Display for Strategy {
 impl FromStr for Strategy {
     type Err = FitError;
     fn from_str(s: &str) -> Result<Self, FitError> {
-        Strategy::ALL.into_iter().chain([Strategy::ShapeFirst]).find(|k| k.name() == s).ok_or_else(|| FitError::UnknownStrategy(s.to_string()))
+        Strategy::ALL
+            .into_iter()
+            .chain([Strategy::ShapeFirst])
+            .find(|k| k.name() == s)
+            .ok_or_else(|| FitError::UnknownStrategy(s.to_string()))
     }
 }
 
@@ -169,7 +204,10 @@ pub fn split_budget(budget: usize, weights: &[f64]) -> Vec<usize> {
     if weights.is_empty() || total <= 0.0 {
         return vec![0; weights.len()];
     }
-    let mut out: Vec<usize> = weights.iter().map(|w| (budget as f64 * w / total).floor() as usize).collect();
+    let mut out: Vec<usize> = weights
+        .iter()
+        .map(|w| (budget as f64 * w / total).floor() as usize)
+        .collect();
     let mut rest = budget - out.iter().sum::<usize>().min(budget);
     let n = out.len();
     let mut i = 0;
@@ -201,20 +239,37 @@ pub fn check_request(request: &FitRequest<'_>) -> Result<Vec<f64>, FitError> {
     }
     let dim = request.energy.dim();
     if request.start.len() != dim {
-        return Err(FitError::Start(format!("start has {} entries, the model's parameter vector {dim}", request.start.len())));
+        return Err(FitError::Start(format!(
+            "start has {} entries, the model's parameter vector {dim}",
+            request.start.len()
+        )));
     }
     let b = &request.bounds;
     if b.lower.len() != dim || b.upper.len() != dim {
-        return Err(FitError::Bounds(format!("bounds have {}/{} entries, expected {dim}", b.lower.len(), b.upper.len())));
+        return Err(FitError::Bounds(format!(
+            "bounds have {}/{} entries, expected {dim}",
+            b.lower.len(),
+            b.upper.len()
+        )));
     }
-    if let Some(i) = (0..dim).find(|&i| !(b.lower[i] <= b.upper[i]) || !b.lower[i].is_finite() || !b.upper[i].is_finite()) {
-        return Err(FitError::Bounds(format!("entry {i}: [{}, {}]", b.lower[i], b.upper[i])));
+    if let Some(i) = (0..dim).find(|&i| {
+        !(b.lower[i] <= b.upper[i]) || !b.lower[i].is_finite() || !b.upper[i].is_finite()
+    }) {
+        return Err(FitError::Bounds(format!(
+            "entry {i}: [{}, {}]",
+            b.lower[i], b.upper[i]
+        )));
     }
     if let Some(&i) = request.mask.free.iter().find(|&&i| i >= dim) {
-        return Err(FitError::Start(format!("mask '{}' frees entry {i}, beyond the model's {dim}", request.mask.name)));
+        return Err(FitError::Start(format!(
+            "mask '{}' frees entry {i}, beyond the model's {dim}",
+            request.mask.name
+        )));
     }
     if let Some(i) = request.start.iter().position(|v| !v.is_finite()) {
-        return Err(FitError::Start(format!("start pose entry {i} is not finite")));
+        return Err(FitError::Start(format!(
+            "start pose entry {i} is not finite"
+        )));
     }
     let mut start = request.start.clone();
     b.clamp(&mut start);
@@ -224,7 +279,15 @@ pub fn check_request(request: &FitRequest<'_>) -> Result<Vec<f64>, FitError> {
 /// One stage: optimise `dofs` of `pose` (in place) within `bounds` using at most `budget`
 /// evaluations of `energy`; returns the trace in evaluations relative to the stage start.
 pub(crate) trait StageSolver: Sync {
-    fn solve(&self, energy: &Energy, pose: &mut [f64], dofs: &[usize], bounds: &Bounds, budget: usize, seed: u64) -> Result<StageOutcome, FitError>;
+    fn solve(
+        &self,
+        energy: &Energy,
+        pose: &mut [f64],
+        dofs: &[usize],
+        bounds: &Bounds,
+        budget: usize,
+        seed: u64,
+    ) -> Result<StageOutcome, FitError>;
 }
 
 pub(crate) struct StageOutcome {
@@ -234,7 +297,12 @@ pub(crate) struct StageOutcome {
 }
 
 /// Runs the strategy's stages with one stage solver and assembles the result.
-pub(crate) fn run_staged(name: String, solver: &dyn StageSolver, strategy: Strategy, request: &FitRequest<'_>) -> Result<FitResult, FitError> {
+pub(crate) fn run_staged(
+    name: String,
+    solver: &dyn StageSolver,
+    strategy: Strategy,
+    request: &FitRequest<'_>,
+) -> Result<FitResult, FitError> {
     let mut pose = check_request(request)?;
     let energy = request.energy;
     let (e0, g0) = (energy.evaluations(), energy.gradient_evaluations());
@@ -252,7 +320,10 @@ pub(crate) fn run_staged(name: String, solver: &dyn StageSolver, strategy: Strat
         }
         let offset = energy.evaluations() - e0;
         // Stage seeds differ but follow from the request's seed.
-        let seed = request.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(k as u64);
+        let seed = request
+            .seed
+            .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            .wrapping_add(k as u64);
         let before = pose.clone();
         let out = solver.solve(energy, &mut pose, dofs, &request.bounds, budget, seed)?;
         iterations += out.iterations;
@@ -294,7 +365,12 @@ mod tests {
         let b = split_budget(2200, &[3.0, 2.0, 2.0, 2.0, 2.0]);
         assert_eq!(b, vec![600, 400, 400, 400, 400]);
         for budget in [1, 7, 2000, 4000, 7000] {
-            assert_eq!(split_budget(budget, &[3.0, 2.0, 2.0, 2.0, 2.0]).iter().sum::<usize>(), budget);
+            assert_eq!(
+                split_budget(budget, &[3.0, 2.0, 2.0, 2.0, 2.0])
+                    .iter()
+                    .sum::<usize>(),
+                budget
+            );
         }
     }
 
@@ -303,16 +379,29 @@ mod tests {
         let t = lfit_model::default_template();
         for mask in [DofMask::full57(), DofMask::local43(), DofMask::global41()] {
             for s in Strategy::ALL {
-                let mut all: Vec<usize> = s.stages(&mask, &t).into_iter().flat_map(|(d, _)| d).collect();
+                let mut all: Vec<usize> = s
+                    .stages(&mask, &t)
+                    .into_iter()
+                    .flat_map(|(d, _)| d)
+                    .collect();
                 all.sort_unstable();
                 assert_eq!(all, mask.free, "{s} on {}", mask.name);
             }
         }
         assert_eq!(Strategy::Grouped.stages(&DofMask::local43(), &t).len(), 5);
-        assert_eq!(Strategy::Hierarchical.stages(&DofMask::local43(), &t).len(), 6);
+        assert_eq!(
+            Strategy::Hierarchical.stages(&DofMask::local43(), &t).len(),
+            6
+        );
         // papers/000 Algorithm 1's groups on the default skeleton: torso + root, then the limbs.
         let g = Strategy::Grouped.stages(&DofMask::full57(), &t);
-        assert_eq!(g[0].0, [0, 1, 2].into_iter().chain(rot_offset(0)..rot_offset(4)).collect::<Vec<_>>());
+        assert_eq!(
+            g[0].0,
+            [0, 1, 2]
+                .into_iter()
+                .chain(rot_offset(0)..rot_offset(4))
+                .collect::<Vec<_>>()
+        );
         assert_eq!(g[1].0, (rot_offset(8)..rot_offset(12)).collect::<Vec<_>>());
         // On a morphable model the shape coefficients go with the torso and root.
         let (m, _) = lfit_model::body::morphable_default_template().unwrap();
@@ -326,9 +415,18 @@ mod tests {
         }
         // Shape first: translation and β, then everything; holistic without coefficients.
         let sf = Strategy::ShapeFirst.stages(&mask, &m);
-        assert_eq!(sf[0].0, [0, 1, 2].into_iter().chain(57..65).collect::<Vec<_>>());
+        assert_eq!(
+            sf[0].0,
+            [0, 1, 2].into_iter().chain(57..65).collect::<Vec<_>>()
+        );
         assert_eq!(sf[1].0, mask.free);
-        assert_eq!(Strategy::ShapeFirst.stages(&DofMask::local43(), &t), vec![(DofMask::local43().free, 1.0)]);
-        assert_eq!("shape-first".parse::<Strategy>().unwrap(), Strategy::ShapeFirst);
+        assert_eq!(
+            Strategy::ShapeFirst.stages(&DofMask::local43(), &t),
+            vec![(DofMask::local43().free, 1.0)]
+        );
+        assert_eq!(
+            "shape-first".parse::<Strategy>().unwrap(),
+            Strategy::ShapeFirst
+        );
     }
 }

@@ -14,7 +14,9 @@ use lfit_model::energy::Energy;
 use lfit_model::pose::Bounds;
 
 use crate::error::FitError;
-use crate::fitter::{FitRequest, FitResult, Fitter, StageOutcome, StageSolver, Strategy, run_staged};
+use crate::fitter::{
+    FitRequest, FitResult, Fitter, StageOutcome, StageSolver, Strategy, run_staged,
+};
 
 /// History length of L-BFGS (argmin examples and scipy's L-BFGS-B default use 5–10; we take 7).
 pub const DEFAULT_MEMORY: usize = 7;
@@ -28,13 +30,20 @@ pub struct LbfgsFitter {
 
 impl Default for LbfgsFitter {
     fn default() -> Self {
-        Self { memory: DEFAULT_MEMORY, strategy: Strategy::Holistic }
+        Self {
+            memory: DEFAULT_MEMORY,
+            strategy: Strategy::Holistic,
+        }
     }
 }
 
 impl Fitter for LbfgsFitter {
     fn name(&self) -> String {
-        if self.strategy == Strategy::Holistic { "lbfgs".into() } else { format!("lbfgs/{}", self.strategy) }
+        if self.strategy == Strategy::Holistic {
+            "lbfgs".into()
+        } else {
+            format!("lbfgs/{}", self.strategy)
+        }
     }
 
     fn fit(&self, request: &FitRequest<'_>) -> Result<FitResult, FitError> {
@@ -63,7 +72,10 @@ const BUDGET_SPENT: &str = "evaluation budget spent";
 
 impl Objective<'_> {
     fn eval(&self, x: &[f64]) -> Result<(f64, Vec<f64>), argmin::core::Error> {
-        let mut st = self.state.lock().map_err(|_| argmin::core::Error::msg("poisoned tracker"))?;
+        let mut st = self
+            .state
+            .lock()
+            .map_err(|_| argmin::core::Error::msg("poisoned tracker"))?;
         if let Some((cx, v, g)) = &st.cache
             && cx.as_slice() == x
         {
@@ -75,7 +87,11 @@ impl Objective<'_> {
         let mut pose = self.base.clone();
         let mut clipped = Vec::with_capacity(x.len());
         for (k, &i) in self.dofs.iter().enumerate() {
-            let c = if x[k].is_finite() { x[k].clamp(self.lower[k], self.upper[k]) } else { self.base[i] };
+            let c = if x[k].is_finite() {
+                x[k].clamp(self.lower[k], self.upper[k])
+            } else {
+                self.base[i]
+            };
             pose[i] = c;
             clipped.push(c);
         }
@@ -85,7 +101,13 @@ impl Objective<'_> {
             .dofs
             .iter()
             .enumerate()
-            .map(|(k, &i)| if x[k] < self.lower[k] || x[k] > self.upper[k] { 0.0 } else { g[i] })
+            .map(|(k, &i)| {
+                if x[k] < self.lower[k] || x[k] > self.upper[k] {
+                    0.0
+                } else {
+                    g[i]
+                }
+            })
             .collect();
         if ev.total < st.best.0 {
             st.best = (ev.total, clipped);
@@ -116,7 +138,15 @@ impl Gradient for &Objective<'_> {
 }
 
 impl StageSolver for LbfgsFitter {
-    fn solve(&self, energy: &Energy, pose: &mut [f64], dofs: &[usize], bounds: &Bounds, budget: usize, _seed: u64) -> Result<StageOutcome, FitError> {
+    fn solve(
+        &self,
+        energy: &Energy,
+        pose: &mut [f64],
+        dofs: &[usize],
+        bounds: &Bounds,
+        budget: usize,
+        _seed: u64,
+    ) -> Result<StageOutcome, FitError> {
         let x0: Vec<f64> = dofs.iter().map(|&i| pose[i]).collect();
         let objective = Objective {
             energy,
@@ -125,13 +155,20 @@ impl StageSolver for LbfgsFitter {
             lower: dofs.iter().map(|&i| bounds.lower[i]).collect(),
             upper: dofs.iter().map(|&i| bounds.upper[i]).collect(),
             budget,
-            state: Mutex::new(Tracker { count: 0, best: (f64::INFINITY, x0.clone()), trace: Vec::new(), cache: None }),
+            state: Mutex::new(Tracker {
+                count: 0,
+                best: (f64::INFINITY, x0.clone()),
+                trace: Vec::new(),
+                cache: None,
+            }),
         };
         let lbfgs = LBFGS::new(MoreThuenteLineSearch::new(), self.memory.max(1))
             .with_tolerance_grad(1e-9)
             .and_then(|s| s.with_tolerance_cost(1e-13))
             .map_err(|e| FitError::Lbfgs(e.to_string()))?;
-        let run = Executor::new(&objective, lbfgs).configure(|s| s.param(x0).max_iters(budget as u64)).run();
+        let run = Executor::new(&objective, lbfgs)
+            .configure(|s| s.param(x0).max_iters(budget as u64))
+            .run();
         let iterations = match &run {
             Ok(res) => res.state().get_iter(),
             Err(e) if e.to_string().contains(BUDGET_SPENT) => 0,
@@ -141,10 +178,21 @@ impl StageSolver for LbfgsFitter {
                 0
             }
         };
-        let st = objective.state.into_inner().map_err(|_| FitError::Lbfgs("poisoned tracker".into()))?;
+        let st = objective
+            .state
+            .into_inner()
+            .map_err(|_| FitError::Lbfgs("poisoned tracker".into()))?;
         for (k, &i) in dofs.iter().enumerate() {
             pose[i] = st.best.1[k];
         }
-        Ok(StageOutcome { best: st.best.0, trace: st.trace, iterations: if iterations > 0 { iterations } else { st.count as u64 } })
+        Ok(StageOutcome {
+            best: st.best.0,
+            trace: st.trace,
+            iterations: if iterations > 0 {
+                iterations
+            } else {
+                st.count as u64
+            },
+        })
     }
 }

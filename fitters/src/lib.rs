@@ -16,13 +16,36 @@ pub use optim::{Method, Preset};
 pub use zeroth::ZerothOrderFitter;
 
 /// Every method `build_fitter` knows.
-pub const METHOD_NAMES: [&str; 13] = ["random", "one-plus-one", "de", "pso", "cma", "tbpsa", "powell", "cma-powell", "ngo", "shiwa", "apf", "psapf", "lbfgs"];
+pub const METHOD_NAMES: [&str; 13] = [
+    "random",
+    "one-plus-one",
+    "de",
+    "pso",
+    "cma",
+    "tbpsa",
+    "powell",
+    "cma-powell",
+    "ngo",
+    "shiwa",
+    "apf",
+    "psapf",
+    "lbfgs",
+];
 
 /// The fitter called `method` (one of [`METHOD_NAMES`]) with `preset` and `strategy`.
-pub fn build_fitter(method: &str, preset: Preset, strategy: Strategy) -> Result<Box<dyn Fitter>, FitError> {
+pub fn build_fitter(
+    method: &str,
+    preset: Preset,
+    strategy: Strategy,
+) -> Result<Box<dyn Fitter>, FitError> {
     if method == "lbfgs" {
-        return Ok(Box::new(LbfgsFitter { strategy, ..LbfgsFitter::default() }));
+        return Ok(Box::new(LbfgsFitter {
+            strategy,
+            ..LbfgsFitter::default()
+        }));
     }
-    let m: Method = method.parse().map_err(|_| FitError::UnknownMethod(method.to_string()))?;
+    let m: Method = method
+        .parse()
+        .map_err(|_| FitError::UnknownMethod(method.to_string()))?;
     Ok(Box::new(ZerothOrderFitter::new(m, preset, strategy)))
 }

@@ -5,7 +5,9 @@ use lfit_model::energy::Energy;
 use lfit_model::pose::{Bounds, DofMask};
 
 use crate::error::FitError;
-use crate::fitter::{FitRequest, FitResult, Fitter, StageOutcome, StageSolver, Strategy, run_staged, steps};
+use crate::fitter::{
+    FitRequest, FitResult, Fitter, StageOutcome, StageSolver, Strategy, run_staged, steps,
+};
 use crate::optim::{self, Method, Preset, Problem};
 
 /// A zeroth-order method under a strategy.
@@ -18,7 +20,11 @@ pub struct ZerothOrderFitter {
 
 impl ZerothOrderFitter {
     pub fn new(method: Method, preset: Preset, strategy: Strategy) -> Self {
-        Self { method, preset, strategy }
+        Self {
+            method,
+            preset,
+            strategy,
+        }
     }
 }
 
@@ -40,18 +46,37 @@ impl Fitter for ZerothOrderFitter {
 }
 
 impl StageSolver for ZerothOrderFitter {
-    fn solve(&self, energy: &Energy, pose: &mut [f64], dofs: &[usize], bounds: &Bounds, budget: usize, seed: u64) -> Result<StageOutcome, FitError> {
+    fn solve(
+        &self,
+        energy: &Energy,
+        pose: &mut [f64],
+        dofs: &[usize],
+        bounds: &Bounds,
+        budget: usize,
+        seed: u64,
+    ) -> Result<StageOutcome, FitError> {
         let lower: Vec<f64> = dofs.iter().map(|&i| bounds.lower[i]).collect();
         let upper: Vec<f64> = dofs.iter().map(|&i| bounds.upper[i]).collect();
         let start: Vec<f64> = dofs.iter().map(|&i| pose[i]).collect();
-        let problem = Problem::new(optim::Bounds::new(lower, upper)?, start, steps(dofs, &energy.template().layout()))?;
+        let problem = Problem::new(
+            optim::Bounds::new(lower, upper)?,
+            start,
+            steps(dofs, &energy.template().layout()),
+        )?;
         // PSAPF partitions its stage by the hierarchical steps of papers/001 §3.3.
         let partitions = (self.method == Method::PSAPF).then(|| {
-            let mask = DofMask { name: "stage".into(), free: dofs.to_vec() };
+            let mask = DofMask {
+                name: "stage".into(),
+                free: dofs.to_vec(),
+            };
             Strategy::Hierarchical
                 .stages(&mask, energy.template())
                 .into_iter()
-                .map(|(s, _)| s.iter().filter_map(|i| dofs.iter().position(|d| d == i)).collect::<Vec<usize>>())
+                .map(|(s, _)| {
+                    s.iter()
+                        .filter_map(|i| dofs.iter().position(|d| d == i))
+                        .collect::<Vec<usize>>()
+                })
                 .collect::<Vec<_>>()
         });
         let mut opt = optim::build(self.method, self.preset, &problem, budget, seed, partitions)?;

@@ -27,7 +27,16 @@ fn markers_energy(config: EnergyConfig) -> Energy {
     let t = template();
     let sensor = Sensor::default_for(Modality::Markers, &t);
     let pred = sensor.predict_sparse(&t, &truth()).unwrap();
-    Energy::new(t, sensor, Target::Sparse { values: pred.values, visible: pred.visible }, config).unwrap()
+    Energy::new(
+        t,
+        sensor,
+        Target::Sparse {
+            values: pred.values,
+            visible: pred.visible,
+        },
+        config,
+    )
+    .unwrap()
 }
 
 /// A start 0.1 rad / 5 cm away from the truth on every DOF free in `local43` (the others match
@@ -35,7 +44,11 @@ fn markers_energy(config: EnergyConfig) -> Energy {
 fn start() -> Pose {
     let mut s = truth();
     for i in DofMask::local43().free {
-        s[i] += if i < 3 { 0.05 } else { 0.1 * if i % 2 == 0 { 1.0 } else { -1.0 } };
+        s[i] += if i < 3 {
+            0.05
+        } else {
+            0.1 * if i % 2 == 0 { 1.0 } else { -1.0 }
+        };
     }
     s
 }
@@ -50,23 +63,53 @@ fn every_method_and_strategy_spends_exactly_its_budget_inside_the_bounds() {
     for method in METHOD_NAMES {
         for strategy in Strategy::ALL {
             for budget in [1usize, 13, 200] {
-                let config = if method == "lbfgs" { EnergyConfig::default().for_gradient() } else { EnergyConfig::default() };
+                let config = if method == "lbfgs" {
+                    EnergyConfig::default().for_gradient()
+                } else {
+                    EnergyConfig::default()
+                };
                 let energy = markers_energy(config);
                 let fitter = build_fitter(method, Preset::Nevergrad, strategy).unwrap();
-                let request = FitRequest { energy: &energy, start: s.to_vec(), mask: mask.clone(), bounds: bounds.clone(), budget, seed: 7 };
-                let r = fitter.fit(&request).unwrap_or_else(|e| panic!("{method}/{strategy}/{budget}: {e}"));
+                let request = FitRequest {
+                    energy: &energy,
+                    start: s.to_vec(),
+                    mask: mask.clone(),
+                    bounds: bounds.clone(),
+                    budget,
+                    seed: 7,
+                };
+                let r = fitter
+                    .fit(&request)
+                    .unwrap_or_else(|e| panic!("{method}/{strategy}/{budget}: {e}"));
                 let label = format!("{method}/{strategy} budget {budget}");
                 if method == "lbfgs" {
-                    assert!(r.evaluations <= budget as u64 && r.evaluations >= 1, "{label}: {}", r.evaluations);
-                    assert_eq!(r.gradient_evaluations + 1, r.evaluations.max(1), "{label}: the start is a value-only evaluation");
+                    assert!(
+                        r.evaluations <= budget as u64 && r.evaluations >= 1,
+                        "{label}: {}",
+                        r.evaluations
+                    );
+                    assert_eq!(
+                        r.gradient_evaluations + 1,
+                        r.evaluations.max(1),
+                        "{label}: the start is a value-only evaluation"
+                    );
                 } else {
                     assert_eq!(r.evaluations, budget as u64, "{label}");
                     assert_eq!(r.gradient_evaluations, 0, "{label}");
                 }
-                assert_eq!(energy.evaluations(), r.evaluations, "{label}: every evaluation goes through the counter");
+                assert_eq!(
+                    energy.evaluations(),
+                    r.evaluations,
+                    "{label}: every evaluation goes through the counter"
+                );
                 for i in 0..POSE_DIM {
                     let v = r.pose[i];
-                    assert!(v >= bounds.lower[i] && v <= bounds.upper[i], "{label}: entry {i} = {v} outside [{}, {}]", bounds.lower[i], bounds.upper[i]);
+                    assert!(
+                        v >= bounds.lower[i] && v <= bounds.upper[i],
+                        "{label}: entry {i} = {v} outside [{}, {}]",
+                        bounds.lower[i],
+                        bounds.upper[i]
+                    );
                     if !mask.free.contains(&i) {
                         assert_eq!(v, s[i], "{label}: fixed entry {i} moved");
                     }
@@ -76,7 +119,13 @@ fn every_method_and_strategy_spends_exactly_its_budget_inside_the_bounds() {
                 p.copy_from_slice(&r.pose);
                 assert_eq!(energy.inspect(&p).total, r.energy, "{label}");
                 assert!(r.energy <= energy.inspect(&s).total + 1e-12, "{label}");
-                assert!(r.trace.windows(2).all(|w| w[1].1 <= w[0].1 && w[1].0 > w[0].0), "{label}: trace {:?}", r.trace);
+                assert!(
+                    r.trace
+                        .windows(2)
+                        .all(|w| w[1].1 <= w[0].1 && w[1].0 > w[0].0),
+                    "{label}: trace {:?}",
+                    r.trace
+                );
             }
         }
     }
@@ -88,7 +137,14 @@ fn same_seed_same_fit_different_seed_different_fit() {
         let run = |seed| {
             let energy = markers_energy(EnergyConfig::default());
             let fitter = build_fitter(method, Preset::Nevergrad, Strategy::Holistic).unwrap();
-            let request = FitRequest { energy: &energy, start: start().to_vec(), mask: DofMask::local43(), bounds: Bounds::local(&start()), budget: 300, seed };
+            let request = FitRequest {
+                energy: &energy,
+                start: start().to_vec(),
+                mask: DofMask::local43(),
+                bounds: Bounds::local(&start()),
+                budget: 300,
+                seed,
+            };
             fitter.fit(&request).unwrap()
         };
         let (a, b, c) = (run(1), run(1), run(2));
@@ -102,7 +158,14 @@ fn same_seed_same_fit_different_seed_different_fit() {
 fn cma_and_lbfgs_recover_the_truth_from_a_nearby_start() {
     let energy = markers_energy(EnergyConfig::default());
     let fitter = build_fitter("cma", Preset::Nevergrad, Strategy::Holistic).unwrap();
-    let request = FitRequest { energy: &energy, start: start().to_vec(), mask: DofMask::local43(), bounds: Bounds::local(&start()), budget: 4000, seed: 3 };
+    let request = FitRequest {
+        energy: &energy,
+        start: start().to_vec(),
+        mask: DofMask::local43(),
+        bounds: Bounds::local(&start()),
+        budget: 4000,
+        seed: 3,
+    };
     let r = fitter.fit(&request).unwrap();
     let mut pose = [0.0; POSE_DIM];
     pose.copy_from_slice(&r.pose);
@@ -112,11 +175,23 @@ fn cma_and_lbfgs_recover_the_truth_from_a_nearby_start() {
 
     let energy = markers_energy(EnergyConfig::default().for_gradient());
     let fitter = build_fitter("lbfgs", Preset::Nevergrad, Strategy::Holistic).unwrap();
-    let request = FitRequest { energy: &energy, start: start().to_vec(), mask: DofMask::local43(), bounds: Bounds::local(&start()), budget: 300, seed: 3 };
+    let request = FitRequest {
+        energy: &energy,
+        start: start().to_vec(),
+        mask: DofMask::local43(),
+        bounds: Bounds::local(&start()),
+        budget: 300,
+        seed: 3,
+    };
     let r = fitter.fit(&request).unwrap();
     pose.copy_from_slice(&r.pose);
     let v2v = lfit_model::metrics::v2v_mm(&template(), &pose, &truth());
     assert!(v2v < 2.0, "lbfgs: V2V {v2v:.2} mm");
     let e0 = energy.inspect(&start()).total;
-    assert!(r.energy < 1e-3 * e0, "lbfgs: energy {} from {e0} after {} evaluations", r.energy, r.evaluations);
+    assert!(
+        r.energy < 1e-3 * e0,
+        "lbfgs: energy {} from {e0} after {} evaluations",
+        r.energy,
+        r.evaluations
+    );
 }

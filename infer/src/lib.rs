@@ -12,10 +12,10 @@ use std::time::Instant;
 
 use burn::tensor::Device;
 use lfit_fitters::{FitError, FitRequest, FitResult, Fitter};
-use lfit_nn::checkpoint::{self, Checkpoint, CheckpointMeta};
-use lfit_nn::{Constraints, Dropout, FeatureStats, NeuralNet, unroll};
 use lfit_model::pose::Bounds;
 use lfit_model::{Energy, ModelError};
+use lfit_nn::checkpoint::{self, Checkpoint, CheckpointMeta};
+use lfit_nn::{Constraints, Dropout, FeatureStats, NeuralNet, unroll};
 
 /// Where θ0 comes from at inference.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -32,7 +32,9 @@ impl std::str::FromStr for Start {
         match s {
             "phi" => Ok(Start::Phi),
             "given" | "start" => Ok(Start::Given),
-            _ => Err(format!("unknown neural start '{s}' (expected phi or given)")),
+            _ => Err(format!(
+                "unknown neural start '{s}' (expected phi or given)"
+            )),
         }
     }
 }
@@ -60,7 +62,10 @@ impl std::str::FromStr for Runtime {
 /// The network of a fitter, in Burn or in ONNX Runtime sessions.
 #[derive(Debug)]
 pub enum Engine {
-    Burn { net: Box<NeuralNet>, device: Device },
+    Burn {
+        net: Box<NeuralNet>,
+        device: Device,
+    },
     /// Sessions need exclusive access to run; frames of one batch share one call.
     Ort(Box<Mutex<onnx::runtime::OrtNetwork>>),
 }
@@ -82,27 +87,61 @@ fn neural(e: impl std::fmt::Display) -> FitError {
 impl NeuralFitter {
     /// Loads the checkpoint in `dir` onto `device` (Burn).
     pub fn load(dir: &Path, device: &Device, start: Start) -> Result<Self, ModelError> {
-        Ok(Self::from_checkpoint(checkpoint::load(dir, device)?, dir, device, start))
+        Ok(Self::from_checkpoint(
+            checkpoint::load(dir, device)?,
+            dir,
+            device,
+            start,
+        ))
     }
 
     /// A loaded checkpoint on `device` (Burn).
-    pub fn from_checkpoint(checkpoint: Checkpoint, dir: &Path, device: &Device, start: Start) -> Self {
-        let Checkpoint { meta, stats, net, .. } = checkpoint;
-        Self { meta, stats, engine: Engine::Burn { net: Box::new(net), device: device.clone() }, dir: dir.to_path_buf(), start }
+    pub fn from_checkpoint(
+        checkpoint: Checkpoint,
+        dir: &Path,
+        device: &Device,
+        start: Start,
+    ) -> Self {
+        let Checkpoint {
+            meta, stats, net, ..
+        } = checkpoint;
+        Self {
+            meta,
+            stats,
+            engine: Engine::Burn {
+                net: Box::new(net),
+                device: device.clone(),
+            },
+            dir: dir.to_path_buf(),
+            start,
+        }
     }
 
     /// The fitter with its network in ONNX Runtime: `dir` is a checkpoint (exported to ONNX in
     /// memory) or a directory written by `lfit export-onnx`.
-    pub fn load_ort(dir: &Path, start: Start, options: onnx::runtime::SessionOptions) -> Result<Self, onnx::OnnxError> {
+    pub fn load_ort(
+        dir: &Path,
+        start: Start,
+        options: onnx::runtime::SessionOptions,
+    ) -> Result<Self, onnx::OnnxError> {
         let network = if dir.join(checkpoint::CONFIG_FILE).is_file() {
             let (_, exported) = onnx::export::export_checkpoint(dir)?;
             onnx::runtime::OrtNetwork::from_exported(&exported, dir, options)?
         } else if dir.join("init.onnx").is_file() {
             onnx::runtime::OrtNetwork::load_dir(dir, options)?
         } else {
-            return Err(onnx::OnnxError::model(dir, "neither a checkpoint (config.json) nor an lfit ONNX export (init.onnx)"));
+            return Err(onnx::OnnxError::model(
+                dir,
+                "neither a checkpoint (config.json) nor an lfit ONNX export (init.onnx)",
+            ));
         };
-        Ok(Self { meta: network.meta.clone(), stats: network.stats.clone(), engine: Engine::Ort(Box::new(Mutex::new(network))), dir: dir.to_path_buf(), start })
+        Ok(Self {
+            meta: network.meta.clone(),
+            stats: network.stats.clone(),
+            engine: Engine::Ort(Box::new(Mutex::new(network))),
+            dir: dir.to_path_buf(),
+            start,
+        })
     }
 
     /// The Burn network, if this fitter runs on Burn.
@@ -121,16 +160,41 @@ impl NeuralFitter {
     /// Checks that the checkpoint fits an energy (modality, residual size, template).
     pub fn check(&self, energy: &Energy) -> Result<(), ModelError> {
         let template = energy.template();
-        self.meta.check_compatible(&self.dir, energy.modality(), energy.sensor().residual_dim(template), template)
+        self.meta.check_compatible(
+            &self.dir,
+            energy.modality(),
+            energy.sensor().residual_dim(template),
+            template,
+        )
     }
 
     /// θ0 … θN of every frame, `[N + 1][B]`, from the engine.
-    fn run(&self, energies: &[&Energy], starts: &[Option<Vec<f64>>], constraints: &Constraints) -> Result<Vec<Vec<Vec<f64>>>, FitError> {
+    fn run(
+        &self,
+        energies: &[&Energy],
+        starts: &[Option<Vec<f64>>],
+        constraints: &Constraints,
+    ) -> Result<Vec<Vec<Vec<f64>>>, FitError> {
         match &self.engine {
-            Engine::Burn { net, device } => Ok(unroll(net, &self.stats, energies, starts, Some(constraints), device, &mut Dropout::off()).map_err(neural)?.host),
+            Engine::Burn { net, device } => Ok(unroll(
+                net,
+                &self.stats,
+                energies,
+                starts,
+                Some(constraints),
+                device,
+                &mut Dropout::off(),
+            )
+            .map_err(neural)?
+            .host),
             Engine::Ort(network) => {
-                let mut network = network.lock().map_err(|_| FitError::Neural("the ONNX Runtime session was poisoned by an earlier failure".into()))?;
-                onnx::runtime::unroll_ort(&mut network, energies, starts, Some(constraints)).map_err(neural)
+                let mut network = network.lock().map_err(|_| {
+                    FitError::Neural(
+                        "the ONNX Runtime session was poisoned by an earlier failure".into(),
+                    )
+                })?;
+                onnx::runtime::unroll_ort(&mut network, energies, starts, Some(constraints))
+                    .map_err(neural)
             }
         }
     }
@@ -146,9 +210,17 @@ impl NeuralFitter {
         let per_iteration = self.meta.network.evaluations_per_iteration();
         // The compatibility check hashes the whole model (its signature): once per distinct
         // model and sensor of the batch, not once per frame.
-        let mut checked: Vec<(*const lfit_model::Template, lfit_model::observe::Modality, usize)> = Vec::new();
+        let mut checked: Vec<(
+            *const lfit_model::Template,
+            lfit_model::observe::Modality,
+            usize,
+        )> = Vec::new();
         for r in requests {
-            let key = (std::sync::Arc::as_ptr(r.energy.template()), r.energy.modality(), r.energy.sensor().residual_dim(r.energy.template()));
+            let key = (
+                std::sync::Arc::as_ptr(r.energy.template()),
+                r.energy.modality(),
+                r.energy.sensor().residual_dim(r.energy.template()),
+            );
             if !checked.contains(&key) {
                 self.check(r.energy).map_err(neural)?;
                 checked.push(key);
@@ -157,22 +229,34 @@ impl NeuralFitter {
                 return Err(FitError::Budget(0));
             }
             if r.budget < per_iteration * n {
-                return Err(FitError::Neural(format!("budget {} is below the {} evaluations of {n} iterations", r.budget, per_iteration * n)));
+                return Err(FitError::Neural(format!(
+                    "budget {} is below the {} evaluations of {n} iterations",
+                    r.budget,
+                    per_iteration * n
+                )));
             }
             // `check` matched the model's parameter count with the network's; the start must match too.
             let dim = self.meta.network.param_dim;
             if r.start.len() != dim {
-                return Err(FitError::Start(format!("start has {} entries, the model's parameter vector {dim}", r.start.len())));
+                return Err(FitError::Start(format!(
+                    "start has {} entries, the model's parameter vector {dim}",
+                    r.start.len()
+                )));
             }
             if r.bounds.lower.len() != dim || r.bounds.upper.len() != dim {
-                return Err(FitError::Bounds(format!("need {dim} lower and upper values")));
+                return Err(FitError::Bounds(format!(
+                    "need {dim} lower and upper values"
+                )));
             }
             if r.start.iter().any(|v| !v.is_finite()) {
                 return Err(FitError::Start("not finite".into()));
             }
         }
         let timer = Instant::now();
-        let e0: Vec<(u64, u64)> = requests.iter().map(|r| (r.energy.evaluations(), r.energy.gradient_evaluations())).collect();
+        let e0: Vec<(u64, u64)> = requests
+            .iter()
+            .map(|r| (r.energy.evaluations(), r.energy.gradient_evaluations()))
+            .collect();
         let energies: Vec<&Energy> = requests.iter().map(|r| r.energy).collect();
         let starts: Vec<Option<Vec<f64>>> = requests
             .iter()
@@ -195,7 +279,10 @@ impl NeuralFitter {
                     f
                 })
                 .collect(),
-            bounds: requests.iter().map(|r| r.bounds.clone()).collect::<Vec<Bounds>>(),
+            bounds: requests
+                .iter()
+                .map(|r| r.bounds.clone())
+                .collect::<Vec<Bounds>>(),
         };
         let mut host = self.run(&energies, &starts, &constraints)?;
         // The loop clamps in f32; clamp again in f64 so that every iterate is exactly inside
@@ -214,10 +301,18 @@ impl NeuralFitter {
             .map(|(i, r)| {
                 let pose = host[n][i].clone();
                 let report = r.energy.inspect(&pose);
-                let evaluations = r.energy.evaluations() - e0[i].0 + residual_evaluations - n as u64;
+                let evaluations =
+                    r.energy.evaluations() - e0[i].0 + residual_evaluations - n as u64;
                 // Energy of every iterate (reporting only: `inspect` is not counted); the x axis
                 // is the evaluations used to reach it.
-                let trace = (0..=n).map(|k| ((per_iteration * k) as u64, r.energy.inspect(&host[k][i]).total)).collect();
+                let trace = (0..=n)
+                    .map(|k| {
+                        (
+                            (per_iteration * k) as u64,
+                            r.energy.inspect(&host[k][i]).total,
+                        )
+                    })
+                    .collect();
                 FitResult {
                     method: name.clone(),
                     pose,
@@ -248,6 +343,8 @@ impl Fitter for NeuralFitter {
     }
 
     fn fit(&self, request: &FitRequest<'_>) -> Result<FitResult, FitError> {
-        self.fit_batch(std::slice::from_ref(request))?.pop().ok_or_else(|| FitError::Neural("no result".into()))
+        self.fit_batch(std::slice::from_ref(request))?
+            .pop()
+            .ok_or_else(|| FitError::Neural("no result".into()))
     }
 }

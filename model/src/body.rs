@@ -47,7 +47,18 @@ fn one() -> f64 {
 
 impl Default for BodyShape {
     fn default() -> Self {
-        Self { height: 1.0, leg_length: 1.0, arm_length: 1.0, torso_length: 1.0, girth: 1.0, limb_girth: 1.0, head: 1.0, arm_angle_deg: 45.0, chest_depth: 1.0, shoulder_width: 1.0 }
+        Self {
+            height: 1.0,
+            leg_length: 1.0,
+            arm_length: 1.0,
+            torso_length: 1.0,
+            girth: 1.0,
+            limb_girth: 1.0,
+            head: 1.0,
+            arm_angle_deg: 45.0,
+            chest_depth: 1.0,
+            shoulder_width: 1.0,
+        }
     }
 }
 
@@ -58,23 +69,51 @@ impl BodyShape {
         Some(match name {
             "default" => d,
             "tall" => Self { height: 1.1, ..d },
-            "short" => Self { height: 0.88, head: 1.05, ..d },
-            "heavy" => Self { girth: 1.3, limb_girth: 1.25, ..d },
-            "slim" => Self { girth: 0.85, limb_girth: 0.85, ..d },
-            "long-legs" => Self { leg_length: 1.1, torso_length: 0.94, ..d },
-            "long-arms" => Self { arm_length: 1.12, ..d },
+            "short" => Self {
+                height: 0.88,
+                head: 1.05,
+                ..d
+            },
+            "heavy" => Self {
+                girth: 1.3,
+                limb_girth: 1.25,
+                ..d
+            },
+            "slim" => Self {
+                girth: 0.85,
+                limb_girth: 0.85,
+                ..d
+            },
+            "long-legs" => Self {
+                leg_length: 1.1,
+                torso_length: 0.94,
+                ..d
+            },
+            "long-arms" => Self {
+                arm_length: 1.12,
+                ..d
+            },
             _ => return None,
         })
     }
 
     /// Names accepted by [`BodyShape::named`] (and `morphable`, the shape space of
     /// [`morphable_default_template`], where a template is asked for).
-    pub const NAMES: [&'static str; 7] = ["default", "tall", "short", "heavy", "slim", "long-legs", "long-arms"];
+    pub const NAMES: [&'static str; 7] = [
+        "default",
+        "tall",
+        "short",
+        "heavy",
+        "slim",
+        "long-legs",
+        "long-arms",
+    ];
 }
 
 /// Builds the default template (`BodyShape::default()`), id `default`.
 pub fn default_template() -> Template {
-    build_template(&BodyShape::default(), "default").expect("the procedural template is valid by construction")
+    build_template(&BodyShape::default(), "default")
+        .expect("the procedural template is valid by construction")
 }
 
 /// Builds a body-proportion variant of the default template.
@@ -118,17 +157,28 @@ pub fn build_template(shape: &BodyShape, id: &str) -> Result<Template> {
         }
     }
     let vertices: Vec<Vec3> = order.iter().map(|&i| vertices[i]).collect();
-    let weights: Vec<Vec<(JointIndex, f64)>> = order.iter().map(|&i| top_influences(&weights[i])).collect();
+    let weights: Vec<Vec<(JointIndex, f64)>> =
+        order.iter().map(|&i| top_influences(&weights[i])).collect();
     let joints = (0..NUM_JOINTS)
-        .map(|j| Joint { name: JOINT_NAMES[j].to_string(), parent: PARENTS[j], rest_position: joints_rest[j].to_array() })
+        .map(|j| Joint {
+            name: JOINT_NAMES[j].to_string(),
+            parent: PARENTS[j],
+            rest_position: joints_rest[j].to_array(),
+        })
         .collect();
-    let mut rig = Rig { joints, weights, markers: Vec::new() };
+    let mut rig = Rig {
+        joints,
+        weights,
+        markers: Vec::new(),
+    };
     // Markers sit on the same vertices in every variant: they are placed on the default body.
     rig.markers = if *shape == BodyShape::default() {
         let provisional = Template::new(id, vertices.clone(), faces.clone(), rig.clone())?;
         place_markers(&provisional, &joints_rest, &skeleton)
     } else {
-        build_template(&BodyShape::default(), "default")?.rig.markers
+        build_template(&BodyShape::default(), "default")?
+            .rig
+            .markers
     };
     Template::new(id, vertices, faces, rig)
 }
@@ -168,11 +218,24 @@ pub fn morphable_default_template() -> Result<(Template, Vec<f64>)> {
             ..BodyShape::default()
         };
         let t = build_template(&shape, "sample")?;
-        rows.push(t.vertices.iter().zip(&mean.vertices).flat_map(|(a, b)| (a.as_dvec3() - b.as_dvec3()).to_array()).collect());
+        rows.push(
+            t.vertices
+                .iter()
+                .zip(&mean.vertices)
+                .flat_map(|(a, b)| (a.as_dvec3() - b.as_dvec3()).to_array())
+                .collect(),
+        );
     }
     // PCA of the deviations from the mean template through the N × N Gram matrix.
     let n = rows.len();
-    let gram = nalgebra::DMatrix::from_fn(n, n, |i, j| rows[i].iter().zip(&rows[j]).map(|(a, b)| a * b).sum::<f64>() / n as f64);
+    let gram = nalgebra::DMatrix::from_fn(n, n, |i, j| {
+        rows[i]
+            .iter()
+            .zip(&rows[j])
+            .map(|(a, b)| a * b)
+            .sum::<f64>()
+            / n as f64
+    });
     let eig = nalgebra::SymmetricEigen::new(gram);
     let mut order: Vec<usize> = (0..n).collect();
     order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
@@ -191,7 +254,10 @@ pub fn morphable_default_template() -> Result<(Template, Vec<f64>)> {
                 *o += a[i] * x / (n as f64).sqrt();
             }
         }
-        let big = col.iter().copied().fold(0.0f64, |m, x| if x.abs() > m.abs() { x } else { m });
+        let big = col
+            .iter()
+            .copied()
+            .fold(0.0f64, |m, x| if x.abs() > m.abs() { x } else { m });
         let sign = if big < 0.0 { -1.0 } else { 1.0 };
         for (r, x) in col.iter().enumerate() {
             dirs[r * k + c] = sign * x;
@@ -200,8 +266,13 @@ pub fn morphable_default_template() -> Result<(Template, Vec<f64>)> {
     let reg = crate::modelfile::fit_regressor(&mean);
     let rest = mean.vertices.iter().map(|p| p.as_dvec3()).collect();
     let mut info = mean.info.clone();
-    info.provenance = format!("lfit procedural default template with a PCA shape space of {MORPHABLE_SAMPLES} body-proportion variants");
-    let mut t = mean.with_morph(crate::morph::Morph::new(rest, k, 0, dirs, None, Some(reg)), info)?;
+    info.provenance = format!(
+        "lfit procedural default template with a PCA shape space of {MORPHABLE_SAMPLES} body-proportion variants"
+    );
+    let mut t = mean.with_morph(
+        crate::morph::Morph::new(rest, k, 0, dirs, None, Some(reg)),
+        info,
+    )?;
     t.id = "default+morphable".into();
     Ok((t, explained))
 }
@@ -218,7 +289,12 @@ pub fn signed_volume(vertices: &[Vec3], faces: &[[u32; 3]]) -> f64 {
 }
 
 fn top_influences(w: &[f64; NUM_JOINTS]) -> Vec<(JointIndex, f64)> {
-    let mut list: Vec<(JointIndex, f64)> = w.iter().copied().enumerate().filter(|&(_, w)| w > 1e-3).collect();
+    let mut list: Vec<(JointIndex, f64)> = w
+        .iter()
+        .copied()
+        .enumerate()
+        .filter(|&(_, w)| w > 1e-3)
+        .collect();
     list.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
     list.truncate(MAX_INFLUENCES);
     let sum: f64 = list.iter().map(|p| p.1).sum();
@@ -270,7 +346,14 @@ impl Skeleton {
             joints[R_ELBOW + side] = (shoulder + arm_dir * upper_arm) * m;
             joints[R_HAND + side] = (shoulder + arm_dir * (upper_arm + forearm)) * m;
         }
-        Self { joints, arm_dir, arm_up, upper_arm, forearm, hand }
+        Self {
+            joints,
+            arm_dir,
+            arm_up,
+            upper_arm,
+            forearm,
+            hand,
+        }
     }
 }
 
@@ -313,7 +396,11 @@ impl Cage {
     }
 
     fn centroid(&self, face: usize) -> DVec3 {
-        self.quads[face].iter().map(|&i| self.positions[i as usize]).sum::<DVec3>() / 4.0
+        self.quads[face]
+            .iter()
+            .map(|&i| self.positions[i as usize])
+            .sum::<DVec3>()
+            / 4.0
     }
 
     /// Extrudes quad `face` to `section`; returns the four side quads (in edge order). The moved
@@ -325,7 +412,9 @@ impl Cage {
             .iter()
             .map(|&i| {
                 let o = self.positions[i as usize] - c;
-                let p = s.center + s.u * s.half_u * o.dot(s.u).signum() + s.v * s.half_v * o.dot(s.v).signum();
+                let p = s.center
+                    + s.u * s.half_u * o.dot(s.u).signum()
+                    + s.v * s.half_v * o.dot(s.v).signum();
                 self.add_vertex(p, s.weights)
             })
             .collect();
@@ -371,8 +460,17 @@ impl Cage {
             .map(|((a, b), faces)| {
                 debug_assert_eq!(faces.len(), 2, "the cage must be closed and manifold");
                 let (a, b) = (*a as usize, *b as usize);
-                let p = (self.positions[a] + self.positions[b] + face_pts[faces[0]].0 + face_pts[faces[1]].0) / 4.0;
-                let w = avg([&self.weights[a], &self.weights[b], &face_pts[faces[0]].1, &face_pts[faces[1]].1]);
+                let p = (self.positions[a]
+                    + self.positions[b]
+                    + face_pts[faces[0]].0
+                    + face_pts[faces[1]].0)
+                    / 4.0;
+                let w = avg([
+                    &self.weights[a],
+                    &self.weights[b],
+                    &face_pts[faces[0]].1,
+                    &face_pts[faces[1]].1,
+                ]);
                 (p, w)
             })
             .collect();
@@ -462,16 +560,35 @@ fn build_cage(cage: &mut Cage, sk: &Skeleton, s: &BodyShape) {
         (-0.12, 0.15, 0.055, 0.085, w1(ROOT)),
         (0.01, 0.175, 0.07, 0.11, w1(ROOT)),
         (0.15, 0.145, 0.06, 0.095, w2(ROOT, LOWER_TORSO, 0.8)),
-        (0.30, 0.155, 0.065, 0.105, w2(LOWER_TORSO, MIDDLE_TORSO, 0.6)),
+        (
+            0.30,
+            0.155,
+            0.065,
+            0.105,
+            w2(LOWER_TORSO, MIDDLE_TORSO, 0.6),
+        ),
         (0.44, 0.17, 0.07, 0.11, w1(MIDDLE_TORSO)),
         (0.56, 0.16, 0.055, 0.075, w1(MIDDLE_TORSO)),
     ];
     let mut ring_ids: Vec<[u32; 8]> = Vec::new();
     for (dy, w, a, d, wt) in rings {
         let y = hip_y + dy * torso;
-        let (w, a, d) = (w * g * INFLATE, a * g * INFLATE, d * g * INFLATE * s.chest_depth);
+        let (w, a, d) = (
+            w * g * INFLATE,
+            a * g * INFLATE,
+            d * g * INFLATE * s.chest_depth,
+        );
         let z0 = -0.01 * g;
-        let pts = [(w, d), (a, d), (-a, d), (-w, d), (-w, -d), (-a, -d), (a, -d), (w, -d)];
+        let pts = [
+            (w, d),
+            (a, d),
+            (-a, d),
+            (-w, d),
+            (-w, -d),
+            (-a, -d),
+            (a, -d),
+            (w, -d),
+        ];
         ring_ids.push(pts.map(|(x, z)| cage.add_vertex(DVec3::new(x, y, z + z0), wt)));
     }
     let mut left_arm_face = 0;
@@ -503,7 +620,10 @@ fn build_cage(cage: &mut Cage, sk: &Skeleton, s: &BodyShape) {
 
     // Legs: (height as a fraction of leg length, half-width, z, half-depth, weights).
     let leg = s.leg_length * h;
-    for (face, hip, knee, ankle, foot) in [(left_leg_face, L_HIP, L_KNEE, L_ANKLE, L_FOOT), (right_leg_face, R_HIP, R_KNEE, R_ANKLE, R_FOOT)] {
+    for (face, hip, knee, ankle, foot) in [
+        (left_leg_face, L_HIP, L_KNEE, L_ANKLE, L_FOOT),
+        (right_leg_face, R_HIP, R_KNEE, R_ANKLE, R_FOOT),
+    ] {
         let x0 = j[hip].x;
         let xa = j[ankle].x;
         let sections: [(f64, f64, f64, f64, [f64; NUM_JOINTS]); 6] = [
@@ -529,7 +649,10 @@ fn build_cage(cage: &mut Cage, sk: &Skeleton, s: &BodyShape) {
             sides = cage.extrude(face, &sec);
         }
         // The foot grows forward from the front side of the last (heel) segment.
-        let front = *sides.iter().max_by(|&&a, &&b| cage.centroid(a).z.total_cmp(&cage.centroid(b).z)).unwrap_or(&sides[0]);
+        let front = *sides
+            .iter()
+            .max_by(|&&a, &&b| cage.centroid(a).z.total_cmp(&cage.centroid(b).z))
+            .unwrap_or(&sides[0]);
         let fx = j[foot].x;
         for (y, z, hw, hh, wt) in [
             (0.045, 0.07, 0.045, 0.035, w2(ankle, foot, 0.2)),
@@ -605,40 +728,124 @@ fn build_cage(cage: &mut Cage, sk: &Skeleton, s: &BodyShape) {
 fn marker_specs(j: &[DVec3], sk: &Skeleton) -> Vec<(String, DVec3, DVec3, Vec<usize>)> {
     let mut specs: Vec<(String, DVec3, DVec3, Vec<usize>)> = Vec::new();
     let head_c = j[HEAD] + DVec3::new(0.0, 0.17, 0.01);
-    for (n, d) in [("LFHD", (0.5, 0.3, 1.0)), ("RFHD", (-0.5, 0.3, 1.0)), ("LBHD", (0.5, 0.3, -1.0)), ("RBHD", (-0.5, 0.3, -1.0))] {
+    for (n, d) in [
+        ("LFHD", (0.5, 0.3, 1.0)),
+        ("RFHD", (-0.5, 0.3, 1.0)),
+        ("LBHD", (0.5, 0.3, -1.0)),
+        ("RBHD", (-0.5, 0.3, -1.0)),
+    ] {
         specs.push((n.into(), head_c, DVec3::from(d), vec![HEAD]));
     }
     let mt = j[MIDDLE_TORSO];
-    specs.push(("C7".into(), j[HEAD] - DVec3::new(0.0, 0.02, 0.0), DVec3::new(0.0, 0.3, -1.0), vec![MIDDLE_TORSO, HEAD]));
-    specs.push(("T10".into(), mt, DVec3::new(0.0, 0.0, -1.0), vec![LOWER_TORSO, MIDDLE_TORSO]));
-    specs.push(("CLAV".into(), j[HEAD] - DVec3::new(0.0, 0.06, 0.0), DVec3::new(0.0, 0.2, 1.0), vec![MIDDLE_TORSO]));
-    specs.push(("STRN".into(), mt + DVec3::new(0.0, 0.07, 0.0), DVec3::new(0.0, 0.0, 1.0), vec![MIDDLE_TORSO, LOWER_TORSO]));
-    specs.push(("RBAK".into(), mt + DVec3::new(-0.08, 0.09, 0.0), DVec3::new(-0.3, 0.0, -1.0), vec![MIDDLE_TORSO]));
+    specs.push((
+        "C7".into(),
+        j[HEAD] - DVec3::new(0.0, 0.02, 0.0),
+        DVec3::new(0.0, 0.3, -1.0),
+        vec![MIDDLE_TORSO, HEAD],
+    ));
+    specs.push((
+        "T10".into(),
+        mt,
+        DVec3::new(0.0, 0.0, -1.0),
+        vec![LOWER_TORSO, MIDDLE_TORSO],
+    ));
+    specs.push((
+        "CLAV".into(),
+        j[HEAD] - DVec3::new(0.0, 0.06, 0.0),
+        DVec3::new(0.0, 0.2, 1.0),
+        vec![MIDDLE_TORSO],
+    ));
+    specs.push((
+        "STRN".into(),
+        mt + DVec3::new(0.0, 0.07, 0.0),
+        DVec3::new(0.0, 0.0, 1.0),
+        vec![MIDDLE_TORSO, LOWER_TORSO],
+    ));
+    specs.push((
+        "RBAK".into(),
+        mt + DVec3::new(-0.08, 0.09, 0.0),
+        DVec3::new(-0.3, 0.0, -1.0),
+        vec![MIDDLE_TORSO],
+    ));
     for (p, sign, sh, el, hd, hip, kn, an, ft) in [
-        ("L", 1.0, L_SHOULDER, L_ELBOW, L_HAND, L_HIP, L_KNEE, L_ANKLE, L_FOOT),
-        ("R", -1.0, R_SHOULDER, R_ELBOW, R_HAND, R_HIP, R_KNEE, R_ANKLE, R_FOOT),
+        (
+            "L", 1.0, L_SHOULDER, L_ELBOW, L_HAND, L_HIP, L_KNEE, L_ANKLE, L_FOOT,
+        ),
+        (
+            "R", -1.0, R_SHOULDER, R_ELBOW, R_HAND, R_HIP, R_KNEE, R_ANKLE, R_FOOT,
+        ),
     ] {
         let m = DVec3::new(sign, 1.0, 1.0);
         let dir = sk.arm_dir * m;
         let up = sk.arm_up * m;
         let out = (up + DVec3::new(0.0, 0.0, -0.3)).normalize();
         specs.push((format!("{p}SHO"), j[sh], DVec3::Y, vec![sh, MIDDLE_TORSO]));
-        specs.push((format!("{p}UPA"), j[sh] + dir * sk.upper_arm * 0.5, out, vec![sh]));
-        specs.push((format!("{p}ELB"), j[el], DVec3::new(0.0, 0.0, -1.0), vec![el, sh]));
-        specs.push((format!("{p}FRM"), j[el] + dir * sk.forearm * 0.5, out, vec![el]));
+        specs.push((
+            format!("{p}UPA"),
+            j[sh] + dir * sk.upper_arm * 0.5,
+            out,
+            vec![sh],
+        ));
+        specs.push((
+            format!("{p}ELB"),
+            j[el],
+            DVec3::new(0.0, 0.0, -1.0),
+            vec![el, sh],
+        ));
+        specs.push((
+            format!("{p}FRM"),
+            j[el] + dir * sk.forearm * 0.5,
+            out,
+            vec![el],
+        ));
         specs.push((format!("{p}WRA"), j[hd], DVec3::Z, vec![hd, el]));
         specs.push((format!("{p}WRB"), j[hd], -DVec3::Z, vec![hd, el]));
-        specs.push((format!("{p}FIN"), j[hd] + dir * sk.hand * 0.45, up, vec![hd]));
+        specs.push((
+            format!("{p}FIN"),
+            j[hd] + dir * sk.hand * 0.45,
+            up,
+            vec![hd],
+        ));
         let pelvis = DVec3::new(sign * 0.09, j[ROOT].y + 0.04, 0.0);
-        specs.push((format!("{p}ASI"), pelvis, DVec3::new(sign * 0.2, 0.0, 1.0), vec![ROOT]));
-        specs.push((format!("{p}PSI"), pelvis * DVec3::new(0.5, 1.0, 1.0), DVec3::new(sign * 0.1, 0.0, -1.0), vec![ROOT]));
+        specs.push((
+            format!("{p}ASI"),
+            pelvis,
+            DVec3::new(sign * 0.2, 0.0, 1.0),
+            vec![ROOT],
+        ));
+        specs.push((
+            format!("{p}PSI"),
+            pelvis * DVec3::new(0.5, 1.0, 1.0),
+            DVec3::new(sign * 0.1, 0.0, -1.0),
+            vec![ROOT],
+        ));
         let lateral = DVec3::new(sign, 0.0, 0.0);
-        specs.push((format!("{p}THI"), j[hip].lerp(j[kn], 0.45), lateral + DVec3::new(0.0, 0.0, 0.2), vec![hip]));
+        specs.push((
+            format!("{p}THI"),
+            j[hip].lerp(j[kn], 0.45),
+            lateral + DVec3::new(0.0, 0.0, 0.2),
+            vec![hip],
+        ));
         specs.push((format!("{p}KNE"), j[kn], lateral, vec![kn, hip]));
-        specs.push((format!("{p}TIB"), j[kn].lerp(j[an], 0.5), lateral + DVec3::new(0.0, 0.0, 0.2), vec![kn]));
+        specs.push((
+            format!("{p}TIB"),
+            j[kn].lerp(j[an], 0.5),
+            lateral + DVec3::new(0.0, 0.0, 0.2),
+            vec![kn],
+        ));
         specs.push((format!("{p}ANK"), j[an], lateral, vec![an, kn]));
-        specs.push((format!("{p}HEE"), DVec3::new(j[an].x, 0.05, j[an].z), -DVec3::Z, vec![an]));
-        specs.push((format!("{p}TOE"), j[ft], DVec3::new(0.0, 0.5, 1.0), vec![ft, an]));
+        specs.push((
+            format!("{p}HEE"),
+            DVec3::new(j[an].x, 0.05, j[an].z),
+            -DVec3::Z,
+            vec![an],
+        ));
+        specs.push((
+            format!("{p}TOE"),
+            j[ft],
+            DVec3::new(0.0, 0.5, 1.0),
+            vec![ft, an],
+        ));
     }
     specs
 }
@@ -668,7 +875,10 @@ fn place_markers(template: &Template, joints: &[DVec3], sk: &Skeleton) -> Vec<Ma
         }
         if let Some((_, v)) = best {
             used.insert(v);
-            markers.push(Marker { name, vertex: v as u32 });
+            markers.push(Marker {
+                name,
+                vertex: v as u32,
+            });
         }
     }
     markers
@@ -683,34 +893,67 @@ mod tests {
         let (t, explained) = morphable_default_template().unwrap();
         assert_eq!(t.layout().dim(), 57 + MORPHABLE_SHAPE_DIM);
         let cumulative: f64 = explained.iter().sum();
-        println!("morphable default template: variance explained {explained:.4?}, total {cumulative:.5}");
+        println!(
+            "morphable default template: variance explained {explained:.4?}, total {cumulative:.5}"
+        );
         assert!(explained.windows(2).all(|w| w[0] >= w[1]));
         assert!(cumulative > 0.99, "{cumulative}");
         // Every direction carries variance: none is unobservable.
         assert!(explained[MORPHABLE_SHAPE_DIM - 1] > 1e-4, "{explained:?}");
         // β = 0 is the default template, exactly.
         let d = default_template();
-        let pose: Vec<f64> = (0..57).map(|i| ((i * 37 % 19) as f64 / 19.0 - 0.5) * 0.8).collect();
+        let pose: Vec<f64> = (0..57)
+            .map(|i| ((i * 37 % 19) as f64 / 19.0 - 0.5) * 0.8)
+            .collect();
         let mut x = pose.clone();
         x.extend([0.0; MORPHABLE_SHAPE_DIM]);
         let a = crate::skinning::pose_vertices(&d, &pose, crate::SkinningMethod::Linear);
         let b = crate::skinning::pose_vertices(&t, &x, crate::SkinningMethod::Linear);
-        let worst = a.iter().zip(&b).map(|(p, q)| (*p - *q).length()).fold(0.0, f32::max);
+        let worst = a
+            .iter()
+            .zip(&b)
+            .map(|(p, q)| (*p - *q).length())
+            .fold(0.0, f32::max);
         assert!(worst < 1e-5, "{worst}");
         // The tall variant is close to the span: its least-squares coefficients reproduce it
         // within a few millimetres, and the first direction changes the height.
         let tall = build_template(&BodyShape::named("tall").unwrap(), "tall").unwrap();
         let k = MORPHABLE_SHAPE_DIM;
         let m = &t.morph;
-        let dev: Vec<f64> = tall.vertices.iter().zip(&d.vertices).flat_map(|(p, q)| (p.as_dvec3() - q.as_dvec3()).to_array()).collect();
+        let dev: Vec<f64> = tall
+            .vertices
+            .iter()
+            .zip(&d.vertices)
+            .flat_map(|(p, q)| (p.as_dvec3() - q.as_dvec3()).to_array())
+            .collect();
         let a_mat = nalgebra::DMatrix::from_fn(dev.len(), k, |r, c| m.dirs[r * k + c]);
-        let beta = a_mat.clone().svd(true, true).solve(&nalgebra::DVector::from_vec(dev.clone()), 1e-12).unwrap();
+        let beta = a_mat
+            .clone()
+            .svd(true, true)
+            .solve(&nalgebra::DVector::from_vec(dev.clone()), 1e-12)
+            .unwrap();
         let fit = &a_mat * &beta;
-        let worst = (0..dev.len() / 3).map(|v| ((fit[3 * v] - dev[3 * v]).powi(2) + (fit[3 * v + 1] - dev[3 * v + 1]).powi(2) + (fit[3 * v + 2] - dev[3 * v + 2]).powi(2)).sqrt()).fold(0.0, f64::max);
-        println!("tall variant in the shape space: worst vertex error {:.2} mm, β = {:.2?}", worst * 1e3, beta.as_slice());
+        let worst = (0..dev.len() / 3)
+            .map(|v| {
+                ((fit[3 * v] - dev[3 * v]).powi(2)
+                    + (fit[3 * v + 1] - dev[3 * v + 1]).powi(2)
+                    + (fit[3 * v + 2] - dev[3 * v + 2]).powi(2))
+                .sqrt()
+            })
+            .fold(0.0, f64::max);
+        println!(
+            "tall variant in the shape space: worst vertex error {:.2} mm, β = {:.2?}",
+            worst * 1e3,
+            beta.as_slice()
+        );
         assert!(worst < 0.01, "{worst}");
-        let ys: Vec<f64> = (0..d.num_vertices()).map(|v| m.dirs[(3 * v + 1) * k]).collect();
-        assert!(ys.iter().copied().fold(f64::MIN, f64::max) > 0.01, "the first direction moves vertices");
+        let ys: Vec<f64> = (0..d.num_vertices())
+            .map(|v| m.dirs[(3 * v + 1) * k])
+            .collect();
+        assert!(
+            ys.iter().copied().fold(f64::MIN, f64::max) > 0.01,
+            "the first direction moves vertices"
+        );
     }
 
     #[test]
@@ -725,10 +968,16 @@ mod tests {
                 *edges.entry((a.min(b), a.max(b))).or_default() += 1;
             }
         }
-        assert!(edges.values().all(|&c| c == 2), "an edge without exactly two faces");
+        assert!(
+            edges.values().all(|&c| c == 2),
+            "an edge without exactly two faces"
+        );
         // Euler characteristic of a sphere: V − E + F = 2.
         assert_eq!(n as i64 - edges.len() as i64 + t.faces.len() as i64, 2);
-        assert!(signed_volume(&t.vertices, &t.faces) > 0.03, "outward winding, body-sized volume");
+        assert!(
+            signed_volume(&t.vertices, &t.faces) > 0.03,
+            "outward winding, body-sized volume"
+        );
         assert_eq!(t.rig.joints.len(), 18);
         assert_eq!(t.rig.markers.len(), 39);
     }
@@ -736,13 +985,34 @@ mod tests {
     #[test]
     fn height_and_symmetry() {
         let t = default_template();
-        let (lo, hi) = t.vertices.iter().fold((f32::MAX, f32::MIN), |(lo, hi), v| (lo.min(v.y), hi.max(v.y)));
+        let (lo, hi) = t.vertices.iter().fold((f32::MAX, f32::MIN), |(lo, hi), v| {
+            (lo.min(v.y), hi.max(v.y))
+        });
         assert!(lo.abs() < 1e-6);
         assert!((1.65..1.85).contains(&hi), "height {hi}");
         // Every vertex has a mirror image across x = 0.
-        let set: std::collections::HashSet<[i64; 3]> =
-            t.vertices.iter().map(|v| [(v.x * 1e4).round() as i64, (v.y * 1e4).round() as i64, (v.z * 1e4).round() as i64]).collect();
-        let mirrored = t.vertices.iter().filter(|v| set.contains(&[(-v.x * 1e4).round() as i64, (v.y * 1e4).round() as i64, (v.z * 1e4).round() as i64])).count();
+        let set: std::collections::HashSet<[i64; 3]> = t
+            .vertices
+            .iter()
+            .map(|v| {
+                [
+                    (v.x * 1e4).round() as i64,
+                    (v.y * 1e4).round() as i64,
+                    (v.z * 1e4).round() as i64,
+                ]
+            })
+            .collect();
+        let mirrored = t
+            .vertices
+            .iter()
+            .filter(|v| {
+                set.contains(&[
+                    (-v.x * 1e4).round() as i64,
+                    (v.y * 1e4).round() as i64,
+                    (v.z * 1e4).round() as i64,
+                ])
+            })
+            .count();
         assert!(mirrored as f64 > 0.95 * t.num_vertices() as f64);
     }
 

@@ -40,7 +40,11 @@ impl Camera {
             cy: f64::from(height) / 2.0,
             width,
             height,
-            rotation: [r.row(0).to_array(), r.row(1).to_array(), r.row(2).to_array()],
+            rotation: [
+                r.row(0).to_array(),
+                r.row(1).to_array(),
+                r.row(2).to_array(),
+            ],
             translation: t.to_array(),
         }
     }
@@ -78,8 +82,16 @@ impl Camera {
 
     /// Checks finiteness, positive focal lengths and image size, and an orthonormal rotation.
     pub fn validate(&self, index: usize) -> Result<()> {
-        let fail = |reason: &str| Err(ModelError::Camera { index, reason: reason.to_string() });
-        let numbers = [self.fx, self.fy, self.cx, self.cy].into_iter().chain(self.rotation.iter().flatten().copied()).chain(self.translation);
+        let fail = |reason: &str| {
+            Err(ModelError::Camera {
+                index,
+                reason: reason.to_string(),
+            })
+        };
+        let numbers = [self.fx, self.fy, self.cx, self.cy]
+            .into_iter()
+            .chain(self.rotation.iter().flatten().copied())
+            .chain(self.translation);
         if numbers.into_iter().any(|v| !v.is_finite()) {
             return fail("a parameter is not finite");
         }

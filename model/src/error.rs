@@ -16,7 +16,11 @@ pub enum ModelError {
     #[error("malformed rig JSON {path}: {reason}")]
     RigJson { path: PathBuf, reason: String },
     #[error("rig joint {index} ('{name}'): {reason}")]
-    Joint { index: usize, name: String, reason: String },
+    Joint {
+        index: usize,
+        name: String,
+        reason: String,
+    },
     #[error("rig weights of vertex {vertex}: {reason}")]
     Weights { vertex: usize, reason: String },
     #[error("marker '{name}': {reason}")]
@@ -38,9 +42,17 @@ pub enum ModelError {
     #[error("camera {index}: {reason}")]
     Camera { index: usize, reason: String },
     #[error("invalid setting {name} = {value}: {reason}")]
-    Setting { name: &'static str, value: String, reason: String },
+    Setting {
+        name: &'static str,
+        value: String,
+        reason: String,
+    },
     #[error("shape mismatch for {what}: expected {expected}, got {got}")]
-    Shape { what: String, expected: String, got: String },
+    Shape {
+        what: String,
+        expected: String,
+        got: String,
+    },
     #[error("target data: {0}")]
     Target(String),
     #[error("tensor backend: {0}")]
@@ -55,7 +67,10 @@ pub enum ModelError {
 
 impl ModelError {
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
-        Self::Io { path: path.into(), source }
+        Self::Io {
+            path: path.into(),
+            source,
+        }
     }
 }
 

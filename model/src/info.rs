@@ -90,13 +90,26 @@ pub struct ModelInfo {
 
 impl Default for ModelInfo {
     fn default() -> Self {
-        Self { limits_deg: Vec::new(), parts: Vec::new(), mirror: Vec::new(), joint_map: Vec::new(), hmd_offset: DEFAULT_HMD_OFFSET, hand_tips: None, provenance: String::new() }
+        Self {
+            limits_deg: Vec::new(),
+            parts: Vec::new(),
+            mirror: Vec::new(),
+            joint_map: Vec::new(),
+            hmd_offset: DEFAULT_HMD_OFFSET,
+            hand_tips: None,
+            provenance: String::new(),
+        }
     }
 }
 
 fn side_of(name: &str) -> Option<(&'static str, String)> {
     let lower = name.to_ascii_lowercase();
-    for (prefix, side, other) in [("left_", "left", "right_"), ("right_", "right", "left_"), ("l_", "left", "r_"), ("r_", "right", "l_")] {
+    for (prefix, side, other) in [
+        ("left_", "left", "right_"),
+        ("right_", "right", "left_"),
+        ("l_", "left", "r_"),
+        ("r_", "right", "l_"),
+    ] {
         if let Some(rest) = lower.strip_prefix(prefix) {
             return Some((side, format!("{other}{rest}")));
         }
@@ -105,7 +118,11 @@ fn side_of(name: &str) -> Option<(&'static str, String)> {
 }
 
 fn is_leg_word(name: &str) -> bool {
-    ["hip", "knee", "ankle", "foot", "toe", "leg", "thigh", "calf", "shin", "heel"].iter().any(|w| name.contains(w))
+    [
+        "hip", "knee", "ankle", "foot", "toe", "leg", "thigh", "calf", "shin", "heel",
+    ]
+    .iter()
+    .any(|w| name.contains(w))
 }
 
 impl ModelInfo {
@@ -113,7 +130,9 @@ impl ModelInfo {
     pub fn default_skeleton() -> Self {
         let n = skeleton::NUM_JOINTS;
         Self {
-            limits_deg: (0..n).map(|j| skeleton::rotation_limits_deg(j).map(|(lo, hi)| [lo, hi])).collect(),
+            limits_deg: (0..n)
+                .map(|j| skeleton::rotation_limits_deg(j).map(|(lo, hi)| [lo, hi]))
+                .collect(),
             parts: (0..n).map(|j| default_part(j).to_string()).collect(),
             mirror: (0..n).map(skeleton::mirror).collect(),
             joint_map: (0..n).map(Some).collect(),
@@ -125,8 +144,15 @@ impl ModelInfo {
     pub fn fallback(rig: &Rig) -> Self {
         let names: Vec<&str> = rig.joints.iter().map(|j| j.name.as_str()).collect();
         let is_default = names.len() == skeleton::NUM_JOINTS
-            && names.iter().zip(skeleton::JOINT_NAMES).all(|(a, b)| *a == b)
-            && rig.joints.iter().zip(skeleton::PARENTS).all(|(j, p)| j.parent == p);
+            && names
+                .iter()
+                .zip(skeleton::JOINT_NAMES)
+                .all(|(a, b)| *a == b)
+            && rig
+                .joints
+                .iter()
+                .zip(skeleton::PARENTS)
+                .all(|(j, p)| j.parent == p);
         if is_default {
             return Self::default_skeleton();
         }
@@ -141,43 +167,88 @@ impl ModelInfo {
         let mirror = lower
             .iter()
             .enumerate()
-            .map(|(j, n)| side_of(n).and_then(|(_, other)| lower.iter().position(|m| *m == other)).unwrap_or(j))
+            .map(|(j, n)| {
+                side_of(n)
+                    .and_then(|(_, other)| lower.iter().position(|m| *m == other))
+                    .unwrap_or(j)
+            })
             .collect();
-        let joint_map = if names.len() == 24 && names.iter().zip(SMPL_JOINT_NAMES).all(|(a, b)| *a == b) {
-            SMPL_JOINT_MAP.iter().map(|m| names.iter().position(|n| n == m)).collect()
-        } else {
-            skeleton::JOINT_NAMES.iter().map(|m| names.iter().position(|n| n == m)).collect()
-        };
-        Self { limits_deg: vec![[[-180.0, 180.0]; 3]; names.len()], parts, mirror, joint_map, ..Self::default() }
+        let joint_map =
+            if names.len() == 24 && names.iter().zip(SMPL_JOINT_NAMES).all(|(a, b)| *a == b) {
+                SMPL_JOINT_MAP
+                    .iter()
+                    .map(|m| names.iter().position(|n| n == m))
+                    .collect()
+            } else {
+                skeleton::JOINT_NAMES
+                    .iter()
+                    .map(|m| names.iter().position(|n| n == m))
+                    .collect()
+            };
+        Self {
+            limits_deg: vec![[[-180.0, 180.0]; 3]; names.len()],
+            parts,
+            mirror,
+            joint_map,
+            ..Self::default()
+        }
     }
 
     /// Checks sizes and ranges against a model of `joints` joints and `vertices` vertices.
     pub fn validate(&self, joints: usize, vertices: usize) -> Result<()> {
-        let bad = |what: &str, reason: String| ModelError::Config(format!("model {what}: {reason}"));
+        let bad =
+            |what: &str, reason: String| ModelError::Config(format!("model {what}: {reason}"));
         if self.limits_deg.len() != joints {
-            return Err(bad("joint limits", format!("{} rows for {joints} joints", self.limits_deg.len())));
+            return Err(bad(
+                "joint limits",
+                format!("{} rows for {joints} joints", self.limits_deg.len()),
+            ));
         }
         for (j, l) in self.limits_deg.iter().enumerate() {
-            if l.iter().any(|[lo, hi]| !(lo.is_finite() && hi.is_finite() && lo <= hi)) {
-                return Err(bad("joint limits", format!("joint {j}: {l:?} is not a finite range lo ≤ hi")));
+            if l.iter()
+                .any(|[lo, hi]| !(lo.is_finite() && hi.is_finite() && lo <= hi))
+            {
+                return Err(bad(
+                    "joint limits",
+                    format!("joint {j}: {l:?} is not a finite range lo ≤ hi"),
+                ));
             }
         }
         if self.parts.len() != joints {
-            return Err(bad("part labels", format!("{} labels for {joints} joints", self.parts.len())));
+            return Err(bad(
+                "part labels",
+                format!("{} labels for {joints} joints", self.parts.len()),
+            ));
         }
         if self.mirror.len() != joints {
-            return Err(bad("mirror map", format!("{} entries for {joints} joints", self.mirror.len())));
+            return Err(bad(
+                "mirror map",
+                format!("{} entries for {joints} joints", self.mirror.len()),
+            ));
         }
         for (j, &m) in self.mirror.iter().enumerate() {
             if m >= joints || self.mirror[m] != j {
-                return Err(bad("mirror map", format!("joint {j} → {m} is out of range or not an involution")));
+                return Err(bad(
+                    "mirror map",
+                    format!("joint {j} → {m} is out of range or not an involution"),
+                ));
             }
         }
         if self.joint_map.len() != skeleton::NUM_JOINTS {
-            return Err(bad("joint map", format!("{} entries, expected one per papers/000 joint ({})", self.joint_map.len(), skeleton::NUM_JOINTS)));
+            return Err(bad(
+                "joint map",
+                format!(
+                    "{} entries, expected one per papers/000 joint ({})",
+                    self.joint_map.len(),
+                    skeleton::NUM_JOINTS
+                ),
+            ));
         }
         if let Some(j) = self.joint_map.iter().flatten().find(|&&j| j >= joints) {
-            return Err(bad("joint map", format!("joint {j} out of range ({joints} joints)")));
+            return Err(bad(
+                "joint map",
+                format!("joint {j} out of range ({joints} joints)"),
+            ));
         }
         if self.hmd_offset.iter().any(|v| !v.is_finite()) {
             return Err(bad("hmd offset", "is not finite".into()));
@@ -185,7 +256,10 @@ impl ModelInfo {
         if let Some(t) = self.hand_tips
             && t.iter().any(|&v| v as usize >= vertices)
         {
-            return Err(bad("hand tips", format!("{t:?} out of range ({vertices} vertices)")));
+            return Err(bad(
+                "hand tips",
+                format!("{t:?} out of range ({vertices} vertices)"),
+            ));
         }
         Ok(())
     }
@@ -209,8 +283,20 @@ mod tests {
     use crate::rig::Joint;
 
     fn rig(names: &[&str]) -> Rig {
-        let joints = names.iter().enumerate().map(|(i, n)| Joint { name: (*n).into(), parent: (i > 0).then_some(0), rest_position: [0.0; 3] }).collect();
-        Rig { joints, weights: Vec::new(), markers: Vec::new() }
+        let joints = names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| Joint {
+                name: (*n).into(),
+                parent: (i > 0).then_some(0),
+                rest_position: [0.0; 3],
+            })
+            .collect();
+        Rig {
+            joints,
+            weights: Vec::new(),
+            markers: Vec::new(),
+        }
     }
 
     #[test]
@@ -235,6 +321,11 @@ mod tests {
         assert_eq!(info.limits_deg[skeleton::R_KNEE][0], [-100.0, 100.0]);
         let mut bad = info.clone();
         bad.mirror[1] = 5;
-        assert!(bad.validate(18, 0).unwrap_err().to_string().contains("mirror"));
+        assert!(
+            bad.validate(18, 0)
+                .unwrap_err()
+                .to_string()
+                .contains("mirror")
+        );
     }
 }

@@ -82,7 +82,14 @@ impl Layout {
 
     /// The block entry `i` belongs to.
     pub fn block_of(&self, i: usize) -> Option<Block> {
-        [Block::Translation, Block::Rotations, Block::Shape, Block::Expression].into_iter().find(|&b| self.range(b).contains(&i))
+        [
+            Block::Translation,
+            Block::Rotations,
+            Block::Shape,
+            Block::Expression,
+        ]
+        .into_iter()
+        .find(|&b| self.range(b).contains(&i))
     }
 
     /// The joint whose rotation entry `i` is, with its axis (0 = x, 1 = y, 2 = z).
@@ -94,7 +101,9 @@ impl Layout {
     pub fn name(&self, i: usize) -> String {
         match self.block_of(i) {
             Some(Block::Translation) => format!("t_{}", AXES[i]),
-            Some(Block::Rotations) => format!("{}.r{}", self.joints[(i - 3) / 3], AXES[(i - 3) % 3]),
+            Some(Block::Rotations) => {
+                format!("{}.r{}", self.joints[(i - 3) / 3], AXES[(i - 3) % 3])
+            }
             Some(Block::Shape) => format!("shape.{}", i - self.shape_offset()),
             Some(Block::Expression) => format!("expression.{}", i - self.expression_offset()),
             None => format!("#{i}"),
@@ -112,10 +121,18 @@ impl Layout {
             return AXES.iter().position(|a| *a == axis);
         }
         if let Some(k) = name.strip_prefix("shape.") {
-            return k.parse::<usize>().ok().filter(|&k| k < self.shape).map(|k| self.shape_offset() + k);
+            return k
+                .parse::<usize>()
+                .ok()
+                .filter(|&k| k < self.shape)
+                .map(|k| self.shape_offset() + k);
         }
         if let Some(k) = name.strip_prefix("expression.") {
-            return k.parse::<usize>().ok().filter(|&k| k < self.expression).map(|k| self.expression_offset() + k);
+            return k
+                .parse::<usize>()
+                .ok()
+                .filter(|&k| k < self.expression)
+                .map(|k| self.expression_offset() + k);
         }
         let (joint, axis) = name.rsplit_once(".r")?;
         let a = AXES.iter().position(|x| *x == axis)?;
@@ -129,7 +146,11 @@ mod tests {
     use super::*;
 
     fn layout() -> Layout {
-        Layout { joints: vec!["pelvis".into(), "l_knee".into()], shape: 2, expression: 1 }
+        Layout {
+            joints: vec!["pelvis".into(), "l_knee".into()],
+            shape: 2,
+            expression: 1,
+        }
     }
 
     #[test]
@@ -139,7 +160,23 @@ mod tests {
         assert_eq!(l.range(Block::Shape), 9..11);
         assert_eq!(l.range(Block::Expression), 11..12);
         let names = l.names();
-        assert_eq!(names, ["t_x", "t_y", "t_z", "pelvis.rx", "pelvis.ry", "pelvis.rz", "l_knee.rx", "l_knee.ry", "l_knee.rz", "shape.0", "shape.1", "expression.0"]);
+        assert_eq!(
+            names,
+            [
+                "t_x",
+                "t_y",
+                "t_z",
+                "pelvis.rx",
+                "pelvis.ry",
+                "pelvis.rz",
+                "l_knee.rx",
+                "l_knee.ry",
+                "l_knee.rz",
+                "shape.0",
+                "shape.1",
+                "expression.0"
+            ]
+        );
         for (i, n) in names.iter().enumerate() {
             assert_eq!(l.index_of(n), Some(i), "{n}");
         }

@@ -6,7 +6,6 @@
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
-
 use crate::skinning::{joint_transforms, skin_lbs_into, skin_lbs_subset};
 use crate::template::Template;
 
@@ -16,7 +15,12 @@ pub fn v2v_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> f64 {
     skin_lbs_into(template, &joint_transforms(template, fitted), &mut a);
     skin_lbs_into(template, &joint_transforms(template, truth), &mut b);
     let n = a.len().max(1) as f64;
-    1000.0 * a.iter().zip(&b).map(|(p, q)| f64::from(p.distance(*q))).sum::<f64>() / n
+    1000.0
+        * a.iter()
+            .zip(&b)
+            .map(|(p, q)| f64::from(p.distance(*q)))
+            .sum::<f64>()
+        / n
 }
 
 /// Mean distance between corresponding posed joint centres, in mm.
@@ -34,7 +38,13 @@ pub fn pa_mpjpe_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> f64 {
     let b = joint_transforms(template, truth).joints;
     let aligned = procrustes_align(&a, &b);
     let n = a.len().max(1) as f64;
-    1000.0 * aligned.iter().zip(&b).map(|(p, q)| p.distance(*q)).sum::<f64>() / n
+    1000.0
+        * aligned
+            .iter()
+            .zip(&b)
+            .map(|(p, q)| p.distance(*q))
+            .sum::<f64>()
+        / n
 }
 
 /// `p` mapped by the similarity `s R p + t` that minimises `Σ |s R p_i + t − q_i|²` (Umeyama).
@@ -50,19 +60,26 @@ pub fn procrustes_align(p: &[DVec3], q: &[DVec3]) -> Vec<DVec3> {
     let mut var_p = 0.0;
     for (a, b) in p.iter().zip(q) {
         let (x, y) = (*a - mp, *b - mq);
-        cov += nalgebra::Vector3::new(y.x, y.y, y.z) * nalgebra::Vector3::new(x.x, x.y, x.z).transpose();
+        cov += nalgebra::Vector3::new(y.x, y.y, y.z)
+            * nalgebra::Vector3::new(x.x, x.y, x.z).transpose();
         var_p += x.length_squared();
     }
     cov /= nf;
     var_p /= nf;
     let svd = cov.svd(true, true);
-    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else { return p.to_vec() };
+    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else {
+        return p.to_vec();
+    };
     let mut sign = nalgebra::Matrix3::<f64>::identity();
     if u.determinant() * vt.determinant() < 0.0 {
         sign[(2, 2)] = -1.0;
     }
     let r = u * sign * vt;
-    let scale = if var_p > 0.0 { (svd.singular_values.component_mul(&sign.diagonal())).sum() / var_p } else { 1.0 };
+    let scale = if var_p > 0.0 {
+        (svd.singular_values.component_mul(&sign.diagonal())).sum() / var_p
+    } else {
+        1.0
+    };
     p.iter()
         .map(|a| {
             let x = *a - mp;
@@ -88,7 +105,11 @@ fn rms_directed(a: &[Vec3], b: &[Vec3]) -> f64 {
     }
     let sum: f64 = a
         .par_iter()
-        .map(|v| b.iter().map(|u| f64::from(v.distance_squared(*u))).fold(f64::INFINITY, f64::min))
+        .map(|v| {
+            b.iter()
+                .map(|u| f64::from(v.distance_squared(*u)))
+                .fold(f64::INFINITY, f64::min)
+        })
         .sum();
     (sum / a.len() as f64).sqrt()
 }
@@ -96,7 +117,13 @@ fn rms_directed(a: &[Vec3], b: &[Vec3]) -> f64 {
 /// Vertices whose largest skinning weight belongs to `joint`: the body part of papers/002's
 /// part errors (H = head, L / R = hands).
 pub fn part_vertices(template: &Template, joint: usize) -> Vec<u32> {
-    template.dominant_joint().iter().enumerate().filter(|(_, j)| **j == joint).map(|(v, _)| v as u32).collect()
+    template
+        .dominant_joint()
+        .iter()
+        .enumerate()
+        .filter(|(_, j)| **j == joint)
+        .map(|(v, _)| v as u32)
+        .collect()
 }
 
 /// V2V (mm) over the vertices `subset` only.
@@ -104,7 +131,12 @@ pub fn v2v_subset_mm(template: &Template, fitted: &[f64], truth: &[f64], subset:
     let a = skin_lbs_subset(template, &joint_transforms(template, fitted), subset);
     let b = skin_lbs_subset(template, &joint_transforms(template, truth), subset);
     let n = a.len().max(1) as f64;
-    1000.0 * a.iter().zip(&b).map(|(p, q)| f64::from(p.distance(*q))).sum::<f64>() / n
+    1000.0
+        * a.iter()
+            .zip(&b)
+            .map(|(p, q)| f64::from(p.distance(*q)))
+            .sum::<f64>()
+        / n
 }
 
 /// Ground penetration (mm, papers/002 Tables 3–6 "GrPe"): the mean depth below the floor plane
@@ -112,8 +144,16 @@ pub fn v2v_subset_mm(template: &Template, fitted: &[f64], truth: &[f64], subset:
 pub fn ground_penetration_mm(template: &Template, pose: &[f64]) -> f64 {
     let mut v = Vec::new();
     skin_lbs_into(template, &joint_transforms(template, pose), &mut v);
-    let below: Vec<f64> = v.iter().filter(|p| p.y < 0.0).map(|p| -f64::from(p.y)).collect();
-    if below.is_empty() { 0.0 } else { 1000.0 * below.iter().sum::<f64>() / below.len() as f64 }
+    let below: Vec<f64> = v
+        .iter()
+        .filter(|p| p.y < 0.0)
+        .map(|p| -f64::from(p.y))
+        .collect();
+    if below.is_empty() {
+        0.0
+    } else {
+        1000.0 * below.iter().sum::<f64>() / below.len() as f64
+    }
 }
 
 #[cfg(test)]
@@ -143,7 +183,10 @@ mod tests {
         }
         let joints = joint_transforms(&t, &rng_pose).joints;
         let r = glam::DQuat::from_euler(glam::EulerRot::YXZ, 0.7, -0.3, 0.2);
-        let moved: Vec<DVec3> = joints.iter().map(|p| r * *p * 1.3 + DVec3::new(0.2, -0.1, 0.5)).collect();
+        let moved: Vec<DVec3> = joints
+            .iter()
+            .map(|p| r * *p * 1.3 + DVec3::new(0.2, -0.1, 0.5))
+            .collect();
         let back = procrustes_align(&moved, &joints);
         for (a, b) in back.iter().zip(&joints) {
             assert!(a.distance(*b) < 1e-9, "{a} vs {b}");
@@ -159,9 +202,21 @@ mod tests {
         assert!(pa_mpjpe_mm(&t, &bent, &rng_pose) > 0.0);
         // The alignment minimises the squared joint error, so it cannot raise the RMS error.
         let rms = |a: &[f64], b: &[f64], align: bool| {
-            let (ja, jb) = (joint_transforms(&t, a).joints, joint_transforms(&t, b).joints);
-            let ja = if align { procrustes_align(&ja, &jb) } else { ja };
-            (ja.iter().zip(&jb).map(|(p, q)| p.distance_squared(*q)).sum::<f64>() / ja.len() as f64).sqrt()
+            let (ja, jb) = (
+                joint_transforms(&t, a).joints,
+                joint_transforms(&t, b).joints,
+            );
+            let ja = if align {
+                procrustes_align(&ja, &jb)
+            } else {
+                ja
+            };
+            (ja.iter()
+                .zip(&jb)
+                .map(|(p, q)| p.distance_squared(*q))
+                .sum::<f64>()
+                / ja.len() as f64)
+                .sqrt()
         };
         assert!(rms(&bent, &rng_pose, true) <= rms(&bent, &rng_pose, false) + 1e-12);
     }

@@ -63,7 +63,10 @@ struct Array {
 }
 
 fn fail(path: &Path, reason: impl Into<String>) -> ModelError {
-    ModelError::ModelFile { path: path.to_path_buf(), reason: reason.into() }
+    ModelError::ModelFile {
+        path: path.to_path_buf(),
+        reason: reason.into(),
+    }
 }
 
 /// C-order indices of a Fortran-order array.
@@ -96,7 +99,8 @@ fn fortran_to_c<T: Clone>(data: Vec<T>, shape: &[usize]) -> Vec<T> {
 
 fn parse_npy(path: &Path, name: &str, bytes: &[u8]) -> Result<Array> {
     let bad = |reason: String| fail(path, format!("array '{name}': {reason}"));
-    let npy = npyz::NpyFile::new(bytes).map_err(|e| bad(format!("not a valid .npy member ({e})")))?;
+    let npy =
+        npyz::NpyFile::new(bytes).map_err(|e| bad(format!("not a valid .npy member ({e})")))?;
     if npy.header().uses_pickled_array() || npy.dtype().descr().contains('O') {
         return Err(bad("is a pickled object array; save it as a numeric array (for a scipy-sparse matrix: .toarray(), or the J_regressor.* keys of scipy.sparse.save_npz)".into()));
     }
@@ -109,20 +113,84 @@ fn parse_npy(path: &Path, name: &str, bytes: &[u8]) -> Result<Array> {
     let size = ty.size_field();
     let values = match (ty.type_char(), size) {
         (npyz::TypeChar::Float, 8) => Values::Float(npy.into_vec::<f64>().map_err(io)?),
-        (npyz::TypeChar::Float, 4) => Values::Float(npy.into_vec::<f32>().map_err(io)?.into_iter().map(f64::from).collect()),
+        (npyz::TypeChar::Float, 4) => Values::Float(
+            npy.into_vec::<f32>()
+                .map_err(io)?
+                .into_iter()
+                .map(f64::from)
+                .collect(),
+        ),
         (npyz::TypeChar::Int, 8) => Values::Int(npy.into_vec::<i64>().map_err(io)?),
-        (npyz::TypeChar::Int, 4) => Values::Int(npy.into_vec::<i32>().map_err(io)?.into_iter().map(i64::from).collect()),
-        (npyz::TypeChar::Int, 2) => Values::Int(npy.into_vec::<i16>().map_err(io)?.into_iter().map(i64::from).collect()),
-        (npyz::TypeChar::Int, 1) => Values::Int(npy.into_vec::<i8>().map_err(io)?.into_iter().map(i64::from).collect()),
+        (npyz::TypeChar::Int, 4) => Values::Int(
+            npy.into_vec::<i32>()
+                .map_err(io)?
+                .into_iter()
+                .map(i64::from)
+                .collect(),
+        ),
+        (npyz::TypeChar::Int, 2) => Values::Int(
+            npy.into_vec::<i16>()
+                .map_err(io)?
+                .into_iter()
+                .map(i64::from)
+                .collect(),
+        ),
+        (npyz::TypeChar::Int, 1) => Values::Int(
+            npy.into_vec::<i8>()
+                .map_err(io)?
+                .into_iter()
+                .map(i64::from)
+                .collect(),
+        ),
         // 2^32 − 1 and 2^64 − 1 are SMPL's "no parent"; they become −1.
-        (npyz::TypeChar::Uint, 8) => Values::Int(npy.into_vec::<u64>().map_err(io)?.into_iter().map(|v| if v == u64::MAX || v == u64::from(u32::MAX) { -1 } else { v as i64 }).collect()),
-        (npyz::TypeChar::Uint, 4) => Values::Int(npy.into_vec::<u32>().map_err(io)?.into_iter().map(|v| if v == u32::MAX { -1 } else { i64::from(v) }).collect()),
-        (npyz::TypeChar::Uint, 2) => Values::Int(npy.into_vec::<u16>().map_err(io)?.into_iter().map(i64::from).collect()),
-        (npyz::TypeChar::Uint, 1) => Values::Int(npy.into_vec::<u8>().map_err(io)?.into_iter().map(i64::from).collect()),
-        (npyz::TypeChar::Bool, _) => Values::Int(npy.into_vec::<bool>().map_err(io)?.into_iter().map(i64::from).collect()),
-        (npyz::TypeChar::UnicodeStr | npyz::TypeChar::ByteStr, _) => {
-            Values::Text(npy.into_vec::<String>().map_err(io)?.into_iter().map(|s| s.trim_end_matches('\0').to_string()).collect())
-        }
+        (npyz::TypeChar::Uint, 8) => Values::Int(
+            npy.into_vec::<u64>()
+                .map_err(io)?
+                .into_iter()
+                .map(|v| {
+                    if v == u64::MAX || v == u64::from(u32::MAX) {
+                        -1
+                    } else {
+                        v as i64
+                    }
+                })
+                .collect(),
+        ),
+        (npyz::TypeChar::Uint, 4) => Values::Int(
+            npy.into_vec::<u32>()
+                .map_err(io)?
+                .into_iter()
+                .map(|v| if v == u32::MAX { -1 } else { i64::from(v) })
+                .collect(),
+        ),
+        (npyz::TypeChar::Uint, 2) => Values::Int(
+            npy.into_vec::<u16>()
+                .map_err(io)?
+                .into_iter()
+                .map(i64::from)
+                .collect(),
+        ),
+        (npyz::TypeChar::Uint, 1) => Values::Int(
+            npy.into_vec::<u8>()
+                .map_err(io)?
+                .into_iter()
+                .map(i64::from)
+                .collect(),
+        ),
+        (npyz::TypeChar::Bool, _) => Values::Int(
+            npy.into_vec::<bool>()
+                .map_err(io)?
+                .into_iter()
+                .map(i64::from)
+                .collect(),
+        ),
+        (npyz::TypeChar::UnicodeStr | npyz::TypeChar::ByteStr, _) => Values::Text(
+            npy.into_vec::<String>()
+                .map_err(io)?
+                .into_iter()
+                .map(|s| s.trim_end_matches('\0').to_string())
+                .collect(),
+        ),
         _ => return Err(bad(format!("unsupported dtype {}", ty))),
     };
     let values = if fortran {
@@ -139,18 +207,27 @@ fn parse_npy(path: &Path, name: &str, bytes: &[u8]) -> Result<Array> {
 
 fn read_archive(path: &Path) -> Result<BTreeMap<String, Array>> {
     let bytes = std::fs::read(path).map_err(|e| ModelError::io(path, e))?;
-    if bytes.first() == Some(&0x80) || path.extension().is_some_and(|e| e.eq_ignore_ascii_case("pkl")) {
+    if bytes.first() == Some(&0x80)
+        || path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("pkl"))
+    {
         return Err(fail(path, PKL_HINT));
     }
-    let mut zip = zip::ZipArchive::new(Cursor::new(bytes)).map_err(|e| fail(path, format!("not an .npz (zip) archive: {e}")))?;
+    let mut zip = zip::ZipArchive::new(Cursor::new(bytes))
+        .map_err(|e| fail(path, format!("not an .npz (zip) archive: {e}")))?;
     let mut out = BTreeMap::new();
     for i in 0..zip.len() {
-        let mut member = zip.by_index(i).map_err(|e| fail(path, format!("member {i}: {e}")))?;
+        let mut member = zip
+            .by_index(i)
+            .map_err(|e| fail(path, format!("member {i}: {e}")))?;
         let Some(name) = member.name().strip_suffix(".npy").map(str::to_string) else {
             continue;
         };
         let mut data = Vec::with_capacity(member.size() as usize);
-        member.read_to_end(&mut data).map_err(|e| fail(path, format!("array '{name}': {e}")))?;
+        member
+            .read_to_end(&mut data)
+            .map_err(|e| fail(path, format!("array '{name}': {e}")))?;
         let array = parse_npy(path, &name, &data)?;
         out.insert(name, array);
     }
@@ -169,14 +246,36 @@ impl Arrays<'_> {
     }
 
     fn get(&self, key: &str) -> Result<&Array> {
-        self.map.get(key).ok_or_else(|| fail(self.path, format!("missing key '{key}' (keys: {})", self.map.keys().cloned().collect::<Vec<_>>().join(", "))))
+        self.map.get(key).ok_or_else(|| {
+            fail(
+                self.path,
+                format!(
+                    "missing key '{key}' (keys: {})",
+                    self.map.keys().cloned().collect::<Vec<_>>().join(", ")
+                ),
+            )
+        })
     }
 
     fn check_shape(&self, key: &str, a: &Array, expected: &[Option<usize>]) -> Result<()> {
-        let ok = a.shape.len() == expected.len() && a.shape.iter().zip(expected).all(|(&d, e)| e.is_none_or(|e| e == d));
+        let ok = a.shape.len() == expected.len()
+            && a.shape
+                .iter()
+                .zip(expected)
+                .all(|(&d, e)| e.is_none_or(|e| e == d));
         if !ok {
-            let want: Vec<String> = expected.iter().map(|e| e.map_or_else(|| "_".to_string(), |v| v.to_string())).collect();
-            return Err(fail(self.path, format!("'{key}' has shape {:?}, expected ({})", a.shape, want.join(", "))));
+            let want: Vec<String> = expected
+                .iter()
+                .map(|e| e.map_or_else(|| "_".to_string(), |v| v.to_string()))
+                .collect();
+            return Err(fail(
+                self.path,
+                format!(
+                    "'{key}' has shape {:?}, expected ({})",
+                    a.shape,
+                    want.join(", ")
+                ),
+            ));
         }
         Ok(())
     }
@@ -188,10 +287,18 @@ impl Arrays<'_> {
         let values = match &a.values {
             Values::Float(v) => v.clone(),
             Values::Int(v) => v.iter().map(|&x| x as f64).collect(),
-            Values::Text(_) => return Err(fail(self.path, format!("'{key}' holds strings, expected numbers"))),
+            Values::Text(_) => {
+                return Err(fail(
+                    self.path,
+                    format!("'{key}' holds strings, expected numbers"),
+                ));
+            }
         };
         if let Some(i) = values.iter().position(|v| !v.is_finite()) {
-            return Err(fail(self.path, format!("'{key}' value {i} is not finite ({})", values[i])));
+            return Err(fail(
+                self.path,
+                format!("'{key}' value {i} is not finite ({})", values[i]),
+            ));
         }
         Ok((a.shape.clone(), values))
     }
@@ -203,11 +310,17 @@ impl Arrays<'_> {
             Values::Int(v) => Ok((a.shape.clone(), v.clone())),
             Values::Float(v) => {
                 if let Some(i) = v.iter().position(|x| !x.is_finite() || x.fract() != 0.0) {
-                    return Err(fail(self.path, format!("'{key}' value {i} ({}) is not an integer", v[i])));
+                    return Err(fail(
+                        self.path,
+                        format!("'{key}' value {i} ({}) is not an integer", v[i]),
+                    ));
                 }
                 Ok((a.shape.clone(), v.iter().map(|&x| x as i64).collect()))
             }
-            Values::Text(_) => Err(fail(self.path, format!("'{key}' holds strings, expected integers"))),
+            Values::Text(_) => Err(fail(
+                self.path,
+                format!("'{key}' holds strings, expected integers"),
+            )),
         }
     }
 
@@ -218,11 +331,17 @@ impl Arrays<'_> {
                 if let Some(n) = len
                     && v.len() != n
                 {
-                    return Err(fail(self.path, format!("'{key}' has {} strings, expected {n}", v.len())));
+                    return Err(fail(
+                        self.path,
+                        format!("'{key}' has {} strings, expected {n}", v.len()),
+                    ));
                 }
                 Ok(v.clone())
             }
-            _ => Err(fail(self.path, format!("'{key}' must be a 1-D array of strings"))),
+            _ => Err(fail(
+                self.path,
+                format!("'{key}' must be a 1-D array of strings"),
+            )),
         }
     }
 
@@ -233,7 +352,10 @@ impl Arrays<'_> {
         let (_, v) = self.ints(key, &[])?;
         match v.first() {
             Some(&x) if x >= 0 => Ok(Some(x as usize)),
-            _ => Err(fail(self.path, format!("'{key}' must be a non-negative integer"))),
+            _ => Err(fail(
+                self.path,
+                format!("'{key}' must be a non-negative integer"),
+            )),
         }
     }
 }
@@ -243,32 +365,64 @@ fn regressor(a: &Arrays<'_>, j: usize, v: usize) -> Result<SparseRows> {
     if a.has("J_regressor") {
         let arr = a.get("J_regressor")?;
         if arr.shape.len() != 2 || arr.shape[0] != j || arr.shape[1] != v {
-            return Err(fail(a.path, format!("'J_regressor' has shape {:?}, expected ({j}, {v}) (joints of kintree_table, vertices of v_template)", arr.shape)));
+            return Err(fail(
+                a.path,
+                format!(
+                    "'J_regressor' has shape {:?}, expected ({j}, {v}) (joints of kintree_table, vertices of v_template)",
+                    arr.shape
+                ),
+            ));
         }
         let (_, dense) = a.floats("J_regressor", &[Some(j), Some(v)])?;
         return Ok(SparseRows::from_dense(j, v, &dense));
     }
     if !a.has("J_regressor.format") {
-        return Err(fail(a.path, "missing key 'J_regressor' (dense (J, V), or scipy-sparse as J_regressor.format/shape/data/indices/indptr)"));
+        return Err(fail(
+            a.path,
+            "missing key 'J_regressor' (dense (J, V), or scipy-sparse as J_regressor.format/shape/data/indices/indptr)",
+        ));
     }
-    let format = a.texts("J_regressor.format", None)?.first().cloned().unwrap_or_default();
+    let format = a
+        .texts("J_regressor.format", None)?
+        .first()
+        .cloned()
+        .unwrap_or_default();
     let (_, shape) = a.ints("J_regressor.shape", &[Some(2)])?;
     if shape != [j as i64, v as i64] {
-        return Err(fail(a.path, format!("sparse J_regressor has shape {shape:?}, expected [{j}, {v}] (joints of kintree_table, vertices of v_template)")));
+        return Err(fail(
+            a.path,
+            format!(
+                "sparse J_regressor has shape {shape:?}, expected [{j}, {v}] (joints of kintree_table, vertices of v_template)"
+            ),
+        ));
     }
     let (_, data) = a.floats("J_regressor.data", &[None])?;
     let (_, indices) = a.ints("J_regressor.indices", &[Some(data.len())])?;
     let (major, minor) = match format.as_str() {
         "csr" => (j, v),
         "csc" => (v, j),
-        other => return Err(fail(a.path, format!("sparse J_regressor format '{other}' is not supported (csr or csc)"))),
+        other => {
+            return Err(fail(
+                a.path,
+                format!("sparse J_regressor format '{other}' is not supported (csr or csc)"),
+            ));
+        }
     };
     let (_, indptr) = a.ints("J_regressor.indptr", &[Some(major + 1)])?;
-    if indptr[0] != 0 || indptr.windows(2).any(|w| w[1] < w[0]) || indptr[major] as usize != data.len() {
-        return Err(fail(a.path, "sparse J_regressor: indptr is not a non-decreasing 0..nnz sequence"));
+    if indptr[0] != 0
+        || indptr.windows(2).any(|w| w[1] < w[0])
+        || indptr[major] as usize != data.len()
+    {
+        return Err(fail(
+            a.path,
+            "sparse J_regressor: indptr is not a non-decreasing 0..nnz sequence",
+        ));
     }
     if let Some(&bad) = indices.iter().find(|&&i| i < 0 || i as usize >= minor) {
-        return Err(fail(a.path, format!("sparse J_regressor: index {bad} out of range 0..{minor}")));
+        return Err(fail(
+            a.path,
+            format!("sparse J_regressor: index {bad} out of range 0..{minor}"),
+        ));
     }
     let mut dense = vec![0.0; j * v];
     for m in 0..major {
@@ -290,13 +444,23 @@ fn parents(a: &Arrays<'_>) -> Result<Vec<Option<JointIndex>>> {
     }
     for c in 0..j {
         if k[j + c] != c as i64 {
-            return Err(fail(a.path, format!("'kintree_table' row 1 must list joints 0..{} in order; column {c} holds {}", j - 1, k[j + c])));
+            return Err(fail(
+                a.path,
+                format!(
+                    "'kintree_table' row 1 must list joints 0..{} in order; column {c} holds {}",
+                    j - 1,
+                    k[j + c]
+                ),
+            ));
         }
     }
     let raw: Vec<i64> = k[..j].to_vec();
     for (c, &p) in raw.iter().enumerate() {
         if p >= j as i64 || p < -1 {
-            return Err(fail(a.path, format!("'kintree_table': parent {p} of joint {c} out of range")));
+            return Err(fail(
+                a.path,
+                format!("'kintree_table': parent {p} of joint {c} out of range"),
+            ));
         }
     }
     // A cycle: following parents from some joint comes back to it.
@@ -310,18 +474,36 @@ fn parents(a: &Arrays<'_>) -> Result<Vec<Option<JointIndex>>> {
             chain.push(at);
             if seen[at] {
                 let names: Vec<String> = chain.iter().map(|c| c.to_string()).collect();
-                return Err(fail(a.path, format!("'kintree_table' has a cycle through joints {}", names.join(" → "))));
+                return Err(fail(
+                    a.path,
+                    format!(
+                        "'kintree_table' has a cycle through joints {}",
+                        names.join(" → ")
+                    ),
+                ));
             }
         }
     }
     let roots: Vec<usize> = (0..j).filter(|&c| raw[c] < 0).collect();
     if roots != [0] {
-        return Err(fail(a.path, format!("'kintree_table' must have exactly one root, joint 0; roots: {roots:?}")));
+        return Err(fail(
+            a.path,
+            format!("'kintree_table' must have exactly one root, joint 0; roots: {roots:?}"),
+        ));
     }
     if let Some(c) = (1..j).find(|&c| raw[c] as usize >= c) {
-        return Err(fail(a.path, format!("'kintree_table': parent {} of joint {c} comes after it (joints must be in topological order)", raw[c])));
+        return Err(fail(
+            a.path,
+            format!(
+                "'kintree_table': parent {} of joint {c} comes after it (joints must be in topological order)",
+                raw[c]
+            ),
+        ));
     }
-    Ok(raw.iter().map(|&p| (p >= 0).then_some(p as usize)).collect())
+    Ok(raw
+        .iter()
+        .map(|&p| (p >= 0).then_some(p as usize))
+        .collect())
 }
 
 /// Loads a model file (see the module documentation).
@@ -341,13 +523,19 @@ pub fn load(path: &Path) -> Result<Template> {
         .map(|i| {
             let tri = [f[3 * i], f[3 * i + 1], f[3 * i + 2]];
             match tri.iter().find(|&&x| x < 0 || x as usize >= v) {
-                Some(bad) => Err(fail(path, format!("'f' triangle {i} has vertex index {bad}, out of range 0..{v}"))),
+                Some(bad) => Err(fail(
+                    path,
+                    format!("'f' triangle {i} has vertex index {bad}, out of range 0..{v}"),
+                )),
                 None => Ok(tri.map(|x| x as u32)),
             }
         })
         .collect::<Result<_>>()?;
     let reg = regressor(&a, j, v)?;
-    let rest: Vec<DVec3> = vt.chunks_exact(3).map(|c| DVec3::new(c[0], c[1], c[2])).collect();
+    let rest: Vec<DVec3> = vt
+        .chunks_exact(3)
+        .map(|c| DVec3::new(c[0], c[1], c[2]))
+        .collect();
     let rest_joints = reg.apply(&rest);
 
     // Shape and expression columns.
@@ -364,18 +552,29 @@ pub fn load(path: &Path) -> Result<Template> {
         let total = s[2];
         let n_expr = a.scalar_int("num_expression")?.unwrap_or(0);
         if n_expr > total {
-            return Err(fail(path, format!("'num_expression' = {n_expr} exceeds the {total} columns of 'shapedirs'")));
+            return Err(fail(
+                path,
+                format!("'num_expression' = {n_expr} exceeds the {total} columns of 'shapedirs'"),
+            ));
         }
         let shape_part = total - n_expr;
         let n_shape = a.scalar_int("num_betas")?.unwrap_or(shape_part);
         if n_shape > shape_part {
-            return Err(fail(path, format!("'num_betas' = {n_shape} exceeds the {shape_part} shape columns of 'shapedirs'")));
+            return Err(fail(
+                path,
+                format!(
+                    "'num_betas' = {n_shape} exceeds the {shape_part} shape columns of 'shapedirs'"
+                ),
+            ));
         }
         take(&dirs, total, 0..n_shape);
         shape_cols = n_shape;
         if n_expr > 0 {
             if a.has("exprdirs") {
-                return Err(fail(path, "'num_expression' and 'exprdirs' both give expression columns; keep one"));
+                return Err(fail(
+                    path,
+                    "'num_expression' and 'exprdirs' both give expression columns; keep one",
+                ));
             }
             take(&dirs, total, shape_part..total);
             expr_cols = n_expr;
@@ -408,28 +607,59 @@ pub fn load(path: &Path) -> Result<Template> {
     } else {
         (0..j).map(|i| format!("joint_{i}")).collect()
     };
-    let joints: Vec<Joint> = names.iter().zip(&parents).zip(&rest_joints).map(|((n, &p), c)| Joint { name: n.clone(), parent: p, rest_position: c.to_array() }).collect();
-    let weight_lists: Vec<Vec<(JointIndex, f64)>> =
-        (0..v).map(|i| weights[i * j..(i + 1) * j].iter().enumerate().filter(|(_, w)| **w != 0.0).map(|(c, &w)| (c, w)).collect()).collect();
+    let joints: Vec<Joint> = names
+        .iter()
+        .zip(&parents)
+        .zip(&rest_joints)
+        .map(|((n, &p), c)| Joint {
+            name: n.clone(),
+            parent: p,
+            rest_position: c.to_array(),
+        })
+        .collect();
+    let weight_lists: Vec<Vec<(JointIndex, f64)>> = (0..v)
+        .map(|i| {
+            weights[i * j..(i + 1) * j]
+                .iter()
+                .enumerate()
+                .filter(|(_, w)| **w != 0.0)
+                .map(|(c, &w)| (c, w))
+                .collect()
+        })
+        .collect();
     let mut markers = Vec::new();
     if a.has("marker_names") || a.has("marker_vertices") {
         let mn = a.texts("marker_names", None)?;
         let (_, mv) = a.ints("marker_vertices", &[Some(mn.len())])?;
         for (n, &vi) in mn.iter().zip(&mv) {
             if vi < 0 || vi as usize >= v {
-                return Err(fail(path, format!("marker '{n}' is on vertex {vi}, out of range 0..{v}")));
+                return Err(fail(
+                    path,
+                    format!("marker '{n}' is on vertex {vi}, out of range 0..{v}"),
+                ));
             }
-            markers.push(Marker { name: n.clone(), vertex: vi as u32 });
+            markers.push(Marker {
+                name: n.clone(),
+                vertex: vi as u32,
+            });
         }
     }
-    let rig = Rig { joints, weights: weight_lists, markers };
-    rig.validate_with(v, MAX_FILE_INFLUENCES).map_err(|e| fail(path, e.to_string()))?;
+    let rig = Rig {
+        joints,
+        weights: weight_lists,
+        markers,
+    };
+    rig.validate_with(v, MAX_FILE_INFLUENCES)
+        .map_err(|e| fail(path, e.to_string()))?;
 
     // Model information: the file's keys over the fallbacks.
     let mut info = ModelInfo::fallback(&rig);
     if a.has("joint_limits_deg") {
         let (_, l) = a.floats("joint_limits_deg", &[Some(j), Some(3), Some(2)])?;
-        info.limits_deg = l.chunks_exact(6).map(|c| [[c[0], c[1]], [c[2], c[3]], [c[4], c[5]]]).collect();
+        info.limits_deg = l
+            .chunks_exact(6)
+            .map(|c| [[c[0], c[1]], [c[2], c[3]], [c[4], c[5]]])
+            .collect();
     }
     if a.has("part_labels") {
         info.parts = a.texts("part_labels", Some(j))?;
@@ -437,7 +667,10 @@ pub fn load(path: &Path) -> Result<Template> {
     if a.has("mirror") {
         let (_, m) = a.ints("mirror", &[Some(j)])?;
         if let Some(bad) = m.iter().find(|&&x| x < 0 || x as usize >= j) {
-            return Err(fail(path, format!("'mirror' holds joint {bad}, out of range 0..{j}")));
+            return Err(fail(
+                path,
+                format!("'mirror' holds joint {bad}, out of range 0..{j}"),
+            ));
         }
         info.mirror = m.iter().map(|&x| x as usize).collect();
     }
@@ -449,7 +682,12 @@ pub fn load(path: &Path) -> Result<Template> {
                 if n.is_empty() {
                     Ok(None)
                 } else {
-                    names.iter().position(|m| m == n).map(Some).ok_or_else(|| fail(path, format!("'joint_map' names joint '{n}', which the model does not have")))
+                    names.iter().position(|m| m == n).map(Some).ok_or_else(|| {
+                        fail(
+                            path,
+                            format!("'joint_map' names joint '{n}', which the model does not have"),
+                        )
+                    })
                 }
             })
             .collect::<Result<_>>()?;
@@ -461,17 +699,29 @@ pub fn load(path: &Path) -> Result<Template> {
     if a.has("hand_tips") {
         let (_, t) = a.ints("hand_tips", &[Some(2)])?;
         if let Some(bad) = t.iter().find(|&&x| x < 0 || x as usize >= v) {
-            return Err(fail(path, format!("'hand_tips' holds vertex {bad}, out of range 0..{v}")));
+            return Err(fail(
+                path,
+                format!("'hand_tips' holds vertex {bad}, out of range 0..{v}"),
+            ));
         }
         info.hand_tips = Some([t[0] as u32, t[1] as u32]);
     }
-    info.provenance = if a.has("provenance") { a.texts("provenance", None)?.join("\n") } else { format!("model file {}", path.display()) };
+    info.provenance = if a.has("provenance") {
+        a.texts("provenance", None)?.join("\n")
+    } else {
+        format!("model file {}", path.display())
+    };
 
-    let id = path.file_stem().map_or_else(|| "model".to_string(), |s| s.to_string_lossy().into_owned());
+    let id = path
+        .file_stem()
+        .map_or_else(|| "model".to_string(), |s| s.to_string_lossy().into_owned());
     let vertices: Vec<Vec3> = rest.iter().map(|p| p.as_vec3()).collect();
-    let template = Template::new(id, vertices, faces, rig).map_err(|e| fail(path, e.to_string()))?;
+    let template =
+        Template::new(id, vertices, faces, rig).map_err(|e| fail(path, e.to_string()))?;
     let morph = Morph::new(rest, shape_cols, expr_cols, dirs, posedirs, Some(reg));
-    template.with_morph(morph, info).map_err(|e| fail(path, e.to_string()))
+    template
+        .with_morph(morph, info)
+        .map_err(|e| fail(path, e.to_string()))
 }
 
 /// An array to write.
@@ -486,20 +736,39 @@ fn npy_bytes(out: &Out) -> std::io::Result<Vec<u8>> {
     match out {
         Out::F64(shape, v) => {
             let shape: Vec<u64> = shape.iter().map(|&d| d as u64).collect();
-            let mut w = npyz::WriteOptions::<f64>::new().default_dtype().shape(&shape).writer(&mut buf).begin_nd()?;
+            let mut w = npyz::WriteOptions::<f64>::new()
+                .default_dtype()
+                .shape(&shape)
+                .writer(&mut buf)
+                .begin_nd()?;
             w.extend(v.iter().copied())?;
             w.finish()?;
         }
         Out::I64(shape, v) => {
             let shape: Vec<u64> = shape.iter().map(|&d| d as u64).collect();
-            let mut w = npyz::WriteOptions::<i64>::new().default_dtype().shape(&shape).writer(&mut buf).begin_nd()?;
+            let mut w = npyz::WriteOptions::<i64>::new()
+                .default_dtype()
+                .shape(&shape)
+                .writer(&mut buf)
+                .begin_nd()?;
             w.extend(v.iter().copied())?;
             w.finish()?;
         }
         Out::Text(v) => {
-            let n = v.iter().map(|s| s.chars().count()).max().unwrap_or(1).max(1);
-            let ty: npyz::TypeStr = format!("<U{n}").parse().map_err(|e| std::io::Error::other(format!("{e}")))?;
-            let mut w = npyz::WriteOptions::<String>::new().dtype(npyz::DType::Plain(ty)).shape(&[v.len() as u64]).writer(&mut buf).begin_nd()?;
+            let n = v
+                .iter()
+                .map(|s| s.chars().count())
+                .max()
+                .unwrap_or(1)
+                .max(1);
+            let ty: npyz::TypeStr = format!("<U{n}")
+                .parse()
+                .map_err(|e| std::io::Error::other(format!("{e}")))?;
+            let mut w = npyz::WriteOptions::<String>::new()
+                .dtype(npyz::DType::Plain(ty))
+                .shape(&[v.len() as u64])
+                .writer(&mut buf)
+                .begin_nd()?;
             w.extend(v.iter().cloned())?;
             w.finish()?;
         }
@@ -518,10 +787,16 @@ pub fn fit_regressor(template: &Template) -> SparseRows {
     for (j, joint) in template.rig.joints.iter().enumerate() {
         let c = joint.rest();
         let mut order: Vec<usize> = (0..v).collect();
-        order.sort_by(|&a, &b| rest[a].distance_squared(c).total_cmp(&rest[b].distance_squared(c)));
+        order.sort_by(|&a, &b| {
+            rest[a]
+                .distance_squared(c)
+                .total_cmp(&rest[b].distance_squared(c))
+        });
         order.truncate(K.min(v));
         // A (4 × K) = [v; 1], w = Aᵀ (A Aᵀ)⁻¹ [c; 1], centred on c for conditioning.
-        let a = nalgebra::DMatrix::from_fn(4, order.len(), |r, k| if r < 3 { (rest[order[k]] - c)[r] } else { 1.0 });
+        let a = nalgebra::DMatrix::from_fn(4, order.len(), |r, k| {
+            if r < 3 { (rest[order[k]] - c)[r] } else { 1.0 }
+        });
         let b = nalgebra::DVector::from_vec(vec![0.0, 0.0, 0.0, 1.0]);
         let aat = &a * a.transpose();
         let w = match aat.clone().cholesky() {
@@ -542,7 +817,15 @@ pub fn save(template: &Template, path: &Path) -> Result<()> {
     let v = template.num_vertices();
     let j = template.rig.num_joints();
     let morph = &template.morph;
-    let rest: Vec<f64> = if morph.rest.is_empty() { template.vertices.iter().flat_map(|p| p.as_dvec3().to_array()).collect() } else { morph.rest.iter().flat_map(|p| p.to_array()).collect() };
+    let rest: Vec<f64> = if morph.rest.is_empty() {
+        template
+            .vertices
+            .iter()
+            .flat_map(|p| p.as_dvec3().to_array())
+            .collect()
+    } else {
+        morph.rest.iter().flat_map(|p| p.to_array()).collect()
+    };
     let mut weights = vec![0.0; v * j];
     for (i, list) in template.rig.weights.iter().enumerate() {
         for &(jj, w) in list {
@@ -554,45 +837,120 @@ pub fn save(template: &Template, path: &Path) -> Result<()> {
         kintree[c] = joint.parent.map_or(-1, |p| p as i64);
         kintree[j + c] = c as i64;
     }
-    let reg = morph.regressor.clone().unwrap_or_else(|| fit_regressor(template));
+    let reg = morph
+        .regressor
+        .clone()
+        .unwrap_or_else(|| fit_regressor(template));
     let info = &template.info;
-    let names: Vec<String> = template.rig.joints.iter().map(|jn| jn.name.clone()).collect();
+    let names: Vec<String> = template
+        .rig
+        .joints
+        .iter()
+        .map(|jn| jn.name.clone())
+        .collect();
     let mut arrays: Vec<(&str, Out)> = vec![
         ("v_template", Out::F64(vec![v, 3], rest)),
-        ("f", Out::I64(vec![template.faces.len(), 3], template.faces.iter().flat_map(|f| f.map(i64::from)).collect())),
+        (
+            "f",
+            Out::I64(
+                vec![template.faces.len(), 3],
+                template
+                    .faces
+                    .iter()
+                    .flat_map(|f| f.map(i64::from))
+                    .collect(),
+            ),
+        ),
         ("weights", Out::F64(vec![v, j], weights)),
         ("kintree_table", Out::I64(vec![2, j], kintree)),
         ("J_regressor", Out::F64(vec![j, v], reg.to_dense())),
         ("joint_names", Out::Text(names.clone())),
-        ("joint_limits_deg", Out::F64(vec![j, 3, 2], info.limits_deg.iter().flat_map(|l| l.iter().flat_map(|r| *r)).collect())),
+        (
+            "joint_limits_deg",
+            Out::F64(
+                vec![j, 3, 2],
+                info.limits_deg
+                    .iter()
+                    .flat_map(|l| l.iter().flat_map(|r| *r))
+                    .collect(),
+            ),
+        ),
         ("part_labels", Out::Text(info.parts.clone())),
-        ("mirror", Out::I64(vec![j], info.mirror.iter().map(|&m| m as i64).collect())),
-        ("joint_map", Out::Text(info.joint_map.iter().map(|m| m.map_or_else(String::new, |i| names[i].clone())).collect())),
+        (
+            "mirror",
+            Out::I64(vec![j], info.mirror.iter().map(|&m| m as i64).collect()),
+        ),
+        (
+            "joint_map",
+            Out::Text(
+                info.joint_map
+                    .iter()
+                    .map(|m| m.map_or_else(String::new, |i| names[i].clone()))
+                    .collect(),
+            ),
+        ),
         ("hmd_offset", Out::F64(vec![3], info.hmd_offset.to_vec())),
-        ("provenance", Out::Text(vec![if info.provenance.is_empty() { format!("lfit template '{}'", template.id) } else { info.provenance.clone() }])),
+        (
+            "provenance",
+            Out::Text(vec![if info.provenance.is_empty() {
+                format!("lfit template '{}'", template.id)
+            } else {
+                info.provenance.clone()
+            }]),
+        ),
     ];
     let k = morph.coefficients();
     if k > 0 {
         // Shape then expression columns, with num_expression saying where they split.
         arrays.push(("shapedirs", Out::F64(vec![v, 3, k], morph.dirs.clone())));
-        arrays.push(("num_expression", Out::I64(vec![], vec![morph.expression as i64])));
+        arrays.push((
+            "num_expression",
+            Out::I64(vec![], vec![morph.expression as i64]),
+        ));
     }
     if let Some(pd) = &morph.posedirs {
         arrays.push(("posedirs", Out::F64(vec![v, 3, 9 * (j - 1)], pd.clone())));
     }
     if !template.rig.markers.is_empty() {
-        arrays.push(("marker_names", Out::Text(template.rig.markers.iter().map(|m| m.name.clone()).collect())));
-        arrays.push(("marker_vertices", Out::I64(vec![template.rig.markers.len()], template.rig.markers.iter().map(|m| i64::from(m.vertex)).collect())));
+        arrays.push((
+            "marker_names",
+            Out::Text(
+                template
+                    .rig
+                    .markers
+                    .iter()
+                    .map(|m| m.name.clone())
+                    .collect(),
+            ),
+        ));
+        arrays.push((
+            "marker_vertices",
+            Out::I64(
+                vec![template.rig.markers.len()],
+                template
+                    .rig
+                    .markers
+                    .iter()
+                    .map(|m| i64::from(m.vertex))
+                    .collect(),
+            ),
+        ));
     }
     if let Some(t) = info.hand_tips {
-        arrays.push(("hand_tips", Out::I64(vec![2], t.iter().map(|&x| i64::from(x)).collect())));
+        arrays.push((
+            "hand_tips",
+            Out::I64(vec![2], t.iter().map(|&x| i64::from(x)).collect()),
+        ));
     }
     let err = |e: String| fail(path, e);
     let mut zip = zip::ZipWriter::new(Cursor::new(Vec::new()));
-    let options = zip::write::SimpleFileOptions::default().compression_method(zip::CompressionMethod::Stored).last_modified_time(zip::DateTime::default());
+    let options = zip::write::SimpleFileOptions::default()
+        .compression_method(zip::CompressionMethod::Stored)
+        .last_modified_time(zip::DateTime::default());
     for (name, out) in &arrays {
         let bytes = npy_bytes(out).map_err(|e| err(format!("array '{name}': {e}")))?;
-        zip.start_file(format!("{name}.npy"), options).map_err(|e| err(e.to_string()))?;
+        zip.start_file(format!("{name}.npy"), options)
+            .map_err(|e| err(e.to_string()))?;
         zip.write_all(&bytes).map_err(|e| err(e.to_string()))?;
     }
     let bytes = zip.finish().map_err(|e| err(e.to_string()))?.into_inner();
@@ -624,12 +982,24 @@ mod tests {
         assert_eq!(back.info.joint_map, t.info.joint_map);
         for (a, b) in back.rig.joints.iter().zip(&t.rig.joints) {
             assert_eq!(a.name, b.name);
-            assert!((a.rest() - b.rest()).length() < 1e-9, "{}: {:?} vs {:?}", a.name, a.rest_position, b.rest_position);
+            assert!(
+                (a.rest() - b.rest()).length() < 1e-9,
+                "{}: {:?} vs {:?}",
+                a.name,
+                a.rest_position,
+                b.rest_position
+            );
         }
-        let pose: Vec<f64> = (0..57).map(|i| ((i * 37 % 19) as f64 / 19.0 - 0.5) * 1.2).collect();
+        let pose: Vec<f64> = (0..57)
+            .map(|i| ((i * 37 % 19) as f64 / 19.0 - 0.5) * 1.2)
+            .collect();
         let va = crate::skinning::pose_vertices(&t, &pose, crate::SkinningMethod::Linear);
         let vb = crate::skinning::pose_vertices(&back, &pose, crate::SkinningMethod::Linear);
-        let max = va.iter().zip(&vb).map(|(a, b)| (*a - *b).length()).fold(0.0, f32::max);
+        let max = va
+            .iter()
+            .zip(&vb)
+            .map(|(a, b)| (*a - *b).length())
+            .fold(0.0, f32::max);
         assert!(max < 1e-5, "{max}");
     }
 }

@@ -43,13 +43,22 @@ impl SparseRows {
             }
             indptr.push(indices.len());
         }
-        Self { rows, cols, indptr, indices, values }
+        Self {
+            rows,
+            cols,
+            indptr,
+            indices,
+            values,
+        }
     }
 
     /// The non-zero entries `(column, value)` of row `r`.
     pub fn row(&self, r: usize) -> impl Iterator<Item = (usize, f64)> + '_ {
         let (a, b) = (self.indptr[r], self.indptr[r + 1]);
-        self.indices[a..b].iter().zip(&self.values[a..b]).map(|(&c, &v)| (c as usize, v))
+        self.indices[a..b]
+            .iter()
+            .zip(&self.values[a..b])
+            .map(|(&c, &v)| (c as usize, v))
     }
 
     /// The dense row-major matrix.
@@ -65,7 +74,9 @@ impl SparseRows {
 
     /// `M x` for points `x` (one per column).
     pub fn apply(&self, x: &[DVec3]) -> Vec<DVec3> {
-        (0..self.rows).map(|r| self.row(r).fold(DVec3::ZERO, |acc, (c, v)| acc + v * x[c])).collect()
+        (0..self.rows)
+            .map(|r| self.row(r).fold(DVec3::ZERO, |acc, (c, v)| acc + v * x[c]))
+            .collect()
     }
 }
 
@@ -108,7 +119,14 @@ impl Morph {
     ///
     /// # Panics
     /// Never on inputs that [`crate::modelfile`] validated: the sizes must agree.
-    pub fn new(rest: Vec<DVec3>, shape: usize, expression: usize, dirs: Vec<f64>, posedirs: Option<Vec<f64>>, regressor: Option<SparseRows>) -> Self {
+    pub fn new(
+        rest: Vec<DVec3>,
+        shape: usize,
+        expression: usize,
+        dirs: Vec<f64>,
+        posedirs: Option<Vec<f64>>,
+        regressor: Option<SparseRows>,
+    ) -> Self {
         let k = shape + expression;
         let joint_dirs = match &regressor {
             Some(reg) => {
@@ -128,7 +146,15 @@ impl Morph {
             }
             None => Vec::new(),
         };
-        Self { rest, shape, expression, dirs, posedirs, regressor, joint_dirs }
+        Self {
+            rest,
+            shape,
+            expression,
+            dirs,
+            posedirs,
+            regressor,
+            joint_dirs,
+        }
     }
 
     /// The rest joints `c(β, ψ)`: `base` (the β = ψ = 0 joints) plus the joint directions.
@@ -142,7 +168,10 @@ impl Morph {
             .map(|(j, &c)| {
                 let mut d = [0.0; 3];
                 for (a, da) in d.iter_mut().enumerate() {
-                    *da = dot(&self.joint_dirs[(3 * j + a) * k..(3 * j + a + 1) * k], coeffs);
+                    *da = dot(
+                        &self.joint_dirs[(3 * j + a) * k..(3 * j + a + 1) * k],
+                        coeffs,
+                    );
                 }
                 c + DVec3::from_array(d)
             })
@@ -152,8 +181,18 @@ impl Morph {
     /// Rest position of vertex `v` under coefficients `[β; ψ]` and pose feature `R(θ) − I`
     /// (empty when the model has no correctives). `base` is the template's own rest vertex.
     #[inline]
-    pub fn rest_vertex(&self, v: usize, base: DVec3, coeffs: &[f64], pose_feature: &[f64]) -> DVec3 {
-        let mut p = if self.rest.is_empty() { base } else { self.rest[v] };
+    pub fn rest_vertex(
+        &self,
+        v: usize,
+        base: DVec3,
+        coeffs: &[f64],
+        pose_feature: &[f64],
+    ) -> DVec3 {
+        let mut p = if self.rest.is_empty() {
+            base
+        } else {
+            self.rest[v]
+        };
         let k = self.coefficients();
         if k > 0 {
             for a in 0..3 {
@@ -201,13 +240,25 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 /// Never for `v ≥ 3`.
 pub fn smpl_like(seed: u64, v: usize, b: usize, with_posedirs: bool) -> crate::template::Template {
     use rand::{Rng, SeedableRng};
-    const PARENTS: [i64; 24] = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21];
+    const PARENTS: [i64; 24] = [
+        -1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
+    ];
     let j = PARENTS.len();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let rest: Vec<DVec3> = (0..v).map(|_| DVec3::new(rng.random_range(-0.4..0.4), rng.random_range(0.0..1.7), rng.random_range(-0.15..0.15))).collect();
+    let rest: Vec<DVec3> = (0..v)
+        .map(|_| {
+            DVec3::new(
+                rng.random_range(-0.4..0.4),
+                rng.random_range(0.0..1.7),
+                rng.random_range(-0.15..0.15),
+            )
+        })
+        .collect();
     let mut reg = vec![0.0; j * v];
     for r in 0..j {
-        let picks: Vec<(usize, f64)> = (0..5).map(|_| (rng.random_range(0..v), rng.random_range(0.1..1.0))).collect();
+        let picks: Vec<(usize, f64)> = (0..5)
+            .map(|_| (rng.random_range(0..v), rng.random_range(0.1..1.0)))
+            .collect();
         let total: f64 = picks.iter().map(|p| p.1).sum();
         for (c, w) in picks {
             reg[r * v + c] += w / total;
@@ -222,21 +273,54 @@ pub fn smpl_like(seed: u64, v: usize, b: usize, with_posedirs: bool) -> crate::t
                 raw[rng.random_range(0..j)] += rng.random_range(0.05..1.0);
             }
             let total: f64 = raw.iter().sum();
-            raw.iter().enumerate().filter(|(_, w)| **w > 0.0).map(|(c, w)| (c, w / total)).collect()
+            raw.iter()
+                .enumerate()
+                .filter(|(_, w)| **w > 0.0)
+                .map(|(c, w)| (c, w / total))
+                .collect()
         })
         .collect();
-    let faces: Vec<[u32; 3]> = (0..v / 2).map(|k| [(2 * k) as u32, ((2 * k + 1) % v) as u32, ((2 * k + 2) % v) as u32]).collect();
-    let joints = (0..j)
-        .map(|c| crate::rig::Joint { name: crate::info::SMPL_JOINT_NAMES[c].into(), parent: (PARENTS[c] >= 0).then(|| PARENTS[c] as usize), rest_position: joints_rest[c].to_array() })
+    let faces: Vec<[u32; 3]> = (0..v / 2)
+        .map(|k| {
+            [
+                (2 * k) as u32,
+                ((2 * k + 1) % v) as u32,
+                ((2 * k + 2) % v) as u32,
+            ]
+        })
         .collect();
-    let markers = (0..30).map(|m| crate::rig::Marker { name: format!("m{m}"), vertex: rng.random_range(0..v) as u32 }).collect();
-    let rig = crate::rig::Rig { joints, weights, markers };
+    let joints = (0..j)
+        .map(|c| crate::rig::Joint {
+            name: crate::info::SMPL_JOINT_NAMES[c].into(),
+            parent: (PARENTS[c] >= 0).then(|| PARENTS[c] as usize),
+            rest_position: joints_rest[c].to_array(),
+        })
+        .collect();
+    let markers = (0..30)
+        .map(|m| crate::rig::Marker {
+            name: format!("m{m}"),
+            vertex: rng.random_range(0..v) as u32,
+        })
+        .collect();
+    let rig = crate::rig::Rig {
+        joints,
+        weights,
+        markers,
+    };
     let vertices: Vec<glam::Vec3> = rest.iter().map(|p| p.as_vec3()).collect();
-    let t = crate::template::Template::new("smpl-like", vertices, faces, rig).expect("valid test model");
-    let dirs: Vec<f64> = (0..3 * v * b).map(|_| rng.random_range(-0.02..0.02)).collect();
-    let posedirs = with_posedirs.then(|| (0..3 * v * 9 * (j - 1)).map(|_| rng.random_range(-0.01..0.01)).collect());
+    let t = crate::template::Template::new("smpl-like", vertices, faces, rig)
+        .expect("valid test model");
+    let dirs: Vec<f64> = (0..3 * v * b)
+        .map(|_| rng.random_range(-0.02..0.02))
+        .collect();
+    let posedirs = with_posedirs.then(|| {
+        (0..3 * v * 9 * (j - 1))
+            .map(|_| rng.random_range(-0.01..0.01))
+            .collect()
+    });
     let info = crate::info::ModelInfo::fallback(&t.rig);
-    t.with_morph(Morph::new(rest, b, 0, dirs, posedirs, Some(reg)), info).expect("consistent test morph")
+    t.with_morph(Morph::new(rest, b, 0, dirs, posedirs, Some(reg)), info)
+        .expect("consistent test morph")
 }
 
 #[cfg(test)]
@@ -261,7 +345,10 @@ mod tests {
         let m = Morph::new(rest, 1, 0, dirs, None, Some(reg));
         let c = m.rest_joints(&[DVec3::new(0.5, 0.0, 0.0)], &[2.0]);
         assert!((c[0] - DVec3::new(0.5, 1.0, 0.0)).length() < 1e-15);
-        assert_eq!(m.rest_vertex(1, DVec3::ZERO, &[2.0], &[]), DVec3::new(1.0, 2.0, 0.0));
+        assert_eq!(
+            m.rest_vertex(1, DVec3::ZERO, &[2.0], &[]),
+            DVec3::new(1.0, 2.0, 0.0)
+        );
     }
 
     #[test]

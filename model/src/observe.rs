@@ -28,7 +28,12 @@ pub enum Modality {
 }
 
 impl Modality {
-    pub const ALL: [Modality; 4] = [Modality::Markers, Modality::Keypoints2d, Modality::Hmd, Modality::Scan];
+    pub const ALL: [Modality; 4] = [
+        Modality::Markers,
+        Modality::Keypoints2d,
+        Modality::Hmd,
+        Modality::Scan,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -49,7 +54,10 @@ impl fmt::Display for Modality {
 impl FromStr for Modality {
     type Err = ModelError;
     fn from_str(s: &str) -> Result<Self> {
-        Modality::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| ModelError::UnknownModality(s.to_string()))
+        Modality::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| ModelError::UnknownModality(s.to_string()))
     }
 }
 
@@ -90,8 +98,13 @@ pub struct ScanSetup {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "modality", rename_all = "lowercase")]
 pub enum Sensor {
-    Markers { names: Vec<String>, vertices: Vec<u32> },
-    Keypoints2d { cameras: Vec<Camera> },
+    Markers {
+        names: Vec<String>,
+        vertices: Vec<u32>,
+    },
+    Keypoints2d {
+        cameras: Vec<Camera>,
+    },
     Hmd(HmdSetup),
     Scan(ScanSetup),
 }
@@ -129,10 +142,17 @@ impl Sensor {
     pub fn default_for(modality: Modality, template: &Template) -> Self {
         match modality {
             Modality::Markers => Sensor::Markers {
-                names: template.rig.markers.iter().map(|m| m.name.clone()).collect(),
+                names: template
+                    .rig
+                    .markers
+                    .iter()
+                    .map(|m| m.name.clone())
+                    .collect(),
                 vertices: template.rig.markers.iter().map(|m| m.vertex).collect(),
             },
-            Modality::Keypoints2d => Sensor::Keypoints2d { cameras: default_ring(DEFAULT_RING_SIZE) },
+            Modality::Keypoints2d => Sensor::Keypoints2d {
+                cameras: default_ring(DEFAULT_RING_SIZE),
+            },
             Modality::Hmd => Sensor::Hmd(HmdSetup {
                 offset: template.info.hmd_offset,
                 visibility: HandVisibility::HalfSpace,
@@ -178,13 +198,21 @@ impl Sensor {
     pub fn validate(&self, template: &Template) -> Result<()> {
         let n = template.num_vertices() as u32;
         let check_vertices = |vs: &[u32], what: &str| match vs.iter().find(|&&v| v >= n) {
-            Some(v) => Err(ModelError::Shape { what: what.to_string(), expected: format!("vertex < {n}"), got: v.to_string() }),
+            Some(v) => Err(ModelError::Shape {
+                what: what.to_string(),
+                expected: format!("vertex < {n}"),
+                got: v.to_string(),
+            }),
             None => Ok(()),
         };
         match self {
             Sensor::Markers { names, vertices } => {
                 if names.len() != vertices.len() {
-                    return Err(ModelError::Shape { what: "marker names".into(), expected: vertices.len().to_string(), got: names.len().to_string() });
+                    return Err(ModelError::Shape {
+                        what: "marker names".into(),
+                        expected: vertices.len().to_string(),
+                        got: names.len().to_string(),
+                    });
                 }
                 if vertices.is_empty() {
                     return Err(ModelError::Config(format!(
@@ -194,17 +222,27 @@ impl Sensor {
                 }
                 check_vertices(vertices, "marker vertex")
             }
-            Sensor::Keypoints2d { cameras } => cameras.iter().enumerate().try_for_each(|(i, c)| c.validate(i)),
+            Sensor::Keypoints2d { cameras } => cameras
+                .iter()
+                .enumerate()
+                .try_for_each(|(i, c)| c.validate(i)),
             Sensor::Hmd(h) => {
                 template.hmd_joints()?;
                 check_vertices(&h.hand_tips, "hand tip vertex")
             }
             Sensor::Scan(s) => {
                 if !(s.voxel_size.is_finite() && s.voxel_size > 0.0) {
-                    return Err(ModelError::Setting { name: "voxel_size", value: s.voxel_size.to_string(), reason: "must be positive".into() });
+                    return Err(ModelError::Setting {
+                        name: "voxel_size",
+                        value: s.voxel_size.to_string(),
+                        reason: "must be positive".into(),
+                    });
                 }
                 check_vertices(&s.residual_vertices, "scan residual vertex")?;
-                s.cameras.iter().enumerate().try_for_each(|(i, c)| c.validate(i))
+                s.cameras
+                    .iter()
+                    .enumerate()
+                    .try_for_each(|(i, c)| c.validate(i))
             }
         }
     }
@@ -216,11 +254,18 @@ impl Sensor {
     }
 
     /// As [`Sensor::predict_sparse`], from precomputed joint transforms.
-    pub fn predict_sparse_from(&self, template: &Template, transforms: &Posed) -> Option<SparsePrediction> {
+    pub fn predict_sparse_from(
+        &self,
+        template: &Template,
+        transforms: &Posed,
+    ) -> Option<SparsePrediction> {
         match self {
             Sensor::Markers { vertices, .. } => {
                 let pts = skin_lbs_subset(template, transforms, vertices);
-                let values = pts.iter().flat_map(|p| p.as_dvec3().to_array()).collect::<Vec<_>>();
+                let values = pts
+                    .iter()
+                    .flat_map(|p| p.as_dvec3().to_array())
+                    .collect::<Vec<_>>();
                 let visible = vec![true; values.len()];
                 Some(SparsePrediction { values, visible })
             }
@@ -251,10 +296,18 @@ impl Sensor {
                 let mut visible = vec![true; 12];
                 let device_from_world = headset.inverse();
                 for hand in [l_hand, r_hand] {
-                    push_rigid(&mut values, &DAffine3 { matrix3: transforms[hand].matrix3, translation: joints[hand] });
+                    push_rigid(
+                        &mut values,
+                        &DAffine3 {
+                            matrix3: transforms[hand].matrix3,
+                            translation: joints[hand],
+                        },
+                    );
                     let seen = match setup.visibility {
                         HandVisibility::Full => true,
-                        HandVisibility::HalfSpace => device_from_world.transform_point3(joints[hand]).z < 0.0,
+                        HandVisibility::HalfSpace => {
+                            device_from_world.transform_point3(joints[hand]).z < 0.0
+                        }
                     };
                     visible.extend([seen; 12]);
                 }
@@ -272,17 +325,27 @@ impl Sensor {
     /// Predicted scan observation at `pose` (posed surface and silhouettes). `None` for sparse
     /// modalities.
     pub fn predict_scan(&self, template: &Template, pose: &[f64]) -> Option<ScanPrediction> {
-        let Sensor::Scan(setup) = self else { return None };
+        let Sensor::Scan(setup) = self else {
+            return None;
+        };
         let transforms = joint_transforms(template, pose);
         let mut vertices = Vec::new();
         skin_lbs_into(template, &transforms, &mut vertices);
         let normals = vertex_normals(&vertices, &template.faces);
         let silhouettes = render_silhouettes(&setup.cameras, &vertices, &template.faces);
-        Some(ScanPrediction { vertices, normals, silhouettes })
+        Some(ScanPrediction {
+            vertices,
+            normals,
+            silhouettes,
+        })
     }
 
     /// Residual R(θ) of a sparse modality: `observed_visible ⊙ (predicted − observed)`.
-    pub fn sparse_residual(predicted: &SparsePrediction, observed: &[f64], observed_visible: &[bool]) -> Vec<f64> {
+    pub fn sparse_residual(
+        predicted: &SparsePrediction,
+        observed: &[f64],
+        observed_visible: &[bool],
+    ) -> Vec<f64> {
         predicted
             .values
             .iter()
@@ -295,12 +358,21 @@ impl Sensor {
     /// Residual R(θ) of `scan`: at each residual vertex, the vector from its closest point on the
     /// target to the vertex, `½ ∇S` for the squared distance transform S (plus the out-of-grid
     /// offset `v − ⌊v⌋`, papers/000 eq. 4).
-    pub fn scan_residual(&self, predicted: &ScanPrediction, observed: &ScanObservation) -> Vec<f64> {
-        let Sensor::Scan(setup) = self else { return Vec::new() };
+    pub fn scan_residual(
+        &self,
+        predicted: &ScanPrediction,
+        observed: &ScanObservation,
+    ) -> Vec<f64> {
+        let Sensor::Scan(setup) = self else {
+            return Vec::new();
+        };
         setup
             .residual_vertices
             .iter()
-            .flat_map(|&v| closest_point_offset(&observed.grid, predicted.vertices[v as usize].as_dvec3()).to_array())
+            .flat_map(|&v| {
+                closest_point_offset(&observed.grid, predicted.vertices[v as usize].as_dvec3())
+                    .to_array()
+            })
             .collect()
     }
 }
@@ -315,7 +387,10 @@ pub fn closest_point_offset(grid: &VoxelGrid, p: DVec3) -> DVec3 {
 /// World pose of the headset: the head joint's frame composed with the fixed offset, turned so
 /// that the headset's −z looks where the face looks (+z in the rest pose).
 pub fn headset_pose(setup: &HmdSetup, head_rotation: DMat3, head_position: DVec3) -> DAffine3 {
-    let world_from_head = DAffine3 { matrix3: head_rotation, translation: head_position };
+    let world_from_head = DAffine3 {
+        matrix3: head_rotation,
+        translation: head_position,
+    };
     let head_from_device = DAffine3 {
         matrix3: DMat3::from_quat(DQuat::from_rotation_y(std::f64::consts::PI)),
         translation: DVec3::from_array(setup.offset),
@@ -342,7 +417,9 @@ pub fn hand_tips(template: &Template) -> [u32; 2] {
     let dominant = template.dominant_joint();
     let rig = &template.rig;
     [L_HAND, R_HAND].map(|h| {
-        let Some(hand) = template.info.joint_map.get(h).copied().flatten() else { return 0 };
+        let Some(hand) = template.info.joint_map.get(h).copied().flatten() else {
+            return 0;
+        };
         // Joints in the subtree of `hand` (parents precede children).
         let mut inside = vec![false; rig.num_joints()];
         inside[hand] = true;
@@ -379,7 +456,10 @@ mod tests {
         for m in Modality::ALL {
             assert_eq!(m.name().parse::<Modality>().unwrap(), m);
         }
-        assert!(matches!("lidar".parse::<Modality>(), Err(ModelError::UnknownModality(_))));
+        assert!(matches!(
+            "lidar".parse::<Modality>(),
+            Err(ModelError::UnknownModality(_))
+        ));
     }
 
     #[test]
@@ -411,7 +491,10 @@ mod tests {
         pose[rot_offset(L_SHOULDER) + 1] = 60f64.to_radians();
         pose[rot_offset(R_SHOULDER) + 1] = -60f64.to_radians();
         let back = hmd.predict_sparse(&t, &pose).unwrap();
-        assert!(!back.visible[12] && !back.visible[24], "hands behind the headset are hidden");
+        assert!(
+            !back.visible[12] && !back.visible[24],
+            "hands behind the headset are hidden"
+        );
         // And forwards: visible.
         pose[rot_offset(L_SHOULDER) + 1] = -60f64.to_radians();
         pose[rot_offset(R_SHOULDER) + 1] = 60f64.to_radians();
@@ -422,8 +505,14 @@ mod tests {
     #[test]
     fn headset_looks_forward_at_rest() {
         let t = default_template();
-        let Sensor::Hmd(setup) = Sensor::default_for(Modality::Hmd, &t) else { unreachable!() };
-        let h = headset_pose(&setup, DMat3::IDENTITY, t.rig.joints[crate::skeleton::HEAD].rest());
+        let Sensor::Hmd(setup) = Sensor::default_for(Modality::Hmd, &t) else {
+            unreachable!()
+        };
+        let h = headset_pose(
+            &setup,
+            DMat3::IDENTITY,
+            t.rig.joints[crate::skeleton::HEAD].rest(),
+        );
         let forward = h.matrix3 * DVec3::NEG_Z;
         assert!((forward - DVec3::Z).length() < 1e-12);
         // A point 1 m in front of the face has negative z in the headset frame.

@@ -24,7 +24,10 @@ pub const fn rot_offset(j: usize) -> usize {
 /// Checks a user-given pose: right length, all finite.
 pub fn pose_from_slice(values: &[f64]) -> Result<Pose> {
     if values.len() != POSE_DIM {
-        return Err(ModelError::PoseLength { got: values.len(), expected: POSE_DIM });
+        return Err(ModelError::PoseLength {
+            got: values.len(),
+            expected: POSE_DIM,
+        });
     }
     if let Some((index, &value)) = values.iter().enumerate().find(|(_, v)| !v.is_finite()) {
         return Err(ModelError::PoseNotFinite { index, value });
@@ -64,20 +67,33 @@ pub struct DofMask {
 impl DofMask {
     /// All 57 numbers free.
     pub fn full57() -> Self {
-        Self { name: "full57".into(), free: (0..POSE_DIM).collect() }
+        Self {
+            name: "full57".into(),
+            free: (0..POSE_DIM).collect(),
+        }
     }
 
     /// papers/000 §4: drop all 3 DOFs of both feet and 2 DOFs each of both ankles and both hands
     /// (each keeps its flexion axis, see [`skeleton::KEPT_AXIS`]): 43 free.
     pub fn local43() -> Self {
-        let free = (0..POSE_DIM).filter(|&i| !Self::dropped_default(MaskKind::Local, i)).collect();
-        Self { name: "local43".into(), free }
+        let free = (0..POSE_DIM)
+            .filter(|&i| !Self::dropped_default(MaskKind::Local, i))
+            .collect();
+        Self {
+            name: "local43".into(),
+            free,
+        }
     }
 
     /// papers/000 §4.2: `local43` minus 2 DOFs of Middle Torso: 41 free.
     pub fn global41() -> Self {
-        let free = (0..POSE_DIM).filter(|&i| !Self::dropped_default(MaskKind::Global, i)).collect();
-        Self { name: "global41".into(), free }
+        let free = (0..POSE_DIM)
+            .filter(|&i| !Self::dropped_default(MaskKind::Global, i))
+            .collect();
+        Self {
+            name: "global41".into(),
+            free,
+        }
     }
 
     /// Whether pose entry `i` of the default skeleton is dropped by `kind`.
@@ -95,7 +111,10 @@ impl DofMask {
                 if skeleton::is_foot(role) {
                     return true;
                 }
-                if skeleton::is_ankle(role) || skeleton::is_hand(role) || (kind == MaskKind::Global && role == skeleton::MIDDLE_TORSO) {
+                if skeleton::is_ankle(role)
+                    || skeleton::is_hand(role)
+                    || (kind == MaskKind::Global && role == skeleton::MIDDLE_TORSO)
+                {
                     return Some(axis) != skeleton::KEPT_AXIS[role];
                 }
                 false
@@ -114,7 +133,9 @@ impl DofMask {
         let map = &template.info.joint_map;
         let role = |j: usize| map.iter().position(|m| *m == Some(j));
         let dropped = |i: usize| -> bool {
-            let Some((j, axis)) = layout.rotation_of(i) else { return false };
+            let Some((j, axis)) = layout.rotation_of(i) else {
+                return false;
+            };
             role(j).is_some_and(|r| Self::drops(kind, r, axis))
         };
         let free: Vec<usize> = (0..layout.dim())
@@ -152,7 +173,11 @@ impl DofMask {
         if let Some(kind) = kind {
             let mask = Self::standard(kind, template, !pose_only);
             if base.ends_with(char::is_numeric) && mask.name != base {
-                return Err(ModelError::Mask(format!("'{base}' is the default skeleton's mask; on '{}' use '{}'", template.id, kind.name())));
+                return Err(ModelError::Mask(format!(
+                    "'{base}' is the default skeleton's mask; on '{}' use '{}'",
+                    template.id,
+                    kind.name()
+                )));
             }
             return Ok(mask);
         }
@@ -161,10 +186,18 @@ impl DofMask {
         for item in spec.split(',').map(str::trim).filter(|s| !s.is_empty()) {
             let index = match item.parse::<usize>() {
                 Ok(i) => i,
-                Err(_) => layout.index_of(item).ok_or_else(|| ModelError::Mask(format!("unknown entry '{item}' (names like t_x, {}.rx, shape.0)", layout.joints[0])))?,
+                Err(_) => layout.index_of(item).ok_or_else(|| {
+                    ModelError::Mask(format!(
+                        "unknown entry '{item}' (names like t_x, {}.rx, shape.0)",
+                        layout.joints[0]
+                    ))
+                })?,
             };
             if index >= layout.dim() {
-                return Err(ModelError::Mask(format!("index {index} out of range 0..{}", layout.dim())));
+                return Err(ModelError::Mask(format!(
+                    "index {index} out of range 0..{}",
+                    layout.dim()
+                )));
             }
             free.push(index);
         }
@@ -187,9 +220,14 @@ impl DofMask {
             return Err(ModelError::Mask("a mask must free at least one DOF".into()));
         }
         if let Some(&bad) = free.iter().find(|&&i| i >= dim) {
-            return Err(ModelError::Mask(format!("index {bad} out of range 0..{dim}")));
+            return Err(ModelError::Mask(format!(
+                "index {bad} out of range 0..{dim}"
+            )));
         }
-        Ok(Self { name: "custom".into(), free })
+        Ok(Self {
+            name: "custom".into(),
+            free,
+        })
     }
 
     /// Parses `full57`, `local43`, `global41` or a comma-separated list of indices or DOF names.
@@ -198,7 +236,11 @@ impl DofMask {
             "full57" => Ok(Self::full57()),
             "local43" => Ok(Self::local43()),
             "global41" => Ok(Self::global41()),
-            other if other.contains(',') || other.chars().all(|c| c.is_ascii_digit()) || other.contains('.') => {
+            other
+                if other.contains(',')
+                    || other.chars().all(|c| c.is_ascii_digit())
+                    || other.contains('.') =>
+            {
                 let mut free = Vec::new();
                 for item in other.split(',').map(str::trim).filter(|s| !s.is_empty()) {
                     let index = match item.parse::<usize>() {
@@ -288,7 +330,12 @@ impl Bounds {
     /// The `local` box around `start` for a model with this layout: translation ±0.4 m, rotations
     /// ±15° around the start, shape and expression within ±[`SHAPE_BOUND`].
     pub fn local_in(layout: &Layout, start: &[f64]) -> Self {
-        Self::around_in(layout, start, LOCAL_TRANSLATION, LOCAL_ROTATION_DEG.to_radians())
+        Self::around_in(
+            layout,
+            start,
+            LOCAL_TRANSLATION,
+            LOCAL_ROTATION_DEG.to_radians(),
+        )
     }
 
     /// [`Bounds::around`] for any layout: shape and expression within ±[`SHAPE_BOUND`].
@@ -327,7 +374,8 @@ impl Bounds {
     }
 
     pub fn contains(&self, pose: &[f64]) -> bool {
-        pose.len() == self.lower.len() && (0..pose.len()).all(|i| pose[i] >= self.lower[i] && pose[i] <= self.upper[i])
+        pose.len() == self.lower.len()
+            && (0..pose.len()).all(|i| pose[i] >= self.lower[i] && pose[i] <= self.upper[i])
     }
 
     /// Clamps every entry of `pose` into the box.
@@ -339,7 +387,10 @@ impl Bounds {
 
     /// The box restricted to the free DOFs of `mask`.
     pub fn restrict(&self, mask: &DofMask) -> (Vec<f64>, Vec<f64>) {
-        (mask.free.iter().map(|&i| self.lower[i]).collect(), mask.free.iter().map(|&i| self.upper[i]).collect())
+        (
+            mask.free.iter().map(|&i| self.lower[i]).collect(),
+            mask.free.iter().map(|&i| self.upper[i]).collect(),
+        )
     }
 }
 
@@ -354,24 +405,53 @@ mod tests {
         assert_eq!(DofMask::local43().dim(), 43);
         assert_eq!(DofMask::global41().dim(), 41);
         let g = DofMask::global41();
-        assert!(DofMask::local43().free.iter().filter(|i| !g.free.contains(i)).all(|&i| (i - 3) / 3 == skeleton::MIDDLE_TORSO));
+        assert!(
+            DofMask::local43()
+                .free
+                .iter()
+                .filter(|i| !g.free.contains(i))
+                .all(|&i| (i - 3) / 3 == skeleton::MIDDLE_TORSO)
+        );
     }
 
     #[test]
     fn standard_masks_on_the_default_and_on_other_models() {
         let d = crate::default_template();
-        assert_eq!(DofMask::standard(MaskKind::Local, &d, true), DofMask::local43());
-        assert_eq!(DofMask::standard(MaskKind::Global, &d, false), DofMask::global41());
-        assert_eq!(DofMask::standard(MaskKind::Full, &d, true), DofMask::full57());
-        assert_eq!(DofMask::parse_for("local43", &d).unwrap(), DofMask::local43());
+        assert_eq!(
+            DofMask::standard(MaskKind::Local, &d, true),
+            DofMask::local43()
+        );
+        assert_eq!(
+            DofMask::standard(MaskKind::Global, &d, false),
+            DofMask::global41()
+        );
+        assert_eq!(
+            DofMask::standard(MaskKind::Full, &d, true),
+            DofMask::full57()
+        );
+        assert_eq!(
+            DofMask::parse_for("local43", &d).unwrap(),
+            DofMask::local43()
+        );
         assert_eq!(Bounds::global_for(&d), Bounds::global());
         let (m, _) = crate::body::morphable_default_template().unwrap();
         let local = DofMask::parse_for("local", &m).unwrap();
         assert_eq!(local.name, "local51");
         assert_eq!(&local.free[..43], &DofMask::local43().free[..]);
-        assert_eq!(DofMask::parse_for("local:pose", &m).unwrap().free, DofMask::local43().free);
-        assert!(DofMask::parse_for("local43", &m).unwrap_err().to_string().contains("use 'local'"));
-        assert_eq!(DofMask::parse_for("shape.0,t_x", &m).unwrap().free, vec![0, 57]);
+        assert_eq!(
+            DofMask::parse_for("local:pose", &m).unwrap().free,
+            DofMask::local43().free
+        );
+        assert!(
+            DofMask::parse_for("local43", &m)
+                .unwrap_err()
+                .to_string()
+                .contains("use 'local'")
+        );
+        assert_eq!(
+            DofMask::parse_for("shape.0,t_x", &m).unwrap().free,
+            vec![0, 57]
+        );
         let g = Bounds::global_for(&m);
         assert_eq!(g.lower.len(), 65);
         assert_eq!((g.lower[60], g.upper[60]), (-SHAPE_BOUND, SHAPE_BOUND));
@@ -412,6 +492,9 @@ mod tests {
         assert!(pose_from_slice(&[0.0; 3]).is_err());
         let mut bad = [0.0; POSE_DIM];
         bad[5] = f64::NAN;
-        assert!(matches!(pose_from_slice(&bad), Err(ModelError::PoseNotFinite { index: 5, .. })));
+        assert!(matches!(
+            pose_from_slice(&bad),
+            Err(ModelError::PoseNotFinite { index: 5, .. })
+        ));
     }
 }

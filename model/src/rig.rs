@@ -80,10 +80,18 @@ impl Rig {
     /// [`Rig::validate`] with another cap on influences per vertex (model files may have more).
     pub fn validate_with(&self, num_vertices: usize, max_influences: usize) -> Result<()> {
         if self.joints.is_empty() {
-            return Err(ModelError::Joint { index: 0, name: String::new(), reason: "the rig has no joints".into() });
+            return Err(ModelError::Joint {
+                index: 0,
+                name: String::new(),
+                reason: "the rig has no joints".into(),
+            });
         }
         for (index, joint) in self.joints.iter().enumerate() {
-            let fail = |reason: String| ModelError::Joint { index, name: joint.name.clone(), reason };
+            let fail = |reason: String| ModelError::Joint {
+                index,
+                name: joint.name.clone(),
+                reason,
+            };
             if joint.name.is_empty() {
                 return Err(fail("empty name".into()));
             }
@@ -95,7 +103,11 @@ impl Rig {
             }
             match (index, joint.parent) {
                 (0, None) => {}
-                (0, Some(p)) => return Err(fail(format!("the first joint must be the root, but it has parent {p}"))),
+                (0, Some(p)) => {
+                    return Err(fail(format!(
+                        "the first joint must be the root, but it has parent {p}"
+                    )));
+                }
                 (_, None) => return Err(fail("only the first joint may have no parent".into())),
                 (_, Some(p)) if p == index => return Err(fail("is its own parent (cycle)".into())),
                 (_, Some(p)) if p > index => {
@@ -109,7 +121,10 @@ impl Rig {
         if self.weights.len() != num_vertices {
             return Err(ModelError::Weights {
                 vertex: self.weights.len().min(num_vertices),
-                reason: format!("the rig has {} weight lists but the mesh has {num_vertices} vertices", self.weights.len()),
+                reason: format!(
+                    "the rig has {} weight lists but the mesh has {num_vertices} vertices",
+                    self.weights.len()
+                ),
             });
         }
         for (vertex, list) in self.weights.iter().enumerate() {
@@ -118,12 +133,18 @@ impl Rig {
                 return Err(fail("no influences".into()));
             }
             if list.len() > max_influences {
-                return Err(fail(format!("{} influences, at most {max_influences} allowed", list.len())));
+                return Err(fail(format!(
+                    "{} influences, at most {max_influences} allowed",
+                    list.len()
+                )));
             }
             let mut sum = 0.0;
             for &(joint, w) in list {
                 if joint >= self.joints.len() {
-                    return Err(fail(format!("joint index {joint} out of range (the rig has {} joints)", self.joints.len())));
+                    return Err(fail(format!(
+                        "joint index {joint} out of range (the rig has {} joints)",
+                        self.joints.len()
+                    )));
                 }
                 if !w.is_finite() {
                     return Err(fail(format!("weight for joint {joint} is not finite")));
@@ -134,18 +155,26 @@ impl Rig {
                 sum += w;
             }
             if (sum - 1.0).abs() > WEIGHT_SUM_TOLERANCE {
-                return Err(fail(format!("weights sum to {sum}, not 1 ± {WEIGHT_SUM_TOLERANCE}")));
+                return Err(fail(format!(
+                    "weights sum to {sum}, not 1 ± {WEIGHT_SUM_TOLERANCE}"
+                )));
             }
         }
         for (i, marker) in self.markers.iter().enumerate() {
             if marker.vertex as usize >= num_vertices {
                 return Err(ModelError::Marker {
                     name: marker.name.clone(),
-                    reason: format!("vertex {} out of range (the mesh has {num_vertices} vertices)", marker.vertex),
+                    reason: format!(
+                        "vertex {} out of range (the mesh has {num_vertices} vertices)",
+                        marker.vertex
+                    ),
                 });
             }
             if self.markers[..i].iter().any(|m| m.name == marker.name) {
-                return Err(ModelError::Marker { name: marker.name.clone(), reason: "duplicate name".into() });
+                return Err(ModelError::Marker {
+                    name: marker.name.clone(),
+                    reason: "duplicate name".into(),
+                });
             }
         }
         Ok(())
@@ -159,11 +188,22 @@ mod tests {
     fn two_joint_rig() -> Rig {
         Rig {
             joints: vec![
-                Joint { name: "root".into(), parent: None, rest_position: [0.0, 1.0, 0.0] },
-                Joint { name: "child".into(), parent: Some(0), rest_position: [0.0, 0.5, 0.0] },
+                Joint {
+                    name: "root".into(),
+                    parent: None,
+                    rest_position: [0.0, 1.0, 0.0],
+                },
+                Joint {
+                    name: "child".into(),
+                    parent: Some(0),
+                    rest_position: [0.0, 0.5, 0.0],
+                },
             ],
             weights: vec![vec![(0, 1.0)], vec![(0, 0.25), (1, 0.75)]],
-            markers: vec![Marker { name: "m".into(), vertex: 1 }],
+            markers: vec![Marker {
+                name: "m".into(),
+                vertex: 1,
+            }],
         }
     }
 
@@ -179,8 +219,16 @@ mod tests {
         let e = rig.validate(2).unwrap_err().to_string();
         assert!(e.contains("child") && e.contains("cycle"), "{e}");
         let mut rig = two_joint_rig();
-        rig.joints.push(Joint { name: "x".into(), parent: Some(3), rest_position: [0.0; 3] });
-        rig.joints.push(Joint { name: "y".into(), parent: Some(2), rest_position: [0.0; 3] });
+        rig.joints.push(Joint {
+            name: "x".into(),
+            parent: Some(3),
+            rest_position: [0.0; 3],
+        });
+        rig.joints.push(Joint {
+            name: "y".into(),
+            parent: Some(2),
+            rest_position: [0.0; 3],
+        });
         let e = rig.validate(2).unwrap_err().to_string();
         assert!(e.contains("'x'") && e.contains("topological"), "{e}");
     }
@@ -192,20 +240,45 @@ mod tests {
         let e = rig.validate(2).unwrap_err().to_string();
         assert!(e.contains("vertex 1") && e.contains("sum"), "{e}");
         rig.weights[1] = vec![(0, 1.5), (1, -0.5)];
-        assert!(rig.validate(2).unwrap_err().to_string().contains("negative"));
+        assert!(
+            rig.validate(2)
+                .unwrap_err()
+                .to_string()
+                .contains("negative")
+        );
         rig.weights[1] = vec![(7, 1.0)];
-        assert!(rig.validate(2).unwrap_err().to_string().contains("out of range"));
+        assert!(
+            rig.validate(2)
+                .unwrap_err()
+                .to_string()
+                .contains("out of range")
+        );
         rig.weights[1] = vec![(0, f64::NAN)];
-        assert!(rig.validate(2).unwrap_err().to_string().contains("not finite"));
+        assert!(
+            rig.validate(2)
+                .unwrap_err()
+                .to_string()
+                .contains("not finite")
+        );
     }
 
     #[test]
     fn nan_rest_position_and_bad_marker() {
         let mut rig = two_joint_rig();
         rig.joints[1].rest_position[2] = f64::NAN;
-        assert!(rig.validate(2).unwrap_err().to_string().contains("rest_position[2]"));
+        assert!(
+            rig.validate(2)
+                .unwrap_err()
+                .to_string()
+                .contains("rest_position[2]")
+        );
         let mut rig = two_joint_rig();
         rig.markers[0].vertex = 9;
-        assert!(rig.validate(2).unwrap_err().to_string().contains("marker 'm'"));
+        assert!(
+            rig.validate(2)
+                .unwrap_err()
+                .to_string()
+                .contains("marker 'm'")
+        );
     }
 }

@@ -270,7 +270,11 @@ impl VoxelGrid {
         let mut index = [0usize; 8];
         let mut weight = [0.0; 8];
         let base = self.index(lo[0], lo[1], lo[2]);
-        let step = [hi[0] - lo[0], self.dims[0] * (hi[1] - lo[1]), self.dims[0] * self.dims[1] * (hi[2] - lo[2])];
+        let step = [
+            hi[0] - lo[0],
+            self.dims[0] * (hi[1] - lo[1]),
+            self.dims[0] * self.dims[1] * (hi[2] - lo[2]),
+        ];
         for n in 0..8 {
             let mut i = base;
             let mut w = 1.0;
@@ -293,7 +297,11 @@ impl VoxelGrid {
     /// single node). `Σ w_c f_c` interpolates any node field `f`, `Σ ∇w_c f_c` is its gradient.
     pub fn stencil(&self, p: DVec3) -> Stencil {
         let (lo, hi, t) = self.cell(p);
-        let mut out = Stencil { index: [0; 8], weight: [0.0; 8], gradient: [DVec3::ZERO; 8] };
+        let mut out = Stencil {
+            index: [0; 8],
+            weight: [0.0; 8],
+            gradient: [DVec3::ZERO; 8],
+        };
         let w = |s: f64, bit: bool| if bit { s } else { 1.0 - s };
         for n in 0..8 {
             let bit = |a: usize| n & (1 << a) != 0;
@@ -605,18 +613,30 @@ mod tests {
     use super::*;
     use crate::camera::default_ring;
     use rand::{Rng, SeedableRng};
-    use rand_distr::StandardNormal;
     use rand_chacha::ChaCha8Rng;
+    use rand_distr::StandardNormal;
 
     #[test]
     fn stencils_reproduce_sample_and_gradient() {
         // The energy interpolates through `stencil`/`stencil_weights`; they must agree with the
         // trilinear `sample` and `gradient`, inside the box and (clamped) outside it.
         let mut rng = ChaCha8Rng::seed_from_u64(5);
-        let points: Vec<Vec3> = (0..200).map(|_| Vec3::new(rng.random_range(-0.3..0.3), rng.random_range(0.0..1.7), rng.random_range(-0.2..0.2))).collect();
+        let points: Vec<Vec3> = (0..200)
+            .map(|_| {
+                Vec3::new(
+                    rng.random_range(-0.3..0.3),
+                    rng.random_range(0.0..1.7),
+                    rng.random_range(-0.2..0.2),
+                )
+            })
+            .collect();
         let grid = distance_transform(&points, 0.03, DEFAULT_BOX_SCALE).unwrap();
         for _ in 0..500 {
-            let p = DVec3::new(rng.random_range(-0.6..0.6), rng.random_range(-0.3..2.0), rng.random_range(-0.5..0.5));
+            let p = DVec3::new(
+                rng.random_range(-0.6..0.6),
+                rng.random_range(-0.3..2.0),
+                rng.random_range(-0.5..0.5),
+            );
             let c = grid.clamp(p);
             let st = grid.stencil(c);
             let (index, weight) = grid.stencil_weights(c);
@@ -628,8 +648,16 @@ mod tests {
                 s += st.weight[n] * value(st.index[n]);
                 g += st.gradient[n] * value(st.index[n]);
             }
-            assert!((s - grid.sample(p)).abs() <= 1e-12 * (1.0 + s.abs()), "{p}: {s} vs {}", grid.sample(p));
-            assert!((g - grid.gradient(p)).length() <= 1e-9 * (1.0 + g.length()), "{p}: {g} vs {}", grid.gradient(p));
+            assert!(
+                (s - grid.sample(p)).abs() <= 1e-12 * (1.0 + s.abs()),
+                "{p}: {s} vs {}",
+                grid.sample(p)
+            );
+            assert!(
+                (g - grid.gradient(p)).length() <= 1e-9 * (1.0 + g.length()),
+                "{p}: {g} vs {}",
+                grid.gradient(p)
+            );
         }
     }
 

@@ -93,7 +93,10 @@ pub const fn is_hand(j: usize) -> bool {
     j == R_HAND || j == L_HAND
 }
 pub const fn is_left(j: usize) -> bool {
-    matches!(j, L_HIP | L_KNEE | L_ANKLE | L_FOOT | L_SHOULDER | L_ELBOW | L_HAND)
+    matches!(
+        j,
+        L_HIP | L_KNEE | L_ANKLE | L_FOOT | L_SHOULDER | L_ELBOW | L_HAND
+    )
 }
 
 /// The mirror joint (left ↔ right), itself for the spine.
@@ -142,7 +145,10 @@ mod tests {
             assert!(PARENTS[j].is_some_and(|p| p < j), "joint {j}");
             assert_eq!(mirror(mirror(j)), j);
             assert_eq!(is_left(j) && j != mirror(j), is_left(j));
-            assert_eq!(JOINT_NAMES[mirror(j)].replace("r_", "l_"), JOINT_NAMES[j].replace("r_", "l_"));
+            assert_eq!(
+                JOINT_NAMES[mirror(j)].replace("r_", "l_"),
+                JOINT_NAMES[j].replace("r_", "l_")
+            );
         }
         assert!(PARENTS[0].is_none());
     }

@@ -56,7 +56,12 @@ impl Posed {
     /// Rest position of vertex `v` for this parameter vector (`T(β, ψ) + P (R(θ) − I)`), f64.
     #[inline]
     pub fn rest_vertex(&self, template: &Template, v: usize) -> DVec3 {
-        template.morph.rest_vertex(v, template.vertices[v].as_dvec3(), &self.coeffs, &self.pose_feature)
+        template.morph.rest_vertex(
+            v,
+            template.vertices[v].as_dvec3(),
+            &self.coeffs,
+            &self.pose_feature,
+        )
     }
 }
 
@@ -70,11 +75,25 @@ pub fn joint_transforms(template: &Template, params: &[f64]) -> Posed {
     let k = morph.coefficients();
     let mut coeffs = Vec::new();
     if k > 0 {
-        coeffs = params.get(3 + 3 * nj..).unwrap_or(&[]).iter().copied().take(k).collect();
+        coeffs = params
+            .get(3 + 3 * nj..)
+            .unwrap_or(&[])
+            .iter()
+            .copied()
+            .take(k)
+            .collect();
         coeffs.resize(k, 0.0);
     }
-    let rest_joints = if coeffs.is_empty() { template.joint_rest() } else { morph.rest_joints(&template.joint_rest(), &coeffs) };
-    let pose_feature = if morph.posedirs.is_some() { crate::morph::pose_feature(params, nj) } else { Vec::new() };
+    let rest_joints = if coeffs.is_empty() {
+        template.joint_rest()
+    } else {
+        morph.rest_joints(&template.joint_rest(), &coeffs)
+    };
+    let pose_feature = if morph.posedirs.is_some() {
+        crate::morph::pose_feature(params, nj)
+    } else {
+        Vec::new()
+    };
     let mut world_rot: Vec<DMat3> = Vec::with_capacity(nj);
     let mut transforms: Vec<DAffine3> = Vec::with_capacity(nj);
     let mut joints: Vec<DVec3> = Vec::with_capacity(nj);
@@ -88,10 +107,19 @@ pub fn joint_transforms(template: &Template, params: &[f64]) -> Posed {
             Some(p) => (world_rot[p] * local, transforms[p].transform_point3(c)),
         };
         world_rot.push(w);
-        transforms.push(DAffine3 { matrix3: w, translation: anchor - w * c });
+        transforms.push(DAffine3 {
+            matrix3: w,
+            translation: anchor - w * c,
+        });
         joints.push(anchor);
     }
-    Posed { transforms, joints, rest_joints, coeffs, pose_feature }
+    Posed {
+        transforms,
+        joints,
+        rest_joints,
+        coeffs,
+        pose_feature,
+    }
 }
 
 fn to_f32(transforms: &[DAffine3]) -> Vec<Affine3A> {
@@ -127,7 +155,11 @@ fn blend_vertex(template: &Template, a: &[Affine3A], v: usize, rest: Vec3A) -> V
 #[inline]
 fn blend_vertex_f64(template: &Template, posed: &Posed, v: usize) -> DVec3 {
     let rest = posed.rest_vertex(template, v);
-    template.rig.weights[v].iter().fold(DVec3::ZERO, |acc, &(j, w)| acc + w * posed.transforms[j].transform_point3(rest))
+    template.rig.weights[v]
+        .iter()
+        .fold(DVec3::ZERO, |acc, &(j, w)| {
+            acc + w * posed.transforms[j].transform_point3(rest)
+        })
 }
 
 /// Linear blend skinning of every vertex into `out` (resized to the vertex count). A rigid
@@ -136,21 +168,38 @@ pub fn skin_lbs_into(template: &Template, posed: &Posed, out: &mut Vec<Vec3>) {
     out.clear();
     if !template.skins_in_f64() {
         let a = to_f32(posed);
-        out.extend(template.rest_a().enumerate().map(|(v, rest)| Vec3::from(blend_vertex(template, &a, v, rest))));
+        out.extend(
+            template
+                .rest_a()
+                .enumerate()
+                .map(|(v, rest)| Vec3::from(blend_vertex(template, &a, v, rest))),
+        );
     } else {
-        out.extend((0..template.num_vertices()).map(|v| blend_vertex_f64(template, posed, v).as_vec3()));
+        out.extend(
+            (0..template.num_vertices()).map(|v| blend_vertex_f64(template, posed, v).as_vec3()),
+        );
     }
 }
 
 /// Linear blend skinning of the listed vertices only (markers, hand tips, EDT samples).
 pub fn skin_lbs_subset(template: &Template, posed: &Posed, vertices: &[u32]) -> Vec<Vec3> {
     if template.skins_in_f64() {
-        return vertices.iter().map(|&v| blend_vertex_f64(template, posed, v as usize).as_vec3()).collect();
+        return vertices
+            .iter()
+            .map(|&v| blend_vertex_f64(template, posed, v as usize).as_vec3())
+            .collect();
     }
     let a = to_f32(posed);
     vertices
         .iter()
-        .map(|&v| Vec3::from(blend_vertex(template, &a, v as usize, Vec3A::from(template.vertices[v as usize]))))
+        .map(|&v| {
+            Vec3::from(blend_vertex(
+                template,
+                &a,
+                v as usize,
+                Vec3A::from(template.vertices[v as usize]),
+            ))
+        })
         .collect()
 }
 
@@ -169,16 +218,25 @@ pub fn skin_dqs_into(template: &Template, posed: &Posed, out: &mut Vec<Vec3>) {
     let rigid = template.morph.is_rigid();
     out.clear();
     out.extend(template.vertices.iter().enumerate().map(|(v, rest)| {
-        let rest = if rigid { rest.as_dvec3() } else { posed.rest_vertex(template, v) };
+        let rest = if rigid {
+            rest.as_dvec3()
+        } else {
+            posed.rest_vertex(template, v)
+        };
         // The packed f32 weights (as before) unless the vertex has more than 4 influences.
         let list: Vec<(usize, f64)> = if template.wide {
             template.rig.weights[v].clone()
         } else {
             let (joints, w) = (template.influence_joints[v], template.influence_weights[v]);
-            (0..4).map(|k| (joints[k] as usize, f64::from(w[k]))).collect()
+            (0..4)
+                .map(|k| (joints[k] as usize, f64::from(w[k])))
+                .collect()
         };
         let pivot = dqs[list[0].0].0;
-        let (mut real, mut dual) = (DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0), DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0));
+        let (mut real, mut dual) = (
+            DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0),
+            DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0),
+        );
         for &(j, wk) in &list {
             if wk == 0.0 {
                 continue;
@@ -208,8 +266,15 @@ pub fn pose_vertices(template: &Template, pose: &[f64], method: SkinningMethod) 
 }
 
 /// Posed vertices of many poses in parallel (rayon).
-pub fn pose_vertices_batch<P: AsRef<[f64]> + Sync>(template: &Template, poses: &[P], method: SkinningMethod) -> Vec<Vec<Vec3>> {
-    poses.par_iter().map(|p| pose_vertices(template, p.as_ref(), method)).collect()
+pub fn pose_vertices_batch<P: AsRef<[f64]> + Sync>(
+    template: &Template,
+    poses: &[P],
+    method: SkinningMethod,
+) -> Vec<Vec<Vec3>> {
+    poses
+        .par_iter()
+        .map(|p| pose_vertices(template, p.as_ref(), method))
+        .collect()
 }
 
 /// Area-weighted vertex normals of a posed mesh.
@@ -254,7 +319,11 @@ mod tests {
         }
         assert!(single > 100);
         // Blended vertices differ (DQS keeps volume at bent joints), but stay close.
-        let max = lbs.iter().zip(&dqs).map(|(a, b)| (*a - *b).length()).fold(0.0, f32::max);
+        let max = lbs
+            .iter()
+            .zip(&dqs)
+            .map(|(a, b)| (*a - *b).length())
+            .fold(0.0, f32::max);
         assert!(max > 1e-4 && max < 0.1, "{max}");
     }
 
@@ -264,10 +333,18 @@ mod tests {
         let mut pose = [0.0; POSE_DIM];
         pose[..6].copy_from_slice(&[0.1, 0.2, -0.3, 0.5, -0.4, 0.9]);
         let a = joint_transforms(&t, &pose);
-        let expect: Vec<Vec3> = t.vertices.iter().map(|v| a[0].transform_point3(v.as_dvec3()).as_vec3()).collect();
+        let expect: Vec<Vec3> = t
+            .vertices
+            .iter()
+            .map(|v| a[0].transform_point3(v.as_dvec3()).as_vec3())
+            .collect();
         for method in [SkinningMethod::Linear, SkinningMethod::DualQuaternion] {
             let got = pose_vertices(&t, &pose, method);
-            let max = got.iter().zip(&expect).map(|(a, b)| (*a - *b).length()).fold(0.0, f32::max);
+            let max = got
+                .iter()
+                .zip(&expect)
+                .map(|(a, b)| (*a - *b).length())
+                .fold(0.0, f32::max);
             assert!(max < 1e-5, "{method:?}: {max}");
         }
     }
@@ -284,7 +361,10 @@ mod tests {
         assert!((j0[HEAD] - j1[HEAD]).length() < 1e-12);
         assert!((j0[L_SHOULDER] - j1[L_SHOULDER]).length() < 1e-12);
         assert!((j1[L_ELBOW] - j0[L_ELBOW]).length() > 0.1);
-        assert!(j1[L_HAND].y > j0[L_HAND].y, "a positive z rotation raises the left arm");
+        assert!(
+            j1[L_HAND].y > j0[L_HAND].y,
+            "a positive z rotation raises the left arm"
+        );
         let bone0 = (j0[L_HAND] - j0[L_ELBOW]).length();
         let bone1 = (j1[L_HAND] - j1[L_ELBOW]).length();
         assert!((bone0 - bone1).abs() < 1e-12);

@@ -51,25 +51,42 @@ pub struct Template {
 
 impl Template {
     /// Builds a template from parts, validating mesh and rig (SPEC §3).
-    pub fn new(id: impl Into<String>, vertices: Vec<Vec3>, faces: Vec<[u32; 3]>, rig: Rig) -> Result<Self> {
+    pub fn new(
+        id: impl Into<String>,
+        vertices: Vec<Vec3>,
+        faces: Vec<[u32; 3]>,
+        rig: Rig,
+    ) -> Result<Self> {
         for (vertex, v) in vertices.iter().enumerate() {
             if !v.is_finite() {
-                return Err(ModelError::Vertex { vertex, reason: format!("position {v} is not finite") });
+                return Err(ModelError::Vertex {
+                    vertex,
+                    reason: format!("position {v} is not finite"),
+                });
             }
         }
         for (face, f) in faces.iter().enumerate() {
             if let Some(&bad) = f.iter().find(|&&i| i as usize >= vertices.len()) {
                 return Err(ModelError::Face {
                     face,
-                    reason: format!("vertex index {bad} out of range (the mesh has {} vertices)", vertices.len()),
+                    reason: format!(
+                        "vertex index {bad} out of range (the mesh has {} vertices)",
+                        vertices.len()
+                    ),
                 });
             }
             if f[0] == f[1] || f[1] == f[2] || f[0] == f[2] {
-                return Err(ModelError::Face { face, reason: format!("repeats a vertex: {f:?}") });
+                return Err(ModelError::Face {
+                    face,
+                    reason: format!("repeats a vertex: {f:?}"),
+                });
             }
         }
         if faces.is_empty() {
-            return Err(ModelError::Face { face: 0, reason: "the mesh has no triangles".into() });
+            return Err(ModelError::Face {
+                face: 0,
+                reason: "the mesh has no triangles".into(),
+            });
         }
         rig.validate_with(vertices.len(), crate::modelfile::MAX_FILE_INFLUENCES)?;
         let wide = rig.weights.iter().any(|l| l.len() > MAX_INFLUENCES);
@@ -86,19 +103,37 @@ impl Template {
             influence_weights.push(Vec4::from_array(weights));
         }
         let info = crate::info::ModelInfo::fallback(&rig);
-        Ok(Self { id: id.into(), vertices, faces, rig, morph: Arc::new(Morph::none()), info, wide, influence_joints, influence_weights })
+        Ok(Self {
+            id: id.into(),
+            vertices,
+            faces,
+            rig,
+            morph: Arc::new(Morph::none()),
+            info,
+            wide,
+            influence_joints,
+            influence_weights,
+        })
     }
 
     /// The same template with blend shapes and model information; checks their sizes.
     pub fn with_morph(mut self, morph: Morph, info: crate::info::ModelInfo) -> Result<Self> {
         let (v, j) = (self.vertices.len(), self.rig.num_joints());
         let k = morph.coefficients();
-        let shape_err = |what: &str, expected: usize, got: usize| ModelError::Shape { what: what.into(), expected: expected.to_string(), got: got.to_string() };
+        let shape_err = |what: &str, expected: usize, got: usize| ModelError::Shape {
+            what: what.into(),
+            expected: expected.to_string(),
+            got: got.to_string(),
+        };
         if !morph.rest.is_empty() && morph.rest.len() != v {
             return Err(shape_err("morph rest vertices", v, morph.rest.len()));
         }
         if morph.dirs.len() != 3 * v * k {
-            return Err(shape_err("shape/expression directions", 3 * v * k, morph.dirs.len()));
+            return Err(shape_err(
+                "shape/expression directions",
+                3 * v * k,
+                morph.dirs.len(),
+            ));
         }
         if let Some(pd) = &morph.posedirs
             && pd.len() != 3 * v * 9 * (j - 1)
@@ -108,7 +143,11 @@ impl Template {
         if let Some(r) = &morph.regressor
             && (r.rows != j || r.cols != v)
         {
-            return Err(ModelError::Shape { what: "J_regressor".into(), expected: format!("({j}, {v})"), got: format!("({}, {})", r.rows, r.cols) });
+            return Err(ModelError::Shape {
+                what: "J_regressor".into(),
+                expected: format!("({j}, {v})"),
+                got: format!("({}, {})", r.rows, r.cols),
+            });
         }
         info.validate(j, v)?;
         self.morph = Arc::new(morph);
@@ -159,19 +198,33 @@ impl Template {
             }
         }
         let m = &self.morph;
-        for x in m.rest.iter().flat_map(|p| p.to_array()).chain(m.dirs.iter().copied()).chain(m.posedirs.iter().flatten().copied()).chain(m.joint_dirs.iter().copied()) {
+        for x in m
+            .rest
+            .iter()
+            .flat_map(|p| p.to_array())
+            .chain(m.dirs.iter().copied())
+            .chain(m.posedirs.iter().flatten().copied())
+            .chain(m.joint_dirs.iter().copied())
+        {
             eat(&x.to_le_bytes());
         }
         eat(&(m.shape as u64).to_le_bytes());
         eat(&(m.expression as u64).to_le_bytes());
-        ModelSignature { id: self.id.clone(), layout: self.layout(), hash: format!("{h:016x}") }
+        ModelSignature {
+            id: self.id.clone(),
+            layout: self.layout(),
+            hash: format!("{h:016x}"),
+        }
     }
 
     /// Head, left wrist and right wrist joints (the `hmd` modality's devices), through the joint
     /// map to the papers/000 skeleton.
     pub fn hmd_joints(&self) -> Result<[usize; 3]> {
         let mut out = [0; 3];
-        for (o, j) in out.iter_mut().zip([skeleton::HEAD, skeleton::L_HAND, skeleton::R_HAND]) {
+        for (o, j) in out
+            .iter_mut()
+            .zip([skeleton::HEAD, skeleton::L_HAND, skeleton::R_HAND])
+        {
             *o = self.info.joint_map.get(j).copied().flatten().ok_or_else(|| {
                 ModelError::Config(format!(
                     "model '{}' maps no joint to the papers/000 '{}' that the hmd modality needs (lfit key 'joint_map')",
@@ -195,7 +248,13 @@ impl Template {
         }
         let mut c = coeffs.to_vec();
         c.resize(k, 0.0);
-        let vertices: Vec<Vec3> = (0..self.num_vertices()).map(|v| self.morph.rest_vertex(v, self.vertices[v].as_dvec3(), &c, &[]).as_vec3()).collect();
+        let vertices: Vec<Vec3> = (0..self.num_vertices())
+            .map(|v| {
+                self.morph
+                    .rest_vertex(v, self.vertices[v].as_dvec3(), &c, &[])
+                    .as_vec3()
+            })
+            .collect();
         let joints = self.morph.rest_joints(&self.joint_rest(), &c);
         let mut rig = self.rig.clone();
         for (j, p) in rig.joints.iter_mut().zip(&joints) {
@@ -224,7 +283,9 @@ impl Template {
     /// Whether this is the 18-joint skeleton of papers/000 (names and parents), rigid (no shape
     /// or expression): the model every part of lfit supports.
     pub fn is_default_skeleton(&self) -> bool {
-        check_skeleton(&self.rig).is_ok() && self.morph.coefficients() == 0 && self.morph.posedirs.is_none()
+        check_skeleton(&self.rig).is_ok()
+            && self.morph.coefficients() == 0
+            && self.morph.posedirs.is_none()
     }
 
     pub fn num_vertices(&self) -> usize {
@@ -258,7 +319,15 @@ impl Template {
         self.rig
             .weights
             .iter()
-            .map(|list| list.iter().copied().fold((0, f64::MIN), |best, (j, w)| if w > best.1 { (j, w) } else { best }).0)
+            .map(|list| {
+                list.iter()
+                    .copied()
+                    .fold(
+                        (0, f64::MIN),
+                        |best, (j, w)| if w > best.1 { (j, w) } else { best },
+                    )
+                    .0
+            })
             .collect()
     }
 
@@ -278,7 +347,10 @@ impl Template {
         let (vertices, faces) = read_obj(&obj_path)?;
         let rig = read_rig(&rig_path)?;
         rig.validate(vertices.len())?;
-        let id = dir.file_name().map_or_else(|| "custom".to_string(), |n| n.to_string_lossy().into_owned());
+        let id = dir.file_name().map_or_else(
+            || "custom".to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        );
         Self::new(id, vertices, faces, rig)
     }
 
@@ -286,7 +358,12 @@ impl Template {
     pub fn save(&self, dir: &Path) -> Result<()> {
         std::fs::create_dir_all(dir).map_err(|e| ModelError::io(dir, e))?;
         let mut obj = Vec::new();
-        write_obj(&mut obj, &format!("lfit template '{}'", self.id), &self.vertices, &self.faces);
+        write_obj(
+            &mut obj,
+            &format!("lfit template '{}'", self.id),
+            &self.vertices,
+            &self.faces,
+        );
         write_atomic(&dir.join(OBJ_FILE), &obj)?;
         let json = serde_json::to_vec_pretty(&self.rig).map_err(|e| ModelError::RigJson {
             path: dir.join(RIG_FILE),
@@ -300,11 +377,17 @@ impl Template {
 fn check_skeleton(rig: &Rig) -> Result<()> {
     if rig.joints.len() != NUM_JOINTS {
         let index = rig.joints.len().min(NUM_JOINTS - 1);
-        let name = rig.joints.get(index).map_or_else(String::new, |j| j.name.clone());
+        let name = rig
+            .joints
+            .get(index)
+            .map_or_else(String::new, |j| j.name.clone());
         return Err(ModelError::Joint {
             index,
             name,
-            reason: format!("the rig has {} joints; this needs the 18-joint skeleton of papers/000", rig.joints.len()),
+            reason: format!(
+                "the rig has {} joints; this needs the 18-joint skeleton of papers/000",
+                rig.joints.len()
+            ),
         });
     }
     for (index, joint) in rig.joints.iter().enumerate() {
@@ -331,7 +414,10 @@ fn check_skeleton(rig: &Rig) -> Result<()> {
 /// vertex order, and `tobj` renumbers vertices in order of first use by the faces.
 pub fn read_obj(path: &Path) -> Result<(Vec<Vec3>, Vec<[u32; 3]>)> {
     let text = std::fs::read_to_string(path).map_err(|e| ModelError::io(path, e))?;
-    parse_obj(&text).map_err(|reason| ModelError::Obj { path: path.to_path_buf(), reason })
+    parse_obj(&text).map_err(|reason| ModelError::Obj {
+        path: path.to_path_buf(),
+        reason,
+    })
 }
 
 /// Parses OBJ text; the error names the line.
@@ -345,14 +431,20 @@ pub fn parse_obj(text: &str) -> std::result::Result<(Vec<Vec3>, Vec<[u32; 3]>), 
             Some("v") => {
                 let coords: Vec<f32> = items
                     .take(3)
-                    .map(|s| s.parse::<f32>().map_err(|_| format!("line {line_no}: bad vertex coordinate '{s}'")))
+                    .map(|s| {
+                        s.parse::<f32>()
+                            .map_err(|_| format!("line {line_no}: bad vertex coordinate '{s}'"))
+                    })
                     .collect::<std::result::Result<_, _>>()?;
                 if coords.len() != 3 {
                     return Err(format!("line {line_no}: a vertex needs 3 coordinates"));
                 }
                 let v = Vec3::new(coords[0], coords[1], coords[2]);
                 if !v.is_finite() {
-                    return Err(format!("line {line_no}: vertex {} is not finite", vertices.len()));
+                    return Err(format!(
+                        "line {line_no}: vertex {} is not finite",
+                        vertices.len()
+                    ));
                 }
                 vertices.push(v);
             }
@@ -360,10 +452,19 @@ pub fn parse_obj(text: &str) -> std::result::Result<(Vec<Vec3>, Vec<[u32; 3]>), 
                 let corners: Vec<u32> = items
                     .map(|item| {
                         let first = item.split('/').next().unwrap_or("");
-                        let i: i64 = first.parse().map_err(|_| format!("line {line_no}: bad face index '{item}'"))?;
-                        let resolved = if i < 0 { vertices.len() as i64 + i } else { i - 1 };
+                        let i: i64 = first
+                            .parse()
+                            .map_err(|_| format!("line {line_no}: bad face index '{item}'"))?;
+                        let resolved = if i < 0 {
+                            vertices.len() as i64 + i
+                        } else {
+                            i - 1
+                        };
                         if i == 0 || resolved < 0 || resolved >= vertices.len() as i64 {
-                            return Err(format!("line {line_no}: face index {i} out of range ({} vertices so far)", vertices.len()));
+                            return Err(format!(
+                                "line {line_no}: face index {i} out of range ({} vertices so far)",
+                                vertices.len()
+                            ));
                         }
                         Ok(resolved as u32)
                     })
@@ -390,12 +491,20 @@ pub fn parse_obj(text: &str) -> std::result::Result<(Vec<Vec3>, Vec<[u32; 3]>), 
 /// Reads and parses `rig.json` (validation happens in [`Template::new`]).
 pub fn read_rig(path: &Path) -> Result<Rig> {
     let text = std::fs::read_to_string(path).map_err(|e| ModelError::io(path, e))?;
-    serde_json::from_str(&text).map_err(|e| ModelError::RigJson { path: path.to_path_buf(), reason: e.to_string() })
+    serde_json::from_str(&text).map_err(|e| ModelError::RigJson {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })
 }
 
 /// Appends an OBJ text of the mesh to `out`; positions print in shortest round-trip form.
 pub fn write_obj(out: &mut Vec<u8>, comment: &str, vertices: &[Vec3], faces: &[[u32; 3]]) {
-    let _ = writeln!(out, "# {comment}\n# {} vertices, {} triangles", vertices.len(), faces.len());
+    let _ = writeln!(
+        out,
+        "# {comment}\n# {} vertices, {} triangles",
+        vertices.len(),
+        faces.len()
+    );
     for v in vertices {
         let _ = writeln!(out, "v {} {} {}", v.x, v.y, v.z);
     }
@@ -411,7 +520,9 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
     };
-    let name = path.file_name().map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
+    let name = path
+        .file_name()
+        .map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
     let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
     let result = (|| {
         let mut f = std::fs::File::create(&tmp)?;
@@ -437,16 +548,32 @@ mod tests {
         let beta = [1.5, -2.0, 0.7, 0.0];
         let shaped = m.shaped(&beta).unwrap();
         assert!(shaped.morph.is_rigid());
-        let mut params: Vec<f64> = (0..m.layout().pose_dim()).map(|i| ((i * 7 % 11) as f64 / 11.0 - 0.5) * 0.8).collect();
+        let mut params: Vec<f64> = (0..m.layout().pose_dim())
+            .map(|i| ((i * 7 % 11) as f64 / 11.0 - 0.5) * 0.8)
+            .collect();
         let pose = params.clone();
         params.extend(beta);
         let a = crate::skinning::pose_vertices(&m, &params, crate::SkinningMethod::Linear);
         let b = crate::skinning::pose_vertices(&shaped, &pose, crate::SkinningMethod::Linear);
-        let worst = a.iter().zip(&b).map(|(p, q)| (*p - *q).length()).fold(0.0, f32::max);
+        let worst = a
+            .iter()
+            .zip(&b)
+            .map(|(p, q)| (*p - *q).length())
+            .fold(0.0, f32::max);
         assert!(worst < 1e-5, "{worst}");
         // And β changes the mesh, so the comparison means something.
-        let c = crate::skinning::pose_vertices(&m.shaped(&[0.0; 4]).unwrap(), &pose, crate::SkinningMethod::Linear);
-        assert!(a.iter().zip(&c).map(|(p, q)| (*p - *q).length()).fold(0.0, f32::max) > 1e-3);
+        let c = crate::skinning::pose_vertices(
+            &m.shaped(&[0.0; 4]).unwrap(),
+            &pose,
+            crate::SkinningMethod::Linear,
+        );
+        assert!(
+            a.iter()
+                .zip(&c)
+                .map(|(p, q)| (*p - *q).length())
+                .fold(0.0, f32::max)
+                > 1e-3
+        );
     }
 
     #[test]
@@ -459,10 +586,22 @@ mod tests {
 
     #[test]
     fn obj_parser_names_the_bad_line() {
-        assert!(parse_obj("v 0 0 0\nv 1 0\n").unwrap_err().contains("line 2"));
-        assert!(parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n").unwrap_err().contains("out of range"));
+        assert!(
+            parse_obj("v 0 0 0\nv 1 0\n")
+                .unwrap_err()
+                .contains("line 2")
+        );
+        assert!(
+            parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n")
+                .unwrap_err()
+                .contains("out of range")
+        );
         assert!(parse_obj("v 0 0 nan\n").unwrap_err().contains("not finite"));
         assert!(parse_obj("v 0 0 0\n").unwrap_err().contains("no faces"));
-        assert!(parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n").unwrap_err().contains("line 4"));
+        assert!(
+            parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n")
+                .unwrap_err()
+                .contains("line 4")
+        );
     }
 }

@@ -6,13 +6,21 @@ use std::process::{Command, Output};
 
 /// Runs `lfit` with `args` and returns its output.
 pub fn lfit(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_lfit")).args(args).env("RUST_BACKTRACE", "0").output().expect("the lfit binary runs")
+    Command::new(env!("CARGO_BIN_EXE_lfit"))
+        .args(args)
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .expect("the lfit binary runs")
 }
 
 /// Runs `lfit`, asserts success and returns stdout parsed as JSON.
 pub fn lfit_json(args: &[&str]) -> serde_json::Value {
     let out = lfit(args);
-    assert!(out.status.success(), "lfit {args:?} failed: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "lfit {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     serde_json::from_slice(&out.stdout).expect("stdout is JSON")
 }
 
@@ -20,12 +28,23 @@ pub fn lfit_json(args: &[&str]) -> serde_json::Value {
 /// `needle`, no panic.
 pub fn assert_one_line_error(out: &Output, needle: &str) {
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "expected failure, got success; stderr: {stderr}");
-    assert_ne!(out.status.code(), Some(101), "exit code 101 is a panic: {stderr}");
+    assert!(
+        !out.status.success(),
+        "expected failure, got success; stderr: {stderr}"
+    );
+    assert_ne!(
+        out.status.code(),
+        Some(101),
+        "exit code 101 is a panic: {stderr}"
+    );
     assert!(!stderr.contains("panicked"), "panic: {stderr}");
     let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
     assert_eq!(lines.len(), 1, "expected one line, got: {stderr}");
-    assert!(lines[0].to_lowercase().contains(&needle.to_lowercase()), "'{needle}' not in: {}", lines[0]);
+    assert!(
+        lines[0].to_lowercase().contains(&needle.to_lowercase()),
+        "'{needle}' not in: {}",
+        lines[0]
+    );
 }
 
 /// The `v` lines of an OBJ file, in file order.
@@ -35,7 +54,11 @@ pub fn obj_vertices(path: &Path) -> Vec<[f64; 3]> {
         .lines()
         .filter(|l| l.starts_with("v "))
         .map(|l| {
-            let c: Vec<f64> = l.split_whitespace().skip(1).map(|x| x.parse().expect("a number")).collect();
+            let c: Vec<f64> = l
+                .split_whitespace()
+                .skip(1)
+                .map(|x| x.parse().expect("a number"))
+                .collect();
             [c[0], c[1], c[2]]
         })
         .collect()
@@ -44,7 +67,8 @@ pub fn obj_vertices(path: &Path) -> Vec<[f64; 3]> {
 /// A test cannot run because a component is missing (`reason`): fails when `CI=true` or the
 /// environment variable `require` is set, since CI must run it; otherwise prints why it skips.
 pub fn skip_unless_required(reason: &str, require: Option<&str>) {
-    let required = std::env::var("CI").as_deref() == Ok("true") || require.is_some_and(|v| std::env::var_os(v).is_some());
+    let required = std::env::var("CI").as_deref() == Ok("true")
+        || require.is_some_and(|v| std::env::var_os(v).is_some());
     assert!(!required, "required here but unavailable: {reason}");
     eprintln!("skipping: {reason}");
 }
@@ -59,12 +83,24 @@ pub fn gltf_validator() -> Result<PathBuf, String> {
     let prefix = match std::env::var_os("LFIT_GLTF_VALIDATOR") {
         Some(p) => PathBuf::from(p),
         None => {
-            let tools = std::env::var_os("LFIT_TOOLS_DIR").map(PathBuf::from).or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/lfit-tools")));
-            tools.ok_or("neither LFIT_GLTF_VALIDATOR nor HOME is set")?.join("gltf-validator")
+            let tools = std::env::var_os("LFIT_TOOLS_DIR")
+                .map(PathBuf::from)
+                .or_else(|| {
+                    std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/lfit-tools"))
+                });
+            tools
+                .ok_or("neither LFIT_GLTF_VALIDATOR nor HOME is set")?
+                .join("gltf-validator")
         }
     };
-    if !prefix.join("node_modules/gltf-validator/package.json").is_file() {
-        return Err(format!("gltf-validator is not installed under {} (run scripts/fetch-gltf-validator.sh)", prefix.display()));
+    if !prefix
+        .join("node_modules/gltf-validator/package.json")
+        .is_file()
+    {
+        return Err(format!(
+            "gltf-validator is not installed under {} (run scripts/fetch-gltf-validator.sh)",
+            prefix.display()
+        ));
     }
     match Command::new("node").arg("--version").output() {
         Ok(o) if o.status.success() => Ok(prefix),
@@ -75,8 +111,20 @@ pub fn gltf_validator() -> Result<PathBuf, String> {
 /// Runs the Khronos validator (scripts/validate-gltf.mjs) on `glb`: its JSON report and stdout.
 pub fn validate_glb(prefix: &Path, glb: &Path) -> (serde_json::Value, String) {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/validate-gltf.mjs");
-    let run = Command::new("node").arg(&script).arg(glb).env("LFIT_GLTF_VALIDATOR", prefix).output().expect("node runs");
+    let run = Command::new("node")
+        .arg(&script)
+        .arg(glb)
+        .env("LFIT_GLTF_VALIDATOR", prefix)
+        .output()
+        .expect("node runs");
     let stdout = String::from_utf8_lossy(&run.stdout).into_owned();
-    assert!(run.status.code() == Some(0) || run.status.code() == Some(1), "validator failed to run: {}", String::from_utf8_lossy(&run.stderr));
-    (serde_json::from_str(&stdout).expect("the validator prints a JSON report"), stdout)
+    assert!(
+        run.status.code() == Some(0) || run.status.code() == Some(1),
+        "validator failed to run: {}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    (
+        serde_json::from_str(&stdout).expect("the validator prints a JSON report"),
+        stdout,
+    )
 }

@@ -11,16 +11,18 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::optim::grad_clipping::GradientClippingConfig;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Bytes, Device};
+use lfit_model::Template;
 use lfit_model::energy::{Energy, EnergyConfig, Target};
 use lfit_model::metrics::{mpjpe_mm, v2v_mm};
-use lfit_nn::checkpoint::{self, checkpoint_files, write_dir};
-use lfit_nn::{Dropout, FeatureStats, NetConfig, NeuralNet, StartMode, observation_features, unroll};
 use lfit_model::observe::{Modality, Sensor};
+use lfit_nn::checkpoint::{self, checkpoint_files, write_dir};
 use lfit_nn::tensor::poses_to_tensor;
-use lfit_model::Template;
+use lfit_nn::{
+    Dropout, FeatureStats, NetConfig, NeuralNet, StartMode, observation_features, unroll,
+};
 use lfit_synth::{Dataset, NoiseConfig, Observations, Scenario, SynthConfig, synthesize};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -36,13 +38,24 @@ pub enum TrainError {
     #[error("training config {path}: {reason}")]
     Config { path: PathBuf, reason: String },
     #[error("invalid training setting {name} = {value}: {reason}")]
-    Setting { name: &'static str, value: String, reason: String },
+    Setting {
+        name: &'static str,
+        value: String,
+        reason: String,
+    },
     #[error(transparent)]
     Model(#[from] lfit_model::ModelError),
     #[error(transparent)]
     Synth(#[from] lfit_synth::SynthError),
-    #[error("loss became {value} at step {step}; training stopped, the last good checkpoint (step {last_good}) is in {dir}")]
-    NotFinite { value: f64, step: usize, last_good: usize, dir: PathBuf },
+    #[error(
+        "loss became {value} at step {step}; training stopped, the last good checkpoint (step {last_good}) is in {dir}"
+    )]
+    NotFinite {
+        value: f64,
+        step: usize,
+        last_good: usize,
+        dir: PathBuf,
+    },
     #[error("cannot resume from {dir}: {reason}")]
     Resume { dir: PathBuf, reason: String },
 }
@@ -107,34 +120,78 @@ impl Default for TrainConfig {
 impl TrainConfig {
     /// Reads a JSON config; unknown fields and bad values are errors naming the file.
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| TrainError::Config { path: path.into(), reason: format!("cannot read: {e}") })?;
-        let config: Self = serde_json::from_str(&text).map_err(|e| TrainError::Config { path: path.into(), reason: format!("malformed JSON: {e}") })?;
-        config.validate().map_err(|e| TrainError::Config { path: path.into(), reason: e.to_string() })?;
+        let text = std::fs::read_to_string(path).map_err(|e| TrainError::Config {
+            path: path.into(),
+            reason: format!("cannot read: {e}"),
+        })?;
+        let config: Self = serde_json::from_str(&text).map_err(|e| TrainError::Config {
+            path: path.into(),
+            reason: format!("malformed JSON: {e}"),
+        })?;
+        config.validate().map_err(|e| TrainError::Config {
+            path: path.into(),
+            reason: e.to_string(),
+        })?;
         Ok(config)
     }
 
     pub fn validate(&self) -> Result<()> {
-        let bad = |name, value: String, reason: &str| Err(TrainError::Setting { name, value, reason: reason.into() });
+        let bad = |name, value: String, reason: &str| {
+            Err(TrainError::Setting {
+                name,
+                value,
+                reason: reason.into(),
+            })
+        };
         if self.modality == Modality::Scan {
-            return bad("modality", "scan".into(), "the neural fitter supports markers, keypoints2d and hmd");
+            return bad(
+                "modality",
+                "scan".into(),
+                "the neural fitter supports markers, keypoints2d and hmd",
+            );
         }
         if self.steps == 0 {
             return bad("steps", "0".into(), "must be at least 1");
         }
         if self.batch < 2 {
-            return bad("batch", self.batch.to_string(), "must be at least 2 (BatchNorm needs batch statistics)");
+            return bad(
+                "batch",
+                self.batch.to_string(),
+                "must be at least 2 (BatchNorm needs batch statistics)",
+            );
         }
         if !(self.learning_rate.is_finite() && self.learning_rate > 0.0) {
-            return bad("learning_rate", self.learning_rate.to_string(), "must be positive");
+            return bad(
+                "learning_rate",
+                self.learning_rate.to_string(),
+                "must be positive",
+            );
         }
-        if !(self.lr_decay.is_finite() && self.lr_decay > 0.0) || !(0.0..=1.0).contains(&self.lr_decay_at) {
-            return bad("lr_decay/lr_decay_at", format!("{}/{}", self.lr_decay, self.lr_decay_at), "decay must be positive and its point in [0, 1]");
+        if !(self.lr_decay.is_finite() && self.lr_decay > 0.0)
+            || !(0.0..=1.0).contains(&self.lr_decay_at)
+        {
+            return bad(
+                "lr_decay/lr_decay_at",
+                format!("{}/{}", self.lr_decay, self.lr_decay_at),
+                "decay must be positive and its point in [0, 1]",
+            );
         }
         if !(self.grad_clip.is_finite() && self.grad_clip > 0.0) {
             return bad("grad_clip", self.grad_clip.to_string(), "must be positive");
         }
-        if self.val_frames < 2 || self.val_every == 0 || self.checkpoint_every == 0 || self.stats_frames < 2 {
-            return bad("val_frames/val_every/checkpoint_every/stats_frames", format!("{}/{}/{}/{}", self.val_frames, self.val_every, self.checkpoint_every, self.stats_frames), "must be positive (frame counts at least 2)");
+        if self.val_frames < 2
+            || self.val_every == 0
+            || self.checkpoint_every == 0
+            || self.stats_frames < 2
+        {
+            return bad(
+                "val_frames/val_every/checkpoint_every/stats_frames",
+                format!(
+                    "{}/{}/{}/{}",
+                    self.val_frames, self.val_every, self.checkpoint_every, self.stats_frames
+                ),
+                "must be positive (frame counts at least 2)",
+            );
         }
         if !(self.noise.is_finite() && self.noise >= 0.0) {
             return bad("noise", self.noise.to_string(), "must be ≥ 0");
@@ -144,7 +201,11 @@ impl TrainConfig {
 
     /// Learning rate at `step` (0-based).
     pub fn lr_at(&self, step: usize) -> f64 {
-        if (step as f64) >= self.lr_decay_at * self.steps as f64 { self.learning_rate * self.lr_decay } else { self.learning_rate }
+        if (step as f64) >= self.lr_decay_at * self.steps as f64 {
+            self.learning_rate * self.lr_decay
+        } else {
+            self.learning_rate
+        }
     }
 }
 
@@ -153,7 +214,8 @@ impl TrainConfig {
 pub mod seeds {
     /// Dataset seed of training batch `step`.
     pub fn batch(seed: u64, step: usize) -> u64 {
-        seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(1_000_000 + step as u64)
+        seed.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            .wrapping_add(1_000_000 + step as u64)
     }
     pub fn validation(seed: u64) -> u64 {
         seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(1)
@@ -174,14 +236,33 @@ pub struct Frames {
 
 /// A dataset of `frames` local-scenario frames (start near the target, papers/000 §4) with
 /// noise, and one gradient-variant energy per frame.
-pub fn synth_frames(template: &Arc<Template>, sensor: &Sensor, base: &Energy, frames: usize, seed: u64, noise: f64) -> Result<Frames> {
+pub fn synth_frames(
+    template: &Arc<Template>,
+    sensor: &Sensor,
+    base: &Energy,
+    frames: usize,
+    seed: u64,
+    noise: f64,
+) -> Result<Frames> {
     let mut config = SynthConfig::new(sensor.modality(), Scenario::Local, frames, seed);
-    config.noise = if noise == 0.0 { NoiseConfig::none() } else { NoiseConfig::scaled(noise)? };
+    config.noise = if noise == 0.0 {
+        NoiseConfig::none()
+    } else {
+        NoiseConfig::scaled(noise)?
+    };
     let dataset = synthesize(&config, template, sensor, &|_| {})?;
     let Observations::Sparse { values, visible } = &dataset.observations else {
-        return Err(TrainError::Setting { name: "modality", value: sensor.modality().to_string(), reason: "needs a sparse modality".into() });
+        return Err(TrainError::Setting {
+            name: "modality",
+            value: sensor.modality().to_string(),
+            reason: "needs a sparse modality".into(),
+        });
     };
-    let energies = values.par_iter().zip(visible.par_iter()).map(|(v, s)| base.with_target(v.clone(), s.clone())).collect::<Result<Vec<_>, _>>()?;
+    let energies = values
+        .par_iter()
+        .zip(visible.par_iter())
+        .map(|(v, s)| base.with_target(v.clone(), s.clone()))
+        .collect::<Result<Vec<_>, _>>()?;
     Ok(Frames { dataset, energies })
 }
 
@@ -189,7 +270,15 @@ pub fn synth_frames(template: &Arc<Template>, sensor: &Sensor, base: &Energy, fr
 /// frames clone it with their own targets ([`Energy::with_target`]).
 pub fn base_energy(template: &Arc<Template>, sensor: &Sensor) -> Result<Energy> {
     let dim = sensor.residual_dim(template);
-    Ok(Energy::new(template.clone(), sensor.clone(), Target::Sparse { values: vec![0.0; dim], visible: vec![false; dim] }, EnergyConfig::default().for_gradient())?)
+    Ok(Energy::new(
+        template.clone(),
+        sensor.clone(),
+        Target::Sparse {
+            values: vec![0.0; dim],
+            visible: vec![false; dim],
+        },
+        EnergyConfig::default().for_gradient(),
+    )?)
 }
 
 /// Feature statistics from `frames`: observations, and residuals/gradients/poses at the poses
@@ -237,24 +326,65 @@ pub struct Validation {
 
 /// Runs `net` (inference mode) on `frames` from Φ(D) (or from the start poses) and measures
 /// V2V/MPJPE after every iteration.
-pub fn validate(net: &NeuralNet, stats: &FeatureStats, frames: &Frames, from_start: bool, device: &Device) -> Result<Validation> {
+pub fn validate(
+    net: &NeuralNet,
+    stats: &FeatureStats,
+    frames: &Frames,
+    from_start: bool,
+    device: &Device,
+) -> Result<Validation> {
     let refs: Vec<&Energy> = frames.energies.iter().collect();
-    let starts: Vec<Option<Vec<f64>>> = frames.dataset.start_poses.iter().map(|s| from_start.then(|| s.clone())).collect();
-    let out = unroll(net, stats, &refs, &starts, None, device, &mut Dropout::off())?;
+    let starts: Vec<Option<Vec<f64>>> = frames
+        .dataset
+        .start_poses
+        .iter()
+        .map(|s| from_start.then(|| s.clone()))
+        .collect();
+    let out = unroll(
+        net,
+        stats,
+        &refs,
+        &starts,
+        None,
+        device,
+        &mut Dropout::off(),
+    )?;
     let template = frames.energies[0].template();
     let gt = &frames.dataset.gt_poses;
     let per = |f: fn(&Template, &[f64], &[f64]) -> f64| -> Vec<f64> {
-        out.host.iter().map(|poses| poses.par_iter().zip(gt.par_iter()).map(|(p, g)| f(template, p, g)).sum::<f64>() / gt.len() as f64).collect()
+        out.host
+            .iter()
+            .map(|poses| {
+                poses
+                    .par_iter()
+                    .zip(gt.par_iter())
+                    .map(|(p, g)| f(template, p, g))
+                    .sum::<f64>()
+                    / gt.len() as f64
+            })
+            .collect()
     };
-    Ok(Validation { v2v_mm: per(v2v_mm), mpjpe_mm: per(mpjpe_mm) })
+    Ok(Validation {
+        v2v_mm: per(v2v_mm),
+        mpjpe_mm: per(mpjpe_mm),
+    })
 }
 
 /// What the trainer reports to its caller (progress bars, logs).
 #[derive(Debug, Clone)]
 pub enum Event {
-    Step { step: usize, steps: usize, loss: f64 },
-    Validation { step: usize, validation: Validation },
-    Checkpoint { step: usize },
+    Step {
+        step: usize,
+        steps: usize,
+        loss: f64,
+    },
+    Validation {
+        step: usize,
+        validation: Validation,
+    },
+    Checkpoint {
+        step: usize,
+    },
 }
 
 /// Resume state written next to the checkpoint.
@@ -292,7 +422,13 @@ pub struct Summary {
 }
 
 /// Trains a network on `template` as configured and writes checkpoints to `options.out`.
-pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, options: &RunOptions, report: &(dyn Fn(Event) + Sync)) -> Result<Summary> {
+pub fn train(
+    config: &TrainConfig,
+    template: Arc<Template>,
+    device: &Device,
+    options: &RunOptions,
+    report: &(dyn Fn(Event) + Sync),
+) -> Result<Summary> {
     config.validate()?;
     let sensor = Sensor::default_for(config.modality, &template);
     let mut net_config = config.network.clone();
@@ -304,28 +440,89 @@ pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, opt
     let ad = device.clone().autodiff();
     let loss = Loss::new(&template, config.loss.clone(), &ad);
 
-    let val = synth_frames(&template, &sensor, &base, config.val_frames, seeds::validation(config.seed), config.noise)?;
-    let mut optim: ModuleOptimizer = AdamConfig::new().with_grad_clipping(Some(GradientClippingConfig::Norm(config.grad_clip as f32))).init();
+    let val = synth_frames(
+        &template,
+        &sensor,
+        &base,
+        config.val_frames,
+        seeds::validation(config.seed),
+        config.noise,
+    )?;
+    let mut optim: ModuleOptimizer = AdamConfig::new()
+        .with_grad_clipping(Some(GradientClippingConfig::Norm(config.grad_clip as f32)))
+        .init();
 
     let (mut net, stats, start_step, elapsed0) = if options.resume {
-        let ck = checkpoint::load(&options.out, &ad).map_err(|e| TrainError::Resume { dir: options.out.clone(), reason: e.to_string() })?;
-        let state: TrainState = serde_json::from_slice(&std::fs::read(options.out.join(STATE_FILE)).map_err(|e| TrainError::Resume { dir: options.out.clone(), reason: format!("no {STATE_FILE}: {e}") })?)
-            .map_err(|e| TrainError::Resume { dir: options.out.clone(), reason: format!("malformed {STATE_FILE}: {e}") })?;
+        let ck = checkpoint::load(&options.out, &ad).map_err(|e| TrainError::Resume {
+            dir: options.out.clone(),
+            reason: e.to_string(),
+        })?;
+        let state: TrainState =
+            serde_json::from_slice(&std::fs::read(options.out.join(STATE_FILE)).map_err(|e| {
+                TrainError::Resume {
+                    dir: options.out.clone(),
+                    reason: format!("no {STATE_FILE}: {e}"),
+                }
+            })?)
+            .map_err(|e| TrainError::Resume {
+                dir: options.out.clone(),
+                reason: format!("malformed {STATE_FILE}: {e}"),
+            })?;
         // Only `steps` may change (to extend a run); everything else must be the same config.
-        if (TrainConfig { steps: config.steps, ..state.config.clone() }) != *config {
+        if (TrainConfig {
+            steps: config.steps,
+            ..state.config.clone()
+        }) != *config
+        {
             return Err(TrainError::Resume { dir: options.out.clone(), reason: "the checkpoint was trained with another config (pass the same --config; only --steps may change)".into() });
         }
         if state.step >= config.steps {
-            return Err(TrainError::Resume { dir: options.out.clone(), reason: format!("the run already has {} steps (ask for more with --steps)", state.step) });
+            return Err(TrainError::Resume {
+                dir: options.out.clone(),
+                reason: format!(
+                    "the run already has {} steps (ask for more with --steps)",
+                    state.step
+                ),
+            });
         }
-        ck.check_compatible(&options.out, config.modality, net_config.residual_dim, &template).map_err(|e| TrainError::Resume { dir: options.out.clone(), reason: e.to_string() })?;
-        let bytes = std::fs::read(options.out.join(OPTIMIZER_FILE)).map_err(|e| TrainError::Resume { dir: options.out.clone(), reason: format!("no {OPTIMIZER_FILE}: {e}") })?;
-        optim = optim.from_bytes(Bytes::from_bytes_vec(bytes)).map_err(|e| TrainError::Resume { dir: options.out.clone(), reason: format!("optimizer state: {e}") })?;
+        ck.check_compatible(
+            &options.out,
+            config.modality,
+            net_config.residual_dim,
+            &template,
+        )
+        .map_err(|e| TrainError::Resume {
+            dir: options.out.clone(),
+            reason: e.to_string(),
+        })?;
+        let bytes =
+            std::fs::read(options.out.join(OPTIMIZER_FILE)).map_err(|e| TrainError::Resume {
+                dir: options.out.clone(),
+                reason: format!("no {OPTIMIZER_FILE}: {e}"),
+            })?;
+        optim = optim
+            .from_bytes(Bytes::from_bytes_vec(bytes))
+            .map_err(|e| TrainError::Resume {
+                dir: options.out.clone(),
+                reason: format!("optimizer state: {e}"),
+            })?;
         (ck.net.train(), ck.stats, state.step, state.elapsed_s)
     } else {
-        let stats_frames = synth_frames(&template, &sensor, &base, config.stats_frames, seeds::stats(config.seed), config.noise)?;
+        let stats_frames = synth_frames(
+            &template,
+            &sensor,
+            &base,
+            config.stats_frames,
+            seeds::stats(config.seed),
+            config.noise,
+        )?;
         let stats = measure_stats(&stats_frames);
-        (NeuralNet::new(&net_config, config.seed, &ad)?, stats, 0, 0.0)
+        (
+            NeuralNet::new(&net_config, config.seed, &ad)?,
+            stats,
+            0,
+            0.0,
+        )
     };
 
     let csv_path = options.out.join(METRICS_CSV);
@@ -334,7 +531,12 @@ pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, opt
             .unwrap_or_default()
             .lines()
             .skip(1)
-            .filter(|l| l.split(',').next().and_then(|s| s.parse::<usize>().ok()).is_some_and(|s| s <= start_step))
+            .filter(|l| {
+                l.split(',')
+                    .next()
+                    .and_then(|s| s.parse::<usize>().ok())
+                    .is_some_and(|s| s <= start_step)
+            })
             .map(String::from)
             .collect()
     } else {
@@ -353,12 +555,21 @@ pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, opt
     };
 
     let first_validation = validate(&net.valid(), &stats, &val, false, device)?;
-    report(Event::Validation { step: start_step, validation: first_validation.clone() });
+    report(Event::Validation {
+        step: start_step,
+        validation: first_validation.clone(),
+    });
     let mut last_validation = first_validation.clone();
     let started = Instant::now();
     let mut last_good = start_step;
 
-    let save = |net: &NeuralNet, optim: &ModuleOptimizer, step: usize, elapsed: f64, validation: &Validation, rows: &[String]| -> Result<()> {
+    let save = |net: &NeuralNet,
+                optim: &ModuleOptimizer,
+                step: usize,
+                elapsed: f64,
+                validation: &Validation,
+                rows: &[String]|
+     -> Result<()> {
         let card = json!({
             "command": options.command,
             "seed": config.seed,
@@ -373,11 +584,25 @@ pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, opt
                             "iteration": (0..=n_iter).collect::<Vec<_>>(), "v2v_mm": validation.v2v_mm, "mpjpe_mm": validation.mpjpe_mm},
             "train_config": config,
         });
-        let mut files: Vec<(&str, Vec<u8>)> = checkpoint_files(&net.valid(), &stats, &template, &card)?.into_iter().collect();
-        let opt = optim.into_bytes().map_err(|e| TrainError::Setting { name: "optimizer", value: String::new(), reason: format!("cannot serialise the optimizer state: {e}") })?;
+        let mut files: Vec<(&str, Vec<u8>)> =
+            checkpoint_files(&net.valid(), &stats, &template, &card)?
+                .into_iter()
+                .collect();
+        let opt = optim.into_bytes().map_err(|e| TrainError::Setting {
+            name: "optimizer",
+            value: String::new(),
+            reason: format!("cannot serialise the optimizer state: {e}"),
+        })?;
         files.push((OPTIMIZER_FILE, opt.to_vec()));
-        let state = TrainState { step, elapsed_s: elapsed, config: config.clone() };
-        files.push((STATE_FILE, serde_json::to_vec_pretty(&state).unwrap_or_default()));
+        let state = TrainState {
+            step,
+            elapsed_s: elapsed,
+            config: config.clone(),
+        };
+        files.push((
+            STATE_FILE,
+            serde_json::to_vec_pretty(&state).unwrap_or_default(),
+        ));
         let mut csv = csv_header.clone();
         csv.push('\n');
         for r in rows {
@@ -390,7 +615,14 @@ pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, opt
     };
 
     for step in start_step..config.steps {
-        let frames = synth_frames(&template, &sensor, &base, config.batch, seeds::batch(config.seed, step), config.noise)?;
+        let frames = synth_frames(
+            &template,
+            &sensor,
+            &base,
+            config.batch,
+            seeds::batch(config.seed, step),
+            config.noise,
+        )?;
         let mut rng = ChaCha8Rng::seed_from_u64(seeds::batch(config.seed, step) ^ 0x5EED);
         let starts: Vec<Option<Vec<f64>>> = frames
             .dataset
@@ -404,30 +636,76 @@ pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, opt
             .collect();
         let refs: Vec<&Energy> = frames.energies.iter().collect();
         let truth = loss.truth(poses_to_tensor(&frames.dataset.gt_poses, &ad));
-        let out = unroll(&net, &stats, &refs, &starts, None, &ad, &mut Dropout { p: net_config.dropout, rng: Some(&mut rng) })?;
+        let out = unroll(
+            &net,
+            &stats,
+            &refs,
+            &starts,
+            None,
+            &ad,
+            &mut Dropout {
+                p: net_config.dropout,
+                rng: Some(&mut rng),
+            },
+        )?;
         let total = loss.total(&out.poses, &truth);
-        let value = f64::from(total.clone().detach().try_into_scalar::<f32>().map_err(|e| lfit_model::ModelError::Backend(format!("cannot read the loss: {e}")))?);
+        let value = f64::from(
+            total
+                .clone()
+                .detach()
+                .try_into_scalar::<f32>()
+                .map_err(|e| {
+                    lfit_model::ModelError::Backend(format!("cannot read the loss: {e}"))
+                })?,
+        );
         let elapsed = elapsed0 + started.elapsed().as_secs_f64();
         if !value.is_finite() {
-            return Err(TrainError::NotFinite { value, step, last_good, dir: options.out.clone() });
+            return Err(TrainError::NotFinite {
+                value,
+                step,
+                last_good,
+                dir: options.out.clone(),
+            });
         }
         let grads = GradientsParams::from_grads(total.backward(), &net);
         net = optim.step(config.lr_at(step), net, grads);
-        csv_rows.push(format!("{},train,{value},{},{elapsed:.3}", step + 1, config.lr_at(step)));
-        report(Event::Step { step: step + 1, steps: config.steps, loss: value });
+        csv_rows.push(format!(
+            "{},train,{value},{},{elapsed:.3}",
+            step + 1,
+            config.lr_at(step)
+        ));
+        report(Event::Step {
+            step: step + 1,
+            steps: config.steps,
+            loss: value,
+        });
 
         let done = step + 1;
         if done % config.val_every == 0 || done == config.steps {
             last_validation = validate(&net.valid(), &stats, &val, false, device)?;
             let mut row = format!("{done},validation,,,{elapsed:.3}");
-            for v in last_validation.v2v_mm.iter().chain(&last_validation.mpjpe_mm) {
+            for v in last_validation
+                .v2v_mm
+                .iter()
+                .chain(&last_validation.mpjpe_mm)
+            {
                 row.push_str(&format!(",{v:.3}"));
             }
             csv_rows.push(row);
-            report(Event::Validation { step: done, validation: last_validation.clone() });
+            report(Event::Validation {
+                step: done,
+                validation: last_validation.clone(),
+            });
         }
         if done % config.checkpoint_every == 0 || done == config.steps {
-            save(&net, &optim, done, elapsed0 + started.elapsed().as_secs_f64(), &last_validation, &csv_rows)?;
+            save(
+                &net,
+                &optim,
+                done,
+                elapsed0 + started.elapsed().as_secs_f64(),
+                &last_validation,
+                &csv_rows,
+            )?;
             last_good = done;
             report(Event::Checkpoint { step: done });
         }
@@ -437,7 +715,11 @@ pub fn train(config: &TrainConfig, template: Arc<Template>, device: &Device, opt
     Ok(Summary {
         steps: config.steps,
         time_s,
-        samples_per_s: if time_s > 0.0 { (steps_run * config.batch) as f64 / time_s } else { 0.0 },
+        samples_per_s: if time_s > 0.0 {
+            (steps_run * config.batch) as f64 / time_s
+        } else {
+            0.0
+        },
         first_validation,
         final_validation: last_validation,
         parameters: net.parameters(),

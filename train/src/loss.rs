@@ -29,7 +29,13 @@ pub struct LossWeights {
 
 impl Default for LossWeights {
     fn default() -> Self {
-        Self { vertices: 1000.0, edges: 1000.0, transforms: 100.0, rotations: 1.0, translation: 100.0 }
+        Self {
+            vertices: 1000.0,
+            edges: 1000.0,
+            transforms: 100.0,
+            rotations: 1.0,
+            translation: 100.0,
+        }
     }
 }
 
@@ -68,7 +74,11 @@ pub fn mesh_edges(template: &Template) -> Vec<(u32, u32)> {
 /// shape and expression coefficients after it are not rotations).
 fn local_rotations(poses: Tensor<2>, joints: usize) -> Tensor<3> {
     let [batch, _] = poses.dims();
-    rodrigues(poses.narrow(1, 3, 3 * joints).reshape([batch * joints, 3])).reshape([batch, joints * 3, 3])
+    rodrigues(poses.narrow(1, 3, 3 * joints).reshape([batch * joints, 3])).reshape([
+        batch,
+        joints * 3,
+        3,
+    ])
 }
 
 impl Loss {
@@ -79,7 +89,12 @@ impl Loss {
             let n = v.len();
             Tensor::<1, Int>::from_data(TensorData::new(v, [n]), device)
         };
-        Self { skinning: TensorSkinning::new(template, device), edge_a: idx(|e| e.0), edge_b: idx(|e| e.1), weights }
+        Self {
+            skinning: TensorSkinning::new(template, device),
+            edge_a: idx(|e| e.0),
+            edge_b: idx(|e| e.1),
+            weights,
+        }
     }
 
     fn edge_vectors(&self, vertices: Tensor<3>) -> Tensor<3> {
@@ -91,7 +106,12 @@ impl Loss {
         let poses = poses.detach();
         let skinned = self.skinning.forward(poses.clone());
         let edges = self.edge_vectors(skinned.vertices.clone());
-        Truth { local: local_rotations(poses.clone(), self.skinning.num_joints()), edges, skinned, poses }
+        Truth {
+            local: local_rotations(poses.clone(), self.skinning.num_joints()),
+            edges,
+            skinned,
+            poses,
+        }
     }
 
     /// `L_n` of one iterate `[B, param_dim]`: a scalar tensor `[1]`, and its five weighted parts.
@@ -103,10 +123,22 @@ impl Loss {
         let l1 = |a: Tensor<3>, b: Tensor<3>| (a - b).abs().mean();
         let lm = l1(out.vertices.clone(), truth.skinned.vertices.clone());
         let le = l1(self.edge_vectors(out.vertices), truth.edges.clone());
-        let lt = (out.world_rotations - truth.skinned.world_rotations.clone()).abs().mean() + l1(out.joints, truth.skinned.joints.clone());
-        let lr = l1(local_rotations(poses.clone(), self.skinning.num_joints()), truth.local.clone());
-        let ltr = (poses.narrow(1, 0, 3) - truth.poses.clone().narrow(1, 0, 3)).abs().mean();
-        lm.mul_scalar(w.vertices) + le.mul_scalar(w.edges) + lt.mul_scalar(w.transforms) + lr.mul_scalar(w.rotations) + ltr.mul_scalar(w.translation)
+        let lt = (out.world_rotations - truth.skinned.world_rotations.clone())
+            .abs()
+            .mean()
+            + l1(out.joints, truth.skinned.joints.clone());
+        let lr = l1(
+            local_rotations(poses.clone(), self.skinning.num_joints()),
+            truth.local.clone(),
+        );
+        let ltr = (poses.narrow(1, 0, 3) - truth.poses.clone().narrow(1, 0, 3))
+            .abs()
+            .mean();
+        lm.mul_scalar(w.vertices)
+            + le.mul_scalar(w.edges)
+            + lt.mul_scalar(w.transforms)
+            + lr.mul_scalar(w.rotations)
+            + ltr.mul_scalar(w.translation)
     }
 
     /// Eq. (13): the sum over every iterate θ0 … θN.

@@ -3,17 +3,25 @@
 
 use std::sync::{Arc, Mutex};
 
-use lfit_nn::checkpoint;
-use lfit_nn::{NetConfig, StartMode};
 use lfit_model::observe::Modality;
-use lfit_nn::tensor::ndarray_device;
 use lfit_model::{Template, default_template};
+use lfit_nn::checkpoint;
+use lfit_nn::tensor::ndarray_device;
+use lfit_nn::{NetConfig, StartMode};
 use lfit_train::{Event, RunOptions, TrainConfig, TrainError, train};
 
 fn small(steps: usize) -> TrainConfig {
     TrainConfig {
         modality: Modality::Markers,
-        network: NetConfig { hidden: 48, layers: 1, init_width: 64, iterations: 3, start: StartMode::Phi, dropout: 0.0, ..NetConfig::default() },
+        network: NetConfig {
+            hidden: 48,
+            layers: 1,
+            init_width: 64,
+            iterations: 3,
+            start: StartMode::Phi,
+            dropout: 0.0,
+            ..NetConfig::default()
+        },
         steps,
         batch: 16,
         learning_rate: 2e-3,
@@ -28,7 +36,12 @@ fn small(steps: usize) -> TrainConfig {
 }
 
 fn options(out: &std::path::Path, resume: bool) -> RunOptions {
-    RunOptions { out: out.to_path_buf(), device_name: "ndarray".into(), resume, command: "test".into() }
+    RunOptions {
+        out: out.to_path_buf(),
+        device_name: "ndarray".into(),
+        resume,
+        command: "test".into(),
+    }
 }
 
 fn template() -> Arc<Template> {
@@ -40,22 +53,47 @@ fn a_short_run_halves_the_validation_error() {
     let tmp = tempfile::tempdir().expect("tmp");
     let out = tmp.path().join("run");
     let events = Mutex::new(Vec::new());
-    let summary = train(&small(80), template(), &ndarray_device(), &options(&out, false), &|e| events.lock().expect("lock").push(e)).expect("train");
+    let summary = train(
+        &small(80),
+        template(),
+        &ndarray_device(),
+        &options(&out, false),
+        &|e| events.lock().expect("lock").push(e),
+    )
+    .expect("train");
     let first = *summary.first_validation.v2v_mm.last().expect("v2v");
     let last = *summary.final_validation.v2v_mm.last().expect("v2v");
-    eprintln!("validation V2V after the last iteration: {first:.1} mm -> {last:.1} mm ({:.0} samples/s)", summary.samples_per_s);
-    assert!(last <= 0.5 * first, "training must cut validation V2V by at least half: {first:.1} -> {last:.1} mm");
+    eprintln!(
+        "validation V2V after the last iteration: {first:.1} mm -> {last:.1} mm ({:.0} samples/s)",
+        summary.samples_per_s
+    );
+    assert!(
+        last <= 0.5 * first,
+        "training must cut validation V2V by at least half: {first:.1} -> {last:.1} mm"
+    );
     // The iterations help: the last iterate beats Φ's θ0.
     assert!(summary.final_validation.v2v_mm[3] < summary.final_validation.v2v_mm[0]);
     // Checkpoint with card, CSV with validation rows, loadable.
     let ck = checkpoint::load(&out, &ndarray_device()).expect("checkpoint");
     assert_eq!(ck.metrics["steps"], 80);
-    assert_eq!(ck.metrics["validation"]["v2v_mm"].as_array().map(Vec::len), Some(4));
+    assert_eq!(
+        ck.metrics["validation"]["v2v_mm"].as_array().map(Vec::len),
+        Some(4)
+    );
     let csv = std::fs::read_to_string(out.join("metrics.csv")).expect("csv");
     assert_eq!(csv.lines().filter(|l| l.contains(",train,")).count(), 80);
-    assert_eq!(csv.lines().filter(|l| l.contains(",validation,")).count(), 8);
+    assert_eq!(
+        csv.lines().filter(|l| l.contains(",validation,")).count(),
+        8
+    );
     let events = events.into_inner().expect("events");
-    assert_eq!(events.iter().filter(|e| matches!(e, Event::Checkpoint { .. })).count(), 8);
+    assert_eq!(
+        events
+            .iter()
+            .filter(|e| matches!(e, Event::Checkpoint { .. }))
+            .count(),
+        8
+    );
 }
 
 #[test]
@@ -64,24 +102,77 @@ fn resuming_continues_exactly_where_the_run_stopped() {
     let straight = tmp.path().join("straight");
     let split = tmp.path().join("split");
     let device = ndarray_device();
-    let config = TrainConfig { val_every: 5, checkpoint_every: 5, ..small(10) };
-    train(&config, template(), &device, &options(&straight, false), &|_| {}).expect("straight");
-    train(&TrainConfig { steps: 5, ..config.clone() }, template(), &device, &options(&split, false), &|_| {}).expect("first half");
-    let resumed = train(&config, template(), &device, &options(&split, true), &|_| {}).expect("resume");
+    let config = TrainConfig {
+        val_every: 5,
+        checkpoint_every: 5,
+        ..small(10)
+    };
+    train(
+        &config,
+        template(),
+        &device,
+        &options(&straight, false),
+        &|_| {},
+    )
+    .expect("straight");
+    train(
+        &TrainConfig {
+            steps: 5,
+            ..config.clone()
+        },
+        template(),
+        &device,
+        &options(&split, false),
+        &|_| {},
+    )
+    .expect("first half");
+    let resumed = train(
+        &config,
+        template(),
+        &device,
+        &options(&split, true),
+        &|_| {},
+    )
+    .expect("resume");
     let a = checkpoint::load(&straight, &device).expect("a");
     let b = checkpoint::load(&split, &device).expect("b");
-    assert_eq!(a.metrics["validation"], b.metrics["validation"], "same data, same optimizer state: identical results");
+    assert_eq!(
+        a.metrics["validation"], b.metrics["validation"],
+        "same data, same optimizer state: identical results"
+    );
     assert_eq!(resumed.steps, 10);
     let csv = std::fs::read_to_string(split.join("metrics.csv")).expect("csv");
-    assert_eq!(csv.lines().filter(|l| l.contains(",train,")).count(), 10, "{csv}");
+    assert_eq!(
+        csv.lines().filter(|l| l.contains(",train,")).count(),
+        10,
+        "{csv}"
+    );
 
     // Resuming with another config, or a finished run, is refused with one line.
-    let other = TrainConfig { learning_rate: 0.1, ..config.clone() };
-    let e = train(&other, template(), &device, &options(&split, true), &|_| {}).expect_err("other config");
+    let other = TrainConfig {
+        learning_rate: 0.1,
+        ..config.clone()
+    };
+    let e = train(&other, template(), &device, &options(&split, true), &|_| {})
+        .expect_err("other config");
     assert!(e.to_string().contains("another config"), "{e}");
-    let e = train(&config, template(), &device, &options(&split, true), &|_| {}).expect_err("done");
+    let e = train(
+        &config,
+        template(),
+        &device,
+        &options(&split, true),
+        &|_| {},
+    )
+    .expect_err("done");
     assert!(e.to_string().contains("already has 10 steps"), "{e}");
-    let e = train(&config, template(), &device, &options(&tmp.path().join("none"), true), &|_| {}).expect_err("missing");
+    let e = train(
+        &config,
+        template(),
+        &device,
+        &options(&tmp.path().join("none"), true),
+        &|_| {},
+    )
+    .expect_err("missing");
     assert!(matches!(e, TrainError::Resume { .. }), "{e}");
 }
 
@@ -90,12 +181,26 @@ fn a_diverging_run_stops_and_keeps_its_last_checkpoint() {
     let tmp = tempfile::tempdir().expect("tmp");
     let out = tmp.path().join("run");
     let device = ndarray_device();
-    let config = TrainConfig { learning_rate: 1e30, checkpoint_every: 1, val_every: 1000, ..small(50) };
-    let e = train(&config, template(), &device, &options(&out, false), &|_| {}).expect_err("must stop");
-    let TrainError::NotFinite { step, last_good, .. } = &e else { panic!("expected NotFinite, got {e}") };
+    let config = TrainConfig {
+        learning_rate: 1e30,
+        checkpoint_every: 1,
+        val_every: 1000,
+        ..small(50)
+    };
+    let e =
+        train(&config, template(), &device, &options(&out, false), &|_| {}).expect_err("must stop");
+    let TrainError::NotFinite {
+        step, last_good, ..
+    } = &e
+    else {
+        panic!("expected NotFinite, got {e}")
+    };
     assert!(*step >= 1 && *last_good == *step, "{e}");
     let text = e.to_string();
-    assert!(text.contains("training stopped") && text.contains("last good checkpoint"), "{text}");
+    assert!(
+        text.contains("training stopped") && text.contains("last good checkpoint"),
+        "{text}"
+    );
     assert_eq!(text.lines().count(), 1);
     let ck = checkpoint::load(&out, &device).expect("the last checkpoint is intact");
     assert_eq!(ck.metrics["steps"], *last_good);
@@ -119,7 +224,14 @@ fn bad_configs_are_one_line_errors() {
         if want.is_empty() {
             // Network settings are checked when the run starts.
             let config = r.expect("parses");
-            let e = train(&config, template(), &ndarray_device(), &options(&tmp.path().join("x"), false), &|_| {}).expect_err("dropout");
+            let e = train(
+                &config,
+                template(),
+                &ndarray_device(),
+                &options(&tmp.path().join("x"), false),
+                &|_| {},
+            )
+            .expect_err("dropout");
             assert!(e.to_string().contains("dropout"), "{e}");
             continue;
         }
@@ -127,7 +239,12 @@ fn bad_configs_are_one_line_errors() {
         assert!(e.to_string().contains(want), "{text}: {e}");
         assert_eq!(e.to_string().lines().count(), 1);
     }
-    assert!(TrainConfig::load(&tmp.path().join("missing.json")).expect_err("missing").to_string().contains("cannot read"));
+    assert!(
+        TrainConfig::load(&tmp.path().join("missing.json"))
+            .expect_err("missing")
+            .to_string()
+            .contains("cannot read")
+    );
 }
 
 /// The tensor loss against a host computation of the same terms with the CPU skinning.
@@ -143,11 +260,20 @@ fn tensor_loss_matches_a_cpu_computation() {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
     let mut pose = || -> Pose { std::array::from_fn(|_| rng.random_range(-0.4..0.4)) };
     let (pred, truth) = ([pose(), pose()], [pose(), pose()]);
-    let only = |v: f64, e: f64, t: f64, r: f64, tr: f64| LossWeights { vertices: v, edges: e, transforms: t, rotations: r, translation: tr };
+    let only = |v: f64, e: f64, t: f64, r: f64, tr: f64| LossWeights {
+        vertices: v,
+        edges: e,
+        transforms: t,
+        rotations: r,
+        translation: tr,
+    };
     let value = |w: LossWeights| -> f64 {
         let loss = Loss::new(&template, w, &device);
         let t = loss.truth(poses_to_tensor(&truth, &device));
-        f64::from(loss.step(poses_to_tensor(&pred, &device), &t).into_scalar::<f32>())
+        f64::from(
+            loss.step(poses_to_tensor(&pred, &device), &t)
+                .into_scalar::<f32>(),
+        )
     };
     let skin = |p: &Pose| {
         let mut v = Vec::new();
@@ -170,19 +296,36 @@ fn tensor_loss_matches_a_cpu_computation() {
             esum += f64::from(d.abs().element_sum());
             en += 3.0;
         }
-        let (ja, jb) = (joint_transforms(&template, p).joints, joint_transforms(&template, g).joints);
+        let (ja, jb) = (
+            joint_transforms(&template, p).joints,
+            joint_transforms(&template, g).joints,
+        );
         for (x, y) in ja.iter().zip(&jb) {
             jsum += (*x - *y).abs().element_sum();
             jn += 3.0;
         }
     }
-    let close = |got: f64, want: f64, what: &str| assert!((got - want).abs() <= 1e-4 * want.abs().max(1.0), "{what}: tensor {got} vs cpu {want}");
+    let close = |got: f64, want: f64, what: &str| {
+        assert!(
+            (got - want).abs() <= 1e-4 * want.abs().max(1.0),
+            "{what}: tensor {got} vs cpu {want}"
+        )
+    };
     close(value(only(1.0, 0.0, 0.0, 0.0, 0.0)), sum / n, "vertices");
     close(value(only(0.0, 1.0, 0.0, 0.0, 0.0)), esum / en, "edges");
-    let tr: f64 = pred.iter().zip(&truth).map(|(p, g)| (0..3).map(|k| (p[k] - g[k]).abs()).sum::<f64>()).sum::<f64>() / 6.0;
+    let tr: f64 = pred
+        .iter()
+        .zip(&truth)
+        .map(|(p, g)| (0..3).map(|k| (p[k] - g[k]).abs()).sum::<f64>())
+        .sum::<f64>()
+        / 6.0;
     close(value(only(0.0, 0.0, 0.0, 0.0, 1.0)), tr, "translation");
     // Transforms = world rotations + joint positions; check the sum is at least the joint part.
     let t = value(only(0.0, 0.0, 1.0, 0.0, 0.0));
-    assert!(t > jsum / jn && t.is_finite(), "{t} vs joints {}", jsum / jn);
+    assert!(
+        t > jsum / jn && t.is_finite(),
+        "{t} vs joints {}",
+        jsum / jn
+    );
     assert!(POSE_DIM == 57);
 }

@@ -46,7 +46,12 @@ pub struct ApfConfig {
 
 impl Default for ApfConfig {
     fn default() -> Self {
-        ApfConfig { layers: 10, survival: 0.5, alpha: 0.5, min_std_fraction: 1e-4 }
+        ApfConfig {
+            layers: 10,
+            survival: 0.5,
+            alpha: 0.5,
+            min_std_fraction: 1e-4,
+        }
     }
 }
 
@@ -64,7 +69,11 @@ pub fn particles_for(budget: usize, layers: usize) -> usize {
 pub fn survival_rate(weights: &[f64]) -> f64 {
     let s: f64 = weights.iter().sum();
     let s2: f64 = weights.iter().map(|w| w * w).sum();
-    if s2 > 0.0 { s * s / (weights.len() as f64 * s2) } else { 0.0 }
+    if s2 > 0.0 {
+        s * s / (weights.len() as f64 * s2)
+    } else {
+        0.0
+    }
 }
 
 /// Computes normalised weights `π ∝ exp(−β E)` into `weights`, with β chosen by bisection so
@@ -92,7 +101,11 @@ pub fn anneal_weights(energies: &[f64], target: f64, weights: &mut Vec<f64>) -> 
     let spread = emax - emin;
     if spread.is_nan() || spread <= 0.0 || spread.is_infinite() {
         for (w, &e) in weights.iter_mut().zip(energies) {
-            *w = if e.is_finite() { 1.0 / count as f64 } else { 0.0 };
+            *w = if e.is_finite() {
+                1.0 / count as f64
+            } else {
+                0.0
+            };
         }
         return (0.0, count as f64 / n as f64);
     }
@@ -128,11 +141,19 @@ pub fn anneal_weights(energies: &[f64], target: f64, weights: &mut Vec<f64>) -> 
                 break;
             }
         }
-        if (surv(lo) - target).abs() < (surv(hi) - target).abs() { lo } else { hi }
+        if (surv(lo) - target).abs() < (surv(hi) - target).abs() {
+            lo
+        } else {
+            hi
+        }
     };
     let mut sum = 0.0;
     for (w, &e) in weights.iter_mut().zip(energies) {
-        *w = if e.is_finite() { (-b * (e - emin) / spread).exp() } else { 0.0 };
+        *w = if e.is_finite() {
+            (-b * (e - emin) / spread).exp()
+        } else {
+            0.0
+        };
         sum += *w;
     }
     weights.iter_mut().for_each(|w| *w /= sum);
@@ -192,11 +213,18 @@ impl AnnealCore {
     /// Core with an initial set of `n` particles perturbing the coordinates `active`.
     pub fn new(problem: &Problem, cfg: ApfConfig, n: usize, active: Vec<usize>, seed: u64) -> Self {
         let d = problem.dim();
-        let cfg = ApfConfig { layers: cfg.layers.max(1), ..cfg };
+        let cfg = ApfConfig {
+            layers: cfg.layers.max(1),
+            ..cfg
+        };
         let mut core = AnnealCore {
             d,
             bounds: problem.bounds.clone(),
-            floor: problem.scale.iter().map(|s| s * cfg.min_std_fraction).collect(),
+            floor: problem
+                .scale
+                .iter()
+                .map(|s| s * cfg.min_std_fraction)
+                .collect(),
             cfg,
             rng: util::rng(seed),
             cur_x: Vec::new(),
@@ -275,7 +303,9 @@ impl AnnealCore {
         }
         let d = self.d;
         let k = max.max(1).min(self.n_cur - self.asked);
-        let out = (self.asked..self.asked + k).map(|i| self.cur_x[i * d..(i + 1) * d].to_vec()).collect();
+        let out = (self.asked..self.asked + k)
+            .map(|i| self.cur_x[i * d..(i + 1) * d].to_vec())
+            .collect();
         self.asked += k;
         out
     }
@@ -295,7 +325,11 @@ impl AnnealCore {
     }
 
     fn complete_layer(&mut self) {
-        let (beta, surv) = anneal_weights(&self.cur_e[..self.n_cur], self.cfg.survival, &mut self.prev_w);
+        let (beta, surv) = anneal_weights(
+            &self.cur_e[..self.n_cur],
+            self.cfg.survival,
+            &mut self.prev_w,
+        );
         self.last_beta = beta;
         self.last_survival = surv;
         std::mem::swap(&mut self.prev_x, &mut self.cur_x);
@@ -317,22 +351,33 @@ impl AnnealCore {
         let anneal = self.cfg.alpha.powi(self.layer as i32);
         let mut std = vec![0.0; d];
         for &j in &self.active {
-            let mean: f64 = (0..n_prev).map(|i| self.prev_w[i] * self.prev_x[i * d + j]).sum();
+            let mean: f64 = (0..n_prev)
+                .map(|i| self.prev_w[i] * self.prev_x[i * d + j])
+                .sum();
             let var: f64 = (0..n_prev)
                 .map(|i| {
                     let t = self.prev_x[i * d + j] - mean;
                     self.prev_w[i] * t * t
                 })
                 .sum();
-            let s = if self.fresh_partition { self.problem.scale[j] } else { (var * anneal).sqrt() };
-            std[j] = if s.is_finite() { s.max(self.floor[j]) } else { self.floor[j] };
+            let s = if self.fresh_partition {
+                self.problem.scale[j]
+            } else {
+                (var * anneal).sqrt()
+            };
+            std[j] = if s.is_finite() {
+                s.max(self.floor[j])
+            } else {
+                self.floor[j]
+            };
         }
         let mut idx = std::mem::take(&mut self.idx);
         systematic_resample(&self.prev_w, n, &mut self.rng, &mut idx);
         self.cur_x.clear();
         for &i in &idx {
             let start = self.cur_x.len();
-            self.cur_x.extend_from_slice(&self.prev_x[i * d..(i + 1) * d]);
+            self.cur_x
+                .extend_from_slice(&self.prev_x[i * d..(i + 1) * d]);
             let x = &mut self.cur_x[start..];
             for &j in &self.active {
                 x[j] += std[j] * util::normal(&mut self.rng);
@@ -344,7 +389,9 @@ impl AnnealCore {
         // (papers/001 Fig. 3), unperturbed, so the estimate itself gets evaluated.
         if n >= 2 {
             for j in 0..d {
-                self.cur_x[j] = (0..n_prev).map(|i| self.prev_w[i] * self.prev_x[i * d + j]).sum();
+                self.cur_x[j] = (0..n_prev)
+                    .map(|i| self.prev_w[i] * self.prev_x[i * d + j])
+                    .sum();
             }
             self.bounds.clip(&mut self.cur_x[..d]);
         }
@@ -406,7 +453,9 @@ impl Apf {
     /// APF for `budget` evaluations (N = [`particles_for`]`(budget, cfg.layers)`).
     pub fn new(problem: &Problem, cfg: ApfConfig, budget: usize, seed: u64) -> Self {
         let n = particles_for(budget, cfg.layers);
-        Apf { core: AnnealCore::new(problem, cfg, n, (0..problem.dim()).collect(), seed) }
+        Apf {
+            core: AnnealCore::new(problem, cfg, n, (0..problem.dim()).collect(), seed),
+        }
     }
 
     /// The annealing state (survival rate, β, particle count).
@@ -443,7 +492,9 @@ mod tests {
         let mut rng = util::rng(5);
         let mut w = Vec::new();
         for n in [10usize, 100, 1000] {
-            let e: Vec<f64> = (0..n).map(|_| util::normal(&mut rng).powi(2) * 50.0 + 3.0).collect();
+            let e: Vec<f64> = (0..n)
+                .map(|_| util::normal(&mut rng).powi(2) * 50.0 + 3.0)
+                .collect();
             let (beta, surv) = anneal_weights(&e, 0.5, &mut w);
             assert!(beta > 0.0);
             assert!((surv - 0.5).abs() < 1e-6, "n={n}: survival {surv}");
@@ -483,9 +534,17 @@ mod tests {
             let mut o = Apf::new(&p, ApfConfig::default(), 3000, seed);
             assert_eq!(o.core().particles(), 300);
             let out = minimize(&mut o, &testfns::sphere, 3000, false).unwrap();
-            assert!(out.best_value * 10.0 < f0, "seed {seed}: {}", out.best_value);
+            assert!(
+                out.best_value * 10.0 < f0,
+                "seed {seed}: {}",
+                out.best_value
+            );
             assert_eq!(o.core().layers_done(), 10);
-            assert!((o.core().survival() - 0.5).abs() < 1e-6, "{}", o.core().survival());
+            assert!(
+                (o.core().survival() - 0.5).abs() < 1e-6,
+                "{}",
+                o.core().survival()
+            );
         }
     }
 

@@ -57,7 +57,13 @@ impl CmaPowell {
             .std_x()
             .iter()
             .zip(&p.scale)
-            .map(|(&s, &sc)| if s.is_finite() { s.clamp(MIN_STEP_FRACTION * sc, sc) } else { sc })
+            .map(|(&s, &sc)| {
+                if s.is_finite() {
+                    s.clamp(MIN_STEP_FRACTION * sc, sc)
+                } else {
+                    sc
+                }
+            })
             .collect();
         let factory = powell_factory(p, PowellConfig::default(), util::sub_seed(self.seed, 3));
         let seq = Sequential::starting_at(
@@ -126,6 +132,10 @@ mod tests {
         let out2 = minimize(&mut o, &testfns::ellipsoid, 1500, false).unwrap();
         assert!(o.in_powell_phase());
         assert!(out2.best_value <= cma_best);
-        assert!(out2.best_value < 1e-6, "{} (after cma {cma_best})", out2.best_value);
+        assert!(
+            out2.best_value < 1e-6,
+            "{} (after cma {cma_best})",
+            out2.best_value
+        );
     }
 }

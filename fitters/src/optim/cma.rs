@@ -90,7 +90,19 @@ impl CmaParams {
         let cc = (4.0 + mueff / nf) / (nf + 4.0 + 2.0 * mueff / nf);
         let c1 = 2.0 / ((nf + 1.3).powi(2) + mueff);
         let cmu = (1.0 - c1).min(2.0 * (mueff - 2.0 + 1.0 / mueff) / ((nf + 2.0).powi(2) + mueff));
-        CmaParams { style: CmaStyle::Tutorial, lambda, mu, weights, mueff, cs, ds, cc, c1, cmu, chi_n: chi(nf) }
+        CmaParams {
+            style: CmaStyle::Tutorial,
+            lambda,
+            mu,
+            weights,
+            mueff,
+            cs,
+            ds,
+            cc,
+            c1,
+            cmu,
+            chi_n: chi(nf),
+        }
     }
 
     /// papers/001 Table 2 (Hansen & Kern 2004): λ = 4 + ⌊3 ln D⌋, µ = ⌊λ/2⌋,
@@ -114,10 +126,23 @@ impl CmaParams {
         let cc = 4.0 / (nf + 4.0);
         let mucov = mueff;
         let ccov = (1.0 / mucov) * 2.0 / (nf + std::f64::consts::SQRT_2).powi(2)
-            + (1.0 - 1.0 / mucov) * (1.0f64).min((2.0 * mueff - 1.0) / ((nf + 2.0).powi(2) + mueff));
+            + (1.0 - 1.0 / mucov)
+                * (1.0f64).min((2.0 * mueff - 1.0) / ((nf + 2.0).powi(2) + mueff));
         let c1 = ccov / mucov;
         let cmu = (ccov * (1.0 - 1.0 / mucov)).min(1.0 - c1);
-        CmaParams { style: CmaStyle::Hansen2004, lambda, mu, weights, mueff, cs, ds, cc, c1, cmu, chi_n: chi(nf) }
+        CmaParams {
+            style: CmaStyle::Hansen2004,
+            lambda,
+            mu,
+            weights,
+            mueff,
+            cs,
+            ds,
+            cc,
+            c1,
+            cmu,
+            chi_n: chi(nf),
+        }
     }
 
     /// The same formulas with another population size.
@@ -134,7 +159,11 @@ impl CmaParams {
             && self.mu >= 1
             && self.mu <= self.lambda
             && self.weights.len() == self.mu
-            && [self.mueff, self.cs, self.ds, self.cc, self.c1, self.cmu, self.chi_n].iter().all(|v| v.is_finite())
+            && [
+                self.mueff, self.cs, self.ds, self.cc, self.c1, self.cmu, self.chi_n,
+            ]
+            .iter()
+            .all(|v| v.is_finite())
     }
 
     /// Generations between eigendecompositions: `max(1, ⌈1/((c1+cµ)·n·10)⌉)` (tutorial App. C).
@@ -220,16 +249,34 @@ impl Cma {
     pub fn with_preset(problem: &Problem, preset: Preset, seed: u64) -> Self {
         let n = problem.dim();
         match preset {
-            Preset::Nevergrad => Self::new(problem, problem.scale.clone(), 1.0, CmaParams::tutorial(n), seed),
-            Preset::Paper001 => Self::new(problem, vec![1.0; n], 0.5, CmaParams::hansen2004(n), seed),
+            Preset::Nevergrad => Self::new(
+                problem,
+                problem.scale.clone(),
+                1.0,
+                CmaParams::tutorial(n),
+                seed,
+            ),
+            Preset::Paper001 => {
+                Self::new(problem, vec![1.0; n], 0.5, CmaParams::hansen2004(n), seed)
+            }
         }
     }
 
     /// General constructor: search space `x = start + norm ⊙ y`, initial step σ0 in `y` units.
     /// Inconsistent hand-made `params` are replaced by the defaults of their style.
-    pub fn new(problem: &Problem, norm: Vec<f64>, sigma0: f64, params: CmaParams, seed: u64) -> Self {
+    pub fn new(
+        problem: &Problem,
+        norm: Vec<f64>,
+        sigma0: f64,
+        params: CmaParams,
+        seed: u64,
+    ) -> Self {
         let n = problem.dim();
-        let params = if params.is_consistent() { params } else { params.with_lambda(n, default_lambda(n)) };
+        let params = if params.is_consistent() {
+            params
+        } else {
+            params.with_lambda(n, default_lambda(n))
+        };
         let lambda = params.lambda;
         let norm: Vec<f64> = (0..n)
             .map(|j| match norm.get(j) {
@@ -237,7 +284,11 @@ impl Cma {
                 _ => problem.scale[j],
             })
             .collect();
-        let sigma0 = if sigma0.is_finite() && sigma0 > 0.0 { sigma0 } else { 1.0 };
+        let sigma0 = if sigma0.is_finite() && sigma0 > 0.0 {
+            sigma0
+        } else {
+            1.0
+        };
         let nf = n as f64;
         let mut cma = Cma {
             name: "cma".to_string(),
@@ -297,7 +348,9 @@ impl Cma {
 
     /// Distribution mean in x units.
     pub fn mean_x(&self) -> Vec<f64> {
-        let mut x: Vec<f64> = (0..self.n).map(|j| self.start[j] + self.norm[j] * self.mean[j]).collect();
+        let mut x: Vec<f64> = (0..self.n)
+            .map(|j| self.start[j] + self.norm[j] * self.mean[j])
+            .collect();
         self.bounds.clip(&mut x);
         x
     }
@@ -305,12 +358,16 @@ impl Cma {
     /// Per-coordinate standard deviation of the sampling distribution in x units:
     /// `σ · √C_ii · norm_i`.
     pub fn std_x(&self) -> Vec<f64> {
-        (0..self.n).map(|j| self.sigma * self.c[j * self.n + j].max(0.0).sqrt() * self.norm[j]).collect()
+        (0..self.n)
+            .map(|j| self.sigma * self.c[j * self.n + j].max(0.0).sqrt() * self.norm[j])
+            .collect()
     }
 
     /// Best point told so far (x units) and its value.
     pub fn best(&self) -> (Vec<f64>, f64) {
-        let mut x: Vec<f64> = (0..self.n).map(|j| self.start[j] + self.norm[j] * self.best_y[j]).collect();
+        let mut x: Vec<f64> = (0..self.n)
+            .map(|j| self.start[j] + self.norm[j] * self.best_y[j])
+            .collect();
         self.bounds.clip(&mut x);
         (x, self.best_f)
     }
@@ -374,7 +431,11 @@ impl Cma {
             for j in 0..n {
                 let raw = self.start[j] + self.norm[j] * (self.mean[j] + self.sigma * y[j]);
                 let (lo, hi) = (self.bounds.lower[j], self.bounds.upper[j]);
-                let xc = if raw.is_nan() { self.start[j].clamp(lo, hi) } else { raw.clamp(lo, hi) };
+                let xc = if raw.is_nan() {
+                    self.start[j].clamp(lo, hi)
+                } else {
+                    raw.clamp(lo, hi)
+                };
                 x[j] = xc;
                 if xc != raw {
                     repaired = true;
@@ -389,7 +450,12 @@ impl Cma {
                         *t += bij * yi;
                     }
                 }
-                let m2: f64 = self.tmp.iter().zip(&self.d).map(|(t, d)| (t / d) * (t / d)).sum();
+                let m2: f64 = self
+                    .tmp
+                    .iter()
+                    .zip(&self.d)
+                    .map(|(t, d)| (t / d) * (t / d))
+                    .sum();
                 let m = m2.sqrt();
                 if m.is_finite() && m > self.mahal_max {
                     let f = self.mahal_max / m;
@@ -450,8 +516,13 @@ impl Cma {
         }
         let ps_norm = self.ps.iter().map(|v| v * v).sum::<f64>().sqrt();
         let gen1 = (self.generation + 1) as f64;
-        let hsig = ps_norm / (1.0 - (1.0 - p.cs).powf(2.0 * gen1)).sqrt() < (1.4 + 2.0 / (n as f64 + 1.0)) * p.chi_n;
-        let ccn = if hsig { (p.cc * (2.0 - p.cc) * p.mueff).sqrt() } else { 0.0 };
+        let hsig = ps_norm / (1.0 - (1.0 - p.cs).powf(2.0 * gen1)).sqrt()
+            < (1.4 + 2.0 / (n as f64 + 1.0)) * p.chi_n;
+        let ccn = if hsig {
+            (p.cc * (2.0 - p.cc) * p.mueff).sqrt()
+        } else {
+            0.0
+        };
         for (pc, y) in self.pc.iter_mut().zip(&self.yw) {
             *pc = (1.0 - p.cc) * *pc + ccn * y;
         }
@@ -569,7 +640,9 @@ impl Optimizer for Cma {
             self.sample_generation();
         }
         let k = max.max(1).min(self.p.lambda - self.asked);
-        let out = (self.asked..self.asked + k).map(|i| self.arx[i * n..(i + 1) * n].to_vec()).collect();
+        let out = (self.asked..self.asked + k)
+            .map(|i| self.arx[i * n..(i + 1) * n].to_vec())
+            .collect();
         self.asked += k;
         out
     }
@@ -609,7 +682,10 @@ mod tests {
     use super::*;
 
     fn evals_to(out: &Outcome, target: f64) -> Option<usize> {
-        out.trace.iter().find(|&&(_, v)| v < target).map(|&(e, _)| e)
+        out.trace
+            .iter()
+            .find(|&&(_, v)| v < target)
+            .map(|&(e, _)| e)
     }
 
     fn run(f: fn(&[f64]) -> f64, d: usize, budget: usize, seed: u64) -> Outcome {
@@ -641,7 +717,12 @@ mod tests {
         // median 1306 (1213 .. 1481).
         let out = run(testfns::sphere, 10, 2500, 1);
         let e = evals_to(&out, 1e-8);
-        assert!(e.is_some_and(|e| e <= 2500), "{:?} best {}", e, out.best_value);
+        assert!(
+            e.is_some_and(|e| e <= 2500),
+            "{:?} best {}",
+            e,
+            out.best_value
+        );
     }
 
     #[test]
@@ -649,7 +730,12 @@ mod tests {
         // Measured: median 5859 (5281 .. 6124) over seeds 0..10.
         let out = run(testfns::ellipsoid, 10, 8000, 1);
         let e = evals_to(&out, 1e-8);
-        assert!(e.is_some_and(|e| e <= 8000), "{:?} best {}", e, out.best_value);
+        assert!(
+            e.is_some_and(|e| e <= 8000),
+            "{:?} best {}",
+            e,
+            out.best_value
+        );
     }
 
     #[test]
@@ -658,7 +744,12 @@ mod tests {
         // local minimum near x1 = -1 and needs an IPOP restart (13572).
         let out = run(testfns::rosenbrock, 10, 15000, 1);
         let e = evals_to(&out, 1e-8);
-        assert!(e.is_some_and(|e| e <= 15000), "{:?} best {}", e, out.best_value);
+        assert!(
+            e.is_some_and(|e| e <= 15000),
+            "{:?} best {}",
+            e,
+            out.best_value
+        );
     }
 
     #[test]
@@ -676,7 +767,12 @@ mod tests {
         // Measured: 4588 .. 4970 evaluations over seeds 0..4.
         let out = run(testfns::sphere, 40, 12000, 2);
         let e = evals_to(&out, 1e-8);
-        assert!(e.is_some_and(|e| e <= 12000), "{:?} best {}", e, out.best_value);
+        assert!(
+            e.is_some_and(|e| e <= 12000),
+            "{:?} best {}",
+            e,
+            out.best_value
+        );
     }
 
     #[test]
@@ -691,11 +787,20 @@ mod tests {
     fn repaired_mean_stays_in_bounds_and_finds_boundary_optimum() {
         // Optimum (1,…,1) outside [2, 5]^d: the constrained optimum is the corner (2,…,2).
         let d = 8;
-        let p = Problem::new(Bounds::uniform(d, 2.0, 5.0).unwrap(), vec![3.5; d], vec![1.0; d]).unwrap();
+        let p = Problem::new(
+            Bounds::uniform(d, 2.0, 5.0).unwrap(),
+            vec![3.5; d],
+            vec![1.0; d],
+        )
+        .unwrap();
         let mut o = Cma::with_preset(&p, Preset::Nevergrad, 4);
         let out = minimize(&mut o, &testfns::sphere, 3000, false).unwrap();
         assert!(p.bounds.contains(&o.mean_x()));
-        assert!((out.best_value - d as f64).abs() < 1e-6, "{}", out.best_value);
+        assert!(
+            (out.best_value - d as f64).abs() < 1e-6,
+            "{}",
+            out.best_value
+        );
     }
 
     #[test]
@@ -705,8 +810,14 @@ mod tests {
         p.scale = vec![1e-3, 1e-3, 1.0, 1.0];
         let mut o = Cma::with_preset(&p, Preset::Nevergrad, 1);
         let xs = o.ask(100);
-        let small = xs.iter().map(|x| x[0].abs().max(x[1].abs())).fold(0.0, f64::max);
-        let big = xs.iter().map(|x| x[2].abs().max(x[3].abs())).fold(0.0, f64::max);
+        let small = xs
+            .iter()
+            .map(|x| x[0].abs().max(x[1].abs()))
+            .fold(0.0, f64::max);
+        let big = xs
+            .iter()
+            .map(|x| x[2].abs().max(x[3].abs()))
+            .fold(0.0, f64::max);
         assert!(small < 0.01 && big > 0.1, "{small} {big}");
         let s = o.std_x();
         assert!((s[0] - 1e-3).abs() < 1e-15 && (s[3] - 1.0).abs() < 1e-15);

@@ -44,12 +44,20 @@ pub struct DeConfig {
 impl DeConfig {
     /// nevergrad `DifferentialEvolution()` defaults: popsize 30, CR 0.5, F1 = F2 = 0.8.
     pub fn nevergrad() -> Self {
-        DeConfig { popsize: 30, cr: 0.5, variant: DeVariant::CurrentToBest { f1: 0.8, f2: 0.8 } }
+        DeConfig {
+            popsize: 30,
+            cr: 0.5,
+            variant: DeVariant::CurrentToBest { f1: 0.8, f2: 0.8 },
+        }
     }
 
     /// papers/001 Table 3 (H-DE): N = 10, CR = 0.9, F = 0.5, rand/1/bin.
     pub fn paper001() -> Self {
-        DeConfig { popsize: 10, cr: 0.9, variant: DeVariant::RandOne { f: 0.5 } }
+        DeConfig {
+            popsize: 10,
+            cr: 0.9,
+            variant: DeVariant::RandOne { f: 0.5 },
+        }
     }
 
     /// The config of a preset.
@@ -110,7 +118,12 @@ impl DifferentialEvolution {
                 let a = rng_index(&mut self.rng, np);
                 let b = rng_index(&mut self.rng, np);
                 let best = util::argmin(&self.vals).unwrap_or(target);
-                let (x, pa, pb, pbest) = (&self.pop[target], &self.pop[a], &self.pop[b], &self.pop[best]);
+                let (x, pa, pb, pbest) = (
+                    &self.pop[target],
+                    &self.pop[a],
+                    &self.pop[b],
+                    &self.pop[best],
+                );
                 for j in 0..d {
                     donor[j] = x[j] + f1 * (pa[j] - pb[j]) + f2 * (pbest[j] - x[j]);
                 }
@@ -222,7 +235,9 @@ mod tests {
     use super::*;
 
     fn is_monotone(trace: &[(usize, f64)]) -> bool {
-        trace.windows(2).all(|w| w[1].1 <= w[0].1 && w[1].0 > w[0].0)
+        trace
+            .windows(2)
+            .all(|w| w[1].1 <= w[0].1 && w[1].0 > w[0].0)
     }
 
     #[test]
@@ -239,7 +254,11 @@ mod tests {
                 let mut o = build(Method::DE, preset, &p, 3000, seed, None).unwrap();
                 let out = minimize(o.as_mut(), &testfns::sphere, 3000, true).unwrap();
                 assert!(is_monotone(&out.trace), "{preset} seed {seed}");
-                assert!(out.best_value * factor < f0, "{preset} seed {seed}: {} vs {f0}", out.best_value);
+                assert!(
+                    out.best_value * factor < f0,
+                    "{preset} seed {seed}: {} vs {f0}",
+                    out.best_value
+                );
             }
         }
     }

@@ -61,16 +61,33 @@ pub enum OptimError {
     EmptyProblem,
     /// Two vectors that must have the same length do not.
     #[error("`{what}` has length {got}, expected {expected}")]
-    LengthMismatch { what: &'static str, expected: usize, got: usize },
+    LengthMismatch {
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    },
     /// A bound is NaN or infinite.
     #[error("bound {index} is not finite: lower = {lower}, upper = {upper}")]
-    NonFiniteBound { index: usize, lower: f64, upper: f64 },
+    NonFiniteBound {
+        index: usize,
+        lower: f64,
+        upper: f64,
+    },
     /// `lower[index] >= upper[index]`.
     #[error("bound {index} is empty: lower = {lower} is not below upper = {upper}")]
-    EmptyBound { index: usize, lower: f64, upper: f64 },
+    EmptyBound {
+        index: usize,
+        lower: f64,
+        upper: f64,
+    },
     /// `start[index]` is NaN/infinite or outside `[lower, upper]`.
     #[error("start[{index}] = {value} is not inside [{lower}, {upper}]")]
-    StartOutOfBounds { index: usize, value: f64, lower: f64, upper: f64 },
+    StartOutOfBounds {
+        index: usize,
+        value: f64,
+        lower: f64,
+        upper: f64,
+    },
     /// `scale[index]` is not a finite positive number.
     #[error("scale[{index}] = {value} must be finite and > 0")]
     BadScale { index: usize, value: f64 },
@@ -90,13 +107,34 @@ pub enum OptimError {
     #[error(
         "optimizer `{optimizer}` asked for a point outside the bounds: point {point}, coordinate {coord} = {value} not in [{lower}, {upper}]"
     )]
-    OutOfBounds { optimizer: String, point: usize, coord: usize, value: f64, lower: f64, upper: f64 },
+    OutOfBounds {
+        optimizer: String,
+        point: usize,
+        coord: usize,
+        value: f64,
+        lower: f64,
+        upper: f64,
+    },
     /// An optimizer asked for a point with a NaN or infinite coordinate (a bug in the optimizer).
-    #[error("optimizer `{optimizer}` asked for a non-finite point: point {point}, coordinate {coord} = {value}")]
-    NonFinitePoint { optimizer: String, point: usize, coord: usize, value: f64 },
+    #[error(
+        "optimizer `{optimizer}` asked for a non-finite point: point {point}, coordinate {coord} = {value}"
+    )]
+    NonFinitePoint {
+        optimizer: String,
+        point: usize,
+        coord: usize,
+        value: f64,
+    },
     /// An optimizer asked for a point of the wrong dimension (a bug in the optimizer).
-    #[error("optimizer `{optimizer}` asked for point {point} of dimension {got}, expected {expected}")]
-    DimensionMismatch { optimizer: String, point: usize, expected: usize, got: usize },
+    #[error(
+        "optimizer `{optimizer}` asked for point {point} of dimension {got}, expected {expected}"
+    )]
+    DimensionMismatch {
+        optimizer: String,
+        point: usize,
+        expected: usize,
+        got: usize,
+    },
     /// An optimizer returned no point from `ask` (a bug in the optimizer).
     #[error("optimizer `{optimizer}` returned no point from ask")]
     EmptyAsk { optimizer: String },
@@ -136,10 +174,18 @@ impl Bounds {
         }
         for (index, (&lower, &upper)) in self.lower.iter().zip(&self.upper).enumerate() {
             if !lower.is_finite() || !upper.is_finite() {
-                return Err(OptimError::NonFiniteBound { index, lower, upper });
+                return Err(OptimError::NonFiniteBound {
+                    index,
+                    lower,
+                    upper,
+                });
             }
             if lower >= upper {
-                return Err(OptimError::EmptyBound { index, lower, upper });
+                return Err(OptimError::EmptyBound {
+                    index,
+                    lower,
+                    upper,
+                });
             }
         }
         Ok(())
@@ -153,13 +199,19 @@ impl Bounds {
     /// Whether `x` has the right length and lies inside the box (bounds included).
     pub fn contains(&self, x: &[f64]) -> bool {
         x.len() == self.dim()
-            && x.iter().zip(self.lower.iter().zip(&self.upper)).all(|(&v, (&l, &u))| v >= l && v <= u)
+            && x.iter()
+                .zip(self.lower.iter().zip(&self.upper))
+                .all(|(&v, (&l, &u))| v >= l && v <= u)
     }
 
     /// Clips `x` into the box in place; a NaN coordinate becomes the box centre.
     pub fn clip(&self, x: &mut [f64]) {
         for ((v, &l), &u) in x.iter_mut().zip(&self.lower).zip(&self.upper) {
-            *v = if v.is_nan() { 0.5 * (l + u) } else { v.clamp(l, u) };
+            *v = if v.is_nan() {
+                0.5 * (l + u)
+            } else {
+                v.clamp(l, u)
+            };
         }
     }
 }
@@ -176,7 +228,11 @@ pub struct Problem {
 impl Problem {
     /// Validated constructor.
     pub fn new(bounds: Bounds, start: Vec<f64>, scale: Vec<f64>) -> Result<Self, OptimError> {
-        let p = Problem { bounds, start, scale };
+        let p = Problem {
+            bounds,
+            start,
+            scale,
+        };
         p.validate()?;
         Ok(p)
     }
@@ -186,15 +242,32 @@ impl Problem {
         self.bounds.validate()?;
         let d = self.bounds.dim();
         if self.start.len() != d {
-            return Err(OptimError::LengthMismatch { what: "start", expected: d, got: self.start.len() });
+            return Err(OptimError::LengthMismatch {
+                what: "start",
+                expected: d,
+                got: self.start.len(),
+            });
         }
         if self.scale.len() != d {
-            return Err(OptimError::LengthMismatch { what: "scale", expected: d, got: self.scale.len() });
+            return Err(OptimError::LengthMismatch {
+                what: "scale",
+                expected: d,
+                got: self.scale.len(),
+            });
         }
         for index in 0..d {
-            let (lower, upper, value) = (self.bounds.lower[index], self.bounds.upper[index], self.start[index]);
+            let (lower, upper, value) = (
+                self.bounds.lower[index],
+                self.bounds.upper[index],
+                self.start[index],
+            );
             if !(value >= lower && value <= upper) {
-                return Err(OptimError::StartOutOfBounds { index, value, lower, upper });
+                return Err(OptimError::StartOutOfBounds {
+                    index,
+                    value,
+                    lower,
+                    upper,
+                });
             }
             let s = self.scale[index];
             if !(s.is_finite() && s > 0.0) {
@@ -277,7 +350,11 @@ impl Method {
     }
 
     fn valid_names() -> String {
-        Self::ALL.iter().map(|m| m.as_str()).collect::<Vec<_>>().join(", ")
+        Self::ALL
+            .iter()
+            .map(|m| m.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
     }
 }
 
@@ -295,7 +372,10 @@ impl FromStr for Method {
             .iter()
             .copied()
             .find(|m| m.as_str().eq_ignore_ascii_case(t))
-            .ok_or_else(|| OptimError::UnknownMethod { name: s.to_string(), valid: Self::valid_names() })
+            .ok_or_else(|| OptimError::UnknownMethod {
+                name: s.to_string(),
+                valid: Self::valid_names(),
+            })
     }
 }
 
@@ -333,9 +413,14 @@ impl FromStr for Preset {
     type Err = OptimError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let t = s.trim();
-        Self::ALL.iter().copied().find(|p| p.as_str().eq_ignore_ascii_case(t)).ok_or_else(|| {
-            OptimError::UnknownPreset { name: s.to_string(), valid: "nevergrad, paper001".to_string() }
-        })
+        Self::ALL
+            .iter()
+            .copied()
+            .find(|p| p.as_str().eq_ignore_ascii_case(t))
+            .ok_or_else(|| OptimError::UnknownPreset {
+                name: s.to_string(),
+                valid: "nevergrad, paper001".to_string(),
+            })
     }
 }
 
@@ -361,21 +446,41 @@ pub fn build(
     Ok(match method {
         Method::RandomSearch => Box::new(random::RandomSearch::new(problem, seed)),
         Method::OnePlusOne => Box::new(one_plus_one::OnePlusOne::new(problem, seed)),
-        Method::DE => Box::new(de::DifferentialEvolution::new(problem, de::DeConfig::preset(preset), seed)),
-        Method::PSO => Box::new(pso::ParticleSwarm::new(problem, pso::PsoConfig::preset(preset), budget, seed)),
+        Method::DE => Box::new(de::DifferentialEvolution::new(
+            problem,
+            de::DeConfig::preset(preset),
+            seed,
+        )),
+        Method::PSO => Box::new(pso::ParticleSwarm::new(
+            problem,
+            pso::PsoConfig::preset(preset),
+            budget,
+            seed,
+        )),
         Method::CMA => Box::new(cma::Cma::with_preset(problem, preset, seed)),
         Method::TBPSA => Box::new(tbpsa::Tbpsa::new(problem, seed)),
         Method::Powell => Box::new(powell::build_powell(problem, seed)),
         Method::CMAPowell => Box::new(chain::CmaPowell::new(problem, preset, budget, seed)),
         Method::NGO => Box::new(ngo::Ngo::new(problem, preset, budget, seed)?),
         Method::Shiwa => Box::new(ngo::Ngo::shiwa(problem, preset, budget, seed)?),
-        Method::APF => Box::new(apf::Apf::new(problem, apf::ApfConfig::default(), budget, seed)),
+        Method::APF => Box::new(apf::Apf::new(
+            problem,
+            apf::ApfConfig::default(),
+            budget,
+            seed,
+        )),
         Method::PSAPF => {
             let parts = match partitions {
                 Some(p) => psapf::validate_partitions(p, problem.dim())?,
                 None => vec![(0..problem.dim()).collect()],
             };
-            Box::new(psapf::Psapf::new(problem, apf::ApfConfig::default(), parts, budget, seed))
+            Box::new(psapf::Psapf::new(
+                problem,
+                apf::ApfConfig::default(),
+                parts,
+                budget,
+                seed,
+            ))
         }
     })
 }
@@ -421,13 +526,17 @@ pub fn minimize<F: Fn(&[f64]) -> f64 + Sync>(
         let remaining = budget - evaluations;
         let mut xs = opt.ask(remaining);
         if xs.is_empty() {
-            return Err(OptimError::EmptyAsk { optimizer: opt.name().to_string() });
+            return Err(OptimError::EmptyAsk {
+                optimizer: opt.name().to_string(),
+            });
         }
         xs.truncate(remaining);
         check_points(opt, &xs, dim)?;
         values.clear();
         if parallel && xs.len() > 1 {
-            xs.par_iter().map(|x| util::sanitize(f(x))).collect_into_vec(&mut values);
+            xs.par_iter()
+                .map(|x| util::sanitize(f(x)))
+                .collect_into_vec(&mut values);
         } else {
             values.extend(xs.iter().map(|x| util::sanitize(f(x))));
         }
@@ -448,7 +557,12 @@ pub fn minimize<F: Fn(&[f64]) -> f64 + Sync>(
     }
     // `best_x` is always set: budget ≥ 1 and every ask is non-empty.
     let best_x = best_x.unwrap_or_default();
-    Ok(Outcome { best_x, best_value, evaluations, trace })
+    Ok(Outcome {
+        best_x,
+        best_value,
+        evaluations,
+        trace,
+    })
 }
 
 fn check_points(opt: &dyn Optimizer, xs: &[Vec<f64>], dim: usize) -> Result<(), OptimError> {
@@ -464,7 +578,12 @@ fn check_points(opt: &dyn Optimizer, xs: &[Vec<f64>], dim: usize) -> Result<(), 
         }
         for (coord, &value) in x.iter().enumerate() {
             if !value.is_finite() {
-                return Err(OptimError::NonFinitePoint { optimizer: opt.name().to_string(), point, coord, value });
+                return Err(OptimError::NonFinitePoint {
+                    optimizer: opt.name().to_string(),
+                    point,
+                    coord,
+                    value,
+                });
             }
             let (lower, upper) = (b.lower[coord], b.upper[coord]);
             if value < lower || value > upper {

@@ -40,17 +40,35 @@ pub struct Ngo {
 
 impl Ngo {
     /// Picks with [`choose`] and builds the chosen optimizer.
-    pub fn new(problem: &Problem, preset: Preset, budget: usize, seed: u64) -> Result<Self, OptimError> {
+    pub fn new(
+        problem: &Problem,
+        preset: Preset,
+        budget: usize,
+        seed: u64,
+    ) -> Result<Self, OptimError> {
         let choice = choose(problem.dim(), budget);
         let inner = build(choice, preset, problem, budget, seed, None)?;
-        Ok(Ngo { name: format!("ngo({})", choice.as_str()), choice, inner })
+        Ok(Ngo {
+            name: format!("ngo({})", choice.as_str()),
+            choice,
+            inner,
+        })
     }
 
     /// Shiwa: [`choose_shiwa`], named e.g. `"shiwa(cma)"`.
-    pub fn shiwa(problem: &Problem, preset: Preset, budget: usize, seed: u64) -> Result<Self, OptimError> {
+    pub fn shiwa(
+        problem: &Problem,
+        preset: Preset,
+        budget: usize,
+        seed: u64,
+    ) -> Result<Self, OptimError> {
         let choice = choose_shiwa(problem.dim(), budget);
         let inner = build(choice, preset, problem, budget, seed, None)?;
-        Ok(Ngo { name: format!("shiwa({})", choice.as_str()), choice, inner })
+        Ok(Ngo {
+            name: format!("shiwa({})", choice.as_str()),
+            choice,
+            inner,
+        })
     }
 
     /// The method that was picked.

@@ -143,7 +143,12 @@ mod tests {
     fn sigma_grows_on_a_long_slope() {
         // Linear function on a huge box: half of all mutations succeed → σ must grow.
         let d = 10;
-        let p = Problem::new(Bounds::uniform(d, -1e9, 1e9).unwrap(), vec![0.0; d], vec![1.0; d]).unwrap();
+        let p = Problem::new(
+            Bounds::uniform(d, -1e9, 1e9).unwrap(),
+            vec![0.0; d],
+            vec![1.0; d],
+        )
+        .unwrap();
         let mut o = OnePlusOne::new(&p, 5);
         let slope = |x: &[f64]| x.iter().sum::<f64>();
         minimize(&mut o, &slope, 300, false).unwrap();
@@ -179,6 +184,9 @@ mod tests {
         }
         let mean = changed as f64 / 200.0;
         // E[#mutated | ≥ 1] = 1 / (1 − (1 − 1/d)^d) ≈ 1.56 for d = 20.
-        assert!(mean > 1.2 && mean < 2.0, "mean mutated coordinates = {mean}");
+        assert!(
+            mean > 1.2 && mean < 2.0,
+            "mean mutated coordinates = {mean}"
+        );
     }
 }

@@ -20,8 +20,8 @@
 //! [`Sequential`] adapter, which restarts it from the best point
 //! when it converges before the budget is spent.
 
-use super::sequential::{Evaluator, SeqFactory, Sequential};
 use super::Problem;
+use super::sequential::{Evaluator, SeqFactory, Sequential};
 use super::util;
 
 /// Golden ratio (bracket expansion factor).
@@ -64,7 +64,12 @@ impl Default for PowellConfig {
 
 /// Powell wrapped in the sequential adapter, named `"powell"`.
 pub fn build_powell(problem: &Problem, seed: u64) -> Sequential {
-    Sequential::new("powell", problem, powell_factory(problem, PowellConfig::default(), seed), seed)
+    Sequential::new(
+        "powell",
+        problem,
+        powell_factory(problem, PowellConfig::default(), seed),
+        seed,
+    )
 }
 
 /// Factory producing Powell runs on `problem`'s bounds (start and scale come from the
@@ -124,7 +129,11 @@ pub fn powell_ordered(
         .iter()
         .map(|&i| {
             let mut u = vec![0.0; n];
-            u[i] = scale.get(i).copied().filter(|s| s.is_finite() && *s > 0.0).unwrap_or(1.0);
+            u[i] = scale
+                .get(i)
+                .copied()
+                .filter(|s| s.is_finite() && *s > 0.0)
+                .unwrap_or(1.0);
             u
         })
         .collect();
@@ -178,7 +187,11 @@ pub fn powell_ordered(
 
 fn clip(x: &mut [f64], lower: &[f64], upper: &[f64]) {
     for ((v, &l), &u) in x.iter_mut().zip(lower).zip(upper) {
-        *v = if v.is_nan() { 0.5 * (l + u) } else { v.clamp(l, u) };
+        *v = if v.is_nan() {
+            0.5 * (l + u)
+        } else {
+            v.clamp(l, u)
+        };
     }
 }
 
@@ -270,7 +283,11 @@ pub fn line_min(
         return Some((b, fb));
     };
     let (t, ft) = brent(&mut eval, lo, hi, b, fb, cfg)?;
-    if ft < fx { Some((t, ft)) } else { Some((0.0, fx)) }
+    if ft < fx {
+        Some((t, ft))
+    } else {
+        Some((0.0, fx))
+    }
 }
 
 /// Brent's parabolic/golden-section minimisation on `[a, b]` starting from the known best
@@ -319,7 +336,11 @@ fn brent(
             e = if x >= xm { a - x } else { b - x };
             d = CGOLD * e;
         }
-        let u = if d.abs() >= tol1 { x + d } else { x + tol1.copysign(d) };
+        let u = if d.abs() >= tol1 {
+            x + d
+        } else {
+            x + tol1.copysign(d)
+        };
         let fu = f(u)?;
         if fu <= fx {
             if u >= x {
@@ -374,7 +395,11 @@ mod tests {
             let e = out.trace.iter().find(|t| t.1 < 1e-8).map(|t| t.0);
             // Measured: 79 evaluations (separable: one parabolic step per coordinate).
             eprintln!("powell axis-aligned quadratic seed {seed}: 1e-8 after {e:?} evaluations");
-            assert!(e.is_some_and(|e| e <= 3000), "{e:?} best {}", out.best_value);
+            assert!(
+                e.is_some_and(|e| e <= 3000),
+                "{e:?} best {}",
+                out.best_value
+            );
         }
     }
 
@@ -426,9 +451,17 @@ mod tests {
         let x = vec![3.0; 3];
         let u = vec![1.0, 0.0, 0.0];
         let mut work = Vec::new();
-        let (t, ft) =
-            line_min(&mut f, &x, &u, testfns::sphere(&x), &lower, &upper, &PowellConfig::default(), &mut work)
-                .unwrap();
+        let (t, ft) = line_min(
+            &mut f,
+            &x,
+            &u,
+            testfns::sphere(&x),
+            &lower,
+            &upper,
+            &PowellConfig::default(),
+            &mut work,
+        )
+        .unwrap();
         assert!((t + 1.0).abs() < 1e-6, "t = {t}");
         assert!((ft - (1.0 + 4.0 + 4.0)).abs() < 1e-5);
         let b = Bounds::uniform(3, 2.0, 5.0).unwrap();
@@ -443,7 +476,10 @@ mod tests {
             Some((t - 0.3) * (t - 0.3) + 2.0)
         };
         let (t, ft) = brent(&mut f, -1.0, 2.0, 0.0, 2.09, &PowellConfig::default()).unwrap();
-        assert!((t - 0.3).abs() < 1e-6 && (ft - 2.0).abs() < 1e-12, "{t} {ft}");
+        assert!(
+            (t - 0.3).abs() < 1e-6 && (ft - 2.0).abs() < 1e-12,
+            "{t} {ft}"
+        );
         assert!(n < 20, "{n} evaluations");
     }
 
@@ -455,7 +491,14 @@ mod tests {
             calls += 1;
             if calls > 5 { None } else { Some(1.0) }
         };
-        let r = powell(&mut f, &p.start, &p.scale, &p.bounds.lower, &p.bounds.upper, &PowellConfig::default());
+        let r = powell(
+            &mut f,
+            &p.start,
+            &p.scale,
+            &p.bounds.lower,
+            &p.bounds.upper,
+            &PowellConfig::default(),
+        );
         assert!(r.is_none());
         assert_eq!(calls, 6);
         let mut o = build_powell(&p, 0);

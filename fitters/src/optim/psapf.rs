@@ -25,14 +25,21 @@ use super::{Bounds, OptimError, Optimizer, Problem};
 
 /// Checks that `parts` partitions `0..dim` exactly (non-empty groups, in range, disjoint,
 /// covering); returns them unchanged.
-pub fn validate_partitions(parts: Vec<Vec<usize>>, dim: usize) -> Result<Vec<Vec<usize>>, OptimError> {
+pub fn validate_partitions(
+    parts: Vec<Vec<usize>>,
+    dim: usize,
+) -> Result<Vec<Vec<usize>>, OptimError> {
     if parts.is_empty() {
-        return Err(OptimError::BadPartitions { reason: "no partitions".to_string() });
+        return Err(OptimError::BadPartitions {
+            reason: "no partitions".to_string(),
+        });
     }
     let mut seen = vec![false; dim];
     for (g, group) in parts.iter().enumerate() {
         if group.is_empty() {
-            return Err(OptimError::BadPartitions { reason: format!("partition {g} is empty") });
+            return Err(OptimError::BadPartitions {
+                reason: format!("partition {g} is empty"),
+            });
         }
         for &i in group {
             if i >= dim {
@@ -41,13 +48,17 @@ pub fn validate_partitions(parts: Vec<Vec<usize>>, dim: usize) -> Result<Vec<Vec
                 });
             }
             if seen[i] {
-                return Err(OptimError::BadPartitions { reason: format!("index {i} appears twice") });
+                return Err(OptimError::BadPartitions {
+                    reason: format!("index {i} appears twice"),
+                });
             }
             seen[i] = true;
         }
     }
     if let Some(i) = seen.iter().position(|s| !s) {
-        return Err(OptimError::BadPartitions { reason: format!("index {i} is in no partition") });
+        return Err(OptimError::BadPartitions {
+            reason: format!("index {i} is in no partition"),
+        });
     }
     Ok(parts)
 }
@@ -60,8 +71,15 @@ pub fn split_budget(budget: usize, sizes: &[usize]) -> Vec<usize> {
     }
     // u128 arithmetic: `budget * size` cannot overflow.
     let (b, t) = (budget as u128, total as u128);
-    let mut out: Vec<usize> = sizes.iter().map(|&s| (b * s as u128 / t) as usize).collect();
-    let mut rem: Vec<(u128, usize)> = sizes.iter().enumerate().map(|(i, &s)| ((b * s as u128) % t, i)).collect();
+    let mut out: Vec<usize> = sizes
+        .iter()
+        .map(|&s| (b * s as u128 / t) as usize)
+        .collect();
+    let mut rem: Vec<(u128, usize)> = sizes
+        .iter()
+        .enumerate()
+        .map(|(i, &s)| ((b * s as u128) % t, i))
+        .collect();
     rem.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
     let assigned: usize = out.iter().sum();
     for &(_, i) in rem.iter().take(budget - assigned) {
@@ -83,13 +101,31 @@ pub struct Psapf {
 
 impl Psapf {
     /// PSAPF over `parts` (already validated) for `budget` evaluations.
-    pub fn new(problem: &Problem, cfg: ApfConfig, parts: Vec<Vec<usize>>, budget: usize, seed: u64) -> Self {
-        let parts = if parts.is_empty() { vec![(0..problem.dim()).collect()] } else { parts };
+    pub fn new(
+        problem: &Problem,
+        cfg: ApfConfig,
+        parts: Vec<Vec<usize>>,
+        budget: usize,
+        seed: u64,
+    ) -> Self {
+        let parts = if parts.is_empty() {
+            vec![(0..problem.dim()).collect()]
+        } else {
+            parts
+        };
         let sizes: Vec<usize> = parts.iter().map(|p| p.len()).collect();
         let budgets = split_budget(budget, &sizes);
         let n0 = particles_for(budgets[0], cfg.layers);
         let core = AnnealCore::new(problem, cfg, n0, parts[0].clone(), seed);
-        Psapf { bounds: problem.bounds.clone(), core, parts, budgets, current: 0, used: 0, layers: cfg.layers }
+        Psapf {
+            bounds: problem.bounds.clone(),
+            core,
+            parts,
+            budgets,
+            current: 0,
+            used: 0,
+            layers: cfg.layers,
+        }
     }
 
     /// Index of the partition being processed.
@@ -119,7 +155,8 @@ impl Optimizer for Psapf {
             self.current += 1;
             self.used = 0;
             let n = particles_for(self.budgets[self.current], self.layers);
-            self.core.switch_partition(self.parts[self.current].clone(), n);
+            self.core
+                .switch_partition(self.parts[self.current].clone(), n);
         }
         let room = if self.current < last {
             self.budgets[self.current] - self.used
@@ -147,13 +184,30 @@ mod tests {
     #[test]
     fn partition_validation() {
         assert!(validate_partitions(vec![vec![0, 1], vec![2]], 3).is_ok());
-        for bad in [vec![], vec![vec![0, 1]], vec![vec![0, 1], vec![1, 2]], vec![vec![0, 1, 2], vec![]], vec![
-            vec![0, 1, 2, 3],
-        ]] {
-            assert!(matches!(validate_partitions(bad, 3), Err(OptimError::BadPartitions { .. })));
+        for bad in [
+            vec![],
+            vec![vec![0, 1]],
+            vec![vec![0, 1], vec![1, 2]],
+            vec![vec![0, 1, 2], vec![]],
+            vec![vec![0, 1, 2, 3]],
+        ] {
+            assert!(matches!(
+                validate_partitions(bad, 3),
+                Err(OptimError::BadPartitions { .. })
+            ));
         }
         let p = testfns::problem(3);
-        assert!(build(Method::PSAPF, Preset::Nevergrad, &p, 10, 0, Some(vec![vec![0]])).is_err());
+        assert!(
+            build(
+                Method::PSAPF,
+                Preset::Nevergrad,
+                &p,
+                10,
+                0,
+                Some(vec![vec![0]])
+            )
+            .is_err()
+        );
     }
 
     #[test]
@@ -206,9 +260,21 @@ mod tests {
         let f0 = testfns::sphere(&p.start);
         let parts: Vec<Vec<usize>> = vec![vec![0, 1, 2, 3], vec![4, 5, 6], vec![7, 8, 9]];
         for seed in 0..3 {
-            let mut o = build(Method::PSAPF, Preset::Nevergrad, &p, 3000, seed, Some(parts.clone())).unwrap();
+            let mut o = build(
+                Method::PSAPF,
+                Preset::Nevergrad,
+                &p,
+                3000,
+                seed,
+                Some(parts.clone()),
+            )
+            .unwrap();
             let out = minimize(o.as_mut(), &testfns::sphere, 3000, false).unwrap();
-            assert!(out.best_value * 10.0 < f0, "seed {seed}: {}", out.best_value);
+            assert!(
+                out.best_value * 10.0 < f0,
+                "seed {seed}: {}",
+                out.best_value
+            );
         }
     }
 }

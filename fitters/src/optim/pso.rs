@@ -146,7 +146,9 @@ impl ParticleSwarm {
         for j in 0..d {
             let rp = util::uniform(&mut self.rng);
             let rg = util::uniform(&mut self.rng);
-            let mut vj = w * v[j] + self.cfg.phip * rp * (p[j] - x[j]) + self.cfg.phig * rg * (self.gbest[j] - x[j]);
+            let mut vj = w * v[j]
+                + self.cfg.phip * rp * (p[j] - x[j])
+                + self.cfg.phig * rg * (self.gbest[j] - x[j]);
             if self.cfg.clamp_velocity {
                 let vmax = b.upper[j] - b.lower[j];
                 vj = vj.clamp(-vmax, vmax);
@@ -192,7 +194,12 @@ impl Optimizer for ParticleSwarm {
                 } else {
                     util::gaussian_around(&self.problem, 1.0, &mut self.rng)
                 };
-                let v: Vec<f64> = self.problem.scale.iter().map(|&s| s * util::normal(&mut self.rng)).collect();
+                let v: Vec<f64> = self
+                    .problem
+                    .scale
+                    .iter()
+                    .map(|&s| s * util::normal(&mut self.rng))
+                    .collect();
                 if self.pos.len() <= i {
                     self.pos.push(x.clone());
                     self.vel.push(v);
@@ -262,8 +269,15 @@ mod tests {
             for seed in 0..3 {
                 let mut o = build(Method::PSO, preset, &p, 3000, seed, None).unwrap();
                 let out = minimize(o.as_mut(), &testfns::sphere, 3000, true).unwrap();
-                assert!(out.trace.windows(2).all(|w| w[1].1 <= w[0].1), "{preset} seed {seed}");
-                assert!(out.best_value * factor < f0, "{preset} seed {seed}: {} vs {f0}", out.best_value);
+                assert!(
+                    out.trace.windows(2).all(|w| w[1].1 <= w[0].1),
+                    "{preset} seed {seed}"
+                );
+                assert!(
+                    out.best_value * factor < f0,
+                    "{preset} seed {seed}: {} vs {f0}",
+                    out.best_value
+                );
             }
         }
     }
@@ -283,7 +297,11 @@ mod tests {
                 assert!(vel.iter().all(|&c| c.abs() <= 10.0 + 1e-12));
             }
         }
-        assert!((o.inertia() - (2.0 - 1.9 * 0.5)).abs() < 1e-12, "{}", o.inertia());
+        assert!(
+            (o.inertia() - (2.0 - 1.9 * 0.5)).abs() < 1e-12,
+            "{}",
+            o.inertia()
+        );
         let ng = ParticleSwarm::new(&p, PsoConfig::nevergrad(), 100, 4);
         assert!((ng.inertia() - 0.5 / std::f64::consts::LN_2).abs() < 1e-12);
     }

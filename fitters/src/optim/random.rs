@@ -19,7 +19,12 @@ pub struct RandomSearch {
 impl RandomSearch {
     /// Random search on `problem`; the first point asked is `problem.start`.
     pub fn new(problem: &Problem, seed: u64) -> Self {
-        RandomSearch { bounds: problem.bounds.clone(), start: problem.start.clone(), rng: util::rng(seed), started: false }
+        RandomSearch {
+            bounds: problem.bounds.clone(),
+            start: problem.start.clone(),
+            rng: util::rng(seed),
+            started: false,
+        }
     }
 }
 
@@ -64,7 +69,12 @@ mod tests {
 
     #[test]
     fn first_point_is_start_then_uniform_inside() {
-        let p = Problem::new(Bounds::uniform(3, -1.0, 2.0).unwrap(), vec![0.5; 3], vec![1.0; 3]).unwrap();
+        let p = Problem::new(
+            Bounds::uniform(3, -1.0, 2.0).unwrap(),
+            vec![0.5; 3],
+            vec![1.0; 3],
+        )
+        .unwrap();
         let mut r = RandomSearch::new(&p, 1);
         let xs = r.ask(1000);
         assert_eq!(xs.len(), RANDOM_BATCH);

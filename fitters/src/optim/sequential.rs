@@ -70,7 +70,11 @@ impl Worker {
                 algo(&mut eval);
             })
             .ok()?;
-        Some(Worker { points: prx, values: vtx, handle: Some(handle) })
+        Some(Worker {
+            points: prx,
+            values: vtx,
+            handle: Some(handle),
+        })
     }
 }
 
@@ -107,7 +111,14 @@ pub struct Sequential {
 impl Sequential {
     /// Adapter named `name`; run 0 starts at `problem.start` with `problem.scale`.
     pub fn new(name: &str, problem: &Problem, factory: SeqFactory, seed: u64) -> Self {
-        Self::starting_at(name, problem, problem.start.clone(), problem.scale.clone(), factory, seed)
+        Self::starting_at(
+            name,
+            problem,
+            problem.start.clone(),
+            problem.scale.clone(),
+            factory,
+            seed,
+        )
     }
 
     /// Adapter whose first run starts at `start` with `scale` (both clipped/sanitised).
@@ -233,7 +244,10 @@ impl Optimizer for Sequential {
             self.pending_fallback = false;
             return;
         }
-        let gone = self.worker.as_ref().is_some_and(|w| w.values.send(Some(v)).is_err());
+        let gone = self
+            .worker
+            .as_ref()
+            .is_some_and(|w| w.values.send(Some(v)).is_err());
         if gone {
             // The worker is gone; the next ask restarts.
             self.worker = None;
@@ -304,7 +318,10 @@ mod tests {
         let mut s = Sequential::new("coord", &p, Box::new(|x, sc, _| coord_search(x, sc)), 0);
         let out = minimize(&mut s, &testfns::sphere, 2000, false).unwrap();
         assert_eq!(out.evaluations, 2000);
-        assert!(s.runs() > 1, "the 30-iteration search must have been restarted");
+        assert!(
+            s.runs() > 1,
+            "the 30-iteration search must have been restarted"
+        );
         assert!(out.best_value < 1e-6, "{}", out.best_value);
     }
 

@@ -38,7 +38,12 @@ impl PopulationSizeController {
     /// Controller starting at `mu` parents, `lambda = 4 mu`.
     pub fn new(mu: usize, dim: usize) -> Self {
         let mu = mu.max(1);
-        PopulationSizeController { lambda: 4 * mu, mu, min_mu: mu.min(dim.max(1)), record: Vec::new() }
+        PopulationSizeController {
+            lambda: 4 * mu,
+            mu,
+            min_mu: mu.min(dim.max(1)),
+            record: Vec::new(),
+        }
     }
 
     /// Records one loss; may change µ and λ.
@@ -125,7 +130,9 @@ impl Tbpsa {
     /// Current center in x units.
     pub fn center_x(&self) -> Vec<f64> {
         let p = &self.problem;
-        let mut x: Vec<f64> = (0..p.dim()).map(|j| p.start[j] + p.scale[j] * self.center[j]).collect();
+        let mut x: Vec<f64> = (0..p.dim())
+            .map(|j| p.start[j] + p.scale[j] * self.center[j])
+            .collect();
         p.bounds.clip(&mut x);
         x
     }
@@ -156,14 +163,21 @@ impl Optimizer for Tbpsa {
     }
 
     fn ask(&mut self, max: usize) -> Vec<Vec<f64>> {
-        let k = self.pop.lambda.saturating_sub(self.children.len()).max(1).min(max.max(1));
+        let k = self
+            .pop
+            .lambda
+            .saturating_sub(self.children.len())
+            .max(1)
+            .min(max.max(1));
         let p = &self.problem;
         self.pending_sigma.clear();
         let mut out = Vec::with_capacity(k);
         for _ in 0..k {
             let s = self.sigma * (self.tau * util::normal(&mut self.rng)).exp();
             let mut x: Vec<f64> = (0..p.dim())
-                .map(|j| p.start[j] + p.scale[j] * (self.center[j] + s * util::normal(&mut self.rng)))
+                .map(|j| {
+                    p.start[j] + p.scale[j] * (self.center[j] + s * util::normal(&mut self.rng))
+                })
                 .collect();
             p.bounds.clip(&mut x);
             self.pending_sigma.push(s);
@@ -182,8 +196,14 @@ impl Optimizer for Tbpsa {
                 self.pop.mu = MAX_MU;
                 self.pop.lambda = 4 * MAX_MU;
             }
-            let z = (0..d).map(|j| (x[j] - self.problem.start[j]) / self.problem.scale[j]).collect();
-            self.children.push(Child { z, sigma: s, loss: v });
+            let z = (0..d)
+                .map(|j| (x[j] - self.problem.start[j]) / self.problem.scale[j])
+                .collect();
+            self.children.push(Child {
+                z,
+                sigma: s,
+                loss: v,
+            });
             if self.children.len() >= self.pop.lambda {
                 self.end_generation();
             }
@@ -213,7 +233,11 @@ mod tests {
             let mut o = Tbpsa::new(&p, seed);
             let out = minimize(&mut o, &testfns::sphere, 3000, false).unwrap();
             // Measured best at 3000 evaluations, seeds 0..9: 6.4e-16 .. 4.2e-14.
-            assert!(out.best_value < 0.01 * f0, "seed {seed}: {}", out.best_value);
+            assert!(
+                out.best_value < 0.01 * f0,
+                "seed {seed}: {}",
+                out.best_value
+            );
             assert_eq!(o.mu(), 10, "no noise: µ stays at its minimum");
         }
     }
@@ -232,7 +256,10 @@ mod tests {
             evals += xs.len();
             let v: Vec<f64> = xs
                 .iter()
-                .map(|x| testfns::sphere(x) + <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut noise))
+                .map(|x| {
+                    testfns::sphere(x)
+                        + <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut noise)
+                })
                 .collect();
             o.tell(&xs, &v);
             max_mu = max_mu.max(o.mu());

@@ -29,29 +29,41 @@ pub fn ellipsoid_cond(x: &[f64], cond: f64) -> f64 {
 
 /// Rosenbrock: `Σ 100 (x_{i+1} − x_i²)² + (1 − x_i)²`; optimum at 1 natively.
 pub fn rosenbrock(x: &[f64]) -> f64 {
-    x.windows(2).map(|w| 100.0 * (w[1] - w[0] * w[0]).powi(2) + (1.0 - w[0]).powi(2)).sum()
+    x.windows(2)
+        .map(|w| 100.0 * (w[1] - w[0] * w[0]).powi(2) + (1.0 - w[0]).powi(2))
+        .sum()
 }
 
 /// Rastrigin shifted to 1: `10 d + Σ (y_i² − 10 cos 2π y_i)`, `y = x − 1`.
 pub fn rastrigin(x: &[f64]) -> f64 {
     let tau = 2.0 * std::f64::consts::PI;
-    10.0 * x.len() as f64 + x.iter().map(|&v| {
-        let y = v - 1.0;
-        y * y - 10.0 * (tau * y).cos()
-    }).sum::<f64>()
+    10.0 * x.len() as f64
+        + x.iter()
+            .map(|&v| {
+                let y = v - 1.0;
+                y * y - 10.0 * (tau * y).cos()
+            })
+            .sum::<f64>()
 }
 
 /// A test function.
 pub type TestFn = fn(&[f64]) -> f64;
 
 /// The four functions with their names.
-pub const ALL: [(&str, TestFn); 4] =
-    [("sphere", sphere), ("ellipsoid", ellipsoid), ("rosenbrock", rosenbrock), ("rastrigin", rastrigin)];
+pub const ALL: [(&str, TestFn); 4] = [
+    ("sphere", sphere),
+    ("ellipsoid", ellipsoid),
+    ("rosenbrock", rosenbrock),
+    ("rastrigin", rastrigin),
+];
 
 /// `[-5, 5]^d`, start 0, scale 1 (nevergrad's standard benchmark setting).
 pub fn problem(d: usize) -> Problem {
     Problem {
-        bounds: Bounds { lower: vec![-5.0; d], upper: vec![5.0; d] },
+        bounds: Bounds {
+            lower: vec![-5.0; d],
+            upper: vec![5.0; d],
+        },
         start: vec![0.0; d],
         scale: vec![1.0; d],
     }

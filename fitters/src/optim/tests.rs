@@ -5,25 +5,42 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use super::*;
 
 fn all_methods_and_presets() -> Vec<(Method, Preset)> {
-    Method::ALL.iter().flat_map(|&m| Preset::ALL.iter().map(move |&p| (m, p))).collect()
+    Method::ALL
+        .iter()
+        .flat_map(|&m| Preset::ALL.iter().map(move |&p| (m, p)))
+        .collect()
 }
 
 fn partitions_for(m: Method, d: usize) -> Option<Vec<Vec<usize>>> {
     // Exercise real partitions for PSAPF: three groups of (almost) equal size.
     (m == Method::PSAPF && d >= 3).then(|| {
         let k = d.div_ceil(3);
-        (0..d).collect::<Vec<_>>().chunks(k).map(|c| c.to_vec()).collect()
+        (0..d)
+            .collect::<Vec<_>>()
+            .chunks(k)
+            .map(|c| c.to_vec())
+            .collect()
     })
 }
 
 #[test]
 fn validation_errors_name_the_bad_value() {
     let b = Bounds::uniform(2, 0.0, 1.0).unwrap();
-    assert!(matches!(Bounds::new(vec![0.0], vec![1.0, 2.0]), Err(OptimError::LengthMismatch { .. })));
-    assert!(matches!(Bounds::new(vec![], vec![]), Err(OptimError::EmptyProblem)));
+    assert!(matches!(
+        Bounds::new(vec![0.0], vec![1.0, 2.0]),
+        Err(OptimError::LengthMismatch { .. })
+    ));
+    assert!(matches!(
+        Bounds::new(vec![], vec![]),
+        Err(OptimError::EmptyProblem)
+    ));
     assert_eq!(
         Bounds::new(vec![0.0, 1.0], vec![1.0, 1.0]),
-        Err(OptimError::EmptyBound { index: 1, lower: 1.0, upper: 1.0 })
+        Err(OptimError::EmptyBound {
+            index: 1,
+            lower: 1.0,
+            upper: 1.0
+        })
     );
     assert!(matches!(
         Bounds::new(vec![0.0, f64::NAN], vec![1.0, 1.0]),
@@ -31,7 +48,12 @@ fn validation_errors_name_the_bad_value() {
     ));
     assert_eq!(
         Problem::new(b.clone(), vec![0.5, 2.0], vec![1.0, 1.0]),
-        Err(OptimError::StartOutOfBounds { index: 1, value: 2.0, lower: 0.0, upper: 1.0 })
+        Err(OptimError::StartOutOfBounds {
+            index: 1,
+            value: 2.0,
+            lower: 0.0,
+            upper: 1.0
+        })
     );
     assert!(matches!(
         Problem::new(b.clone(), vec![0.5, f64::NAN], vec![1.0, 1.0]),
@@ -39,25 +61,48 @@ fn validation_errors_name_the_bad_value() {
     ));
     assert_eq!(
         Problem::new(b.clone(), vec![0.5, 0.5], vec![1.0, 0.0]),
-        Err(OptimError::BadScale { index: 1, value: 0.0 })
+        Err(OptimError::BadScale {
+            index: 1,
+            value: 0.0
+        })
     );
     assert!(matches!(
         Problem::new(b.clone(), vec![0.5], vec![1.0, 1.0]),
         Err(OptimError::LengthMismatch { what: "start", .. })
     ));
     let p = Problem::new(b, vec![0.5, 0.5], vec![0.1, 0.1]).unwrap();
-    assert!(matches!(build(Method::CMA, Preset::Nevergrad, &p, 0, 0, None), Err(OptimError::ZeroBudget)));
+    assert!(matches!(
+        build(Method::CMA, Preset::Nevergrad, &p, 0, 0, None),
+        Err(OptimError::ZeroBudget)
+    ));
     // Invalid problems built through the public fields are caught by `build`.
     let mut bad = p.clone();
     bad.scale[0] = -1.0;
     assert!(build(Method::DE, Preset::Nevergrad, &bad, 10, 0, None).is_err());
-    let msg = OptimError::BadScale { index: 3, value: -2.0 }.to_string();
+    let msg = OptimError::BadScale {
+        index: 3,
+        value: -2.0,
+    }
+    .to_string();
     assert!(msg.contains("scale[3]") && msg.contains("-2"), "{msg}");
 }
 
 #[test]
 fn method_names_round_trip() {
-    let names = ["random", "one-plus-one", "de", "pso", "cma", "tbpsa", "powell", "cma-powell", "ngo", "shiwa", "apf", "psapf"];
+    let names = [
+        "random",
+        "one-plus-one",
+        "de",
+        "pso",
+        "cma",
+        "tbpsa",
+        "powell",
+        "cma-powell",
+        "ngo",
+        "shiwa",
+        "apf",
+        "psapf",
+    ];
     for (m, n) in Method::ALL.iter().zip(names) {
         assert_eq!(m.as_str(), n);
         assert_eq!(m.to_string(), n);
@@ -106,21 +151,72 @@ fn driver_truncates_checks_and_traces() {
         count.fetch_add(1, Ordering::SeqCst);
         x[0]
     };
-    let mut o = Fixed { bounds: bounds.clone(), point: vec![0.5, 0.5], n: 10, told: 0 };
+    let mut o = Fixed {
+        bounds: bounds.clone(),
+        point: vec![0.5, 0.5],
+        n: 10,
+        told: 0,
+    };
     let out = minimize(&mut o, &f, 25, true).unwrap();
-    assert_eq!((out.evaluations, o.told, count.load(Ordering::SeqCst)), (25, 25, 25));
+    assert_eq!(
+        (out.evaluations, o.told, count.load(Ordering::SeqCst)),
+        (25, 25, 25)
+    );
     assert_eq!(out.trace, vec![(1, 0.5), (25, 0.5)]);
 
-    let mut bad = Fixed { bounds: bounds.clone(), point: vec![0.5, 1.5], n: 1, told: 0 };
+    let mut bad = Fixed {
+        bounds: bounds.clone(),
+        point: vec![0.5, 1.5],
+        n: 1,
+        told: 0,
+    };
     let err = minimize(&mut bad, &f, 5, false).unwrap_err();
-    assert!(matches!(err, OptimError::OutOfBounds { coord: 1, value: 1.5, .. }), "{err}");
-    assert_eq!(count.load(Ordering::SeqCst), 25, "nothing of the bad batch was evaluated");
-    let mut nan = Fixed { bounds: bounds.clone(), point: vec![f64::NAN, 0.5], n: 1, told: 0 };
-    assert!(matches!(minimize(&mut nan, &f, 5, false), Err(OptimError::NonFinitePoint { coord: 0, .. })));
-    let mut short = Fixed { bounds: bounds.clone(), point: vec![0.5], n: 1, told: 0 };
-    assert!(matches!(minimize(&mut short, &f, 5, false), Err(OptimError::DimensionMismatch { .. })));
-    let mut empty = Fixed { bounds, point: vec![0.5, 0.5], n: 0, told: 0 };
-    assert!(matches!(minimize(&mut empty, &f, 5, false), Err(OptimError::EmptyAsk { .. })));
+    assert!(
+        matches!(
+            err,
+            OptimError::OutOfBounds {
+                coord: 1,
+                value: 1.5,
+                ..
+            }
+        ),
+        "{err}"
+    );
+    assert_eq!(
+        count.load(Ordering::SeqCst),
+        25,
+        "nothing of the bad batch was evaluated"
+    );
+    let mut nan = Fixed {
+        bounds: bounds.clone(),
+        point: vec![f64::NAN, 0.5],
+        n: 1,
+        told: 0,
+    };
+    assert!(matches!(
+        minimize(&mut nan, &f, 5, false),
+        Err(OptimError::NonFinitePoint { coord: 0, .. })
+    ));
+    let mut short = Fixed {
+        bounds: bounds.clone(),
+        point: vec![0.5],
+        n: 1,
+        told: 0,
+    };
+    assert!(matches!(
+        minimize(&mut short, &f, 5, false),
+        Err(OptimError::DimensionMismatch { .. })
+    ));
+    let mut empty = Fixed {
+        bounds,
+        point: vec![0.5, 0.5],
+        n: 0,
+        told: 0,
+    };
+    assert!(matches!(
+        minimize(&mut empty, &f, 5, false),
+        Err(OptimError::EmptyAsk { .. })
+    ));
 }
 
 #[test]
@@ -128,7 +224,13 @@ fn nan_counts_as_infinity() {
     let p = testfns::problem(3);
     let mut o = build(Method::CMA, Preset::Nevergrad, &p, 300, 0, None).unwrap();
     // NaN on half of the space: the optimizer must still find the minimum of the other half.
-    let f = |x: &[f64]| if x[0] < 0.0 { f64::NAN } else { testfns::sphere(x) };
+    let f = |x: &[f64]| {
+        if x[0] < 0.0 {
+            f64::NAN
+        } else {
+            testfns::sphere(x)
+        }
+    };
     let out = minimize(o.as_mut(), &f, 300, false).unwrap();
     assert!(out.best_value < 0.1, "{}", out.best_value);
     let mut o = build(Method::RandomSearch, Preset::Nevergrad, &p, 10, 0, None).unwrap();
@@ -164,7 +266,10 @@ fn budget_is_exact_and_points_stay_in_bounds() {
                 assert_eq!(outside.load(Ordering::Relaxed), 0, "{tag}");
                 assert!(bounds.contains(&out.best_x), "{tag}");
                 assert_eq!(out.trace.last().map(|t| t.0), Some(budget), "{tag}");
-                assert!(out.best_value >= d as f64 - 1e-9, "{tag}: below the constrained optimum");
+                assert!(
+                    out.best_value >= d as f64 - 1e-9,
+                    "{tag}: below the constrained optimum"
+                );
             }
         }
     }
@@ -175,7 +280,11 @@ fn same_seed_same_outcome_different_seed_different() {
     let d = 6;
     let p = testfns::problem(d);
     // Optimum far from the start so that every method (random search included) improves.
-    let f = |x: &[f64]| x.iter().map(|&v| (v - 3.0) * (v - 3.0) + (5.0 * v).sin()).sum::<f64>();
+    let f = |x: &[f64]| {
+        x.iter()
+            .map(|&v| (v - 3.0) * (v - 3.0) + (5.0 * v).sin())
+            .sum::<f64>()
+    };
     for (m, preset) in all_methods_and_presets() {
         let run = |seed: u64| {
             let mut o = build(m, preset, &p, 400, seed, partitions_for(m, d)).unwrap();
@@ -194,7 +303,9 @@ fn random_search_is_worse_than_cma_on_sphere() {
         let mut v: Vec<f64> = (0..7)
             .map(|s| {
                 let mut o = build(m, Preset::Nevergrad, &p, 2000, s, None).unwrap();
-                minimize(o.as_mut(), &testfns::sphere, 2000, false).unwrap().best_value
+                minimize(o.as_mut(), &testfns::sphere, 2000, false)
+                    .unwrap()
+                    .best_value
             })
             .collect();
         v.sort_by(f64::total_cmp);
@@ -211,7 +322,9 @@ fn de_and_pso_beat_random_search_on_rastrigin() {
         (0..5)
             .map(|s| {
                 let mut o = build(m, preset, &p, 3000, s, None).unwrap();
-                minimize(o.as_mut(), &testfns::rastrigin, 3000, true).unwrap().best_value
+                minimize(o.as_mut(), &testfns::rastrigin, 3000, true)
+                    .unwrap()
+                    .best_value
             })
             .sum::<f64>()
             / 5.0
@@ -249,7 +362,10 @@ fn benchmark_table_all_methods() {
                 if (fname == "sphere" || fname == "ellipsoid") && m != Method::RandomSearch {
                     let f0 = f(&p.start);
                     if out.best_value >= f0 {
-                        failures.push(format!("{name} {preset} d={d} {fname}: {} !< start {f0}", out.best_value));
+                        failures.push(format!(
+                            "{name} {preset} d={d} {fname}: {} !< start {f0}",
+                            out.best_value
+                        ));
                     }
                 }
                 row.push(out.best_value);
@@ -265,6 +381,9 @@ fn benchmark_table_all_methods() {
             ));
         }
     }
-    println!("best values after {budget} evaluations (seed 2024)\n{}", lines.join("\n"));
+    println!(
+        "best values after {budget} evaluations (seed 2024)\n{}",
+        lines.join("\n")
+    );
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }

@@ -17,7 +17,10 @@ pub(crate) fn rng(seed: u64) -> OptRng {
 /// A well-mixed seed for sub-stream `stream` of `seed` (splitmix64), used by wrappers that own
 /// several optimizers.
 pub(crate) fn sub_seed(seed: u64, stream: u64) -> u64 {
-    let mut z = seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(0xD1B5_4A32_D192_ED03);
+    let mut z = seed
+        ^ stream
+            .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            .wrapping_add(0xD1B5_4A32_D192_ED03);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^ (z >> 31)
@@ -43,8 +46,12 @@ pub(crate) fn sanitize(v: f64) -> f64 {
 
 /// `start + factor · scale ⊙ N(0, I)`, clipped into the bounds.
 pub(crate) fn gaussian_around(problem: &Problem, factor: f64, rng: &mut OptRng) -> Vec<f64> {
-    let mut x: Vec<f64> =
-        problem.start.iter().zip(&problem.scale).map(|(&s, &sc)| s + factor * sc * normal(rng)).collect();
+    let mut x: Vec<f64> = problem
+        .start
+        .iter()
+        .zip(&problem.scale)
+        .map(|(&s, &sc)| s + factor * sc * normal(rng))
+        .collect();
     problem.bounds.clip(&mut x);
     x
 }

@@ -20,13 +20,13 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use lfit_model::pose::{DofMask, POSE_DIM, dof_name};
 use lfit_nn::checkpoint::{self, CheckpointMeta};
 use lfit_nn::config::UpdateRule;
 use lfit_nn::features::FeatureStats;
-use lfit_nn::{NetConfig, NeuralNet};
 use lfit_nn::layers::{InitMlp, LnGruCell};
 use lfit_nn::net::Core;
-use lfit_model::pose::{DofMask, POSE_DIM, dof_name};
+use lfit_nn::{NetConfig, NeuralNet};
 use prost::Message;
 
 use super::graph::{Graph, attr_int};
@@ -45,7 +45,13 @@ pub struct Exported {
 /// `propose.s.onnx` when there are several sets.
 pub fn graph_files(c: &NetConfig) -> Vec<(&'static str, usize, String)> {
     let sets = c.weight_sets();
-    let name = |role: &str, s: usize| if sets > 1 { format!("{role}.{s}.onnx") } else { format!("{role}.onnx") };
+    let name = |role: &str, s: usize| {
+        if sets > 1 {
+            format!("{role}.{s}.onnx")
+        } else {
+            format!("{role}.onnx")
+        }
+    };
     let mut files = vec![("init", 0, "init.onnx".to_string())];
     for s in 0..sets {
         files.push(("propose", s, name("propose", s)));
@@ -56,22 +62,37 @@ pub fn graph_files(c: &NetConfig) -> Vec<(&'static str, usize, String)> {
     files
 }
 
-fn gru_cell(g: &mut Graph, x: &str, h: &str, cell: &LnGruCell, p: &str) -> Result<String, OnnxError> {
+fn gru_cell(
+    g: &mut Graph,
+    x: &str,
+    h: &str,
+    cell: &LnGruCell,
+    p: &str,
+) -> Result<String, OnnxError> {
     let hd = cell.hidden;
     let wz = g.linear_cols(x, &cell.w, 0, hd, &format!("{p}.w_z"))?;
     let wr = g.linear_cols(x, &cell.w, hd, hd, &format!("{p}.w_r"))?;
     let wh = g.linear_cols(x, &cell.w, 2 * hd, hd, &format!("{p}.w_h"))?;
     let uz = g.linear_cols(h, &cell.u_zr, 0, hd, &format!("{p}.u_z"))?;
     let ur = g.linear_cols(h, &cell.u_zr, hd, hd, &format!("{p}.u_r"))?;
-    let (a, b) = (g.layer_norm(&wz, &cell.ln_wz, &format!("{p}.ln_wz"))?, g.layer_norm(&uz, &cell.ln_uz, &format!("{p}.ln_uz"))?);
+    let (a, b) = (
+        g.layer_norm(&wz, &cell.ln_wz, &format!("{p}.ln_wz"))?,
+        g.layer_norm(&uz, &cell.ln_uz, &format!("{p}.ln_uz"))?,
+    );
     let s = g.add(&a, &b);
     let z = g.unary("Sigmoid", &s);
-    let (a, b) = (g.layer_norm(&wr, &cell.ln_wr, &format!("{p}.ln_wr"))?, g.layer_norm(&ur, &cell.ln_ur, &format!("{p}.ln_ur"))?);
+    let (a, b) = (
+        g.layer_norm(&wr, &cell.ln_wr, &format!("{p}.ln_wr"))?,
+        g.layer_norm(&ur, &cell.ln_ur, &format!("{p}.ln_ur"))?,
+    );
     let s = g.add(&a, &b);
     let r = g.unary("Sigmoid", &s);
     let rh = g.mul(&r, h);
     let uh = g.linear(&rh, &cell.u_h, &format!("{p}.u_h"))?;
-    let (a, b) = (g.layer_norm(&wh, &cell.ln_wh, &format!("{p}.ln_wh"))?, g.layer_norm(&uh, &cell.ln_uh, &format!("{p}.ln_uh"))?);
+    let (a, b) = (
+        g.layer_norm(&wh, &cell.ln_wh, &format!("{p}.ln_wh"))?,
+        g.layer_norm(&uh, &cell.ln_uh, &format!("{p}.ln_uh"))?,
+    );
     let s = g.add(&a, &b);
     let cand = g.unary("Tanh", &s);
     let one = g.scalar(1.0);
@@ -83,7 +104,13 @@ fn gru_cell(g: &mut Graph, x: &str, h: &str, cell: &LnGruCell, p: &str) -> Resul
 
 /// The core on `x` with the given states (GRU: one per layer); returns the output and the new
 /// states.
-fn core(g: &mut Graph, x: &str, states: &[String], core: &Core, p: &str) -> Result<(String, Vec<String>), OnnxError> {
+fn core(
+    g: &mut Graph,
+    x: &str,
+    states: &[String],
+    core: &Core,
+    p: &str,
+) -> Result<(String, Vec<String>), OnnxError> {
     match (&core.gru, &core.mlp) {
         (Some(gru), _) => {
             let mut input = x.to_string();
@@ -109,7 +136,15 @@ fn core(g: &mut Graph, x: &str, states: &[String], core: &Core, p: &str) -> Resu
 }
 
 fn state_inputs(g: &mut Graph, prefix: &str, layers: usize, hidden: usize) -> Vec<String> {
-    (0..layers).map(|l| g.input(&format!("{prefix}.{l}"), hidden, "GRU state of this layer (zeros before the first iteration of fλγ)")).collect()
+    (0..layers)
+        .map(|l| {
+            g.input(
+                &format!("{prefix}.{l}"),
+                hidden,
+                "GRU state of this layer (zeros before the first iteration of fλγ)",
+            )
+        })
+        .collect()
 }
 
 fn init_graph(net: &NeuralNet) -> Result<Graph, OnnxError> {
@@ -130,8 +165,19 @@ fn init_graph(net: &NeuralNet) -> Result<Graph, OnnxError> {
     if let Some(phi_h) = &net.phi_h {
         let (y, p) = mlp(&mut g, phi_h, "phi_h")?;
         for l in 0..c.layers {
-            let h = g.linear_cols(&y, &phi_h.out, l * c.hidden, c.hidden, &format!("{p}.out{l}"))?;
-            g.output(&h, &format!("h0.{l}"), c.hidden, "initial state of this GRU layer of f, Φh(D)");
+            let h = g.linear_cols(
+                &y,
+                &phi_h.out,
+                l * c.hidden,
+                c.hidden,
+                &format!("{p}.out{l}"),
+            )?;
+            g.output(
+                &h,
+                &format!("h0.{l}"),
+                c.hidden,
+                "initial state of this GRU layer of f, Φh(D)",
+            );
         }
     }
     Ok(g)
@@ -144,9 +190,19 @@ fn propose_graph(net: &NeuralNet, set: usize) -> Result<Graph, OnnxError> {
     let states = state_inputs(&mut g, "h", c.recurrent_layers(), c.hidden);
     let (out, next) = core(&mut g, &x, &states, &net.cores[set], "f")?;
     let delta = g.linear(&out, &net.delta_heads[set], "delta_head")?;
-    g.output(&delta, "delta", c.param_dim, "Δθ (multiply by the DOF mask before using it)");
+    g.output(
+        &delta,
+        "delta",
+        c.param_dim,
+        "Δθ (multiply by the DOF mask before using it)",
+    );
     for (l, h) in next.iter().enumerate() {
-        g.output(h, &format!("h_next.{l}"), c.hidden, "new state of this GRU layer of f");
+        g.output(
+            h,
+            &format!("h_next.{l}"),
+            c.hidden,
+            "new state of this GRU layer of f",
+        );
     }
     Ok(g)
 }
@@ -162,7 +218,11 @@ fn step_graph(net: &NeuralNet, set: usize) -> Result<Graph, OnnxError> {
     let layers = c.recurrent_layers();
     let lambda_states = state_inputs(&mut g, "lambda_h", layers, c.hidden);
     let separate = c.separate_gamma_network();
-    let gamma_states = if separate { state_inputs(&mut g, "gamma_h", layers, c.hidden) } else { Vec::new() };
+    let gamma_states = if separate {
+        state_inputs(&mut g, "gamma_h", layers, c.hidden)
+    } else {
+        Vec::new()
+    };
 
     let (out, lambda_next) = core(&mut g, &x, &lambda_states, &step.lambda_core, "f_lambda")?;
     let (a, b, gamma_next) = match (&step.gamma_core, &step.gamma_head) {
@@ -171,10 +231,16 @@ fn step_graph(net: &NeuralNet, set: usize) -> Result<Graph, OnnxError> {
             let (gout, next) = core(&mut g, &x, &gamma_states, gc, "f_gamma")?;
             (a, Some(g.linear(&gout, gh, "gamma_head")?), next)
         }
-        _ if c.learns_gamma() => {
-            (g.linear_cols(&out, &step.lambda_head, 0, k, "lambda_head")?, Some(g.linear_cols(&out, &step.lambda_head, k, kg, "gamma_head")?), Vec::new())
-        }
-        _ => (g.linear(&out, &step.lambda_head, "lambda_head")?, None, Vec::new()),
+        _ if c.learns_gamma() => (
+            g.linear_cols(&out, &step.lambda_head, 0, k, "lambda_head")?,
+            Some(g.linear_cols(&out, &step.lambda_head, k, kg, "gamma_head")?),
+            Vec::new(),
+        ),
+        _ => (
+            g.linear(&out, &step.lambda_head, "lambda_head")?,
+            None,
+            Vec::new(),
+        ),
     };
     let lambda = match c.update {
         UpdateRule::Eq1 => {
@@ -196,12 +262,20 @@ fn step_graph(net: &NeuralNet, set: usize) -> Result<Graph, OnnxError> {
             let batch = g.node("Slice", &[&shape, &s0, &s1], vec![]);
             let width = g.init_i64("gamma_width", &[kg as i64]);
             let target = g.node("Concat", &[&batch, &width], vec![attr_int("axis", 0)]);
-            let value = g.init("gamma_constant", &[1, kg], &vec![c.gamma_constant as f32; kg]);
+            let value = g.init(
+                "gamma_constant",
+                &[1, kg],
+                &vec![c.gamma_constant as f32; kg],
+            );
             g.node("Expand", &[&value, &target], vec![])
         }
     };
     let update = match c.update {
-        UpdateRule::DeltaOnly => return Err(OnnxError::Export("the Δθ-only rule has no step network".into())),
+        UpdateRule::DeltaOnly => {
+            return Err(OnnxError::Export(
+                "the Δθ-only rule has no step network".into(),
+            ));
+        }
         UpdateRule::Eq1 => {
             let ld = g.mul(&lambda, &delta);
             let gg = g.mul(&gamma, &grad);
@@ -235,32 +309,62 @@ fn step_graph(net: &NeuralNet, set: usize) -> Result<Graph, OnnxError> {
             g.mul(&gamma, &diff)
         }
     };
-    g.output(&update, "update", c.param_dim, "θn − θ(n−1) before clamping to the bounds");
+    g.output(
+        &update,
+        "update",
+        c.param_dim,
+        "θn − θ(n−1) before clamping to the bounds",
+    );
     g.output(&lambda, "lambda", k, "λ");
     g.output(&gamma, "gamma", kg, "γ");
     for (l, h) in lambda_next.iter().enumerate() {
-        g.output(h, &format!("lambda_h_next.{l}"), c.hidden, "new state of this GRU layer of fλ(γ)");
+        g.output(
+            h,
+            &format!("lambda_h_next.{l}"),
+            c.hidden,
+            "new state of this GRU layer of fλ(γ)",
+        );
     }
     for (l, h) in gamma_next.iter().enumerate() {
-        g.output(h, &format!("gamma_h_next.{l}"), c.hidden, "new state of this GRU layer of fγ");
+        g.output(
+            h,
+            &format!("gamma_h_next.{l}"),
+            c.hidden,
+            "new state of this GRU layer of fγ",
+        );
     }
     Ok(g)
 }
 
 /// Metadata common to every graph of a checkpoint.
-fn metadata(meta: &CheckpointMeta, stats: &FeatureStats, role: &str, set: usize) -> Result<Vec<StringStringEntryProto>, OnnxError> {
+fn metadata(
+    meta: &CheckpointMeta,
+    stats: &FeatureStats,
+    role: &str,
+    set: usize,
+) -> Result<Vec<StringStringEntryProto>, OnnxError> {
     let c = &meta.network;
-    let json = |v: serde_json::Result<String>| v.map_err(|e| OnnxError::Export(format!("cannot serialise metadata: {e}")));
+    let json = |v: serde_json::Result<String>| {
+        v.map_err(|e| OnnxError::Export(format!("cannot serialise metadata: {e}")))
+    };
     // Entry names from the model's layout; checkpoints without a model signature are of the
     // default template (57 entries).
     let names: Vec<String> = match &meta.model {
         Some(sig) => sig.layout.names(),
         None => (0..POSE_DIM).map(dof_name).collect(),
     };
-    let mask = if c.param_dim == POSE_DIM && meta.model.as_ref().is_none_or(|m| m.layout.shape + m.layout.expression == 0) {
+    let mask = if c.param_dim == POSE_DIM
+        && meta
+            .model
+            .as_ref()
+            .is_none_or(|m| m.layout.shape + m.layout.expression == 0)
+    {
         DofMask::full57()
     } else {
-        DofMask { name: format!("full{}", c.param_dim), free: (0..c.param_dim).collect() }
+        DofMask {
+            name: format!("full{}", c.param_dim),
+            free: (0..c.param_dim).collect(),
+        }
     };
     let dof = serde_json::json!({
         "mask": mask.name,
@@ -282,13 +386,22 @@ fn metadata(meta: &CheckpointMeta, stats: &FeatureStats, role: &str, set: usize)
         (keys::FEATURE_STATS, json(serde_json::to_string(stats))?),
         (keys::FEATURE_CLIP, c.feature_clip.to_string()),
     ]);
-    Ok(entries.into_iter().map(|(key, value)| StringStringEntryProto { key: key.into(), value }).collect())
+    Ok(entries
+        .into_iter()
+        .map(|(key, value)| StringStringEntryProto {
+            key: key.into(),
+            value,
+        })
+        .collect())
 }
 
 fn model(graph: Graph, metadata: Vec<StringStringEntryProto>, doc: &str) -> Vec<u8> {
     ModelProto {
         ir_version: 8,
-        opset_import: vec![OperatorSetIdProto { domain: String::new(), version: OPSET }],
+        opset_import: vec![OperatorSetIdProto {
+            domain: String::new(),
+            version: OPSET,
+        }],
         producer_name: "lfit".into(),
         producer_version: env!("CARGO_PKG_VERSION").into(),
         model_version: i64::from(VERSION),
@@ -301,19 +414,40 @@ fn model(graph: Graph, metadata: Vec<StringStringEntryProto>, doc: &str) -> Vec<
 }
 
 /// The ONNX graphs of a network with its checkpoint metadata and feature statistics.
-pub fn export(net: &NeuralNet, meta: &CheckpointMeta, stats: &FeatureStats) -> Result<Exported, OnnxError> {
+pub fn export(
+    net: &NeuralNet,
+    meta: &CheckpointMeta,
+    stats: &FeatureStats,
+) -> Result<Exported, OnnxError> {
     if meta.format != checkpoint::FORMAT || meta.version != checkpoint::VERSION {
-        return Err(OnnxError::Export(format!("checkpoint version {} of format '{}' is not supported (expected {} version {})", meta.version, meta.format, checkpoint::FORMAT, checkpoint::VERSION)));
+        return Err(OnnxError::Export(format!(
+            "checkpoint version {} of format '{}' is not supported (expected {} version {})",
+            meta.version,
+            meta.format,
+            checkpoint::FORMAT,
+            checkpoint::VERSION
+        )));
     }
     if meta.network != net.config {
-        return Err(OnnxError::Export("the network does not match the checkpoint's config.json".into()));
+        return Err(OnnxError::Export(
+            "the network does not match the checkpoint's config.json".into(),
+        ));
     }
     let mut files = Vec::new();
     for (role, s, name) in graph_files(&net.config) {
         let (graph, doc) = match role {
-            "init" => (init_graph(net)?, "lfit neural fitter: θ0 = Φ(D), h0 = Φh(D) (papers/002 §3.5)"),
-            "propose" => (propose_graph(net, s)?, "lfit neural fitter: Δθn, hn = f([R, g, θ, D], h(n−1)) (papers/002 Alg. 1)"),
-            _ => (step_graph(net, s)?, "lfit neural fitter: λ, γ = fλγ(R(θ), R(θ + Δθ)) and the update u (papers/002 eq. 1–2)"),
+            "init" => (
+                init_graph(net)?,
+                "lfit neural fitter: θ0 = Φ(D), h0 = Φh(D) (papers/002 §3.5)",
+            ),
+            "propose" => (
+                propose_graph(net, s)?,
+                "lfit neural fitter: Δθn, hn = f([R, g, θ, D], h(n−1)) (papers/002 Alg. 1)",
+            ),
+            _ => (
+                step_graph(net, s)?,
+                "lfit neural fitter: λ, γ = fλγ(R(θ), R(θ + Δθ)) and the update u (papers/002 eq. 1–2)",
+            ),
         };
         files.push((name, model(graph, metadata(meta, stats, role, s)?, doc)));
     }
@@ -323,7 +457,8 @@ pub fn export(net: &NeuralNet, meta: &CheckpointMeta, stats: &FeatureStats) -> R
 /// Loads the checkpoint in `dir` (on the ndarray backend) and exports it; returns its metadata
 /// with the graphs.
 pub fn export_checkpoint(dir: &Path) -> Result<(CheckpointMeta, Exported), OnnxError> {
-    let ckpt = checkpoint::load(dir, &lfit_nn::tensor::ndarray_device()).map_err(|e| OnnxError::Io(e.to_string()))?;
+    let ckpt = checkpoint::load(dir, &lfit_nn::tensor::ndarray_device())
+        .map_err(|e| OnnxError::Io(e.to_string()))?;
     let exported = export(&ckpt.net, &ckpt.meta, &ckpt.stats)?;
     Ok((ckpt.meta, exported))
 }
@@ -333,7 +468,8 @@ pub fn export_checkpoint(dir: &Path) -> Result<(CheckpointMeta, Exported), OnnxE
 pub fn write(dir: &Path, exported: &Exported) -> Result<(), OnnxError> {
     std::fs::create_dir_all(dir).map_err(|e| OnnxError::Io(format!("{}: {e}", dir.display())))?;
     for (name, bytes) in &exported.files {
-        lfit_model::template::write_atomic(&dir.join(name), bytes).map_err(|e| OnnxError::Io(e.to_string()))?;
+        lfit_model::template::write_atomic(&dir.join(name), bytes)
+            .map_err(|e| OnnxError::Io(e.to_string()))?;
     }
     Ok(())
 }

@@ -6,13 +6,17 @@ use burn::nn::{BatchNorm, LayerNorm, LayerNormConfig, Linear};
 use burn::tensor::Tensor;
 
 use super::proto::{
-    AttributeProto, GraphProto, NodeProto, TensorProto, TensorShapeProto, TypeProto, ValueInfoProto, attribute_type, tensor_shape_proto, type_proto,
+    AttributeProto, GraphProto, NodeProto, TensorProto, TensorShapeProto, TypeProto,
+    ValueInfoProto, attribute_type, tensor_shape_proto, type_proto,
 };
 use super::{FLOAT, INT64, OnnxError};
 
 /// Host values of a Burn tensor, row-major.
 pub fn values<const D: usize>(t: Tensor<D>) -> Result<Vec<f32>, OnnxError> {
-    t.into_data().convert::<f32>().try_to_vec::<f32>().map_err(|e| OnnxError::Export(format!("cannot read weights: {e:?}")))
+    t.into_data()
+        .convert::<f32>()
+        .try_to_vec::<f32>()
+        .map_err(|e| OnnxError::Export(format!("cannot read weights: {e:?}")))
 }
 
 /// Epsilon of the LayerNorms lfit builds (Burn's `LayerNormConfig` default; the field is private
@@ -35,34 +39,67 @@ fn batch_by(width: usize) -> TypeProto {
     TypeProto {
         value: Some(type_proto::Value::TensorType(type_proto::Tensor {
             elem_type: FLOAT,
-            shape: Some(TensorShapeProto { dim: vec![dim(Value::DimParam("batch".into())), dim(Value::DimValue(width as i64))] }),
+            shape: Some(TensorShapeProto {
+                dim: vec![
+                    dim(Value::DimParam("batch".into())),
+                    dim(Value::DimValue(width as i64)),
+                ],
+            }),
         })),
     }
 }
 
 pub fn attr_int(name: &str, i: i64) -> AttributeProto {
-    AttributeProto { name: name.into(), r#type: attribute_type::INT, i: Some(i), ..Default::default() }
+    AttributeProto {
+        name: name.into(),
+        r#type: attribute_type::INT,
+        i: Some(i),
+        ..Default::default()
+    }
 }
 
 pub fn attr_float(name: &str, f: f32) -> AttributeProto {
-    AttributeProto { name: name.into(), r#type: attribute_type::FLOAT, f: Some(f), ..Default::default() }
+    AttributeProto {
+        name: name.into(),
+        r#type: attribute_type::FLOAT,
+        f: Some(f),
+        ..Default::default()
+    }
 }
 
 impl Graph {
     pub fn new(name: &str) -> Self {
-        Self { proto: GraphProto { name: name.into(), ..Default::default() }, counter: 0 }
+        Self {
+            proto: GraphProto {
+                name: name.into(),
+                ..Default::default()
+            },
+            counter: 0,
+        }
     }
 
     /// Declares a `[batch, width]` float input.
     pub fn input(&mut self, name: &str, width: usize, doc: &str) -> String {
-        self.proto.input.push(ValueInfoProto { name: name.into(), r#type: Some(batch_by(width)), doc_string: doc.into() });
+        self.proto.input.push(ValueInfoProto {
+            name: name.into(),
+            r#type: Some(batch_by(width)),
+            doc_string: doc.into(),
+        });
         name.into()
     }
 
     /// Makes `value` a `[batch, width]` float output called `name`.
     pub fn output(&mut self, value: &str, name: &str, width: usize, doc: &str) {
-        let value = if value == name { value.to_string() } else { self.node_named("Identity", &[value], vec![], name) };
-        self.proto.output.push(ValueInfoProto { name: value, r#type: Some(batch_by(width)), doc_string: doc.into() });
+        let value = if value == name {
+            value.to_string()
+        } else {
+            self.node_named("Identity", &[value], vec![], name)
+        };
+        self.proto.output.push(ValueInfoProto {
+            name: value,
+            r#type: Some(batch_by(width)),
+            doc_string: doc.into(),
+        });
     }
 
     /// A float initializer.
@@ -83,7 +120,12 @@ impl Graph {
     pub fn init_i64(&mut self, prefix: &str, data: &[i64]) -> String {
         self.counter += 1;
         let name = format!("{prefix}#{}", self.counter);
-        self.proto.initializer.push(TensorProto { dims: vec![data.len() as i64], data_type: INT64, name: name.clone(), raw_data: data.iter().flat_map(|v| v.to_le_bytes()).collect() });
+        self.proto.initializer.push(TensorProto {
+            dims: vec![data.len() as i64],
+            data_type: INT64,
+            name: name.clone(),
+            raw_data: data.iter().flat_map(|v| v.to_le_bytes()).collect(),
+        });
         name
     }
 
@@ -92,7 +134,13 @@ impl Graph {
         self.init("const", &[], &[v])
     }
 
-    fn node_named(&mut self, op: &str, inputs: &[&str], attrs: Vec<AttributeProto>, output: &str) -> String {
+    fn node_named(
+        &mut self,
+        op: &str,
+        inputs: &[&str],
+        attrs: Vec<AttributeProto>,
+        output: &str,
+    ) -> String {
         self.counter += 1;
         self.proto.node.push(NodeProto {
             input: inputs.iter().map(|s| s.to_string()).collect(),
@@ -125,13 +173,25 @@ impl Graph {
     }
 
     /// `x W[:, c0..c0+cols] + b[c0..c0+cols]` of a Burn `Linear` (`W` is `[in, out]`).
-    pub fn linear_cols(&mut self, x: &str, linear: &Linear, c0: usize, cols: usize, prefix: &str) -> Result<String, OnnxError> {
+    pub fn linear_cols(
+        &mut self,
+        x: &str,
+        linear: &Linear,
+        c0: usize,
+        cols: usize,
+        prefix: &str,
+    ) -> Result<String, OnnxError> {
         let [d_in, d_out] = linear.weight.val().dims();
         if c0 + cols > d_out {
-            return Err(OnnxError::Export(format!("{prefix}: columns {c0}..{} of a {d_out}-wide layer", c0 + cols)));
+            return Err(OnnxError::Export(format!(
+                "{prefix}: columns {c0}..{} of a {d_out}-wide layer",
+                c0 + cols
+            )));
         }
         let w = values(linear.weight.val())?;
-        let sliced: Vec<f32> = (0..d_in).flat_map(|i| w[i * d_out + c0..i * d_out + c0 + cols].iter().copied()).collect();
+        let sliced: Vec<f32> = (0..d_in)
+            .flat_map(|i| w[i * d_out + c0..i * d_out + c0 + cols].iter().copied())
+            .collect();
         let b = match &linear.bias {
             Some(b) => values(b.val())?[c0..c0 + cols].to_vec(),
             None => vec![0.0; cols],
@@ -148,7 +208,12 @@ impl Graph {
     }
 
     /// `LayerNormalization` over the last axis with the module's gain and bias.
-    pub fn layer_norm(&mut self, x: &str, ln: &LayerNorm, prefix: &str) -> Result<String, OnnxError> {
+    pub fn layer_norm(
+        &mut self,
+        x: &str,
+        ln: &LayerNorm,
+        prefix: &str,
+    ) -> Result<String, OnnxError> {
         let gamma = values(ln.gamma.val())?;
         let beta = match &ln.beta {
             Some(b) => values(b.val())?,
@@ -156,17 +221,39 @@ impl Graph {
         };
         let g = self.init(&format!("{prefix}.gamma"), &[gamma.len()], &gamma);
         let b = self.init(&format!("{prefix}.beta"), &[beta.len()], &beta);
-        Ok(self.node("LayerNormalization", &[x, &g, &b], vec![attr_int("axis", -1), attr_float("epsilon", layer_norm_epsilon() as f32)]))
+        Ok(self.node(
+            "LayerNormalization",
+            &[x, &g, &b],
+            vec![
+                attr_int("axis", -1),
+                attr_float("epsilon", layer_norm_epsilon() as f32),
+            ],
+        ))
     }
 
     /// `BatchNormalization` with the running statistics (inference mode).
-    pub fn batch_norm(&mut self, x: &str, bn: &BatchNorm, prefix: &str) -> Result<String, OnnxError> {
+    pub fn batch_norm(
+        &mut self,
+        x: &str,
+        bn: &BatchNorm,
+        prefix: &str,
+    ) -> Result<String, OnnxError> {
         let gamma = values(bn.gamma.val())?;
         let beta = values(bn.beta.val())?;
         let mean = values(bn.running_mean.value())?;
         let var = values(bn.running_var.value())?;
         let c = gamma.len();
-        let names = [("gamma", gamma), ("beta", beta), ("mean", mean), ("var", var)].map(|(n, v)| self.init(&format!("{prefix}.{n}"), &[c], &v));
-        Ok(self.node("BatchNormalization", &[x, &names[0], &names[1], &names[2], &names[3]], vec![attr_float("epsilon", bn.epsilon as f32)]))
+        let names = [
+            ("gamma", gamma),
+            ("beta", beta),
+            ("mean", mean),
+            ("var", var),
+        ]
+        .map(|(n, v)| self.init(&format!("{prefix}.{n}"), &[c], &v));
+        Ok(self.node(
+            "BatchNormalization",
+            &[x, &names[0], &names[1], &names[2], &names[3]],
+            vec![attr_float("epsilon", bn.epsilon as f32)],
+        ))
     }
 }

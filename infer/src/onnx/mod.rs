@@ -52,6 +52,9 @@ pub enum OnnxError {
 
 impl OnnxError {
     pub fn model(path: &Path, reason: impl Into<String>) -> Self {
-        OnnxError::Model { path: path.to_path_buf(), reason: reason.into() }
+        OnnxError::Model {
+            path: path.to_path_buf(),
+            reason: reason.into(),
+        }
     }
 }

@@ -6,11 +6,13 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+use lfit_model::{Energy, ModelError};
+use lfit_nn::Constraints;
 use lfit_nn::checkpoint::{self, CheckpointMeta};
 use lfit_nn::features::FeatureStats;
-use lfit_nn::unroll::{check_batch, constraint_rows, core_rows, evaluate, observation_rows, rows_to_poses, step_rows};
-use lfit_nn::Constraints;
-use lfit_model::{Energy, ModelError};
+use lfit_nn::unroll::{
+    check_batch, constraint_rows, core_rows, evaluate, observation_rows, rows_to_poses, step_rows,
+};
 use ort::environment::Environment;
 use ort::session::Session;
 use ort::session::builder::GraphOptimizationLevel;
@@ -31,7 +33,9 @@ pub fn library_path() -> PathBuf {
         .map(PathBuf::from)
         .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache/lfit-tools")))
         .unwrap_or_else(|| PathBuf::from(".cache/lfit-tools"));
-    tools.join(format!("onnxruntime-{ORT_RELEASE}")).join(format!("libonnxruntime.so.{ORT_RELEASE}"))
+    tools
+        .join(format!("onnxruntime-{ORT_RELEASE}"))
+        .join(format!("libonnxruntime.so.{ORT_RELEASE}"))
 }
 
 static ENVIRONMENT: OnceLock<Result<Environment, String>> = OnceLock::new();
@@ -61,26 +65,64 @@ pub struct GraphInfo {
 
 /// Reads and checks the metadata of an ONNX file's bytes (`origin` names it in errors).
 pub fn graph_info(bytes: &[u8], origin: &Path) -> Result<GraphInfo, OnnxError> {
-    let model = ModelProto::decode(bytes).map_err(|e| OnnxError::model(origin, format!("not an ONNX model: {e}")))?;
-    let get = |k: &str| model.metadata_props.iter().find(|p| p.key == k).map(|p| p.value.clone());
+    let model = ModelProto::decode(bytes)
+        .map_err(|e| OnnxError::model(origin, format!("not an ONNX model: {e}")))?;
+    let get = |k: &str| {
+        model
+            .metadata_props
+            .iter()
+            .find(|p| p.key == k)
+            .map(|p| p.value.clone())
+    };
     match get(keys::FORMAT) {
         Some(f) if f == FORMAT => {}
-        Some(f) => return Err(OnnxError::model(origin, format!("metadata {} is '{f}', not '{FORMAT}'", keys::FORMAT))),
-        None => return Err(OnnxError::model(origin, format!("not an lfit export (no {} metadata)", keys::FORMAT))),
+        Some(f) => {
+            return Err(OnnxError::model(
+                origin,
+                format!("metadata {} is '{f}', not '{FORMAT}'", keys::FORMAT),
+            ));
+        }
+        None => {
+            return Err(OnnxError::model(
+                origin,
+                format!("not an lfit export (no {} metadata)", keys::FORMAT),
+            ));
+        }
     }
     let version = get(keys::VERSION).unwrap_or_default();
     if version != VERSION.to_string() {
-        return Err(OnnxError::model(origin, format!("lfit ONNX version '{version}' is not supported (this build reads version {VERSION})")));
+        return Err(OnnxError::model(
+            origin,
+            format!(
+                "lfit ONNX version '{version}' is not supported (this build reads version {VERSION})"
+            ),
+        ));
     }
-    let field = |k: &str| get(k).ok_or_else(|| OnnxError::model(origin, format!("metadata lacks {k}")));
-    let weight_set = field(keys::WEIGHT_SET)?.parse().map_err(|_| OnnxError::model(origin, format!("metadata {} is not a number", keys::WEIGHT_SET)))?;
-    Ok(GraphInfo { role: field(keys::ROLE)?, weight_set, checkpoint: field(keys::CHECKPOINT)?, stats: field(keys::FEATURE_STATS)? })
+    let field =
+        |k: &str| get(k).ok_or_else(|| OnnxError::model(origin, format!("metadata lacks {k}")));
+    let weight_set = field(keys::WEIGHT_SET)?.parse().map_err(|_| {
+        OnnxError::model(
+            origin,
+            format!("metadata {} is not a number", keys::WEIGHT_SET),
+        )
+    })?;
+    Ok(GraphInfo {
+        role: field(keys::ROLE)?,
+        weight_set,
+        checkpoint: field(keys::CHECKPOINT)?,
+        stats: field(keys::FEATURE_STATS)?,
+    })
 }
 
 impl GraphInfo {
     /// The checkpoint's `config.json` carried in the metadata (`origin` names the file).
     pub fn meta(&self, origin: &Path) -> Result<CheckpointMeta, OnnxError> {
-        serde_json::from_str(&self.checkpoint).map_err(|e| OnnxError::model(origin, format!("malformed {} metadata: {e}", keys::CHECKPOINT)))
+        serde_json::from_str(&self.checkpoint).map_err(|e| {
+            OnnxError::model(
+                origin,
+                format!("malformed {} metadata: {e}", keys::CHECKPOINT),
+            )
+        })
     }
 }
 
@@ -123,7 +165,10 @@ pub struct SessionOptions {
 
 fn session(bytes: &[u8], options: SessionOptions) -> Result<Session, OnnxError> {
     let env = environment()?;
-    let mut builder = Session::builder(env).map_err(runtime)?.with_optimization_level(GraphOptimizationLevel::All).map_err(runtime)?;
+    let mut builder = Session::builder(env)
+        .map_err(runtime)?
+        .with_optimization_level(GraphOptimizationLevel::All)
+        .map_err(runtime)?;
     if let Some(t) = options.threads {
         builder = builder.with_intra_threads(t).map_err(runtime)?;
     }
@@ -132,22 +177,51 @@ fn session(bytes: &[u8], options: SessionOptions) -> Result<Session, OnnxError> 
 
 impl OrtNetwork {
     /// Sessions of exported graphs (`origin`: where they came from, for errors).
-    pub fn from_exported(exported: &Exported, origin: &Path, options: SessionOptions) -> Result<Self, OnnxError> {
+    pub fn from_exported(
+        exported: &Exported,
+        origin: &Path,
+        options: SessionOptions,
+    ) -> Result<Self, OnnxError> {
         let mut infos = Vec::new();
         for (name, bytes) in &exported.files {
             infos.push((name.clone(), graph_info(bytes, &origin.join(name))?));
         }
-        let init_info = infos.iter().find(|(_, i)| i.role == "init").map(|(_, i)| i.clone()).ok_or_else(|| OnnxError::model(origin, "no init.onnx"))?;
+        let init_info = infos
+            .iter()
+            .find(|(_, i)| i.role == "init")
+            .map(|(_, i)| i.clone())
+            .ok_or_else(|| OnnxError::model(origin, "no init.onnx"))?;
         let meta = init_info.meta(&origin.join("init.onnx"))?;
         if meta.format != checkpoint::FORMAT || meta.version != checkpoint::VERSION {
-            return Err(OnnxError::model(origin, format!("exported from checkpoint version {} of format '{}', this build reads {} version {}", meta.version, meta.format, checkpoint::FORMAT, checkpoint::VERSION)));
+            return Err(OnnxError::model(
+                origin,
+                format!(
+                    "exported from checkpoint version {} of format '{}', this build reads {} version {}",
+                    meta.version,
+                    meta.format,
+                    checkpoint::FORMAT,
+                    checkpoint::VERSION
+                ),
+            ));
         }
-        meta.network.validate().map_err(|e| OnnxError::model(origin, e.to_string()))?;
-        let stats: FeatureStats = serde_json::from_str(&init_info.stats).map_err(|e| OnnxError::model(origin, format!("malformed {} metadata: {e}", keys::FEATURE_STATS)))?;
-        stats.validate(meta.network.residual_dim, meta.network.param_dim).map_err(|e| OnnxError::model(origin, e.to_string()))?;
+        meta.network
+            .validate()
+            .map_err(|e| OnnxError::model(origin, e.to_string()))?;
+        let stats: FeatureStats = serde_json::from_str(&init_info.stats).map_err(|e| {
+            OnnxError::model(
+                origin,
+                format!("malformed {} metadata: {e}", keys::FEATURE_STATS),
+            )
+        })?;
+        stats
+            .validate(meta.network.residual_dim, meta.network.param_dim)
+            .map_err(|e| OnnxError::model(origin, e.to_string()))?;
         for (name, info) in &infos {
             if info.checkpoint != init_info.checkpoint || info.stats != init_info.stats {
-                return Err(OnnxError::model(&origin.join(name), "exported from another checkpoint than init.onnx"));
+                return Err(OnnxError::model(
+                    &origin.join(name),
+                    "exported from another checkpoint than init.onnx",
+                ));
             }
         }
         let (mut init, mut propose, mut step) = (None, Vec::new(), Vec::new());
@@ -167,39 +241,84 @@ impl OrtNetwork {
             }
         }
         let init = init.ok_or_else(|| OnnxError::model(origin, "no init.onnx"))?;
-        Ok(Self { meta, stats, init, propose, step })
+        Ok(Self {
+            meta,
+            stats,
+            init,
+            propose,
+            step,
+        })
     }
 
     /// Sessions of a directory written by `lfit export-onnx`.
     pub fn load_dir(dir: &Path, options: SessionOptions) -> Result<Self, OnnxError> {
         let init = dir.join("init.onnx");
-        let bytes = std::fs::read(&init).map_err(|e| OnnxError::model(&init, format!("cannot read: {e}")))?;
+        let bytes = std::fs::read(&init)
+            .map_err(|e| OnnxError::model(&init, format!("cannot read: {e}")))?;
         let meta = graph_info(&bytes, &init)?.meta(&init)?;
         let mut files = vec![("init.onnx".to_string(), bytes)];
         for (_, _, name) in graph_files(&meta.network).into_iter().skip(1) {
             let path = dir.join(&name);
-            files.push((name, std::fs::read(&path).map_err(|e| OnnxError::model(&path, format!("cannot read: {e}")))?));
+            files.push((
+                name,
+                std::fs::read(&path)
+                    .map_err(|e| OnnxError::model(&path, format!("cannot read: {e}")))?,
+            ));
         }
         Self::from_exported(&Exported { files }, dir, options)
     }
 
     /// θ0 = Φ(D) `[B, param_dim]` and the initial state, from normalised observations `[B, 2R]`.
-    pub fn initial(&mut self, obs: &[f32], batch: usize) -> Result<(Vec<f32>, OrtState), OnnxError> {
+    pub fn initial(
+        &mut self,
+        obs: &[f32],
+        batch: usize,
+    ) -> Result<(Vec<f32>, OrtState), OnnxError> {
         let c = &self.meta.network;
         let layers = c.recurrent_layers();
         let inputs = vec![("obs".to_string(), tensor(obs, batch, c.obs_features())?)];
         let mut out = self.init.run(inputs).map_err(runtime)?;
         let theta0 = extract(&mut out, "theta0", batch * c.param_dim)?;
-        let core = (0..layers).map(|l| extract(&mut out, &format!("h0.{l}"), batch * c.hidden)).collect::<Result<Vec<_>, _>>()?;
-        let zeros = || (0..layers).map(|_| vec![0.0f32; batch * c.hidden]).collect::<Vec<_>>();
-        Ok((theta0, OrtState { core, lambda: if c.has_step_network() { zeros() } else { Vec::new() }, gamma: if c.separate_gamma_network() { zeros() } else { Vec::new() } }))
+        let core = (0..layers)
+            .map(|l| extract(&mut out, &format!("h0.{l}"), batch * c.hidden))
+            .collect::<Result<Vec<_>, _>>()?;
+        let zeros = || {
+            (0..layers)
+                .map(|_| vec![0.0f32; batch * c.hidden])
+                .collect::<Vec<_>>()
+        };
+        Ok((
+            theta0,
+            OrtState {
+                core,
+                lambda: if c.has_step_network() {
+                    zeros()
+                } else {
+                    Vec::new()
+                },
+                gamma: if c.separate_gamma_network() {
+                    zeros()
+                } else {
+                    Vec::new()
+                },
+            },
+        ))
     }
 
     /// Δθ of iteration `n` from the normalised core inputs; updates the core state.
-    pub fn propose(&mut self, n: usize, core_in: &[f32], batch: usize, state: &mut OrtState) -> Result<Vec<f32>, OnnxError> {
+    pub fn propose(
+        &mut self,
+        n: usize,
+        core_in: &[f32],
+        batch: usize,
+        state: &mut OrtState,
+    ) -> Result<Vec<f32>, OnnxError> {
         let c = &self.meta.network;
         let s = c.weight_set(n);
-        let mut inputs = vec![("core_in".to_string(), tensor(core_in, batch, c.core_inputs())?)];
+        let mut inputs = vec![(
+            "core_in".to_string(),
+            tensor(core_in, batch, c.core_inputs())?,
+        )];
         for (l, h) in state.core.iter().enumerate() {
             inputs.push((format!("h.{l}"), tensor(h, batch, c.hidden)?));
         }
@@ -213,11 +332,22 @@ impl OrtNetwork {
 
     /// λ, γ and the update of iteration `n`; updates the λ/γ states. `delta` and `grad` are
     /// already masked.
-    pub fn step(&mut self, n: usize, step_in: &[f32], delta: &[f32], grad: &[f32], batch: usize, state: &mut OrtState) -> Result<StepOut, OnnxError> {
+    pub fn step(
+        &mut self,
+        n: usize,
+        step_in: &[f32],
+        delta: &[f32],
+        grad: &[f32],
+        batch: usize,
+        state: &mut OrtState,
+    ) -> Result<StepOut, OnnxError> {
         let c = &self.meta.network;
         let s = c.weight_set(n);
         let mut inputs = vec![
-            ("step_in".to_string(), tensor(step_in, batch, c.step_inputs())?),
+            (
+                "step_in".to_string(),
+                tensor(step_in, batch, c.step_inputs())?,
+            ),
             ("delta".to_string(), tensor(delta, batch, c.param_dim)?),
             ("grad".to_string(), tensor(grad, batch, c.param_dim)?),
         ];
@@ -245,23 +375,40 @@ impl OrtNetwork {
 
 fn tensor(values: &[f32], batch: usize, width: usize) -> Result<Tensor<f32>, OnnxError> {
     if values.len() != batch * width {
-        return Err(OnnxError::Runtime(format!("input of {} values for a [{batch}, {width}] tensor", values.len())));
+        return Err(OnnxError::Runtime(format!(
+            "input of {} values for a [{batch}, {width}] tensor",
+            values.len()
+        )));
     }
     Tensor::from_array(([batch, width], values.to_vec())).map_err(runtime)
 }
 
-fn extract(out: &mut ort::session::SessionOutputs<'_>, name: &str, len: usize) -> Result<Vec<f32>, OnnxError> {
-    let value = out.get(name).ok_or_else(|| OnnxError::Runtime(format!("the graph has no output '{name}'")))?;
+fn extract(
+    out: &mut ort::session::SessionOutputs<'_>,
+    name: &str,
+    len: usize,
+) -> Result<Vec<f32>, OnnxError> {
+    let value = out
+        .get(name)
+        .ok_or_else(|| OnnxError::Runtime(format!("the graph has no output '{name}'")))?;
     let (_, data) = value.try_extract_tensor::<f32>().map_err(runtime)?;
     if data.len() != len {
-        return Err(OnnxError::Runtime(format!("output '{name}' has {} values, expected {len}", data.len())));
+        return Err(OnnxError::Runtime(format!(
+            "output '{name}' has {} values, expected {len}",
+            data.len()
+        )));
     }
     Ok(data.to_vec())
 }
 
 /// Runs N iterations through ONNX Runtime on `energies`, exactly as
 /// [`lfit_nn::unroll`] does through Burn; returns θ0 … θN per frame (`[N + 1][B]`).
-pub fn unroll_ort(net: &mut OrtNetwork, energies: &[&Energy], starts: &[Option<Vec<f64>>], constraints: Option<&Constraints>) -> Result<Vec<Vec<Vec<f64>>>, OnnxError> {
+pub fn unroll_ort(
+    net: &mut OrtNetwork,
+    energies: &[&Energy],
+    starts: &[Option<Vec<f64>>],
+    constraints: Option<&Constraints>,
+) -> Result<Vec<Vec<Vec<f64>>>, OnnxError> {
     let model = |e: ModelError| OnnxError::Runtime(e.to_string());
     let c = net.meta.network.clone();
     let stats = net.stats.clone();
@@ -278,7 +425,10 @@ pub fn unroll_ort(net: &mut OrtNetwork, energies: &[&Energy], starts: &[Option<V
             None => theta.extend_from_slice(&phi[i * dim..(i + 1) * dim]),
         }
     }
-    let limits = constraints.map(|k| constraint_rows(k, batch, dim)).transpose().map_err(model)?;
+    let limits = constraints
+        .map(|k| constraint_rows(k, batch, dim))
+        .transpose()
+        .map_err(model)?;
     let constrain = |t: &mut [f32]| {
         if let Some((_, lo, hi)) = &limits {
             for ((v, l), h) in t.iter_mut().zip(lo).zip(hi) {
@@ -293,7 +443,10 @@ pub fn unroll_ort(net: &mut OrtNetwork, energies: &[&Energy], starts: &[Option<V
         let evals = evaluate(energies, &current);
         let core_in = core_rows(&c, &stats, &evals, &current, &obs_norm).map_err(model)?;
         let mut delta = net.propose(n, &core_in, batch, &mut state)?;
-        let mut grad: Vec<f32> = evals.iter().flat_map(|(_, g)| g.iter().map(|&v| v as f32)).collect();
+        let mut grad: Vec<f32> = evals
+            .iter()
+            .flat_map(|(_, g)| g.iter().map(|&v| v as f32))
+            .collect();
         if let Some((free, _, _)) = &limits {
             for ((d, g), f) in delta.iter_mut().zip(grad.iter_mut()).zip(free) {
                 *d *= f;
@@ -301,8 +454,16 @@ pub fn unroll_ort(net: &mut OrtNetwork, energies: &[&Energy], starts: &[Option<V
             }
         }
         let update = if c.has_step_network() {
-            let step_in = step_rows(&c, &stats, energies, &current, &evals, &rows_to_poses(&delta, dim));
-            net.step(n, &step_in, &delta, &grad, batch, &mut state)?.update
+            let step_in = step_rows(
+                &c,
+                &stats,
+                energies,
+                &current,
+                &evals,
+                &rows_to_poses(&delta, dim),
+            );
+            net.step(n, &step_in, &delta, &grad, batch, &mut state)?
+                .update
         } else {
             delta
         };

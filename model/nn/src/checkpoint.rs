@@ -52,42 +52,91 @@ pub struct Checkpoint {
 }
 
 fn err(path: &Path, reason: impl Into<String>) -> ModelError {
-    ModelError::Checkpoint { path: path.to_path_buf(), reason: reason.into() }
+    ModelError::Checkpoint {
+        path: path.to_path_buf(),
+        reason: reason.into(),
+    }
 }
 
 /// The weights as burnpack bytes.
 pub fn weights_bytes(net: &NeuralNet) -> Result<Vec<u8>> {
     let mut store = BurnpackStore::from_bytes(None);
-    net.save_into(&mut store).map_err(|e| ModelError::Backend(format!("cannot serialise weights: {e}")))?;
-    let bytes = store.get_bytes().map_err(|e| ModelError::Backend(format!("cannot serialise weights: {e}")))?;
+    net.save_into(&mut store)
+        .map_err(|e| ModelError::Backend(format!("cannot serialise weights: {e}")))?;
+    let bytes = store
+        .get_bytes()
+        .map_err(|e| ModelError::Backend(format!("cannot serialise weights: {e}")))?;
     Ok(bytes.to_vec())
 }
 
 /// Loads burnpack `bytes` into a network built from `config`; every tensor must be present with
 /// the configured shape and no extra tensor may remain.
-pub fn net_from_bytes(config: &NetConfig, bytes: Vec<u8>, device: &Device, path: &Path) -> Result<NeuralNet> {
+pub fn net_from_bytes(
+    config: &NetConfig,
+    bytes: Vec<u8>,
+    device: &Device,
+    path: &Path,
+) -> Result<NeuralNet> {
     let mut net = NeuralNet::new(config, 0, device).map_err(|e| err(path, e.to_string()))?;
     // Partial and unvalidated, so that every problem comes back in the result and is reported
     // here as one line naming the first offending tensor.
-    let mut store = BurnpackStore::from_bytes(Some(Bytes::from_bytes_vec(bytes))).allow_partial(true).validate(false);
-    let result = net
-        .load_from(&mut store)
-        .map_err(|e| err(path, format!("unreadable weights ({}): {}", WEIGHTS_FILE, first_line(&e.to_string()))))?;
-    let more = |n: usize| if n > 1 { format!(" (and {} more)", n - 1) } else { String::new() };
+    let mut store = BurnpackStore::from_bytes(Some(Bytes::from_bytes_vec(bytes)))
+        .allow_partial(true)
+        .validate(false);
+    let result = net.load_from(&mut store).map_err(|e| {
+        err(
+            path,
+            format!(
+                "unreadable weights ({}): {}",
+                WEIGHTS_FILE,
+                first_line(&e.to_string())
+            ),
+        )
+    })?;
+    let more = |n: usize| {
+        if n > 1 {
+            format!(" (and {} more)", n - 1)
+        } else {
+            String::new()
+        }
+    };
     if let Some(e) = result.errors.first() {
-        return Err(err(path, format!("weights do not match the network in config.json: {}{}", first_line(&e.to_string()), more(result.errors.len()))));
+        return Err(err(
+            path,
+            format!(
+                "weights do not match the network in config.json: {}{}",
+                first_line(&e.to_string()),
+                more(result.errors.len())
+            ),
+        ));
     }
     if let Some((m, _)) = result.missing.first() {
-        return Err(err(path, format!("weights lack tensor '{m}' that config.json's network has{}", more(result.missing.len()))));
+        return Err(err(
+            path,
+            format!(
+                "weights lack tensor '{m}' that config.json's network has{}",
+                more(result.missing.len())
+            ),
+        ));
     }
     if let Some(u) = result.unused.first() {
-        return Err(err(path, format!("weights have tensor '{u}' that config.json's network lacks{}", more(result.unused.len()))));
+        return Err(err(
+            path,
+            format!(
+                "weights have tensor '{u}' that config.json's network lacks{}",
+                more(result.unused.len())
+            ),
+        ));
     }
     Ok(net)
 }
 
 fn first_line(s: &str) -> String {
-    s.lines().find(|l| !l.trim().is_empty()).unwrap_or(s).trim().to_string()
+    s.lines()
+        .find(|l| !l.trim().is_empty())
+        .unwrap_or(s)
+        .trim()
+        .to_string()
 }
 
 /// Writes a checkpoint directory: `files` are `(name, bytes)` pairs (config, weights, stats,
@@ -98,7 +147,9 @@ pub fn write_dir(dir: &Path, files: &[(&str, Vec<u8>)]) -> Result<()> {
         _ => PathBuf::from("."),
     };
     std::fs::create_dir_all(&parent).map_err(|e| ModelError::io(&parent, e))?;
-    let name = dir.file_name().map_or_else(|| "checkpoint".into(), |n| n.to_string_lossy().into_owned());
+    let name = dir
+        .file_name()
+        .map_or_else(|| "checkpoint".into(), |n| n.to_string_lossy().into_owned());
     let tmp = parent.join(format!(".{name}.tmp{}", std::process::id()));
     let old = parent.join(format!(".{name}.old{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&tmp);
@@ -128,9 +179,17 @@ pub fn write_dir(dir: &Path, files: &[(&str, Vec<u8>)]) -> Result<()> {
 }
 
 /// The files of a checkpoint (config, weights, stats, metrics).
-pub fn checkpoint_files(net: &NeuralNet, stats: &FeatureStats, template: &Template, metrics: &serde_json::Value) -> Result<Vec<(&'static str, Vec<u8>)>> {
+pub fn checkpoint_files(
+    net: &NeuralNet,
+    stats: &FeatureStats,
+    template: &Template,
+    metrics: &serde_json::Value,
+) -> Result<Vec<(&'static str, Vec<u8>)>> {
     let meta = CheckpointMeta::new(template, net.config.clone());
-    let json = |v: serde_json::Result<String>| v.map(String::into_bytes).map_err(|e| ModelError::Backend(format!("cannot serialise checkpoint: {e}")));
+    let json = |v: serde_json::Result<String>| {
+        v.map(String::into_bytes)
+            .map_err(|e| ModelError::Backend(format!("cannot serialise checkpoint: {e}")))
+    };
     Ok(vec![
         (CONFIG_FILE, json(serde_json::to_string_pretty(&meta))?),
         (WEIGHTS_FILE, weights_bytes(net)?),
@@ -149,59 +208,140 @@ pub fn load(dir: &Path, device: &Device) -> Result<Checkpoint> {
     if !dir.is_dir() {
         return Err(err(dir, "no such checkpoint directory"));
     }
-    let meta: CheckpointMeta = serde_json::from_slice(&read(dir, CONFIG_FILE)?).map_err(|e| err(dir, format!("malformed {CONFIG_FILE}: {e}")))?;
+    let meta: CheckpointMeta = serde_json::from_slice(&read(dir, CONFIG_FILE)?)
+        .map_err(|e| err(dir, format!("malformed {CONFIG_FILE}: {e}")))?;
     if meta.format != FORMAT {
-        return Err(err(dir, format!("{CONFIG_FILE} has format '{}', expected '{FORMAT}'", meta.format)));
+        return Err(err(
+            dir,
+            format!(
+                "{CONFIG_FILE} has format '{}', expected '{FORMAT}'",
+                meta.format
+            ),
+        ));
     }
     if meta.version != VERSION {
-        return Err(err(dir, format!("checkpoint version {} is not supported (expected {VERSION})", meta.version)));
+        return Err(err(
+            dir,
+            format!(
+                "checkpoint version {} is not supported (expected {VERSION})",
+                meta.version
+            ),
+        ));
     }
-    meta.network.validate().map_err(|e| err(dir, e.to_string()))?;
-    let stats: FeatureStats = serde_json::from_slice(&read(dir, STATS_FILE)?).map_err(|e| err(dir, format!("malformed {STATS_FILE}: {e}")))?;
-    stats.validate(meta.network.residual_dim, meta.network.param_dim).map_err(|e| err(dir, e.to_string()))?;
+    meta.network
+        .validate()
+        .map_err(|e| err(dir, e.to_string()))?;
+    let stats: FeatureStats = serde_json::from_slice(&read(dir, STATS_FILE)?)
+        .map_err(|e| err(dir, format!("malformed {STATS_FILE}: {e}")))?;
+    stats
+        .validate(meta.network.residual_dim, meta.network.param_dim)
+        .map_err(|e| err(dir, e.to_string()))?;
     let net = net_from_bytes(&meta.network, read(dir, WEIGHTS_FILE)?, device, dir)?;
     let metrics = match std::fs::read(dir.join(METRICS_FILE)) {
-        Ok(b) => serde_json::from_slice(&b).map_err(|e| err(dir, format!("malformed {METRICS_FILE}: {e}")))?,
+        Ok(b) => serde_json::from_slice(&b)
+            .map_err(|e| err(dir, format!("malformed {METRICS_FILE}: {e}")))?,
         Err(_) => serde_json::Value::Null,
     };
-    Ok(Checkpoint { meta, stats, net, metrics })
+    Ok(Checkpoint {
+        meta,
+        stats,
+        net,
+        metrics,
+    })
 }
 
 impl Checkpoint {
     /// Checks that this checkpoint fits data of `modality` with a residual of `residual_dim`
     /// entries on `template`.
-    pub fn check_compatible(&self, dir: &Path, modality: Modality, residual_dim: usize, template: &Template) -> Result<()> {
-        self.meta.check_compatible(dir, modality, residual_dim, template)
+    pub fn check_compatible(
+        &self,
+        dir: &Path,
+        modality: Modality,
+        residual_dim: usize,
+        template: &Template,
+    ) -> Result<()> {
+        self.meta
+            .check_compatible(dir, modality, residual_dim, template)
     }
 }
 
 impl CheckpointMeta {
     /// The metadata of a network trained on `template`.
     pub fn new(template: &Template, network: NetConfig) -> Self {
-        Self { format: FORMAT.into(), version: VERSION, template_id: template.id.clone(), template_vertices: template.num_vertices(), network, model: Some(template.signature()) }
+        Self {
+            format: FORMAT.into(),
+            version: VERSION,
+            template_id: template.id.clone(),
+            template_vertices: template.num_vertices(),
+            network,
+            model: Some(template.signature()),
+        }
     }
 
     /// Checks that the network fits data of `modality` with a residual of `residual_dim`
     /// entries on `template` (`dir` names the checkpoint in errors).
-    pub fn check_compatible(&self, dir: &Path, modality: Modality, residual_dim: usize, template: &Template) -> Result<()> {
+    pub fn check_compatible(
+        &self,
+        dir: &Path,
+        modality: Modality,
+        residual_dim: usize,
+        template: &Template,
+    ) -> Result<()> {
         let n = &self.network;
         if let Some(sig) = &self.model {
             let here = template.signature();
             if *sig != here {
-                return Err(err(dir, format!("was trained on model '{}' ({} parameters, hash {}), not '{}' ({} parameters, hash {})", sig.id, sig.layout.dim(), sig.hash, here.id, here.layout.dim(), here.hash)));
+                return Err(err(
+                    dir,
+                    format!(
+                        "was trained on model '{}' ({} parameters, hash {}), not '{}' ({} parameters, hash {})",
+                        sig.id,
+                        sig.layout.dim(),
+                        sig.hash,
+                        here.id,
+                        here.layout.dim(),
+                        here.hash
+                    ),
+                ));
             }
         }
         if n.param_dim != template.param_dim() {
-            return Err(err(dir, format!("predicts {} parameters, the model '{}' has {}", n.param_dim, template.id, template.param_dim())));
+            return Err(err(
+                dir,
+                format!(
+                    "predicts {} parameters, the model '{}' has {}",
+                    n.param_dim,
+                    template.id,
+                    template.param_dim()
+                ),
+            ));
         }
         if n.modality != modality {
-            return Err(err(dir, format!("was trained for {} data, not {modality}", n.modality)));
+            return Err(err(
+                dir,
+                format!("was trained for {} data, not {modality}", n.modality),
+            ));
         }
         if n.residual_dim != residual_dim {
-            return Err(err(dir, format!("expects a residual of {} values, the data's sensor gives {residual_dim}", n.residual_dim)));
+            return Err(err(
+                dir,
+                format!(
+                    "expects a residual of {} values, the data's sensor gives {residual_dim}",
+                    n.residual_dim
+                ),
+            ));
         }
         if self.template_vertices != template.num_vertices() {
-            return Err(err(dir, format!("was trained on template '{}' ({} vertices), not '{}' ({} vertices)", self.template_id, self.template_vertices, template.id, template.num_vertices())));
+            return Err(err(
+                dir,
+                format!(
+                    "was trained on template '{}' ({} vertices), not '{}' ({} vertices)",
+                    self.template_id,
+                    self.template_vertices,
+                    template.id,
+                    template.num_vertices()
+                ),
+            ));
         }
         Ok(())
     }

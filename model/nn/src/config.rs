@@ -169,7 +169,9 @@ impl NetConfig {
 
     /// Outputs of γ: one per parameter, or one.
     pub fn gamma_outputs(&self) -> usize {
-        self.gamma_shape.unwrap_or(self.step_shape).outputs(self.param_dim)
+        self.gamma_shape
+            .unwrap_or(self.step_shape)
+            .outputs(self.param_dim)
     }
 
     /// Whether the update rule uses λ/γ at all (so whether the λ/γ network exists).
@@ -190,17 +192,29 @@ impl NetConfig {
 
     /// Number of weight sets of the per-iteration networks.
     pub fn weight_sets(&self) -> usize {
-        if self.per_step_weights { self.iterations } else { 1 }
+        if self.per_step_weights {
+            self.iterations
+        } else {
+            1
+        }
     }
 
     /// The weight set iteration `n` (0-based) uses.
     pub fn weight_set(&self, n: usize) -> usize {
-        if self.per_step_weights { n.min(self.iterations - 1) } else { 0 }
+        if self.per_step_weights {
+            n.min(self.iterations - 1)
+        } else {
+            0
+        }
     }
 
     /// Recurrent layers of each core: the GRU's layers, none for the residual MLP.
     pub fn recurrent_layers(&self) -> usize {
-        if self.core == CoreKind::Gru { self.layers } else { 0 }
+        if self.core == CoreKind::Gru {
+            self.layers
+        } else {
+            0
+        }
     }
 
     /// Whether γ has a core and head of its own (learned γ, not shared with λ).
@@ -210,32 +224,55 @@ impl NetConfig {
 
     /// Rejects configurations the network cannot be built from, naming the field.
     pub fn validate(&self) -> Result<()> {
-        let bad = |what: &str, why: String| Err(ModelError::Config(format!("network config: {what} {why}")));
+        let bad = |what: &str, why: String| {
+            Err(ModelError::Config(format!("network config: {what} {why}")))
+        };
         if self.residual_dim == 0 {
             return bad("residual_dim", "must be positive".into());
         }
         if self.param_dim < 6 {
-            return bad("param_dim", format!("must be at least 6 (translation and one joint), got {}", self.param_dim));
+            return bad(
+                "param_dim",
+                format!(
+                    "must be at least 6 (translation and one joint), got {}",
+                    self.param_dim
+                ),
+            );
         }
         if self.iterations == 0 || self.iterations > 100 {
-            return bad("iterations", format!("must be in 1..=100, got {}", self.iterations));
+            return bad(
+                "iterations",
+                format!("must be in 1..=100, got {}", self.iterations),
+            );
         }
         if self.layers == 0 || self.layers > 8 {
             return bad("layers", format!("must be in 1..=8, got {}", self.layers));
         }
-        if self.hidden == 0 || self.hidden > 8192 || self.init_width == 0 || self.init_width > 8192 {
+        if self.hidden == 0 || self.hidden > 8192 || self.init_width == 0 || self.init_width > 8192
+        {
             return bad("hidden/init_width", "must be in 1..=8192".into());
         }
         if !(0.0..1.0).contains(&self.dropout) {
-            return bad("dropout", format!("must be in [0, 1), got {}", self.dropout));
+            return bad(
+                "dropout",
+                format!("must be in [0, 1), got {}", self.dropout),
+            );
         }
-        for (name, v) in [("gamma_constant", self.gamma_constant), ("gamma_init", self.gamma_init), ("output_gain", self.output_gain), ("feature_clip", self.feature_clip)] {
+        for (name, v) in [
+            ("gamma_constant", self.gamma_constant),
+            ("gamma_init", self.gamma_init),
+            ("output_gain", self.output_gain),
+            ("feature_clip", self.feature_clip),
+        ] {
             if !(v.is_finite() && v > 0.0) {
                 return bad(name, format!("must be positive, got {v}"));
             }
         }
         if self.modality == Modality::Scan {
-            return bad("modality", "scan has no neural fitter (its residual is not an observation vector)".into());
+            return bad(
+                "modality",
+                "scan has no neural fitter (its residual is not an observation vector)".into(),
+            );
         }
         Ok(())
     }

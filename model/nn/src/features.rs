@@ -34,27 +34,58 @@ impl Norm {
         }
         Self {
             mean: mean.iter().map(|&m| m as f32).collect(),
-            std: var.iter().map(|&s| if s.sqrt() < 1e-6 { 1.0 } else { s.sqrt() as f32 }).collect(),
+            std: var
+                .iter()
+                .map(|&s| {
+                    if s.sqrt() < 1e-6 {
+                        1.0
+                    } else {
+                        s.sqrt() as f32
+                    }
+                })
+                .collect(),
         }
     }
 
     /// Appends `clip((x − mean) / std)` to `out`.
     pub fn push(&self, x: &[f64], clip: f32, out: &mut Vec<f32>) {
-        out.extend(x.iter().zip(&self.mean).zip(&self.std).map(|((&v, &m), &s)| {
-            let z = (v as f32 - m) / s;
-            if z.is_finite() { z.clamp(-clip, clip) } else { 0.0 }
-        }));
+        out.extend(
+            x.iter()
+                .zip(&self.mean)
+                .zip(&self.std)
+                .map(|((&v, &m), &s)| {
+                    let z = (v as f32 - m) / s;
+                    if z.is_finite() {
+                        z.clamp(-clip, clip)
+                    } else {
+                        0.0
+                    }
+                }),
+        );
     }
 
     fn check(&self, name: &str, len: usize) -> Result<()> {
         if self.mean.len() != len || self.std.len() != len {
-            return Err(ModelError::Config(format!("feature statistics '{name}' have {} means and {} deviations, the network needs {len}", self.mean.len(), self.std.len())));
+            return Err(ModelError::Config(format!(
+                "feature statistics '{name}' have {} means and {} deviations, the network needs {len}",
+                self.mean.len(),
+                self.std.len()
+            )));
         }
-        if let Some(i) = self.mean.iter().chain(&self.std).position(|v| !v.is_finite()) {
-            return Err(ModelError::Config(format!("feature statistics '{name}': entry {i} is not finite")));
+        if let Some(i) = self
+            .mean
+            .iter()
+            .chain(&self.std)
+            .position(|v| !v.is_finite())
+        {
+            return Err(ModelError::Config(format!(
+                "feature statistics '{name}': entry {i} is not finite"
+            )));
         }
         if let Some(i) = self.std.iter().position(|&s| s <= 0.0) {
-            return Err(ModelError::Config(format!("feature statistics '{name}': deviation {i} is not positive")));
+            return Err(ModelError::Config(format!(
+                "feature statistics '{name}': deviation {i} is not positive"
+            )));
         }
         Ok(())
     }
@@ -81,8 +112,18 @@ impl FeatureStats {
 
     /// Statistics from samples of observations, and of residuals, gradients and poses at the
     /// poses the fitter is expected to visit.
-    pub fn measure(observations: &[Vec<f64>], residuals: &[Vec<f64>], gradients: &[Vec<f64>], poses: &[Vec<f64>]) -> Self {
-        Self { observation: Norm::from_rows(observations), residual: Norm::from_rows(residuals), gradient: Norm::from_rows(gradients), pose: Norm::from_rows(poses) }
+    pub fn measure(
+        observations: &[Vec<f64>],
+        residuals: &[Vec<f64>],
+        gradients: &[Vec<f64>],
+        poses: &[Vec<f64>],
+    ) -> Self {
+        Self {
+            observation: Norm::from_rows(observations),
+            residual: Norm::from_rows(residuals),
+            gradient: Norm::from_rows(gradients),
+            pose: Norm::from_rows(poses),
+        }
     }
 }
 

@@ -12,9 +12,17 @@ use rand_chacha::ChaCha8Rng;
 
 /// A linear layer `y = x W + b` with `W ~ U(−a, a)`, `a = gain · sqrt(6 / (fan_in + fan_out))`
 /// (Xavier/Glorot uniform), `b = 0`.
-pub fn xavier_linear(d_in: usize, d_out: usize, gain: f64, rng: &mut ChaCha8Rng, device: &Device) -> Linear {
+pub fn xavier_linear(
+    d_in: usize,
+    d_out: usize,
+    gain: f64,
+    rng: &mut ChaCha8Rng,
+    device: &Device,
+) -> Linear {
     let a = gain * (6.0 / (d_in + d_out) as f64).sqrt();
-    let w: Vec<f32> = (0..d_in * d_out).map(|_| rng.random_range(-a..=a) as f32).collect();
+    let w: Vec<f32> = (0..d_in * d_out)
+        .map(|_| rng.random_range(-a..=a) as f32)
+        .collect();
     Linear {
         weight: Param::from_tensor(Tensor::from_data(TensorData::new(w, [d_in, d_out]), device)),
         bias: Some(Param::from_tensor(Tensor::zeros([d_out], device))),
@@ -36,13 +44,23 @@ impl Dropout<'_> {
 
     /// Inverted dropout: zeroes entries with probability `p` and scales the rest by `1/(1−p)`.
     pub fn apply(&mut self, x: Tensor<2>) -> Tensor<2> {
-        let Some(rng) = self.rng.as_deref_mut() else { return x };
+        let Some(rng) = self.rng.as_deref_mut() else {
+            return x;
+        };
         if self.p <= 0.0 {
             return x;
         }
         let [b, d] = x.dims();
         let keep = (1.0 / (1.0 - self.p)) as f32;
-        let mask: Vec<f32> = (0..b * d).map(|_| if rng.random::<f64>() < self.p { 0.0 } else { keep }).collect();
+        let mask: Vec<f32> = (0..b * d)
+            .map(|_| {
+                if rng.random::<f64>() < self.p {
+                    0.0
+                } else {
+                    keep
+                }
+            })
+            .collect();
         let device = x.device();
         x * Tensor::from_data(TensorData::new(mask, [b, d]), &device)
     }
@@ -96,9 +114,18 @@ impl LnGruCell {
         let hd = self.hidden;
         let wx = self.w.forward(x);
         let uh = self.u_zr.forward(h.clone());
-        let z = sigmoid(self.ln_wz.forward(wx.clone().narrow(1, 0, hd)) + self.ln_uz.forward(uh.clone().narrow(1, 0, hd)));
-        let r = sigmoid(self.ln_wr.forward(wx.clone().narrow(1, hd, hd)) + self.ln_ur.forward(uh.narrow(1, hd, hd)));
-        let cand = tanh(self.ln_wh.forward(wx.narrow(1, 2 * hd, hd)) + self.ln_uh.forward(self.u_h.forward(r * h.clone())));
+        let z = sigmoid(
+            self.ln_wz.forward(wx.clone().narrow(1, 0, hd))
+                + self.ln_uz.forward(uh.clone().narrow(1, 0, hd)),
+        );
+        let r = sigmoid(
+            self.ln_wr.forward(wx.clone().narrow(1, hd, hd))
+                + self.ln_ur.forward(uh.narrow(1, hd, hd)),
+        );
+        let cand = tanh(
+            self.ln_wh.forward(wx.narrow(1, 2 * hd, hd))
+                + self.ln_uh.forward(self.u_h.forward(r * h.clone())),
+        );
         let one_minus_z = z.clone().neg().add_scalar(1.0);
         one_minus_z * h + z * cand
     }
@@ -111,14 +138,27 @@ pub struct GruStack {
 }
 
 impl GruStack {
-    pub fn new(d_in: usize, hidden: usize, layers: usize, rng: &mut ChaCha8Rng, device: &Device) -> Self {
-        let cells = (0..layers).map(|l| LnGruCell::new(if l == 0 { d_in } else { hidden }, hidden, rng, device)).collect();
+    pub fn new(
+        d_in: usize,
+        hidden: usize,
+        layers: usize,
+        rng: &mut ChaCha8Rng,
+        device: &Device,
+    ) -> Self {
+        let cells = (0..layers)
+            .map(|l| LnGruCell::new(if l == 0 { d_in } else { hidden }, hidden, rng, device))
+            .collect();
         Self { cells }
     }
 
     /// `x` `[B, in]` and one state per layer → new states; the output is the last state with
     /// dropout applied (dropout acts on what a layer passes on, not on the recurrent carry).
-    pub fn forward(&self, x: Tensor<2>, states: &[Tensor<2>], dropout: &mut Dropout<'_>) -> (Tensor<2>, Vec<Tensor<2>>) {
+    pub fn forward(
+        &self,
+        x: Tensor<2>,
+        states: &[Tensor<2>],
+        dropout: &mut Dropout<'_>,
+    ) -> (Tensor<2>, Vec<Tensor<2>>) {
         let mut input = x;
         let mut next = Vec::with_capacity(self.cells.len());
         for (cell, h) in self.cells.iter().zip(states) {
@@ -139,10 +179,18 @@ pub struct ResidualMlp {
 }
 
 impl ResidualMlp {
-    pub fn new(d_in: usize, hidden: usize, layers: usize, rng: &mut ChaCha8Rng, device: &Device) -> Self {
+    pub fn new(
+        d_in: usize,
+        hidden: usize,
+        layers: usize,
+        rng: &mut ChaCha8Rng,
+        device: &Device,
+    ) -> Self {
         Self {
             input: xavier_linear(d_in, hidden, 1.0, rng, device),
-            blocks: (1..layers).map(|_| xavier_linear(hidden, hidden, 1.0, rng, device)).collect(),
+            blocks: (1..layers)
+                .map(|_| xavier_linear(hidden, hidden, 1.0, rng, device))
+                .collect(),
         }
     }
 
@@ -167,7 +215,14 @@ pub struct InitMlp {
 }
 
 impl InitMlp {
-    pub fn new(d_in: usize, width: usize, d_out: usize, out_gain: f64, rng: &mut ChaCha8Rng, device: &Device) -> Self {
+    pub fn new(
+        d_in: usize,
+        width: usize,
+        d_out: usize,
+        out_gain: f64,
+        rng: &mut ChaCha8Rng,
+        device: &Device,
+    ) -> Self {
         Self {
             l1: xavier_linear(d_in, width, 1.0, rng, device),
             bn1: BatchNormConfig::new(width).init(device),

@@ -31,13 +31,36 @@ pub struct Core {
 impl Core {
     fn new(config: &NetConfig, d_in: usize, rng: &mut ChaCha8Rng, device: &Device) -> Self {
         match config.core {
-            CoreKind::Gru => Self { gru: Some(GruStack::new(d_in, config.hidden, config.layers, rng, device)), mlp: None },
-            CoreKind::ResidualMlp => Self { gru: None, mlp: Some(ResidualMlp::new(d_in, config.hidden, config.layers, rng, device)) },
+            CoreKind::Gru => Self {
+                gru: Some(GruStack::new(
+                    d_in,
+                    config.hidden,
+                    config.layers,
+                    rng,
+                    device,
+                )),
+                mlp: None,
+            },
+            CoreKind::ResidualMlp => Self {
+                gru: None,
+                mlp: Some(ResidualMlp::new(
+                    d_in,
+                    config.hidden,
+                    config.layers,
+                    rng,
+                    device,
+                )),
+            },
         }
     }
 
     /// Output `[B, H]`; `states` (one per GRU layer) are replaced by the new ones.
-    fn forward(&self, x: Tensor<2>, states: &mut Vec<Tensor<2>>, dropout: &mut Dropout<'_>) -> Tensor<2> {
+    fn forward(
+        &self,
+        x: Tensor<2>,
+        states: &mut Vec<Tensor<2>>,
+        dropout: &mut Dropout<'_>,
+    ) -> Tensor<2> {
         match (&self.gru, &self.mlp) {
             (Some(gru), _) => {
                 let (out, next) = gru.forward(x, states, dropout);
@@ -100,29 +123,71 @@ impl NeuralNet {
         config.validate()?;
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let c = config;
-        let phi = InitMlp::new(c.obs_features(), c.init_width, c.param_dim, c.output_gain, &mut rng, device);
-        let phi_h = (c.core == CoreKind::Gru).then(|| InitMlp::new(c.obs_features(), c.init_width, c.layers * c.hidden, 1.0, &mut rng, device));
+        let phi = InitMlp::new(
+            c.obs_features(),
+            c.init_width,
+            c.param_dim,
+            c.output_gain,
+            &mut rng,
+            device,
+        );
+        let phi_h = (c.core == CoreKind::Gru).then(|| {
+            InitMlp::new(
+                c.obs_features(),
+                c.init_width,
+                c.layers * c.hidden,
+                1.0,
+                &mut rng,
+                device,
+            )
+        });
         let mut cores = Vec::new();
         let mut delta_heads = Vec::new();
         let mut steps = Vec::new();
         let (k, kg) = (c.step_outputs(), c.gamma_outputs());
         for _ in 0..c.weight_sets() {
             cores.push(Core::new(c, c.core_inputs(), &mut rng, device));
-            delta_heads.push(xavier_linear(c.hidden, c.param_dim, c.output_gain, &mut rng, device));
+            delta_heads.push(xavier_linear(
+                c.hidden,
+                c.param_dim,
+                c.output_gain,
+                &mut rng,
+                device,
+            ));
             if c.has_step_network() {
                 let shared = !c.separate_gamma_network();
-                let lambda_out = if shared && c.learns_gamma() { k + kg } else { k };
+                let lambda_out = if shared && c.learns_gamma() {
+                    k + kg
+                } else {
+                    k
+                };
                 let lambda_core = Core::new(c, c.step_inputs(), &mut rng, device);
-                let lambda_head = xavier_linear(c.hidden, lambda_out, c.output_gain, &mut rng, device);
+                let lambda_head =
+                    xavier_linear(c.hidden, lambda_out, c.output_gain, &mut rng, device);
                 let (gamma_core, gamma_head) = if shared {
                     (None, None)
                 } else {
-                    (Some(Core::new(c, c.step_inputs(), &mut rng, device)), Some(xavier_linear(c.hidden, kg, c.output_gain, &mut rng, device)))
+                    (
+                        Some(Core::new(c, c.step_inputs(), &mut rng, device)),
+                        Some(xavier_linear(c.hidden, kg, c.output_gain, &mut rng, device)),
+                    )
                 };
-                steps.push(StepNet { lambda_core, lambda_head, gamma_core, gamma_head });
+                steps.push(StepNet {
+                    lambda_core,
+                    lambda_head,
+                    gamma_core,
+                    gamma_head,
+                });
             }
         }
-        Ok(Self { phi, phi_h, cores, delta_heads, steps, config: config.clone() })
+        Ok(Self {
+            phi,
+            phi_h,
+            cores,
+            delta_heads,
+            steps,
+            config: config.clone(),
+        })
     }
 
     /// Number of scalar parameters.
@@ -139,16 +204,35 @@ impl NeuralNet {
         let core = match &self.phi_h {
             Some(phi_h) => {
                 let h = phi_h.forward(obs);
-                (0..c.layers).map(|l| h.clone().narrow(1, l * c.hidden, c.hidden)).collect()
+                (0..c.layers)
+                    .map(|l| h.clone().narrow(1, l * c.hidden, c.hidden))
+                    .collect()
             }
             None => Vec::new(),
         };
-        let zeros = || (0..c.recurrent_layers()).map(|_| Tensor::zeros([batch, c.hidden], &device)).collect();
-        (theta0, State { core, lambda: zeros(), gamma: zeros() })
+        let zeros = || {
+            (0..c.recurrent_layers())
+                .map(|_| Tensor::zeros([batch, c.hidden], &device))
+                .collect()
+        };
+        (
+            theta0,
+            State {
+                core,
+                lambda: zeros(),
+                gamma: zeros(),
+            },
+        )
     }
 
     /// Δθn `[B, 57]` from the core inputs `[R, g, θ, D]` (normalised) of iteration `n` (0-based).
-    pub fn propose(&self, n: usize, inputs: Tensor<2>, state: &mut State, dropout: &mut Dropout<'_>) -> Tensor<2> {
+    pub fn propose(
+        &self,
+        n: usize,
+        inputs: Tensor<2>,
+        state: &mut State,
+        dropout: &mut Dropout<'_>,
+    ) -> Tensor<2> {
         let s = self.config.weight_set(n);
         let h = self.cores[s].forward(inputs, &mut state.core, dropout);
         self.delta_heads[s].forward(h)
@@ -157,17 +241,33 @@ impl NeuralNet {
     /// λ and γ of iteration `n` from `[R(θ), R(θ + Δθ)]` (normalised), already passed through
     /// the rule's activation: eq. (1) `λ = 1 + a`, convex rules `λ = σ(a)`; learned
     /// `γ = γ_init · softplus(b)/ln 2` (so γ = γ_init where the head outputs 0).
-    pub fn step_sizes(&self, n: usize, inputs: Tensor<2>, state: &mut State, dropout: &mut Dropout<'_>) -> StepSizes {
+    pub fn step_sizes(
+        &self,
+        n: usize,
+        inputs: Tensor<2>,
+        state: &mut State,
+        dropout: &mut Dropout<'_>,
+    ) -> StepSizes {
         let c = &self.config;
         if !c.has_step_network() {
-            return StepSizes { lambda: None, gamma: None };
+            return StepSizes {
+                lambda: None,
+                gamma: None,
+            };
         }
         let s = self.config.weight_set(n);
         let net = &self.steps[s];
         let (k, kg) = (c.step_outputs(), c.gamma_outputs());
-        let out = net.lambda_head.forward(net.lambda_core.forward(inputs.clone(), &mut state.lambda, dropout));
+        let out = net.lambda_head.forward(net.lambda_core.forward(
+            inputs.clone(),
+            &mut state.lambda,
+            dropout,
+        ));
         let (a, b) = match (&net.gamma_core, &net.gamma_head) {
-            (Some(core), Some(head)) => (out, Some(head.forward(core.forward(inputs, &mut state.gamma, dropout)))),
+            (Some(core), Some(head)) => (
+                out,
+                Some(head.forward(core.forward(inputs, &mut state.gamma, dropout))),
+            ),
             _ if c.learns_gamma() => (out.clone().narrow(1, 0, k), Some(out.narrow(1, k, kg))),
             _ => (out, None),
         };
@@ -182,7 +282,10 @@ impl NeuralNet {
                 Tensor::full([batch, kg], c.gamma_constant, &lambda.device())
             }
         };
-        StepSizes { lambda: Some(lambda), gamma: Some(gamma) }
+        StepSizes {
+            lambda: Some(lambda),
+            gamma: Some(gamma),
+        }
     }
 
     /// The update `u(Δθ, g, λ, γ)` of the configured rule, `[B, 57]` (`g` is the raw energy

@@ -146,12 +146,20 @@ impl TensorSkinning {
             Tensor::<2>::from_data(TensorData::new(t, [cols, rows]), device)
         };
         let dirs = (k > 0).then(|| transpose(&morph.dirs, 3 * num_vertices, k));
-        let joint_dirs = (k > 0 && !morph.joint_dirs.is_empty()).then(|| transpose(&morph.joint_dirs, 3 * num_joints, k));
-        let posedirs = morph.posedirs.as_ref().map(|pd| transpose(pd, 3 * num_vertices, 9 * (num_joints - 1)));
+        let joint_dirs = (k > 0 && !morph.joint_dirs.is_empty())
+            .then(|| transpose(&morph.joint_dirs, 3 * num_joints, k));
+        let posedirs = morph
+            .posedirs
+            .as_ref()
+            .map(|pd| transpose(pd, 3 * num_vertices, 9 * (num_joints - 1)));
         let rest_vertices = if morph.rest.is_empty() {
             rest_vertices
         } else {
-            let r: Vec<f32> = morph.rest.iter().flat_map(|v| v.as_vec3().to_array()).collect();
+            let r: Vec<f32> = morph
+                .rest
+                .iter()
+                .flat_map(|v| v.as_vec3().to_array())
+                .collect();
             Tensor::<2>::from_data(TensorData::new(r, [num_vertices, 3]), device)
         };
         Self {
@@ -232,7 +240,8 @@ impl TensorSkinning {
         // Rest joints: constant rows, or per batch row `c + JD [β; ψ]` ([B, J, 3]).
         let shaped_joints: Option<Tensor<3>> = match (&coeffs, &self.joint_dirs) {
             (Some(c), Some(jd)) => Some(
-                self.joint_rest.clone().reshape([1, num_joints, 3]) + c.clone().matmul(jd.clone()).reshape([batch, num_joints, 3]),
+                self.joint_rest.clone().reshape([1, num_joints, 3])
+                    + c.clone().matmul(jd.clone()).reshape([batch, num_joints, 3]),
             ),
             _ => None,
         };
@@ -313,7 +322,8 @@ impl TensorSkinning {
         }
         if let Some(pd) = &self.posedirs {
             let eye = Tensor::<2>::eye(3, &self.device).reshape([1, 1, 3, 3]);
-            let feature = (local.clone().narrow(1, 1, num_joints - 1) - eye).reshape([batch, 9 * (num_joints - 1)]);
+            let feature = (local.clone().narrow(1, 1, num_joints - 1) - eye)
+                .reshape([batch, 9 * (num_joints - 1)]);
             let o = feature.matmul(pd.clone());
             offsets = Some(match offsets {
                 Some(prev) => prev + o,
@@ -329,7 +339,10 @@ impl TensorSkinning {
                 let rest = self.rest_vertices.clone().reshape([1, v, 3]) + o.reshape([batch, v, 3]); // [B, V, 3]
                 let rot = blended.clone().narrow(3, 0, 3); // [B, V, 3, 3]
                 let trans = blended.narrow(3, 3, 1).reshape([batch, v, 3]);
-                (rot * rest.reshape([batch, v, 1, 3])).sum_dim(3).reshape([batch, v, 3]) + trans
+                (rot * rest.reshape([batch, v, 1, 3]))
+                    .sum_dim(3)
+                    .reshape([batch, v, 3])
+                    + trans
             }
         };
 
@@ -550,7 +563,17 @@ mod tests {
             assert_eq!(skin.param_dim(), 3 + 72 + 6);
             let mut rng = ChaCha8Rng::seed_from_u64(5);
             let params: Vec<Vec<f64>> = (0..6)
-                .map(|_| (0..skin.param_dim()).map(|i| if i < 75 { rng.random_range(-1.0..1.0) } else { rng.random_range(-3.0..3.0) }).collect())
+                .map(|_| {
+                    (0..skin.param_dim())
+                        .map(|i| {
+                            if i < 75 {
+                                rng.random_range(-1.0..1.0)
+                            } else {
+                                rng.random_range(-3.0..3.0)
+                            }
+                        })
+                        .collect()
+                })
                 .collect();
             let out = skin.forward(poses_to_tensor(&params, &device));
             let joints = tensor_to_vec3s(out.joints).unwrap();
@@ -566,7 +589,9 @@ mod tests {
                     ve = ve.max((*g - *c).abs().max_element());
                 }
             }
-            println!("morphable 24-joint model (posedirs {posedirs}): max |joint diff| {je:.3e} m, max |vertex diff| {ve:.3e} m");
+            println!(
+                "morphable 24-joint model (posedirs {posedirs}): max |joint diff| {je:.3e} m, max |vertex diff| {ve:.3e} m"
+            );
             assert!(je < 1e-5 && ve < 1e-5, "{je} {ve}");
         }
     }

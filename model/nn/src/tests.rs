@@ -14,29 +14,43 @@ use crate::config::*;
 use crate::features::{FeatureStats, Norm};
 use crate::layers::{Dropout, LnGruCell};
 use crate::net::NeuralNet;
+use crate::tensor::ndarray_device;
 use crate::unroll::unroll;
 use lfit_model::energy::{Energy, EnergyConfig, Target};
 use lfit_model::observe::{Modality, Sensor};
 use lfit_model::pose::{POSE_DIM, Pose};
-use crate::tensor::ndarray_device;
 use lfit_model::{Template, default_template};
 
 fn vals(t: Tensor<1>) -> Vec<f64> {
-    t.try_into_vec_as::<f32>().expect("read").into_iter().map(f64::from).collect()
+    t.try_into_vec_as::<f32>()
+        .expect("read")
+        .into_iter()
+        .map(f64::from)
+        .collect()
 }
 
 fn mat(l: &Linear) -> (Vec<f64>, Vec<f64>, [usize; 2]) {
     let w = l.weight.val();
     let dims = w.dims();
-    let w = w.try_into_vec_as::<f32>().expect("read").into_iter().map(f64::from).collect();
-    let b = l.bias.as_ref().map_or(vec![0.0; dims[1]], |b| vals(b.val()));
+    let w = w
+        .try_into_vec_as::<f32>()
+        .expect("read")
+        .into_iter()
+        .map(f64::from)
+        .collect();
+    let b = l
+        .bias
+        .as_ref()
+        .map_or(vec![0.0; dims[1]], |b| vals(b.val()));
     (w, b, dims)
 }
 
 /// `x W + b` on the host.
 fn affine(l: &Linear, x: &[f64]) -> Vec<f64> {
     let (w, b, [din, dout]) = mat(l);
-    (0..dout).map(|j| b[j] + (0..din).map(|i| x[i] * w[i * dout + j]).sum::<f64>()).collect()
+    (0..dout)
+        .map(|j| b[j] + (0..din).map(|i| x[i] * w[i * dout + j]).sum::<f64>())
+        .collect()
 }
 
 fn ln(l: &LayerNorm, x: &[f64]) -> Vec<f64> {
@@ -44,8 +58,14 @@ fn ln(l: &LayerNorm, x: &[f64]) -> Vec<f64> {
     let m = x.iter().sum::<f64>() / n;
     let v = x.iter().map(|a| (a - m) * (a - m)).sum::<f64>() / n;
     let g = vals(l.gamma.val());
-    let b = l.beta.as_ref().map_or(vec![0.0; x.len()], |b| vals(b.val()));
-    x.iter().enumerate().map(|(i, a)| (a - m) / (v + 1e-5).sqrt() * g[i] + b[i]).collect()
+    let b = l
+        .beta
+        .as_ref()
+        .map_or(vec![0.0; x.len()], |b| vals(b.val()));
+    x.iter()
+        .enumerate()
+        .map(|(i, a)| (a - m) / (v + 1e-5).sqrt() * g[i] + b[i])
+        .collect()
 }
 
 fn sig(x: f64) -> f64 {
@@ -57,7 +77,10 @@ fn random_ln(hidden: usize, rng: &mut ChaCha8Rng, device: &Device) -> LayerNorm 
     let g: Vec<f32> = (0..hidden).map(|_| rng.random_range(0.5..1.5)).collect();
     let b: Vec<f32> = (0..hidden).map(|_| rng.random_range(-0.5..0.5)).collect();
     l.gamma = Param::from_tensor(Tensor::from_data(TensorData::new(g, [hidden]), device));
-    l.beta = Some(Param::from_tensor(Tensor::from_data(TensorData::new(b, [hidden]), device)));
+    l.beta = Some(Param::from_tensor(Tensor::from_data(
+        TensorData::new(b, [hidden]),
+        device,
+    )));
     l
 }
 
@@ -74,8 +97,12 @@ fn ln_gru_cell_matches_a_hand_written_reference() {
     cell.ln_uz = random_ln(hidden, &mut rng, &device);
     cell.ln_ur = random_ln(hidden, &mut rng, &device);
     cell.ln_uh = random_ln(hidden, &mut rng, &device);
-    let x: Vec<f32> = (0..batch * d_in).map(|_| rng.random_range(-2.0..2.0)).collect();
-    let h: Vec<f32> = (0..batch * hidden).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let x: Vec<f32> = (0..batch * d_in)
+        .map(|_| rng.random_range(-2.0..2.0))
+        .collect();
+    let h: Vec<f32> = (0..batch * hidden)
+        .map(|_| rng.random_range(-1.0..1.0))
+        .collect();
     let out = cell.forward(
         Tensor::from_data(TensorData::new(x.clone(), [batch, d_in]), &device),
         Tensor::from_data(TensorData::new(h.clone(), [batch, hidden]), &device),
@@ -83,24 +110,54 @@ fn ln_gru_cell_matches_a_hand_written_reference() {
     let out = out.try_into_vec_as::<f32>().expect("read");
 
     for b in 0..batch {
-        let xb: Vec<f64> = x[b * d_in..(b + 1) * d_in].iter().map(|&v| f64::from(v)).collect();
-        let hb: Vec<f64> = h[b * hidden..(b + 1) * hidden].iter().map(|&v| f64::from(v)).collect();
+        let xb: Vec<f64> = x[b * d_in..(b + 1) * d_in]
+            .iter()
+            .map(|&v| f64::from(v))
+            .collect();
+        let hb: Vec<f64> = h[b * hidden..(b + 1) * hidden]
+            .iter()
+            .map(|&v| f64::from(v))
+            .collect();
         let wx = affine(&cell.w, &xb);
         let uzr = affine(&cell.u_zr, &hb);
-        let z: Vec<f64> = ln(&cell.ln_wz, &wx[..hidden]).iter().zip(ln(&cell.ln_uz, &uzr[..hidden])).map(|(a, c)| sig(a + c)).collect();
-        let r: Vec<f64> = ln(&cell.ln_wr, &wx[hidden..2 * hidden]).iter().zip(ln(&cell.ln_ur, &uzr[hidden..])).map(|(a, c)| sig(a + c)).collect();
+        let z: Vec<f64> = ln(&cell.ln_wz, &wx[..hidden])
+            .iter()
+            .zip(ln(&cell.ln_uz, &uzr[..hidden]))
+            .map(|(a, c)| sig(a + c))
+            .collect();
+        let r: Vec<f64> = ln(&cell.ln_wr, &wx[hidden..2 * hidden])
+            .iter()
+            .zip(ln(&cell.ln_ur, &uzr[hidden..]))
+            .map(|(a, c)| sig(a + c))
+            .collect();
         let rh: Vec<f64> = r.iter().zip(&hb).map(|(a, c)| a * c).collect();
-        let cand: Vec<f64> = ln(&cell.ln_wh, &wx[2 * hidden..]).iter().zip(ln(&cell.ln_uh, &affine(&cell.u_h, &rh))).map(|(a, c)| (a + c).tanh()).collect();
+        let cand: Vec<f64> = ln(&cell.ln_wh, &wx[2 * hidden..])
+            .iter()
+            .zip(ln(&cell.ln_uh, &affine(&cell.u_h, &rh)))
+            .map(|(a, c)| (a + c).tanh())
+            .collect();
         for k in 0..hidden {
             let want = (1.0 - z[k]) * hb[k] + z[k] * cand[k];
             let got = f64::from(out[b * hidden + k]);
-            assert!((want - got).abs() < 1e-5, "batch {b} unit {k}: reference {want}, cell {got}");
+            assert!(
+                (want - got).abs() < 1e-5,
+                "batch {b} unit {k}: reference {want}, cell {got}"
+            );
         }
     }
 }
 
 pub(crate) fn small_config(modality: Modality, residual_dim: usize) -> NetConfig {
-    NetConfig { modality, residual_dim, iterations: 2, hidden: 16, init_width: 8, layers: 2, dropout: 0.5, ..NetConfig::default() }
+    NetConfig {
+        modality,
+        residual_dim,
+        iterations: 2,
+        hidden: 16,
+        init_width: 8,
+        layers: 2,
+        dropout: 0.5,
+        ..NetConfig::default()
+    }
 }
 
 /// The default template, `n` marker energies of random poses (noise-free targets) and the
@@ -116,7 +173,16 @@ fn marker_frames(n: usize, seed: u64) -> (Arc<Template>, Vec<Energy>, usize) {
                 *v = rng.random_range(-0.2..0.2);
             }
             let pred = sensor.predict_sparse(&template, &pose).expect("sparse");
-            Energy::new(template.clone(), sensor.clone(), Target::Sparse { values: pred.values, visible: pred.visible }, EnergyConfig::default().for_gradient()).expect("energy")
+            Energy::new(
+                template.clone(),
+                sensor.clone(),
+                Target::Sparse {
+                    values: pred.values,
+                    visible: pred.visible,
+                },
+                EnergyConfig::default().for_gradient(),
+            )
+            .expect("energy")
         })
         .collect();
     let dim = sensor.residual_dim(&template);
@@ -124,8 +190,16 @@ fn marker_frames(n: usize, seed: u64) -> (Arc<Template>, Vec<Energy>, usize) {
 }
 
 fn unit_stats(dim: usize) -> FeatureStats {
-    let n = |d: usize| Norm { mean: vec![0.0; d], std: vec![1.0; d] };
-    FeatureStats { observation: n(2 * dim), residual: n(dim), gradient: n(POSE_DIM), pose: n(POSE_DIM) }
+    let n = |d: usize| Norm {
+        mean: vec![0.0; d],
+        std: vec![1.0; d],
+    };
+    FeatureStats {
+        observation: n(2 * dim),
+        residual: n(dim),
+        gradient: n(POSE_DIM),
+        pose: n(POSE_DIM),
+    }
 }
 
 #[test]
@@ -135,28 +209,86 @@ fn every_variant_builds_and_runs_with_the_right_shapes() {
     let refs: Vec<&Energy> = energies.iter().collect();
     let base = small_config(Modality::Markers, dim);
     let mut variants = Vec::new();
-    for update in [UpdateRule::DeltaOnly, UpdateRule::Eq1, UpdateRule::Convex, UpdateRule::ConvexNormalized] {
-        variants.push(NetConfig { update, ..base.clone() });
+    for update in [
+        UpdateRule::DeltaOnly,
+        UpdateRule::Eq1,
+        UpdateRule::Convex,
+        UpdateRule::ConvexNormalized,
+    ] {
+        variants.push(NetConfig {
+            update,
+            ..base.clone()
+        });
     }
-    variants.push(NetConfig { gamma: GammaMode::Constant, ..base.clone() });
-    variants.push(NetConfig { step_shape: StepShape::Scalar, ..base.clone() });
-    variants.push(NetConfig { shared_lambda_gamma: false, ..base.clone() });
-    variants.push(NetConfig { core: CoreKind::ResidualMlp, ..base.clone() });
-    variants.push(NetConfig { layers: 1, hidden: 24, ..base.clone() });
-    variants.push(NetConfig { per_step_weights: true, iterations: 3, ..base.clone() });
-    variants.push(NetConfig { step_shape: StepShape::Scalar, shared_lambda_gamma: false, update: UpdateRule::Convex, ..base.clone() });
+    variants.push(NetConfig {
+        gamma: GammaMode::Constant,
+        ..base.clone()
+    });
+    variants.push(NetConfig {
+        step_shape: StepShape::Scalar,
+        ..base.clone()
+    });
+    variants.push(NetConfig {
+        shared_lambda_gamma: false,
+        ..base.clone()
+    });
+    variants.push(NetConfig {
+        core: CoreKind::ResidualMlp,
+        ..base.clone()
+    });
+    variants.push(NetConfig {
+        layers: 1,
+        hidden: 24,
+        ..base.clone()
+    });
+    variants.push(NetConfig {
+        per_step_weights: true,
+        iterations: 3,
+        ..base.clone()
+    });
+    variants.push(NetConfig {
+        step_shape: StepShape::Scalar,
+        shared_lambda_gamma: false,
+        update: UpdateRule::Convex,
+        ..base.clone()
+    });
     // supp. Table A.1: λ and γ of different shapes, from one network or two.
     for shared_lambda_gamma in [false, true] {
-        variants.push(NetConfig { gamma_shape: Some(StepShape::Scalar), shared_lambda_gamma, ..base.clone() });
-        variants.push(NetConfig { step_shape: StepShape::Scalar, gamma_shape: Some(StepShape::Vector), shared_lambda_gamma, ..base.clone() });
+        variants.push(NetConfig {
+            gamma_shape: Some(StepShape::Scalar),
+            shared_lambda_gamma,
+            ..base.clone()
+        });
+        variants.push(NetConfig {
+            step_shape: StepShape::Scalar,
+            gamma_shape: Some(StepShape::Vector),
+            shared_lambda_gamma,
+            ..base.clone()
+        });
     }
     for config in variants {
         let net = NeuralNet::new(&config, 3, &device).expect("net");
         assert_eq!(net.cores.len(), config.weight_sets(), "{config:?}");
-        assert_eq!(net.steps.len(), if config.has_step_network() { config.weight_sets() } else { 0 });
+        assert_eq!(
+            net.steps.len(),
+            if config.has_step_network() {
+                config.weight_sets()
+            } else {
+                0
+            }
+        );
         assert_eq!(net.phi_h.is_some(), config.core == CoreKind::Gru);
         let given = [None, Some(vec![0.05; POSE_DIM]), None];
-        let out = unroll(&net, &unit_stats(dim), &refs, &given, None, &device, &mut Dropout::off()).expect("unroll");
+        let out = unroll(
+            &net,
+            &unit_stats(dim),
+            &refs,
+            &given,
+            None,
+            &device,
+            &mut Dropout::off(),
+        )
+        .expect("unroll");
         assert_eq!(out.poses.len(), config.iterations + 1);
         assert_eq!(out.host.len(), config.iterations + 1);
         for t in &out.poses {
@@ -164,15 +296,31 @@ fn every_variant_builds_and_runs_with_the_right_shapes() {
         }
         // The given start is θ0 exactly; the Φ start is not.
         assert!((out.host[0][1][10] - 0.05).abs() < 1e-7);
-        assert!(out.host.iter().flatten().flatten().all(|v| v.is_finite()), "{config:?}");
+        assert!(
+            out.host.iter().flatten().flatten().all(|v| v.is_finite()),
+            "{config:?}"
+        );
         // Every variant moves the pose.
         assert_ne!(out.host[0][0], out.host[config.iterations][0], "{config:?}");
         // Step sizes have the configured width.
-        let mut state = net.initial(Tensor::zeros([3, config.obs_features()], &device)).1;
-        let sizes = net.step_sizes(0, Tensor::zeros([3, config.step_inputs()], &device), &mut state, &mut Dropout::off());
+        let mut state = net
+            .initial(Tensor::zeros([3, config.obs_features()], &device))
+            .1;
+        let sizes = net.step_sizes(
+            0,
+            Tensor::zeros([3, config.step_inputs()], &device),
+            &mut state,
+            &mut Dropout::off(),
+        );
         if config.has_step_network() {
-            assert_eq!(sizes.lambda.expect("lambda").dims(), [3, config.step_outputs()]);
-            assert_eq!(sizes.gamma.expect("gamma").dims(), [3, config.gamma_outputs()]);
+            assert_eq!(
+                sizes.lambda.expect("lambda").dims(),
+                [3, config.step_outputs()]
+            );
+            assert_eq!(
+                sizes.gamma.expect("gamma").dims(),
+                [3, config.gamma_outputs()]
+            );
         }
     }
 }
@@ -187,23 +335,46 @@ fn eq1_update_is_lambda_delta_minus_gamma_grad() {
     let grad: Vec<f32> = (0..POSE_DIM).map(|i| 1.0 - i as f32 * 0.02).collect();
     let lambda: Vec<f32> = (0..POSE_DIM).map(|i| 0.5 + i as f32 * 0.01).collect();
     let gamma: Vec<f32> = (0..POSE_DIM).map(|i| 0.1 * i as f32).collect();
-    let sizes = crate::net::StepSizes { lambda: Some(t(lambda.clone())), gamma: Some(t(gamma.clone())) };
-    let u = net.update(t(delta.clone()), t(grad.clone()), &sizes).try_into_vec_as::<f32>().expect("read");
+    let sizes = crate::net::StepSizes {
+        lambda: Some(t(lambda.clone())),
+        gamma: Some(t(gamma.clone())),
+    };
+    let u = net
+        .update(t(delta.clone()), t(grad.clone()), &sizes)
+        .try_into_vec_as::<f32>()
+        .expect("read");
     for i in 0..POSE_DIM {
         let want = lambda[i] * delta[i] - gamma[i] * grad[i];
         assert!((u[i] - want).abs() < 1e-6, "{i}: {} vs {want}", u[i]);
     }
     // The convex rule: λΔ + (1 − λ)(−γ g).
-    let convex = NeuralNet::new(&NetConfig { update: UpdateRule::Convex, ..config }, 1, &device).expect("net");
-    let u = convex.update(t(delta.clone()), t(grad.clone()), &sizes).try_into_vec_as::<f32>().expect("read");
+    let convex = NeuralNet::new(
+        &NetConfig {
+            update: UpdateRule::Convex,
+            ..config
+        },
+        1,
+        &device,
+    )
+    .expect("net");
+    let u = convex
+        .update(t(delta.clone()), t(grad.clone()), &sizes)
+        .try_into_vec_as::<f32>()
+        .expect("read");
     for i in 0..POSE_DIM {
         let want = lambda[i] * delta[i] - (1.0 - lambda[i]) * gamma[i] * grad[i];
         assert!((u[i] - want).abs() < 1e-6);
     }
 }
 
-fn save_checkpoint(dir: &std::path::Path, net: &NeuralNet, stats: &FeatureStats, template: &Template) {
-    let files = checkpoint_files(net, stats, template, &serde_json::json!({"test": true})).expect("files");
+fn save_checkpoint(
+    dir: &std::path::Path,
+    net: &NeuralNet,
+    stats: &FeatureStats,
+    template: &Template,
+) {
+    let files =
+        checkpoint_files(net, stats, template, &serde_json::json!({"test": true})).expect("files");
     let files: Vec<(&str, Vec<u8>)> = files.into_iter().collect();
     write_dir(dir, &files).expect("write");
 }
@@ -225,24 +396,61 @@ fn checkpoint_round_trip_gives_identical_outputs_and_mismatches_are_clear_errors
     assert_eq!(loaded.stats, stats);
     assert_eq!(loaded.meta.network, config);
     let starts = [None, None];
-    let a = unroll(&net, &stats, &refs, &starts, None, &device, &mut Dropout::off()).expect("a");
-    let b = unroll(&loaded.net, &loaded.stats, &refs, &starts, None, &device, &mut Dropout::off()).expect("b");
-    assert_eq!(a.host, b.host, "a loaded checkpoint must reproduce the saved network exactly");
-    loaded.check_compatible(&dir, Modality::Markers, dim, &template).expect("compatible");
+    let a = unroll(
+        &net,
+        &stats,
+        &refs,
+        &starts,
+        None,
+        &device,
+        &mut Dropout::off(),
+    )
+    .expect("a");
+    let b = unroll(
+        &loaded.net,
+        &loaded.stats,
+        &refs,
+        &starts,
+        None,
+        &device,
+        &mut Dropout::off(),
+    )
+    .expect("b");
+    assert_eq!(
+        a.host, b.host,
+        "a loaded checkpoint must reproduce the saved network exactly"
+    );
+    loaded
+        .check_compatible(&dir, Modality::Markers, dim, &template)
+        .expect("compatible");
 
     // Wrong modality.
-    let e = loaded.check_compatible(&dir, Modality::Hmd, 42, &template).expect_err("modality");
-    assert!(e.to_string().contains("trained for markers data, not hmd"), "{e}");
+    let e = loaded
+        .check_compatible(&dir, Modality::Hmd, 42, &template)
+        .expect_err("modality");
+    assert!(
+        e.to_string().contains("trained for markers data, not hmd"),
+        "{e}"
+    );
 
     // A config that does not match the weights (hidden size changed).
     let meta_path = dir.join("config.json");
     let text = std::fs::read_to_string(&meta_path).expect("read");
     std::fs::write(&meta_path, text.replace("\"hidden\": 16", "\"hidden\": 32")).expect("write");
     let e = checkpoint::load(&dir, &device).expect_err("mismatch");
-    assert!(e.to_string().contains("weights do not match") || e.to_string().contains("weights lack") || e.to_string().contains("weights have"), "{e}");
+    assert!(
+        e.to_string().contains("weights do not match")
+            || e.to_string().contains("weights lack")
+            || e.to_string().contains("weights have"),
+        "{e}"
+    );
     assert_eq!(e.to_string().lines().count(), 1, "{e}");
     // Another variant: per-step weights expect tensors the file lacks.
-    std::fs::write(&meta_path, text.replace("\"per_step_weights\": false", "\"per_step_weights\": true")).expect("write");
+    std::fs::write(
+        &meta_path,
+        text.replace("\"per_step_weights\": false", "\"per_step_weights\": true"),
+    )
+    .expect("write");
     let e = checkpoint::load(&dir, &device).expect_err("mismatch");
     assert!(e.to_string().contains("weights lack tensor"), "{e}");
     std::fs::write(&meta_path, &text).expect("restore");
@@ -258,11 +466,30 @@ fn checkpoint_round_trip_gives_identical_outputs_and_mismatches_are_clear_errors
 
     // Statistics of the wrong length, a missing directory, malformed JSON.
     std::fs::write(&w, &bytes).expect("restore");
-    std::fs::write(dir.join("stats.json"), serde_json::to_string(&unit_stats(dim + 3)).expect("json")).expect("write");
-    assert!(checkpoint::load(&dir, &device).expect_err("stats").to_string().contains("feature statistics"));
-    assert!(checkpoint::load(&tmp.path().join("nope"), &device).expect_err("missing").to_string().contains("no such checkpoint"));
+    std::fs::write(
+        dir.join("stats.json"),
+        serde_json::to_string(&unit_stats(dim + 3)).expect("json"),
+    )
+    .expect("write");
+    assert!(
+        checkpoint::load(&dir, &device)
+            .expect_err("stats")
+            .to_string()
+            .contains("feature statistics")
+    );
+    assert!(
+        checkpoint::load(&tmp.path().join("nope"), &device)
+            .expect_err("missing")
+            .to_string()
+            .contains("no such checkpoint")
+    );
     std::fs::write(&meta_path, "{").expect("write");
-    assert!(checkpoint::load(&dir, &device).expect_err("json").to_string().contains("malformed config.json"));
+    assert!(
+        checkpoint::load(&dir, &device)
+            .expect_err("json")
+            .to_string()
+            .contains("malformed config.json")
+    );
 }
 
 #[test]
@@ -273,20 +500,42 @@ fn same_seed_same_network_and_dropout_is_seeded() {
     let config = small_config(Modality::Markers, dim);
     let run_net = |seed| {
         let net = NeuralNet::new(&config, seed, &device).expect("net");
-        unroll(&net, &unit_stats(dim), &refs, &[None, None], None, &device, &mut Dropout::off()).expect("unroll").host
+        unroll(
+            &net,
+            &unit_stats(dim),
+            &refs,
+            &[None, None],
+            None,
+            &device,
+            &mut Dropout::off(),
+        )
+        .expect("unroll")
+        .host
     };
     assert_eq!(run_net(4), run_net(4));
     assert_ne!(run_net(4), run_net(5));
     let x = Tensor::<2>::ones([4, 100], &device);
     let run = |seed| {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        Dropout { p: 0.5, rng: Some(&mut rng) }.apply(x.clone()).try_into_vec_as::<f32>().expect("read")
+        Dropout {
+            p: 0.5,
+            rng: Some(&mut rng),
+        }
+        .apply(x.clone())
+        .try_into_vec_as::<f32>()
+        .expect("read")
     };
     let (d1, d2) = (run(1), run(1));
     assert_eq!(d1, d2);
     let zeros = d1.iter().filter(|&&v| v == 0.0).count();
-    assert!((120..280).contains(&zeros), "about half dropped, got {zeros}/400");
-    assert!(d1.iter().all(|&v| v == 0.0 || v == 2.0), "kept entries are scaled by 1/(1-p)");
+    assert!(
+        (120..280).contains(&zeros),
+        "about half dropped, got {zeros}/400"
+    );
+    assert!(
+        d1.iter().all(|&v| v == 0.0 || v == 2.0),
+        "kept entries are scaled by 1/(1-p)"
+    );
 }
 
 /// The same weights on another backend give the same fit: ndarray is the reference; flex always,
@@ -301,18 +550,50 @@ fn backends_agree_on_the_fitting_loop() {
     let net = NeuralNet::new(&config, 8, &reference).expect("net");
     let bytes = crate::checkpoint::weights_bytes(&net).expect("bytes");
     let starts = [None, Some(vec![0.02; POSE_DIM]), None];
-    let want = unroll(&net, &unit_stats(dim), &refs, &starts, None, &reference, &mut Dropout::off()).expect("reference").host;
+    let want = unroll(
+        &net,
+        &unit_stats(dim),
+        &refs,
+        &starts,
+        None,
+        &reference,
+        &mut Dropout::off(),
+    )
+    .expect("reference")
+    .host;
     let mut devices = vec![("flex".to_string(), device_from_name("flex").expect("flex"))];
     match wgpu_status() {
-        Ok(adapter) => devices.push((format!("wgpu on {adapter}"), device_from_name("wgpu").expect("wgpu"))),
+        Ok(adapter) => devices.push((
+            format!("wgpu on {adapter}"),
+            device_from_name("wgpu").expect("wgpu"),
+        )),
         Err(reason) => {
-            assert!(std::env::var("LFIT_REQUIRE_WGPU").as_deref() != Ok("1"), "LFIT_REQUIRE_WGPU=1 but wgpu is unavailable: {reason}");
+            assert!(
+                std::env::var("LFIT_REQUIRE_WGPU").as_deref() != Ok("1"),
+                "LFIT_REQUIRE_WGPU=1 but wgpu is unavailable: {reason}"
+            );
             println!("skipping wgpu: {reason}");
         }
     }
     for (name, device) in devices {
-        let other = crate::checkpoint::net_from_bytes(&config, bytes.clone(), &device, std::path::Path::new("mem")).expect("load");
-        let got = unroll(&other, &unit_stats(dim), &refs, &starts, None, &device, &mut Dropout::off()).expect("unroll").host;
+        let other = crate::checkpoint::net_from_bytes(
+            &config,
+            bytes.clone(),
+            &device,
+            std::path::Path::new("mem"),
+        )
+        .expect("load");
+        let got = unroll(
+            &other,
+            &unit_stats(dim),
+            &refs,
+            &starts,
+            None,
+            &device,
+            &mut Dropout::off(),
+        )
+        .expect("unroll")
+        .host;
         for (n, (a, b)) in want.iter().zip(&got).enumerate() {
             for (pa, pb) in a.iter().zip(b) {
                 for (x, y) in pa.iter().zip(pb) {

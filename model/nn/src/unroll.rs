@@ -9,10 +9,10 @@ use crate::config::NetConfig;
 use crate::features::{FeatureStats, observation_features};
 use crate::layers::Dropout;
 use crate::net::NeuralNet;
+use crate::tensor::{poses_to_tensor, tensor_to_rows};
 use lfit_model::energy::Energy;
 use lfit_model::error::{ModelError, Result};
 use lfit_model::pose::Bounds;
-use crate::tensor::{poses_to_tensor, tensor_to_rows};
 
 /// Per-frame limits at inference: which DOFs may move and the box they stay in.
 #[derive(Debug, Clone)]
@@ -42,20 +42,39 @@ fn rows_tensor(rows: &[f32], batch: usize, device: &Device) -> Tensor<2> {
 fn to_host(t: &Tensor<2>, dim: usize) -> Result<Vec<Vec<f64>>> {
     let [batch, d] = t.dims();
     if d != dim {
-        return Err(ModelError::Shape { what: "pose tensor".into(), expected: format!("[{batch}, {dim}]"), got: format!("[{batch}, {d}]") });
+        return Err(ModelError::Shape {
+            what: "pose tensor".into(),
+            expected: format!("[{batch}, {dim}]"),
+            got: format!("[{batch}, {d}]"),
+        });
     }
-    Ok(tensor_to_rows(t.clone().detach())?.iter().map(|row| row.iter().map(|&x| f64::from(x)).collect()).collect())
+    Ok(tensor_to_rows(t.clone().detach())?
+        .iter()
+        .map(|row| row.iter().map(|&x| f64::from(x)).collect())
+        .collect())
 }
 
 /// Checks a batch against the network: at least one frame, one start entry per frame, and every
 /// frame of the network's modality.
-pub fn check_batch(config: &NetConfig, energies: &[&Energy], starts: &[Option<Vec<f64>>]) -> Result<()> {
+pub fn check_batch(
+    config: &NetConfig,
+    energies: &[&Energy],
+    starts: &[Option<Vec<f64>>],
+) -> Result<()> {
     let batch = energies.len();
     if batch == 0 || starts.len() != batch {
-        return Err(ModelError::Shape { what: "neural fitter batch".into(), expected: format!("{batch} start entries, at least one frame"), got: starts.len().to_string() });
+        return Err(ModelError::Shape {
+            what: "neural fitter batch".into(),
+            expected: format!("{batch} start entries, at least one frame"),
+            got: starts.len().to_string(),
+        });
     }
     if let Some(e) = energies.iter().find(|e| e.modality() != config.modality) {
-        return Err(ModelError::Config(format!("the network fits {} data, this frame is {}", config.modality, e.modality())));
+        return Err(ModelError::Config(format!(
+            "the network fits {} data, this frame is {}",
+            config.modality,
+            e.modality()
+        )));
     }
     if let Some(e) = energies.iter().find(|e| e.dim() != config.param_dim) {
         return Err(ModelError::Config(format!(
@@ -65,39 +84,81 @@ pub fn check_batch(config: &NetConfig, energies: &[&Energy], starts: &[Option<Ve
             e.dim()
         )));
     }
-    if let Some(s) = starts.iter().flatten().find(|s| s.len() != config.param_dim) {
-        return Err(ModelError::Shape { what: "start".into(), expected: config.param_dim.to_string(), got: s.len().to_string() });
+    if let Some(s) = starts
+        .iter()
+        .flatten()
+        .find(|s| s.len() != config.param_dim)
+    {
+        return Err(ModelError::Shape {
+            what: "start".into(),
+            expected: config.param_dim.to_string(),
+            got: s.len().to_string(),
+        });
     }
     Ok(())
 }
 
 /// The normalised observation features D of every frame.
-pub fn observation_rows(config: &NetConfig, stats: &FeatureStats, energies: &[&Energy]) -> Result<Vec<Vec<f32>>> {
+pub fn observation_rows(
+    config: &NetConfig,
+    stats: &FeatureStats,
+    energies: &[&Energy],
+) -> Result<Vec<Vec<f32>>> {
     let dim = config.residual_dim;
     let mut out = Vec::with_capacity(energies.len());
     for e in energies {
         let r = observation_features(e);
         if r.len() != 2 * dim {
-            return Err(ModelError::Shape { what: "observation features".into(), expected: (2 * dim).to_string(), got: r.len().to_string() });
+            return Err(ModelError::Shape {
+                what: "observation features".into(),
+                expected: (2 * dim).to_string(),
+                got: r.len().to_string(),
+            });
         }
         let mut v = Vec::with_capacity(2 * dim);
-        stats.observation.push(&r, config.feature_clip as f32, &mut v);
+        stats
+            .observation
+            .push(&r, config.feature_clip as f32, &mut v);
         out.push(v);
     }
     Ok(out)
 }
 
 /// The per-frame limits as `[B, dim]` rows: free mask (1/0), lower and upper bounds.
-pub fn constraint_rows(constraints: &Constraints, batch: usize, dim: usize) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
+pub fn constraint_rows(
+    constraints: &Constraints,
+    batch: usize,
+    dim: usize,
+) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
     let k = constraints;
     if k.free.len() != batch || k.bounds.len() != batch {
-        return Err(ModelError::Shape { what: "constraints".into(), expected: batch.to_string(), got: k.free.len().to_string() });
+        return Err(ModelError::Shape {
+            what: "constraints".into(),
+            expected: batch.to_string(),
+            got: k.free.len().to_string(),
+        });
     }
-    let f: Vec<f32> = k.free.iter().flat_map(|m| m.iter().map(|&b| if b { 1.0 } else { 0.0 })).collect();
-    let lo: Vec<f32> = k.bounds.iter().flat_map(|b| b.lower.iter().map(|&x| x as f32)).collect();
-    let hi: Vec<f32> = k.bounds.iter().flat_map(|b| b.upper.iter().map(|&x| x as f32)).collect();
+    let f: Vec<f32> = k
+        .free
+        .iter()
+        .flat_map(|m| m.iter().map(|&b| if b { 1.0 } else { 0.0 }))
+        .collect();
+    let lo: Vec<f32> = k
+        .bounds
+        .iter()
+        .flat_map(|b| b.lower.iter().map(|&x| x as f32))
+        .collect();
+    let hi: Vec<f32> = k
+        .bounds
+        .iter()
+        .flat_map(|b| b.upper.iter().map(|&x| x as f32))
+        .collect();
     if lo.len() != batch * dim || hi.len() != batch * dim || f.len() != batch * dim {
-        return Err(ModelError::Shape { what: "bounds".into(), expected: dim.to_string(), got: (lo.len() / batch.max(1)).to_string() });
+        return Err(ModelError::Shape {
+            what: "bounds".into(),
+            expected: dim.to_string(),
+            got: (lo.len() / batch.max(1)).to_string(),
+        });
     }
     Ok((f, lo, hi))
 }
@@ -120,12 +181,22 @@ pub fn evaluate(energies: &[&Energy], current: &[Vec<f64>]) -> Vec<(Vec<f64>, Ve
 }
 
 /// The normalised core inputs `[R(θ), g, θ, D]`, `[B, core_inputs]` row-major.
-pub fn core_rows(config: &NetConfig, stats: &FeatureStats, evals: &[(Vec<f64>, Vec<f64>)], current: &[Vec<f64>], obs: &[Vec<f32>]) -> Result<Vec<f32>> {
+pub fn core_rows(
+    config: &NetConfig,
+    stats: &FeatureStats,
+    evals: &[(Vec<f64>, Vec<f64>)],
+    current: &[Vec<f64>],
+    obs: &[Vec<f32>],
+) -> Result<Vec<f32>> {
     let clip = config.feature_clip as f32;
     let mut core_in = Vec::with_capacity(evals.len() * config.core_inputs());
     for ((r, g), (p, d)) in evals.iter().zip(current.iter().zip(obs)) {
         if r.len() != config.residual_dim {
-            return Err(ModelError::Shape { what: "residual".into(), expected: config.residual_dim.to_string(), got: r.len().to_string() });
+            return Err(ModelError::Shape {
+                what: "residual".into(),
+                expected: config.residual_dim.to_string(),
+                got: r.len().to_string(),
+            });
         }
         stats.residual.push(r, clip, &mut core_in);
         stats.gradient.push(g, clip, &mut core_in);
@@ -137,7 +208,14 @@ pub fn core_rows(config: &NetConfig, stats: &FeatureStats, evals: &[(Vec<f64>, V
 
 /// The normalised λ/γ inputs `[R(θ), R(θ + Δθ)]` (papers/002 eq. 2: where the network alone
 /// would go), `[B, step_inputs]` row-major.
-pub fn step_rows(config: &NetConfig, stats: &FeatureStats, energies: &[&Energy], current: &[Vec<f64>], evals: &[(Vec<f64>, Vec<f64>)], delta: &[Vec<f64>]) -> Vec<f32> {
+pub fn step_rows(
+    config: &NetConfig,
+    stats: &FeatureStats,
+    energies: &[&Energy],
+    current: &[Vec<f64>],
+    evals: &[(Vec<f64>, Vec<f64>)],
+    delta: &[Vec<f64>],
+) -> Vec<f32> {
     let clip = config.feature_clip as f32;
     let tried: Vec<Vec<f64>> = energies
         .par_iter()
@@ -160,7 +238,9 @@ pub fn step_rows(config: &NetConfig, stats: &FeatureStats, energies: &[&Energy],
 
 /// Parameter vectors of `[B, dim]` f32 rows.
 pub fn rows_to_poses(rows: &[f32], dim: usize) -> Vec<Vec<f64>> {
-    rows.chunks_exact(dim.max(1)).map(|r| r.iter().map(|&x| f64::from(x)).collect()).collect()
+    rows.chunks_exact(dim.max(1))
+        .map(|r| r.iter().map(|&x| f64::from(x)).collect())
+        .collect()
 }
 
 /// Runs N iterations on `energies` (one frame each). `starts[i]` is the given θ0 of frame `i`
@@ -184,8 +264,14 @@ pub fn unroll(
 
     let (phi, mut state) = net.initial(obs);
     let dim = c.param_dim;
-    let given: Vec<Vec<f64>> = starts.iter().map(|s| s.clone().unwrap_or_else(|| vec![0.0; dim])).collect();
-    let use_given: Vec<f32> = starts.iter().map(|s| if s.is_some() { 1.0 } else { 0.0 }).collect();
+    let given: Vec<Vec<f64>> = starts
+        .iter()
+        .map(|s| s.clone().unwrap_or_else(|| vec![0.0; dim]))
+        .collect();
+    let use_given: Vec<f32> = starts
+        .iter()
+        .map(|s| if s.is_some() { 1.0 } else { 0.0 })
+        .collect();
     let mut theta = if use_given.iter().all(|&g| g == 1.0) {
         poses_to_tensor(&given, device)
     } else if use_given.iter().all(|&g| g == 0.0) {
@@ -198,7 +284,11 @@ pub fn unroll(
     let (free, lower, upper) = match constraints {
         Some(k) => {
             let (f, lo, hi) = constraint_rows(k, batch, dim)?;
-            (Some(rows_tensor(&f, batch, device)), Some(rows_tensor(&lo, batch, device)), Some(rows_tensor(&hi, batch, device)))
+            (
+                Some(rows_tensor(&f, batch, device)),
+                Some(rows_tensor(&lo, batch, device)),
+                Some(rows_tensor(&hi, batch, device)),
+            )
         }
         None => (None, None, None),
     };
@@ -216,7 +306,10 @@ pub fn unroll(
         let evals = evaluate(energies, &current);
         let core_in = core_rows(c, stats, &evals, &current, &obs_norm)?;
         let mut delta = net.propose(n, rows_tensor(&core_in, batch, device), &mut state, dropout);
-        let mut grad = poses_to_tensor(&evals.iter().map(|(_, g)| g.as_slice()).collect::<Vec<_>>(), device);
+        let mut grad = poses_to_tensor(
+            &evals.iter().map(|(_, g)| g.as_slice()).collect::<Vec<_>>(),
+            device,
+        );
         if let Some(f) = &free {
             delta = delta * f.clone();
             grad = grad * f.clone();
@@ -233,5 +326,9 @@ pub fn unroll(
         host.push(to_host(&theta, dim)?);
         poses.push(theta.clone());
     }
-    Ok(Unrolled { poses, host, residual_evaluations: (c.evaluations_per_iteration() * c.iterations) as u64 })
+    Ok(Unrolled {
+        poses,
+        host,
+        residual_evaluations: (c.evaluations_per_iteration() * c.iterations) as u64,
+    })
 }
