@@ -34,7 +34,11 @@ use crate::template::Template;
 
 /// `[v]×`, the matrix of `x ↦ v × x`.
 pub(crate) fn skew(v: DVec3) -> DMat3 {
-    DMat3::from_cols(DVec3::new(0.0, v.z, -v.y), DVec3::new(-v.z, 0.0, v.x), DVec3::new(v.y, -v.x, 0.0))
+    DMat3::from_cols(
+        DVec3::new(0.0, v.z, -v.y),
+        DVec3::new(-v.z, 0.0, v.x),
+        DVec3::new(v.y, -v.x, 0.0),
+    )
 }
 
 /// Left Jacobian of SO(3) at `r`: `exp([r + δ]×) ≈ exp([Jl(r) δ]×) exp([r]×)`.
@@ -89,15 +93,24 @@ impl Kinematics {
                 .enumerate()
                 .map(|(j, joint)| {
                     let o = rot_offset(j);
-                    let parent_rot = joint.parent.map_or(DMat3::IDENTITY, |p| transforms[p].matrix3);
+                    let parent_rot = joint
+                        .parent
+                        .map_or(DMat3::IDENTITY, |p| transforms[p].matrix3);
                     parent_rot * left_jacobian(DVec3::new(pose[o], pose[o + 1], pose[o + 2]))
                 })
                 .collect()
         } else {
             Vec::new()
         };
-        let morph = (!template.morph.is_rigid()).then(|| (template.morph.clone(), posed.coeffs, posed.pose_feature));
-        Self { transforms, joints, factors, rest_joints: posed.rest_joints, morph }
+        let morph = (!template.morph.is_rigid())
+            .then(|| (template.morph.clone(), posed.coeffs, posed.pose_feature));
+        Self {
+            transforms,
+            joints,
+            factors,
+            rest_joints: posed.rest_joints,
+            morph,
+        }
     }
 
     /// Rest position of vertex `v`: the table's (rigid model) or `T(β, ψ) + P (R(θ) − I)`.
@@ -118,7 +131,9 @@ impl Kinematics {
     /// Linear blend skinning of rest point `x` with `weights` (`Σ w_j A_j(x)`).
     #[inline]
     pub fn skin(&self, weights: &[(u16, f64)], x: DVec3) -> DVec3 {
-        weights.iter().fold(DVec3::ZERO, |acc, &(j, w)| acc + w * self.transforms[j as usize].transform_point3(x))
+        weights.iter().fold(DVec3::ZERO, |acc, &(j, w)| {
+            acc + w * self.transforms[j as usize].transform_point3(x)
+        })
     }
 
     /// Linear blend skinning of rest point `x` and rest direction `d` together: the blended
@@ -167,7 +182,12 @@ pub(crate) struct Adjoint {
 
 impl Adjoint {
     pub fn new(joints: usize, morphable: bool) -> Self {
-        Self { force: vec![DVec3::ZERO; joints], moment: vec![DVec3::ZERO; joints], joint_rest: vec![DVec3::ZERO; joints], rest: morphable.then(Vec::new) }
+        Self {
+            force: vec![DVec3::ZERO; joints],
+            moment: vec![DVec3::ZERO; joints],
+            joint_rest: vec![DVec3::ZERO; joints],
+            rest: morphable.then(Vec::new),
+        }
     }
 
     /// A point `p` (world position) carried by `joint` with weight `w` and gradient `g`, whose
@@ -188,7 +208,14 @@ impl Adjoint {
 
     /// Skinned rest vertex `v` (rest point `x`) with gradient `g` of its posed position.
     #[inline]
-    pub fn skinned_point(&mut self, kin: &Kinematics, weights: &[(u16, f64)], v: usize, x: DVec3, g: DVec3) {
+    pub fn skinned_point(
+        &mut self,
+        kin: &Kinematics,
+        weights: &[(u16, f64)],
+        v: usize,
+        x: DVec3,
+        g: DVec3,
+    ) {
         let mut rest_g = DVec3::ZERO;
         for &(j, w) in weights {
             let j = j as usize;
@@ -205,7 +232,13 @@ impl Adjoint {
     /// A skinned rest direction `d` with gradient `g` of its (unnormalised) posed direction. Rest
     /// directions (normals) are those of the β = ψ = 0 mesh, constant in the joint frames.
     #[inline]
-    pub fn skinned_direction(&mut self, kin: &Kinematics, weights: &[(u16, f64)], d: DVec3, g: DVec3) {
+    pub fn skinned_direction(
+        &mut self,
+        kin: &Kinematics,
+        weights: &[(u16, f64)],
+        d: DVec3,
+        g: DVec3,
+    ) {
         for &(j, w) in weights {
             let j = j as usize;
             self.moment[j] += w * (kin.world(j) * d).cross(g);
@@ -245,14 +278,20 @@ impl Adjoint {
             }
         }
         grad[0..3].copy_from_slice(&self.force[0].to_array());
-        let Some((m, _, feature)) = &kin.morph else { return grad };
+        let Some((m, _, feature)) = &kin.morph else {
+            return grad;
+        };
         let rest = self.rest.take().unwrap_or_default();
         let base = 3 + 3 * nj;
         if k > 0 {
             let gc = &mut grad[base..base + k];
             add_transposed(gc, &m.dirs, rest.iter().map(|&(v, g)| (v as usize, g)));
             if track_joints {
-                add_transposed(gc, &m.joint_dirs, self.joint_rest.iter().copied().enumerate());
+                add_transposed(
+                    gc,
+                    &m.joint_dirs,
+                    self.joint_rest.iter().copied().enumerate(),
+                );
             }
         }
         if let Some(pd) = &m.posedirs
@@ -263,7 +302,11 @@ impl Adjoint {
             for j in 1..nj {
                 let f = &gf[9 * (j - 1)..9 * j];
                 // The feature is row-major: f[3 row + col] = ∂E/∂R[row][col].
-                let gm = DMat3::from_cols(DVec3::new(f[0], f[3], f[6]), DVec3::new(f[1], f[4], f[7]), DVec3::new(f[2], f[5], f[8]));
+                let gm = DMat3::from_cols(
+                    DVec3::new(f[0], f[3], f[6]),
+                    DVec3::new(f[1], f[4], f[7]),
+                    DVec3::new(f[2], f[5], f[8]),
+                );
                 let o = rot_offset(j);
                 let r = DVec3::new(pose[o], pose[o + 1], pose[o + 2]);
                 let tau = rotation_torque(exp_map(r), gm);
@@ -285,7 +328,11 @@ mod tests {
     #[test]
     fn left_jacobian_matches_finite_differences_of_exp() {
         // exp([r + h e_i]×) exp([r]×)ᵀ ≈ exp([h Jl e_i]×): compare the skew part.
-        for r in [DVec3::new(0.3, -0.7, 0.2), DVec3::new(1e-6, 0.0, -2e-6), DVec3::new(0.0, 2.5, 0.1)] {
+        for r in [
+            DVec3::new(0.3, -0.7, 0.2),
+            DVec3::new(1e-6, 0.0, -2e-6),
+            DVec3::new(0.0, 2.5, 0.1),
+        ] {
             let jl = left_jacobian(r);
             for i in 0..3 {
                 let h = 1e-6;
@@ -293,7 +340,11 @@ mod tests {
                 e[i] = h;
                 let d = (exp_map(r + e) - exp_map(r - e)) * exp_map(r).transpose() * (0.5 / h);
                 let omega = DVec3::new(d.y_axis.z, d.z_axis.x, d.x_axis.y);
-                assert!((omega - jl.col(i)).length() < 1e-7, "r = {r}, axis {i}: {omega} vs {}", jl.col(i));
+                assert!(
+                    (omega - jl.col(i)).length() < 1e-7,
+                    "r = {r}, axis {i}: {omega} vs {}",
+                    jl.col(i)
+                );
             }
         }
     }

@@ -16,7 +16,9 @@
 //! Every evaluation goes through [`Energy::evaluate`], [`Energy::evaluate_with_gradient`] or
 //! [`Energy::evaluate_batch`], which count evaluations and gradient evaluations.
 
+mod jacobian;
 pub(crate) mod kinematics;
+mod least_squares;
 mod prior;
 
 use std::sync::Arc;
@@ -26,13 +28,16 @@ use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+pub use least_squares::LeastSquares;
 pub use prior::AnglePrior;
 
 use self::kinematics::{Adjoint, Kinematics, rotation_torque};
 pub(crate) use self::prior::{AngleLimits, Penetration};
 use crate::camera::Camera;
 use crate::error::{ModelError, Result};
-use crate::observe::{HMD_DIM, HmdSetup, Modality, Sensor, SparsePrediction, closest_point_offset, headset_pose};
+use crate::observe::{
+    HMD_DIM, HmdSetup, Modality, Sensor, SparsePrediction, closest_point_offset, headset_pose,
+};
 use crate::scan::{Mask, VoxelGrid, iou, render_silhouette};
 use crate::skinning::vertex_normals;
 use crate::template::Template;
@@ -75,7 +80,16 @@ fn is_default_expression_weight(w: &f64) -> bool {
 
 impl Default for Weights {
     fn default() -> Self {
-        Self { data: 1.0, ej: 0.1, ed: 1.0, es: 0.01, ep: 1.0, ea: 1.0, shape: DEFAULT_SHAPE_WEIGHT, expression: DEFAULT_EXPRESSION_WEIGHT }
+        Self {
+            data: 1.0,
+            ej: 0.1,
+            ed: 1.0,
+            es: 0.01,
+            ep: 1.0,
+            ea: 1.0,
+            shape: DEFAULT_SHAPE_WEIGHT,
+            expression: DEFAULT_EXPRESSION_WEIGHT,
+        }
     }
 }
 
@@ -88,15 +102,65 @@ pub enum Robust {
     L2,
     /// `ρ(s) = s²` for `s ≤ δ`, `2δs − δ²` above (Huber, scaled to equal s² inside).
     Huber { delta: f64 },
+    /// `ρ(s) = c² ln(1 + s²/c²)` (Cauchy / Lorentzian, as in SCOPE; ≈ s² for s ≪ c).
+    Cauchy { c: f64 },
+    /// `ρ(s) = s² / (1 + s²/c²)` (Geman–McClure, as in SCOPE; ≈ s² for s ≪ c, bounded by c²).
+    GemanMcclure { c: f64 },
 }
 
 impl Robust {
     /// `ρ(s)` and `ρ'(s)/s` (so that `∂ρ/∂r = ρ'(s)/s · r/σ²`).
     #[inline]
-    fn eval(self, s: f64) -> (f64, f64) {
+    pub(crate) fn eval(self, s: f64) -> (f64, f64) {
         match self {
-            Robust::Huber { delta } if s > delta => (2.0 * delta * s - delta * delta, 2.0 * delta / s),
+            Robust::Huber { delta } if s > delta => {
+                (2.0 * delta * s - delta * delta, 2.0 * delta / s)
+            }
+            Robust::Cauchy { c } => {
+                let x = s * s / (c * c);
+                (c * c * x.ln_1p(), 2.0 / (1.0 + x))
+            }
+            Robust::GemanMcclure { c } => {
+                let x = s * s / (c * c);
+                (s * s / (1.0 + x), 2.0 / ((1.0 + x) * (1.0 + x)))
+            }
             _ => (s * s, 2.0),
+        }
+    }
+
+    /// The least-squares fold of the loss: `φ(s) = √ρ(s) / s` and `φ'(s)/s`. A residual group
+    /// `u` (σ-normalised, `s = ‖u‖`) becomes `φ(s) u`, whose squared norm is exactly `ρ(s)`, with
+    /// the exact Jacobian `(φ I + (φ'/s) u uᵀ) ∂u`. Every loss here is `s²` near 0, so `φ → 1`
+    /// there; series keep small `s` free of cancellation.
+    #[inline]
+    pub(crate) fn fold(self, s: f64) -> (f64, f64) {
+        match self {
+            Robust::L2 => (1.0, 0.0),
+            Robust::Huber { delta } => {
+                if s <= delta {
+                    (1.0, 0.0)
+                } else {
+                    let sq = (2.0 * delta * s - delta * delta).sqrt();
+                    (sq / s, (delta / sq - sq / s) / (s * s))
+                }
+            }
+            Robust::Cauchy { c } => {
+                // g(x) = ln(1 + x)/x, φ = √g, φ'/s = g'(x) / (c² √g).
+                let x = s * s / (c * c);
+                let (g, dg) = if x < 1e-4 {
+                    (1.0 - x / 2.0 + x * x / 3.0, -0.5 + 2.0 * x / 3.0)
+                } else {
+                    let l = x.ln_1p();
+                    (l / x, (x / (1.0 + x) - l) / (x * x))
+                };
+                let sg = g.sqrt();
+                (sg, dg / (c * c * sg))
+            }
+            Robust::GemanMcclure { c } => {
+                let x = s * s / (c * c);
+                let f = 1.0 / (1.0 + x).sqrt();
+                (f, -f * f * f / (c * c))
+            }
         }
     }
 }
@@ -115,7 +179,11 @@ pub struct Scales {
 
 impl Default for Scales {
     fn default() -> Self {
-        Self { position: 0.01, pixel: 4.0, rotation: 0.05 }
+        Self {
+            position: 0.01,
+            pixel: 4.0,
+            rotation: 0.05,
+        }
     }
 }
 
@@ -169,26 +237,62 @@ impl EnergyConfig {
 
     pub fn validate(&self) -> Result<()> {
         let w = &self.weights;
-        for (name, v) in [("weights.data", w.data), ("weights.ej", w.ej), ("weights.ed", w.ed), ("weights.es", w.es), ("weights.ep", w.ep), ("weights.ea", w.ea), ("weights.shape", w.shape), ("weights.expression", w.expression)] {
+        for (name, v) in [
+            ("weights.data", w.data),
+            ("weights.ej", w.ej),
+            ("weights.ed", w.ed),
+            ("weights.es", w.es),
+            ("weights.ep", w.ep),
+            ("weights.ea", w.ea),
+            ("weights.shape", w.shape),
+            ("weights.expression", w.expression),
+        ] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(ModelError::Setting { name, value: v.to_string(), reason: "must be a finite number ≥ 0".into() });
+                return Err(ModelError::Setting {
+                    name,
+                    value: v.to_string(),
+                    reason: "must be a finite number ≥ 0".into(),
+                });
             }
         }
-        for (name, v) in [("scales.position", self.scales.position), ("scales.pixel", self.scales.pixel), ("scales.rotation", self.scales.rotation)] {
+        for (name, v) in [
+            ("scales.position", self.scales.position),
+            ("scales.pixel", self.scales.pixel),
+            ("scales.rotation", self.scales.rotation),
+        ] {
             if !(v.is_finite() && v > 0.0) {
-                return Err(ModelError::Setting { name, value: v.to_string(), reason: "must be positive".into() });
+                return Err(ModelError::Setting {
+                    name,
+                    value: v.to_string(),
+                    reason: "must be positive".into(),
+                });
             }
         }
-        if let Robust::Huber { delta } = self.robust
-            && !(delta.is_finite() && delta > 0.0)
-        {
-            return Err(ModelError::Setting { name: "robust.delta", value: delta.to_string(), reason: "must be positive".into() });
+        let (name, scale) = match self.robust {
+            Robust::L2 => ("robust", 1.0),
+            Robust::Huber { delta } => ("robust.delta", delta),
+            Robust::Cauchy { c } | Robust::GemanMcclure { c } => ("robust.c", c),
+        };
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(ModelError::Setting {
+                name,
+                value: scale.to_string(),
+                reason: "must be positive".into(),
+            });
         }
         if self.silhouette_width < 8 || self.silhouette_width > 4096 {
-            return Err(ModelError::Setting { name: "silhouette_width", value: self.silhouette_width.to_string(), reason: "must be in 8..=4096".into() });
+            return Err(ModelError::Setting {
+                name: "silhouette_width",
+                value: self.silhouette_width.to_string(),
+                reason: "must be in 8..=4096".into(),
+            });
         }
         if self.penetration_stride == 0 {
-            return Err(ModelError::Setting { name: "penetration_stride", value: "0".into(), reason: "must be ≥ 1".into() });
+            return Err(ModelError::Setting {
+                name: "penetration_stride",
+                value: "0".into(),
+                reason: "must be ≥ 1".into(),
+            });
         }
         Ok(())
     }
@@ -198,9 +302,15 @@ impl EnergyConfig {
 #[derive(Debug, Clone)]
 pub enum Target {
     /// A sparse modality's observation vector and visibility (layout of [`Sensor::predict_sparse`]).
-    Sparse { values: Vec<f64>, visible: Vec<bool> },
+    Sparse {
+        values: Vec<f64>,
+        visible: Vec<bool>,
+    },
     /// `scan`: the target's squared distance transform and silhouettes (one per sensor camera).
-    Scan { grid: VoxelGrid, silhouettes: Vec<Mask> },
+    Scan {
+        grid: VoxelGrid,
+        silhouettes: Vec<Mask>,
+    },
 }
 
 /// Value and named (unweighted) terms of one evaluation; `total = Σ λ_term · term`.
@@ -232,7 +342,11 @@ impl SkinTable {
             entries.extend(list.iter().map(|&(j, w)| (j as u16, w)));
             offsets.push(entries.len() as u32);
         }
-        Self { rest: template.vertices.iter().map(|v| v.as_dvec3()).collect(), entries, offsets }
+        Self {
+            rest: template.vertices.iter().map(|v| v.as_dvec3()).collect(),
+            entries,
+            offsets,
+        }
     }
 
     #[inline]
@@ -303,7 +417,12 @@ impl Energy {
     /// Builds the energy of one frame. Fails when the configuration is invalid, the sensor does
     /// not fit the template, the target has the wrong shape or modality, or a visible target
     /// value is not finite.
-    pub fn new(template: Arc<Template>, sensor: Sensor, target: Target, config: EnergyConfig) -> Result<Self> {
+    pub fn new(
+        template: Arc<Template>,
+        sensor: Sensor,
+        target: Target,
+        config: EnergyConfig,
+    ) -> Result<Self> {
         config.validate()?;
         sensor.validate(&template)?;
         let hmd_joints = match &sensor {
@@ -313,36 +432,88 @@ impl Energy {
         let dim = sensor.residual_dim(&template);
         let mut silhouettes = None;
         match (&sensor, &target) {
-            (Sensor::Scan(setup), Target::Scan { grid, silhouettes: masks }) => {
+            (
+                Sensor::Scan(setup),
+                Target::Scan {
+                    grid,
+                    silhouettes: masks,
+                },
+            ) => {
                 if grid.values.len() != grid.len() || grid.values.is_empty() {
-                    return Err(ModelError::Target(format!("distance transform has {} values for {:?} nodes", grid.values.len(), grid.dims)));
+                    return Err(ModelError::Target(format!(
+                        "distance transform has {} values for {:?} nodes",
+                        grid.values.len(),
+                        grid.dims
+                    )));
                 }
                 if let Some(i) = grid.values.iter().position(|v| !v.is_finite()) {
-                    return Err(ModelError::Target(format!("distance transform value {i} is not finite")));
+                    return Err(ModelError::Target(format!(
+                        "distance transform value {i} is not finite"
+                    )));
                 }
-                if !(grid.spacing.is_finite() && grid.spacing > 0.0) || grid.origin.iter().any(|o| !o.is_finite()) {
-                    return Err(ModelError::Target("distance transform grid has a non-finite or non-positive origin/spacing".into()));
+                if !(grid.spacing.is_finite() && grid.spacing > 0.0)
+                    || grid.origin.iter().any(|o| !o.is_finite())
+                {
+                    return Err(ModelError::Target(
+                        "distance transform grid has a non-finite or non-positive origin/spacing"
+                            .into(),
+                    ));
                 }
                 if masks.len() != setup.cameras.len() {
-                    return Err(ModelError::Shape { what: "target silhouettes".into(), expected: setup.cameras.len().to_string(), got: masks.len().to_string() });
+                    return Err(ModelError::Shape {
+                        what: "target silhouettes".into(),
+                        expected: setup.cameras.len().to_string(),
+                        got: masks.len().to_string(),
+                    });
                 }
                 for (k, (m, c)) in masks.iter().zip(&setup.cameras).enumerate() {
-                    if m.width != c.width || m.height != c.height || m.data.len() != (m.width * m.height) as usize {
-                        return Err(ModelError::Shape { what: format!("silhouette {k}"), expected: format!("{}x{}", c.width, c.height), got: format!("{}x{}", m.width, m.height) });
+                    if m.width != c.width
+                        || m.height != c.height
+                        || m.data.len() != (m.width * m.height) as usize
+                    {
+                        return Err(ModelError::Shape {
+                            what: format!("silhouette {k}"),
+                            expected: format!("{}x{}", c.width, c.height),
+                            got: format!("{}x{}", m.width, m.height),
+                        });
                     }
                 }
                 if config.silhouettes {
-                    silhouettes = Some(SilhouetteTerm::new(&setup.cameras, masks, config.silhouette_width));
+                    silhouettes = Some(SilhouetteTerm::new(
+                        &setup.cameras,
+                        masks,
+                        config.silhouette_width,
+                    ));
                 }
             }
-            (Sensor::Scan(_), Target::Sparse { .. }) => return Err(ModelError::Target("a scan energy needs a scan target".into())),
-            (_, Target::Scan { .. }) => return Err(ModelError::Target(format!("a {} energy needs a sparse target", sensor.modality()))),
+            (Sensor::Scan(_), Target::Sparse { .. }) => {
+                return Err(ModelError::Target(
+                    "a scan energy needs a scan target".into(),
+                ));
+            }
+            (_, Target::Scan { .. }) => {
+                return Err(ModelError::Target(format!(
+                    "a {} energy needs a sparse target",
+                    sensor.modality()
+                )));
+            }
             (_, Target::Sparse { values, visible }) => {
                 if values.len() != dim || visible.len() != dim {
-                    return Err(ModelError::Shape { what: format!("{} target", sensor.modality()), expected: dim.to_string(), got: format!("{} values, {} visibility flags", values.len(), visible.len()) });
+                    return Err(ModelError::Shape {
+                        what: format!("{} target", sensor.modality()),
+                        expected: dim.to_string(),
+                        got: format!(
+                            "{} values, {} visibility flags",
+                            values.len(),
+                            visible.len()
+                        ),
+                    });
                 }
                 if let Some(i) = (0..dim).find(|&i| visible[i] && !values[i].is_finite()) {
-                    return Err(ModelError::Target(format!("visible target value {i} is not finite ({})", values[i])));
+                    return Err(ModelError::Target(format!(
+                        "visible target value {i} is not finite ({})",
+                        values[i]
+                    )));
                 }
             }
         }
@@ -351,7 +522,10 @@ impl Energy {
             Target::Sparse { .. } => None,
         };
         let groups = sparse_groups(&sensor, &template, &config.scales);
-        let rest_normals = vertex_normals(&template.vertices, &template.faces).iter().map(|n| n.as_dvec3()).collect();
+        let rest_normals = vertex_normals(&template.vertices, &template.faces)
+            .iter()
+            .map(|n| n.as_dvec3())
+            .collect();
         let penetration = Penetration::new(&template, config.penetration_stride);
         let limits = AngleLimits::new(&template);
         Ok(Self {
@@ -378,14 +552,27 @@ impl Energy {
     /// value, or on a `scan` energy.
     pub fn with_target(&self, values: Vec<f64>, visible: Vec<bool>) -> Result<Self> {
         if matches!(self.sensor, Sensor::Scan(_)) {
-            return Err(ModelError::Target("a scan energy needs a scan target".into()));
+            return Err(ModelError::Target(
+                "a scan energy needs a scan target".into(),
+            ));
         }
         let dim = self.sensor.residual_dim(&self.template);
         if values.len() != dim || visible.len() != dim {
-            return Err(ModelError::Shape { what: format!("{} target", self.sensor.modality()), expected: dim.to_string(), got: format!("{} values, {} visibility flags", values.len(), visible.len()) });
+            return Err(ModelError::Shape {
+                what: format!("{} target", self.sensor.modality()),
+                expected: dim.to_string(),
+                got: format!(
+                    "{} values, {} visibility flags",
+                    values.len(),
+                    visible.len()
+                ),
+            });
         }
         if let Some(i) = (0..dim).find(|&i| visible[i] && !values[i].is_finite()) {
-            return Err(ModelError::Target(format!("visible target value {i} is not finite ({})", values[i])));
+            return Err(ModelError::Target(format!(
+                "visible target value {i} is not finite ({})",
+                values[i]
+            )));
         }
         let mut energy = self.clone();
         energy.target = Target::Sparse { values, visible };
@@ -473,8 +660,12 @@ impl Energy {
 
     /// Totals of many poses, evaluated in parallel (rayon); counts one evaluation per pose.
     pub fn evaluate_batch<P: AsRef<[f64]> + Sync>(&self, poses: &[P]) -> Vec<f64> {
-        self.evaluations.fetch_add(poses.len() as u64, Ordering::Relaxed);
-        poses.par_iter().map(|p| self.compute(p.as_ref(), false).0.total).collect()
+        self.evaluations
+            .fetch_add(poses.len() as u64, Ordering::Relaxed);
+        poses
+            .par_iter()
+            .map(|p| self.compute(p.as_ref(), false).0.total)
+            .collect()
     }
 
     /// The residual vector R(θ) of SPEC §4, computed by the observation model ([`crate::observe`]);
@@ -486,13 +677,24 @@ impl Energy {
                 setup
                     .residual_vertices
                     .iter()
-                    .flat_map(|&v| closest_point_offset(grid, kin.skin(self.skin.weights(v as usize), kin.rest(&self.skin.rest, v as usize))).to_array())
+                    .flat_map(|&v| {
+                        closest_point_offset(
+                            grid,
+                            kin.skin(
+                                self.skin.weights(v as usize),
+                                kin.rest(&self.skin.rest, v as usize),
+                            ),
+                        )
+                        .to_array()
+                    })
                     .collect()
             }
-            (_, Target::Sparse { values, visible }) => match self.sensor.predict_sparse(&self.template, pose) {
-                Some(pred) => Sensor::sparse_residual(&pred, values, visible),
-                None => Vec::new(),
-            },
+            (_, Target::Sparse { values, visible }) => {
+                match self.sensor.predict_sparse(&self.template, pose) {
+                    Some(pred) => Sensor::sparse_residual(&pred, values, visible),
+                    None => Vec::new(),
+                }
+            }
             _ => Vec::new(),
         }
     }
@@ -502,7 +704,10 @@ impl Energy {
     pub fn predict(&self, pose: &[f64]) -> Option<SparsePrediction> {
         let kin = Kinematics::build(&self.template, pose, false);
         let values = self.sparse_prediction(&kin)?;
-        Some(SparsePrediction { visible: vec![true; values.len()], values })
+        Some(SparsePrediction {
+            visible: vec![true; values.len()],
+            values,
+        })
     }
 
     fn compute(&self, pose: &[f64], want_grad: bool) -> (Evaluation, Option<Vec<f64>>) {
@@ -515,15 +720,28 @@ impl Energy {
         let mut total = 0.0;
         let posed = match &self.target {
             Target::Sparse { values, visible } => {
-                let data = self.sparse_data(&kin, values, visible, adj.as_mut().map(|a| (a, w.data)));
+                let data =
+                    self.sparse_data(&kin, values, visible, adj.as_mut().map(|a| (a, w.data)));
                 terms.push(("data", data));
                 total += w.data * data;
                 None
             }
             Target::Scan { grid, .. } => {
-                let (posed, normals): (Vec<DVec3>, Vec<DVec3>) =
-                    (0..self.skin.rest.len()).map(|v| kin.skin_both(self.skin.weights(v), kin.rest(&self.skin.rest, v), self.rest_normals[v])).unzip();
-                let (ed, es) = self.surface_terms(&posed, &normals, grid, adj.as_mut().map(|a| (a, &kin, w.ed, w.es)));
+                let (posed, normals): (Vec<DVec3>, Vec<DVec3>) = (0..self.skin.rest.len())
+                    .map(|v| {
+                        kin.skin_both(
+                            self.skin.weights(v),
+                            kin.rest(&self.skin.rest, v),
+                            self.rest_normals[v],
+                        )
+                    })
+                    .unzip();
+                let (ed, es) = self.surface_terms(
+                    &posed,
+                    &normals,
+                    grid,
+                    adj.as_mut().map(|a| (a, &kin, w.ed, w.es)),
+                );
                 terms.push(("ED", ed));
                 terms.push(("ES", es));
                 total += w.ed * ed + w.es * es;
@@ -535,10 +753,19 @@ impl Energy {
                 Some(posed)
             }
         };
-        let ep = self.penetration.evaluate(&kin, &self.skin, posed.as_deref(), adj.as_mut().map(|a| (a, w.ep)));
+        let ep = self.penetration.evaluate(
+            &kin,
+            &self.skin,
+            posed.as_deref(),
+            adj.as_mut().map(|a| (a, w.ep)),
+        );
         terms.push(("EP", ep));
         total += w.ep * ep;
-        let ea = self.limits.evaluate(pose, self.config.angle_prior, want_grad.then_some((grad_direct.as_mut_slice(), w.ea)));
+        let ea = self.limits.evaluate(
+            pose,
+            self.config.angle_prior,
+            want_grad.then_some((grad_direct.as_mut_slice(), w.ea)),
+        );
         terms.push(("EA", ea));
         total += w.ea * ea;
         // Gaussian priors of the shape and expression coefficients (unit variance in the model's
@@ -546,11 +773,23 @@ impl Energy {
         let layout_shape = self.template.morph.shape;
         let layout_expr = self.template.morph.expression;
         let base = 3 + 3 * nj;
-        for (name, weight, range) in [("shape", w.shape, base..base + layout_shape), ("expression", w.expression, base + layout_shape..base + layout_shape + layout_expr)] {
+        for (name, weight, range) in [
+            ("shape", w.shape, base..base + layout_shape),
+            (
+                "expression",
+                w.expression,
+                base + layout_shape..base + layout_shape + layout_expr,
+            ),
+        ] {
             if range.is_empty() {
                 continue;
             }
-            let value: f64 = pose.get(range.clone()).unwrap_or(&[]).iter().map(|b| b * b).sum();
+            let value: f64 = pose
+                .get(range.clone())
+                .unwrap_or(&[])
+                .iter()
+                .map(|b| b * b)
+                .sum();
             terms.push((name, value));
             total += weight * value;
             if want_grad {
@@ -578,7 +817,13 @@ impl Energy {
             Sensor::Markers { vertices, .. } => Some(
                 vertices
                     .iter()
-                    .flat_map(|&v| kin.skin(self.skin.weights(v as usize), kin.rest(&self.skin.rest, v as usize)).to_array())
+                    .flat_map(|&v| {
+                        kin.skin(
+                            self.skin.weights(v as usize),
+                            kin.rest(&self.skin.rest, v as usize),
+                        )
+                        .to_array()
+                    })
                     .collect(),
             ),
             Sensor::Keypoints2d { cameras } => {
@@ -600,7 +845,13 @@ impl Energy {
                     out.extend(pos.to_array());
                 }
                 for &tip in &setup.hand_tips {
-                    out.extend(kin.skin(self.skin.weights(tip as usize), kin.rest(&self.skin.rest, tip as usize)).to_array());
+                    out.extend(
+                        kin.skin(
+                            self.skin.weights(tip as usize),
+                            kin.rest(&self.skin.rest, tip as usize),
+                        )
+                        .to_array(),
+                    );
                 }
                 Some(out)
             }
@@ -609,15 +860,27 @@ impl Energy {
     }
 
     /// The robust data term of a sparse modality: mean of `ρ(‖r_g‖/σ_g)` over visible groups.
-    fn sparse_data(&self, kin: &Kinematics, values: &[f64], visible: &[bool], adj: Option<(&mut Adjoint, f64)>) -> f64 {
-        let Some(pred) = self.sparse_prediction(kin) else { return 0.0 };
+    fn sparse_data(
+        &self,
+        kin: &Kinematics,
+        values: &[f64],
+        visible: &[bool],
+        adj: Option<(&mut Adjoint, f64)>,
+    ) -> f64 {
+        let Some(pred) = self.sparse_prediction(kin) else {
+            return 0.0;
+        };
         let seen: Vec<&Group> = self.groups.iter().filter(|g| visible[g.start]).collect();
         if seen.is_empty() {
             return 0.0;
         }
         let n = seen.len() as f64;
         // ∂data/∂prediction, entry by entry.
-        let mut dpred = if adj.is_some() { vec![0.0; pred.len()] } else { Vec::new() };
+        let mut dpred = if adj.is_some() {
+            vec![0.0; pred.len()]
+        } else {
+            Vec::new()
+        };
         let mut sum = 0.0;
         for g in &seen {
             let r = (g.start..g.start + g.len).map(|i| (pred[i] - values[i]) / g.sigma);
@@ -647,7 +910,13 @@ impl Energy {
                 for (k, &v) in vertices.iter().enumerate() {
                     let g = vec3(3 * k);
                     if g != DVec3::ZERO {
-                        adj.skinned_point(kin, self.skin.weights(v as usize), v as usize, kin.rest(&self.skin.rest, v as usize), g);
+                        adj.skinned_point(
+                            kin,
+                            self.skin.weights(v as usize),
+                            v as usize,
+                            kin.rest(&self.skin.rest, v as usize),
+                            g,
+                        );
                     }
                 }
             }
@@ -667,7 +936,11 @@ impl Energy {
                 }
             }
             Sensor::Hmd(setup) => {
-                for (d, ((rot, pos), joint)) in hmd_devices(setup, kin, self.hmd_joints).into_iter().zip(self.hmd_joints).enumerate() {
+                for (d, ((rot, pos), joint)) in hmd_devices(setup, kin, self.hmd_joints)
+                    .into_iter()
+                    .zip(self.hmd_joints)
+                    .enumerate()
+                {
                     let o = 12 * d;
                     let g = DMat3::from_cols(
                         DVec3::new(dpred[o], dpred[o + 3], dpred[o + 6]),
@@ -679,7 +952,13 @@ impl Energy {
                 }
                 for (k, &tip) in setup.hand_tips.iter().enumerate() {
                     let g = vec3(36 + 3 * k);
-                    adj.skinned_point(kin, self.skin.weights(tip as usize), tip as usize, kin.rest(&self.skin.rest, tip as usize), g);
+                    adj.skinned_point(
+                        kin,
+                        self.skin.weights(tip as usize),
+                        tip as usize,
+                        kin.rest(&self.skin.rest, tip as usize),
+                        g,
+                    );
                 }
             }
             Sensor::Scan(_) => {}
@@ -687,7 +966,13 @@ impl Energy {
     }
 
     /// ED (papers/000 eq. 4) and ES (eq. 5) over all template vertices.
-    fn surface_terms(&self, posed: &[DVec3], normals: &[DVec3], grid: &VoxelGrid, adj: Option<(&mut Adjoint, &Kinematics, f64, f64)>) -> (f64, f64) {
+    fn surface_terms(
+        &self,
+        posed: &[DVec3],
+        normals: &[DVec3],
+        grid: &VoxelGrid,
+        adj: Option<(&mut Adjoint, &Kinematics, f64, f64)>,
+    ) -> (f64, f64) {
         let v_count = posed.len() as f64;
         let (lo, hi) = (grid.box_min(), grid.box_max());
         let axes: &[[f32; 6]] = self.axes.as_ref().map_or(&[], |a| a.as_slice());
@@ -695,7 +980,11 @@ impl Energy {
         let mut es_sum = 0.0;
         let want = adj.is_some();
         // Per vertex: ∂ED_sum/∂v, ∂ES_v/∂v and ∂ES_v/∂(unnormalised normal).
-        let mut grads: Vec<[DVec3; 3]> = if want { Vec::with_capacity(posed.len()) } else { Vec::new() };
+        let mut grads: Vec<[DVec3; 3]> = if want {
+            Vec::with_capacity(posed.len())
+        } else {
+            Vec::new()
+        };
         if !want {
             // Value-only fast path: weights without their gradients, the tensor interpolated
             // first and one quadratic form per vertex.
@@ -725,7 +1014,10 @@ impl Energy {
                     }
                 }
                 let (x, y, z) = (n_raw.x, n_raw.y, n_raw.z);
-                let q = t[0] * x * x + t[3] * y * y + t[5] * z * z + 2.0 * (t[1] * x * y + t[2] * x * z + t[4] * y * z);
+                let q = t[0] * x * x
+                    + t[3] * y * y
+                    + t[5] * z * z
+                    + 2.0 * (t[1] * x * y + t[2] * x * z + t[4] * y * z);
                 es_sum += 1.0 - q / nl2;
             }
             return ((ed_sum.max(0.0) / v_count).sqrt(), es_sum / v_count);
@@ -784,7 +1076,11 @@ impl Energy {
         let ed = (ed_sum.max(0.0) / v_count).sqrt();
         let es = es_sum / v_count;
         if let Some((adj, kin, wd, ws)) = adj {
-            let ed_scale = if ed > 0.0 { wd / (2.0 * ed * v_count) } else { 0.0 };
+            let ed_scale = if ed > 0.0 {
+                wd / (2.0 * ed * v_count)
+            } else {
+                0.0
+            };
             let es_scale = ws / v_count;
             for (v, [ded, des, den]) in grads.into_iter().enumerate() {
                 let weights = self.skin.weights(v);
@@ -835,7 +1131,15 @@ fn direction_tensors(grid: &VoxelGrid) -> Vec<[f32; 6]> {
                 let l = g.length();
                 if l > 1e-12 {
                     let u = g / l;
-                    out[grid.index(i, j, k)] = [u.x * u.x, u.x * u.y, u.x * u.z, u.y * u.y, u.y * u.z, u.z * u.z].map(|v| v as f32);
+                    out[grid.index(i, j, k)] = [
+                        u.x * u.x,
+                        u.x * u.y,
+                        u.x * u.z,
+                        u.y * u.y,
+                        u.y * u.z,
+                        u.z * u.z,
+                    ]
+                    .map(|v| v as f32);
                 }
             }
         }
@@ -872,7 +1176,11 @@ fn direction_tensors(grid: &VoxelGrid) -> Vec<[f32; 6]> {
                         }
                     }
                 }
-                filled[at] = if count > 0.0 { sum.map(|v| v / count) } else { [0.0; 6] };
+                filled[at] = if count > 0.0 {
+                    sum.map(|v| v / count)
+                } else {
+                    [0.0; 6]
+                };
             }
         }
     }
@@ -885,7 +1193,11 @@ fn direction_tensors(grid: &VoxelGrid) -> Vec<[f32; 6]> {
 fn project(cam: &Camera, p: DVec3) -> ([f64; 2], [DVec3; 2]) {
     let q = cam.to_camera(p);
     let floor = 0.01;
-    let (z, dz) = if q.z > floor { (q.z, 1.0) } else { (floor, 0.0) };
+    let (z, dz) = if q.z > floor {
+        (q.z, 1.0)
+    } else {
+        (floor, 0.0)
+    };
     let u = cam.fx * q.x / z + cam.cx;
     let v = cam.fy * q.y / z + cam.cy;
     let du = DVec3::new(cam.fx / z, 0.0, -dz * cam.fx * q.x / (z * z));
@@ -894,7 +1206,11 @@ fn project(cam: &Camera, p: DVec3) -> ([f64; 2], [DVec3; 2]) {
 }
 
 /// Headset and both wrists as (rotation, position), in the order of the `hmd` prediction.
-fn hmd_devices(setup: &HmdSetup, kin: &Kinematics, [head, left, right]: [usize; 3]) -> [(DMat3, DVec3); 3] {
+fn hmd_devices(
+    setup: &HmdSetup,
+    kin: &Kinematics,
+    [head, left, right]: [usize; 3],
+) -> [(DMat3, DVec3); 3] {
     let headset = headset_pose(setup, kin.world(head), kin.joints[head]);
     [
         (headset.matrix3, headset.translation),
@@ -905,17 +1221,37 @@ fn hmd_devices(setup: &HmdSetup, kin: &Kinematics, [head, left, right]: [usize; 
 
 /// Robust groups of a sparse residual (in the layout of [`Sensor::predict_sparse`]).
 fn sparse_groups(sensor: &Sensor, template: &Template, scales: &Scales) -> Vec<Group> {
-    let groups = |count: usize, len: usize, sigma: f64| (0..count).map(move |k| Group { start: k * len, len, sigma });
+    let groups = |count: usize, len: usize, sigma: f64| {
+        (0..count).map(move |k| Group {
+            start: k * len,
+            len,
+            sigma,
+        })
+    };
     match sensor {
         Sensor::Markers { vertices, .. } => groups(vertices.len(), 3, scales.position).collect(),
-        Sensor::Keypoints2d { cameras } => groups(cameras.len() * template.rig.num_joints(), 2, scales.pixel).collect(),
+        Sensor::Keypoints2d { cameras } => {
+            groups(cameras.len() * template.rig.num_joints(), 2, scales.pixel).collect()
+        }
         Sensor::Hmd(_) => {
             let mut out = Vec::new();
             for d in 0..3 {
-                out.push(Group { start: 12 * d, len: 9, sigma: scales.rotation });
-                out.push(Group { start: 12 * d + 9, len: 3, sigma: scales.position });
+                out.push(Group {
+                    start: 12 * d,
+                    len: 9,
+                    sigma: scales.rotation,
+                });
+                out.push(Group {
+                    start: 12 * d + 9,
+                    len: 3,
+                    sigma: scales.position,
+                });
             }
-            out.extend((0..2).map(|k| Group { start: 36 + 3 * k, len: 3, sigma: scales.position }));
+            out.extend((0..2).map(|k| Group {
+                start: 36 + 3 * k,
+                len: 3,
+                sigma: scales.position,
+            }));
             out
         }
         Sensor::Scan(_) => Vec::new(),
@@ -939,7 +1275,10 @@ impl SilhouetteTerm {
             targets.push(resample_mask(mask, width, height));
             scaled.push(c);
         }
-        Self { cameras: scaled, targets }
+        Self {
+            cameras: scaled,
+            targets,
+        }
     }
 
     /// EJ of papers/000 eq. (6): mean over views of `1 − IoU`.

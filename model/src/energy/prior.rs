@@ -5,6 +5,7 @@ use glam::{DMat3, DVec3};
 use serde::{Deserialize, Serialize};
 
 use super::SkinTable;
+use super::jacobian::PointJacobians;
 use super::kinematics::{Adjoint, Kinematics};
 use crate::pose::{Bounds, rot_offset};
 use crate::template::Template;
@@ -58,7 +59,7 @@ pub(crate) struct Penetration {
     pub(crate) tests: Vec<(u32, Vec<u16>)>,
     /// Ranges of `tests` that share a dominant joint.
     segments: Vec<(usize, usize)>,
-    count: usize,
+    pub(crate) count: usize,
 }
 
 impl Penetration {
@@ -89,7 +90,13 @@ impl Penetration {
             }
             // The largest semi-axis is at most sqrt(trace(shape)).
             let radius = (shape.x_axis.x + shape.y_axis.y + shape.z_axis.z).sqrt();
-            ellipsoids.push(Ellipsoid { joint: j, centre: mu, q: shape.inverse(), radius, joint_rest: template.rig.joints[j].rest() });
+            ellipsoids.push(Ellipsoid {
+                joint: j,
+                centre: mu,
+                q: shape.inverse(),
+                radius,
+                joint_rest: template.rig.joints[j].rest(),
+            });
         }
         let parent = |j: usize| template.rig.joints[j].parent;
         let adjacent = |a: usize, b: usize| a == b || parent(a) == Some(b) || parent(b) == Some(a);
@@ -124,22 +131,43 @@ impl Penetration {
             }
             segments.push((start, k));
         }
-        Self { ellipsoids, tests, segments, count }
+        Self {
+            ellipsoids,
+            tests,
+            segments,
+            count,
+        }
     }
 
     /// EP at the posed vertices (`posed`, indexed like the template, or skinned here when `None`),
     /// accumulating its gradient (times the given scale) into the adjoint when given.
-    pub fn evaluate(&self, kin: &Kinematics, skin: &SkinTable, posed: Option<&[DVec3]>, adjoint: Option<(&mut Adjoint, f64)>) -> f64 {
+    pub fn evaluate(
+        &self,
+        kin: &Kinematics,
+        skin: &SkinTable,
+        posed: Option<&[DVec3]>,
+        adjoint: Option<(&mut Adjoint, f64)>,
+    ) -> f64 {
         // One instance per kind of rest geometry, so the rigid template's loop is exactly the
         // plain table lookup it always was.
         if kin.morph.is_none() {
             self.evaluate_with(kin, skin, posed, adjoint, true, |v| skin.rest[v])
         } else {
-            self.evaluate_with(kin, skin, posed, adjoint, false, |v| kin.rest(&skin.rest, v))
+            self.evaluate_with(kin, skin, posed, adjoint, false, |v| {
+                kin.rest(&skin.rest, v)
+            })
         }
     }
 
-    fn evaluate_with<R: Fn(usize) -> DVec3>(&self, kin: &Kinematics, skin: &SkinTable, posed: Option<&[DVec3]>, mut adjoint: Option<(&mut Adjoint, f64)>, rigid: bool, rest: R) -> f64 {
+    fn evaluate_with<R: Fn(usize) -> DVec3>(
+        &self,
+        kin: &Kinematics,
+        skin: &SkinTable,
+        posed: Option<&[DVec3]>,
+        mut adjoint: Option<(&mut Adjoint, f64)>,
+        rigid: bool,
+        rest: R,
+    ) -> f64 {
         // Posed ellipsoids: centre A_j(μ), matrix W_j Q W_jᵀ.
         let posed_ell: Vec<(DVec3, DMat3)> = self
             .ellipsoids
@@ -147,8 +175,15 @@ impl Penetration {
             .map(|e| {
                 let w = kin.world(e.joint);
                 // On a morphable model the ellipsoid moves with its joint's rest position.
-                let centre = if rigid { e.centre } else { e.centre + (kin.rest_joints[e.joint] - e.joint_rest) };
-                (kin.transforms[e.joint].transform_point3(centre), w * e.q * w.transpose())
+                let centre = if rigid {
+                    e.centre
+                } else {
+                    e.centre + (kin.rest_joints[e.joint] - e.joint_rest)
+                };
+                (
+                    kin.transforms[e.joint].transform_point3(centre),
+                    w * e.q * w.transpose(),
+                )
             })
             .collect();
         let mut sum = 0.0;
@@ -166,7 +201,11 @@ impl Penetration {
                 }
             }));
             let centre = points.iter().copied().sum::<DVec3>() / points.len().max(1) as f64;
-            let reach = points.iter().map(|p| p.distance_squared(centre)).fold(0.0, f64::max).sqrt();
+            let reach = points
+                .iter()
+                .map(|p| p.distance_squared(centre))
+                .fold(0.0, f64::max)
+                .sqrt();
             let mut any = false;
             for (i, e) in self.ellipsoids.iter().enumerate() {
                 near[i] = posed_ell[i].0.distance(centre) < reach + e.radius;
@@ -208,13 +247,92 @@ impl Penetration {
     }
 }
 
+impl Penetration {
+    /// EP in least-squares form: per tested vertex, `scale · ‖((1 − q_e)₊)_e‖` over the ellipsoids
+    /// it is tested against (`residuals`, one per test) and, with `jacobians`, its Jacobian row
+    /// (`jacobian`, tests × dim). `scale² Σ r²` is EP's sum, so `scale = √(λ_P / N)`.
+    pub fn residuals(
+        &self,
+        kin: &Kinematics,
+        skin: &SkinTable,
+        mut jacobians: Option<&mut PointJacobians<'_>>,
+        scale: f64,
+        residuals: &mut [f64],
+        jacobian: &mut [f64],
+    ) {
+        let posed_ell: Vec<(DVec3, DMat3)> = self
+            .ellipsoids
+            .iter()
+            .map(|e| {
+                let w = kin.world(e.joint);
+                let centre = if kin.morph.is_none() {
+                    e.centre
+                } else {
+                    e.centre + (kin.rest_joints[e.joint] - e.joint_rest)
+                };
+                (
+                    kin.transforms[e.joint].transform_point3(centre),
+                    w * e.q * w.transpose(),
+                )
+            })
+            .collect();
+        let mut active: Vec<(usize, f64, DVec3, DVec3)> = Vec::new();
+        let dim = jacobians.as_ref().map_or(0, |j| j.dim);
+        let (mut jp, mut jc) = (vec![0.0; 3 * dim], vec![0.0; 3 * dim]);
+        for (t, (v, list)) in self.tests.iter().enumerate() {
+            let v = *v as usize;
+            let p = kin.skin(skin.weights(v), kin.rest(&skin.rest, v));
+            active.clear();
+            for &i in list {
+                let e = &self.ellipsoids[i as usize];
+                let (c, q) = posed_ell[i as usize];
+                let d = p - c;
+                if d.length_squared() >= e.radius * e.radius {
+                    continue;
+                }
+                let qd = q * d;
+                let s = d.dot(qd);
+                if s < 1.0 {
+                    active.push((i as usize, 1.0 - s, qd, d));
+                }
+            }
+            let r = active.iter().map(|a| a.1 * a.1).sum::<f64>().sqrt();
+            residuals[t] = scale * r;
+            let Some(pj) = jacobians.as_mut() else {
+                continue;
+            };
+            if r == 0.0 {
+                continue;
+            }
+            pj.skinned_point(v, &mut jp);
+            let row = &mut jacobian[t * dim..(t + 1) * dim];
+            for &(i, a, qd, d) in &active {
+                // ∂q = 2 (Q d)ᵀ (∂p − ∂c) + 2 (Q d × d)ᵀ ω; ∂r = −Σ a ∂q / r.
+                let e = &self.ellipsoids[i];
+                pj.joint_point(e.joint, posed_ell[i].0, &mut jc);
+                let f = -2.0 * scale * a / r;
+                for (k, o) in row.iter_mut().enumerate() {
+                    *o += f
+                        * (qd.x * (jp[k] - jc[k])
+                            + qd.y * (jp[dim + k] - jc[dim + k])
+                            + qd.z * (jp[2 * dim + k] - jc[2 * dim + k]));
+                }
+                let torque = qd.cross(d);
+                for (col, omega) in pj.rotation(e.joint) {
+                    row[col] += f * torque.dot(omega);
+                }
+            }
+        }
+    }
+}
+
 /// EA of papers/000 eq. (7) over every joint except the root (whose rotation is the body's
 /// global orientation, not an inter-joint angle), with the per-axis limits of the `global`
 /// bounds (papers/000 Table 1, [`crate::skeleton::rotation_limits_deg`]).
 #[derive(Debug, Clone)]
 pub(crate) struct AngleLimits {
-    lower: Vec<f64>,
-    upper: Vec<f64>,
+    pub(crate) lower: Vec<f64>,
+    pub(crate) upper: Vec<f64>,
 }
 
 impl AngleLimits {
@@ -225,7 +343,10 @@ impl AngleLimits {
         let mut b = Bounds::global_for(template);
         b.lower.truncate(pose_dim);
         b.upper.truncate(pose_dim);
-        Self { lower: b.lower, upper: b.upper }
+        Self {
+            lower: b.lower,
+            upper: b.upper,
+        }
     }
 
     /// Value and, for [`AnglePrior::Hinge`], gradient (times `scale`) added into `grad`.
@@ -234,16 +355,19 @@ impl AngleLimits {
         let joints = (end - 3) / 3;
         match form {
             AnglePrior::Binary => (1..joints)
-                .filter(|&j| (0..3).any(|a| {
-                    let i = rot_offset(j) + a;
-                    pose[i] < self.lower[i] || pose[i] > self.upper[i]
-                }))
+                .filter(|&j| {
+                    (0..3).any(|a| {
+                        let i = rot_offset(j) + a;
+                        pose[i] < self.lower[i] || pose[i] > self.upper[i]
+                    })
+                })
                 .count() as f64,
             AnglePrior::Hinge => {
                 let mut sum = 0.0;
                 let mut g = grad;
                 for i in rot_offset(1)..end {
-                    let over = (pose[i] - self.upper[i]).max(0.0) - (self.lower[i] - pose[i]).max(0.0);
+                    let over =
+                        (pose[i] - self.upper[i]).max(0.0) - (self.lower[i] - pose[i]).max(0.0);
                     sum += over * over;
                     if let Some((gr, scale)) = g.as_mut() {
                         gr[i] += 2.0 * over * *scale;

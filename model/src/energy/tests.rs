@@ -5,8 +5,8 @@ use proptest::prelude::*;
 use super::*;
 use crate::body::default_template;
 use crate::pose::{POSE_DIM, Pose, rot_offset};
-use crate::skeleton::HEAD;
 use crate::scan::{distance_transform, render_silhouettes};
+use crate::skeleton::HEAD;
 use crate::skeleton::{L_ELBOW, L_SHOULDER, R_KNEE};
 use crate::skinning::{SkinningMethod, pose_vertices};
 
@@ -34,13 +34,17 @@ fn target_for(sensor: &Sensor, pose: &Pose) -> Target {
     match sensor {
         Sensor::Scan(setup) => {
             let verts = pose_vertices(&t, pose, SkinningMethod::Linear);
-            let grid = distance_transform(&verts, setup.voxel_size, crate::scan::DEFAULT_BOX_SCALE).unwrap();
+            let grid = distance_transform(&verts, setup.voxel_size, crate::scan::DEFAULT_BOX_SCALE)
+                .unwrap();
             let silhouettes = render_silhouettes(&setup.cameras, &verts, &t.faces);
             Target::Scan { grid, silhouettes }
         }
         _ => {
             let pred = sensor.predict_sparse(&t, pose).unwrap();
-            Target::Sparse { values: pred.values, visible: pred.visible }
+            Target::Sparse {
+                values: pred.values,
+                visible: pred.visible,
+            }
         }
     }
 }
@@ -55,7 +59,16 @@ fn energy(modality: Modality, config: EnergyConfig) -> Energy {
 /// Only `term` weighted (1), everything else 0, in the differentiable variant.
 fn isolate(term: &str) -> EnergyConfig {
     let mut c = EnergyConfig::default().for_gradient();
-    c.weights = Weights { data: 0.0, ej: 0.0, ed: 0.0, es: 0.0, ep: 0.0, ea: 0.0, shape: 0.0, expression: 0.0 };
+    c.weights = Weights {
+        data: 0.0,
+        ej: 0.0,
+        ed: 0.0,
+        es: 0.0,
+        ep: 0.0,
+        ea: 0.0,
+        shape: 0.0,
+        expression: 0.0,
+    };
     match term {
         "data" => c.weights.data = 1.0,
         "ED" => c.weights.ed = 1.0,
@@ -86,12 +99,25 @@ fn fd_gradient(e: &Energy, pose: &Pose, h: f64) -> Pose {
 /// face picks up that kink; a wrong gradient disagrees at every step size.
 fn check_gradient(e: &Energy, pose: &Pose, rel: f64, label: &str) {
     let (_, g) = e.evaluate_with_gradient(pose);
-    let steps: &[f64] = if e.modality() == Modality::Scan { &[1e-9, 1e-8, 1e-7] } else { &[1e-6] };
+    let steps: &[f64] = if e.modality() == Modality::Scan {
+        &[1e-9, 1e-8, 1e-7]
+    } else {
+        &[1e-6]
+    };
     let fds: Vec<Pose> = steps.iter().map(|&h| fd_gradient(e, pose, h)).collect();
     let scale = fds[0].iter().fold(0.0f64, |m, v| m.max(v.abs()));
     for i in 0..POSE_DIM {
-        let best = fds.iter().map(|fd| (g[i] - fd[i]).abs()).fold(f64::INFINITY, f64::min);
-        assert!(best <= rel * scale + 1e-9, "{label}: entry {i} ({}): analytic {} vs fd {:?} (scale {scale})", crate::pose::dof_name(i), g[i], fds.iter().map(|f| f[i]).collect::<Vec<_>>());
+        let best = fds
+            .iter()
+            .map(|fd| (g[i] - fd[i]).abs())
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            best <= rel * scale + 1e-9,
+            "{label}: entry {i} ({}): analytic {} vs fd {:?} (scale {scale})",
+            crate::pose::dof_name(i),
+            g[i],
+            fds.iter().map(|f| f[i]).collect::<Vec<_>>()
+        );
     }
 }
 
@@ -158,7 +184,11 @@ fn penetration_and_hinge_gradients_when_active() {
     for m in [Modality::Markers, Modality::Scan] {
         let e = energy(m, isolate("EP"));
         let ev = e.evaluate(&pose);
-        assert!(ev.term("EP").unwrap() > 1e-3, "{m}: EP = {:?}", ev.term("EP"));
+        assert!(
+            ev.term("EP").unwrap() > 1e-3,
+            "{m}: EP = {:?}",
+            ev.term("EP")
+        );
         check_gradient(&e, &pose, 1e-5, &format!("{m} EP active"));
     }
     let mut pose = gt_pose();
@@ -178,7 +208,11 @@ fn energy_prediction_matches_the_observation_model() {
             let theirs = e.sensor().predict_sparse(&t, &pose).unwrap().values;
             assert_eq!(ours.len(), theirs.len());
             // observe.rs skins in f32: agree to f32 precision (positions in m, pixels, rotations).
-            let tol = if m == Modality::Keypoints2d { 2e-3 } else { 1e-5 };
+            let tol = if m == Modality::Keypoints2d {
+                2e-3
+            } else {
+                1e-5
+            };
             for (i, (a, b)) in ours.iter().zip(&theirs).enumerate() {
                 assert!((a - b).abs() < tol, "{m} entry {i}: {a} vs {b}");
             }
@@ -202,7 +236,10 @@ fn noise_free_target_has_zero_data_term_at_ground_truth() {
     assert!(at_gt.term("EJ").unwrap() < 0.1, "{at_gt:?}");
     let off = e.evaluate(&perturbed(&[0.3; POSE_DIM]));
     for term in ["ED", "ES", "EJ"] {
-        assert!(off.term(term).unwrap() > at_gt.term(term).unwrap(), "{term}: {off:?} vs {at_gt:?}");
+        assert!(
+            off.term(term).unwrap() > at_gt.term(term).unwrap(),
+            "{term}: {off:?} vs {at_gt:?}"
+        );
     }
 }
 
@@ -210,12 +247,33 @@ fn noise_free_target_has_zero_data_term_at_ground_truth() {
 fn huber_caps_the_influence_of_an_outlier() {
     let t = template();
     let sensor = Sensor::default_for(Modality::Markers, &t);
-    let Target::Sparse { mut values, visible } = target_for(&sensor, &gt_pose()) else { unreachable!() };
+    let Target::Sparse {
+        mut values,
+        visible,
+    } = target_for(&sensor, &gt_pose())
+    else {
+        unreachable!()
+    };
     values[0] += 1.0; // one marker 1 m off
     let mut l2 = EnergyConfig::default();
     l2.robust = Robust::L2;
-    let e_l2 = Energy::new(t.clone(), sensor.clone(), Target::Sparse { values: values.clone(), visible: visible.clone() }, l2).unwrap();
-    let e_h = Energy::new(t, sensor, Target::Sparse { values, visible }, EnergyConfig::default()).unwrap();
+    let e_l2 = Energy::new(
+        t.clone(),
+        sensor.clone(),
+        Target::Sparse {
+            values: values.clone(),
+            visible: visible.clone(),
+        },
+        l2,
+    )
+    .unwrap();
+    let e_h = Energy::new(
+        t,
+        sensor,
+        Target::Sparse { values, visible },
+        EnergyConfig::default(),
+    )
+    .unwrap();
     let n = 39.0;
     // L2: (100 σ)² / n; Huber δ = 3: (2·3·100 − 9) / n.
     assert!((e_l2.evaluate(&gt_pose()).term("data").unwrap() - 10000.0 / n).abs() < 1e-3);
@@ -266,7 +324,10 @@ fn value_only_and_gradient_paths_give_the_same_value() {
         let e = energy(m, EnergyConfig::default().for_gradient());
         for pose in [gt_pose(), perturbed(&[0.4; POSE_DIM]), penetrating_pose()] {
             let (a, b) = (e.evaluate(&pose), e.evaluate_with_gradient(&pose).0);
-            assert!((a.total - b.total).abs() <= 1e-12 * (1.0 + a.total.abs()), "{m}: {a:?} vs {b:?}");
+            assert!(
+                (a.total - b.total).abs() <= 1e-12 * (1.0 + a.total.abs()),
+                "{m}: {a:?} vs {b:?}"
+            );
         }
     }
 }
@@ -274,7 +335,9 @@ fn value_only_and_gradient_paths_give_the_same_value() {
 #[test]
 fn batch_and_single_evaluations_agree() {
     let e = energy(Modality::Scan, EnergyConfig::default());
-    let poses: Vec<Pose> = (0..4).map(|k| perturbed(&[0.1 * k as f64; POSE_DIM])).collect();
+    let poses: Vec<Pose> = (0..4)
+        .map(|k| perturbed(&[0.1 * k as f64; POSE_DIM]))
+        .collect();
     let batch = e.evaluate_batch(&poses);
     for (p, b) in poses.iter().zip(batch) {
         assert_eq!(e.evaluate(p).total, b);
@@ -285,26 +348,67 @@ fn batch_and_single_evaluations_agree() {
 fn bad_targets_are_refused_with_a_reason() {
     let t = template();
     let sensor = Sensor::default_for(Modality::Markers, &t);
-    let short = Target::Sparse { values: vec![0.0; 5], visible: vec![true; 5] };
-    let err = Energy::new(t.clone(), sensor.clone(), short, EnergyConfig::default()).unwrap_err().to_string();
+    let short = Target::Sparse {
+        values: vec![0.0; 5],
+        visible: vec![true; 5],
+    };
+    let err = Energy::new(t.clone(), sensor.clone(), short, EnergyConfig::default())
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("expected 117"), "{err}");
-    let Target::Sparse { mut values, visible } = target_for(&sensor, &gt_pose()) else { unreachable!() };
+    let Target::Sparse {
+        mut values,
+        visible,
+    } = target_for(&sensor, &gt_pose())
+    else {
+        unreachable!()
+    };
     values[4] = f64::NAN;
-    let err = Energy::new(t.clone(), sensor.clone(), Target::Sparse { values, visible }, EnergyConfig::default()).unwrap_err().to_string();
+    let err = Energy::new(
+        t.clone(),
+        sensor.clone(),
+        Target::Sparse { values, visible },
+        EnergyConfig::default(),
+    )
+    .unwrap_err()
+    .to_string();
     assert!(err.contains("value 4 is not finite"), "{err}");
     let scan = Sensor::default_for(Modality::Scan, &t);
-    let err = Energy::new(t.clone(), sensor, target_for(&scan, &gt_pose()), EnergyConfig::default()).unwrap_err().to_string();
+    let err = Energy::new(
+        t.clone(),
+        sensor,
+        target_for(&scan, &gt_pose()),
+        EnergyConfig::default(),
+    )
+    .unwrap_err()
+    .to_string();
     assert!(err.contains("sparse target"), "{err}");
     let mut bad = EnergyConfig::default();
     bad.weights.ed = -1.0;
-    let err = Energy::new(t.clone(), scan.clone(), target_for(&scan, &gt_pose()), bad).unwrap_err().to_string();
+    let err = Energy::new(t.clone(), scan.clone(), target_for(&scan, &gt_pose()), bad)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("weights.ed"), "{err}");
     // A NaN hidden behind invisibility is fine: it is not data.
     let sensor = Sensor::default_for(Modality::Hmd, &t);
-    let Target::Sparse { mut values, mut visible } = target_for(&sensor, &gt_pose()) else { unreachable!() };
+    let Target::Sparse {
+        mut values,
+        mut visible,
+    } = target_for(&sensor, &gt_pose())
+    else {
+        unreachable!()
+    };
     values[20] = f64::NAN;
     visible[20] = false;
-    assert!(Energy::new(t, sensor, Target::Sparse { values, visible }, EnergyConfig::default()).is_ok());
+    assert!(
+        Energy::new(
+            t,
+            sensor,
+            Target::Sparse { values, visible },
+            EnergyConfig::default()
+        )
+        .is_ok()
+    );
 }
 
 #[test]
@@ -321,8 +425,6 @@ fn resampled_masks_keep_the_silhouette_area() {
     assert!(small.get(50, 30) && !small.get(10, 10));
 }
 
-
-
 mod morphable {
     //! The energy on a morphable model with another skeleton (24 joints, β, pose correctives,
     //! up to 6 influences per vertex): the analytic gradient over every entry — translation,
@@ -332,7 +434,7 @@ mod morphable {
     use crate::morph::smpl_like;
     use rand::{Rng, SeedableRng};
 
-    fn params(t: &Template, seed: u64, scale: f64) -> Vec<f64> {
+    pub(super) fn params(t: &Template, seed: u64, scale: f64) -> Vec<f64> {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let l = t.layout();
         (0..l.dim())
@@ -361,11 +463,20 @@ mod morphable {
         assert!(scale > 1e-6, "{label}: a flat energy tests nothing");
         let layout = e.template().layout();
         for i in 0..x.len() {
-            assert!((g[i] - fd[i]).abs() <= 2e-5 * scale + 1e-9, "{label}: entry {i} ({}): analytic {} vs fd {} (scale {scale})", layout.name(i), g[i], fd[i]);
+            assert!(
+                (g[i] - fd[i]).abs() <= 2e-5 * scale + 1e-9,
+                "{label}: entry {i} ({}): analytic {} vs fd {} (scale {scale})",
+                layout.name(i),
+                g[i],
+                fd[i]
+            );
         }
         // β entries carry real gradient.
         let beta = layout.range(crate::layout::Block::Shape);
-        assert!(fd[beta].iter().any(|v| v.abs() > 1e-4 * scale), "{label}: no shape gradient");
+        assert!(
+            fd[beta].iter().any(|v| v.abs() > 1e-4 * scale),
+            "{label}: no shape gradient"
+        );
     }
 
     #[test]
@@ -387,7 +498,16 @@ mod morphable {
                         // ±180° limits never bind at these angles: make them.
                         continue;
                     }
-                    let e = Energy::new(t.clone(), sensor.clone(), Target::Sparse { values: pred.values.clone(), visible: vec![true; pred.values.len()] }, c).unwrap();
+                    let e = Energy::new(
+                        t.clone(),
+                        sensor.clone(),
+                        Target::Sparse {
+                            values: pred.values.clone(),
+                            visible: vec![true; pred.values.len()],
+                        },
+                        c,
+                    )
+                    .unwrap();
                     if term == "EP" && e.evaluate(&x).total == 0.0 {
                         continue;
                     }
@@ -402,7 +522,14 @@ mod morphable {
         // The same model with its 6 directions split into 3 shape and 3 expression columns.
         let base = smpl_like(4, 150, 6, true);
         let m = base.morph.as_ref().clone();
-        let morph = crate::morph::Morph::new(m.rest.clone(), 3, 3, m.dirs.clone(), m.posedirs.clone(), m.regressor.clone());
+        let morph = crate::morph::Morph::new(
+            m.rest.clone(),
+            3,
+            3,
+            m.dirs.clone(),
+            m.posedirs.clone(),
+            m.regressor.clone(),
+        );
         let info = base.info.clone();
         let t = Arc::new(base.with_morph(morph, info).unwrap());
         let l = t.layout();
@@ -411,13 +538,30 @@ mod morphable {
         let x = params(&t, 2, 0.5);
         let sensor = Sensor::default_for(Modality::Markers, &t);
         let pred = sensor.predict_sparse(&t, &truth).unwrap();
-        let e = Energy::new(t.clone(), sensor, Target::Sparse { values: pred.values.clone(), visible: vec![true; pred.values.len()] }, EnergyConfig::default().for_gradient()).unwrap();
+        let e = Energy::new(
+            t.clone(),
+            sensor,
+            Target::Sparse {
+                values: pred.values.clone(),
+                visible: vec![true; pred.values.len()],
+            },
+            EnergyConfig::default().for_gradient(),
+        )
+        .unwrap();
         check(&e, &x, "markers/expression");
         let ev = e.evaluate(&x);
-        let psi: f64 = x[l.range(crate::layout::Block::Expression)].iter().map(|v| v * v).sum();
+        let psi: f64 = x[l.range(crate::layout::Block::Expression)]
+            .iter()
+            .map(|v| v * v)
+            .sum();
         assert!((ev.term("expression").unwrap() - psi).abs() < 1e-12);
         let (_, g) = e.evaluate_with_gradient(&x);
-        assert!(g[l.range(crate::layout::Block::Expression)].iter().any(|v| v.abs() > 1e-6), "ψ has gradient");
+        assert!(
+            g[l.range(crate::layout::Block::Expression)]
+                .iter()
+                .any(|v| v.abs() > 1e-6),
+            "ψ has gradient"
+        );
     }
 
     #[test]
@@ -427,15 +571,33 @@ mod morphable {
         for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
             let sensor = Sensor::default_for(modality, &t);
             let pred = sensor.predict_sparse(&t, &x).unwrap();
-            let e = Energy::new(t.clone(), sensor, Target::Sparse { values: pred.values.clone(), visible: vec![true; pred.values.len()] }, EnergyConfig::default()).unwrap();
+            let e = Energy::new(
+                t.clone(),
+                sensor,
+                Target::Sparse {
+                    values: pred.values.clone(),
+                    visible: vec![true; pred.values.len()],
+                },
+                EnergyConfig::default(),
+            )
+            .unwrap();
             let own = e.predict(&x).unwrap();
-            let worst = own.values.iter().zip(&pred.values).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+            let worst = own
+                .values
+                .iter()
+                .zip(&pred.values)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
             // Markers and hand tips are skinned in f32 by the observation model, f64 here.
             assert!(worst < 1e-5, "{modality}: {worst}");
             let ev = e.evaluate(&x);
             let beta: f64 = x[3 + 72..].iter().map(|b| b * b).sum();
             assert!((ev.term("shape").unwrap() - beta).abs() < 1e-12);
-            assert!(ev.term("data").unwrap() < 1e-6, "{modality}: data at the truth {}", ev.term("data").unwrap());
+            assert!(
+                ev.term("data").unwrap() < 1e-6,
+                "{modality}: data at the truth {}",
+                ev.term("data").unwrap()
+            );
         }
     }
 }
@@ -453,7 +615,16 @@ mod morphable_default {
         truth.extend([1.5, -1.0, 0.5, 2.0, -0.7, 0.3, -1.2, 0.8]);
         let sensor = Sensor::default_for(Modality::Markers, &m);
         let pred = sensor.predict_sparse(&m, &truth).unwrap();
-        let e = Energy::new(m.clone(), sensor, Target::Sparse { values: pred.values.clone(), visible: pred.visible.clone() }, EnergyConfig::default().for_gradient()).unwrap();
+        let e = Energy::new(
+            m.clone(),
+            sensor,
+            Target::Sparse {
+                values: pred.values.clone(),
+                visible: pred.visible.clone(),
+            },
+            EnergyConfig::default().for_gradient(),
+        )
+        .unwrap();
         assert!(e.evaluate(&truth).term("data").unwrap() < 1e-8);
         let mut x = perturbed(&[0.3; 57]).to_vec();
         x.extend([0.0; 8]);
@@ -465,7 +636,235 @@ mod morphable_default {
             a[i] += h;
             b[i] -= h;
             let fd = (e.evaluate(&a).total - e.evaluate(&b).total) / (2.0 * h);
-            assert!((g[i] - fd).abs() <= 1e-5 * scale + 1e-8, "entry {i} ({}): {} vs {fd}", m.layout().name(i), g[i]);
+            assert!(
+                (g[i] - fd).abs() <= 1e-5 * scale + 1e-8,
+                "entry {i} ({}): {} vs {fd}",
+                m.layout().name(i),
+                g[i]
+            );
         }
+    }
+}
+
+mod least_squares_form {
+    //! The energy as a sum of squares: `Σ r² = E`, `2 Jᵀ r = ∇E`, and the Jacobian of every
+    //! modality and prior against central finite differences, entry by entry (within 1e-5
+    //! relative to `max(|entry|, 1e-3 × its column's largest)`, small entries included; the
+    //! only slack beyond that is the rounding of the differences themselves).
+    use super::*;
+    use crate::morph::smpl_like;
+
+    /// Five-point central differences of the residual vector along every column (h = 1e-4:
+    /// truncation ~h⁴, rounding ~1e-12 relative).
+    fn fd_jacobian(e: &Energy, x: &[f64]) -> Vec<Vec<f64>> {
+        let h = 1e-4;
+        let r = |x: &[f64]| e.least_squares(x, false).unwrap().residuals;
+        (0..x.len())
+            .map(|c| {
+                let at = |k: f64| {
+                    let mut y = x.to_vec();
+                    y[c] += k * h;
+                    r(&y)
+                };
+                let (a, b, cc, d) = (at(-2.0), at(-1.0), at(1.0), at(2.0));
+                (0..a.len())
+                    .map(|i| (a[i] - 8.0 * b[i] + 8.0 * cc[i] - d[i]) / (12.0 * h))
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// Checks value, gradient and Jacobian; returns the blocks with a nonzero Jacobian entry.
+    fn check(e: &Energy, x: &[f64], label: &str) -> Vec<&'static str> {
+        let ls = e.least_squares(x, true).unwrap();
+        assert_eq!(ls.residuals.len(), e.residual_count(), "{label}");
+        let (ev, g) = e.evaluate_with_gradient(x);
+        assert!(
+            (ls.value() - ev.total).abs() <= 1e-10 * ev.total.abs().max(1.0),
+            "{label}: Σr² = {} vs E = {}",
+            ls.value(),
+            ev.total
+        );
+        let g2 = ls.gradient();
+        let gscale = g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        for i in 0..g.len() {
+            assert!(
+                (g2[i] - g[i]).abs() <= 1e-9 * gscale + 1e-12,
+                "{label}: 2Jᵀr[{i}] = {} vs ∇E {}",
+                g2[i],
+                g[i]
+            );
+        }
+        let fd = fd_jacobian(e, x);
+        let layout = e.template().layout();
+        for (c, col) in fd.iter().enumerate() {
+            let colmax = col.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (i, &f) in col.iter().enumerate() {
+                let j = ls.row(i)[c];
+                // Plus the differences' own rounding, ~50 ε |r_i| / h.
+                let tol =
+                    1e-5 * j.abs().max(1e-3 * colmax) + 1.1e-10 * ls.residuals[i].abs().max(1.0);
+                let block = ls
+                    .blocks
+                    .iter()
+                    .find(|(_, r)| r.contains(&i))
+                    .map_or("?", |b| b.0);
+                assert!(
+                    (j - f).abs() <= tol,
+                    "{label}: J[{i} ({block}), {c} ({})] = {j} vs fd {f} (column max {colmax})",
+                    layout.name(c)
+                );
+            }
+        }
+        let mut active: Vec<&'static str> = ls
+            .blocks
+            .iter()
+            .filter(|(_, r)| r.clone().any(|i| ls.row(i).iter().any(|v| *v != 0.0)))
+            .map(|b| b.0)
+            .collect();
+        active.dedup();
+        active
+    }
+
+    #[test]
+    fn every_sparse_modality_and_prior_on_the_default_template() {
+        let mut far = penetrating_pose();
+        far[rot_offset(HEAD)] = 0.8; // beyond the head's ±25°: EA active
+        for (k, pose) in [perturbed(&[0.4; POSE_DIM]), far].into_iter().enumerate() {
+            for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
+                let active = check(
+                    &energy(modality, EnergyConfig::default().for_gradient()),
+                    &pose,
+                    &format!("{modality} pose {k}"),
+                );
+                assert!(active.contains(&"data"), "{modality}: data rows");
+                if k == 1 {
+                    assert!(
+                        active.contains(&"EP") && active.contains(&"EA"),
+                        "{modality}: EP and EA active at the far pose: {active:?}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn every_robust_loss_folds_into_the_residuals() {
+        let pose = perturbed(&[0.5; POSE_DIM]);
+        for robust in [
+            Robust::L2,
+            Robust::Huber { delta: 1.0 },
+            Robust::Cauchy { c: 1.0 },
+            Robust::GemanMcclure { c: 2.0 },
+        ] {
+            let mut c = EnergyConfig::default().for_gradient();
+            c.robust = robust;
+            for modality in [Modality::Markers, Modality::Hmd] {
+                let e = energy(modality, c.clone());
+                // Groups on both sides of the loss's knee.
+                let ls = e.least_squares(&pose, false).unwrap();
+                let data = ls.blocks.iter().find(|b| b.0 == "data").unwrap().1.clone();
+                assert!(
+                    ls.residuals[data].iter().any(|r| r.abs() > 0.0),
+                    "{robust:?}"
+                );
+                check(&e, &pose, &format!("{modality} {robust:?}"));
+            }
+        }
+        // The fold is exact: φ(s)² s² = ρ(s), on both sides of every knee and near 0.
+        for robust in [
+            Robust::Huber { delta: 3.0 },
+            Robust::Cauchy { c: 2.0 },
+            Robust::GemanMcclure { c: 2.0 },
+        ] {
+            for s in [1e-6, 1e-3, 0.5, 2.9, 3.1, 10.0, 100.0] {
+                let (phi, _) = robust.fold(s);
+                let (rho, _) = robust.eval(s);
+                assert!(
+                    (phi * phi * s * s - rho).abs() <= 1e-12 * rho.max(1e-30),
+                    "{robust:?} at {s}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn pose_shape_expression_and_correctives_on_another_skeleton() {
+        for posedirs in [false, true] {
+            let base = smpl_like(6, 200, 6, posedirs);
+            // Three of the six directions as expression.
+            let m = base.morph.as_ref().clone();
+            let morph = crate::morph::Morph::new(
+                m.rest.clone(),
+                3,
+                3,
+                m.dirs.clone(),
+                m.posedirs.clone(),
+                m.regressor.clone(),
+            );
+            let info = base.info.clone();
+            let t = Arc::new(base.with_morph(morph, info).unwrap());
+            let truth = super::morphable::params(&t, 1, 1.0);
+            let x = super::morphable::params(&t, 2, 0.5);
+            for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
+                let sensor = Sensor::default_for(modality, &t);
+                let pred = sensor.predict_sparse(&t, &truth).unwrap();
+                let e = Energy::new(
+                    t.clone(),
+                    sensor,
+                    Target::Sparse {
+                        values: pred.values,
+                        visible: pred.visible,
+                    },
+                    EnergyConfig::default().for_gradient(),
+                )
+                .unwrap();
+                let active = check(&e, &x, &format!("{modality} posedirs={posedirs}"));
+                assert!(
+                    active.contains(&"shape") && active.contains(&"expression"),
+                    "{active:?}"
+                );
+                // β and ψ columns of the data rows are not empty.
+                let ls = e.least_squares(&x, true).unwrap();
+                let data = ls.blocks[0].1.clone();
+                let l = t.layout();
+                for block in [
+                    crate::layout::Block::Shape,
+                    crate::layout::Block::Expression,
+                ] {
+                    assert!(
+                        data.clone()
+                            .any(|i| l.range(block).any(|c| ls.row(i)[c].abs() > 1e-6)),
+                        "{modality}: {block:?} columns of the data rows"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn energies_without_a_sum_of_squares_refuse_with_the_reason() {
+        let scan = energy(Modality::Scan, EnergyConfig::default().for_gradient());
+        let err = scan
+            .least_squares(&gt_pose(), true)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("scan energy is not a sum of squares"), "{err}");
+        let binary = energy(Modality::Markers, EnergyConfig::default());
+        let err = binary
+            .least_squares(&gt_pose(), true)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("binary joint-angle prior"), "{err}");
+        let ok = energy(Modality::Markers, EnergyConfig::default().for_gradient());
+        assert!(
+            ok.least_squares(&gt_pose()[..10], false)
+                .unwrap_err()
+                .to_string()
+                .contains("parameter vector")
+        );
+        assert_eq!(ok.evaluations(), 0, "refused requests are not counted");
+        ok.least_squares(&gt_pose(), true).unwrap();
+        assert_eq!((ok.evaluations(), ok.gradient_evaluations()), (1, 1));
     }
 }

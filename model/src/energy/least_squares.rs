@@ -1,0 +1,333 @@
+//! The energy in least-squares form: `E(θ) = Σ_i r_i(θ)²` with the exact Jacobian `∂r/∂θ`.
+//!
+//! Rows, in this order (each block a fixed number of rows, so the residual vector of one energy
+//! always has the same length):
+//! - `data`: the sparse prediction minus the target, per residual group `g` divided by its σ and
+//!   folded with the robust loss, `√(λ_data/n) φ(s_g) u_g` ([`Robust::fold`]; `n` visible groups),
+//!   so that its squares sum to `λ_data · data`. Unseen groups are rows of zeros.
+//! - `EP`: one row per tested vertex, `√(λ_P/N) ‖((1 − q_e)₊)_e‖` over the ellipsoids it is tested
+//!   against (papers/000 eq. 8; the norm keeps one row per vertex, not per pair).
+//! - `EA`: one row per non-root rotation entry, `√λ_A` times its excess over the limits (the
+//!   [`AnglePrior::Hinge`] form; the binary form of eq. 7 is not a sum of squares).
+//! - `shape`, `expression`: `√λ β_k`, `√λ ψ_k`.
+//!
+//! `Σ r²` equals [`Energy::evaluate`] and `2 Jᵀ r` equals [`Energy::evaluate_with_gradient`]'s
+//! gradient (both tested), so Gauss-Newton, Levenberg–Marquardt and an external least-squares
+//! solver minimise exactly the energy every other fitter sees.
+
+use std::ops::Range;
+use std::sync::atomic::Ordering;
+
+use glam::DVec3;
+
+use super::jacobian::PointJacobians;
+use super::kinematics::Kinematics;
+use super::{AnglePrior, Energy, Target, hmd_devices, project};
+use crate::error::{ModelError, Result};
+use crate::observe::Sensor;
+use crate::pose::rot_offset;
+
+/// Residuals and (optionally) their Jacobian at one parameter vector.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LeastSquares {
+    pub residuals: Vec<f64>,
+    /// `residuals.len() × dim`, row-major; empty when not asked for.
+    pub jacobian: Vec<f64>,
+    /// Columns of the Jacobian: the energy's parameter vector length.
+    pub dim: usize,
+    /// The term of every block of rows.
+    pub blocks: Vec<(&'static str, Range<usize>)>,
+}
+
+impl LeastSquares {
+    /// `Σ r²`: the energy.
+    pub fn value(&self) -> f64 {
+        self.residuals.iter().map(|r| r * r).sum()
+    }
+
+    /// Row `i` of the Jacobian.
+    pub fn row(&self, i: usize) -> &[f64] {
+        &self.jacobian[i * self.dim..(i + 1) * self.dim]
+    }
+
+    /// `∇E = 2 Jᵀ r` (empty without a Jacobian).
+    pub fn gradient(&self) -> Vec<f64> {
+        if self.jacobian.is_empty() {
+            return Vec::new();
+        }
+        let mut g = vec![0.0; self.dim];
+        for (i, &r) in self.residuals.iter().enumerate() {
+            if r != 0.0 {
+                for (gi, j) in g.iter_mut().zip(self.row(i)) {
+                    *gi += 2.0 * r * j;
+                }
+            }
+        }
+        g
+    }
+}
+
+impl Energy {
+    /// Why this energy has no least-squares form, or `None` when it has one: `scan` (ED is the
+    /// root of a mean, papers/000 eq. 4), the silhouette term EJ (no gradient) and the binary
+    /// joint-angle prior (piecewise constant) have none.
+    pub fn least_squares_unsupported(&self) -> Option<String> {
+        if matches!(self.sensor, Sensor::Scan(_)) {
+            return Some("the scan energy is not a sum of squares (ED is a root mean square, papers/000 eq. 4; EJ has no gradient): use a zeroth-order method or L-BFGS".into());
+        }
+        if self.config.angle_prior != AnglePrior::Hinge {
+            return Some("the binary joint-angle prior (papers/000 eq. 7) is not a sum of squares: use the hinge form (the gradient variant of the energy)".into());
+        }
+        None
+    }
+
+    /// Number of residuals of [`Energy::least_squares`] (fixed for an energy).
+    pub fn residual_count(&self) -> usize {
+        let data = match &self.target {
+            Target::Sparse { values, .. } => values.len(),
+            Target::Scan { .. } => 0,
+        };
+        let pose_end = self.limits.lower.len();
+        data + self.penetration.tests.len()
+            + pose_end.saturating_sub(rot_offset(1))
+            + self.template.morph.coefficients()
+    }
+
+    /// Residuals `r` with `E = Σ r²` and, when `with_jacobian`, their exact Jacobian; counts one
+    /// evaluation (and one gradient evaluation with the Jacobian). Fails with
+    /// [`Energy::least_squares_unsupported`]'s reason or on a parameter vector of the wrong length.
+    pub fn least_squares(&self, params: &[f64], with_jacobian: bool) -> Result<LeastSquares> {
+        if let Some(why) = self.least_squares_unsupported() {
+            return Err(ModelError::Target(why));
+        }
+        let dim = self.dim();
+        if params.len() != dim {
+            return Err(ModelError::Shape {
+                what: "parameter vector".into(),
+                expected: dim.to_string(),
+                got: params.len().to_string(),
+            });
+        }
+        self.evaluations.fetch_add(1, Ordering::Relaxed);
+        if with_jacobian {
+            self.gradient_evaluations.fetch_add(1, Ordering::Relaxed);
+        }
+        Ok(self.compute_least_squares(params, with_jacobian))
+    }
+
+    fn compute_least_squares(&self, params: &[f64], with_jacobian: bool) -> LeastSquares {
+        let m = self.residual_count();
+        let dim = self.dim();
+        let kin = Kinematics::build(&self.template, params, with_jacobian);
+        let mut pj =
+            with_jacobian.then(|| PointJacobians::new(&self.template, &kin, &self.skin, params));
+        let mut residuals = vec![0.0; m];
+        let mut jacobian = if with_jacobian {
+            vec![0.0; m * dim]
+        } else {
+            Vec::new()
+        };
+        let w = self.config.weights;
+        let mut blocks = Vec::with_capacity(5);
+        let mut row = 0;
+
+        // Data rows.
+        if let Target::Sparse { values, visible } = &self.target {
+            let p = values.len();
+            let (pred, jp) = match pj.as_mut() {
+                Some(pj) => self.sparse_prediction_jacobian(&kin, pj),
+                None => (self.sparse_prediction(&kin).unwrap_or_default(), Vec::new()),
+            };
+            let seen = self.groups.iter().filter(|g| visible[g.start]).count();
+            if seen > 0 && w.data > 0.0 {
+                let c0 = (w.data / seen as f64).sqrt();
+                let mut u = Vec::with_capacity(12);
+                let mut v = vec![0.0; dim];
+                for g in self.groups.iter().filter(|g| visible[g.start]) {
+                    u.clear();
+                    u.extend((g.start..g.start + g.len).map(|i| (pred[i] - values[i]) / g.sigma));
+                    let s = u.iter().map(|x| x * x).sum::<f64>().sqrt();
+                    let (phi, dphi) = self.config.robust.fold(s);
+                    for (k, &uk) in u.iter().enumerate() {
+                        residuals[row + g.start + k] = c0 * phi * uk;
+                    }
+                    if with_jacobian {
+                        // J̃ = c0 (φ Ju + (φ'/s) u (uᵀ Ju)), Ju = Jpred / σ.
+                        v.fill(0.0);
+                        if dphi != 0.0 {
+                            for (k, &uk) in u.iter().enumerate() {
+                                for (vi, j) in v
+                                    .iter_mut()
+                                    .zip(&jp[(g.start + k) * dim..(g.start + k + 1) * dim])
+                                {
+                                    *vi += uk * j / g.sigma;
+                                }
+                            }
+                        }
+                        for (k, &uk) in u.iter().enumerate() {
+                            let src = &jp[(g.start + k) * dim..(g.start + k + 1) * dim];
+                            let dst = &mut jacobian
+                                [(row + g.start + k) * dim..(row + g.start + k + 1) * dim];
+                            for ((d, s), vi) in dst.iter_mut().zip(src).zip(&v) {
+                                *d = c0 * (phi * s / g.sigma + dphi * uk * vi);
+                            }
+                        }
+                    }
+                }
+            }
+            blocks.push(("data", row..row + p));
+            row += p;
+        }
+
+        // EP rows.
+        let tests = self.penetration.tests.len();
+        if w.ep > 0.0 {
+            let c0 = (w.ep / self.penetration.count as f64).sqrt();
+            let (r, j) = (
+                &mut residuals[row..row + tests],
+                if with_jacobian {
+                    &mut jacobian[row * dim..(row + tests) * dim]
+                } else {
+                    &mut [][..]
+                },
+            );
+            self.penetration
+                .residuals(&kin, &self.skin, pj.as_mut(), c0, r, j);
+        }
+        blocks.push(("EP", row..row + tests));
+        row += tests;
+
+        // EA rows (hinge).
+        let (lower, upper) = (&self.limits.lower, &self.limits.upper);
+        let first = rot_offset(1);
+        let ea_rows = lower.len().saturating_sub(first);
+        let c0 = w.ea.sqrt();
+        for (k, i) in (first..lower.len()).enumerate() {
+            let over = (params[i] - upper[i]).max(0.0) - (lower[i] - params[i]).max(0.0);
+            residuals[row + k] = c0 * over;
+            if with_jacobian && over != 0.0 {
+                jacobian[(row + k) * dim + i] = c0;
+            }
+        }
+        blocks.push(("EA", row..row + ea_rows));
+        row += ea_rows;
+
+        // Shape and expression priors.
+        let morph = &self.template.morph;
+        let base = 3 + 3 * self.template.rig.num_joints();
+        for (name, weight, range) in [
+            ("shape", w.shape, base..base + morph.shape),
+            (
+                "expression",
+                w.expression,
+                base + morph.shape..base + morph.coefficients(),
+            ),
+        ] {
+            if range.is_empty() {
+                continue;
+            }
+            let c0 = weight.sqrt();
+            let start = row;
+            for i in range {
+                residuals[row] = c0 * params[i];
+                if with_jacobian {
+                    jacobian[row * dim + i] = c0;
+                }
+                row += 1;
+            }
+            blocks.push((name, start..row));
+        }
+        debug_assert_eq!(row, m);
+        LeastSquares {
+            residuals,
+            jacobian,
+            dim,
+            blocks,
+        }
+    }
+
+    /// The sparse prediction (layout of [`Sensor::predict_sparse`]) and its Jacobian
+    /// (prediction length × dim, row-major).
+    fn sparse_prediction_jacobian(
+        &self,
+        kin: &Kinematics,
+        pj: &mut PointJacobians<'_>,
+    ) -> (Vec<f64>, Vec<f64>) {
+        let d = pj.dim;
+        match &self.sensor {
+            Sensor::Markers { vertices, .. } => {
+                let mut pred = Vec::with_capacity(3 * vertices.len());
+                let mut jp = vec![0.0; 3 * vertices.len() * d];
+                for (k, &v) in vertices.iter().enumerate() {
+                    let p = pj.skinned_point(v as usize, &mut jp[3 * k * d..3 * (k + 1) * d]);
+                    pred.extend(p.to_array());
+                }
+                (pred, jp)
+            }
+            Sensor::Keypoints2d { cameras } => {
+                let nj = kin.joints.len();
+                let mut joint_jac = vec![0.0; 3 * nj * d];
+                for (j, &p) in kin.joints.iter().enumerate() {
+                    pj.joint_point(j, p, &mut joint_jac[3 * j * d..3 * (j + 1) * d]);
+                }
+                let mut pred = Vec::with_capacity(2 * cameras.len() * nj);
+                let mut jp = vec![0.0; 2 * cameras.len() * nj * d];
+                for (c, cam) in cameras.iter().enumerate() {
+                    let rot_t = cam.rot().transpose();
+                    for (j, &p) in kin.joints.iter().enumerate() {
+                        let (uv, dq) = project(cam, p);
+                        pred.extend(uv);
+                        let jj = &joint_jac[3 * j * d..3 * (j + 1) * d];
+                        for (r, dq) in dq.iter().enumerate() {
+                            let a = rot_t * *dq;
+                            let out =
+                                &mut jp[(2 * (c * nj + j) + r) * d..(2 * (c * nj + j) + r + 1) * d];
+                            combine(out, a, jj, d);
+                        }
+                    }
+                }
+                (pred, jp)
+            }
+            Sensor::Hmd(setup) => {
+                let mut pred = Vec::with_capacity(42);
+                let mut jp = vec![0.0; 42 * d];
+                for (dev, ((rot, pos), joint)) in hmd_devices(setup, kin, self.hmd_joints)
+                    .into_iter()
+                    .zip(self.hmd_joints)
+                    .enumerate()
+                {
+                    let o = 12 * dev;
+                    for row in 0..3 {
+                        pred.extend([rot.x_axis[row], rot.y_axis[row], rot.z_axis[row]]);
+                    }
+                    pred.extend(pos.to_array());
+                    // ∂W = [ω]× W: entry (row, col) moves by (ω × W e_col)[row].
+                    for (col_param, omega) in pj.rotation(joint) {
+                        for col in 0..3 {
+                            let dv = omega.cross(rot.col(col));
+                            for row in 0..3 {
+                                jp[(o + 3 * row + col) * d + col_param] = dv[row];
+                            }
+                        }
+                    }
+                    pj.joint_point(joint, pos, &mut jp[(o + 9) * d..(o + 12) * d]);
+                }
+                for (k, &tip) in setup.hand_tips.iter().enumerate() {
+                    let p =
+                        pj.skinned_point(tip as usize, &mut jp[(36 + 3 * k) * d..(39 + 3 * k) * d]);
+                    pred.extend(p.to_array());
+                }
+                (pred, jp)
+            }
+            Sensor::Scan(_) => (Vec::new(), Vec::new()),
+        }
+    }
+}
+
+/// `out = Σ_a a[a] · rows[a]` for a 3-row, `d`-wide row-major block.
+#[inline]
+pub(super) fn combine(out: &mut [f64], a: DVec3, rows: &[f64], d: usize) {
+    for (i, o) in out.iter_mut().enumerate() {
+        *o = a.x * rows[i] + a.y * rows[d + i] + a.z * rows[2 * d + i];
+    }
+}
