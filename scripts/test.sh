@@ -35,6 +35,16 @@ if [ -z "${ORT_DYLIB_PATH:-}" ]; then
     fi
 fi
 
+# scipy (and numpy) for the reference tests against scipy.optimize.least_squares. Without them
+# those tests skip with a reason locally; in CI they fail.
+if [ -z "${LFIT_SCIPY_PYTHONPATH:-}" ]; then
+    if scipy_dir="$(./scripts/fetch-scipy.sh)"; then
+        export LFIT_SCIPY_PYTHONPATH="$scipy_dir"
+    else
+        echo "warning: could not install scipy; the scipy reference tests will skip outside CI"
+    fi
+fi
+
 # The Khronos glTF validator (npm gltf-validator, pinned) for the `lfit export --format gltf`
 # tests. Without node/npm or the network that test skips with a reason locally; in CI it fails.
 if [ -z "${LFIT_GLTF_VALIDATOR:-}" ]; then

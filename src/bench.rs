@@ -260,7 +260,7 @@ impl BenchConfig {
 
     /// The one energy configuration of the benchmark and its name.
     pub fn energy_config(&self) -> Result<(EnergyConfig, String)> {
-        let gradient_method = self.methods.iter().any(|m| m == "lbfgs" || m == "neural");
+        let gradient_method = self.methods.iter().any(|m| lfit_fitters::uses_gradient(m.split(':').next().unwrap_or(m)));
         match self.energy.as_deref() {
             None if gradient_method => {
                 Ok((EnergyConfig::default().for_gradient(), "gradient".into()))

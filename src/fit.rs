@@ -289,7 +289,7 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         (None, Some(c)) => c.as_ref(),
         (None, None) => bail!("no fitter"),
     };
-    let gradient = args.method == "lbfgs" || neural;
+    let gradient = lfit_fitters::uses_gradient(&args.method);
     let config = read_energy_config(args.energy.as_deref(), gradient)?;
     let dataset =
         Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))?;
@@ -448,6 +448,9 @@ pub struct ServerArgs {
 /// The energy, free DOFs, box and start of one frame, as served to external optimizers.
 pub struct Served {
     pub energy: Energy,
+    /// The energy of residual/Jacobian answers: without `--energy`, the one `lfit fit --method
+    /// lm` minimises by default (the gradient variant); with it, the same as `energy`.
+    pub least_squares: Option<Energy>,
     pub mask: DofMask,
     pub lower: Vec<f64>,
     pub upper: Vec<f64>,
@@ -465,18 +468,34 @@ impl Served {
             .with_context(|| format!("dataset {}", args.data.display()))?;
         let template = template_for(&dataset, args.template.as_deref())?;
         let energy = energy_for_frame(&dataset, template.clone(), args.frame, config)?;
+        let least_squares = if args.energy.is_none() && !args.gradient {
+            Some(energy_for_frame(&dataset, template.clone(), args.frame, read_energy_config(None, true)?)?)
+        } else {
+            None
+        };
         let scenario = dataset.meta.config.scenario;
         let start = dataset.start_poses[args.frame].clone();
         let mask = scenario_mask(scenario, &template);
         let (lower, upper) = scenario_bounds(scenario, &template, &start).restrict(&mask);
         Ok(Self {
             energy,
+            least_squares,
             mask,
             lower,
             upper,
             start,
             budget: args.budget,
         })
+    }
+
+    /// The energy that residual answers serve.
+    pub fn least_squares_energy(&self) -> &Energy {
+        self.least_squares.as_ref().unwrap_or(&self.energy)
+    }
+
+    /// Evaluations served so far, values and residuals together.
+    pub fn evaluations(&self) -> u64 {
+        self.energy.evaluations() + self.least_squares.as_ref().map_or(0, Energy::evaluations)
     }
 
     /// Answers one request line; errors are answers too (`{"error": ...}`), so the server keeps
@@ -499,7 +518,8 @@ impl Served {
                 "names": self.mask.free.iter().map(|&i| self.energy.template().layout().name(i)).collect::<Vec<_>>(),
                 "modality": self.energy.modality().name(),
                 "energy_config": self.energy.config(),
-                "evaluations": self.energy.evaluations(),
+                "evaluations": self.evaluations(),
+                "residuals": self.least_squares_energy().least_squares_unsupported().is_none().then(|| self.least_squares_energy().residual_count()),
             }));
         }
         let Some(x) = request.get("x") else {
@@ -516,13 +536,36 @@ impl Served {
                 _ => bail!("x[{i}] is not a finite number ({v})"),
             }
         }
+        let flag = |name: &str| -> Result<bool> {
+            match request.get(name) {
+                None | Some(Value::Null) => Ok(false),
+                Some(Value::Bool(b)) => Ok(*b),
+                Some(other) => bail!("\"{name}\" must be true or false (got {other})"),
+            }
+        };
+        let (want_residuals, want_jacobian) = (flag("residuals")?, flag("jacobian")?);
+        if want_residuals || want_jacobian {
+            let ls_energy = self.least_squares_energy();
+            if let Some(why) = ls_energy.least_squares_unsupported() {
+                bail!("no residuals for this energy: {why}");
+            }
+        }
         if let Some(b) = self.budget
-            && self.energy.evaluations() >= b as u64
+            && self.evaluations() >= b as u64
         {
             bail!("budget of {b} evaluations spent");
         }
         let mut pose = self.start.clone();
         self.mask.scatter(&values, &mut pose);
+        if want_residuals || want_jacobian {
+            let ls = self.least_squares_energy().least_squares(&pose, want_jacobian)?;
+            let mut answer = json!({ "energy": ls.value(), "residuals": ls.residuals });
+            if want_jacobian {
+                let rows: Vec<Vec<f64>> = (0..ls.residuals.len()).map(|i| self.mask.gather(ls.row(i))).collect();
+                answer["jacobian"] = json!(rows);
+            }
+            return Ok(answer);
+        }
         let want_grad = request.get("gradient").and_then(Value::as_bool) == Some(true);
         if want_grad {
             let (ev, g) = self.energy.evaluate_with_gradient(&pose);
@@ -552,7 +595,7 @@ pub fn objective_server(
         writeln!(output, "{answer}").context("writing stdout")?;
         output.flush().context("writing stdout")?;
     }
-    Ok(json!({ "evaluations": served.energy.evaluations() }))
+    Ok(json!({ "evaluations": served.evaluations() }))
 }
 
 /// Arguments of `lfit optimize`.

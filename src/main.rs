@@ -212,8 +212,12 @@ enum Command {
     },
     /// Serve one frame's energy as JSON lines on stdin/stdout so that external optimizers (e.g.
     /// nevergrad) minimise the identical objective: {"describe": true} -> {"dim", "lower",
-    /// "upper", "start", "names"}; {"x": [...]} -> {"energy", "terms"} (add "gradient": true for
-    /// the gradient). A bad line gets {"error": ...} and the server keeps serving.
+    /// "upper", "start", "names", "residuals"}; {"x": [...]} -> {"energy", "terms"} (add
+    /// "gradient": true for the gradient); {"x": [...], "residuals": true, "jacobian": true} ->
+    /// {"energy", "residuals", "jacobian"} with energy = Σ residual², one Jacobian row per
+    /// residual and its columns in the order of "names" (without --energy these serve the energy
+    /// that `lfit fit --method lm` minimises). A bad line gets {"error": ...} and the server keeps
+    /// serving.
     ObjectiveServer {
         #[arg(long)]
         data: PathBuf,

@@ -19,6 +19,8 @@ pub enum FitError {
     Optimizer(#[from] crate::optim::OptimError),
     #[error("L-BFGS: {0}")]
     Lbfgs(String),
+    #[error("least squares: {0}")]
+    LeastSquares(String),
     #[error("neural fitter: {0}")]
     Neural(String),
 }

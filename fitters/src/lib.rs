@@ -1,22 +1,25 @@
 //! lfit's classical fitters (SPEC §6): the zeroth-order optimizers of papers/000 and papers/001
 //! behind one ask/tell interface ([`optim`]), the holistic / grouped / hierarchical strategies,
-//! and L-BFGS with the energy's exact gradient. Every fitter minimises the same
+//! L-BFGS with the energy's exact gradient, and Gauss-Newton / Levenberg–Marquardt on its
+//! least-squares form. Every fitter minimises the same
 //! [`lfit_model::energy::Energy`] and every evaluation goes through its counter.
 
 pub mod error;
 pub mod fitter;
 pub mod lbfgs;
+pub mod least_squares;
 pub mod optim;
 pub mod zeroth;
 
 pub use error::FitError;
 pub use fitter::{FitRequest, FitResult, Fitter, Strategy, split_budget};
 pub use lbfgs::LbfgsFitter;
+pub use least_squares::{LeastSquaresFitter, LeastSquaresMethod};
 pub use optim::{Method, Preset};
 pub use zeroth::ZerothOrderFitter;
 
 /// Every method `build_fitter` knows.
-pub const METHOD_NAMES: [&str; 13] = [
+pub const METHOD_NAMES: [&str; 15] = [
     "random",
     "one-plus-one",
     "de",
@@ -30,7 +33,15 @@ pub const METHOD_NAMES: [&str; 13] = [
     "apf",
     "psapf",
     "lbfgs",
+    "lm",
+    "gn",
 ];
+
+/// Whether `method` needs the energy's gradient (or Jacobian), and so its differentiable variant
+/// ([`lfit_model::energy::EnergyConfig::for_gradient`]).
+pub fn uses_gradient(method: &str) -> bool {
+    matches!(method, "lbfgs" | "lm" | "gn" | "neural")
+}
 
 /// The fitter called `method` (one of [`METHOD_NAMES`]) with `preset` and `strategy`.
 pub fn build_fitter(
@@ -38,11 +49,16 @@ pub fn build_fitter(
     preset: Preset,
     strategy: Strategy,
 ) -> Result<Box<dyn Fitter>, FitError> {
-    if method == "lbfgs" {
-        return Ok(Box::new(LbfgsFitter {
-            strategy,
-            ..LbfgsFitter::default()
-        }));
+    match method {
+        "lbfgs" => {
+            return Ok(Box::new(LbfgsFitter {
+                strategy,
+                ..LbfgsFitter::default()
+            }));
+        }
+        "lm" => return Ok(Box::new(LeastSquaresFitter::new(LeastSquaresMethod::Lm, strategy))),
+        "gn" => return Ok(Box::new(LeastSquaresFitter::new(LeastSquaresMethod::Gn, strategy))),
+        _ => {}
     }
     let m: Method = method
         .parse()

@@ -63,7 +63,7 @@ fn every_method_and_strategy_spends_exactly_its_budget_inside_the_bounds() {
     for method in METHOD_NAMES {
         for strategy in Strategy::ALL {
             for budget in [1usize, 13, 200] {
-                let config = if method == "lbfgs" {
+                let config = if lfit_fitters::uses_gradient(method) {
                     EnergyConfig::default().for_gradient()
                 } else {
                     EnergyConfig::default()
@@ -82,7 +82,7 @@ fn every_method_and_strategy_spends_exactly_its_budget_inside_the_bounds() {
                     .fit(&request)
                     .unwrap_or_else(|e| panic!("{method}/{strategy}/{budget}: {e}"));
                 let label = format!("{method}/{strategy} budget {budget}");
-                if method == "lbfgs" {
+                if lfit_fitters::uses_gradient(method) {
                     assert!(
                         r.evaluations <= budget as u64 && r.evaluations >= 1,
                         "{label}: {}",
@@ -155,7 +155,7 @@ fn same_seed_same_fit_different_seed_different_fit() {
 }
 
 #[test]
-fn cma_and_lbfgs_recover_the_truth_from_a_nearby_start() {
+fn cma_lbfgs_lm_and_gn_recover_the_truth_from_a_nearby_start() {
     let energy = markers_energy(EnergyConfig::default());
     let fitter = build_fitter("cma", Preset::Nevergrad, Strategy::Holistic).unwrap();
     let request = FitRequest {
@@ -194,4 +194,26 @@ fn cma_and_lbfgs_recover_the_truth_from_a_nearby_start() {
         r.energy,
         r.evaluations
     );
+
+    // Gauss-Newton and Levenberg–Marquardt on the least-squares form: to the noise-free truth in
+    // a few dozen residual + Jacobian evaluations where L-BFGS needs hundreds.
+    for method in ["lm", "gn"] {
+        let energy = markers_energy(EnergyConfig::default().for_gradient());
+        let fitter = build_fitter(method, Preset::Nevergrad, Strategy::Holistic).unwrap();
+        let request = FitRequest {
+            energy: &energy,
+            start: start().to_vec(),
+            mask: DofMask::local43(),
+            bounds: Bounds::local(&start()),
+            budget: 60,
+            seed: 3,
+        };
+        let r = fitter.fit(&request).unwrap();
+        pose.copy_from_slice(&r.pose);
+        let v2v = lfit_model::metrics::v2v_mm(&template(), &pose, &truth());
+        assert!(v2v < 0.1, "{method}: V2V {v2v:.3} mm after {} evaluations", r.evaluations);
+        assert!(r.energy < 1e-8 * e0, "{method}: energy {} from {e0}", r.energy);
+        assert!(r.evaluations < 40, "{method}: {} evaluations (it stops on its tolerances)", r.evaluations);
+        assert_eq!(r.gradient_evaluations + 1, r.evaluations);
+    }
 }
