@@ -108,6 +108,38 @@ fn bench(c: &mut Criterion) {
     }
     group.finish();
 
+    // The least-squares form of the sparse energies (gradient variant): residuals alone, and
+    // residuals with their exact Jacobian (what one Gauss-Newton / LM evaluation costs), next to
+    // the gradient rows above.
+    let mut group = c.benchmark_group("jacobian");
+    group.throughput(Throughput::Elements(poses.len() as u64));
+    for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
+        let e = energy(&template, modality, EnergyConfig::default().for_gradient());
+        let name = modality.name();
+        group.bench_function(BenchmarkId::new(name, "gradient_1_thread"), |b| {
+            b.iter(|| {
+                for p in &poses {
+                    black_box(e.evaluate_with_gradient(p));
+                }
+            })
+        });
+        group.bench_function(BenchmarkId::new(name, "residuals_1_thread"), |b| {
+            b.iter(|| {
+                for p in &poses {
+                    black_box(e.least_squares(p, false).expect("residuals"));
+                }
+            })
+        });
+        group.bench_function(BenchmarkId::new(name, "jacobian_1_thread"), |b| {
+            b.iter(|| {
+                for p in &poses {
+                    black_box(e.least_squares(p, true).expect("jacobian"));
+                }
+            })
+        });
+    }
+    group.finish();
+
     // EJ's own cost is the difference of the scan rows with and without EJ above.
     let mut group = c.benchmark_group("optimizer_overhead_d43");
     let evals = 4_000usize;
@@ -180,6 +212,14 @@ fn bench_smpl24(c: &mut Criterion) {
                     .iter()
                     .map(|p| e.evaluate_with_gradient(p).0.total)
                     .sum::<f64>()
+            })
+        });
+        group.bench_function("jacobian", |b| {
+            b.iter(|| {
+                params
+                    .iter()
+                    .map(|p| e.least_squares(p, true).expect("jacobian").residuals.len())
+                    .sum::<usize>()
             })
         });
         group.finish();
