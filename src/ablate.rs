@@ -333,7 +333,7 @@ pub fn run(args: &AblateArgs, progress: &(dyn Fn(&str) + Sync)) -> Result<Value>
         ),
         _ => write_atomic(&size_file, &size_json)?,
     }
-    let template = Arc::new(crate::commands::load_model(None, "default")?);
+    let template = Arc::new(crate::data::load_model(None, "default")?);
     let mut sets: BTreeMap<String, lfit_train::Frames> = BTreeMap::new();
     let mut evals: Vec<Eval> = Vec::new();
     for (variant, config) in selected.iter().zip(&configs) {

@@ -10,7 +10,9 @@ use std::sync::{Arc, Mutex};
 
 use anyhow::{Context, Result, bail};
 use lfit_fitters::optim::Preset;
-use lfit_fitters::{FitRequest, Fitter, METHOD_NAMES, Strategy, build_fitter};
+use lfit_fitters::{FitRequest, Fitter, Strategy};
+
+use crate::method::{MethodKind, MethodSpec};
 use lfit_model::energy::{Energy, EnergyConfig};
 use lfit_model::metrics::{hausdorff_rms_mm, mpjpe_mm, pa_mpjpe_mm, v2v_mm};
 use lfit_model::template::write_atomic;
@@ -64,7 +66,8 @@ pub struct BenchConfig {
     /// Dataset (.npz); or `[synth]` to generate one into the output directory.
     pub data: Option<PathBuf>,
     pub synth: Option<SynthSpec>,
-    pub methods: Vec<String>,
+    /// `"METHOD"` or `"METHOD:STRATEGY"` ([`MethodSpec`]).
+    pub methods: Vec<MethodSpec>,
     pub budgets: Vec<usize>,
     #[serde(default = "one")]
     pub repetitions: usize,
@@ -147,28 +150,6 @@ impl BenchConfig {
         if self.methods.is_empty() {
             bail!("methods: need at least one");
         }
-        for m in &self.methods {
-            let (name, pin) = match m.split_once(':') {
-                Some((n, s)) => (n, Some(s)),
-                None => (m.as_str(), None),
-            };
-            if name != "neural" && !METHOD_NAMES.contains(&name) {
-                bail!(
-                    "unknown method '{name}' (expected one of: {}, neural; optionally NAME:STRATEGY)",
-                    METHOD_NAMES.join(", ")
-                );
-            }
-            match pin {
-                Some(_) if name == "neural" => {
-                    bail!("method '{m}': the neural fitter has no strategies")
-                }
-                Some(s) => {
-                    s.parse::<Strategy>()
-                        .with_context(|| format!("method '{m}'"))?;
-                }
-                None => {}
-            }
-        }
         if self.budgets.is_empty() || self.budgets.contains(&0) {
             bail!(
                 "budgets: need at least one, each at least 1 evaluation (got {:?})",
@@ -193,7 +174,7 @@ impl BenchConfig {
             (None, Some(s)) if s.frames == 0 => bail!("synth.frames must be at least 1"),
             _ => {}
         }
-        if self.methods.iter().any(|m| m == "neural") {
+        if self.methods.iter().any(|m| m.kind == MethodKind::Neural) {
             let Some(c) = &self.checkpoint else {
                 bail!("method neural needs checkpoint = \"DIR\"")
             };
@@ -214,13 +195,14 @@ impl BenchConfig {
     pub fn entries(&self) -> Result<Vec<(String, String)>> {
         let mut out: Vec<(String, String)> = Vec::new();
         for m in &self.methods {
-            let add: Vec<(String, String)> = match m.split_once(':') {
-                Some((n, s)) => vec![(n.to_string(), s.parse::<Strategy>()?.to_string())],
-                None if m == "neural" => vec![(m.clone(), "-".into())],
+            let name = m.kind.name().to_string();
+            let add: Vec<(String, String)> = match m.strategy {
+                Some(s) => vec![(name, s.to_string())],
+                None if !m.kind.has_strategies() => vec![(name, "-".into())],
                 None => self
                     .strategies
                     .iter()
-                    .map(|s| Ok((m.clone(), s.parse::<Strategy>()?.to_string())))
+                    .map(|s| Ok((name.clone(), s.parse::<Strategy>()?.to_string())))
                     .collect::<Result<_>>()?,
             };
             for e in add {
@@ -244,8 +226,17 @@ impl BenchConfig {
         seen.len() > 1
     }
 
+    /// Whether `preset = "tuned"`: each zeroth-order method with its recorded setting for the
+    /// data's modality ([`crate::tuned`]); gradient methods and the neural fitter have none.
+    pub fn tuned(&self) -> bool {
+        self.preset.as_deref() == Some("tuned")
+    }
+
     fn preset(&self) -> Result<Preset> {
         let p = self.preset.as_deref().unwrap_or("nevergrad");
+        if p == "tuned" {
+            return Ok(Preset::Nevergrad);
+        }
         p.parse()
             .map_err(|_| lfit_fitters::FitError::UnknownPreset(p.to_string()).into())
     }
@@ -260,7 +251,7 @@ impl BenchConfig {
 
     /// The one energy configuration of the benchmark and its name.
     pub fn energy_config(&self) -> Result<(EnergyConfig, String)> {
-        let gradient_method = self.methods.iter().any(|m| lfit_fitters::uses_gradient(m.split(':').next().unwrap_or(m)));
+        let gradient_method = self.methods.iter().any(|m| m.kind.uses_gradient());
         match self.energy.as_deref() {
             None if gradient_method => {
                 Ok((EnergyConfig::default().for_gradient(), "gradient".into()))
@@ -473,8 +464,8 @@ pub fn run(
         (None, Some(s)) => {
             let path = out.join("data.npz");
             if !path.exists() {
-                let template = crate::commands::load_model(None, "default")?;
-                let args = crate::commands::SynthArgs {
+                let template = crate::data::load_model(None, "default")?;
+                let args = crate::data::SynthArgs {
                     modality: s.modality.clone(),
                     scenario: s.scenario.clone(),
                     source: "motion".into(),
@@ -485,7 +476,7 @@ pub fn run(
                     motions: None,
                     out: path.clone(),
                 };
-                crate::commands::synth(&args, &template, &|_| {})?;
+                crate::data::synth(&args, &template, &|_| {})?;
             }
             path
         }
@@ -501,7 +492,8 @@ pub fn run(
     // One fitter per entry; the neural checkpoint is loaded once.
     let mut fitters: Vec<Box<dyn Fitter>> = Vec::new();
     for (m, s) in &entries {
-        if m == "neural" {
+        let kind: MethodKind = m.parse()?;
+        if kind == MethodKind::Neural {
             let device = lfit_nn::tensor::device_from_name("flex")?;
             let dir = config.checkpoint.as_deref().context("checkpoint")?;
             fitters.push(Box::new(lfit_infer::NeuralFitter::load(
@@ -510,7 +502,21 @@ pub fn run(
                 config.neural_start()?,
             )?));
         } else {
-            fitters.push(build_fitter(m, preset, s.parse()?)?);
+            let (step_scale, cma) = if config.tuned() && kind.zeroth_order().is_some() {
+                let t = crate::tuned::setting(kind.name(), dataset.modality().name())?;
+                (t.step_scale, t.cma)
+            } else {
+                (1.0, Default::default())
+            };
+            fitters.push(crate::method::build_classic(
+                kind,
+                crate::method::ClassicOptions {
+                    preset,
+                    strategy: s.parse()?,
+                    step_scale,
+                    cma,
+                },
+            )?);
         }
     }
     let energies: Vec<Energy> = frames

@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
 use lfit_fitters::optim::{self, Method, Preset};
-use lfit_fitters::{FitRequest, Fitter, Strategy, build_fitter};
+use lfit_fitters::{FitRequest, Fitter, Strategy};
 use lfit_model::energy::{Energy, EnergyConfig, Target};
 use lfit_model::metrics::{mpjpe_mm, v2v_mm};
 use lfit_model::pose::{Bounds, DofMask, MaskKind};
@@ -18,15 +18,15 @@ use serde_json::{Map, Value, json};
 /// the dataset's), else the procedural body named by the dataset's template id.
 pub fn template_for(dataset: &Dataset, dir: Option<&Path>) -> Result<Arc<Template>> {
     let template = match dir {
-        Some(d) => crate::commands::load_model(Some(d), "default")?,
+        Some(d) => crate::data::load_model(Some(d), "default")?,
         None => {
             let id = &dataset.meta.template_id;
-            let Some(shape) = crate::commands::shape_of_template_id(id) else {
+            let Some(shape) = crate::data::shape_of_template_id(id) else {
                 bail!(
                     "dataset was made with template '{id}': pass that template with --template DIR"
                 );
             };
-            crate::commands::load_model(None, shape)?
+            crate::data::load_model(None, shape)?
         }
     };
     let layout = template.layout();
@@ -213,10 +213,13 @@ pub fn iterate_errors(
 #[derive(Debug, Clone)]
 pub struct FitArgs {
     pub data: PathBuf,
-    pub method: String,
+    pub method: crate::method::MethodKind,
     pub budget: usize,
     pub strategy: String,
     pub preset: String,
+    pub step_scale: Option<f64>,
+    /// CMA-ES's update variant (`--cma-diagonal`, `--cma-elitist`, `--cma-popsize`).
+    pub cma: lfit_fitters::optim::cma::CmaVariant,
     pub frames: Option<String>,
     pub seed: u64,
     pub out: PathBuf,
@@ -239,16 +242,31 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         bail!("--budget must be at least 1 evaluation");
     }
     let strategy: Strategy = args.strategy.parse()?;
-    let preset: Preset = args
-        .preset
-        .parse()
-        .map_err(|_| lfit_fitters::FitError::UnknownPreset(args.preset.clone()))?;
+    let (preset, step_scale, cma) = if args.preset == "tuned" {
+        if args.step_scale.is_some() || args.cma != Default::default() {
+            bail!("--preset tuned sets the steps and CMA-ES options itself: drop --step-scale and --cma-*");
+        }
+        let dataset = Dataset::load(&args.data)
+            .with_context(|| format!("dataset {}", args.data.display()))?;
+        let modality = dataset.sensor.modality();
+        let t = crate::tuned::setting(args.method.name(), modality.name())?;
+        (Preset::Nevergrad, t.step_scale, t.cma)
+    } else {
+        let preset: Preset = args
+            .preset
+            .parse()
+            .map_err(|_| lfit_fitters::FitError::UnknownPreset(args.preset.clone()))?;
+        (preset, args.step_scale.unwrap_or(1.0), args.cma)
+    };
     if args.batch == 0 {
         bail!("--batch must be at least 1");
     }
-    let neural = args.method == "neural";
+    let neural = args.method == crate::method::MethodKind::Neural;
     let (neural_fitter, classic): (Option<lfit_infer::NeuralFitter>, Option<Box<dyn Fitter>>) =
         if neural {
+            if args.step_scale.is_some() || args.preset == "tuned" || args.cma != Default::default() {
+                bail!("--step-scale, --cma-* and --preset tuned are for zeroth-order methods, not neural");
+            }
             let dir = args
                 .checkpoint
                 .as_deref()
@@ -282,14 +300,25 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
             if args.runtime != "burn" || args.ort_threads.is_some() {
                 bail!("--runtime and --ort-threads are only for --method neural");
             }
-            (None, Some(build_fitter(&args.method, preset, strategy)?))
+            (
+                None,
+                Some(crate::method::build_classic(
+                    args.method,
+                    crate::method::ClassicOptions {
+                        preset,
+                        strategy,
+                        step_scale,
+                        cma,
+                    },
+                )?),
+            )
         };
     let fitter: &dyn Fitter = match (&neural_fitter, &classic) {
         (Some(n), _) => n,
         (None, Some(c)) => c.as_ref(),
         (None, None) => bail!("no fitter"),
     };
-    let gradient = lfit_fitters::uses_gradient(&args.method);
+    let gradient = args.method.uses_gradient();
     let config = read_energy_config(args.energy.as_deref(), gradient)?;
     let dataset =
         Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))?;
@@ -406,7 +435,9 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         "method": fitter.name(),
         "budget": args.budget,
         "strategy": strategy.name(),
-        "preset": preset.as_str(),
+        "preset": if args.preset == "tuned" { "tuned" } else { preset.as_str() },
+        "step_scale": step_scale,
+        "cma_variant": { "diagonal": cma.diagonal, "elitist": cma.elitist, "popsize": cma.popsize },
         "seed": args.seed,
         "data": args.data,
         "modality": dataset.modality().name(),

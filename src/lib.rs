@@ -4,12 +4,15 @@
 pub mod ablate;
 pub mod bench;
 pub mod commands;
+pub mod data;
 pub mod export;
 pub mod fit;
+pub mod method;
 pub mod plots;
 pub mod presets;
 pub mod report;
 pub mod stats;
+pub mod tuned;
 
 pub use lfit_fitters as fitters;
 pub use lfit_infer as infer;

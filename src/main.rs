@@ -90,7 +90,7 @@ enum Command {
         template: TemplateArg,
     },
     /// The main job, from nothing: synthesise a small held-out set per sparse modality (markers,
-    /// keypoints2d, hmd), fit it with the shipped neural fitter, L-BFGS, CMA-ES and PSO on the
+    /// keypoints2d, hmd), fit it with the shipped neural fitter, L-BFGS, Levenberg–Marquardt, CMA-ES and PSO on the
     /// same energy, print the comparison table and write reports and plots under --out.
     Quickstart {
         #[arg(long, default_value = "out/quickstart")]
@@ -98,7 +98,7 @@ enum Command {
         /// Frames per modality.
         #[arg(long, default_value_t = 50)]
         frames: usize,
-        /// Evaluations per frame for L-BFGS, CMA-ES and PSO.
+        /// Evaluations per frame for L-BFGS, Levenberg–Marquardt, CMA-ES and PSO (a cap for the first two).
         #[arg(long, default_value_t = 2000)]
         budget: usize,
     },
@@ -256,20 +256,36 @@ struct FitCmd {
     /// Dataset (.npz from `lfit synth`).
     #[arg(long)]
     data: PathBuf,
-    /// Method: random, one-plus-one, de, pso, cma, tbpsa, powell, cma-powell, ngo, apf, psapf,
-    /// lbfgs, or neural (with --checkpoint).
-    #[arg(long)]
-    method: String,
-    /// Energy evaluations per frame (exact for zeroth-order methods; a cap for L-BFGS).
+    /// Method: random, one-plus-one, de, pso, cma, tbpsa, powell, cma-powell, ngo, shiwa, apf,
+    /// psapf, lbfgs, lm (Levenberg–Marquardt), gn (Gauss-Newton), or neural (with --checkpoint).
+    #[arg(long, value_enum, hide_possible_values = true)]
+    method: lfit::method::MethodKind,
+    /// Energy evaluations per frame (exact for zeroth-order methods; a cap for lbfgs, lm and gn,
+    /// whose evaluations include the gradient / Jacobian).
     #[arg(long)]
     budget: usize,
     /// holistic, grouped (papers/000 Algorithm 1), hierarchical (papers/001 §3.3) or shape-first
     /// (morphable models: translation and shape, then everything).
     #[arg(long, default_value = "holistic")]
     strategy: String,
-    /// Optimizer settings: nevergrad (papers/000) or paper001 (papers/001 Table 3).
+    /// Optimizer settings: nevergrad (papers/000), paper001 (papers/001 Table 3) or tuned
+    /// (nevergrad's with the initial steps a recorded sweep on validation frames chose per method
+    /// and modality: configs/tuned.json, docs/results/tuning.md).
     #[arg(long, default_value = "nevergrad")]
     preset: String,
+    /// Factor on the initial steps of a zeroth-order method (papers/000 §4.1's 0.1 m / 3°).
+    #[arg(long)]
+    step_scale: Option<f64>,
+    /// CMA-ES: learn only the diagonal of the covariance (pycma's CMA_diagonal, sep-CMA-ES).
+    #[arg(long)]
+    cma_diagonal: bool,
+    /// CMA-ES: rank the best point so far first in every generation it beats (pycma's
+    /// CMA_elitist).
+    #[arg(long)]
+    cma_elitist: bool,
+    /// CMA-ES: population size λ (default 4 + ⌊3 ln n⌋).
+    #[arg(long)]
+    cma_popsize: Option<usize>,
     /// Frames: A..B (B excluded), A-B (B included), I, or a comma list; default all.
     #[arg(long)]
     frames: Option<String>,
@@ -459,6 +475,12 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 budget: c.budget,
                 strategy: c.strategy,
                 preset: c.preset,
+                step_scale: c.step_scale,
+                cma: lfit::fitters::optim::cma::CmaVariant {
+                    diagonal: c.cma_diagonal,
+                    elitist: c.cma_elitist,
+                    popsize: c.cma_popsize,
+                },
                 frames: c.frames,
                 seed: c.seed,
                 out: c.out,

@@ -175,7 +175,7 @@ fn bad_input_to_fit_and_optimize() {
     };
     assert_one_line_error(
         &fit(&["--method", "gradient-descent", "--budget", "10"]),
-        "unknown method 'gradient-descent'",
+        "invalid value 'gradient-descent' for '--method",
     );
     assert_one_line_error(&fit(&["--method", "cma", "--budget", "0"]), "budget");
     assert_one_line_error(

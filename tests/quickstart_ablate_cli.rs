@@ -28,6 +28,7 @@ fn quickstart_compares_every_method_on_every_sparse_modality() {
         for method in [
             "| neural (checkpoints/MOD, N = 5) |",
             "| lbfgs @60 |",
+            "| lm @60 |",
             "| cma @60 |",
             "| pso @60 |",
         ] {
@@ -43,7 +44,7 @@ fn quickstart_compares_every_method_on_every_sparse_modality() {
         let md = std::fs::read_to_string(dir.join("report.md")).expect("report");
         assert!(md.contains("papers/002 Table 2"), "{md}");
         let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("csv");
-        assert_eq!(csv.lines().count(), 1 + 4 * 3);
+        assert_eq!(csv.lines().count(), 1 + 5 * 3);
         assert!(
             dir.join("plots/energy_vs_evaluations.svg").exists()
                 && dir.join("plots/energy_vs_evaluations.png").exists()

@@ -94,28 +94,43 @@ impl Fitter for LeastSquaresFitter {
 }
 
 /// `JᵀJ` and `Jᵀr` over the columns `dofs`, skipping zero entries (a row of a skinned point is
-/// zero outside its joint chain).
+/// zero outside its joint chain; most penetration rows are zero).
 fn normal_equations(ls: &LeastSquares, dofs: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
     let n = dofs.len();
-    let mut a = DMatrix::<f64>::zeros(n, n);
+    // Column → position among the free entries (usize::MAX: held).
+    let mut position = vec![usize::MAX; ls.dim];
+    for (p, &c) in dofs.iter().enumerate() {
+        position[c] = p;
+    }
+    // Upper triangle, row-major, then mirrored into nalgebra's column-major matrix.
+    let mut upper = vec![0.0; n * n];
     let mut g = DVector::<f64>::zeros(n);
-    let mut nz: Vec<(usize, f64)> = Vec::with_capacity(n);
+    let mut buffer: Vec<(usize, f64)> = vec![(0, 0.0); ls.dim + 1];
     for (i, &r) in ls.residuals.iter().enumerate() {
-        let row = ls.row(i);
-        nz.clear();
-        nz.extend(dofs.iter().enumerate().filter_map(|(p, &c)| (row[c] != 0.0).then_some((p, row[c]))));
+        if ls.zero_rows.get(i).copied().unwrap_or(false) {
+            continue;
+        }
+        // Branch-free compaction of the row's free nonzero entries.
+        let mut len = 0;
+        for (c, &v) in ls.row(i).iter().enumerate() {
+            buffer[len] = (position[c], v);
+            len += usize::from((v != 0.0) & (position[c] != usize::MAX));
+        }
+        let nz = &mut buffer[..len];
+        // Positions ascend with columns when `dofs` is sorted; sort otherwise.
+        if !nz.is_sorted_by_key(|e| e.0) {
+            nz.sort_unstable_by_key(|e| e.0);
+        }
+        let nz = &*nz;
         for (k, &(p, vp)) in nz.iter().enumerate() {
             g[p] += vp * r;
+            let row = &mut upper[p * n..(p + 1) * n];
             for &(q, vq) in &nz[k..] {
-                a[(p, q)] += vp * vq;
+                row[q] += vp * vq;
             }
         }
     }
-    for p in 0..n {
-        for q in 0..p {
-            a[(p, q)] = a[(q, p)];
-        }
-    }
+    let a = DMatrix::<f64>::from_fn(n, n, |p, q| if p <= q { upper[p * n + q] } else { upper[q * n + p] });
     (a, g)
 }
 

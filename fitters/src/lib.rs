@@ -49,6 +49,38 @@ pub fn build_fitter(
     preset: Preset,
     strategy: Strategy,
 ) -> Result<Box<dyn Fitter>, FitError> {
+    build_fitter_with_steps(method, preset, strategy, 1.0)
+}
+
+/// [`build_fitter`] with the initial steps of a zeroth-order method multiplied by
+/// `step_scale` (> 0); gradient methods take no steps and refuse any factor but 1.
+pub fn build_fitter_with_steps(
+    method: &str,
+    preset: Preset,
+    strategy: Strategy,
+    step_scale: f64,
+) -> Result<Box<dyn Fitter>, FitError> {
+    build_fitter_tuned(method, preset, strategy, step_scale, optim::cma::CmaVariant::default())
+}
+
+/// [`build_fitter_with_steps`] with CMA-ES's update variant (only `cma` takes one that is not
+/// the default).
+pub fn build_fitter_tuned(
+    method: &str,
+    preset: Preset,
+    strategy: Strategy,
+    step_scale: f64,
+    cma: optim::cma::CmaVariant,
+) -> Result<Box<dyn Fitter>, FitError> {
+    if cma != optim::cma::CmaVariant::default() && method != "cma" {
+        return Err(FitError::Start(format!("CMA-ES options (diagonal, elitist, population) given for method {method}")));
+    }
+    if !(step_scale.is_finite() && step_scale > 0.0) {
+        return Err(FitError::Start(format!("step scale must be a positive number (got {step_scale})")));
+    }
+    if step_scale != 1.0 && uses_gradient(method) {
+        return Err(FitError::Start(format!("method {method} has no initial steps to scale")));
+    }
     match method {
         "lbfgs" => {
             return Ok(Box::new(LbfgsFitter {
@@ -63,5 +95,9 @@ pub fn build_fitter(
     let m: Method = method
         .parse()
         .map_err(|_| FitError::UnknownMethod(method.to_string()))?;
-    Ok(Box::new(ZerothOrderFitter::new(m, preset, strategy)))
+    Ok(Box::new(ZerothOrderFitter {
+        step_scale,
+        cma,
+        ..ZerothOrderFitter::new(m, preset, strategy)
+    }))
 }

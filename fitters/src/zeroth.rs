@@ -16,6 +16,11 @@ pub struct ZerothOrderFitter {
     pub method: Method,
     pub preset: Preset,
     pub strategy: Strategy,
+    /// Factor on every initial step (papers/000 §4.1's 0.1 m / 3° / 0.3 σ; 1 = as published):
+    /// the knob of the `tuned` settings (see `configs/tuned.json`).
+    pub step_scale: f64,
+    /// CMA-ES's update variant (diagonal, elitist, population; ignored by other methods).
+    pub cma: crate::optim::cma::CmaVariant,
 }
 
 impl ZerothOrderFitter {
@@ -24,6 +29,8 @@ impl ZerothOrderFitter {
             method,
             preset,
             strategy,
+            step_scale: 1.0,
+            cma: Default::default(),
         }
     }
 }
@@ -33,6 +40,23 @@ impl Fitter for ZerothOrderFitter {
         let mut name = self.method.as_str().to_string();
         if self.preset != Preset::Nevergrad {
             name = format!("{name}[{}]", self.preset.as_str());
+        }
+        if self.step_scale != 1.0 {
+            name = format!("{name}[steps×{}]", self.step_scale);
+        }
+        let v = self.cma;
+        if v != Default::default() {
+            let mut parts = Vec::new();
+            if v.diagonal {
+                parts.push("diagonal".to_string());
+            }
+            if v.elitist {
+                parts.push("elitist".to_string());
+            }
+            if let Some(l) = v.popsize {
+                parts.push(format!("λ={l}"));
+            }
+            name = format!("{name}[{}]", parts.join(","));
         }
         if self.strategy != Strategy::Holistic {
             name = format!("{name}/{}", self.strategy);
@@ -61,7 +85,10 @@ impl StageSolver for ZerothOrderFitter {
         let problem = Problem::new(
             optim::Bounds::new(lower, upper)?,
             start,
-            steps(dofs, &energy.template().layout()),
+            steps(dofs, &energy.template().layout())
+                .into_iter()
+                .map(|s| s * self.step_scale)
+                .collect(),
         )?;
         // PSAPF partitions its stage by the hierarchical steps of papers/001 §3.3.
         let partitions = (self.method == Method::PSAPF).then(|| {
@@ -79,7 +106,7 @@ impl StageSolver for ZerothOrderFitter {
                 })
                 .collect::<Vec<_>>()
         });
-        let mut opt = optim::build(self.method, self.preset, &problem, budget, seed, partitions)?;
+        let mut opt = optim::build_with(self.method, self.preset, &problem, budget, seed, partitions, self.cma)?;
         let base = pose.to_vec();
         let f = |x: &[f64]| {
             let mut p = base.clone();

@@ -439,6 +439,19 @@ pub fn build(
     seed: u64,
     partitions: Option<Vec<Vec<usize>>>,
 ) -> Result<Box<dyn Optimizer>, OptimError> {
+    build_with(method, preset, problem, budget, seed, partitions, cma::CmaVariant::default())
+}
+
+/// [`build`] with CMA-ES's update variant (ignored by the other methods).
+pub fn build_with(
+    method: Method,
+    preset: Preset,
+    problem: &Problem,
+    budget: usize,
+    seed: u64,
+    partitions: Option<Vec<Vec<usize>>>,
+    cma_variant: cma::CmaVariant,
+) -> Result<Box<dyn Optimizer>, OptimError> {
     problem.validate()?;
     if budget == 0 {
         return Err(OptimError::ZeroBudget);
@@ -457,7 +470,7 @@ pub fn build(
             budget,
             seed,
         )),
-        Method::CMA => Box::new(cma::Cma::with_preset(problem, preset, seed)),
+        Method::CMA => Box::new(cma::Cma::with_variant(problem, preset, cma_variant, seed)),
         Method::TBPSA => Box::new(tbpsa::Tbpsa::new(problem, seed)),
         Method::Powell => Box::new(powell::build_powell(problem, seed)),
         Method::CMAPowell => Box::new(chain::CmaPowell::new(problem, preset, budget, seed)),

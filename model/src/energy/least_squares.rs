@@ -37,6 +37,9 @@ pub struct LeastSquares {
     pub dim: usize,
     /// The term of every block of rows.
     pub blocks: Vec<(&'static str, Range<usize>)>,
+    /// Rows known to be zero, residual and Jacobian (unseen groups, inactive penetration and
+    /// joint-limit rows): solvers may skip them. Empty without a Jacobian.
+    pub zero_rows: Vec<bool>,
 }
 
 impl LeastSquares {
@@ -131,47 +134,50 @@ impl Energy {
         let mut blocks = Vec::with_capacity(5);
         let mut row = 0;
 
-        // Data rows.
+        // Data rows: the prediction's Jacobian is written into the block, then folded in place.
         if let Target::Sparse { values, visible } = &self.target {
             let p = values.len();
-            let (pred, jp) = match pj.as_mut() {
-                Some(pj) => self.sparse_prediction_jacobian(&kin, pj),
-                None => (self.sparse_prediction(&kin).unwrap_or_default(), Vec::new()),
+            let pred = match pj.as_mut() {
+                Some(pj) => self.sparse_prediction_jacobian(&kin, pj, &mut jacobian[..p * dim]),
+                None => self.sparse_prediction(&kin).unwrap_or_default(),
             };
             let seen = self.groups.iter().filter(|g| visible[g.start]).count();
-            if seen > 0 && w.data > 0.0 {
-                let c0 = (w.data / seen as f64).sqrt();
-                let mut u = Vec::with_capacity(12);
-                let mut v = vec![0.0; dim];
-                for g in self.groups.iter().filter(|g| visible[g.start]) {
-                    u.clear();
-                    u.extend((g.start..g.start + g.len).map(|i| (pred[i] - values[i]) / g.sigma));
-                    let s = u.iter().map(|x| x * x).sum::<f64>().sqrt();
-                    let (phi, dphi) = self.config.robust.fold(s);
-                    for (k, &uk) in u.iter().enumerate() {
-                        residuals[row + g.start + k] = c0 * phi * uk;
-                    }
+            let c0 = if seen > 0 { (w.data / seen as f64).sqrt() } else { 0.0 };
+            let mut u = Vec::with_capacity(12);
+            let mut v = vec![0.0; dim];
+            for g in &self.groups {
+                let rows = g.start * dim..(g.start + g.len) * dim;
+                if !visible[g.start] || c0 == 0.0 {
                     if with_jacobian {
-                        // J̃ = c0 (φ Ju + (φ'/s) u (uᵀ Ju)), Ju = Jpred / σ.
+                        jacobian[rows].fill(0.0);
+                    }
+                    continue;
+                }
+                u.clear();
+                u.extend((g.start..g.start + g.len).map(|i| (pred[i] - values[i]) / g.sigma));
+                let s = u.iter().map(|x| x * x).sum::<f64>().sqrt();
+                let (phi, dphi) = self.config.robust.fold(s);
+                for (k, &uk) in u.iter().enumerate() {
+                    residuals[row + g.start + k] = c0 * phi * uk;
+                }
+                if with_jacobian {
+                    // J̃ = c0 (φ Ju + (φ'/s) u (uᵀ Ju)), Ju = Jpred / σ.
+                    let block = &mut jacobian[rows];
+                    if dphi != 0.0 {
                         v.fill(0.0);
-                        if dphi != 0.0 {
-                            for (k, &uk) in u.iter().enumerate() {
-                                for (vi, j) in v
-                                    .iter_mut()
-                                    .zip(&jp[(g.start + k) * dim..(g.start + k + 1) * dim])
-                                {
-                                    *vi += uk * j / g.sigma;
-                                }
+                        for (k, &uk) in u.iter().enumerate() {
+                            for (vi, j) in v.iter_mut().zip(&block[k * dim..(k + 1) * dim]) {
+                                *vi += uk * j / g.sigma;
                             }
                         }
                         for (k, &uk) in u.iter().enumerate() {
-                            let src = &jp[(g.start + k) * dim..(g.start + k + 1) * dim];
-                            let dst = &mut jacobian
-                                [(row + g.start + k) * dim..(row + g.start + k + 1) * dim];
-                            for ((d, s), vi) in dst.iter_mut().zip(src).zip(&v) {
-                                *d = c0 * (phi * s / g.sigma + dphi * uk * vi);
+                            for (d, vi) in block[k * dim..(k + 1) * dim].iter_mut().zip(&v) {
+                                *d = c0 * (phi * *d / g.sigma + dphi * uk * vi);
                             }
                         }
+                    } else {
+                        let f = c0 * phi / g.sigma;
+                        block.iter_mut().for_each(|d| *d *= f);
                     }
                 }
             }
@@ -238,31 +244,50 @@ impl Energy {
             blocks.push((name, start..row));
         }
         debug_assert_eq!(row, m);
+        // Zero rows: penetration and joint-limit rows are zero exactly when their residual is
+        // (their Jacobian is only written for active rows); data rows of unseen groups.
+        let mut zero_rows = Vec::new();
+        if with_jacobian {
+            zero_rows = vec![false; m];
+            for (name, range) in &blocks {
+                for i in range.clone() {
+                    zero_rows[i] = match *name {
+                        "EP" | "EA" => residuals[i] == 0.0,
+                        "data" => match &self.target {
+                            Target::Sparse { visible, .. } => !visible[i - range.start] || w.data == 0.0,
+                            Target::Scan { .. } => false,
+                        },
+                        _ => false,
+                    };
+                }
+            }
+        }
         LeastSquares {
             residuals,
             jacobian,
             dim,
             blocks,
+            zero_rows,
         }
     }
 
-    /// The sparse prediction (layout of [`Sensor::predict_sparse`]) and its Jacobian
-    /// (prediction length × dim, row-major).
+    /// The sparse prediction (layout of [`Sensor::predict_sparse`]); its Jacobian (prediction
+    /// length × dim, row-major) is written into `jp`.
     fn sparse_prediction_jacobian(
         &self,
         kin: &Kinematics,
         pj: &mut PointJacobians<'_>,
-    ) -> (Vec<f64>, Vec<f64>) {
+        jp: &mut [f64],
+    ) -> Vec<f64> {
         let d = pj.dim;
         match &self.sensor {
             Sensor::Markers { vertices, .. } => {
                 let mut pred = Vec::with_capacity(3 * vertices.len());
-                let mut jp = vec![0.0; 3 * vertices.len() * d];
                 for (k, &v) in vertices.iter().enumerate() {
                     let p = pj.skinned_point(v as usize, &mut jp[3 * k * d..3 * (k + 1) * d]);
                     pred.extend(p.to_array());
                 }
-                (pred, jp)
+                pred
             }
             Sensor::Keypoints2d { cameras } => {
                 let nj = kin.joints.len();
@@ -271,7 +296,6 @@ impl Energy {
                     pj.joint_point(j, p, &mut joint_jac[3 * j * d..3 * (j + 1) * d]);
                 }
                 let mut pred = Vec::with_capacity(2 * cameras.len() * nj);
-                let mut jp = vec![0.0; 2 * cameras.len() * nj * d];
                 for (c, cam) in cameras.iter().enumerate() {
                     let rot_t = cam.rot().transpose();
                     for (j, &p) in kin.joints.iter().enumerate() {
@@ -286,11 +310,11 @@ impl Energy {
                         }
                     }
                 }
-                (pred, jp)
+                pred
             }
             Sensor::Hmd(setup) => {
                 let mut pred = Vec::with_capacity(42);
-                let mut jp = vec![0.0; 42 * d];
+                jp.fill(0.0);
                 for (dev, ((rot, pos), joint)) in hmd_devices(setup, kin, self.hmd_joints)
                     .into_iter()
                     .zip(self.hmd_joints)
@@ -317,9 +341,9 @@ impl Energy {
                         pj.skinned_point(tip as usize, &mut jp[(36 + 3 * k) * d..(39 + 3 * k) * d]);
                     pred.extend(p.to_array());
                 }
-                (pred, jp)
+                pred
             }
-            Sensor::Scan(_) => (Vec::new(), Vec::new()),
+            Sensor::Scan(_) => Vec::new(),
         }
     }
 }

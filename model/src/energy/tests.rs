@@ -695,6 +695,11 @@ mod least_squares_form {
                 g[i]
             );
         }
+        for (i, &z) in ls.zero_rows.iter().enumerate() {
+            if z {
+                assert!(ls.residuals[i] == 0.0 && ls.row(i).iter().all(|v| *v == 0.0), "{label}: row {i} marked zero");
+            }
+        }
         let fd = fd_jacobian(e, x);
         let layout = e.template().layout();
         for (c, col) in fd.iter().enumerate() {

@@ -1,0 +1,257 @@
+//! Fitting methods as types: [`MethodKind`] names every method `lfit fit` and `lfit bench`
+//! know (a clap `ValueEnum` on the command line, a kebab-case string in bench configs), and
+//! [`build`] is the one place a fitter is made from it. Adding a method is one variant here and
+//! one implementation of [`lfit_fitters::Fitter`].
+
+use std::fmt;
+use std::str::FromStr;
+
+use anyhow::{Result, bail};
+use lfit_fitters::optim::{Method, Preset};
+use lfit_fitters::{Fitter, Strategy};
+use serde::{Deserialize, Serialize};
+
+/// Every fitting method (the classical ones are [`lfit_fitters::METHOD_NAMES`]).
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum,
+)]
+#[serde(rename_all = "kebab-case")]
+#[value(rename_all = "kebab-case")]
+pub enum MethodKind {
+    /// Random search (zeroth order).
+    Random,
+    /// (1+1)-ES with the one-fifth rule.
+    OnePlusOne,
+    /// Differential evolution.
+    De,
+    /// Particle swarm optimisation.
+    Pso,
+    /// CMA-ES (active, IPOP restarts).
+    Cma,
+    /// Test-based population-size adaptation.
+    Tbpsa,
+    /// Powell's method.
+    Powell,
+    /// CMA-ES, then Powell.
+    CmaPowell,
+    /// nevergrad's NGOpt-like selector.
+    Ngo,
+    /// nevergrad's Shiwa-like selector.
+    Shiwa,
+    /// Annealed particle filter (papers/001).
+    Apf,
+    /// Partitioned sampling APF (papers/001).
+    Psapf,
+    /// L-BFGS with the exact gradient.
+    Lbfgs,
+    /// Levenberg–Marquardt on the least-squares form (exact Jacobian).
+    Lm,
+    /// Gauss-Newton on the least-squares form.
+    Gn,
+    /// The learned fitter (papers/002), from a checkpoint.
+    Neural,
+}
+
+impl MethodKind {
+    pub const ALL: [MethodKind; 16] = [
+        MethodKind::Random,
+        MethodKind::OnePlusOne,
+        MethodKind::De,
+        MethodKind::Pso,
+        MethodKind::Cma,
+        MethodKind::Tbpsa,
+        MethodKind::Powell,
+        MethodKind::CmaPowell,
+        MethodKind::Ngo,
+        MethodKind::Shiwa,
+        MethodKind::Apf,
+        MethodKind::Psapf,
+        MethodKind::Lbfgs,
+        MethodKind::Lm,
+        MethodKind::Gn,
+        MethodKind::Neural,
+    ];
+
+    /// The name on the command line, in configs and in results.
+    pub fn name(self) -> &'static str {
+        match self {
+            MethodKind::Random => "random",
+            MethodKind::OnePlusOne => "one-plus-one",
+            MethodKind::De => "de",
+            MethodKind::Pso => "pso",
+            MethodKind::Cma => "cma",
+            MethodKind::Tbpsa => "tbpsa",
+            MethodKind::Powell => "powell",
+            MethodKind::CmaPowell => "cma-powell",
+            MethodKind::Ngo => "ngo",
+            MethodKind::Shiwa => "shiwa",
+            MethodKind::Apf => "apf",
+            MethodKind::Psapf => "psapf",
+            MethodKind::Lbfgs => "lbfgs",
+            MethodKind::Lm => "lm",
+            MethodKind::Gn => "gn",
+            MethodKind::Neural => "neural",
+        }
+    }
+
+    /// The ask/tell optimizer of a zeroth-order method.
+    pub fn zeroth_order(self) -> Option<Method> {
+        match self {
+            MethodKind::Lbfgs | MethodKind::Lm | MethodKind::Gn | MethodKind::Neural => None,
+            other => other.name().parse().ok(),
+        }
+    }
+
+    /// Whether the method needs the energy's gradient or Jacobian, and so its differentiable
+    /// variant ([`lfit_model::energy::EnergyConfig::for_gradient`]).
+    pub fn uses_gradient(self) -> bool {
+        lfit_fitters::uses_gradient(self.name())
+    }
+
+    /// Whether strategies (grouped, hierarchical, ...) apply: every method but the neural one.
+    pub fn has_strategies(self) -> bool {
+        self != MethodKind::Neural
+    }
+
+    /// Every name, comma-separated (for messages).
+    pub fn list() -> String {
+        MethodKind::ALL.map(MethodKind::name).join(", ")
+    }
+}
+
+impl fmt::Display for MethodKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for MethodKind {
+    type Err = anyhow::Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match MethodKind::ALL.into_iter().find(|m| m.name() == s) {
+            Some(m) => Ok(m),
+            None => bail!("unknown method '{s}' (expected one of: {})", MethodKind::list()),
+        }
+    }
+}
+
+/// One entry of a bench config's `methods`: `"METHOD"` (crossed with the config's strategies)
+/// or `"METHOD:STRATEGY"`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub struct MethodSpec {
+    pub kind: MethodKind,
+    pub strategy: Option<Strategy>,
+}
+
+impl TryFrom<String> for MethodSpec {
+    type Error = anyhow::Error;
+    fn try_from(s: String) -> Result<Self> {
+        s.parse()
+    }
+}
+
+impl From<MethodSpec> for String {
+    fn from(m: MethodSpec) -> String {
+        m.to_string()
+    }
+}
+
+impl FromStr for MethodSpec {
+    type Err = anyhow::Error;
+    fn from_str(s: &str) -> Result<Self> {
+        let (name, pin) = match s.split_once(':') {
+            Some((n, p)) => (n, Some(p)),
+            None => (s, None),
+        };
+        let kind: MethodKind = name.parse().map_err(|e: anyhow::Error| {
+            anyhow::anyhow!("{e}; optionally NAME:STRATEGY")
+        })?;
+        let strategy = match pin {
+            Some(_) if !kind.has_strategies() => {
+                bail!("method '{s}': the neural fitter has no strategies")
+            }
+            Some(p) => Some(
+                p.parse::<Strategy>()
+                    .map_err(|e| anyhow::anyhow!("method '{s}': {e}"))?,
+            ),
+            None => None,
+        };
+        Ok(Self { kind, strategy })
+    }
+}
+
+impl fmt::Display for MethodSpec {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.strategy {
+            Some(s) => write!(f, "{}:{s}", self.kind),
+            None => write!(f, "{}", self.kind),
+        }
+    }
+}
+
+/// Everything a classical fitter is built from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ClassicOptions {
+    pub preset: Preset,
+    pub strategy: Strategy,
+    /// Factor on a zeroth-order method's initial steps (1 = papers/000 §4.1's).
+    pub step_scale: f64,
+    /// CMA-ES's update variant (diagonal, elitist, population; `cma` only).
+    pub cma: lfit_fitters::optim::cma::CmaVariant,
+}
+
+impl Default for ClassicOptions {
+    fn default() -> Self {
+        Self {
+            preset: Preset::Nevergrad,
+            strategy: Strategy::Holistic,
+            step_scale: 1.0,
+            cma: Default::default(),
+        }
+    }
+}
+
+/// The classical fitter of `kind` (every method but the neural one, which is loaded from a
+/// checkpoint: [`lfit_infer::NeuralFitter`]), built by [`lfit_fitters::build_fitter_with_steps`].
+pub fn build_classic(kind: MethodKind, options: ClassicOptions) -> Result<Box<dyn Fitter>> {
+    if kind == MethodKind::Neural {
+        bail!("the neural fitter is loaded from a checkpoint (--checkpoint DIR), not built");
+    }
+    Ok(lfit_fitters::build_fitter_tuned(
+        kind.name(),
+        options.preset,
+        options.strategy,
+        options.step_scale,
+        options.cma,
+    )?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_method_round_trips_and_builds() {
+        for m in MethodKind::ALL {
+            assert_eq!(m.name().parse::<MethodKind>().unwrap(), m);
+            let json = serde_json::to_string(&m).unwrap();
+            assert_eq!(json, format!("\"{}\"", m.name()));
+            assert_eq!(<MethodKind as clap::ValueEnum>::from_str(m.name(), false).unwrap(), m);
+            if m != MethodKind::Neural {
+                let f = build_classic(m, ClassicOptions::default()).unwrap();
+                assert_eq!(f.name(), m.name(), "a holistic fitter is named like its method");
+            }
+        }
+        // The fitters crate knows every zeroth-order name.
+        for name in lfit_fitters::METHOD_NAMES {
+            assert!(name.parse::<MethodKind>().is_ok(), "{name}");
+        }
+        let spec: MethodSpec = "cma:grouped".parse().unwrap();
+        assert_eq!((spec.kind, spec.strategy), (MethodKind::Cma, Some(Strategy::Grouped)));
+        assert_eq!(spec.to_string(), "cma:grouped");
+        assert!("neural:grouped".parse::<MethodSpec>().unwrap_err().to_string().contains("no strategies"));
+        assert!("cmaes".parse::<MethodSpec>().unwrap_err().to_string().contains("unknown method 'cmaes'"));
+        assert!(build_classic(MethodKind::Lm, ClassicOptions { step_scale: 2.0, ..ClassicOptions::default() }).is_err());
+    }
+}
