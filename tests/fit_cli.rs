@@ -458,3 +458,49 @@ fn objective_server_answers_residuals_and_their_jacobian() {
     assert_one_line_error(&out, "not a sum of squares");
     assert!(!dir.path().join("scan_lm.json").exists());
 }
+
+#[test]
+fn tuned_preset_uses_the_recorded_setting_and_refuses_what_it_cannot_set() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dataset(dir.path(), "markers", "local", 1);
+    let table: serde_json::Value = serde_json::from_str(include_str!("../configs/tuned.json")).unwrap();
+    let chosen = &table["settings"]["markers"]["cma"];
+    let out = dir.path().join("tuned.json");
+    let summary = lfit_json(&["fit", "--data", path_str(&data), "--method", "cma", "--preset", "tuned", "--budget", "50", "--out", path_str(&out), "-q"]);
+    assert!(summary["summary"]["frames"].as_u64() == Some(1), "{summary}");
+    let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert_eq!(r["preset"], "tuned");
+    assert_eq!(r["step_scale"], chosen["step_scale"]);
+    for key in ["diagonal", "elitist"] {
+        assert_eq!(r["cma_variant"][key].as_bool().unwrap_or(false), chosen["cma"][key].as_bool().unwrap_or(false), "{key}");
+    }
+    assert_eq!(r["frames"][0]["evaluations"], 50, "the budget stays exact");
+    // The same run through the explicit flags gives the identical fit (same seed).
+    let mut flags = vec!["fit".to_string(), "--data".into(), path_str(&data).into(), "--method".into(), "cma".into(), "--budget".into(), "50".into(), "-q".into()];
+    flags.extend(["--step-scale".to_string(), chosen["step_scale"].to_string()]);
+    if chosen["cma"]["diagonal"] == true {
+        flags.push("--cma-diagonal".into());
+    }
+    if chosen["cma"]["elitist"] == true {
+        flags.push("--cma-elitist".into());
+    }
+    if let Some(p) = chosen["cma"]["popsize"].as_u64() {
+        flags.extend(["--cma-popsize".to_string(), p.to_string()]);
+    }
+    let explicit = dir.path().join("explicit.json");
+    flags.extend(["--out".to_string(), path_str(&explicit).into()]);
+    let args: Vec<&str> = flags.iter().map(String::as_str).collect();
+    lfit_json(&args);
+    let e: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&explicit).unwrap()).unwrap();
+    assert_eq!(e["frames"][0]["pose"], r["frames"][0]["pose"]);
+    let fit = |extra: &[&str]| {
+        let mut a = vec!["fit", "--data", path_str(&data), "--budget", "10", "--out", path_str(&out)];
+        a.extend_from_slice(extra);
+        support::lfit(&a)
+    };
+    assert_one_line_error(&fit(&["--method", "cma", "--preset", "tuned", "--step-scale", "2"]), "--preset tuned sets the steps");
+    assert_one_line_error(&fit(&["--method", "lbfgs", "--preset", "tuned"]), "no tuned setting for lbfgs on markers");
+    assert_one_line_error(&fit(&["--method", "pso", "--cma-diagonal"]), "CMA-ES options");
+    assert_one_line_error(&fit(&["--method", "lm", "--step-scale", "2"]), "no initial steps");
+    assert_one_line_error(&fit(&["--method", "cma", "--step-scale", "-1"]), "step scale must be a positive number");
+}
