@@ -99,11 +99,18 @@ pub fn synth(
     }))
 }
 
-/// Fraction of observation entries (or scan points) that are visible.
+/// Fraction of observation entries (or scan points, or foreground mask pixels) that are
+/// visible (set).
 pub fn visible_fraction(dataset: &Dataset) -> f64 {
     let flags: Vec<&Vec<bool>> = match &dataset.observations {
         Observations::Sparse { visible, .. } | Observations::Scan { visible, .. } => {
             visible.iter().collect()
+        }
+        Observations::Silhouettes { masks } => {
+            let (set, total) = masks.iter().flatten().fold((0usize, 0usize), |(s, t), m| {
+                (s + m.data.iter().filter(|&&p| p != 0).count(), t + m.data.len())
+            });
+            return if total == 0 { 0.0 } else { set as f64 / total as f64 };
         }
     };
     let total: usize = flags.iter().map(|v| v.len()).sum();

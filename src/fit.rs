@@ -74,6 +74,9 @@ pub fn energy_for_frame(
             grid: grids[frame].clone(),
             silhouettes: silhouettes[frame].clone(),
         },
+        Observations::Silhouettes { masks } => Target::Silhouettes {
+            masks: masks[frame].clone(),
+        },
     };
     Energy::new(template, dataset.sensor.clone(), target, config)
         .with_context(|| format!("frame {frame}"))

@@ -35,7 +35,7 @@ enum Command {
     Template(TemplateCommand),
     /// Synthesize a dataset (poses, observations with noise and occlusion) as a numpy .npz file.
     Synth {
-        /// Observation modality: markers, keypoints2d, hmd or scan.
+        /// Observation modality: markers, keypoints2d, hmd, scan or silhouettes (papers/001: K foreground masks).
         #[arg(long)]
         modality: String,
         /// Scenario of papers/000 §4: local, global or sequence.
@@ -710,10 +710,11 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(serde_json::Value::Null) => ExitCode::SUCCESS,
         Ok(summary) => {
-            println!(
-                "{}",
-                serde_json::to_string_pretty(&summary).unwrap_or_else(|_| summary.to_string())
-            );
+            // A closed stdout (`lfit ... | head`) is not an error of the command: no panic.
+            use std::io::Write as _;
+            let text =
+                serde_json::to_string_pretty(&summary).unwrap_or_else(|_| summary.to_string());
+            let _ = writeln!(std::io::stdout(), "{text}");
             ExitCode::SUCCESS
         }
         Err(e) => {

@@ -34,7 +34,16 @@ pub const PRESETS: &[(&str, &[(&str, &str)])] = &[
     ),
     (
         "ea-vs-pf",
-        &[("", include_str!("../benches/presets/ea-vs-pf.toml"))],
+        &[
+            (
+                "silhouettes",
+                include_str!("../benches/presets/ea-vs-pf-silhouettes.toml"),
+            ),
+            (
+                "keypoints2d",
+                include_str!("../benches/presets/ea-vs-pf-keypoints2d.toml"),
+            ),
+        ],
     ),
     (
         "learned-vs-classical",

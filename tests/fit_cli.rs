@@ -502,5 +502,31 @@ fn tuned_preset_uses_the_recorded_setting_and_refuses_what_it_cannot_set() {
     assert_one_line_error(&fit(&["--method", "lbfgs", "--preset", "tuned"]), "no tuned setting for lbfgs on markers");
     assert_one_line_error(&fit(&["--method", "pso", "--cma-diagonal"]), "CMA-ES options");
     assert_one_line_error(&fit(&["--method", "lm", "--step-scale", "2"]), "no initial steps");
-    assert_one_line_error(&fit(&["--method", "cma", "--step-scale", "-1"]), "step scale must be a positive number");
+    assert_one_line_error(&fit(&["--method", "cma", "--step-scale", "0"]), "step scale must be a positive number");
+}
+
+#[test]
+fn silhouettes_fit_with_zeroth_order_methods_and_gradient_methods_refuse() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dataset(dir.path(), "silhouettes", "local", 2);
+    // numpy layout: one [N, K, H, W] uint8 mask array.
+    let out = dir.path().join("cma.json");
+    lfit_json(&["fit", "--data", path_str(&data), "--method", "cma", "--budget", "60", "--out", path_str(&out), "-q"]);
+    let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    for f in r["frames"].as_array().unwrap() {
+        let (e, e0) = (f["energy"].as_f64().unwrap(), f["start_energy"].as_f64().unwrap());
+        assert!(e <= e0 && (0.0..=1.0 + 1e-9).contains(&f["terms"]["data"].as_f64().unwrap()), "{f}");
+        assert_eq!(f["evaluations"], 60);
+    }
+    for method in ["lbfgs", "lm", "gn"] {
+        let o = dir.path().join(format!("{method}.json"));
+        let res = support::lfit(&["fit", "--data", path_str(&data), "--method", method, "--budget", "10", "--out", path_str(&o), "-q"]);
+        assert_one_line_error(&res, "no gradient");
+        assert!(!o.exists());
+    }
+    let x = serve(&["--data", path_str(&data), "--frame", "0"], &[r#"{"describe": true}"#.to_string()]);
+    let start = serde_json::to_string(&x[0]["start"]).unwrap();
+    let a = serve(&["--data", path_str(&data), "--frame", "0"], &[format!(r#"{{"x": {start}, "jacobian": true}}"#), format!(r#"{{"x": {start}}}"#)]);
+    assert!(a[0]["error"].as_str().unwrap().contains("no gradient"), "{}", a[0]);
+    assert!(a[1]["energy"].as_f64().unwrap().is_finite(), "the server keeps serving");
 }

@@ -79,6 +79,9 @@ pub enum Observations {
         grids: Vec<VoxelGrid>,
         silhouettes: Vec<Vec<Mask>>,
     },
+    /// `silhouettes`: per frame, the foreground mask of every camera (on disk `silhouettes`,
+    /// `[N, K, H, W]` uint8, as for `scan`).
+    Silhouettes { masks: Vec<Vec<Mask>> },
 }
 
 /// A synthetic (or converted) dataset.
@@ -103,6 +106,43 @@ struct MetaJson {
 }
 
 /// Entries `range` of every row, flattened.
+/// Per-frame camera masks as one `[N, K, H, W]` uint8 array.
+fn mask_array(masks: &[Vec<Mask>], n: usize, k: usize) -> Array {
+    let (w, h) = masks
+        .first()
+        .and_then(|s| s.first())
+        .map_or((0, 0), |m| (m.width as usize, m.height as usize));
+    let data: Vec<u8> = masks
+        .iter()
+        .flatten()
+        .flat_map(|m| m.data.iter().copied())
+        .collect();
+    Array::u8(vec![n, k, h, w], data)
+}
+
+/// The `[N, K, H, W]` mask array `silhouettes` back into per-frame masks.
+fn read_masks(s: &Array, n: usize, k: usize) -> Result<Vec<Vec<Mask>>, SynthError> {
+    if s.shape.len() != 4 || s.shape[0] != n || s.shape[1] != k {
+        return Err(SynthError::Dataset(format!(
+            "array 'silhouettes' has shape {:?}, expected [{n}, {k}, H, W]",
+            s.shape
+        )));
+    }
+    let (h, w) = (s.shape[2], s.shape[3]);
+    let data = s.to_u8("silhouettes")?;
+    Ok((0..n)
+        .map(|i| {
+            (0..k)
+                .map(|c| Mask {
+                    width: w as u32,
+                    height: h as u32,
+                    data: data[(i * k + c) * w * h..(i * k + c + 1) * w * h].to_vec(),
+                })
+                .collect()
+        })
+        .collect())
+}
+
 fn flat_block(rows: &[Vec<f64>], range: std::ops::Range<usize>) -> Vec<f64> {
     rows.iter()
         .flat_map(|p| p[range.clone()].iter().copied())
@@ -252,16 +292,10 @@ impl Dataset {
                         &grids.iter().map(|g| g.spacing).collect::<Vec<_>>(),
                     ),
                 ));
-                let (w, h) = silhouettes
-                    .first()
-                    .and_then(|s| s.first())
-                    .map_or((0, 0), |m| (m.width as usize, m.height as usize));
-                let masks: Vec<u8> = silhouettes
-                    .iter()
-                    .flatten()
-                    .flat_map(|m| m.data.iter().copied())
-                    .collect();
-                arrays.push(("silhouettes", Array::u8(vec![n, k, h, w], masks)));
+                arrays.push(("silhouettes", mask_array(silhouettes, n, k)));
+            }
+            Observations::Silhouettes { masks } => {
+                arrays.push(("silhouettes", mask_array(masks, n, k)));
             }
         }
         Ok(arrays)
@@ -397,26 +431,7 @@ impl Dataset {
                         values: values[i * per..(i + 1) * per].to_vec(),
                     })
                     .collect();
-                let s = get("silhouettes")?;
-                if s.shape.len() != 4 || s.shape[0] != n || s.shape[1] != k {
-                    return Err(SynthError::Dataset(format!(
-                        "array 'silhouettes' has shape {:?}, expected [{n}, {k}, H, W]",
-                        s.shape
-                    )));
-                }
-                let (h, w) = (s.shape[2], s.shape[3]);
-                let data = s.to_u8("silhouettes")?;
-                let silhouettes = (0..n)
-                    .map(|i| {
-                        (0..k)
-                            .map(|c| Mask {
-                                width: w as u32,
-                                height: h as u32,
-                                data: data[(i * k + c) * w * h..(i * k + c + 1) * w * h].to_vec(),
-                            })
-                            .collect()
-                    })
-                    .collect();
+                let silhouettes = read_masks(get("silhouettes")?, n, k)?;
                 Observations::Scan {
                     points,
                     visible,
@@ -424,6 +439,9 @@ impl Dataset {
                     silhouettes,
                 }
             }
+            Modality::Silhouettes => Observations::Silhouettes {
+                masks: read_masks(get("silhouettes")?, n, sensor.cameras().len())?,
+            },
             _ => {
                 let o = get("observations")?;
                 if o.shape.len() != 2 || o.shape[0] != n {

@@ -190,12 +190,21 @@ pub fn synthesize(
         .collect();
     let observations = match config.modality {
         Modality::Scan => assemble_scan(frames, sensor)?,
+        Modality::Silhouettes => Observations::Silhouettes {
+            masks: frames
+                .into_iter()
+                .map(|f| match f {
+                    FrameObs::Silhouettes(m) => m,
+                    _ => Vec::new(),
+                })
+                .collect(),
+        },
         _ => {
             let (values, visible) = frames
                 .into_iter()
                 .map(|f| match f {
                     FrameObs::Sparse(v, b) => (v, b),
-                    FrameObs::Scan { .. } => (Vec::new(), Vec::new()),
+                    FrameObs::Scan { .. } | FrameObs::Silhouettes(_) => (Vec::new(), Vec::new()),
                 })
                 .unzip();
             Observations::Sparse { values, visible }
@@ -397,6 +406,7 @@ enum FrameObs {
         visible: Vec<bool>,
         silhouettes: Vec<lfit_model::scan::Mask>,
     },
+    Silhouettes(Vec<lfit_model::scan::Mask>),
 }
 
 fn observe_frame(
@@ -407,6 +417,20 @@ fn observe_frame(
     rng: &mut ChaCha8Rng,
 ) -> FrameObs {
     match sensor {
+        Sensor::Silhouettes(_) => {
+            let Some(mut masks) = sensor.predict_silhouettes(template, target) else {
+                unreachable!("silhouettes sensor")
+            };
+            // Background-subtraction speckle: every pixel flips with the outlier rate.
+            for m in &mut masks {
+                for px in &mut m.data {
+                    if rng.random::<f64>() < noise.outlier_rate {
+                        *px = u8::from(*px == 0);
+                    }
+                }
+            }
+            FrameObs::Silhouettes(masks)
+        }
         Sensor::Scan(_) => {
             let Some(pred) = sensor.predict_scan(template, target) else {
                 unreachable!("scan sensor")

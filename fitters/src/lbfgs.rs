@@ -47,6 +47,9 @@ impl Fitter for LbfgsFitter {
     }
 
     fn fit(&self, request: &FitRequest<'_>) -> Result<FitResult, FitError> {
+        if let Some(why) = request.energy.gradient_unsupported() {
+            return Err(FitError::Lbfgs(why));
+        }
         run_staged(self.name(), self, self.strategy, request)
     }
 }

@@ -25,14 +25,17 @@ pub enum Modality {
     Keypoints2d,
     Hmd,
     Scan,
+    /// K binary camera masks (papers/001 §3.2): the foreground images of background subtraction.
+    Silhouettes,
 }
 
 impl Modality {
-    pub const ALL: [Modality; 4] = [
+    pub const ALL: [Modality; 5] = [
         Modality::Markers,
         Modality::Keypoints2d,
         Modality::Hmd,
         Modality::Scan,
+        Modality::Silhouettes,
     ];
 
     pub fn name(self) -> &'static str {
@@ -41,6 +44,7 @@ impl Modality {
             Modality::Keypoints2d => "keypoints2d",
             Modality::Hmd => "hmd",
             Modality::Scan => "scan",
+            Modality::Silhouettes => "silhouettes",
         }
     }
 }
@@ -94,6 +98,13 @@ pub struct ScanSetup {
     pub residual_vertices: Vec<u32>,
 }
 
+/// Fixed setup of the `silhouettes` modality (papers/001 §3.2): the calibrated cameras whose
+/// foreground masks are observed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SilhouetteSetup {
+    pub cameras: Vec<Camera>,
+}
+
 /// A modality with its sensor setup.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "modality", rename_all = "lowercase")]
@@ -107,6 +118,7 @@ pub enum Sensor {
     },
     Hmd(HmdSetup),
     Scan(ScanSetup),
+    Silhouettes(SilhouetteSetup),
 }
 
 /// Entries per HMD prediction: head, left wrist and right wrist as 3×4 `[R | t]` (12 each), then
@@ -163,6 +175,10 @@ impl Sensor {
                 voxel_size: 0.02,
                 residual_vertices: (0..template.num_vertices() as u32).step_by(8).collect(),
             }),
+            // papers/001 used V calibrated views around the subject; the scan's four-camera ring.
+            Modality::Silhouettes => Sensor::Silhouettes(SilhouetteSetup {
+                cameras: default_ring(4),
+            }),
         }
     }
 
@@ -172,6 +188,7 @@ impl Sensor {
             Sensor::Keypoints2d { .. } => Modality::Keypoints2d,
             Sensor::Hmd(_) => Modality::Hmd,
             Sensor::Scan(_) => Modality::Scan,
+            Sensor::Silhouettes(_) => Modality::Silhouettes,
         }
     }
 
@@ -180,6 +197,7 @@ impl Sensor {
         match self {
             Sensor::Keypoints2d { cameras } => cameras,
             Sensor::Scan(s) => &s.cameras,
+            Sensor::Silhouettes(s) => &s.cameras,
             _ => &[],
         }
     }
@@ -191,6 +209,8 @@ impl Sensor {
             Sensor::Keypoints2d { cameras } => 2 * cameras.len() * template.rig.num_joints(),
             Sensor::Hmd(_) => HMD_DIM,
             Sensor::Scan(s) => 3 * s.residual_vertices.len(),
+            // Masks are compared as images: no residual vector.
+            Sensor::Silhouettes(_) => 0,
         }
     }
 
@@ -243,6 +263,12 @@ impl Sensor {
                     .iter()
                     .enumerate()
                     .try_for_each(|(i, c)| c.validate(i))
+            }
+            Sensor::Silhouettes(s) => {
+                if s.cameras.is_empty() {
+                    return Err(ModelError::Config("the silhouettes modality needs at least one camera".into()));
+                }
+                s.cameras.iter().enumerate().try_for_each(|(i, c)| c.validate(i))
             }
         }
     }
@@ -318,8 +344,18 @@ impl Sensor {
                 }
                 Some(SparsePrediction { values, visible })
             }
-            Sensor::Scan(_) => None,
+            Sensor::Scan(_) | Sensor::Silhouettes(_) => None,
         }
+    }
+
+    /// The model's silhouettes in every camera of the `silhouettes` modality at `pose` (full
+    /// camera resolution). `None` for other modalities.
+    pub fn predict_silhouettes(&self, template: &Template, pose: &[f64]) -> Option<Vec<Mask>> {
+        let Sensor::Silhouettes(setup) = self else { return None };
+        let transforms = joint_transforms(template, pose);
+        let mut vertices = Vec::new();
+        skin_lbs_into(template, &transforms, &mut vertices);
+        Some(render_silhouettes(&setup.cameras, &vertices, &template.faces))
     }
 
     /// Predicted scan observation at `pose` (posed surface and silhouettes). `None` for sparse

@@ -143,10 +143,10 @@ impl TrainConfig {
                 reason: reason.into(),
             })
         };
-        if self.modality == Modality::Scan {
+        if matches!(self.modality, Modality::Scan | Modality::Silhouettes) {
             return bad(
                 "modality",
-                "scan".into(),
+                self.modality.to_string(),
                 "the neural fitter supports markers, keypoints2d and hmd",
             );
         }

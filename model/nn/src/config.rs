@@ -268,10 +268,10 @@ impl NetConfig {
                 return bad(name, format!("must be positive, got {v}"));
             }
         }
-        if self.modality == Modality::Scan {
+        if matches!(self.modality, Modality::Scan | Modality::Silhouettes) {
             return bad(
                 "modality",
-                "scan has no neural fitter (its residual is not an observation vector)".into(),
+                format!("{} has no neural fitter (its residual is not an observation vector)", self.modality),
             );
         }
         Ok(())

@@ -137,6 +137,6 @@ pub fn observation_features(energy: &Energy) -> Vec<f64> {
             .map(|(&v, &s)| if s { v } else { 0.0 })
             .chain(visible.iter().map(|&s| if s { 1.0 } else { 0.0 }))
             .collect(),
-        Target::Scan { .. } => Vec::new(),
+        Target::Scan { .. } | Target::Silhouettes { .. } => Vec::new(),
     }
 }

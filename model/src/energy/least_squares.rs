@@ -75,6 +75,9 @@ impl Energy {
     /// root of a mean, papers/000 eq. 4), the silhouette term EJ (no gradient) and the binary
     /// joint-angle prior (piecewise constant) have none.
     pub fn least_squares_unsupported(&self) -> Option<String> {
+        if let Some(why) = self.gradient_unsupported() {
+            return Some(why);
+        }
         if matches!(self.sensor, Sensor::Scan(_)) {
             return Some("the scan energy is not a sum of squares (ED is a root mean square, papers/000 eq. 4; EJ has no gradient): use a zeroth-order method or L-BFGS".into());
         }
@@ -88,7 +91,7 @@ impl Energy {
     pub fn residual_count(&self) -> usize {
         let data = match &self.target {
             Target::Sparse { values, .. } => values.len(),
-            Target::Scan { .. } => 0,
+            Target::Scan { .. } | Target::Silhouettes { .. } => 0,
         };
         let pose_end = self.limits.lower.len();
         data + self.penetration.tests.len()
@@ -255,7 +258,7 @@ impl Energy {
                         "EP" | "EA" => residuals[i] == 0.0,
                         "data" => match &self.target {
                             Target::Sparse { visible, .. } => !visible[i - range.start] || w.data == 0.0,
-                            Target::Scan { .. } => false,
+                            Target::Scan { .. } | Target::Silhouettes { .. } => false,
                         },
                         _ => false,
                     };
@@ -343,7 +346,7 @@ impl Energy {
                 }
                 pred
             }
-            Sensor::Scan(_) => Vec::new(),
+            Sensor::Scan(_) | Sensor::Silhouettes(_) => Vec::new(),
         }
     }
 }

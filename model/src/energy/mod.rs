@@ -311,6 +311,8 @@ pub enum Target {
         grid: VoxelGrid,
         silhouettes: Vec<Mask>,
     },
+    /// `silhouettes`: the foreground mask of every sensor camera.
+    Silhouettes { masks: Vec<Mask> },
 }
 
 /// Value and named (unweighted) terms of one evaluation; `total = Σ λ_term · term`.
@@ -459,25 +461,7 @@ impl Energy {
                             .into(),
                     ));
                 }
-                if masks.len() != setup.cameras.len() {
-                    return Err(ModelError::Shape {
-                        what: "target silhouettes".into(),
-                        expected: setup.cameras.len().to_string(),
-                        got: masks.len().to_string(),
-                    });
-                }
-                for (k, (m, c)) in masks.iter().zip(&setup.cameras).enumerate() {
-                    if m.width != c.width
-                        || m.height != c.height
-                        || m.data.len() != (m.width * m.height) as usize
-                    {
-                        return Err(ModelError::Shape {
-                            what: format!("silhouette {k}"),
-                            expected: format!("{}x{}", c.width, c.height),
-                            got: format!("{}x{}", m.width, m.height),
-                        });
-                    }
-                }
+                check_masks(masks, &setup.cameras)?;
                 if config.silhouettes {
                     silhouettes = Some(SilhouetteTerm::new(
                         &setup.cameras,
@@ -486,12 +470,25 @@ impl Energy {
                     ));
                 }
             }
-            (Sensor::Scan(_), Target::Sparse { .. }) => {
+            (Sensor::Silhouettes(setup), Target::Silhouettes { masks }) => {
+                check_masks(masks, &setup.cameras)?;
+                silhouettes = Some(SilhouetteTerm::new(
+                    &setup.cameras,
+                    masks,
+                    config.silhouette_width,
+                ));
+            }
+            (Sensor::Scan(_), _) => {
                 return Err(ModelError::Target(
                     "a scan energy needs a scan target".into(),
                 ));
             }
-            (_, Target::Scan { .. }) => {
+            (Sensor::Silhouettes(_), _) => {
+                return Err(ModelError::Target(
+                    "a silhouettes energy needs one foreground mask per camera".into(),
+                ));
+            }
+            (_, Target::Scan { .. } | Target::Silhouettes { .. }) => {
                 return Err(ModelError::Target(format!(
                     "a {} energy needs a sparse target",
                     sensor.modality()
@@ -519,7 +516,7 @@ impl Energy {
         }
         let axes = match &target {
             Target::Scan { grid, .. } => Some(Arc::new(direction_tensors(grid))),
-            Target::Sparse { .. } => None,
+            Target::Sparse { .. } | Target::Silhouettes { .. } => None,
         };
         let groups = sparse_groups(&sensor, &template, &config.scales);
         let rest_normals = vertex_normals(&template.vertices, &template.faces)
@@ -551,10 +548,11 @@ impl Energy {
     /// Fails like [`Energy::new`] on a target of the wrong shape or with a non-finite visible
     /// value, or on a `scan` energy.
     pub fn with_target(&self, values: Vec<f64>, visible: Vec<bool>) -> Result<Self> {
-        if matches!(self.sensor, Sensor::Scan(_)) {
-            return Err(ModelError::Target(
-                "a scan energy needs a scan target".into(),
-            ));
+        if matches!(self.sensor, Sensor::Scan(_) | Sensor::Silhouettes(_)) {
+            return Err(ModelError::Target(format!(
+                "a {} energy has no sparse target",
+                self.sensor.modality()
+            )));
         }
         let dim = self.sensor.residual_dim(&self.template);
         if values.len() != dim || visible.len() != dim {
@@ -612,6 +610,14 @@ impl Energy {
             }
             _ => vec!["data", "EP", "EA"],
         }
+    }
+
+    /// Why this energy has no gradient, or `None` when it has one: the `silhouettes` energy's
+    /// data term (papers/001 eq. 5) counts pixels, so it is piecewise constant in the pose.
+    pub fn gradient_unsupported(&self) -> Option<String> {
+        matches!(self.sensor, Sensor::Silhouettes(_)).then(|| {
+            "the silhouettes energy has no gradient (papers/001's overlap fitness counts pixels): use a zeroth-order method".to_string()
+        })
     }
 
     /// Evaluations so far (every call of an `evaluate*` method counts one per pose).
@@ -752,6 +758,19 @@ impl Energy {
                 }
                 Some(posed)
             }
+            Target::Silhouettes { .. } => {
+                // papers/001 eq. (5); no gradient (see `Energy::gradient_unsupported`).
+                let posed: Vec<DVec3> = (0..self.skin.rest.len())
+                    .map(|v| kin.skin(self.skin.weights(v), kin.rest(&self.skin.rest, v)))
+                    .collect();
+                let data = self
+                    .silhouettes
+                    .as_ref()
+                    .map_or(0.0, |sil| sil.fitness(&posed, &self.template.faces));
+                terms.push(("data", data));
+                total += w.data * data;
+                Some(posed)
+            }
         };
         let ep = self.penetration.evaluate(
             &kin,
@@ -855,7 +874,7 @@ impl Energy {
                 }
                 Some(out)
             }
-            Sensor::Scan(_) => None,
+            Sensor::Scan(_) | Sensor::Silhouettes(_) => None,
         }
     }
 
@@ -961,7 +980,7 @@ impl Energy {
                     );
                 }
             }
-            Sensor::Scan(_) => {}
+            Sensor::Scan(_) | Sensor::Silhouettes(_) => {}
         }
     }
 
@@ -1254,11 +1273,60 @@ fn sparse_groups(sensor: &Sensor, template: &Template, scales: &Scales) -> Vec<G
             }));
             out
         }
-        Sensor::Scan(_) => Vec::new(),
+        Sensor::Scan(_) | Sensor::Silhouettes(_) => Vec::new(),
     }
 }
 
+/// One target mask per camera, each of its camera's size.
+fn check_masks(masks: &[Mask], cameras: &[Camera]) -> Result<()> {
+    if masks.len() != cameras.len() {
+        return Err(ModelError::Shape {
+            what: "target silhouettes".into(),
+            expected: cameras.len().to_string(),
+            got: masks.len().to_string(),
+        });
+    }
+    for (k, (m, c)) in masks.iter().zip(cameras).enumerate() {
+        if m.width != c.width || m.height != c.height || m.data.len() != (m.width * m.height) as usize {
+            return Err(ModelError::Shape {
+                what: format!("silhouette {k}"),
+                expected: format!("{}x{}", c.width, c.height),
+                got: format!("{}x{}", m.width, m.height),
+            });
+        }
+    }
+    Ok(())
+}
+
 impl SilhouetteTerm {
+    /// papers/001 eq. (4)–(5): per view `½ |M \ F| / |M| + ½ |F \ M| / |F|` (model silhouette M,
+    /// foreground F), averaged over the views: 0 when the masks coincide, 1 when they do not
+    /// overlap. A view where the model renders nothing scores ½ + ½ (as if nothing overlapped);
+    /// an empty foreground contributes only the first half.
+    fn fitness(&self, posed: &[DVec3], faces: &[[u32; 3]]) -> f64 {
+        let verts: Vec<Vec3> = posed.iter().map(|p| p.as_vec3()).collect();
+        let sum: f64 = self
+            .cameras
+            .iter()
+            .zip(&self.targets)
+            .map(|(cam, target)| {
+                let model = render_silhouette(cam, &verts, faces);
+                let (mut m, mut f, mut m_not_f, mut f_not_m) = (0u64, 0u64, 0u64, 0u64);
+                for (&a, &b) in model.data.iter().zip(&target.data) {
+                    let (a, b) = (a != 0, b != 0);
+                    m += u64::from(a);
+                    f += u64::from(b);
+                    m_not_f += u64::from(a && !b);
+                    f_not_m += u64::from(b && !a);
+                }
+                let first = if m > 0 { m_not_f as f64 / m as f64 } else { 1.0 };
+                let second = if f > 0 { f_not_m as f64 / f as f64 } else { 0.0 };
+                0.5 * first + 0.5 * second
+            })
+            .sum();
+        sum / self.cameras.len().max(1) as f64
+    }
+
     fn new(cameras: &[Camera], masks: &[Mask], width: u32) -> Self {
         let mut scaled = Vec::with_capacity(cameras.len());
         let mut targets = Vec::with_capacity(cameras.len());

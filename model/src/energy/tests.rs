@@ -39,6 +39,9 @@ fn target_for(sensor: &Sensor, pose: &Pose) -> Target {
             let silhouettes = render_silhouettes(&setup.cameras, &verts, &t.faces);
             Target::Scan { grid, silhouettes }
         }
+        Sensor::Silhouettes(_) => Target::Silhouettes {
+            masks: sensor.predict_silhouettes(&t, pose).unwrap(),
+        },
         _ => {
             let pred = sensor.predict_sparse(&t, pose).unwrap();
             Target::Sparse {
@@ -871,5 +874,44 @@ mod least_squares_form {
         assert_eq!(ok.evaluations(), 0, "refused requests are not counted");
         ok.least_squares(&gt_pose(), true).unwrap();
         assert_eq!((ok.evaluations(), ok.gradient_evaluations()), (1, 1));
+    }
+}
+
+mod silhouettes {
+    //! The `silhouettes` energy (papers/001 eq. 4–5): in [0, 1] per view, lowest at the pose that
+    //! made the masks, no gradient and no least-squares form.
+    use super::*;
+
+    fn silhouette_energy(pose: &Pose) -> Energy {
+        let t = template();
+        let sensor = Sensor::default_for(Modality::Silhouettes, &t);
+        let masks = sensor.predict_silhouettes(&t, pose).unwrap();
+        assert_eq!(masks.len(), sensor.cameras().len());
+        Energy::new(t, sensor, Target::Silhouettes { masks }, EnergyConfig::default()).unwrap()
+    }
+
+    #[test]
+    fn the_fitness_is_lowest_at_the_truth_and_refuses_gradients() {
+        let truth = gt_pose();
+        let e = silhouette_energy(&truth);
+        let at_truth = e.evaluate(&truth).term("data").unwrap();
+        let off = e.evaluate(&perturbed(&[0.6; POSE_DIM])).term("data").unwrap();
+        let mut far = truth;
+        far[0] += 2.0; // two metres aside: almost no overlap in any view
+        let away = e.evaluate(&far).term("data").unwrap();
+        // Rendering at the energy's width resamples the masks: a thin band of boundary pixels.
+        assert!(at_truth < 0.05, "{at_truth}");
+        assert!(off > at_truth + 0.05 && away > off && away <= 1.0, "{at_truth} {off} {away}");
+        assert!(e.gradient_unsupported().unwrap().contains("no gradient"));
+        assert!(e.least_squares(&truth, true).unwrap_err().to_string().contains("no gradient"));
+        assert!(e.with_target(vec![], vec![]).unwrap_err().to_string().contains("silhouettes energy has no sparse target"));
+        // Wrong targets are refused with the reason.
+        let t = template();
+        let sensor = Sensor::default_for(Modality::Silhouettes, &t);
+        let err = Energy::new(t.clone(), sensor.clone(), Target::Sparse { values: vec![], visible: vec![] }, EnergyConfig::default()).unwrap_err();
+        assert!(err.to_string().contains("one foreground mask per camera"), "{err}");
+        let one = sensor.predict_silhouettes(&t, &truth).unwrap()[..1].to_vec();
+        let err = Energy::new(t, sensor, Target::Silhouettes { masks: one }, EnergyConfig::default()).unwrap_err();
+        assert!(err.to_string().contains("target silhouettes"), "{err}");
     }
 }
