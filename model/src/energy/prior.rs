@@ -151,9 +151,9 @@ impl Penetration {
         // One instance per kind of rest geometry, so the rigid template's loop is exactly the
         // plain table lookup it always was.
         if kin.morph.is_none() {
-            self.evaluate_with(kin, skin, posed, adjoint, true, |v| skin.rest[v])
+            self.evaluate_with(kin, skin, posed, adjoint, |v| skin.rest[v])
         } else {
-            self.evaluate_with(kin, skin, posed, adjoint, false, |v| {
+            self.evaluate_with(kin, skin, posed, adjoint, |v| {
                 kin.rest(&skin.rest, v)
             })
         }
@@ -165,27 +165,9 @@ impl Penetration {
         skin: &SkinTable,
         posed: Option<&[DVec3]>,
         mut adjoint: Option<(&mut Adjoint, f64)>,
-        rigid: bool,
         rest: R,
     ) -> f64 {
-        // Posed ellipsoids: centre A_j(μ), matrix W_j Q W_jᵀ.
-        let posed_ell: Vec<(DVec3, DMat3)> = self
-            .ellipsoids
-            .iter()
-            .map(|e| {
-                let w = kin.world(e.joint);
-                // On a morphable model the ellipsoid moves with its joint's rest position.
-                let centre = if rigid {
-                    e.centre
-                } else {
-                    e.centre + (kin.rest_joints[e.joint] - e.joint_rest)
-                };
-                (
-                    kin.transforms[e.joint].transform_point3(centre),
-                    w * e.q * w.transpose(),
-                )
-            })
-            .collect();
+        let posed_ell = self.posed_ellipsoids(kin);
         let mut sum = 0.0;
         let mut points: Vec<DVec3> = Vec::new();
         let mut near = vec![false; self.ellipsoids.len()];
@@ -248,6 +230,23 @@ impl Penetration {
 }
 
 impl Penetration {
+    /// The posed ellipsoids: centre `A_j(μ)` and matrix `W_j Q W_jᵀ`. On a morphable model the
+    /// ellipsoid moves with its joint's rest position.
+    fn posed_ellipsoids(&self, kin: &Kinematics) -> Vec<(DVec3, DMat3)> {
+        self.ellipsoids
+            .iter()
+            .map(|e| {
+                let w = kin.world(e.joint);
+                let centre = if kin.morph.is_none() {
+                    e.centre
+                } else {
+                    e.centre + (kin.rest_joints[e.joint] - e.joint_rest)
+                };
+                (kin.transforms[e.joint].transform_point3(centre), w * e.q * w.transpose())
+            })
+            .collect()
+    }
+
     /// EP in least-squares form: per tested vertex, `scale · ‖((1 − q_e)₊)_e‖` over the ellipsoids
     /// it is tested against (`residuals`, one per test) and, with `jacobians`, its Jacobian row
     /// (`jacobian`, tests × dim). `scale² Σ r²` is EP's sum, so `scale = √(λ_P / N)`.
@@ -260,22 +259,7 @@ impl Penetration {
         residuals: &mut [f64],
         jacobian: &mut [f64],
     ) {
-        let posed_ell: Vec<(DVec3, DMat3)> = self
-            .ellipsoids
-            .iter()
-            .map(|e| {
-                let w = kin.world(e.joint);
-                let centre = if kin.morph.is_none() {
-                    e.centre
-                } else {
-                    e.centre + (kin.rest_joints[e.joint] - e.joint_rest)
-                };
-                (
-                    kin.transforms[e.joint].transform_point3(centre),
-                    w * e.q * w.transpose(),
-                )
-            })
-            .collect();
+        let posed_ell = self.posed_ellipsoids(kin);
         let mut active: Vec<(usize, f64, DVec3, DVec3)> = Vec::new();
         let dim = jacobians.as_ref().map_or(0, |j| j.dim);
         let (mut jp, mut jc) = (vec![0.0; 3 * dim], vec![0.0; 3 * dim]);

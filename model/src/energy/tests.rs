@@ -437,6 +437,14 @@ mod morphable {
     use crate::morph::smpl_like;
     use rand::{Rng, SeedableRng};
 
+    /// `base` with the last 3 of its 6 directions as expression coefficients.
+    pub(super) fn with_expression(base: Template) -> Arc<Template> {
+        let m = base.morph.as_ref().clone();
+        let morph = crate::morph::Morph::new(m.rest.clone(), 3, 3, m.dirs.clone(), m.posedirs.clone(), m.regressor.clone());
+        let info = base.info.clone();
+        Arc::new(base.with_morph(morph, info).unwrap())
+    }
+
     pub(super) fn params(t: &Template, seed: u64, scale: f64) -> Vec<f64> {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let l = t.layout();
@@ -523,18 +531,7 @@ mod morphable {
     #[test]
     fn gradients_cover_expression_coefficients_too() {
         // The same model with its 6 directions split into 3 shape and 3 expression columns.
-        let base = smpl_like(4, 150, 6, true);
-        let m = base.morph.as_ref().clone();
-        let morph = crate::morph::Morph::new(
-            m.rest.clone(),
-            3,
-            3,
-            m.dirs.clone(),
-            m.posedirs.clone(),
-            m.regressor.clone(),
-        );
-        let info = base.info.clone();
-        let t = Arc::new(base.with_morph(morph, info).unwrap());
+        let t = with_expression(smpl_like(4, 150, 6, true));
         let l = t.layout();
         assert_eq!((l.shape, l.expression), (3, 3));
         let truth = params(&t, 1, 1.0);
@@ -799,19 +796,7 @@ mod least_squares_form {
     #[test]
     fn pose_shape_expression_and_correctives_on_another_skeleton() {
         for posedirs in [false, true] {
-            let base = smpl_like(6, 200, 6, posedirs);
-            // Three of the six directions as expression.
-            let m = base.morph.as_ref().clone();
-            let morph = crate::morph::Morph::new(
-                m.rest.clone(),
-                3,
-                3,
-                m.dirs.clone(),
-                m.posedirs.clone(),
-                m.regressor.clone(),
-            );
-            let info = base.info.clone();
-            let t = Arc::new(base.with_morph(morph, info).unwrap());
+            let t = super::morphable::with_expression(smpl_like(6, 200, 6, posedirs));
             let truth = super::morphable::params(&t, 1, 1.0);
             let x = super::morphable::params(&t, 2, 0.5);
             for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
