@@ -245,12 +245,16 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         bail!("--budget must be at least 1 evaluation");
     }
     let strategy: Strategy = args.strategy.parse()?;
+    let load = || {
+        Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))
+    };
+    // The tuned setting depends on the data's modality: the dataset is read then, once.
+    let mut loaded = None;
     let (preset, step_scale, cma) = if args.preset == "tuned" {
         if args.step_scale.is_some() || args.cma != Default::default() {
             bail!("--preset tuned sets the steps and CMA-ES options itself: drop --step-scale and --cma-*");
         }
-        let dataset = Dataset::load(&args.data)
-            .with_context(|| format!("dataset {}", args.data.display()))?;
+        let dataset = loaded.insert(load()?);
         let modality = dataset.sensor.modality();
         let t = crate::tuned::setting(args.method.name(), modality.name())?;
         (Preset::Nevergrad, t.step_scale, t.cma)
@@ -323,8 +327,10 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     };
     let gradient = args.method.uses_gradient();
     let config = read_energy_config(args.energy.as_deref(), gradient)?;
-    let dataset =
-        Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))?;
+    let dataset = match loaded {
+        Some(d) => d,
+        None => load()?,
+    };
     let frames = parse_frames(args.frames.as_deref(), dataset.len())?;
     let template = template_for(&dataset, args.template.as_deref())?;
     let scenario = dataset.meta.config.scenario;

@@ -49,22 +49,12 @@ pub fn build_fitter(
     preset: Preset,
     strategy: Strategy,
 ) -> Result<Box<dyn Fitter>, FitError> {
-    build_fitter_with_steps(method, preset, strategy, 1.0)
+    build_fitter_tuned(method, preset, strategy, 1.0, optim::cma::CmaVariant::default())
 }
 
-/// [`build_fitter`] with the initial steps of a zeroth-order method multiplied by
-/// `step_scale` (> 0); gradient methods take no steps and refuse any factor but 1.
-pub fn build_fitter_with_steps(
-    method: &str,
-    preset: Preset,
-    strategy: Strategy,
-    step_scale: f64,
-) -> Result<Box<dyn Fitter>, FitError> {
-    build_fitter_tuned(method, preset, strategy, step_scale, optim::cma::CmaVariant::default())
-}
-
-/// [`build_fitter_with_steps`] with CMA-ES's update variant (only `cma` takes one that is not
-/// the default).
+/// [`build_fitter`] with the initial steps of a zeroth-order method multiplied by `step_scale`
+/// (> 0; gradient methods take no steps and refuse any factor but 1) and CMA-ES's update variant
+/// (only `cma` takes one that is not the default).
 pub fn build_fitter_tuned(
     method: &str,
     preset: Preset,

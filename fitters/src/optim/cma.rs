@@ -230,6 +230,18 @@ fn negative_weights(lambda: usize, c1: f64, cmu: f64, mueff: f64, nf: f64) -> Ve
     raw.iter().map(|w| alpha * w / sum_abs).collect()
 }
 
+/// `‖C^{-1/2} y‖² = ‖D⁻¹ Bᵀ y‖²` for the eigenvectors `b` (columns, row-major) and the square
+/// roots `d` of the eigenvalues of C.
+fn mahalanobis_squared(b: &[f64], d: &[f64], y: &[f64]) -> f64 {
+    let n = d.len();
+    let mut m2 = 0.0;
+    for j in 0..n {
+        let t: f64 = (0..n).map(|i| b[i * n + j] * y[i]).sum();
+        m2 += (t / d[j]) * (t / d[j]);
+    }
+    m2
+}
+
 /// Variants of the update, as pycma's options.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct CmaVariant {
@@ -536,20 +548,8 @@ impl Cma {
             }
             self.repaired[k] = repaired;
             if repaired {
-                // Mahalanobis length ‖D⁻¹ Bᵀ y‖ of the repaired step.
-                self.tmp.iter_mut().for_each(|v| *v = 0.0);
-                for (&yi, row) in y.iter().zip(self.b.chunks_exact(n)) {
-                    for (t, &bij) in self.tmp.iter_mut().zip(row) {
-                        *t += bij * yi;
-                    }
-                }
-                let m2: f64 = self
-                    .tmp
-                    .iter()
-                    .zip(&self.d)
-                    .map(|(t, d)| (t / d) * (t / d))
-                    .sum();
-                let m = m2.sqrt();
+                // Mahalanobis length of the repaired step.
+                let m = mahalanobis_squared(&self.b, &self.d, y).sqrt();
                 if m.is_finite() && m > self.mahal_max {
                     let f = self.mahal_max / m;
                     y.iter_mut().for_each(|v| *v *= f);
@@ -579,7 +579,7 @@ impl Cma {
             for j in 0..n {
                 self.injected[j] = (self.best_y[j] - self.mean[j]) / self.sigma;
             }
-            let m = self.mahalanobis(&self.injected.clone());
+            let m = mahalanobis_squared(&self.b, &self.d, &self.injected).sqrt();
             if m.is_finite() && m > 0.0 {
                 let r = (0..n).map(|_| util::normal(&mut self.rng).powi(2)).sum::<f64>().sqrt();
                 self.injected.iter_mut().for_each(|v| *v *= r / m);
@@ -667,12 +667,7 @@ impl Cma {
                 // along the box's faces, so it gets no negative weight (lfit choice).
                 continue;
             } else {
-                // ‖C^{-1/2} y‖² = ‖D⁻¹ Bᵀ y‖².
-                let mut m2 = 0.0;
-                for j in 0..n {
-                    let t: f64 = (0..n).map(|i| self.b[i * n + j] * y[i]).sum();
-                    m2 += (t / self.d[j]) * (t / self.d[j]);
-                }
+                let m2 = mahalanobis_squared(&self.b, &self.d, y);
                 if !(m2.is_finite() && m2 > 0.0) {
                     continue;
                 }
@@ -724,17 +719,6 @@ impl Cma {
         if !ok {
             self.restart();
         }
-    }
-
-    /// Mahalanobis length `‖D⁻¹ Bᵀ y‖` of a step.
-    fn mahalanobis(&self, y: &[f64]) -> f64 {
-        let n = self.n;
-        let mut m2 = 0.0;
-        for j in 0..n {
-            let t: f64 = (0..n).map(|i| self.b[i * n + j] * y[i]).sum();
-            m2 += (t / self.d[j]) * (t / self.d[j]);
-        }
-        m2.sqrt()
     }
 
     /// Symmetrises C, decomposes it, refreshes B, D, B·D. Returns false if C is unusable.
