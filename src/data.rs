@@ -108,9 +108,16 @@ pub fn visible_fraction(dataset: &Dataset) -> f64 {
         }
         Observations::Silhouettes { masks } => {
             let (set, total) = masks.iter().flatten().fold((0usize, 0usize), |(s, t), m| {
-                (s + m.data.iter().filter(|&&p| p != 0).count(), t + m.data.len())
+                (
+                    s + m.data.iter().filter(|&&p| p != 0).count(),
+                    t + m.data.len(),
+                )
             });
-            return if total == 0 { 0.0 } else { set as f64 / total as f64 };
+            return if total == 0 {
+                0.0
+            } else {
+                set as f64 / total as f64
+            };
         }
     };
     let total: usize = flags.iter().map(|v| v.len()).sum();

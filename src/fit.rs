@@ -245,14 +245,15 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         bail!("--budget must be at least 1 evaluation");
     }
     let strategy: Strategy = args.strategy.parse()?;
-    let load = || {
-        Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))
-    };
+    let load =
+        || Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()));
     // The tuned setting depends on the data's modality: the dataset is read then, once.
     let mut loaded = None;
     let (preset, step_scale, cma) = if args.preset == "tuned" {
         if args.step_scale.is_some() || args.cma != Default::default() {
-            bail!("--preset tuned sets the steps and CMA-ES options itself: drop --step-scale and --cma-*");
+            bail!(
+                "--preset tuned sets the steps and CMA-ES options itself: drop --step-scale and --cma-*"
+            );
         }
         let dataset = loaded.insert(load()?);
         let modality = dataset.sensor.modality();
@@ -271,8 +272,11 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     let neural = args.method == crate::method::MethodKind::Neural;
     let (neural_fitter, classic): (Option<lfit_infer::NeuralFitter>, Option<Box<dyn Fitter>>) =
         if neural {
-            if args.step_scale.is_some() || args.preset == "tuned" || args.cma != Default::default() {
-                bail!("--step-scale, --cma-* and --preset tuned are for zeroth-order methods, not neural");
+            if args.step_scale.is_some() || args.preset == "tuned" || args.cma != Default::default()
+            {
+                bail!(
+                    "--step-scale, --cma-* and --preset tuned are for zeroth-order methods, not neural"
+                );
             }
             let dir = args
                 .checkpoint
@@ -509,7 +513,12 @@ impl Served {
         let template = template_for(&dataset, args.template.as_deref())?;
         let energy = energy_for_frame(&dataset, template.clone(), args.frame, config)?;
         let least_squares = if args.energy.is_none() && !args.gradient {
-            Some(energy_for_frame(&dataset, template.clone(), args.frame, read_energy_config(None, true)?)?)
+            Some(energy_for_frame(
+                &dataset,
+                template.clone(),
+                args.frame,
+                read_energy_config(None, true)?,
+            )?)
         } else {
             None
         };
@@ -598,10 +607,14 @@ impl Served {
         let mut pose = self.start.clone();
         self.mask.scatter(&values, &mut pose);
         if want_residuals || want_jacobian {
-            let ls = self.least_squares_energy().least_squares(&pose, want_jacobian)?;
+            let ls = self
+                .least_squares_energy()
+                .least_squares(&pose, want_jacobian)?;
             let mut answer = json!({ "energy": ls.value(), "residuals": ls.residuals });
             if want_jacobian {
-                let rows: Vec<Vec<f64>> = (0..ls.residuals.len()).map(|i| self.mask.gather(ls.row(i))).collect();
+                let rows: Vec<Vec<f64>> = (0..ls.residuals.len())
+                    .map(|i| self.mask.gather(ls.row(i)))
+                    .collect();
                 answer["jacobian"] = json!(rows);
             }
             return Ok(answer);

@@ -12,9 +12,7 @@ use lfit_fitters::{Fitter, Strategy};
 use serde::{Deserialize, Serialize};
 
 /// Every fitting method (the classical ones are [`lfit_fitters::METHOD_NAMES`]).
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum,
-)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 #[value(rename_all = "kebab-case")]
 pub enum MethodKind {
@@ -130,7 +128,10 @@ impl FromStr for MethodKind {
     fn from_str(s: &str) -> Result<Self> {
         match MethodKind::ALL.into_iter().find(|m| m.name() == s) {
             Some(m) => Ok(m),
-            None => bail!("unknown method '{s}' (expected one of: {})", MethodKind::list()),
+            None => bail!(
+                "unknown method '{s}' (expected one of: {})",
+                MethodKind::list()
+            ),
         }
     }
 }
@@ -164,9 +165,9 @@ impl FromStr for MethodSpec {
             Some((n, p)) => (n, Some(p)),
             None => (s, None),
         };
-        let kind: MethodKind = name.parse().map_err(|e: anyhow::Error| {
-            anyhow::anyhow!("{e}; optionally NAME:STRATEGY")
-        })?;
+        let kind: MethodKind = name
+            .parse()
+            .map_err(|e: anyhow::Error| anyhow::anyhow!("{e}; optionally NAME:STRATEGY"))?;
         let strategy = match pin {
             Some(_) if !kind.has_strategies() => {
                 bail!("method '{s}': the neural fitter has no strategies")
@@ -237,10 +238,17 @@ mod tests {
             assert_eq!(m.name().parse::<MethodKind>().unwrap(), m);
             let json = serde_json::to_string(&m).unwrap();
             assert_eq!(json, format!("\"{}\"", m.name()));
-            assert_eq!(<MethodKind as clap::ValueEnum>::from_str(m.name(), false).unwrap(), m);
+            assert_eq!(
+                <MethodKind as clap::ValueEnum>::from_str(m.name(), false).unwrap(),
+                m
+            );
             if m != MethodKind::Neural {
                 let f = build_classic(m, ClassicOptions::default()).unwrap();
-                assert_eq!(f.name(), m.name(), "a holistic fitter is named like its method");
+                assert_eq!(
+                    f.name(),
+                    m.name(),
+                    "a holistic fitter is named like its method"
+                );
             }
         }
         // The fitters crate knows every zeroth-order name.
@@ -248,10 +256,34 @@ mod tests {
             assert!(name.parse::<MethodKind>().is_ok(), "{name}");
         }
         let spec: MethodSpec = "cma:grouped".parse().unwrap();
-        assert_eq!((spec.kind, spec.strategy), (MethodKind::Cma, Some(Strategy::Grouped)));
+        assert_eq!(
+            (spec.kind, spec.strategy),
+            (MethodKind::Cma, Some(Strategy::Grouped))
+        );
         assert_eq!(spec.to_string(), "cma:grouped");
-        assert!("neural:grouped".parse::<MethodSpec>().unwrap_err().to_string().contains("no strategies"));
-        assert!("cmaes".parse::<MethodSpec>().unwrap_err().to_string().contains("unknown method 'cmaes'"));
-        assert!(build_classic(MethodKind::Lm, ClassicOptions { step_scale: 2.0, ..ClassicOptions::default() }).is_err());
+        assert!(
+            "neural:grouped"
+                .parse::<MethodSpec>()
+                .unwrap_err()
+                .to_string()
+                .contains("no strategies")
+        );
+        assert!(
+            "cmaes"
+                .parse::<MethodSpec>()
+                .unwrap_err()
+                .to_string()
+                .contains("unknown method 'cmaes'")
+        );
+        assert!(
+            build_classic(
+                MethodKind::Lm,
+                ClassicOptions {
+                    step_scale: 2.0,
+                    ..ClassicOptions::default()
+                }
+            )
+            .is_err()
+        );
     }
 }

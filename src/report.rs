@@ -87,7 +87,11 @@ pub fn report(
         md,
         "{} runs: methods {:?} × strategies {:?} × budgets {:?} × {} repetition(s) × {} frames; energy: {energy_name}; α = {}.\n",
         runs.len(),
-        config.methods.iter().map(ToString::to_string).collect::<Vec<_>>(),
+        config
+            .methods
+            .iter()
+            .map(ToString::to_string)
+            .collect::<Vec<_>>(),
         config.strategies,
         config.budgets,
         config.repetitions,

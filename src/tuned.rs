@@ -64,11 +64,20 @@ mod tests {
         for (modality, methods) in settings {
             for (method, s) in methods.as_object().unwrap() {
                 let t = super::setting(method, modality).unwrap();
-                assert!(t.step_scale.is_finite() && t.step_scale > 0.0, "{method} on {modality}: {s}");
-                assert!(method == "cma" || t.cma == Default::default(), "{method} on {modality}: {s}");
+                assert!(
+                    t.step_scale.is_finite() && t.step_scale > 0.0,
+                    "{method} on {modality}: {s}"
+                );
+                assert!(
+                    method == "cma" || t.cma == Default::default(),
+                    "{method} on {modality}: {s}"
+                );
             }
         }
         let err = super::setting("lbfgs", "markers").unwrap_err().to_string();
-        assert!(err.contains("no tuned setting for lbfgs on markers") && err.contains("cma on markers"), "{err}");
+        assert!(
+            err.contains("no tuned setting for lbfgs on markers") && err.contains("cma on markers"),
+            "{err}"
+        );
     }
 }

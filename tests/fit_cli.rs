@@ -391,8 +391,16 @@ fn serve(args: &[&str], lines: &[String]) -> Vec<serde_json::Value> {
     }
     drop(stdin);
     let out = child.wait_with_output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let answers: Vec<serde_json::Value> = String::from_utf8(out.stdout).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let answers: Vec<serde_json::Value> = String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
     assert_eq!(answers.len(), lines.len());
     answers
 }
@@ -401,9 +409,14 @@ fn serve(args: &[&str], lines: &[String]) -> Vec<serde_json::Value> {
 fn objective_server_answers_residuals_and_their_jacobian() {
     let dir = tempfile::tempdir().unwrap();
     let data = dataset(dir.path(), "markers", "local", 2);
-    let describe = serve(&["--data", path_str(&data), "--frame", "1"], &[r#"{"describe": true}"#.to_string()]);
+    let describe = serve(
+        &["--data", path_str(&data), "--frame", "1"],
+        &[r#"{"describe": true}"#.to_string()],
+    );
     let start = serde_json::to_string(&describe[0]["start"]).unwrap();
-    let m = describe[0]["residuals"].as_u64().expect("describe says how many residuals") as usize;
+    let m = describe[0]["residuals"]
+        .as_u64()
+        .expect("describe says how many residuals") as usize;
     let mut bad = describe[0]["start"].clone();
     bad[0] = serde_json::json!("NaN");
     let lines = [
@@ -418,27 +431,73 @@ fn objective_server_answers_residuals_and_their_jacobian() {
         let mut args = vec!["--data", path_str(&data), "--frame", "1"];
         args.extend(flags);
         let a = serve(&args, &lines);
-        let r: Vec<f64> = a[0]["residuals"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
-        let j: Vec<Vec<f64>> = a[0]["jacobian"].as_array().unwrap().iter().map(|row| row.as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect()).collect();
+        let r: Vec<f64> = a[0]["residuals"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        let j: Vec<Vec<f64>> = a[0]["jacobian"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|row| {
+                row.as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|v| v.as_f64().unwrap())
+                    .collect()
+            })
+            .collect();
         assert_eq!(r.len(), m);
         assert_eq!(j.len(), m, "one Jacobian row per residual");
-        assert!(j.iter().all(|row| row.len() == 43), "columns are the 43 free entries");
+        assert!(
+            j.iter().all(|row| row.len() == 43),
+            "columns are the 43 free entries"
+        );
         let e = a[0]["energy"].as_f64().unwrap();
         let sum: f64 = r.iter().map(|v| v * v).sum();
         assert!((e - sum).abs() <= 1e-12 * e, "energy = Σ r²: {e} vs {sum}");
         assert_eq!(a[1]["energy"], a[0]["energy"]);
         assert!(a[1].get("jacobian").is_none());
-        assert!(a[2]["error"].as_str().unwrap().contains("\"jacobian\" must be true or false"), "{}", a[2]);
-        assert!(a[3]["error"].as_str().unwrap().contains("expected 43"), "{}", a[3]);
-        assert!(a[4]["error"].as_str().unwrap().contains("x[0] is not a finite number"), "{}", a[4]);
+        assert!(
+            a[2]["error"]
+                .as_str()
+                .unwrap()
+                .contains("\"jacobian\" must be true or false"),
+            "{}",
+            a[2]
+        );
+        assert!(
+            a[3]["error"].as_str().unwrap().contains("expected 43"),
+            "{}",
+            a[3]
+        );
+        assert!(
+            a[4]["error"]
+                .as_str()
+                .unwrap()
+                .contains("x[0] is not a finite number"),
+            "{}",
+            a[4]
+        );
         // The server kept serving after the errors; the gradient answer is of the plain energy.
-        let g: Vec<f64> = a[5]["gradient"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let g: Vec<f64> = a[5]["gradient"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
         if gradient_energy {
             // Same energy: its gradient is 2 Jᵀ r.
             assert!((a[5]["energy"].as_f64().unwrap() - e).abs() <= 1e-12 * e);
             for c in 0..43 {
                 let jtr: f64 = (0..m).map(|i| 2.0 * j[i][c] * r[i]).sum();
-                assert!((jtr - g[c]).abs() <= 1e-9 * g.iter().fold(1e-12f64, |s, v| s.max(v.abs())), "column {c}: {jtr} vs {}", g[c]);
+                assert!(
+                    (jtr - g[c]).abs() <= 1e-9 * g.iter().fold(1e-12f64, |s, v| s.max(v.abs())),
+                    "column {c}: {jtr} vs {}",
+                    g[c]
+                );
             }
         } else {
             // Without --energy, residual answers serve LM's (gradient) energy, not the paper energy
@@ -449,12 +508,32 @@ fn objective_server_answers_residuals_and_their_jacobian() {
     // A scan energy has no sum of squares: a one-line reason, and the server keeps serving.
     let scan = dataset(dir.path(), "scan", "local", 1);
     let x = serde_json::to_string(&vec![0.0; 43]).unwrap();
-    let a = serve(&["--data", path_str(&scan), "--frame", "0"], &[format!(r#"{{"x": {x}, "jacobian": true}}"#), format!(r#"{{"x": {x}}}"#)]);
+    let a = serve(
+        &["--data", path_str(&scan), "--frame", "0"],
+        &[
+            format!(r#"{{"x": {x}, "jacobian": true}}"#),
+            format!(r#"{{"x": {x}}}"#),
+        ],
+    );
     let err = a[0]["error"].as_str().unwrap();
-    assert!(err.contains("not a sum of squares") && !err.contains('\n'), "{err}");
+    assert!(
+        err.contains("not a sum of squares") && !err.contains('\n'),
+        "{err}"
+    );
     assert!(a[1]["energy"].as_f64().unwrap().is_finite());
     // LM and GN refuse it with one line too.
-    let out = support::lfit(&["fit", "--data", path_str(&scan), "--method", "lm", "--budget", "10", "--out", path_str(&dir.path().join("scan_lm.json")), "-q"]);
+    let out = support::lfit(&[
+        "fit",
+        "--data",
+        path_str(&scan),
+        "--method",
+        "lm",
+        "--budget",
+        "10",
+        "--out",
+        path_str(&dir.path().join("scan_lm.json")),
+        "-q",
+    ]);
     assert_one_line_error(&out, "not a sum of squares");
     assert!(!dir.path().join("scan_lm.json").exists());
 }
@@ -463,20 +542,51 @@ fn objective_server_answers_residuals_and_their_jacobian() {
 fn tuned_preset_uses_the_recorded_setting_and_refuses_what_it_cannot_set() {
     let dir = tempfile::tempdir().unwrap();
     let data = dataset(dir.path(), "markers", "local", 1);
-    let table: serde_json::Value = serde_json::from_str(include_str!("../configs/tuned.json")).unwrap();
+    let table: serde_json::Value =
+        serde_json::from_str(include_str!("../configs/tuned.json")).unwrap();
     let chosen = &table["settings"]["markers"]["cma"];
     let out = dir.path().join("tuned.json");
-    let summary = lfit_json(&["fit", "--data", path_str(&data), "--method", "cma", "--preset", "tuned", "--budget", "50", "--out", path_str(&out), "-q"]);
-    assert!(summary["summary"]["frames"].as_u64() == Some(1), "{summary}");
-    let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let summary = lfit_json(&[
+        "fit",
+        "--data",
+        path_str(&data),
+        "--method",
+        "cma",
+        "--preset",
+        "tuned",
+        "--budget",
+        "50",
+        "--out",
+        path_str(&out),
+        "-q",
+    ]);
+    assert!(
+        summary["summary"]["frames"].as_u64() == Some(1),
+        "{summary}"
+    );
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     assert_eq!(r["preset"], "tuned");
     assert_eq!(r["step_scale"], chosen["step_scale"]);
     for key in ["diagonal", "elitist"] {
-        assert_eq!(r["cma_variant"][key].as_bool().unwrap_or(false), chosen["cma"][key].as_bool().unwrap_or(false), "{key}");
+        assert_eq!(
+            r["cma_variant"][key].as_bool().unwrap_or(false),
+            chosen["cma"][key].as_bool().unwrap_or(false),
+            "{key}"
+        );
     }
     assert_eq!(r["frames"][0]["evaluations"], 50, "the budget stays exact");
     // The same run through the explicit flags gives the identical fit (same seed).
-    let mut flags = vec!["fit".to_string(), "--data".into(), path_str(&data).into(), "--method".into(), "cma".into(), "--budget".into(), "50".into(), "-q".into()];
+    let mut flags = vec![
+        "fit".to_string(),
+        "--data".into(),
+        path_str(&data).into(),
+        "--method".into(),
+        "cma".into(),
+        "--budget".into(),
+        "50".into(),
+        "-q".into(),
+    ];
     flags.extend(["--step-scale".to_string(), chosen["step_scale"].to_string()]);
     if chosen["cma"]["diagonal"] == true {
         flags.push("--cma-diagonal".into());
@@ -491,18 +601,42 @@ fn tuned_preset_uses_the_recorded_setting_and_refuses_what_it_cannot_set() {
     flags.extend(["--out".to_string(), path_str(&explicit).into()]);
     let args: Vec<&str> = flags.iter().map(String::as_str).collect();
     lfit_json(&args);
-    let e: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&explicit).unwrap()).unwrap();
+    let e: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&explicit).unwrap()).unwrap();
     assert_eq!(e["frames"][0]["pose"], r["frames"][0]["pose"]);
     let fit = |extra: &[&str]| {
-        let mut a = vec!["fit", "--data", path_str(&data), "--budget", "10", "--out", path_str(&out)];
+        let mut a = vec![
+            "fit",
+            "--data",
+            path_str(&data),
+            "--budget",
+            "10",
+            "--out",
+            path_str(&out),
+        ];
         a.extend_from_slice(extra);
         support::lfit(&a)
     };
-    assert_one_line_error(&fit(&["--method", "cma", "--preset", "tuned", "--step-scale", "2"]), "--preset tuned sets the steps");
-    assert_one_line_error(&fit(&["--method", "lbfgs", "--preset", "tuned"]), "no tuned setting for lbfgs on markers");
-    assert_one_line_error(&fit(&["--method", "pso", "--cma-diagonal"]), "CMA-ES options");
-    assert_one_line_error(&fit(&["--method", "lm", "--step-scale", "2"]), "no initial steps");
-    assert_one_line_error(&fit(&["--method", "cma", "--step-scale", "0"]), "step scale must be a positive number");
+    assert_one_line_error(
+        &fit(&["--method", "cma", "--preset", "tuned", "--step-scale", "2"]),
+        "--preset tuned sets the steps",
+    );
+    assert_one_line_error(
+        &fit(&["--method", "lbfgs", "--preset", "tuned"]),
+        "no tuned setting for lbfgs on markers",
+    );
+    assert_one_line_error(
+        &fit(&["--method", "pso", "--cma-diagonal"]),
+        "CMA-ES options",
+    );
+    assert_one_line_error(
+        &fit(&["--method", "lm", "--step-scale", "2"]),
+        "no initial steps",
+    );
+    assert_one_line_error(
+        &fit(&["--method", "cma", "--step-scale", "0"]),
+        "step scale must be a positive number",
+    );
 }
 
 #[test]
@@ -511,22 +645,67 @@ fn silhouettes_fit_with_zeroth_order_methods_and_gradient_methods_refuse() {
     let data = dataset(dir.path(), "silhouettes", "local", 2);
     // numpy layout: one [N, K, H, W] uint8 mask array.
     let out = dir.path().join("cma.json");
-    lfit_json(&["fit", "--data", path_str(&data), "--method", "cma", "--budget", "60", "--out", path_str(&out), "-q"]);
-    let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    lfit_json(&[
+        "fit",
+        "--data",
+        path_str(&data),
+        "--method",
+        "cma",
+        "--budget",
+        "60",
+        "--out",
+        path_str(&out),
+        "-q",
+    ]);
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     for f in r["frames"].as_array().unwrap() {
-        let (e, e0) = (f["energy"].as_f64().unwrap(), f["start_energy"].as_f64().unwrap());
-        assert!(e <= e0 && (0.0..=1.0 + 1e-9).contains(&f["terms"]["data"].as_f64().unwrap()), "{f}");
+        let (e, e0) = (
+            f["energy"].as_f64().unwrap(),
+            f["start_energy"].as_f64().unwrap(),
+        );
+        assert!(
+            e <= e0 && (0.0..=1.0 + 1e-9).contains(&f["terms"]["data"].as_f64().unwrap()),
+            "{f}"
+        );
         assert_eq!(f["evaluations"], 60);
     }
     for method in ["lbfgs", "lm", "gn"] {
         let o = dir.path().join(format!("{method}.json"));
-        let res = support::lfit(&["fit", "--data", path_str(&data), "--method", method, "--budget", "10", "--out", path_str(&o), "-q"]);
+        let res = support::lfit(&[
+            "fit",
+            "--data",
+            path_str(&data),
+            "--method",
+            method,
+            "--budget",
+            "10",
+            "--out",
+            path_str(&o),
+            "-q",
+        ]);
         assert_one_line_error(&res, "no gradient");
         assert!(!o.exists());
     }
-    let x = serve(&["--data", path_str(&data), "--frame", "0"], &[r#"{"describe": true}"#.to_string()]);
+    let x = serve(
+        &["--data", path_str(&data), "--frame", "0"],
+        &[r#"{"describe": true}"#.to_string()],
+    );
     let start = serde_json::to_string(&x[0]["start"]).unwrap();
-    let a = serve(&["--data", path_str(&data), "--frame", "0"], &[format!(r#"{{"x": {start}, "jacobian": true}}"#), format!(r#"{{"x": {start}}}"#)]);
-    assert!(a[0]["error"].as_str().unwrap().contains("no gradient"), "{}", a[0]);
-    assert!(a[1]["energy"].as_f64().unwrap().is_finite(), "the server keeps serving");
+    let a = serve(
+        &["--data", path_str(&data), "--frame", "0"],
+        &[
+            format!(r#"{{"x": {start}, "jacobian": true}}"#),
+            format!(r#"{{"x": {start}}}"#),
+        ],
+    );
+    assert!(
+        a[0]["error"].as_str().unwrap().contains("no gradient"),
+        "{}",
+        a[0]
+    );
+    assert!(
+        a[1]["energy"].as_f64().unwrap().is_finite(),
+        "the server keeps serving"
+    );
 }

@@ -28,7 +28,10 @@ fn python_with_scipy() -> Result<Command, String> {
         Ok(o) if o.status.success() => Ok(make()),
         Ok(o) => Err(format!(
             "python3 cannot import scipy (run scripts/fetch-scipy.sh and set LFIT_SCIPY_PYTHONPATH): {}",
-            String::from_utf8_lossy(&o.stderr).lines().last().unwrap_or("")
+            String::from_utf8_lossy(&o.stderr)
+                .lines()
+                .last()
+                .unwrap_or("")
         )),
         Err(e) => Err(format!("no python3: {e}")),
     }
@@ -41,34 +44,92 @@ fn lm_reaches_scipy_least_squares_energies_on_every_sparse_modality() {
     }
     let dir = tempfile::tempdir().unwrap();
     let lfit = env!("CARGO_BIN_EXE_lfit");
-    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/python/scipy_least_squares.py");
+    let script = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/python/scipy_least_squares.py"
+    );
     let frames: Vec<String> = (0..FRAMES).map(|f| f.to_string()).collect();
     for modality in ["markers", "keypoints2d", "hmd"] {
         let data = dir.path().join(format!("{modality}.npz"));
-        lfit_json(&["synth", "--modality", modality, "--frames", &FRAMES.to_string(), "--seed", "41", "--out", path_str(&data), "-q"]);
+        lfit_json(&[
+            "synth",
+            "--modality",
+            modality,
+            "--frames",
+            &FRAMES.to_string(),
+            "--seed",
+            "41",
+            "--out",
+            path_str(&data),
+            "-q",
+        ]);
         let ours = dir.path().join(format!("{modality}_lm.json"));
-        lfit_json(&["fit", "--data", path_str(&data), "--method", "lm", "--budget", "500", "--out", path_str(&ours), "-q"]);
+        lfit_json(&[
+            "fit",
+            "--data",
+            path_str(&data),
+            "--method",
+            "lm",
+            "--budget",
+            "500",
+            "--out",
+            path_str(&ours),
+            "-q",
+        ]);
         let theirs = dir.path().join(format!("{modality}_scipy.json"));
-        let out = python_with_scipy().unwrap().args([script, lfit, path_str(&data), &frames.join(","), path_str(&theirs)]).output().unwrap();
-        assert!(out.status.success(), "{modality}: scipy driver failed: {}", String::from_utf8_lossy(&out.stderr));
-        let read = |p: &std::path::Path| -> serde_json::Value { serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap() };
+        let out = python_with_scipy()
+            .unwrap()
+            .args([
+                script,
+                lfit,
+                path_str(&data),
+                &frames.join(","),
+                path_str(&theirs),
+            ])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{modality}: scipy driver failed: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let read = |p: &std::path::Path| -> serde_json::Value {
+            serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
+        };
         let (ours, theirs) = (read(&ours), read(&theirs));
-        let (ours, theirs) = (ours["frames"].as_array().unwrap(), theirs["frames"].as_array().unwrap());
+        let (ours, theirs) = (
+            ours["frames"].as_array().unwrap(),
+            theirs["frames"].as_array().unwrap(),
+        );
         assert_eq!((ours.len(), theirs.len()), (FRAMES, FRAMES));
         let mut within = 0;
         let mut worst: f64 = 0.0;
         for (a, b) in ours.iter().zip(theirs) {
             assert_eq!(a["frame"], b["frame"]);
             let (e, s) = (a["energy"].as_f64().unwrap(), b["energy"].as_f64().unwrap());
-            assert!(e.is_finite() && s.is_finite() && s >= 0.0, "{modality} frame {}: {e} vs {s}", a["frame"]);
+            assert!(
+                e.is_finite() && s.is_finite() && s >= 0.0,
+                "{modality} frame {}: {e} vs {s}",
+                a["frame"]
+            );
             // Energies below 1e-9 (frames fitted exactly: an hmd frame with both hands hidden
             // leaves the limbs free) count as equal: their ratio is rounding noise.
             let ratio = if e.max(s) < ZERO { 1.0 } else { e / s };
             worst = worst.max(ratio);
             within += usize::from(ratio <= 1.01);
-            assert!(ratio <= 1.05, "{modality} frame {}: lfit LM {e} vs scipy {s} ({} evaluations)", a["frame"], a["evaluations"]);
+            assert!(
+                ratio <= 1.05,
+                "{modality} frame {}: lfit LM {e} vs scipy {s} ({} evaluations)",
+                a["frame"],
+                a["evaluations"]
+            );
         }
-        eprintln!("{modality}: lfit LM ≤ 1.01× scipy on {within}/{FRAMES} frames, worst ratio {worst:.4}");
-        assert!(within * 10 >= FRAMES * 9, "{modality}: only {within}/{FRAMES} frames within 1 % of scipy (worst {worst:.4})");
+        eprintln!(
+            "{modality}: lfit LM ≤ 1.01× scipy on {within}/{FRAMES} frames, worst ratio {worst:.4}"
+        );
+        assert!(
+            within * 10 >= FRAMES * 9,
+            "{modality}: only {within}/{FRAMES} frames within 1 % of scipy (worst {worst:.4})"
+        );
     }
 }

@@ -164,6 +164,12 @@ impl Dataset {
 
     /// The arrays of the archive, in a fixed order.
     pub fn to_arrays(&self) -> Result<Vec<(&'static str, Array)>, SynthError> {
+        if let Sensor::Custom(m) = &self.sensor {
+            return Err(SynthError::Dataset(format!(
+                "a dataset of the custom observation model '{}' cannot be written: its setup is code, not data",
+                m.name()
+            )));
+        }
         let n = self.len();
         let meta = serde_json::to_string(&MetaJson {
             meta: self.meta.clone(),

@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 use crate::dataset::{Dataset, FORMAT_VERSION, Meta, Observations};
 use crate::error::SynthError;
 use crate::motion::{MotionKind, MotionParams, motion_pose};
-use crate::noise::{NoiseConfig, corrupt_hmd, corrupt_points, jitter_points, punch_holes};
+use crate::noise::{NoiseConfig, jitter_points, punch_holes};
 
 /// The experiment cases of papers/000 §4.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -452,30 +452,14 @@ fn observe_frame(
             }
         }
         _ => {
+            // Every other sensor is a vector-valued observation model: its clean prediction,
+            // then its own corruption.
             let Some(pred) = sensor.predict_sparse(template, target) else {
-                unreachable!("sparse sensor")
+                return FrameObs::Sparse(Vec::new(), Vec::new());
             };
             let (mut values, mut visible) = (pred.values, pred.visible);
-            match sensor.modality() {
-                Modality::Markers => corrupt_points(
-                    &mut values,
-                    &mut visible,
-                    3,
-                    noise.point_sigma,
-                    noise.outlier_scale_m,
-                    noise,
-                    rng,
-                ),
-                Modality::Keypoints2d => corrupt_points(
-                    &mut values,
-                    &mut visible,
-                    2,
-                    noise.pixel_sigma,
-                    noise.outlier_scale_px,
-                    noise,
-                    rng,
-                ),
-                _ => corrupt_hmd(&mut values, &visible, noise, rng),
+            if let Some(model) = sensor.observation_model() {
+                model.corrupt(&mut values, &mut visible, noise, rng);
             }
             FrameObs::Sparse(values, visible)
         }

@@ -29,7 +29,9 @@ use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
 use crate::error::FitError;
-use crate::fitter::{FitRequest, FitResult, Fitter, StageOutcome, StageSolver, Strategy, run_staged};
+use crate::fitter::{
+    FitRequest, FitResult, Fitter, StageOutcome, StageSolver, Strategy, run_staged,
+};
 
 /// Which least-squares method.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -62,7 +64,13 @@ pub struct LeastSquaresOptions {
 
 impl Default for LeastSquaresOptions {
     fn default() -> Self {
-        Self { function_tolerance: 1e-6, gradient_tolerance: 1e-10, parameter_tolerance: 1e-8, initial_trust_region_radius: 1e4, min_relative_decrease: 1e-3 }
+        Self {
+            function_tolerance: 1e-6,
+            gradient_tolerance: 1e-10,
+            parameter_tolerance: 1e-8,
+            initial_trust_region_radius: 1e4,
+            min_relative_decrease: 1e-3,
+        }
     }
 }
 
@@ -76,13 +84,21 @@ pub struct LeastSquaresFitter {
 
 impl LeastSquaresFitter {
     pub fn new(method: LeastSquaresMethod, strategy: Strategy) -> Self {
-        Self { method, strategy, options: LeastSquaresOptions::default() }
+        Self {
+            method,
+            strategy,
+            options: LeastSquaresOptions::default(),
+        }
     }
 }
 
 impl Fitter for LeastSquaresFitter {
     fn name(&self) -> String {
-        if self.strategy == Strategy::Holistic { self.method.name().into() } else { format!("{}/{}", self.method.name(), self.strategy) }
+        if self.strategy == Strategy::Holistic {
+            self.method.name().into()
+        } else {
+            format!("{}/{}", self.method.name(), self.strategy)
+        }
     }
 
     fn fit(&self, request: &FitRequest<'_>) -> Result<FitResult, FitError> {
@@ -130,14 +146,32 @@ fn normal_equations(ls: &LeastSquares, dofs: &[usize]) -> (DMatrix<f64>, DVector
             }
         }
     }
-    let a = DMatrix::<f64>::from_fn(n, n, |p, q| if p <= q { upper[p * n + q] } else { upper[q * n + p] });
+    let a = DMatrix::<f64>::from_fn(n, n, |p, q| {
+        if p <= q {
+            upper[p * n + q]
+        } else {
+            upper[q * n + p]
+        }
+    });
     (a, g)
 }
 
 impl StageSolver for LeastSquaresFitter {
-    fn solve(&self, energy: &Energy, pose: &mut [f64], dofs: &[usize], bounds: &Bounds, budget: usize, _seed: u64) -> Result<StageOutcome, FitError> {
+    fn solve(
+        &self,
+        energy: &Energy,
+        pose: &mut [f64],
+        dofs: &[usize],
+        bounds: &Bounds,
+        budget: usize,
+        _seed: u64,
+    ) -> Result<StageOutcome, FitError> {
         let o = self.options;
-        let eval = |x: &[f64]| energy.least_squares(x, true).map_err(|e| FitError::LeastSquares(e.to_string()));
+        let eval = |x: &[f64]| {
+            energy
+                .least_squares(x, true)
+                .map_err(|e| FitError::LeastSquares(e.to_string()))
+        };
         let mut x = pose.to_vec();
         let mut current = eval(&x)?;
         let mut count = 1usize;
@@ -162,7 +196,8 @@ impl StageSolver for LeastSquaresFitter {
             let free: Vec<usize> = (0..n)
                 .filter(|&p| {
                     let i = dofs[p];
-                    !((x[i] <= bounds.lower[i] && g[p] > 0.0) || (x[i] >= bounds.upper[i] && g[p] < 0.0))
+                    !((x[i] <= bounds.lower[i] && g[p] > 0.0)
+                        || (x[i] >= bounds.upper[i] && g[p] < 0.0))
                 })
                 .collect();
             if free.is_empty() {
@@ -216,7 +251,11 @@ impl StageSolver for LeastSquaresFitter {
                     LeastSquaresMethod::Lm => {
                         // Model decrease of Σr²: −(2 gᵀh + hᵀ A h).
                         let predicted = -(2.0 * g.dot(&step) + step.dot(&(&a * &step)));
-                        let rho = if predicted > 0.0 { (f - f_new) / predicted } else { -1.0 };
+                        let rho = if predicted > 0.0 {
+                            (f - f_new) / predicted
+                        } else {
+                            -1.0
+                        };
                         if rho > o.min_relative_decrease {
                             radius /= (1.0 - (2.0 * rho - 1.0).powi(3)).max(1.0 / 3.0);
                             growth = 2.0;
@@ -256,6 +295,10 @@ impl StageSolver for LeastSquaresFitter {
             }
         }
         pose.copy_from_slice(&x);
-        Ok(StageOutcome { best: f, trace, iterations })
+        Ok(StageOutcome {
+            best: f,
+            trace,
+            iterations,
+        })
     }
 }

@@ -49,7 +49,13 @@ pub fn build_fitter(
     preset: Preset,
     strategy: Strategy,
 ) -> Result<Box<dyn Fitter>, FitError> {
-    build_fitter_tuned(method, preset, strategy, 1.0, optim::cma::CmaVariant::default())
+    build_fitter_tuned(
+        method,
+        preset,
+        strategy,
+        1.0,
+        optim::cma::CmaVariant::default(),
+    )
 }
 
 /// [`build_fitter`] with the initial steps of a zeroth-order method multiplied by `step_scale`
@@ -63,13 +69,19 @@ pub fn build_fitter_tuned(
     cma: optim::cma::CmaVariant,
 ) -> Result<Box<dyn Fitter>, FitError> {
     if cma != optim::cma::CmaVariant::default() && method != "cma" {
-        return Err(FitError::Start(format!("CMA-ES options (diagonal, elitist, population) given for method {method}")));
+        return Err(FitError::Start(format!(
+            "CMA-ES options (diagonal, elitist, population) given for method {method}"
+        )));
     }
     if !(step_scale.is_finite() && step_scale > 0.0) {
-        return Err(FitError::Start(format!("step scale must be a positive number (got {step_scale})")));
+        return Err(FitError::Start(format!(
+            "step scale must be a positive number (got {step_scale})"
+        )));
     }
     if step_scale != 1.0 && uses_gradient(method) {
-        return Err(FitError::Start(format!("method {method} has no initial steps to scale")));
+        return Err(FitError::Start(format!(
+            "method {method} has no initial steps to scale"
+        )));
     }
     match method {
         "lbfgs" => {
@@ -78,8 +90,18 @@ pub fn build_fitter_tuned(
                 ..LbfgsFitter::default()
             }));
         }
-        "lm" => return Ok(Box::new(LeastSquaresFitter::new(LeastSquaresMethod::Lm, strategy))),
-        "gn" => return Ok(Box::new(LeastSquaresFitter::new(LeastSquaresMethod::Gn, strategy))),
+        "lm" => {
+            return Ok(Box::new(LeastSquaresFitter::new(
+                LeastSquaresMethod::Lm,
+                strategy,
+            )));
+        }
+        "gn" => {
+            return Ok(Box::new(LeastSquaresFitter::new(
+                LeastSquaresMethod::Gn,
+                strategy,
+            )));
+        }
         _ => {}
     }
     let m: Method = method

@@ -106,7 +106,15 @@ impl StageSolver for ZerothOrderFitter {
                 })
                 .collect::<Vec<_>>()
         });
-        let mut opt = optim::build_with(self.method, self.preset, &problem, budget, seed, partitions, self.cma)?;
+        let mut opt = optim::build_with(
+            self.method,
+            self.preset,
+            &problem,
+            budget,
+            seed,
+            partitions,
+            self.cma,
+        )?;
         let base = pose.to_vec();
         let f = |x: &[f64]| {
             let mut p = base.clone();

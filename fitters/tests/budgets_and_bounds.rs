@@ -211,9 +211,21 @@ fn cma_lbfgs_lm_and_gn_recover_the_truth_from_a_nearby_start() {
         let r = fitter.fit(&request).unwrap();
         pose.copy_from_slice(&r.pose);
         let v2v = lfit_model::metrics::v2v_mm(&template(), &pose, &truth());
-        assert!(v2v < 0.1, "{method}: V2V {v2v:.3} mm after {} evaluations", r.evaluations);
-        assert!(r.energy < 1e-8 * e0, "{method}: energy {} from {e0}", r.energy);
-        assert!(r.evaluations < 40, "{method}: {} evaluations (it stops on its tolerances)", r.evaluations);
+        assert!(
+            v2v < 0.1,
+            "{method}: V2V {v2v:.3} mm after {} evaluations",
+            r.evaluations
+        );
+        assert!(
+            r.energy < 1e-8 * e0,
+            "{method}: energy {} from {e0}",
+            r.energy
+        );
+        assert!(
+            r.evaluations < 40,
+            "{method}: {} evaluations (it stops on its tolerances)",
+            r.evaluations
+        );
         assert_eq!(r.gradient_evaluations + 1, r.evaluations);
     }
 }

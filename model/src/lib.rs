@@ -13,6 +13,7 @@ pub mod layout;
 pub mod metrics;
 pub mod modelfile;
 pub mod morph;
+pub mod noise;
 pub mod observe;
 pub mod pose;
 pub mod rig;

@@ -421,7 +421,8 @@ pub struct Summary {
     pub parameters: usize,
 }
 
-/// Trains a network on `template` as configured and writes checkpoints to `options.out`.
+/// Trains a network on `template` as configured and writes checkpoints to `options.out`, with
+/// the default sensor of `config.modality`.
 pub fn train(
     config: &TrainConfig,
     template: Arc<Template>,
@@ -429,8 +430,30 @@ pub fn train(
     options: &RunOptions,
     report: &(dyn Fn(Event) + Sync),
 ) -> Result<Summary> {
-    config.validate()?;
     let sensor = Sensor::default_for(config.modality, &template);
+    train_with_sensor(config, template, &sensor, device, options, report)
+}
+
+/// [`train`] with a given sensor: another setup of a built-in modality, or an observation model
+/// defined outside lfit ([`Sensor::Custom`], with `config.modality` [`Modality::Custom`]).
+pub fn train_with_sensor(
+    config: &TrainConfig,
+    template: Arc<Template>,
+    sensor: &Sensor,
+    device: &Device,
+    options: &RunOptions,
+    report: &(dyn Fn(Event) + Sync),
+) -> Result<Summary> {
+    config.validate()?;
+    if sensor.modality() != config.modality {
+        return Err(TrainError::Setting {
+            name: "modality",
+            value: config.modality.to_string(),
+            reason: format!("the sensor is a {} sensor", sensor.name()),
+        });
+    }
+    sensor.validate(&template)?;
+    let sensor = sensor.clone();
     let mut net_config = config.network.clone();
     net_config.modality = config.modality;
     net_config.residual_dim = sensor.residual_dim(&template);

@@ -123,7 +123,9 @@ impl CmaParams {
         let nf = n.max(1) as f64;
         let mueff = self.mueff;
         self.c1 = 1.0 / (nf + 2.0 * nf.sqrt() + mueff / nf);
-        self.cmu = (1.0 - self.c1).min((0.25 + mueff + 1.0 / mueff - 2.0) / (nf + 4.0 * nf.sqrt() + mueff / 2.0)).max(0.0);
+        self.cmu = (1.0 - self.c1)
+            .min((0.25 + mueff + 1.0 / mueff - 2.0) / (nf + 4.0 * nf.sqrt() + mueff / 2.0))
+            .max(0.0);
         self.cc = (1.0 + 1.0 / nf + mueff / nf) / (nf.sqrt() + 1.0 / nf + 2.0 * mueff / nf);
         if !self.negative_weights.is_empty() {
             self.negative_weights = negative_weights(self.lambda, self.c1, self.cmu, mueff, nf);
@@ -186,7 +188,11 @@ impl CmaParams {
             CmaStyle::Tutorial => Self::tutorial_with_lambda(n, lambda),
             CmaStyle::Hansen2004 => Self::hansen2004_with_lambda(n, lambda),
         };
-        let p = if self.negative_weights.is_empty() { p.without_active() } else { p };
+        let p = if self.negative_weights.is_empty() {
+            p.without_active()
+        } else {
+            p
+        };
         if self.separable { p.separable(n) } else { p }
     }
 
@@ -220,13 +226,19 @@ impl CmaParams {
 /// `α_µ⁻ = 1 + c1/cµ`, `α_µeff⁻ = 1 + 2µ⁻_eff/(µ_eff + 2)`, `α_posdef⁻ = (1 − c1 − cµ)/(n cµ)`.
 fn negative_weights(lambda: usize, c1: f64, cmu: f64, mueff: f64, nf: f64) -> Vec<f64> {
     let base = ((lambda as f64 + 1.0) / 2.0).ln();
-    let raw: Vec<f64> = (lambda / 2 + 1..=lambda).map(|i| base - (i as f64).ln()).filter(|w| *w < 0.0).collect();
+    let raw: Vec<f64> = (lambda / 2 + 1..=lambda)
+        .map(|i| base - (i as f64).ln())
+        .filter(|w| *w < 0.0)
+        .collect();
     if raw.is_empty() || cmu <= 0.0 {
         return Vec::new();
     }
     let sum_abs: f64 = raw.iter().map(|w| w.abs()).sum();
     let mueff_neg = sum_abs * sum_abs / raw.iter().map(|w| w * w).sum::<f64>();
-    let alpha = (1.0 + c1 / cmu).min(1.0 + 2.0 * mueff_neg / (mueff + 2.0)).min((1.0 - c1 - cmu) / (nf * cmu)).max(0.0);
+    let alpha = (1.0 + c1 / cmu)
+        .min(1.0 + 2.0 * mueff_neg / (mueff + 2.0))
+        .min((1.0 - c1 - cmu) / (nf * cmu))
+        .max(0.0);
     raw.iter().map(|w| alpha * w / sum_abs).collect()
 }
 
@@ -581,7 +593,10 @@ impl Cma {
             }
             let m = mahalanobis_squared(&self.b, &self.d, &self.injected).sqrt();
             if m.is_finite() && m > 0.0 {
-                let r = (0..n).map(|_| util::normal(&mut self.rng).powi(2)).sum::<f64>().sqrt();
+                let r = (0..n)
+                    .map(|_| util::normal(&mut self.rng).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
                 self.injected.iter_mut().for_each(|v| *v *= r / m);
                 self.ranked.push(usize::MAX);
             }
@@ -853,27 +868,50 @@ mod tests {
             let mut o = Cma::with_variant(&p, Preset::Nevergrad, variant, seed);
             evals_to(&minimize(&mut o, &f, 60_000, false).unwrap(), 1e-8)
         };
-        let diag = CmaVariant { diagonal: true, ..CmaVariant::default() };
+        let diag = CmaVariant {
+            diagonal: true,
+            ..CmaVariant::default()
+        };
         // On the axis-parallel ellipsoid at d = 30 the separable update learns the n variances
         // with rates ~n times larger than the full update's: far fewer evaluations.
-        let mut full: Vec<usize> = (0..3).map(|s| evals(CmaVariant::default(), testfns::ellipsoid, 30, s).unwrap()).collect();
-        let mut sep: Vec<usize> = (0..3).map(|s| evals(diag, testfns::ellipsoid, 30, s).unwrap()).collect();
+        let mut full: Vec<usize> = (0..3)
+            .map(|s| evals(CmaVariant::default(), testfns::ellipsoid, 30, s).unwrap())
+            .collect();
+        let mut sep: Vec<usize> = (0..3)
+            .map(|s| evals(diag, testfns::ellipsoid, 30, s).unwrap())
+            .collect();
         full.sort_unstable();
         sep.sort_unstable();
         assert!(2 * sep[1] < full[1], "separable {sep:?} vs full {full:?}");
         // Elitism keeps full CMA convergent on sphere and Rosenbrock; the separable elitist
         // variant (nevergrad 1.0's CMA on bounded domains) converges on separable functions (on
         // Rosenbrock neither it nor pycma's reaches 1e-8 in 60,000 evaluations).
-        let elitist = CmaVariant { elitist: true, ..CmaVariant::default() };
-        let bounded = CmaVariant { diagonal: true, elitist: true, popsize: Some(7) };
-        for (variant, f) in [(elitist, testfns::sphere as fn(&[f64]) -> f64), (elitist, testfns::rosenbrock), (bounded, testfns::sphere), (bounded, testfns::ellipsoid)] {
+        let elitist = CmaVariant {
+            elitist: true,
+            ..CmaVariant::default()
+        };
+        let bounded = CmaVariant {
+            diagonal: true,
+            elitist: true,
+            popsize: Some(7),
+        };
+        for (variant, f) in [
+            (elitist, testfns::sphere as fn(&[f64]) -> f64),
+            (elitist, testfns::rosenbrock),
+            (bounded, testfns::sphere),
+            (bounded, testfns::ellipsoid),
+        ] {
             assert!(evals(variant, f, 10, 1).is_some(), "{variant:?}");
         }
         // The separable rates (pycma's) survive a population change (IPOP restart).
         let p = CmaParams::tutorial(30).separable(30);
         assert!((p.c1 - 1.0 / (30.0 + 2.0 * 30f64.sqrt() + p.mueff / 30.0)).abs() < 1e-15);
         let q = p.with_lambda(30, 2 * p.lambda);
-        assert!(q.separable && q.lambda == 2 * p.lambda && q.c1 > 5.0 * CmaParams::tutorial_with_lambda(30, q.lambda).c1);
+        assert!(
+            q.separable
+                && q.lambda == 2 * p.lambda
+                && q.c1 > 5.0 * CmaParams::tutorial_with_lambda(30, q.lambda).c1
+        );
         assert!(!q.negative_weights.is_empty() && q.is_consistent());
     }
 
@@ -882,30 +920,60 @@ mod tests {
     /// docs/results/pycma_reference.py recorded in docs/results/pycma_reference.json.
     #[test]
     fn active_cma_needs_at_most_1_1x_pycmas_evaluations_at_d10() {
-        let reference: serde_json::Value = serde_json::from_str(include_str!("../../../docs/results/pycma_reference.json")).unwrap();
+        let reference: serde_json::Value =
+            serde_json::from_str(include_str!("../../../docs/results/pycma_reference.json"))
+                .unwrap();
         let mut active_ellipsoid = 0;
-        for (name, f) in [("sphere", testfns::sphere as fn(&[f64]) -> f64), ("ellipsoid", testfns::ellipsoid), ("rosenbrock", testfns::rosenbrock)] {
-            let mut evals: Vec<usize> = (0..11).map(|seed| evals_to(&run(f, 10, 30_000, seed), 1e-8).unwrap_or(usize::MAX)).collect();
+        for (name, f) in [
+            ("sphere", testfns::sphere as fn(&[f64]) -> f64),
+            ("ellipsoid", testfns::ellipsoid),
+            ("rosenbrock", testfns::rosenbrock),
+        ] {
+            let mut evals: Vec<usize> = (0..11)
+                .map(|seed| evals_to(&run(f, 10, 30_000, seed), 1e-8).unwrap_or(usize::MAX))
+                .collect();
             evals.sort_unstable();
             let ours = evals[5];
-            let pycma = reference["median_evals_to_1e-8"][name]["median"].as_u64().unwrap() as usize;
-            eprintln!("{name}: lfit median {ours}, pycma {pycma} ({:.2}×)", ours as f64 / pycma as f64);
+            let pycma = reference["median_evals_to_1e-8"][name]["median"]
+                .as_u64()
+                .unwrap() as usize;
+            eprintln!(
+                "{name}: lfit median {ours}, pycma {pycma} ({:.2}×)",
+                ours as f64 / pycma as f64
+            );
             if name == "ellipsoid" {
                 active_ellipsoid = ours;
             }
-            assert!(ours as f64 <= 1.1 * pycma as f64, "{name}: median {ours} evaluations vs pycma's {pycma}: {evals:?}");
+            assert!(
+                ours as f64 <= 1.1 * pycma as f64,
+                "{name}: median {ours} evaluations vs pycma's {pycma}: {evals:?}"
+            );
         }
         // Without the active update the ellipsoid needs clearly more (the reason it exists).
         let p = testfns::problem(10);
         let mut plain: Vec<usize> = (0..11)
             .map(|seed| {
-                let mut o = Cma::new(&p, p.scale.clone(), 1.0, CmaParams::tutorial(10).without_active(), seed);
-                evals_to(&minimize(&mut o, &testfns::ellipsoid, 30_000, false).unwrap(), 1e-8).unwrap_or(usize::MAX)
+                let mut o = Cma::new(
+                    &p,
+                    p.scale.clone(),
+                    1.0,
+                    CmaParams::tutorial(10).without_active(),
+                    seed,
+                );
+                evals_to(
+                    &minimize(&mut o, &testfns::ellipsoid, 30_000, false).unwrap(),
+                    1e-8,
+                )
+                .unwrap_or(usize::MAX)
             })
             .collect();
         plain.sort_unstable();
         eprintln!("ellipsoid without active CMA: median {}", plain[5]);
-        assert!(plain[5] as f64 > 1.3 * active_ellipsoid as f64, "active {active_ellipsoid} vs plain {}", plain[5]);
+        assert!(
+            plain[5] as f64 > 1.3 * active_ellipsoid as f64,
+            "active {active_ellipsoid} vs plain {}",
+            plain[5]
+        );
     }
 
     #[test]

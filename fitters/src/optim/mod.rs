@@ -439,7 +439,15 @@ pub fn build(
     seed: u64,
     partitions: Option<Vec<Vec<usize>>>,
 ) -> Result<Box<dyn Optimizer>, OptimError> {
-    build_with(method, preset, problem, budget, seed, partitions, cma::CmaVariant::default())
+    build_with(
+        method,
+        preset,
+        problem,
+        budget,
+        seed,
+        partitions,
+        cma::CmaVariant::default(),
+    )
 }
 
 /// [`build`] with CMA-ES's update variant (ignored by the other methods).

@@ -271,7 +271,10 @@ impl NetConfig {
         if matches!(self.modality, Modality::Scan | Modality::Silhouettes) {
             return bad(
                 "modality",
-                format!("{} has no neural fitter (its residual is not an observation vector)", self.modality),
+                format!(
+                    "{} has no neural fitter (its residual is not an observation vector)",
+                    self.modality
+                ),
             );
         }
         Ok(())

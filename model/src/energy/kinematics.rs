@@ -122,6 +122,15 @@ impl Kinematics {
         }
     }
 
+    /// Rest position of vertex `v` whose β = ψ = 0 rest position is `x` (as [`Kinematics::rest`]).
+    #[inline]
+    pub fn rest_of(&self, v: usize, x: DVec3) -> DVec3 {
+        match &self.morph {
+            None => x,
+            Some((m, c, f)) => m.rest_vertex(v, x, c, f),
+        }
+    }
+
     /// World rotation `W_j` of joint `j`.
     #[inline]
     pub fn world(&self, j: usize) -> DMat3 {

@@ -18,13 +18,11 @@
 use std::ops::Range;
 use std::sync::atomic::Ordering;
 
-use glam::DVec3;
-
 use super::jacobian::PointJacobians;
 use super::kinematics::Kinematics;
-use super::{AnglePrior, Energy, Target, hmd_devices, project};
+use super::{AnglePrior, Energy, Target};
 use crate::error::{ModelError, Result};
-use crate::observe::Sensor;
+use crate::observe::{PoseJacobian, Sensor};
 use crate::pose::rot_offset;
 
 /// Residuals and (optionally) their Jacobian at one parameter vector.
@@ -138,14 +136,25 @@ impl Energy {
         let mut row = 0;
 
         // Data rows: the prediction's Jacobian is written into the block, then folded in place.
-        if let Target::Sparse { values, visible } = &self.target {
+        if let (Target::Sparse { values, visible }, Some(model)) =
+            (&self.target, self.sensor.observation_model())
+        {
             let p = values.len();
-            let pred = match pj.as_mut() {
-                Some(pj) => self.sparse_prediction_jacobian(&kin, pj, &mut jacobian[..p * dim]),
-                None => self.sparse_prediction(&kin).unwrap_or_default(),
-            };
+            let view = self.view(&kin);
+            let pred = self.prediction(model, &view);
+            if let Some(pj) = pj.as_mut() {
+                let mut jac = PoseJacobian {
+                    inner: pj,
+                    kin: &kin,
+                };
+                model.jacobian(&view, &mut jac, &mut jacobian[..p * dim]);
+            }
             let seen = self.groups.iter().filter(|g| visible[g.start]).count();
-            let c0 = if seen > 0 { (w.data / seen as f64).sqrt() } else { 0.0 };
+            let c0 = if seen > 0 {
+                (w.data / seen as f64).sqrt()
+            } else {
+                0.0
+            };
             let mut u = Vec::with_capacity(12);
             let mut v = vec![0.0; dim];
             for g in &self.groups {
@@ -257,7 +266,9 @@ impl Energy {
                     zero_rows[i] = match *name {
                         "EP" | "EA" => residuals[i] == 0.0,
                         "data" => match &self.target {
-                            Target::Sparse { visible, .. } => !visible[i - range.start] || w.data == 0.0,
+                            Target::Sparse { visible, .. } => {
+                                !visible[i - range.start] || w.data == 0.0
+                            }
                             Target::Scan { .. } | Target::Silhouettes { .. } => false,
                         },
                         _ => false,
@@ -272,89 +283,5 @@ impl Energy {
             blocks,
             zero_rows,
         }
-    }
-
-    /// The sparse prediction (layout of [`Sensor::predict_sparse`]); its Jacobian (prediction
-    /// length × dim, row-major) is written into `jp`.
-    fn sparse_prediction_jacobian(
-        &self,
-        kin: &Kinematics,
-        pj: &mut PointJacobians<'_>,
-        jp: &mut [f64],
-    ) -> Vec<f64> {
-        let d = pj.dim;
-        match &self.sensor {
-            Sensor::Markers { vertices, .. } => {
-                let mut pred = Vec::with_capacity(3 * vertices.len());
-                for (k, &v) in vertices.iter().enumerate() {
-                    let p = pj.skinned_point(v as usize, &mut jp[3 * k * d..3 * (k + 1) * d]);
-                    pred.extend(p.to_array());
-                }
-                pred
-            }
-            Sensor::Keypoints2d { cameras } => {
-                let nj = kin.joints.len();
-                let mut joint_jac = vec![0.0; 3 * nj * d];
-                for (j, &p) in kin.joints.iter().enumerate() {
-                    pj.joint_point(j, p, &mut joint_jac[3 * j * d..3 * (j + 1) * d]);
-                }
-                let mut pred = Vec::with_capacity(2 * cameras.len() * nj);
-                for (c, cam) in cameras.iter().enumerate() {
-                    let rot_t = cam.rot().transpose();
-                    for (j, &p) in kin.joints.iter().enumerate() {
-                        let (uv, dq) = project(cam, p);
-                        pred.extend(uv);
-                        let jj = &joint_jac[3 * j * d..3 * (j + 1) * d];
-                        for (r, dq) in dq.iter().enumerate() {
-                            let a = rot_t * *dq;
-                            let out =
-                                &mut jp[(2 * (c * nj + j) + r) * d..(2 * (c * nj + j) + r + 1) * d];
-                            combine(out, a, jj, d);
-                        }
-                    }
-                }
-                pred
-            }
-            Sensor::Hmd(setup) => {
-                let mut pred = Vec::with_capacity(42);
-                jp.fill(0.0);
-                for (dev, ((rot, pos), joint)) in hmd_devices(setup, kin, self.hmd_joints)
-                    .into_iter()
-                    .zip(self.hmd_joints)
-                    .enumerate()
-                {
-                    let o = 12 * dev;
-                    for row in 0..3 {
-                        pred.extend([rot.x_axis[row], rot.y_axis[row], rot.z_axis[row]]);
-                    }
-                    pred.extend(pos.to_array());
-                    // ∂W = [ω]× W: entry (row, col) moves by (ω × W e_col)[row].
-                    for (col_param, omega) in pj.rotation(joint) {
-                        for col in 0..3 {
-                            let dv = omega.cross(rot.col(col));
-                            for row in 0..3 {
-                                jp[(o + 3 * row + col) * d + col_param] = dv[row];
-                            }
-                        }
-                    }
-                    pj.joint_point(joint, pos, &mut jp[(o + 9) * d..(o + 12) * d]);
-                }
-                for (k, &tip) in setup.hand_tips.iter().enumerate() {
-                    let p =
-                        pj.skinned_point(tip as usize, &mut jp[(36 + 3 * k) * d..(39 + 3 * k) * d]);
-                    pred.extend(p.to_array());
-                }
-                pred
-            }
-            Sensor::Scan(_) | Sensor::Silhouettes(_) => Vec::new(),
-        }
-    }
-}
-
-/// `out = Σ_a a[a] · rows[a]` for a 3-row, `d`-wide row-major block.
-#[inline]
-pub(super) fn combine(out: &mut [f64], a: DVec3, rows: &[f64], d: usize) {
-    for (i, o) in out.iter_mut().enumerate() {
-        *o = a.x * rows[i] + a.y * rows[d + i] + a.z * rows[2 * d + i];
     }
 }

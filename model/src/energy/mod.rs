@@ -16,7 +16,7 @@
 //! Every evaluation goes through [`Energy::evaluate`], [`Energy::evaluate_with_gradient`] or
 //! [`Energy::evaluate_batch`], which count evaluations and gradient evaluations.
 
-mod jacobian;
+pub(crate) mod jacobian;
 pub(crate) mod kinematics;
 mod least_squares;
 mod prior;
@@ -31,12 +31,13 @@ use serde::{Deserialize, Serialize};
 pub use least_squares::LeastSquares;
 pub use prior::AnglePrior;
 
-use self::kinematics::{Adjoint, Kinematics, rotation_torque};
+use self::kinematics::{Adjoint, Kinematics};
 pub(crate) use self::prior::{AngleLimits, Penetration};
 use crate::camera::Camera;
 use crate::error::{ModelError, Result};
 use crate::observe::{
-    HMD_DIM, HmdSetup, Modality, Sensor, SparsePrediction, closest_point_offset, headset_pose,
+    Modality, ObservationModel, PoseGradient, PosedView, ResidualGroup, Sensor,
+    closest_point_offset,
 };
 use crate::scan::{Mask, VoxelGrid, iou, render_silhouette};
 use crate::skinning::vertex_normals;
@@ -357,14 +358,6 @@ impl SkinTable {
     }
 }
 
-/// One robust group of a sparse residual: `len` entries from `start`, noise scale `sigma`.
-#[derive(Debug, Clone, Copy)]
-struct Group {
-    start: usize,
-    len: usize,
-    sigma: f64,
-}
-
 /// EJ's cameras (scaled to the render size) and target silhouettes (resampled to it).
 #[derive(Debug, Clone)]
 struct SilhouetteTerm {
@@ -381,11 +374,9 @@ pub struct Energy {
     config: EnergyConfig,
     skin: SkinTable,
     rest_normals: Vec<DVec3>,
-    groups: Vec<Group>,
+    groups: Vec<ResidualGroup>,
     penetration: Penetration,
     limits: AngleLimits,
-    /// Head, left and right wrist joints of the `hmd` modality.
-    hmd_joints: [usize; 3],
     silhouettes: Option<SilhouetteTerm>,
     /// ES direction tensors per grid node (`scan` only), shared by clones.
     axes: Option<Arc<Vec<[f32; 6]>>>,
@@ -406,7 +397,6 @@ impl Clone for Energy {
             groups: self.groups.clone(),
             penetration: self.penetration.clone(),
             limits: self.limits.clone(),
-            hmd_joints: self.hmd_joints,
             silhouettes: self.silhouettes.clone(),
             axes: self.axes.clone(),
             evaluations: AtomicU64::new(0),
@@ -427,10 +417,6 @@ impl Energy {
     ) -> Result<Self> {
         config.validate()?;
         sensor.validate(&template)?;
-        let hmd_joints = match &sensor {
-            Sensor::Hmd(_) => template.hmd_joints()?,
-            _ => [0; 3],
-        };
         let dim = sensor.residual_dim(&template);
         let mut silhouettes = None;
         match (&sensor, &target) {
@@ -491,13 +477,13 @@ impl Energy {
             (_, Target::Scan { .. } | Target::Silhouettes { .. }) => {
                 return Err(ModelError::Target(format!(
                     "a {} energy needs a sparse target",
-                    sensor.modality()
+                    sensor.name()
                 )));
             }
             (_, Target::Sparse { values, visible }) => {
                 if values.len() != dim || visible.len() != dim {
                     return Err(ModelError::Shape {
-                        what: format!("{} target", sensor.modality()),
+                        what: format!("{} target", sensor.name()),
                         expected: dim.to_string(),
                         got: format!(
                             "{} values, {} visibility flags",
@@ -518,7 +504,12 @@ impl Energy {
             Target::Scan { grid, .. } => Some(Arc::new(direction_tensors(grid))),
             Target::Sparse { .. } | Target::Silhouettes { .. } => None,
         };
-        let groups = sparse_groups(&sensor, &template, &config.scales);
+        let groups = sensor
+            .observation_model()
+            .map_or_else(Vec::new, |m| m.groups(&template, &config.scales));
+        if let Some(m) = sensor.observation_model() {
+            check_groups(&groups, dim, m.name())?;
+        }
         let rest_normals = vertex_normals(&template.vertices, &template.faces)
             .iter()
             .map(|n| n.as_dvec3())
@@ -535,7 +526,6 @@ impl Energy {
             rest_normals,
             groups,
             penetration,
-            hmd_joints,
             silhouettes,
             axes,
             evaluations: AtomicU64::new(0),
@@ -551,13 +541,13 @@ impl Energy {
         if matches!(self.sensor, Sensor::Scan(_) | Sensor::Silhouettes(_)) {
             return Err(ModelError::Target(format!(
                 "a {} energy has no sparse target",
-                self.sensor.modality()
+                self.sensor.name()
             )));
         }
         let dim = self.sensor.residual_dim(&self.template);
         if values.len() != dim || visible.len() != dim {
             return Err(ModelError::Shape {
-                what: format!("{} target", self.sensor.modality()),
+                what: format!("{} target", self.sensor.name()),
                 expected: dim.to_string(),
                 got: format!(
                     "{} values, {} visibility flags",
@@ -695,25 +685,20 @@ impl Energy {
                     })
                     .collect()
             }
-            (_, Target::Sparse { values, visible }) => {
-                match self.sensor.predict_sparse(&self.template, pose) {
-                    Some(pred) => Sensor::sparse_residual(&pred, values, visible),
-                    None => Vec::new(),
+            (_, Target::Sparse { values, visible }) => match self.sensor.observation_model() {
+                Some(model) => {
+                    let kin = Kinematics::build(&self.template, pose, false);
+                    let pred = self.prediction(model, &self.view(&kin));
+                    pred.iter()
+                        .zip(values)
+                        .zip(visible)
+                        .map(|((p, o), &v)| if v { p - o } else { 0.0 })
+                        .collect()
                 }
-            }
+                None => Vec::new(),
+            },
             _ => Vec::new(),
         }
-    }
-
-    /// The sparse prediction computed by the energy's own f64 forward model (the one its
-    /// gradient differentiates); `None` for `scan`. Tested against [`Sensor::predict_sparse`].
-    pub fn predict(&self, pose: &[f64]) -> Option<SparsePrediction> {
-        let kin = Kinematics::build(&self.template, pose, false);
-        let values = self.sparse_prediction(&kin)?;
-        Some(SparsePrediction {
-            visible: vec![true; values.len()],
-            values,
-        })
     }
 
     fn compute(&self, pose: &[f64], want_grad: bool) -> (Evaluation, Option<Vec<f64>>) {
@@ -726,8 +711,14 @@ impl Energy {
         let mut total = 0.0;
         let posed = match &self.target {
             Target::Sparse { values, visible } => {
-                let data =
-                    self.sparse_data(&kin, values, visible, adj.as_mut().map(|a| (a, w.data)));
+                let data = self.sparse_data(
+                    &kin,
+                    pose,
+                    values,
+                    visible,
+                    adj.as_mut()
+                        .map(|a| (a, grad_direct.as_mut_slice(), w.data)),
+                );
                 terms.push(("data", data));
                 total += w.data * data;
                 None
@@ -830,72 +821,27 @@ impl Energy {
         (Evaluation { total, terms }, grad)
     }
 
-    /// The f64 sparse prediction (layout of [`Sensor::predict_sparse`]).
-    fn sparse_prediction(&self, kin: &Kinematics) -> Option<Vec<f64>> {
-        match &self.sensor {
-            Sensor::Markers { vertices, .. } => Some(
-                vertices
-                    .iter()
-                    .flat_map(|&v| {
-                        kin.skin(
-                            self.skin.weights(v as usize),
-                            kin.rest(&self.skin.rest, v as usize),
-                        )
-                        .to_array()
-                    })
-                    .collect(),
-            ),
-            Sensor::Keypoints2d { cameras } => {
-                let mut out = Vec::with_capacity(2 * cameras.len() * kin.joints.len());
-                for cam in cameras {
-                    for &p in &kin.joints {
-                        let (uv, _) = project(cam, p);
-                        out.extend(uv);
-                    }
-                }
-                Some(out)
-            }
-            Sensor::Hmd(setup) => {
-                let mut out = Vec::with_capacity(HMD_DIM);
-                for (rot, pos) in hmd_devices(setup, kin, self.hmd_joints) {
-                    for row in 0..3 {
-                        out.extend([rot.x_axis[row], rot.y_axis[row], rot.z_axis[row]]);
-                    }
-                    out.extend(pos.to_array());
-                }
-                for &tip in &setup.hand_tips {
-                    out.extend(
-                        kin.skin(
-                            self.skin.weights(tip as usize),
-                            kin.rest(&self.skin.rest, tip as usize),
-                        )
-                        .to_array(),
-                    );
-                }
-                Some(out)
-            }
-            Sensor::Scan(_) | Sensor::Silhouettes(_) => None,
-        }
-    }
-
     /// The robust data term of a sparse modality: mean of `ρ(‖r_g‖/σ_g)` over visible groups.
     fn sparse_data(
         &self,
         kin: &Kinematics,
+        params: &[f64],
         values: &[f64],
         visible: &[bool],
-        adj: Option<(&mut Adjoint, f64)>,
+        grad: Option<(&mut Adjoint, &mut [f64], f64)>,
     ) -> f64 {
-        let Some(pred) = self.sparse_prediction(kin) else {
+        let Some(model) = self.sensor.observation_model() else {
             return 0.0;
         };
-        let seen: Vec<&Group> = self.groups.iter().filter(|g| visible[g.start]).collect();
+        let view = self.view(kin);
+        let pred = self.prediction(model, &view);
+        let seen: Vec<&ResidualGroup> = self.groups.iter().filter(|g| visible[g.start]).collect();
         if seen.is_empty() {
             return 0.0;
         }
         let n = seen.len() as f64;
         // ∂data/∂prediction, entry by entry.
-        let mut dpred = if adj.is_some() {
+        let mut dpred = if grad.is_some() {
             vec![0.0; pred.len()]
         } else {
             Vec::new()
@@ -912,76 +858,44 @@ impl Energy {
                 }
             }
         }
-        if let Some((adj, scale)) = adj {
+        if let Some((adjoint, direct, scale)) = grad {
             for d in &mut dpred {
                 *d *= scale;
             }
-            self.backprop_sparse(kin, &dpred, adj);
+            let mut pg = PoseGradient {
+                template: &self.template,
+                kin,
+                skin: &self.skin,
+                params,
+                adjoint,
+                direct,
+            };
+            model.backprop(&view, &dpred, &mut pg);
         }
         sum / n
     }
 
-    /// Pushes `∂E/∂prediction` back onto the joints.
-    fn backprop_sparse(&self, kin: &Kinematics, dpred: &[f64], adj: &mut Adjoint) {
-        let vec3 = |i: usize| DVec3::new(dpred[i], dpred[i + 1], dpred[i + 2]);
-        match &self.sensor {
-            Sensor::Markers { vertices, .. } => {
-                for (k, &v) in vertices.iter().enumerate() {
-                    let g = vec3(3 * k);
-                    if g != DVec3::ZERO {
-                        adj.skinned_point(
-                            kin,
-                            self.skin.weights(v as usize),
-                            v as usize,
-                            kin.rest(&self.skin.rest, v as usize),
-                            g,
-                        );
-                    }
-                }
-            }
-            Sensor::Keypoints2d { cameras } => {
-                for (c, cam) in cameras.iter().enumerate() {
-                    let rot = cam.rot();
-                    for (j, &p) in kin.joints.iter().enumerate() {
-                        let i = 2 * (c * kin.joints.len() + j);
-                        let (gu, gv) = (dpred[i], dpred[i + 1]);
-                        if gu == 0.0 && gv == 0.0 {
-                            continue;
-                        }
-                        let (_, dq) = project(cam, p);
-                        let gq = dq[0] * gu + dq[1] * gv;
-                        adj.joint_point(kin, j, p, rot.transpose() * gq);
-                    }
-                }
-            }
-            Sensor::Hmd(setup) => {
-                for (d, ((rot, pos), joint)) in hmd_devices(setup, kin, self.hmd_joints)
-                    .into_iter()
-                    .zip(self.hmd_joints)
-                    .enumerate()
-                {
-                    let o = 12 * d;
-                    let g = DMat3::from_cols(
-                        DVec3::new(dpred[o], dpred[o + 3], dpred[o + 6]),
-                        DVec3::new(dpred[o + 1], dpred[o + 4], dpred[o + 7]),
-                        DVec3::new(dpred[o + 2], dpred[o + 5], dpred[o + 8]),
-                    );
-                    adj.torque(joint, rotation_torque(rot, g));
-                    adj.joint_point(kin, joint, pos, vec3(o + 9));
-                }
-                for (k, &tip) in setup.hand_tips.iter().enumerate() {
-                    let g = vec3(36 + 3 * k);
-                    adj.skinned_point(
-                        kin,
-                        self.skin.weights(tip as usize),
-                        tip as usize,
-                        kin.rest(&self.skin.rest, tip as usize),
-                        g,
-                    );
-                }
-            }
-            Sensor::Scan(_) | Sensor::Silhouettes(_) => {}
+    /// The posed model as observation models read it.
+    pub(crate) fn view<'a>(&'a self, kin: &'a Kinematics) -> PosedView<'a> {
+        PosedView {
+            template: &self.template,
+            kin,
+            skin: Some(&self.skin),
         }
+    }
+
+    /// The observation model's prediction (its visibility is the sensor's, unused here: the
+    /// target's visibility decides which groups count).
+    pub(crate) fn prediction(
+        &self,
+        model: &dyn ObservationModel,
+        view: &PosedView<'_>,
+    ) -> Vec<f64> {
+        let n = model.dim(&self.template);
+        let mut values = vec![0.0; n];
+        let mut visible = vec![false; n];
+        model.predict(view, &mut values, &mut visible);
+        values
     }
 
     /// ED (papers/000 eq. 4) and ES (eq. 5) over all template vertices.
@@ -1206,75 +1120,24 @@ fn direction_tensors(grid: &VoxelGrid) -> Vec<[f32; 6]> {
     filled
 }
 
-/// Projection of world point `p` by `cam` and the rows `∂(u, v)/∂q` of its derivative with respect
-/// to the camera-frame point `q`. Depths are floored at 1 cm (in front of the camera), where the
-/// derivative along depth is zero.
-fn project(cam: &Camera, p: DVec3) -> ([f64; 2], [DVec3; 2]) {
-    let q = cam.to_camera(p);
-    let floor = 0.01;
-    let (z, dz) = if q.z > floor {
-        (q.z, 1.0)
-    } else {
-        (floor, 0.0)
-    };
-    let u = cam.fx * q.x / z + cam.cx;
-    let v = cam.fy * q.y / z + cam.cy;
-    let du = DVec3::new(cam.fx / z, 0.0, -dz * cam.fx * q.x / (z * z));
-    let dv = DVec3::new(0.0, cam.fy / z, -dz * cam.fy * q.y / (z * z));
-    ([u, v], [du, dv])
-}
-
-/// Headset and both wrists as (rotation, position), in the order of the `hmd` prediction.
-fn hmd_devices(
-    setup: &HmdSetup,
-    kin: &Kinematics,
-    [head, left, right]: [usize; 3],
-) -> [(DMat3, DVec3); 3] {
-    let headset = headset_pose(setup, kin.world(head), kin.joints[head]);
-    [
-        (headset.matrix3, headset.translation),
-        (kin.world(left), kin.joints[left]),
-        (kin.world(right), kin.joints[right]),
-    ]
-}
-
-/// Robust groups of a sparse residual (in the layout of [`Sensor::predict_sparse`]).
-fn sparse_groups(sensor: &Sensor, template: &Template, scales: &Scales) -> Vec<Group> {
-    let groups = |count: usize, len: usize, sigma: f64| {
-        (0..count).map(move |k| Group {
-            start: k * len,
-            len,
-            sigma,
-        })
-    };
-    match sensor {
-        Sensor::Markers { vertices, .. } => groups(vertices.len(), 3, scales.position).collect(),
-        Sensor::Keypoints2d { cameras } => {
-            groups(cameras.len() * template.rig.num_joints(), 2, scales.pixel).collect()
+/// The groups of an observation model cover its prediction, in order, with positive scales.
+fn check_groups(groups: &[ResidualGroup], dim: usize, name: &str) -> Result<()> {
+    let mut next = 0;
+    for g in groups {
+        if g.start != next || g.len == 0 || !(g.sigma.is_finite() && g.sigma > 0.0) {
+            return Err(ModelError::Config(format!(
+                "observation model '{name}': residual groups must tile its {dim} entries in order with positive σ (group at {} of {} entries, σ {})",
+                g.start, g.len, g.sigma
+            )));
         }
-        Sensor::Hmd(_) => {
-            let mut out = Vec::new();
-            for d in 0..3 {
-                out.push(Group {
-                    start: 12 * d,
-                    len: 9,
-                    sigma: scales.rotation,
-                });
-                out.push(Group {
-                    start: 12 * d + 9,
-                    len: 3,
-                    sigma: scales.position,
-                });
-            }
-            out.extend((0..2).map(|k| Group {
-                start: 36 + 3 * k,
-                len: 3,
-                sigma: scales.position,
-            }));
-            out
-        }
-        Sensor::Scan(_) | Sensor::Silhouettes(_) => Vec::new(),
+        next += g.len;
     }
+    if next != dim {
+        return Err(ModelError::Config(format!(
+            "observation model '{name}': residual groups cover {next} of its {dim} entries"
+        )));
+    }
+    Ok(())
 }
 
 /// One target mask per camera, each of its camera's size.
@@ -1287,7 +1150,10 @@ fn check_masks(masks: &[Mask], cameras: &[Camera]) -> Result<()> {
         });
     }
     for (k, (m, c)) in masks.iter().zip(cameras).enumerate() {
-        if m.width != c.width || m.height != c.height || m.data.len() != (m.width * m.height) as usize {
+        if m.width != c.width
+            || m.height != c.height
+            || m.data.len() != (m.width * m.height) as usize
+        {
             return Err(ModelError::Shape {
                 what: format!("silhouette {k}"),
                 expected: format!("{}x{}", c.width, c.height),
@@ -1319,8 +1185,16 @@ impl SilhouetteTerm {
                     m_not_f += u64::from(a && !b);
                     f_not_m += u64::from(b && !a);
                 }
-                let first = if m > 0 { m_not_f as f64 / m as f64 } else { 1.0 };
-                let second = if f > 0 { f_not_m as f64 / f as f64 } else { 0.0 };
+                let first = if m > 0 {
+                    m_not_f as f64 / m as f64
+                } else {
+                    1.0
+                };
+                let second = if f > 0 {
+                    f_not_m as f64 / f as f64
+                } else {
+                    0.0
+                };
                 0.5 * first + 0.5 * second
             })
             .sum();

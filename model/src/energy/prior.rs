@@ -153,9 +153,7 @@ impl Penetration {
         if kin.morph.is_none() {
             self.evaluate_with(kin, skin, posed, adjoint, |v| skin.rest[v])
         } else {
-            self.evaluate_with(kin, skin, posed, adjoint, |v| {
-                kin.rest(&skin.rest, v)
-            })
+            self.evaluate_with(kin, skin, posed, adjoint, |v| kin.rest(&skin.rest, v))
         }
     }
 
@@ -242,7 +240,10 @@ impl Penetration {
                 } else {
                     e.centre + (kin.rest_joints[e.joint] - e.joint_rest)
                 };
-                (kin.transforms[e.joint].transform_point3(centre), w * e.q * w.transpose())
+                (
+                    kin.transforms[e.joint].transform_point3(centre),
+                    w * e.q * w.transpose(),
+                )
             })
             .collect()
     }

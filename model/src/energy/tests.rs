@@ -202,22 +202,56 @@ fn penetration_and_hinge_gradients_when_active() {
 }
 
 #[test]
-fn energy_prediction_matches_the_observation_model() {
+fn observation_models_agree_with_the_renderers_skinning() {
+    // The observation models predict through the energy's f64 kinematics; rendering and the
+    // scan use skinning.rs (f32 SIMD on the rigid template). Two implementations of one formula.
     let t = template();
-    for m in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
-        let e = energy(m, EnergyConfig::default());
-        for pose in [gt_pose(), penetrating_pose()] {
-            let ours = e.predict(&pose).unwrap().values;
-            let theirs = e.sensor().predict_sparse(&t, &pose).unwrap().values;
-            assert_eq!(ours.len(), theirs.len());
-            // observe.rs skins in f32: agree to f32 precision (positions in m, pixels, rotations).
-            let tol = if m == Modality::Keypoints2d {
-                2e-3
-            } else {
-                1e-5
-            };
-            for (i, (a, b)) in ours.iter().zip(&theirs).enumerate() {
-                assert!((a - b).abs() < tol, "{m} entry {i}: {a} vs {b}");
+    for pose in [gt_pose(), penetrating_pose()] {
+        let posed = crate::skinning::joint_transforms(&t, &pose);
+        let markers = Sensor::default_for(Modality::Markers, &t);
+        let Sensor::Markers(setup) = &markers else {
+            unreachable!()
+        };
+        let ours = markers.predict_sparse(&t, &pose).unwrap().values;
+        let theirs = crate::skinning::skin_lbs_subset(&t, &posed, &setup.vertices);
+        for (k, p) in theirs.iter().enumerate() {
+            for a in 0..3 {
+                let d = (ours[3 * k + a] - f64::from(p[a])).abs();
+                assert!(d < 1e-5, "marker {k} axis {a}: {d}");
+            }
+        }
+        let kp = Sensor::default_for(Modality::Keypoints2d, &t);
+        let ours = kp.predict_sparse(&t, &pose).unwrap();
+        let nj = t.rig.num_joints();
+        for (c, cam) in kp.cameras().iter().enumerate() {
+            for (j, &p) in posed.joints.iter().enumerate() {
+                let q = cam.to_camera(p);
+                let i = 2 * (c * nj + j);
+                assert_eq!(
+                    ours.visible[i],
+                    q.z > 0.01 && cam.in_image(cam.project_camera(q))
+                );
+                if q.z > 0.01 {
+                    let uv = cam.project_camera(q);
+                    assert!(
+                        (ours.values[i] - uv.x).abs() < 1e-9
+                            && (ours.values[i + 1] - uv.y).abs() < 1e-9
+                    );
+                }
+            }
+        }
+        let hmd = Sensor::default_for(Modality::Hmd, &t);
+        let Sensor::Hmd(setup) = &hmd else {
+            unreachable!()
+        };
+        let ours = hmd.predict_sparse(&t, &pose).unwrap().values;
+        let tips = crate::skinning::skin_lbs_subset(&t, &posed, &setup.hand_tips);
+        for (k, p) in tips.iter().enumerate() {
+            for a in 0..3 {
+                assert!(
+                    (ours[36 + 3 * k + a] - f64::from(p[a])).abs() < 1e-5,
+                    "tip {k}"
+                );
             }
         }
     }
@@ -440,7 +474,14 @@ mod morphable {
     /// `base` with the last 3 of its 6 directions as expression coefficients.
     pub(super) fn with_expression(base: Template) -> Arc<Template> {
         let m = base.morph.as_ref().clone();
-        let morph = crate::morph::Morph::new(m.rest.clone(), 3, 3, m.dirs.clone(), m.posedirs.clone(), m.regressor.clone());
+        let morph = crate::morph::Morph::new(
+            m.rest.clone(),
+            3,
+            3,
+            m.dirs.clone(),
+            m.posedirs.clone(),
+            m.regressor.clone(),
+        );
         let info = base.info.clone();
         Arc::new(base.with_morph(morph, info).unwrap())
     }
@@ -565,7 +606,7 @@ mod morphable {
     }
 
     #[test]
-    fn the_energy_prediction_matches_the_observation_model_and_the_shape_prior_counts() {
+    fn the_residual_vanishes_at_the_truth_and_the_shape_prior_counts() {
         let t = Arc::new(smpl_like(5, 150, 4, true));
         let x = params(&t, 9, 1.0);
         for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
@@ -581,15 +622,8 @@ mod morphable {
                 EnergyConfig::default(),
             )
             .unwrap();
-            let own = e.predict(&x).unwrap();
-            let worst = own
-                .values
-                .iter()
-                .zip(&pred.values)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f64::max);
-            // Markers and hand tips are skinned in f32 by the observation model, f64 here.
-            assert!(worst < 1e-5, "{modality}: {worst}");
+            let worst = e.residual(&x).iter().fold(0.0f64, |m, r| m.max(r.abs()));
+            assert!(worst < 1e-12, "{modality}: residual at the truth {worst}");
             let ev = e.evaluate(&x);
             let beta: f64 = x[3 + 72..].iter().map(|b| b * b).sum();
             assert!((ev.term("shape").unwrap() - beta).abs() < 1e-12);
@@ -697,7 +731,10 @@ mod least_squares_form {
         }
         for (i, &z) in ls.zero_rows.iter().enumerate() {
             if z {
-                assert!(ls.residuals[i] == 0.0 && ls.row(i).iter().all(|v| *v == 0.0), "{label}: row {i} marked zero");
+                assert!(
+                    ls.residuals[i] == 0.0 && ls.row(i).iter().all(|v| *v == 0.0),
+                    "{label}: row {i} marked zero"
+                );
             }
         }
         let fd = fd_jacobian(e, x);
@@ -872,7 +909,13 @@ mod silhouettes {
         let sensor = Sensor::default_for(Modality::Silhouettes, &t);
         let masks = sensor.predict_silhouettes(&t, pose).unwrap();
         assert_eq!(masks.len(), sensor.cameras().len());
-        Energy::new(t, sensor, Target::Silhouettes { masks }, EnergyConfig::default()).unwrap()
+        Energy::new(
+            t,
+            sensor,
+            Target::Silhouettes { masks },
+            EnergyConfig::default(),
+        )
+        .unwrap()
     }
 
     #[test]
@@ -880,23 +923,57 @@ mod silhouettes {
         let truth = gt_pose();
         let e = silhouette_energy(&truth);
         let at_truth = e.evaluate(&truth).term("data").unwrap();
-        let off = e.evaluate(&perturbed(&[0.6; POSE_DIM])).term("data").unwrap();
+        let off = e
+            .evaluate(&perturbed(&[0.6; POSE_DIM]))
+            .term("data")
+            .unwrap();
         let mut far = truth;
         far[0] += 2.0; // two metres aside: almost no overlap in any view
         let away = e.evaluate(&far).term("data").unwrap();
         // Rendering at the energy's width resamples the masks: a thin band of boundary pixels.
         assert!(at_truth < 0.05, "{at_truth}");
-        assert!(off > at_truth + 0.05 && away > off && away <= 1.0, "{at_truth} {off} {away}");
+        assert!(
+            off > at_truth + 0.05 && away > off && away <= 1.0,
+            "{at_truth} {off} {away}"
+        );
         assert!(e.gradient_unsupported().unwrap().contains("no gradient"));
-        assert!(e.least_squares(&truth, true).unwrap_err().to_string().contains("no gradient"));
-        assert!(e.with_target(vec![], vec![]).unwrap_err().to_string().contains("silhouettes energy has no sparse target"));
+        assert!(
+            e.least_squares(&truth, true)
+                .unwrap_err()
+                .to_string()
+                .contains("no gradient")
+        );
+        assert!(
+            e.with_target(vec![], vec![])
+                .unwrap_err()
+                .to_string()
+                .contains("silhouettes energy has no sparse target")
+        );
         // Wrong targets are refused with the reason.
         let t = template();
         let sensor = Sensor::default_for(Modality::Silhouettes, &t);
-        let err = Energy::new(t.clone(), sensor.clone(), Target::Sparse { values: vec![], visible: vec![] }, EnergyConfig::default()).unwrap_err();
-        assert!(err.to_string().contains("one foreground mask per camera"), "{err}");
+        let err = Energy::new(
+            t.clone(),
+            sensor.clone(),
+            Target::Sparse {
+                values: vec![],
+                visible: vec![],
+            },
+            EnergyConfig::default(),
+        )
+        .unwrap_err();
+        assert!(
+            err.to_string().contains("one foreground mask per camera"),
+            "{err}"
+        );
         let one = sensor.predict_silhouettes(&t, &truth).unwrap()[..1].to_vec();
-        let err = Energy::new(t, sensor, Target::Silhouettes { masks: one }, EnergyConfig::default()).unwrap_err();
+        let err = Energy::new(
+            t,
+            sensor,
+            Target::Silhouettes { masks: one },
+            EnergyConfig::default(),
+        )
+        .unwrap_err();
         assert!(err.to_string().contains("target silhouettes"), "{err}");
     }
 }

@@ -4,17 +4,26 @@
 //! Every modality has a fixed-size prediction and a visibility mask of the same size, so its
 //! residual `R(θ) = visible ⊙ (predicted − observed)` has a fixed length.
 
+mod builtin;
+mod view;
+
 use std::fmt;
 use std::str::FromStr;
+use std::sync::Arc;
 
 use glam::{DAffine3, DMat3, DQuat, DVec3, Vec3};
+use rand::RngCore;
 use serde::{Deserialize, Serialize};
 
+pub use self::view::{PoseGradient, PoseJacobian, PosedView};
 use crate::camera::{Camera, DEFAULT_RING_SIZE, default_ring};
+pub use crate::energy::Scales;
+use crate::energy::kinematics::Kinematics;
 use crate::error::{ModelError, Result};
+pub use crate::noise::NoiseConfig;
 use crate::scan::{Mask, VoxelGrid, render_silhouettes};
 use crate::skeleton::{L_HAND, R_HAND};
-use crate::skinning::{Posed, joint_transforms, skin_lbs_into, skin_lbs_subset, vertex_normals};
+use crate::skinning::{joint_transforms, skin_lbs_into, vertex_normals};
 use crate::template::Template;
 
 /// The observation modalities of SPEC §4.
@@ -27,6 +36,9 @@ pub enum Modality {
     Scan,
     /// K binary camera masks (papers/001 §3.2): the foreground images of background subtraction.
     Silhouettes,
+    /// A modality defined outside lfit: an [`ObservationModel`] in [`Sensor::Custom`]. Never
+    /// parsed from a name (it has no default setup).
+    Custom,
 }
 
 impl Modality {
@@ -45,6 +57,7 @@ impl Modality {
             Modality::Hmd => "hmd",
             Modality::Scan => "scan",
             Modality::Silhouettes => "silhouettes",
+            Modality::Custom => "custom",
         }
     }
 }
@@ -105,20 +118,152 @@ pub struct SilhouetteSetup {
     pub cameras: Vec<Camera>,
 }
 
-/// A modality with its sensor setup.
+/// Fixed setup of the `markers` modality: named skin markers on template vertices.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MarkerSetup {
+    pub names: Vec<String>,
+    pub vertices: Vec<u32>,
+}
+
+/// Fixed setup of the `keypoints2d` modality: calibrated cameras that see every joint centre.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct KeypointSetup {
+    pub cameras: Vec<Camera>,
+}
+
+/// One robust group of a prediction: `len` entries from `start` whose residual is judged as one
+/// vector (a marker, a keypoint, a rotation), with the noise scale `sigma` that counts as one
+/// unit. Visibility is per group: the group is seen when its first entry is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ResidualGroup {
+    pub start: usize,
+    pub len: usize,
+    pub sigma: f64,
+}
+
+/// `count` consecutive groups of `len` entries with noise scale `sigma`.
+pub fn uniform_groups(count: usize, len: usize, sigma: f64) -> Vec<ResidualGroup> {
+    (0..count)
+        .map(|k| ResidualGroup {
+            start: k * len,
+            len,
+            sigma,
+        })
+        .collect()
+}
+
+/// An observation model (SPEC §4): what one sensor sees of a posed model, as a fixed-length
+/// vector with per-entry visibility. It is the one place where parameters → observation is
+/// computed: synthesis corrupts its prediction, the energy compares it with data, its Jacobian
+/// feeds Gauss-Newton/LM and its reverse-mode derivative the energy's gradient (which L-BFGS and
+/// the neural fitter see).
+///
+/// `markers`, `keypoints2d` and `hmd` are implementations ([`MarkerSetup`], [`KeypointSetup`],
+/// [`HmdSetup`]); a sensor defined in another crate implements it too and travels as
+/// [`Sensor::Custom`], with no change to lfit (see `examples/imu_sensor.rs`). Dense modalities
+/// (`scan`, `silhouettes`) compare surfaces and images rather than vectors and are not
+/// observation models of this kind.
+pub trait ObservationModel: fmt::Debug + Send + Sync {
+    /// Short name, used in reports and errors.
+    fn name(&self) -> &str;
+
+    /// Checks the setup against a model (indices in range, joints it needs, cameras).
+    fn validate(&self, template: &Template) -> Result<()>;
+
+    /// Length of the prediction (and of the residual R(θ)).
+    fn dim(&self, template: &Template) -> usize;
+
+    /// The robust groups that cover the prediction, with their noise scales.
+    fn groups(&self, template: &Template, scales: &Scales) -> Vec<ResidualGroup>;
+
+    /// The prediction and whether the sensor sees each entry (`dim` entries each, overwritten).
+    fn predict(&self, posed: &PosedView<'_>, values: &mut [f64], visible: &mut [bool]);
+
+    /// The Jacobian of the prediction over the whole parameter vector: `dim × jac.dim()`,
+    /// row-major, written into `out`.
+    fn jacobian(&self, posed: &PosedView<'_>, jac: &mut PoseJacobian<'_, '_>, out: &mut [f64]);
+
+    /// Adds `(∂prediction/∂θ)ᵀ dpred` to `grad`. The default goes through [`Self::jacobian`];
+    /// the built-in models override it with cheaper reverse-mode sums.
+    fn backprop(&self, posed: &PosedView<'_>, dpred: &[f64], grad: &mut PoseGradient<'_, '_>) {
+        let d = grad.dim();
+        let mut jac = vec![0.0; dpred.len() * d];
+        grad.with_jacobian(|j| self.jacobian(posed, j, &mut jac));
+        let mut g = vec![0.0; d];
+        for (row, &dp) in jac.chunks_exact(d).zip(dpred) {
+            if dp != 0.0 {
+                for (gi, j) in g.iter_mut().zip(row) {
+                    *gi += dp * j;
+                }
+            }
+        }
+        grad.parameters(&g);
+    }
+
+    /// Noise, outliers and dropouts that synthesis applies to a clean prediction (entries the
+    /// sensor does not see are reported as 0 and invisible).
+    fn corrupt(
+        &self,
+        values: &mut [f64],
+        visible: &mut [bool],
+        noise: &NoiseConfig,
+        rng: &mut dyn RngCore,
+    );
+}
+
+/// The observation model of [`Sensor::default_for`]`(Modality::Custom, ..)`: a custom modality has
+/// no default setup, so it refuses every template with that reason.
+#[derive(Debug, Clone, Copy)]
+struct NoDefaultSetup;
+
+impl ObservationModel for NoDefaultSetup {
+    fn name(&self) -> &str {
+        "custom"
+    }
+    fn validate(&self, _: &Template) -> Result<()> {
+        Err(ModelError::Config(
+            "a custom modality has no default setup: build its Sensor::Custom in code (see examples/imu_sensor.rs)".into(),
+        ))
+    }
+    fn dim(&self, _: &Template) -> usize {
+        0
+    }
+    fn groups(&self, _: &Template, _: &Scales) -> Vec<ResidualGroup> {
+        Vec::new()
+    }
+    fn predict(&self, _: &PosedView<'_>, _: &mut [f64], _: &mut [bool]) {}
+    fn jacobian(&self, _: &PosedView<'_>, _: &mut PoseJacobian<'_, '_>, _: &mut [f64]) {}
+    fn corrupt(&self, _: &mut [f64], _: &mut [bool], _: &NoiseConfig, _: &mut dyn RngCore) {}
+}
+
+/// A modality with its sensor setup.
+#[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(tag = "modality", rename_all = "lowercase")]
 pub enum Sensor {
-    Markers {
-        names: Vec<String>,
-        vertices: Vec<u32>,
-    },
-    Keypoints2d {
-        cameras: Vec<Camera>,
-    },
+    Markers(MarkerSetup),
+    Keypoints2d(KeypointSetup),
     Hmd(HmdSetup),
     Scan(ScanSetup),
     Silhouettes(SilhouetteSetup),
+    /// An observation model defined outside lfit. It lives in memory only: datasets of it cannot
+    /// be written (serialising it is an error naming the reason).
+    #[serde(skip)]
+    Custom(Arc<dyn ObservationModel>),
+}
+
+impl PartialEq for Sensor {
+    /// Built-in setups compare by value, custom ones by identity.
+    fn eq(&self, other: &Self) -> bool {
+        match (self, other) {
+            (Sensor::Markers(a), Sensor::Markers(b)) => a == b,
+            (Sensor::Keypoints2d(a), Sensor::Keypoints2d(b)) => a == b,
+            (Sensor::Hmd(a), Sensor::Hmd(b)) => a == b,
+            (Sensor::Scan(a), Sensor::Scan(b)) => a == b,
+            (Sensor::Silhouettes(a), Sensor::Silhouettes(b)) => a == b,
+            (Sensor::Custom(a), Sensor::Custom(b)) => Arc::ptr_eq(a, b),
+            _ => false,
+        }
+    }
 }
 
 /// Entries per HMD prediction: head, left wrist and right wrist as 3×4 `[R | t]` (12 each), then
@@ -150,10 +295,11 @@ pub struct ScanObservation {
 }
 
 impl Sensor {
-    /// The default setup of `modality` for `template`.
+    /// The default setup of `modality` for `template` (a custom modality has none: its sensor
+    /// refuses every template with that reason).
     pub fn default_for(modality: Modality, template: &Template) -> Self {
         match modality {
-            Modality::Markers => Sensor::Markers {
+            Modality::Markers => Sensor::Markers(MarkerSetup {
                 names: template
                     .rig
                     .markers
@@ -161,10 +307,10 @@ impl Sensor {
                     .map(|m| m.name.clone())
                     .collect(),
                 vertices: template.rig.markers.iter().map(|m| m.vertex).collect(),
-            },
-            Modality::Keypoints2d => Sensor::Keypoints2d {
+            }),
+            Modality::Keypoints2d => Sensor::Keypoints2d(KeypointSetup {
                 cameras: default_ring(DEFAULT_RING_SIZE),
-            },
+            }),
             Modality::Hmd => Sensor::Hmd(HmdSetup {
                 offset: template.info.hmd_offset,
                 visibility: HandVisibility::HalfSpace,
@@ -179,23 +325,44 @@ impl Sensor {
             Modality::Silhouettes => Sensor::Silhouettes(SilhouetteSetup {
                 cameras: default_ring(4),
             }),
+            Modality::Custom => Sensor::Custom(Arc::new(NoDefaultSetup)),
         }
     }
 
     pub fn modality(&self) -> Modality {
         match self {
-            Sensor::Markers { .. } => Modality::Markers,
-            Sensor::Keypoints2d { .. } => Modality::Keypoints2d,
+            Sensor::Markers(_) => Modality::Markers,
+            Sensor::Keypoints2d(_) => Modality::Keypoints2d,
             Sensor::Hmd(_) => Modality::Hmd,
             Sensor::Scan(_) => Modality::Scan,
             Sensor::Silhouettes(_) => Modality::Silhouettes,
+            Sensor::Custom(_) => Modality::Custom,
         }
     }
 
-    /// Cameras of the setup (none for markers and hmd).
+    /// The sensor's name: its modality's, or a custom model's own.
+    pub fn name(&self) -> &str {
+        match self {
+            Sensor::Custom(m) => m.name(),
+            _ => self.modality().name(),
+        }
+    }
+
+    /// The observation model of a vector-valued modality; `None` for `scan` and `silhouettes`.
+    pub fn observation_model(&self) -> Option<&dyn ObservationModel> {
+        match self {
+            Sensor::Markers(s) => Some(s),
+            Sensor::Keypoints2d(s) => Some(s),
+            Sensor::Hmd(s) => Some(s),
+            Sensor::Custom(m) => Some(m.as_ref()),
+            Sensor::Scan(_) | Sensor::Silhouettes(_) => None,
+        }
+    }
+
+    /// Cameras of the setup (none for markers, hmd and custom sensors).
     pub fn cameras(&self) -> &[Camera] {
         match self {
-            Sensor::Keypoints2d { cameras } => cameras,
+            Sensor::Keypoints2d(s) => &s.cameras,
             Sensor::Scan(s) => &s.cameras,
             Sensor::Silhouettes(s) => &s.cameras,
             _ => &[],
@@ -205,51 +372,16 @@ impl Sensor {
     /// Length of the residual vector R(θ).
     pub fn residual_dim(&self, template: &Template) -> usize {
         match self {
-            Sensor::Markers { vertices, .. } => 3 * vertices.len(),
-            Sensor::Keypoints2d { cameras } => 2 * cameras.len() * template.rig.num_joints(),
-            Sensor::Hmd(_) => HMD_DIM,
             Sensor::Scan(s) => 3 * s.residual_vertices.len(),
             // Masks are compared as images: no residual vector.
             Sensor::Silhouettes(_) => 0,
+            _ => self.observation_model().map_or(0, |m| m.dim(template)),
         }
     }
 
     /// Checks the setup against a template (vertex indices in range, valid cameras).
     pub fn validate(&self, template: &Template) -> Result<()> {
-        let n = template.num_vertices() as u32;
-        let check_vertices = |vs: &[u32], what: &str| match vs.iter().find(|&&v| v >= n) {
-            Some(v) => Err(ModelError::Shape {
-                what: what.to_string(),
-                expected: format!("vertex < {n}"),
-                got: v.to_string(),
-            }),
-            None => Ok(()),
-        };
         match self {
-            Sensor::Markers { names, vertices } => {
-                if names.len() != vertices.len() {
-                    return Err(ModelError::Shape {
-                        what: "marker names".into(),
-                        expected: vertices.len().to_string(),
-                        got: names.len().to_string(),
-                    });
-                }
-                if vertices.is_empty() {
-                    return Err(ModelError::Config(format!(
-                        "model '{}' has no markers for the markers modality (a rig's \"markers\", or the model file's marker_names/marker_vertices)",
-                        template.id
-                    )));
-                }
-                check_vertices(vertices, "marker vertex")
-            }
-            Sensor::Keypoints2d { cameras } => cameras
-                .iter()
-                .enumerate()
-                .try_for_each(|(i, c)| c.validate(i)),
-            Sensor::Hmd(h) => {
-                template.hmd_joints()?;
-                check_vertices(&h.hand_tips, "hand tip vertex")
-            }
             Sensor::Scan(s) => {
                 if !(s.voxel_size.is_finite() && s.voxel_size > 0.0) {
                     return Err(ModelError::Setting {
@@ -258,7 +390,7 @@ impl Sensor {
                         reason: "must be positive".into(),
                     });
                 }
-                check_vertices(&s.residual_vertices, "scan residual vertex")?;
+                check_vertices(template, &s.residual_vertices, "scan residual vertex")?;
                 s.cameras
                     .iter()
                     .enumerate()
@@ -266,107 +398,59 @@ impl Sensor {
             }
             Sensor::Silhouettes(s) => {
                 if s.cameras.is_empty() {
-                    return Err(ModelError::Config("the silhouettes modality needs at least one camera".into()));
+                    return Err(ModelError::Config(
+                        "the silhouettes modality needs at least one camera".into(),
+                    ));
                 }
-                s.cameras.iter().enumerate().try_for_each(|(i, c)| c.validate(i))
-            }
-        }
-    }
-
-    /// Predicted observation of a sparse modality at `pose`. `None` for `scan`.
-    pub fn predict_sparse(&self, template: &Template, pose: &[f64]) -> Option<SparsePrediction> {
-        let transforms = joint_transforms(template, pose);
-        self.predict_sparse_from(template, &transforms)
-    }
-
-    /// As [`Sensor::predict_sparse`], from precomputed joint transforms.
-    pub fn predict_sparse_from(
-        &self,
-        template: &Template,
-        transforms: &Posed,
-    ) -> Option<SparsePrediction> {
-        match self {
-            Sensor::Markers { vertices, .. } => {
-                let pts = skin_lbs_subset(template, transforms, vertices);
-                let values = pts
+                s.cameras
                     .iter()
-                    .flat_map(|p| p.as_dvec3().to_array())
-                    .collect::<Vec<_>>();
-                let visible = vec![true; values.len()];
-                Some(SparsePrediction { values, visible })
+                    .enumerate()
+                    .try_for_each(|(i, c)| c.validate(i))
             }
-            Sensor::Keypoints2d { cameras } => {
-                let joints = &transforms.joints;
-                let mut values = Vec::with_capacity(2 * cameras.len() * joints.len());
-                let mut visible = Vec::with_capacity(values.capacity());
-                for cam in cameras {
-                    for &p in joints {
-                        let q = cam.to_camera(p);
-                        let uv = cam.project_camera(q);
-                        let seen = q.z > 0.01 && cam.in_image(uv);
-                        // Behind the camera the projection is meaningless: report 0 and invisible.
-                        let uv = if q.z > 0.01 { uv } else { glam::DVec2::ZERO };
-                        values.extend([uv.x, uv.y]);
-                        visible.extend([seen, seen]);
-                    }
-                }
-                Some(SparsePrediction { values, visible })
-            }
-            Sensor::Hmd(setup) => {
-                let [head, l_hand, r_hand] = template.hmd_joints().ok()?;
-                let joints = &transforms.joints;
-                let headset = headset_pose(setup, transforms[head].matrix3, joints[head]);
-                let tips = skin_lbs_subset(template, transforms, &setup.hand_tips);
-                let mut values = Vec::with_capacity(HMD_DIM);
-                push_rigid(&mut values, &headset);
-                let mut visible = vec![true; 12];
-                let device_from_world = headset.inverse();
-                for hand in [l_hand, r_hand] {
-                    push_rigid(
-                        &mut values,
-                        &DAffine3 {
-                            matrix3: transforms[hand].matrix3,
-                            translation: joints[hand],
-                        },
-                    );
-                    let seen = match setup.visibility {
-                        HandVisibility::Full => true,
-                        HandVisibility::HalfSpace => {
-                            device_from_world.transform_point3(joints[hand]).z < 0.0
-                        }
-                    };
-                    visible.extend([seen; 12]);
-                }
-                for (k, tip) in tips.iter().enumerate() {
-                    values.extend(tip.as_dvec3().to_array());
-                    let seen = visible[12 + 12 * k];
-                    visible.extend([seen; 3]);
-                }
-                Some(SparsePrediction { values, visible })
-            }
-            Sensor::Scan(_) | Sensor::Silhouettes(_) => None,
+            _ => match self.observation_model() {
+                Some(m) => m.validate(template),
+                None => Ok(()),
+            },
         }
+    }
+
+    /// Predicted observation of a vector-valued modality at `pose` (the observation model's
+    /// prediction, clean). `None` for `scan` and `silhouettes`.
+    pub fn predict_sparse(&self, template: &Template, pose: &[f64]) -> Option<SparsePrediction> {
+        let model = self.observation_model()?;
+        let kin = Kinematics::build(template, pose, false);
+        let view = PosedView {
+            template,
+            kin: &kin,
+            skin: None,
+        };
+        let n = model.dim(template);
+        let mut values = vec![0.0; n];
+        let mut visible = vec![false; n];
+        model.predict(&view, &mut values, &mut visible);
+        Some(SparsePrediction { values, visible })
     }
 
     /// The model's silhouettes in every camera of the `silhouettes` modality at `pose` (full
     /// camera resolution). `None` for other modalities.
     pub fn predict_silhouettes(&self, template: &Template, pose: &[f64]) -> Option<Vec<Mask>> {
-        let Sensor::Silhouettes(setup) = self else { return None };
-        let transforms = joint_transforms(template, pose);
-        let mut vertices = Vec::new();
-        skin_lbs_into(template, &transforms, &mut vertices);
-        Some(render_silhouettes(&setup.cameras, &vertices, &template.faces))
+        let Sensor::Silhouettes(setup) = self else {
+            return None;
+        };
+        Some(render_silhouettes(
+            &setup.cameras,
+            &posed_vertices(template, pose),
+            &template.faces,
+        ))
     }
 
-    /// Predicted scan observation at `pose` (posed surface and silhouettes). `None` for sparse
+    /// Predicted scan observation at `pose` (posed surface and silhouettes). `None` for other
     /// modalities.
     pub fn predict_scan(&self, template: &Template, pose: &[f64]) -> Option<ScanPrediction> {
         let Sensor::Scan(setup) = self else {
             return None;
         };
-        let transforms = joint_transforms(template, pose);
-        let mut vertices = Vec::new();
-        skin_lbs_into(template, &transforms, &mut vertices);
+        let vertices = posed_vertices(template, pose);
         let normals = vertex_normals(&vertices, &template.faces);
         let silhouettes = render_silhouettes(&setup.cameras, &vertices, &template.faces);
         Some(ScanPrediction {
@@ -413,6 +497,27 @@ impl Sensor {
     }
 }
 
+/// Every posed vertex (the mesh the dense modalities render).
+fn posed_vertices(template: &Template, pose: &[f64]) -> Vec<Vec3> {
+    let transforms = joint_transforms(template, pose);
+    let mut vertices = Vec::new();
+    skin_lbs_into(template, &transforms, &mut vertices);
+    vertices
+}
+
+/// Vertex indices in range of `template`.
+pub(crate) fn check_vertices(template: &Template, vs: &[u32], what: &str) -> Result<()> {
+    let n = template.num_vertices() as u32;
+    match vs.iter().find(|&&v| v >= n) {
+        Some(v) => Err(ModelError::Shape {
+            what: what.to_string(),
+            expected: format!("vertex < {n}"),
+            got: v.to_string(),
+        }),
+        None => Ok(()),
+    }
+}
+
 /// One 3-vector of the `scan` residual: the offset from the target's closest point to `p`,
 /// `½ ∇S(⌊p⌋) + (p − ⌊p⌋)` for the squared distance transform `S` of `grid`.
 pub fn closest_point_offset(grid: &VoxelGrid, p: DVec3) -> DVec3 {
@@ -432,14 +537,6 @@ pub fn headset_pose(setup: &HmdSetup, head_rotation: DMat3, head_position: DVec3
         translation: DVec3::from_array(setup.offset),
     };
     world_from_head * head_from_device
-}
-
-fn push_rigid(values: &mut Vec<f64>, a: &DAffine3) {
-    let m = a.matrix3;
-    for row in 0..3 {
-        values.extend([m.x_axis[row], m.y_axis[row], m.z_axis[row]]);
-    }
-    values.extend(a.translation.to_array());
 }
 
 /// Hand-tip vertices (left, right): the model file's `hand_tips` when it names them; otherwise,

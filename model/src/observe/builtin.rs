@@ -1,0 +1,344 @@
+//! The built-in vector-valued observation models: `markers`, `keypoints2d` and `hmd`.
+
+use glam::{DMat3, DVec3};
+use rand::RngCore;
+
+use super::{
+    HMD_DIM, HandVisibility, HmdSetup, KeypointSetup, MarkerSetup, ObservationModel, PoseGradient,
+    PoseJacobian, PosedView, ResidualGroup, check_vertices, headset_pose, uniform_groups,
+};
+use crate::camera::Camera;
+use crate::energy::Scales;
+use crate::error::{ModelError, Result};
+use crate::noise::{NoiseConfig, corrupt_hmd, corrupt_points};
+use crate::template::Template;
+
+/// Depth below which a point counts as behind the camera (1 cm).
+const DEPTH_FLOOR: f64 = 0.01;
+
+/// Projection of world point `p` by `cam` and the rows `∂(u, v)/∂q` of its derivative with respect
+/// to the camera-frame point `q`. Depths are floored at 1 cm (in front of the camera), where the
+/// derivative along depth is zero.
+pub(crate) fn project(cam: &Camera, p: DVec3) -> ([f64; 2], [DVec3; 2]) {
+    let q = cam.to_camera(p);
+    let (z, dz) = if q.z > DEPTH_FLOOR {
+        (q.z, 1.0)
+    } else {
+        (DEPTH_FLOOR, 0.0)
+    };
+    let u = cam.fx * q.x / z + cam.cx;
+    let v = cam.fy * q.y / z + cam.cy;
+    let du = DVec3::new(cam.fx / z, 0.0, -dz * cam.fx * q.x / (z * z));
+    let dv = DVec3::new(0.0, cam.fy / z, -dz * cam.fy * q.y / (z * z));
+    ([u, v], [du, dv])
+}
+
+/// `out = Σ_a a[a] · rows[a]` for a 3-row, `d`-wide row-major block.
+#[inline]
+fn combine(out: &mut [f64], a: DVec3, rows: &[f64], d: usize) {
+    for (i, o) in out.iter_mut().enumerate() {
+        *o = a.x * rows[i] + a.y * rows[d + i] + a.z * rows[2 * d + i];
+    }
+}
+
+impl ObservationModel for MarkerSetup {
+    fn name(&self) -> &str {
+        "markers"
+    }
+
+    fn validate(&self, template: &Template) -> Result<()> {
+        if self.names.len() != self.vertices.len() {
+            return Err(ModelError::Shape {
+                what: "marker names".into(),
+                expected: self.vertices.len().to_string(),
+                got: self.names.len().to_string(),
+            });
+        }
+        if self.vertices.is_empty() {
+            return Err(ModelError::Config(format!(
+                "model '{}' has no markers for the markers modality (a rig's \"markers\", or the model file's marker_names/marker_vertices)",
+                template.id
+            )));
+        }
+        check_vertices(template, &self.vertices, "marker vertex")
+    }
+
+    fn dim(&self, _: &Template) -> usize {
+        3 * self.vertices.len()
+    }
+
+    fn groups(&self, _: &Template, scales: &Scales) -> Vec<ResidualGroup> {
+        uniform_groups(self.vertices.len(), 3, scales.position)
+    }
+
+    fn predict(&self, posed: &PosedView<'_>, values: &mut [f64], visible: &mut [bool]) {
+        for (k, &v) in self.vertices.iter().enumerate() {
+            values[3 * k..3 * k + 3].copy_from_slice(&posed.vertex(v as usize).to_array());
+        }
+        visible.fill(true);
+    }
+
+    fn jacobian(&self, _: &PosedView<'_>, jac: &mut PoseJacobian<'_, '_>, out: &mut [f64]) {
+        let d = jac.dim();
+        for (k, &v) in self.vertices.iter().enumerate() {
+            jac.vertex(v as usize, &mut out[3 * k * d..3 * (k + 1) * d]);
+        }
+    }
+
+    fn backprop(&self, _: &PosedView<'_>, dpred: &[f64], grad: &mut PoseGradient<'_, '_>) {
+        for (k, &v) in self.vertices.iter().enumerate() {
+            let g = DVec3::new(dpred[3 * k], dpred[3 * k + 1], dpred[3 * k + 2]);
+            grad.vertex(v as usize, g);
+        }
+    }
+
+    fn corrupt(
+        &self,
+        values: &mut [f64],
+        visible: &mut [bool],
+        noise: &NoiseConfig,
+        rng: &mut dyn RngCore,
+    ) {
+        corrupt_points(
+            values,
+            visible,
+            3,
+            noise.point_sigma,
+            noise.outlier_scale_m,
+            noise,
+            rng,
+        );
+    }
+}
+
+impl ObservationModel for KeypointSetup {
+    fn name(&self) -> &str {
+        "keypoints2d"
+    }
+
+    fn validate(&self, _: &Template) -> Result<()> {
+        self.cameras
+            .iter()
+            .enumerate()
+            .try_for_each(|(i, c)| c.validate(i))
+    }
+
+    fn dim(&self, template: &Template) -> usize {
+        2 * self.cameras.len() * template.rig.num_joints()
+    }
+
+    fn groups(&self, template: &Template, scales: &Scales) -> Vec<ResidualGroup> {
+        uniform_groups(
+            self.cameras.len() * template.rig.num_joints(),
+            2,
+            scales.pixel,
+        )
+    }
+
+    /// Every joint centre in every camera; a joint is seen when it is in front of the camera
+    /// (depth > 1 cm) and projects inside the image.
+    fn predict(&self, posed: &PosedView<'_>, values: &mut [f64], visible: &mut [bool]) {
+        let nj = posed.num_joints();
+        for (c, cam) in self.cameras.iter().enumerate() {
+            for j in 0..nj {
+                let p = posed.joint(j);
+                let (uv, _) = project(cam, p);
+                let i = 2 * (c * nj + j);
+                values[i..i + 2].copy_from_slice(&uv);
+                let seen = cam.to_camera(p).z > DEPTH_FLOOR
+                    && cam.in_image(glam::DVec2::new(uv[0], uv[1]));
+                visible[i..i + 2].fill(seen);
+            }
+        }
+    }
+
+    fn jacobian(&self, posed: &PosedView<'_>, jac: &mut PoseJacobian<'_, '_>, out: &mut [f64]) {
+        let d = jac.dim();
+        let nj = posed.num_joints();
+        let mut joint_jac = vec![0.0; 3 * nj * d];
+        for j in 0..nj {
+            jac.joint(j, &mut joint_jac[3 * j * d..3 * (j + 1) * d]);
+        }
+        for (c, cam) in self.cameras.iter().enumerate() {
+            let rot_t = cam.rot().transpose();
+            for j in 0..nj {
+                let (_, dq) = project(cam, posed.joint(j));
+                let jj = &joint_jac[3 * j * d..3 * (j + 1) * d];
+                for (r, dq) in dq.iter().enumerate() {
+                    let row = 2 * (c * nj + j) + r;
+                    combine(&mut out[row * d..(row + 1) * d], rot_t * *dq, jj, d);
+                }
+            }
+        }
+    }
+
+    fn backprop(&self, posed: &PosedView<'_>, dpred: &[f64], grad: &mut PoseGradient<'_, '_>) {
+        let nj = posed.num_joints();
+        for (c, cam) in self.cameras.iter().enumerate() {
+            let rot_t = cam.rot().transpose();
+            for j in 0..nj {
+                let i = 2 * (c * nj + j);
+                let (gu, gv) = (dpred[i], dpred[i + 1]);
+                if gu == 0.0 && gv == 0.0 {
+                    continue;
+                }
+                let (_, dq) = project(cam, posed.joint(j));
+                grad.joint(j, rot_t * (dq[0] * gu + dq[1] * gv));
+            }
+        }
+    }
+
+    fn corrupt(
+        &self,
+        values: &mut [f64],
+        visible: &mut [bool],
+        noise: &NoiseConfig,
+        rng: &mut dyn RngCore,
+    ) {
+        corrupt_points(
+            values,
+            visible,
+            2,
+            noise.pixel_sigma,
+            noise.outlier_scale_px,
+            noise,
+            rng,
+        );
+    }
+}
+
+/// Headset and both wrists as (joint, rotation, position), in the order of the `hmd` prediction.
+fn hmd_devices(setup: &HmdSetup, posed: &PosedView<'_>) -> Option<[(usize, DMat3, DVec3); 3]> {
+    let [head, left, right] = posed.template().hmd_joints().ok()?;
+    let headset = headset_pose(setup, posed.joint_rotation(head), posed.joint(head));
+    Some([
+        (head, headset.matrix3, headset.translation),
+        (left, posed.joint_rotation(left), posed.joint(left)),
+        (right, posed.joint_rotation(right), posed.joint(right)),
+    ])
+}
+
+impl ObservationModel for HmdSetup {
+    fn name(&self) -> &str {
+        "hmd"
+    }
+
+    fn validate(&self, template: &Template) -> Result<()> {
+        template.hmd_joints()?;
+        check_vertices(template, &self.hand_tips, "hand tip vertex")
+    }
+
+    fn dim(&self, _: &Template) -> usize {
+        HMD_DIM
+    }
+
+    /// Per device a rotation group (9 entries) and a position group (3), then the two hand tips.
+    fn groups(&self, _: &Template, scales: &Scales) -> Vec<ResidualGroup> {
+        let mut out = Vec::with_capacity(8);
+        for d in 0..3 {
+            out.push(ResidualGroup {
+                start: 12 * d,
+                len: 9,
+                sigma: scales.rotation,
+            });
+            out.push(ResidualGroup {
+                start: 12 * d + 9,
+                len: 3,
+                sigma: scales.position,
+            });
+        }
+        out.extend((0..2).map(|k| ResidualGroup {
+            start: 36 + 3 * k,
+            len: 3,
+            sigma: scales.position,
+        }));
+        out
+    }
+
+    /// The headset and both wrists as 3×4 `[R | t]` (row-major), then both hand tips. The headset
+    /// is always seen; with [`HandVisibility::HalfSpace`] a hand (wrist and tip) is seen only in
+    /// front of the headset (negative z in its frame).
+    fn predict(&self, posed: &PosedView<'_>, values: &mut [f64], visible: &mut [bool]) {
+        let Some(devices) = hmd_devices(self, posed) else {
+            // `validate` refuses a model without the joints; nothing is seen.
+            values.fill(0.0);
+            visible.fill(false);
+            return;
+        };
+        let device_from_world = glam::DAffine3 {
+            matrix3: devices[0].1,
+            translation: devices[0].2,
+        }
+        .inverse();
+        for (d, &(_, rot, pos)) in devices.iter().enumerate() {
+            let o = 12 * d;
+            for row in 0..3 {
+                values[o + 3 * row..o + 3 * row + 3].copy_from_slice(&[
+                    rot.x_axis[row],
+                    rot.y_axis[row],
+                    rot.z_axis[row],
+                ]);
+            }
+            values[o + 9..o + 12].copy_from_slice(&pos.to_array());
+            let seen = d == 0
+                || match self.visibility {
+                    HandVisibility::Full => true,
+                    HandVisibility::HalfSpace => device_from_world.transform_point3(pos).z < 0.0,
+                };
+            visible[o..o + 12].fill(seen);
+        }
+        for (k, &tip) in self.hand_tips.iter().enumerate() {
+            let o = 36 + 3 * k;
+            values[o..o + 3].copy_from_slice(&posed.vertex(tip as usize).to_array());
+            let seen = visible[12 + 12 * k];
+            visible[o..o + 3].fill(seen);
+        }
+    }
+
+    fn jacobian(&self, posed: &PosedView<'_>, jac: &mut PoseJacobian<'_, '_>, out: &mut [f64]) {
+        let d = jac.dim();
+        let Some(devices) = hmd_devices(self, posed) else {
+            out.fill(0.0);
+            return;
+        };
+        for (dev, &(joint, rot, pos)) in devices.iter().enumerate() {
+            let o = 12 * dev;
+            jac.carried_rotation(joint, rot, &mut out[o * d..(o + 9) * d]);
+            jac.joint_point(joint, pos, &mut out[(o + 9) * d..(o + 12) * d]);
+        }
+        for (k, &tip) in self.hand_tips.iter().enumerate() {
+            let o = 36 + 3 * k;
+            jac.vertex(tip as usize, &mut out[o * d..(o + 3) * d]);
+        }
+    }
+
+    fn backprop(&self, posed: &PosedView<'_>, dpred: &[f64], grad: &mut PoseGradient<'_, '_>) {
+        let Some(devices) = hmd_devices(self, posed) else {
+            return;
+        };
+        let vec3 = |i: usize| DVec3::new(dpred[i], dpred[i + 1], dpred[i + 2]);
+        for (dev, &(joint, rot, pos)) in devices.iter().enumerate() {
+            let o = 12 * dev;
+            let g = DMat3::from_cols(
+                DVec3::new(dpred[o], dpred[o + 3], dpred[o + 6]),
+                DVec3::new(dpred[o + 1], dpred[o + 4], dpred[o + 7]),
+                DVec3::new(dpred[o + 2], dpred[o + 5], dpred[o + 8]),
+            );
+            grad.carried_rotation(joint, rot, g);
+            grad.joint_point(joint, pos, vec3(o + 9));
+        }
+        for (k, &tip) in self.hand_tips.iter().enumerate() {
+            grad.vertex(tip as usize, vec3(36 + 3 * k));
+        }
+    }
+
+    fn corrupt(
+        &self,
+        values: &mut [f64],
+        visible: &mut [bool],
+        noise: &NoiseConfig,
+        rng: &mut dyn RngCore,
+    ) {
+        corrupt_hmd(values, visible, noise, rng);
+    }
+}
