@@ -6,11 +6,11 @@
 use std::collections::{BTreeMap, HashSet};
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::sync::Mutex;
 
 use anyhow::{Context, Result, bail};
 use lfit_fitters::optim::Preset;
-use lfit_fitters::{FitRequest, Fitter, Strategy};
+use lfit_fitters::{Fitter, Strategy};
 
 use crate::method::{MethodKind, MethodSpec};
 use lfit_model::energy::{Energy, EnergyConfig};
@@ -21,8 +21,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::fit::{
-    energy_for_frame, frame_seed, iterate_errors, parse_frames, read_energy_config,
-    scenario_bounds, scenario_mask, template_for,
+    energy_for_frame, frame_seed, iterate_errors, parse_frames, read_energy_config, template_for,
 };
 
 /// Dataset to synthesise when the config names none.
@@ -596,76 +595,71 @@ pub fn run(
             .count(),
     );
     progress(counter.load(std::sync::atomic::Ordering::Relaxed), total);
-    let template_ref: &Arc<lfit_model::Template> = &template;
+    let index_of: std::collections::HashMap<usize, usize> =
+        frames.iter().enumerate().map(|(i, &f)| (f, i)).collect();
     let work = |unit: &&Unit| -> Result<()> {
-        let mut previous: Option<(usize, Vec<f64>)> = None;
-        for &fi in &unit.frames {
-            let k = key(unit, fi);
-            let resumed = done.contains(&k);
-            let (method, strategy, budget, rep, frame) = k;
+        let (method, strategy) = entries[unit.entry].clone();
+        let (budget, rep) = (config.budgets[unit.budget], unit.rep);
+        let plan = crate::fitting::Plan {
+            dataset: &dataset,
+            template: &template,
+            budget,
+            batch: 1,
+        };
+        let unit_frames: Vec<usize> = unit.frames.iter().map(|&fi| frames[fi]).collect();
+        crate::fitting::fit_frames(
+            fitters[unit.entry].as_ref(),
+            &plan,
+            &unit_frames,
             // Each fit gets its own copy: the evaluation counter lives in the energy, and
             // parallel fits of one frame must not share it.
-            let energy = &energies[fi].clone();
-            let start = match previous.take() {
-                Some((p, pose)) if chains && p + 1 == frame => pose,
-                _ => dataset.start_poses[frame].clone(),
-            };
-            let seed =
-                frame_seed(config.seed, frame) ^ (rep as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-            let bounds = scenario_bounds(scenario, template_ref, &start);
-            let start_energy = energy.inspect(&start).total;
-            let request = FitRequest {
-                energy,
-                start,
-                mask: scenario_mask(scenario, template_ref),
-                bounds,
-                budget,
-                seed,
-            };
-            let result = fitters[unit.entry]
-                .fit(&request)
-                .with_context(|| format!("{method} on frame {frame}"))?;
-            let pose = result.pose.clone();
-            previous = Some((frame, pose.clone()));
-            if resumed {
-                // Resumed chain: this row is already in the CSV; the fit only rebuilt the warm start.
-                continue;
-            }
-            let gt = &dataset.gt_poses[frame];
-            let v2v_per_iteration = iterate_errors(template_ref, &result.iterates, gt, v2v_mm);
-            let row = Run {
-                method,
-                strategy,
-                budget,
-                rep,
-                frame,
-                seed,
-                energy: result.energy,
-                start_energy,
-                v2v_mm: v2v_mm(template_ref, &pose, gt),
-                mpjpe_mm: mpjpe_mm(template_ref, &pose, gt),
-                pa_mpjpe_mm: pa_mpjpe_mm(template_ref, &pose, gt),
-                hausdorff_mm: hausdorff_rms_mm(template_ref, &pose, gt),
-                evaluations: result.evaluations,
-                gradient_evaluations: result.gradient_evaluations,
-                iterations: result.iterations,
-                time_s: result.time_s,
-                trace: result.trace,
-                v2v_per_iteration,
-            };
-            let mut line = row.to_csv();
-            line.push('\n');
-            {
-                let mut f = file
-                    .lock()
-                    .map_err(|_| anyhow::anyhow!("runs.csv lock poisoned"))?;
-                f.write_all(line.as_bytes())?;
-                f.flush()?;
-            }
-            let n = counter.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-            progress(n, total);
-        }
-        Ok(())
+            &|frame| Ok(energies[index_of[&frame]].clone()),
+            &|frame| {
+                frame_seed(config.seed, frame) ^ (rep as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            },
+            &mut |fitted| {
+                let frame = fitted.frame;
+                if done.contains(&(method.clone(), strategy.clone(), budget, rep, frame)) {
+                    // Resumed chain: this row is already in the CSV; the fit only rebuilt the
+                    // warm start of the next frame.
+                    return Ok(());
+                }
+                let result = fitted.result;
+                let (pose, gt) = (&result.pose, &dataset.gt_poses[frame]);
+                let row = Run {
+                    method: method.clone(),
+                    strategy: strategy.clone(),
+                    budget,
+                    rep,
+                    frame,
+                    seed: fitted.seed,
+                    energy: result.energy,
+                    start_energy: fitted.start_energy,
+                    v2v_mm: v2v_mm(&template, pose, gt),
+                    mpjpe_mm: mpjpe_mm(&template, pose, gt),
+                    pa_mpjpe_mm: pa_mpjpe_mm(&template, pose, gt),
+                    hausdorff_mm: hausdorff_rms_mm(&template, pose, gt),
+                    evaluations: result.evaluations,
+                    gradient_evaluations: result.gradient_evaluations,
+                    iterations: result.iterations,
+                    time_s: result.time_s,
+                    v2v_per_iteration: iterate_errors(&template, &result.iterates, gt, v2v_mm),
+                    trace: result.trace,
+                };
+                let mut line = row.to_csv();
+                line.push('\n');
+                {
+                    let mut f = file
+                        .lock()
+                        .map_err(|_| anyhow::anyhow!("runs.csv lock poisoned"))?;
+                    f.write_all(line.as_bytes())?;
+                    f.flush()?;
+                }
+                let n = counter.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+                progress(n, total);
+                Ok(())
+            },
+        )
     };
     if config.parallel {
         todo.par_iter().try_for_each(work)?;

@@ -2,103 +2,20 @@
 
 use std::io::{BufRead, Write};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
 use lfit_fitters::optim::{self, Method, Preset};
-use lfit_fitters::{FitRequest, Fitter, Strategy};
-use lfit_model::energy::{Energy, EnergyConfig, Target};
+use lfit_fitters::{Fitter, Strategy};
+use lfit_model::energy::{Energy, EnergyConfig};
 use lfit_model::metrics::{mpjpe_mm, v2v_mm};
-use lfit_model::pose::{Bounds, DofMask, MaskKind};
+use lfit_model::pose::DofMask;
 use lfit_model::template::{Template, write_atomic};
-use lfit_synth::{Dataset, Observations, Scenario};
+use lfit_synth::{Dataset, Scenario};
 use serde_json::{Map, Value, json};
 
-/// The template a dataset was synthesised with: `--template DIR` when given (its id must match
-/// the dataset's), else the procedural body named by the dataset's template id.
-pub fn template_for(dataset: &Dataset, dir: Option<&Path>) -> Result<Arc<Template>> {
-    let template = match dir {
-        Some(d) => crate::data::load_model(Some(d), "default")?,
-        None => {
-            let id = &dataset.meta.template_id;
-            let Some(shape) = crate::data::shape_of_template_id(id) else {
-                bail!(
-                    "dataset was made with template '{id}': pass that template with --template DIR"
-                );
-            };
-            crate::data::load_model(None, shape)?
-        }
-    };
-    let layout = template.layout();
-    if template.id != dataset.meta.template_id
-        || template.num_vertices() != dataset.meta.template_vertices
-        || (layout.pose_dim(), layout.shape, layout.expression)
-            != (
-                dataset.meta.pose_dim,
-                dataset.meta.shape_dim,
-                dataset.meta.expression_dim,
-            )
-    {
-        bail!(
-            "dataset was made with template '{}' ({} vertices), not '{}' ({} vertices)",
-            dataset.meta.template_id,
-            dataset.meta.template_vertices,
-            template.id,
-            template.num_vertices()
-        );
-    }
-    Ok(Arc::new(template))
-}
-
-/// The energy of frame `frame` of `dataset`.
-pub fn energy_for_frame(
-    dataset: &Dataset,
-    template: Arc<Template>,
-    frame: usize,
-    config: EnergyConfig,
-) -> Result<Energy> {
-    if frame >= dataset.len() {
-        bail!(
-            "frame {frame} is out of range: the dataset has {} frames",
-            dataset.len()
-        );
-    }
-    let target = match &dataset.observations {
-        Observations::Sparse { values, visible } => Target::Sparse {
-            values: values[frame].clone(),
-            visible: visible[frame].clone(),
-        },
-        Observations::Scan {
-            grids, silhouettes, ..
-        } => Target::Scan {
-            grid: grids[frame].clone(),
-            silhouettes: silhouettes[frame].clone(),
-        },
-        Observations::Silhouettes { masks } => Target::Silhouettes {
-            masks: masks[frame].clone(),
-        },
-    };
-    Energy::new(template, dataset.sensor.clone(), target, config)
-        .with_context(|| format!("frame {frame}"))
-}
-
-/// Free entries of a scenario (papers/000 §4: 43 local, 41 global on the default template; the
-/// same rules through the joint map on another model, with its shape and expression free).
-pub fn scenario_mask(scenario: Scenario, template: &Template) -> DofMask {
-    let kind = match scenario {
-        Scenario::Global => MaskKind::Global,
-        Scenario::Local | Scenario::Sequence => MaskKind::Local,
-    };
-    DofMask::standard(kind, template, true)
-}
-
-/// Search box of a scenario around a start (shape and expression within their own box).
-pub fn scenario_bounds(scenario: Scenario, template: &Template, start: &[f64]) -> Bounds {
-    match scenario {
-        Scenario::Global => Bounds::global_for(template),
-        Scenario::Local | Scenario::Sequence => Bounds::local_in(&template.layout(), start),
-    }
-}
+pub use crate::fitting::{
+    energy_for_frame, frame_seed, iterate_errors, scenario_bounds, scenario_mask, template_for,
+};
 
 /// The JSON fields of a parameter vector: `pose`, and `shape`/`expression` when the model has them.
 pub fn params_json(template: &Template, params: &[f64]) -> Map<String, Value> {
@@ -194,24 +111,6 @@ fn terms_json(terms: &[(&'static str, f64)]) -> Value {
     )
 }
 
-/// The seed of one frame's fit: the run's seed mixed with the frame index.
-pub fn frame_seed(seed: u64, frame: usize) -> u64 {
-    seed ^ (frame as u64).wrapping_mul(0xD1B5_4A32_D192_ED03)
-}
-
-/// An error metric (`v2v_mm`, `mpjpe_mm`, ...) of every iterate of a fit against the truth.
-pub fn iterate_errors(
-    template: &Template,
-    iterates: &[Vec<f64>],
-    truth: &[f64],
-    metric: fn(&Template, &[f64], &[f64]) -> f64,
-) -> Vec<f64> {
-    iterates
-        .iter()
-        .map(|p| metric(template, p, truth))
-        .collect()
-}
-
 /// Arguments of `lfit fit`.
 #[derive(Debug, Clone)]
 pub struct FitArgs {
@@ -270,65 +169,56 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         bail!("--batch must be at least 1");
     }
     let neural = args.method == crate::method::MethodKind::Neural;
-    let (neural_fitter, classic): (Option<lfit_infer::NeuralFitter>, Option<Box<dyn Fitter>>) =
-        if neural {
-            if args.step_scale.is_some() || args.preset == "tuned" || args.cma != Default::default()
-            {
-                bail!(
-                    "--step-scale, --cma-* and --preset tuned are for zeroth-order methods, not neural"
-                );
-            }
-            let dir = args
-                .checkpoint
-                .as_deref()
-                .context("--method neural needs --checkpoint DIR")?;
-            let start: lfit_infer::Start = args.neural_start.parse().map_err(anyhow::Error::msg)?;
-            let runtime: lfit_infer::Runtime = args.runtime.parse().map_err(anyhow::Error::msg)?;
-            if args.ort_threads == Some(0) {
-                bail!("--ort-threads must be at least 1");
-            }
-            let fitter = match runtime {
-                lfit_infer::Runtime::Burn => {
-                    if args.ort_threads.is_some() {
-                        bail!("--ort-threads is only for --runtime ort");
-                    }
-                    let device = lfit_nn::tensor::device_from_name(&args.device)?;
-                    lfit_infer::NeuralFitter::load(dir, &device, start)?
+    let fitter: Box<dyn Fitter> = if neural {
+        if args.step_scale.is_some() || args.preset == "tuned" || args.cma != Default::default() {
+            bail!(
+                "--step-scale, --cma-* and --preset tuned are for zeroth-order methods, not neural"
+            );
+        }
+        let dir = args
+            .checkpoint
+            .as_deref()
+            .context("--method neural needs --checkpoint DIR")?;
+        let start: lfit_infer::Start = args.neural_start.parse().map_err(anyhow::Error::msg)?;
+        let runtime: lfit_infer::Runtime = args.runtime.parse().map_err(anyhow::Error::msg)?;
+        if args.ort_threads == Some(0) {
+            bail!("--ort-threads must be at least 1");
+        }
+        let fitter = match runtime {
+            lfit_infer::Runtime::Burn => {
+                if args.ort_threads.is_some() {
+                    bail!("--ort-threads is only for --runtime ort");
                 }
-                lfit_infer::Runtime::Ort => lfit_infer::NeuralFitter::load_ort(
-                    dir,
-                    start,
-                    lfit_infer::onnx::runtime::SessionOptions {
-                        threads: args.ort_threads,
-                    },
-                )?,
-            };
-            (Some(fitter), None)
-        } else {
-            if args.checkpoint.is_some() {
-                bail!("--checkpoint is only for --method neural");
+                let device = lfit_nn::tensor::device_from_name(&args.device)?;
+                lfit_infer::NeuralFitter::load(dir, &device, start)?
             }
-            if args.runtime != "burn" || args.ort_threads.is_some() {
-                bail!("--runtime and --ort-threads are only for --method neural");
-            }
-            (
-                None,
-                Some(crate::method::build_classic(
-                    args.method,
-                    crate::method::ClassicOptions {
-                        preset,
-                        strategy,
-                        step_scale,
-                        cma,
-                    },
-                )?),
-            )
+            lfit_infer::Runtime::Ort => lfit_infer::NeuralFitter::load_ort(
+                dir,
+                start,
+                lfit_infer::onnx::runtime::SessionOptions {
+                    threads: args.ort_threads,
+                },
+            )?,
         };
-    let fitter: &dyn Fitter = match (&neural_fitter, &classic) {
-        (Some(n), _) => n,
-        (None, Some(c)) => c.as_ref(),
-        (None, None) => bail!("no fitter"),
+        Box::new(fitter)
+    } else {
+        if args.checkpoint.is_some() {
+            bail!("--checkpoint is only for --method neural");
+        }
+        if args.runtime != "burn" || args.ort_threads.is_some() {
+            bail!("--runtime and --ort-threads are only for --method neural");
+        }
+        crate::method::build_classic(
+            args.method,
+            crate::method::ClassicOptions {
+                preset,
+                strategy,
+                step_scale,
+                cma,
+            },
+        )?
     };
+    let fitter = fitter.as_ref();
     let gradient = args.method.uses_gradient();
     let config = read_energy_config(args.energy.as_deref(), gradient)?;
     let dataset = match loaded {
@@ -340,63 +230,35 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     let scenario = dataset.meta.config.scenario;
     let mask = scenario_mask(scenario, &template);
     let mut rows = Vec::with_capacity(frames.len());
-    let mut previous: Option<(usize, Vec<f64>)> = None;
     let mut sum_coeff = 0.0;
     let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
-    // Frames go through the network `--batch` at a time, except in sequences, where each frame
-    // starts from the previous result.
+    // Frames go through the network `--batch` at a time (not in sequences, where each frame
+    // starts from the previous result).
     let chunk = if neural && scenario != Scenario::Sequence {
         args.batch
     } else {
         1
     };
+    let plan = crate::fitting::Plan {
+        dataset: &dataset,
+        template: &template,
+        budget: args.budget,
+        batch: chunk,
+    };
     let mut done = 0;
-    for group in frames.chunks(chunk) {
-        let mut energies = Vec::with_capacity(group.len());
-        let mut starts = Vec::with_capacity(group.len());
-        for &frame in group {
-            energies.push(energy_for_frame(
-                &dataset,
-                template.clone(),
-                frame,
-                config.clone(),
-            )?);
-            // Sequence fitting (papers/000 §4.3): warm start from the previous frame's solution.
-            starts.push(match (scenario, &previous) {
-                (Scenario::Sequence, Some((p, pose))) if p + 1 == frame => pose.clone(),
-                _ => dataset.start_poses[frame].clone(),
-            });
-        }
-        let requests: Vec<FitRequest<'_>> = group
-            .iter()
-            .zip(&energies)
-            .zip(&starts)
-            .map(|((&frame, energy), start)| FitRequest {
-                energy,
-                start: start.clone(),
-                mask: mask.clone(),
-                bounds: scenario_bounds(scenario, &template, start),
-                budget: args.budget,
-                seed: frame_seed(args.seed, frame),
-            })
-            .collect();
-        let start_energies: Vec<f64> = requests
-            .iter()
-            .map(|r| r.energy.inspect(&r.start).total)
-            .collect();
-        let results = match &neural_fitter {
-            Some(n) => n.fit_batch(&requests)?,
-            None => requests
-                .iter()
-                .map(|r| fitter.fit(r))
-                .collect::<Result<Vec<_>, _>>()?,
-        };
-        for ((&frame, result), start_energy) in group.iter().zip(results).zip(start_energies) {
-            let pose = result.pose.clone();
+    crate::fitting::fit_frames(
+        fitter,
+        &plan,
+        &frames,
+        &|frame| energy_for_frame(&dataset, template.clone(), frame, config.clone()),
+        &|frame| frame_seed(args.seed, frame),
+        &mut |fitted| {
+            let (frame, result) = (fitted.frame, fitted.result);
+            let pose = &result.pose;
             let gt = &dataset.gt_poses[frame];
-            let v2v = v2v_mm(&template, &pose, gt);
-            let mpjpe = mpjpe_mm(&template, &pose, gt);
-            let coeff = coefficient_rms(&template, &pose, gt);
+            let v2v = v2v_mm(&template, pose, gt);
+            let mpjpe = mpjpe_mm(&template, pose, gt);
+            let coeff = coefficient_rms(&template, pose, gt);
             sum_v2v += v2v;
             sum_mpjpe += mpjpe;
             sum_e += result.energy;
@@ -404,7 +266,7 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
             let mut row = json!({
                 "frame": frame,
                 "energy": result.energy,
-                "start_energy": start_energy,
+                "start_energy": fitted.start_energy,
                 "terms": terms_json(&result.terms),
                 "v2v_mm": v2v,
                 "mpjpe_mm": mpjpe,
@@ -415,7 +277,7 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
                 "trace": result.trace,
             });
             if let Value::Object(fields) = &mut row {
-                fields.extend(params_json(&template, &pose));
+                fields.extend(params_json(&template, pose));
             }
             if let Some(c) = coeff {
                 row["shape_rms"] = json!(c);
@@ -428,11 +290,11 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
                     json!(iterate_errors(&template, &result.iterates, gt, mpjpe_mm));
             }
             rows.push(row);
-            previous = Some((frame, pose));
             done += 1;
             progress(done, frames.len());
-        }
-    }
+            Ok(())
+        },
+    )?;
     let n = frames.len().max(1) as f64;
     let mut summary = json!({
         "frames": frames.len(),

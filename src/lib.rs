@@ -7,6 +7,7 @@ pub mod commands;
 pub mod data;
 pub mod export;
 pub mod fit;
+pub mod fitting;
 pub mod method;
 pub mod plots;
 pub mod presets;

@@ -59,6 +59,12 @@ pub struct FitResult {
 pub trait Fitter: Send + Sync {
     fn name(&self) -> String;
     fn fit(&self, request: &FitRequest<'_>) -> Result<FitResult, FitError>;
+
+    /// Fits independent frames, results in request order. One at a time by default; a fitter
+    /// that gains from batches (the neural fitter: one network pass for all) overrides it.
+    fn fit_batch(&self, requests: &[FitRequest<'_>]) -> Result<Vec<FitResult>, FitError> {
+        requests.iter().map(|r| self.fit(r)).collect()
+    }
 }
 
 /// How a fit is split into stages (SPEC §6).

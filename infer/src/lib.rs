@@ -343,8 +343,12 @@ impl Fitter for NeuralFitter {
     }
 
     fn fit(&self, request: &FitRequest<'_>) -> Result<FitResult, FitError> {
-        self.fit_batch(std::slice::from_ref(request))?
+        NeuralFitter::fit_batch(self, std::slice::from_ref(request))?
             .pop()
             .ok_or_else(|| FitError::Neural("no result".into()))
+    }
+
+    fn fit_batch(&self, requests: &[FitRequest<'_>]) -> Result<Vec<FitResult>, FitError> {
+        NeuralFitter::fit_batch(self, requests)
     }
 }
