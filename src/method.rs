@@ -44,6 +44,9 @@ pub enum MethodKind {
     Lbfgs,
     /// Levenberg–Marquardt on the least-squares form (exact Jacobian).
     Lm,
+    /// Levenberg–Marquardt with the robust loss by Triggs's correction (IRLS weights) instead
+    /// of folded residuals.
+    LmTriggs,
     /// Gauss-Newton on the least-squares form.
     Gn,
     /// The learned fitter (papers/002), from a checkpoint.
@@ -51,7 +54,7 @@ pub enum MethodKind {
 }
 
 impl MethodKind {
-    pub const ALL: [MethodKind; 16] = [
+    pub const ALL: [MethodKind; 17] = [
         MethodKind::Random,
         MethodKind::OnePlusOne,
         MethodKind::De,
@@ -66,6 +69,7 @@ impl MethodKind {
         MethodKind::Psapf,
         MethodKind::Lbfgs,
         MethodKind::Lm,
+        MethodKind::LmTriggs,
         MethodKind::Gn,
         MethodKind::Neural,
     ];
@@ -87,6 +91,7 @@ impl MethodKind {
             MethodKind::Psapf => "psapf",
             MethodKind::Lbfgs => "lbfgs",
             MethodKind::Lm => "lm",
+            MethodKind::LmTriggs => "lm-triggs",
             MethodKind::Gn => "gn",
             MethodKind::Neural => "neural",
         }
@@ -95,7 +100,11 @@ impl MethodKind {
     /// The ask/tell optimizer of a zeroth-order method.
     pub fn zeroth_order(self) -> Option<Method> {
         match self {
-            MethodKind::Lbfgs | MethodKind::Lm | MethodKind::Gn | MethodKind::Neural => None,
+            MethodKind::Lbfgs
+            | MethodKind::Lm
+            | MethodKind::LmTriggs
+            | MethodKind::Gn
+            | MethodKind::Neural => None,
             other => other.name().parse().ok(),
         }
     }

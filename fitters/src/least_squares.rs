@@ -23,7 +23,7 @@
 //! `ΔE ≤ function_tolerance · E`, or the budget: one evaluation = one residual and Jacobian
 //! evaluation, a cap as for L-BFGS.
 
-use lfit_model::energy::{Energy, LeastSquares};
+use lfit_model::energy::{Energy, LeastSquares, RobustForm};
 use lfit_model::pose::Bounds;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
@@ -60,6 +60,10 @@ pub struct LeastSquaresOptions {
     pub parameter_tolerance: f64,
     pub initial_trust_region_radius: f64,
     pub min_relative_decrease: f64,
+    /// How the robust loss enters the normal equations: folded (default: the exact Jacobian of
+    /// `√ρ`-folded residuals, the least-squares problem `objective-server` serves) or Triggs's
+    /// correction (IRLS weights for the losses here). Both have E's exact gradient.
+    pub robust: RobustForm,
 }
 
 impl Default for LeastSquaresOptions {
@@ -70,6 +74,7 @@ impl Default for LeastSquaresOptions {
             parameter_tolerance: 1e-8,
             initial_trust_region_radius: 1e4,
             min_relative_decrease: 1e-3,
+            robust: RobustForm::Folded,
         }
     }
 }
@@ -94,10 +99,14 @@ impl LeastSquaresFitter {
 
 impl Fitter for LeastSquaresFitter {
     fn name(&self) -> String {
+        let base = match self.options.robust {
+            RobustForm::Folded => self.method.name().to_string(),
+            RobustForm::Triggs => format!("{}-triggs", self.method.name()),
+        };
         if self.strategy == Strategy::Holistic {
-            self.method.name().into()
+            base
         } else {
-            format!("{}/{}", self.method.name(), self.strategy)
+            format!("{base}/{}", self.strategy)
         }
     }
 
@@ -169,13 +178,13 @@ impl StageSolver for LeastSquaresFitter {
         let o = self.options;
         let eval = |x: &[f64]| {
             energy
-                .least_squares(x, true)
+                .least_squares_in(x, true, o.robust)
                 .map_err(|e| FitError::LeastSquares(e.to_string()))
         };
         let mut x = pose.to_vec();
         let mut current = eval(&x)?;
         let mut count = 1usize;
-        let mut f = current.value();
+        let mut f = current.energy;
         let mut trace = vec![(1u64, f)];
         let mut radius = o.initial_trust_region_radius;
         let mut growth = 2.0;
@@ -246,10 +255,10 @@ impl StageSolver for LeastSquaresFitter {
                 }
                 let next = eval(&trial)?;
                 count += 1;
-                let f_new = next.value();
+                let f_new = next.energy;
                 let accepted = match self.method {
                     LeastSquaresMethod::Lm => {
-                        // Model decrease of Σr²: −(2 gᵀh + hᵀ A h).
+                        // Model decrease of Σr² (the IRLS model under Triggs): −(2 gᵀh + hᵀ A h).
                         let predicted = -(2.0 * g.dot(&step) + step.dot(&(&a * &step)));
                         let rho = if predicted > 0.0 {
                             (f - f_new) / predicted

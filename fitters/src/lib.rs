@@ -19,7 +19,7 @@ pub use optim::{Method, Preset};
 pub use zeroth::ZerothOrderFitter;
 
 /// Every method `build_fitter` knows.
-pub const METHOD_NAMES: [&str; 15] = [
+pub const METHOD_NAMES: [&str; 16] = [
     "random",
     "one-plus-one",
     "de",
@@ -34,13 +34,14 @@ pub const METHOD_NAMES: [&str; 15] = [
     "psapf",
     "lbfgs",
     "lm",
+    "lm-triggs",
     "gn",
 ];
 
 /// Whether `method` needs the energy's gradient (or Jacobian), and so its differentiable variant
 /// ([`lfit_model::energy::EnergyConfig::for_gradient`]).
 pub fn uses_gradient(method: &str) -> bool {
-    matches!(method, "lbfgs" | "lm" | "gn" | "neural")
+    matches!(method, "lbfgs" | "lm" | "lm-triggs" | "gn" | "neural")
 }
 
 /// The fitter called `method` (one of [`METHOD_NAMES`]) with `preset` and `strategy`.
@@ -95,6 +96,11 @@ pub fn build_fitter_tuned(
                 LeastSquaresMethod::Lm,
                 strategy,
             )));
+        }
+        "lm-triggs" => {
+            let mut lm = LeastSquaresFitter::new(LeastSquaresMethod::Lm, strategy);
+            lm.options.robust = lfit_model::energy::RobustForm::Triggs;
+            return Ok(Box::new(lm));
         }
         "gn" => {
             return Ok(Box::new(LeastSquaresFitter::new(

@@ -197,7 +197,7 @@ fn cma_lbfgs_lm_and_gn_recover_the_truth_from_a_nearby_start() {
 
     // Gauss-Newton and Levenberg–Marquardt on the least-squares form: to the noise-free truth in
     // a few dozen residual + Jacobian evaluations where L-BFGS needs hundreds.
-    for method in ["lm", "gn"] {
+    for method in ["lm", "lm-triggs", "gn"] {
         let energy = markers_energy(EnergyConfig::default().for_gradient());
         let fitter = build_fitter(method, Preset::Nevergrad, Strategy::Holistic).unwrap();
         let request = FitRequest {

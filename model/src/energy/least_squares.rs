@@ -20,6 +20,8 @@ use std::sync::atomic::Ordering;
 
 use super::jacobian::PointJacobians;
 use super::kinematics::Kinematics;
+use serde::{Deserialize, Serialize};
+
 use super::{AnglePrior, Energy, Target};
 use crate::error::{ModelError, Result};
 use crate::observe::{PoseJacobian, Sensor};
@@ -38,6 +40,36 @@ pub struct LeastSquares {
     /// Rows known to be zero, residual and Jacobian (unseen groups, inactive penetration and
     /// joint-limit rows): solvers may skip them. Empty without a Jacobian.
     pub zero_rows: Vec<bool>,
+    /// The energy E at these parameters: `Σ r²` in the folded form, `Σ ρ` (not `Σ r²`) in
+    /// Triggs's form ([`RobustForm`]).
+    pub energy: f64,
+}
+
+/// How the robust loss enters the least-squares form of the data term.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RobustForm {
+    /// Folded: the group residual `u` becomes `φ(s) u` with `φ = √ρ(s)/s`, with the exact
+    /// Jacobian of the folded residual, so `E = Σ r²` holds literally (what external solvers and
+    /// `lfit objective-server` see).
+    #[default]
+    Folded,
+    /// Triggs's correction (Triggs et al. 2000, "Bundle adjustment — a modern synthesis" §4.3,
+    /// as Ceres's `Corrector`): with `z = s²` and `ρ̂(z) = ρ(√z)`, the residual and its Jacobian
+    /// are scaled by `√ρ̂'(z)` and corrected by `α = 1 − √(1 + 2zρ̂''/ρ̂')` along `u`. For every
+    /// loss here `ρ̂'' ≤ 0`, where Ceres sets `α = 0`: the correction is then the IRLS weighting
+    /// `√ρ̂'(z)` of residual and Jacobian. `Σ r²` is the IRLS model, not E; the gradient
+    /// `2 Jᵀr` is E's exactly. Solvers measure progress with [`LeastSquares::energy`].
+    Triggs,
+}
+
+impl RobustForm {
+    pub fn name(self) -> &'static str {
+        match self {
+            RobustForm::Folded => "folded",
+            RobustForm::Triggs => "triggs",
+        }
+    }
 }
 
 impl LeastSquares {
@@ -101,6 +133,16 @@ impl Energy {
     /// evaluation (and one gradient evaluation with the Jacobian). Fails with
     /// [`Energy::least_squares_unsupported`]'s reason or on a parameter vector of the wrong length.
     pub fn least_squares(&self, params: &[f64], with_jacobian: bool) -> Result<LeastSquares> {
+        self.least_squares_in(params, with_jacobian, RobustForm::Folded)
+    }
+
+    /// [`Energy::least_squares`] with the robust loss in the given form.
+    pub fn least_squares_in(
+        &self,
+        params: &[f64],
+        with_jacobian: bool,
+        form: RobustForm,
+    ) -> Result<LeastSquares> {
         if let Some(why) = self.least_squares_unsupported() {
             return Err(ModelError::Target(why));
         }
@@ -116,10 +158,15 @@ impl Energy {
         if with_jacobian {
             self.gradient_evaluations.fetch_add(1, Ordering::Relaxed);
         }
-        Ok(self.compute_least_squares(params, with_jacobian))
+        Ok(self.compute_least_squares(params, with_jacobian, form))
     }
 
-    fn compute_least_squares(&self, params: &[f64], with_jacobian: bool) -> LeastSquares {
+    fn compute_least_squares(
+        &self,
+        params: &[f64],
+        with_jacobian: bool,
+        form: RobustForm,
+    ) -> LeastSquares {
         let m = self.residual_count();
         let dim = self.dim();
         let kin = Kinematics::build(&self.template, params, with_jacobian);
@@ -134,6 +181,9 @@ impl Energy {
         let w = self.config.weights;
         let mut blocks = Vec::with_capacity(5);
         let mut row = 0;
+        // E's data part, Σ λ/n ρ(s_g), and the data rows (their squares are E's only when folded).
+        let mut data_energy = 0.0;
+        let mut data_rows = 0..0;
 
         // Data rows: the prediction's Jacobian is written into the block, then folded in place.
         if let (Target::Sparse { values, visible }, Some(model)) =
@@ -157,6 +207,7 @@ impl Energy {
             };
             let mut u = Vec::with_capacity(12);
             let mut v = vec![0.0; dim];
+            data_rows = row..row + p;
             for g in &self.groups {
                 let rows = g.start * dim..(g.start + g.len) * dim;
                 if !visible[g.start] || c0 == 0.0 {
@@ -168,7 +219,13 @@ impl Energy {
                 u.clear();
                 u.extend((g.start..g.start + g.len).map(|i| (pred[i] - values[i]) / g.sigma));
                 let s = u.iter().map(|x| x * x).sum::<f64>().sqrt();
-                let (phi, dphi) = self.config.robust.fold(s);
+                let (rho, weight) = self.config.robust.eval(s);
+                data_energy += c0 * c0 * rho;
+                let (phi, dphi) = match form {
+                    RobustForm::Folded => self.config.robust.fold(s),
+                    // ρ̂'(z) = ρ'(s)/(2s); α = 0 (ρ̂'' ≤ 0 for every loss here).
+                    RobustForm::Triggs => ((0.5 * weight).sqrt(), 0.0),
+                };
                 for (k, &uk) in u.iter().enumerate() {
                     residuals[row + g.start + k] = c0 * phi * uk;
                 }
@@ -276,12 +333,20 @@ impl Energy {
                 }
             }
         }
+        let energy = data_energy
+            + residuals
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| !data_rows.contains(i))
+                .map(|(_, r)| r * r)
+                .sum::<f64>();
         LeastSquares {
             residuals,
             jacobian,
             dim,
             blocks,
             zero_rows,
+            energy,
         }
     }
 }

@@ -721,6 +721,27 @@ mod least_squares_form {
         );
         let g2 = ls.gradient();
         let gscale = g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        // Triggs's form: another Gauss-Newton model, the same energy and gradient.
+        let lt = e
+            .least_squares_in(x, true, crate::energy::RobustForm::Triggs)
+            .unwrap();
+        for (form, l) in [("folded", &ls), ("triggs", &lt)] {
+            assert!(
+                (l.energy - ev.total).abs() <= 1e-10 * ev.total.abs().max(1.0),
+                "{label} ({form}): energy {} vs E = {}",
+                l.energy,
+                ev.total
+            );
+        }
+        let gt = lt.gradient();
+        for i in 0..g.len() {
+            assert!(
+                (gt[i] - g[i]).abs() <= 1e-9 * gscale + 1e-12,
+                "{label}: Triggs 2Jᵀr[{i}] = {} vs ∇E {}",
+                gt[i],
+                g[i]
+            );
+        }
         for i in 0..g.len() {
             assert!(
                 (g2[i] - g[i]).abs() <= 1e-9 * gscale + 1e-12,
