@@ -23,7 +23,7 @@
 //! `ΔE ≤ function_tolerance · E`, or the budget: one evaluation = one residual and Jacobian
 //! evaluation, a cap as for L-BFGS.
 
-use lfit_model::energy::{Energy, LeastSquares, RobustForm};
+use lfit_model::energy::{Energy, RobustForm};
 use lfit_model::pose::Bounds;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
@@ -118,53 +118,6 @@ impl Fitter for LeastSquaresFitter {
     }
 }
 
-/// `JᵀJ` and `Jᵀr` over the columns `dofs`, skipping zero entries (a row of a skinned point is
-/// zero outside its joint chain; most penetration rows are zero).
-fn normal_equations(ls: &LeastSquares, dofs: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
-    let n = dofs.len();
-    // Column → position among the free entries (usize::MAX: held).
-    let mut position = vec![usize::MAX; ls.dim];
-    for (p, &c) in dofs.iter().enumerate() {
-        position[c] = p;
-    }
-    // Upper triangle, row-major, then mirrored into nalgebra's column-major matrix.
-    let mut upper = vec![0.0; n * n];
-    let mut g = DVector::<f64>::zeros(n);
-    let mut buffer: Vec<(usize, f64)> = vec![(0, 0.0); ls.dim + 1];
-    for (i, &r) in ls.residuals.iter().enumerate() {
-        if ls.zero_rows.get(i).copied().unwrap_or(false) {
-            continue;
-        }
-        // Branch-free compaction of the row's free nonzero entries.
-        let mut len = 0;
-        for (c, &v) in ls.row(i).iter().enumerate() {
-            buffer[len] = (position[c], v);
-            len += usize::from((v != 0.0) & (position[c] != usize::MAX));
-        }
-        let nz = &mut buffer[..len];
-        // Positions ascend with columns when `dofs` is sorted; sort otherwise.
-        if !nz.is_sorted_by_key(|e| e.0) {
-            nz.sort_unstable_by_key(|e| e.0);
-        }
-        let nz = &*nz;
-        for (k, &(p, vp)) in nz.iter().enumerate() {
-            g[p] += vp * r;
-            let row = &mut upper[p * n..(p + 1) * n];
-            for &(q, vq) in &nz[k..] {
-                row[q] += vp * vq;
-            }
-        }
-    }
-    let a = DMatrix::<f64>::from_fn(n, n, |p, q| {
-        if p <= q {
-            upper[p * n + q]
-        } else {
-            upper[q * n + p]
-        }
-    });
-    (a, g)
-}
-
 impl StageSolver for LeastSquaresFitter {
     fn solve(
         &self,
@@ -192,7 +145,7 @@ impl StageSolver for LeastSquaresFitter {
         let n = dofs.len();
         'outer: while count < budget {
             iterations += 1;
-            let (a, g) = normal_equations(&current, dofs);
+            let (a, g) = current.normal_equations(dofs);
             // Projected gradient (∇E = 2 Jᵀr).
             let pg = (0..n).map(|p| {
                 let i = dofs[p];

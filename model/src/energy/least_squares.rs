@@ -20,6 +20,7 @@ use std::sync::atomic::Ordering;
 
 use super::jacobian::PointJacobians;
 use super::kinematics::Kinematics;
+use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
 use super::{AnglePrior, Energy, Target};
@@ -81,6 +82,55 @@ impl LeastSquares {
     /// Row `i` of the Jacobian.
     pub fn row(&self, i: usize) -> &[f64] {
         &self.jacobian[i * self.dim..(i + 1) * self.dim]
+    }
+
+    /// The Gauss-Newton normal equations `(JᵀJ, Jᵀr)` over the columns `dofs` (in their order),
+    /// skipping zero rows and entries (a row of a skinned point is zero outside its joint chain;
+    /// most penetration rows are zero). `∇E = 2 Jᵀr`. Empty without a Jacobian.
+    pub fn normal_equations(&self, dofs: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
+        let ls = self;
+        let n = dofs.len();
+        // Column → position among the free entries (usize::MAX: held).
+        let mut position = vec![usize::MAX; ls.dim];
+        for (p, &c) in dofs.iter().enumerate() {
+            position[c] = p;
+        }
+        // Upper triangle, row-major, then mirrored into nalgebra's column-major matrix.
+        let mut upper = vec![0.0; n * n];
+        let mut g = DVector::<f64>::zeros(n);
+        let mut buffer: Vec<(usize, f64)> = vec![(0, 0.0); ls.dim + 1];
+        for (i, &r) in ls.residuals.iter().enumerate() {
+            if ls.zero_rows.get(i).copied().unwrap_or(false) {
+                continue;
+            }
+            // Branch-free compaction of the row's free nonzero entries.
+            let mut len = 0;
+            for (c, &v) in ls.row(i).iter().enumerate() {
+                buffer[len] = (position[c], v);
+                len += usize::from((v != 0.0) & (position[c] != usize::MAX));
+            }
+            let nz = &mut buffer[..len];
+            // Positions ascend with columns when `dofs` is sorted; sort otherwise.
+            if !nz.is_sorted_by_key(|e| e.0) {
+                nz.sort_unstable_by_key(|e| e.0);
+            }
+            let nz = &*nz;
+            for (k, &(p, vp)) in nz.iter().enumerate() {
+                g[p] += vp * r;
+                let row = &mut upper[p * n..(p + 1) * n];
+                for &(q, vq) in &nz[k..] {
+                    row[q] += vp * vq;
+                }
+            }
+        }
+        let a = DMatrix::<f64>::from_fn(n, n, |p, q| {
+            if p <= q {
+                upper[p * n + q]
+            } else {
+                upper[q * n + p]
+            }
+        });
+        (a, g)
     }
 
     /// `∇E = 2 Jᵀ r` (empty without a Jacobian).

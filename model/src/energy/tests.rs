@@ -733,6 +733,26 @@ mod least_squares_form {
                 ev.total
             );
         }
+        // The normal equations from the same evaluation: Jᵀr = ∇E/2 and JᵀJ entry by entry.
+        let cols: Vec<usize> = (0..ls.dim).collect();
+        let (jtj, jtr) = ls.normal_equations(&cols);
+        for p in 0..ls.dim {
+            assert!(
+                (2.0 * jtr[p] - g[p]).abs() <= 1e-9 * gscale + 1e-12,
+                "{label}: Jᵀr[{p}]"
+            );
+            for q in (p..ls.dim).step_by(7) {
+                let want: f64 = (0..ls.residuals.len())
+                    .map(|i| ls.row(i)[p] * ls.row(i)[q])
+                    .sum();
+                assert!(
+                    (jtj[(p, q)] - want).abs() <= 1e-9 * want.abs().max(1.0)
+                        && jtj[(q, p)] == jtj[(p, q)],
+                    "{label}: JᵀJ[{p}][{q}] = {} vs {want}",
+                    jtj[(p, q)]
+                );
+            }
+        }
         let gt = lt.gradient();
         for i in 0..g.len() {
             assert!(
