@@ -4,7 +4,7 @@
 1. Sweep (validation frames only), 2,000 evaluations per frame on 20 validation frames
    (`lfit synth --seed 700000+k`, local scenario), markers, keypoints2d and hmd:
    - pso: the factor on papers/000's initial steps (0.1 m / 3°) in {0.05, 0.1, 0.15, 0.25, 0.5, 1, 2, 4};
-   - cma: the factor in {0.1, 0.25, 0.5, 1, 1.6} crossed with the update variant: standard (active,
+   - cma: the factor in {0.01, 0.03, 0.05, 0.1, 0.25, 0.5, 1, 1.6} crossed with the update variant: standard (active,
      λ = 4 + ⌊3 ln n⌋), diagonal (sep-CMA), diagonal + elitist, and diagonal + elitist with
      λ = 4 + ⌊ln n⌋ (what nevergrad 1.0's `CMA` runs on a bounded domain, `CMAbounded`).
    The setting with the lowest median final energy is recorded in configs/tuned.json (read by
@@ -28,7 +28,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
-SCALES = {"pso": [0.05, 0.1, 0.15, 0.25, 0.5, 1.0, 2.0, 4.0], "cma": [0.1, 0.25, 0.5, 1.0, 1.6]}
+SCALES = {"pso": [0.05, 0.1, 0.15, 0.25, 0.5, 1.0, 2.0, 4.0], "cma": [0.01, 0.03, 0.05, 0.1, 0.25, 0.5, 1.0, 1.6]}
 METHODS = ["cma", "pso"]
 # (label, extra fit flags, tuned.json "cma" entry); λ = 4 + ⌊ln 43⌋ = 7 on the 43 local DOFs.
 CMA_VARIANTS = [
