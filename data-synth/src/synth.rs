@@ -417,20 +417,6 @@ fn observe_frame(
     rng: &mut ChaCha8Rng,
 ) -> FrameObs {
     match sensor {
-        Sensor::Silhouettes(_) => {
-            let Some(mut masks) = sensor.predict_silhouettes(template, target) else {
-                unreachable!("silhouettes sensor")
-            };
-            // Background-subtraction speckle: every pixel flips with the outlier rate.
-            for m in &mut masks {
-                for px in &mut m.data {
-                    if rng.random::<f64>() < noise.outlier_rate {
-                        *px = u8::from(*px == 0);
-                    }
-                }
-            }
-            FrameObs::Silhouettes(masks)
-        }
         Sensor::Scan(_) => {
             let Some(pred) = sensor.predict_scan(template, target) else {
                 unreachable!("scan sensor")
@@ -460,6 +446,10 @@ fn observe_frame(
             let (mut values, mut visible) = (pred.values, pred.visible);
             if let Some(model) = sensor.observation_model() {
                 model.corrupt(&mut values, &mut visible, noise, rng);
+            }
+            if let Sensor::Silhouettes(setup) = sensor {
+                // Stored as masks (u8), not as a vector of f64 pixels.
+                return FrameObs::Silhouettes(setup.masks(&values));
             }
             FrameObs::Sparse(values, visible)
         }

@@ -237,7 +237,7 @@ impl Energy {
 
         // Data rows: the prediction's Jacobian is written into the block, then folded in place.
         if let (Target::Sparse { values, visible }, Some(model)) =
-            (&self.target, self.sensor.observation_model())
+            (&self.target, self.observation_model())
         {
             let p = values.len();
             let view = self.view(&kin);

@@ -36,7 +36,7 @@ pub(crate) use self::prior::{AngleLimits, Penetration};
 use crate::camera::Camera;
 use crate::error::{ModelError, Result};
 use crate::observe::{
-    Modality, ObservationModel, PoseGradient, PosedView, ResidualGroup, Sensor,
+    Modality, ObservationModel, PoseGradient, PosedView, ResidualGroup, Sensor, SilhouetteSetup,
     closest_point_offset,
 };
 use crate::scan::{Mask, VoxelGrid, iou, render_silhouette};
@@ -378,6 +378,8 @@ pub struct Energy {
     penetration: Penetration,
     limits: AngleLimits,
     silhouettes: Option<SilhouetteTerm>,
+    /// `silhouettes`: the observation model at the render width (the sensor's is full size).
+    render: Option<SilhouetteSetup>,
     /// ES direction tensors per grid node (`scan` only), shared by clones.
     axes: Option<Arc<Vec<[f32; 6]>>>,
     evaluations: AtomicU64,
@@ -398,6 +400,7 @@ impl Clone for Energy {
             penetration: self.penetration.clone(),
             limits: self.limits.clone(),
             silhouettes: self.silhouettes.clone(),
+            render: self.render.clone(),
             axes: self.axes.clone(),
             evaluations: AtomicU64::new(0),
             gradient_evaluations: AtomicU64::new(0),
@@ -419,6 +422,8 @@ impl Energy {
         sensor.validate(&template)?;
         let dim = sensor.residual_dim(&template);
         let mut silhouettes = None;
+        let mut render = None;
+        let mut target = target;
         match (&sensor, &target) {
             (
                 Sensor::Scan(setup),
@@ -457,12 +462,18 @@ impl Energy {
                 }
             }
             (Sensor::Silhouettes(setup), Target::Silhouettes { masks }) => {
+                // The observation model at the render width, against the masks resampled to it.
                 check_masks(masks, &setup.cameras)?;
-                silhouettes = Some(SilhouetteTerm::new(
-                    &setup.cameras,
-                    masks,
-                    config.silhouette_width,
-                ));
+                let small = setup.at_width(config.silhouette_width);
+                let resampled: Vec<Mask> = masks
+                    .iter()
+                    .zip(&small.cameras)
+                    .map(|(m, c)| resample_mask(m, c.width, c.height))
+                    .collect();
+                let values = small.values(&resampled);
+                let visible = vec![true; values.len()];
+                target = Target::Sparse { values, visible };
+                render = Some(small);
             }
             (Sensor::Scan(_), _) => {
                 return Err(ModelError::Target(
@@ -504,11 +515,13 @@ impl Energy {
             Target::Scan { grid, .. } => Some(Arc::new(direction_tensors(grid))),
             Target::Sparse { .. } | Target::Silhouettes { .. } => None,
         };
-        let groups = sensor
-            .observation_model()
-            .map_or_else(Vec::new, |m| m.groups(&template, &config.scales));
-        if let Some(m) = sensor.observation_model() {
-            check_groups(&groups, dim, m.name())?;
+        let model: Option<&dyn ObservationModel> = match &render {
+            Some(r) => Some(r),
+            None => sensor.observation_model(),
+        };
+        let groups = model.map_or_else(Vec::new, |m| m.groups(&template, &config.scales));
+        if let Some(m) = model {
+            check_groups(&groups, m.dim(&template), m.name())?;
         }
         let rest_normals = vertex_normals(&template.vertices, &template.faces)
             .iter()
@@ -527,6 +540,7 @@ impl Energy {
             groups,
             penetration,
             silhouettes,
+            render,
             axes,
             evaluations: AtomicU64::new(0),
             gradient_evaluations: AtomicU64::new(0),
@@ -605,9 +619,16 @@ impl Energy {
     /// Why this energy has no gradient, or `None` when it has one: the `silhouettes` energy's
     /// data term (papers/001 eq. 5) counts pixels, so it is piecewise constant in the pose.
     pub fn gradient_unsupported(&self) -> Option<String> {
-        matches!(self.sensor, Sensor::Silhouettes(_)).then(|| {
-            "the silhouettes energy has no gradient (papers/001's overlap fitness counts pixels): use a zeroth-order method".to_string()
-        })
+        self.observation_model().and_then(|m| m.no_gradient())
+    }
+
+    /// The observation model the energy evaluates: the sensor's (for `silhouettes` at the render
+    /// width); `None` for `scan`.
+    pub fn observation_model(&self) -> Option<&dyn ObservationModel> {
+        match &self.render {
+            Some(r) => Some(r),
+            None => self.sensor.observation_model(),
+        }
     }
 
     /// Evaluations so far (every call of an `evaluate*` method counts one per pose).
@@ -685,7 +706,7 @@ impl Energy {
                     })
                     .collect()
             }
-            (_, Target::Sparse { values, visible }) => match self.sensor.observation_model() {
+            (_, Target::Sparse { values, visible }) => match self.observation_model() {
                 Some(model) => {
                     let kin = Kinematics::build(&self.template, pose, false);
                     let pred = self.prediction(model, &self.view(&kin));
@@ -750,17 +771,9 @@ impl Energy {
                 Some(posed)
             }
             Target::Silhouettes { .. } => {
-                // papers/001 eq. (5); no gradient (see `Energy::gradient_unsupported`).
-                let posed: Vec<DVec3> = (0..self.skin.rest.len())
-                    .map(|v| kin.skin(self.skin.weights(v), kin.rest(&self.skin.rest, v)))
-                    .collect();
-                let data = self
-                    .silhouettes
-                    .as_ref()
-                    .map_or(0.0, |sil| sil.fitness(&posed, &self.template.faces));
-                terms.push(("data", data));
-                total += w.data * data;
-                Some(posed)
+                // `Energy::new` turns mask targets into the render-size model's vector target.
+                terms.push(("data", 0.0));
+                None
             }
         };
         let ep = self.penetration.evaluate(
@@ -830,11 +843,15 @@ impl Energy {
         visible: &[bool],
         grad: Option<(&mut Adjoint, &mut [f64], f64)>,
     ) -> f64 {
-        let Some(model) = self.sensor.observation_model() else {
+        let Some(model) = self.observation_model() else {
             return 0.0;
         };
         let view = self.view(kin);
         let pred = self.prediction(model, &view);
+        if let Some(value) = model.data_term(&pred, values) {
+            // A data term of the model's own (no gradient: see `gradient_unsupported`).
+            return value;
+        }
         let seen: Vec<&ResidualGroup> = self.groups.iter().filter(|g| visible[g.start]).collect();
         if seen.is_empty() {
             return 0.0;
@@ -1165,58 +1182,17 @@ fn check_masks(masks: &[Mask], cameras: &[Camera]) -> Result<()> {
 }
 
 impl SilhouetteTerm {
-    /// papers/001 eq. (4)–(5): per view `½ |M \ F| / |M| + ½ |F \ M| / |F|` (model silhouette M,
-    /// foreground F), averaged over the views: 0 when the masks coincide, 1 when they do not
-    /// overlap. A view where the model renders nothing scores ½ + ½ (as if nothing overlapped);
-    /// an empty foreground contributes only the first half.
-    fn fitness(&self, posed: &[DVec3], faces: &[[u32; 3]]) -> f64 {
-        let verts: Vec<Vec3> = posed.iter().map(|p| p.as_vec3()).collect();
-        let sum: f64 = self
-            .cameras
-            .iter()
-            .zip(&self.targets)
-            .map(|(cam, target)| {
-                let model = render_silhouette(cam, &verts, faces);
-                let (mut m, mut f, mut m_not_f, mut f_not_m) = (0u64, 0u64, 0u64, 0u64);
-                for (&a, &b) in model.data.iter().zip(&target.data) {
-                    let (a, b) = (a != 0, b != 0);
-                    m += u64::from(a);
-                    f += u64::from(b);
-                    m_not_f += u64::from(a && !b);
-                    f_not_m += u64::from(b && !a);
-                }
-                let first = if m > 0 {
-                    m_not_f as f64 / m as f64
-                } else {
-                    1.0
-                };
-                let second = if f > 0 {
-                    f_not_m as f64 / f as f64
-                } else {
-                    0.0
-                };
-                0.5 * first + 0.5 * second
-            })
-            .sum();
-        sum / self.cameras.len().max(1) as f64
-    }
-
     fn new(cameras: &[Camera], masks: &[Mask], width: u32) -> Self {
-        let mut scaled = Vec::with_capacity(cameras.len());
-        let mut targets = Vec::with_capacity(cameras.len());
-        for (cam, mask) in cameras.iter().zip(masks) {
-            let s = f64::from(width) / f64::from(cam.width.max(1));
-            let height = ((f64::from(cam.height) * s).round() as u32).max(1);
-            let mut c = *cam;
-            c.fx *= s;
-            c.fy *= s;
-            c.cx *= s;
-            c.cy *= s;
-            c.width = width;
-            c.height = height;
-            targets.push(resample_mask(mask, width, height));
-            scaled.push(c);
+        let scaled = SilhouetteSetup {
+            cameras: cameras.to_vec(),
         }
+        .at_width(width)
+        .cameras;
+        let targets = masks
+            .iter()
+            .zip(&scaled)
+            .map(|(m, c)| resample_mask(m, c.width, c.height))
+            .collect();
         Self {
             cameras: scaled,
             targets,

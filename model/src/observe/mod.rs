@@ -5,6 +5,7 @@
 //! residual `R(θ) = visible ⊙ (predicted − observed)` has a fixed length.
 
 mod builtin;
+mod silhouettes;
 mod view;
 
 use std::fmt;
@@ -160,9 +161,11 @@ pub fn uniform_groups(count: usize, len: usize, sigma: f64) -> Vec<ResidualGroup
 ///
 /// `markers`, `keypoints2d` and `hmd` are implementations ([`MarkerSetup`], [`KeypointSetup`],
 /// [`HmdSetup`]); a sensor defined in another crate implements it too and travels as
-/// [`Sensor::Custom`], with no change to lfit (see `examples/imu_sensor.rs`). Dense modalities
-/// (`scan`, `silhouettes`) compare surfaces and images rather than vectors and are not
-/// observation models of this kind.
+/// [`Sensor::Custom`], with no change to lfit (see `examples/imu_sensor.rs`). `silhouettes`
+/// ([`SilhouetteSetup`]) is one too: its prediction is the mask pixels, its data term papers/001's
+/// overlap fitness ([`Self::data_term`]) and it has no gradient ([`Self::no_gradient`]). `scan`
+/// is not: papers/000's scan energy (ED, ES, EJ) compares the surface with a distance transform
+/// built from the whole point cloud, not a prediction with an observation entry by entry.
 pub trait ObservationModel: fmt::Debug + Send + Sync {
     /// Short name, used in reports and errors.
     fn name(&self) -> &str;
@@ -198,6 +201,21 @@ pub trait ObservationModel: fmt::Debug + Send + Sync {
             }
         }
         grad.parameters(&g);
+    }
+
+    /// Why this model's prediction has no derivatives, or `None` (the default) when
+    /// [`Self::jacobian`] and [`Self::backprop`] serve. Without them the energy serves
+    /// zeroth-order methods only; gradient methods and least squares refuse it with this reason.
+    fn no_gradient(&self) -> Option<String> {
+        None
+    }
+
+    /// A data term of the model's own in place of the robust residual groups (papers/001's
+    /// silhouette overlap), from the prediction and the observation (`dim` entries each), or
+    /// `None` (the default): the mean over seen groups of `ρ(‖r_g‖/σ_g)`.
+    fn data_term(&self, predicted: &[f64], observed: &[f64]) -> Option<f64> {
+        let _ = (predicted, observed);
+        None
     }
 
     /// Noise, outliers and dropouts that synthesis applies to a clean prediction (entries the
@@ -348,14 +366,15 @@ impl Sensor {
         }
     }
 
-    /// The observation model of a vector-valued modality; `None` for `scan` and `silhouettes`.
+    /// The sensor's observation model; `None` for `scan`.
     pub fn observation_model(&self) -> Option<&dyn ObservationModel> {
         match self {
             Sensor::Markers(s) => Some(s),
             Sensor::Keypoints2d(s) => Some(s),
             Sensor::Hmd(s) => Some(s),
+            Sensor::Silhouettes(s) => Some(s),
             Sensor::Custom(m) => Some(m.as_ref()),
-            Sensor::Scan(_) | Sensor::Silhouettes(_) => None,
+            Sensor::Scan(_) => None,
         }
     }
 
@@ -396,17 +415,6 @@ impl Sensor {
                     .enumerate()
                     .try_for_each(|(i, c)| c.validate(i))
             }
-            Sensor::Silhouettes(s) => {
-                if s.cameras.is_empty() {
-                    return Err(ModelError::Config(
-                        "the silhouettes modality needs at least one camera".into(),
-                    ));
-                }
-                s.cameras
-                    .iter()
-                    .enumerate()
-                    .try_for_each(|(i, c)| c.validate(i))
-            }
             _ => match self.observation_model() {
                 Some(m) => m.validate(template),
                 None => Ok(()),
@@ -414,8 +422,8 @@ impl Sensor {
         }
     }
 
-    /// Predicted observation of a vector-valued modality at `pose` (the observation model's
-    /// prediction, clean). `None` for `scan` and `silhouettes`.
+    /// The observation model's clean prediction at `pose` (for `silhouettes` the pixels of every
+    /// camera at full resolution). `None` for `scan`.
     pub fn predict_sparse(&self, template: &Template, pose: &[f64]) -> Option<SparsePrediction> {
         let model = self.observation_model()?;
         let kin = Kinematics::build(template, pose, false);
@@ -437,11 +445,7 @@ impl Sensor {
         let Sensor::Silhouettes(setup) = self else {
             return None;
         };
-        Some(render_silhouettes(
-            &setup.cameras,
-            &posed_vertices(template, pose),
-            &template.faces,
-        ))
+        Some(setup.masks(&self.predict_sparse(template, pose)?.values))
     }
 
     /// Predicted scan observation at `pose` (posed surface and silhouettes). `None` for other
