@@ -257,11 +257,12 @@ struct FitCmd {
     #[arg(long)]
     data: PathBuf,
     /// Method: random, one-plus-one, de, pso, cma, tbpsa, powell, cma-powell, ngo, shiwa, apf,
-    /// psapf, lbfgs, lm (Levenberg–Marquardt), gn (Gauss-Newton), or neural (with --checkpoint).
+    /// psapf, lbfgs, lm (Levenberg–Marquardt), lm-triggs (LM, robust loss by Triggs's correction),
+    /// gn (Gauss-Newton), or neural (with --checkpoint).
     #[arg(long, value_enum, hide_possible_values = true)]
     method: lfit::method::MethodKind,
-    /// Energy evaluations per frame (exact for zeroth-order methods; a cap for lbfgs, lm and gn,
-    /// whose evaluations include the gradient / Jacobian).
+    /// Energy evaluations per frame (exact for zeroth-order methods; a cap for lbfgs, lm,
+    /// lm-triggs and gn, whose evaluations include the gradient / Jacobian).
     #[arg(long)]
     budget: usize,
     /// holistic, grouped (papers/000 Algorithm 1), hierarchical (papers/001 §3.3) or shape-first
