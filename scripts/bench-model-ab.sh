@@ -2,7 +2,8 @@
 # A/B speed of the Burn-free body model: the `lfit-model` crate at an older revision (default
 # e3a0f60, the last commit before models became data) against this checkout's, in ONE criterion
 # run (benches/ab/ab.rs.in: LBS of the default template, its markers energy with and without the
-# gradient, and the 24-joint SMPL-like model of this checkout with and without pose correctives).
+# gradient, residuals + Jacobian when the old revision has them, and the 24-joint SMPL-like model
+# of this checkout with and without pose correctives).
 # The old crate is taken with `git archive`, its Burn modules (network/, tensor.rs) removed.
 # Builds in a scratch workspace (default /tmp/lfit-model-ab) with its own target directory.
 #
@@ -22,6 +23,10 @@ sed -i '/^pub mod network;$/d; /^pub mod tensor;$/d' "$WORK/old_src/model/src/li
 sed -i 's/^name = "lfit-model"$/name = "lfit-model-old"/; /^burn.workspace = true$/d' "$WORK/old_src/model/Cargo.toml"
 (cd model && tar -c --exclude=./nn . ) | tar -x -C "$WORK/new_src/model"
 cp benches/ab/ab.rs.in "$WORK/ab/benches/ab.rs"
+# Revisions with the energy's least-squares form (issue 14) also race residuals + Jacobian.
+if grep -q "pub fn least_squares" "$WORK/old_src/model/src/energy/least_squares.rs" 2>/dev/null; then
+    sed -i -e "/@JACOBIAN@/r benches/ab/jacobian.rs.in" -e "/@JACOBIAN@/d" "$WORK/ab/benches/ab.rs"
+fi
 cp Cargo.lock "$WORK/Cargo.lock"
 # The workspace: this checkout's package settings, lints, profiles and the model crates' deps.
 {

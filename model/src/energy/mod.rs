@@ -1,17 +1,20 @@
 //! The energy (SPEC §5): the one objective every fitter minimises.
 //!
 //! `E(θ) = Σ λ_term · term(θ)` with named terms. For `scan` these are the terms of papers/000
-//! eq. (3): `EJ` (eq. 6), `ED` (eq. 4), `ES` (eq. 5), `EP` (eq. 8) and `EA` (eq. 7). The sparse
-//! modalities (`markers`, `keypoints2d`, `hmd`) have a robust `data` term over their residual
-//! groups plus `EP` and `EA`.
+//! eq. (3): `EJ` (eq. 6), `ED` (eq. 4), `ES` (eq. 5), `EP` (eq. 8) and `EA` (eq. 7). Every other
+//! modality has a `data` term computed from its observation model's prediction
+//! ([`crate::observe::ObservationModel`]: a robust sum over its residual groups, or the model's
+//! own data term such as papers/001's silhouette overlap) plus `EP` and `EA`.
 //!
 //! Everything is computed on the CPU in **f64**: the value, the per-term values and the exact
 //! analytic gradient over the 57 pose entries (reverse mode through FK and linear blend skinning,
 //! [`kinematics`]). f64 because the gradient is checked against central finite differences at
 //! ~1e-6 relative accuracy and because L-BFGS line searches compare energies that differ in the
 //! seventh digit near convergence; the cost over f32 is measured in `benches/energy.rs`.
-//! The forward model here is the f64 twin of [`crate::observe`]'s predictions and is tested
-//! against it.
+//! Predictions are not computed here: the energy calls the sensor's observation model on a
+//! [`crate::observe::PosedView`] of its kinematics, and its derivatives through
+//! [`crate::observe::PoseGradient`] (reverse mode) and [`crate::observe::PoseJacobian`]
+//! (forward mode, [`LeastSquares`]).
 //!
 //! Every evaluation goes through [`Energy::evaluate`], [`Energy::evaluate_with_gradient`] or
 //! [`Energy::evaluate_batch`], which count evaluations and gradient evaluations.

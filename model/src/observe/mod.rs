@@ -1,8 +1,11 @@
 //! Observation models (SPEC §4): the one place where pose → predicted observation is computed.
 //!
 //! Synthesis adds noise and occlusion to these predictions; the energy compares them with data.
-//! Every modality has a fixed-size prediction and a visibility mask of the same size, so its
-//! residual `R(θ) = visible ⊙ (predicted − observed)` has a fixed length.
+//! Every observation model ([`ObservationModel`]: `markers`, `keypoints2d`, `hmd`, `silhouettes`
+//! and any defined downstream, [`Sensor::Custom`]) has a fixed-size prediction and a visibility
+//! mask of the same size, so its residual `R(θ) = visible ⊙ (predicted − observed)` has a fixed
+//! length. `scan` keeps its own forward model (the posed surface, [`Sensor::predict_scan`]):
+//! papers/000's scan energy compares it with a distance transform of the whole point cloud.
 
 mod builtin;
 mod silhouettes;
