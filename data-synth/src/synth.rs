@@ -13,7 +13,7 @@ use lfit_model::observe::{Modality, Sensor};
 use lfit_model::pose::{
     Bounds, LOCAL_ROTATION_DEG, LOCAL_TRANSLATION, POSE_DIM, Pose, SHAPE_BOUND,
 };
-use lfit_model::scan::{VoxelGrid, squared_edt};
+use lfit_model::scan::{VoxelGrid, render_silhouettes, squared_edt};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 use crate::dataset::{Dataset, FORMAT_VERSION, Meta, Observations};
 use crate::error::SynthError;
 use crate::motion::{MotionKind, MotionParams, motion_pose};
-use crate::noise::{NoiseConfig, jitter_points, punch_holes};
+use crate::noise::NoiseConfig;
 
 /// The experiment cases of papers/000 §4.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -416,43 +416,38 @@ fn observe_frame(
     noise: &NoiseConfig,
     rng: &mut ChaCha8Rng,
 ) -> FrameObs {
+    // Every sensor is an observation model: its clean prediction, then its own corruption.
+    let (Some(model), Some(pred)) = (
+        sensor.observation_model(),
+        sensor.predict_sparse(template, target),
+    ) else {
+        return FrameObs::Sparse(Vec::new(), Vec::new());
+    };
+    let as_points = |values: &[f64]| -> Vec<Vec3> {
+        values
+            .chunks_exact(3)
+            .map(|p| Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32))
+            .collect()
+    };
+    // `scan` renders its silhouettes from the clean surface.
+    let silhouettes = match sensor {
+        Sensor::Scan(setup) => {
+            render_silhouettes(&setup.cameras, &as_points(&pred.values), &template.faces)
+        }
+        _ => Vec::new(),
+    };
+    let (mut values, mut visible) = (pred.values, pred.visible);
+    model.corrupt(&mut values, &mut visible, noise, rng);
     match sensor {
-        Sensor::Scan(_) => {
-            let Some(pred) = sensor.predict_scan(template, target) else {
-                unreachable!("scan sensor")
-            };
-            let mut points = pred.vertices;
-            let mut visible = vec![true; points.len()];
-            jitter_points(&mut points, noise.point_sigma, rng);
-            punch_holes(
-                &points,
-                &mut visible,
-                noise.scan_holes,
-                noise.scan_hole_radius,
-                rng,
-            );
-            FrameObs::Scan {
-                points,
-                visible,
-                silhouettes: pred.silhouettes,
-            }
-        }
-        _ => {
-            // Every other sensor is a vector-valued observation model: its clean prediction,
-            // then its own corruption.
-            let Some(pred) = sensor.predict_sparse(template, target) else {
-                return FrameObs::Sparse(Vec::new(), Vec::new());
-            };
-            let (mut values, mut visible) = (pred.values, pred.visible);
-            if let Some(model) = sensor.observation_model() {
-                model.corrupt(&mut values, &mut visible, noise, rng);
-            }
-            if let Sensor::Silhouettes(setup) = sensor {
-                // Stored as masks (u8), not as a vector of f64 pixels.
-                return FrameObs::Silhouettes(setup.masks(&values));
-            }
-            FrameObs::Sparse(values, visible)
-        }
+        // Stored as masks (u8), not as a vector of f64 pixels.
+        Sensor::Silhouettes(setup) => FrameObs::Silhouettes(setup.masks(&values)),
+        // A point cloud with per-point visibility, and the silhouettes of the clean surface.
+        Sensor::Scan(_) => FrameObs::Scan {
+            points: as_points(&values),
+            visible: visible.chunks_exact(3).map(|v| v[0]).collect(),
+            silhouettes,
+        },
+        _ => FrameObs::Sparse(values, visible),
     }
 }
 

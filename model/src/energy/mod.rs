@@ -522,8 +522,10 @@ impl Energy {
             Some(r) => Some(r),
             None => sensor.observation_model(),
         };
-        let groups = model.map_or_else(Vec::new, |m| m.groups(&template, &config.scales));
-        if let Some(m) = model {
+        // Residual groups serve a vector target (`scan` compares a distance transform instead).
+        let mut groups = Vec::new();
+        if let (Some(m), Target::Sparse { .. }) = (model, &target) {
+            groups = m.groups(&template, &config.scales);
             check_groups(&groups, m.dim(&template), m.name())?;
         }
         let rest_normals = vertex_normals(&template.vertices, &template.faces)

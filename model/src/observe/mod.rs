@@ -1,13 +1,14 @@
 //! Observation models (SPEC §4): the one place where pose → predicted observation is computed.
 //!
 //! Synthesis adds noise and occlusion to these predictions; the energy compares them with data.
-//! Every observation model ([`ObservationModel`]: `markers`, `keypoints2d`, `hmd`, `silhouettes`
-//! and any defined downstream, [`Sensor::Custom`]) has a fixed-size prediction and a visibility
-//! mask of the same size, so its residual `R(θ) = visible ⊙ (predicted − observed)` has a fixed
-//! length. `scan` keeps its own forward model (the posed surface, [`Sensor::predict_scan`]):
-//! papers/000's scan energy compares it with a distance transform of the whole point cloud.
+//! Every observation model ([`ObservationModel`]: `markers`, `keypoints2d`, `hmd`,
+//! `silhouettes`, `scan` and any defined downstream, [`Sensor::Custom`]) has a fixed-size
+//! prediction and a visibility mask of the same size, so its residual
+//! `R(θ) = visible ⊙ (predicted − observed)` has a fixed length. papers/000's scan energy compares
+//! the posed surface with a distance transform of the whole point cloud instead of entry by entry.
 
 mod builtin;
+mod scan_model;
 mod silhouettes;
 mod view;
 
@@ -27,7 +28,7 @@ use crate::error::{ModelError, Result};
 pub use crate::noise::NoiseConfig;
 use crate::scan::{Mask, VoxelGrid, render_silhouettes};
 use crate::skeleton::{L_HAND, R_HAND};
-use crate::skinning::{joint_transforms, skin_lbs_into, vertex_normals};
+use crate::skinning::vertex_normals;
 use crate::template::Template;
 
 /// The observation modalities of SPEC §4.
@@ -166,9 +167,10 @@ pub fn uniform_groups(count: usize, len: usize, sigma: f64) -> Vec<ResidualGroup
 /// [`HmdSetup`]); a sensor defined in another crate implements it too and travels as
 /// [`Sensor::Custom`], with no change to lfit (see `examples/imu_sensor.rs`). `silhouettes`
 /// ([`SilhouetteSetup`]) is one too: its prediction is the mask pixels, its data term papers/001's
-/// overlap fitness ([`Self::data_term`]) and it has no gradient ([`Self::no_gradient`]). `scan`
-/// is not: papers/000's scan energy (ED, ES, EJ) compares the surface with a distance transform
-/// built from the whole point cloud, not a prediction with an observation entry by entry.
+/// overlap fitness ([`Self::data_term`]) and it has no gradient ([`Self::no_gradient`]). So is
+/// `scan` ([`ScanSetup`]: the point cloud, jitter and holes), whose energy (papers/000's ED, ES,
+/// EJ) compares the surface with a distance transform built from the whole cloud rather than
+/// entry by entry, and so keeps its own terms.
 pub trait ObservationModel: fmt::Debug + Send + Sync {
     /// Short name, used in reports and errors.
     fn name(&self) -> &str;
@@ -369,15 +371,15 @@ impl Sensor {
         }
     }
 
-    /// The sensor's observation model; `None` for `scan`.
+    /// The sensor's observation model.
     pub fn observation_model(&self) -> Option<&dyn ObservationModel> {
         match self {
             Sensor::Markers(s) => Some(s),
             Sensor::Keypoints2d(s) => Some(s),
             Sensor::Hmd(s) => Some(s),
+            Sensor::Scan(s) => Some(s),
             Sensor::Silhouettes(s) => Some(s),
             Sensor::Custom(m) => Some(m.as_ref()),
-            Sensor::Scan(_) => None,
         }
     }
 
@@ -404,20 +406,6 @@ impl Sensor {
     /// Checks the setup against a template (vertex indices in range, valid cameras).
     pub fn validate(&self, template: &Template) -> Result<()> {
         match self {
-            Sensor::Scan(s) => {
-                if !(s.voxel_size.is_finite() && s.voxel_size > 0.0) {
-                    return Err(ModelError::Setting {
-                        name: "voxel_size",
-                        value: s.voxel_size.to_string(),
-                        reason: "must be positive".into(),
-                    });
-                }
-                check_vertices(template, &s.residual_vertices, "scan residual vertex")?;
-                s.cameras
-                    .iter()
-                    .enumerate()
-                    .try_for_each(|(i, c)| c.validate(i))
-            }
             _ => match self.observation_model() {
                 Some(m) => m.validate(template),
                 None => Ok(()),
@@ -426,7 +414,7 @@ impl Sensor {
     }
 
     /// The observation model's clean prediction at `pose` (for `silhouettes` the pixels of every
-    /// camera at full resolution). `None` for `scan`.
+    /// camera at full resolution, for `scan` every posed vertex).
     pub fn predict_sparse(&self, template: &Template, pose: &[f64]) -> Option<SparsePrediction> {
         let model = self.observation_model()?;
         let kin = Kinematics::build(template, pose, false);
@@ -457,7 +445,11 @@ impl Sensor {
         let Sensor::Scan(setup) = self else {
             return None;
         };
-        let vertices = posed_vertices(template, pose);
+        let values = self.predict_sparse(template, pose)?.values;
+        let vertices: Vec<Vec3> = values
+            .chunks_exact(3)
+            .map(|p| Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32))
+            .collect();
         let normals = vertex_normals(&vertices, &template.faces);
         let silhouettes = render_silhouettes(&setup.cameras, &vertices, &template.faces);
         Some(ScanPrediction {
@@ -502,14 +494,6 @@ impl Sensor {
             })
             .collect()
     }
-}
-
-/// Every posed vertex (the mesh the dense modalities render).
-fn posed_vertices(template: &Template, pose: &[f64]) -> Vec<Vec3> {
-    let transforms = joint_transforms(template, pose);
-    let mut vertices = Vec::new();
-    skin_lbs_into(template, &transforms, &mut vertices);
-    vertices
 }
 
 /// Vertex indices in range of `template`.
@@ -640,6 +624,26 @@ mod tests {
         pose[rot_offset(R_SHOULDER) + 1] = 60f64.to_radians();
         let front = hmd.predict_sparse(&t, &pose).unwrap();
         assert!(front.visible[12] && front.visible[24] && front.visible[36] && front.visible[39]);
+    }
+
+    #[test]
+    fn the_scan_model_predicts_exactly_the_renderers_mesh() {
+        // Synthesis of scan datasets goes through the observation model; its prediction must be
+        // bit for bit the mesh skinning.rs gives (so datasets are the bytes they always were).
+        let t = default_template();
+        let mut pose = [0.0; POSE_DIM];
+        pose[rot_offset(L_SHOULDER) + 2] = 0.7;
+        pose[1] = 0.05;
+        let s = Sensor::default_for(Modality::Scan, &t);
+        let p = s.predict_sparse(&t, &pose).unwrap();
+        let mesh = crate::skinning::pose_vertices(&t, &pose, crate::SkinningMethod::Linear);
+        assert_eq!(p.values.len(), 3 * mesh.len());
+        for (v, m) in mesh.iter().enumerate() {
+            for a in 0..3 {
+                assert_eq!(p.values[3 * v + a], f64::from(m[a]), "vertex {v}");
+            }
+        }
+        assert!(p.visible.iter().all(|&b| b));
     }
 
     #[test]

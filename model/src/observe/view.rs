@@ -8,11 +8,12 @@
 //! energy's kinematics ([`crate::energy`]), so a prediction, its Jacobian and its gradient are
 //! the same function.
 
-use glam::{DMat3, DVec3};
+use glam::{DMat3, DVec3, Vec3};
 
 use crate::energy::SkinTable;
 use crate::energy::jacobian::PointJacobians;
 use crate::energy::kinematics::{Adjoint, Kinematics, rotation_torque};
+use crate::skinning::{Posed, skin_lbs_into};
 use crate::template::Template;
 
 /// A posed model, read-only: joint centres, joint world rotations and skinned vertices.
@@ -56,6 +57,28 @@ impl<'a> PosedView<'a> {
                     })
             }
         }
+    }
+}
+
+impl PosedView<'_> {
+    /// Every posed vertex as the renderers skin them ([`crate::skinning::skin_lbs_into`]: f32 on
+    /// the rigid template, f64 otherwise): the mesh dense sensors render or sample, identical to
+    /// what [`crate::skinning`] gives for the same parameters.
+    pub fn mesh(&self) -> Vec<Vec3> {
+        let (coeffs, pose_feature) = match &self.kin.morph {
+            Some((_, c, f)) => (c.clone(), f.clone()),
+            None => (Vec::new(), Vec::new()),
+        };
+        let posed = Posed {
+            transforms: self.kin.transforms.clone(),
+            joints: self.kin.joints.clone(),
+            rest_joints: self.kin.rest_joints.clone(),
+            coeffs,
+            pose_feature,
+        };
+        let mut out = Vec::with_capacity(self.template.num_vertices());
+        skin_lbs_into(self.template, &posed, &mut out);
+        out
     }
 }
 
