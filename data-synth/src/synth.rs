@@ -9,7 +9,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use glam::Vec3;
 use lfit_model::Template;
 use lfit_model::layout::Layout;
-use lfit_model::observe::{Modality, Sensor};
+use lfit_model::observe::{Modality, Sensor, points_from_values};
 use lfit_model::pose::{
     Bounds, LOCAL_ROTATION_DEG, LOCAL_TRANSLATION, POSE_DIM, Pose, SHAPE_BOUND,
 };
@@ -423,17 +423,13 @@ fn observe_frame(
     ) else {
         return FrameObs::Sparse(Vec::new(), Vec::new());
     };
-    let as_points = |values: &[f64]| -> Vec<Vec3> {
-        values
-            .chunks_exact(3)
-            .map(|p| Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32))
-            .collect()
-    };
     // `scan` renders its silhouettes from the clean surface.
     let silhouettes = match sensor {
-        Sensor::Scan(setup) => {
-            render_silhouettes(&setup.cameras, &as_points(&pred.values), &template.faces)
-        }
+        Sensor::Scan(setup) => render_silhouettes(
+            &setup.cameras,
+            &points_from_values(&pred.values),
+            &template.faces,
+        ),
         _ => Vec::new(),
     };
     let (mut values, mut visible) = (pred.values, pred.visible);
@@ -443,7 +439,7 @@ fn observe_frame(
         Sensor::Silhouettes(setup) => FrameObs::Silhouettes(setup.masks(&values)),
         // A point cloud with per-point visibility, and the silhouettes of the clean surface.
         Sensor::Scan(_) => FrameObs::Scan {
-            points: as_points(&values),
+            points: points_from_values(&values),
             visible: visible.chunks_exact(3).map(|v| v[0]).collect(),
             silhouettes,
         },

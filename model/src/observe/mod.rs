@@ -445,11 +445,7 @@ impl Sensor {
         let Sensor::Scan(setup) = self else {
             return None;
         };
-        let values = self.predict_sparse(template, pose)?.values;
-        let vertices: Vec<Vec3> = values
-            .chunks_exact(3)
-            .map(|p| Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32))
-            .collect();
+        let vertices = points_from_values(&self.predict_sparse(template, pose)?.values);
         let normals = vertex_normals(&vertices, &template.faces);
         let silhouettes = render_silhouettes(&setup.cameras, &vertices, &template.faces);
         Some(ScanPrediction {
@@ -494,6 +490,14 @@ impl Sensor {
             })
             .collect()
     }
+}
+
+/// A vector of `3n` coordinates as `n` points (f32, as point clouds and meshes are stored).
+pub fn points_from_values(values: &[f64]) -> Vec<Vec3> {
+    values
+        .chunks_exact(3)
+        .map(|p| Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32))
+        .collect()
 }
 
 /// Vertex indices in range of `template`.

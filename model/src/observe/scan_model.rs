@@ -3,12 +3,11 @@
 //! entry by entry: it compares the posed surface with a distance transform built from the visible
 //! points (ED, ES) and with the scan's silhouettes (EJ), which the energy keeps as its own terms.
 
-use glam::Vec3;
 use rand::RngCore;
 
 use super::{
     ObservationModel, PoseGradient, PoseJacobian, PosedView, ResidualGroup, ScanSetup,
-    check_vertices, uniform_groups,
+    check_vertices, points_from_values, uniform_groups,
 };
 use crate::energy::Scales;
 use crate::error::{ModelError, Result};
@@ -74,10 +73,7 @@ impl ObservationModel for ScanSetup {
         noise: &NoiseConfig,
         rng: &mut dyn RngCore,
     ) {
-        let mut points: Vec<Vec3> = values
-            .chunks_exact(3)
-            .map(|p| Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32))
-            .collect();
+        let mut points = points_from_values(values);
         let mut seen: Vec<bool> = visible.chunks_exact(3).map(|v| v[0]).collect();
         jitter_points(&mut points, noise.point_sigma, rng);
         punch_holes(
