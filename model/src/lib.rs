@@ -10,6 +10,7 @@ pub mod energy;
 pub mod error;
 pub mod info;
 pub mod layout;
+pub mod makehuman;
 pub mod metrics;
 pub mod modelfile;
 pub mod morph;
