@@ -33,7 +33,7 @@ fn energy(template: &Arc<Template>, modality: Modality, config: EnergyConfig) ->
             }
         }
         _ => {
-            let p = sensor.predict_sparse(template, &gt).expect("sparse");
+            let p = sensor.predict_sparse(template, &gt);
             Target::Sparse {
                 values: p.values,
                 visible: p.visible,
@@ -187,7 +187,7 @@ fn bench_smpl24(c: &mut Criterion) {
             })
             .collect();
         let sensor = Sensor::default_for(Modality::Markers, &model);
-        let pred = sensor.predict_sparse(&model, &params[0]).expect("sparse");
+        let pred = sensor.predict_sparse(&model, &params[0]);
         let e = Energy::new(
             model.clone(),
             sensor,

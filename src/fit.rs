@@ -10,7 +10,7 @@ use lfit_model::energy::{Energy, EnergyConfig};
 use lfit_model::metrics::{mpjpe_mm, v2v_mm};
 use lfit_model::pose::DofMask;
 use lfit_model::template::{Template, write_atomic};
-use lfit_synth::{Dataset, Scenario};
+use lfit_synth::Dataset;
 use serde_json::{Map, Value, json};
 
 pub use crate::fitting::{
@@ -232,18 +232,12 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     let mut rows = Vec::with_capacity(frames.len());
     let mut sum_coeff = 0.0;
     let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
-    // Frames go through the network `--batch` at a time (not in sequences, where each frame
-    // starts from the previous result).
-    let chunk = if neural && scenario != Scenario::Sequence {
-        args.batch
-    } else {
-        1
-    };
+    // Frames go through the network `--batch` at a time (the plan keeps sequences one by one).
     let plan = crate::fitting::Plan {
         dataset: &dataset,
         template: &template,
         budget: args.budget,
-        batch: chunk,
+        batch: if neural { args.batch } else { 1 },
     };
     let mut done = 0;
     crate::fitting::fit_frames(
@@ -331,7 +325,7 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
             "cpu"
         });
         out["runtime"] = json!(args.runtime);
-        out["batch"] = json!(chunk);
+        out["batch"] = json!(plan.frames_per_call());
     }
     let bytes = serde_json::to_vec_pretty(&out)?;
     write_atomic(&args.out, &bytes)?;

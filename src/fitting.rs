@@ -23,6 +23,17 @@ pub struct Plan<'a> {
     pub batch: usize,
 }
 
+impl Plan<'_> {
+    /// Frames per [`Fitter::fit_batch`] call: `batch`, except in a sequence (one at a time).
+    pub fn frames_per_call(&self) -> usize {
+        if self.dataset.meta.config.scenario == Scenario::Sequence {
+            1
+        } else {
+            self.batch.max(1)
+        }
+    }
+}
+
 /// One fitted frame.
 pub struct FrameFit {
     pub frame: usize,
@@ -49,11 +60,7 @@ pub fn fit_frames(
     let dataset = plan.dataset;
     let scenario = dataset.meta.config.scenario;
     let mask = scenario_mask(scenario, plan.template);
-    let chunk = if scenario == Scenario::Sequence {
-        1
-    } else {
-        plan.batch.max(1)
-    };
+    let chunk = plan.frames_per_call();
     let mut previous: Option<(usize, Vec<f64>)> = None;
     for group in frames.chunks(chunk) {
         let energies = group

@@ -417,12 +417,8 @@ fn observe_frame(
     rng: &mut ChaCha8Rng,
 ) -> FrameObs {
     // Every sensor is an observation model: its clean prediction, then its own corruption.
-    let (Some(model), Some(pred)) = (
-        sensor.observation_model(),
-        sensor.predict_sparse(template, target),
-    ) else {
-        return FrameObs::Sparse(Vec::new(), Vec::new());
-    };
+    let model = sensor.observation_model();
+    let pred = sensor.predict_sparse(template, target);
     // `scan` renders its silhouettes from the clean surface.
     let silhouettes = match sensor {
         Sensor::Scan(setup) => render_silhouettes(

@@ -26,7 +26,7 @@ fn truth() -> Pose {
 fn markers_energy(config: EnergyConfig) -> Energy {
     let t = template();
     let sensor = Sensor::default_for(Modality::Markers, &t);
-    let pred = sensor.predict_sparse(&t, &truth()).unwrap();
+    let pred = sensor.predict_sparse(&t, &truth());
     Energy::new(
         t,
         sensor,

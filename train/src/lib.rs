@@ -453,7 +453,6 @@ pub fn train_with_sensor(
         });
     }
     sensor.validate(&template)?;
-    let sensor = sensor.clone();
     let mut net_config = config.network.clone();
     net_config.modality = config.modality;
     net_config.residual_dim = sensor.residual_dim(&template);

@@ -172,7 +172,7 @@ fn marker_frames(n: usize, seed: u64) -> (Arc<Template>, Vec<Energy>, usize) {
             for v in pose.iter_mut() {
                 *v = rng.random_range(-0.2..0.2);
             }
-            let pred = sensor.predict_sparse(&template, &pose).expect("sparse");
+            let pred = sensor.predict_sparse(&template, &pose);
             Energy::new(
                 template.clone(),
                 sensor.clone(),

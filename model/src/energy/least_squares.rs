@@ -64,15 +64,6 @@ pub enum RobustForm {
     Triggs,
 }
 
-impl RobustForm {
-    pub fn name(self) -> &'static str {
-        match self {
-            RobustForm::Folded => "folded",
-            RobustForm::Triggs => "triggs",
-        }
-    }
-}
-
 impl LeastSquares {
     /// `Σ r²`: the energy.
     pub fn value(&self) -> f64 {
@@ -88,24 +79,23 @@ impl LeastSquares {
     /// skipping zero rows and entries (a row of a skinned point is zero outside its joint chain;
     /// most penetration rows are zero). `∇E = 2 Jᵀr`. Empty without a Jacobian.
     pub fn normal_equations(&self, dofs: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
-        let ls = self;
         let n = dofs.len();
         // Column → position among the free entries (usize::MAX: held).
-        let mut position = vec![usize::MAX; ls.dim];
+        let mut position = vec![usize::MAX; self.dim];
         for (p, &c) in dofs.iter().enumerate() {
             position[c] = p;
         }
         // Upper triangle, row-major, then mirrored into nalgebra's column-major matrix.
         let mut upper = vec![0.0; n * n];
         let mut g = DVector::<f64>::zeros(n);
-        let mut buffer: Vec<(usize, f64)> = vec![(0, 0.0); ls.dim + 1];
-        for (i, &r) in ls.residuals.iter().enumerate() {
-            if ls.zero_rows.get(i).copied().unwrap_or(false) {
+        let mut buffer: Vec<(usize, f64)> = vec![(0, 0.0); self.dim + 1];
+        for (i, &r) in self.residuals.iter().enumerate() {
+            if self.zero_rows.get(i).copied().unwrap_or(false) {
                 continue;
             }
             // Branch-free compaction of the row's free nonzero entries.
             let mut len = 0;
-            for (c, &v) in ls.row(i).iter().enumerate() {
+            for (c, &v) in self.row(i).iter().enumerate() {
                 buffer[len] = (position[c], v);
                 len += usize::from((v != 0.0) & (position[c] != usize::MAX));
             }
@@ -236,9 +226,8 @@ impl Energy {
         let mut data_rows = 0..0;
 
         // Data rows: the prediction's Jacobian is written into the block, then folded in place.
-        if let (Target::Sparse { values, visible }, Some(model)) =
-            (&self.target, self.observation_model())
-        {
+        if let Target::Sparse { values, visible } = &self.target {
+            let model = self.observation_model();
             let p = values.len();
             let view = self.view(&kin);
             let pred = self.prediction(model, &view);

@@ -467,13 +467,11 @@ impl Energy {
             (Sensor::Silhouettes(setup), Target::Silhouettes { masks }) => {
                 // The observation model at the render width, against the masks resampled to it.
                 check_masks(masks, &setup.cameras)?;
-                let small = setup.at_width(config.silhouette_width);
-                let resampled: Vec<Mask> = masks
-                    .iter()
-                    .zip(&small.cameras)
-                    .map(|(m, c)| resample_mask(m, c.width, c.height))
-                    .collect();
-                let values = small.values(&resampled);
+                let term = SilhouetteTerm::new(&setup.cameras, masks, config.silhouette_width);
+                let small = SilhouetteSetup {
+                    cameras: term.cameras,
+                };
+                let values = small.values(&term.targets);
                 let visible = vec![true; values.len()];
                 target = Target::Sparse { values, visible };
                 render = Some(small);
@@ -518,23 +516,13 @@ impl Energy {
             Target::Scan { grid, .. } => Some(Arc::new(direction_tensors(grid))),
             Target::Sparse { .. } | Target::Silhouettes { .. } => None,
         };
-        let model: Option<&dyn ObservationModel> = match &render {
-            Some(r) => Some(r),
-            None => sensor.observation_model(),
-        };
-        // Residual groups serve a vector target (`scan` compares a distance transform instead).
-        let mut groups = Vec::new();
-        if let (Some(m), Target::Sparse { .. }) = (model, &target) {
-            groups = m.groups(&template, &config.scales);
-            check_groups(&groups, m.dim(&template), m.name())?;
-        }
         let rest_normals = vertex_normals(&template.vertices, &template.faces)
             .iter()
             .map(|n| n.as_dvec3())
             .collect();
         let penetration = Penetration::new(&template, config.penetration_stride);
         let limits = AngleLimits::new(&template);
-        Ok(Self {
+        let mut energy = Self {
             limits,
             skin: SkinTable::new(&template),
             template,
@@ -542,14 +530,22 @@ impl Energy {
             target,
             config,
             rest_normals,
-            groups,
+            groups: Vec::new(),
             penetration,
             silhouettes,
             render,
             axes,
             evaluations: AtomicU64::new(0),
             gradient_evaluations: AtomicU64::new(0),
-        })
+        };
+        // Residual groups serve a vector target (`scan` compares a distance transform instead).
+        if matches!(energy.target, Target::Sparse { .. }) {
+            let m = energy.observation_model();
+            let groups = m.groups(&energy.template, &energy.config.scales);
+            check_groups(&groups, m.dim(&energy.template), m.name())?;
+            energy.groups = groups;
+        }
+        Ok(energy)
     }
 
     /// The same energy (template, sensor, configuration and precomputed tables) with another
@@ -624,14 +620,14 @@ impl Energy {
     /// Why this energy has no gradient, or `None` when it has one: the `silhouettes` energy's
     /// data term (papers/001 eq. 5) counts pixels, so it is piecewise constant in the pose.
     pub fn gradient_unsupported(&self) -> Option<String> {
-        self.observation_model().and_then(|m| m.no_gradient())
+        self.observation_model().no_gradient()
     }
 
     /// The observation model the energy evaluates: the sensor's (for `silhouettes` at the render
-    /// width); `None` for `scan`.
-    pub fn observation_model(&self) -> Option<&dyn ObservationModel> {
+    /// width).
+    pub fn observation_model(&self) -> &dyn ObservationModel {
         match &self.render {
-            Some(r) => Some(r),
+            Some(r) => r,
             None => self.sensor.observation_model(),
         }
     }
@@ -711,18 +707,11 @@ impl Energy {
                     })
                     .collect()
             }
-            (_, Target::Sparse { values, visible }) => match self.observation_model() {
-                Some(model) => {
-                    let kin = Kinematics::build(&self.template, pose, false);
-                    let pred = self.prediction(model, &self.view(&kin));
-                    pred.iter()
-                        .zip(values)
-                        .zip(visible)
-                        .map(|((p, o), &v)| if v { p - o } else { 0.0 })
-                        .collect()
-                }
-                None => Vec::new(),
-            },
+            (_, Target::Sparse { values, visible }) => {
+                let kin = Kinematics::build(&self.template, pose, false);
+                let pred = self.prediction(self.observation_model(), &self.view(&kin));
+                Sensor::sparse_residual(&pred, values, visible)
+            }
             _ => Vec::new(),
         }
     }
@@ -848,9 +837,7 @@ impl Energy {
         visible: &[bool],
         grad: Option<(&mut Adjoint, &mut [f64], f64)>,
     ) -> f64 {
-        let Some(model) = self.observation_model() else {
-            return 0.0;
-        };
+        let model = self.observation_model();
         let view = self.view(kin);
         let pred = self.prediction(model, &view);
         if let Some(value) = model.data_term(&pred, values) {

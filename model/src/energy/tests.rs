@@ -43,7 +43,7 @@ fn target_for(sensor: &Sensor, pose: &Pose) -> Target {
             masks: sensor.predict_silhouettes(&t, pose).unwrap(),
         },
         _ => {
-            let pred = sensor.predict_sparse(&t, pose).unwrap();
+            let pred = sensor.predict_sparse(&t, pose);
             Target::Sparse {
                 values: pred.values,
                 visible: pred.visible,
@@ -212,7 +212,7 @@ fn observation_models_agree_with_the_renderers_skinning() {
         let Sensor::Markers(setup) = &markers else {
             unreachable!()
         };
-        let ours = markers.predict_sparse(&t, &pose).unwrap().values;
+        let ours = markers.predict_sparse(&t, &pose).values;
         let theirs = crate::skinning::skin_lbs_subset(&t, &posed, &setup.vertices);
         for (k, p) in theirs.iter().enumerate() {
             for a in 0..3 {
@@ -221,7 +221,7 @@ fn observation_models_agree_with_the_renderers_skinning() {
             }
         }
         let kp = Sensor::default_for(Modality::Keypoints2d, &t);
-        let ours = kp.predict_sparse(&t, &pose).unwrap();
+        let ours = kp.predict_sparse(&t, &pose);
         let nj = t.rig.num_joints();
         for (c, cam) in kp.cameras().iter().enumerate() {
             for (j, &p) in posed.joints.iter().enumerate() {
@@ -244,7 +244,7 @@ fn observation_models_agree_with_the_renderers_skinning() {
         let Sensor::Hmd(setup) = &hmd else {
             unreachable!()
         };
-        let ours = hmd.predict_sparse(&t, &pose).unwrap().values;
+        let ours = hmd.predict_sparse(&t, &pose).values;
         let tips = crate::skinning::skin_lbs_subset(&t, &posed, &setup.hand_tips);
         for (k, p) in tips.iter().enumerate() {
             for a in 0..3 {
@@ -540,7 +540,7 @@ mod morphable {
             let x = params(&t, 2, 0.5);
             for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
                 let sensor = Sensor::default_for(modality, &t);
-                let pred = sensor.predict_sparse(&t, &truth).unwrap();
+                let pred = sensor.predict_sparse(&t, &truth);
                 for term in ["data", "EP", "EA", "all"] {
                     let mut c = isolate(term);
                     if term == "all" {
@@ -578,7 +578,7 @@ mod morphable {
         let truth = params(&t, 1, 1.0);
         let x = params(&t, 2, 0.5);
         let sensor = Sensor::default_for(Modality::Markers, &t);
-        let pred = sensor.predict_sparse(&t, &truth).unwrap();
+        let pred = sensor.predict_sparse(&t, &truth);
         let e = Energy::new(
             t.clone(),
             sensor,
@@ -611,7 +611,7 @@ mod morphable {
         let x = params(&t, 9, 1.0);
         for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
             let sensor = Sensor::default_for(modality, &t);
-            let pred = sensor.predict_sparse(&t, &x).unwrap();
+            let pred = sensor.predict_sparse(&t, &x);
             let e = Energy::new(
                 t.clone(),
                 sensor,
@@ -648,7 +648,7 @@ mod morphable_default {
         let mut truth = gt_pose().to_vec();
         truth.extend([1.5, -1.0, 0.5, 2.0, -0.7, 0.3, -1.2, 0.8]);
         let sensor = Sensor::default_for(Modality::Markers, &m);
-        let pred = sensor.predict_sparse(&m, &truth).unwrap();
+        let pred = sensor.predict_sparse(&m, &truth);
         let e = Energy::new(
             m.clone(),
             sensor,
@@ -879,7 +879,7 @@ mod least_squares_form {
             let x = super::morphable::params(&t, 2, 0.5);
             for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
                 let sensor = Sensor::default_for(modality, &t);
-                let pred = sensor.predict_sparse(&t, &truth).unwrap();
+                let pred = sensor.predict_sparse(&t, &truth);
                 let e = Energy::new(
                     t.clone(),
                     sensor,

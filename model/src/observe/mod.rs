@@ -372,14 +372,14 @@ impl Sensor {
     }
 
     /// The sensor's observation model.
-    pub fn observation_model(&self) -> Option<&dyn ObservationModel> {
+    pub fn observation_model(&self) -> &dyn ObservationModel {
         match self {
-            Sensor::Markers(s) => Some(s),
-            Sensor::Keypoints2d(s) => Some(s),
-            Sensor::Hmd(s) => Some(s),
-            Sensor::Scan(s) => Some(s),
-            Sensor::Silhouettes(s) => Some(s),
-            Sensor::Custom(m) => Some(m.as_ref()),
+            Sensor::Markers(s) => s,
+            Sensor::Keypoints2d(s) => s,
+            Sensor::Hmd(s) => s,
+            Sensor::Scan(s) => s,
+            Sensor::Silhouettes(s) => s,
+            Sensor::Custom(m) => m.as_ref(),
         }
     }
 
@@ -399,24 +399,19 @@ impl Sensor {
             Sensor::Scan(s) => 3 * s.residual_vertices.len(),
             // Masks are compared as images: no residual vector.
             Sensor::Silhouettes(_) => 0,
-            _ => self.observation_model().map_or(0, |m| m.dim(template)),
+            _ => self.observation_model().dim(template),
         }
     }
 
     /// Checks the setup against a template (vertex indices in range, valid cameras).
     pub fn validate(&self, template: &Template) -> Result<()> {
-        match self {
-            _ => match self.observation_model() {
-                Some(m) => m.validate(template),
-                None => Ok(()),
-            },
-        }
+        self.observation_model().validate(template)
     }
 
     /// The observation model's clean prediction at `pose` (for `silhouettes` the pixels of every
     /// camera at full resolution, for `scan` every posed vertex).
-    pub fn predict_sparse(&self, template: &Template, pose: &[f64]) -> Option<SparsePrediction> {
-        let model = self.observation_model()?;
+    pub fn predict_sparse(&self, template: &Template, pose: &[f64]) -> SparsePrediction {
+        let model = self.observation_model();
         let kin = Kinematics::build(template, pose, false);
         let view = PosedView {
             template,
@@ -427,7 +422,7 @@ impl Sensor {
         let mut values = vec![0.0; n];
         let mut visible = vec![false; n];
         model.predict(&view, &mut values, &mut visible);
-        Some(SparsePrediction { values, visible })
+        SparsePrediction { values, visible }
     }
 
     /// The model's silhouettes in every camera of the `silhouettes` modality at `pose` (full
@@ -436,7 +431,7 @@ impl Sensor {
         let Sensor::Silhouettes(setup) = self else {
             return None;
         };
-        Some(setup.masks(&self.predict_sparse(template, pose)?.values))
+        Some(setup.masks(&self.predict_sparse(template, pose).values))
     }
 
     /// Predicted scan observation at `pose` (posed surface and silhouettes). `None` for other
@@ -445,7 +440,7 @@ impl Sensor {
         let Sensor::Scan(setup) = self else {
             return None;
         };
-        let vertices = points_from_values(&self.predict_sparse(template, pose)?.values);
+        let vertices = points_from_values(&self.predict_sparse(template, pose).values);
         let normals = vertex_normals(&vertices, &template.faces);
         let silhouettes = render_silhouettes(&setup.cameras, &vertices, &template.faces);
         Some(ScanPrediction {
@@ -457,12 +452,11 @@ impl Sensor {
 
     /// Residual R(θ) of a sparse modality: `observed_visible ⊙ (predicted − observed)`.
     pub fn sparse_residual(
-        predicted: &SparsePrediction,
+        predicted: &[f64],
         observed: &[f64],
         observed_visible: &[bool],
     ) -> Vec<f64> {
         predicted
-            .values
             .iter()
             .zip(observed)
             .zip(observed_visible)
@@ -597,7 +591,7 @@ mod tests {
         for m in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
             let s = Sensor::default_for(m, &t);
             s.validate(&t).unwrap();
-            let p = s.predict_sparse(&t, &pose).unwrap();
+            let p = s.predict_sparse(&t, &pose);
             assert_eq!(p.values.len(), s.residual_dim(&t), "{m}");
             assert_eq!(p.visible.len(), p.values.len());
         }
@@ -607,18 +601,18 @@ mod tests {
     fn keypoints_in_rest_pose_are_all_visible_and_hmd_hands_follow_the_half_space() {
         let t = default_template();
         let s = Sensor::default_for(Modality::Keypoints2d, &t);
-        let p = s.predict_sparse(&t, &[0.0; POSE_DIM]).unwrap();
+        let p = s.predict_sparse(&t, &[0.0; POSE_DIM]);
         assert!(p.visible.iter().all(|&v| v));
         // Rest pose: hands hang beside the hips, below and beside the headset; they are in front
         // of the headset plane only if forward of it. Raise the arms forward: visible.
         let hmd = Sensor::default_for(Modality::Hmd, &t);
         let mut pose = [0.0; POSE_DIM];
-        let rest = hmd.predict_sparse(&t, &pose).unwrap();
+        let rest = hmd.predict_sparse(&t, &pose);
         assert!(rest.visible[..12].iter().all(|&v| v));
         // Swing both arms backwards by 60° about the vertical: the wrists go behind the headset.
         pose[rot_offset(L_SHOULDER) + 1] = 60f64.to_radians();
         pose[rot_offset(R_SHOULDER) + 1] = -60f64.to_radians();
-        let back = hmd.predict_sparse(&t, &pose).unwrap();
+        let back = hmd.predict_sparse(&t, &pose);
         assert!(
             !back.visible[12] && !back.visible[24],
             "hands behind the headset are hidden"
@@ -626,7 +620,7 @@ mod tests {
         // And forwards: visible.
         pose[rot_offset(L_SHOULDER) + 1] = -60f64.to_radians();
         pose[rot_offset(R_SHOULDER) + 1] = 60f64.to_radians();
-        let front = hmd.predict_sparse(&t, &pose).unwrap();
+        let front = hmd.predict_sparse(&t, &pose);
         assert!(front.visible[12] && front.visible[24] && front.visible[36] && front.visible[39]);
     }
 
@@ -639,7 +633,7 @@ mod tests {
         pose[rot_offset(L_SHOULDER) + 2] = 0.7;
         pose[1] = 0.05;
         let s = Sensor::default_for(Modality::Scan, &t);
-        let p = s.predict_sparse(&t, &pose).unwrap();
+        let p = s.predict_sparse(&t, &pose);
         let mesh = crate::skinning::pose_vertices(&t, &pose, crate::SkinningMethod::Linear);
         assert_eq!(p.values.len(), 3 * mesh.len());
         for (v, m) in mesh.iter().enumerate() {
