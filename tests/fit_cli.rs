@@ -247,20 +247,6 @@ fn bad_input_to_fit_and_optimize() {
 fn objective_server_answers_and_survives_bad_lines() {
     let dir = tempfile::tempdir().unwrap();
     let data = dataset(dir.path(), "markers", "local", 2);
-    let mut child = Command::new(env!("CARGO_BIN_EXE_lfit"))
-        .args([
-            "objective-server",
-            "--data",
-            path_str(&data),
-            "--frame",
-            "1",
-        ])
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut stdin = child.stdin.take().unwrap();
     let x43 = serde_json::to_string(&vec![0.0; 43]).unwrap();
     let lines = [
         r#"{"describe": true}"#.to_string(),
@@ -270,22 +256,7 @@ fn objective_server_answers_and_survives_bad_lines() {
         format!(r#"{{"x": {}}}"#, x43.replacen("0.0", "null", 1)),
         format!(r#"{{"x": {x43}}}"#),
     ];
-    for l in &lines {
-        writeln!(stdin, "{l}").unwrap();
-    }
-    drop(stdin);
-    let out = child.wait_with_output().unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let answers: Vec<serde_json::Value> = String::from_utf8(out.stdout)
-        .unwrap()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
-    assert_eq!(answers.len(), lines.len());
+    let answers = serve(&["--data", path_str(&data), "--frame", "1"], &lines);
     let d = &answers[0];
     assert_eq!(d["dim"], 43);
     assert_eq!(d["lower"].as_array().unwrap().len(), 43);
