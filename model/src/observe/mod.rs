@@ -582,6 +582,11 @@ mod tests {
             "lidar".parse::<Modality>(),
             Err(ModelError::UnknownModality(_))
         ));
+        // The message lists every modality a user can name.
+        let msg = "lidar".parse::<Modality>().unwrap_err().to_string();
+        for m in Modality::ALL {
+            assert!(msg.contains(m.name()), "{msg}");
+        }
     }
 
     #[test]
