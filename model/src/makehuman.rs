@@ -164,7 +164,8 @@ pub fn read_obj(path: &Path) -> Result<BaseMesh> {
     Ok(mesh)
 }
 
-/// Where a bone end sits: the mean of a `joint-*` cube group's vertices, or of listed vertices.
+/// Where a bone end sits: the mean of a `joint-*` cube group's vertices, or of listed vertices
+/// (`MEAN`; a `VERTEX` end is the mean of one).
 #[derive(Debug, Clone, PartialEq)]
 pub enum Placement {
     Cube(String),
@@ -192,6 +193,8 @@ struct EndJson {
     cube_name: Option<String>,
     #[serde(default)]
     vertex_indices: Option<Vec<u32>>,
+    #[serde(default)]
+    vertex_index: Option<u32>,
     default_position: [f64; 3],
 }
 
@@ -206,12 +209,20 @@ struct BoneJson {
 }
 
 fn placement(path: &Path, bone: &str, end: &str, e: EndJson) -> Result<Placement> {
-    match (e.strategy.as_str(), e.cube_name, e.vertex_indices) {
-        ("CUBE", Some(c), _) => Ok(Placement::Cube(c)),
-        ("MEAN", _, Some(v)) if !v.is_empty() => Ok(Placement::Mean(v)),
-        (s, _, _) => Err(bad(
+    match (
+        e.strategy.as_str(),
+        e.cube_name,
+        e.vertex_indices,
+        e.vertex_index,
+    ) {
+        ("CUBE", Some(c), _, _) => Ok(Placement::Cube(c)),
+        ("MEAN", _, Some(v), _) if !v.is_empty() => Ok(Placement::Mean(v)),
+        ("VERTEX", _, _, Some(v)) => Ok(Placement::Mean(vec![v])),
+        (s, _, _, _) => Err(bad(
             path,
-            format!("bone '{bone}' {end}: strategy '{s}' without its cube_name/vertex_indices"),
+            format!(
+                "bone '{bone}' {end}: strategy '{s}' without its cube_name/vertex_indices/vertex_index"
+            ),
         )),
     }
 }
