@@ -1,6 +1,10 @@
 //! Datasets on disk: one `.npz` archive that numpy opens directly (`numpy.load(path)`), holding
 //! ground-truth and start poses, observations, visibility, cameras and a JSON `meta` string
 //! (template id, seed, generator settings, sensor setup). Same content → identical bytes.
+//!
+//! Imported datasets (`lfit data import`: real captures) have no ground truth: their `gt_*`
+//! arrays have no rows and `meta` says `"ground_truth": false` (files with ground truth omit the
+//! key, so their bytes are those of before).
 
 use std::path::Path;
 
@@ -93,7 +97,7 @@ pub struct Dataset {
     /// shape and expression, mean = 0).
     pub start_poses: Vec<Vec<f64>>,
     /// Per frame, the ground truth: pose, shape and expression (on disk `gt_poses`, `gt_shape`,
-    /// `gt_expression`).
+    /// `gt_expression`). Empty when the dataset has none (imported observations).
     pub gt_poses: Vec<Vec<f64>>,
     pub observations: Observations,
 }
@@ -103,6 +107,17 @@ struct MetaJson {
     #[serde(flatten)]
     meta: Meta,
     sensor: Sensor,
+    /// False for datasets without ground truth (absent, i.e. true, in every other file).
+    #[serde(default = "yes", skip_serializing_if = "is_true")]
+    ground_truth: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+fn is_true(b: &bool) -> bool {
+    *b
 }
 
 /// Entries `range` of every row, flattened.
@@ -151,11 +166,21 @@ fn flat_block(rows: &[Vec<f64>], range: std::ops::Range<usize>) -> Vec<f64> {
 
 impl Dataset {
     pub fn len(&self) -> usize {
-        self.gt_poses.len()
+        self.start_poses.len()
     }
 
     pub fn is_empty(&self) -> bool {
-        self.gt_poses.is_empty()
+        self.start_poses.is_empty()
+    }
+
+    /// Whether the frames have ground-truth parameters (false for imported observations).
+    pub fn has_ground_truth(&self) -> bool {
+        !self.gt_poses.is_empty()
+    }
+
+    /// The ground-truth parameters of `frame`, `None` without ground truth.
+    pub fn ground_truth(&self, frame: usize) -> Option<&[f64]> {
+        self.gt_poses.get(frame).map(Vec::as_slice)
     }
 
     pub fn modality(&self) -> Modality {
@@ -171,9 +196,17 @@ impl Dataset {
             )));
         }
         let n = self.len();
+        // Ground-truth arrays: one row per frame, or none at all.
+        let ng = self.gt_poses.len();
+        if ng != 0 && ng != n {
+            return Err(SynthError::Dataset(format!(
+                "{ng} ground-truth rows for {n} frames (expected {n}, or 0 without ground truth)"
+            )));
+        }
         let meta = serde_json::to_string(&MetaJson {
             meta: self.meta.clone(),
             sensor: self.sensor.clone(),
+            ground_truth: self.has_ground_truth() || n == 0,
         })
         .map_err(|e| SynthError::Dataset(e.to_string()))?;
         let m = &self.meta;
@@ -193,7 +226,7 @@ impl Dataset {
             ("meta", Array::string(&meta)),
             (
                 "gt_poses",
-                Array::f64(vec![n, p], &flat_block(&self.gt_poses, 0..p)),
+                Array::f64(vec![ng, p], &flat_block(&self.gt_poses, 0..p)),
             ),
             (
                 "start_poses",
@@ -203,7 +236,7 @@ impl Dataset {
         if b > 0 {
             arrays.push((
                 "gt_shape",
-                Array::f64(vec![n, b], &flat_block(&self.gt_poses, p..p + b)),
+                Array::f64(vec![ng, b], &flat_block(&self.gt_poses, p..p + b)),
             ));
             arrays.push((
                 "start_shape",
@@ -213,7 +246,7 @@ impl Dataset {
         if e > 0 {
             arrays.push((
                 "gt_expression",
-                Array::f64(vec![n, e], &flat_block(&self.gt_poses, p + b..p + b + e)),
+                Array::f64(vec![ng, e], &flat_block(&self.gt_poses, p + b..p + b + e)),
             ));
             arrays.push((
                 "start_expression",
@@ -336,7 +369,11 @@ impl Dataset {
                 .ok_or_else(|| SynthError::Dataset(format!("missing array '{name}'")))
         };
         let meta_text = get("meta")?.to_string("meta")?;
-        let MetaJson { meta, sensor } = serde_json::from_str(&meta_text)
+        let MetaJson {
+            meta,
+            sensor,
+            ground_truth,
+        } = serde_json::from_str(&meta_text)
             .map_err(|e| SynthError::Dataset(format!("meta: {e}")))?;
         if meta.format != "lfit-dataset" || meta.version != FORMAT_VERSION {
             return Err(SynthError::Dataset(format!(
@@ -354,7 +391,7 @@ impl Dataset {
             }
             Ok(())
         };
-        let block = |name: &str, width: usize| -> Result<Vec<Vec<f64>>, SynthError> {
+        let block = |name: &str, n: usize, width: usize| -> Result<Vec<Vec<f64>>, SynthError> {
             if width == 0 {
                 return Ok(vec![Vec::new(); n]);
             }
@@ -371,21 +408,34 @@ impl Dataset {
             }
             Ok(flat.chunks_exact(width).map(<[f64]>::to_vec).collect())
         };
-        let rows =
-            |pose: &str, shape_key: &str, expr_key: &str| -> Result<Vec<Vec<f64>>, SynthError> {
-                let mut out = block(pose, meta.pose_dim)?;
-                for (r, (b, e)) in out.iter_mut().zip(
-                    block(shape_key, meta.shape_dim)?
-                        .into_iter()
-                        .zip(block(expr_key, meta.expression_dim)?),
-                ) {
-                    r.extend(b);
-                    r.extend(e);
-                }
-                Ok(out)
-            };
-        let gt_poses = rows("gt_poses", "gt_shape", "gt_expression")?;
-        let start_poses = rows("start_poses", "start_shape", "start_expression")?;
+        let rows = |pose: &str,
+                    shape_key: &str,
+                    expr_key: &str,
+                    n: usize|
+         -> Result<Vec<Vec<f64>>, SynthError> {
+            let mut out = block(pose, n, meta.pose_dim)?;
+            for (r, (b, e)) in
+                out.iter_mut()
+                    .zip(block(shape_key, n, meta.shape_dim)?.into_iter().zip(block(
+                        expr_key,
+                        n,
+                        meta.expression_dim,
+                    )?))
+            {
+                r.extend(b);
+                r.extend(e);
+            }
+            Ok(out)
+        };
+        // Without ground truth the gt arrays have no rows (an absent `gt_poses` is accepted).
+        let gt_poses = if ground_truth {
+            rows("gt_poses", "gt_shape", "gt_expression", n)?
+        } else if arrays.iter().any(|(name, _)| name == "gt_poses") {
+            rows("gt_poses", "gt_shape", "gt_expression", 0)?
+        } else {
+            Vec::new()
+        };
+        let start_poses = rows("start_poses", "start_shape", "start_expression", n)?;
         let observations = match sensor.modality() {
             Modality::Scan => {
                 let v = meta.template_vertices;

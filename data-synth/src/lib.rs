@@ -2,8 +2,11 @@
 //! papers/000 §4, observation synthesis with noise and occlusion per modality, and datasets on
 //! disk as numpy-readable `.npz` archives.
 
+pub mod c3d;
 pub mod dataset;
 pub mod error;
+pub mod import;
+pub mod keypoints;
 pub mod motion;
 pub mod noise;
 pub mod npz;
