@@ -2,14 +2,17 @@
 //! papers/000 §4, observation synthesis with noise and occlusion per modality, and datasets on
 //! disk as numpy-readable `.npz` archives.
 
+pub mod bvh;
 pub mod c3d;
 pub mod dataset;
 pub mod error;
 pub mod import;
 pub mod keypoints;
 pub mod motion;
+pub mod motion_io;
 pub mod noise;
 pub mod npz;
+pub mod retarget;
 pub mod synth;
 
 pub use dataset::{Dataset, Meta, Observations};
