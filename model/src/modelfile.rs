@@ -811,8 +811,9 @@ pub fn fit_regressor(template: &Template) -> SparseRows {
     SparseRows::from_dense(template.rig.num_joints(), v, &dense)
 }
 
-/// Writes `template` as a model file (see the module documentation), atomically. A template
-/// without a joint regressor gets one from [`fit_regressor`].
+/// Writes `template` as a model file (see the module documentation), atomically, its members
+/// deflated (as `numpy.savez_compressed` does). A template without a joint regressor gets one
+/// from [`fit_regressor`].
 pub fn save(template: &Template, path: &Path) -> Result<()> {
     let v = template.num_vertices();
     let j = template.rig.num_joints();
@@ -945,7 +946,7 @@ pub fn save(template: &Template, path: &Path) -> Result<()> {
     let err = |e: String| fail(path, e);
     let mut zip = zip::ZipWriter::new(Cursor::new(Vec::new()));
     let options = zip::write::SimpleFileOptions::default()
-        .compression_method(zip::CompressionMethod::Stored)
+        .compression_method(zip::CompressionMethod::Deflated)
         .last_modified_time(zip::DateTime::default());
     for (name, out) in &arrays {
         let bytes = npy_bytes(out).map_err(|e| err(format!("array '{name}': {e}")))?;
