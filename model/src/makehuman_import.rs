@@ -6,7 +6,8 @@
 //! - **Mesh**: the `body` group of `3dobjs/base.obj` (13,380 vertices, 13,378 quads, each split
 //!   into two triangles); the helper geometry (`helper-*`: tights, skirt, hair, eyes, teeth ...)
 //!   and the `joint-*` cubes are left out. Decimetres become metres; MakeHuman's axes already are
-//!   lfit's (+y up, the subject faces +z, +x is the subject's left).
+//!   lfit's (+y up, the subject faces +z, +x is the subject's left); the body is lifted so that it
+//!   stands on y = 0 (MakeHuman's `joint-ground` cube), as lfit's default template does.
 //! - **Skeleton**: the bones of `rigs/standard/rig.NAME.json`, parents first; a joint sits at its
 //!   bone's head, which MakeHuman places at the centroid of a `joint-*` cube group (or the mean of
 //!   listed vertices). A root bone that skins no vertex and has one child (the `Root` ground bone
@@ -415,10 +416,20 @@ fn from_blender(p: [f64; 3]) -> DVec3 {
     DVec3::new(p[0], p[2], -p[1])
 }
 
-/// A marker of the Plug-in-Gait-like set: a ray from a point inside the body (between two
-/// landmark cubes, plus an offset in metres) along a direction; the marker is the body vertex
-/// where the ray leaves the surface. Names ending in `*` are made for both sides: `L`/`l-` as
-/// written, and `R`/`r-` mirrored (x negated).
+/// Where a marker's ray points.
+#[derive(Debug, Clone, Copy)]
+pub enum RayDirection {
+    /// A fixed direction (left side; x is negated for the mirrored right-side marker).
+    Fixed([f64; 3]),
+    /// Across the segment `from → to`: towards landmark `toward` (sign +1) or away from it (−1),
+    /// perpendicular to the segment (the wrist markers: towards and away from the thumb).
+    Across(&'static str, f64),
+}
+
+/// A marker of the Plug-in-Gait-like set: a ray from a point inside the body (on the segment
+/// between two landmark cubes, plus an offset in metres) along a direction; the marker is the body
+/// vertex where the ray leaves the surface. Rules named `L…` are mirrored onto the right side
+/// (`R…`, landmarks `-l-` → `-r-`, x negated).
 #[derive(Debug, Clone, Copy)]
 pub struct MarkerRule {
     pub name: &'static str,
@@ -426,7 +437,7 @@ pub struct MarkerRule {
     pub to: &'static str,
     pub t: f64,
     pub offset: [f64; 3],
-    pub direction: [f64; 3],
+    pub direction: RayDirection,
 }
 
 const fn rule(
@@ -443,190 +454,57 @@ const fn rule(
         to,
         t,
         offset,
-        direction,
+        direction: RayDirection::Fixed(direction),
     }
 }
 
+const fn across(
+    name: &'static str,
+    from: &'static str,
+    to: &'static str,
+    toward: &'static str,
+    sign: f64,
+) -> MarkerRule {
+    MarkerRule {
+        name,
+        from,
+        to,
+        t: 1.0,
+        offset: [0.0; 3],
+        direction: RayDirection::Across(toward, sign),
+    }
+}
+
+const O: [f64; 3] = [0.0; 3];
+
 /// The marker set, after Vicon's Plug-in Gait full-body model (head, trunk, both arms and both
-/// legs; RBAK only on the right, as in Plug-in Gait). Landmarks are MakeHuman's `joint-*` cubes;
-/// `l-` rules are mirrored onto the right side.
+/// legs; RBAK only on the right, as in Plug-in Gait): 39 markers. Landmarks are MakeHuman's
+/// `joint-*` cubes of the mean body: `joint-head` (skull base) and `joint-head-2` (crown) place
+/// the head markers at 55 % of the way up, about 4 cm above the eyes.
+#[rustfmt::skip]
 pub const MARKERS: [MarkerRule; 22] = [
-    rule(
-        "LFHD",
-        "joint-head",
-        "joint-head-2",
-        1.0,
-        [0.035, 0.0, 0.0],
-        [0.35, 0.25, 1.0],
-    ),
-    rule(
-        "LBHD",
-        "joint-head",
-        "joint-head-2",
-        1.0,
-        [0.035, 0.0, 0.0],
-        [0.35, 0.25, -1.0],
-    ),
-    rule(
-        "C7",
-        "joint-neck",
-        "joint-neck",
-        0.0,
-        [0.0, 0.0, 0.0],
-        [0.0, 0.35, -1.0],
-    ),
-    rule(
-        "T10",
-        "joint-spine-3",
-        "joint-spine-3",
-        0.0,
-        [0.0, 0.0, 0.0],
-        [0.0, 0.0, -1.0],
-    ),
-    rule(
-        "CLAV",
-        "joint-spine-1",
-        "joint-neck",
-        0.5,
-        [0.0, 0.0, 0.0],
-        [0.0, 0.0, 1.0],
-    ),
-    rule(
-        "STRN",
-        "joint-spine-2",
-        "joint-spine-2",
-        0.0,
-        [0.0, 0.0, 0.0],
-        [0.0, 0.0, 1.0],
-    ),
-    rule(
-        "RBAK",
-        "joint-spine-1",
-        "joint-r-shoulder",
-        0.55,
-        [0.0, -0.04, 0.0],
-        [0.0, 0.0, -1.0],
-    ),
-    rule(
-        "LSHO",
-        "joint-l-shoulder",
-        "joint-l-shoulder",
-        0.0,
-        [0.0, 0.0, 0.0],
-        [0.25, 1.0, 0.0],
-    ),
-    rule(
-        "LUPA",
-        "joint-l-shoulder",
-        "joint-l-elbow",
-        0.55,
-        [0.0, 0.0, 0.0],
-        [1.0, 0.0, -0.3],
-    ),
-    rule(
-        "LELB",
-        "joint-l-elbow",
-        "joint-l-elbow",
-        0.0,
-        [0.0, 0.0, 0.0],
-        [0.6, 0.0, -1.0],
-    ),
-    rule(
-        "LFRM",
-        "joint-l-elbow",
-        "joint-l-hand",
-        0.55,
-        [0.0, 0.0, 0.0],
-        [1.0, 0.0, -0.2],
-    ),
-    rule(
-        "LWRA",
-        "joint-l-hand",
-        "joint-l-hand",
-        0.0,
-        [0.0, 0.0, 0.0],
-        [0.0, 0.0, 1.0],
-    ),
-    rule(
-        "LWRB",
-        "joint-l-hand",
-        "joint-l-hand",
-        0.0,
-        [0.0, 0.0, 0.0],
-        [0.0, 0.0, -1.0],
-    ),
-    rule(
-        "LFIN",
-        "joint-l-finger-3-1",
-        "joint-l-finger-3-1",
-        0.0,
-        [0.0, 0.0, 0.0],
-        [1.0, 0.0, 0.0],
-    ),
-    rule(
-        "LASI",
-        "joint-l-upper-leg",
-        "joint-l-upper-leg",
-        0.0,
-        [0.0, 0.07, 0.0],
-        [0.3, 0.0, 1.0],
-    ),
-    rule(
-        "LPSI",
-        "joint-pelvis",
-        "joint-l-upper-leg",
-        0.45,
-        [0.0, 0.05, 0.0],
-        [0.0, 0.0, -1.0],
-    ),
-    rule(
-        "LTHI",
-        "joint-l-upper-leg",
-        "joint-l-knee",
-        0.55,
-        [0.0, 0.0, 0.0],
-        [1.0, 0.0, 0.0],
-    ),
-    rule(
-        "LKNE",
-        "joint-l-knee",
-        "joint-l-knee",
-        0.0,
-        [0.0, 0.0, 0.0],
-        [1.0, 0.0, 0.0],
-    ),
-    rule(
-        "LTIB",
-        "joint-l-knee",
-        "joint-l-ankle",
-        0.55,
-        [0.0, 0.0, 0.0],
-        [1.0, 0.0, 0.0],
-    ),
-    rule(
-        "LANK",
-        "joint-l-ankle",
-        "joint-l-ankle",
-        0.0,
-        [0.0, 0.0, 0.0],
-        [1.0, 0.0, 0.0],
-    ),
-    rule(
-        "LHEE",
-        "joint-l-ankle",
-        "joint-l-ankle",
-        0.0,
-        [0.0, -0.035, 0.0],
-        [0.0, 0.0, -1.0],
-    ),
-    rule(
-        "LTOE",
-        "joint-l-foot-1",
-        "joint-l-foot-1",
-        0.0,
-        [0.0, 0.0, 0.0],
-        [0.0, 1.0, 0.0],
-    ),
+    rule("LFHD", "joint-head", "joint-head-2", 0.55, O, [0.45, 0.0, 1.0]),
+    rule("LBHD", "joint-head", "joint-head-2", 0.55, O, [0.45, 0.0, -1.0]),
+    rule("C7", "joint-neck", "joint-neck", 0.0, O, [0.0, 0.35, -1.0]),
+    rule("T10", "joint-spine-3", "joint-spine-3", 0.0, O, [0.0, 0.0, -1.0]),
+    rule("CLAV", "joint-spine-1", "joint-neck", 0.5, O, [0.0, 0.0, 1.0]),
+    rule("STRN", "joint-spine-2", "joint-spine-2", 0.0, O, [0.0, 0.0, 1.0]),
+    rule("RBAK", "joint-spine-1", "joint-r-shoulder", 0.55, [0.0, -0.04, 0.0], [0.0, 0.0, -1.0]),
+    rule("LSHO", "joint-l-shoulder", "joint-l-shoulder", 0.0, O, [0.25, 1.0, 0.0]),
+    rule("LUPA", "joint-l-shoulder", "joint-l-elbow", 0.55, O, [1.0, 0.0, -0.3]),
+    rule("LELB", "joint-l-elbow", "joint-l-elbow", 0.0, O, [0.6, 0.0, -1.0]),
+    rule("LFRM", "joint-l-elbow", "joint-l-hand", 0.55, O, [1.0, 0.0, -0.2]),
+    across("LWRA", "joint-l-elbow", "joint-l-hand", "joint-l-finger-1-1", 1.0),
+    across("LWRB", "joint-l-elbow", "joint-l-hand", "joint-l-finger-1-1", -1.0),
+    rule("LFIN", "joint-l-finger-3-1", "joint-l-finger-3-1", 0.0, O, [1.0, 0.0, 0.0]),
+    rule("LASI", "joint-l-upper-leg", "joint-l-upper-leg", 0.0, [0.0, 0.07, 0.0], [0.3, 0.0, 1.0]),
+    rule("LPSI", "joint-pelvis", "joint-l-upper-leg", 0.45, [0.0, 0.05, 0.0], [0.0, 0.0, -1.0]),
+    rule("LTHI", "joint-l-upper-leg", "joint-l-knee", 0.55, O, [1.0, 0.0, 0.0]),
+    rule("LKNE", "joint-l-knee", "joint-l-knee", 0.0, O, [1.0, 0.0, 0.0]),
+    rule("LTIB", "joint-l-knee", "joint-l-ankle", 0.55, O, [1.0, 0.0, 0.0]),
+    rule("LANK", "joint-l-ankle", "joint-l-ankle", 0.0, O, [1.0, 0.0, 0.0]),
+    rule("LHEE", "joint-l-ankle", "joint-l-ankle", 0.0, [0.0, -0.035, 0.0], [0.0, 0.0, -1.0]),
+    rule("LTOE", "joint-l-foot-1", "joint-l-foot-1", 0.0, O, [0.0, 1.0, 0.0]),
 ];
 
 /// The rules with the left ones (`L…`) mirrored onto the right (`R…`): 39 markers.
@@ -903,7 +781,24 @@ pub fn import(opts: &ImportOptions) -> Result<(Template, ImportReport)> {
     let (w_train, rest) = w_all.split_at(opts.samples);
     let (w_held, w_default) = rest.split_at(HELD_OUT);
     let w_default = &w_default[0];
-    let base: Vec<DVec3> = mesh.vertices.clone();
+    // MakeHuman's origin is near the crotch; lfit's bodies stand on y = 0 (the default template's
+    // feet, the cameras of the synthetic sensors). Lift the mesh so that the `joint-ground` cube
+    // of the base mesh is at y = 0 (it moves by ±2 mm across phenotypes: the targets keep the
+    // feet on the ground).
+    let ground = mesh.group_vertices("joint-ground");
+    if ground.is_empty() {
+        return Err(asset_error(&obj_path, "no 'joint-ground' cube group"));
+    }
+    let lift = DVec3::new(
+        0.0,
+        -ground
+            .iter()
+            .map(|&i| mesh.vertices[i as usize].y)
+            .sum::<f64>()
+            / ground.len() as f64,
+        0.0,
+    );
+    let base: Vec<DVec3> = mesh.vertices.iter().map(|v| *v + lift).collect();
 
     // --- Check the interpolation against the rig file's default bone heads.
     let mut default_rig_check: f64 = 0.0;
@@ -913,6 +808,7 @@ pub fn import(opts: &ImportOptions) -> Result<(Template, ImportReport)> {
     {
         let ids = placement_vertices(&mesh, &b.head, &rig_path)?;
         let c = centroid(&base, &targets, w_default, &ids);
+        let c = c - lift * DM;
         default_rig_check = default_rig_check.max((c - from_blender(b.head_default)).length());
     }
     if default_rig_check > DEFAULT_CHECK_TOLERANCE {
@@ -1331,7 +1227,19 @@ pub fn import(opts: &ImportOptions) -> Result<(Template, ImportReport)> {
         let a = landmark(&from)?;
         let b = landmark(&to)?;
         let origin = a.lerp(b, r.t) + DVec3::new(sx * r.offset[0], r.offset[1], r.offset[2]);
-        let dir = DVec3::new(sx * r.direction[0], r.direction[1], r.direction[2]);
+        let dir = match r.direction {
+            RayDirection::Fixed(d) => DVec3::new(sx * d[0], d[1], d[2]),
+            RayDirection::Across(toward, sign) => {
+                let toward = if mirrored {
+                    mirror_landmark(toward)
+                } else {
+                    toward.to_string()
+                };
+                let axis = (b - a).normalize_or_zero();
+                let d = landmark(&toward)? - origin;
+                sign * (d - d.dot(axis) * axis)
+            }
+        };
         let vertex = ray_exit(&mean, origin, dir)
             .ok_or_else(|| cfg(format!("marker '{name}': its ray meets no body vertex")))?;
         markers.push(Marker { name, vertex });
@@ -1678,6 +1586,27 @@ mod tests {
                 r.stature_m
             );
             assert!(crate::body::signed_volume(&t.vertices, &t.faces) > 0.0);
+            // Standing on y = 0 (within the few millimetres the ground cube sits below the soles).
+            let min_y = t.morph.rest.iter().map(|v| v.y).fold(f64::MAX, f64::min);
+            assert!(min_y.abs() < 0.01, "{min_y}");
+            // Head markers between the eyes and the crown; wrist markers on either side of the
+            // wrist, across the forearm.
+            let at = |n: &str| {
+                let m = t.rig.markers.iter().find(|m| m.name == n).unwrap();
+                t.morph.rest[m.vertex as usize]
+            };
+            let top = t.morph.rest.iter().map(|v| v.y).fold(f64::MIN, f64::max);
+            for n in ["LFHD", "RBHD"] {
+                let y = at(n).y;
+                assert!(y < top - 0.03 && y > top - 0.12, "{n} at {y}, crown {top}");
+            }
+            assert!(at("LFHD").z > at("LBHD").z + 0.12);
+            let (wra, wrb) = (at("LWRA"), at("LWRB"));
+            let hand = t.rig.joints[t.info.joint_map[skeleton::L_HAND].unwrap()].rest();
+            let elbow = t.rig.joints[t.info.joint_map[skeleton::L_ELBOW].unwrap()].rest();
+            let axis = (hand - elbow).normalize();
+            assert!((wra - wrb).normalize().dot(axis).abs() < 0.5, "{wra} {wrb}");
+            assert!((wra - wrb).length() > 0.03);
             // The regressor reproduces the rig's rest joints on v_template.
             let reg = t.morph.regressor.as_ref().unwrap();
             let j = reg.apply(&t.morph.rest);
