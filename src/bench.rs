@@ -482,6 +482,12 @@ pub fn run(
         (None, None) => bail!("no data"),
     };
     let dataset = Dataset::load(&data).with_context(|| format!("dataset {}", data.display()))?;
+    if !dataset.has_ground_truth() {
+        bail!(
+            "dataset {} has no ground truth (imported observations): lfit bench reports V2V/MPJPE; fit it with lfit fit, which reports energies and observation errors",
+            data.display()
+        );
+    }
     let frames = parse_frames(config.frames.as_deref(), dataset.len())?;
     let template = template_for(&dataset, None)?;
     let (energy_config, _) = config.energy_config()?;

@@ -232,6 +232,8 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     let mut rows = Vec::with_capacity(frames.len());
     let mut sum_coeff = 0.0;
     let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
+    // Without ground truth (imported observations): how far the fit lies from the observations.
+    let (mut sum_obs, mut obs_frames, mut obs_unit) = (0.0, 0usize, "");
     // Frames go through the network `--batch` at a time (the plan keeps sequences one by one).
     let plan = crate::fitting::Plan {
         dataset: &dataset,
@@ -249,12 +251,6 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         &mut |fitted| {
             let (frame, result) = (fitted.frame, fitted.result);
             let pose = &result.pose;
-            let gt = &dataset.gt_poses[frame];
-            let v2v = v2v_mm(&template, pose, gt);
-            let mpjpe = mpjpe_mm(&template, pose, gt);
-            let coeff = coefficient_rms(&template, pose, gt);
-            sum_v2v += v2v;
-            sum_mpjpe += mpjpe;
             sum_e += result.energy;
             sum_t += result.time_s;
             let mut row = json!({
@@ -262,8 +258,6 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
                 "energy": result.energy,
                 "start_energy": fitted.start_energy,
                 "terms": terms_json(&result.terms),
-                "v2v_mm": v2v,
-                "mpjpe_mm": mpjpe,
                 "evaluations": result.evaluations,
                 "gradient_evaluations": result.gradient_evaluations,
                 "iterations": result.iterations,
@@ -273,15 +267,46 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
             if let Value::Object(fields) = &mut row {
                 fields.extend(params_json(&template, pose));
             }
-            if let Some(c) = coeff {
-                row["shape_rms"] = json!(c);
-                sum_coeff += c;
-            }
-            if !result.iterates.is_empty() {
-                row["v2v_mm_per_iteration"] =
-                    json!(iterate_errors(&template, &result.iterates, gt, v2v_mm));
-                row["mpjpe_mm_per_iteration"] =
-                    json!(iterate_errors(&template, &result.iterates, gt, mpjpe_mm));
+            if let Some(gt) = dataset.ground_truth(frame) {
+                let v2v = v2v_mm(&template, pose, gt);
+                let mpjpe = mpjpe_mm(&template, pose, gt);
+                sum_v2v += v2v;
+                sum_mpjpe += mpjpe;
+                row["v2v_mm"] = json!(v2v);
+                row["mpjpe_mm"] = json!(mpjpe);
+                if let Some(c) = coefficient_rms(&template, pose, gt) {
+                    row["shape_rms"] = json!(c);
+                    sum_coeff += c;
+                }
+                if !result.iterates.is_empty() {
+                    row["v2v_mm_per_iteration"] =
+                        json!(iterate_errors(&template, &result.iterates, gt, v2v_mm));
+                    row["mpjpe_mm_per_iteration"] =
+                        json!(iterate_errors(&template, &result.iterates, gt, mpjpe_mm));
+                }
+            } else {
+                if let Some(e) =
+                    lfit_synth::import::observation_errors(&dataset, &template, frame, pose)
+                {
+                    let u = e.unit;
+                    row[format!("observation_error_{u}")] = json!(e.mean);
+                    row[format!("observation_rms_{u}")] = json!(e.rms);
+                    row[format!("observation_max_{u}")] = json!(e.max);
+                    row["observations_seen"] = json!(e.count);
+                    sum_obs += e.mean;
+                    obs_frames += 1;
+                    obs_unit = u;
+                }
+                if !result.iterates.is_empty() {
+                    let energy =
+                        energy_for_frame(&dataset, template.clone(), frame, config.clone())?;
+                    let per: Vec<f64> = result
+                        .iterates
+                        .iter()
+                        .map(|p| energy.inspect(p).total)
+                        .collect();
+                    row["energy_per_iteration"] = json!(per);
+                }
             }
             rows.push(row);
             done += 1;
@@ -292,13 +317,22 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     let n = frames.len().max(1) as f64;
     let mut summary = json!({
         "frames": frames.len(),
-        "mean_v2v_mm": sum_v2v / n,
-        "mean_mpjpe_mm": sum_mpjpe / n,
         "mean_energy": sum_e / n,
         "mean_time_s": sum_t / n,
     });
-    if template.morph.coefficients() > 0 {
-        summary["mean_shape_rms"] = json!(sum_coeff / n);
+    if dataset.has_ground_truth() {
+        summary["mean_v2v_mm"] = json!(sum_v2v / n);
+        summary["mean_mpjpe_mm"] = json!(sum_mpjpe / n);
+        if template.morph.coefficients() > 0 {
+            summary["mean_shape_rms"] = json!(sum_coeff / n);
+        }
+    } else {
+        // No V2V/MPJPE without ground truth: energies and distances to the observations.
+        summary["ground_truth"] = json!(false);
+        if obs_frames > 0 {
+            summary[format!("mean_observation_error_{obs_unit}")] =
+                json!(sum_obs / obs_frames as f64);
+        }
     }
     let mut out = json!({
         "method": fitter.name(),
@@ -310,6 +344,7 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         "seed": args.seed,
         "data": args.data,
         "modality": dataset.modality().name(),
+        "ground_truth": dataset.has_ground_truth(),
         "scenario": scenario.to_string(),
         "mask": mask.name,
         "energy_config": config,

@@ -5,6 +5,7 @@ pub mod ablate;
 pub mod bench;
 pub mod commands;
 pub mod data;
+pub mod data_import;
 pub mod export;
 pub mod fit;
 pub mod fitting;

@@ -33,6 +33,10 @@ enum Command {
     /// Export or pose the skinned template.
     #[command(subcommand)]
     Template(TemplateCommand),
+    /// Import a user's own captures (C3D markers, COCO/OpenPose 2D keypoints + cameras) as a
+    /// dataset without ground truth.
+    #[command(subcommand)]
+    Data(lfit::data_import::DataCommand),
     /// Synthesize a dataset (poses, observations with noise and occlusion) as a numpy .npz file.
     Synth {
         /// Observation modality: markers, keypoints2d, hmd, scan or silhouettes (papers/001: K foreground masks).
@@ -407,6 +411,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             .build_global()?;
     }
     match cli.command {
+        Command::Data(c) => lfit::data_import::run(&c),
         Command::Template(TemplateCommand::Export {
             out_dir,
             out,

@@ -1,0 +1,179 @@
+//! `lfit data import`: a user's own captures → an lfit dataset without ground truth.
+//!
+//! - `--c3d FILE [--label-map MAP.json]`: 3D markers from a C3D file (`lfit_synth::c3d`), each
+//!   C3D label that the map names (`{"C3D label": "model marker", ...}`; without a map, labels
+//!   equal to a model marker's name) onto that marker of the model's `markers` modality; gaps and
+//!   markers no label maps to are invisible entries. Units from `POINT:UNITS` (mm, cm, m).
+//! - `--keypoints PATH... --layout coco17|body25 --camera CAMERAS.json [--keypoint-map MAP.json]`:
+//!   2D keypoints (COCO keypoint files or OpenPose frame files/folders, `lfit_synth::keypoints`)
+//!   in calibrated cameras as the `keypoints2d` modality; one path per camera in the camera
+//!   file's order (or, with one camera, any number of paths in frame order); a keypoint is seen
+//!   when its confidence is above `--min-confidence`.
+//!
+//! The dataset's start poses are the rest pose moved rigidly onto each frame's data
+//! (`lfit_synth::import`); the scenario (default `sequence`: each frame starts from the previous
+//! frame's fit) picks the free DOFs and the search box of `lfit fit`. Every check runs before
+//! anything is written; the file is written to a temporary name and renamed.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use lfit_synth::Scenario;
+use lfit_synth::c3d::C3d;
+use lfit_synth::import::{import_c3d, import_keypoints, read_name_map};
+use lfit_synth::keypoints::{KeypointLayout, read_cameras, read_track};
+use serde_json::{Value, json};
+
+/// `lfit data ...`.
+#[derive(Debug, clap::Subcommand)]
+pub enum DataCommand {
+    /// Turn real observations into an lfit dataset without ground truth (fit it with `lfit fit`,
+    /// which then reports energies and observation errors instead of V2V/MPJPE): 3D markers
+    /// from a C3D file (--c3d, --label-map) or 2D keypoints from COCO/OpenPose JSON in
+    /// calibrated cameras (--keypoints, --layout, --camera).
+    Import(ImportArgs),
+}
+
+/// Arguments of `lfit data import`.
+#[derive(Debug, clap::Args)]
+pub struct ImportArgs {
+    /// C3D file of 3D marker trajectories (markers modality).
+    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map"])]
+    pub c3d: Option<PathBuf>,
+    /// JSON object {"C3D label": "model marker", ...}; default: C3D labels equal to the model's
+    /// marker names.
+    #[arg(long, requires = "c3d")]
+    pub label_map: Option<PathBuf>,
+    /// Keypoint files (COCO keypoint JSON, or OpenPose per-frame JSON files or folders of them):
+    /// one per camera in the camera file's order, or any number for a single camera.
+    #[arg(long, num_args = 1..)]
+    pub keypoints: Vec<PathBuf>,
+    /// Keypoint layout: coco17 or body25.
+    #[arg(long)]
+    pub layout: Option<String>,
+    /// Camera file: {"cameras": [{"fx", "fy", "cx", "cy", "width", "height", "rotation": 3×3
+    /// camera-from-world, "translation": [3] metres}, ...]} (OpenCV axes).
+    #[arg(long)]
+    pub camera: Option<PathBuf>,
+    /// JSON object {"model joint": "keypoint name", ...} replacing the layout's default map.
+    #[arg(long)]
+    pub keypoint_map: Option<PathBuf>,
+    /// Keypoints with a confidence (COCO: visibility flag) at or below this are invisible.
+    #[arg(long, default_value_t = 0.1)]
+    pub min_confidence: f64,
+    /// Frame rate of keypoint files, Hz (C3D files carry theirs).
+    #[arg(long, default_value_t = 30.0)]
+    pub fps: f64,
+    /// Scenario for `lfit fit`: sequence (warm start from the previous frame), local or global.
+    #[arg(long, default_value = "sequence")]
+    pub scenario: String,
+    /// Model: a template directory or an SMPL-layout .npz file; default: the procedural template.
+    #[arg(long, alias = "template")]
+    pub model: Option<PathBuf>,
+    /// Output dataset (.npz).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Runs `lfit data ...`.
+pub fn run(command: &DataCommand) -> Result<Value> {
+    match command {
+        DataCommand::Import(args) => import(args),
+    }
+}
+
+fn check_out(out: &Path) -> Result<()> {
+    if out.is_dir() {
+        bail!("--out {} is a directory, expected a file", out.display());
+    }
+    Ok(())
+}
+
+/// `lfit data import`.
+pub fn import(args: &ImportArgs) -> Result<Value> {
+    check_out(&args.out)?;
+    let scenario: Scenario = args.scenario.parse()?;
+    let (imported, source) = match (&args.c3d, args.keypoints.is_empty()) {
+        (Some(_), false) => bail!("give either --c3d or --keypoints, not both"),
+        (None, true) => bail!("lfit data import needs --c3d FILE or --keypoints FILE..."),
+        (Some(path), true) => {
+            let map = args
+                .label_map
+                .as_deref()
+                .map(|p| read_name_map(p, ["C3D label", "model marker"]))
+                .transpose()
+                .context("label map")?;
+            let template = crate::data::load_model(args.model.as_deref(), "default")?;
+            let c3d = C3d::read(path).with_context(|| format!("C3D file {}", path.display()))?;
+            let name = path.file_name().map_or_else(
+                || path.display().to_string(),
+                |n| n.to_string_lossy().into(),
+            );
+            let imported = import_c3d(&c3d, &name, map.as_deref(), &template, scenario)
+                .with_context(|| format!("C3D file {}", path.display()))?;
+            (imported, json!({ "c3d": path }))
+        }
+        (None, false) => {
+            let Some(layout) = &args.layout else {
+                bail!("--keypoints needs --layout coco17|body25");
+            };
+            let layout: KeypointLayout = layout.parse()?;
+            let Some(camera) = &args.camera else {
+                bail!("--keypoints needs --camera FILE (the calibrated cameras of the keypoints)");
+            };
+            if !(args.fps.is_finite() && args.fps > 0.0) {
+                bail!("--fps must be positive (got {})", args.fps);
+            }
+            let cameras = read_cameras(camera)?;
+            let map = args
+                .keypoint_map
+                .as_deref()
+                .map(|p| read_name_map(p, ["model joint", "keypoint"]))
+                .transpose()
+                .context("keypoint map")?;
+            let groups: Vec<Vec<PathBuf>> = if args.keypoints.len() == cameras.len() {
+                args.keypoints.iter().map(|p| vec![p.clone()]).collect()
+            } else if cameras.len() == 1 {
+                vec![args.keypoints.clone()]
+            } else {
+                bail!(
+                    "{} keypoint paths for {} cameras: give one file or folder per camera, in the camera file's order",
+                    args.keypoints.len(),
+                    cameras.len()
+                );
+            };
+            let tracks = groups
+                .iter()
+                .map(|g| read_track(g, layout))
+                .collect::<Result<Vec<_>, _>>()?;
+            let template = crate::data::load_model(args.model.as_deref(), "default")?;
+            let imported = import_keypoints(
+                &tracks,
+                cameras,
+                layout,
+                map.as_deref(),
+                args.min_confidence,
+                args.fps,
+                &template,
+                scenario,
+            )?;
+            (
+                imported,
+                json!({ "keypoints": args.keypoints, "camera": camera }),
+            )
+        }
+    };
+    let dataset = &imported.dataset;
+    dataset.save(&args.out)?;
+    Ok(json!({
+        "out": args.out,
+        "source": source,
+        "modality": dataset.modality().name(),
+        "scenario": scenario.name(),
+        "frames": dataset.len(),
+        "template": dataset.meta.template_id,
+        "ground_truth": false,
+        "visible_fraction": crate::data::visible_fraction(dataset),
+        "import": imported.report,
+    }))
+}

@@ -1,0 +1,509 @@
+//! `lfit data import` end to end: a C3D file and COCO keypoint files written by the test from
+//! known observations (those of `lfit synth` frames) import to the same values; LM and the
+//! shipped neural fitters then fit the imported datasets, which have no ground truth, and report
+//! energies and observation errors instead of V2V/MPJPE; bad input is a one-line error and
+//! writes nothing.
+
+mod support;
+
+use std::path::{Path, PathBuf};
+
+use lfit::synth::c3d::{C3d, C3dPoint, Processor};
+use lfit::synth::keypoints::{COCO17, KeypointLayout, cameras_json};
+use lfit::synth::{Dataset, Observations};
+use serde_json::{Value, json};
+use support::{assert_one_line_error, lfit, lfit_json, path_str};
+
+fn synth(dir: &Path, modality: &str, frames: usize, seed: u64) -> (PathBuf, Dataset) {
+    let out = dir.join(format!("{modality}.npz"));
+    lfit_json(&[
+        "-q",
+        "synth",
+        "--modality",
+        modality,
+        "--scenario",
+        "sequence",
+        "--frames",
+        &frames.to_string(),
+        "--noise",
+        "0",
+        "--seed",
+        &seed.to_string(),
+        "--out",
+        path_str(&out),
+    ]);
+    let d = Dataset::load(&out).expect("synth dataset");
+    (out, d)
+}
+
+fn sparse(d: &Dataset) -> (&Vec<Vec<f64>>, &Vec<Vec<bool>>) {
+    match &d.observations {
+        Observations::Sparse { values, visible } => (values, visible),
+        _ => panic!("sparse observations expected"),
+    }
+}
+
+fn read_json(p: &Path) -> Value {
+    serde_json::from_slice(&std::fs::read(p).expect("result file")).expect("JSON")
+}
+
+fn checkpoint(name: &str) -> String {
+    format!("{}/checkpoints/{name}", env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Fits `data` with LM and the shipped neural fitter `ck`; checks the no-ground-truth contract
+/// and returns per method (LM, neural) the mean energy, the mean observation error and the last
+/// frame's observation error (the sequence starts from the rigidly placed rest pose and catches
+/// up within the local box of each frame).
+fn fit_both(dir: &Path, data: &Path, ck: &str, unit: &str) -> [[f64; 3]; 2] {
+    let mut out = [[0.0; 3]; 2];
+    for (i, method) in ["lm", "neural"].into_iter().enumerate() {
+        let res = dir.join(format!("{method}_{ck}.json"));
+        let mut args = vec![
+            "-q",
+            "fit",
+            "--data",
+            path_str(data),
+            "--method",
+            method,
+            "--out",
+            path_str(&res),
+        ];
+        let ck_dir = checkpoint(ck);
+        if method == "neural" {
+            args.extend([
+                "--checkpoint",
+                &ck_dir,
+                "--budget",
+                "10",
+                "--device",
+                "ndarray",
+            ]);
+        } else {
+            args.extend(["--budget", "100"]);
+        }
+        let summary = lfit_json(&args);
+        let r = read_json(&res);
+        assert_eq!(r["ground_truth"], false);
+        assert_eq!(summary["summary"]["ground_truth"], false);
+        assert!(summary["summary"].get("mean_v2v_mm").is_none());
+        let key = format!("observation_error_{unit}");
+        let frames = r["frames"].as_array().expect("frames");
+        for f in frames {
+            assert!(f.get("v2v_mm").is_none() && f.get("mpjpe_mm").is_none());
+            let e = f["energy"].as_f64().expect("energy");
+            let s = f["start_energy"].as_f64().expect("start energy");
+            let o = f[&key].as_f64().expect("observation error");
+            assert!(e.is_finite() && o.is_finite() && e >= 0.0, "{f}");
+            if method == "lm" {
+                assert!(e <= s, "LM never ends above its start: {e} > {s}");
+            } else {
+                let per = f["energy_per_iteration"].as_array().expect("per iteration");
+                assert!(per.len() >= 2);
+                assert!(per.iter().all(|x| x.as_f64().is_some_and(f64::is_finite)));
+            }
+        }
+        let per_frame: Vec<String> = frames
+            .iter()
+            .map(|f| format!("{:.2}", f[&key].as_f64().unwrap_or(f64::NAN)))
+            .collect();
+        eprintln!("{ck} {method}: {key} per frame [{}]", per_frame.join(", "));
+        let mean = summary["summary"]["mean_energy"].as_f64().expect("mean");
+        let obs = summary["summary"][format!("mean_observation_error_{unit}")]
+            .as_f64()
+            .expect("mean observation error");
+        eprintln!(
+            "{ck} {method}: mean energy {mean:.4}, mean observation error {obs:.3} {unit} over {} frames",
+            frames.len()
+        );
+        let last = frames
+            .last()
+            .and_then(|f| f[&key].as_f64())
+            .expect("last frame");
+        out[i] = [mean, obs, last];
+    }
+    out
+}
+
+/// A C3D file of a markers dataset's observations: labels `S1:<marker>` plus an unmapped
+/// `EXTRA` point, millimetres, the given scale (negative: floats), one gap.
+fn c3d_of(d: &Dataset, scale: f64) -> (C3d, Vec<(String, String)>) {
+    let names = match &d.sensor {
+        lfit::model::observe::Sensor::Markers(m) => m.names.clone(),
+        _ => panic!("markers"),
+    };
+    let (values, visible) = sparse(d);
+    let mut labels: Vec<String> = names.iter().map(|n| format!("S1:{n}")).collect();
+    labels.push("EXTRA".into());
+    let frames = values
+        .iter()
+        .zip(visible)
+        .enumerate()
+        .map(|(f, (v, b))| {
+            let mut row: Vec<Option<C3dPoint>> = (0..names.len())
+                .map(|k| {
+                    (b[3 * k] && !(f == 2 && k == 5)).then(|| C3dPoint {
+                        position: [v[3 * k] * 1e3, v[3 * k + 1] * 1e3, v[3 * k + 2] * 1e3],
+                        residual: 0.4,
+                        cameras: 6,
+                    })
+                })
+                .collect();
+            row.push(Some(C3dPoint {
+                position: [1.0, 2.0, 3.0],
+                residual: 0.0,
+                cameras: 1,
+            }));
+            row
+        })
+        .collect();
+    let map = names
+        .iter()
+        .map(|n| (format!("S1:{n}"), n.clone()))
+        .collect();
+    (
+        C3d {
+            processor: Processor::Intel,
+            labels,
+            units: "mm".into(),
+            scale,
+            rate: 120.0,
+            first_frame: 1,
+            analog_per_frame: 0,
+            frames,
+        },
+        map,
+    )
+}
+
+fn write_map(path: &Path, map: &[(String, String)]) {
+    let obj: serde_json::Map<String, Value> =
+        map.iter().map(|(a, b)| (a.clone(), json!(b))).collect();
+    std::fs::write(path, Value::Object(obj).to_string()).expect("map");
+}
+
+#[test]
+fn c3d_markers_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let (_, truth) = synth(d, "markers", 8, 41);
+    let (c3d, map) = c3d_of(&truth, -0.1);
+    let file = d.join("capture.c3d");
+    std::fs::write(&file, c3d.to_bytes().expect("C3D bytes")).expect("write");
+    let map_file = d.join("labels.json");
+    write_map(&map_file, &map);
+    let out = d.join("imported.npz");
+    let summary = lfit_json(&[
+        "-q",
+        "data",
+        "import",
+        "--c3d",
+        path_str(&file),
+        "--label-map",
+        path_str(&map_file),
+        "--out",
+        path_str(&out),
+    ]);
+    assert_eq!(summary["ground_truth"], false);
+    assert_eq!(summary["frames"], 8);
+    assert_eq!(summary["import"]["ignored_c3d_labels"], json!(["EXTRA"]));
+
+    let imported = Dataset::load(&out).expect("imported dataset");
+    assert!(!imported.has_ground_truth());
+    assert_eq!(imported.meta.config.fps, 120.0);
+    let (tv, tb) = sparse(&truth);
+    let (iv, ib) = sparse(&imported);
+    let mut max_err: f64 = 0.0;
+    for f in 0..tv.len() {
+        for k in 0..tv[f].len() / 3 {
+            let gap = f == 2 && k == 5;
+            assert_eq!(ib[f][3 * k], tb[f][3 * k] && !gap, "frame {f} marker {k}");
+            if ib[f][3 * k] {
+                for a in 0..3 {
+                    max_err = max_err.max((iv[f][3 * k + a] - tv[f][3 * k + a]).abs());
+                }
+            }
+        }
+    }
+    eprintln!("C3D (float) import: max coordinate error {max_err:.3e} m");
+    assert!(max_err <= 1e-6, "imported positions differ by {max_err} m");
+
+    // Integer points: within half a quantisation step (0.1 mm scale → 0.05 mm).
+    let (c3d_int, _) = c3d_of(&truth, 0.1);
+    let file_int = d.join("capture_int.c3d");
+    std::fs::write(&file_int, c3d_int.to_bytes().expect("C3D bytes")).expect("write");
+    let out_int = d.join("imported_int.npz");
+    lfit_json(&[
+        "-q",
+        "data",
+        "import",
+        "--c3d",
+        path_str(&file_int),
+        "--label-map",
+        path_str(&map_file),
+        "--out",
+        path_str(&out_int),
+    ]);
+    let int = Dataset::load(&out_int).expect("imported");
+    let (jv, jb) = sparse(&int);
+    let mut max_int: f64 = 0.0;
+    for f in 0..tv.len() {
+        for i in 0..tv[f].len() {
+            if jb[f][i] {
+                max_int = max_int.max((jv[f][i] - tv[f][i]).abs());
+            }
+        }
+    }
+    eprintln!("C3D (integer, 0.1 mm) import: max coordinate error {max_int:.3e} m");
+    assert!(max_int <= 5.1e-5);
+
+    let [lm, nn] = fit_both(d, &out, "markers", "mm");
+    // Noise-free markers: once the sequence has caught up, LM explains them to under a mm.
+    assert!(
+        lm[2] < 1.0,
+        "LM marker error on the last frame {} mm",
+        lm[2]
+    );
+    assert!(
+        nn[2] < 10.0,
+        "neural marker error on the last frame {} mm",
+        nn[2]
+    );
+
+    // lfit bench refuses a dataset without ground truth.
+    let cfg = d.join("bench.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "name = \"imported\"\ndata = \"{}\"\nmethods = [\"lm\"]\nbudgets = [10]\n",
+            path_str(&out)
+        ),
+    )
+    .expect("config");
+    let b = lfit(&[
+        "-q",
+        "bench",
+        "--config",
+        path_str(&cfg),
+        "--out",
+        path_str(&d.join("bench")),
+    ]);
+    assert_one_line_error(&b, "no ground truth");
+}
+
+/// COCO keypoint files, one per camera, from a keypoints2d dataset's observations.
+fn coco_files(dir: &Path, d: &Dataset, nj: usize) -> Vec<PathBuf> {
+    let (values, visible) = sparse(d);
+    let layout = KeypointLayout::Coco17;
+    let map = layout.default_map();
+    let cams = d.sensor.cameras();
+    (0..cams.len())
+        .map(|c| {
+            let images: Vec<Value> = (0..values.len())
+                .map(|f| json!({"id": 100 + f, "width": cams[c].width, "height": cams[c].height, "file_name": format!("c{c}_{f:04}.png")}))
+                .collect();
+            let annotations: Vec<Value> = (0..values.len())
+                .map(|f| {
+                    let mut kp = vec![0.0; 3 * COCO17.len()];
+                    for &(j, name) in &map {
+                        let i = 2 * (c * nj + j);
+                        let k = layout.index(name).expect("keypoint");
+                        if visible[f][i] {
+                            kp[3 * k..3 * k + 3].copy_from_slice(&[values[f][i], values[f][i + 1], 2.0]);
+                        }
+                    }
+                    json!({"id": f + 1, "image_id": 100 + f, "category_id": 1, "keypoints": kp, "num_keypoints": 12})
+                })
+                .collect();
+            let p = dir.join(format!("cam{c}.json"));
+            std::fs::write(
+                &p,
+                json!({"images": images, "annotations": annotations, "categories": [{"id": 1, "name": "person"}]}).to_string(),
+            )
+            .expect("coco file");
+            p
+        })
+        .collect()
+}
+
+#[test]
+fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let (_, truth) = synth(d, "keypoints2d", 6, 43);
+    let nj = 18;
+    let files = coco_files(d, &truth, nj);
+    let cams = d.join("cameras.json");
+    std::fs::write(&cams, cameras_json(truth.sensor.cameras())).expect("cameras");
+    let out = d.join("kp.npz");
+    let mut args = vec![
+        "-q".to_string(),
+        "data".into(),
+        "import".into(),
+        "--layout".into(),
+        "coco17".into(),
+        "--camera".into(),
+        path_str(&cams).into(),
+        "--out".into(),
+        path_str(&out).into(),
+        "--keypoints".into(),
+    ];
+    args.extend(files.iter().map(|f| path_str(f).to_string()));
+    let argv: Vec<&str> = args.iter().map(String::as_str).collect();
+    let summary = lfit_json(&argv);
+    assert_eq!(summary["modality"], "keypoints2d");
+    assert_eq!(summary["import"]["cameras"], 6);
+    let imported = Dataset::load(&out).expect("imported");
+    assert!(!imported.has_ground_truth());
+    assert_eq!(imported.sensor.cameras(), truth.sensor.cameras());
+    let (tv, tb) = sparse(&truth);
+    let (iv, ib) = sparse(&imported);
+    let mapped: Vec<usize> = KeypointLayout::Coco17
+        .default_map()
+        .iter()
+        .map(|m| m.0)
+        .collect();
+    let mut max_err: f64 = 0.0;
+    let mut seen = 0;
+    for f in 0..tv.len() {
+        for c in 0..6 {
+            for j in 0..nj {
+                let i = 2 * (c * nj + j);
+                let expect = tb[f][i] && mapped.contains(&j);
+                assert_eq!(ib[f][i], expect, "frame {f} camera {c} joint {j}");
+                if expect {
+                    seen += 1;
+                    max_err = max_err
+                        .max((iv[f][i] - tv[f][i]).abs())
+                        .max((iv[f][i + 1] - tv[f][i + 1]).abs());
+                }
+            }
+        }
+    }
+    eprintln!("COCO import: {seen} keypoints, max pixel error {max_err:.3e} px");
+    assert!(seen > 0 && max_err <= 1e-9);
+    let [lm, nn] = fit_both(d, &out, "keypoints2d", "px");
+    assert!(
+        lm[2] < 0.5,
+        "LM keypoint error on the last frame {} px",
+        lm[2]
+    );
+    assert!(
+        nn[2] < 10.0,
+        "neural keypoint error on the last frame {} px",
+        nn[2]
+    );
+}
+
+#[test]
+fn bad_input_is_one_line_and_writes_nothing() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let (_, truth) = synth(d, "markers", 3, 5);
+    let (c3d, map) = c3d_of(&truth, -0.1);
+    let good = c3d.to_bytes().expect("bytes");
+    let map_file = d.join("labels.json");
+    write_map(&map_file, &map);
+    let out = d.join("never.npz");
+    let run_c3d = |bytes: &[u8], map: &Path, needle: &str| {
+        let f = d.join("bad.c3d");
+        std::fs::write(&f, bytes).expect("write");
+        let o = lfit(&[
+            "data",
+            "import",
+            "--c3d",
+            path_str(&f),
+            "--label-map",
+            path_str(map),
+            "--out",
+            path_str(&out),
+        ]);
+        assert_one_line_error(&o, needle);
+        assert!(!out.exists(), "{needle}: output written");
+    };
+    // A label-map entry whose C3D label is not in the file; one whose model marker is unknown.
+    let mut bad = map.clone();
+    bad[3].0 = "S1:NOSUCH".into();
+    let bad_map = d.join("bad_labels.json");
+    write_map(&bad_map, &bad);
+    run_c3d(&good, &bad_map, "'S1:NOSUCH' is not in the file");
+    let mut bad = map.clone();
+    bad[3].1 = "NOSUCH".into();
+    write_map(&bad_map, &bad);
+    run_c3d(&good, &bad_map, "'NOSUCH' is not a marker");
+    // Truncated data, a cut header, wrong magic, a wrong parameter-section key, NaN.
+    run_c3d(&good[..good.len() - 700], &map_file, "truncated");
+    run_c3d(&good[..200], &map_file, "truncated");
+    let mut b = good.clone();
+    b[1] = 0;
+    run_c3d(&b, &map_file, "not a C3D file");
+    let mut b = good.clone();
+    b[513] = 7;
+    run_c3d(&b, &map_file, "parameter section's key");
+    let mut b = good.clone();
+    let start = (u16::from_le_bytes([b[16], b[17]]) as usize - 1) * 512;
+    b[start..start + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    run_c3d(&b, &map_file, "not finite");
+
+    // Keypoints: the wrong number of values, a missing camera, an unreadable camera file.
+    let kp = d.join("kp.json");
+    std::fs::write(
+        &kp,
+        json!({"images": [{"id": 1}], "annotations": [{"image_id": 1, "keypoints": vec![1.0; 50]}]})
+            .to_string(),
+    )
+    .expect("write");
+    let cams = d.join("cams.json");
+    std::fs::write(&cams, cameras_json(&lfit::model::camera::default_ring(1))).expect("write");
+    let o = lfit(&[
+        "data",
+        "import",
+        "--keypoints",
+        path_str(&kp),
+        "--layout",
+        "coco17",
+        "--camera",
+        path_str(&cams),
+        "--out",
+        path_str(&out),
+    ]);
+    assert_one_line_error(&o, "50 values, expected 51");
+    let o = lfit(&[
+        "data",
+        "import",
+        "--keypoints",
+        path_str(&kp),
+        "--layout",
+        "coco17",
+        "--out",
+        path_str(&out),
+    ]);
+    assert_one_line_error(&o, "--camera");
+    let o = lfit(&[
+        "data",
+        "import",
+        "--keypoints",
+        path_str(&kp),
+        "--layout",
+        "coco17",
+        "--camera",
+        path_str(&d.join("missing.json")),
+        "--out",
+        path_str(&out),
+    ]);
+    assert_one_line_error(&o, "cannot read");
+    let o = lfit(&[
+        "data",
+        "import",
+        "--keypoints",
+        path_str(&kp),
+        "--layout",
+        "coco18",
+        "--camera",
+        path_str(&cams),
+        "--out",
+        path_str(&out),
+    ]);
+    assert_one_line_error(&o, "unknown keypoint layout");
+    assert!(!out.exists());
+}
