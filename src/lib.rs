@@ -10,6 +10,7 @@ pub mod export;
 pub mod fit;
 pub mod fitting;
 pub mod method;
+pub mod motion_cli;
 pub mod plots;
 pub mod presets;
 pub mod report;

@@ -37,6 +37,10 @@ enum Command {
     /// dataset without ground truth.
     #[command(subcommand)]
     Data(lfit::data_import::DataCommand),
+    /// Import motions (BVH through a joint-name map, AMASS-layout npz) as lfit motion files;
+    /// export motion files and fitted sequences as BVH.
+    #[command(subcommand)]
+    Motion(lfit::motion_cli::MotionCommand),
     /// Synthesize a dataset (poses, observations with noise and occlusion) as a numpy .npz file.
     Synth {
         /// Observation modality: markers, keypoints2d, hmd, scan or silhouettes (papers/001: K foreground masks).
@@ -412,6 +416,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
     }
     match cli.command {
         Command::Data(c) => lfit::data_import::run(&c),
+        Command::Motion(c) => lfit::motion_cli::run(&c),
         Command::Template(TemplateCommand::Export {
             out_dir,
             out,

@@ -498,6 +498,7 @@ pub fn rotations_of(pose: &[f64], joints: usize) -> Vec<DMat3> {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use crate::retarget::{JointMap, RetargetOptions, retarget, rotation_angle_between};
@@ -553,6 +554,7 @@ mod tests {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod clip_tests {
     use crate::retarget::{JointMap, RetargetOptions, read_bvh, retarget};
 

@@ -697,6 +697,7 @@ pub fn retarget(
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 
