@@ -507,3 +507,109 @@ fn bad_input_is_one_line_and_writes_nothing() {
     assert_one_line_error(&o, "unknown keypoint layout");
     assert!(!out.exists());
 }
+
+#[test]
+fn openpose_body25_folder_of_one_camera_imports_and_fits_with_lm() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let (_, truth) = synth(d, "keypoints2d", 5, 47);
+    let (values, visible) = sparse(&truth);
+    let layout = KeypointLayout::Body25;
+    let map = layout.default_map();
+    // Camera 0 only; frames as OpenPose writes them, one file each, plus a second, less
+    // confident person in frame 1.
+    let folder = d.join("openpose");
+    std::fs::create_dir(&folder).expect("dir");
+    for f in 0..values.len() {
+        let mut kp = vec![0.0; 75];
+        for &(j, name) in &map {
+            let k = layout.index(name).expect("keypoint");
+            if visible[f][2 * j] {
+                kp[3 * k..3 * k + 3].copy_from_slice(&[
+                    values[f][2 * j],
+                    values[f][2 * j + 1],
+                    0.8,
+                ]);
+            }
+        }
+        let mut people = vec![json!({"person_id": [-1], "pose_keypoints_2d": kp})];
+        if f == 1 {
+            people.push(json!({"person_id": [-1], "pose_keypoints_2d": vec![0.01; 75]}));
+        }
+        std::fs::write(
+            folder.join(format!("clip_{f:012}_keypoints.json")),
+            json!({"version": 1.3, "people": people}).to_string(),
+        )
+        .expect("frame");
+    }
+    let cams = d.join("camera0.json");
+    std::fs::write(&cams, cameras_json(&truth.sensor.cameras()[..1])).expect("camera");
+    let out = d.join("op.npz");
+    let summary = lfit_json(&[
+        "-q",
+        "data",
+        "import",
+        "--keypoints",
+        path_str(&folder),
+        "--layout",
+        "body25",
+        "--camera",
+        path_str(&cams),
+        "--fps",
+        "25",
+        "--out",
+        path_str(&out),
+    ]);
+    assert_eq!(summary["import"]["format"], "openpose");
+    assert_eq!(summary["import"]["crowded_frames"], 1);
+    assert_eq!(summary["import"]["single_view_starts"], 5);
+    let imported = Dataset::load(&out).expect("imported");
+    assert_eq!(imported.len(), 5);
+    assert_eq!(imported.meta.config.fps, 25.0);
+    let (iv, ib) = sparse(&imported);
+    for f in 0..values.len() {
+        for &(j, _) in &map {
+            assert_eq!(ib[f][2 * j], visible[f][2 * j]);
+            if ib[f][2 * j] {
+                assert_eq!(iv[f][2 * j], values[f][2 * j]);
+                assert_eq!(iv[f][2 * j + 1], values[f][2 * j + 1]);
+            }
+        }
+    }
+    let res = d.join("lm.json");
+    let s = lfit_json(&[
+        "-q",
+        "fit",
+        "--data",
+        path_str(&out),
+        "--method",
+        "lm",
+        "--budget",
+        "100",
+        "--out",
+        path_str(&res),
+    ]);
+    let e = s["summary"]["mean_observation_error_px"]
+        .as_f64()
+        .expect("px");
+    eprintln!("OpenPose one camera, LM: mean keypoint error {e:.3} px");
+    assert!(e.is_finite());
+    // The shipped keypoints2d fitter was trained on six cameras: one is a one-line error.
+    let o = lfit(&[
+        "fit",
+        "--data",
+        path_str(&out),
+        "--method",
+        "neural",
+        "--checkpoint",
+        &checkpoint("keypoints2d"),
+        "--budget",
+        "10",
+        "--device",
+        "ndarray",
+        "--out",
+        path_str(&d.join("n.json")),
+    ]);
+    assert_one_line_error(&o, "keypoints2d");
+    assert!(!d.join("n.json").exists());
+}
