@@ -593,6 +593,15 @@ pub fn run(
             .open(&csv)
             .with_context(|| format!("cannot append to {}", csv.display()))?,
     );
+    // Fitted poses of the runs the report's pictures draw (crate::render::pictures).
+    let poses_path = out.join(crate::render::pictures::POSES_FILE);
+    let poses_file = Mutex::new(
+        std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&poses_path)
+            .with_context(|| format!("cannot append to {}", poses_path.display()))?,
+    );
     let total: usize = mine.iter().map(|u| u.frames.len()).sum();
     let counter = std::sync::atomic::AtomicUsize::new(
         mine.iter()
@@ -632,6 +641,16 @@ pub fn run(
                 }
                 let result = fitted.result;
                 let (pose, gt) = (&result.pose, &dataset.gt_poses[frame]);
+                if crate::render::pictures::records_pose(config, budget, rep) {
+                    // Before the row: a run killed in between is redone, its pose line repeated.
+                    let key = (method.clone(), strategy.clone(), budget, rep, frame);
+                    let line = crate::render::pictures::pose_line(&key, pose);
+                    let mut f = poses_file
+                        .lock()
+                        .map_err(|_| anyhow::anyhow!("poses.jsonl lock poisoned"))?;
+                    f.write_all(line.as_bytes())?;
+                    f.flush()?;
+                }
                 let row = Run {
                     method: method.clone(),
                     strategy: strategy.clone(),
@@ -673,6 +692,7 @@ pub fn run(
         todo.iter().try_for_each(work)?;
     }
     drop(file);
+    drop(poses_file);
     let mut runs = read_runs(&csv)?;
     sort_runs(config, &mut runs);
     write_runs(&csv, &runs)?;
@@ -716,6 +736,7 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<(BenchConfig, Vec<Run>)> 
     }
     let mut config: Option<(Vec<u8>, BenchConfig)> = None;
     let mut rows: BTreeMap<(String, String, usize, usize, usize), Run> = BTreeMap::new();
+    let mut poses = std::collections::HashMap::new();
     for dir in shards {
         let bytes = std::fs::read(dir.join("bench.json"))
             .with_context(|| format!("{} is not a bench output (no bench.json)", dir.display()))?;
@@ -733,6 +754,9 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<(BenchConfig, Vec<Run>)> 
         for r in read_runs(&dir.join("runs.csv"))? {
             rows.insert(r.key(), r);
         }
+        poses.extend(crate::render::pictures::read_poses(
+            &dir.join(crate::render::pictures::POSES_FILE),
+        )?);
     }
     let (bytes, config) = config.context("no shard")?;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
@@ -740,5 +764,19 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<(BenchConfig, Vec<Run>)> 
     let mut runs: Vec<Run> = rows.into_values().collect();
     sort_runs(&config, &mut runs);
     write_runs(&out.join("runs.csv"), &runs)?;
+    crate::render::pictures::write_poses(&out.join(crate::render::pictures::POSES_FILE), &poses)?;
+    // A synthesised dataset lives in each shard; the report's pictures read it from `out`.
+    let data = out.join("data.npz");
+    if config.data.is_none()
+        && !data.exists()
+        && let Some(src) = shards
+            .iter()
+            .map(|d| d.join("data.npz"))
+            .find(|p| p.is_file())
+    {
+        let bytes =
+            std::fs::read(&src).with_context(|| format!("cannot read {}", src.display()))?;
+        write_atomic(&data, &bytes)?;
+    }
     Ok((config, runs))
 }

@@ -13,6 +13,7 @@ pub mod method;
 pub mod motion_cli;
 pub mod plots;
 pub mod presets;
+pub mod render;
 pub mod report;
 pub mod stats;
 pub mod tuned;

@@ -171,6 +171,10 @@ enum Command {
     /// Fit frames of a dataset with a classical method; writes per-frame pose, energy, terms,
     /// V2V/MPJPE against the ground truth, evaluations and time.
     Fit(FitCmd),
+    /// Draw fitted frames to PNG: the fit (blue), the ground truth (grey ghost + outline) and the
+    /// observations, front and side (and the dataset's camera for keypoints2d); or bare poses
+    /// and shapes (--pose), or the model at rest.
+    Render(lfit::render::RenderArgs),
     /// Export a neural fitter checkpoint as standard ONNX (opset 17): init.onnx (Φ, Φh),
     /// propose.onnx (f and the Δθ head) and step.onnx (fλγ and the update), with the feature
     /// statistics, DOF mask, N and modality in the metadata (docs/onnx.md).
@@ -530,6 +534,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             bar.finish_and_clear();
             result
         }
+        Command::Render(args) => lfit::render::render(&args),
         Command::Fit(c) => {
             let args = fit::FitArgs {
                 data: c.data,

@@ -1,0 +1,282 @@
+//! Pictures in the reports of `lfit bench` and `lfit quickstart`: per method, its best, median
+//! and worst frame by V2V (repetition 0 at the largest budget), rendered front and side (and the
+//! dataset's camera 0 for camera modalities) into `OUT/pictures/<method>.png` and linked from
+//! `report.md`.
+//!
+//! The fitted poses come from `OUT/poses.jsonl`, which `lfit bench` appends to as runs finish
+//! (one JSON object per line: method, strategy, budget, rep, frame, params; only repetition 0 at
+//! the largest budget, the runs the pictures draw). A torn last line (a killed run) is ignored;
+//! a run recorded twice (a resumed run) keeps its last line.
+
+use std::collections::HashMap;
+use std::fmt::Write as _;
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use lfit_model::skinning::SkinningMethod;
+use lfit_model::template::write_atomic;
+use lfit_synth::Dataset;
+use serde_json::{Value, json};
+
+use super::scene::{Scene, draw};
+use super::{FrameRow, frame_panels, legend};
+use crate::bench::{BenchConfig, Run};
+
+/// File of fitted poses in a bench output directory.
+pub const POSES_FILE: &str = "poses.jsonl";
+/// Folder of the pictures in a bench output directory.
+pub const PICTURES_DIR: &str = "pictures";
+
+/// Key of a run: method, strategy, budget, repetition, frame.
+pub type RunKey = (String, String, usize, usize, usize);
+
+/// Whether `lfit bench` records the pose of a run: repetition 0 at the largest budget.
+pub fn records_pose(config: &BenchConfig, budget: usize, rep: usize) -> bool {
+    rep == 0 && config.budgets.iter().max() == Some(&budget)
+}
+
+/// One line of `poses.jsonl` (with its newline).
+pub fn pose_line(key: &RunKey, params: &[f64]) -> String {
+    let (method, strategy, budget, rep, frame) = key;
+    let mut line = json!({
+        "method": method, "strategy": strategy, "budget": budget, "rep": rep, "frame": frame,
+        "params": params,
+    })
+    .to_string();
+    line.push('\n');
+    line
+}
+
+/// Reads `poses.jsonl` (missing file: empty). Complete lines only; a later line replaces an
+/// earlier one of the same run.
+pub fn read_poses(path: &Path) -> Result<HashMap<RunKey, Vec<f64>>> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(HashMap::new()),
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
+    };
+    let mut lines: Vec<&str> = text.split('\n').collect();
+    // Only lines ended by '\n' are complete.
+    lines.pop();
+    let mut out = HashMap::new();
+    for (i, line) in lines.iter().enumerate() {
+        let parsed = (|| -> Option<(RunKey, Vec<f64>)> {
+            let v: Value = serde_json::from_str(line).ok()?;
+            let n = |k: &str| v.get(k)?.as_u64().and_then(|x| usize::try_from(x).ok());
+            let key = (
+                v.get("method")?.as_str()?.to_string(),
+                v.get("strategy")?.as_str()?.to_string(),
+                n("budget")?,
+                n("rep")?,
+                n("frame")?,
+            );
+            let params = v
+                .get("params")?
+                .as_array()?
+                .iter()
+                .map(Value::as_f64)
+                .collect::<Option<Vec<f64>>>()?;
+            Some((key, params))
+        })();
+        let (key, params) =
+            parsed.with_context(|| format!("{}: malformed line {}", path.display(), i + 1))?;
+        out.insert(key, params);
+    }
+    Ok(out)
+}
+
+/// Writes `poses` as `poses.jsonl` (sorted, for stable bytes).
+pub fn write_poses(path: &Path, poses: &HashMap<RunKey, Vec<f64>>) -> Result<()> {
+    let mut keys: Vec<&RunKey> = poses.keys().collect();
+    keys.sort();
+    let text: String = keys.iter().map(|k| pose_line(k, &poses[*k])).collect();
+    write_atomic(path, text.as_bytes())?;
+    Ok(())
+}
+
+/// File-name form of a method label.
+fn slug(label: &str) -> String {
+    let s: String = label
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() {
+                c.to_ascii_lowercase()
+            } else {
+                '-'
+            }
+        })
+        .collect();
+    let s = s.trim_matches('-').to_string();
+    if s.is_empty() { "method".into() } else { s }
+}
+
+/// Best, median and worst run by V2V (finite ones; fewer when there are fewer runs).
+pub fn best_median_worst<'a>(runs: &[&'a Run]) -> Vec<(&'static str, &'a Run)> {
+    let mut sorted: Vec<&Run> = runs
+        .iter()
+        .copied()
+        .filter(|r| r.v2v_mm.is_finite())
+        .collect();
+    sorted.sort_by(|a, b| a.v2v_mm.total_cmp(&b.v2v_mm).then(a.frame.cmp(&b.frame)));
+    let Some(last) = sorted.len().checked_sub(1) else {
+        return Vec::new();
+    };
+    let mut picks: Vec<(&'static str, usize)> =
+        vec![("best", 0), ("median", last / 2), ("worst", last)];
+    picks.dedup_by_key(|p| p.1);
+    picks.into_iter().map(|(n, i)| (n, sorted[i])).collect()
+}
+
+/// Renders the pictures of a finished sweep in `out` and returns the report's "Pictures"
+/// section (Markdown). Without recorded poses or a dataset the section says so.
+pub fn report_pictures(config: &BenchConfig, runs: &[Run], out: &Path) -> Result<String> {
+    let mut md = String::from("\n## Pictures\n\n");
+    let data = config.data.clone().unwrap_or_else(|| out.join("data.npz"));
+    let poses = read_poses(&out.join(POSES_FILE))?;
+    let Some(&budget) = config.budgets.iter().max() else {
+        return Ok(String::new());
+    };
+    if poses.is_empty() || !data.is_file() {
+        md.push_str(
+            "No pictures: this output has no recorded poses (`poses.jsonl`) or no dataset; a new run into a fresh `--out` records them.\n",
+        );
+        return Ok(md);
+    }
+    let dataset = Dataset::load(&data).with_context(|| format!("dataset {}", data.display()))?;
+    let template = crate::fitting::template_for(&dataset, None)?;
+    let camera = super::view_camera(&dataset, 0).is_some();
+    let _ = writeln!(
+        md,
+        "Best, median and worst frame by V2V of each method at budget {budget} (repetition 0): front, side{} — {}.\n",
+        if camera { " and camera 0" } else { "" },
+        legend(true, true)
+    );
+    let dir = out.join(PICTURES_DIR);
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    for label in crate::report::labels(config, runs) {
+        let mine: Vec<&Run> = runs
+            .iter()
+            .filter(|r| {
+                r.budget == budget && r.rep == 0 && crate::report::label(config, r) == label
+            })
+            .collect();
+        let mut rows = Vec::new();
+        for (which, r) in best_median_worst(&mine) {
+            let key = (
+                r.method.clone(),
+                r.strategy.clone(),
+                r.budget,
+                r.rep,
+                r.frame,
+            );
+            let Some(params) = poses.get(&key) else {
+                continue;
+            };
+            if params.len() != template.layout().dim() || r.frame >= dataset.len() {
+                continue;
+            }
+            rows.push(FrameRow {
+                frame: r.frame,
+                fit: Some(params.clone()),
+                label: format!("{which}: frame {} · V2V {:.1} mm", r.frame, r.v2v_mm),
+            });
+        }
+        if rows.is_empty() {
+            let _ = writeln!(md, "- {label}: no recorded poses\n");
+            continue;
+        }
+        let mut panels = Vec::new();
+        for row in &rows {
+            panels.extend(frame_panels(
+                &template,
+                &dataset,
+                row,
+                0,
+                SkinningMethod::Linear,
+            ));
+        }
+        let columns = panels.len() / rows.len();
+        let scene = Scene {
+            title: format!("{label} @{budget} · {}", dataset.modality()),
+            columns,
+            panels,
+        };
+        let (w, h) = (220 * columns as u32, 270 * rows.len() as u32 + 22);
+        let canvas = draw(&scene, &template.faces, w, h)?;
+        let name = format!("{}.png", slug(&label));
+        write_atomic(&dir.join(&name), &canvas.to_png()?)?;
+        let _ = writeln!(
+            md,
+            "### {label}\n\n![{label}: best, median and worst V2V frame]({PICTURES_DIR}/{name})\n"
+        );
+    }
+    Ok(md)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(frame: usize, v2v: f64) -> Run {
+        Run {
+            method: "cma".into(),
+            strategy: "-".into(),
+            budget: 10,
+            rep: 0,
+            frame,
+            seed: 0,
+            energy: 0.0,
+            start_energy: 0.0,
+            v2v_mm: v2v,
+            mpjpe_mm: 0.0,
+            pa_mpjpe_mm: 0.0,
+            hausdorff_mm: 0.0,
+            evaluations: 0,
+            gradient_evaluations: 0,
+            iterations: 0,
+            time_s: 0.0,
+            trace: Vec::new(),
+            v2v_per_iteration: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn best_median_and_worst_are_picked_by_v2v() {
+        let runs: Vec<Run> = [(0, 5.0), (1, 1.0), (2, f64::NAN), (3, 9.0), (4, 3.0)]
+            .into_iter()
+            .map(|(f, v)| run(f, v))
+            .collect();
+        let refs: Vec<&Run> = runs.iter().collect();
+        let picks: Vec<(&str, usize)> = best_median_worst(&refs)
+            .into_iter()
+            .map(|(n, r)| (n, r.frame))
+            .collect();
+        // Finite V2V sorted: 1 (f1), 3 (f4), 5 (f0), 9 (f3); median index 3 / 2 = 1.
+        assert_eq!(picks, vec![("best", 1), ("median", 4), ("worst", 3)]);
+        let one = [&runs[0]];
+        assert_eq!(best_median_worst(&one).len(), 1);
+        assert!(best_median_worst(&[]).is_empty());
+    }
+
+    #[test]
+    fn poses_round_trip_and_a_torn_line_is_ignored() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(POSES_FILE);
+        let k1: RunKey = ("cma".into(), "-".into(), 10, 0, 3);
+        let k2: RunKey = ("lm".into(), "-".into(), 10, 0, 1);
+        let mut text = pose_line(&k1, &[0.0, 1.5]);
+        text.push_str(&pose_line(&k2, &[2.0]));
+        text.push_str(&pose_line(&k1, &[7.0, 8.0]));
+        text.push_str("{\"method\": \"cm");
+        std::fs::write(&path, &text).unwrap();
+        let poses = read_poses(&path).unwrap();
+        assert_eq!(poses.len(), 2);
+        assert_eq!(poses[&k1], vec![7.0, 8.0], "the later line wins");
+        write_poses(&path, &poses).unwrap();
+        assert_eq!(read_poses(&path).unwrap(), poses);
+        std::fs::write(&path, "not json\n").unwrap();
+        assert!(read_poses(&path).is_err());
+        assert!(read_poses(&dir.path().join("none")).unwrap().is_empty());
+        assert_eq!(slug("cma (grouped)"), "cma--grouped");
+    }
+}
