@@ -21,7 +21,7 @@
 
 use std::sync::OnceLock;
 
-use burn::tensor::{Device, DeviceKind, Tensor, TensorData};
+use burn::tensor::{Device, DeviceKind, Int, Tensor, TensorData};
 use glam::Vec3;
 
 use lfit_model::error::{ModelError, Result};
@@ -178,6 +178,40 @@ impl TensorSkinning {
             dirs,
             joint_dirs,
             posedirs,
+        }
+    }
+
+    /// The same model restricted to the vertices `ids` (in that order): posing it gives exactly
+    /// those rows of the full model's vertices (the joints, which come from the full model's
+    /// regressor through `joint_dirs`, are unchanged). For losses on a subset of a large mesh.
+    ///
+    /// # Panics
+    ///
+    /// If an index is not below [`Self::num_vertices`].
+    pub fn vertex_subset(&self, ids: &[u32]) -> Self {
+        assert!(
+            ids.iter().all(|&v| (v as usize) < self.num_vertices),
+            "vertex_subset: index out of range"
+        );
+        let n = ids.len();
+        let idx = |v: Vec<i64>| {
+            let len = v.len();
+            Tensor::<1, Int>::from_data(TensorData::new(v, [len]), &self.device)
+        };
+        let rows = idx(ids.iter().map(|&v| i64::from(v)).collect());
+        let cols3 = idx(
+            ids.iter()
+                .flat_map(|&v| (0..3).map(move |a| 3 * i64::from(v) + a))
+                .collect(),
+        );
+        Self {
+            rest_vertices: self.rest_vertices.clone().select(0, rows.clone()),
+            weights: self.weights.clone().select(0, rows.clone()),
+            rest_homogeneous: self.rest_homogeneous.clone().select(0, rows),
+            num_vertices: n,
+            dirs: self.dirs.clone().map(|d| d.select(1, cols3.clone())),
+            posedirs: self.posedirs.clone().map(|d| d.select(1, cols3)),
+            ..self.clone()
         }
     }
 
@@ -552,6 +586,40 @@ mod tests {
     use super::*;
     use lfit_model::pose::{POSE_DIM, Pose, rot_offset};
     use lfit_model::skinning::{SkinningMethod, joint_transforms, pose_vertices};
+
+    #[test]
+    fn a_vertex_subset_poses_to_the_same_rows_as_the_full_model() {
+        let device = ndarray_device();
+        let template = lfit_model::morph::smpl_like(3, 300, 6, true);
+        let full = TensorSkinning::new(&template, &device);
+        let ids: Vec<u32> = vec![299, 0, 17, 150, 151, 42];
+        let sub = full.vertex_subset(&ids);
+        assert_eq!(sub.num_vertices(), ids.len());
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let params: Vec<Vec<f64>> = (0..4)
+            .map(|_| {
+                (0..full.param_dim())
+                    .map(|_| rng.random_range(-1.0..1.0))
+                    .collect()
+            })
+            .collect();
+        let a = full.forward(poses_to_tensor(&params, &device));
+        let b = sub.forward(poses_to_tensor(&params, &device));
+        let (av, bv) = (
+            tensor_to_vec3s(a.vertices).unwrap(),
+            tensor_to_vec3s(b.vertices).unwrap(),
+        );
+        for (fa, fb) in av.iter().zip(&bv) {
+            for (k, &v) in ids.iter().enumerate() {
+                assert!((fa[v as usize] - fb[k]).abs().max_element() < 1e-6);
+            }
+        }
+        let (aj, bj) = (
+            tensor_to_vec3s(a.joints).unwrap(),
+            tensor_to_vec3s(b.joints).unwrap(),
+        );
+        assert_eq!(aj, bj);
+    }
 
     #[test]
     fn a_morphable_model_with_another_skeleton_agrees_with_the_cpu() {
