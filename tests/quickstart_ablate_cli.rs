@@ -50,6 +50,14 @@ fn quickstart_compares_every_method_on_every_sparse_modality() {
                 && dir.join("plots/energy_vs_evaluations.png").exists()
         );
         assert!(dir.join("plots/neural_error_per_iteration.png").exists());
+        // Best, median and worst frame of every method, rendered and linked (src/render).
+        for method in ["neural", "lbfgs", "lm", "cma", "pso"] {
+            assert!(
+                md.contains(&format!("](pictures/{method}.png)"))
+                    && dir.join(format!("pictures/{method}.png")).is_file(),
+                "{m}: no picture of {method}"
+            );
+        }
     }
     assert_eq!(
         std::fs::read_to_string(out_dir.join("comparison.md"))

@@ -387,13 +387,18 @@ fn dataset_scene(
         .file_name()
         .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
     let method = fitted.as_ref().map(|(_, m)| m.as_str());
+    let views = super::view_names(&dataset, args.camera);
     let title = match method {
         Some(m) => format!(
-            "{m} on {name} ({}) · {}",
+            "{m} on {name} ({}) · {views} · {}",
             dataset.modality(),
             legend(true, dataset.has_ground_truth())
         ),
-        None => format!("{name} ({}) · {}", dataset.modality(), legend(false, true)),
+        None => format!(
+            "{name} ({}) · {views} · {}",
+            dataset.modality(),
+            legend(false, true)
+        ),
     };
     let scene = Scene {
         title,

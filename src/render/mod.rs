@@ -172,16 +172,18 @@ pub fn frame_panels(
     }
     views
         .into_iter()
-        .map(|(view, name)| {
+        .enumerate()
+        .map(|(k, (view, name))| {
             let name = if name == "camera" {
                 format!("camera {camera}")
             } else {
                 name.to_string()
             };
-            let label = if row.label.is_empty() {
+            // The row's label instead of the first view's name (the title names the views).
+            let label = if row.label.is_empty() || k > 0 {
                 name
             } else {
-                format!("{} · {name}", row.label)
+                row.label.clone()
             };
             let camera_view = matches!(view, View::Camera(_));
             let mut panel = Panel::new(view, label);
@@ -198,6 +200,14 @@ pub fn frame_panels(
             panel
         })
         .collect()
+}
+
+/// The views of a frame row, for titles: `front | side` and the camera if any.
+pub fn view_names(dataset: &Dataset, camera: usize) -> String {
+    match view_camera(dataset, camera) {
+        Some(_) => format!("front | side | camera {camera}"),
+        None => "front | side".to_string(),
+    }
 }
 
 /// The legend of a picture of fits.

@@ -175,6 +175,14 @@ pub fn report_pictures(config: &BenchConfig, runs: &[Run], out: &Path) -> Result
             if params.len() != template.layout().dim() || r.frame >= dataset.len() {
                 continue;
             }
+            // A pose that does not give the row's V2V is not this run's (a stale file): skip.
+            let Some(gt) = dataset.ground_truth(r.frame) else {
+                continue;
+            };
+            let v2v = lfit_model::metrics::v2v_mm(&template, params, gt);
+            if (v2v - r.v2v_mm).abs() > 1e-3 * (1.0 + r.v2v_mm.abs()) {
+                continue;
+            }
             rows.push(FrameRow {
                 frame: r.frame,
                 fit: Some(params.clone()),
@@ -197,7 +205,11 @@ pub fn report_pictures(config: &BenchConfig, runs: &[Run], out: &Path) -> Result
         }
         let columns = panels.len() / rows.len();
         let scene = Scene {
-            title: format!("{label} @{budget} · {}", dataset.modality()),
+            title: format!(
+                "{label} @{budget} · {} · {}",
+                dataset.modality(),
+                super::view_names(&dataset, 0)
+            ),
             columns,
             panels,
         };

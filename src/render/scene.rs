@@ -192,11 +192,11 @@ pub fn layout(scene: &Scene, width: u32, height: u32) -> Layout {
     let title = if scene.title.is_empty() {
         0
     } else {
-        (height / 24).clamp(12, 26)
+        (height / 24).min(width / 28).clamp(12, 26)
     };
     let cell_w = width / columns;
     let cell_h = height.saturating_sub(title) / rows;
-    let label = (cell_h / 14).clamp(10, 20);
+    let label = (cell_h / 14).min(cell_w / 14).clamp(10, 20);
     let cells = (0..scene.panels.len() as u32)
         .map(|i| {
             let (r, c) = (i / columns, i % columns);
