@@ -397,7 +397,7 @@ fn dataset_scene(
         None => format!(
             "{name} ({}) · {views} · {}",
             dataset.modality(),
-            legend(false, true)
+            legend(false, dataset.has_ground_truth())
         ),
     };
     let scene = Scene {

@@ -215,6 +215,7 @@ pub fn legend(has_fit: bool, has_truth: bool) -> &'static str {
     match (has_fit, has_truth) {
         (true, true) => "fit blue, truth grey, observed red (ring: hidden)",
         (true, false) => "fit blue, observed red (ring: hidden)",
-        (false, _) => "truth, observed red (ring: hidden)",
+        (false, true) => "truth, observed red (ring: hidden)",
+        (false, false) => "observed red (no ground truth)",
     }
 }
