@@ -10,7 +10,7 @@ use lfit_model::observe::{Modality, Sensor};
 use lfit_model::template::Template;
 use lfit_model::{BodyShape, build_template};
 use lfit_synth::{
-    Dataset, NoiseConfig, Observations, PoseSource, Scenario, SynthConfig, synthesize,
+    Dataset, MotionFile, NoiseConfig, Observations, PoseSource, Scenario, SynthConfig, synthesize,
 };
 use serde_json::{Value, json};
 
@@ -52,13 +52,54 @@ pub struct SynthArgs {
     pub seed: u64,
     pub fps: f64,
     pub noise: f64,
+    /// Comma-separated procedural motions (`--library-motions`; default: all).
     pub motions: Option<String>,
     pub out: PathBuf,
+}
+
+/// Imported motion files of `lfit synth` (`--motions FILE...`, `--with-library`).
+#[derive(Debug, Clone, Default)]
+pub struct MotionFilesArgs {
+    pub files: Vec<PathBuf>,
+    pub with_library: bool,
+}
+
+/// Reads imported motion files for `template` (paths as given, relative to the working
+/// directory). A missing file whose name lists procedural motions says where those go.
+pub fn load_motion_files(files: &[PathBuf], template: &Template) -> Result<Vec<MotionFile>> {
+    files
+        .iter()
+        .map(|path| {
+            if !path.exists() {
+                let text = path.to_string_lossy();
+                let kinds = text
+                    .split(',')
+                    .all(|m| m.trim().parse::<lfit_synth::motion::MotionKind>().is_ok());
+                if kinds {
+                    anyhow::bail!(
+                        "motion file {text} does not exist: --motions takes motion files (lfit motion import); procedural motions are chosen with --library-motions {text}"
+                    );
+                }
+            }
+            Ok(MotionFile::load(path, template)?)
+        })
+        .collect()
 }
 
 /// `lfit synth`: generates a dataset and writes it atomically; `progress` gets frames done.
 pub fn synth(
     args: &SynthArgs,
+    template: &Template,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Value> {
+    synth_with_motions(args, &MotionFilesArgs::default(), template, progress)
+}
+
+/// [`synth`] drawing target poses from imported motion files (next to the library with
+/// `with_library`); see [`lfit_synth::synth`] for how their frames are used.
+pub fn synth_with_motions(
+    args: &SynthArgs,
+    files: &MotionFilesArgs,
     template: &Template,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Value> {
@@ -78,13 +119,15 @@ pub fn synth(
             })
             .collect::<Result<_, _>>()?;
     }
+    config.motion_files = load_motion_files(&files.files, template)?;
+    config.with_library = files.with_library;
     config.validate()?;
     let sensor = Sensor::default_for(modality, template);
     let start = Instant::now();
     let dataset = synthesize(&config, template, &sensor, progress)?;
     dataset.save(&args.out)?;
     let bytes = std::fs::metadata(&args.out).map(|m| m.len()).unwrap_or(0);
-    Ok(json!({
+    let mut summary = json!({
         "out": args.out,
         "modality": modality,
         "scenario": scenario,
@@ -96,7 +139,17 @@ pub fn synth(
         "visible_fraction": visible_fraction(&dataset),
         "bytes": bytes,
         "seconds": start.elapsed().as_secs_f64(),
-    }))
+    });
+    if !config.motion_files.is_empty() {
+        // Which frames came from the files, and how many of them were clamped into the bounds.
+        let names = &dataset.meta.frame_motions;
+        summary["motion_files"] = json!(config.motion_files);
+        summary["frames_from_files"] = json!(names.iter().filter(|m| m.contains(':')).count());
+        summary["frames_clamped"] =
+            json!(names.iter().filter(|m| m.ends_with("(clamped)")).count());
+        summary["fps"] = json!(dataset.meta.config.fps);
+    }
+    Ok(summary)
 }
 
 /// Fraction of observation entries (or scan points, or foreground mask pixels) that are

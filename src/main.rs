@@ -61,7 +61,8 @@ enum Command {
         /// Output file (.npz).
         #[arg(long)]
         out: PathBuf,
-        /// Pose source: motion (procedural motion library) or uniform (uniform in the global bounds).
+        /// Pose source: motion (the procedural motion library, or the --motions files) or
+        /// uniform (uniform in the global bounds).
         #[arg(long, default_value = "motion")]
         source: String,
         /// Noise and occlusion scale: 0 = noise-free, 1 = the defaults of lfit_synth::NoiseConfig.
@@ -70,9 +71,24 @@ enum Command {
         /// Frame rate of sequences, Hz.
         #[arg(long, default_value_t = 30.0)]
         fps: f64,
-        /// Comma-separated motions to draw from (default: all).
+        /// Imported motion files (`lfit motion import`, made for this model) to draw the target
+        /// poses from instead of the procedural library. local/global: each frame is a random
+        /// frame of a random file, its start an earlier frame of the same file (0.03-0.25 s)
+        /// clamped into the local box (global: the rest pose); sequence: consecutive frames of
+        /// one file (every k-th, k = the file's rate / --fps rounded; the dataset records the
+        /// rate). Rotations and root height are the file's; the root's x/z is moved onto the
+        /// floor as for the library; targets outside the model's bounds are clamped into them
+        /// (their frame_motions name ends in "(clamped)"); shape is drawn from the prior.
+        #[arg(long, num_args = 1.., value_name = "FILE")]
+        motions: Vec<PathBuf>,
+        /// With --motions: also draw from the procedural library (each frame, or the whole
+        /// sequence, from the library or the files by a fair coin).
         #[arg(long)]
-        motions: Option<String>,
+        with_library: bool,
+        /// Comma-separated procedural motions to draw from (default: all): walk, jog, wave,
+        /// squat, reach, punch, kick, jump, turn.
+        #[arg(long, value_name = "LIST")]
+        library_motions: Option<String>,
         #[command(flatten)]
         template: TemplateArg,
     },
@@ -514,6 +530,8 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             noise,
             fps,
             motions,
+            with_library,
+            library_motions,
             template,
         } => {
             let template = commands::load_model(template.template.as_deref(), &template.shape)?;
@@ -525,12 +543,18 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 seed,
                 fps,
                 noise,
-                motions,
+                motions: library_motions,
                 out,
+            };
+            let files = lfit::data::MotionFilesArgs {
+                files: motions,
+                with_library,
             };
             // Settings are checked before the progress bar appears.
             let bar = progress_bar(frames, cli.quiet, "synth");
-            let result = commands::synth(&args, &template, &|done| bar.set_position(done as u64));
+            let result = lfit::data::synth_with_motions(&args, &files, &template, &|done| {
+                bar.set_position(done as u64)
+            });
             bar.finish_and_clear();
             result
         }

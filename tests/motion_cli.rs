@@ -1326,3 +1326,64 @@ fn the_mocapbank_clip_drives_the_makehuman_game_engine_rig() {
     );
     assert!(mean >= 0.98, "mean cosine {mean}");
 }
+
+#[test]
+fn the_mocapbank_clip_drives_the_makehuman_cmu_mb_model_and_feeds_synth() {
+    let Some(clip_path) = mocapbank_clip() else {
+        return skip_unless_required(
+            "the MocapBank clip is not fetched (scripts/fetch-mocapbank.sh, LFIT_MOCAPBANK_BVH)",
+            Some("LFIT_MOCAPBANK_BVH"),
+        );
+    };
+    let dir = tempfile::tempdir().unwrap();
+    // The committed CC0 model: no MakeHuman assets needed.
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/makehuman-cmu_mb.npz");
+    let (mean, min, bones, summary, clip, _) = clip_cosines(
+        dir.path(),
+        &clip_path,
+        &model,
+        "mocapbank_to_makehuman_cmu_mb.json",
+    );
+    assert_eq!(bones, 18);
+    println!(
+        "MocapBank clip (455 frames, {bones} bones) -> MakeHuman cmu_mb (committed model): bone-direction cosine mean {mean:.4}, min {min:.4} (root motion scale {:.3})",
+        summary["root_scale"].as_f64().unwrap()
+    );
+    assert!(mean >= 0.98, "mean cosine {mean}");
+    // The imported clip feeds lfit synth on the same model: a sequence of its frames.
+    let motion = dir.path().join("mocapbank_to_makehuman_cmu_mb.json.npz");
+    let data = dir.path().join("clip_sequence.npz");
+    let synth = lfit_json(&[
+        "synth",
+        "--quiet",
+        "--modality",
+        "keypoints2d",
+        "--scenario",
+        "sequence",
+        "--frames",
+        "60",
+        "--template",
+        path_str(&model),
+        "--motions",
+        path_str(&motion),
+        "--out",
+        path_str(&data),
+    ]);
+    assert_eq!(synth["frames_from_files"], 60);
+    let d = lfit::synth::Dataset::load(&data).unwrap();
+    let first: usize = d.meta.frame_motions[0]
+        .trim_end_matches(" (clamped)")
+        .rsplit(':')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    for (i, gt) in d.gt_poses.iter().enumerate() {
+        // Root height: the clip's; rotations: the clip's within the model's limits.
+        assert_eq!(gt[1], clip.poses[first + i][1]);
+    }
+    println!(
+        "lfit synth --motions: 60 sequence frames of the clip on makehuman-cmu_mb, {} clamped into the joint limits",
+        synth["frames_clamped"]
+    );
+}

@@ -26,6 +26,10 @@ pub enum SynthError {
         "unknown body shape '{0}' (expected one of default, tall, short, heavy, slim, long-legs, long-arms)"
     )]
     UnknownShape(String),
+    #[error(transparent)]
+    Motion(#[from] crate::retarget::MotionError),
+    #[error("motion file {path}: {reason}")]
+    MotionFile { path: String, reason: String },
     #[error("invalid setting {name} = {value}: {reason}")]
     Setting {
         name: &'static str,

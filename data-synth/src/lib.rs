@@ -18,4 +18,4 @@ pub mod synth;
 pub use dataset::{Dataset, Meta, Observations};
 pub use error::SynthError;
 pub use noise::NoiseConfig;
-pub use synth::{PoseSource, Scenario, SynthConfig, synthesize};
+pub use synth::{MotionFile, PoseSource, Scenario, SynthConfig, synthesize};

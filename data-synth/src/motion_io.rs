@@ -46,7 +46,7 @@ fn invalid<T>(msg: impl Into<String>) -> Result<T, MotionError> {
 }
 
 /// A motion in a model's parameter layout.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct MotionClip {
     pub poses: Vec<Vec<f64>>,
     pub fps: f64,

@@ -1,9 +1,11 @@
-//! Dataset generation: poses from the motion library or uniform sampling, the scenarios of
-//! papers/000 §4 (a start pose and a target per frame), observations from the model crate's
-//! observation models, then noise and occlusion.
+//! Dataset generation: poses from the motion library, imported motion files or uniform
+//! sampling, the scenarios of papers/000 §4 (a start pose and a target per frame), observations
+//! from the model crate's observation models, then noise and occlusion.
 
 use std::fmt;
+use std::path::Path;
 use std::str::FromStr;
+use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::Vec3;
@@ -23,6 +25,7 @@ use serde::{Deserialize, Serialize};
 use crate::dataset::{Dataset, FORMAT_VERSION, Meta, Observations};
 use crate::error::SynthError;
 use crate::motion::{MotionKind, MotionParams, motion_pose};
+use crate::motion_io::MotionClip;
 use crate::noise::NoiseConfig;
 
 /// The experiment cases of papers/000 §4.
@@ -67,7 +70,8 @@ impl FromStr for Scenario {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum PoseSource {
-    /// The procedural motion library.
+    /// Motion: the procedural motion library, or the imported motion files of
+    /// [`SynthConfig::motion_files`] (with [`SynthConfig::with_library`]: both).
     Motion,
     /// Uniform sampling within the global bounds (root height within ±0.3 m of standing).
     Uniform,
@@ -95,8 +99,108 @@ pub struct SynthConfig {
     /// Frame rate of sequences, Hz.
     pub fps: f64,
     pub noise: NoiseConfig,
-    /// Motions drawn from (all by default).
+    /// Procedural motions drawn from (all by default).
     pub motions: Vec<MotionKind>,
+    /// Imported motion files (`lfit motion import`) that `source = motion` draws its frames
+    /// from instead of the procedural library; empty: the library. Recorded in the dataset's
+    /// metadata by path, size and hash (absent when empty, so other datasets keep their bytes).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub motion_files: Vec<MotionFile>,
+    /// With motion files: each frame (a sequence: the whole sequence) comes from the library or
+    /// from a file by a fair coin.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub with_library: bool,
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
+}
+
+/// An imported motion file (`lfit motion import`: poses in a model's parameter layout) that
+/// synthesis draws target poses from. Only its description is serialised (the dataset's
+/// metadata says where its frames came from); [`MotionFile::load`] reads the poses.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MotionFile {
+    /// The path as given.
+    pub path: String,
+    /// The file's own record of its origin (e.g. `bvh:clip.bvh map:map.json`).
+    pub source: String,
+    pub frames: usize,
+    /// Frame rate, Hz.
+    pub fps: f64,
+    /// FNV-1a (64 bit) of the poses' little-endian f64 bytes, in hex: which contents were used.
+    pub poses_hash: String,
+    /// The poses (not serialised: a config read back from a dataset has none).
+    #[serde(skip)]
+    pub clip: Option<Arc<MotionClip>>,
+}
+
+impl MotionFile {
+    /// Reads a motion file and checks it against `template` (a motion made for another
+    /// parameter layout is refused).
+    pub fn load(path: &Path, template: &Template) -> Result<Self, SynthError> {
+        let clip = MotionClip::read(path)?;
+        Self::from_clip(&path.display().to_string(), clip, template)
+    }
+
+    /// A motion held in memory, named `path`, checked against `template`.
+    pub fn from_clip(
+        path: &str,
+        clip: MotionClip,
+        template: &Template,
+    ) -> Result<Self, SynthError> {
+        let bad = |reason: String| SynthError::MotionFile {
+            path: path.to_string(),
+            reason,
+        };
+        clip.check_model(template).map_err(|e| bad(e.to_string()))?;
+        let dim = template.layout().dim();
+        if clip.poses.is_empty() || clip.poses.iter().any(|p| p.len() != dim) {
+            return Err(bad(format!(
+                "needs at least one pose of {dim} numbers per frame"
+            )));
+        }
+        if clip.poses.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(bad("a pose value is not finite".into()));
+        }
+        if !(clip.fps.is_finite() && clip.fps > 0.0) {
+            return Err(bad(format!("frame rate {} is not positive", clip.fps)));
+        }
+        let mut hash = 0xcbf2_9ce4_8422_2325_u64;
+        for byte in clip.poses.iter().flatten().flat_map(|v| v.to_le_bytes()) {
+            hash = (hash ^ u64::from(byte)).wrapping_mul(0x0100_0000_01b3);
+        }
+        Ok(Self {
+            path: path.to_string(),
+            source: clip.source.clone(),
+            frames: clip.poses.len(),
+            fps: clip.fps,
+            poses_hash: format!("{hash:016x}"),
+            clip: Some(Arc::new(clip)),
+        })
+    }
+
+    /// The file's name, for the per-frame motion names (`walk.npz:17`).
+    pub fn label(&self) -> String {
+        Path::new(&self.path)
+            .file_name()
+            .map_or_else(|| self.path.clone(), |n| n.to_string_lossy().into_owned())
+    }
+
+    fn poses(&self) -> Result<&[Vec<f64>], SynthError> {
+        match &self.clip {
+            Some(c) if c.poses.len() == self.frames => Ok(&c.poses),
+            _ => Err(SynthError::MotionFile {
+                path: self.path.clone(),
+                reason: "its poses are not loaded (a configuration read back from a dataset holds only the file's description)".into(),
+            }),
+        }
+    }
+
+    /// Frames between two sequence frames so that the sequence runs near `fps` (at least 1).
+    fn stride(&self, fps: f64) -> usize {
+        ((self.fps / fps).round() as usize).max(1)
+    }
 }
 
 impl SynthConfig {
@@ -110,7 +214,14 @@ impl SynthConfig {
             fps: 30.0,
             noise: NoiseConfig::default(),
             motions: MotionKind::ALL.to_vec(),
+            motion_files: Vec::new(),
+            with_library: false,
         }
+    }
+
+    /// Whether frames may come from the procedural library.
+    fn uses_library(&self) -> bool {
+        self.source == PoseSource::Motion && (self.motion_files.is_empty() || self.with_library)
     }
 
     pub fn validate(&self) -> Result<(), SynthError> {
@@ -136,6 +247,23 @@ impl SynthConfig {
                 "uniform".into(),
                 "sequences need smooth motion: use --source motion",
             );
+        }
+        if self.source == PoseSource::Uniform && !self.motion_files.is_empty() {
+            return setting(
+                "source",
+                "uniform".into(),
+                "motion files (--motions) are drawn from by --source motion",
+            );
+        }
+        if self.with_library && self.motion_files.is_empty() {
+            return setting(
+                "with_library",
+                "true".into(),
+                "mixes the library with motion files: give them (--motions FILE...)",
+            );
+        }
+        for f in &self.motion_files {
+            f.poses()?;
         }
         Ok(())
     }
@@ -169,7 +297,7 @@ pub fn synthesize(
             reason: format!("does not match modality {}", config.modality),
         });
     }
-    let (starts, targets, motions) = scenario_poses(config, template)?;
+    let (starts, targets, motions, fps) = scenario_poses(config, template)?;
     let done = AtomicUsize::new(0);
     let layout = template.layout();
     if let Some(i) = (0..config.frames).find(|&i| targets[i].len() != layout.dim()) {
@@ -216,7 +344,10 @@ pub fn synthesize(
             version: FORMAT_VERSION,
             template_id: template.id.clone(),
             template_vertices: template.num_vertices(),
-            config: config.clone(),
+            config: SynthConfig {
+                fps,
+                ..config.clone()
+            },
             frame_motions: motions,
             pose_dim: layout.pose_dim(),
             shape_dim: layout.shape,
@@ -268,26 +399,66 @@ fn subject_coefficients(layout: &Layout, seed: u64, index: u64) -> Vec<f64> {
         .collect()
 }
 
-/// Per frame: start parameters, target parameters, and the motion behind the frame.
-type ScenarioPoses = (Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<String>);
+/// Start parameters, target parameters, the motion behind each frame, and the frame rate of
+/// a sequence (the requested one, or that of the motion file's frames it holds).
+type ScenarioPoses = (Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<String>, f64);
+
+/// The name of frame `index` of `file` in `frame_motions`: `clip.npz:17`, with ` (clamped)`
+/// when the frame was moved into the model's bounds.
+fn file_frame_name(file: &MotionFile, index: usize, clamped: bool) -> String {
+    let suffix = if clamped { " (clamped)" } else { "" };
+    format!("{}:{index}{suffix}", file.label())
+}
 
 /// Start parameters, targets and the motion behind each frame, in `template`'s layout. Targets
 /// carry the subject's shape and expression; starts have the mean (zero) coefficients: a fitter
 /// does not know them.
+///
+/// Frames of motion files (`config.motion_files`) follow the library's rules: the pose's
+/// rotations and root height are the file's frame, its root x/z is moved onto the capture
+/// floor as the library's are (local/global: a random spot within ±0.6 m, the previous frame
+/// keeping its step; sequence: the window's mean x/z at the origin); local starts are an
+/// earlier frame of the same file (0.03–0.25 s before; a later one near the file's start)
+/// clamped into the target's local box, global starts the rest pose. Targets are clamped into
+/// the model's global bounds (sequences: the rotations into the joint limits); the shape and
+/// expression coefficients of a file's poses are not used (the subject's are drawn from the
+/// prior as for the library).
 fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioPoses, SynthError> {
     let layout = template.layout();
     let global = Bounds::global_for(template);
     let pd = layout.pose_dim();
     let n = config.frames;
-    if config.source == PoseSource::Motion && template.info.joint_map.iter().all(Option::is_none) {
+    if config.uses_library() && template.info.joint_map.iter().all(Option::is_none) {
         return Err(SynthError::Setting {
             name: "source",
             value: "motion".into(),
             reason: format!(
-                "model '{}' maps none of its joints to the papers/000 skeleton (lfit key 'joint_map'): use --source uniform",
-                template.id
+                "model '{}' maps none of its joints to the papers/000 skeleton (lfit key 'joint_map'): use --source uniform{}",
+                template.id,
+                if config.with_library {
+                    " or motion files without the library"
+                } else {
+                    " or motion files (--motions)"
+                }
             ),
         });
+    }
+    let files = if config.source == PoseSource::Motion {
+        &config.motion_files[..]
+    } else {
+        &[]
+    };
+    let mut clips = Vec::with_capacity(files.len());
+    for f in files {
+        let poses = f.poses()?;
+        if let Some(clip) = &f.clip {
+            clip.check_model(template)
+                .map_err(|e| SynthError::MotionFile {
+                    path: f.path.clone(),
+                    reason: e.to_string(),
+                })?;
+        }
+        clips.push(poses);
     }
     let with_coefficients = |mut pose: Vec<f64>, coefficients: &[f64]| {
         pose.extend_from_slice(coefficients);
@@ -295,14 +466,57 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
     };
     let zeros = vec![0.0; layout.shape + layout.expression];
     if config.scenario == Scenario::Sequence {
-        let mut rng = stream(config.seed, POSE_STREAM);
-        let kind = config.motions[rng.random_range(0..config.motions.len())];
-        let params = MotionParams::sample(kind, &mut rng);
-        let t0 = rng.random_range(0.0..2.0);
-        // One frame before the first, so that frame 0 also has a previous pose to start from.
-        let mut poses: Vec<Pose> = (0..=n)
-            .map(|k| motion_pose(kind, &params, t0 + (k as f64 - 1.0) / config.fps))
+        // A window of n + 1 frames (one before the first) of a file, at its stride.
+        let eligible: Vec<usize> = (0..files.len())
+            .filter(|&k| files[k].frames > n * files[k].stride(config.fps))
             .collect();
+        if !files.is_empty() && eligible.is_empty() {
+            return Err(SynthError::Setting {
+                name: "frames",
+                value: n.to_string(),
+                reason: format!(
+                    "a sequence of {n} frames needs {} consecutive frames of a motion file (one before the first) at about {} Hz; the longest file has {}",
+                    n + 1,
+                    config.fps,
+                    files.iter().map(|f| f.frames).max().unwrap_or(0)
+                ),
+            });
+        }
+        let mut rng = stream(config.seed, POSE_STREAM);
+        let from_file = !files.is_empty() && (!config.with_library || rng.random_bool(0.5));
+        let (mut poses, names, fps): (Vec<Vec<f64>>, Vec<String>, f64) = if from_file {
+            let k = eligible[rng.random_range(0..eligible.len())];
+            let file = &files[k];
+            let stride = file.stride(config.fps);
+            let first = rng.random_range(0..=file.frames - 1 - n * stride);
+            let mut names = Vec::with_capacity(n + 1);
+            let poses = (0..=n)
+                .map(|i| {
+                    let index = first + i * stride;
+                    let mut pose = clips[k][index][..pd].to_vec();
+                    let before = pose.clone();
+                    global.clamp(&mut pose[..]);
+                    // Rotations into the limits; the path stays the file's (centred below).
+                    pose[..3].copy_from_slice(&before[..3]);
+                    names.push(file_frame_name(file, index, pose != before));
+                    pose
+                })
+                .collect();
+            (poses, names, file.fps / stride as f64)
+        } else {
+            let kind = config.motions[rng.random_range(0..config.motions.len())];
+            let params = MotionParams::sample(kind, &mut rng);
+            let t0 = rng.random_range(0.0..2.0);
+            // One frame before the first, so that frame 0 also has a previous pose to start from.
+            let poses: Vec<Pose> = (0..=n)
+                .map(|k| motion_pose(kind, &params, t0 + (k as f64 - 1.0) / config.fps))
+                .collect();
+            (
+                poses.iter().map(|p| p.to_vec()).collect(),
+                vec![kind.name().to_string(); n + 1],
+                config.fps,
+            )
+        };
         let (mx, mz) = poses
             .iter()
             .fold((0.0, 0.0), |(x, z), p| (x + p[0], z + p[2]));
@@ -313,18 +527,52 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
         // One subject for the whole sequence; every frame starts from the previous frame's truth.
         let subject = subject_coefficients(&layout, config.seed, 0);
         let poses: Vec<Vec<f64>> = poses
-            .iter()
-            .map(|p| with_coefficients(retarget(p, template, &layout), &subject))
+            .into_iter()
+            .map(|p| {
+                let p = if from_file {
+                    p
+                } else {
+                    let mut pose = [0.0; POSE_DIM];
+                    pose.copy_from_slice(&p);
+                    retarget(&pose, template, &layout)
+                };
+                with_coefficients(p, &subject)
+            })
             .collect();
         let starts = poses[..n].to_vec();
         let targets = poses[1..].to_vec();
-        return Ok((starts, targets, vec![kind.name().to_string(); n]));
+        return Ok((starts, targets, names[1..].to_vec(), fps));
     }
     let per_frame: Vec<(Vec<f64>, Vec<f64>, String)> = (0..n)
         .into_par_iter()
         .map(|i| {
             let mut rng = stream(config.seed, POSE_STREAM + 1 + i as u64);
+            let from_file = !files.is_empty() && (!config.with_library || rng.random_bool(0.5));
             let (mut target, previous, name) = match config.source {
+                PoseSource::Motion if from_file => {
+                    let k = rng.random_range(0..files.len());
+                    let (file, poses) = (&files[k], clips[k]);
+                    let index = rng.random_range(0..poses.len());
+                    let dt = rng.random_range(1.0 / 30.0..0.25);
+                    let step = ((dt * file.fps).round() as usize).max(1);
+                    let before = if index >= step {
+                        index - step
+                    } else {
+                        (index + step).min(poses.len() - 1)
+                    };
+                    let mut target = poses[index][..pd].to_vec();
+                    let mut previous = poses[before][..pd].to_vec();
+                    let (x, z) = (rng.random_range(-0.6..0.6), rng.random_range(-0.6..0.6));
+                    let (tx, tz) = (target[0], target[2]);
+                    for p in [&mut previous, &mut target] {
+                        p[0] += x - tx;
+                        p[2] += z - tz;
+                    }
+                    let mut clamped = target.clone();
+                    global.clamp(&mut clamped[..]);
+                    let name = file_frame_name(file, index, clamped != target);
+                    (target, previous, name)
+                }
                 PoseSource::Motion => {
                     let kind = config.motions[rng.random_range(0..config.motions.len())];
                     let params = MotionParams::sample(kind, &mut rng);
@@ -396,7 +644,7 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
         targets.push(t);
         names.push(m);
     }
-    Ok((starts, targets, names))
+    Ok((starts, targets, names, config.fps))
 }
 
 enum FrameObs {
@@ -513,6 +761,7 @@ fn assemble_scan(frames: Vec<FrameObs>, sensor: &Sensor) -> Result<Observations,
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use lfit_model::default_template;
@@ -524,7 +773,7 @@ mod tests {
             for source in [PoseSource::Motion, PoseSource::Uniform] {
                 let mut c = SynthConfig::new(Modality::Markers, scenario, 40, 5);
                 c.source = source;
-                let (starts, targets, _) = scenario_poses(&c, &t).unwrap();
+                let (starts, targets, _, _) = scenario_poses(&c, &t).unwrap();
                 for (s, g) in starts.iter().zip(&targets) {
                     assert!(Bounds::global().contains(g), "{scenario} {source:?}");
                     match scenario {
@@ -535,7 +784,7 @@ mod tests {
             }
         }
         let c = SynthConfig::new(Modality::Markers, Scenario::Sequence, 30, 5);
-        let (starts, targets, _) = scenario_poses(&c, &t).unwrap();
+        let (starts, targets, _, _) = scenario_poses(&c, &t).unwrap();
         for i in 1..30 {
             assert_eq!(starts[i], targets[i - 1]);
         }
@@ -546,7 +795,7 @@ mod tests {
         let (m, _) = lfit_model::body::morphable_default_template().unwrap();
         let layout = m.layout();
         let mut c = SynthConfig::new(Modality::Markers, Scenario::Local, 200, 5);
-        let (starts, targets, _) = scenario_poses(&c, &m).unwrap();
+        let (starts, targets, _, _) = scenario_poses(&c, &m).unwrap();
         let global = Bounds::global_for(&m);
         let mut second_moment = 0.0;
         for (s, g) in starts.iter().zip(&targets) {
@@ -564,12 +813,187 @@ mod tests {
         assert!((0.85..1.15).contains(&mean_sq), "{mean_sq}");
         // The rigid template's poses are the same poses, so old datasets are reproduced.
         let d = lfit_model::default_template();
-        let (_, rigid, _) = scenario_poses(&c, &d).unwrap();
+        let (_, rigid, _, _) = scenario_poses(&c, &d).unwrap();
         for (a, b) in rigid.iter().zip(&targets) {
             assert_eq!(&a[..], &b[..57]);
         }
         c.source = PoseSource::Uniform;
         assert!(scenario_poses(&c, &m).is_ok());
+    }
+
+    /// A motion of `frames` frames on `template`: a smooth motion of every rotation, the root
+    /// walking along x, with one frame far outside the joint limits.
+    fn clip(template: &Template, frames: usize, fps: f64) -> MotionClip {
+        let dim = template.layout().dim();
+        let poses = (0..frames)
+            .map(|f| {
+                let t = f as f64 / fps;
+                let mut p: Vec<f64> = (0..dim).map(|k| 0.3 * (0.7 * t + k as f64).sin()).collect();
+                p[0] = 1.2 * t + 3.0;
+                p[1] = 0.02 * t.sin();
+                p[2] = -2.0;
+                if f == 5 {
+                    p[10] = 3.0;
+                }
+                p
+            })
+            .collect();
+        MotionClip {
+            poses,
+            fps,
+            source: "test".into(),
+            model: template.signature(),
+        }
+    }
+
+    fn with_files(scenario: Scenario, frames: usize, files: Vec<MotionFile>) -> SynthConfig {
+        let mut c = SynthConfig::new(Modality::Markers, scenario, frames, 9);
+        c.motion_files = files;
+        c
+    }
+
+    /// Index of the file frame named by `name` (`file.npz:17`, maybe ` (clamped)`).
+    fn frame_of(name: &str, label: &str) -> (usize, bool) {
+        let rest = name.strip_prefix(&format!("{label}:")).unwrap();
+        let clamped = rest.ends_with(" (clamped)");
+        (
+            rest.trim_end_matches(" (clamped)").parse().unwrap(),
+            clamped,
+        )
+    }
+
+    #[test]
+    fn local_and_global_frames_of_motion_files_are_file_frames_placed_on_the_floor() {
+        let (m, _) = lfit_model::body::morphable_default_template().unwrap();
+        let layout = m.layout();
+        let pd = layout.pose_dim();
+        let global = Bounds::global_for(&m);
+        let c = clip(&m, 60, 30.0);
+        let file = MotionFile::from_clip("dir/walk.npz", c.clone(), &m).unwrap();
+        assert_eq!((file.label().as_str(), file.frames), ("walk.npz", 60));
+        for scenario in [Scenario::Local, Scenario::Global] {
+            let config = with_files(scenario, 120, vec![file.clone()]);
+            let (starts, targets, names, _) = scenario_poses(&config, &m).unwrap();
+            let mut seen_clamped = false;
+            for i in 0..120 {
+                let (f, clamped) = frame_of(&names[i], "walk.npz");
+                let mut want = c.poses[f][..pd].to_vec();
+                let (x, z) = (targets[i][0], targets[i][2]);
+                assert!(x.abs() <= 0.6 && z.abs() <= 0.6, "on the floor: {x} {z}");
+                want[0] = x;
+                want[2] = z;
+                let mut clamped_want = want.clone();
+                global.clamp(&mut clamped_want);
+                assert_eq!(clamped, clamped_want != want, "{}", names[i]);
+                seen_clamped |= clamped;
+                assert_eq!(&targets[i][..pd], &clamped_want[..], "frame {i}");
+                assert!(global.contains(&targets[i]));
+                assert_eq!(targets[i].len(), layout.dim(), "β appended");
+                match scenario {
+                    Scenario::Local => {
+                        assert!(Bounds::local_in(&layout, &starts[i]).contains(&targets[i]))
+                    }
+                    _ => assert_eq!(starts[i], vec![0.0; layout.dim()]),
+                }
+            }
+            assert!(seen_clamped, "frame 5 is outside the limits and was drawn");
+            // β is drawn as for the library: the same subjects.
+            let library = SynthConfig::new(Modality::Markers, scenario, 120, 9);
+            let (_, lib, _, _) = scenario_poses(&library, &m).unwrap();
+            for (a, b) in lib.iter().zip(&targets) {
+                assert_eq!(&a[pd..], &b[pd..]);
+            }
+        }
+    }
+
+    #[test]
+    fn a_sequence_of_a_motion_file_is_a_contiguous_window_at_the_file_stride() {
+        let t = default_template();
+        let c = clip(&t, 200, 120.0);
+        let file = MotionFile::from_clip("a.npz", c.clone(), &t).unwrap();
+        let config = with_files(Scenario::Sequence, 30, vec![file.clone()]);
+        let (starts, targets, names, fps) = scenario_poses(&config, &t).unwrap();
+        assert_eq!(fps, 30.0, "every 4th frame of a 120 Hz file");
+        let first = frame_of(&names[0], "a.npz").0;
+        let (mx, mz): (f64, f64) = (0..=30)
+            .map(|k| &c.poses[first - 4 + 4 * k])
+            .fold((0.0, 0.0), |(x, z), p| (x + p[0], z + p[2]));
+        for i in 0..30 {
+            let f = first + 4 * i;
+            assert_eq!(frame_of(&names[i], "a.npz").0, f);
+            let mut want = c.poses[f].clone();
+            want[0] -= mx / 31.0;
+            want[2] -= mz / 31.0;
+            let mut g = Bounds::global();
+            g.lower.drain(..3);
+            g.upper.drain(..3);
+            g.clamp(&mut want[3..]);
+            for k in 0..POSE_DIM {
+                assert!(
+                    (targets[i][k] - want[k]).abs() < 1e-12,
+                    "frame {i} entry {k}"
+                );
+            }
+            if i > 0 {
+                assert_eq!(starts[i], targets[i - 1]);
+            }
+        }
+        // Too short for the sequence: one line naming the longest file.
+        let config = with_files(Scenario::Sequence, 60, vec![file]);
+        let e = scenario_poses(&config, &t).unwrap_err().to_string();
+        assert!(e.contains("longest file has 200"), "{e}");
+    }
+
+    #[test]
+    fn the_library_mixes_in_and_motion_files_for_another_model_are_refused() {
+        let t = default_template();
+        let file = MotionFile::from_clip("a.npz", clip(&t, 50, 30.0), &t).unwrap();
+        let mut config = with_files(Scenario::Local, 200, vec![file.clone()]);
+        config.with_library = true;
+        let (_, _, names, _) = scenario_poses(&config, &t).unwrap();
+        let from_file = names.iter().filter(|n| n.starts_with("a.npz:")).count();
+        assert!(
+            (70..130).contains(&from_file),
+            "{from_file} of 200 from the file"
+        );
+        assert!(
+            names
+                .iter()
+                .any(|n| MotionKind::ALL.iter().any(|k| k.name() == n))
+        );
+        // Same seed, same frames.
+        assert_eq!(
+            scenario_poses(&config, &t).unwrap(),
+            scenario_poses(&config, &t).unwrap()
+        );
+        // Without files the library's frames are what they were.
+        let plain = SynthConfig::new(Modality::Markers, Scenario::Local, 200, 9);
+        let (_, _, names, _) = scenario_poses(&plain, &t).unwrap();
+        assert!(names.iter().all(|n| !n.contains(':')));
+        // Another model's motion.
+        let (m, _) = lfit_model::body::morphable_default_template().unwrap();
+        let e = MotionFile::from_clip("b.npz", clip(&m, 5, 30.0), &t)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("motion file b.npz: the motion was made for model"),
+            "{e}"
+        );
+        let mut config = with_files(Scenario::Local, 3, vec![file.clone()]);
+        config.motion_files[0].clip = Some(Arc::new(clip(&m, 5, 30.0)));
+        config.motion_files[0].frames = 5;
+        assert!(scenario_poses(&config, &t).is_err());
+        // Settings that do not go together.
+        let mut c = with_files(Scenario::Local, 3, vec![file.clone()]);
+        c.source = PoseSource::Uniform;
+        assert!(c.validate().is_err());
+        let mut c = SynthConfig::new(Modality::Markers, Scenario::Local, 3, 1);
+        c.with_library = true;
+        assert!(c.validate().is_err());
+        // A description read back from a dataset has no poses.
+        let mut c = with_files(Scenario::Local, 3, vec![file]);
+        c.motion_files[0].clip = None;
+        assert!(c.validate().unwrap_err().to_string().contains("not loaded"));
     }
 
     #[test]

@@ -23,7 +23,9 @@ use lfit_nn::tensor::poses_to_tensor;
 use lfit_nn::{
     Dropout, FeatureStats, NetConfig, NeuralNet, StartMode, observation_features, unroll,
 };
-use lfit_synth::{Dataset, NoiseConfig, Observations, Scenario, SynthConfig, synthesize};
+use lfit_synth::{
+    Dataset, MotionFile, NoiseConfig, Observations, Scenario, SynthConfig, synthesize,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -93,6 +95,15 @@ pub struct TrainConfig {
     /// Observation noise and occlusion of the synthesised training data (multiplier of the
     /// default noise model; 0 = clean).
     pub noise: f64,
+    /// Imported motion files (`lfit motion import`, paths relative to the working directory)
+    /// that every synthesised set (training batches, validation, statistics) draws its target
+    /// poses from instead of the procedural library, as `lfit synth --motions` does.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub motions: Vec<PathBuf>,
+    /// With `motions`: each frame from the library or the files by a fair coin
+    /// (`lfit synth --with-library`).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub with_library: bool,
 }
 
 impl Default for TrainConfig {
@@ -113,6 +124,8 @@ impl Default for TrainConfig {
             stats_frames: 256,
             seed: 0,
             noise: 1.0,
+            motions: Vec::new(),
+            with_library: false,
         }
     }
 }
@@ -196,6 +209,13 @@ impl TrainConfig {
         if !(self.noise.is_finite() && self.noise >= 0.0) {
             return bad("noise", self.noise.to_string(), "must be ≥ 0");
         }
+        if self.with_library && self.motions.is_empty() {
+            return bad(
+                "with_library",
+                "true".into(),
+                "mixes the library with motion files: list them in \"motions\"",
+            );
+        }
         Ok(())
     }
 
@@ -234,6 +254,28 @@ pub struct Frames {
     pub energies: Vec<Energy>,
 }
 
+/// Where synthesised frames take their target poses from: the procedural library (the
+/// default), or imported motion files (with the library too if `with_library`).
+#[derive(Debug, Clone, Default)]
+pub struct Motions {
+    pub files: Vec<MotionFile>,
+    pub with_library: bool,
+}
+
+impl Motions {
+    /// The motion files of `config` read and checked against `template`.
+    pub fn load(config: &TrainConfig, template: &Template) -> Result<Self> {
+        Ok(Self {
+            files: config
+                .motions
+                .iter()
+                .map(|p| MotionFile::load(p, template))
+                .collect::<Result<_, _>>()?,
+            with_library: config.with_library,
+        })
+    }
+}
+
 /// A dataset of `frames` local-scenario frames (start near the target, papers/000 §4) with
 /// noise, and one gradient-variant energy per frame.
 pub fn synth_frames(
@@ -244,7 +286,30 @@ pub fn synth_frames(
     seed: u64,
     noise: f64,
 ) -> Result<Frames> {
+    synth_frames_with(
+        template,
+        sensor,
+        base,
+        frames,
+        seed,
+        noise,
+        &Motions::default(),
+    )
+}
+
+/// [`synth_frames`] with target poses from `motions`.
+pub fn synth_frames_with(
+    template: &Arc<Template>,
+    sensor: &Sensor,
+    base: &Energy,
+    frames: usize,
+    seed: u64,
+    noise: f64,
+    motions: &Motions,
+) -> Result<Frames> {
     let mut config = SynthConfig::new(sensor.modality(), Scenario::Local, frames, seed);
+    config.motion_files = motions.files.clone();
+    config.with_library = motions.with_library;
     config.noise = if noise == 0.0 {
         NoiseConfig::none()
     } else {
@@ -459,16 +524,18 @@ pub fn train_with_sensor(
     net_config.param_dim = template.param_dim();
     net_config.validate()?;
     let base = base_energy(&template, &sensor)?;
+    let motions = Motions::load(config, &template)?;
     let ad = device.clone().autodiff();
     let loss = Loss::new(&template, config.loss.clone(), &ad);
 
-    let val = synth_frames(
+    let val = synth_frames_with(
         &template,
         &sensor,
         &base,
         config.val_frames,
         seeds::validation(config.seed),
         config.noise,
+        &motions,
     )?;
     let mut optim: ModuleOptimizer = AdamConfig::new()
         .with_grad_clipping(Some(GradientClippingConfig::Norm(config.grad_clip as f32)))
@@ -530,13 +597,14 @@ pub fn train_with_sensor(
             })?;
         (ck.net.train(), ck.stats, state.step, state.elapsed_s)
     } else {
-        let stats_frames = synth_frames(
+        let stats_frames = synth_frames_with(
             &template,
             &sensor,
             &base,
             config.stats_frames,
             seeds::stats(config.seed),
             config.noise,
+            &motions,
         )?;
         let stats = measure_stats(&stats_frames);
         (
@@ -637,13 +705,14 @@ pub fn train_with_sensor(
     };
 
     for step in start_step..config.steps {
-        let frames = synth_frames(
+        let frames = synth_frames_with(
             &template,
             &sensor,
             &base,
             config.batch,
             seeds::batch(config.seed, step),
             config.noise,
+            &motions,
         )?;
         let mut rng = ChaCha8Rng::seed_from_u64(seeds::batch(config.seed, step) ^ 0x5EED);
         let starts: Vec<Option<Vec<f64>>> = frames
