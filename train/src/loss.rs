@@ -238,7 +238,9 @@ mod tests {
     fn farthest_points_spread_over_a_line_and_knn_joins_neighbours() {
         // 101 points on a line, crowded at one end: the first picks are the far ends and the
         // middle, not the crowd.
-        let mut pts: Vec<Vec3> = (0..=100).map(|i| Vec3::new(i as f32 / 100.0, 0.0, 0.0)).collect();
+        let mut pts: Vec<Vec3> = (0..=100)
+            .map(|i| Vec3::new(i as f32 / 100.0, 0.0, 0.0))
+            .collect();
         pts.extend((0..50).map(|i| Vec3::new(i as f32 * 1e-4, 0.0, 0.0)));
         let ids = farthest_point_subset(&pts, 3);
         assert_eq!(ids, vec![0, 100, 50]);

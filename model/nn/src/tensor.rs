@@ -199,11 +199,10 @@ impl TensorSkinning {
             Tensor::<1, Int>::from_data(TensorData::new(v, [len]), &self.device)
         };
         let rows = idx(ids.iter().map(|&v| i64::from(v)).collect());
-        let cols3 = idx(
-            ids.iter()
-                .flat_map(|&v| (0..3).map(move |a| 3 * i64::from(v) + a))
-                .collect(),
-        );
+        let cols3 = idx(ids
+            .iter()
+            .flat_map(|&v| (0..3).map(move |a| 3 * i64::from(v) + a))
+            .collect());
         Self {
             rest_vertices: self.rest_vertices.clone().select(0, rows.clone()),
             weights: self.weights.clone().select(0, rows.clone()),
