@@ -4,6 +4,10 @@
 //! thread). The MakeHuman body is the committed `models/makehuman-cmu_mb.npz` (13,380 vertices,
 //! 31 joints, B = 16, 39 markers); parameters are random poses (±0.3 rad, translation ±0.3 m) and
 //! β ~ N(0, 0.5²). Report the figures as MakeHuman / default ratios.
+//!
+//! `neural_speed/<model>`: the shipped `markers` fitters (`checkpoints/markers` on the default
+//! template, `checkpoints/markers-makehuman` on the MakeHuman body; N = 5, flex backend, starts
+//! given) per frame at batch 1 and per batch of 256 synthetic frames, energy included.
 //! Run with `cargo bench --bench makehuman`.
 
 use std::hint::black_box;
@@ -11,10 +15,15 @@ use std::path::Path;
 use std::sync::Arc;
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use lfit::fitters::FitRequest;
+use lfit::infer::{NeuralFitter, Start};
 use lfit::model::energy::{Energy, EnergyConfig, Target};
 use lfit::model::observe::{Modality, Sensor};
+use lfit::model::pose::{Bounds, DofMask, MaskKind};
 use lfit::model::skinning::{joint_transforms, skin_lbs_into};
 use lfit::model::{Template, default_template};
+use lfit::nn::tensor::device_from_name;
+use lfit::train::{base_energy, synth_frames};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -105,9 +114,62 @@ fn bench(c: &mut Criterion) {
     }
 }
 
+fn neural(c: &mut Criterion) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/makehuman-cmu_mb.npz");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("checkpoints");
+    let models = [
+        (
+            "default",
+            Arc::new(default_template()),
+            root.join("markers"),
+        ),
+        (
+            "makehuman",
+            Arc::new(lfit::model::modelfile::load(&path).expect("models/makehuman-cmu_mb.npz")),
+            root.join("markers-makehuman"),
+        ),
+    ];
+    let device = device_from_name("flex").expect("flex");
+    for (name, template, checkpoint) in &models {
+        let sensor = Sensor::default_for(Modality::Markers, template);
+        let base = base_energy(template, &sensor).expect("energy");
+        let frames = synth_frames(template, &sensor, &base, 256, 0x7E57_0000_0000_0002, 1.0)
+            .expect("frames");
+        let fitter = NeuralFitter::load(checkpoint, &device, Start::Given).expect("checkpoint");
+        let mask = DofMask::standard(MaskKind::Full, template, true);
+        let requests: Vec<FitRequest<'_>> = frames
+            .energies
+            .iter()
+            .zip(&frames.dataset.start_poses)
+            .map(|(energy, start)| FitRequest {
+                energy,
+                start: start.clone(),
+                mask: mask.clone(),
+                bounds: Bounds::global_for(template),
+                budget: 10,
+                seed: 1,
+            })
+            .collect();
+        let mut group = c.benchmark_group(format!("neural_speed/{name}"));
+        group.throughput(Throughput::Elements(1));
+        group.bench_function("batch1", |b| {
+            let mut i = 0;
+            b.iter(|| {
+                i = (i + 1) % requests.len();
+                black_box(fitter.fit_batch(&requests[i..i + 1]).expect("fit"))
+            })
+        });
+        group.throughput(Throughput::Elements(requests.len() as u64));
+        group.bench_function("batch256", |b| {
+            b.iter(|| black_box(fitter.fit_batch(&requests).expect("fit")))
+        });
+        group.finish();
+    }
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(10).warm_up_time(std::time::Duration::from_secs(1)).measurement_time(std::time::Duration::from_secs(3));
-    targets = bench
+    targets = bench, neural
 }
 criterion_main!(benches);

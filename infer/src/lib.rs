@@ -78,7 +78,18 @@ pub struct NeuralFitter {
     pub engine: Engine,
     pub dir: PathBuf,
     pub start: Start,
+    /// Models (with modality and residual length) already checked against the checkpoint: the
+    /// check hashes the whole model (13,380 vertices and 16 shape directions take milliseconds),
+    /// so it runs once per model, not once per call. A `Weak` keeps the model's allocation, so
+    /// a live entry's pointer cannot be reused by another model.
+    verified: Mutex<Vec<Verified>>,
 }
+
+type Verified = (
+    std::sync::Weak<lfit_model::Template>,
+    lfit_model::observe::Modality,
+    usize,
+);
 
 fn neural(e: impl std::fmt::Display) -> FitError {
     FitError::Neural(e.to_string())
@@ -114,6 +125,7 @@ impl NeuralFitter {
             },
             dir: dir.to_path_buf(),
             start,
+            verified: Mutex::new(Vec::new()),
         }
     }
 
@@ -141,6 +153,7 @@ impl NeuralFitter {
             engine: Engine::Ort(Box::new(Mutex::new(network))),
             dir: dir.to_path_buf(),
             start,
+            verified: Mutex::new(Vec::new()),
         })
     }
 
@@ -160,12 +173,26 @@ impl NeuralFitter {
     /// Checks that the checkpoint fits an energy (modality, residual size, template).
     pub fn check(&self, energy: &Energy) -> Result<(), ModelError> {
         let template = energy.template();
-        self.meta.check_compatible(
-            &self.dir,
-            energy.modality(),
-            energy.sensor().residual_dim(template),
-            template,
-        )
+        let (modality, dim) = (energy.modality(), energy.sensor().residual_dim(template));
+        let known = |v: &Verified| {
+            v.1 == modality
+                && v.2 == dim
+                && v.0
+                    .upgrade()
+                    .is_some_and(|t| std::sync::Arc::ptr_eq(&t, template))
+        };
+        if let Ok(list) = self.verified.lock()
+            && list.iter().any(known)
+        {
+            return Ok(());
+        }
+        self.meta
+            .check_compatible(&self.dir, modality, dim, template)?;
+        if let Ok(mut list) = self.verified.lock() {
+            list.retain(|v| v.0.strong_count() > 0);
+            list.push((std::sync::Arc::downgrade(template), modality, dim));
+        }
+        Ok(())
     }
 
     /// θ0 … θN of every frame, `[N + 1][B]`, from the engine.
@@ -350,5 +377,71 @@ impl Fitter for NeuralFitter {
 
     fn fit_batch(&self, requests: &[FitRequest<'_>]) -> Result<Vec<FitResult>, FitError> {
         NeuralFitter::fit_batch(self, requests)
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use std::sync::Arc;
+
+    use lfit_model::energy::{EnergyConfig, Target};
+    use lfit_model::observe::{Modality, Sensor};
+
+    use super::*;
+
+    fn energy(t: &Arc<lfit_model::Template>) -> Energy {
+        let sensor = Sensor::default_for(Modality::Markers, t);
+        let p = sensor.predict_sparse(t, &vec![0.0; t.param_dim()]);
+        Energy::new(
+            t.clone(),
+            sensor,
+            Target::Sparse {
+                values: p.values,
+                visible: p.visible,
+            },
+            EnergyConfig::default(),
+        )
+        .unwrap()
+    }
+
+    /// The compatibility check is remembered per model, and a model with the same layout but
+    /// other arrays is still refused after another model passed.
+    #[test]
+    fn the_model_check_is_cached_per_model_and_still_refuses_another_model() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let model = Arc::new(
+            lfit_model::modelfile::load(&root.join("models/makehuman-cmu_mb.npz")).unwrap(),
+        );
+        let device = lfit_nn::tensor::ndarray_device();
+        let f = NeuralFitter::load(
+            &root.join("checkpoints/markers-makehuman"),
+            &device,
+            Start::Given,
+        )
+        .unwrap();
+        let e = energy(&model);
+        f.check(&e).unwrap();
+        f.check(&e).unwrap();
+        assert_eq!(f.verified.lock().unwrap().len(), 1);
+        // Same layout, one rest vertex moved: another signature.
+        let mut other = (*model).clone();
+        let mut morph = (*other.morph).clone();
+        morph.rest[0].x += 0.01;
+        other.morph = Arc::new(morph);
+        other.vertices[0].x += 0.01;
+        let other = Arc::new(other);
+        assert_eq!(other.param_dim(), model.param_dim());
+        let err = f.check(&energy(&other)).unwrap_err().to_string();
+        assert!(err.contains("was trained on model"), "{err}");
+        assert_eq!(f.verified.lock().unwrap().len(), 1);
+        // A dropped model leaves the list when the next one is added.
+        drop(e);
+        drop(model);
+        let third = Arc::new(
+            lfit_model::modelfile::load(&root.join("models/makehuman-cmu_mb.npz")).unwrap(),
+        );
+        f.check(&energy(&third)).unwrap();
+        assert_eq!(f.verified.lock().unwrap().len(), 1);
     }
 }
