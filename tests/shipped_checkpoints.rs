@@ -1,6 +1,7 @@
-//! The checkpoints shipped in `checkpoints/`: one per sparse modality, each at most 10 MB, with
-//! config, weights, statistics and a metrics card, loading on the default template and fitting
-//! held-out frames well below their start error.
+//! The checkpoints shipped in `checkpoints/`: one per sparse modality on the default template and
+//! the `markers`/`keypoints2d` fitters of the committed MakeHuman body, each at most 10 MB, with
+//! config, weights, statistics and a metrics card, loading on their model and fitting held-out
+//! frames well below their start error.
 
 mod support;
 
@@ -8,15 +9,36 @@ use std::path::Path;
 
 use support::{lfit_json, path_str};
 
-const MODALITIES: [&str; 3] = ["markers", "keypoints2d", "hmd"];
+/// Checkpoint directory, modality, model file (`None`: the default template).
+const CHECKPOINTS: [(&str, &str, Option<&str>); 5] = [
+    ("markers", "markers", None),
+    ("keypoints2d", "keypoints2d", None),
+    ("hmd", "hmd", None),
+    (
+        "markers-makehuman",
+        "markers",
+        Some("models/makehuman-cmu_mb.npz"),
+    ),
+    (
+        "keypoints2d-makehuman",
+        "keypoints2d",
+        Some("models/makehuman-cmu_mb.npz"),
+    ),
+];
 
 #[test]
 fn every_shipped_checkpoint_is_complete_small_and_fits_its_modality() {
     let tmp = tempfile::tempdir().expect("tmp");
-    for m in MODALITIES {
+    for (name, modality, model) in CHECKPOINTS {
+        let m = name;
         let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("checkpoints")
-            .join(m);
+            .join(name);
+        let model = model.map(|f| Path::new(env!("CARGO_MANIFEST_DIR")).join(f));
+        let template: Vec<&str> = match &model {
+            Some(f) => vec!["--template", path_str(f)],
+            None => Vec::new(),
+        };
         for f in [
             "config.json",
             "weights.bpk",
@@ -52,20 +74,22 @@ fn every_shipped_checkpoint_is_complete_small_and_fits_its_modality() {
         // Held-out frames (a seed no training run uses): the fit from the start pose ends far
         // below the start error.
         let data = tmp.path().join(format!("{m}.npz"));
-        lfit_json(&[
+        let mut args = vec![
             "-q",
             "synth",
             "--modality",
-            m,
+            modality,
             "--frames",
             "24",
             "--seed",
             "9100",
             "--out",
             path_str(&data),
-        ]);
+        ];
+        args.extend(&template);
+        lfit_json(&args);
         let out = tmp.path().join(format!("{m}.json"));
-        lfit_json(&[
+        let mut args = vec![
             "-q",
             "fit",
             "--data",
@@ -80,7 +104,9 @@ fn every_shipped_checkpoint_is_complete_small_and_fits_its_modality() {
             "10",
             "--out",
             path_str(&out),
-        ]);
+        ];
+        args.extend(&template);
+        lfit_json(&args);
         let r: serde_json::Value =
             serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json");
         let frames = r["frames"].as_array().expect("frames");
