@@ -17,24 +17,7 @@ const ZERO: f64 = 1e-9;
 
 /// A `python3` command that imports scipy, or why there is none.
 fn python_with_scipy() -> Result<Command, String> {
-    let make = || {
-        let mut c = Command::new("python3");
-        if let Some(p) = std::env::var_os("LFIT_SCIPY_PYTHONPATH") {
-            c.env("PYTHONPATH", p);
-        }
-        c
-    };
-    match make().args(["-c", "import scipy, numpy"]).output() {
-        Ok(o) if o.status.success() => Ok(make()),
-        Ok(o) => Err(format!(
-            "python3 cannot import scipy (run scripts/fetch-scipy.sh and set LFIT_SCIPY_PYTHONPATH): {}",
-            String::from_utf8_lossy(&o.stderr)
-                .lines()
-                .last()
-                .unwrap_or("")
-        )),
-        Err(e) => Err(format!("no python3: {e}")),
-    }
+    support::python_with("scipy, numpy")
 }
 
 #[test]

@@ -37,23 +37,9 @@ fn assets() -> Option<PathBuf> {
 }
 
 fn numpy() -> Option<Command> {
-    let make = || {
-        let mut c = Command::new("python3");
-        if let Some(p) = std::env::var_os("LFIT_SCIPY_PYTHONPATH") {
-            c.env("PYTHONPATH", p);
-        }
-        c
-    };
-    match make().args(["-c", "import numpy"]).output() {
-        Ok(o) if o.status.success() => Some(make()),
-        _ => {
-            skip_unless_required(
-                "python3 cannot import numpy (scripts/fetch-scipy.sh, LFIT_SCIPY_PYTHONPATH)",
-                None,
-            );
-            None
-        }
-    }
+    support::python_with("numpy")
+        .map_err(|reason| skip_unless_required(&reason, None))
+        .ok()
 }
 
 fn import(mpfb2: &Path, rig: &str, out: &Path, report: &Path, extra: &[&str]) -> serde_json::Value {

