@@ -235,23 +235,9 @@ impl NeuralFitter {
         }
         let n = self.meta.network.iterations;
         let per_iteration = self.meta.network.evaluations_per_iteration();
-        // The compatibility check hashes the whole model (its signature): once per distinct
-        // model and sensor of the batch, not once per frame.
-        let mut checked: Vec<(
-            *const lfit_model::Template,
-            lfit_model::observe::Modality,
-            usize,
-        )> = Vec::new();
+        // `check` remembers the models it has checked: the signature hash runs once per model.
         for r in requests {
-            let key = (
-                std::sync::Arc::as_ptr(r.energy.template()),
-                r.energy.modality(),
-                r.energy.sensor().residual_dim(r.energy.template()),
-            );
-            if !checked.contains(&key) {
-                self.check(r.energy).map_err(neural)?;
-                checked.push(key);
-            }
+            self.check(r.energy).map_err(neural)?;
             if r.budget == 0 {
                 return Err(FitError::Budget(0));
             }
