@@ -36,6 +36,10 @@ pub struct SynthSpec {
     pub seed: u64,
     #[serde(default = "one_f")]
     pub noise: f64,
+    /// Imported motion files (`lfit motion import`) the target poses come from instead of the
+    /// procedural library (`lfit synth --motions`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub motions: Vec<PathBuf>,
 }
 
 fn default_scenario() -> String {
@@ -65,6 +69,14 @@ pub struct BenchConfig {
     /// Dataset (.npz); or `[synth]` to generate one into the output directory.
     pub data: Option<PathBuf>,
     pub synth: Option<SynthSpec>,
+    /// Model file (`lfit model import-*`) the data is made with and fitted on; default the
+    /// procedural template. A relative path is looked up like a shipped checkpoint.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub template: Option<PathBuf>,
+    /// The subject's shape β is given (each frame's truth) and frozen for every method
+    /// (papers/002 §3.2, HMD); required by a checkpoint trained with the shape known.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub known_shape: bool,
     /// `"METHOD"` or `"METHOD:STRATEGY"` ([`MethodSpec`]).
     pub methods: Vec<MethodSpec>,
     pub budgets: Vec<usize>,
@@ -173,6 +185,21 @@ impl BenchConfig {
             (None, Some(s)) if s.frames == 0 => bail!("synth.frames must be at least 1"),
             _ => {}
         }
+        if self.known_shape
+            && self
+                .entries()?
+                .iter()
+                .any(|(_, s)| s == Strategy::ShapeFirst.name())
+        {
+            bail!(
+                "known_shape: strategy shape-first fits the shape first, it needs the shape free"
+            );
+        }
+        if let Some(t) = &self.template
+            && !t.exists()
+        {
+            bail!("template {} does not exist", t.display());
+        }
         if self.methods.iter().any(|m| m.kind == MethodKind::Neural) {
             let Some(c) = &self.checkpoint else {
                 bail!("method neural needs checkpoint = \"DIR\"")
@@ -181,12 +208,23 @@ impl BenchConfig {
                 bail!("checkpoint {} has no config.json", c.display());
             }
             self.neural_start()?;
+            if !self.known_shape && checkpoint_knows_shape(c)? {
+                bail!(
+                    "checkpoint {} was trained with the shape β known (papers/002 §3.2): set known_shape = true",
+                    c.display()
+                );
+            }
         }
         if !(self.alpha > 0.0 && self.alpha < 1.0) {
             bail!("alpha must be in (0, 1), got {}", self.alpha);
         }
         self.energy_config()?;
         Ok(())
+    }
+
+    /// The model the benchmark runs on: `template`, or the procedural template.
+    fn model(&self) -> Result<lfit_model::Template> {
+        crate::data::load_model(self.template.as_deref(), "default")
     }
 
     /// The sweep's lines, `(method, strategy)` in config order: a method crossed with every
@@ -290,6 +328,8 @@ pub struct Run {
     pub mpjpe_mm: f64,
     pub pa_mpjpe_mm: f64,
     pub hausdorff_mm: f64,
+    /// RMS error of the shape (and expression) coefficients; NaN on a model without them.
+    pub shape_rms: f64,
     pub evaluations: u64,
     pub gradient_evaluations: u64,
     pub iterations: u64,
@@ -300,7 +340,9 @@ pub struct Run {
     pub v2v_per_iteration: Vec<f64>,
 }
 
-pub const CSV_HEADER: &str = "method,strategy,budget,rep,frame,seed,energy,start_energy,v2v_mm,mpjpe_mm,pa_mpjpe_mm,hausdorff_mm,evaluations,gradient_evaluations,iterations,time_s,trace,v2v_per_iteration";
+pub const CSV_HEADER: &str = "method,strategy,budget,rep,frame,seed,energy,start_energy,v2v_mm,mpjpe_mm,pa_mpjpe_mm,hausdorff_mm,shape_rms,evaluations,gradient_evaluations,iterations,time_s,trace,v2v_per_iteration";
+/// The header before the `shape_rms` column (files written before it still read, as NaN).
+const CSV_HEADER_V1: &str = "method,strategy,budget,rep,frame,seed,energy,start_energy,v2v_mm,mpjpe_mm,pa_mpjpe_mm,hausdorff_mm,evaluations,gradient_evaluations,iterations,time_s,trace,v2v_per_iteration";
 
 impl Run {
     pub fn key(&self) -> (String, String, usize, usize, usize) {
@@ -327,7 +369,7 @@ impl Run {
             .collect::<Vec<_>>()
             .join(";");
         format!(
-            "{},{},{},{},{},{},{:e},{:e},{:.4},{:.4},{:.4},{:.4},{},{},{},{:.6},{trace},{iters}",
+            "{},{},{},{},{},{},{:e},{:e},{:.4},{:.4},{:.4},{:.4},{:.5},{},{},{},{:.6},{trace},{iters}",
             self.method,
             self.strategy,
             self.budget,
@@ -340,6 +382,7 @@ impl Run {
             self.mpjpe_mm,
             self.pa_mpjpe_mm,
             self.hausdorff_mm,
+            self.shape_rms,
             self.evaluations,
             self.gradient_evaluations,
             self.iterations,
@@ -348,14 +391,18 @@ impl Run {
     }
 
     pub fn from_csv(line: &str) -> Option<Self> {
-        let f: Vec<&str> = line.split(',').collect();
-        if f.len() != 18 {
+        let mut f: Vec<&str> = line.split(',').collect();
+        // A row without `shape_rms` (CSV_HEADER_V1): NaN.
+        if f.len() == 18 {
+            f.insert(12, "NaN");
+        }
+        if f.len() != 19 {
             return None;
         }
-        let trace = if f[16].is_empty() {
+        let trace = if f[17].is_empty() {
             Vec::new()
         } else {
-            f[16]
+            f[17]
                 .split(';')
                 .map(|p| {
                     p.split_once(':')
@@ -363,10 +410,10 @@ impl Run {
                 })
                 .collect::<Option<Vec<_>>>()?
         };
-        let iters = if f[17].is_empty() {
+        let iters = if f[18].is_empty() {
             Vec::new()
         } else {
-            f[17]
+            f[18]
                 .split(';')
                 .map(|v| v.parse().ok())
                 .collect::<Option<Vec<f64>>>()?
@@ -384,10 +431,11 @@ impl Run {
             mpjpe_mm: f[9].parse().ok()?,
             pa_mpjpe_mm: f[10].parse().ok()?,
             hausdorff_mm: f[11].parse().ok()?,
-            evaluations: f[12].parse().ok()?,
-            gradient_evaluations: f[13].parse().ok()?,
-            iterations: f[14].parse().ok()?,
-            time_s: f[15].parse().ok()?,
+            shape_rms: f[12].parse().ok()?,
+            evaluations: f[13].parse().ok()?,
+            gradient_evaluations: f[14].parse().ok()?,
+            iterations: f[15].parse().ok()?,
+            time_s: f[16].parse().ok()?,
             trace,
             v2v_per_iteration: iters,
         })
@@ -407,7 +455,7 @@ pub fn read_runs(path: &Path) -> Result<Vec<Run>> {
     let mut runs = Vec::new();
     for (i, line) in lines.iter().enumerate() {
         if i == 0 {
-            if *line != CSV_HEADER {
+            if *line != CSV_HEADER && *line != CSV_HEADER_V1 {
                 bail!(
                     "{} is not an lfit bench runs.csv (unexpected header)",
                     path.display()
@@ -438,6 +486,16 @@ pub fn parse_shard(spec: Option<&str>) -> Result<(usize, usize)> {
     }
 }
 
+/// Whether the checkpoint in `dir` was trained with the shape known.
+fn checkpoint_knows_shape(dir: &Path) -> Result<bool> {
+    let path = dir.join("config.json");
+    let text = std::fs::read_to_string(&path)
+        .with_context(|| format!("cannot read {}", path.display()))?;
+    let meta: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("malformed {}", path.display()))?;
+    Ok(meta["network"]["known_shape"].as_bool().unwrap_or(false))
+}
+
 /// Runs the sweep (or one shard of it) into `out`; returns the rows of this shard, sorted.
 pub fn run(
     config: &BenchConfig,
@@ -463,7 +521,7 @@ pub fn run(
         (None, Some(s)) => {
             let path = out.join("data.npz");
             if !path.exists() {
-                let template = crate::data::load_model(None, "default")?;
+                let template = config.model()?;
                 let args = crate::data::SynthArgs {
                     modality: s.modality.clone(),
                     scenario: s.scenario.clone(),
@@ -475,7 +533,11 @@ pub fn run(
                     motions: None,
                     out: path.clone(),
                 };
-                crate::data::synth(&args, &template, &|_| {})?;
+                let files = crate::data::MotionFilesArgs {
+                    files: s.motions.clone(),
+                    with_library: false,
+                };
+                crate::data::synth_with_motions(&args, &files, &template, &|_| {})?;
             }
             path
         }
@@ -489,7 +551,7 @@ pub fn run(
         );
     }
     let frames = parse_frames(config.frames.as_deref(), dataset.len())?;
-    let template = template_for(&dataset, None)?;
+    let template = template_for(&dataset, config.template.as_deref())?;
     let (energy_config, _) = config.energy_config()?;
     let scenario = dataset.meta.config.scenario;
     let entries = config.entries()?;
@@ -620,6 +682,9 @@ pub fn run(
             template: &template,
             budget,
             batch: 1,
+            known_shape: config
+                .known_shape
+                .then_some(crate::fitting::KnownShape::Truth),
         };
         let unit_frames: Vec<usize> = unit.frames.iter().map(|&fi| frames[fi]).collect();
         crate::fitting::fit_frames(
@@ -664,6 +729,7 @@ pub fn run(
                     mpjpe_mm: mpjpe_mm(&template, pose, gt),
                     pa_mpjpe_mm: pa_mpjpe_mm(&template, pose, gt),
                     hausdorff_mm: hausdorff_rms_mm(&template, pose, gt),
+                    shape_rms: crate::fit::coefficient_rms(&template, pose, gt).unwrap_or(f64::NAN),
                     evaluations: result.evaluations,
                     gradient_evaluations: result.gradient_evaluations,
                     iterations: result.iterations,
@@ -779,4 +845,60 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<(BenchConfig, Vec<Run>)> 
         write_atomic(&data, &bytes)?;
     }
     Ok((config, runs))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A row survives the CSV; a row written before the `shape_rms` column reads with NaN.
+    #[test]
+    fn runs_round_trip_and_rows_without_shape_rms_still_read() {
+        let row = Run {
+            method: "lm".into(),
+            strategy: "holistic".into(),
+            budget: 200,
+            rep: 1,
+            frame: 7,
+            seed: 42,
+            energy: 0.5,
+            start_energy: 3.0,
+            v2v_mm: 12.25,
+            mpjpe_mm: 8.5,
+            pa_mpjpe_mm: 6.0,
+            hausdorff_mm: 9.0,
+            shape_rms: 0.125,
+            evaluations: 90,
+            gradient_evaluations: 10,
+            iterations: 9,
+            time_s: 0.02,
+            trace: vec![(1, 3.0), (90, 0.5)],
+            v2v_per_iteration: vec![20.0, 12.25],
+        };
+        let line = row.to_csv();
+        assert_eq!(Run::from_csv(&line).as_ref(), Some(&row));
+        assert_eq!(
+            line.split(',').count(),
+            CSV_HEADER.split(',').count(),
+            "{line}"
+        );
+        // The same row in the layout before `shape_rms` (column 12).
+        let mut old: Vec<&str> = line.split(',').collect();
+        old.remove(12);
+        let read = Run::from_csv(&old.join(",")).expect("old row");
+        assert!(read.shape_rms.is_nan());
+        assert_eq!(
+            Run {
+                shape_rms: row.shape_rms,
+                ..read
+            },
+            row
+        );
+        let dir = tempfile::tempdir().expect("tmp");
+        let csv = dir.path().join("runs.csv");
+        std::fs::write(&csv, format!("{CSV_HEADER_V1}\n{}\n", old.join(","))).expect("csv");
+        assert_eq!(read_runs(&csv).expect("v1 file").len(), 1);
+        std::fs::write(&csv, "method,frame\nlm,1\n").expect("csv");
+        assert!(read_runs(&csv).is_err());
+    }
 }

@@ -135,6 +135,8 @@ pub struct FitArgs {
     /// `burn` or `ort`, and ONNX Runtime's intra-op threads.
     pub runtime: String,
     pub ort_threads: Option<usize>,
+    /// `--known-shape`: `truth` or comma-separated β values ([`crate::fitting::KnownShape`]).
+    pub known_shape: Option<String>,
 }
 
 /// `lfit fit`: fits every selected frame, writes the result JSON atomically and returns a summary.
@@ -144,6 +146,13 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         bail!("--budget must be at least 1 evaluation");
     }
     let strategy: Strategy = args.strategy.parse()?;
+    let known_shape: Option<crate::fitting::KnownShape> =
+        args.known_shape.as_deref().map(str::parse).transpose()?;
+    if known_shape.is_some() && strategy == Strategy::ShapeFirst {
+        bail!(
+            "--strategy shape-first fits the shape first: it needs the shape free (drop --known-shape)"
+        );
+    }
     let load =
         || Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()));
     // The tuned setting depends on the data's modality: the dataset is read then, once.
@@ -228,7 +237,6 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     let frames = parse_frames(args.frames.as_deref(), dataset.len())?;
     let template = template_for(&dataset, args.template.as_deref())?;
     let scenario = dataset.meta.config.scenario;
-    let mask = scenario_mask(scenario, &template);
     let mut rows = Vec::with_capacity(frames.len());
     let mut sum_coeff = 0.0;
     let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
@@ -240,7 +248,9 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         template: &template,
         budget: args.budget,
         batch: if neural { args.batch } else { 1 },
+        known_shape,
     };
+    let mask = plan.mask()?;
     let mut done = 0;
     crate::fitting::fit_frames(
         fitter,

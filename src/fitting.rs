@@ -8,6 +8,7 @@ use std::sync::Arc;
 use anyhow::{Context, Result, bail};
 use lfit_fitters::{FitRequest, FitResult, Fitter};
 use lfit_model::energy::{Energy, EnergyConfig, Target};
+use lfit_model::layout::Block;
 use lfit_model::pose::{Bounds, DofMask, MaskKind};
 use lfit_model::template::Template;
 use lfit_synth::{Dataset, Observations, Scenario};
@@ -21,9 +22,94 @@ pub struct Plan<'a> {
     /// Frames per [`Fitter::fit_batch`] call outside sequences (sequences go one frame at a time:
     /// each frame needs its predecessor's result).
     pub batch: usize,
+    /// The subject's shape β, when it is given rather than estimated (papers/002 §3.2, HMD).
+    pub known_shape: Option<KnownShape>,
+}
+
+/// Where a known shape β comes from (`lfit fit --known-shape`, bench `known_shape`).
+#[derive(Debug, Clone, PartialEq)]
+pub enum KnownShape {
+    /// Each frame's ground-truth β (synthetic data; papers/002 §3.2 uses the truth).
+    Truth,
+    /// One β for every frame (a subject measured beforehand).
+    Given(Vec<f64>),
+}
+
+impl std::str::FromStr for KnownShape {
+    type Err = anyhow::Error;
+    /// `truth`, or the comma-separated β values.
+    fn from_str(s: &str) -> Result<Self> {
+        if s == "truth" {
+            return Ok(Self::Truth);
+        }
+        let values = s
+            .split(',')
+            .map(|v| {
+                v.trim()
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite())
+                    .with_context(|| format!("--known-shape: '{v}' is not a finite number (expected 'truth' or comma-separated β values)"))
+            })
+            .collect::<Result<Vec<f64>>>()?;
+        Ok(Self::Given(values))
+    }
+}
+
+impl KnownShape {
+    /// Checks the shape against the dataset and model before any fit runs.
+    pub fn check(&self, dataset: &Dataset, template: &Template) -> Result<()> {
+        let b = template.layout().shape;
+        if b == 0 {
+            bail!(
+                "--known-shape: model '{}' has no shape parameters",
+                template.id
+            );
+        }
+        match self {
+            Self::Truth if !dataset.has_ground_truth() => bail!(
+                "--known-shape truth: the dataset has no ground truth (imported observations); give the subject's β as comma-separated values"
+            ),
+            Self::Given(v) if v.len() != b => bail!(
+                "--known-shape: {} values given, model '{}' has {b} shape parameters",
+                v.len(),
+                template.id
+            ),
+            _ => Ok(()),
+        }
+    }
+
+    /// β of `frame`.
+    fn beta<'a>(&'a self, dataset: &'a Dataset, template: &Template, frame: usize) -> &'a [f64] {
+        match self {
+            Self::Truth => &dataset.gt_poses[frame][template.layout().range(Block::Shape)],
+            Self::Given(v) => v,
+        }
+    }
 }
 
 impl Plan<'_> {
+    /// The free entries of every fit: the scenario's, less the shape when it is known (the
+    /// known shape is checked against the dataset and model here, before any fit).
+    pub fn mask(&self) -> Result<DofMask> {
+        let mask = scenario_mask(self.dataset.meta.config.scenario, self.template);
+        let Some(k) = &self.known_shape else {
+            return Ok(mask);
+        };
+        k.check(self.dataset, self.template)?;
+        let shape = self.template.layout().range(Block::Shape);
+        let mut known = DofMask::custom_in(
+            mask.free
+                .iter()
+                .copied()
+                .filter(|i| !shape.contains(i))
+                .collect(),
+            self.template.layout().dim(),
+        )?;
+        known.name = format!("{}-known-shape", mask.name);
+        Ok(known)
+    }
+
     /// Frames per [`Fitter::fit_batch`] call: `batch`, except in a sequence (one at a time).
     pub fn frames_per_call(&self) -> usize {
         if self.dataset.meta.config.scenario == Scenario::Sequence {
@@ -59,7 +145,8 @@ pub fn fit_frames(
 ) -> Result<()> {
     let dataset = plan.dataset;
     let scenario = dataset.meta.config.scenario;
-    let mask = scenario_mask(scenario, plan.template);
+    let mask = plan.mask()?;
+    let shape = plan.template.layout().range(Block::Shape);
     let chunk = plan.frames_per_call();
     let mut previous: Option<(usize, Vec<f64>)> = None;
     for group in frames.chunks(chunk) {
@@ -71,13 +158,22 @@ pub fn fit_frames(
             .iter()
             .zip(&energies)
             .map(|(&frame, energy)| {
-                let start = match previous.take() {
+                let mut start = match previous.take() {
                     Some((p, pose)) if scenario == Scenario::Sequence && p + 1 == frame => pose,
                     _ => dataset.start_poses[frame].clone(),
                 };
+                let mut bounds = scenario_bounds(scenario, plan.template, &start);
+                if let Some(k) = &plan.known_shape {
+                    // β is fixed: the start holds it and the box is the single point.
+                    for (i, &b) in shape.clone().zip(k.beta(dataset, plan.template, frame)) {
+                        start[i] = b;
+                        bounds.lower[i] = b;
+                        bounds.upper[i] = b;
+                    }
+                }
                 FitRequest {
                     energy,
-                    bounds: scenario_bounds(scenario, plan.template, &start),
+                    bounds,
                     start,
                     mask: mask.clone(),
                     budget: plan.budget,

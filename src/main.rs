@@ -128,6 +128,19 @@ enum Command {
         /// Evaluations per frame for L-BFGS, Levenberg–Marquardt, CMA-ES and PSO (a cap for the first two).
         #[arg(long, default_value_t = 2000)]
         budget: usize,
+        /// A captured BVH clip (scripts/fetch-mocapbank.sh fetches the MocapBank one): the
+        /// markers and keypoints2d studies are repeated on its frames, retargeted with --clip-map.
+        #[arg(long)]
+        clip: Option<PathBuf>,
+        /// Joint map of --clip onto the study's model.
+        #[arg(
+            long,
+            default_value = "configs/maps/mocapbank_to_makehuman_cmu_mb.json"
+        )]
+        clip_map: PathBuf,
+        /// Frames of --clip to fit, from its second (default: all).
+        #[arg(long)]
+        clip_frames: Option<usize>,
     },
     /// Train and evaluate the neural fitter's ablation variants (SPEC §7) at a reduced size and
     /// write papers/002 Tables 3–6 (HMD) and A.1 (keypoints2d) to OUT/ablation.md (+ .json).
@@ -170,7 +183,8 @@ enum Command {
         #[arg(long, conflicts_with = "preset")]
         config: Option<PathBuf>,
         /// A built-in study instead of a config: zeroth-order-local, zeroth-order-global,
-        /// zeroth-order-sequence, ea-vs-pf, learned-vs-classical (`lfit bench presets` lists them).
+        /// zeroth-order-sequence, ea-vs-pf, learned-vs-classical (on the MakeHuman body),
+        /// learned-vs-classical-procedural (`lfit bench presets` lists them).
         #[arg(long)]
         preset: Option<String>,
         /// Use the config's `[quick]` sizes (presets: minutes on 2 cores instead of the paper's
@@ -340,6 +354,11 @@ struct FitCmd {
     /// sequences the previous frame's result).
     #[arg(long, default_value = "phi")]
     neural_start: String,
+    /// The subject's shape β is known, not estimated (papers/002 §3.2, HMD): `truth` (each
+    /// frame's ground-truth β) or comma-separated β values; the shape entries are then frozen
+    /// for every method. Required by checkpoints trained with the shape known.
+    #[arg(long)]
+    known_shape: Option<String>,
     /// Tensor backend of the neural fitter: ndarray, flex or wgpu.
     #[arg(long, default_value = "flex")]
     device: String,
@@ -583,6 +602,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 batch: c.batch,
                 runtime: c.runtime,
                 ort_threads: c.ort_threads,
+                known_shape: c.known_shape,
             };
             let bar = progress_bar(0, cli.quiet, "fit");
             let result = fit::fit(&args, &|done, total| {
@@ -597,9 +617,18 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             out,
             frames,
             budget,
+            clip,
+            clip_map,
+            clip_frames,
         } => {
             let bar = progress_bar(0, cli.quiet, "quickstart");
-            let result = commands::quickstart(&out, frames, budget, &part_progress(&bar));
+            let clip = clip.map(|bvh| commands::QuickstartClip {
+                bvh,
+                map: lfit::presets::find_shipped(&clip_map).unwrap_or(clip_map),
+                frames: clip_frames,
+            });
+            let result =
+                commands::quickstart(&out, frames, budget, clip.as_ref(), &part_progress(&bar));
             bar.finish_and_clear();
             // The table is the result: stdout, also with -q.
             println!("{}", result?);

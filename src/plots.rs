@@ -935,6 +935,7 @@ mod tests {
             mpjpe_mm: 8.0 + k,
             pa_mpjpe_mm: 5.0 + k,
             hausdorff_mm: 12.0 + k,
+            shape_rms: f64::NAN,
             evaluations: budget as u64,
             gradient_evaluations: 0,
             iterations: 8,

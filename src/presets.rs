@@ -62,6 +62,23 @@ pub const PRESETS: &[(&str, &[(&str, &str)])] = &[
             ),
         ],
     ),
+    (
+        "learned-vs-classical-procedural",
+        &[
+            (
+                "markers",
+                include_str!("../benches/presets/learned-vs-classical-procedural-markers.toml"),
+            ),
+            (
+                "keypoints2d",
+                include_str!("../benches/presets/learned-vs-classical-procedural-keypoints2d.toml"),
+            ),
+            (
+                "hmd",
+                include_str!("../benches/presets/learned-vs-classical-procedural-hmd.toml"),
+            ),
+        ],
+    ),
 ];
 
 /// Preset names, for messages.
@@ -86,6 +103,9 @@ pub fn load(name: &str, quick: bool) -> Result<Vec<(String, BenchConfig)>> {
         let mut config = config.resolve(quick);
         if let Some(c) = &config.checkpoint {
             config.checkpoint = Some(find_shipped(c)?);
+        }
+        if let Some(t) = &config.template {
+            config.template = Some(find_shipped(t)?);
         }
         config
             .validate()
@@ -157,14 +177,34 @@ mod tests {
         let pf = &load("ea-vs-pf", false).unwrap()[0].1;
         assert_eq!(pf.budgets, vec![500, 1500, 3000]);
         assert_eq!(pf.entries().unwrap().len(), 8);
-        let lvc = load("learned-vs-classical", true).unwrap();
-        let parts: Vec<&str> = lvc.iter().map(|(p, _)| p.as_str()).collect();
-        assert_eq!(parts, ["markers", "keypoints2d", "hmd"]);
-        for (p, c) in &lvc {
-            assert!(
-                c.checkpoint.as_ref().unwrap().join("config.json").exists(),
-                "{p}"
-            );
+        // The default study runs on the MakeHuman body with its own fitters (β known for hmd,
+        // papers/002 §3.2); the procedural preset keeps the small template's study.
+        for (preset, model, suffix) in [
+            (
+                "learned-vs-classical",
+                Some("makehuman-cmu_mb.npz"),
+                "-makehuman",
+            ),
+            ("learned-vs-classical-procedural", None, ""),
+        ] {
+            let lvc = load(preset, true).unwrap();
+            let parts: Vec<&str> = lvc.iter().map(|(p, _)| p.as_str()).collect();
+            assert_eq!(parts, ["markers", "keypoints2d", "hmd"]);
+            for (p, c) in &lvc {
+                let ck = c.checkpoint.as_ref().unwrap();
+                assert!(ck.join("config.json").exists(), "{preset} {p}");
+                assert!(ck.ends_with(format!("{p}{suffix}")), "{preset} {p}: {ck:?}");
+                assert_eq!(
+                    c.template.as_ref().and_then(|t| t.file_name()),
+                    model.map(std::ffi::OsStr::new),
+                    "{preset} {p}"
+                );
+                assert_eq!(
+                    c.known_shape,
+                    model.is_some() && *p == "hmd",
+                    "{preset} {p}"
+                );
+            }
         }
     }
 

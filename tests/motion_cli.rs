@@ -1114,17 +1114,6 @@ fn motion_help_works() {
 
 // ---- The real clip. ----
 
-fn mocapbank_clip() -> Option<PathBuf> {
-    if let Some(p) = std::env::var_os("LFIT_MOCAPBANK_BVH") {
-        return Some(PathBuf::from(p));
-    }
-    let tools = std::env::var_os("LFIT_TOOLS_DIR")
-        .map(PathBuf::from)
-        .or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/lfit-tools")))?;
-    let p = tools.join("mocapbank/test_mocapbank.bvh");
-    p.is_file().then_some(p)
-}
-
 /// World joint positions of a BVH frame, this test's own FK over the parsed hierarchy:
 /// channels in file order multiply left to right, degrees.
 fn bvh_positions(bvh: &lfit::synth::bvh::Bvh, frame: &[f64]) -> Vec<V3> {
@@ -1234,7 +1223,7 @@ fn clip_cosines(
 
 #[test]
 fn the_mocapbank_clip_imports_with_bone_directions_matching() {
-    let Some(clip_path) = mocapbank_clip() else {
+    let Some(clip_path) = support::mocapbank_clip() else {
         return skip_unless_required(
             "the MocapBank clip is not fetched (scripts/fetch-mocapbank.sh, LFIT_MOCAPBANK_BVH)",
             Some("LFIT_MOCAPBANK_BVH"),
@@ -1284,7 +1273,7 @@ fn mpfb2_dir() -> Option<PathBuf> {
 
 #[test]
 fn the_mocapbank_clip_drives_the_makehuman_game_engine_rig() {
-    let Some(clip_path) = mocapbank_clip() else {
+    let Some(clip_path) = support::mocapbank_clip() else {
         return skip_unless_required(
             "the MocapBank clip is not fetched (scripts/fetch-mocapbank.sh, LFIT_MOCAPBANK_BVH)",
             Some("LFIT_MOCAPBANK_BVH"),
@@ -1329,7 +1318,7 @@ fn the_mocapbank_clip_drives_the_makehuman_game_engine_rig() {
 
 #[test]
 fn the_mocapbank_clip_drives_the_makehuman_cmu_mb_model_and_feeds_synth() {
-    let Some(clip_path) = mocapbank_clip() else {
+    let Some(clip_path) = support::mocapbank_clip() else {
         return skip_unless_required(
             "the MocapBank clip is not fetched (scripts/fetch-mocapbank.sh, LFIT_MOCAPBANK_BVH)",
             Some("LFIT_MOCAPBANK_BVH"),

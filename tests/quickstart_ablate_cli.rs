@@ -2,7 +2,9 @@
 
 mod support;
 
-use support::{assert_one_line_error, lfit, lfit_json, path_str};
+use support::{
+    assert_one_line_error, lfit, lfit_json, mocapbank_clip, path_str, skip_unless_required,
+};
 
 #[test]
 fn quickstart_compares_every_method_on_every_sparse_modality() {
@@ -24,21 +26,34 @@ fn quickstart_compares_every_method_on_every_sparse_modality() {
         String::from_utf8_lossy(&out.stderr)
     );
     let table = String::from_utf8_lossy(&out.stdout);
+    // The default study subject is the MakeHuman body, with its own fitters; hmd is given β.
+    assert!(table.starts_with("Model: makehuman-cmu_mb.npz."), "{table}");
     for m in ["markers", "keypoints2d", "hmd"] {
         for method in [
-            "| neural (checkpoints/MOD, N = 5) |",
+            "| neural (checkpoints/MOD-makehuman, N = 5) |",
             "| lbfgs @60 |",
             "| lm @60 |",
             "| cma @60 |",
             "| pso @60 |",
         ] {
             let method = method.replace("MOD", m);
-            assert!(
-                table
-                    .lines()
-                    .any(|l| l.starts_with(&format!("| {m} |")) && l.contains(&method)),
-                "{m} {method}:\n{table}"
-            );
+            let row = table
+                .lines()
+                .find(|l| l.starts_with(&format!("| {m} (3 frames) |")) && l.contains(&method));
+            let Some(row) = row else {
+                panic!("{m} {method}:\n{table}")
+            };
+            // Columns: data, method, V2V, MPJPE, PA-MPJPE, shape RMS, energy, evaluations, time.
+            let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+            let shape = cells[6];
+            if m == "hmd" {
+                assert_eq!(shape, "given", "{row}");
+            } else {
+                assert!(shape.parse::<f64>().is_ok_and(|v| v > 0.0), "{row}");
+            }
+            for c in &cells[3..6] {
+                assert!(c.parse::<f64>().is_ok_and(f64::is_finite), "{row}");
+            }
         }
         let dir = out_dir.join(m);
         let md = std::fs::read_to_string(dir.join("report.md")).expect("report");
@@ -74,6 +89,86 @@ fn quickstart_compares_every_method_on_every_sparse_modality() {
         "0",
     ]);
     assert_one_line_error(&out, "--frames");
+}
+
+#[test]
+fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
+    let Some(clip) = mocapbank_clip() else {
+        return skip_unless_required(
+            "the MocapBank clip is not fetched (scripts/fetch-mocapbank.sh, LFIT_MOCAPBANK_BVH)",
+            Some("LFIT_MOCAPBANK_BVH"),
+        );
+    };
+    let tmp = tempfile::tempdir().expect("tmp");
+    let out_dir = tmp.path().join("qs");
+    let out = lfit(&[
+        "-q",
+        "quickstart",
+        "--out",
+        path_str(&out_dir),
+        "--frames",
+        "2",
+        "--budget",
+        "40",
+        "--clip",
+        path_str(&clip),
+        "--clip-frames",
+        "4",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let table = String::from_utf8_lossy(&out.stdout);
+    for m in ["markers", "keypoints2d"] {
+        for method in [
+            "neural (checkpoints/MOD-makehuman, N = 5)",
+            "lbfgs @40",
+            "lm @40",
+            "cma @40",
+            "pso @40",
+        ] {
+            let want = format!(
+                "| {m}, captured clip (4 frames) | {} |",
+                method.replace("MOD", m)
+            );
+            assert!(
+                table.lines().any(|l| l.starts_with(&want)),
+                "{want}:\n{table}"
+            );
+        }
+        // A sequence over the clip's frames 1..=4, every method on every frame.
+        let dir = out_dir.join(format!("{m}-clip"));
+        let data =
+            lfit::synth::Dataset::from_npz(&std::fs::read(dir.join("data.npz")).expect("data"))
+                .expect("dataset");
+        assert_eq!(data.len(), 4);
+        assert_eq!(data.meta.config.scenario.to_string(), "sequence");
+        assert!(
+            data.meta
+                .frame_motions
+                .iter()
+                .all(|f| f.contains("clip-motion")),
+            "{:?}",
+            data.meta.frame_motions
+        );
+        let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("csv");
+        assert_eq!(csv.lines().count(), 1 + 5 * 4);
+    }
+    assert!(!table.contains("hmd, captured clip"));
+    // A clip that is not there: one line, before any fit.
+    let out = lfit(&[
+        "-q",
+        "quickstart",
+        "--out",
+        path_str(&tmp.path().join("z")),
+        "--frames",
+        "1",
+        "--clip",
+        path_str(&tmp.path().join("missing.bvh")),
+    ]);
+    assert_one_line_error(&out, "missing.bvh");
 }
 
 #[test]

@@ -238,6 +238,15 @@ impl NeuralFitter {
         // `check` remembers the models it has checked: the signature hash runs once per model.
         for r in requests {
             self.check(r.energy).map_err(neural)?;
+            if self.meta.network.known_shape {
+                let shape = r.energy.template().layout().range(lfit_model::Block::Shape);
+                if r.mask.free.iter().any(|i| shape.contains(i)) {
+                    return Err(FitError::Neural(format!(
+                        "checkpoint {} was trained with the shape β known (papers/002 §3.2): give β and freeze it (lfit fit --known-shape truth|β values; bench known_shape = true)",
+                        self.dir.display()
+                    )));
+                }
+            }
             if r.budget == 0 {
                 return Err(FitError::Budget(0));
             }

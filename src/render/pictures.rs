@@ -143,7 +143,7 @@ pub fn report_pictures(config: &BenchConfig, runs: &[Run], out: &Path) -> Result
         return Ok(md);
     }
     let dataset = Dataset::load(&data).with_context(|| format!("dataset {}", data.display()))?;
-    let template = crate::fitting::template_for(&dataset, None)?;
+    let template = crate::fitting::template_for(&dataset, config.template.as_deref())?;
     let camera = super::view_camera(&dataset, 0).is_some();
     let _ = writeln!(
         md,
@@ -243,6 +243,7 @@ mod tests {
             mpjpe_mm: 0.0,
             pa_mpjpe_mm: 0.0,
             hausdorff_mm: 0.0,
+            shape_rms: f64::NAN,
             evaluations: 0,
             gradient_evaluations: 0,
             iterations: 0,

@@ -152,3 +152,16 @@ pub fn validate_glb(prefix: &Path, glb: &Path) -> (serde_json::Value, String) {
         stdout,
     )
 }
+
+/// The MocapBank BVH clip (scripts/fetch-mocapbank.sh): `LFIT_MOCAPBANK_BVH`, else where the
+/// script puts it; `None` when it is not fetched.
+pub fn mocapbank_clip() -> Option<PathBuf> {
+    if let Some(p) = std::env::var_os("LFIT_MOCAPBANK_BVH") {
+        return Some(PathBuf::from(p));
+    }
+    let tools = std::env::var_os("LFIT_TOOLS_DIR")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/lfit-tools")))?;
+    let p = tools.join("mocapbank/test_mocapbank.bvh");
+    p.is_file().then_some(p)
+}

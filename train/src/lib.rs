@@ -14,14 +14,15 @@ use burn::module::Module;
 use burn::optim::grad_clipping::GradientClippingConfig;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Bytes, Device};
-use lfit_model::Template;
 use lfit_model::energy::{Energy, EnergyConfig, Target};
 use lfit_model::metrics::{mpjpe_mm, v2v_mm};
 use lfit_model::observe::{Modality, Sensor};
+use lfit_model::{Block, Bounds, Template};
 use lfit_nn::checkpoint::{self, checkpoint_files, write_dir};
 use lfit_nn::tensor::poses_to_tensor;
 use lfit_nn::{
-    Dropout, FeatureStats, NetConfig, NeuralNet, StartMode, observation_features, unroll,
+    Constraints, Dropout, FeatureStats, NetConfig, NeuralNet, StartMode, observation_features,
+    unroll,
 };
 use lfit_synth::{
     Dataset, MotionFile, NoiseConfig, Observations, Scenario, SynthConfig, synthesize,
@@ -382,6 +383,39 @@ pub fn measure_stats(frames: &Frames) -> FeatureStats {
     FeatureStats::measure(&obs, &res, &grad, &pose)
 }
 
+/// Constraints of a known-shape network ([`lfit_nn::NetConfig::known_shape`], papers/002 §3.2):
+/// every pose entry free and unbounded, the shape entries frozen at the truth (lower = upper =
+/// β of `gt`), so θ0 (Φ(D) or the start pose) is clamped onto the true β and no update moves it.
+pub fn known_shape_constraints(template: &Template, gt: &[Vec<f64>]) -> Constraints {
+    let layout = template.layout();
+    let shape = layout.range(Block::Shape);
+    let dim = layout.dim();
+    let free: Vec<bool> = (0..dim).map(|i| !shape.contains(&i)).collect();
+    Constraints {
+        free: vec![free; gt.len()],
+        bounds: gt
+            .iter()
+            .map(|g| {
+                let (mut lower, mut upper) =
+                    (vec![f64::NEG_INFINITY; dim], vec![f64::INFINITY; dim]);
+                for i in shape.clone() {
+                    lower[i] = g[i];
+                    upper[i] = g[i];
+                }
+                Bounds { lower, upper }
+            })
+            .collect(),
+    }
+}
+
+/// The constraints `net` trains and validates under: [`known_shape_constraints`] for a
+/// known-shape network, none otherwise.
+fn training_constraints(net: &NeuralNet, frames: &Frames) -> Option<Constraints> {
+    net.config
+        .known_shape
+        .then(|| known_shape_constraints(frames.energies[0].template(), &frames.dataset.gt_poses))
+}
+
 /// Validation errors per iteration θ0 … θN, averaged over frames (mm).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Validation {
@@ -405,12 +439,13 @@ pub fn validate(
         .iter()
         .map(|s| from_start.then(|| s.clone()))
         .collect();
+    let constraints = training_constraints(net, frames);
     let out = unroll(
         net,
         stats,
         &refs,
         &starts,
-        None,
+        constraints.as_ref(),
         device,
         &mut Dropout::off(),
     )?;
@@ -523,6 +558,13 @@ pub fn train_with_sensor(
     net_config.residual_dim = sensor.residual_dim(&template);
     net_config.param_dim = template.param_dim();
     net_config.validate()?;
+    if net_config.known_shape && template.layout().shape == 0 {
+        return Err(TrainError::Setting {
+            name: "network.known_shape",
+            value: "true".into(),
+            reason: format!("model '{}' has no shape parameters to give", template.id),
+        });
+    }
     let base = base_energy(&template, &sensor)?;
     let motions = Motions::load(config, &template)?;
     let ad = device.clone().autodiff();
@@ -727,12 +769,13 @@ pub fn train_with_sensor(
             .collect();
         let refs: Vec<&Energy> = frames.energies.iter().collect();
         let truth = loss.truth(poses_to_tensor(&frames.dataset.gt_poses, &ad));
+        let constraints = training_constraints(&net, &frames);
         let out = unroll(
             &net,
             &stats,
             &refs,
             &starts,
-            None,
+            constraints.as_ref(),
             &ad,
             &mut Dropout {
                 p: net_config.dropout,
@@ -815,4 +858,70 @@ pub fn train_with_sensor(
         final_validation: last_validation,
         parameters: net.parameters(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A known-shape network starts and stays on the true β (θ0 = Φ(D) or the start pose,
+    /// clamped); the same network without the flag does not.
+    #[test]
+    fn a_known_shape_network_is_held_on_the_true_shape() {
+        let (template, _) = lfit_model::body::morphable_default_template().expect("template");
+        let template = Arc::new(template);
+        let sensor = Sensor::default_for(Modality::Hmd, &template);
+        let base = base_energy(&template, &sensor).expect("energy");
+        let frames = synth_frames(&template, &sensor, &base, 4, 9, 1.0).expect("frames");
+        let device = lfit_nn::tensor::device_from_name("ndarray").expect("device");
+        let shape = template.layout().range(Block::Shape);
+        let stats = measure_stats(&frames);
+        let refs: Vec<&Energy> = frames.energies.iter().collect();
+        for known in [true, false] {
+            let config = NetConfig {
+                modality: Modality::Hmd,
+                residual_dim: sensor.residual_dim(&template),
+                param_dim: template.param_dim(),
+                hidden: 8,
+                init_width: 8,
+                layers: 1,
+                iterations: 2,
+                known_shape: known,
+                ..NetConfig::default()
+            };
+            let net = NeuralNet::new(&config, 1, &device).expect("net").valid();
+            let constraints = training_constraints(&net, &frames);
+            assert_eq!(constraints.is_some(), known);
+            for given in [false, true] {
+                let starts: Vec<Option<Vec<f64>>> = frames
+                    .dataset
+                    .start_poses
+                    .iter()
+                    .map(|s| given.then(|| s.clone()))
+                    .collect();
+                let out = unroll(
+                    &net,
+                    &stats,
+                    &refs,
+                    &starts,
+                    constraints.as_ref(),
+                    &device,
+                    &mut Dropout::off(),
+                )
+                .expect("unroll");
+                let worst = out
+                    .host
+                    .iter()
+                    .flat_map(|poses| poses.iter().zip(&frames.dataset.gt_poses))
+                    .flat_map(|(p, g)| shape.clone().map(move |i| (p[i] - g[i]).abs()))
+                    .fold(0.0, f64::max);
+                if known {
+                    // f32 in the loop: within its rounding of β.
+                    assert!(worst < 1e-6, "given {given}: β off by {worst}");
+                } else {
+                    assert!(worst > 1e-3, "given {given}: β should move freely");
+                }
+            }
+        }
+    }
 }

@@ -360,17 +360,29 @@ fn metadata(
             .is_none_or(|m| m.layout.shape + m.layout.expression == 0)
     {
         DofMask::full57()
+    } else if let Some(sig) = meta.model.as_ref().filter(|_| c.known_shape) {
+        // Trained with the shape known (papers/002 §3.2): β is an input held fixed.
+        let shape = sig.layout.range(lfit_model::Block::Shape);
+        DofMask {
+            name: format!("full{}-known-shape", c.param_dim),
+            free: (0..c.param_dim).filter(|i| !shape.contains(i)).collect(),
+        }
     } else {
         DofMask {
             name: format!("full{}", c.param_dim),
             free: (0..c.param_dim).collect(),
         }
     };
+    let note = if c.known_shape {
+        "the network updates the pose; the shape β is known: set it in θ0, freeze it (mask 0) and bound it to itself (lower = upper = β); a fit multiplies Δθ and g by its mask of free DOFs (1 free, 0 frozen) and clamps θ into its bounds after each update"
+    } else {
+        "the network updates every pose parameter; a fit multiplies Δθ and g by its own mask of free DOFs (1 free, 0 frozen) and clamps θ into its bounds after each update"
+    };
     let dof = serde_json::json!({
         "mask": mask.name,
         "free": mask.free,
         "names": names,
-        "note": "the network updates every pose parameter; a fit multiplies Δθ and g by its own mask of free DOFs (1 free, 0 frozen) and clamps θ into its bounds after each update",
+        "note": note,
     });
     let entries: BTreeMap<&str, String> = BTreeMap::from([
         (keys::FORMAT, FORMAT.to_string()),

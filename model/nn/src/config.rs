@@ -117,6 +117,11 @@ pub struct NetConfig {
     pub output_gain: f64,
     /// Normalised input features are clipped to ±this.
     pub feature_clip: f64,
+    /// The model's shape β is given, not estimated (papers/002 §3.2: "we assume we are given
+    /// body shape β for the HMD fitting scenario"): training fixes the shape entries to the
+    /// truth, and a fit must freeze them at the subject's β (`lfit fit --known-shape`).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub known_shape: bool,
 }
 
 impl Default for NetConfig {
@@ -142,6 +147,7 @@ impl Default for NetConfig {
             dropout: 0.5,
             output_gain: 0.01,
             feature_clip: 10.0,
+            known_shape: false,
         }
     }
 }

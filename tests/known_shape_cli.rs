@@ -1,0 +1,241 @@
+//! The subject's shape β given rather than estimated (papers/002 §3.2: the HMD fitter is given
+//! β): `lfit fit --known-shape truth|β…` freezes the shape entries of every method at the given
+//! values, a network trained with `"known_shape": true` is clamped onto the true β during
+//! training and refuses a fit that would let β move, and bench configs say `known_shape = true`.
+//! On the morphable default template (8 shape components), tiny sizes.
+
+mod support;
+
+use support::{assert_one_line_error, lfit, lfit_json, path_str};
+
+const B: usize = 8;
+
+fn read(path: &std::path::Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(path).expect("result")).expect("json")
+}
+
+fn shapes(result: &serde_json::Value) -> Vec<Vec<f64>> {
+    result["frames"]
+        .as_array()
+        .expect("frames")
+        .iter()
+        .map(|f| {
+            f["shape"]
+                .as_array()
+                .expect("shape")
+                .iter()
+                .map(|v| v.as_f64().expect("number"))
+                .collect()
+        })
+        .collect()
+}
+
+#[test]
+fn a_known_shape_is_frozen_for_every_method_and_required_by_a_known_shape_network() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let data = d.join("hmd.npz");
+    lfit_json(&[
+        "-q",
+        "synth",
+        "--modality",
+        "hmd",
+        "--shape",
+        "morphable",
+        "--frames",
+        "5",
+        "--seed",
+        "3",
+        "--out",
+        path_str(&data),
+    ]);
+    let dataset =
+        lfit::synth::Dataset::from_npz(&std::fs::read(&data).expect("data")).expect("dataset");
+    let truth: Vec<Vec<f64>> = dataset.gt_poses.iter().map(|g| g[57..].to_vec()).collect();
+    assert!(truth.iter().flatten().any(|b| b.abs() > 0.1), "random β");
+
+    // A tiny known-shape hmd network.
+    let config = d.join("hmd.json");
+    std::fs::write(
+        &config,
+        r#"{"modality": "hmd", "network": {"hidden": 16, "layers": 1, "init_width": 16, "iterations": 3, "start": "mixed", "dropout": 0.0, "known_shape": true},
+            "steps": 3, "batch": 4, "val_frames": 4, "val_every": 3, "checkpoint_every": 3, "stats_frames": 8, "seed": 2}"#,
+    )
+    .expect("config");
+    let ck = d.join("ck");
+    lfit_json(&[
+        "-q",
+        "train",
+        "--config",
+        path_str(&config),
+        "--shape",
+        "morphable",
+        "--out",
+        path_str(&ck),
+        "--device",
+        "ndarray",
+    ]);
+    assert_eq!(
+        read(&ck.join("config.json"))["network"]["known_shape"],
+        true
+    );
+
+    let fit = |method: &str, known: Option<&str>, name: &str| {
+        let out = d.join(name);
+        let neural = method == "neural";
+        let mut args = vec![
+            "-q",
+            "fit",
+            "--data",
+            path_str(&data),
+            "--method",
+            method,
+            "--budget",
+            if neural { "10" } else { "200" },
+            "--out",
+            path_str(&out),
+        ];
+        if neural {
+            args.extend(["--checkpoint", path_str(&ck), "--device", "ndarray"]);
+        }
+        if let Some(k) = known {
+            args.extend(["--known-shape", k]);
+        }
+        (lfit(&args), out)
+    };
+
+    // β = the truth, to the bit, for a classical and the neural fitter (from Φ(D) and given).
+    for (method, name) in [
+        ("lm", "lm.json"),
+        ("lbfgs", "lbfgs.json"),
+        ("neural", "nn.json"),
+    ] {
+        let (o, out) = fit(method, Some("truth"), name);
+        assert!(
+            o.status.success(),
+            "{method}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let r = read(&out);
+        assert_eq!(r["mask"], "local51-known-shape", "{method}");
+        assert_eq!(shapes(&r), truth, "{method}: β must stay the truth");
+        for f in r["frames"].as_array().expect("frames") {
+            assert_eq!(f["shape_rms"], 0.0, "{method}");
+        }
+    }
+    // Without --known-shape LM moves β (so the equality above is the flag's doing).
+    let (o, out) = fit("lm", None, "lm-free.json");
+    assert!(o.status.success());
+    assert_ne!(shapes(&read(&out)), truth);
+    // One β for every frame.
+    let given = "0.5,-0.25,0,0,0,0,0,1";
+    let (o, out) = fit("lm", Some(given), "lm-given.json");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let want: Vec<f64> = given.split(',').map(|v| v.parse().unwrap()).collect();
+    assert!(shapes(&read(&out)).iter().all(|s| *s == want));
+
+    // The known-shape network refuses a fit that frees β; bad values are one-line errors.
+    let (o, out) = fit("neural", None, "nn-free.json");
+    assert_one_line_error(&o, "--known-shape");
+    assert!(!out.exists());
+    let (o, _) = fit("lm", Some("0.1,0.2"), "x.json");
+    assert_one_line_error(&o, &format!("{B} shape parameters"));
+    let (o, _) = fit("lm", Some("0.1,nan,0,0,0,0,0,0"), "x.json");
+    assert_one_line_error(&o, "not a finite number");
+    let (o, _) = fit("lm", Some("tall"), "x.json");
+    assert_one_line_error(&o, "'tall'");
+    let out = lfit(&[
+        "-q",
+        "fit",
+        "--data",
+        path_str(&data),
+        "--method",
+        "lbfgs",
+        "--strategy",
+        "shape-first",
+        "--known-shape",
+        "truth",
+        "--budget",
+        "50",
+        "--out",
+        path_str(&d.join("x.json")),
+    ]);
+    assert_one_line_error(&out, "shape-first");
+    assert!(!d.join("x.json").exists());
+
+    // A model without shape parameters: nothing to give, for fit and for training.
+    let plain = d.join("plain.npz");
+    lfit_json(&[
+        "-q",
+        "synth",
+        "--modality",
+        "hmd",
+        "--frames",
+        "2",
+        "--out",
+        path_str(&plain),
+    ]);
+    let out = lfit(&[
+        "-q",
+        "fit",
+        "--data",
+        path_str(&plain),
+        "--method",
+        "lm",
+        "--known-shape",
+        "truth",
+        "--budget",
+        "50",
+        "--out",
+        path_str(&d.join("x.json")),
+    ]);
+    assert_one_line_error(&out, "no shape parameters");
+    let out = lfit(&[
+        "-q",
+        "train",
+        "--config",
+        path_str(&config),
+        "--out",
+        path_str(&d.join("t")),
+        "--device",
+        "ndarray",
+    ]);
+    assert_one_line_error(&out, "no shape parameters");
+    assert!(!d.join("t").join("config.json").exists());
+
+    // A bench with the known-shape checkpoint must give β.
+    let bench = |known: bool| {
+        let toml = d.join(format!("bench-{known}.toml"));
+        std::fs::write(
+            &toml,
+            format!(
+                "name = \"k\"\ndata = \"{}\"\nmethods = [\"neural\", \"lm\"]\nbudgets = [50]\ncheckpoint = \"{}\"\nneural_start = \"given\"\nknown_shape = {known}\nframes = \"0-1\"\n",
+                path_str(&data),
+                path_str(&ck)
+            ),
+        )
+        .expect("toml");
+        lfit(&[
+            "-q",
+            "bench",
+            "--config",
+            path_str(&toml),
+            "--out",
+            path_str(&d.join(format!("b-{known}"))),
+        ])
+    };
+    assert_one_line_error(&bench(false), "known_shape = true");
+    let o = bench(true);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let csv = std::fs::read_to_string(d.join("b-true/runs.csv")).expect("runs.csv");
+    let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
+    let col = header
+        .iter()
+        .position(|h| *h == "shape_rms")
+        .expect("shape_rms");
+    let rows: Vec<&str> = csv.lines().skip(1).collect();
+    assert_eq!(rows.len(), 4);
+    for row in rows {
+        assert_eq!(row.split(',').nth(col), Some("0.00000"), "{row}");
+    }
+}
