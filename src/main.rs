@@ -634,7 +634,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             println!("{}", result?);
             if !cli.quiet {
                 eprintln!(
-                    "Reports and plots: {0}/<modality>/report.md and {0}/<modality>/plots/; summary: {0}/comparison.md",
+                    "Reports, plots and pictures: {0}/<part>/report.md, {0}/<part>/plots/ and {0}/<part>/pictures/ (parts: markers, keypoints2d, hmd and, with --clip, markers-clip, keypoints2d-clip); summary: {0}/comparison.md",
                     out.display()
                 );
             }
