@@ -1,7 +1,7 @@
 //! The checkpoints shipped in `checkpoints/`: one per sparse modality on the default template and
-//! the `markers`/`keypoints2d` fitters of the committed MakeHuman body, each at most 10 MB, with
-//! config, weights, statistics and a metrics card, loading on their model and fitting held-out
-//! frames well below their start error.
+//! on the committed MakeHuman body (its `hmd` fitter given β, papers/002 §3.2), each at most
+//! 10 MB, with config, weights, statistics and a metrics card, loading on their model and fitting
+//! held-out frames well below their start error.
 
 mod support;
 
@@ -10,7 +10,7 @@ use std::path::Path;
 use support::{lfit_json, path_str};
 
 /// Checkpoint directory, modality, model file (`None`: the default template).
-const CHECKPOINTS: [(&str, &str, Option<&str>); 5] = [
+const CHECKPOINTS: [(&str, &str, Option<&str>); 6] = [
     ("markers", "markers", None),
     ("keypoints2d", "keypoints2d", None),
     ("hmd", "hmd", None),
@@ -24,6 +24,7 @@ const CHECKPOINTS: [(&str, &str, Option<&str>); 5] = [
         "keypoints2d",
         Some("models/makehuman-cmu_mb.npz"),
     ),
+    ("hmd-makehuman", "hmd", Some("models/makehuman-cmu_mb.npz")),
 ];
 
 #[test]
@@ -70,6 +71,12 @@ fn every_shipped_checkpoint_is_complete_small_and_fits_its_modality() {
         }
         let v2v = card["validation"]["v2v_mm"].as_array().expect("v2v");
         assert_eq!(v2v.len(), 6, "{m}: N = 5 iterations plus θ0");
+        let config: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.join("config.json")).expect("config"))
+                .expect("json");
+        // The MakeHuman hmd fitter is the one given β (the others estimate it, or have none).
+        let known = config["network"]["known_shape"] == true;
+        assert_eq!(known, name == "hmd-makehuman", "{m}: known_shape");
 
         // Held-out frames (a seed no training run uses): the fit from the start pose ends far
         // below the start error.
@@ -106,6 +113,9 @@ fn every_shipped_checkpoint_is_complete_small_and_fits_its_modality() {
             path_str(&out),
         ];
         args.extend(&template);
+        if known {
+            args.extend(["--known-shape", "truth"]);
+        }
         lfit_json(&args);
         let r: serde_json::Value =
             serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json");
