@@ -204,9 +204,16 @@ pub fn report_pictures(config: &BenchConfig, runs: &[Run], out: &Path) -> Result
             ));
         }
         let columns = panels.len() / rows.len();
+        // The neural fitter spends its own 2N evaluations, not the sweep's budget.
+        let spent = match mine.first() {
+            Some(r) if r.method == crate::method::MethodKind::Neural.name() => {
+                format!("N = {}, {} evaluations", r.iterations, r.evaluations)
+            }
+            _ => format!("@{budget}"),
+        };
         let scene = Scene {
             title: format!(
-                "{label} @{budget} · {} · {}",
+                "{label} {spent} · {} · {}",
                 dataset.modality(),
                 super::view_names(&dataset, 0)
             ),
