@@ -185,15 +185,11 @@ impl BenchConfig {
             (None, Some(s)) if s.frames == 0 => bail!("synth.frames must be at least 1"),
             _ => {}
         }
-        if self.known_shape
-            && self
-                .entries()?
-                .iter()
-                .any(|(_, s)| s == Strategy::ShapeFirst.name())
-        {
-            bail!(
-                "known_shape: strategy shape-first fits the shape first, it needs the shape free"
-            );
+        if self.known_shape {
+            // `-`: the neural fitter, which has no strategy.
+            for (_, s) in self.entries()?.iter().filter(|(_, s)| s != "-") {
+                crate::fitting::KnownShape::check_strategy(s.parse()?).context("known_shape")?;
+            }
         }
         if let Some(t) = &self.template
             && !t.exists()
@@ -491,9 +487,9 @@ fn checkpoint_knows_shape(dir: &Path) -> Result<bool> {
     let path = dir.join("config.json");
     let text = std::fs::read_to_string(&path)
         .with_context(|| format!("cannot read {}", path.display()))?;
-    let meta: serde_json::Value =
+    let meta: lfit_nn::CheckpointMeta =
         serde_json::from_str(&text).with_context(|| format!("malformed {}", path.display()))?;
-    Ok(meta["network"]["known_shape"].as_bool().unwrap_or(false))
+    Ok(meta.network.known_shape)
 }
 
 /// Runs the sweep (or one shard of it) into `out`; returns the rows of this shard, sorted.

@@ -148,10 +148,8 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     let strategy: Strategy = args.strategy.parse()?;
     let known_shape: Option<crate::fitting::KnownShape> =
         args.known_shape.as_deref().map(str::parse).transpose()?;
-    if known_shape.is_some() && strategy == Strategy::ShapeFirst {
-        bail!(
-            "--strategy shape-first fits the shape first: it needs the shape free (drop --known-shape)"
-        );
+    if known_shape.is_some() {
+        crate::fitting::KnownShape::check_strategy(strategy).context("--known-shape")?;
     }
     let load =
         || Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()));

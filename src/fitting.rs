@@ -57,6 +57,14 @@ impl std::str::FromStr for KnownShape {
 }
 
 impl KnownShape {
+    /// A strategy that can run with the shape frozen (`shape-first` fits the shape first).
+    pub fn check_strategy(strategy: lfit_fitters::Strategy) -> Result<()> {
+        if strategy == lfit_fitters::Strategy::ShapeFirst {
+            bail!("strategy shape-first fits the shape first: it needs the shape free");
+        }
+        Ok(())
+    }
+
     /// Checks the shape against the dataset and model before any fit runs.
     pub fn check(&self, dataset: &Dataset, template: &Template) -> Result<()> {
         let b = template.layout().shape;
