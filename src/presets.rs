@@ -177,6 +177,24 @@ mod tests {
         let pf = &load("ea-vs-pf", false).unwrap()[0].1;
         assert_eq!(pf.budgets, vec![500, 1500, 3000]);
         assert_eq!(pf.entries().unwrap().len(), 8);
+        // papers/000 and papers/001 fit the pose of the subject's own model: on the MakeHuman
+        // body with β given.
+        for preset in [
+            "zeroth-order-local",
+            "zeroth-order-global",
+            "zeroth-order-sequence",
+            "ea-vs-pf",
+        ] {
+            for (p, c) in load(preset, true).unwrap() {
+                assert_eq!(
+                    c.template.as_ref().and_then(|t| t.file_name()),
+                    Some(std::ffi::OsStr::new("makehuman-cmu_mb.npz")),
+                    "{preset} {p}"
+                );
+                assert!(c.template.as_ref().unwrap().exists(), "{preset} {p}");
+                assert!(c.known_shape, "{preset} {p}");
+            }
+        }
         // The default study runs on the MakeHuman body with its own fitters (β known for hmd,
         // papers/002 §3.2); the procedural preset keeps the small template's study.
         for (preset, model, suffix) in [
