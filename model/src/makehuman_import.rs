@@ -58,7 +58,7 @@ use serde::Serialize;
 
 use crate::error::{ModelError, Result};
 use crate::info::{ModelInfo, PARTS};
-use crate::makehuman::{BaseMesh, Placement, read_obj, read_rig, read_target, read_weights};
+use crate::makehuman::{BaseMesh, Bone, Placement, read_obj, read_rig, read_target, read_weights};
 use crate::morph::{Morph, SparseRows};
 use crate::rig::{Joint, Marker, Rig};
 use crate::skeleton;
@@ -658,6 +658,399 @@ pub fn edge_defects(faces: &[[u32; 3]]) -> (usize, usize) {
     )
 }
 
+/// Target rows restricted to `vertices` (model vertex i is base vertex `vertices[i]`), metres,
+/// each `3 × vertices.len()` long.
+pub(crate) fn dense_rows(
+    targets: &[Vec<(u32, DVec3)>],
+    vertices: &[u32],
+    nv: usize,
+) -> Vec<Vec<f64>> {
+    let mut pos = vec![usize::MAX; nv];
+    for (i, &v) in vertices.iter().enumerate() {
+        pos[v as usize] = i;
+    }
+    let dim = 3 * vertices.len();
+    targets
+        .par_iter()
+        .map(|t| {
+            let mut row = vec![0.0; dim];
+            for (i, d) in t {
+                let i = pos.get(*i as usize).copied().unwrap_or(usize::MAX);
+                if i != usize::MAX {
+                    row[3 * i] = d.x * DM;
+                    row[3 * i + 1] = d.y * DM;
+                    row[3 * i + 2] = d.z * DM;
+                }
+            }
+            row
+        })
+        .collect()
+}
+
+/// `Σ_k c_k row_k`: a combination of target rows.
+pub(crate) fn combine(dense: &[Vec<f64>], c: &[f64]) -> Vec<f64> {
+    let mut out = vec![0.0; dense.first().map_or(0, Vec::len)];
+    for (row, &x) in dense.iter().zip(c) {
+        if x != 0.0 {
+            for (o, r) in out.iter_mut().zip(row) {
+                *o += x * r;
+            }
+        }
+    }
+    out
+}
+
+/// Principal components of meshes `base + Σ_k w_k T_k` over sampled weight vectors, computed in
+/// the K-dimensional target space: the eigenproblem of `H^½ G H^½` with H the (centred or plain)
+/// second moment of the weights and G the Gram matrix of the target rows. Exact, and needs no
+/// `n × 3V` sample matrix.
+pub(crate) struct TargetPca {
+    /// Mean weights (zero when not centred: the coordinates then measure from `base`).
+    pub wbar: Vec<f64>,
+    /// Component b in target space (`q_b = H^½ z_b`); its vertex direction is `Tᵀ q_b`.
+    pub q: Vec<DVector<f64>>,
+    /// Eigenvalues of the kept components.
+    pub lambda: Vec<f64>,
+    /// Vertex directions (3V each), each scaled by its standard deviation.
+    pub dirs: Vec<Vec<f64>>,
+    /// Variance explained per component (first 32 or all), fraction of the total.
+    pub variance_explained: Vec<f64>,
+    gq: Vec<DVector<f64>>,
+}
+
+impl TargetPca {
+    /// The first `components` components of the meshes of `w_train`. Centred: around the mean
+    /// mesh (a shape space); not centred: around `base` (an expression space whose zero is the
+    /// neutral face). Signs: each direction raises the mean height coordinate (Σ y ≥ 0).
+    pub fn fit(
+        dense: &[Vec<f64>],
+        w_train: &[Vec<f64>],
+        components: usize,
+        centred: bool,
+        what: &str,
+    ) -> Result<Self> {
+        let k = dense.len();
+        let n = w_train.len();
+        let wbar: Vec<f64> = if centred {
+            (0..k)
+                .map(|c| w_train.iter().map(|w| w[c]).sum::<f64>() / n as f64)
+                .collect()
+        } else {
+            vec![0.0; k]
+        };
+        let mut h = DMatrix::<f64>::zeros(k, k);
+        let scale = if centred { (n - 1) as f64 } else { n as f64 };
+        for w in w_train {
+            let d = DVector::from_iterator(k, w.iter().zip(&wbar).map(|(a, b)| a - b));
+            h.ger(1.0 / scale, &d, &d, 1.0);
+        }
+        let he = SymmetricEigen::new(h);
+        let sqrt_vals = he.eigenvalues.map(|x| x.max(0.0).sqrt());
+        let s = &he.eigenvectors * DMatrix::from_diagonal(&sqrt_vals) * he.eigenvectors.transpose();
+        let gram_rows: Vec<Vec<f64>> = (0..k)
+            .into_par_iter()
+            .map(|a| {
+                (0..k)
+                    .map(|b| {
+                        if b < a {
+                            0.0
+                        } else {
+                            dense[a].iter().zip(&dense[b]).map(|(x, y)| x * y).sum()
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let g = DMatrix::from_fn(k, k, |a, b| {
+            if a <= b {
+                gram_rows[a][b]
+            } else {
+                gram_rows[b][a]
+            }
+        });
+        let m = &s * &g * &s;
+        let me = SymmetricEigen::new(m);
+        let mut order: Vec<usize> = (0..k).collect();
+        order.sort_by(|&a, &b| me.eigenvalues[b].total_cmp(&me.eigenvalues[a]));
+        let total: f64 = me.eigenvalues.iter().map(|x| x.max(0.0)).sum();
+        if components == 0
+            || components > k
+            || me.eigenvalues[order[components - 1]] <= total * 1e-14
+        {
+            return Err(ModelError::Config(format!(
+                "import-makehuman: the sampled {what} span fewer than {components} directions: lower --components"
+            )));
+        }
+        let mut q: Vec<DVector<f64>> = order[..components]
+            .iter()
+            .map(|&i| &s * me.eigenvectors.column(i))
+            .collect();
+        let lambda: Vec<f64> = order[..components]
+            .iter()
+            .map(|&i| me.eigenvalues[i])
+            .collect();
+        let mut dirs: Vec<Vec<f64>> = q.iter().map(|qb| combine(dense, qb.as_slice())).collect();
+        for (col, qb) in dirs.iter_mut().zip(q.iter_mut()) {
+            let sy: f64 = col.iter().skip(1).step_by(3).sum();
+            if sy < 0.0 {
+                col.iter_mut().for_each(|x| *x = -*x);
+                *qb = -qb.clone();
+            }
+        }
+        let variance_explained: Vec<f64> = order
+            .iter()
+            .take(32)
+            .map(|&i| me.eigenvalues[i].max(0.0) / total)
+            .collect();
+        let gq: Vec<DVector<f64>> = q.iter().map(|qb| &g * qb).collect();
+        Ok(Self {
+            wbar,
+            q,
+            lambda,
+            dirs,
+            variance_explained,
+            gq,
+        })
+    }
+
+    /// Coordinates of the mesh of weights `w`: `β_b(w) = q_bᵀ G (w − w̄) / λ_b`.
+    pub fn coords(&self, w: &[f64]) -> Vec<f64> {
+        self.gq
+            .iter()
+            .zip(&self.lambda)
+            .map(|(gqb, l)| {
+                gqb.iter()
+                    .zip(w.iter().zip(&self.wbar))
+                    .map(|(a, (x, y))| a * (x - y))
+                    .sum::<f64>()
+                    / l
+            })
+            .collect()
+    }
+
+    /// Vertex distances (one per vertex) between the mesh of `w` and its projection on the
+    /// components: the residual `Tᵀ r` with `r = (w − w̄) − Σ_b β_b q_b`.
+    pub fn residual_lengths(&self, dense: &[Vec<f64>], w: &[f64]) -> Vec<f64> {
+        let beta = self.coords(w);
+        let mut r: Vec<f64> = w.iter().zip(&self.wbar).map(|(a, b)| a - b).collect();
+        for (qb, b) in self.q.iter().zip(&beta) {
+            for (ri, qi) in r.iter_mut().zip(qb.iter()) {
+                *ri -= b * qi;
+            }
+        }
+        let res = combine(dense, &r);
+        res.chunks_exact(3)
+            .map(|c| DVec3::new(c[0], c[1], c[2]).length())
+            .collect()
+    }
+}
+
+/// What the joint regressor is fitted from.
+pub(crate) struct RegressorInput<'a> {
+    /// Bones, parents first; a joint sits at its bone's head.
+    pub bones: &'a [Bone],
+    pub mesh: &'a BaseMesh,
+    pub rig_path: &'a Path,
+    /// Base mesh vertices (decimetres, lifted) and the targets mixed onto them.
+    pub base: &'a [DVec3],
+    pub targets: &'a [Vec<(u32, DVec3)>],
+    /// Target weights of the training and held-out samples.
+    pub w_train: &'a [Vec<f64>],
+    pub w_held: &'a [Vec<f64>],
+    /// The shape space (over the model's vertices) that the joints follow.
+    pub pca: &'a TargetPca,
+    /// The model's mean vertices (metres).
+    pub mean: &'a [DVec3],
+    /// Further vertex directions (3V each) that must not move the joints (expression).
+    pub still: &'a [Vec<f64>],
+    /// Model vertices per regressor row.
+    pub neighbours: usize,
+}
+
+/// A fitted joint regressor.
+pub(crate) struct RegressorFit {
+    pub regressor: SparseRows,
+    /// Mean and largest held-out distance (mm) between `J_regressor T(β)` and MakeHuman's own bone
+    /// heads.
+    pub heldout_error_mm: [f64; 2],
+    pub max_weight: f64,
+}
+
+/// Every joint is affine in the mixing weights: fits each joint's position over the samples as
+/// `J₀ + Jd β` (least squares on the PCA coordinates), then builds its regressor row on the
+/// `neighbours` model vertices nearest the mean joint: the smallest-norm weights (around uniform)
+/// with `Σ r = 1`, `r · v_template = J₀`, `r · shapedirs_b = Jd_b` for every b and
+/// `r · still_e = 0` for every still direction.
+pub(crate) fn fit_regressor(input: &RegressorInput<'_>) -> Result<RegressorFit> {
+    let RegressorInput {
+        bones,
+        mesh,
+        rig_path,
+        base,
+        targets,
+        w_train,
+        w_held,
+        pca,
+        mean,
+        still,
+        neighbours,
+    } = *input;
+    let beta_train: Vec<Vec<f64>> = w_train.par_iter().map(|w| pca.coords(w)).collect();
+    let beta_held: Vec<Vec<f64>> = w_held.par_iter().map(|w| pca.coords(w)).collect();
+    let bcount = pca.dirs.len();
+    let p = bcount + 1;
+    let ns = still.len();
+    let nb = mean.len();
+    let dirs_cols = &pca.dirs;
+    let mut xtx = DMatrix::<f64>::zeros(p, p);
+    for b in &beta_train {
+        let x = DVector::from_iterator(p, std::iter::once(1.0).chain(b.iter().copied()));
+        xtx.ger(1.0, &x, &x, 1.0);
+    }
+    let xtx_chol = xtx.clone().cholesky().ok_or_else(|| {
+        ModelError::Config("import-makehuman: the shape coordinates are degenerate".into())
+    })?;
+    let dir_at = |v: usize, a: usize, b: usize| dirs_cols[b][3 * v + a];
+    struct RegRow {
+        cols: Vec<u32>,
+        vals: Vec<f64>,
+        err_mean: f64,
+        err_max: f64,
+    }
+    let rows: Vec<RegRow> = bones
+        .par_iter()
+        .map(|bone| -> Result<RegRow> {
+            let ids = placement_vertices(mesh, &bone.head, rig_path)?;
+            let c0 = ids.iter().map(|&i| base[i as usize]).sum::<DVec3>() * (DM / ids.len() as f64);
+            let cd = centroid_dirs(targets, &ids);
+            let at = |w: &[f64]| c0 + w.iter().zip(&cd).map(|(x, d)| *x * *d).sum::<DVec3>();
+            // Least squares of the joint on [1, β].
+            let mut xty = DMatrix::<f64>::zeros(p, 3);
+            for (w, b) in w_train.iter().zip(&beta_train) {
+                let c = at(w);
+                for (r, x) in std::iter::once(1.0).chain(b.iter().copied()).enumerate() {
+                    for a in 0..3 {
+                        xty[(r, a)] += x * c[a];
+                    }
+                }
+            }
+            let coef = xtx_chol.solve(&xty);
+            let j0 = DVec3::new(coef[(0, 0)], coef[(0, 1)], coef[(0, 2)]);
+            // Nearest body vertices to the mean joint.
+            let mut near: Vec<(f64, u32)> = mean
+                .iter()
+                .enumerate()
+                .map(|(i, v)| ((*v - j0).length_squared(), i as u32))
+                .collect();
+            let kk = neighbours.min(nb);
+            near.select_nth_unstable_by(kk - 1, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            let mut cols: Vec<u32> = near[..kk].iter().map(|x| x.1).collect();
+            cols.sort_unstable();
+            // Constraints A r = y: Σ r = 1, r·mean_a = J0_a, r·dir_{a,b} = Jd_{b,a} and
+            // r·still_{a,e} = 0.
+            let q = p + ns;
+            let ncons = 1 + 3 * q;
+            let mut a_mat = DMatrix::<f64>::zeros(ncons, kk);
+            let mut y = DVector::<f64>::zeros(ncons);
+            for (ci, &v) in cols.iter().enumerate() {
+                let v = v as usize;
+                a_mat[(0, ci)] = 1.0;
+                for a in 0..3 {
+                    a_mat[(1 + a * q, ci)] = mean[v][a];
+                    for b in 0..bcount {
+                        a_mat[(1 + a * q + 1 + b, ci)] = dir_at(v, a, b);
+                    }
+                    for (e, col) in still.iter().enumerate() {
+                        a_mat[(1 + a * q + p + e, ci)] = col[3 * v + a];
+                    }
+                }
+            }
+            y[0] = 1.0;
+            for a in 0..3 {
+                for r in 0..p {
+                    y[1 + a * q + r] = coef[(r, a)];
+                }
+            }
+            let r0 = DVector::from_element(kk, 1.0 / kk as f64);
+            let aat = &a_mat * a_mat.transpose();
+            let resid = &y - &a_mat * &r0;
+            let lambda_solve = aat
+                .clone()
+                .cholesky()
+                .map(|c| c.solve(&resid))
+                .or_else(|| {
+                    let ridge = aat.trace() / ncons as f64 * 1e-12;
+                    (aat + DMatrix::identity(ncons, ncons) * ridge)
+                        .cholesky()
+                        .map(|c| c.solve(&resid))
+                })
+                .ok_or_else(|| {
+                    ModelError::Config(format!("import-makehuman: {}", format!(
+                        "cannot build the regressor row of bone '{}' (degenerate neighbourhood)",
+                        bone.name
+                    )))
+                })?;
+            let r = r0 + a_mat.transpose() * lambda_solve;
+            // Held-out error against MakeHuman's own bone head.
+            let errs: Vec<f64> = w_held
+                .iter()
+                .zip(&beta_held)
+                .map(|(w, b)| {
+                    let pred = cols
+                        .iter()
+                        .zip(r.iter())
+                        .map(|(&v, &x)| {
+                            let v = v as usize;
+                            let mut pv = mean[v];
+                            for (bi, bv) in b.iter().enumerate() {
+                                pv += *bv
+                                    * DVec3::new(
+                                        dir_at(v, 0, bi),
+                                        dir_at(v, 1, bi),
+                                        dir_at(v, 2, bi),
+                                    );
+                            }
+                            x * pv
+                        })
+                        .sum::<DVec3>();
+                    (pred - at(w)).length()
+                })
+                .collect();
+            Ok(RegRow {
+                cols,
+                vals: r.iter().copied().collect(),
+                err_mean: errs.iter().sum::<f64>() / errs.len() as f64,
+                err_max: errs.iter().copied().fold(0.0, f64::max),
+            })
+        })
+        .collect::<Result<_>>()?;
+    let mut indptr = vec![0];
+    let mut indices = Vec::new();
+    let mut values = Vec::new();
+    for r in &rows {
+        indices.extend_from_slice(&r.cols);
+        values.extend_from_slice(&r.vals);
+        indptr.push(indices.len());
+    }
+    let regressor = SparseRows {
+        rows: bones.len(),
+        cols: nb,
+        indptr,
+        indices,
+        values,
+    };
+    let heldout_joint_error_mm = [
+        rows.iter().map(|r| r.err_mean).sum::<f64>() / bones.len() as f64 * 1e3,
+        rows.iter().map(|r| r.err_max).fold(0.0, f64::max) * 1e3,
+    ];
+    let regressor_max_weight = regressor.values.iter().map(|x| x.abs()).fold(0.0, f64::max);
+    Ok(RegressorFit {
+        regressor,
+        heldout_error_mm: heldout_joint_error_mm,
+        max_weight: regressor_max_weight,
+    })
+}
+
 /// Imports the MakeHuman body: the model and what was measured.
 pub fn import(opts: &ImportOptions) -> Result<(Template, ImportReport)> {
     let root = &opts.mpfb2;
@@ -824,131 +1217,22 @@ pub fn import(opts: &ImportOptions) -> Result<(Template, ImportReport)> {
     // --- PCA in target space.
     let n = opts.samples;
     let dim = 3 * nb;
-    let dense: Vec<Vec<f64>> = targets
-        .par_iter()
-        .map(|t| {
-            let mut row = vec![0.0; dim];
-            for (i, d) in t {
-                let i = *i as usize;
-                if i < nb {
-                    row[3 * i] = d.x * DM;
-                    row[3 * i + 1] = d.y * DM;
-                    row[3 * i + 2] = d.z * DM;
-                }
-            }
-            row
-        })
-        .collect();
-    let wbar: Vec<f64> = (0..k)
-        .map(|c| w_train.iter().map(|w| w[c]).sum::<f64>() / n as f64)
-        .collect();
-    let mut h = DMatrix::<f64>::zeros(k, k);
-    for w in w_train {
-        let d = DVector::from_iterator(k, w.iter().zip(&wbar).map(|(a, b)| a - b));
-        h.ger(1.0 / (n - 1) as f64, &d, &d, 1.0);
-    }
-    let he = SymmetricEigen::new(h);
-    let sqrt_vals = he.eigenvalues.map(|x| x.max(0.0).sqrt());
-    let s = &he.eigenvectors * DMatrix::from_diagonal(&sqrt_vals) * he.eigenvectors.transpose();
-    let gram_rows: Vec<Vec<f64>> = (0..k)
-        .into_par_iter()
-        .map(|a| {
-            (0..k)
-                .map(|b| {
-                    if b < a {
-                        0.0
-                    } else {
-                        dense[a].iter().zip(&dense[b]).map(|(x, y)| x * y).sum()
-                    }
-                })
-                .collect()
-        })
-        .collect();
-    let g = DMatrix::from_fn(k, k, |a, b| {
-        if a <= b {
-            gram_rows[a][b]
-        } else {
-            gram_rows[b][a]
-        }
-    });
-    let m = &s * &g * &s;
-    let me = SymmetricEigen::new(m);
-    let mut order: Vec<usize> = (0..k).collect();
-    order.sort_by(|&a, &b| me.eigenvalues[b].total_cmp(&me.eigenvalues[a]));
-    let total: f64 = me.eigenvalues.iter().map(|x| x.max(0.0)).sum();
     let bcount = opts.components;
-    if me.eigenvalues[order[bcount - 1]] <= total * 1e-14 {
-        return Err(cfg(format!(
-            "the sampled shapes span fewer than {bcount} directions: lower --components"
-        )));
-    }
-    // Component b in target space: q_b = S z_b; its vertex direction is Tᵀ q_b (norm √λ_b).
-    let mut q: Vec<DVector<f64>> = order[..bcount]
-        .iter()
-        .map(|&i| &s * me.eigenvectors.column(i))
-        .collect();
-    let lambda: Vec<f64> = order[..bcount].iter().map(|&i| me.eigenvalues[i]).collect();
-    let vertex_dir = |qb: &DVector<f64>| -> Vec<f64> {
-        let mut out = vec![0.0; dim];
-        for (row, &c) in dense.iter().zip(qb.iter()) {
-            if c != 0.0 {
-                for (o, x) in out.iter_mut().zip(row) {
-                    *o += c * x;
-                }
-            }
-        }
-        out
-    };
-    let mut dirs_cols: Vec<Vec<f64>> = q.iter().map(vertex_dir).collect();
-    // Deterministic signs: each direction raises the mean height coordinate (Σ y ≥ 0).
-    for (col, qb) in dirs_cols.iter_mut().zip(q.iter_mut()) {
-        let sy: f64 = col.iter().skip(1).step_by(3).sum();
-        if sy < 0.0 {
-            col.iter_mut().for_each(|x| *x = -*x);
-            *qb = -qb.clone();
-        }
-    }
-    let variance_explained: Vec<f64> = order
-        .iter()
-        .take(32)
-        .map(|&i| me.eigenvalues[i].max(0.0) / total)
-        .collect();
-    // Coordinates: β_b(w) = q_bᵀ G (w − w̄) / λ_b.
-    let gq: Vec<DVector<f64>> = q.iter().map(|qb| &g * qb).collect();
-    let betas = |w: &[f64]| -> Vec<f64> {
-        gq.iter()
-            .zip(&lambda)
-            .map(|(gqb, l)| {
-                gqb.iter()
-                    .zip(w.iter().zip(&wbar))
-                    .map(|(a, (x, y))| a * (x - y))
-                    .sum::<f64>()
-                    / l
-            })
-            .collect()
-    };
-    // Held-out reconstruction: residual Tᵀ r with r = (w − w̄) − Σ_b β_b q_b.
+    let body_vertices: Vec<u32> = (0..nb as u32).collect();
+    let dense = dense_rows(&targets, &body_vertices, nv);
+    let pca = TargetPca::fit(&dense, w_train, bcount, true, "shapes")?;
+    let (dirs_cols, wbar) = (&pca.dirs, &pca.wbar);
+    let variance_explained = pca.variance_explained.clone();
+    // Held-out reconstruction.
     let vertex_errors: Vec<f64> = w_held
         .par_iter()
-        .flat_map_iter(|w| {
-            let beta = betas(w);
-            let mut r: Vec<f64> = w.iter().zip(&wbar).map(|(a, b)| a - b).collect();
-            for (qb, b) in q.iter().zip(&beta) {
-                for (ri, qi) in r.iter_mut().zip(qb.iter()) {
-                    *ri -= b * qi;
-                }
-            }
-            let res = vertex_dir(&DVector::from_vec(r));
-            (0..nb)
-                .map(|v| DVec3::new(res[3 * v], res[3 * v + 1], res[3 * v + 2]).length())
-                .collect::<Vec<_>>()
-        })
+        .flat_map_iter(|w| pca.residual_lengths(&dense, w))
         .collect();
     let heldout_vertex_error_mm = [
         vertex_errors.iter().sum::<f64>() / vertex_errors.len() as f64 * 1e3,
         vertex_errors.iter().copied().fold(0.0, f64::max) * 1e3,
     ];
-    let mean_dir = vertex_dir(&DVector::from_vec(wbar.clone()));
+    let mean_dir = combine(&dense, wbar);
     let mean_y = |v: usize| base[v].y * DM + mean_dir[3 * v + 1];
     let top = (0..nb)
         .max_by(|&a, &b| mean_y(a).total_cmp(&mean_y(b)))
@@ -1032,147 +1316,21 @@ pub fn import(opts: &ImportOptions) -> Result<(Template, ImportReport)> {
         .collect();
 
     // --- Joint regressor.
-    let beta_train: Vec<Vec<f64>> = w_train.par_iter().map(|w| betas(w)).collect();
-    let beta_held: Vec<Vec<f64>> = w_held.par_iter().map(|w| betas(w)).collect();
-    let p = bcount + 1;
-    let mut xtx = DMatrix::<f64>::zeros(p, p);
-    for b in &beta_train {
-        let x = DVector::from_iterator(p, std::iter::once(1.0).chain(b.iter().copied()));
-        xtx.ger(1.0, &x, &x, 1.0);
-    }
-    let xtx_chol = xtx
-        .clone()
-        .cholesky()
-        .ok_or_else(|| cfg("the shape coordinates are degenerate".into()))?;
-    let dir_at = |v: usize, a: usize, b: usize| dirs_cols[b][3 * v + a];
-    struct RegRow {
-        cols: Vec<u32>,
-        vals: Vec<f64>,
-        err_mean: f64,
-        err_max: f64,
-    }
-    let rows: Vec<RegRow> = bones
-        .par_iter()
-        .map(|bone| -> Result<RegRow> {
-            let ids = placement_vertices(&mesh, &bone.head, &rig_path)?;
-            let c0 = ids.iter().map(|&i| base[i as usize]).sum::<DVec3>() * (DM / ids.len() as f64);
-            let cd = centroid_dirs(&targets, &ids);
-            let at = |w: &[f64]| c0 + w.iter().zip(&cd).map(|(x, d)| *x * *d).sum::<DVec3>();
-            // Least squares of the joint on [1, β].
-            let mut xty = DMatrix::<f64>::zeros(p, 3);
-            for (w, b) in w_train.iter().zip(&beta_train) {
-                let c = at(w);
-                for (r, x) in std::iter::once(1.0).chain(b.iter().copied()).enumerate() {
-                    for a in 0..3 {
-                        xty[(r, a)] += x * c[a];
-                    }
-                }
-            }
-            let coef = xtx_chol.solve(&xty);
-            let j0 = DVec3::new(coef[(0, 0)], coef[(0, 1)], coef[(0, 2)]);
-            // Nearest body vertices to the mean joint.
-            let mut near: Vec<(f64, u32)> = mean
-                .iter()
-                .enumerate()
-                .map(|(i, v)| ((*v - j0).length_squared(), i as u32))
-                .collect();
-            let kk = REGRESSOR_NEIGHBOURS.min(nb);
-            near.select_nth_unstable_by(kk - 1, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-            let mut cols: Vec<u32> = near[..kk].iter().map(|x| x.1).collect();
-            cols.sort_unstable();
-            // Constraints A r = y: Σ r = 1, r·mean_a = J0_a, r·dir_{a,b} = Jd_{b,a}.
-            let ncons = 1 + 3 * p;
-            let mut a_mat = DMatrix::<f64>::zeros(ncons, kk);
-            let mut y = DVector::<f64>::zeros(ncons);
-            for (ci, &v) in cols.iter().enumerate() {
-                let v = v as usize;
-                a_mat[(0, ci)] = 1.0;
-                for a in 0..3 {
-                    a_mat[(1 + a * p, ci)] = mean[v][a];
-                    for b in 0..bcount {
-                        a_mat[(1 + a * p + 1 + b, ci)] = dir_at(v, a, b);
-                    }
-                }
-            }
-            y[0] = 1.0;
-            for a in 0..3 {
-                for r in 0..p {
-                    y[1 + a * p + r] = coef[(r, a)];
-                }
-            }
-            let r0 = DVector::from_element(kk, 1.0 / kk as f64);
-            let aat = &a_mat * a_mat.transpose();
-            let resid = &y - &a_mat * &r0;
-            let lambda_solve = aat
-                .clone()
-                .cholesky()
-                .map(|c| c.solve(&resid))
-                .or_else(|| {
-                    let ridge = aat.trace() / ncons as f64 * 1e-12;
-                    (aat + DMatrix::identity(ncons, ncons) * ridge)
-                        .cholesky()
-                        .map(|c| c.solve(&resid))
-                })
-                .ok_or_else(|| {
-                    cfg(format!(
-                        "cannot build the regressor row of bone '{}' (degenerate neighbourhood)",
-                        bone.name
-                    ))
-                })?;
-            let r = r0 + a_mat.transpose() * lambda_solve;
-            // Held-out error against MakeHuman's own bone head.
-            let errs: Vec<f64> = w_held
-                .iter()
-                .zip(&beta_held)
-                .map(|(w, b)| {
-                    let pred = cols
-                        .iter()
-                        .zip(r.iter())
-                        .map(|(&v, &x)| {
-                            let v = v as usize;
-                            let mut pv = mean[v];
-                            for (bi, bv) in b.iter().enumerate() {
-                                pv += *bv
-                                    * DVec3::new(
-                                        dir_at(v, 0, bi),
-                                        dir_at(v, 1, bi),
-                                        dir_at(v, 2, bi),
-                                    );
-                            }
-                            x * pv
-                        })
-                        .sum::<DVec3>();
-                    (pred - at(w)).length()
-                })
-                .collect();
-            Ok(RegRow {
-                cols,
-                vals: r.iter().copied().collect(),
-                err_mean: errs.iter().sum::<f64>() / errs.len() as f64,
-                err_max: errs.iter().copied().fold(0.0, f64::max),
-            })
-        })
-        .collect::<Result<_>>()?;
-    let mut indptr = vec![0];
-    let mut indices = Vec::new();
-    let mut values = Vec::new();
-    for r in &rows {
-        indices.extend_from_slice(&r.cols);
-        values.extend_from_slice(&r.vals);
-        indptr.push(indices.len());
-    }
-    let regressor = SparseRows {
-        rows: joint_count,
-        cols: nb,
-        indptr,
-        indices,
-        values,
-    };
-    let heldout_joint_error_mm = [
-        rows.iter().map(|r| r.err_mean).sum::<f64>() / joint_count as f64 * 1e3,
-        rows.iter().map(|r| r.err_max).fold(0.0, f64::max) * 1e3,
-    ];
-    let regressor_max_weight = regressor.values.iter().map(|x| x.abs()).fold(0.0, f64::max);
+    let reg = fit_regressor(&RegressorInput {
+        bones: &bones,
+        mesh: &mesh,
+        rig_path: &rig_path,
+        base: &base,
+        targets: &targets,
+        w_train,
+        w_held,
+        pca: &pca,
+        mean: &mean,
+        still: &[],
+        neighbours: REGRESSOR_NEIGHBOURS,
+    })?;
+    let (regressor, heldout_joint_error_mm, regressor_max_weight) =
+        (reg.regressor, reg.heldout_error_mm, reg.max_weight);
     let rest_joints = regressor.apply(&mean);
 
     // --- Weights.
