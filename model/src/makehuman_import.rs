@@ -985,10 +985,10 @@ pub(crate) fn fit_regressor(input: &RegressorInput<'_>) -> Result<RegressorFit> 
                         .map(|c| c.solve(&resid))
                 })
                 .ok_or_else(|| {
-                    ModelError::Config(format!("import-makehuman: {}", format!(
-                        "cannot build the regressor row of bone '{}' (degenerate neighbourhood)",
+                    ModelError::Config(format!(
+                        "import-makehuman: cannot build the regressor row of bone '{}' (degenerate neighbourhood)",
                         bone.name
-                    )))
+                    ))
                 })?;
             let r = r0 + a_mat.transpose() * lambda_solve;
             // Held-out error against MakeHuman's own bone head.
