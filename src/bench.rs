@@ -14,7 +14,9 @@ use lfit_fitters::{Fitter, Strategy};
 
 use crate::method::{MethodKind, MethodSpec};
 use lfit_model::energy::{Energy, EnergyConfig};
-use lfit_model::metrics::{hausdorff_rms_mm, mpjpe_mm, pa_mpjpe_mm, v2v_mm};
+use lfit_model::metrics::{
+    FaceErrors, face_errors_mm, hausdorff_rms_mm, mpjpe_mm, pa_mpjpe_mm, v2v_mm,
+};
 use lfit_model::template::write_atomic;
 use lfit_synth::{Dataset, Scenario};
 use rayon::prelude::*;
@@ -40,6 +42,10 @@ pub struct SynthSpec {
     /// procedural library (`lfit synth --motions`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub motions: Vec<PathBuf>,
+    /// Pose source (`lfit synth --source`): motion (default), uniform or face (papers/002's face
+    /// protocol).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<String>,
 }
 
 fn default_scenario() -> String {
@@ -334,9 +340,13 @@ pub struct Run {
     pub trace: Vec<(u64, f64)>,
     /// V2V (mm) of every iterate (neural fitter only).
     pub v2v_per_iteration: Vec<f64>,
+    /// papers/002 Table 7's errors on a face model (with a face region and landmarks).
+    pub face: Option<FaceErrors>,
 }
 
-pub const CSV_HEADER: &str = "method,strategy,budget,rep,frame,seed,energy,start_energy,v2v_mm,mpjpe_mm,pa_mpjpe_mm,hausdorff_mm,shape_rms,evaluations,gradient_evaluations,iterations,time_s,trace,v2v_per_iteration";
+pub const CSV_HEADER: &str = "method,strategy,budget,rep,frame,seed,energy,start_energy,v2v_mm,mpjpe_mm,pa_mpjpe_mm,hausdorff_mm,shape_rms,evaluations,gradient_evaluations,iterations,time_s,trace,v2v_per_iteration,face";
+/// The header before the `face` column (files written before it still read, without face errors).
+const CSV_HEADER_V2: &str = "method,strategy,budget,rep,frame,seed,energy,start_energy,v2v_mm,mpjpe_mm,pa_mpjpe_mm,hausdorff_mm,shape_rms,evaluations,gradient_evaluations,iterations,time_s,trace,v2v_per_iteration";
 /// The header before the `shape_rms` column (files written before it still read, as NaN).
 const CSV_HEADER_V1: &str = "method,strategy,budget,rep,frame,seed,energy,start_energy,v2v_mm,mpjpe_mm,pa_mpjpe_mm,hausdorff_mm,evaluations,gradient_evaluations,iterations,time_s,trace,v2v_per_iteration";
 
@@ -364,8 +374,15 @@ impl Run {
             .map(|v| format!("{v:.4}"))
             .collect::<Vec<_>>()
             .join(";");
+        let face = self.face.map_or_else(String::new, |f| {
+            f.to_array()
+                .iter()
+                .map(|v| format!("{v:.4}"))
+                .collect::<Vec<_>>()
+                .join(";")
+        });
         format!(
-            "{},{},{},{},{},{},{:e},{:e},{:.4},{:.4},{:.4},{:.4},{:.5},{},{},{},{:.6},{trace},{iters}",
+            "{},{},{},{},{},{},{:e},{:e},{:.4},{:.4},{:.4},{:.4},{:.5},{},{},{},{:.6},{trace},{iters},{face}",
             self.method,
             self.strategy,
             self.budget,
@@ -392,9 +409,22 @@ impl Run {
         if f.len() == 18 {
             f.insert(12, "NaN");
         }
-        if f.len() != 19 {
+        // A row without `face` (CSV_HEADER_V2): none.
+        if f.len() == 19 {
+            f.push("");
+        }
+        if f.len() != 20 {
             return None;
         }
+        let face = if f[19].is_empty() {
+            None
+        } else {
+            let v: Vec<f64> = f[19]
+                .split(';')
+                .map(|v| v.parse().ok())
+                .collect::<Option<_>>()?;
+            Some(FaceErrors::from_array(v.try_into().ok()?))
+        };
         let trace = if f[17].is_empty() {
             Vec::new()
         } else {
@@ -434,6 +464,7 @@ impl Run {
             time_s: f[16].parse().ok()?,
             trace,
             v2v_per_iteration: iters,
+            face,
         })
     }
 }
@@ -451,7 +482,7 @@ pub fn read_runs(path: &Path) -> Result<Vec<Run>> {
     let mut runs = Vec::new();
     for (i, line) in lines.iter().enumerate() {
         if i == 0 {
-            if *line != CSV_HEADER && *line != CSV_HEADER_V1 {
+            if *line != CSV_HEADER && *line != CSV_HEADER_V2 && *line != CSV_HEADER_V1 {
                 bail!(
                     "{} is not an lfit bench runs.csv (unexpected header)",
                     path.display()
@@ -521,7 +552,7 @@ pub fn run(
                 let args = crate::data::SynthArgs {
                     modality: s.modality.clone(),
                     scenario: s.scenario.clone(),
-                    source: "motion".into(),
+                    source: s.source.clone().unwrap_or_else(|| "motion".into()),
                     frames: s.frames,
                     seed: s.seed,
                     fps: 30.0,
@@ -732,6 +763,7 @@ pub fn run(
                     time_s: result.time_s,
                     v2v_per_iteration: iterate_errors(&template, &result.iterates, gt, v2v_mm),
                     trace: result.trace,
+                    face: face_errors_mm(&template, pose, gt),
                 };
                 let mut line = row.to_csv();
                 line.push('\n');
@@ -870,6 +902,7 @@ mod tests {
             time_s: 0.02,
             trace: vec![(1, 3.0), (90, 0.5)],
             v2v_per_iteration: vec![20.0, 12.25],
+            face: Some(FaceErrors::from_array([1.5, 2.25, 3.0, 0.5, 0.75, 1.0])),
         };
         let line = row.to_csv();
         assert_eq!(Run::from_csv(&line).as_ref(), Some(&row));
@@ -878,14 +911,26 @@ mod tests {
             CSV_HEADER.split(',').count(),
             "{line}"
         );
-        // The same row in the layout before `shape_rms` (column 12).
-        let mut old: Vec<&str> = line.split(',').collect();
+        // The same row in the layout before `face` (the last column): no face errors.
+        let mut v2: Vec<&str> = line.split(',').collect();
+        v2.pop();
+        let read = Run::from_csv(&v2.join(",")).expect("v2 row");
+        assert_eq!(
+            Run {
+                face: None,
+                ..row.clone()
+            },
+            read
+        );
+        // And before `shape_rms` (column 12).
+        let mut old = v2.clone();
         old.remove(12);
         let read = Run::from_csv(&old.join(",")).expect("old row");
         assert!(read.shape_rms.is_nan());
         assert_eq!(
             Run {
                 shape_rms: row.shape_rms,
+                face: row.face,
                 ..read
             },
             row
@@ -894,6 +939,12 @@ mod tests {
         let csv = dir.path().join("runs.csv");
         std::fs::write(&csv, format!("{CSV_HEADER_V1}\n{}\n", old.join(","))).expect("csv");
         assert_eq!(read_runs(&csv).expect("v1 file").len(), 1);
+        std::fs::write(&csv, format!("{CSV_HEADER_V2}\n{}\n", v2.join(","))).expect("csv");
+        assert_eq!(read_runs(&csv).expect("v2 file").len(), 1);
+        // A face column with five numbers is not a row.
+        let mut bad: Vec<&str> = line.split(',').collect();
+        bad[19] = "1;2;3;4;5";
+        assert!(Run::from_csv(&bad.join(",")).is_none());
         std::fs::write(&csv, "method,frame\nlm,1\n").expect("csv");
         assert!(read_runs(&csv).is_err());
     }

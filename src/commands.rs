@@ -36,18 +36,39 @@ pub fn template_export(out: &Path, shape: &str, format: TemplateFormat) -> Resul
     }))
 }
 
-/// `lfit model import-makehuman`: the MakeHuman body as a model file (see
-/// `lfit_model::makehuman_import`), and optionally its import report.
-pub fn import_makehuman(
-    mpfb2: Option<PathBuf>,
-    rig: &str,
-    samples: usize,
-    components: usize,
-    seed: u64,
-    out: &Path,
-    report: Option<&Path>,
-) -> Result<Value> {
-    let dir = match mpfb2.or_else(|| std::env::var_os("LFIT_MPFB2_DIR").map(PathBuf::from)) {
+/// What `lfit model import-makehuman` builds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum MakehumanPart {
+    /// The whole body (issue 15).
+    Body,
+    /// The head and neck as a morphable face (papers/002 §3.3).
+    Face,
+}
+
+/// The arguments of `lfit model import-makehuman`.
+#[derive(Debug, Clone)]
+pub struct MakehumanImport {
+    pub mpfb2: Option<PathBuf>,
+    pub part: MakehumanPart,
+    pub rig: Option<String>,
+    pub samples: Option<usize>,
+    pub components: Option<usize>,
+    pub expression_components: Option<usize>,
+    pub landmarks: Option<usize>,
+    pub seed: u64,
+    pub out: PathBuf,
+    pub report: Option<PathBuf>,
+}
+
+/// `lfit model import-makehuman`: the MakeHuman body or face as a model file (see
+/// `lfit_model::makehuman_import` and `lfit_model::makehuman_face`), and optionally its import
+/// report.
+pub fn import_makehuman(args: &MakehumanImport) -> Result<Value> {
+    let dir = match args
+        .mpfb2
+        .clone()
+        .or_else(|| std::env::var_os("LFIT_MPFB2_DIR").map(PathBuf::from))
+    {
         Some(d) => d,
         None => {
             let home = std::env::var_os("HOME")
@@ -65,12 +86,36 @@ pub fn import_makehuman(
     if !dir.is_dir() {
         bail!("--mpfb2 {}: no such folder", dir.display());
     }
-    let mut opts = lfit_model::makehuman_import::ImportOptions::new(&dir, rig);
-    opts.samples = samples;
-    opts.components = components;
-    opts.seed = seed;
-    let (template, rep) = lfit_model::makehuman_import::import(&opts)?;
-    let report_json = serde_json::to_value(&rep)?;
+    let (template, report_json) = match args.part {
+        MakehumanPart::Body => {
+            if args.expression_components.is_some() || args.landmarks.is_some() {
+                bail!("--expression-components and --landmarks are for --part face only");
+            }
+            let rig = args.rig.as_deref().unwrap_or("game_engine");
+            let mut opts = lfit_model::makehuman_import::ImportOptions::new(&dir, rig);
+            opts.samples = args.samples.unwrap_or(opts.samples);
+            opts.components = args.components.unwrap_or(opts.components);
+            opts.seed = args.seed;
+            let (template, rep) = lfit_model::makehuman_import::import(&opts)?;
+            (template, serde_json::to_value(&rep)?)
+        }
+        MakehumanPart::Face => {
+            if let Some(r) = args.rig.as_deref().filter(|r| *r != "default") {
+                bail!("--part face uses the 'default' rig (its face bones), not '{r}'");
+            }
+            let mut opts = lfit_model::makehuman_face::FaceImportOptions::new(&dir);
+            opts.samples = args.samples.unwrap_or(opts.samples);
+            opts.components = args.components.unwrap_or(opts.components);
+            opts.expression_components = args
+                .expression_components
+                .unwrap_or(opts.expression_components);
+            opts.landmarks = args.landmarks.unwrap_or(opts.landmarks);
+            opts.seed = args.seed;
+            let (template, rep) = lfit_model::makehuman_face::import_face(&opts)?;
+            (template, serde_json::to_value(&rep)?)
+        }
+    };
+    let (out, report) = (&args.out, args.report.as_deref());
     if let Some(path) = report {
         let mut text = serde_json::to_string_pretty(&report_json)?;
         text.push('\n');

@@ -286,6 +286,9 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
                     row["shape_rms"] = json!(c);
                     sum_coeff += c;
                 }
+                if let Some(f) = lfit_model::metrics::face_errors_mm(&template, pose, gt) {
+                    row["face"] = json!(f);
+                }
                 if !result.iterates.is_empty() {
                     row["v2v_mm_per_iteration"] =
                         json!(iterate_errors(&template, &result.iterates, gt, v2v_mm));

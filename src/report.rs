@@ -197,6 +197,48 @@ pub fn report(
         }
     }
     md.push('\n');
+    // papers/002 Table 7: a face model's errors.
+    let mut face_table = Vec::new();
+    if runs.iter().any(|r| r.face.is_some()) {
+        let _ = writeln!(
+            md,
+            "## Face fitting to 2D landmarks (papers/002 Table 7)\n\nV2V over the face region and the whole head, LdmkErr over the landmarks (mean 3D distance), in mm; PA: after Procrustes alignment (rotation, scale, translation) on the same vertices.\n\n| method | budget | V2V face | V2V head | LdmkErr | PA-V2V face | PA-V2V head | PA-LdmkErr | time / fit (ms) |\n|---|---|---|---|---|---|---|---|---|"
+        );
+        for &b in &config.budgets {
+            for l in &labels {
+                let rs: Vec<&Run> = runs
+                    .iter()
+                    .filter(|r| r.budget == b && label(config, r) == *l && r.face.is_some())
+                    .collect();
+                if rs.is_empty() {
+                    continue;
+                }
+                let cols: Vec<f64> = (0..6)
+                    .map(|k| {
+                        mean(
+                            &rs.iter()
+                                .filter_map(|r| r.face.map(|f| f.to_array()[k]))
+                                .collect::<Vec<_>>(),
+                        )
+                    })
+                    .collect();
+                let time_ms = 1000.0 * mean(&rs.iter().map(|r| r.time_s).collect::<Vec<_>>());
+                let _ = writeln!(
+                    md,
+                    "| {l} | {b} | {} | {time_ms:.2} |",
+                    cols.iter()
+                        .map(|v| format!("{v:.1}"))
+                        .collect::<Vec<_>>()
+                        .join(" | ")
+                );
+                let errors = lfit_model::metrics::FaceErrors::from_array([
+                    cols[0], cols[1], cols[2], cols[3], cols[4], cols[5],
+                ]);
+                face_table.push(json!({"method": l, "budget": b, "runs": rs.len(), "errors": errors, "time_ms": time_ms}));
+            }
+        }
+        md.push('\n');
+    }
     // Neural error per iteration.
     let neural: Vec<&Run> = runs
         .iter()
@@ -321,7 +363,7 @@ pub fn report(
             }));
         }
     }
-    let summary = json!({
+    let mut summary = json!({
         "name": config.name,
         "energy": energy_name,
         "runs": runs.len(),
@@ -331,5 +373,8 @@ pub fn report(
         "wilcoxon": wil,
         "friedman": fried,
     });
+    if !face_table.is_empty() {
+        summary["face_table"] = json!(face_table);
+    }
     (md, summary)
 }

@@ -21,6 +21,8 @@ use support::{
 /// The committed model (CC0), rebuilt by `lfit model import-makehuman --rig cmu_mb` with the
 /// default settings.
 const COMMITTED: &str = "models/makehuman-cmu_mb.npz";
+/// The committed face model (CC0), rebuilt by `lfit model import-makehuman --part face`.
+const COMMITTED_FACE: &str = "models/makehuman-face.npz";
 
 fn assets() -> Option<PathBuf> {
     let dir = std::env::var_os("LFIT_MPFB2_DIR").map(PathBuf::from);
@@ -215,15 +217,34 @@ fn import_counts_a_closed_mesh_the_pca_and_poses_like_an_independent_numpy_model
     }
 }
 
+/// Both committed models: the body (`--rig cmu_mb`) and the face (`--part face`, issue 16), each
+/// with its import report.
 #[test]
 fn the_committed_model_is_what_the_importer_builds() {
     let Some(mpfb2) = assets() else {
         return;
     };
+    for (committed, rig, extra) in [
+        (COMMITTED, "cmu_mb", &[][..]),
+        (COMMITTED_FACE, "default", &["--part", "face"][..]),
+    ] {
+        check_committed(&mpfb2, committed, rig, extra);
+    }
+}
+
+fn check_committed(mpfb2: &Path, committed: &str, rig: &str, extra: &[&str]) {
     let dir = tempfile::tempdir().unwrap();
     let fresh = dir.path().join("fresh.npz");
-    import(&mpfb2, "cmu_mb", &fresh, &dir.path().join("r.json"), &[]);
-    let committed = Path::new(env!("CARGO_MANIFEST_DIR")).join(COMMITTED);
+    let report = dir.path().join("r.json");
+    import(mpfb2, rig, &fresh, &report, extra);
+    let committed = Path::new(env!("CARGO_MANIFEST_DIR")).join(committed);
+    let committed_report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(committed.with_extension("report.json")).unwrap(),
+    )
+    .unwrap();
+    let fresh_report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    assert_eq!(committed_report, fresh_report, "{}", committed.display());
     let a = lfit_model::modelfile::load(&committed).unwrap();
     let b = lfit_model::modelfile::load(&fresh).unwrap();
     assert_eq!(a.faces, b.faces);
@@ -235,6 +256,10 @@ fn the_committed_model_is_what_the_importer_builds() {
     assert_eq!(a.rig.markers, b.rig.markers);
     assert_eq!(a.rig.weights, b.rig.weights);
     assert_eq!(a.info, b.info);
+    assert_eq!(
+        (a.morph.shape, a.morph.expression),
+        (b.morph.shape, b.morph.expression)
+    );
     let close = |p: &[f64], q: &[f64], what: &str| {
         assert_eq!(p.len(), q.len(), "{what}");
         let d = p
@@ -395,5 +420,52 @@ fn bad_assets_and_arguments_are_one_line_errors_and_write_nothing() {
     let no_weights = dir.path().join("no_weights");
     assets_without(&mpfb2, &no_weights, "rigs/standard/weights.cmu_mb.json");
     assert_one_line_error(&run(&no_weights, "cmu_mb", &[]), "weights.cmu_mb.json");
+    // The face (issue 16).
+    assert_one_line_error(
+        &run(&mpfb2, "cmu_mb", &["--part", "face"]),
+        "uses the 'default' rig",
+    );
+    assert_one_line_error(
+        &run(&mpfb2, "cmu_mb", &["--landmarks", "100"]),
+        "for --part face only",
+    );
+    assert_one_line_error(
+        &run(&mpfb2, "default", &["--part", "face", "--landmarks", "5"]),
+        "too few",
+    );
+    assert_one_line_error(
+        &run(
+            &mpfb2,
+            "default",
+            &["--part", "face", "--landmarks", "100000"],
+        ),
+        "more than the face region",
+    );
+    assert_one_line_error(
+        &run(
+            &mpfb2,
+            "default",
+            &["--part", "face", "--expression-components", "0"],
+        ),
+        "at least 1",
+    );
+    assert_one_line_error(
+        &run(
+            &mpfb2,
+            "default",
+            &["--part", "face", "--components", "500"],
+        ),
+        "too few",
+    );
+    let no_units = dir.path().join("no_units");
+    assets_without(
+        &mpfb2,
+        &no_units,
+        "targets/expression/units/asian/mouth-pursing.target.gz",
+    );
+    assert_one_line_error(
+        &run(&no_units, "default", &["--part", "face"]),
+        "all three ethnicities",
+    );
     assert!(!out.exists(), "nothing may be written");
 }

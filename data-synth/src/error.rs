@@ -16,7 +16,7 @@ pub enum SynthError {
     Dataset(String),
     #[error("unknown scenario '{0}' (expected local, global or sequence)")]
     UnknownScenario(String),
-    #[error("unknown pose source '{0}' (expected motion or uniform)")]
+    #[error("unknown pose source '{0}' (expected motion, uniform or face)")]
     UnknownSource(String),
     #[error(
         "unknown motion '{0}' (expected walk, jog, wave, squat, reach, punch, kick, jump or turn)"

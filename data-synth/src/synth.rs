@@ -75,7 +75,16 @@ pub enum PoseSource {
     Motion,
     /// Uniform sampling within the global bounds (root height within ±0.3 m of standing).
     Uniform,
+    /// papers/002's face protocol (supp.: "we vary pose, identity and expression"): every
+    /// rotation uniform between half its lower and half its upper joint limit, the root translation uniform within
+    /// ±[`FACE_TRANSLATION`] of the rest (in front of the `landmarks2d` camera), identity and
+    /// expression from the prior like every subject.
+    Face,
 }
+
+/// Half-widths (m) of the face protocol's translation box: 5 cm sideways and up, 10 cm towards
+/// or away from the camera (0.6 m away: about ±17 % in scale).
+pub const FACE_TRANSLATION: [f64; 3] = [0.05, 0.05, 0.1];
 
 impl FromStr for PoseSource {
     type Err = SynthError;
@@ -83,6 +92,7 @@ impl FromStr for PoseSource {
         match s {
             "motion" => Ok(PoseSource::Motion),
             "uniform" => Ok(PoseSource::Uniform),
+            "face" => Ok(PoseSource::Face),
             _ => Err(SynthError::UnknownSource(s.to_string())),
         }
     }
@@ -241,17 +251,22 @@ impl SynthConfig {
         if self.motions.is_empty() {
             return setting("motions", "[]".into(), "need at least one motion");
         }
-        if self.scenario == Scenario::Sequence && self.source == PoseSource::Uniform {
+        let source_name = match self.source {
+            PoseSource::Motion => "motion",
+            PoseSource::Uniform => "uniform",
+            PoseSource::Face => "face",
+        };
+        if self.scenario == Scenario::Sequence && self.source != PoseSource::Motion {
             return setting(
                 "source",
-                "uniform".into(),
+                source_name.into(),
                 "sequences need smooth motion: use --source motion",
             );
         }
-        if self.source == PoseSource::Uniform && !self.motion_files.is_empty() {
+        if self.source != PoseSource::Motion && !self.motion_files.is_empty() {
             return setting(
                 "source",
-                "uniform".into(),
+                source_name.into(),
                 "motion files (--motions) are drawn from by --source motion",
             );
         }
@@ -609,6 +624,22 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
                         previous[k] = rng.random_range(local.lower[k]..local.upper[k]);
                     }
                     (target, previous, "uniform".to_string())
+                }
+                PoseSource::Face => {
+                    let mut target = vec![0.0; pd];
+                    for (k, v) in target.iter_mut().enumerate() {
+                        *v = if k < 3 {
+                            rng.random_range(-FACE_TRANSLATION[k]..=FACE_TRANSLATION[k])
+                        } else {
+                            rng.random_range(0.5 * global.lower[k]..=0.5 * global.upper[k])
+                        };
+                    }
+                    let mut previous = target.clone();
+                    let local = Bounds::local(&target);
+                    for k in 0..pd {
+                        previous[k] = rng.random_range(local.lower[k]..local.upper[k]);
+                    }
+                    (target, previous, "face".to_string())
                 }
             };
             global.clamp(&mut target[..]);

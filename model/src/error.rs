@@ -37,7 +37,9 @@ pub enum ModelError {
     UnknownMask(String),
     #[error("DOF mask: {0}")]
     Mask(String),
-    #[error("unknown modality '{0}' (expected markers, keypoints2d, hmd, scan or silhouettes)")]
+    #[error(
+        "unknown modality '{0}' (expected markers, keypoints2d, hmd, scan, silhouettes or landmarks2d)"
+    )]
     UnknownModality(String),
     #[error("camera {index}: {reason}")]
     Camera { index: usize, reason: String },

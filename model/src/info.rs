@@ -86,6 +86,11 @@ pub struct ModelInfo {
     pub hand_tips: Option<[u32; 2]>,
     /// Where the model came from (file, licence).
     pub provenance: String,
+    /// Vertices of the `landmarks2d` modality: a face model's dense landmarks (empty: none).
+    pub landmark_vertices: Vec<u32>,
+    /// Vertices of the face region, over which a face model's "face" errors are measured (the
+    /// whole mesh is the "head"); empty: none.
+    pub face_region: Vec<u32>,
 }
 
 impl Default for ModelInfo {
@@ -98,6 +103,8 @@ impl Default for ModelInfo {
             hmd_offset: DEFAULT_HMD_OFFSET,
             hand_tips: None,
             provenance: String::new(),
+            landmark_vertices: Vec::new(),
+            face_region: Vec::new(),
         }
     }
 }

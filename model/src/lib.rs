@@ -11,6 +11,7 @@ pub mod error;
 pub mod info;
 pub mod layout;
 pub mod makehuman;
+pub mod makehuman_face;
 pub mod makehuman_import;
 pub mod metrics;
 pub mod modelfile;

@@ -156,7 +156,7 @@ pub struct ImportReport {
     pub stature_m: [f64; 4],
 }
 
-fn asset_error(path: &Path, reason: impl Into<String>) -> ModelError {
+pub(crate) fn asset_error(path: &Path, reason: impl Into<String>) -> ModelError {
     ModelError::ModelFile {
         path: path.to_path_buf(),
         reason: reason.into(),
@@ -355,7 +355,7 @@ pub fn mix(space: &MacroSpace, p: &Phenotype) -> Vec<(String, f64)> {
 }
 
 /// The vertices whose mean places a bone end.
-fn placement_vertices(mesh: &BaseMesh, p: &Placement, path: &Path) -> Result<Vec<u32>> {
+pub(crate) fn placement_vertices(mesh: &BaseMesh, p: &Placement, path: &Path) -> Result<Vec<u32>> {
     match p {
         Placement::Cube(name) => {
             let v = mesh.group_vertices(name);
@@ -380,7 +380,12 @@ fn placement_vertices(mesh: &BaseMesh, p: &Placement, path: &Path) -> Result<Vec
 }
 
 /// Mean of `ids` in a mesh given as base + Σ w_k T_k (targets sparse, decimetres), in metres.
-fn centroid(base: &[DVec3], targets: &[Vec<(u32, DVec3)>], weights: &[f64], ids: &[u32]) -> DVec3 {
+pub(crate) fn centroid(
+    base: &[DVec3],
+    targets: &[Vec<(u32, DVec3)>],
+    weights: &[f64],
+    ids: &[u32],
+) -> DVec3 {
     let set: BTreeSet<u32> = ids.iter().copied().collect();
     let mut sum = ids.iter().map(|&i| base[i as usize]).sum::<DVec3>();
     for (t, &w) in targets.iter().zip(weights) {
@@ -397,7 +402,7 @@ fn centroid(base: &[DVec3], targets: &[Vec<(u32, DVec3)>], weights: &[f64], ids:
 }
 
 /// The per-target mean displacement of `ids` (metres): `c(w) = c_base + Σ_k w_k t_k`.
-fn centroid_dirs(targets: &[Vec<(u32, DVec3)>], ids: &[u32]) -> Vec<DVec3> {
+pub(crate) fn centroid_dirs(targets: &[Vec<(u32, DVec3)>], ids: &[u32]) -> Vec<DVec3> {
     let set: BTreeSet<u32> = ids.iter().copied().collect();
     targets
         .iter()
@@ -713,7 +718,7 @@ pub(crate) struct TargetPca {
     pub lambda: Vec<f64>,
     /// Vertex directions (3V each), each scaled by its standard deviation.
     pub dirs: Vec<Vec<f64>>,
-    /// Variance explained per component (first 32 or all), fraction of the total.
+    /// Variance explained per component (the first max(32, components), or all), fraction of the total.
     pub variance_explained: Vec<f64>,
     gq: Vec<DVector<f64>>,
 }
@@ -799,7 +804,7 @@ impl TargetPca {
         }
         let variance_explained: Vec<f64> = order
             .iter()
-            .take(32)
+            .take(components.max(32))
             .map(|&i| me.eigenvalues[i].max(0.0) / total)
             .collect();
         let gq: Vec<DVector<f64>> = q.iter().map(|qb| &g * qb).collect();
@@ -1502,6 +1507,8 @@ pub fn import(opts: &ImportOptions) -> Result<(Template, ImportReport)> {
         hmd_offset,
         hand_tips: Some(tips),
         provenance,
+        landmark_vertices: Vec::new(),
+        face_region: Vec::new(),
     };
     let rig = Rig {
         joints,

@@ -143,6 +143,84 @@ pub fn v2v_subset_mm(template: &Template, fitted: &[f64], truth: &[f64], subset:
         / n
 }
 
+/// papers/002 Table 7's errors of a face fit (mm): V2V over the model's face region and over the
+/// whole head (every vertex), and LdmkErr (the mean 3D distance of the landmarks), each plain and
+/// after Procrustes alignment (the paper's "PA" columns: rotation, uniform scale and translation
+/// fitted on the same vertices the error is measured on).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FaceErrors {
+    pub v2v_face_mm: f64,
+    pub v2v_head_mm: f64,
+    pub ldmk_mm: f64,
+    pub pa_v2v_face_mm: f64,
+    pub pa_v2v_head_mm: f64,
+    pub pa_ldmk_mm: f64,
+}
+
+impl FaceErrors {
+    /// The six errors in the order of the fields (the columns of `runs.csv` and Table 7).
+    pub fn to_array(&self) -> [f64; 6] {
+        [
+            self.v2v_face_mm,
+            self.v2v_head_mm,
+            self.ldmk_mm,
+            self.pa_v2v_face_mm,
+            self.pa_v2v_head_mm,
+            self.pa_ldmk_mm,
+        ]
+    }
+
+    pub fn from_array(a: [f64; 6]) -> Self {
+        Self {
+            v2v_face_mm: a[0],
+            v2v_head_mm: a[1],
+            ldmk_mm: a[2],
+            pa_v2v_face_mm: a[3],
+            pa_v2v_head_mm: a[4],
+            pa_ldmk_mm: a[5],
+        }
+    }
+}
+
+/// Mean distance (mm) between `a` and `b` at `subset` (all when `None`), plain and after aligning
+/// `a` onto `b` there.
+fn plain_and_aligned(a: &[Vec3], b: &[Vec3], subset: Option<&[u32]>) -> (f64, f64) {
+    let pick = |m: &[Vec3]| -> Vec<DVec3> {
+        match subset {
+            Some(s) => s.iter().map(|&v| m[v as usize].as_dvec3()).collect(),
+            None => m.iter().map(|v| v.as_dvec3()).collect(),
+        }
+    };
+    let (p, q) = (pick(a), pick(b));
+    let n = p.len().max(1) as f64;
+    let mean =
+        |x: &[DVec3]| 1000.0 * x.iter().zip(&q).map(|(u, v)| u.distance(*v)).sum::<f64>() / n;
+    (mean(&p), mean(&procrustes_align(&p, &q)))
+}
+
+/// The [`FaceErrors`] of `fitted` against `truth`, or `None` for a model without a face region
+/// and landmarks (the model file's `face_region` and `landmark_vertices`).
+pub fn face_errors_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> Option<FaceErrors> {
+    let info = &template.info;
+    if info.face_region.is_empty() || info.landmark_vertices.is_empty() {
+        return None;
+    }
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    skin_lbs_into(template, &joint_transforms(template, fitted), &mut a);
+    skin_lbs_into(template, &joint_transforms(template, truth), &mut b);
+    let (v2v_face_mm, pa_v2v_face_mm) = plain_and_aligned(&a, &b, Some(&info.face_region));
+    let (v2v_head_mm, pa_v2v_head_mm) = plain_and_aligned(&a, &b, None);
+    let (ldmk_mm, pa_ldmk_mm) = plain_and_aligned(&a, &b, Some(&info.landmark_vertices));
+    Some(FaceErrors {
+        v2v_face_mm,
+        v2v_head_mm,
+        ldmk_mm,
+        pa_v2v_face_mm,
+        pa_v2v_head_mm,
+        pa_ldmk_mm,
+    })
+}
+
 /// Ground penetration (mm, papers/002 Tables 3–6 "GrPe"): the mean depth below the floor plane
 /// y = 0 (where the template stands) of the posed vertices that lie below it; 0 when none do.
 pub fn ground_penetration_mm(template: &Template, pose: &[f64]) -> f64 {
@@ -165,6 +243,45 @@ mod tests {
     use super::*;
     use crate::body::default_template;
     use crate::pose::POSE_DIM;
+
+    /// A rigid motion of the whole model moves every vertex (plain errors) and is undone by the
+    /// alignment (PA errors ~0); a pose change inside the face is not.
+    #[test]
+    fn face_errors_separate_rigid_motion_from_deformation() {
+        let mut t = default_template();
+        let truth = [0.0; POSE_DIM];
+        assert!(face_errors_mm(&t, &truth, &truth).is_none());
+        // Vertices the head joint alone moves.
+        let head: Vec<u32> = (0..t.num_vertices() as u32)
+            .filter(|&v| {
+                let w = &t.rig.weights[v as usize];
+                w.len() == 1 && w[0].0 == crate::skeleton::HEAD
+            })
+            .collect();
+        assert!(head.len() > 30);
+        t.info.face_region = head.clone();
+        t.info.landmark_vertices = head.iter().copied().step_by(3).collect();
+        let zero = face_errors_mm(&t, &truth, &truth).unwrap();
+        assert!(zero.to_array().iter().all(|&x| x < 1e-9), "{zero:?}");
+        let mut moved = truth;
+        moved[0] = 0.02;
+        moved[crate::pose::rot_offset(0) + 1] = 0.3;
+        let e = face_errors_mm(&t, &moved, &truth).unwrap();
+        assert!(
+            e.v2v_head_mm > 20.0 && e.v2v_face_mm > 20.0 && e.ldmk_mm > 20.0,
+            "{e:?}"
+        );
+        for pa in [e.pa_v2v_face_mm, e.pa_v2v_head_mm, e.pa_ldmk_mm] {
+            assert!(pa < 1e-3, "{e:?}");
+        }
+        // Bending the neck deforms the body against the head: the head's own error aligns away,
+        // the whole model's does not.
+        let mut bent = truth;
+        bent[crate::pose::rot_offset(crate::skeleton::HEAD)] = 0.5;
+        let e = face_errors_mm(&t, &bent, &truth).unwrap();
+        assert!(e.pa_v2v_face_mm < 1e-3 && e.pa_v2v_head_mm > 1.0, "{e:?}");
+        assert_eq!(FaceErrors::from_array(e.to_array()), e);
+    }
 
     #[test]
     fn a_pure_translation_moves_everything_by_its_length() {

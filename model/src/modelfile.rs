@@ -21,7 +21,9 @@
 //! strings (SMPL's 24 names when J = 24, `joint_<j>` otherwise), `joint_limits_deg` (J, 3, 2)
 //! (±180°), `part_labels` (J,) strings, `mirror` (J,) integers, `joint_map` (18,) model joint
 //! names standing for the papers/000 joints (empty string: none), `marker_names` (M,) +
-//! `marker_vertices` (M,), `hmd_offset` (3,), `hand_tips` (2,) vertices, `provenance` string.
+//! `marker_vertices` (M,), `hmd_offset` (3,), `hand_tips` (2,) vertices, `provenance` string,
+//! and for a face model `landmark_vertices` (P,) (the `landmarks2d` modality's vertices) and
+//! `face_region` (N,) (the vertices of the face errors).
 //!
 //! Pickled `.pkl` (chumpy) files are refused with a conversion hint; so are object arrays.
 
@@ -706,6 +708,24 @@ pub fn load(path: &Path) -> Result<Template> {
         }
         info.hand_tips = Some([t[0] as u32, t[1] as u32]);
     }
+    for key in ["landmark_vertices", "face_region"] {
+        if !a.has(key) {
+            continue;
+        }
+        let (_, t) = a.ints(key, &[None])?;
+        if let Some(bad) = t.iter().find(|&&x| x < 0 || x as usize >= v) {
+            return Err(fail(
+                path,
+                format!("'{key}' holds vertex {bad}, out of range 0..{v}"),
+            ));
+        }
+        let list: Vec<u32> = t.iter().map(|&x| x as u32).collect();
+        if key == "landmark_vertices" {
+            info.landmark_vertices = list;
+        } else {
+            info.face_region = list;
+        }
+    }
     info.provenance = if a.has("provenance") {
         a.texts("provenance", None)?.join("\n")
     } else {
@@ -942,6 +962,20 @@ pub fn save(template: &Template, path: &Path) -> Result<()> {
             "hand_tips",
             Out::I64(vec![2], t.iter().map(|&x| i64::from(x)).collect()),
         ));
+    }
+    for (key, list) in [
+        ("landmark_vertices", &info.landmark_vertices),
+        ("face_region", &info.face_region),
+    ] {
+        if !list.is_empty() {
+            arrays.push((
+                key,
+                Out::I64(
+                    vec![list.len()],
+                    list.iter().map(|&x| i64::from(x)).collect(),
+                ),
+            ));
+        }
     }
     let err = |e: String| fail(path, e);
     let mut zip = zip::ZipWriter::new(Cursor::new(Vec::new()));

@@ -257,6 +257,7 @@ mod tests {
             time_s: 0.0,
             trace: Vec::new(),
             v2v_per_iteration: Vec::new(),
+            face: None,
         }
     }
 

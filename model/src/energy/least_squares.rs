@@ -166,7 +166,18 @@ impl Energy {
         let pose_end = self.limits.lower.len();
         data + self.penetration.tests.len()
             + pose_end.saturating_sub(rot_offset(1))
+            + self.pose_prior_rows().len()
             + self.template.morph.coefficients()
+    }
+
+    /// Parameters of the rotation prior's residual rows (papers/002 eq. 9's `w_θ‖θ‖²`): every
+    /// rotation entry when its weight is positive, none otherwise.
+    fn pose_prior_rows(&self) -> std::ops::Range<usize> {
+        if self.config.weights.pose > 0.0 {
+            3..3 + 3 * self.template.rig.num_joints()
+        } else {
+            0..0
+        }
     }
 
     /// Residuals `r` with `E = Σ r²` and, when `with_jacobian`, their exact Jacobian; counts one
@@ -330,6 +341,7 @@ impl Energy {
         let morph = &self.template.morph;
         let base = 3 + 3 * self.template.rig.num_joints();
         for (name, weight, range) in [
+            ("pose", w.pose, self.pose_prior_rows()),
             ("shape", w.shape, base..base + morph.shape),
             (
                 "expression",

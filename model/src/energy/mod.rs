@@ -64,6 +64,15 @@ pub struct Weights {
     /// Gaussian prior `Σ ψ²` of the expression coefficients.
     #[serde(skip_serializing_if = "is_default_expression_weight")]
     pub expression: f64,
+    /// Gaussian prior `Σ θ²` of the joint rotations (root included; not the translation):
+    /// papers/002 eq. (9)'s `w_θ‖θ‖²`, the face energy's pose regulariser. Default 0 (off, and
+    /// then not part of the energy's terms or residuals, so other energies are unchanged).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub pose: f64,
+}
+
+fn is_zero(w: &f64) -> bool {
+    *w == 0.0
 }
 
 /// Default weight of the shape prior: ours. With the sparse data term a mean of squared
@@ -93,6 +102,7 @@ impl Default for Weights {
             ea: 1.0,
             shape: DEFAULT_SHAPE_WEIGHT,
             expression: DEFAULT_EXPRESSION_WEIGHT,
+            pose: 0.0,
         }
     }
 }
@@ -250,6 +260,7 @@ impl EnergyConfig {
             ("weights.ea", w.ea),
             ("weights.shape", w.shape),
             ("weights.expression", w.expression),
+            ("weights.pose", w.pose),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(ModelError::Setting {
@@ -790,7 +801,9 @@ impl Energy {
         let layout_shape = self.template.morph.shape;
         let layout_expr = self.template.morph.expression;
         let base = 3 + 3 * nj;
+        let pose_range = if w.pose > 0.0 { 3..base } else { 0..0 };
         for (name, weight, range) in [
+            ("pose", w.pose, pose_range),
             ("shape", w.shape, base..base + layout_shape),
             (
                 "expression",

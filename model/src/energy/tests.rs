@@ -71,6 +71,7 @@ fn isolate(term: &str) -> EnergyConfig {
         ea: 0.0,
         shape: 0.0,
         expression: 0.0,
+        pose: 0.0,
     };
     match term {
         "data" => c.weights.data = 1.0,
@@ -357,7 +358,12 @@ fn counters_count_every_evaluation() {
 
 #[test]
 fn value_only_and_gradient_paths_give_the_same_value() {
-    for m in Modality::ALL {
+    // The default template has no landmarks: landmarks2d is checked on a model with them
+    // (least_squares_form::pose_shape_expression_and_correctives_on_another_skeleton).
+    for m in Modality::ALL
+        .into_iter()
+        .filter(|&m| m != Modality::Landmarks2d)
+    {
         let e = energy(m, EnergyConfig::default().for_gradient());
         for pose in [gt_pose(), perturbed(&[0.4; POSE_DIM]), penetrating_pose()] {
             let (a, b) = (e.evaluate(&pose), e.evaluate_with_gradient(&pose).0);
@@ -367,6 +373,41 @@ fn value_only_and_gradient_paths_give_the_same_value() {
             );
         }
     }
+}
+
+/// papers/002 eq. (9)'s `w_θ‖θ‖²`: every rotation (root included), not the translation; off by
+/// default, and then absent from the terms and the residuals.
+#[test]
+fn the_rotation_prior_sums_the_squared_rotations() {
+    let pose = perturbed(&[0.3; POSE_DIM]);
+    let off = energy(Modality::Markers, isolate("data"));
+    assert!(off.evaluate(&pose).term("pose").is_none());
+    let n_off = off.residual_count();
+    let mut c = isolate("none");
+    c.weights = Weights {
+        data: 0.0,
+        ej: 0.0,
+        ed: 0.0,
+        es: 0.0,
+        ep: 0.0,
+        ea: 0.0,
+        shape: 0.0,
+        expression: 0.0,
+        pose: 0.25,
+    };
+    let t = template();
+    let sensor = Sensor::default_for(Modality::Markers, &t);
+    let e = Energy::new(t, sensor.clone(), target_for(&sensor, &gt_pose()), c).unwrap();
+    let want: f64 = pose[3..].iter().map(|x| x * x).sum();
+    let ev = e.evaluate(&pose);
+    assert!((ev.term("pose").unwrap() - want).abs() < 1e-12);
+    assert!((ev.total - 0.25 * want).abs() < 1e-12);
+    let (_, g) = e.evaluate_with_gradient(&pose);
+    for i in 0..POSE_DIM {
+        let expect = if i < 3 { 0.0 } else { 0.5 * pose[i] };
+        assert!((g[i] - expect).abs() < 1e-12, "entry {i}");
+    }
+    assert_eq!(e.residual_count(), n_off + POSE_DIM - 3);
 }
 
 #[test]
@@ -874,12 +915,24 @@ mod least_squares_form {
     #[test]
     fn pose_shape_expression_and_correctives_on_another_skeleton() {
         for posedirs in [false, true] {
-            let t = super::morphable::with_expression(smpl_like(6, 200, 6, posedirs));
+            let mut base = smpl_like(6, 200, 6, posedirs);
+            base.info.landmark_vertices = (0..200).step_by(3).collect();
+            let t = super::morphable::with_expression(base);
             let truth = super::morphable::params(&t, 1, 1.0);
             let x = super::morphable::params(&t, 2, 0.5);
-            for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
+            for modality in [
+                Modality::Markers,
+                Modality::Keypoints2d,
+                Modality::Hmd,
+                Modality::Landmarks2d,
+            ] {
                 let sensor = Sensor::default_for(modality, &t);
                 let pred = sensor.predict_sparse(&t, &truth);
+                // The face energy's rotation prior (papers/002 eq. 9) on the landmarks.
+                let mut config = EnergyConfig::default().for_gradient();
+                if modality == Modality::Landmarks2d {
+                    config.weights.pose = 0.05;
+                }
                 let e = Energy::new(
                     t.clone(),
                     sensor,
@@ -887,10 +940,13 @@ mod least_squares_form {
                         values: pred.values,
                         visible: pred.visible,
                     },
-                    EnergyConfig::default().for_gradient(),
+                    config,
                 )
                 .unwrap();
                 let active = check(&e, &x, &format!("{modality} posedirs={posedirs}"));
+                if modality == Modality::Landmarks2d {
+                    assert!(active.contains(&"pose"), "{active:?}");
+                }
                 assert!(
                     active.contains(&"shape") && active.contains(&"expression"),
                     "{active:?}"

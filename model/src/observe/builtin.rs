@@ -14,7 +14,7 @@ use crate::noise::{NoiseConfig, corrupt_hmd, corrupt_points};
 use crate::template::Template;
 
 /// Depth below which a point counts as behind the camera (1 cm).
-const DEPTH_FLOOR: f64 = 0.01;
+pub(crate) const DEPTH_FLOOR: f64 = 0.01;
 
 /// Projection of world point `p` by `cam` and the rows `∂(u, v)/∂q` of its derivative with respect
 /// to the camera-frame point `q`. Depths are floored at 1 cm (in front of the camera), where the
@@ -35,7 +35,7 @@ pub(crate) fn project(cam: &Camera, p: DVec3) -> ([f64; 2], [DVec3; 2]) {
 
 /// `out = Σ_a a[a] · rows[a]` for a 3-row, `d`-wide row-major block.
 #[inline]
-fn combine(out: &mut [f64], a: DVec3, rows: &[f64], d: usize) {
+pub(crate) fn combine_rows(out: &mut [f64], a: DVec3, rows: &[f64], d: usize) {
     for (i, o) in out.iter_mut().enumerate() {
         *o = a.x * rows[i] + a.y * rows[d + i] + a.z * rows[2 * d + i];
     }
@@ -166,7 +166,7 @@ impl ObservationModel for KeypointSetup {
                 let jj = &joint_jac[3 * j * d..3 * (j + 1) * d];
                 for (r, dq) in dq.iter().enumerate() {
                     let row = 2 * (c * nj + j) + r;
-                    combine(&mut out[row * d..(row + 1) * d], rot_t * *dq, jj, d);
+                    combine_rows(&mut out[row * d..(row + 1) * d], rot_t * *dq, jj, d);
                 }
             }
         }

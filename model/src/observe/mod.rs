@@ -8,6 +8,7 @@
 //! the posed surface with a distance transform of the whole point cloud instead of entry by entry.
 
 mod builtin;
+mod landmarks;
 mod scan_model;
 mod silhouettes;
 mod view;
@@ -20,6 +21,7 @@ use glam::{DAffine3, DMat3, DQuat, DVec3, Vec3};
 use rand::RngCore;
 use serde::{Deserialize, Serialize};
 
+pub use self::landmarks::{LANDMARK_CAMERA_DISTANCE, LANDMARK_FOCAL, LANDMARK_IMAGE};
 pub use self::view::{PoseGradient, PoseJacobian, PosedView};
 use crate::camera::{Camera, DEFAULT_RING_SIZE, default_ring};
 pub use crate::energy::Scales;
@@ -41,18 +43,21 @@ pub enum Modality {
     Scan,
     /// K binary camera masks (papers/001 §3.2): the foreground images of background subtraction.
     Silhouettes,
+    /// Dense face landmarks in one perspective camera (papers/002 §3.3).
+    Landmarks2d,
     /// A modality defined outside lfit: an [`ObservationModel`] in [`Sensor::Custom`]. Never
     /// parsed from a name (it has no default setup).
     Custom,
 }
 
 impl Modality {
-    pub const ALL: [Modality; 5] = [
+    pub const ALL: [Modality; 6] = [
         Modality::Markers,
         Modality::Keypoints2d,
         Modality::Hmd,
         Modality::Scan,
         Modality::Silhouettes,
+        Modality::Landmarks2d,
     ];
 
     pub fn name(self) -> &'static str {
@@ -62,6 +67,7 @@ impl Modality {
             Modality::Hmd => "hmd",
             Modality::Scan => "scan",
             Modality::Silhouettes => "silhouettes",
+            Modality::Landmarks2d => "landmarks2d",
             Modality::Custom => "custom",
         }
     }
@@ -121,6 +127,17 @@ pub struct ScanSetup {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SilhouetteSetup {
     pub cameras: Vec<Camera>,
+}
+
+/// Fixed setup of the `landmarks2d` modality (papers/002 §3.3): model vertices (a face model's
+/// `landmark_vertices`) seen by one calibrated perspective camera. A landmark is seen when it is in
+/// front of the camera, inside the image and its vertex faces the camera: its rest normal
+/// (`normals`, one per vertex), turned by the skinning rotations, points to the camera centre.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LandmarkSetup {
+    pub camera: Camera,
+    pub vertices: Vec<u32>,
+    pub normals: Vec<[f64; 3]>,
 }
 
 /// Fixed setup of the `markers` modality: named skin markers on template vertices.
@@ -268,6 +285,7 @@ pub enum Sensor {
     Hmd(HmdSetup),
     Scan(ScanSetup),
     Silhouettes(SilhouetteSetup),
+    Landmarks2d(LandmarkSetup),
     /// An observation model defined outside lfit. It lives in memory only: datasets of it cannot
     /// be written (serialising it is an error naming the reason).
     #[serde(skip)]
@@ -283,6 +301,7 @@ impl PartialEq for Sensor {
             (Sensor::Hmd(a), Sensor::Hmd(b)) => a == b,
             (Sensor::Scan(a), Sensor::Scan(b)) => a == b,
             (Sensor::Silhouettes(a), Sensor::Silhouettes(b)) => a == b,
+            (Sensor::Landmarks2d(a), Sensor::Landmarks2d(b)) => a == b,
             (Sensor::Custom(a), Sensor::Custom(b)) => Arc::ptr_eq(a, b),
             _ => false,
         }
@@ -348,6 +367,7 @@ impl Sensor {
             Modality::Silhouettes => Sensor::Silhouettes(SilhouetteSetup {
                 cameras: default_ring(4),
             }),
+            Modality::Landmarks2d => Sensor::Landmarks2d(LandmarkSetup::for_template(template)),
             Modality::Custom => Sensor::Custom(Arc::new(NoDefaultSetup)),
         }
     }
@@ -359,6 +379,7 @@ impl Sensor {
             Sensor::Hmd(_) => Modality::Hmd,
             Sensor::Scan(_) => Modality::Scan,
             Sensor::Silhouettes(_) => Modality::Silhouettes,
+            Sensor::Landmarks2d(_) => Modality::Landmarks2d,
             Sensor::Custom(_) => Modality::Custom,
         }
     }
@@ -379,16 +400,18 @@ impl Sensor {
             Sensor::Hmd(s) => s,
             Sensor::Scan(s) => s,
             Sensor::Silhouettes(s) => s,
+            Sensor::Landmarks2d(s) => s,
             Sensor::Custom(m) => m.as_ref(),
         }
     }
 
-    /// Cameras of the setup (none for markers, hmd and custom sensors).
+    /// Cameras of the setup (none for markers, hmd and custom sensors; one for landmarks2d).
     pub fn cameras(&self) -> &[Camera] {
         match self {
             Sensor::Keypoints2d(s) => &s.cameras,
             Sensor::Scan(s) => &s.cameras,
             Sensor::Silhouettes(s) => &s.cameras,
+            Sensor::Landmarks2d(s) => std::slice::from_ref(&s.camera),
             _ => &[],
         }
     }
