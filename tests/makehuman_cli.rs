@@ -455,7 +455,7 @@ fn bad_assets_and_arguments_are_one_line_errors_and_write_nothing() {
             "default",
             &["--part", "face", "--components", "500"],
         ),
-        "too few",
+        "span fewer than 500 directions",
     );
     let no_units = dir.path().join("no_units");
     assets_without(

@@ -67,11 +67,12 @@ impl FromStr for Scenario {
 }
 
 /// Where target poses come from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum PoseSource {
     /// Motion: the procedural motion library, or the imported motion files of
     /// [`SynthConfig::motion_files`] (with [`SynthConfig::with_library`]: both).
+    #[default]
     Motion,
     /// Uniform sampling within the global bounds (root height within ±0.3 m of standing).
     Uniform,

@@ -33,6 +33,28 @@ use crate::fitter::{
     FitRequest, FitResult, Fitter, StageOutcome, StageSolver, Strategy, run_staged,
 };
 
+/// The step of one damped Gauss-Newton system on the entries `free` (positions in `a` and `g`):
+/// `(A + μ D + 1e-12 max(D) I) h = −g` with `A = JᵀJ`, `g = Jᵀr`, `D = diag` (Marquardt's
+/// scaling) and `μ = damping` (0: Gauss-Newton), by dense Cholesky; `None` when the system is
+/// not positive definite. LM's parameter update given the residuals and the Jacobian (papers/002
+/// compares its cost with the neural update's, Table 7).
+pub fn damped_step(
+    a: &DMatrix<f64>,
+    g: &DVector<f64>,
+    free: &[usize],
+    diag: &[f64],
+    damping: f64,
+    max_diag: f64,
+) -> Option<DVector<f64>> {
+    let m = free.len();
+    let mut sys = DMatrix::<f64>::from_fn(m, m, |r, c| a[(free[r], free[c])]);
+    for (k, dk) in diag.iter().enumerate() {
+        sys[(k, k)] += damping * dk + 1e-12 * max_diag;
+    }
+    let rhs = DVector::<f64>::from_iterator(m, free.iter().map(|&p| -g[p]));
+    sys.cholesky().map(|c| c.solve(&rhs))
+}
+
 /// Which least-squares method.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -165,7 +187,6 @@ impl StageSolver for LeastSquaresFitter {
             if free.is_empty() {
                 break;
             }
-            let m = free.len();
             let diag: Vec<f64> = free.iter().map(|&p| a[(p, p)].clamp(1e-6, 1e32)).collect();
             let max_diag = diag.iter().fold(0.0f64, |s, v| s.max(*v));
             // Gauss-Newton's halving factor along its direction.
@@ -175,12 +196,7 @@ impl StageSolver for LeastSquaresFitter {
                     LeastSquaresMethod::Lm => 1.0 / radius,
                     LeastSquaresMethod::Gn => 0.0,
                 };
-                let mut sys = DMatrix::<f64>::from_fn(m, m, |r, c| a[(free[r], free[c])]);
-                for (k, dk) in diag.iter().enumerate() {
-                    sys[(k, k)] += damping * dk + 1e-12 * max_diag;
-                }
-                let rhs = DVector::<f64>::from_iterator(m, free.iter().map(|&p| -g[p]));
-                let Some(chol) = sys.cholesky() else {
+                let Some(h) = damped_step(&a, &g, &free, &diag, damping, max_diag) else {
                     // Not positive definite at this damping: more damping (LM) or give up (GN).
                     match self.method {
                         LeastSquaresMethod::Lm => {
@@ -194,7 +210,6 @@ impl StageSolver for LeastSquaresFitter {
                         LeastSquaresMethod::Gn => break 'outer,
                     }
                 };
-                let h = chol.solve(&rhs);
                 let mut trial = x.clone();
                 for (k, &p) in free.iter().enumerate() {
                     let i = dofs[p];

@@ -5,7 +5,9 @@ their box and the start; `{"x": ..., "residuals": true, "jacobian": true}` gives
 (energy = sum of squares) and their exact Jacobian. scipy runs method "trf" with that Jacobian
 from the served start inside the served box, at its default tolerances.
 
-Usage: scipy_least_squares.py LFIT DATASET FRAMES OUT.json   (FRAMES: comma-separated indices)
+Usage: scipy_least_squares.py LFIT DATASET FRAMES OUT.json [SERVER_ARG ...]
+(FRAMES: comma-separated indices; SERVER_ARGs go to every `lfit objective-server`, e.g.
+`--template models/makehuman-face.npz --energy configs/face-energy.json`)
 Writes {"frames": [{"frame", "energy", "nfev", "njev", "status"}, ...]}.
 """
 
@@ -19,9 +21,9 @@ from scipy.optimize import least_squares
 
 
 class Server:
-    def __init__(self, lfit, data, frame):
+    def __init__(self, lfit, data, frame, extra):
         self.proc = subprocess.Popen(
-            [lfit, "objective-server", "--data", data, "--frame", str(frame)],
+            [lfit, "objective-server", "--data", data, "--frame", str(frame), *extra],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             text=True,
@@ -51,8 +53,8 @@ class Server:
         self.proc.wait()
 
 
-def fit(lfit, data, frame):
-    server = Server(lfit, data, frame)
+def fit(lfit, data, frame, extra):
+    server = Server(lfit, data, frame, extra)
     try:
         d = server.ask({"describe": True})
         lower, upper = np.asarray(d["lower"]), np.asarray(d["upper"])
@@ -72,9 +74,10 @@ def fit(lfit, data, frame):
 
 def main():
     lfit, data, frames, out = sys.argv[1:5]
+    extra = sys.argv[5:]
     frames = [int(f) for f in frames.split(",")]
     with ThreadPoolExecutor(max_workers=4) as pool:
-        results = list(pool.map(lambda f: fit(lfit, data, f), frames))
+        results = list(pool.map(lambda f: fit(lfit, data, f, extra), frames))
     with open(out + ".part", "w") as fh:
         json.dump({"frames": results}, fh)
     import os

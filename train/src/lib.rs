@@ -25,7 +25,7 @@ use lfit_nn::{
     unroll,
 };
 use lfit_synth::{
-    Dataset, MotionFile, NoiseConfig, Observations, Scenario, SynthConfig, synthesize,
+    Dataset, MotionFile, NoiseConfig, Observations, PoseSource, Scenario, SynthConfig, synthesize,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -105,6 +105,20 @@ pub struct TrainConfig {
     /// (`lfit synth --with-library`).
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub with_library: bool,
+    /// Where target poses come from (`lfit synth --source`): `motion` (the default: the library
+    /// or `motions`, local scenario) or `face` (papers/002's face protocol, global scenario: the
+    /// fitter starts from the rest pose or Φ(D)). `uniform` is refused.
+    #[serde(skip_serializing_if = "is_motion")]
+    pub source: PoseSource,
+    /// The energy the network learns to minimise (and sees the residuals and gradient of); default
+    /// the gradient variant of the default energy. A checkpoint is fitted with the energy it was
+    /// trained on (the face's: `configs/face-energy.json`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub energy: Option<EnergyConfig>,
+}
+
+fn is_motion(s: &PoseSource) -> bool {
+    *s == PoseSource::Motion
 }
 
 impl Default for TrainConfig {
@@ -127,6 +141,8 @@ impl Default for TrainConfig {
             noise: 1.0,
             motions: Vec::new(),
             with_library: false,
+            source: PoseSource::Motion,
+            energy: None,
         }
     }
 }
@@ -161,8 +177,36 @@ impl TrainConfig {
             return bad(
                 "modality",
                 self.modality.to_string(),
-                "the neural fitter supports markers, keypoints2d and hmd",
+                "the neural fitter supports markers, keypoints2d, hmd and landmarks2d",
             );
+        }
+        if self.source == PoseSource::Uniform {
+            return bad(
+                "source",
+                "uniform".into(),
+                "training draws from motion (the library or motion files) or face",
+            );
+        }
+        if self.source == PoseSource::Face && !self.motions.is_empty() {
+            return bad(
+                "source",
+                "face".into(),
+                "the face protocol draws its own head poses: drop \"motions\"",
+            );
+        }
+        if let Some(e) = &self.energy {
+            e.validate().map_err(|err| TrainError::Setting {
+                name: "energy",
+                value: "{..}".into(),
+                reason: err.to_string(),
+            })?;
+            if !e.is_differentiable() {
+                return bad(
+                    "energy",
+                    "{..}".into(),
+                    "the network needs the gradient variant: \"angle_prior\": \"hinge\" and \"silhouettes\": false",
+                );
+            }
         }
         if self.steps == 0 {
             return bad("steps", "0".into(), "must be at least 1");
@@ -261,6 +305,8 @@ pub struct Frames {
 pub struct Motions {
     pub files: Vec<MotionFile>,
     pub with_library: bool,
+    /// `face`: papers/002's face protocol in the global scenario instead.
+    pub source: PoseSource,
 }
 
 impl Motions {
@@ -273,6 +319,7 @@ impl Motions {
                 .map(|p| MotionFile::load(p, template))
                 .collect::<Result<_, _>>()?,
             with_library: config.with_library,
+            source: config.source,
         })
     }
 }
@@ -308,9 +355,15 @@ pub fn synth_frames_with(
     noise: f64,
     motions: &Motions,
 ) -> Result<Frames> {
-    let mut config = SynthConfig::new(sensor.modality(), Scenario::Local, frames, seed);
+    let scenario = if motions.source == PoseSource::Face {
+        Scenario::Global
+    } else {
+        Scenario::Local
+    };
+    let mut config = SynthConfig::new(sensor.modality(), scenario, frames, seed);
     config.motion_files = motions.files.clone();
     config.with_library = motions.with_library;
+    config.source = motions.source;
     config.noise = if noise == 0.0 {
         NoiseConfig::none()
     } else {
@@ -335,6 +388,15 @@ pub fn synth_frames_with(
 /// The gradient-variant energy of a modality on `template`, with an empty (invisible) target;
 /// frames clone it with their own targets ([`Energy::with_target`]).
 pub fn base_energy(template: &Arc<Template>, sensor: &Sensor) -> Result<Energy> {
+    base_energy_with(template, sensor, EnergyConfig::default().for_gradient())
+}
+
+/// [`base_energy`] with the energy configuration `config` (a training config's `energy`).
+pub fn base_energy_with(
+    template: &Arc<Template>,
+    sensor: &Sensor,
+    config: EnergyConfig,
+) -> Result<Energy> {
     let dim = sensor.residual_dim(template);
     Ok(Energy::new(
         template.clone(),
@@ -343,7 +405,7 @@ pub fn base_energy(template: &Arc<Template>, sensor: &Sensor) -> Result<Energy> 
             values: vec![0.0; dim],
             visible: vec![false; dim],
         },
-        EnergyConfig::default().for_gradient(),
+        config,
     )?)
 }
 
@@ -565,7 +627,14 @@ pub fn train_with_sensor(
             reason: format!("model '{}' has no shape parameters to give", template.id),
         });
     }
-    let base = base_energy(&template, &sensor)?;
+    let base = base_energy_with(
+        &template,
+        &sensor,
+        config
+            .energy
+            .clone()
+            .unwrap_or_else(|| EnergyConfig::default().for_gradient()),
+    )?;
     let motions = Motions::load(config, &template)?;
     let ad = device.clone().autodiff();
     let loss = Loss::new(&template, config.loss.clone(), &ad);
