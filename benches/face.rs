@@ -50,6 +50,7 @@ fn fitter(frames: &lfit::train::Frames, config: &TrainConfig, device: &str) -> N
             template_vertices: template.num_vertices(),
             network: net.clone(),
             model: None,
+            energy: None,
         },
         stats,
         net: NeuralNet::new(&net, 0, &device).expect("net"),

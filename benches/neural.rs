@@ -51,6 +51,7 @@ fn fitter(modality: Modality, device_name: &str, frames: &lfit::train::Frames) -
         template_vertices: template.num_vertices(),
         network: net.clone(),
         model: None,
+        energy: None,
     };
     let checkpoint = Checkpoint {
         meta,

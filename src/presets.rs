@@ -63,6 +63,10 @@ pub const PRESETS: &[(&str, &[(&str, &str)])] = &[
         ],
     ),
     (
+        "face",
+        &[("", include_str!("../benches/presets/face.toml"))],
+    ),
+    (
         "learned-vs-classical-procedural",
         &[
             (
@@ -106,6 +110,10 @@ pub fn load(name: &str, quick: bool) -> Result<Vec<(String, BenchConfig)>> {
         }
         if let Some(t) = &config.template {
             config.template = Some(find_shipped(t)?);
+        }
+        // An energy file (not the names `paper`/`gradient`), e.g. configs/face-energy.json.
+        if let Some(e) = config.energy.clone().filter(|e| e.ends_with(".json")) {
+            config.energy = Some(find_shipped(Path::new(&e))?.to_string_lossy().into_owned());
         }
         config
             .validate()
@@ -173,6 +181,37 @@ mod tests {
         assert_eq!(
             (seq.methods.len(), seq.budgets.as_slice(), seq.repetitions),
             (5, &[4000][..], 1)
+        );
+        // papers/002 Table 7 on ≥ 1,000 held-out samples of the face protocol, with the tuned
+        // eq. (9) energy.
+        let face = &load("face", false).unwrap()[0].1;
+        let synth = face.synth.as_ref().unwrap();
+        assert!(synth.frames >= 1000);
+        assert_eq!(
+            (synth.modality.as_str(), synth.source.as_deref()),
+            ("landmarks2d", Some("face"))
+        );
+        assert!(Path::new(face.energy.as_deref().unwrap()).exists());
+        assert!(
+            face.template
+                .as_ref()
+                .unwrap()
+                .ends_with("makehuman-face.npz")
+        );
+        assert!(
+            face.checkpoint
+                .as_ref()
+                .unwrap()
+                .ends_with("checkpoints/face")
+        );
+        assert_eq!(
+            load("face", true).unwrap()[0]
+                .1
+                .synth
+                .as_ref()
+                .unwrap()
+                .frames,
+            100
         );
         let pf = &load("ea-vs-pf", false).unwrap()[0].1;
         assert_eq!(pf.budgets, vec![500, 1500, 3000]);

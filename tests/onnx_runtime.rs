@@ -419,6 +419,7 @@ fn every_ablation_variant_exports_and_matches_burn() {
             template_vertices: template.num_vertices(),
             network: config.clone(),
             model: None,
+            energy: None,
         };
         let exported = export(&net, &meta, &stats).unwrap_or_else(|e| panic!("{name}: {e}"));
         let expected_files =

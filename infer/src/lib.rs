@@ -188,6 +188,7 @@ impl NeuralFitter {
         }
         self.meta
             .check_compatible(&self.dir, modality, dim, template)?;
+        self.meta.check_energy(&self.dir, energy.config())?;
         if let Ok(mut list) = self.verified.lock() {
             list.retain(|v| v.0.strong_count() > 0);
             list.push((std::sync::Arc::downgrade(template), modality, dim));

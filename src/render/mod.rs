@@ -75,6 +75,15 @@ pub fn overlay(dataset: &Dataset, frame: usize, camera: usize) -> Overlay {
                         }
                     }
                 }
+                // One camera: every seen landmark.
+                Sensor::Landmarks2d(_) => {
+                    for k in 0..v.len() / 2 {
+                        if vis[2 * k] {
+                            out.pixels
+                                .push(Point::Pixel(DVec2::new(v[2 * k], v[2 * k + 1]), OBSERVED));
+                        }
+                    }
+                }
                 Sensor::Hmd(_) if v.len() >= lfit_model::observe::HMD_DIM => {
                     // Headset, left wrist, right wrist: R (9, row-major) then t (3); then the
                     // hand tips.
@@ -131,11 +140,11 @@ pub fn overlay(dataset: &Dataset, frame: usize, camera: usize) -> Overlay {
     out
 }
 
-/// The camera that a frame's pictures add as a third view: `keypoints2d` and `silhouettes`
-/// observe in cameras, the others in 3D.
+/// The camera that a frame's pictures add as a third view: `keypoints2d`, `silhouettes` and
+/// `landmarks2d` observe in cameras, the others in 3D.
 pub fn view_camera(dataset: &Dataset, camera: usize) -> Option<lfit_model::camera::Camera> {
     match &dataset.sensor {
-        Sensor::Keypoints2d(_) | Sensor::Silhouettes(_) => {
+        Sensor::Keypoints2d(_) | Sensor::Silhouettes(_) | Sensor::Landmarks2d(_) => {
             dataset.sensor.cameras().get(camera).copied()
         }
         _ => None,

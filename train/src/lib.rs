@@ -785,10 +785,15 @@ pub fn train_with_sensor(
                             "iteration": (0..=n_iter).collect::<Vec<_>>(), "v2v_mm": validation.v2v_mm, "mpjpe_mm": validation.mpjpe_mm},
             "train_config": config,
         });
-        let mut files: Vec<(&str, Vec<u8>)> =
-            checkpoint_files(&net.valid(), &stats, &template, &card)?
-                .into_iter()
-                .collect();
+        let mut files: Vec<(&str, Vec<u8>)> = checkpoint_files(
+            &net.valid(),
+            &stats,
+            &template,
+            config.energy.as_ref(),
+            &card,
+        )?
+        .into_iter()
+        .collect();
         let opt = optim.into_bytes().map_err(|e| TrainError::Setting {
             name: "optimizer",
             value: String::new(),

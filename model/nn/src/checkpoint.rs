@@ -39,6 +39,11 @@ pub struct CheckpointMeta {
     /// were data have none and are checked by vertex count and parameter length.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub model: Option<lfit_model::template::ModelSignature>,
+    /// The energy the network was trained on, when the training config named one (the face's
+    /// eq. 9 energy); absent: the gradient variant of the default energy. A fit with another
+    /// energy is refused ([`CheckpointMeta::check_energy`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub energy: Option<lfit_model::energy::EnergyConfig>,
 }
 
 /// A loaded checkpoint.
@@ -183,9 +188,11 @@ pub fn checkpoint_files(
     net: &NeuralNet,
     stats: &FeatureStats,
     template: &Template,
+    energy: Option<&lfit_model::energy::EnergyConfig>,
     metrics: &serde_json::Value,
 ) -> Result<Vec<(&'static str, Vec<u8>)>> {
-    let meta = CheckpointMeta::new(template, net.config.clone());
+    let mut meta = CheckpointMeta::new(template, net.config.clone());
+    meta.energy = energy.cloned();
     let json = |v: serde_json::Result<String>| {
         v.map(String::into_bytes)
             .map_err(|e| ModelError::Backend(format!("cannot serialise checkpoint: {e}")))
@@ -275,6 +282,27 @@ impl CheckpointMeta {
             template_vertices: template.num_vertices(),
             network,
             model: Some(template.signature()),
+            energy: None,
+        }
+    }
+
+    /// Checks that a fit minimises the energy the network was trained on, when the checkpoint
+    /// records one (the network learned its residuals, gradient and scale).
+    pub fn check_energy(
+        &self,
+        dir: &Path,
+        config: &lfit_model::energy::EnergyConfig,
+    ) -> Result<()> {
+        match &self.energy {
+            Some(trained) if trained != config => Err(err(
+                dir,
+                format!(
+                    "was trained on another energy than this fit's (weights {}, robust {:?}): pass it with --energy (bench: energy = \"FILE\"), e.g. the training config's",
+                    serde_json::to_string(&trained.weights).unwrap_or_default(),
+                    trained.robust
+                ),
+            )),
+            _ => Ok(()),
         }
     }
 

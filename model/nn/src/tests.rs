@@ -373,8 +373,14 @@ fn save_checkpoint(
     stats: &FeatureStats,
     template: &Template,
 ) {
-    let files =
-        checkpoint_files(net, stats, template, &serde_json::json!({"test": true})).expect("files");
+    let files = checkpoint_files(
+        net,
+        stats,
+        template,
+        None,
+        &serde_json::json!({"test": true}),
+    )
+    .expect("files");
     let files: Vec<(&str, Vec<u8>)> = files.into_iter().collect();
     write_dir(dir, &files).expect("write");
 }
@@ -602,4 +608,29 @@ fn backends_agree_on_the_fitting_loop() {
             }
         }
     }
+}
+
+/// A checkpoint that records its training energy refuses a fit with another one (the face's
+/// eq. 9 energy is not the default); one without a record accepts any (older checkpoints).
+#[test]
+fn a_recorded_training_energy_must_match_the_fit() {
+    let template = default_template();
+    let mut meta = checkpoint::CheckpointMeta::new(&template, NetConfig::default());
+    let dir = std::path::Path::new("checkpoints/x");
+    let default = EnergyConfig::default().for_gradient();
+    let mut face = default.clone();
+    face.weights.expression = 1.0;
+    face.weights.ep = 0.0;
+    assert!(meta.check_energy(dir, &face).is_ok());
+    meta.energy = Some(face.clone());
+    assert!(meta.check_energy(dir, &face).is_ok());
+    let e = meta.check_energy(dir, &default).unwrap_err().to_string();
+    assert!(
+        e.contains("checkpoints/x") && e.contains("another energy") && !e.contains('\n'),
+        "{e}"
+    );
+    // It survives config.json.
+    let back: checkpoint::CheckpointMeta =
+        serde_json::from_str(&serde_json::to_string(&meta).unwrap()).unwrap();
+    assert_eq!(back, meta);
 }
