@@ -44,13 +44,8 @@ fn fitter(frames: &lfit::train::Frames, config: &TrainConfig, device: &str) -> N
     let stats: FeatureStats = measure_stats(frames);
     let checkpoint = Checkpoint {
         meta: CheckpointMeta {
-            format: "lfit-checkpoint".into(),
-            version: 1,
-            template_id: template.id.clone(),
-            template_vertices: template.num_vertices(),
-            network: net.clone(),
-            model: None,
-            energy: None,
+            energy: config.energy.clone(),
+            ..CheckpointMeta::new(template, net.clone())
         },
         stats,
         net: NeuralNet::new(&net, 0, &device).expect("net"),

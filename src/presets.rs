@@ -63,10 +63,6 @@ pub const PRESETS: &[(&str, &[(&str, &str)])] = &[
         ],
     ),
     (
-        "face",
-        &[("", include_str!("../benches/presets/face.toml"))],
-    ),
-    (
         "learned-vs-classical-procedural",
         &[
             (
@@ -82,6 +78,10 @@ pub const PRESETS: &[(&str, &[(&str, &str)])] = &[
                 include_str!("../benches/presets/learned-vs-classical-procedural-hmd.toml"),
             ),
         ],
+    ),
+    (
+        "face",
+        &[("", include_str!("../benches/presets/face.toml"))],
     ),
 ];
 

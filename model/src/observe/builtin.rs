@@ -10,7 +10,7 @@ use super::{
 use crate::camera::Camera;
 use crate::energy::Scales;
 use crate::error::{ModelError, Result};
-use crate::noise::{NoiseConfig, corrupt_hmd, corrupt_points};
+use crate::noise::{NoiseConfig, corrupt_hmd, corrupt_pixels, corrupt_points};
 use crate::template::Template;
 
 /// Depth below which a point counts as behind the camera (1 cm).
@@ -195,15 +195,7 @@ impl ObservationModel for KeypointSetup {
         noise: &NoiseConfig,
         rng: &mut dyn RngCore,
     ) {
-        corrupt_points(
-            values,
-            visible,
-            2,
-            noise.pixel_sigma,
-            noise.outlier_scale_px,
-            noise,
-            rng,
-        );
+        corrupt_pixels(values, visible, noise, rng);
     }
 }
 

@@ -12,7 +12,7 @@ use super::{
 use crate::camera::Camera;
 use crate::energy::Scales;
 use crate::error::{ModelError, Result};
-use crate::noise::{NoiseConfig, corrupt_points};
+use crate::noise::{NoiseConfig, corrupt_pixels};
 use crate::skinning::vertex_normals;
 use crate::template::Template;
 
@@ -175,15 +175,7 @@ impl ObservationModel for LandmarkSetup {
         noise: &NoiseConfig,
         rng: &mut dyn RngCore,
     ) {
-        corrupt_points(
-            values,
-            visible,
-            2,
-            noise.pixel_sigma,
-            noise.outlier_scale_px,
-            noise,
-            rng,
-        );
+        corrupt_pixels(values, visible, noise, rng);
     }
 }
 
