@@ -111,8 +111,13 @@ pub fn load(name: &str, quick: bool) -> Result<Vec<(String, BenchConfig)>> {
         if let Some(t) = &config.template {
             config.template = Some(find_shipped(t)?);
         }
-        // An energy file (not the names `paper`/`gradient`), e.g. configs/face-energy.json.
-        if let Some(e) = config.energy.clone().filter(|e| e.ends_with(".json")) {
+        // An energy file (anything but the names `paper`/`gradient` that
+        // `BenchConfig::energy_config` knows), e.g. configs/face-energy.json.
+        if let Some(e) = config
+            .energy
+            .clone()
+            .filter(|e| !matches!(e.as_str(), "paper" | "gradient"))
+        {
             config.energy = Some(find_shipped(Path::new(&e))?.to_string_lossy().into_owned());
         }
         config

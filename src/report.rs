@@ -213,15 +213,13 @@ pub fn report(
                 if rs.is_empty() {
                     continue;
                 }
-                let cols: Vec<f64> = (0..6)
-                    .map(|k| {
-                        mean(
-                            &rs.iter()
-                                .filter_map(|r| r.face.map(|f| f.to_array()[k]))
-                                .collect::<Vec<_>>(),
-                        )
-                    })
-                    .collect();
+                let cols: [f64; 6] = std::array::from_fn(|k| {
+                    mean(
+                        &rs.iter()
+                            .filter_map(|r| r.face.map(|f| f.to_array()[k]))
+                            .collect::<Vec<_>>(),
+                    )
+                });
                 let time_ms = 1000.0 * mean(&rs.iter().map(|r| r.time_s).collect::<Vec<_>>());
                 let _ = writeln!(
                     md,
@@ -231,9 +229,7 @@ pub fn report(
                         .collect::<Vec<_>>()
                         .join(" | ")
                 );
-                let errors = lfit_model::metrics::FaceErrors::from_array([
-                    cols[0], cols[1], cols[2], cols[3], cols[4], cols[5],
-                ]);
+                let errors = lfit_model::metrics::FaceErrors::from_array(cols);
                 face_table.push(json!({"method": l, "budget": b, "runs": rs.len(), "errors": errors, "time_ms": time_ms}));
             }
         }

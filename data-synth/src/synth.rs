@@ -87,15 +87,24 @@ pub enum PoseSource {
 /// or away from the camera (0.6 m away: about ±17 % in scale).
 pub const FACE_TRANSLATION: [f64; 3] = [0.05, 0.05, 0.1];
 
+impl PoseSource {
+    /// The name `--source` takes and datasets record.
+    pub fn name(self) -> &'static str {
+        match self {
+            PoseSource::Motion => "motion",
+            PoseSource::Uniform => "uniform",
+            PoseSource::Face => "face",
+        }
+    }
+}
+
 impl FromStr for PoseSource {
     type Err = SynthError;
     fn from_str(s: &str) -> Result<Self, SynthError> {
-        match s {
-            "motion" => Ok(PoseSource::Motion),
-            "uniform" => Ok(PoseSource::Uniform),
-            "face" => Ok(PoseSource::Face),
-            _ => Err(SynthError::UnknownSource(s.to_string())),
-        }
+        [PoseSource::Motion, PoseSource::Uniform, PoseSource::Face]
+            .into_iter()
+            .find(|p| p.name() == s)
+            .ok_or_else(|| SynthError::UnknownSource(s.to_string()))
     }
 }
 
@@ -252,11 +261,7 @@ impl SynthConfig {
         if self.motions.is_empty() {
             return setting("motions", "[]".into(), "need at least one motion");
         }
-        let source_name = match self.source {
-            PoseSource::Motion => "motion",
-            PoseSource::Uniform => "uniform",
-            PoseSource::Face => "face",
-        };
+        let source_name = self.source.name();
         if self.scenario == Scenario::Sequence && self.source != PoseSource::Motion {
             return setting(
                 "source",

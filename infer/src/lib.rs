@@ -170,8 +170,11 @@ impl NeuralFitter {
         self.meta.network.iterations
     }
 
-    /// Checks that the checkpoint fits an energy (modality, residual size, template).
+    /// Checks that the checkpoint fits an energy (modality, residual size, template, and the
+    /// training energy when the checkpoint records one).
     pub fn check(&self, energy: &Energy) -> Result<(), ModelError> {
+        // Before the cache of verified models: frames of one model may carry other energies.
+        self.meta.check_energy(&self.dir, energy.config())?;
         let template = energy.template();
         let (modality, dim) = (energy.modality(), energy.sensor().residual_dim(template));
         let known = |v: &Verified| {
@@ -188,7 +191,6 @@ impl NeuralFitter {
         }
         self.meta
             .check_compatible(&self.dir, modality, dim, template)?;
-        self.meta.check_energy(&self.dir, energy.config())?;
         if let Ok(mut list) = self.verified.lock() {
             list.retain(|v| v.0.strong_count() > 0);
             list.push((std::sync::Arc::downgrade(template), modality, dim));

@@ -43,12 +43,14 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::body::signed_volume;
 use crate::error::{ModelError, Result};
 use crate::info::ModelInfo;
 use crate::makehuman::{Bone, read_obj, read_rig, read_weights};
 use crate::makehuman_import::{
     DM, MacroSpace, PROVENANCE, Phenotype, RegressorInput, TargetPca, asset_error, combine,
-    dense_rows, edge_defects, fit_regressor, mix, placement_vertices, read_targets,
+    dense_rows, edge_defects, fan, fit_regressor, flat_dirichlet3, mix, placement_vertices,
+    read_targets,
 };
 use crate::morph::Morph;
 use crate::rig::{Joint, Rig};
@@ -303,11 +305,7 @@ pub fn slider_weights(sliders: &[Slider], targets: usize, rng: &mut impl Rng) ->
 /// `r · units + u`): race weights from a flat Dirichlet (as the body's phenotypes), each unit
 /// active with probability [`EXPRESSION_ACTIVE`] with an activation uniform in [0, 1].
 pub fn expression_weights(units: usize, rng: &mut impl Rng) -> Vec<f64> {
-    let mut race = [0.0; 3];
-    for r in &mut race {
-        *r = -(1.0 - rng.random::<f64>()).ln();
-    }
-    let s: f64 = race.iter().sum();
+    let race = flat_dirichlet3(rng);
     let active: Vec<f64> = (0..units)
         .map(|_| {
             if rng.random::<f64>() < EXPRESSION_ACTIVE {
@@ -320,7 +318,7 @@ pub fn expression_weights(units: usize, rng: &mut impl Rng) -> Vec<f64> {
     let mut w = vec![0.0; 3 * units];
     for (r, rw) in race.iter().enumerate() {
         for (u, a) in active.iter().enumerate() {
-            w[r * units + u] = rw / s * a;
+            w[r * units + u] = rw * a;
         }
     }
     w
@@ -450,37 +448,18 @@ pub fn import_face(opts: &FaceImportOptions) -> Result<(Template, FaceImportRepo
         keep[v] = total[v] > 0.0 && inside[v] >= 0.5 * total[v];
     }
     let mut faces_base: Vec<[u32; 3]> = Vec::new();
-    let tri = |poly: &[u32], out: &mut Vec<[u32; 3]>| {
-        for k in 1..poly.len() - 1 {
-            out.push([poly[0], poly[k], poly[k + 1]]);
-        }
-    };
-    let mut body_tris = Vec::new();
-    for poly in mesh.group_faces("body") {
-        if poly.iter().all(|&v| keep[v as usize]) {
-            tri(poly, &mut body_tris);
-        }
-    }
-    let mut eye_tris: [Vec<[u32; 3]>; 2] = [Vec::new(), Vec::new()];
-    for (e, g) in ["helper-l-eye", "helper-r-eye"].iter().enumerate() {
-        for poly in mesh.group_faces(g) {
-            tri(poly, &mut eye_tris[e]);
-        }
-    }
+    let mut body_tris: Vec<[u32; 3]> = mesh
+        .group_faces("body")
+        .filter(|poly| poly.iter().all(|&v| keep[v as usize]))
+        .flat_map(fan)
+        .collect();
+    let mut eye_tris: [Vec<[u32; 3]>; 2] =
+        ["helper-l-eye", "helper-r-eye"].map(|g| mesh.group_faces(g).flat_map(fan).collect());
     // Orient like the body importer: outward, by the sign of the enclosed volume of the whole
     // body (the head alone is open) and of each eyeball.
-    let signed = |tris: &[[u32; 3]]| -> f64 {
-        tris.iter()
-            .map(|f| {
-                let [a, b, c] = f.map(|i| mesh.vertices[i as usize]);
-                a.dot(b.cross(c))
-            })
-            .sum()
-    };
-    let mut all_body = Vec::new();
-    for poly in mesh.group_faces("body") {
-        tri(poly, &mut all_body);
-    }
+    let base_f32: Vec<Vec3> = mesh.vertices.iter().map(|v| v.as_vec3()).collect();
+    let signed = |tris: &[[u32; 3]]| signed_volume(&base_f32, tris);
+    let all_body: Vec<[u32; 3]> = mesh.group_faces("body").flat_map(fan).collect();
     let flip = |tris: &mut Vec<[u32; 3]>, s: f64| {
         if s < 0.0 {
             tris.iter_mut().for_each(|f| f.swap(1, 2));

@@ -296,15 +296,26 @@ impl Phenotype {
                 _ => rng.random_range(0.0..=1.0),
             };
         }
-        // Flat Dirichlet: normalised Exp(1) draws.
-        let mut race = [0.0; 3];
-        for r in &mut race {
-            *r = -(1.0 - rng.random::<f64>()).ln();
-        }
-        let s: f64 = race.iter().sum();
-        race.iter_mut().for_each(|r| *r /= s);
+        let race = flat_dirichlet3(rng);
         Self { values, race }
     }
+}
+
+/// Three weights from a flat Dirichlet (normalised Exp(1) draws): the race weights of a sampled
+/// phenotype or expression.
+pub fn flat_dirichlet3(rng: &mut impl Rng) -> [f64; 3] {
+    let mut w = [0.0; 3];
+    for r in &mut w {
+        *r = -(1.0 - rng.random::<f64>()).ln();
+    }
+    let s: f64 = w.iter().sum();
+    w.iter_mut().for_each(|r| *r /= s);
+    w
+}
+
+/// A polygon as a triangle fan from its first vertex (MakeHuman's quads → two triangles).
+pub(crate) fn fan(poly: &[u32]) -> impl Iterator<Item = [u32; 3]> + '_ {
+    (1..poly.len().saturating_sub(1)).map(move |k| [poly[0], poly[k], poly[k + 1]])
 }
 
 /// The macro targets (paths relative to `targets/macrodetails`, without `.target.gz`) and their
@@ -1136,9 +1147,7 @@ pub fn import(opts: &ImportOptions) -> Result<(Template, ImportReport)> {
         if poly.len() == 4 {
             quads += 1;
         }
-        for k in 1..poly.len() - 1 {
-            faces.push([poly[0], poly[k], poly[k + 1]]);
-        }
+        faces.extend(fan(poly));
     }
     let (boundary_edges, nonmanifold_edges) = edge_defects(&faces);
 

@@ -838,15 +838,11 @@ pub fn save(template: &Template, path: &Path) -> Result<()> {
     let v = template.num_vertices();
     let j = template.rig.num_joints();
     let morph = &template.morph;
-    let rest: Vec<f64> = if morph.rest.is_empty() {
-        template
-            .vertices
-            .iter()
-            .flat_map(|p| p.as_dvec3().to_array())
-            .collect()
-    } else {
-        morph.rest.iter().flat_map(|p| p.to_array()).collect()
-    };
+    let rest: Vec<f64> = template
+        .rest_positions()
+        .iter()
+        .flat_map(|p| p.to_array())
+        .collect();
     let mut weights = vec![0.0; v * j];
     for (i, list) in template.rig.weights.iter().enumerate() {
         for &(jj, w) in list {

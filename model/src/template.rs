@@ -117,6 +117,16 @@ impl Template {
     }
 
     /// The same template with blend shapes and model information; checks their sizes.
+    /// The rest vertices at β = ψ = 0 in f64: the morph's `v_template`, or the template's own
+    /// (f32) vertices for a rigid template.
+    pub fn rest_positions(&self) -> Vec<DVec3> {
+        if self.morph.rest.is_empty() {
+            self.vertices.iter().map(|v| v.as_dvec3()).collect()
+        } else {
+            self.morph.rest.clone()
+        }
+    }
+
     pub fn with_morph(mut self, morph: Morph, info: crate::info::ModelInfo) -> Result<Self> {
         let (v, j) = (self.vertices.len(), self.rig.num_joints());
         let k = morph.coefficients();

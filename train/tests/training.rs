@@ -217,6 +217,17 @@ fn bad_configs_are_one_line_errors() {
         (r#"{"modality": "scan"}"#, "scan"),
         (r#"{"learning_rate": -1}"#, "learning_rate"),
         (r#"{"bogus": 1}"#, "unknown field"),
+        // The face's inputs (issue 16): a pose source, an energy.
+        (r#"{"source": "uniform"}"#, "source"),
+        (
+            r#"{"source": "face", "motions": ["clip.npz"]}"#,
+            "drop \"motions\"",
+        ),
+        (
+            r#"{"energy": {"angle_prior": "binary"}}"#,
+            "gradient variant",
+        ),
+        (r#"{"energy": {"weights": {"pose": -1}}}"#, "weights.pose"),
         (r#"{"network": {"dropout": 1.5}}"#, ""),
     ] {
         std::fs::write(&p, text).expect("write");

@@ -24,22 +24,13 @@ pub const LANDMARK_FOCAL: f64 = 512.0;
 /// papers/002 supp.: a 512 × 512 image.
 pub const LANDMARK_IMAGE: u32 = 512;
 
-/// The model's rest vertices (β = ψ = 0) in f64.
-fn rest_positions(template: &Template) -> Vec<DVec3> {
-    if template.morph.rest.is_empty() {
-        template.vertices.iter().map(|v| v.as_dvec3()).collect()
-    } else {
-        template.morph.rest.clone()
-    }
-}
-
 impl LandmarkSetup {
     /// The setup of `template`'s `landmark_vertices`: papers/002's camera (f = 512 px, principal
     /// point (256, 256), 512 × 512) [`LANDMARK_CAMERA_DISTANCE`] in front of the landmarks' rest
     /// centre (+z, where a face model looks), and the landmarks' rest normals.
     pub fn for_template(template: &Template) -> Self {
         let vertices = template.info.landmark_vertices.clone();
-        let rest = rest_positions(template);
+        let rest = template.rest_positions();
         let centre = if vertices.is_empty() {
             DVec3::ZERO
         } else {
@@ -56,16 +47,18 @@ impl LandmarkSetup {
             LANDMARK_IMAGE,
             LANDMARK_IMAGE,
         );
-        Self::new(template, camera, vertices)
+        Self::with_rest(template, &rest, camera, vertices)
     }
 
     /// A setup of `vertices` seen by `camera`; the normals are `template`'s rest normals (zero for
     /// a vertex out of range, which [`ObservationModel::validate`] refuses).
     pub fn new(template: &Template, camera: Camera, vertices: Vec<u32>) -> Self {
-        let rest: Vec<glam::Vec3> = rest_positions(template)
-            .iter()
-            .map(|p| p.as_vec3())
-            .collect();
+        Self::with_rest(template, &template.rest_positions(), camera, vertices)
+    }
+
+    /// [`Self::new`] with the template's rest vertices already at hand.
+    fn with_rest(template: &Template, rest: &[DVec3], camera: Camera, vertices: Vec<u32>) -> Self {
+        let rest: Vec<glam::Vec3> = rest.iter().map(|p| p.as_vec3()).collect();
         let all = vertex_normals(&rest, &template.faces);
         let normals = vertices
             .iter()
