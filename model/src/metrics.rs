@@ -282,7 +282,8 @@ mod tests {
         assert!(e.pa_v2v_face_mm < 1e-3 && e.pa_v2v_head_mm > 1.0, "{e:?}");
         assert_eq!(FaceErrors::from_array(e.to_array()), e);
         // The whole-head V2V is the model's V2V.
-        assert!((e.v2v_head_mm - v2v_mm(&t, &bent, &truth)).abs() < 1e-9);
+        let d = (e.v2v_head_mm - v2v_mm(&t, &bent, &truth)).abs();
+        assert!(d < 1e-4, "{d}"); // f32 vs f64 distances of the same f32 vertices
     }
 
     #[test]
