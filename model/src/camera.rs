@@ -1,6 +1,8 @@
-//! Calibrated pinhole cameras (intrinsics + extrinsics) and the default ring of cameras.
+//! Calibrated pinhole cameras (intrinsics + extrinsics), the default ring of cameras and random
+//! rigs ([`RigRanges`]) for training camera-agnostic networks.
 
 use glam::{DMat3, DVec2, DVec3};
+use rand::Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
@@ -121,6 +123,130 @@ pub fn default_ring(count: usize) -> Vec<Camera> {
 /// Number of cameras in the default ring (SPEC §4: 4–7).
 pub const DEFAULT_RING_SIZE: usize = 6;
 
+/// Ranges of random camera rigs (how a camera-agnostic `keypoints2d` network is trained: every
+/// frame seen by a rig of its own). A rig has `cameras` cameras (uniform count); each camera is
+/// drawn independently: its azimuth `yaw_deg` around the subject (0° in front of the rest pose,
+/// on +z; uniform), its horizontal distance `distance_m` from its aim point and its height
+/// `height_m` above the floor (y = 0; both uniform), its aim point the subject's root joint plus
+/// a uniform offset of up to `aim_jitter_m` per axis, no roll (world up is up in the image), an
+/// image size from `images` and a horizontal field of view `hfov_deg` (uniform), so
+/// `fx = fy = (width / 2) / tan(hfov / 2)` and the principal point is the image centre. Joints
+/// outside an image or behind a camera are not seen, as with any rig.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RigRanges {
+    /// Cameras per rig, `[min, max]` inclusive.
+    pub cameras: [usize; 2],
+    /// Horizontal distance from the aim point, metres.
+    pub distance_m: [f64; 2],
+    /// Camera centre above the floor, metres.
+    pub height_m: [f64; 2],
+    /// Azimuth around the subject, degrees.
+    pub yaw_deg: [f64; 2],
+    /// Horizontal field of view, degrees.
+    pub hfov_deg: [f64; 2],
+    /// Image sizes `[width, height]` in pixels, one drawn per camera.
+    pub images: Vec<[u32; 2]>,
+    /// Largest offset of the aim point from the subject's root, per axis, metres.
+    pub aim_jitter_m: f64,
+}
+
+impl Default for RigRanges {
+    /// 1–8 cameras all around the subject, 2.5–6 m away, 0.5–2.5 m high, 40°–90° wide, VGA to
+    /// full HD (landscape, and portrait full HD as phones film), aimed within 20 cm of the root.
+    fn default() -> Self {
+        Self {
+            cameras: [1, 8],
+            distance_m: [2.5, 6.0],
+            height_m: [0.5, 2.5],
+            yaw_deg: [0.0, 360.0],
+            hfov_deg: [40.0, 90.0],
+            images: vec![[640, 480], [1280, 720], [1920, 1080], [1080, 1920]],
+            aim_jitter_m: 0.2,
+        }
+    }
+}
+
+impl RigRanges {
+    /// Most cameras a rig may have.
+    pub const MAX_CAMERAS: usize = 64;
+
+    /// Rejects empty, reversed or non-finite ranges, naming the field.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |field: &str, why: String| {
+            Err(ModelError::Config(format!("rig ranges: {field} {why}")))
+        };
+        let [lo, hi] = self.cameras;
+        if lo == 0 || lo > hi || hi > Self::MAX_CAMERAS {
+            return bad(
+                "cameras",
+                format!(
+                    "must be [min, max] with 1 ≤ min ≤ max ≤ {}, got [{lo}, {hi}]",
+                    Self::MAX_CAMERAS
+                ),
+            );
+        }
+        for (field, [a, b], low, high) in [
+            ("distance_m", self.distance_m, 0.5, 1e3),
+            ("height_m", self.height_m, -1e3, 1e3),
+            ("yaw_deg", self.yaw_deg, -720.0, 720.0),
+            ("hfov_deg", self.hfov_deg, 1.0, 170.0),
+        ] {
+            if !(a.is_finite() && b.is_finite() && low <= a && a <= b && b <= high) {
+                return bad(
+                    field,
+                    format!("must be [min, max] with {low} ≤ min ≤ max ≤ {high}, got [{a}, {b}]"),
+                );
+            }
+        }
+        if self.images.is_empty() || self.images.iter().any(|&[w, h]| w == 0 || h == 0) {
+            return bad(
+                "images",
+                "must list at least one [width, height] with positive sizes".into(),
+            );
+        }
+        if !(self.aim_jitter_m.is_finite() && (0.0..=10.0).contains(&self.aim_jitter_m)) {
+            return bad(
+                "aim_jitter_m",
+                format!("must be in [0, 10], got {}", self.aim_jitter_m),
+            );
+        }
+        Ok(())
+    }
+
+    /// A random rig around a subject whose root joint is at `root` (world). Deterministic in
+    /// the state of `rng`: the same seed gives the same rigs.
+    pub fn sample<R: Rng + ?Sized>(&self, rng: &mut R, root: DVec3) -> Vec<Camera> {
+        let uniform = |rng: &mut R, [a, b]: [f64; 2]| {
+            if a < b { rng.random_range(a..b) } else { a }
+        };
+        let count = rng.random_range(self.cameras[0]..=self.cameras[1].max(self.cameras[0]));
+        (0..count)
+            .map(|_| {
+                let yaw = uniform(rng, self.yaw_deg).to_radians();
+                let distance = uniform(rng, self.distance_m);
+                let height = uniform(rng, self.height_m);
+                let hfov = uniform(rng, self.hfov_deg).to_radians();
+                let [width, height_px] = self.images[rng.random_range(0..self.images.len().max(1))];
+                let j = self.aim_jitter_m;
+                let jitter = DVec3::new(
+                    uniform(rng, [-j, j]),
+                    uniform(rng, [-j, j]),
+                    uniform(rng, [-j, j]),
+                );
+                let aim = root + jitter;
+                let eye = DVec3::new(
+                    aim.x + distance * yaw.sin(),
+                    height,
+                    aim.z + distance * yaw.cos(),
+                );
+                let fx = f64::from(width) / 2.0 / (hfov / 2.0).tan();
+                Camera::look_at(eye, aim, fx, width, height_px)
+            })
+            .collect()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -135,6 +261,98 @@ mod tests {
             let up = cam.project(DVec3::new(0.0, 1.5, 0.0)).unwrap();
             assert!(up.y < uv.y);
             assert!((cam.center().length() - (16.0f64 + 1.69).sqrt()).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn random_rigs_are_seeded_valid_and_within_their_ranges() {
+        use rand::SeedableRng;
+        let ranges = RigRanges::default();
+        ranges.validate().unwrap();
+        let root = DVec3::new(0.3, 0.9, -0.2);
+        let rigs = |seed| {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            (0..200)
+                .map(|_| ranges.sample(&mut rng, root))
+                .collect::<Vec<_>>()
+        };
+        let a = rigs(7);
+        assert_eq!(a, rigs(7), "same seed, same rigs");
+        assert_ne!(a, rigs(8));
+        let mut counts = [0usize; 9];
+        for rig in &a {
+            counts[rig.len()] += 1;
+            for (i, cam) in rig.iter().enumerate() {
+                cam.validate(i).unwrap();
+                let c = cam.center();
+                let horizontal = DVec2::new(c.x - root.x, c.z - root.z).length();
+                assert!(
+                    (2.5 - 0.3..=6.0 + 0.3).contains(&horizontal),
+                    "{horizontal}"
+                );
+                assert!((0.5..=2.5).contains(&c.y), "{}", c.y);
+                assert!(ranges.images.contains(&[cam.width, cam.height]));
+                let hfov = 2.0 * (f64::from(cam.width) / 2.0 / cam.fx).atan().to_degrees();
+                assert!((40.0 - 1e-9..=90.0 + 1e-9).contains(&hfov), "{hfov}");
+                // The subject's root is in front of the camera, near the image centre.
+                let uv = cam.project(root).unwrap();
+                assert!(
+                    cam.in_image(uv),
+                    "root at {uv} outside {}x{}",
+                    cam.width,
+                    cam.height
+                );
+            }
+        }
+        assert_eq!(counts[0], 0);
+        assert!(
+            counts[1..].iter().all(|&n| n > 5),
+            "every count 1..=8 drawn: {counts:?}"
+        );
+    }
+
+    #[test]
+    fn bad_rig_ranges_are_refused_naming_the_field() {
+        let cases: [(&str, RigRanges); 5] = [
+            (
+                "cameras",
+                RigRanges {
+                    cameras: [0, 3],
+                    ..RigRanges::default()
+                },
+            ),
+            (
+                "cameras",
+                RigRanges {
+                    cameras: [4, 2],
+                    ..RigRanges::default()
+                },
+            ),
+            (
+                "distance_m",
+                RigRanges {
+                    distance_m: [0.0, 3.0],
+                    ..RigRanges::default()
+                },
+            ),
+            (
+                "hfov_deg",
+                RigRanges {
+                    hfov_deg: [30.0, f64::NAN],
+                    ..RigRanges::default()
+                },
+            ),
+            (
+                "images",
+                RigRanges {
+                    images: vec![[0, 480]],
+                    ..RigRanges::default()
+                },
+            ),
+        ];
+        for (field, r) in cases {
+            let e = r.validate().unwrap_err().to_string();
+            assert!(e.contains(field) && !e.contains('\n'), "{e}");
         }
     }
 }

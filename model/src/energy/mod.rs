@@ -570,25 +570,39 @@ impl Energy {
                 self.sensor.name()
             )));
         }
-        let dim = self.sensor.residual_dim(&self.template);
-        if values.len() != dim || visible.len() != dim {
-            return Err(ModelError::Shape {
-                what: format!("{} target", self.sensor.name()),
-                expected: dim.to_string(),
-                got: format!(
-                    "{} values, {} visibility flags",
-                    values.len(),
-                    visible.len()
-                ),
-            });
-        }
-        if let Some(i) = (0..dim).find(|&i| visible[i] && !values[i].is_finite()) {
+        check_sparse_target(&self.sensor, &self.template, &values, &visible)?;
+        let mut energy = self.clone();
+        energy.target = Target::Sparse { values, visible };
+        Ok(energy)
+    }
+
+    /// The same energy (template, configuration and precomputed tables) with another sensor of a
+    /// vector-valued modality and a target for it, as cheap as [`Energy::with_target`]: how a
+    /// training set gives every frame a camera rig of its own. Fails like [`Energy::new`] on a
+    /// sensor that does not fit the template or a target of the wrong shape, and on a `scan` or
+    /// `silhouettes` sensor (here or in `sensor`).
+    pub fn with_sensor(
+        &self,
+        sensor: Sensor,
+        values: Vec<f64>,
+        visible: Vec<bool>,
+    ) -> Result<Self> {
+        let dense = |s: &Sensor| matches!(s, Sensor::Scan(_) | Sensor::Silhouettes(_));
+        if dense(&self.sensor) || dense(&sensor) {
             return Err(ModelError::Target(format!(
-                "visible target value {i} is not finite ({})",
-                values[i]
+                "a {} energy cannot take a {} sensor: only vector-valued sensors swap",
+                self.sensor.name(),
+                sensor.name()
             )));
         }
+        sensor.validate(&self.template)?;
+        let model = sensor.observation_model();
+        let groups = model.groups(&self.template, &self.config.scales);
+        check_groups(&groups, model.dim(&self.template), model.name())?;
+        check_sparse_target(&sensor, &self.template, &values, &visible)?;
         let mut energy = self.clone();
+        energy.sensor = sensor;
+        energy.groups = groups;
         energy.target = Target::Sparse { values, visible };
         Ok(energy)
     }
@@ -1143,6 +1157,35 @@ fn direction_tensors(grid: &VoxelGrid) -> Vec<[f32; 6]> {
 }
 
 /// The groups of an observation model cover its prediction, in order, with positive scales.
+/// A sparse target of `sensor` on `template`: one value and one flag per residual entry, every
+/// visible value finite.
+fn check_sparse_target(
+    sensor: &Sensor,
+    template: &Template,
+    values: &[f64],
+    visible: &[bool],
+) -> Result<()> {
+    let dim = sensor.residual_dim(template);
+    if values.len() != dim || visible.len() != dim {
+        return Err(ModelError::Shape {
+            what: format!("{} target", sensor.name()),
+            expected: dim.to_string(),
+            got: format!(
+                "{} values, {} visibility flags",
+                values.len(),
+                visible.len()
+            ),
+        });
+    }
+    if let Some(i) = (0..dim).find(|&i| visible[i] && !values[i].is_finite()) {
+        return Err(ModelError::Target(format!(
+            "visible target value {i} is not finite ({})",
+            values[i]
+        )));
+    }
+    Ok(())
+}
+
 fn check_groups(groups: &[ResidualGroup], dim: usize, name: &str) -> Result<()> {
     let mut next = 0;
     for g in groups {

@@ -1065,3 +1065,54 @@ mod silhouettes {
         assert!(err.to_string().contains("target silhouettes"), "{err}");
     }
 }
+
+/// Swapping the sensor of a keypoints2d energy gives exactly the energy built from scratch with
+/// that sensor (value and gradient), and bad swaps are one-line errors.
+#[test]
+fn with_sensor_equals_a_new_energy_of_that_sensor() {
+    let t = template();
+    let truth = gt_pose();
+    let base = Energy::new(
+        t.clone(),
+        Sensor::default_for(Modality::Keypoints2d, &t),
+        target_for(&Sensor::default_for(Modality::Keypoints2d, &t), &truth),
+        EnergyConfig::default().for_gradient(),
+    )
+    .unwrap();
+    let two = Sensor::Keypoints2d(crate::observe::KeypointSetup {
+        cameras: crate::camera::default_ring(2),
+    });
+    let Target::Sparse { values, visible } = target_for(&two, &truth) else {
+        unreachable!()
+    };
+    let swapped = base
+        .with_sensor(two.clone(), values.clone(), visible.clone())
+        .unwrap();
+    let fresh = Energy::new(
+        t.clone(),
+        two.clone(),
+        Target::Sparse {
+            values: values.clone(),
+            visible: visible.clone(),
+        },
+        EnergyConfig::default().for_gradient(),
+    )
+    .unwrap();
+    let p = perturbed(&[0.1; POSE_DIM]);
+    let (a, ga) = swapped.evaluate_with_gradient(&p);
+    let (b, gb) = fresh.evaluate_with_gradient(&p);
+    assert_eq!(a.total, b.total);
+    assert_eq!(ga, gb);
+    assert_eq!(swapped.residual(&p).len(), 2 * 2 * t.rig.num_joints());
+    // A target of the old sensor's length, and a dense sensor, are refused.
+    let e = base
+        .with_sensor(two, vec![0.0; 3], vec![true; 3])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("keypoints2d target") && !e.contains('\n'), "{e}");
+    let e = base
+        .with_sensor(Sensor::default_for(Modality::Scan, &t), values, visible)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("cannot take a scan sensor"), "{e}");
+}
