@@ -101,6 +101,10 @@ pub struct BenchConfig {
     pub checkpoint: Option<PathBuf>,
     #[serde(default)]
     pub neural_start: Option<String>,
+    /// How a sequence estimates β: `per-frame` (default) or `first-pass`
+    /// ([`crate::fitting::SequenceShape`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sequence_shape: Option<String>,
     #[serde(default)]
     pub seed: u64,
     #[serde(default = "alpha")]
@@ -202,9 +206,9 @@ impl BenchConfig {
         {
             bail!("template {} does not exist", t.display());
         }
-        if self.methods.iter().any(|m| m.kind == MethodKind::Neural) {
+        if let Some(m) = self.methods.iter().find(|m| m.kind.is_neural()) {
             let Some(c) = &self.checkpoint else {
-                bail!("method neural needs checkpoint = \"DIR\"")
+                bail!("method {} needs checkpoint = \"DIR\"", m.kind)
             };
             if !c.join("config.json").exists() {
                 bail!("checkpoint {} has no config.json", c.display());
@@ -217,6 +221,7 @@ impl BenchConfig {
                 );
             }
         }
+        self.sequence_shape()?;
         if !(self.alpha > 0.0 && self.alpha < 1.0) {
             bail!("alpha must be in (0, 1), got {}", self.alpha);
         }
@@ -278,6 +283,15 @@ impl BenchConfig {
         }
         p.parse()
             .map_err(|_| lfit_fitters::FitError::UnknownPreset(p.to_string()).into())
+    }
+
+    /// The sequence shape policy (`sequence_shape`, default per-frame).
+    pub fn sequence_shape(&self) -> Result<crate::fitting::SequenceShape> {
+        self.sequence_shape
+            .as_deref()
+            .unwrap_or("per-frame")
+            .parse()
+            .context("sequence_shape")
     }
 
     fn neural_start(&self) -> Result<lfit_infer::Start> {
@@ -587,14 +601,18 @@ pub fn run(
     let mut fitters: Vec<Box<dyn Fitter>> = Vec::new();
     for (m, s) in &entries {
         let kind: MethodKind = m.parse()?;
-        if kind == MethodKind::Neural {
-            let device = lfit_nn::tensor::device_from_name("flex")?;
+        if kind.is_neural() {
             let dir = config.checkpoint.as_deref().context("checkpoint")?;
-            fitters.push(Box::new(lfit_infer::NeuralFitter::load(
-                dir,
-                &device,
-                config.neural_start()?,
-            )?));
+            fitters.push(crate::method::load_neural(
+                kind,
+                &crate::method::NeuralOptions {
+                    checkpoint: dir,
+                    start: config.neural_start()?,
+                    runtime: lfit_infer::Runtime::Burn,
+                    device: "flex",
+                    ort_threads: None,
+                },
+            )?);
         } else {
             let (step_scale, cma) = if config.tuned() && kind.zeroth_order().is_some() {
                 let t = crate::tuned::setting(kind.name(), dataset.modality().name())?;
@@ -712,6 +730,7 @@ pub fn run(
             known_shape: config
                 .known_shape
                 .then_some(crate::fitting::KnownShape::Truth),
+            sequence_shape: config.sequence_shape()?,
         };
         let unit_frames: Vec<usize> = unit.frames.iter().map(|&fi| frames[fi]).collect();
         crate::fitting::fit_frames(
@@ -778,7 +797,8 @@ pub fn run(
                 progress(n, total);
                 Ok(())
             },
-        )
+        )?;
+        Ok(())
     };
     if config.parallel {
         todo.par_iter().try_for_each(work)?;

@@ -501,6 +501,8 @@ pub fn quickstart(
             units: "auto".into(),
             up: "y".into(),
             root: "floor".into(),
+            stride: 1,
+            rest_pose: None,
         })
         .with_context(|| format!("--clip {}", clip.bvh.display()))?;
         let clip_frames = imported["frames"].as_u64().unwrap_or(0) as usize;
@@ -554,16 +556,18 @@ pub fn quickstart(
         {
             let method = row["method"].as_str().unwrap_or_default();
             let neural = crate::method::MethodKind::Neural.name();
-            let label = if method == neural {
+            let ck = config
+                .checkpoint
+                .as_deref()
+                .and_then(Path::file_name)
+                .map_or_else(String::new, |f| f.to_string_lossy().into_owned());
+            let label = if method == crate::method::MethodKind::NeuralLm.name() {
+                format!("neural+lm (checkpoints/{ck}, then LM) @{budget}")
+            } else if method == neural {
                 let n = runs
                     .iter()
                     .find(|r| r.method == neural)
                     .map_or(0, |r| r.iterations);
-                let ck = config
-                    .checkpoint
-                    .as_deref()
-                    .and_then(Path::file_name)
-                    .map_or_else(String::new, |f| f.to_string_lossy().into_owned());
                 format!("neural (checkpoints/{ck}, N = {n})")
             } else {
                 format!("{method} @{budget}")

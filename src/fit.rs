@@ -137,6 +137,8 @@ pub struct FitArgs {
     pub ort_threads: Option<usize>,
     /// `--known-shape`: `truth` or comma-separated β values ([`crate::fitting::KnownShape`]).
     pub known_shape: Option<String>,
+    /// `--sequence-shape`: `per-frame` or `first-pass` ([`crate::fitting::SequenceShape`]).
+    pub sequence_shape: String,
 }
 
 /// `lfit fit`: fits every selected frame, writes the result JSON atomically and returns a summary.
@@ -151,6 +153,8 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     if known_shape.is_some() {
         crate::fitting::KnownShape::check_strategy(strategy).context("--known-shape")?;
     }
+    let sequence_shape: crate::fitting::SequenceShape =
+        args.sequence_shape.parse().context("--sequence-shape")?;
     let load =
         || Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()));
     // The tuned setting depends on the data's modality: the dataset is read then, once.
@@ -175,45 +179,34 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     if args.batch == 0 {
         bail!("--batch must be at least 1");
     }
-    let neural = args.method == crate::method::MethodKind::Neural;
+    let neural = args.method.is_neural();
     let fitter: Box<dyn Fitter> = if neural {
         if args.step_scale.is_some() || args.preset == "tuned" || args.cma != Default::default() {
             bail!(
-                "--step-scale, --cma-* and --preset tuned are for zeroth-order methods, not neural"
+                "--step-scale, --cma-* and --preset tuned are for zeroth-order methods, not {}",
+                args.method
             );
         }
         let dir = args
             .checkpoint
             .as_deref()
-            .context("--method neural needs --checkpoint DIR")?;
-        let start: lfit_infer::Start = args.neural_start.parse().map_err(anyhow::Error::msg)?;
-        let runtime: lfit_infer::Runtime = args.runtime.parse().map_err(anyhow::Error::msg)?;
-        if args.ort_threads == Some(0) {
-            bail!("--ort-threads must be at least 1");
-        }
-        let fitter = match runtime {
-            lfit_infer::Runtime::Burn => {
-                if args.ort_threads.is_some() {
-                    bail!("--ort-threads is only for --runtime ort");
-                }
-                let device = lfit_nn::tensor::device_from_name(&args.device)?;
-                lfit_infer::NeuralFitter::load(dir, &device, start)?
-            }
-            lfit_infer::Runtime::Ort => lfit_infer::NeuralFitter::load_ort(
-                dir,
-                start,
-                lfit_infer::onnx::runtime::SessionOptions {
-                    threads: args.ort_threads,
-                },
-            )?,
-        };
-        Box::new(fitter)
+            .with_context(|| format!("--method {} needs --checkpoint DIR", args.method))?;
+        crate::method::load_neural(
+            args.method,
+            &crate::method::NeuralOptions {
+                checkpoint: dir,
+                start: args.neural_start.parse().map_err(anyhow::Error::msg)?,
+                runtime: args.runtime.parse().map_err(anyhow::Error::msg)?,
+                device: &args.device,
+                ort_threads: args.ort_threads,
+            },
+        )?
     } else {
         if args.checkpoint.is_some() {
-            bail!("--checkpoint is only for --method neural");
+            bail!("--checkpoint is only for --method neural or neural+lm");
         }
         if args.runtime != "burn" || args.ort_threads.is_some() {
-            bail!("--runtime and --ort-threads are only for --method neural");
+            bail!("--runtime and --ort-threads are only for --method neural or neural+lm");
         }
         crate::method::build_classic(
             args.method,
@@ -247,10 +240,16 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         budget: args.budget,
         batch: if neural { args.batch } else { 1 },
         known_shape,
+        sequence_shape,
     };
+    if sequence_shape == crate::fitting::SequenceShape::FirstPass && !plan.runs_shape_pass() {
+        bail!(
+            "--sequence-shape first-pass needs a sequence dataset (this one is {scenario}) of a model with shape parameters whose β is not given (--known-shape)"
+        );
+    }
     let mask = plan.mask()?;
     let mut done = 0;
-    crate::fitting::fit_frames(
+    let report = crate::fitting::fit_frames(
         fitter,
         &plan,
         &frames,
@@ -345,6 +344,9 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
                 json!(sum_obs / obs_frames as f64);
         }
     }
+    if let Some(pass) = &report.shape_pass {
+        summary["shape_pass"] = json!(pass);
+    }
     let mut out = json!({
         "method": fitter.name(),
         "budget": args.budget,
@@ -358,6 +360,7 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         "ground_truth": dataset.has_ground_truth(),
         "scenario": scenario.to_string(),
         "mask": mask.name,
+        "sequence_shape": sequence_shape.name(),
         "energy_config": config,
         "energy_variant": if config.is_differentiable() { "gradient (EJ off, hinge EA)" } else { "paper (papers/000 eq. 3)" },
         "summary": summary,

@@ -91,6 +91,11 @@ enum Command {
         /// squat, reach, punch, kick, jump, turn.
         #[arg(long, value_name = "LIST")]
         library_motions: Option<String>,
+        /// keypoints2d: the number of cameras, on the default ring's circle (4 m around the
+        /// origin, 1.3 m high, evenly spaced from the front, 640×480, fx = 550); default: the
+        /// default rig's 6.
+        #[arg(long, value_name = "N")]
+        cameras: Option<usize>,
         #[command(flatten)]
         template: TemplateArg,
     },
@@ -305,7 +310,8 @@ struct FitCmd {
     data: PathBuf,
     /// Method: random, one-plus-one, de, pso, cma, tbpsa, powell, cma-powell, ngo, shiwa, apf,
     /// psapf, lbfgs, lm (Levenberg–Marquardt), lm-triggs (LM, robust loss by Triggs's correction),
-    /// gn (Gauss-Newton), or neural (with --checkpoint).
+    /// gn (Gauss-Newton), neural (with --checkpoint), or neural+lm (the network's N iterations,
+    /// then LM from its result, within one budget; with --checkpoint).
     #[arg(long, value_enum, hide_possible_values = true)]
     method: lfit::method::MethodKind,
     /// Energy evaluations per frame (exact for zeroth-order methods; a cap for lbfgs, lm,
@@ -352,10 +358,15 @@ struct FitCmd {
     /// Neural fitter checkpoint directory (--method neural), e.g. checkpoints/markers.
     #[arg(long)]
     checkpoint: Option<PathBuf>,
-    /// Neural fitter's θ0: phi (its initializer Φ(D)) or given (the scenario's start pose; in
-    /// sequences the previous frame's result).
+    /// Neural fitter's θ0: phi (its initializer Φ(D)), given (the scenario's start pose; in
+    /// sequences the previous frame's result), or best (the lower-energy of the two, 2 more
+    /// evaluations).
     #[arg(long, default_value = "phi")]
     neural_start: String,
+    /// How a sequence estimates the subject's shape β: per-frame (free in every frame's fit) or
+    /// first-pass (the median β of up to 32 frames fitted on their own, then fixed).
+    #[arg(long, default_value = "per-frame")]
+    sequence_shape: String,
     /// The subject's shape β is known, not estimated (papers/002 §3.2, HMD): `truth` (each
     /// frame's ground-truth β) or comma-separated β values; the shape entries are then frozen
     /// for every method. Required by checkpoints trained with the shape known.
@@ -573,6 +584,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             motions,
             with_library,
             library_motions,
+            cameras,
             template,
         } => {
             let template = commands::load_model(template.template.as_deref(), &template.shape)?;
@@ -593,9 +605,10 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             };
             // Settings are checked before the progress bar appears.
             let bar = progress_bar(frames, cli.quiet, "synth");
-            let result = lfit::data::synth_with_motions(&args, &files, &template, &|done| {
-                bar.set_position(done as u64)
-            });
+            let result =
+                lfit::data::synth_with_cameras(&args, &files, cameras, &template, &|done| {
+                    bar.set_position(done as u64)
+                });
             bar.finish_and_clear();
             result
         }
@@ -625,6 +638,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 runtime: c.runtime,
                 ort_threads: c.ort_threads,
                 known_shape: c.known_shape,
+                sequence_shape: c.sequence_shape,
             };
             let bar = progress_bar(0, cli.quiet, "fit");
             let result = fit::fit(&args, &|done, total| {

@@ -51,10 +51,15 @@ pub enum MethodKind {
     Gn,
     /// The learned fitter (papers/002), from a checkpoint.
     Neural,
+    /// The learned fitter's N iterations, then Levenberg–Marquardt from its result, within one
+    /// budget (`lfit_infer::NeuralThenLm`).
+    #[serde(rename = "neural+lm")]
+    #[value(name = "neural+lm")]
+    NeuralLm,
 }
 
 impl MethodKind {
-    pub const ALL: [MethodKind; 17] = [
+    pub const ALL: [MethodKind; 18] = [
         MethodKind::Random,
         MethodKind::OnePlusOne,
         MethodKind::De,
@@ -72,6 +77,7 @@ impl MethodKind {
         MethodKind::LmTriggs,
         MethodKind::Gn,
         MethodKind::Neural,
+        MethodKind::NeuralLm,
     ];
 
     /// The name on the command line, in configs and in results.
@@ -94,6 +100,7 @@ impl MethodKind {
             MethodKind::LmTriggs => "lm-triggs",
             MethodKind::Gn => "gn",
             MethodKind::Neural => "neural",
+            MethodKind::NeuralLm => "neural+lm",
         }
     }
 
@@ -104,7 +111,8 @@ impl MethodKind {
             | MethodKind::Lm
             | MethodKind::LmTriggs
             | MethodKind::Gn
-            | MethodKind::Neural => None,
+            | MethodKind::Neural
+            | MethodKind::NeuralLm => None,
             other => other.name().parse().ok(),
         }
     }
@@ -115,9 +123,14 @@ impl MethodKind {
         lfit_fitters::uses_gradient(self.name())
     }
 
-    /// Whether strategies (grouped, hierarchical, ...) apply: every method but the neural one.
+    /// Whether strategies (grouped, hierarchical, ...) apply: every method but the neural ones.
     pub fn has_strategies(self) -> bool {
-        self != MethodKind::Neural
+        !self.is_neural()
+    }
+
+    /// Whether the method runs a network from a checkpoint (`neural`, `neural+lm`).
+    pub fn is_neural(self) -> bool {
+        matches!(self, MethodKind::Neural | MethodKind::NeuralLm)
     }
 
     /// Every name, comma-separated (for messages).
@@ -225,8 +238,10 @@ impl Default for ClassicOptions {
 /// The classical fitter of `kind` (every method but the neural one, which is loaded from a
 /// checkpoint: [`lfit_infer::NeuralFitter`]), built by [`lfit_fitters::build_fitter_with_steps`].
 pub fn build_classic(kind: MethodKind, options: ClassicOptions) -> Result<Box<dyn Fitter>> {
-    if kind == MethodKind::Neural {
-        bail!("the neural fitter is loaded from a checkpoint (--checkpoint DIR), not built");
+    if kind.is_neural() {
+        bail!(
+            "method {kind} runs the neural fitter, which is loaded from a checkpoint (--checkpoint DIR), not built"
+        );
     }
     Ok(lfit_fitters::build_fitter_tuned(
         kind.name(),
@@ -235,6 +250,49 @@ pub fn build_classic(kind: MethodKind, options: ClassicOptions) -> Result<Box<dy
         options.step_scale,
         options.cma,
     )?)
+}
+
+/// Where and how a neural method's network runs (`lfit fit --checkpoint --neural-start
+/// --runtime --device --ort-threads`, bench `checkpoint`/`neural_start`).
+#[derive(Debug, Clone)]
+pub struct NeuralOptions<'a> {
+    pub checkpoint: &'a std::path::Path,
+    pub start: lfit_infer::Start,
+    pub runtime: lfit_infer::Runtime,
+    /// Burn device name (`ndarray`, `flex`, `wgpu`); Burn only.
+    pub device: &'a str,
+    /// ONNX Runtime's intra-op threads; ORT only.
+    pub ort_threads: Option<usize>,
+}
+
+/// The fitter of a neural method (`neural`, `neural+lm`), loaded from its checkpoint.
+pub fn load_neural(kind: MethodKind, options: &NeuralOptions<'_>) -> Result<Box<dyn Fitter>> {
+    if !kind.is_neural() {
+        bail!("method {kind} does not run a network");
+    }
+    if options.ort_threads == Some(0) {
+        bail!("--ort-threads must be at least 1");
+    }
+    let fitter = match options.runtime {
+        lfit_infer::Runtime::Burn => {
+            if options.ort_threads.is_some() {
+                bail!("--ort-threads is only for --runtime ort");
+            }
+            let device = lfit_nn::tensor::device_from_name(options.device)?;
+            lfit_infer::NeuralFitter::load(options.checkpoint, &device, options.start)?
+        }
+        lfit_infer::Runtime::Ort => lfit_infer::NeuralFitter::load_ort(
+            options.checkpoint,
+            options.start,
+            lfit_infer::onnx::runtime::SessionOptions {
+                threads: options.ort_threads,
+            },
+        )?,
+    };
+    Ok(match kind {
+        MethodKind::NeuralLm => Box::new(lfit_infer::NeuralThenLm::new(fitter)?),
+        _ => Box::new(fitter),
+    })
 }
 
 #[cfg(test)]
@@ -251,7 +309,7 @@ mod tests {
                 <MethodKind as clap::ValueEnum>::from_str(m.name(), false).unwrap(),
                 m
             );
-            if m != MethodKind::Neural {
+            if !m.is_neural() {
                 let f = build_classic(m, ClassicOptions::default()).unwrap();
                 assert_eq!(
                     f.name(),

@@ -31,6 +31,7 @@ fn quickstart_compares_every_method_on_every_sparse_modality() {
     for m in ["markers", "keypoints2d", "hmd"] {
         for method in [
             "| neural (checkpoints/MOD-makehuman, N = 5) |",
+            "| neural+lm (checkpoints/MOD-makehuman, then LM) @60 |",
             "| lbfgs @60 |",
             "| lm @60 |",
             "| cma @60 |",
@@ -59,14 +60,14 @@ fn quickstart_compares_every_method_on_every_sparse_modality() {
         let md = std::fs::read_to_string(dir.join("report.md")).expect("report");
         assert!(md.contains("papers/002 Table 2"), "{md}");
         let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("csv");
-        assert_eq!(csv.lines().count(), 1 + 5 * 3);
+        assert_eq!(csv.lines().count(), 1 + 6 * 3);
         assert!(
             dir.join("plots/energy_vs_evaluations.svg").exists()
                 && dir.join("plots/energy_vs_evaluations.png").exists()
         );
         assert!(dir.join("plots/neural_error_per_iteration.png").exists());
         // Best, median and worst frame of every method, rendered and linked (src/render).
-        for method in ["neural", "lbfgs", "lm", "cma", "pso"] {
+        for method in ["neural", "neural+lm", "lbfgs", "lm", "cma", "pso"] {
             assert!(
                 md.contains(&format!("](pictures/{method}.png)"))
                     && dir.join(format!("pictures/{method}.png")).is_file(),

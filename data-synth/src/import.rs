@@ -533,7 +533,7 @@ fn fill_starts(starts: Vec<Option<Vec<f64>>>, template: &Template) -> Vec<Vec<f6
 
 /// The rest pose moved by `x ↦ q x + s` (about the origin): root rotation `q` and the root
 /// translation that keeps the root joint where the motion puts it.
-fn rigid_start(template: &Template, q: DQuat, s: DVec3) -> Vec<f64> {
+pub fn rigid_start(template: &Template, q: DQuat, s: DVec3) -> Vec<f64> {
     let layout = template.layout();
     let mut pose = vec![0.0; layout.dim()];
     let c = template.joint_rest()[0];

@@ -41,7 +41,10 @@ pub const METHOD_NAMES: [&str; 16] = [
 /// Whether `method` needs the energy's gradient (or Jacobian), and so its differentiable variant
 /// ([`lfit_model::energy::EnergyConfig::for_gradient`]).
 pub fn uses_gradient(method: &str) -> bool {
-    matches!(method, "lbfgs" | "lm" | "lm-triggs" | "gn" | "neural")
+    matches!(
+        method,
+        "lbfgs" | "lm" | "lm-triggs" | "gn" | "neural" | "neural+lm"
+    )
 }
 
 /// The fitter called `method` (one of [`METHOD_NAMES`]) with `preset` and `strategy`.

@@ -5,6 +5,9 @@
 //! ([`onnx`], `--runtime ort`).
 
 pub mod onnx;
+pub mod refine;
+
+pub use refine::NeuralThenLm;
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -24,6 +27,9 @@ pub enum Start {
     Phi,
     /// θ0 = the request's start pose (the scenario's start, or the previous frame's result).
     Given,
+    /// θ0 = the better by energy of the request's start and Φ(D) (two counted evaluations): a
+    /// sequence restarts from Φ(D) where its previous result no longer explains the frame.
+    Best,
 }
 
 impl std::str::FromStr for Start {
@@ -32,8 +38,9 @@ impl std::str::FromStr for Start {
         match s {
             "phi" => Ok(Start::Phi),
             "given" | "start" => Ok(Start::Given),
+            "best" => Ok(Start::Best),
             _ => Err(format!(
-                "unknown neural start '{s}' (expected phi or given)"
+                "unknown neural start '{s}' (expected phi, given or best)"
             )),
         }
     }
@@ -198,6 +205,31 @@ impl NeuralFitter {
         Ok(())
     }
 
+    /// Φ(D) of every frame, from the engine.
+    fn initial(&self, energies: &[&Energy]) -> Result<Vec<Vec<f64>>, FitError> {
+        match &self.engine {
+            Engine::Burn { net, device } => {
+                lfit_nn::initial_poses(net, &self.stats, energies, device).map_err(neural)
+            }
+            Engine::Ort(network) => {
+                let mut network = network.lock().map_err(|_| {
+                    FitError::Neural(
+                        "the ONNX Runtime session was poisoned by an earlier failure".into(),
+                    )
+                })?;
+                onnx::runtime::initial_poses_ort(&mut network, energies).map_err(neural)
+            }
+        }
+    }
+
+    /// Evaluations a fit of this fitter makes: 2 per iteration, and 2 more to choose the start
+    /// with [`Start::Best`].
+    pub fn evaluations_per_fit(&self) -> usize {
+        let n = self.meta.network.iterations;
+        let choose = if self.start == Start::Best { 2 } else { 0 };
+        self.meta.network.evaluations_per_iteration() * n + choose
+    }
+
     /// θ0 … θN of every frame, `[N + 1][B]`, from the engine.
     fn run(
         &self,
@@ -253,11 +285,16 @@ impl NeuralFitter {
             if r.budget == 0 {
                 return Err(FitError::Budget(0));
             }
-            if r.budget < per_iteration * n {
+            if r.budget < self.evaluations_per_fit() {
                 return Err(FitError::Neural(format!(
-                    "budget {} is below the {} evaluations of {n} iterations",
+                    "budget {} is below the {} evaluations of {n} iterations{}",
                     r.budget,
-                    per_iteration * n
+                    self.evaluations_per_fit(),
+                    if self.start == Start::Best {
+                        " and the start choice"
+                    } else {
+                        ""
+                    }
                 )));
             }
             // `check` matched the model's parameter count with the network's; the start must match too.
@@ -283,14 +320,29 @@ impl NeuralFitter {
             .map(|r| (r.energy.evaluations(), r.energy.gradient_evaluations()))
             .collect();
         let energies: Vec<&Energy> = requests.iter().map(|r| r.energy).collect();
-        let starts: Vec<Option<Vec<f64>>> = requests
-            .iter()
-            .map(|r| {
-                let mut s = r.start.clone();
-                r.bounds.clamp(&mut s);
-                (self.start == Start::Given).then_some(s)
-            })
-            .collect();
+        let given = requests.iter().map(|r| {
+            let mut s = r.start.clone();
+            r.bounds.clamp(&mut s);
+            s
+        });
+        let starts: Vec<Option<Vec<f64>>> = match self.start {
+            Start::Phi => vec![None; requests.len()],
+            Start::Given => given.map(Some).collect(),
+            Start::Best => {
+                // Both candidates inside the box, each evaluated once (counted).
+                let phi = self.initial(&energies)?;
+                given
+                    .zip(phi)
+                    .zip(requests)
+                    .map(|((g, mut p), r)| {
+                        // As with Start::Phi: Φ(D) inside the box.
+                        r.bounds.clamp(&mut p);
+                        let (eg, ep) = (r.energy.evaluate(&g).total, r.energy.evaluate(&p).total);
+                        Some(if ep < eg { p } else { g })
+                    })
+                    .collect()
+            }
+        };
         let constraints = Constraints {
             free: requests
                 .iter()
@@ -333,7 +385,7 @@ impl NeuralFitter {
                 let trace = (0..=n)
                     .map(|k| {
                         (
-                            (per_iteration * k) as u64,
+                            (self.evaluations_per_fit() - per_iteration * (n - k)) as u64,
                             r.energy.inspect(&host[k][i]).total,
                         )
                     })
@@ -360,6 +412,7 @@ impl Fitter for NeuralFitter {
         let base = match self.start {
             Start::Phi => "neural",
             Start::Given => "neural-given",
+            Start::Best => "neural-best",
         };
         match self.engine {
             Engine::Burn { .. } => base.into(),

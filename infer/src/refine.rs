@@ -1,0 +1,105 @@
+//! `neural+lm`: the learned fitter's N iterations, then Levenberg–Marquardt from its result,
+//! within one budget. The network brings the fit into the basin of the right minimum in a few
+//! evaluations; LM then converges there on the exact energy (papers/002 §4 suggests a learned
+//! start for classical refinement; LM is lfit's most accurate classical solver on the sparse
+//! modalities, `docs/results/learned-vs-classical.md`).
+
+use lfit_fitters::optim::Preset;
+use lfit_fitters::{FitError, FitRequest, FitResult, Fitter, Strategy};
+
+use crate::NeuralFitter;
+
+/// The network, then LM (module docs).
+#[derive(Debug)]
+pub struct NeuralThenLm {
+    pub neural: NeuralFitter,
+    lm: LmFitter,
+}
+
+struct LmFitter(Box<dyn Fitter>);
+
+impl std::fmt::Debug for LmFitter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0.name())
+    }
+}
+
+impl NeuralThenLm {
+    /// The network of `neural` followed by holistic LM (exact Jacobian).
+    pub fn new(neural: NeuralFitter) -> Result<Self, FitError> {
+        let lm = lfit_fitters::build_fitter("lm", Preset::Nevergrad, Strategy::Holistic)?;
+        Ok(Self {
+            neural,
+            lm: LmFitter(lm),
+        })
+    }
+}
+
+impl Fitter for NeuralThenLm {
+    fn name(&self) -> String {
+        let neural = self.neural.name();
+        format!("{neural}+lm")
+    }
+
+    fn fit(&self, request: &FitRequest<'_>) -> Result<FitResult, FitError> {
+        self.fit_batch(std::slice::from_ref(request))?
+            .pop()
+            .ok_or_else(|| FitError::Neural("no result".into()))
+    }
+
+    /// One network pass for the batch, then LM on every frame from the network's result with
+    /// the evaluations the network left of the budget. Evaluations, iterations, times and the
+    /// trace are the sums of both stages; the iterates are the network's, then LM's result.
+    fn fit_batch(&self, requests: &[FitRequest<'_>]) -> Result<Vec<FitResult>, FitError> {
+        let network = self.neural.evaluations_per_fit();
+        if let Some(r) = requests.iter().find(|r| r.budget <= network) {
+            return Err(FitError::Neural(format!(
+                "budget {} leaves LM nothing after the network's {network} evaluations (neural+lm needs at least {})",
+                r.budget,
+                network + 1
+            )));
+        }
+        let first = self.neural.fit_batch(requests)?;
+        let mut out = Vec::with_capacity(requests.len());
+        for (r, nn) in requests.iter().zip(first) {
+            let refine = FitRequest {
+                energy: r.energy,
+                start: nn.pose.clone(),
+                mask: r.mask.clone(),
+                bounds: r.bounds.clone(),
+                budget: r.budget - nn.evaluations as usize,
+                seed: r.seed,
+            };
+            let lm = self.lm.0.fit(&refine)?;
+            // LM keeps the best point it saw, which includes its start: never above the network.
+            let (pose, energy, terms) = if lm.energy <= nn.energy {
+                (lm.pose.clone(), lm.energy, lm.terms.clone())
+            } else {
+                (nn.pose.clone(), nn.energy, nn.terms.clone())
+            };
+            let mut trace = nn.trace.clone();
+            let mut best = trace.last().map_or(f64::INFINITY, |&(_, e)| e);
+            for &(k, e) in &lm.trace {
+                if e < best {
+                    trace.push((k + nn.evaluations, e));
+                    best = e;
+                }
+            }
+            let mut iterates = nn.iterates.clone();
+            iterates.push(pose.clone());
+            out.push(FitResult {
+                method: self.name(),
+                pose,
+                energy,
+                terms,
+                evaluations: nn.evaluations + lm.evaluations,
+                gradient_evaluations: nn.gradient_evaluations + lm.gradient_evaluations,
+                iterations: nn.iterations + lm.iterations,
+                time_s: nn.time_s + lm.time_s,
+                trace,
+                iterates,
+            });
+        }
+        Ok(out)
+    }
+}

@@ -1,0 +1,78 @@
+#!/usr/bin/env bash
+# The learned fitters on captured motion: the MocapBank clip (./scripts/fetch-mocapbank.sh; an
+# evaluation clip, never training data) retargeted onto the MakeHuman body, fitted frame by frame
+# (local scenario: a start near the target) and as a sequence (each frame from the previous
+# result), by the neural fitter (with each start policy and sequence shape policy), LM and
+# neural+lm, on markers and keypoints2d (pose and β) and hmd (β given). Prints one Markdown table
+# (mean V2V, MPJPE, β RMS, time per frame, evaluations) and writes every result under OUT.
+#
+#   scripts/eval-captured.sh [OUT] [CHECKPOINT_SUFFIX]
+#
+# OUT defaults to target/eval-captured; the checkpoints are checkpoints/<modality>-makehuman
+# (CHECKPOINT_SUFFIX appends to that name, e.g. "-v2"). LFIT (default: the release build) is the
+# binary. Same inputs, same seeds: the same numbers, but for the times.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+OUT="${1:-target/eval-captured}"
+SUFFIX="${2:-}"
+LFIT="${LFIT:-${CARGO_TARGET_DIR:-$HOME/.cache/lfit-target}/release/lfit}"
+MODEL=models/makehuman-cmu_mb.npz
+# The seed of the clip frames in docs/results/learned-vs-classical.md.
+SEED=9103745171752751104
+mkdir -p "$OUT"
+if [ ! -x "$LFIT" ]; then
+    echo "eval-captured: no lfit binary at $LFIT (cargo build --release --workspace)" >&2
+    exit 1
+fi
+CLIP="$(./scripts/fetch-mocapbank.sh)"
+"$LFIT" -q motion import --bvh "$CLIP" --map configs/maps/mocapbank_to_makehuman_cmu_mb.json \
+    --model "$MODEL" --out "$OUT/clip-motion.npz" >/dev/null
+FRAMES="${EVAL_FRAMES:-454}"
+rows=()
+run() { # name data method extra...
+    local name="$1" data="$2" method="$3"
+    shift 3
+    "$LFIT" -q fit --data "$data" --template "$MODEL" --method "$method" --out "$OUT/$name.json" "$@" >/dev/null
+    rows+=("$name")
+}
+for m in markers keypoints2d hmd; do
+    ck="checkpoints/$m-makehuman$SUFFIX"
+    known=()
+    [ "$m" = hmd ] && known=(--known-shape truth)
+    for scenario in local sequence; do
+        data="$OUT/clip-$scenario-$m.npz"
+        "$LFIT" -q synth --modality "$m" --scenario "$scenario" --frames "$FRAMES" --seed "$SEED" \
+            --template "$MODEL" --motions "$OUT/clip-motion.npz" --out "$data" >/dev/null
+        run "$m-$scenario-lm" "$data" lm --budget 4000 "${known[@]}"
+        if [ "$scenario" = local ]; then
+            run "$m-$scenario-neural" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}"
+            run "$m-$scenario-neural-best" "$data" neural --checkpoint "$ck" --neural-start best --budget 12 "${known[@]}"
+            run "$m-$scenario-neural+lm" "$data" neural+lm --checkpoint "$ck" --neural-start given --budget 4000 "${known[@]}"
+        else
+            run "$m-$scenario-neural-previous" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}"
+            run "$m-$scenario-neural-best" "$data" neural --checkpoint "$ck" --neural-start best --budget 12 "${known[@]}"
+            if [ "$m" != hmd ]; then
+                run "$m-$scenario-neural-best-first-pass" "$data" neural --checkpoint "$ck" --neural-start best \
+                    --budget 12 --sequence-shape first-pass
+                run "$m-$scenario-neural+lm-best-first-pass" "$data" neural+lm --checkpoint "$ck" \
+                    --neural-start best --budget 4000 --sequence-shape first-pass
+            fi
+            run "$m-$scenario-neural+lm-best" "$data" neural+lm --checkpoint "$ck" --neural-start best \
+                --budget 4000 "${known[@]}"
+        fi
+    done
+done
+python3 - "$OUT" "${rows[@]}" <<'PY'
+import json, sys
+out, names = sys.argv[1], sys.argv[2:]
+print("| run | frames | V2V (mm) | MPJPE (mm) | β RMS | energy | evaluations | time / frame (ms) |")
+print("|---|---|---|---|---|---|---|---|")
+for n in names:
+    r = json.load(open(f"{out}/{n}.json"))
+    s, fr = r["summary"], r["frames"]
+    ev = sum(f["evaluations"] for f in fr) / len(fr)
+    beta = s.get("mean_shape_rms")
+    beta = f"{beta:.3f}" if beta is not None and "hmd" not in n else "given"
+    print(f"| {n} | {len(fr)} | {s['mean_v2v_mm']:.1f} | {s['mean_mpjpe_mm']:.1f} | {beta} | "
+          f"{s['mean_energy']:.4f} | {ev:.0f} | {1000 * s['mean_time_s']:.2f} |")
+PY

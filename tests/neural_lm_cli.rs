@@ -1,0 +1,314 @@
+//! The learned fitter's start choice (`--neural-start best`), `neural+lm` (the network, then LM
+//! within one budget) and the sequence shape policy (`--sequence-shape first-pass`), end to end
+//! with the shipped MakeHuman markers fitter.
+
+mod support;
+
+use std::path::{Path, PathBuf};
+
+use serde_json::Value;
+use support::{assert_one_line_error, lfit, lfit_json, path_str};
+
+const MODEL: &str = "models/makehuman-cmu_mb.npz";
+const CHECKPOINT: &str = "checkpoints/markers-makehuman";
+
+fn root(p: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
+}
+
+fn synth(dir: &Path, name: &str, scenario: &str, frames: usize, seed: u64) -> PathBuf {
+    let data = dir.join(name);
+    lfit_json(&[
+        "-q",
+        "synth",
+        "--modality",
+        "markers",
+        "--scenario",
+        scenario,
+        "--frames",
+        &frames.to_string(),
+        "--seed",
+        &seed.to_string(),
+        "--template",
+        path_str(&root(MODEL)),
+        "--out",
+        path_str(&data),
+    ]);
+    data
+}
+
+fn fit(data: &Path, out: &Path, extra: &[&str]) -> Value {
+    let (model, ck) = (root(MODEL), root(CHECKPOINT));
+    let mut args = vec![
+        "-q",
+        "fit",
+        "--data",
+        path_str(data),
+        "--template",
+        path_str(&model),
+        "--checkpoint",
+        path_str(&ck),
+        "--out",
+        path_str(out),
+    ];
+    args.extend(extra);
+    lfit_json(&args);
+    serde_json::from_slice(&std::fs::read(out).expect("result")).expect("json")
+}
+
+fn frames(r: &Value) -> &Vec<Value> {
+    r["frames"].as_array().expect("frames")
+}
+
+fn num(v: &Value) -> f64 {
+    v.as_f64().expect("number")
+}
+
+/// `best` starts from the lower-energy of the given start and Φ(D), and counts the two
+/// evaluations the choice costs.
+#[test]
+fn best_start_takes_the_lower_energy_candidate() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let data = synth(tmp.path(), "local.npz", "local", 8, 0x5EED_0001);
+    let run = |start: &str| {
+        fit(
+            &data,
+            &tmp.path().join(format!("{start}.json")),
+            &[
+                "--method",
+                "neural",
+                "--budget",
+                "12",
+                "--neural-start",
+                start,
+            ],
+        )
+    };
+    let (phi, given, best) = (run("phi"), run("given"), run("best"));
+    assert_eq!(best["method"], "neural-best");
+    let (mut chose_phi, mut chose_given) = (0, 0);
+    for ((p, g), b) in frames(&phi).iter().zip(frames(&given)).zip(frames(&best)) {
+        let e0 = |f: &Value| num(&f["trace"][0][1]);
+        let (ep, eg, eb) = (e0(p), e0(g), e0(b));
+        let want = ep.min(eg);
+        assert!(
+            (eb - want).abs() <= 1e-6 * want.abs().max(1.0),
+            "θ0 energy {eb} is not the lower of Φ(D) {ep} and the start {eg}"
+        );
+        if ep < eg {
+            chose_phi += 1;
+        } else {
+            chose_given += 1;
+        }
+        assert_eq!(b["evaluations"], num(&g["evaluations"]) as u64 + 2);
+        assert_eq!(b["iterations"], g["iterations"]);
+    }
+    eprintln!("best start: Φ(D) on {chose_phi} frames, the given start on {chose_given}");
+    // A budget that covers the iterations but not the choice is refused.
+    let out = lfit(&[
+        "-q",
+        "fit",
+        "--data",
+        path_str(&data),
+        "--template",
+        path_str(&root(MODEL)),
+        "--checkpoint",
+        path_str(&root(CHECKPOINT)),
+        "--method",
+        "neural",
+        "--budget",
+        "10",
+        "--neural-start",
+        "best",
+        "--out",
+        path_str(&tmp.path().join("no.json")),
+    ]);
+    assert_one_line_error(&out, "and the start choice");
+    assert!(!tmp.path().join("no.json").exists());
+}
+
+/// `neural+lm` spends the network's evaluations, then LM's from the network's result: its
+/// energy is never above the network's alone, its evaluations add up and stay within the budget,
+/// and its iterates are the network's followed by the final pose.
+#[test]
+fn neural_then_lm_refines_the_network_within_one_budget() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let data = synth(tmp.path(), "local.npz", "local", 6, 0x5EED_0002);
+    let common = ["--neural-start", "given", "--budget", "300"];
+    let nn = fit(
+        &data,
+        &tmp.path().join("nn.json"),
+        &[&["--method", "neural"][..], &common[..]].concat(),
+    );
+    let both = fit(
+        &data,
+        &tmp.path().join("both.json"),
+        &[&["--method", "neural+lm"][..], &common[..]].concat(),
+    );
+    assert_eq!(both["method"], "neural-given+lm");
+    let mut lower = 0;
+    for (a, b) in frames(&nn).iter().zip(frames(&both)) {
+        let (ea, eb) = (num(&a["energy"]), num(&b["energy"]));
+        assert!(eb <= ea, "neural+lm {eb} above the network alone {ea}");
+        if eb < 0.99 * ea {
+            lower += 1;
+        }
+        let evals = b["evaluations"].as_u64().expect("evaluations");
+        assert!(evals > 10 && evals <= 300, "evaluations {evals}");
+        let iterates = b["v2v_mm_per_iteration"].as_array().expect("iterates");
+        assert_eq!(
+            iterates.len(),
+            5 + 2,
+            "θ0, 5 network iterations, LM's result"
+        );
+        // The network's part is the network's: same iterates.
+        for k in 0..6 {
+            assert!(
+                (num(&iterates[k]) - num(&a["v2v_mm_per_iteration"][k])).abs() < 1e-9,
+                "iterate {k}"
+            );
+        }
+        assert!((num(&iterates[6]) - num(&b["v2v_mm"])).abs() < 1e-9);
+    }
+    assert!(
+        lower >= 4,
+        "LM lowered the energy of only {lower} of 6 frames"
+    );
+    // A budget the network alone uses up is refused, and nothing is written.
+    let out_path = tmp.path().join("no.json");
+    let out = lfit(&[
+        "-q",
+        "fit",
+        "--data",
+        path_str(&data),
+        "--template",
+        path_str(&root(MODEL)),
+        "--checkpoint",
+        path_str(&root(CHECKPOINT)),
+        "--method",
+        "neural+lm",
+        "--budget",
+        "10",
+        "--out",
+        path_str(&out_path),
+    ]);
+    assert_one_line_error(&out, "leaves LM nothing");
+    assert!(!out_path.exists());
+    let out = lfit(&[
+        "-q",
+        "fit",
+        "--data",
+        path_str(&data),
+        "--template",
+        path_str(&root(MODEL)),
+        "--method",
+        "neural+lm",
+        "--budget",
+        "100",
+        "--out",
+        path_str(&out_path),
+    ]);
+    assert_one_line_error(&out, "--method neural+lm needs --checkpoint");
+    assert!(!out_path.exists());
+}
+
+/// `--sequence-shape first-pass`: one β for the whole sequence, the median of the first pass,
+/// and one-line refusals where it cannot apply.
+#[test]
+fn first_pass_gives_a_sequence_one_shape() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let seq = synth(tmp.path(), "seq.npz", "sequence", 8, 0x5EED_0003);
+    let r = fit(
+        &seq,
+        &tmp.path().join("seq.json"),
+        &[
+            "--method",
+            "neural",
+            "--budget",
+            "12",
+            "--neural-start",
+            "best",
+            "--sequence-shape",
+            "first-pass",
+        ],
+    );
+    assert_eq!(r["sequence_shape"], "first-pass");
+    let pass = &r["summary"]["shape_pass"];
+    assert_eq!(pass["frames"].as_array().map(Vec::len), Some(8));
+    let beta: Vec<f64> = pass["beta"]
+        .as_array()
+        .expect("beta")
+        .iter()
+        .map(num)
+        .collect();
+    assert_eq!(beta.len(), 16);
+    assert!(pass["evaluations"].as_u64().expect("evaluations") >= 8 * 12);
+    for f in frames(&r) {
+        let shape: Vec<f64> = f["shape"]
+            .as_array()
+            .expect("shape")
+            .iter()
+            .map(num)
+            .collect();
+        assert_eq!(shape, beta, "frame {}: β is not the sequence's", f["frame"]);
+    }
+    // Per frame (the default), β moves from frame to frame.
+    let free = fit(
+        &seq,
+        &tmp.path().join("free.json"),
+        &[
+            "--method",
+            "neural",
+            "--budget",
+            "12",
+            "--neural-start",
+            "best",
+        ],
+    );
+    let shapes: Vec<&Value> = frames(&free).iter().map(|f| &f["shape"]).collect();
+    assert!(shapes.windows(2).any(|w| w[0] != w[1]));
+
+    // Refusals: not a sequence, an unknown policy, β already given.
+    let local = synth(tmp.path(), "local.npz", "local", 2, 0x5EED_0004);
+    let base = |data: &Path, out: &Path| -> Vec<String> {
+        [
+            "-q",
+            "fit",
+            "--data",
+            path_str(data),
+            "--template",
+            path_str(&root(MODEL)),
+            "--method",
+            "lm",
+            "--budget",
+            "50",
+            "--out",
+            path_str(out),
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
+    };
+    let out_path = tmp.path().join("no.json");
+    let run = |data: &Path, extra: &[&str]| {
+        let mut a = base(data, &out_path);
+        a.extend(extra.iter().map(|s| s.to_string()));
+        lfit(&a.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    assert_one_line_error(
+        &run(&local, &["--sequence-shape", "first-pass"]),
+        "needs a sequence dataset",
+    );
+    assert_one_line_error(
+        &run(&seq, &["--sequence-shape", "median"]),
+        "unknown sequence shape policy 'median'",
+    );
+    assert_one_line_error(
+        &run(
+            &seq,
+            &["--sequence-shape", "first-pass", "--known-shape", "truth"],
+        ),
+        "needs a sequence dataset",
+    );
+    assert!(!out_path.exists());
+}
