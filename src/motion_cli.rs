@@ -55,8 +55,8 @@ pub struct ImportArgs {
     #[arg(long, default_value = "y")]
     pub up: String,
     /// BVH root height: floor (the BVH's y = 0 is the ground; the anchor's height and steps are
-    /// scaled by the model's over the BVH's rest leg height) or rest (displacement from the BVH's
-    /// rest pose, unscaled).
+    /// scaled by the model's over the BVH's leg length (bone lengths from the anchor to the lowest
+    /// mapped joint)) or rest (displacement from the BVH's rest pose, unscaled).
     #[arg(long, default_value = "floor")]
     pub root: String,
 }

@@ -23,13 +23,20 @@
 //! **Root translation.** The translation follows the *anchor*: the mapped model joint nearest the
 //! root (normally the root/pelvis) and its BVH joint. With `--root floor` (the default) the BVH's
 //! ground is its plane y = 0 (after the up-axis conversion) and the model's is lfit's y = 0; the
-//! anchor's height above the ground is scaled by `k = h_model / h_bvh` (the rest height of the
-//! anchor above the lowest mapped joint, model over BVH), and its horizontal displacement from the
-//! BVH's rest position is scaled by the same `k` and added to the model's rest position, so a
-//! shorter model takes proportionally shorter steps and keeps its feet on the ground. For a BVH
-//! written from the same model (`lfit motion export`) `k = 1` and the translation comes back
-//! exactly. With `--root rest` the anchor moves by the BVH displacement from its rest position
-//! (metres, unscaled): for files whose rest pose already stands where the motion does.
+//! anchor's height above the ground is scaled by `k = l_model / l_bvh`, the ratio of the leg
+//! lengths (bone lengths from the anchor to the lowest mapped joint), and its horizontal
+//! displacement from the BVH's rest position is scaled by the same `k` and added to the model's
+//! rest position, so a shorter model takes proportionally shorter steps and keeps its feet on the
+//! ground. The lowest mapped joint is the lowest in the model's rest pose (which stands); the leg
+//! is the path of model joints from it to the anchor, and its length the sum of the straight-line
+//! rest distances between consecutive *mapped* joints on that path, measured on the model and
+//! between the BVH joints they map to. Being lengths, not heights, they do not depend on how the
+//! rest pose is oriented: a BVH whose zero-rotation rest pose does not stand (bones along +x, as
+//! game engines export them) scales like a standing one. `k = 1` when either length is zero or
+//! the lowest mapped joint is the anchor. For a BVH written from the same model (`lfit motion
+//! export`) `k = 1` and the translation comes back exactly. With `--root rest` the anchor moves by
+//! the BVH displacement from its rest position (metres, unscaled): for files whose rest pose
+//! already stands where the motion does.
 
 use std::path::{Path, PathBuf};
 
@@ -372,6 +379,30 @@ pub fn align_directions(from: &[DVec3], to: &[DVec3]) -> DMat3 {
     ])
 }
 
+/// The joints on the tree path from `a` to `b` (both included, in order), through their lowest
+/// common ancestor; empty when they share no ancestor.
+fn tree_path(parents: &[Option<usize>], a: usize, b: usize) -> Vec<usize> {
+    let up = |mut j: usize| {
+        let mut chain = vec![j];
+        while let Some(p) = parents[j] {
+            chain.push(p);
+            j = p;
+        }
+        chain
+    };
+    let (from_a, from_b) = (up(a), up(b));
+    let Some((i, k)) = from_a
+        .iter()
+        .enumerate()
+        .find_map(|(i, j)| from_b.iter().position(|x| x == j).map(|k| (i, k)))
+    else {
+        return Vec::new();
+    };
+    let mut path = from_a[..=i].to_vec();
+    path.extend(from_b[..k].iter().rev());
+    path
+}
+
 /// The axis-angle vector of a rotation matrix (angle in [0, π]), accurate near 0 and π.
 pub fn log_map(r: DMat3) -> DVec3 {
     let mut q = DQuat::from_mat3(&r).normalize();
@@ -532,23 +563,25 @@ impl Retargeter {
                 has_align[m] = has_align[a];
             }
         }
-        // Root motion scale (floor mode): anchor height above the lowest mapped joint.
+        // Root motion scale (floor mode): the leg length, model over BVH (module docs).
         let root_scale = match options.root {
             RootMode::Rest => 1.0,
             RootMode::Floor => {
-                let mapped: Vec<usize> = (0..nj).filter(|&m| bvh_of[m].is_some()).collect();
-                let low_m = mapped
-                    .iter()
-                    .map(|&m| rest[m].y)
-                    .fold(f64::INFINITY, f64::min);
-                let low_b = mapped
-                    .iter()
-                    .filter_map(|&m| bvh_of[m].map(|b| bvh_rest[b].y))
-                    .fold(f64::INFINITY, f64::min);
-                let h_m = rest[anchor].y - low_m;
-                let h_b = bvh_of[anchor].map_or(0.0, |b| bvh_rest[b].y) - low_b;
-                if h_m > 1e-6 && h_b > 1e-6 {
-                    h_m / h_b
+                let low = (0..nj)
+                    .filter(|&m| bvh_of[m].is_some())
+                    .min_by(|&a, &b| rest[a].y.total_cmp(&rest[b].y))
+                    .unwrap_or(anchor);
+                let leg: Vec<(usize, usize)> = tree_path(&parents, low, anchor)
+                    .into_iter()
+                    .filter_map(|m| bvh_of[m].map(|b| (m, b)))
+                    .collect();
+                let (mut l_m, mut l_b) = (0.0, 0.0);
+                for w in leg.windows(2) {
+                    l_m += rest[w[0].0].distance(rest[w[1].0]);
+                    l_b += bvh_rest[w[0].1].distance(bvh_rest[w[1].1]);
+                }
+                if low != anchor && l_m > 1e-6 && l_b > 1e-6 {
+                    l_m / l_b
                 } else {
                     1.0
                 }
@@ -770,5 +803,125 @@ mod tests {
         assert!(rotation_angle_between(q, r) < 1e-12);
         // Identical directions: the identity.
         assert!(rotation_angle_between(align_directions(&from, &from), DMat3::IDENTITY) < 1e-14);
+    }
+
+    /// A game-engine style BVH: every leg bone along +x in the zero-rotation rest pose (the hip
+    /// joints 1 cm below the root there), the frames' rotations make it stand. The root scale is
+    /// the ratio of leg lengths; the ratio of rest heights (the hips 1 cm above the lowest joint)
+    /// gave 85.5 and put the pelvis 84 m above the floor.
+    #[test]
+    fn floor_scale_uses_leg_length_for_a_rest_pose_along_x() {
+        // Hips: Z 90, X 90 takes local x to world y (up), y to z, z to x; the up-legs
+        // (Z 180, X 90) then point their +x down; LeftLeg and LeftFoot keep it.
+        let leg = |side: &str, z: f64| {
+            format!(
+                "JOINT {side}UpLeg
+{{
+OFFSET -2 -1 {z}
+CHANNELS 3 Zrotation Xrotation Yrotation
+JOINT {side}Leg
+{{
+OFFSET 44 0 0
+CHANNELS 3 Zrotation Xrotation Yrotation
+JOINT {side}Foot
+{{
+OFFSET 44 0 0
+CHANNELS 3 Zrotation Xrotation Yrotation
+End Site
+{{
+OFFSET 15 0 0
+}}
+}}
+}}
+}}
+"
+            )
+        };
+        let frame = "90 90 0  180 90 0  0 0 0  0 0 0  180 90 0  0 0 0  0 0 0  0 0 0";
+        let text = format!(
+            "HIERARCHY
+ROOT Hips
+{{
+OFFSET 0 0 0
+CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+{}{}JOINT Spine
+{{
+OFFSET 10 0 0
+CHANNELS 3 Zrotation Xrotation Yrotation
+End Site
+{{
+OFFSET 40 0 0
+}}
+}}
+}}
+MOTION
+Frames: 2
+Frame Time: 0.0333333
+0 98 0  {frame}
+20 98 30  {frame}
+",
+            leg("Left", 10.0),
+            leg("Right", -10.0),
+        );
+        let bvh = Bvh::parse(&text).unwrap();
+        // The construction: the rest pose lies along +x, the first frame stands (ankles 8 cm up).
+        let rest_b = bvh.rest_positions();
+        let foot = bvh.joint_index("LeftFoot").unwrap();
+        assert!((rest_b[foot] - DVec3::new(86.0, -1.0, 10.0)).length() < 1e-9);
+        let posed_b = bvh.pose(&bvh.frames[0]);
+        assert!((posed_b.positions[foot] - DVec3::new(10.0, 8.0, -1.0)).length() < 1e-9);
+        let spine = bvh.joint_index("Spine").unwrap();
+        assert!((posed_b.positions[spine] - DVec3::new(0.0, 108.0, 0.0)).length() < 1e-9);
+        let map = JointMap::parse(
+            "Hips root\nSpine lower_torso\nLeftUpLeg l_hip\nLeftLeg l_knee\nLeftFoot l_ankle\nRightUpLeg r_hip\nRightLeg r_knee\nRightFoot r_ankle\n",
+        )
+        .unwrap();
+        let template = lfit_model::body::default_template();
+        let options = RetargetOptions {
+            units: Units::Centimetres,
+            ..RetargetOptions::default()
+        };
+        let r = retarget(&bvh, &map, &template, &options).unwrap();
+        assert_eq!(r.scale, 0.01);
+        let names = &template.layout().joints;
+        let j = |n: &str| names.iter().position(|x| x == n).unwrap();
+        let rest =
+            lfit_model::skinning::joint_transforms(&template, &vec![0.0; template.param_dim()])
+                .rest_joints;
+        let chain_m = ["root", "l_hip", "l_knee", "l_ankle"].map(|n| rest[j(n)]);
+        let chain_b = ["Hips", "LeftUpLeg", "LeftLeg", "LeftFoot"]
+            .map(|n| rest_b[bvh.joint_index(n).unwrap()] * 0.01);
+        let length = |c: &[DVec3]| c.windows(2).map(|w| w[0].distance(w[1])).sum::<f64>();
+        let k = length(&chain_m) / length(&chain_b);
+        assert!(
+            (r.root_scale - k).abs() <= 1e-9 * k,
+            "root scale {} (leg lengths give {k})",
+            r.root_scale
+        );
+        let posed = lfit_model::skinning::joint_transforms(&template, &r.poses[0]).joints;
+        let pelvis = posed[j("root")];
+        assert!(
+            (pelvis.y - rest[j("root")].y).abs() < 0.03,
+            "pelvis at {pelvis} (standing {})",
+            rest[j("root")].y
+        );
+        for side in ["l", "r"] {
+            let ankle = posed[j(&format!("{side}_ankle"))];
+            assert!(
+                (ankle.y - rest[j(&format!("{side}_ankle"))].y).abs() < 0.03,
+                "{side} ankle at {ankle}"
+            );
+            let foot = posed[j(&format!("{side}_foot"))];
+            assert!(foot.y.abs() < 0.05, "{side} foot at {foot}");
+        }
+        // Steps are scaled by the same k.
+        let moved = lfit_model::skinning::joint_transforms(&template, &r.poses[1]).joints;
+        let step = moved[j("root")] - pelvis;
+        assert!(
+            (step - DVec3::new(0.2 * k, 0.0, 0.3 * k)).length() < 1e-9,
+            "{step}"
+        );
+        // The hips' bones differ a little in direction (its alignment is a least-squares fit).
+        assert!(r.cosine_min > 0.99, "{}", r.cosine_min);
     }
 }
