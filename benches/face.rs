@@ -128,9 +128,9 @@ fn bench(c: &mut Criterion) {
         let poses = vec![starts[0].clone()];
         let obs = observation_rows(c, &f.stats, &one).expect("obs");
         let evals = evaluate(&one, &poses);
-        let core = core_rows(c, &f.stats, &evals, &poses, &obs).expect("core");
+        let core = core_rows(c, &f.stats, &one, &evals, &poses, &obs).expect("core");
         let delta = vec![vec![1e-3; c.param_dim]];
-        let step = step_rows(c, &f.stats, &one, &poses, &evals, &delta);
+        let step = step_rows(c, &f.stats, &one, &poses, &evals, &delta).expect("step");
         let grad: Vec<f32> = evals[0].1.iter().map(|&v| v as f32).collect();
         let net = f.burn_net().expect("burn");
         let device = device_from_name(name).expect("device");

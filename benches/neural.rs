@@ -166,9 +166,9 @@ fn inputs(f: &NeuralFitter, frames: &lfit::train::Frames) -> Inputs {
     let poses: Vec<Vec<f64>> = frames.dataset.start_poses.clone();
     let obs = observation_rows(c, &f.stats, &energies).expect("obs");
     let evals = evaluate(&energies, &poses);
-    let core = core_rows(c, &f.stats, &evals, &poses, &obs).expect("core");
+    let core = core_rows(c, &f.stats, &energies, &evals, &poses, &obs).expect("core");
     let delta_poses: Vec<Vec<f64>> = poses.iter().map(|_| vec![1e-3; c.param_dim]).collect();
-    let step = step_rows(c, &f.stats, &energies, &poses, &evals, &delta_poses);
+    let step = step_rows(c, &f.stats, &energies, &poses, &evals, &delta_poses).expect("step");
     let grad = evals
         .iter()
         .flat_map(|(_, g)| g.iter().map(|&v| v as f32))

@@ -103,7 +103,45 @@ pub fn synth_with_motions(
     template: &Template,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Value> {
+    synth_with_cameras(args, files, None, template, progress)
+}
+
+/// The sensor of `lfit synth`: the modality's default, or for `keypoints2d` with `cameras`
+/// (`--cameras N`) N cameras on the default ring's circle ([`lfit_model::camera::default_ring`]:
+/// 4 m around the origin, 1.3 m high, evenly spaced starting in front, 640×480, fx = 550).
+pub fn synth_sensor(
+    modality: Modality,
+    cameras: Option<usize>,
+    template: &Template,
+) -> Result<Sensor> {
+    match (cameras, modality) {
+        (None, _) => Ok(Sensor::default_for(modality, template)),
+        (Some(0), _) => anyhow::bail!("--cameras must be at least 1"),
+        (Some(n), Modality::Keypoints2d) if n <= lfit_model::camera::RigRanges::MAX_CAMERAS => {
+            Ok(Sensor::Keypoints2d(lfit_model::observe::KeypointSetup {
+                cameras: lfit_model::camera::default_ring(n),
+            }))
+        }
+        (Some(n), Modality::Keypoints2d) => anyhow::bail!(
+            "--cameras {n} is more than {}",
+            lfit_model::camera::RigRanges::MAX_CAMERAS
+        ),
+        (Some(_), m) => {
+            anyhow::bail!("--cameras sets the keypoints2d rig; {m} takes its default setup")
+        }
+    }
+}
+
+/// [`synth_with_motions`] with `cameras` (`--cameras N`, see [`synth_sensor`]).
+pub fn synth_with_cameras(
+    args: &SynthArgs,
+    files: &MotionFilesArgs,
+    cameras: Option<usize>,
+    template: &Template,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Value> {
     let modality: Modality = args.modality.parse()?;
+    let sensor = synth_sensor(modality, cameras, template)?;
     let scenario: Scenario = args.scenario.parse()?;
     let mut config = SynthConfig::new(modality, scenario, args.frames, args.seed);
     config.source = args.source.parse::<PoseSource>()?;
@@ -122,7 +160,6 @@ pub fn synth_with_motions(
     config.motion_files = load_motion_files(&files.files, template)?;
     config.with_library = files.with_library;
     config.validate()?;
-    let sensor = Sensor::default_for(modality, template);
     let start = Instant::now();
     let dataset = synthesize(&config, template, &sensor, progress)?;
     dataset.save(&args.out)?;
@@ -140,6 +177,9 @@ pub fn synth_with_motions(
         "bytes": bytes,
         "seconds": start.elapsed().as_secs_f64(),
     });
+    if modality == Modality::Keypoints2d {
+        summary["cameras"] = json!(dataset.sensor.cameras().len());
+    }
     if !config.motion_files.is_empty() {
         // Which frames came from the files, and how many of them were clamped into the bounds.
         let names = &dataset.meta.frame_motions;

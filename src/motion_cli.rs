@@ -1,13 +1,16 @@
 //! `lfit motion import` and `lfit motion export` (SPEC §3a "Motions", §10): BVH clips retargeted
 //! through a joint-name map and AMASS-layout `.npz` motions become lfit motion files
-//! ([`lfit_synth::motion_io::MotionClip`]); motion files and fitted sequences become BVH. Every
-//! input is read and checked before anything is written; outputs are written atomically.
+//! ([`lfit_synth::motion_io::MotionClip`]); motion files and fitted sequences become BVH.
+//! `lfit motion coverage` measures how well training motions cover an evaluation motion
+//! ([`lfit_synth::coverage`]). Every input is read and checked before anything is written;
+//! outputs are written atomically.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use lfit_model::template::{Template, write_atomic};
 use lfit_synth::motion_io::{MotionClip, export_bvh, read_amass};
+use lfit_synth::rest_pose::{RestPose, rebase, retarget_neutral};
 use lfit_synth::retarget::{JointMap, RetargetOptions, RootMode, Units, Up, read_bvh, retarget};
 use serde_json::{Value, json};
 
@@ -24,6 +27,12 @@ pub enum MotionCommand {
     /// Export a motion file or the fitted sequence of `lfit fit` as BVH: the model's skeleton
     /// (OFFSETs in cm), 6 channels at the root, Zrotation Xrotation Yrotation at every joint.
     Export(ExportArgs),
+    /// How well training motions cover an evaluation motion: per joint axis (each axis-angle
+    /// component of each joint's rotation) the 1st and 99th percentiles of the training frames,
+    /// and the fraction of evaluation frames whose every non-root joint axis lies within them
+    /// (the root orientation, i.e. the heading, is reported separately). Prints a JSON summary
+    /// with the worst joint axes.
+    Coverage(CoverageArgs),
 }
 
 /// Settings of `lfit motion import`.
@@ -59,6 +68,17 @@ pub struct ImportArgs {
     /// mapped joint)) or rest (displacement from the BVH's rest pose, unscaled).
     #[arg(long, default_value = "floor")]
     pub root: String,
+    /// Keep every N-th frame (frames 0, N, 2N, ...); the frame rate becomes fps / N.
+    #[arg(long, default_value_t = 1, value_name = "N")]
+    pub stride: usize,
+    /// Rest pose of the BVH (JSON: world rotations of BVH joints such as
+    /// {"joints": {"LeftThigh": "Z 180", "LeftFoot": "Y 180 X -90"}}, unnamed joints turning
+    /// with their parent), for files whose zero-channel pose is not a usable rest pose (every
+    /// bone along one axis); the clip is re-expressed relative to it before retargeting. Its
+    /// optional "neutral": [BVH joints] take the identity rest alignment (their rest pose is the
+    /// model's, e.g. an upright trunk) instead of the alignment by bone directions.
+    #[arg(long, value_name = "FILE")]
+    pub rest_pose: Option<PathBuf>,
 }
 
 /// Settings of `lfit motion export`.
@@ -84,11 +104,38 @@ pub struct ExportArgs {
     pub out: PathBuf,
 }
 
+/// Settings of `lfit motion coverage`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct CoverageArgs {
+    /// Training motion files (written by `lfit motion import`).
+    #[arg(long, num_args = 1.., value_name = "FILE")]
+    pub train: Vec<PathBuf>,
+    /// Evaluation motion file.
+    #[arg(long, value_name = "FILE")]
+    pub eval: PathBuf,
+    /// Model the motions must be made for; default: the first training file's skeleton (every
+    /// file must share it).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Slack (radians) around each [p1, p99] range, for joints that are constant up to rounding.
+    #[arg(long, default_value_t = 1e-6)]
+    pub tolerance: f64,
+    /// How many of the worst joint axes to list.
+    #[arg(long, default_value_t = 10)]
+    pub worst: usize,
+    /// Count only these joints (comma-separated model joint names) in the covered fraction,
+    /// e.g. those that the training and the evaluation motions' joint maps both drive; default:
+    /// every joint but the root. Statistics are listed for all.
+    #[arg(long, value_delimiter = ',', value_name = "JOINTS")]
+    pub joints: Vec<String>,
+}
+
 /// Runs a `lfit motion` subcommand.
 pub fn run(command: &MotionCommand) -> Result<Value> {
     match command {
         MotionCommand::Import(a) => import(a),
         MotionCommand::Export(a) => export(a),
+        MotionCommand::Coverage(a) => coverage(a),
     }
 }
 
@@ -106,12 +153,30 @@ fn file_name(path: &Path) -> String {
 /// `lfit motion import`.
 pub fn import(args: &ImportArgs) -> Result<Value> {
     let up: Up = args.up.parse().map_err(anyhow::Error::msg)?;
+    if args.stride == 0 {
+        bail!("--stride 0: keep every N-th frame needs N of at least 1");
+    }
+    if args.rest_pose.is_some() && args.bvh.is_none() {
+        bail!("--rest-pose applies to --bvh");
+    }
     let template = load(args.model.as_deref())?;
-    let (clip, extra) = match (&args.bvh, &args.amass) {
+    let (clip, extra, source_frames) = match (&args.bvh, &args.amass) {
         (Some(bvh_path), None) => {
             let units: Units = args.units.parse().map_err(anyhow::Error::msg)?;
             let root: RootMode = args.root.parse().map_err(anyhow::Error::msg)?;
-            let bvh = read_bvh(bvh_path)?;
+            let mut bvh = read_bvh(bvh_path)?;
+            let mut neutral = Vec::new();
+            if let Some(path) = &args.rest_pose {
+                let rest = RestPose::read(path)?;
+                bvh =
+                    rebase(&bvh, &rest).with_context(|| format!("rest pose {}", path.display()))?;
+                neutral = rest.neutral;
+            }
+            let source_frames = bvh.frames.len();
+            if args.stride > 1 {
+                bvh.frames = bvh.frames.into_iter().step_by(args.stride).collect();
+                bvh.frame_time *= args.stride as f64;
+            }
             let map = match &args.map {
                 Some(m) => JointMap::read(m)?,
                 None => JointMap::identity(&bvh),
@@ -122,8 +187,12 @@ pub fn import(args: &ImportArgs) -> Result<Value> {
                 root,
                 shape: Vec::new(),
             };
-            let r = retarget(&bvh, &map, &template, &options)
-                .with_context(|| format!("retargeting {}", bvh_path.display()))?;
+            let r = if neutral.is_empty() {
+                retarget(&bvh, &map, &template, &options)
+            } else {
+                retarget_neutral(&bvh, &map, &template, &options, &neutral)
+            }
+            .with_context(|| format!("retargeting {}", bvh_path.display()))?;
             let extra = json!({
                 "metres_per_unit": r.scale,
                 "root_scale": r.root_scale,
@@ -136,15 +205,23 @@ pub fn import(args: &ImportArgs) -> Result<Value> {
                 poses: r.poses,
                 fps: r.fps,
                 source: format!(
-                    "bvh:{} map:{}",
+                    "bvh:{} map:{}{}{}",
                     file_name(bvh_path),
                     args.map
                         .as_deref()
-                        .map_or_else(|| "identity".to_string(), file_name)
+                        .map_or_else(|| "identity".to_string(), file_name),
+                    args.rest_pose
+                        .as_deref()
+                        .map_or_else(String::new, |p| format!(" rest:{}", file_name(p))),
+                    if args.stride > 1 {
+                        format!(" stride:{}", args.stride)
+                    } else {
+                        String::new()
+                    }
                 ),
                 model: template.signature(),
             };
-            (clip, extra)
+            (clip, extra, source_frames)
         }
         (None, Some(amass_path)) => {
             if args.map.is_some() {
@@ -153,13 +230,19 @@ pub fn import(args: &ImportArgs) -> Result<Value> {
                 );
             }
             let (poses, fps) = read_amass(amass_path, &template, up)?;
+            let source_frames = poses.len();
+            let poses: Vec<Vec<f64>> = poses.into_iter().step_by(args.stride).collect();
             let clip = MotionClip {
                 poses,
-                fps,
-                source: format!("amass:{}", file_name(amass_path)),
+                fps: fps / args.stride as f64,
+                source: if args.stride > 1 {
+                    format!("amass:{} stride:{}", file_name(amass_path), args.stride)
+                } else {
+                    format!("amass:{}", file_name(amass_path))
+                },
                 model: template.signature(),
             };
-            (clip, json!({}))
+            (clip, json!({}), source_frames)
         }
         (Some(_), Some(_)) => bail!("give either --bvh or --amass, not both"),
         (None, None) => {
@@ -172,6 +255,8 @@ pub fn import(args: &ImportArgs) -> Result<Value> {
         "model": template.id,
         "frames": clip.poses.len(),
         "fps": clip.fps,
+        "stride": args.stride,
+        "source_frames": source_frames,
         "source": clip.source,
     });
     if let (Value::Object(s), Value::Object(e)) = (&mut summary, extra) {
@@ -217,5 +302,101 @@ pub fn export(args: &ExportArgs) -> Result<Value> {
         "joints": bvh.joints.len(),
         "units": "cm",
         "rotation_order": lfit_synth::motion_io::EXPORT_ORDER.name(),
+    }))
+}
+
+/// `lfit motion coverage`.
+pub fn coverage(args: &CoverageArgs) -> Result<Value> {
+    if args.train.is_empty() {
+        bail!("lfit motion coverage needs --train FILE [FILE ...] (training motion files)");
+    }
+    if !(args.tolerance.is_finite() && args.tolerance >= 0.0) {
+        bail!(
+            "--tolerance {} is not a non-negative number",
+            args.tolerance
+        );
+    }
+    let template = args.model.as_deref().map(|m| load(Some(m))).transpose()?;
+    let mut train = Vec::with_capacity(args.train.len());
+    for path in &args.train {
+        train.push(MotionClip::read(path)?);
+    }
+    let eval = MotionClip::read(&args.eval)?;
+    let layout = match &template {
+        Some(t) => t.layout(),
+        None => train[0].model.layout.clone(),
+    };
+    for (path, clip) in args.train.iter().zip(&train).chain([(&args.eval, &eval)]) {
+        if clip.model.layout != layout {
+            bail!(
+                "motion {} was made for model '{}' ({} joints), not for {} ({} joints); every motion must be for the same model",
+                path.display(),
+                clip.model.id,
+                clip.model.layout.num_joints(),
+                template.as_ref().map_or_else(
+                    || format!(
+                        "model '{}' of {}",
+                        train[0].model.id,
+                        args.train[0].display()
+                    ),
+                    |t| format!("model '{}'", t.id)
+                ),
+                layout.num_joints()
+            );
+        }
+    }
+    let mut counted = Vec::with_capacity(args.joints.len());
+    for name in &args.joints {
+        let Some(j) = layout.joints.iter().position(|n| n == name) else {
+            bail!(
+                "--joints names '{name}', which model '{}' does not have (its joints: {})",
+                train[0].model.id,
+                layout.joints.join(", ")
+            );
+        };
+        if j == 0 {
+            bail!("--joints names the root '{name}', whose orientation is reported on its own");
+        }
+        counted.push(j);
+    }
+    let slices: Vec<&[Vec<f64>]> = train.iter().map(|c| c.poses.as_slice()).collect();
+    let c = lfit_synth::coverage::coverage(
+        &layout,
+        &slices,
+        &eval.poses,
+        args.tolerance,
+        (!counted.is_empty()).then_some(counted.as_slice()),
+    )
+    .map_err(anyhow::Error::msg)?;
+    let body: Vec<&lfit_synth::coverage::AxisCoverage> = c
+        .axes
+        .iter()
+        .filter(|a| c.counted.contains(&a.joint))
+        .collect();
+    let mut worst = body.clone();
+    worst.sort_by(|a, b| b.outside.total_cmp(&a.outside));
+    let row = |a: &lfit_synth::coverage::AxisCoverage| {
+        json!({
+            "axis": a.name,
+            "outside": a.outside,
+            "p1_deg": a.p1.to_degrees(),
+            "p99_deg": a.p99.to_degrees(),
+        })
+    };
+    Ok(json!({
+        "model": train[0].model.id,
+        "train_files": args.train.len(),
+        "train_frames": c.train_frames,
+        "eval": args.eval.display().to_string(),
+        "eval_frames": c.eval_frames,
+        "covered": c.covered,
+        "covered_with_root": c.covered_with_root,
+        "joints_counted": c.counted.iter().map(|&j| layout.joints[j].as_str()).collect::<Vec<_>>(),
+        "axes": body.len(),
+        "axes_with_outside_frames": body.iter().filter(|a| a.outside > 0.0).count(),
+        "worst": worst.iter().take(args.worst).copied().map(row).collect::<Vec<_>>(),
+        "root": c.axes.iter().filter(|a| a.joint == 0).map(row).collect::<Vec<_>>(),
+        "percentiles": [1, 99],
+        "tolerance_rad": args.tolerance,
     }))
 }

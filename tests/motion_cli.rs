@@ -1104,12 +1104,409 @@ fn motion_help_works() {
         &["motion", "--help"][..],
         &["motion", "import", "--help"],
         &["motion", "export", "--help"],
+        &["motion", "coverage", "--help"],
     ] {
         let run = lfit(args);
         assert!(run.status.success(), "{args:?}");
         let text = String::from_utf8_lossy(&run.stdout);
         assert!(text.contains("Usage"), "{text}");
     }
+}
+
+/// Local rotation error (rad) of the mapped joints (those of `NAMES`) between known and imported
+/// poses, worst over frames.
+fn worst_mapped_rotation(s: &Skeleton, known: &[Vec<f64>], got: &[Vec<f64>]) -> f64 {
+    let mut worst: f64 = 0.0;
+    for (a, b) in known.iter().zip(got) {
+        for (m, _) in NAMES {
+            let j = index(s, m);
+            let ra = rodrigues([a[3 + 3 * j], a[4 + 3 * j], a[5 + 3 * j]]);
+            let rb = rodrigues([b[3 + 3 * j], b[4 + 3 * j], b[5 + 3 * j]]);
+            worst = worst.max(angle_between(&ra, &rb));
+        }
+    }
+    worst
+}
+
+#[test]
+fn stride_keeps_every_nth_frame_and_zero_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = model_file(dir.path());
+    let s = skeleton(&model);
+    let poses = random_poses(&s, 25, 5);
+    let fit = dir.path().join("fit.json");
+    std::fs::write(&fit, serde_json::json!({ "poses": poses }).to_string()).unwrap();
+    let bvh = dir.path().join("fit.bvh");
+    lfit_json(&[
+        "motion",
+        "export",
+        "--format",
+        "bvh",
+        "--model",
+        path_str(&model),
+        "--fit",
+        path_str(&fit),
+        "--fps",
+        "50",
+        "--out",
+        path_str(&bvh),
+    ]);
+    let import = |stride: &str, out: &Path| {
+        lfit(&[
+            "motion",
+            "import",
+            "--bvh",
+            path_str(&bvh),
+            "--model",
+            path_str(&model),
+            "--stride",
+            stride,
+            "--out",
+            path_str(out),
+        ])
+    };
+    let all = dir.path().join("all.npz");
+    let half = dir.path().join("half.npz");
+    assert!(import("1", &all).status.success());
+    let run = import("2", &half);
+    assert!(run.status.success());
+    let summary: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(summary["frames"], 13);
+    assert_eq!(summary["source_frames"], 25);
+    assert_eq!(summary["stride"], 2);
+    let (all, half) = (read_motion(&all), read_motion(&half));
+    assert_eq!(all.poses.len(), 25);
+    assert_eq!(half.poses.len(), 13);
+    assert!((all.fps - 50.0).abs() < 1e-6);
+    assert!((half.fps - 25.0).abs() < 1e-6, "fps {}", half.fps);
+    assert!(half.source.contains("stride:2"), "{}", half.source);
+    // Frame k of the strided clip is frame 2k of the whole one, and of the exported poses.
+    for (k, p) in half.poses.iter().enumerate() {
+        assert_eq!(p, &all.poses[2 * k], "frame {k}");
+    }
+    let every_second: Vec<Vec<f64>> = poses.iter().step_by(2).cloned().collect();
+    let worst = worst_mapped_rotation(&s, &every_second, &half.poses);
+    assert!(worst <= 1e-6, "strided frames differ by {worst} rad");
+    // A stride of 0 is a one-line error and writes nothing.
+    let never = dir.path().join("never.npz");
+    assert_one_line_error(&import("0", &never), "--stride 0");
+    assert!(!never.exists());
+}
+
+#[test]
+fn a_rest_pose_file_fixes_the_limb_twist_of_a_capture_whose_zero_pose_has_its_legs_up() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model, s, poses, _bvh, map) = setup(dir.path());
+    // The capture of `setup` (T-pose arms), but with the legs' rest bones turned a half turn
+    // about x: in the zero-channel pose they point up from the hips, as Character Creator's do.
+    let mut c = capture(&s);
+    let legs = ["l_hip", "l_knee", "l_ankle", "r_hip", "r_knee", "r_ankle"];
+    for name in legs {
+        c.t_rest[index(&s, name)] = rot_x(std::f64::consts::PI);
+    }
+    for j in 0..s.names.len() {
+        if let Some(p) = s.parent[j] {
+            c.rest[j] = add(c.rest[p], apply(&c.t_rest[p], sub(s.rest[j], s.rest[p])));
+        }
+    }
+    let knee = index(&s, "l_knee");
+    assert!(c.rest[knee][1] > c.rest[index(&s, "l_hip")][1] + 0.3, "the legs point up");
+    let bvh = dir.path().join("legs_up.bvh");
+    std::fs::write(&bvh, write_capture(&s, &c, &poses)).unwrap();
+    // Its rest pose: the legs turned back (world rotation relative to the zero pose).
+    let rest = dir.path().join("rest.json");
+    let entries: Vec<String> = legs
+        .iter()
+        .map(|m| format!("\"{}\": \"X 180\"", bvh_name(&s, index(&s, m))))
+        .collect();
+    std::fs::write(
+        &rest,
+        format!(
+            "{{\"description\": \"legs down\", \"joints\": {{{}}}}}",
+            entries.join(", ")
+        ),
+    )
+    .unwrap();
+    let import = |out: &Path, rest: Option<&Path>| {
+        let mut args = vec![
+            "motion",
+            "import",
+            "--bvh",
+            path_str(&bvh),
+            "--map",
+            path_str(&map),
+            "--model",
+            path_str(&model),
+            "--units",
+            "cm",
+            "--out",
+            path_str(out),
+        ];
+        if let Some(r) = rest {
+            args.extend(["--rest-pose", path_str(r)]);
+        }
+        lfit(&args)
+    };
+    // Without the rest pose the bone directions still match (each bone is aligned on its own),
+    // but the minimal rest alignment of an upside-down leg twists it: the rotations are wrong.
+    let plain = dir.path().join("plain.npz");
+    let run = import(&plain, None);
+    assert!(run.status.success());
+    let summary: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert!(summary["bone_cosine_min"].as_f64().unwrap() > 0.99);
+    let twisted = worst_mapped_rotation(&s, &poses, &read_motion(&plain).poses);
+    assert!(twisted > 1.0, "without the rest pose: {twisted} rad");
+    // With it, the poses come back.
+    let fixed = dir.path().join("fixed.npz");
+    let run = import(&fixed, Some(&rest));
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert!(summary["bone_cosine_min"].as_f64().unwrap() > 1.0 - 1e-9);
+    let clip = read_motion(&fixed);
+    assert!(clip.source.contains("rest:rest.json"), "{}", clip.source);
+    let worst = worst_mapped_rotation(&s, &poses, &clip.poses);
+    println!("legs-up capture: worst rotation {twisted:.3} rad without the rest pose, {worst:.3e} rad with it");
+    assert!(worst <= 1e-6, "with the rest pose: {worst} rad");
+    // Bad rest-pose files and misuse are one-line errors that write nothing.
+    let never = dir.path().join("never.npz");
+    for (text, needle) in [
+        ("{\"joints\": {\"NoSuchJoint\": \"X 180\"}}", "NoSuchJoint"),
+        ("{\"joints\": {\"LeftUpLeg\": \"X\"}}", "axis degrees"),
+        ("{\"joints\": {\"LeftUpLeg\": \"Q 10\"}}", "not an axis"),
+        ("not json", "malformed JSON"),
+    ] {
+        let bad = dir.path().join("bad_rest.json");
+        std::fs::write(&bad, text).unwrap();
+        assert_one_line_error(&import(&never, Some(&bad)), needle);
+        assert!(!never.exists(), "{text}");
+    }
+    assert_one_line_error(
+        &import(&never, Some(&dir.path().join("missing.json"))),
+        "missing.json",
+    );
+    assert!(!never.exists());
+}
+
+#[test]
+fn neutral_joints_copy_their_rotation_where_the_rigs_place_a_trunk_joint_differently() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model, s, poses, bvh, map) = setup(dir.path());
+    // The same capture with its spine joint placed elsewhere: the Hips -> Spine offset turned
+    // 25 degrees forward about x (its length kept). The rotations are those of the model.
+    let text = std::fs::read_to_string(&bvh).unwrap();
+    let at = text.find("JOINT Spine\n").unwrap();
+    let line_start = at + text[at..].find("OFFSET").unwrap();
+    let line_end = line_start + text[line_start..].find('\n').unwrap();
+    let v: Vec<f64> = text[line_start..line_end]
+        .split_whitespace()
+        .skip(1)
+        .map(|x| x.parse().unwrap())
+        .collect();
+    let o = apply(&rot_x(25f64.to_radians()), [v[0], v[1], v[2]]);
+    let moved = format!(
+        "{}OFFSET {:.9} {:.9} {:.9}{}",
+        &text[..line_start],
+        o[0],
+        o[1],
+        o[2],
+        &text[line_end..]
+    );
+    let bvh = dir.path().join("moved_spine.bvh");
+    std::fs::write(&bvh, moved).unwrap();
+    let rest = dir.path().join("rest.json");
+    let import = |out: &Path, neutral: &str| {
+        std::fs::write(
+            &rest,
+            format!("{{\"joints\": {{\"Hips\": \"\"}}, \"neutral\": [{neutral}]}}"),
+        )
+        .unwrap();
+        lfit(&[
+            "motion",
+            "import",
+            "--bvh",
+            path_str(&bvh),
+            "--map",
+            path_str(&map),
+            "--model",
+            path_str(&model),
+            "--rest-pose",
+            path_str(&rest),
+            "--out",
+            path_str(out),
+        ])
+    };
+    let root_error = |clip: &MotionClip| {
+        let mut worst: f64 = 0.0;
+        for (a, b) in poses.iter().zip(&clip.poses) {
+            worst = worst.max(angle_between(
+                &rodrigues([a[3], a[4], a[5]]),
+                &rodrigues([b[3], b[4], b[5]]),
+            ));
+        }
+        worst
+    };
+    // Aligned by bone directions the hips pitch to follow the moved spine bone.
+    let aligned = dir.path().join("aligned.npz");
+    let run = import(&aligned, "");
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let pitched = root_error(&read_motion(&aligned));
+    assert!(pitched > 0.05, "direction alignment: root error {pitched} rad");
+    // Neutral hips copy the rotation: every mapped joint comes back; the moved bone's direction
+    // differs by (up to) the 25 degrees it was turned.
+    let neutral = dir.path().join("neutral.npz");
+    let run = import(&neutral, "\"Hips\"");
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let summary: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let clip = read_motion(&neutral);
+    let worst = worst_mapped_rotation(&s, &poses, &clip.poses);
+    println!("moved spine joint: root error {pitched:.3} rad aligned by directions, rotations {worst:.3e} rad with neutral hips");
+    assert!(worst <= 1e-6, "neutral hips: {worst} rad");
+    let min = summary["bone_cosine_min"].as_f64().unwrap();
+    assert!(
+        min >= 25f64.to_radians().cos() - 1e-9 && min < 0.99,
+        "min cosine {min}"
+    );
+    // A neutral joint the map does not map, or the file does not have: one-line errors.
+    let never = dir.path().join("never.npz");
+    assert_one_line_error(&import(&never, "\"Nowhere\""), "Nowhere");
+    assert!(!never.exists());
+}
+
+/// A motion file of `model` written here: frame k has `values[k]` at rotation entry `entry`,
+/// zeros elsewhere.
+fn motion_with(model: &Path, entry: usize, values: &[f64], out: &Path) {
+    let t = Template::load(model).unwrap();
+    let dim = t.param_dim();
+    let poses = values
+        .iter()
+        .map(|v| {
+            let mut p = vec![0.0; dim];
+            p[entry] = *v;
+            p
+        })
+        .collect();
+    MotionClip {
+        poses,
+        fps: 30.0,
+        source: "test".into(),
+        model: t.signature(),
+    }
+    .write(out)
+    .unwrap();
+}
+
+#[test]
+fn coverage_of_an_evaluation_motion_by_training_motions() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = model_file(dir.path());
+    let s = skeleton(&model);
+    let knee = 3 + 3 * index(&s, "l_knee");
+    // Training: the left knee's x from 0 to 1 rad in steps of 0.01 over two files (p1 = 0.01,
+    // p99 = 0.99); evaluation: 0, 0.5, 1 and 0.3 -> 0 and 1 outside, half the frames covered.
+    let a = dir.path().join("a.npz");
+    let b = dir.path().join("b.npz");
+    let e = dir.path().join("e.npz");
+    let ks: Vec<f64> = (0..=100).map(|k| f64::from(k) / 100.0).collect();
+    motion_with(&model, knee, &ks[..50], &a);
+    motion_with(&model, knee, &ks[50..], &b);
+    motion_with(&model, knee, &[0.0, 0.5, 1.0, 0.3], &e);
+    let c = lfit_json(&[
+        "motion",
+        "coverage",
+        "--train",
+        path_str(&a),
+        path_str(&b),
+        "--eval",
+        path_str(&e),
+        "--model",
+        path_str(&model),
+    ]);
+    assert_eq!(c["train_files"], 2);
+    assert_eq!(c["train_frames"], 101);
+    assert_eq!(c["eval_frames"], 4);
+    assert!((c["covered"].as_f64().unwrap() - 0.5).abs() < 1e-12, "{c}");
+    assert_eq!(c["worst"][0]["axis"], "l_knee.rx");
+    assert!((c["worst"][0]["outside"].as_f64().unwrap() - 0.5).abs() < 1e-12);
+    assert!((c["worst"][0]["p1_deg"].as_f64().unwrap() - 0.01f64.to_degrees()).abs() < 1e-9);
+    assert_eq!(c["worst"].as_array().unwrap().len(), 10);
+    assert_eq!(c["worst"][1]["outside"], 0.0);
+    assert_eq!(c["axes_with_outside_frames"], 1);
+    // Without --model: the training files' model; the same answer.
+    let c2 = lfit_json(&[
+        "motion",
+        "coverage",
+        "--train",
+        path_str(&a),
+        path_str(&b),
+        "--eval",
+        path_str(&e),
+    ]);
+    assert_eq!(c2["covered"], c["covered"]);
+    // Counting only joints that stay inside (the right leg): every frame covered; the knee
+    // still listed among all axes' statistics only when counted.
+    let c3 = lfit_json(&[
+        "motion",
+        "coverage",
+        "--train",
+        path_str(&a),
+        path_str(&b),
+        "--eval",
+        path_str(&e),
+        "--joints",
+        "r_hip,r_knee",
+    ]);
+    assert_eq!(c3["covered"], 1.0);
+    assert_eq!(c3["joints_counted"], serde_json::json!(["r_hip", "r_knee"]));
+    assert_eq!(c3["axes"], 6);
+    assert_one_line_error(
+        &lfit(&[
+            "motion",
+            "coverage",
+            "--train",
+            path_str(&a),
+            "--eval",
+            path_str(&e),
+            "--joints",
+            "r_knee,tail",
+        ]),
+        "'tail'",
+    );
+    // No training files, or a motion of another model: one-line errors.
+    assert_one_line_error(
+        &lfit(&["motion", "coverage", "--eval", path_str(&e)]),
+        "--train",
+    );
+    let other = dir.path().join("other.npz");
+    let mh = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/makehuman-cmu_mb.npz");
+    motion_with(&mh, 3, &[0.0, 0.1], &other);
+    assert_one_line_error(
+        &lfit(&[
+            "motion",
+            "coverage",
+            "--train",
+            path_str(&a),
+            "--eval",
+            path_str(&other),
+        ]),
+        "same model",
+    );
+    assert_one_line_error(
+        &lfit(&[
+            "motion",
+            "coverage",
+            "--train",
+            path_str(&other),
+            "--eval",
+            path_str(&e),
+            "--model",
+            path_str(&model),
+        ]),
+        "same model",
+    );
 }
 
 // ---- The real clip. ----
@@ -1316,6 +1713,10 @@ fn the_mocapbank_clip_drives_the_makehuman_game_engine_rig() {
     assert!(mean >= 0.98, "mean cosine {mean}");
 }
 
+/// Most frames of the MocapBank clip on `cmu_mb` of which a joint leaves the human range of
+/// motion (docs/results/makehuman-import.md: measured 0 of 455).
+const CLIP_FRAMES_OUTSIDE_LIMITS: usize = 0;
+
 #[test]
 fn the_mocapbank_clip_drives_the_makehuman_cmu_mb_model_and_feeds_synth() {
     let Some(clip_path) = support::mocapbank_clip() else {
@@ -1339,6 +1740,24 @@ fn the_mocapbank_clip_drives_the_makehuman_cmu_mb_model_and_feeds_synth() {
         summary["root_scale"].as_f64().unwrap()
     );
     assert!(mean >= 0.98, "mean cosine {mean}");
+    // The clip within the model's bounds (the root's orientation free, ±180°; its joints within
+    // the human ranges of motion): the frames that lfit synth clamps, and the frames with a joint
+    // outside its limits. With papers/000's limits on the mapped joints, 392 of the 455 frames
+    // were clamped.
+    let m = lfit::model::modelfile::load(&model).unwrap();
+    let global = lfit::model::Bounds::global_for(&m);
+    let pd = m.layout().pose_dim();
+    let outside = |p: &[f64], from: usize| {
+        (from..pd).filter(|&i| p[i] < global.lower[i] || p[i] > global.upper[i]).count()
+    };
+    let clamped = clip.poses.iter().filter(|p| outside(p, 3) > 0).count();
+    let joints_out = clip.poses.iter().filter(|p| outside(p, 6) > 0).count();
+    let entries: usize = clip.poses.iter().map(|p| outside(p, 6)).sum();
+    println!(
+        "MocapBank clip on makehuman-cmu_mb: {clamped} of 455 frames outside the global box, {joints_out} with a joint outside its limits ({entries} rotation entries in all)"
+    );
+    assert_eq!(clamped, joints_out, "the root's orientation is never clamped");
+    assert!(clamped <= CLIP_FRAMES_OUTSIDE_LIMITS, "{clamped} frames clamped");
     // The imported clip feeds lfit synth on the same model: a sequence of its frames.
     let motion = dir.path().join("mocapbank_to_makehuman_cmu_mb.json.npz");
     let data = dir.path().join("clip_sequence.npz");

@@ -26,7 +26,10 @@ use lfit::nn::unroll::{core_rows, evaluate, observation_rows, rows_to_poses, ste
 use lfit::nn::{
     CoreKind, Dropout, FeatureStats, GammaMode, NetConfig, NeuralNet, StepShape, UpdateRule,
 };
-use lfit::train::{Frames, base_energy, measure_stats, synth_frames};
+use lfit::train::{
+    Frames, Motions, TrainConfig, base_energy, measure_stats, measure_stats_with, synth_frames,
+    training_frames,
+};
 use prost::Message;
 use support::{assert_one_line_error, lfit, lfit_json, path_str, skip_unless_required};
 
@@ -115,13 +118,15 @@ fn lockstep(
     let mut current = starts.to_vec();
     for n in 0..c.iterations {
         let evals = evaluate(energies, &current);
+        let d = c.obs_features();
         let core_in = core_rows(
             c,
             stats,
+            energies,
             &evals,
             &current,
             &(0..batch)
-                .map(|i| obs[i * 2 * c.residual_dim..(i + 1) * 2 * c.residual_dim].to_vec())
+                .map(|i| obs[i * d..(i + 1) * d].to_vec())
                 .collect::<Vec<_>>(),
         )
         .expect("core rows");
@@ -163,7 +168,8 @@ fn lockstep(
                 &current,
                 &evals,
                 &rows_to_poses(&flat(&delta), c.param_dim),
-            );
+            )
+            .expect("step rows");
             let sizes = net.step_sizes(n, rows(&step_in, batch), &mut state, &mut Dropout::off());
             let out = ort
                 .step(
@@ -436,6 +442,94 @@ fn every_ablation_variant_exports_and_matches_burn() {
             &frames.dataset.start_poses,
         );
         eprintln!("{name}: worst difference {worst:e}");
+    }
+}
+
+/// A pooled (camera-agnostic) keypoints2d network exports like any other (the pooling is on the
+/// host, the graphs keep fixed-size inputs): on a batch of random rigs of 1–8 cameras every
+/// network output of every iteration matches Burn, and so does the whole loop.
+#[test]
+fn a_pooled_keypoints_network_matches_burn_on_rigs_of_1_to_8_cameras() {
+    if !ort_ready() {
+        return;
+    }
+    let template = Arc::new(default_template());
+    let sensor = Sensor::default_for(Modality::Keypoints2d, &template);
+    let base = base_energy(&template, &sensor).expect("energy");
+    let network = NetConfig {
+        modality: Modality::Keypoints2d,
+        residual_dim: 2 * template.rig.num_joints(),
+        views: lfit::nn::Views::Pooled,
+        iterations: 3,
+        hidden: 24,
+        init_width: 16,
+        layers: 2,
+        ..NetConfig::default()
+    };
+    let train = TrainConfig {
+        modality: Modality::Keypoints2d,
+        network: network.clone(),
+        ..TrainConfig::default()
+    };
+    let frames = training_frames(
+        &train,
+        &template,
+        &sensor,
+        &base,
+        10,
+        0x007B_0000,
+        &Motions::default(),
+    )
+    .expect("frames");
+    let counts: Vec<usize> = frames
+        .energies
+        .iter()
+        .map(|e| e.sensor().cameras().len())
+        .collect();
+    assert!(
+        counts.iter().min() < counts.iter().max(),
+        "rigs of several sizes: {counts:?}"
+    );
+    let stats = measure_stats_with(&frames, &network).expect("stats");
+    let net = NeuralNet::new(&network, 7, &ndarray_device()).expect("net");
+    let meta = CheckpointMeta::new(&template, network.clone());
+    let exported = export(&net, &meta, &stats).expect("export");
+    let mut ort =
+        OrtNetwork::from_exported(&exported, Path::new("pooled"), SessionOptions::default())
+            .expect("sessions");
+    let energies: Vec<&Energy> = frames.energies.iter().collect();
+    let worst = lockstep(
+        &net,
+        &stats,
+        &mut ort,
+        &energies,
+        &frames.dataset.start_poses,
+    );
+    eprintln!("pooled, cameras {counts:?}: worst difference {worst:e}");
+    // The whole loop, from Φ(D) and from the start poses.
+    for given in [false, true] {
+        let starts: Vec<Option<Vec<f64>>> = frames
+            .dataset
+            .start_poses
+            .iter()
+            .map(|s| given.then(|| s.clone()))
+            .collect();
+        let burn = lfit::nn::unroll(
+            &net,
+            &stats,
+            &energies,
+            &starts,
+            None,
+            &ndarray_device(),
+            &mut Dropout::off(),
+        )
+        .expect("burn");
+        let onnx = lfit::infer::onnx::runtime::unroll_ort(&mut ort, &energies, &starts, None)
+            .expect("ort");
+        for (a, b) in burn.host.iter().flatten().zip(onnx.iter().flatten()) {
+            let d = v2v_mm(&template, a, b);
+            assert!(d < 1.0, "given {given}: Burn and ORT {d} mm apart");
+        }
     }
 }
 
@@ -796,6 +890,7 @@ fn the_python_example_runs_the_exported_step_as_burn_does() {
         let core_in = core_rows(
             c,
             stats,
+            &[energy],
             &evals,
             std::slice::from_ref(&pose),
             std::slice::from_ref(&obs),
@@ -812,7 +907,8 @@ fn the_python_example_runs_the_exported_step_as_burn_does() {
             std::slice::from_ref(&pose),
             &evals,
             &delta_host,
-        );
+        )
+        .expect("step rows");
         let sizes = net.step_sizes(0, rows(&step_in, 1), &mut state, &mut Dropout::off());
         let update = net.update(delta.clone(), grad, &sizes);
         let mut tried = pose.clone();

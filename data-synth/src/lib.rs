@@ -4,6 +4,7 @@
 
 pub mod bvh;
 pub mod c3d;
+pub mod coverage;
 pub mod dataset;
 pub mod error;
 pub mod import;
@@ -12,6 +13,7 @@ pub mod motion;
 pub mod motion_io;
 pub mod noise;
 pub mod npz;
+pub mod rest_pose;
 pub mod retarget;
 pub mod synth;
 

@@ -5,6 +5,7 @@
 //! with `--resume`, a NaN/Inf stop that keeps the last good checkpoint, and a metrics CSV.
 
 pub mod loss;
+pub mod starts;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -14,15 +15,16 @@ use burn::module::Module;
 use burn::optim::grad_clipping::GradientClippingConfig;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Bytes, Device};
+use lfit_model::camera::RigRanges;
 use lfit_model::energy::{Energy, EnergyConfig, Target};
 use lfit_model::metrics::{mpjpe_mm, v2v_mm};
-use lfit_model::observe::{Modality, Sensor};
+use lfit_model::observe::{KeypointSetup, Modality, Sensor};
 use lfit_model::{Block, Bounds, Template};
 use lfit_nn::checkpoint::{self, checkpoint_files, write_dir};
 use lfit_nn::tensor::poses_to_tensor;
 use lfit_nn::{
-    Constraints, Dropout, FeatureStats, NetConfig, NeuralNet, StartMode, observation_features,
-    unroll,
+    Constraints, Dropout, FeatureStats, NetConfig, NeuralNet, StartMode, Views,
+    observation_features, observation_features_for, residual_features, unroll,
 };
 use lfit_synth::{
     Dataset, MotionFile, NoiseConfig, Observations, PoseSource, Scenario, SynthConfig, synthesize,
@@ -34,6 +36,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::json;
 
 pub use loss::{Loss, LossWeights};
+pub use starts::StartMix;
 
 /// Training errors; each is one line naming the cause.
 #[derive(Debug, thiserror::Error)]
@@ -115,6 +118,26 @@ pub struct TrainConfig {
     /// trained on (the face's: `configs/face-energy.json`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub energy: Option<EnergyConfig>,
+    /// Random camera rigs of a pooled `keypoints2d` network (`network.views = "pooled"`): every
+    /// synthesised frame (training batches, validation, statistics) is seen by a rig of its own
+    /// drawn from these ranges ([`RigRanges`]; absent: its defaults, 1–8 cameras). Refused for a
+    /// fixed-rig network, which fits only the sensor it was trained on.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rigs: Option<RigRanges>,
+    /// `markers`: the probability that a whole marker of a synthesised frame (training batches,
+    /// validation, statistics) is made invisible, on top of the noise model's dropouts, so the
+    /// network learns to fit with missing markers. 0 (the default): none.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub marker_dropout: f64,
+    /// Where each sample's θ0 comes from ([`StartMix`]: Φ(D), the scenario's start, perturbed
+    /// truth, the rigidly aligned rest pose, the network's own previous-frame result). Absent:
+    /// `network.start` decides alone (Φ(D), the scenario's start, or either by a fair coin).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub starts: Option<StartMix>,
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 fn is_motion(s: &PoseSource) -> bool {
@@ -143,6 +166,9 @@ impl Default for TrainConfig {
             with_library: false,
             source: PoseSource::Motion,
             energy: None,
+            rigs: None,
+            marker_dropout: 0.0,
+            starts: None,
         }
     }
 }
@@ -208,6 +234,7 @@ impl TrainConfig {
                 );
             }
         }
+        self.validate_views()?;
         if self.steps == 0 {
             return bad("steps", "0".into(), "must be at least 1");
         }
@@ -254,11 +281,70 @@ impl TrainConfig {
         if !(self.noise.is_finite() && self.noise >= 0.0) {
             return bad("noise", self.noise.to_string(), "must be ≥ 0");
         }
+        if let Some(mix) = &self.starts {
+            mix.validate(self.source)?;
+            if mix.previous_count(self.batch) >= self.batch {
+                return bad(
+                    "starts.previous",
+                    mix.previous.to_string(),
+                    "leaves no sample of the batch to the other sources",
+                );
+            }
+        }
         if self.with_library && self.motions.is_empty() {
             return bad(
                 "with_library",
                 "true".into(),
                 "mixes the library with motion files: list them in \"motions\"",
+            );
+        }
+        Ok(())
+    }
+
+    /// Checks `network.views`, `rigs` and `marker_dropout` against the modality.
+    fn validate_views(&self) -> Result<()> {
+        let bad = |name, value: String, reason: String| {
+            Err(TrainError::Setting {
+                name,
+                value,
+                reason,
+            })
+        };
+        let pooled = self.network.views == Views::Pooled;
+        if pooled && self.modality != Modality::Keypoints2d {
+            return bad(
+                "network.views",
+                "pooled".into(),
+                format!("pools keypoints2d cameras; {} has none", self.modality),
+            );
+        }
+        if let Some(r) = &self.rigs {
+            if !pooled {
+                return bad(
+                    "rigs",
+                    "{..}".into(),
+                    "random rigs train a camera-agnostic network: set network.views to \"pooled\""
+                        .into(),
+                );
+            }
+            r.validate().map_err(|e| TrainError::Setting {
+                name: "rigs",
+                value: "{..}".into(),
+                reason: e.to_string(),
+            })?;
+        }
+        if !(self.marker_dropout.is_finite() && (0.0..1.0).contains(&self.marker_dropout)) {
+            return bad(
+                "marker_dropout",
+                self.marker_dropout.to_string(),
+                "must be in [0, 1)".into(),
+            );
+        }
+        if self.marker_dropout > 0.0 && self.modality != Modality::Markers {
+            return bad(
+                "marker_dropout",
+                self.marker_dropout.to_string(),
+                format!("drops markers; {} data has none", self.modality),
             );
         }
         Ok(())
@@ -277,6 +363,14 @@ impl TrainConfig {
 /// Seeds of the synthesised data: training batches, validation, statistics, and (for
 /// evaluation elsewhere) a held-out test range none of them touches.
 pub mod seeds {
+    /// Seed of the random rigs of a set synthesised with dataset seed `frames`.
+    pub fn rigs(frames: u64) -> u64 {
+        frames ^ 0x5215_0000_0000_0001
+    }
+    /// Seed of the marker dropout of a set synthesised with dataset seed `frames`.
+    pub fn marker_dropout(frames: u64) -> u64 {
+        frames ^ 0xD209_0000_0000_0002
+    }
     /// Dataset seed of training batch `step`.
     pub fn batch(seed: u64, step: usize) -> u64 {
         seed.wrapping_mul(0x9E37_79B9_7F4A_7C15)
@@ -409,12 +503,162 @@ pub fn base_energy_with(
     )?)
 }
 
-/// Feature statistics from `frames`: observations, and residuals/gradients/poses at the poses
-/// the fitter visits early (the scenario's start poses, the rest pose at the origin where Φ
-/// starts, and halfway to the target).
-pub fn measure_stats(frames: &Frames) -> FeatureStats {
+/// What a training config changes in synthesised frames (`seed`: the set's dataset seed): a
+/// pooled network's frames get random rigs ([`random_rigs`], `config.rigs`), markers frames
+/// lose markers with `config.marker_dropout` ([`drop_markers`]); other frames pass unchanged.
+pub fn augment_frames(
+    config: &TrainConfig,
+    base: &Energy,
+    mut frames: Frames,
+    seed: u64,
+) -> Result<Frames> {
+    if config.network.views == Views::Pooled {
+        let ranges = config.rigs.clone().unwrap_or_default();
+        random_rigs(&mut frames, base, &ranges, seeds::rigs(seed), config.noise)?;
+    }
+    if config.marker_dropout > 0.0 {
+        drop_markers(
+            &mut frames,
+            config.marker_dropout,
+            seeds::marker_dropout(seed),
+        )?;
+    }
+    Ok(frames)
+}
+
+/// [`synth_frames_with`] then [`augment_frames`]: the frames a training run with `config` sees.
+pub fn training_frames(
+    config: &TrainConfig,
+    template: &Arc<Template>,
+    sensor: &Sensor,
+    base: &Energy,
+    frames: usize,
+    seed: u64,
+    motions: &Motions,
+) -> Result<Frames> {
+    let f = synth_frames_with(template, sensor, base, frames, seed, config.noise, motions)?;
+    augment_frames(config, base, f, seed)
+}
+
+/// Gives every frame its own random `keypoints2d` rig drawn from `ranges` around the frame's
+/// subject (aimed at its root joint), and its observations in that rig: the clean projection
+/// of the ground truth corrupted by the noise model scaled by `noise` (0: clean). Frame `i`
+/// draws from stream `i` of `seed`, so the same seed gives the same rigs and observations.
+/// `frames.energies` carry the new rigs; `frames.dataset` keeps the poses (its `observations`
+/// and `sensor` remain those of the synthesised rig).
+pub fn random_rigs(
+    frames: &mut Frames,
+    base: &Energy,
+    ranges: &RigRanges,
+    seed: u64,
+    noise: f64,
+) -> Result<()> {
+    ranges.validate()?;
+    let noise = if noise == 0.0 {
+        lfit_model::noise::NoiseConfig::none()
+    } else {
+        lfit_model::noise::NoiseConfig::scaled(noise)?
+    };
+    let template = base.template();
+    let root = template
+        .rig
+        .joints
+        .first()
+        .map_or(glam::DVec3::ZERO, |j| j.rest());
+    frames.energies = frames
+        .dataset
+        .gt_poses
+        .par_iter()
+        .enumerate()
+        .map(|(i, gt)| {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            rng.set_stream(i as u64);
+            let at = root + glam::DVec3::new(gt[0], gt[1], gt[2]);
+            let sensor = Sensor::Keypoints2d(KeypointSetup {
+                cameras: ranges.sample(&mut rng, at),
+            });
+            let pred = sensor.predict_sparse(template, gt);
+            let (mut values, mut visible) = (pred.values, pred.visible);
+            sensor
+                .observation_model()
+                .corrupt(&mut values, &mut visible, &noise, &mut rng);
+            base.with_sensor(sensor, values, visible)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(())
+}
+
+/// Makes each whole marker (3 entries) of every frame invisible with probability `rate` (its
+/// values become 0, as the noise model reports unseen markers); frame `i` draws from stream `i`
+/// of `seed`. Markers already unseen stay unseen.
+pub fn drop_markers(frames: &mut Frames, rate: f64, seed: u64) -> Result<()> {
+    if !(rate.is_finite() && (0.0..=1.0).contains(&rate)) {
+        return Err(TrainError::Setting {
+            name: "marker_dropout",
+            value: rate.to_string(),
+            reason: "must be in [0, 1)".into(),
+        });
+    }
+    frames.energies = frames
+        .energies
+        .par_iter()
+        .enumerate()
+        .map(|(i, e)| {
+            let (Target::Sparse { values, visible }, Modality::Markers) =
+                (e.target(), e.modality())
+            else {
+                return Err(lfit_model::ModelError::Target(format!(
+                    "marker dropout needs markers data, not {}",
+                    e.sensor().name()
+                )));
+            };
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            rng.set_stream(i as u64);
+            let (mut values, mut visible) = (values.clone(), visible.clone());
+            for (v, s) in values.chunks_mut(3).zip(visible.chunks_mut(3)) {
+                if rng.random_bool(rate) {
+                    v.fill(0.0);
+                    s.fill(false);
+                }
+            }
+            e.with_target(values, visible)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(())
+}
+
+/// The residual length a network of `net` (views) has on `sensor`: the sensor's, or for a
+/// pooled network one camera's part of it (the sensor must be `keypoints2d`).
+pub fn network_residual_dim(
+    net: &NetConfig,
+    sensor: &Sensor,
+    template: &Template,
+) -> Result<usize> {
+    let dim = sensor.residual_dim(template);
+    match (net.views, sensor) {
+        (Views::Fixed, _) => Ok(dim),
+        (Views::Pooled, Sensor::Keypoints2d(s)) if !s.cameras.is_empty() => {
+            Ok(dim / s.cameras.len())
+        }
+        (Views::Pooled, _) => Err(TrainError::Setting {
+            name: "network.views",
+            value: "pooled".into(),
+            reason: format!(
+                "pools the cameras of a keypoints2d sensor; this {} sensor has none",
+                sensor.name()
+            ),
+        }),
+    }
+}
+
+/// The residuals, gradients and poses of every frame at the poses the fitter visits early
+/// (the scenario's start pose, the rest pose at the origin where Φ starts, and halfway to the
+/// target).
+type Visited = Vec<(Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<Vec<f64>>)>;
+
+fn visited(frames: &Frames) -> Visited {
     let d = &frames.dataset;
-    let rows: Vec<(Vec<f64>, Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<Vec<f64>>)> = frames
+    frames
         .energies
         .par_iter()
         .enumerate()
@@ -431,13 +675,38 @@ pub fn measure_stats(frames: &Frames) -> FeatureStats {
                 g.push(e.evaluate_with_gradient(&pose).1.to_vec());
                 p.push(pose.to_vec());
             }
-            (observation_features(e), r, g, p)
+            (r, g, p)
         })
-        .collect();
+        .collect()
+}
+
+/// [`measure_stats`] for the features of a network configured as `net`: pooled features for a
+/// pooled network ([`lfit_nn::features`]).
+pub fn measure_stats_with(frames: &Frames, net: &NetConfig) -> Result<FeatureStats> {
+    if net.views == Views::Fixed {
+        return Ok(measure_stats(frames));
+    }
     let mut obs = Vec::new();
     let (mut res, mut grad, mut pose) = (Vec::new(), Vec::new(), Vec::new());
-    for (o, r, g, p) in rows {
-        obs.push(o);
+    for (e, (r, g, p)) in frames.energies.iter().zip(visited(frames)) {
+        obs.push(observation_features_for(net, e)?);
+        for r in &r {
+            res.push(residual_features(net, e, r)?.into_owned());
+        }
+        grad.extend(g);
+        pose.extend(p);
+    }
+    Ok(FeatureStats::measure(&obs, &res, &grad, &pose))
+}
+
+/// Feature statistics from `frames`: observations, and residuals/gradients/poses at the poses
+/// the fitter visits early (the scenario's start poses, the rest pose at the origin where Φ
+/// starts, and halfway to the target).
+pub fn measure_stats(frames: &Frames) -> FeatureStats {
+    let mut obs = Vec::new();
+    let (mut res, mut grad, mut pose) = (Vec::new(), Vec::new(), Vec::new());
+    for (e, (r, g, p)) in frames.energies.iter().zip(visited(frames)) {
+        obs.push(observation_features(e));
         res.extend(r);
         grad.extend(g);
         pose.extend(p);
@@ -617,7 +886,7 @@ pub fn train_with_sensor(
     sensor.validate(&template)?;
     let mut net_config = config.network.clone();
     net_config.modality = config.modality;
-    net_config.residual_dim = sensor.residual_dim(&template);
+    net_config.residual_dim = network_residual_dim(&net_config, sensor, &template)?;
     net_config.param_dim = template.param_dim();
     net_config.validate()?;
     if net_config.known_shape && template.layout().shape == 0 {
@@ -648,6 +917,7 @@ pub fn train_with_sensor(
         config.noise,
         &motions,
     )?;
+    let val = augment_frames(config, &base, val, seeds::validation(config.seed))?;
     let mut optim: ModuleOptimizer = AdamConfig::new()
         .with_grad_clipping(Some(GradientClippingConfig::Norm(config.grad_clip as f32)))
         .init();
@@ -717,7 +987,8 @@ pub fn train_with_sensor(
             config.noise,
             &motions,
         )?;
-        let stats = measure_stats(&stats_frames);
+        let stats_frames = augment_frames(config, &base, stats_frames, seeds::stats(config.seed))?;
+        let stats = measure_stats_with(&stats_frames, &net_config)?;
         (
             NeuralNet::new(&net_config, config.seed, &ad)?,
             stats,
@@ -821,33 +1092,71 @@ pub fn train_with_sensor(
     };
 
     for step in start_step..config.steps {
+        let previous = config
+            .starts
+            .as_ref()
+            .map_or(0, |m| m.previous_count(config.batch));
         let frames = synth_frames_with(
             &template,
             &sensor,
             &base,
-            config.batch,
+            config.batch - previous,
             seeds::batch(config.seed, step),
             config.noise,
             &motions,
         )?;
+        let frames = augment_frames(config, &base, frames, seeds::batch(config.seed, step))?;
         let mut rng = ChaCha8Rng::seed_from_u64(seeds::batch(config.seed, step) ^ 0x5EED);
-        let starts: Vec<Option<Vec<f64>>> = frames
+        let mut starts: Vec<Option<Vec<f64>>> = frames
             .dataset
             .start_poses
             .iter()
-            .map(|s| match net_config.start {
-                StartMode::Phi => None,
-                StartMode::Given => Some(s.clone()),
-                StartMode::Mixed => rng.random_bool(0.5).then(|| s.clone()),
+            .zip(&frames.dataset.gt_poses)
+            .map(|(s, gt)| match &config.starts {
+                Some(mix) => {
+                    let kind = mix.draw(&mut rng);
+                    starts::start_of(kind, &template, s, gt, &mut rng)
+                }
+                None => match net_config.start {
+                    StartMode::Phi => None,
+                    StartMode::Given => Some(s.clone()),
+                    StartMode::Mixed => rng.random_bool(0.5).then(|| s.clone()),
+                },
             })
             .collect();
-        let refs: Vec<&Energy> = frames.energies.iter().collect();
-        let truth = loss.truth(poses_to_tensor(&frames.dataset.gt_poses, &ad));
-        let constraints = training_constraints(&net, &frames);
+        let mut energies: Vec<&Energy> = frames.energies.iter().collect();
+        let mut gt = frames.dataset.gt_poses.clone();
+        // The previous-frame share: the network's own results fed forward (inference, detached).
+        let chained = match &config.starts {
+            Some(mix) if previous > 0 => starts::previous_frames(
+                &net.valid(),
+                &stats,
+                &template,
+                &sensor,
+                &base,
+                previous,
+                mix.chain,
+                seeds::batch(config.seed, step) ^ 0xC4A1_0000_0000_0000,
+                config.noise,
+                &motions,
+                &|f, s| augment_frames(config, &base, f, s),
+                device,
+                &mut rng,
+            )?,
+            _ => (Vec::new(), Vec::new(), Vec::new()),
+        };
+        energies.extend(chained.0.iter());
+        gt.extend(chained.1.iter().cloned());
+        starts.extend(chained.2.iter().cloned());
+        let truth = loss.truth(poses_to_tensor(&gt, &ad));
+        let constraints = net
+            .config
+            .known_shape
+            .then(|| known_shape_constraints(&template, &gt));
         let out = unroll(
             &net,
             &stats,
-            &refs,
+            &energies,
             &starts,
             constraints.as_ref(),
             &ad,

@@ -214,7 +214,7 @@ impl OrtNetwork {
             )
         })?;
         stats
-            .validate(meta.network.residual_dim, meta.network.param_dim)
+            .validate(&meta.network)
             .map_err(|e| OnnxError::model(origin, e.to_string()))?;
         for (name, info) in &infos {
             if info.checkpoint != init_info.checkpoint || info.stats != init_info.stats {
@@ -401,6 +401,21 @@ fn extract(
     Ok(data.to_vec())
 }
 
+/// Φ(D) of every frame through ONNX Runtime, as [`lfit_nn::initial_poses`] does through Burn.
+pub fn initial_poses_ort(
+    net: &mut OrtNetwork,
+    energies: &[&Energy],
+) -> Result<Vec<Vec<f64>>, OnnxError> {
+    let model = |e: ModelError| OnnxError::Runtime(e.to_string());
+    let c = net.meta.network.clone();
+    let stats = net.stats.clone();
+    let none: Vec<Option<Vec<f64>>> = vec![None; energies.len()];
+    check_batch(&c, energies, &none).map_err(model)?;
+    let obs_norm = observation_rows(&c, &stats, energies).map_err(model)?;
+    let (phi, _) = net.initial(&obs_norm.concat(), energies.len())?;
+    Ok(rows_to_poses(&phi, c.param_dim))
+}
+
 /// Runs N iterations through ONNX Runtime on `energies`, exactly as
 /// [`lfit_nn::unroll`] does through Burn; returns θ0 … θN per frame (`[N + 1][B]`).
 pub fn unroll_ort(
@@ -441,7 +456,8 @@ pub fn unroll_ort(
     for n in 0..c.iterations {
         let current = host.last().cloned().unwrap_or_default();
         let evals = evaluate(energies, &current);
-        let core_in = core_rows(&c, &stats, &evals, &current, &obs_norm).map_err(model)?;
+        let core_in =
+            core_rows(&c, &stats, energies, &evals, &current, &obs_norm).map_err(model)?;
         let mut delta = net.propose(n, &core_in, batch, &mut state)?;
         let mut grad: Vec<f32> = evals
             .iter()
@@ -461,7 +477,8 @@ pub fn unroll_ort(
                 &current,
                 &evals,
                 &rows_to_poses(&delta, dim),
-            );
+            )
+            .map_err(model)?;
             net.step(n, &step_in, &delta, &grad, batch, &mut state)?
                 .update
         } else {

@@ -241,7 +241,7 @@ pub fn load(dir: &Path, device: &Device) -> Result<Checkpoint> {
     let stats: FeatureStats = serde_json::from_slice(&read(dir, STATS_FILE)?)
         .map_err(|e| err(dir, format!("malformed {STATS_FILE}: {e}")))?;
     stats
-        .validate(meta.network.residual_dim, meta.network.param_dim)
+        .validate(&meta.network)
         .map_err(|e| err(dir, e.to_string()))?;
     let net = net_from_bytes(&meta.network, read(dir, WEIGHTS_FILE)?, device, dir)?;
     let metrics = match std::fs::read(dir.join(METRICS_FILE)) {
@@ -307,7 +307,9 @@ impl CheckpointMeta {
     }
 
     /// Checks that the network fits data of `modality` with a residual of `residual_dim`
-    /// entries on `template` (`dir` names the checkpoint in errors).
+    /// entries on `template` (`dir` names the checkpoint in errors). A pooled network
+    /// ([`crate::Views::Pooled`]) fits `keypoints2d` data of any number of cameras: a residual of
+    /// a positive multiple of its per-camera length.
     pub fn check_compatible(
         &self,
         dir: &Path,
@@ -350,7 +352,18 @@ impl CheckpointMeta {
                 format!("was trained for {} data, not {modality}", n.modality),
             ));
         }
-        if n.residual_dim != residual_dim {
+        if n.views == crate::Views::Pooled {
+            if residual_dim == 0 || residual_dim % n.residual_dim != 0 {
+                return Err(err(
+                    dir,
+                    format!(
+                        "fits keypoints2d rigs of {} keypoints per camera ({} values each), the data's sensor gives {residual_dim} values",
+                        n.keypoints(),
+                        n.residual_dim
+                    ),
+                ));
+            }
+        } else if n.residual_dim != residual_dim {
             return Err(err(
                 dir,
                 format!(

@@ -74,13 +74,35 @@ pub enum StartMode {
     Mixed,
 }
 
+/// How the `keypoints2d` features treat the cameras of the rig.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Views {
+    /// The features are the whole residual and observation vectors: the network fits exactly
+    /// the rig it was trained on (every network before this switch).
+    #[default]
+    Fixed,
+    /// Camera-agnostic: features are computed per camera and pooled over the cameras (mean and
+    /// maximum over the cameras that see each keypoint, the fraction that see it and the camera
+    /// count; [`crate::features`]), so one network fits any number of cameras of the same
+    /// keypoint set. `residual_dim` is then the residual of one camera (2 × keypoints).
+    Pooled,
+}
+
+impl Views {
+    pub fn is_fixed(&self) -> bool {
+        *self == Views::Fixed
+    }
+}
+
 /// Everything that determines the network's structure and update rule.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct NetConfig {
     /// Observation modality the network was built for.
     pub modality: Modality,
-    /// Length of the modality's residual vector R(θ) (also the observation vector's length).
+    /// Length of the modality's residual vector R(θ) (also the observation vector's length);
+    /// with pooled views, of one camera's part of it.
     pub residual_dim: usize,
     /// Length of the parameter vector θ the network predicts: the model's `3 + 3J + B + E`
     /// (57 on the default template, the value of checkpoints that predate the field).
@@ -122,6 +144,10 @@ pub struct NetConfig {
     /// truth, and a fit must freeze them at the subject's β (`lfit fit --known-shape`).
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub known_shape: bool,
+    /// `fixed` (the default): the features are tied to the training rig; `pooled`
+    /// (`keypoints2d` only): pooled over cameras, any rig of the same keypoints.
+    #[serde(skip_serializing_if = "Views::is_fixed")]
+    pub views: Views,
 }
 
 impl Default for NetConfig {
@@ -148,24 +174,44 @@ impl Default for NetConfig {
             output_gain: 0.01,
             feature_clip: 10.0,
             known_shape: false,
+            views: Views::Fixed,
         }
     }
 }
 
 impl NetConfig {
-    /// Length of the observation features D: observed values (0 where invisible) and visibility.
+    /// Length of the observation features D: observed values (0 where invisible) and visibility;
+    /// pooled: the mean and maximum over cameras of each observed value, the fraction of the
+    /// cameras that see each keypoint, and the camera count.
     pub fn obs_features(&self) -> usize {
-        2 * self.residual_dim
+        match self.views {
+            Views::Fixed => 2 * self.residual_dim,
+            Views::Pooled => 2 * self.residual_dim + self.keypoints() + 1,
+        }
+    }
+
+    /// Length of the residual features the network sees of R(θ): R itself; pooled: the mean
+    /// and the largest magnitude over cameras of each entry.
+    pub fn residual_features(&self) -> usize {
+        match self.views {
+            Views::Fixed => self.residual_dim,
+            Views::Pooled => 2 * self.residual_dim,
+        }
+    }
+
+    /// Keypoints per camera of a pooled network (`residual_dim / 2`).
+    pub fn keypoints(&self) -> usize {
+        self.residual_dim / 2
     }
 
     /// Input of the core at every iteration: `[R(θ), g, θ, D]`.
     pub fn core_inputs(&self) -> usize {
-        self.residual_dim + 2 * self.param_dim + self.obs_features()
+        self.residual_features() + 2 * self.param_dim + self.obs_features()
     }
 
     /// Input of the λ/γ network: `[R(θ), R(θ + Δθ)]` (papers/002 eq. 2).
     pub fn step_inputs(&self) -> usize {
-        2 * self.residual_dim
+        2 * self.residual_features()
     }
 
     /// Outputs of λ: one per parameter, or one.
@@ -273,6 +319,17 @@ impl NetConfig {
             if !(v.is_finite() && v > 0.0) {
                 return bad(name, format!("must be positive, got {v}"));
             }
+        }
+        if self.views == Views::Pooled
+            && (self.modality != Modality::Keypoints2d || self.residual_dim % 2 != 0)
+        {
+            return bad(
+                "views",
+                format!(
+                    "pooled needs keypoints2d data (2 values per keypoint and camera), got {} with residual_dim {}",
+                    self.modality, self.residual_dim
+                ),
+            );
         }
         if matches!(self.modality, Modality::Scan | Modality::Silhouettes) {
             return bad(

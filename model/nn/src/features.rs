@@ -1,11 +1,32 @@
 //! Input features of the neural fitter and their normalisation statistics (stored in every
 //! checkpoint): observations D, residuals R(θ), gradients g and poses θ, each standardised per
 //! entry with a mean and standard deviation measured on training data, then clipped.
+//!
+//! **Pooled views** ([`Views::Pooled`], `keypoints2d`): the residual and the observations are
+//! laid out camera after camera (`2 × keypoints` values each, [`lfit_model::observe`]); a pooled
+//! network sees them per camera, in the camera's normalised image coordinates (pixels minus the
+//! principal point, over the focal length: the same for any image size and focal length), and
+//! reduced over the cameras that see each keypoint by permutation-invariant pools, so the feature
+//! length does not depend on the rig:
+//!
+//! - observations D: the mean over the seeing cameras of each normalised coordinate, then the
+//!   maximum, then per keypoint the fraction of the cameras that see it, then the camera count
+//!   (`2·2K + K + 1` values for K keypoints);
+//! - residual features of R(θ): the mean over the seeing cameras of each normalised residual
+//!   entry, then the largest magnitude (`2·2K`).
+//!
+//! An entry no camera sees pools to 0. The gradient g(θ) and the pose θ have the model's length
+//! whatever the rig, and pass as they are.
+
+use std::borrow::Cow;
 
 use serde::{Deserialize, Serialize};
 
+use crate::config::{NetConfig, Views};
+use lfit_model::camera::Camera;
 use lfit_model::energy::{Energy, Target};
 use lfit_model::error::{ModelError, Result};
+use lfit_model::observe::Sensor;
 
 /// Per-entry mean and standard deviation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -101,13 +122,15 @@ pub struct FeatureStats {
 }
 
 impl FeatureStats {
-    /// Checks the lengths against a residual and a parameter dimension; one-line error naming
-    /// the mismatch.
-    pub fn validate(&self, residual_dim: usize, param_dim: usize) -> Result<()> {
-        self.observation.check("observation", 2 * residual_dim)?;
-        self.residual.check("residual", residual_dim)?;
-        self.gradient.check("gradient", param_dim)?;
-        self.pose.check("pose", param_dim)
+    /// Checks the lengths against the features of a network; one-line error naming the
+    /// mismatch.
+    pub fn validate(&self, config: &NetConfig) -> Result<()> {
+        self.observation
+            .check("observation", config.obs_features())?;
+        self.residual
+            .check("residual", config.residual_features())?;
+        self.gradient.check("gradient", config.param_dim)?;
+        self.pose.check("pose", config.param_dim)
     }
 
     /// Statistics from samples of observations, and of residuals, gradients and poses at the
@@ -139,4 +162,137 @@ pub fn observation_features(energy: &Energy) -> Vec<f64> {
             .collect(),
         Target::Scan { .. } | Target::Silhouettes { .. } => Vec::new(),
     }
+}
+
+/// The cameras of a `keypoints2d` frame that a pooled network fits: one-line error unless the
+/// sensor is `keypoints2d` with at least one camera of the network's keypoints.
+pub fn pooled_cameras<'a>(config: &NetConfig, energy: &'a Energy) -> Result<&'a [Camera]> {
+    let Sensor::Keypoints2d(setup) = energy.sensor() else {
+        return Err(ModelError::Config(format!(
+            "the pooled network fits keypoints2d data, this frame is {}",
+            energy.sensor().name()
+        )));
+    };
+    let dim = energy.sensor().residual_dim(energy.template());
+    let cameras = setup.cameras.len();
+    if cameras == 0 || dim != cameras * config.residual_dim {
+        return Err(ModelError::Config(format!(
+            "the pooled network fits {} keypoints per camera ({} values), this frame's {cameras} cameras give {dim} values",
+            config.keypoints(),
+            config.residual_dim
+        )));
+    }
+    Ok(&setup.cameras)
+}
+
+/// `[means…, maxima…]` over the cameras that see each of the `len` entries of a camera, of
+/// `value(camera, entry)` (with `magnitude`, maxima of `|value|`); 0 for an entry no camera sees.
+fn pool(
+    cameras: usize,
+    len: usize,
+    seen: impl Fn(usize, usize) -> bool,
+    value: impl Fn(usize, usize) -> f64,
+    magnitude: bool,
+) -> Vec<f64> {
+    let mut sum = vec![0.0; len];
+    let mut max = vec![f64::NEG_INFINITY; len];
+    let mut count = vec![0usize; len];
+    for c in 0..cameras {
+        for i in 0..len {
+            if seen(c, i) {
+                let v = value(c, i);
+                sum[i] += v;
+                max[i] = max[i].max(if magnitude { v.abs() } else { v });
+                count[i] += 1;
+            }
+        }
+    }
+    let mut out: Vec<f64> = sum
+        .iter()
+        .zip(&count)
+        .map(|(&s, &n)| if n > 0 { s / n as f64 } else { 0.0 })
+        .collect();
+    out.extend(
+        max.iter()
+            .zip(&count)
+            .map(|(&m, &n)| if n > 0 { m } else { 0.0 }),
+    );
+    out
+}
+
+/// Entry `i` of a camera's part (u, v alternate) in normalised image coordinates.
+fn normalised(cam: &Camera, i: usize, pixels: f64, offset: bool) -> f64 {
+    let (f, c) = if i % 2 == 0 {
+        (cam.fx, cam.cx)
+    } else {
+        (cam.fy, cam.cy)
+    };
+    if offset { (pixels - c) / f } else { pixels / f }
+}
+
+/// The sparse target of a frame (empty for dense targets).
+fn sparse_target(energy: &Energy) -> (&[f64], &[bool]) {
+    match energy.target() {
+        Target::Sparse { values, visible } => (values, visible),
+        Target::Scan { .. } | Target::Silhouettes { .. } => (&[], &[]),
+    }
+}
+
+/// The observation features D of a frame as `config`'s network sees them: [`observation_features`]
+/// for a fixed-rig network, the pooled observation features (module docs) for a pooled one.
+pub fn observation_features_for(config: &NetConfig, energy: &Energy) -> Result<Vec<f64>> {
+    if config.views == Views::Fixed {
+        return Ok(observation_features(energy));
+    }
+    let cams = pooled_cameras(config, energy)?;
+    let per = config.residual_dim;
+    let (values, visible) = sparse_target(energy);
+    if values.len() != cams.len() * per || visible.len() != values.len() {
+        return Err(ModelError::Shape {
+            what: "keypoints2d target".into(),
+            expected: (cams.len() * per).to_string(),
+            got: values.len().to_string(),
+        });
+    }
+    let seen = |c: usize, i: usize| visible[c * per + i];
+    let mut out = pool(
+        cams.len(),
+        per,
+        seen,
+        |c, i| normalised(&cams[c], i, values[c * per + i], true),
+        false,
+    );
+    let n = cams.len() as f64;
+    out.extend(
+        (0..config.keypoints())
+            .map(|k| (0..cams.len()).filter(|&c| seen(c, 2 * k)).count() as f64 / n),
+    );
+    out.push(n);
+    Ok(out)
+}
+
+/// The residual features of R(θ) (`residual`, the frame's residual at θ) as `config`'s network
+/// sees them: R itself for a fixed-rig network, the pooled residual features (module docs) for a
+/// pooled one.
+pub fn residual_features<'a>(
+    config: &NetConfig,
+    energy: &Energy,
+    residual: &'a [f64],
+) -> Result<Cow<'a, [f64]>> {
+    if config.views == Views::Fixed {
+        return Ok(Cow::Borrowed(residual));
+    }
+    let cams = pooled_cameras(config, energy)?;
+    let per = config.residual_dim;
+    let (_, visible) = sparse_target(energy);
+    if residual.len() != cams.len() * per || visible.len() != residual.len() {
+        return Err(ModelError::Shape {
+            what: "residual".into(),
+            expected: (cams.len() * per).to_string(),
+            got: residual.len().to_string(),
+        });
+    }
+    let seen = |c: usize, i: usize| visible[c * per + i];
+    let r = |c: usize, i: usize| normalised(&cams[c], i, residual[c * per + i], false);
+    Ok(Cow::Owned(pool(cams.len(), per, seen, r, true)))
 }

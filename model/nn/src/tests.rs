@@ -634,3 +634,262 @@ fn a_recorded_training_energy_must_match_the_fit() {
         serde_json::from_str(&serde_json::to_string(&meta).unwrap()).unwrap();
     assert_eq!(back, meta);
 }
+
+/// Unit statistics of the features of `config`.
+fn unit_stats_for(config: &NetConfig) -> FeatureStats {
+    let n = |d: usize| Norm {
+        mean: vec![0.0; d],
+        std: vec![1.0; d],
+    };
+    FeatureStats {
+        observation: n(config.obs_features()),
+        residual: n(config.residual_features()),
+        gradient: n(config.param_dim),
+        pose: n(config.param_dim),
+    }
+}
+
+/// A pooled keypoints2d network's config on `template`.
+fn pooled_config(template: &Template) -> NetConfig {
+    NetConfig {
+        views: Views::Pooled,
+        ..small_config(Modality::Keypoints2d, 2 * template.rig.num_joints())
+    }
+}
+
+/// A keypoints2d energy of `cameras` at `pose`, observations noisy with dropouts (seeded by the
+/// camera, so the same per camera whatever its place in the rig).
+fn rig_energy(
+    template: &Arc<Template>,
+    cameras: &[lfit_model::camera::Camera],
+    pose: &Pose,
+) -> Energy {
+    let sensor = Sensor::Keypoints2d(lfit_model::observe::KeypointSetup {
+        cameras: cameras.to_vec(),
+    });
+    let pred = sensor.predict_sparse(template, pose);
+    let (mut values, mut visible) = (pred.values, pred.visible);
+    // Noise and dropouts that depend on the camera, not on its place in the rig.
+    let per = 2 * template.rig.num_joints();
+    for (c, cam) in cameras.iter().enumerate() {
+        let mut rng = ChaCha8Rng::seed_from_u64(cam.fx.to_bits() ^ cam.translation[0].to_bits());
+        for i in (0..per).step_by(2) {
+            let k = c * per + i;
+            values[k] += rng.random_range(-2.0..2.0);
+            values[k + 1] += rng.random_range(-2.0..2.0);
+            if rng.random_bool(0.25) {
+                visible[k] = false;
+                visible[k + 1] = false;
+            }
+        }
+    }
+    Energy::new(
+        template.clone(),
+        sensor,
+        Target::Sparse { values, visible },
+        EnergyConfig::default().for_gradient(),
+    )
+    .expect("energy")
+}
+
+fn eight_cameras(seed: u64) -> Vec<lfit_model::camera::Camera> {
+    let ranges = lfit_model::camera::RigRanges {
+        cameras: [8, 8],
+        ..Default::default()
+    };
+    ranges.sample(
+        &mut ChaCha8Rng::seed_from_u64(seed),
+        glam::DVec3::new(0.0, 1.0, 0.0),
+    )
+}
+
+fn random_pose(seed: u64) -> Pose {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut pose: Pose = [0.0; POSE_DIM];
+    for v in pose.iter_mut() {
+        *v = rng.random_range(-0.2..0.2);
+    }
+    pose
+}
+
+#[test]
+fn pooled_features_ignore_the_camera_order_and_have_one_length_for_1_3_and_8_cameras() {
+    use crate::features::{observation_features, observation_features_for, residual_features};
+    let template = Arc::new(default_template());
+    let config = pooled_config(&template);
+    let cams = eight_cameras(3);
+    let truth = random_pose(4);
+    let at = random_pose(5);
+    let close = |a: &[f64], b: &[f64], what: &str| {
+        assert_eq!(a.len(), b.len(), "{what}");
+        for (i, (x, y)) in a.iter().zip(b).enumerate() {
+            assert!(
+                (x - y).abs() <= 1e-12 * (1.0 + x.abs()),
+                "{what} {i}: {x} vs {y}"
+            );
+        }
+    };
+    let features = |cameras: &[lfit_model::camera::Camera]| {
+        let e = rig_energy(&template, cameras, &truth);
+        let obs = observation_features_for(&config, &e).expect("obs");
+        let res = residual_features(&config, &e, &e.residual(&at))
+            .expect("res")
+            .into_owned();
+        (e, obs, res)
+    };
+    let mut lengths = Vec::new();
+    for n in [1, 3, 8] {
+        let (e, obs, res) = features(&cams[..n]);
+        assert_eq!(obs.len(), config.obs_features(), "{n} cameras");
+        assert_eq!(res.len(), config.residual_features(), "{n} cameras");
+        assert_eq!(*obs.last().expect("count"), n as f64, "camera count");
+        // The fixed-rig features grow with the rig; the pooled ones do not.
+        lengths.push((observation_features(&e).len(), obs.len(), res.len()));
+        // Every permutation of the cameras gives the same features.
+        let mut reversed = cams[..n].to_vec();
+        reversed.reverse();
+        let mut rotated = cams[..n].to_vec();
+        rotated.rotate_left(n / 2);
+        for (what, order) in [("reversed", reversed), ("rotated", rotated)] {
+            let (_, o, r) = features(&order);
+            close(&obs, &o, &format!("{n} cameras {what}: observation"));
+            close(&res, &r, &format!("{n} cameras {what}: residual"));
+        }
+    }
+    assert!(lengths[0].0 < lengths[1].0 && lengths[1].0 < lengths[2].0);
+    assert!(
+        lengths
+            .iter()
+            .all(|l| (l.1, l.2) == (lengths[0].1, lengths[0].2))
+    );
+
+    // One camera: the mean and the maximum are that camera's normalised coordinates, the
+    // fractions its visibility, and the residual pools are its residual over the focal length.
+    let (e, obs, res) = features(&cams[..1]);
+    let Target::Sparse { values, visible } = e.target() else {
+        unreachable!()
+    };
+    let (k, per, c) = (config.keypoints(), config.residual_dim, &cams[0]);
+    let r = e.residual(&at);
+    for i in 0..per {
+        let (f, p) = if i % 2 == 0 {
+            (c.fx, c.cx)
+        } else {
+            (c.fy, c.cy)
+        };
+        let want = if visible[i] { (values[i] - p) / f } else { 0.0 };
+        assert!((obs[i] - want).abs() < 1e-12 && (obs[per + i] - want).abs() < 1e-12);
+        assert!((res[i] - r[i] / f).abs() < 1e-12);
+        assert!((res[per + i] - (r[i] / f).abs()).abs() < 1e-12);
+    }
+    for j in 0..k {
+        assert_eq!(obs[2 * per + j], if visible[2 * j] { 1.0 } else { 0.0 });
+    }
+    // Three cameras pool to something else than the first alone.
+    let (_, obs3, _) = features(&cams[..3]);
+    assert!(obs.iter().zip(&obs3).any(|(a, b)| (a - b).abs() > 1e-3));
+}
+
+#[test]
+fn a_pooled_network_fits_a_batch_of_rigs_of_1_3_and_8_cameras() {
+    let device = ndarray_device();
+    let template = Arc::new(default_template());
+    let config = pooled_config(&template);
+    config.validate().expect("config");
+    let cams = eight_cameras(6);
+    let pose = random_pose(7);
+    let energies: Vec<Energy> = [1, 3, 8]
+        .iter()
+        .map(|&n| rig_energy(&template, &cams[..n], &pose))
+        .collect();
+    let refs: Vec<&Energy> = energies.iter().collect();
+    let stats = unit_stats_for(&config);
+    stats.validate(&config).expect("stats");
+    let net = NeuralNet::new(&config, 1, &device).expect("net");
+    let out = unroll(
+        &net,
+        &stats,
+        &refs,
+        &[None, None, None],
+        None,
+        &device,
+        &mut Dropout::off(),
+    )
+    .expect("unroll");
+    assert_eq!(out.host.len(), config.iterations + 1);
+    assert!(out.host.iter().flatten().flatten().all(|v| v.is_finite()));
+    // The fixed-rig statistics do not fit the pooled network.
+    let e = unit_stats(config.residual_dim)
+        .validate(&config)
+        .expect_err("fixed stats");
+    assert!(e.to_string().contains("observation"), "{e}");
+    // Frames of another sensor are refused with one line.
+    let (_, markers, _) = marker_frames(1, 2);
+    let e = unroll(
+        &net,
+        &stats,
+        &[&markers[0]],
+        &[None],
+        None,
+        &device,
+        &mut Dropout::off(),
+    )
+    .expect_err("markers");
+    assert!(!e.to_string().contains('\n'), "{e}");
+    // A pooled network needs keypoints2d.
+    let e = NetConfig {
+        views: Views::Pooled,
+        ..small_config(Modality::Markers, 3 * 53)
+    }
+    .validate()
+    .expect_err("pooled markers");
+    assert!(e.to_string().contains("pooled needs keypoints2d"), "{e}");
+}
+
+#[test]
+fn a_pooled_checkpoint_accepts_any_camera_count_and_a_fixed_one_only_its_rig() {
+    let template = Arc::new(default_template());
+    let dir = std::path::Path::new("ck");
+    let per = 2 * template.rig.num_joints();
+    let pooled = checkpoint::CheckpointMeta::new(&template, pooled_config(&template));
+    for cameras in [1, 2, 3, 6, 8, 11] {
+        pooled
+            .check_compatible(dir, Modality::Keypoints2d, cameras * per, &template)
+            .expect("any rig");
+    }
+    for dim in [0, per + 2, 3 * per - 4] {
+        let e = pooled
+            .check_compatible(dir, Modality::Keypoints2d, dim, &template)
+            .expect_err("other keypoints")
+            .to_string();
+        assert!(
+            e.contains(&format!(
+                "fits keypoints2d rigs of {} keypoints per camera",
+                per / 2
+            )) && !e.contains('\n'),
+            "{e}"
+        );
+    }
+    let fixed =
+        checkpoint::CheckpointMeta::new(&template, small_config(Modality::Keypoints2d, 6 * per));
+    fixed
+        .check_compatible(dir, Modality::Keypoints2d, 6 * per, &template)
+        .expect("its own rig");
+    let e = fixed
+        .check_compatible(dir, Modality::Keypoints2d, 2 * per, &template)
+        .expect_err("two cameras")
+        .to_string();
+    assert!(
+        e.contains(&format!(
+            "expects a residual of {} values, the data's sensor gives {}",
+            6 * per,
+            2 * per
+        )),
+        "{e}"
+    );
+    // The fixed default does not appear in config.json; pooled does.
+    let text = serde_json::to_string(&fixed.network).expect("json");
+    assert!(!text.contains("views"), "{text}");
+    let text = serde_json::to_string(&pooled.network).expect("json");
+    assert!(text.contains("\"views\":\"pooled\""), "{text}");
+}

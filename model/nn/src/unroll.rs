@@ -5,8 +5,8 @@
 use burn::tensor::{Device, Tensor, TensorData};
 use rayon::prelude::*;
 
-use crate::config::NetConfig;
-use crate::features::{FeatureStats, observation_features};
+use crate::config::{NetConfig, Views};
+use crate::features::{FeatureStats, observation_features_for, pooled_cameras, residual_features};
 use crate::layers::Dropout;
 use crate::net::NeuralNet;
 use crate::tensor::{poses_to_tensor, tensor_to_rows};
@@ -54,8 +54,9 @@ fn to_host(t: &Tensor<2>, dim: usize) -> Result<Vec<Vec<f64>>> {
         .collect())
 }
 
-/// Checks a batch against the network: at least one frame, one start entry per frame, and every
-/// frame of the network's modality.
+/// Checks a batch against the network: at least one frame, one start entry per frame, every
+/// frame of the network's modality, and for a pooled network every frame a `keypoints2d` rig of
+/// its keypoints.
 pub fn check_batch(
     config: &NetConfig,
     energies: &[&Energy],
@@ -84,6 +85,11 @@ pub fn check_batch(
             e.dim()
         )));
     }
+    if config.views == Views::Pooled {
+        for e in energies {
+            pooled_cameras(config, e)?;
+        }
+    }
     if let Some(s) = starts
         .iter()
         .flatten()
@@ -104,18 +110,18 @@ pub fn observation_rows(
     stats: &FeatureStats,
     energies: &[&Energy],
 ) -> Result<Vec<Vec<f32>>> {
-    let dim = config.residual_dim;
+    let dim = config.obs_features();
     let mut out = Vec::with_capacity(energies.len());
     for e in energies {
-        let r = observation_features(e);
-        if r.len() != 2 * dim {
+        let r = observation_features_for(config, e)?;
+        if r.len() != dim {
             return Err(ModelError::Shape {
                 what: "observation features".into(),
-                expected: (2 * dim).to_string(),
+                expected: dim.to_string(),
                 got: r.len().to_string(),
             });
         }
-        let mut v = Vec::with_capacity(2 * dim);
+        let mut v = Vec::with_capacity(dim);
         stats
             .observation
             .push(&r, config.feature_clip as f32, &mut v);
@@ -180,25 +186,28 @@ pub fn evaluate(energies: &[&Energy], current: &[Vec<f64>]) -> Vec<(Vec<f64>, Ve
         .collect()
 }
 
-/// The normalised core inputs `[R(θ), g, θ, D]`, `[B, core_inputs]` row-major.
+/// The normalised core inputs `[R(θ), g, θ, D]` (R as the residual features of
+/// [`residual_features`]), `[B, core_inputs]` row-major; `evals` and `obs` are of `energies`.
 pub fn core_rows(
     config: &NetConfig,
     stats: &FeatureStats,
+    energies: &[&Energy],
     evals: &[(Vec<f64>, Vec<f64>)],
     current: &[Vec<f64>],
     obs: &[Vec<f32>],
 ) -> Result<Vec<f32>> {
     let clip = config.feature_clip as f32;
     let mut core_in = Vec::with_capacity(evals.len() * config.core_inputs());
-    for ((r, g), (p, d)) in evals.iter().zip(current.iter().zip(obs)) {
-        if r.len() != config.residual_dim {
+    for (((r, g), (p, d)), e) in evals.iter().zip(current.iter().zip(obs)).zip(energies) {
+        let r = residual_features(config, e, r)?;
+        if r.len() != config.residual_features() {
             return Err(ModelError::Shape {
                 what: "residual".into(),
-                expected: config.residual_dim.to_string(),
+                expected: config.residual_features().to_string(),
                 got: r.len().to_string(),
             });
         }
-        stats.residual.push(r, clip, &mut core_in);
+        stats.residual.push(&r, clip, &mut core_in);
         stats.gradient.push(g, clip, &mut core_in);
         stats.pose.push(p, clip, &mut core_in);
         core_in.extend_from_slice(d);
@@ -207,7 +216,7 @@ pub fn core_rows(
 }
 
 /// The normalised λ/γ inputs `[R(θ), R(θ + Δθ)]` (papers/002 eq. 2: where the network alone
-/// would go), `[B, step_inputs]` row-major.
+/// would go; both as residual features), `[B, step_inputs]` row-major.
 pub fn step_rows(
     config: &NetConfig,
     stats: &FeatureStats,
@@ -215,7 +224,7 @@ pub fn step_rows(
     current: &[Vec<f64>],
     evals: &[(Vec<f64>, Vec<f64>)],
     delta: &[Vec<f64>],
-) -> Vec<f32> {
+) -> Result<Vec<f32>> {
     let clip = config.feature_clip as f32;
     let tried: Vec<Vec<f64>> = energies
         .par_iter()
@@ -229,11 +238,20 @@ pub fn step_rows(
         })
         .collect();
     let mut step_in = Vec::with_capacity(energies.len() * config.step_inputs());
-    for ((r, _), r2) in evals.iter().zip(&tried) {
-        stats.residual.push(r, clip, &mut step_in);
-        stats.residual.push(r2, clip, &mut step_in);
+    for (((r, _), r2), e) in evals.iter().zip(&tried).zip(energies) {
+        for r in [r, r2] {
+            let f = residual_features(config, e, r)?;
+            if f.len() != config.residual_features() {
+                return Err(ModelError::Shape {
+                    what: "residual".into(),
+                    expected: config.residual_features().to_string(),
+                    got: f.len().to_string(),
+                });
+            }
+            stats.residual.push(&f, clip, &mut step_in);
+        }
     }
-    step_in
+    Ok(step_in)
 }
 
 /// Parameter vectors of `[B, dim]` f32 rows.
@@ -241,6 +259,24 @@ pub fn rows_to_poses(rows: &[f32], dim: usize) -> Vec<Vec<f64>> {
     rows.chunks_exact(dim.max(1))
         .map(|r| r.iter().map(|&x| f64::from(x)).collect())
         .collect()
+}
+
+/// Φ(D) of every frame (the initializer alone, no iteration): the candidate start that
+/// [`unroll`] takes where a frame gives none. Inference uses it to choose between a given start
+/// and Φ(D) by energy before unrolling.
+pub fn initial_poses(
+    net: &NeuralNet,
+    stats: &FeatureStats,
+    energies: &[&Energy],
+    device: &Device,
+) -> Result<Vec<Vec<f64>>> {
+    let c = &net.config;
+    let none: Vec<Option<Vec<f64>>> = vec![None; energies.len()];
+    check_batch(c, energies, &none)?;
+    let obs_norm = observation_rows(c, stats, energies)?;
+    let obs = rows_tensor(&obs_norm.concat(), energies.len(), device);
+    let (phi, _) = net.initial(obs);
+    to_host(&phi, c.param_dim)
 }
 
 /// Runs N iterations on `energies` (one frame each). `starts[i]` is the given θ0 of frame `i`
@@ -304,7 +340,7 @@ pub fn unroll(
         let current = host.last().cloned().unwrap_or_default();
         // R(θ) and g(θ) on the CPU (detached inputs).
         let evals = evaluate(energies, &current);
-        let core_in = core_rows(c, stats, &evals, &current, &obs_norm)?;
+        let core_in = core_rows(c, stats, energies, &evals, &current, &obs_norm)?;
         let mut delta = net.propose(n, rows_tensor(&core_in, batch, device), &mut state, dropout);
         let mut grad = poses_to_tensor(
             &evals.iter().map(|(_, g)| g.as_slice()).collect::<Vec<_>>(),
@@ -316,7 +352,7 @@ pub fn unroll(
         }
 
         let sizes = if c.has_step_network() {
-            let step_in = step_rows(c, stats, energies, &current, &evals, &to_host(&delta, dim)?);
+            let step_in = step_rows(c, stats, energies, &current, &evals, &to_host(&delta, dim)?)?;
             net.step_sizes(n, rows_tensor(&step_in, batch, device), &mut state, dropout)
         } else {
             net.step_sizes(n, Tensor::zeros([batch, 1], device), &mut state, dropout)
