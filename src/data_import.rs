@@ -32,6 +32,25 @@ pub enum DataCommand {
     /// from a C3D file (--c3d, --label-map) or 2D keypoints from COCO/OpenPose JSON in
     /// calibrated cameras (--keypoints, --layout, --camera).
     Import(ImportArgs),
+    /// Write a markers dataset's observations as a C3D file (float points in millimetres, one
+    /// label per model marker, invisible markers as gaps, the dataset's frame rate), e.g. to
+    /// test `lfit data import` and the fitters on captures with a known ground truth, or to
+    /// open synthetic markers in other motion-capture tools.
+    ExportC3d(ExportC3dArgs),
+}
+
+/// Arguments of `lfit data export-c3d`.
+#[derive(Debug, clap::Args)]
+pub struct ExportC3dArgs {
+    /// Markers dataset (.npz from `lfit synth` or `lfit data import`).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Output C3D file.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Prefix of every point label (e.g. "S1:" as Vicon writes them); default none.
+    #[arg(long, default_value = "")]
+    pub label_prefix: String,
 }
 
 /// Arguments of `lfit data import`.
@@ -79,6 +98,7 @@ pub struct ImportArgs {
 pub fn run(command: &DataCommand) -> Result<Value> {
     match command {
         DataCommand::Import(args) => import(args),
+        DataCommand::ExportC3d(args) => export_c3d(args),
     }
 }
 
@@ -87,6 +107,82 @@ fn check_out(out: &Path) -> Result<()> {
         bail!("--out {} is a directory, expected a file", out.display());
     }
     Ok(())
+}
+
+/// `lfit data export-c3d`.
+pub fn export_c3d(args: &ExportC3dArgs) -> Result<Value> {
+    check_out(&args.out)?;
+    let dataset = lfit_synth::Dataset::load(&args.data)
+        .with_context(|| format!("dataset {}", args.data.display()))?;
+    let names = match &dataset.sensor {
+        lfit_model::observe::Sensor::Markers(m) => m.names.clone(),
+        other => bail!(
+            "dataset {} holds {} observations; only a markers dataset can be written as C3D",
+            args.data.display(),
+            other.modality().name()
+        ),
+    };
+    let lfit_synth::Observations::Sparse { values, visible } = &dataset.observations else {
+        bail!("dataset {} has no sparse marker observations", args.data.display());
+    };
+    let fps = dataset.meta.config.fps;
+    if !(fps.is_finite() && fps > 0.0) {
+        bail!("dataset {} has frame rate {fps}, not a positive number", args.data.display());
+    }
+    let mut gaps = 0usize;
+    let mut frames = Vec::with_capacity(values.len());
+    for (f, (v, b)) in values.iter().zip(visible).enumerate() {
+        if v.len() != 3 * names.len() || b.len() != v.len() {
+            bail!(
+                "dataset {} frame {f} has {} values for {} markers",
+                args.data.display(),
+                v.len(),
+                names.len()
+            );
+        }
+        let mut row = Vec::with_capacity(names.len());
+        for k in 0..names.len() {
+            let p = [v[3 * k], v[3 * k + 1], v[3 * k + 2]];
+            if b[3 * k] && p.iter().all(|x| x.is_finite()) {
+                row.push(Some(lfit_synth::c3d::C3dPoint {
+                    position: p.map(|x| x * 1e3),
+                    residual: 0.0,
+                    cameras: 0,
+                }));
+            } else {
+                gaps += 1;
+                row.push(None);
+            }
+        }
+        frames.push(row);
+    }
+    let c3d = C3d {
+        processor: lfit_synth::c3d::Processor::Intel,
+        labels: names
+            .iter()
+            .map(|n| format!("{}{n}", args.label_prefix))
+            .collect(),
+        units: "mm".into(),
+        scale: -1.0,
+        rate: fps,
+        first_frame: 1,
+        analog_per_frame: 0,
+        frames,
+    };
+    let bytes = c3d
+        .to_bytes()
+        .with_context(|| format!("C3D file {}", args.out.display()))?;
+    lfit_model::template::write_atomic(&args.out, &bytes)
+        .with_context(|| format!("C3D file {}", args.out.display()))?;
+    Ok(json!({
+        "out": args.out,
+        "data": args.data,
+        "frames": values.len(),
+        "markers": names.len(),
+        "gaps": gaps,
+        "fps": fps,
+        "units": "mm",
+    }))
 }
 
 /// `lfit data import`.

@@ -110,6 +110,10 @@ pub struct CoverageArgs {
     /// Training motion files (written by `lfit motion import`).
     #[arg(long, num_args = 1.., value_name = "FILE")]
     pub train: Vec<PathBuf>,
+    /// Datasets (`lfit synth` output for the same model) whose ground-truth poses join the
+    /// training frames, e.g. frames of the procedural library or of a training run's mix.
+    #[arg(long = "train-data", num_args = 1.., value_name = "FILE")]
+    pub train_data: Vec<PathBuf>,
     /// Evaluation motion file.
     #[arg(long, value_name = "FILE")]
     pub eval: PathBuf,
@@ -307,8 +311,10 @@ pub fn export(args: &ExportArgs) -> Result<Value> {
 
 /// `lfit motion coverage`.
 pub fn coverage(args: &CoverageArgs) -> Result<Value> {
-    if args.train.is_empty() {
-        bail!("lfit motion coverage needs --train FILE [FILE ...] (training motion files)");
+    if args.train.is_empty() && args.train_data.is_empty() {
+        bail!(
+            "lfit motion coverage needs --train FILE [FILE ...] (training motion files) or --train-data FILE [FILE ...] (lfit synth datasets)"
+        );
     }
     if !(args.tolerance.is_finite() && args.tolerance >= 0.0) {
         bail!(
@@ -324,8 +330,37 @@ pub fn coverage(args: &CoverageArgs) -> Result<Value> {
     let eval = MotionClip::read(&args.eval)?;
     let layout = match &template {
         Some(t) => t.layout(),
-        None => train[0].model.layout.clone(),
+        None => train
+            .first()
+            .map_or_else(|| eval.model.layout.clone(), |c| c.model.layout.clone()),
     };
+    let model_id = template.as_ref().map_or_else(
+        || train.first().map_or_else(|| eval.model.id.clone(), |c| c.model.id.clone()),
+        |t| t.id.clone(),
+    );
+    let mut data_poses: Vec<Vec<Vec<f64>>> = Vec::with_capacity(args.train_data.len());
+    for path in &args.train_data {
+        let d = lfit_synth::Dataset::load(path)
+            .with_context(|| format!("dataset {}", path.display()))?;
+        if d.meta.template_id != model_id || d.meta.pose_dim != 3 + 3 * layout.num_joints() {
+            bail!(
+                "dataset {} was made for model '{}' ({} pose entries), not for model '{}' ({} joints: {} pose entries)",
+                path.display(),
+                d.meta.template_id,
+                d.meta.pose_dim,
+                model_id,
+                layout.num_joints(),
+                3 + 3 * layout.num_joints()
+            );
+        }
+        if d.gt_poses.is_empty() {
+            bail!(
+                "dataset {} has no ground-truth poses (imported observations): nothing to count",
+                path.display()
+            );
+        }
+        data_poses.push(d.gt_poses);
+    }
     for (path, clip) in args.train.iter().zip(&train).chain([(&args.eval, &eval)]) {
         if clip.model.layout != layout {
             bail!(
@@ -333,14 +368,10 @@ pub fn coverage(args: &CoverageArgs) -> Result<Value> {
                 path.display(),
                 clip.model.id,
                 clip.model.layout.num_joints(),
-                template.as_ref().map_or_else(
-                    || format!(
-                        "model '{}' of {}",
-                        train[0].model.id,
-                        args.train[0].display()
-                    ),
-                    |t| format!("model '{}'", t.id)
-                ),
+                match (&template, args.train.first()) {
+                    (None, Some(first)) => format!("model '{model_id}' of {}", first.display()),
+                    _ => format!("model '{model_id}'"),
+                },
                 layout.num_joints()
             );
         }
@@ -349,8 +380,7 @@ pub fn coverage(args: &CoverageArgs) -> Result<Value> {
     for name in &args.joints {
         let Some(j) = layout.joints.iter().position(|n| n == name) else {
             bail!(
-                "--joints names '{name}', which model '{}' does not have (its joints: {})",
-                train[0].model.id,
+                "--joints names '{name}', which model '{model_id}' does not have (its joints: {})",
                 layout.joints.join(", ")
             );
         };
@@ -359,7 +389,11 @@ pub fn coverage(args: &CoverageArgs) -> Result<Value> {
         }
         counted.push(j);
     }
-    let slices: Vec<&[Vec<f64>]> = train.iter().map(|c| c.poses.as_slice()).collect();
+    let slices: Vec<&[Vec<f64>]> = train
+        .iter()
+        .map(|c| c.poses.as_slice())
+        .chain(data_poses.iter().map(Vec::as_slice))
+        .collect();
     let c = lfit_synth::coverage::coverage(
         &layout,
         &slices,
@@ -384,8 +418,9 @@ pub fn coverage(args: &CoverageArgs) -> Result<Value> {
         })
     };
     Ok(json!({
-        "model": train[0].model.id,
+        "model": model_id,
         "train_files": args.train.len(),
+        "train_datasets": args.train_data.len(),
         "train_frames": c.train_frames,
         "eval": args.eval.display().to_string(),
         "eval_frames": c.eval_frames,

@@ -613,3 +613,69 @@ fn openpose_body25_folder_of_one_camera_imports_and_fits_with_lm() {
     assert_one_line_error(&o, "keypoints2d");
     assert!(!d.join("n.json").exists());
 }
+
+#[test]
+fn export_c3d_round_trips_through_data_import() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    // With the default noise model: noisy positions and occluded markers (gaps in the C3D).
+    let data = d.join("noisy.npz");
+    lfit_json(&[
+        "-q", "synth", "--modality", "markers", "--scenario", "sequence", "--frames", "6",
+        "--seed", "12", "--out", path_str(&data),
+    ]);
+    let truth = Dataset::load(&data).expect("dataset");
+    let c3d = d.join("noisy.c3d");
+    let s = lfit_json(&[
+        "-q", "data", "export-c3d", "--data", path_str(&data), "--out", path_str(&c3d),
+        "--label-prefix", "S1:",
+    ]);
+    assert_eq!(s["frames"], 6);
+    let (tv, tb) = sparse(&truth);
+    let hidden = tb.iter().flatten().step_by(3).filter(|b| !**b).count();
+    assert!(hidden > 0, "the noise model hides some markers");
+    assert_eq!(s["gaps"], hidden);
+    let file = C3d::read(&c3d).expect("C3D");
+    assert!(file.labels.iter().all(|l| l.starts_with("S1:")));
+    assert_eq!(file.rate, truth.meta.config.fps);
+    // Back through lfit data import (labels without the prefix: a map).
+    let names: Vec<String> = file.labels.iter().map(|l| l[3..].to_string()).collect();
+    let map: Vec<(String, String)> = names.iter().map(|n| (format!("S1:{n}"), n.clone())).collect();
+    let map_file = d.join("map.json");
+    write_map(&map_file, &map);
+    let back = d.join("back.npz");
+    lfit_json(&[
+        "-q", "data", "import", "--c3d", path_str(&c3d), "--label-map", path_str(&map_file),
+        "--out", path_str(&back),
+    ]);
+    let imported = Dataset::load(&back).expect("imported");
+    let (iv, ib) = sparse(&imported);
+    let mut max_err: f64 = 0.0;
+    for f in 0..tv.len() {
+        assert_eq!(ib[f], tb[f], "frame {f} visibility");
+        for i in 0..tv[f].len() {
+            if tb[f][i] {
+                max_err = max_err.max((iv[f][i] - tv[f][i]).abs());
+            }
+        }
+    }
+    assert!(max_err <= 1e-6, "round trip differs by {max_err} m");
+
+    // Bad input: a keypoints dataset, a missing dataset, a directory as --out; nothing written.
+    let (kp, _) = synth(d, "keypoints2d", 2, 3);
+    let out = d.join("kp.c3d");
+    assert_one_line_error(
+        &lfit(&["data", "export-c3d", "--data", path_str(&kp), "--out", path_str(&out)]),
+        "only a markers dataset",
+    );
+    assert!(!out.exists());
+    assert_one_line_error(
+        &lfit(&["data", "export-c3d", "--data", path_str(&d.join("none.npz")), "--out", path_str(&out)]),
+        "none.npz",
+    );
+    assert!(!out.exists());
+    assert_one_line_error(
+        &lfit(&["data", "export-c3d", "--data", path_str(&data), "--out", path_str(d)]),
+        "directory",
+    );
+}

@@ -68,9 +68,11 @@ fn quickstart_compares_every_method_on_every_sparse_modality() {
         assert!(dir.join("plots/neural_error_per_iteration.png").exists());
         // Best, median and worst frame of every method, rendered and linked (src/render).
         for method in ["neural", "neural+lm", "lbfgs", "lm", "cma", "pso"] {
+            // File names are the method's slug (`neural+lm` -> `neural-lm.png`).
+            let file = method.replace('+', "-");
             assert!(
-                md.contains(&format!("](pictures/{method}.png)"))
-                    && dir.join(format!("pictures/{method}.png")).is_file(),
+                md.contains(&format!("](pictures/{file}.png)"))
+                    && dir.join(format!("pictures/{file}.png")).is_file(),
                 "{m}: no picture of {method}"
             );
         }
@@ -155,7 +157,7 @@ fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
             data.meta.frame_motions
         );
         let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("csv");
-        assert_eq!(csv.lines().count(), 1 + 5 * 4);
+        assert_eq!(csv.lines().count(), 1 + 6 * 4);
     }
     assert!(!table.contains("hmd, captured clip"));
     // A clip that is not there: one line, before any fit.

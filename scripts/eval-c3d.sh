@@ -1,0 +1,67 @@
+#!/usr/bin/env bash
+# Captures through `lfit data import`: noise-free markers frames with a known ground truth, 50 of
+# the procedural library and 50 of the MocapBank clip (./scripts/fetch-mocapbank.sh; evaluation
+# only), written as C3D files (`lfit data export-c3d`), imported back (`lfit data import`: no
+# ground truth, each frame starts from the rest pose moved rigidly onto its markers, global
+# scenario: every frame fitted on its own), then fitted by LM, the neural fitter (from Φ(D)) and
+# neural+lm. Prints one Markdown table: per source and method, the share of frames whose fit ends
+# within 5 mm marker RMS, the mean and median marker RMS, evaluations and time per frame.
+#
+#   scripts/eval-c3d.sh [OUT] [CHECKPOINT]
+#
+# OUT defaults to target/eval-c3d; CHECKPOINT to checkpoints/markers-makehuman. LFIT (default: the
+# release build) is the binary. Same inputs, same seeds: the same numbers, but for the times.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+OUT="${1:-target/eval-c3d}"
+CK="${2:-checkpoints/markers-makehuman}"
+LFIT="${LFIT:-${CARGO_TARGET_DIR:-$HOME/.cache/lfit-target}/release/lfit}"
+MODEL=models/makehuman-cmu_mb.npz
+FRAMES="${EVAL_FRAMES:-50}"
+SEED=2511
+if [ ! -x "$LFIT" ]; then
+    echo "eval-c3d: no lfit binary at $LFIT (cargo build --release --workspace)" >&2
+    exit 1
+fi
+if [ ! -d "$CK" ]; then
+    echo "eval-c3d: no checkpoint directory $CK" >&2
+    exit 1
+fi
+mkdir -p "$OUT"
+CLIP="$(./scripts/fetch-mocapbank.sh)"
+"$LFIT" -q motion import --bvh "$CLIP" --map configs/maps/mocapbank_to_makehuman_cmu_mb.json \
+    --model "$MODEL" --out "$OUT/clip-motion.npz" >/dev/null
+rows=()
+for src in library captured; do
+    motions=()
+    [ "$src" = captured ] && motions=(--motions "$OUT/clip-motion.npz")
+    "$LFIT" -q synth --modality markers --scenario local --frames "$FRAMES" --seed "$SEED" --noise 0 \
+        --template "$MODEL" "${motions[@]}" --out "$OUT/$src-truth.npz" >/dev/null
+    "$LFIT" -q data export-c3d --data "$OUT/$src-truth.npz" --out "$OUT/$src.c3d" >/dev/null
+    "$LFIT" -q data import --c3d "$OUT/$src.c3d" --model "$MODEL" --scenario global \
+        --out "$OUT/$src.npz" >/dev/null
+    for method in lm neural neural+lm; do
+        budget=4000
+        ck=()
+        [ "$method" != lm ] && ck=(--checkpoint "$CK")
+        [ "$method" = neural ] && budget=10
+        "$LFIT" -q fit --data "$OUT/$src.npz" --template "$MODEL" --method "$method" \
+            --budget "$budget" "${ck[@]}" --out "$OUT/$src-$method.json" >/dev/null
+        rows+=("$src-$method")
+    done
+done
+python3 - "$OUT" "${rows[@]}" <<'PY'
+import json, statistics, sys
+out, names = sys.argv[1], sys.argv[2:]
+print("| source, method | frames | within 5 mm RMS | mean RMS (mm) | median RMS (mm) | evaluations | time / frame (ms) |")
+print("|---|---|---|---|---|---|---|")
+for n in names:
+    r = json.load(open(f"{out}/{n}.json"))
+    fr = r["frames"]
+    rms = [f["observation_rms_mm"] for f in fr]
+    ok = sum(1 for x in rms if x <= 5.0)
+    ev = sum(f["evaluations"] for f in fr) / len(fr)
+    print(f"| {n} | {len(fr)} | {ok}/{len(fr)} ({100 * ok / len(fr):.0f} %) | "
+          f"{statistics.mean(rms):.1f} | {statistics.median(rms):.1f} | {ev:.0f} | "
+          f"{1000 * r['summary']['mean_time_s']:.1f} |")
+PY
