@@ -4,7 +4,9 @@
 # (local scenario: a start near the target) and as a sequence (each frame from the previous
 # result), by the neural fitter (with each start policy and sequence shape policy), LM and
 # neural+lm, on markers and keypoints2d (pose and β) and hmd (β given). Prints one Markdown table
-# (mean V2V, MPJPE, β RMS, time per frame, evaluations) and writes every result under OUT.
+# (mean V2V, MPJPE, β RMS, time per frame, evaluations) and writes every result under OUT. First
+# per modality: 500 procedural held-out frames (PROC_FRAMES), neural and LM, for comparison with
+# what the fitter was trained on. MODALITIES (default "markers keypoints2d hmd") picks modalities.
 #
 #   scripts/eval-captured.sh [OUT] [CHECKPOINT_SUFFIX]
 #
@@ -28,6 +30,7 @@ CLIP="$(./scripts/fetch-mocapbank.sh)"
 "$LFIT" -q motion import --bvh "$CLIP" --map configs/maps/mocapbank_to_makehuman_cmu_mb.json \
     --model "$MODEL" --out "$OUT/clip-motion.npz" >/dev/null
 FRAMES="${EVAL_FRAMES:-454}"
+PROC_FRAMES="${PROC_FRAMES:-500}"
 rows=()
 run() { # name data method extra...
     local name="$1" data="$2" method="$3"
@@ -35,10 +38,20 @@ run() { # name data method extra...
     "$LFIT" -q fit --data "$data" --template "$MODEL" --method "$method" --out "$OUT/$name.json" "$@" >/dev/null
     rows+=("$name")
 }
-for m in markers keypoints2d hmd; do
+for m in ${MODALITIES:-markers keypoints2d hmd}; do
     ck="checkpoints/$m-makehuman$SUFFIX"
+    if [ ! -d "$ck" ]; then
+        echo "eval-captured: no checkpoint directory $ck" >&2
+        exit 1
+    fi
     known=()
     [ "$m" = hmd ] && known=(--known-shape truth)
+    # Procedural held-out frames (the library, a test seed no training run uses), local scenario.
+    data="$OUT/procedural-$m.npz"
+    "$LFIT" -q synth --modality "$m" --scenario local --frames "$PROC_FRAMES" --seed "$SEED" \
+        --template "$MODEL" --out "$data" >/dev/null
+    run "$m-procedural-neural" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}"
+    run "$m-procedural-lm" "$data" lm --budget 4000 "${known[@]}"
     for scenario in local sequence; do
         data="$OUT/clip-$scenario-$m.npz"
         "$LFIT" -q synth --modality "$m" --scenario "$scenario" --frames "$FRAMES" --seed "$SEED" \

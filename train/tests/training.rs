@@ -354,6 +354,25 @@ fn tensor_loss_matches_a_cpu_computation() {
     assert!(POSE_DIM == 57);
 }
 
+/// Every float parameter of a checkpoint's network, in module order (the burnpack file also holds
+/// per-run parameter ids, so its bytes differ between equal runs).
+fn weights_of(dir: &std::path::Path) -> Vec<f32> {
+    use burn::module::{Module, ModuleVisitor, Param};
+    use burn::tensor::Tensor;
+    struct Floats(Vec<f32>);
+    impl ModuleVisitor for Floats {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            self.0
+                .extend(param.val().into_data().try_to_vec::<f32>().expect("f32 weights"));
+        }
+    }
+    let ck = checkpoint::load(dir, &ndarray_device()).expect("checkpoint");
+    let mut v = Floats(Vec::new());
+    ck.net.visit(&mut v);
+    assert!(!v.0.is_empty());
+    v.0
+}
+
 /// A run with the start mix (`"starts"`): every source, including the network's own results fed
 /// forward over consecutive frames, trains; the same seed gives the same weights; without
 /// `"starts"` the config is what it was (resume equality, serialised form).
@@ -380,7 +399,7 @@ fn the_start_mix_trains_and_is_deterministic() {
         )
         .expect("train");
         (
-            std::fs::read(out.join("weights.bpk")).expect("weights"),
+            weights_of(&out),
             losses.into_inner().expect("losses"),
         )
     };
