@@ -127,7 +127,7 @@ fn bench(c: &mut Criterion) {
         let one: Vec<&Energy> = energies[..1].to_vec();
         let poses = vec![starts[0].clone()];
         let obs = observation_rows(c, &f.stats, &one).expect("obs");
-        let evals = evaluate(&one, &poses);
+        let evals = evaluate(c, &one, &poses, None).expect("evaluate");
         let core = core_rows(c, &f.stats, &one, &evals, &poses, &obs).expect("core");
         let delta = vec![vec![1e-3; c.param_dim]];
         let step = step_rows(c, &f.stats, &one, &poses, &evals, &delta).expect("step");

@@ -165,7 +165,7 @@ fn inputs(f: &NeuralFitter, frames: &lfit::train::Frames) -> Inputs {
     let energies: Vec<&Energy> = frames.energies.iter().collect();
     let poses: Vec<Vec<f64>> = frames.dataset.start_poses.clone();
     let obs = observation_rows(c, &f.stats, &energies).expect("obs");
-    let evals = evaluate(&energies, &poses);
+    let evals = evaluate(c, &energies, &poses, None).expect("evaluate");
     let core = core_rows(c, &f.stats, &energies, &evals, &poses, &obs).expect("core");
     let delta_poses: Vec<Vec<f64>> = poses.iter().map(|_| vec![1e-3; c.param_dim]).collect();
     let step = step_rows(c, &f.stats, &energies, &poses, &evals, &delta_poses).expect("step");

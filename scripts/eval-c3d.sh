@@ -15,22 +15,11 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT="${1:-target/eval-c3d}"
 CK="${2:-checkpoints/markers-makehuman}"
-LFIT="${LFIT:-${CARGO_TARGET_DIR:-$HOME/.cache/lfit-target}/release/lfit}"
-MODEL=models/makehuman-cmu_mb.npz
 FRAMES="${EVAL_FRAMES:-50}"
 SEED=2511
-if [ ! -x "$LFIT" ]; then
-    echo "eval-c3d: no lfit binary at $LFIT (cargo build --release --workspace)" >&2
-    exit 1
-fi
-if [ ! -d "$CK" ]; then
-    echo "eval-c3d: no checkpoint directory $CK" >&2
-    exit 1
-fi
-mkdir -p "$OUT"
-CLIP="$(./scripts/fetch-mocapbank.sh)"
-"$LFIT" -q motion import --bvh "$CLIP" --map configs/maps/mocapbank_to_makehuman_cmu_mb.json \
-    --model "$MODEL" --out "$OUT/clip-motion.npz" >/dev/null
+source scripts/eval-common.sh
+eval_need_dir eval-c3d "$CK"
+eval_setup eval-c3d "$OUT"
 rows=()
 for src in library captured; do
     motions=()
@@ -50,18 +39,4 @@ for src in library captured; do
         rows+=("$src-$method")
     done
 done
-python3 - "$OUT" "${rows[@]}" <<'PY'
-import json, statistics, sys
-out, names = sys.argv[1], sys.argv[2:]
-print("| source, method | frames | within 5 mm RMS | mean RMS (mm) | median RMS (mm) | evaluations | time / frame (ms) |")
-print("|---|---|---|---|---|---|---|")
-for n in names:
-    r = json.load(open(f"{out}/{n}.json"))
-    fr = r["frames"]
-    rms = [f["observation_rms_mm"] for f in fr]
-    ok = sum(1 for x in rms if x <= 5.0)
-    ev = sum(f["evaluations"] for f in fr) / len(fr)
-    print(f"| {n} | {len(fr)} | {ok}/{len(fr)} ({100 * ok / len(fr):.0f} %) | "
-          f"{statistics.mean(rms):.1f} | {statistics.median(rms):.1f} | {ev:.0f} | "
-          f"{1000 * r['summary']['mean_time_s']:.1f} |")
-PY
+eval_table c3d "$OUT" "${rows[@]}"

@@ -17,18 +17,10 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT="${1:-target/eval-captured}"
 SUFFIX="${2:-}"
-LFIT="${LFIT:-${CARGO_TARGET_DIR:-$HOME/.cache/lfit-target}/release/lfit}"
-MODEL=models/makehuman-cmu_mb.npz
 # The seed of the clip frames in docs/results/learned-vs-classical.md.
 SEED=9103745171752751104
-mkdir -p "$OUT"
-if [ ! -x "$LFIT" ]; then
-    echo "eval-captured: no lfit binary at $LFIT (cargo build --release --workspace)" >&2
-    exit 1
-fi
-CLIP="$(./scripts/fetch-mocapbank.sh)"
-"$LFIT" -q motion import --bvh "$CLIP" --map configs/maps/mocapbank_to_makehuman_cmu_mb.json \
-    --model "$MODEL" --out "$OUT/clip-motion.npz" >/dev/null
+source scripts/eval-common.sh
+eval_setup eval-captured "$OUT"
 FRAMES="${EVAL_FRAMES:-454}"
 PROC_FRAMES="${PROC_FRAMES:-500}"
 rows=()
@@ -40,10 +32,7 @@ run() { # name data method extra...
 }
 for m in ${MODALITIES:-markers keypoints2d hmd}; do
     ck="checkpoints/$m-makehuman$SUFFIX"
-    if [ ! -d "$ck" ]; then
-        echo "eval-captured: no checkpoint directory $ck" >&2
-        exit 1
-    fi
+    eval_need_dir eval-captured "$ck"
     known=()
     [ "$m" = hmd ] && known=(--known-shape truth)
     # Procedural held-out frames (the library, a test seed no training run uses), local scenario.
@@ -75,17 +64,4 @@ for m in ${MODALITIES:-markers keypoints2d hmd}; do
         fi
     done
 done
-python3 - "$OUT" "${rows[@]}" <<'PY'
-import json, sys
-out, names = sys.argv[1], sys.argv[2:]
-print("| run | frames | V2V (mm) | MPJPE (mm) | β RMS | energy | evaluations | time / frame (ms) |")
-print("|---|---|---|---|---|---|---|---|")
-for n in names:
-    r = json.load(open(f"{out}/{n}.json"))
-    s, fr = r["summary"], r["frames"]
-    ev = sum(f["evaluations"] for f in fr) / len(fr)
-    beta = s.get("mean_shape_rms")
-    beta = f"{beta:.3f}" if beta is not None and "hmd" not in n else "given"
-    print(f"| {n} | {len(fr)} | {s['mean_v2v_mm']:.1f} | {s['mean_mpjpe_mm']:.1f} | {beta} | "
-          f"{s['mean_energy']:.4f} | {ev:.0f} | {1000 * s['mean_time_s']:.2f} |")
-PY
+eval_table fits "$OUT" "${rows[@]}"

@@ -18,22 +18,11 @@ if [ $# -lt 1 ] || [ $# -gt 2 ]; then
 fi
 CK="$1"
 OUT="${2:-target/eval-rigs}"
-LFIT="${LFIT:-${CARGO_TARGET_DIR:-$HOME/.cache/lfit-target}/release/lfit}"
-MODEL=models/makehuman-cmu_mb.npz
 FRAMES="${EVAL_FRAMES:-200}"
 SEED=9103745171752751104
-if [ ! -x "$LFIT" ]; then
-    echo "eval-rigs: no lfit binary at $LFIT (cargo build --release --workspace)" >&2
-    exit 1
-fi
-if [ ! -d "$CK" ]; then
-    echo "eval-rigs: no checkpoint directory $CK" >&2
-    exit 1
-fi
-mkdir -p "$OUT"
-CLIP="$(./scripts/fetch-mocapbank.sh)"
-"$LFIT" -q motion import --bvh "$CLIP" --map configs/maps/mocapbank_to_makehuman_cmu_mb.json \
-    --model "$MODEL" --out "$OUT/clip-motion.npz" >/dev/null
+source scripts/eval-common.sh
+eval_need_dir eval-rigs "$CK"
+eval_setup eval-rigs "$OUT"
 rows=()
 for cams in 1 3; do
     data="$OUT/clip-$cams-cam.npz"
@@ -48,15 +37,4 @@ for cams in 1 3; do
         rows+=("$cams-cam-neural-$start")
     done
 done
-python3 - "$OUT" "${rows[@]}" <<'PY'
-import json, sys
-out, names = sys.argv[1], sys.argv[2:]
-print("| run | frames | V2V (mm) | MPJPE (mm) | β RMS | evaluations | time / frame (ms) |")
-print("|---|---|---|---|---|---|---|")
-for n in names:
-    r = json.load(open(f"{out}/{n}.json"))
-    s, fr = r["summary"], r["frames"]
-    ev = sum(f["evaluations"] for f in fr) / len(fr)
-    print(f"| {n} | {len(fr)} | {s['mean_v2v_mm']:.1f} | {s['mean_mpjpe_mm']:.1f} | "
-          f"{s['mean_shape_rms']:.3f} | {ev:.0f} | {1000 * s['mean_time_s']:.2f} |")
-PY
+eval_table fits "$OUT" "${rows[@]}"

@@ -123,11 +123,17 @@ pub fn export_c3d(args: &ExportC3dArgs) -> Result<Value> {
         ),
     };
     let lfit_synth::Observations::Sparse { values, visible } = &dataset.observations else {
-        bail!("dataset {} has no sparse marker observations", args.data.display());
+        bail!(
+            "dataset {} has no sparse marker observations",
+            args.data.display()
+        );
     };
     let fps = dataset.meta.config.fps;
     if !(fps.is_finite() && fps > 0.0) {
-        bail!("dataset {} has frame rate {fps}, not a positive number", args.data.display());
+        bail!(
+            "dataset {} has frame rate {fps}, not a positive number",
+            args.data.display()
+        );
     }
     let mut gaps = 0usize;
     let mut frames = Vec::with_capacity(values.len());

@@ -335,7 +335,11 @@ pub fn coverage(args: &CoverageArgs) -> Result<Value> {
             .map_or_else(|| eval.model.layout.clone(), |c| c.model.layout.clone()),
     };
     let model_id = template.as_ref().map_or_else(
-        || train.first().map_or_else(|| eval.model.id.clone(), |c| c.model.id.clone()),
+        || {
+            train
+                .first()
+                .map_or_else(|| eval.model.id.clone(), |c| c.model.id.clone())
+        },
         |t| t.id.clone(),
     );
     let mut data_poses: Vec<Vec<Vec<f64>>> = Vec::with_capacity(args.train_data.len());

@@ -621,14 +621,31 @@ fn export_c3d_round_trips_through_data_import() {
     // With the default noise model: noisy positions and occluded markers (gaps in the C3D).
     let data = d.join("noisy.npz");
     lfit_json(&[
-        "-q", "synth", "--modality", "markers", "--scenario", "sequence", "--frames", "6",
-        "--seed", "12", "--out", path_str(&data),
+        "-q",
+        "synth",
+        "--modality",
+        "markers",
+        "--scenario",
+        "sequence",
+        "--frames",
+        "6",
+        "--seed",
+        "12",
+        "--out",
+        path_str(&data),
     ]);
     let truth = Dataset::load(&data).expect("dataset");
     let c3d = d.join("noisy.c3d");
     let s = lfit_json(&[
-        "-q", "data", "export-c3d", "--data", path_str(&data), "--out", path_str(&c3d),
-        "--label-prefix", "S1:",
+        "-q",
+        "data",
+        "export-c3d",
+        "--data",
+        path_str(&data),
+        "--out",
+        path_str(&c3d),
+        "--label-prefix",
+        "S1:",
     ]);
     assert_eq!(s["frames"], 6);
     let (tv, tb) = sparse(&truth);
@@ -640,13 +657,23 @@ fn export_c3d_round_trips_through_data_import() {
     assert_eq!(file.rate, truth.meta.config.fps);
     // Back through lfit data import (labels without the prefix: a map).
     let names: Vec<String> = file.labels.iter().map(|l| l[3..].to_string()).collect();
-    let map: Vec<(String, String)> = names.iter().map(|n| (format!("S1:{n}"), n.clone())).collect();
+    let map: Vec<(String, String)> = names
+        .iter()
+        .map(|n| (format!("S1:{n}"), n.clone()))
+        .collect();
     let map_file = d.join("map.json");
     write_map(&map_file, &map);
     let back = d.join("back.npz");
     lfit_json(&[
-        "-q", "data", "import", "--c3d", path_str(&c3d), "--label-map", path_str(&map_file),
-        "--out", path_str(&back),
+        "-q",
+        "data",
+        "import",
+        "--c3d",
+        path_str(&c3d),
+        "--label-map",
+        path_str(&map_file),
+        "--out",
+        path_str(&back),
     ]);
     let imported = Dataset::load(&back).expect("imported");
     let (iv, ib) = sparse(&imported);
@@ -665,17 +692,38 @@ fn export_c3d_round_trips_through_data_import() {
     let (kp, _) = synth(d, "keypoints2d", 2, 3);
     let out = d.join("kp.c3d");
     assert_one_line_error(
-        &lfit(&["data", "export-c3d", "--data", path_str(&kp), "--out", path_str(&out)]),
+        &lfit(&[
+            "data",
+            "export-c3d",
+            "--data",
+            path_str(&kp),
+            "--out",
+            path_str(&out),
+        ]),
         "only a markers dataset",
     );
     assert!(!out.exists());
     assert_one_line_error(
-        &lfit(&["data", "export-c3d", "--data", path_str(&d.join("none.npz")), "--out", path_str(&out)]),
+        &lfit(&[
+            "data",
+            "export-c3d",
+            "--data",
+            path_str(&d.join("none.npz")),
+            "--out",
+            path_str(&out),
+        ]),
         "none.npz",
     );
     assert!(!out.exists());
     assert_one_line_error(
-        &lfit(&["data", "export-c3d", "--data", path_str(&data), "--out", path_str(d)]),
+        &lfit(&[
+            "data",
+            "export-c3d",
+            "--data",
+            path_str(&data),
+            "--out",
+            path_str(d),
+        ]),
         "directory",
     );
 }

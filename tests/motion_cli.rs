@@ -1210,7 +1210,10 @@ fn a_rest_pose_file_fixes_the_limb_twist_of_a_capture_whose_zero_pose_has_its_le
         }
     }
     let knee = index(&s, "l_knee");
-    assert!(c.rest[knee][1] > c.rest[index(&s, "l_hip")][1] + 0.3, "the legs point up");
+    assert!(
+        c.rest[knee][1] > c.rest[index(&s, "l_hip")][1] + 0.3,
+        "the legs point up"
+    );
     let bvh = dir.path().join("legs_up.bvh");
     std::fs::write(&bvh, write_capture(&s, &c, &poses)).unwrap();
     // Its rest pose: the legs turned back (world rotation relative to the zero pose).
@@ -1269,7 +1272,9 @@ fn a_rest_pose_file_fixes_the_limb_twist_of_a_capture_whose_zero_pose_has_its_le
     let clip = read_motion(&fixed);
     assert!(clip.source.contains("rest:rest.json"), "{}", clip.source);
     let worst = worst_mapped_rotation(&s, &poses, &clip.poses);
-    println!("legs-up capture: worst rotation {twisted:.3} rad without the rest pose, {worst:.3e} rad with it");
+    println!(
+        "legs-up capture: worst rotation {twisted:.3} rad without the rest pose, {worst:.3e} rad with it"
+    );
     assert!(worst <= 1e-6, "with the rest pose: {worst} rad");
     // Bad rest-pose files and misuse are one-line errors that write nothing.
     let never = dir.path().join("never.npz");
@@ -1352,18 +1357,31 @@ fn neutral_joints_copy_their_rotation_where_the_rigs_place_a_trunk_joint_differe
     // Aligned by bone directions the hips pitch to follow the moved spine bone.
     let aligned = dir.path().join("aligned.npz");
     let run = import(&aligned, "");
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
     let pitched = root_error(&read_motion(&aligned));
-    assert!(pitched > 0.05, "direction alignment: root error {pitched} rad");
+    assert!(
+        pitched > 0.05,
+        "direction alignment: root error {pitched} rad"
+    );
     // Neutral hips copy the rotation: every mapped joint comes back; the moved bone's direction
     // differs by (up to) the 25 degrees it was turned.
     let neutral = dir.path().join("neutral.npz");
     let run = import(&neutral, "\"Hips\"");
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
     let summary: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
     let clip = read_motion(&neutral);
     let worst = worst_mapped_rotation(&s, &poses, &clip.poses);
-    println!("moved spine joint: root error {pitched:.3} rad aligned by directions, rotations {worst:.3e} rad with neutral hips");
+    println!(
+        "moved spine joint: root error {pitched:.3} rad aligned by directions, rotations {worst:.3e} rad with neutral hips"
+    );
     assert!(worst <= 1e-6, "neutral hips: {worst} rad");
     let min = summary["bone_cosine_min"].as_f64().unwrap();
     assert!(
@@ -1551,8 +1569,18 @@ fn coverage_of_an_evaluation_motion_by_training_motions() {
     // A dataset of another model, or not a dataset.
     let mh_data = dir.path().join("mh.npz");
     lfit_json(&[
-        "synth", "-q", "--modality", "markers", "--frames", "2", "--seed", "3", "--template",
-        mh.to_str().unwrap(), "--out", path_str(&mh_data),
+        "synth",
+        "-q",
+        "--modality",
+        "markers",
+        "--frames",
+        "2",
+        "--seed",
+        "3",
+        "--template",
+        mh.to_str().unwrap(),
+        "--out",
+        path_str(&mh_data),
     ]);
     assert_one_line_error(
         &lfit(&[
@@ -1819,7 +1847,9 @@ fn the_mocapbank_clip_drives_the_makehuman_cmu_mb_model_and_feeds_synth() {
     let global = lfit::model::Bounds::global_for(&m);
     let pd = m.layout().pose_dim();
     let outside = |p: &[f64], from: usize| {
-        (from..pd).filter(|&i| p[i] < global.lower[i] || p[i] > global.upper[i]).count()
+        (from..pd)
+            .filter(|&i| p[i] < global.lower[i] || p[i] > global.upper[i])
+            .count()
     };
     let clamped = clip.poses.iter().filter(|p| outside(p, 3) > 0).count();
     let joints_out = clip.poses.iter().filter(|p| outside(p, 6) > 0).count();
@@ -1828,9 +1858,18 @@ fn the_mocapbank_clip_drives_the_makehuman_cmu_mb_model_and_feeds_synth() {
         "MocapBank clip on makehuman-cmu_mb: {clamped} of 455 frames outside the global box, {joints_out} with a joint outside its limits ({entries} rotation entries in all)"
     );
     let pi = std::f64::consts::PI;
-    assert_eq!((&global.lower[3..6], &global.upper[3..6]), (&[-pi; 3][..], &[pi; 3][..]));
-    assert_eq!(clamped, joints_out, "the root's orientation is never clamped");
-    assert!(clamped <= CLIP_FRAMES_OUTSIDE_LIMITS, "{clamped} frames clamped");
+    assert_eq!(
+        (&global.lower[3..6], &global.upper[3..6]),
+        (&[-pi; 3][..], &[pi; 3][..])
+    );
+    assert_eq!(
+        clamped, joints_out,
+        "the root's orientation is never clamped"
+    );
+    assert!(
+        clamped <= CLIP_FRAMES_OUTSIDE_LIMITS,
+        "{clamped} frames clamped"
+    );
     // The imported clip feeds lfit synth on the same model: a sequence of its frames.
     let motion = dir.path().join("mocapbank_to_makehuman_cmu_mb.json.npz");
     let data = dir.path().join("clip_sequence.npz");

@@ -24,7 +24,8 @@ use lfit::nn::checkpoint::{self, CheckpointMeta};
 use lfit::nn::tensor::{ndarray_device, poses_to_tensor, tensor_to_rows};
 use lfit::nn::unroll::{core_rows, evaluate, observation_rows, rows_to_poses, step_rows};
 use lfit::nn::{
-    CoreKind, Dropout, FeatureStats, GammaMode, NetConfig, NeuralNet, StepShape, UpdateRule,
+    CoreKind, Direction, Dropout, FeatureStats, GammaMode, NetConfig, NeuralNet, StepShape,
+    UpdateRule,
 };
 use lfit::train::{
     Frames, Motions, TrainConfig, base_energy, measure_stats, measure_stats_with, synth_frames,
@@ -117,7 +118,7 @@ fn lockstep(
     }
     let mut current = starts.to_vec();
     for n in 0..c.iterations {
-        let evals = evaluate(energies, &current);
+        let evals = evaluate(c, energies, &current, None).expect("evaluate");
         let d = c.obs_features();
         let core_in = core_rows(
             c,
@@ -396,6 +397,14 @@ fn every_ablation_variant_exports_and_matches_burn() {
                 ..base.clone()
             },
         ),
+        (
+            "Gauss-Newton direction",
+            NetConfig {
+                direction: Direction::GaussNewton,
+                gamma_init: 0.5,
+                ..base.clone()
+            },
+        ),
     ];
     for (name, config) in variants {
         let mut net = NeuralNet::new(&config, 7, &ndarray_device()).expect("net");
@@ -442,6 +451,34 @@ fn every_ablation_variant_exports_and_matches_burn() {
             &frames.dataset.start_poses,
         );
         eprintln!("{name}: worst difference {worst:e}");
+        // The whole loop, from the start poses: the host computes the direction (gradient or
+        // Gauss-Newton) for both runtimes.
+        let starts: Vec<Option<Vec<f64>>> = frames
+            .dataset
+            .start_poses
+            .iter()
+            .cloned()
+            .map(Some)
+            .collect();
+        let burn = lfit::nn::unroll(
+            &net,
+            &stats,
+            &energies,
+            &starts,
+            None,
+            &ndarray_device(),
+            &mut Dropout::off(),
+        )
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let onnx = lfit::infer::onnx::runtime::unroll_ort(&mut ort, &energies, &starts, None)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        for (a, b) in burn.host.iter().flatten().zip(onnx.iter().flatten()) {
+            let d = v2v_mm(template, a, b);
+            assert!(
+                d.is_finite() && d < 1.0,
+                "{name}: Burn and ORT {d} mm apart"
+            );
+        }
     }
 }
 
@@ -886,7 +923,7 @@ fn the_python_example_runs_the_exported_step_as_burn_does() {
         // Burn, first iteration from the start pose.
         let obs = observation_rows(c, stats, &[energy]).expect("obs").concat();
         let (theta0, mut state) = net.initial(rows(&obs, 1));
-        let evals = evaluate(&[energy], std::slice::from_ref(&pose));
+        let evals = evaluate(c, &[energy], std::slice::from_ref(&pose), None).expect("evaluate");
         let core_in = core_rows(
             c,
             stats,

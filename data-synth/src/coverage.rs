@@ -258,7 +258,12 @@ mod tests {
             p
         };
         let train: Vec<Vec<f64>> = (0..=100).map(|k| pose(f64::from(k), 0.0)).collect();
-        let eval = vec![pose(50.0, 1.0), pose(0.0, 1.0), pose(20.0, 1.0), pose(30.0, 1.0)];
+        let eval = vec![
+            pose(50.0, 1.0),
+            pose(0.0, 1.0),
+            pose(20.0, 1.0),
+            pose(30.0, 1.0),
+        ];
         let all = coverage(&layout, &[&train[..]], &eval, 1e-9, None).unwrap();
         assert_eq!(all.counted, [1, 2]);
         assert_eq!(all.covered, 0.0);

@@ -25,7 +25,7 @@
 
 use lfit_model::energy::{Energy, RobustForm};
 use lfit_model::pose::Bounds;
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DVector;
 use serde::Serialize;
 
 use crate::error::FitError;
@@ -33,27 +33,9 @@ use crate::fitter::{
     FitRequest, FitResult, Fitter, StageOutcome, StageSolver, Strategy, run_staged,
 };
 
-/// The step of one damped Gauss-Newton system on the entries `free` (positions in `a` and `g`):
-/// `(A + μ D + 1e-12 max(D) I) h = −g` with `A = JᵀJ`, `g = Jᵀr`, `D = diag` (Marquardt's
-/// scaling) and `μ = damping` (0: Gauss-Newton), by dense Cholesky; `None` when the system is
-/// not positive definite. LM's parameter update given the residuals and the Jacobian (papers/002
-/// compares its cost with the neural update's, Table 7).
-pub fn damped_step(
-    a: &DMatrix<f64>,
-    g: &DVector<f64>,
-    free: &[usize],
-    diag: &[f64],
-    damping: f64,
-    max_diag: f64,
-) -> Option<DVector<f64>> {
-    let m = free.len();
-    let mut sys = DMatrix::<f64>::from_fn(m, m, |r, c| a[(free[r], free[c])]);
-    for (k, dk) in diag.iter().enumerate() {
-        sys[(k, k)] += damping * dk + 1e-12 * max_diag;
-    }
-    let rhs = DVector::<f64>::from_iterator(m, free.iter().map(|&p| -g[p]));
-    sys.cholesky().map(|c| c.solve(&rhs))
-}
+/// The step of one damped Gauss-Newton system (moved to the model crate, where the neural
+/// fitter's Gauss-Newton direction uses it too).
+pub use lfit_model::energy::damped_step;
 
 /// Which least-squares method.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]

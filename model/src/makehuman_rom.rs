@@ -757,7 +757,12 @@ mod tests {
     use crate::skinning::joint_transforms;
     use crate::template::Template;
 
-    fn bone(name: &'static str, parent: Option<usize>, head: [f64; 3], tail: [f64; 3]) -> RomBone<'static> {
+    fn bone(
+        name: &'static str,
+        parent: Option<usize>,
+        head: [f64; 3],
+        tail: [f64; 3],
+    ) -> RomBone<'static> {
         RomBone {
             name,
             parent,
@@ -804,19 +809,32 @@ mod tests {
         assert_eq!(l("Hips"), [[-180.0, 180.0]; 3]);
         assert_eq!(l("LHipJoint"), [[-5.0, 5.0]; 3]);
         // Hip: flexion 120 about −x, abduction 45 (left +z, right −z), rotation ±45 about y.
-        assert_eq!(l("LeftUpLeg"), [[-120.0, 30.0], [-45.0, 45.0], [-30.0, 45.0]]);
-        assert_eq!(l("RightUpLeg"), [[-120.0, 30.0], [-45.0, 45.0], [-45.0, 30.0]]);
+        assert_eq!(
+            l("LeftUpLeg"),
+            [[-120.0, 30.0], [-45.0, 45.0], [-30.0, 45.0]]
+        );
+        assert_eq!(
+            l("RightUpLeg"),
+            [[-120.0, 30.0], [-45.0, 45.0], [-45.0, 30.0]]
+        );
         // Knee: flexion 140 about +x, 10 of hyperextension; no rest flexion here.
         assert_eq!(l("LeftLeg"), [[-10.0, 140.0], [-10.0, 10.0], [-5.0, 5.0]]);
         // Spine: 80 flexion / 25 extension, lateral ±35, rotation ±45, a third per joint.
         let third = |x: f64| (x / 3.0 * 10.0).round() / 10.0;
         assert_eq!(
             l("Spine"),
-            [[-third(25.0), third(80.0)], [-15.0, 15.0], [-third(35.0), third(35.0)]]
+            [
+                [-third(25.0), third(80.0)],
+                [-15.0, 15.0],
+                [-third(35.0), third(35.0)]
+            ]
         );
         // The arm at the side: flexion 180 about −x, abduction about +z (left) from 0 at
         // rest, internal rotation 70 about the bone (−y for the left arm: +t).
-        assert_eq!(l("LeftArm"), [[-180.0, 60.0], [-70.0, 90.0], [-75.0, 180.0]]);
+        assert_eq!(
+            l("LeftArm"),
+            [[-180.0, 60.0], [-70.0, 90.0], [-75.0, 180.0]]
+        );
         // An unknown bone keeps ±30°.
         assert_eq!(l("Tongue"), [[-30.0, 30.0]; 3]);
         assert_eq!(rom(&b, "Tongue").kind, None);
@@ -828,7 +846,10 @@ mod tests {
         // The wrist: the palm faces +z, so flexion swings the hand forward (about −x ... for
         // a hand pointing down, the tip moves towards +z), radial deviation towards the thumb.
         let wrist = rom(&b, "LeftHand");
-        assert!((wrist.axes[0].0 - DVec3::NEG_X).length() < 1e-9, "{wrist:?}");
+        assert!(
+            (wrist.axes[0].0 - DVec3::NEG_X).length() < 1e-9,
+            "{wrist:?}"
+        );
         assert!((wrist.axes[1].0 - DVec3::Z).length() < 1e-9, "{wrist:?}");
         assert_eq!(wrist.limits_deg[0], [-80.0, 70.0]);
     }
@@ -872,7 +893,10 @@ mod tests {
         assert_eq!(kind_of("default", "toe1-2.L"), Some(Kind::GreatToeIp));
         assert_eq!(kind_of("default", "toe1-3.L"), None);
         assert_eq!(kind_of("default", "finger3-1.R"), Some(Kind::FingerMcp));
-        assert_eq!(kind_of("default", "upperarm02.L"), Some(Kind::UpperArmTwist));
+        assert_eq!(
+            kind_of("default", "upperarm02.L"),
+            Some(Kind::UpperArmTwist)
+        );
         assert_eq!(kind_of("default", "tongue01"), None);
         assert_eq!(kind_of("mixamo", "LeftUpLeg"), None);
     }
@@ -966,21 +990,36 @@ mod tests {
             let (hip, knee, ankle, toe) = (n("UpLeg"), n("Leg"), n("Foot"), n("ToeBase"));
             // Hip flexion: about −x, 120°; the knee ends in front of and above the hip.
             let l = m.limits(&hip);
-            assert!(l[0][0] <= -115.0 && (25.0..=35.0).contains(&l[0][1]), "{hip} {l:?}");
+            assert!(
+                l[0][0] <= -115.0 && (25.0..=35.0).contains(&l[0][1]),
+                "{hip} {l:?}"
+            );
             let p = m.pose(&[(&hip, x(l[0][0]))]);
             let (h, k) = (m.at(&p, &hip), m.at(&p, &knee));
-            assert!(k.z > h.z + 0.15 && k.y > h.y, "{hip} flexed: hip {h}, knee {k}");
+            assert!(
+                k.z > h.z + 0.15 && k.y > h.y,
+                "{hip} flexed: hip {h}, knee {k}"
+            );
             let p = m.pose(&[(&hip, x(l[0][1]))]);
             assert!(m.at(&p, &knee).z < h.z - 0.1, "{hip} extended");
             // Hip abduction: +z on the left, −z on the right; the knee moves outwards.
             let abd = DVec3::new(0.0, 0.0, 44.0 * s);
             assert!(m.allows(&hip, abd), "{hip} {l:?}");
             let p = m.pose(&[(&hip, abd)]);
-            assert!(s * (m.at(&p, &knee).x - m.rest(&knee).x) > 0.15, "{hip} abducted");
-            assert!(!m.allows(&hip, -abd * 50.0 / 44.0), "{hip}: adduction is 30°");
+            assert!(
+                s * (m.at(&p, &knee).x - m.rest(&knee).x) > 0.15,
+                "{hip} abducted"
+            );
+            assert!(
+                !m.allows(&hip, -abd * 50.0 / 44.0),
+                "{hip}: adduction is 30°"
+            );
             // Knee flexion: about +x, ~135° from rest; the ankle ends behind the knee.
             let l = m.limits(&knee);
-            assert!(l[0][1] >= 125.0 && (-20.0..=-5.0).contains(&l[0][0]), "{knee} {l:?}");
+            assert!(
+                l[0][1] >= 125.0 && (-20.0..=-5.0).contains(&l[0][0]),
+                "{knee} {l:?}"
+            );
             let p = m.pose(&[(&knee, x(l[0][1]))]);
             let (k, a) = (m.at(&p, &knee), m.at(&p, &ankle));
             assert!(a.z < k.z - 0.25, "{knee} flexed: knee {k}, ankle {a}");
@@ -990,7 +1029,10 @@ mod tests {
             assert!((-25.0..=-15.0).contains(&l[0][0]), "{ankle} {l:?}");
             let toe_rest = m.rest(&toe);
             let p = m.pose(&[(&ankle, x(l[0][1]))]);
-            assert!(m.at(&p, &toe).y < toe_rest.y - 0.03, "{ankle} plantarflexed");
+            assert!(
+                m.at(&p, &toe).y < toe_rest.y - 0.03,
+                "{ankle} plantarflexed"
+            );
             let p = m.pose(&[(&ankle, x(l[0][0]))]);
             assert!(m.at(&p, &toe).y > toe_rest.y + 0.01, "{ankle} dorsiflexed");
 
@@ -1003,7 +1045,10 @@ mod tests {
             assert!(m.allows(&arm, u * 170.0), "{arm} {:?}", m.limits(&arm));
             let p = m.pose(&[(&arm, u * 170.0)]);
             let e = m.at(&p, &fore);
-            assert!(e.y > sh.y + 0.1 && e.z > sh.z, "{arm} flexed: shoulder {sh}, elbow {e}");
+            assert!(
+                e.y > sh.y + 0.1 && e.z > sh.z,
+                "{arm} flexed: shoulder {sh}, elbow {e}"
+            );
             assert!(m.allows(&arm, u * -55.0), "{arm} extension");
             assert!(m.at(&m.pose(&[(&arm, u * -55.0)]), &fore).z < sh.z - 0.1);
             // Abduction: about +z on the left, −z on the right; 130° raises the elbow.
@@ -1021,7 +1066,10 @@ mod tests {
             assert!(m.allows(&fore, flex), "{fore} {:?}", m.limits(&fore));
             let p = m.pose(&[(&fore, flex)]);
             let d = (m.at(&p, &hand) - sh).length();
-            assert!(d < 0.6 * (w - sh).length(), "{fore} flexed: wrist {d} m from the shoulder");
+            assert!(
+                d < 0.6 * (w - sh).length(),
+                "{fore} flexed: wrist {d} m from the shoulder"
+            );
         }
         // Spine: +x flexes each segment, 80° in all; the head ends well in front.
         let spine = ["LowerBack", "Spine", "Spine1"];
@@ -1029,9 +1077,16 @@ mod tests {
         assert!((total - 80.0).abs() < 2.0, "{total}");
         let flexed: Vec<(&str, DVec3)> = spine.iter().map(|j| (*j, x(m.limits(j)[0][1]))).collect();
         let p = m.pose(&flexed);
-        assert!(m.at(&p, "Head").z > m.rest("Head").z + 0.25, "trunk flexion");
-        let extended: Vec<(&str, DVec3)> = spine.iter().map(|j| (*j, x(m.limits(j)[0][0]))).collect();
-        assert!(m.at(&m.pose(&extended), "Head").z < m.rest("Head").z - 0.05, "trunk extension");
+        assert!(
+            m.at(&p, "Head").z > m.rest("Head").z + 0.25,
+            "trunk flexion"
+        );
+        let extended: Vec<(&str, DVec3)> =
+            spine.iter().map(|j| (*j, x(m.limits(j)[0][0]))).collect();
+        assert!(
+            m.at(&m.pose(&extended), "Head").z < m.rest("Head").z - 0.05,
+            "trunk extension"
+        );
         // Neck: +x flexes Neck, Neck1 and Head, 45° in all; a point above the head moves forward.
         let neck = ["Neck", "Neck1", "Head"];
         let total: f64 = neck.iter().map(|j| m.limits(j)[0][1]).sum();
@@ -1040,7 +1095,10 @@ mod tests {
         let flexed: Vec<(&str, DVec3)> = neck.iter().map(|j| (*j, x(m.limits(j)[0][1]))).collect();
         let p = m.pose(&flexed);
         let moved = p.transforms[m.index("Head")].transform_point3(crown);
-        assert!(moved.z > crown.z + 0.08 && moved.y < crown.y, "head flexion: {moved}");
+        assert!(
+            moved.z > crown.z + 0.08 && moved.y < crown.y,
+            "head flexion: {moved}"
+        );
     }
 
     /// The root is the global orientation: EA (either form) never counts it, whatever it is,
@@ -1057,7 +1115,12 @@ mod tests {
         for form in [AnglePrior::Binary, AnglePrior::Hinge] {
             assert_eq!(limits.evaluate(&pose, form, None), 0.0, "{form:?}");
         }
-        let knee = t.rig.joints.iter().position(|j| j.name == "LeftLeg").unwrap();
+        let knee = t
+            .rig
+            .joints
+            .iter()
+            .position(|j| j.name == "LeftLeg")
+            .unwrap();
         pose[crate::pose::rot_offset(knee)] = 170f64.to_radians();
         assert_eq!(limits.evaluate(&pose, AnglePrior::Binary, None), 1.0);
         assert!(limits.evaluate(&pose, AnglePrior::Hinge, None) > 0.0);
@@ -1067,7 +1130,10 @@ mod tests {
             p[3..6].copy_from_slice(&[3.0, -3.1, 2.5]);
             p
         }));
-        assert_eq!((g.lower[3], g.upper[5]), (-std::f64::consts::PI, std::f64::consts::PI));
+        assert_eq!(
+            (g.lower[3], g.upper[5]),
+            (-std::f64::consts::PI, std::f64::consts::PI)
+        );
     }
 
     /// The real rig files (LFIT_MPFB2_DIR): every bone of `cmu_mb` and `game_engine` has an
@@ -1089,8 +1155,18 @@ mod tests {
                 .map(|b| b.name.as_str())
                 .collect();
             let face = [
-                "breast", "eye", "jaw", "tongue", "levator", "oris", "special", "temporalis",
-                "risorius", "orbicularis", "oculi", "toe1-3",
+                "breast",
+                "eye",
+                "jaw",
+                "tongue",
+                "levator",
+                "oris",
+                "special",
+                "temporalis",
+                "risorius",
+                "orbicularis",
+                "oculi",
+                "toe1-3",
             ];
             let unexpected: Vec<&&str> = uncovered
                 .iter()

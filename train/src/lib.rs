@@ -23,7 +23,7 @@ use lfit_model::{Block, Bounds, Template};
 use lfit_nn::checkpoint::{self, checkpoint_files, write_dir};
 use lfit_nn::tensor::poses_to_tensor;
 use lfit_nn::{
-    Constraints, Dropout, FeatureStats, NetConfig, NeuralNet, StartMode, Views,
+    Constraints, Direction, Dropout, FeatureStats, NetConfig, NeuralNet, StartMode, Views,
     observation_features, observation_features_for, residual_features, unroll,
 };
 use lfit_synth::{
@@ -656,7 +656,7 @@ pub fn network_residual_dim(
 /// target).
 type Visited = Vec<(Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<Vec<f64>>)>;
 
-fn visited(frames: &Frames) -> Visited {
+fn visited(frames: &Frames, net: &NetConfig) -> Result<Visited> {
     let d = &frames.dataset;
     frames
         .energies
@@ -672,23 +672,24 @@ fn visited(frames: &Frames) -> Visited {
             let (mut r, mut g, mut p) = (Vec::new(), Vec::new(), Vec::new());
             for pose in [start, vec![0.0; gt.len()], half] {
                 r.push(e.residual(&pose));
-                g.push(e.evaluate_with_gradient(&pose).1.to_vec());
+                g.push(lfit_nn::direction(net, e, &pose, None)?);
                 p.push(pose.to_vec());
             }
-            (r, g, p)
+            Ok((r, g, p))
         })
-        .collect()
+        .collect::<std::result::Result<Visited, lfit_model::ModelError>>()
+        .map_err(Into::into)
 }
 
 /// [`measure_stats`] for the features of a network configured as `net`: pooled features for a
 /// pooled network ([`lfit_nn::features`]).
 pub fn measure_stats_with(frames: &Frames, net: &NetConfig) -> Result<FeatureStats> {
-    if net.views == Views::Fixed {
+    if net.views == Views::Fixed && net.direction == Direction::Gradient {
         return Ok(measure_stats(frames));
     }
     let mut obs = Vec::new();
     let (mut res, mut grad, mut pose) = (Vec::new(), Vec::new(), Vec::new());
-    for (e, (r, g, p)) in frames.energies.iter().zip(visited(frames)) {
+    for (e, (r, g, p)) in frames.energies.iter().zip(visited(frames, net)?) {
         obs.push(observation_features_for(net, e)?);
         for r in &r {
             res.push(residual_features(net, e, r)?.into_owned());
@@ -705,7 +706,9 @@ pub fn measure_stats_with(frames: &Frames, net: &NetConfig) -> Result<FeatureSta
 pub fn measure_stats(frames: &Frames) -> FeatureStats {
     let mut obs = Vec::new();
     let (mut res, mut grad, mut pose) = (Vec::new(), Vec::new(), Vec::new());
-    for (e, (r, g, p)) in frames.energies.iter().zip(visited(frames)) {
+    // The gradient direction of the default network evaluates on every energy.
+    let visited = visited(frames, &NetConfig::default()).unwrap_or_default();
+    for (e, (r, g, p)) in frames.energies.iter().zip(visited) {
         obs.push(observation_features(e));
         res.extend(r);
         grad.extend(g);

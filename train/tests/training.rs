@@ -362,8 +362,13 @@ fn weights_of(dir: &std::path::Path) -> Vec<f32> {
     struct Floats(Vec<f32>);
     impl ModuleVisitor for Floats {
         fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-            self.0
-                .extend(param.val().into_data().try_to_vec::<f32>().expect("f32 weights"));
+            self.0.extend(
+                param
+                    .val()
+                    .into_data()
+                    .try_to_vec::<f32>()
+                    .expect("f32 weights"),
+            );
         }
     }
     let ck = checkpoint::load(dir, &ndarray_device()).expect("checkpoint");
@@ -398,10 +403,7 @@ fn the_start_mix_trains_and_is_deterministic() {
             },
         )
         .expect("train");
-        (
-            weights_of(&out),
-            losses.into_inner().expect("losses"),
-        )
+        (weights_of(&out), losses.into_inner().expect("losses"))
     };
     let (a, la) = run("a");
     let (b, lb) = run("b");

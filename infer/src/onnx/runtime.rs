@@ -455,7 +455,13 @@ pub fn unroll_ort(
     let mut host = vec![rows_to_poses(&theta, dim)];
     for n in 0..c.iterations {
         let current = host.last().cloned().unwrap_or_default();
-        let evals = evaluate(energies, &current);
+        let evals = evaluate(
+            &c,
+            energies,
+            &current,
+            constraints.map(|k| k.free.as_slice()),
+        )
+        .map_err(model)?;
         let core_in =
             core_rows(&c, &stats, energies, &evals, &current, &obs_norm).map_err(model)?;
         let mut delta = net.propose(n, &core_in, batch, &mut state)?;

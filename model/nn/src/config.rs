@@ -34,6 +34,28 @@ pub enum UpdateRule {
     ConvexNormalized,
 }
 
+/// The descent direction `g` the update mixes with the network's `Δθ`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Direction {
+    /// The energy gradient `∇E` (papers/002 eq. 1; every network before this switch).
+    #[default]
+    Gradient,
+    /// The negated Marquardt-damped Gauss-Newton step `−h`, `(JᵀJ + μ D) h = −Jᵀr` over the
+    /// free entries (`gn_damping` = μ), from the energy's least-squares form: a preconditioned
+    /// gradient, so `θ − γ g` with `γ = 1` is one Levenberg–Marquardt step at fixed damping. The
+    /// learned step then inherits Gauss-Newton's local convergence on frames unlike the
+    /// training motion (BA-Net, Tang & Tan 2019, and LS-Net, Clark et al. 2018, learn around
+    /// the same step). One Jacobian per iteration instead of one gradient.
+    GaussNewton,
+}
+
+impl Direction {
+    pub fn is_gradient(&self) -> bool {
+        *self == Direction::Gradient
+    }
+}
+
 /// Whether γ is predicted or fixed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -148,6 +170,35 @@ pub struct NetConfig {
     /// (`keypoints2d` only): pooled over cameras, any rig of the same keypoints.
     #[serde(skip_serializing_if = "Views::is_fixed")]
     pub views: Views,
+    /// The direction `g` of the update rule (`gradient`: papers/002).
+    #[serde(skip_serializing_if = "Direction::is_gradient")]
+    pub direction: Direction,
+    /// μ of the Gauss-Newton direction, relative to `diag(JᵀJ)` (Marquardt's scaling).
+    #[serde(skip_serializing_if = "is_default_gn_damping")]
+    pub gn_damping: f64,
+    /// Largest entry of the Gauss-Newton direction (a trust region in the ∞-norm: the step is
+    /// scaled down as a whole to reach it). Marquardt's scaling leaves directions the data
+    /// hardly constrain (a twist no marker sees) almost undamped, and the loop, unlike LM, has
+    /// no step rejection.
+    #[serde(skip_serializing_if = "is_default_gn_max_step")]
+    pub gn_max_step: f64,
+}
+
+/// [`NetConfig::gn_max_step`] unless a config says otherwise: half a radian per rotation
+/// entry, half a metre of translation, half a standard deviation of shape, per iteration.
+pub const DEFAULT_GN_MAX_STEP: f64 = 0.5;
+
+fn is_default_gn_max_step(v: &f64) -> bool {
+    *v == DEFAULT_GN_MAX_STEP
+}
+
+/// μ of [`Direction::GaussNewton`] unless a config says otherwise: a hundred times the
+/// `1/radius = 1e-4` that lfit's LM (Ceres's default radius 1e4) starts from, because the network's
+/// loop has no step rejection — the damping keeps a step from a far start from overshooting.
+pub const DEFAULT_GN_DAMPING: f64 = 1e-2;
+
+fn is_default_gn_damping(v: &f64) -> bool {
+    *v == DEFAULT_GN_DAMPING
 }
 
 impl Default for NetConfig {
@@ -175,6 +226,9 @@ impl Default for NetConfig {
             feature_clip: 10.0,
             known_shape: false,
             views: Views::Fixed,
+            direction: Direction::Gradient,
+            gn_damping: DEFAULT_GN_DAMPING,
+            gn_max_step: DEFAULT_GN_MAX_STEP,
         }
     }
 }
@@ -315,6 +369,8 @@ impl NetConfig {
             ("gamma_init", self.gamma_init),
             ("output_gain", self.output_gain),
             ("feature_clip", self.feature_clip),
+            ("gn_damping", self.gn_damping),
+            ("gn_max_step", self.gn_max_step),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return bad(name, format!("must be positive, got {v}"));

@@ -14,13 +14,15 @@ pub mod tensor;
 pub mod unroll;
 
 pub use checkpoint::{Checkpoint, CheckpointMeta};
-pub use config::{CoreKind, GammaMode, NetConfig, StartMode, StepShape, UpdateRule, Views};
+pub use config::{
+    CoreKind, Direction, GammaMode, NetConfig, StartMode, StepShape, UpdateRule, Views,
+};
 pub use features::{
     FeatureStats, Norm, observation_features, observation_features_for, residual_features,
 };
 pub use layers::Dropout;
 pub use net::{NeuralNet, State, StepSizes};
-pub use unroll::{Constraints, Unrolled, initial_poses, unroll};
+pub use unroll::{Constraints, Unrolled, direction, initial_poses, unroll};
 
 #[cfg(test)]
 mod tests;

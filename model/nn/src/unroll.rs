@@ -5,7 +5,7 @@
 use burn::tensor::{Device, Tensor, TensorData};
 use rayon::prelude::*;
 
-use crate::config::{NetConfig, Views};
+use crate::config::{Direction, NetConfig, Views};
 use crate::features::{FeatureStats, observation_features_for, pooled_cameras, residual_features};
 use crate::layers::Dropout;
 use crate::net::NeuralNet;
@@ -169,19 +169,63 @@ pub fn constraint_rows(
     Ok((f, lo, hi))
 }
 
-/// R(θ) and g(θ) (non-finite entries zeroed) of every frame at its current pose, on the CPU.
-pub fn evaluate(energies: &[&Energy], current: &[Vec<f64>]) -> Vec<(Vec<f64>, Vec<f64>)> {
+/// The direction `g` of the update rule at `pose` ([`Direction`]): the energy gradient, or the
+/// negated damped Gauss-Newton step over the `free` entries (all when `None`), scaled down to
+/// `gn_max_step` in its largest entry when it is longer; non-finite
+/// entries zeroed, frozen entries of the Gauss-Newton direction zero. Counts one evaluation and
+/// one gradient evaluation of `energy` either way.
+pub fn direction(
+    config: &NetConfig,
+    energy: &Energy,
+    pose: &[f64],
+    free: Option<&[bool]>,
+) -> Result<Vec<f64>> {
+    let mut g = match config.direction {
+        Direction::Gradient => energy.evaluate_with_gradient(pose).1.to_vec(),
+        Direction::GaussNewton => {
+            let ls = energy.least_squares(pose, true)?;
+            let dofs: Vec<usize> = match free {
+                Some(f) => (0..pose.len())
+                    .filter(|&i| f.get(i).copied().unwrap_or(false))
+                    .collect(),
+                None => (0..pose.len()).collect(),
+            };
+            // Not positive definite (only with a degenerate Jacobian, the ridge aside): no step.
+            let h = ls
+                .damped_gauss_newton(&dofs, config.gn_damping)
+                .unwrap_or_else(|| vec![0.0; pose.len()]);
+            let largest = h.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let scale = if largest > config.gn_max_step {
+                config.gn_max_step / largest
+            } else {
+                1.0
+            };
+            h.iter().map(|v| -scale * v).collect()
+        }
+    };
+    for x in g.iter_mut() {
+        if !x.is_finite() {
+            *x = 0.0;
+        }
+    }
+    Ok(g)
+}
+
+/// R(θ) and the update direction g(θ) ([`direction`]) of every frame at its current pose, on
+/// the CPU; `free[i]` is frame `i`'s free mask (`None`: all entries free).
+pub fn evaluate(
+    config: &NetConfig,
+    energies: &[&Energy],
+    current: &[Vec<f64>],
+    free: Option<&[Vec<bool>]>,
+) -> Result<Vec<(Vec<f64>, Vec<f64>)>> {
     energies
         .par_iter()
         .zip(current.par_iter())
-        .map(|(e, p)| {
-            let (_, mut g) = e.evaluate_with_gradient(p);
-            for x in g.iter_mut() {
-                if !x.is_finite() {
-                    *x = 0.0;
-                }
-            }
-            (e.residual(p), g)
+        .enumerate()
+        .map(|(i, (e, p))| {
+            let f = free.and_then(|f| f.get(i)).map(Vec::as_slice);
+            Ok((e.residual(p), direction(config, e, p, f)?))
         })
         .collect()
 }
@@ -339,7 +383,12 @@ pub fn unroll(
     for n in 0..c.iterations {
         let current = host.last().cloned().unwrap_or_default();
         // R(θ) and g(θ) on the CPU (detached inputs).
-        let evals = evaluate(energies, &current);
+        let evals = evaluate(
+            c,
+            energies,
+            &current,
+            constraints.map(|k| k.free.as_slice()),
+        )?;
         let core_in = core_rows(c, stats, energies, &evals, &current, &obs_norm)?;
         let mut delta = net.propose(n, rows_tensor(&core_in, batch, device), &mut state, dropout);
         let mut grad = poses_to_tensor(

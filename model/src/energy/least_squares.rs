@@ -64,6 +64,29 @@ pub enum RobustForm {
     Triggs,
 }
 
+/// The step of one damped Gauss-Newton system on the entries `free` (positions in `a` and `g`):
+/// `(A + μ D + 1e-12 max(D) I) h = −g` with `A = JᵀJ`, `g = Jᵀr`, `D = diag` (Marquardt's
+/// scaling) and `μ = damping` (0: Gauss-Newton), by dense Cholesky; `None` when the system is
+/// not positive definite. Levenberg–Marquardt's parameter update given the residuals and the
+/// Jacobian (papers/002 compares its cost with the neural update's, Table 7), and the neural
+/// fitter's Gauss-Newton direction ([`LeastSquares::damped_gauss_newton`]).
+pub fn damped_step(
+    a: &DMatrix<f64>,
+    g: &DVector<f64>,
+    free: &[usize],
+    diag: &[f64],
+    damping: f64,
+    max_diag: f64,
+) -> Option<DVector<f64>> {
+    let m = free.len();
+    let mut sys = DMatrix::<f64>::from_fn(m, m, |r, c| a[(free[r], free[c])]);
+    for (k, dk) in diag.iter().enumerate() {
+        sys[(k, k)] += damping * dk + 1e-12 * max_diag;
+    }
+    let rhs = DVector::<f64>::from_iterator(m, free.iter().map(|&p| -g[p]));
+    sys.cholesky().map(|c| c.solve(&rhs))
+}
+
 impl LeastSquares {
     /// `Σ r²`: the energy.
     pub fn value(&self) -> f64 {
@@ -121,6 +144,30 @@ impl LeastSquares {
             }
         });
         (a, g)
+    }
+
+    /// The Marquardt-damped Gauss-Newton step over the entries `dofs`: `h` with
+    /// `(JᵀJ + μ D) h = −Jᵀr`, `D = diag(JᵀJ)` clamped to `[1e-6, 1e32]` as Levenberg–Marquardt
+    /// scales it ([`damped_step`]), as a full parameter vector (zero outside `dofs`); `θ + h`
+    /// minimises the damped quadratic model of E. `None` without a Jacobian or when the system
+    /// is not positive definite. The neural fitter's Gauss-Newton direction
+    /// (`lfit_nn::Direction::GaussNewton`).
+    pub fn damped_gauss_newton(&self, dofs: &[usize], damping: f64) -> Option<Vec<f64>> {
+        if self.jacobian.is_empty() {
+            return None;
+        }
+        let (a, g) = self.normal_equations(dofs);
+        let diag: Vec<f64> = (0..dofs.len())
+            .map(|p| a[(p, p)].clamp(1e-6, 1e32))
+            .collect();
+        let max_diag = diag.iter().fold(0.0f64, |s, v| s.max(*v));
+        let free: Vec<usize> = (0..dofs.len()).collect();
+        let h = damped_step(&a, &g, &free, &diag, damping, max_diag)?;
+        let mut out = vec![0.0; self.dim];
+        for (k, &i) in dofs.iter().enumerate() {
+            out[i] = h[k];
+        }
+        Some(out)
     }
 
     /// `∇E = 2 Jᵀ r` (empty without a Jacobian).

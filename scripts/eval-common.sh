@@ -1,0 +1,62 @@
+# Shared by scripts/eval-captured.sh, eval-c3d.sh and eval-rigs.sh (sourced, not run): the lfit
+# binary, the MakeHuman model, the MocapBank evaluation clip retargeted onto it, and the Markdown
+# tables the scripts print.
+#
+#   source scripts/eval-common.sh
+#   eval_setup NAME OUT          # LFIT, MODEL; OUT created; OUT/clip-motion.npz written
+#   eval_need_dir NAME DIR       # exits with a one-line error unless DIR is a directory
+#   eval_table fits OUT ROW...   # V2V, MPJPE, β RMS, energy, evaluations, time per frame
+#   eval_table c3d OUT ROW...    # share within 5 mm marker RMS, mean/median RMS, evaluations, time
+#
+# LFIT (default: the release build under CARGO_TARGET_DIR or ~/.cache/lfit-target) is the binary.
+
+MODEL=models/makehuman-cmu_mb.npz
+
+eval_setup() {
+    local name="$1" out="$2"
+    LFIT="${LFIT:-${CARGO_TARGET_DIR:-$HOME/.cache/lfit-target}/release/lfit}"
+    if [ ! -x "$LFIT" ]; then
+        echo "$name: no lfit binary at $LFIT (cargo build --release --workspace)" >&2
+        exit 1
+    fi
+    mkdir -p "$out"
+    local clip
+    clip="$(./scripts/fetch-mocapbank.sh)"
+    "$LFIT" -q motion import --bvh "$clip" --map configs/maps/mocapbank_to_makehuman_cmu_mb.json \
+        --model "$MODEL" --out "$out/clip-motion.npz" >/dev/null
+}
+
+eval_need_dir() {
+    if [ ! -d "$2" ]; then
+        echo "$1: no checkpoint directory $2" >&2
+        exit 1
+    fi
+}
+
+eval_table() {
+    python3 - "$@" <<'PY'
+import json, statistics, sys
+kind, out, names = sys.argv[1], sys.argv[2], sys.argv[3:]
+if kind == "fits":
+    print("| run | frames | V2V (mm) | MPJPE (mm) | β RMS | energy | evaluations | time / frame (ms) |")
+    print("|---|---|---|---|---|---|---|---|")
+else:
+    print("| source, method | frames | within 5 mm RMS | mean RMS (mm) | median RMS (mm) | evaluations | time / frame (ms) |")
+    print("|---|---|---|---|---|---|---|")
+for n in names:
+    r = json.load(open(f"{out}/{n}.json"))
+    s, fr = r["summary"], r["frames"]
+    ev = sum(f["evaluations"] for f in fr) / len(fr)
+    ms = 1000 * s["mean_time_s"]
+    if kind == "fits":
+        beta = s.get("mean_shape_rms")
+        beta = f"{beta:.3f}" if beta is not None and "hmd" not in n else "given"
+        print(f"| {n} | {len(fr)} | {s['mean_v2v_mm']:.1f} | {s['mean_mpjpe_mm']:.1f} | {beta} | "
+              f"{s['mean_energy']:.4f} | {ev:.0f} | {ms:.2f} |")
+    else:
+        rms = [f["observation_rms_mm"] for f in fr]
+        ok = sum(1 for x in rms if x <= 5.0)
+        print(f"| {n} | {len(fr)} | {ok}/{len(fr)} ({100 * ok / len(fr):.0f} %) | "
+              f"{statistics.mean(rms):.1f} | {statistics.median(rms):.1f} | {ev:.0f} | {ms:.1f} |")
+PY
+}
