@@ -7,8 +7,9 @@
 //!   first and last frame, the maximum interpolation gap, the scale factor (a float; negative:
 //!   the point data are floats), the first block of the data section (DATA_START), analog samples
 //!   per channel and frame, and the frame rate (a float);
-//! - the parameter section: a 4-byte header (key 0x50 in byte 2, the number of blocks in byte 3
-//!   and the processor type in byte 4: 84 Intel, 85 DEC, 86 MIPS), then groups and parameters,
+//! - the parameter section: a 4-byte header (two reserved bytes, read and ignored as the format
+//!   guide says, typically 0x01 0x50; the number of blocks in byte 3 and the processor type in
+//!   byte 4: 84 Intel, 85 DEC, 86 MIPS), then groups and parameters,
 //!   each with its name, its group id (negative for a group), a 16-bit offset to the next entry
 //!   counted from that offset word, and for a parameter its type (-1 char, 1 byte, 2 int16,
 //!   4 float), its dimensions and its data;
@@ -352,12 +353,8 @@ impl C3d {
                 "truncated: the parameter section (block {pblock}) lies past the end of the file"
             ));
         }
-        if bytes[pstart + 1] != KEY {
-            return fail(format!(
-                "the parameter section's key is 0x{:02x}, expected 0x50",
-                bytes[pstart + 1]
-            ));
-        }
+        // Bytes 1–2 of the parameter section are reserved and "always ignored" (the C3D User
+        // Guide; 0x01 0x50 is typical, the `c3d` package on PyPI writes 0x00 0x00).
         let processor = match bytes[pstart + 3] {
             84 => Processor::Intel,
             86 => Processor::Mips,
@@ -972,9 +969,15 @@ mod tests {
             err(&good[..cut])
         );
 
+        // The parameter section's two reserved bytes are ignored: 0x00 0x00 (what the `c3d`
+        // package on PyPI writes) reads exactly as the typical 0x01 0x50.
         let mut b = good.clone();
+        b[BLOCK] = 0;
         b[BLOCK + 1] = 0;
-        assert!(err(&b).contains("parameter section's key"));
+        assert_eq!(
+            C3d::from_bytes(&b).unwrap().frames,
+            C3d::from_bytes(&good).unwrap().frames
+        );
 
         let mut b = good.clone();
         b[BLOCK + 3] = 85;
