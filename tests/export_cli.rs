@@ -415,7 +415,7 @@ fn max_deviation(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
     a.iter()
         .zip(b)
         .map(|(p, q)| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt())
-        .fold(0.0, f64::max)
+        .fold(0.0, support::nan_max)
 }
 
 fn export(data: &Path, poses: &Path, format: &str, out: &Path) -> Value {

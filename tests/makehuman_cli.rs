@@ -266,7 +266,7 @@ fn check_committed(mpfb2: &Path, committed: &str, rig: &str, extra: &[&str]) {
             .iter()
             .zip(q)
             .map(|(x, y)| (x - y).abs())
-            .fold(0.0, f64::max);
+            .fold(0.0, support::nan_max);
         assert!(d < 1e-9, "{what}: {d}");
     };
     let rest = |t: &lfit_model::Template| -> Vec<f64> {

@@ -83,12 +83,21 @@ fn assert_close(what: &str, burn: &[f32], ort: &[f32], tol: f32) -> f32 {
         .iter()
         .zip(ort)
         .map(|(a, b)| (a - b).abs())
-        .fold(0.0f32, f32::max);
+        .fold(0.0f32, |m, d| {
+            if m.is_nan() || d.is_nan() {
+                f32::NAN
+            } else {
+                m.max(d)
+            }
+        });
     assert!(
         worst <= tol,
         "{what}: Burn and ONNX Runtime differ by {worst:e} > {tol:e}"
     );
-    assert!(burn.iter().all(|v| v.is_finite()), "{what}: not finite");
+    assert!(
+        burn.iter().chain(ort).all(|v| v.is_finite()),
+        "{what}: not finite"
+    );
     worst
 }
 

@@ -165,3 +165,14 @@ pub fn mocapbank_clip() -> Option<PathBuf> {
     let p = tools.join("mocapbank/test_mocapbank.bvh");
     p.is_file().then_some(p)
 }
+
+/// `max` for folding differences that is NaN as soon as one entry is (`f64::max` drops NaN, so
+/// an all-NaN output would fold to 0 and pass a tolerance).
+#[allow(dead_code)]
+pub fn nan_max(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else {
+        a.max(b)
+    }
+}

@@ -650,10 +650,10 @@ mod tests {
                 let cj = joint_transforms(&template, p).joints;
                 let cv = pose_vertices(&template, p, SkinningMethod::Linear);
                 for (g, c) in joints[b].iter().zip(&cj) {
-                    je = je.max((*g - c.as_vec3()).abs().max_element());
+                    je = nan_max(je, (*g - c.as_vec3()).abs());
                 }
                 for (g, c) in vertices[b].iter().zip(&cv) {
-                    ve = ve.max((*g - *c).abs().max_element());
+                    ve = nan_max(ve, (*g - *c).abs());
                 }
             }
             println!(
@@ -705,13 +705,23 @@ mod tests {
             assert_eq!(joints[b].len(), cpu_joints.len());
             assert_eq!(vertices[b].len(), cpu_vertices.len());
             for (g, c) in joints[b].iter().zip(&cpu_joints) {
-                joint_err = joint_err.max((*g - c.as_vec3()).abs().max_element());
+                joint_err = nan_max(joint_err, (*g - c.as_vec3()).abs());
             }
             for (g, c) in vertices[b].iter().zip(&cpu_vertices) {
-                vertex_err = vertex_err.max((*g - *c).abs().max_element());
+                vertex_err = nan_max(vertex_err, (*g - *c).abs());
             }
         }
         (joint_err, vertex_err)
+    }
+
+    /// `max` that is NaN as soon as one value is (`f32::max` and glam's `max_element` drop NaN, so
+    /// a NaN output would compare as agreeing).
+    fn nan_max(a: f32, b: glam::Vec3) -> f32 {
+        if a.is_nan() || !b.is_finite() {
+            f32::NAN
+        } else {
+            a.max(b.max_element())
+        }
     }
 
     fn check_agreement(name: &str, device: &Device) {
