@@ -407,9 +407,16 @@ fn batch_and_single_evaluations_agree() {
     let poses: Vec<Pose> = (0..4)
         .map(|k| perturbed(&[0.1 * k as f64; POSE_DIM]))
         .collect();
+    // The batch runs in parallel: it must keep the poses' order and count one evaluation each.
+    let before = e.evaluations();
     let batch = e.evaluate_batch(&poses);
-    for (p, b) in poses.iter().zip(batch) {
-        assert_eq!(e.evaluate(p).total, b);
+    assert_eq!(e.evaluations() - before, 4);
+    for (i, (p, b)) in poses.iter().zip(&batch).enumerate() {
+        assert_eq!(e.evaluate(p).total, *b, "pose {i}");
+        // Distinct poses, distinct energies: a batch that reorders or repeats a result fails.
+        for c in &batch[..i] {
+            assert_ne!(c, b, "pose {i}");
+        }
     }
 }
 
