@@ -170,8 +170,8 @@ pub fn constraint_rows(
 }
 
 /// The direction `g` of the update rule at `pose` ([`Direction`]): the energy gradient, or the
-/// negated damped Gauss-Newton step over the `free` entries (all when `None`), scaled down to
-/// `gn_max_step` in its largest entry when it is longer; non-finite
+/// negated damped Gauss-Newton step over the `free` entries (all when `None`), each entry
+/// clipped to `±gn_max_step`; non-finite
 /// entries zeroed, frozen entries of the Gauss-Newton direction zero. Counts one evaluation and
 /// one gradient evaluation of `energy` either way.
 pub fn direction(
@@ -194,13 +194,8 @@ pub fn direction(
             let h = ls
                 .damped_gauss_newton(&dofs, config.gn_damping)
                 .unwrap_or_else(|| vec![0.0; pose.len()]);
-            let largest = h.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let scale = if largest > config.gn_max_step {
-                config.gn_max_step / largest
-            } else {
-                1.0
-            };
-            h.iter().map(|v| -scale * v).collect()
+            let cap = config.gn_max_step;
+            h.iter().map(|v| -v.clamp(-cap, cap)).collect()
         }
     };
     for x in g.iter_mut() {
