@@ -836,6 +836,32 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
     }
 }
 
+/// A clap error on one line, with what its later lines add: the missing flags, the valid values
+/// and clap's suggestion, then the usage line; without clap's closing "For more information" line.
+fn one_line_clap_error(text: &str) -> String {
+    let mut parts: Vec<String> = Vec::new();
+    let mut usage = None;
+    for line in text.lines().map(str::trim).filter(|l| !l.is_empty()) {
+        if line.starts_with("For more information") {
+            continue;
+        }
+        if let Some(u) = line.strip_prefix("Usage:") {
+            usage = Some(u.trim().to_string());
+            continue;
+        }
+        parts.push(line.to_string());
+    }
+    let mut out = if parts.is_empty() {
+        "error: bad arguments".to_string()
+    } else {
+        parts.join(" ")
+    };
+    if let Some(u) = usage {
+        out.push_str(&format!(" (usage: {u})"));
+    }
+    out
+}
+
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
@@ -858,8 +884,7 @@ fn main() -> ExitCode {
                     ExitCode::SUCCESS
                 };
             }
-            let text = e.to_string();
-            eprintln!("{}", text.lines().next().unwrap_or("error: bad arguments"));
+            eprintln!("{}", one_line_clap_error(&e.to_string()));
             return ExitCode::from(2);
         }
     };

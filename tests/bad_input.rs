@@ -177,6 +177,18 @@ fn unknown_modality_scenario_and_flags() {
     assert_one_line_error(&o, "noise");
     let o = lfit(&["synth", "--modality", "markers", "--bogus-flag"]);
     assert_one_line_error(&o, "bogus-flag");
+    // clap's errors keep what their later lines say, on one line: the valid values and the
+    // suggestion, the missing flags and the usage.
+    let o = lfit(&[
+        "fit", "--data", "x.npz", "--method", "cmaa", "--budget", "3",
+    ]);
+    assert_one_line_error(&o, "[possible values: random,");
+    assert_one_line_error(&o, "a similar value exists: 'cma'");
+    let o = lfit(&[
+        "fit", "--data", "x.npz", "--method", "lm", "--out", "x.json",
+    ]);
+    assert_one_line_error(&o, "not provided: --budget <BUDGET> (usage: lfit fit ");
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("For more information"));
     let o = lfit(&[
         "template",
         "export",
