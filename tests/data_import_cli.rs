@@ -437,9 +437,25 @@ fn bad_input_is_one_line_and_writes_nothing() {
     let mut b = good.clone();
     b[1] = 0;
     run_c3d(&b, &map_file, "not a C3D file");
+    // The parameter section's two reserved bytes are ignored, as the C3D guide says (the `c3d`
+    // package on PyPI writes 0x00 0x00): such a file imports.
     let mut b = good.clone();
-    b[513] = 7;
-    run_c3d(&b, &map_file, "parameter section's key");
+    b[512] = 0;
+    b[513] = 0;
+    let reserved = d.join("reserved.c3d");
+    std::fs::write(&reserved, &b).expect("write");
+    let imported = d.join("reserved.npz");
+    lfit_json(&[
+        "data",
+        "import",
+        "--c3d",
+        path_str(&reserved),
+        "--label-map",
+        path_str(&map_file),
+        "--out",
+        path_str(&imported),
+    ]);
+    assert!(imported.is_file());
     let mut b = good.clone();
     let start = (u16::from_le_bytes([b[16], b[17]]) as usize - 1) * 512;
     b[start..start + 4].copy_from_slice(&f32::NAN.to_le_bytes());

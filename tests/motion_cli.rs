@@ -862,6 +862,13 @@ fn bad_motion_inputs_are_one_line_errors_and_write_nothing() {
         std::fs::write(&m, map_text).unwrap();
         let run = import(&b, &m);
         assert_one_line_error(&run, needle);
+        // The cause is said once (an error quoting its source is not followed by it again).
+        let line = String::from_utf8_lossy(&run.stderr).to_lowercase();
+        assert_eq!(
+            line.matches(&needle.to_lowercase()).count(),
+            1,
+            "{name}: {line}"
+        );
         assert!(!out.exists(), "{name}: nothing written");
     };
     // The map names a BVH joint the file does not have (a missing joint).
