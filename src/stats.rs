@@ -2,9 +2,9 @@
 //!
 //! - Wilcoxon signed-rank test (papers/000 Table 3): zeros dropped (Wilcoxon's method), ranks of
 //!   |d| with ties averaged; exact null distribution when there are at most 50 non-zero
-//!   differences and no ties or zeros, otherwise the normal approximation with the tie
-//!   correction (no continuity correction) — `scipy.stats.wilcoxon`'s `exact` and `asymptotic`
-//!   methods, two-sided;
+//!   differences and no ties among them (zeros dropped first), otherwise the normal
+//!   approximation with the tie correction (no continuity correction) — what
+//!   `scipy.stats.wilcoxon` 1.17.1 chooses by default, two-sided;
 //! - Friedman test with average within-block ranks and the tie correction
 //!   (`scipy.stats.friedmanchisquare`), and Holm's step-down post-hoc test of every method against
 //!   the best-ranked one with `z = (R_i − R_0) / sqrt(k (k + 1) / (6 n))` (papers/001 Table 4);
@@ -73,7 +73,8 @@ pub fn wilcoxon(x: &[f64], y: &[f64]) -> Option<Wilcoxon> {
         .map(|(a, b)| a - b)
         .filter(|d| *d != 0.0)
         .collect();
-    let zeros = x.len() - d.len();
+    // Zero differences are dropped (scipy's default zero_method "wilcox"); the exact
+    // distribution then applies to the rest as in scipy 1.17 (n ≤ 50, no ties).
     let n = d.len();
     if n == 0 {
         return None;
@@ -90,7 +91,7 @@ pub fn wilcoxon(x: &[f64], y: &[f64]) -> Option<Wilcoxon> {
     let w_minus = total - w_plus;
     let has_ties = ties.iter().any(|&t| t > 1);
     let statistic = w_plus.min(w_minus);
-    if n <= 50 && !has_ties && zeros == 0 {
+    if n <= 50 && !has_ties {
         let counts = signed_rank_counts(n);
         let all = 2f64.powi(n as i32);
         let k = w_plus.round() as usize;
@@ -271,6 +272,23 @@ mod tests {
         assert!(w.direction < 0.0, "x is mostly lower");
         assert_eq!(verdict(&x, &y, 0.05).0, "+");
         assert_eq!(verdict(&y, &x, 0.05).0, "-");
+    }
+
+    /// Zero differences without other ties: scipy 1.17.1 drops the zeros and stays exact.
+    #[test]
+    fn wilcoxon_with_zeros_but_no_ties_is_exact_as_in_scipy() {
+        let x = [
+            12.0, 14.125, 9.75, 16.0, 11.25, 13.5, 10.5, 16.75, 13.0, 14.5, 3.0, 4.0,
+        ];
+        let y = [
+            12.5, 14.0, 11.0, 17.5, 11.0, 15.75, 10.125, 18.375, 14.75, 15.875, 3.0, 4.0,
+        ];
+        let w = wilcoxon(&x, &y).expect("test");
+        // scipy.stats.wilcoxon(x, y) -> statistic 6.0, pvalue 0.02734375 (the asymptotic
+        // p-value would be 0.02841686417486375).
+        assert!(w.exact);
+        assert_eq!((w.statistic, w.n), (6.0, 10));
+        assert!((w.p - 0.02734375).abs() < 1e-12, "{}", w.p);
     }
 
     #[test]
