@@ -20,6 +20,7 @@ use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use lfit::fitters::least_squares::damped_step;
 use lfit::infer::{NeuralFitter, Start};
 use lfit::model::Energy;
+use lfit::model::energy::marquardt_scaling;
 use lfit::model::observe::{Modality, Sensor};
 use lfit::nn::Dropout;
 use lfit::nn::checkpoint::{Checkpoint, CheckpointMeta};
@@ -97,8 +98,7 @@ fn bench(c: &mut Criterion) {
         b.iter(|| {
             i = (i + 1) % ls.len();
             let (a, g) = ls[i].normal_equations(&dofs);
-            let diag: Vec<f64> = (0..dim).map(|p| a[(p, p)].clamp(1e-6, 1e32)).collect();
-            let max_diag = diag.iter().fold(0.0f64, |s, v| s.max(*v));
+            let (diag, max_diag) = marquardt_scaling(&a, &dofs);
             black_box(damped_step(&a, &g, &dofs, &diag, 1e-4, max_diag))
         })
     });

@@ -469,25 +469,39 @@ fn every_ablation_variant_exports_and_matches_burn() {
             .cloned()
             .map(Some)
             .collect();
-        let burn = lfit::nn::unroll(
-            &net,
-            &stats,
-            &energies,
-            &starts,
-            None,
-            &ndarray_device(),
-            &mut Dropout::off(),
-        )
-        .unwrap_or_else(|e| panic!("{name}: {e}"));
-        let onnx = lfit::infer::onnx::runtime::unroll_ort(&mut ort, &energies, &starts, None)
-            .unwrap_or_else(|e| panic!("{name}: {e}"));
-        for (a, b) in burn.host.iter().flatten().zip(onnx.iter().flatten()) {
-            let d = v2v_mm(template, a, b);
-            assert!(
-                d.is_finite() && d < 1.0,
-                "{name}: Burn and ORT {d} mm apart"
-            );
-        }
+        whole_loops_agree(name, &net, &stats, &mut ort, &energies, &starts, template);
+    }
+}
+
+/// The whole fitting loop in Burn and in ONNX Runtime from `starts`: every iterate of every frame
+/// within 1 mm V2V (and finite).
+fn whole_loops_agree(
+    what: &str,
+    net: &NeuralNet,
+    stats: &FeatureStats,
+    ort: &mut OrtNetwork,
+    energies: &[&Energy],
+    starts: &[Option<Vec<f64>>],
+    template: &lfit::model::Template,
+) {
+    let burn = lfit::nn::unroll(
+        net,
+        stats,
+        energies,
+        starts,
+        None,
+        &ndarray_device(),
+        &mut Dropout::off(),
+    )
+    .unwrap_or_else(|e| panic!("{what}: burn: {e}"));
+    let onnx = lfit::infer::onnx::runtime::unroll_ort(ort, energies, starts, None)
+        .unwrap_or_else(|e| panic!("{what}: ort: {e}"));
+    for (a, b) in burn.host.iter().flatten().zip(onnx.iter().flatten()) {
+        let d = v2v_mm(template, a, b);
+        assert!(
+            d.is_finite() && d < 1.0,
+            "{what}: Burn and ORT {d} mm apart"
+        );
     }
 }
 
@@ -560,22 +574,15 @@ fn a_pooled_keypoints_network_matches_burn_on_rigs_of_1_to_8_cameras() {
             .iter()
             .map(|s| given.then(|| s.clone()))
             .collect();
-        let burn = lfit::nn::unroll(
+        whole_loops_agree(
+            &format!("pooled, given {given}"),
             &net,
             &stats,
+            &mut ort,
             &energies,
             &starts,
-            None,
-            &ndarray_device(),
-            &mut Dropout::off(),
-        )
-        .expect("burn");
-        let onnx = lfit::infer::onnx::runtime::unroll_ort(&mut ort, &energies, &starts, None)
-            .expect("ort");
-        for (a, b) in burn.host.iter().flatten().zip(onnx.iter().flatten()) {
-            let d = v2v_mm(&template, a, b);
-            assert!(d < 1.0, "given {given}: Burn and ORT {d} mm apart");
-        }
+            &template,
+        );
     }
 }
 

@@ -23,7 +23,7 @@
 //! `ΔE ≤ function_tolerance · E`, or the budget: one evaluation = one residual and Jacobian
 //! evaluation, a cap as for L-BFGS.
 
-use lfit_model::energy::{Energy, RobustForm};
+use lfit_model::energy::{Energy, RobustForm, marquardt_scaling};
 use lfit_model::pose::Bounds;
 use nalgebra::DVector;
 use serde::Serialize;
@@ -169,8 +169,7 @@ impl StageSolver for LeastSquaresFitter {
             if free.is_empty() {
                 break;
             }
-            let diag: Vec<f64> = free.iter().map(|&p| a[(p, p)].clamp(1e-6, 1e32)).collect();
-            let max_diag = diag.iter().fold(0.0f64, |s, v| s.max(*v));
+            let (diag, max_diag) = marquardt_scaling(&a, &free);
             // Gauss-Newton's halving factor along its direction.
             let mut alpha = 1.0;
             loop {

@@ -64,6 +64,15 @@ pub enum RobustForm {
     Triggs,
 }
 
+/// Marquardt's scaling `D` of the normal matrix `a` on the positions `free`: its diagonal clamped
+/// to `[1e-6, 1e32]` (so metres, radians and shape coefficients need no hand-set scales), and the
+/// largest entry, as [`damped_step`] takes them.
+pub fn marquardt_scaling(a: &DMatrix<f64>, free: &[usize]) -> (Vec<f64>, f64) {
+    let diag: Vec<f64> = free.iter().map(|&p| a[(p, p)].clamp(1e-6, 1e32)).collect();
+    let max_diag = diag.iter().fold(0.0f64, |s, v| s.max(*v));
+    (diag, max_diag)
+}
+
 /// The step of one damped Gauss-Newton system on the entries `free` (positions in `a` and `g`):
 /// `(A + μ D + 1e-12 max(D) I) h = −g` with `A = JᵀJ`, `g = Jᵀr`, `D = diag` (Marquardt's
 /// scaling) and `μ = damping` (0: Gauss-Newton), by dense Cholesky; `None` when the system is
@@ -157,11 +166,8 @@ impl LeastSquares {
             return None;
         }
         let (a, g) = self.normal_equations(dofs);
-        let diag: Vec<f64> = (0..dofs.len())
-            .map(|p| a[(p, p)].clamp(1e-6, 1e32))
-            .collect();
-        let max_diag = diag.iter().fold(0.0f64, |s, v| s.max(*v));
         let free: Vec<usize> = (0..dofs.len()).collect();
+        let (diag, max_diag) = marquardt_scaling(&a, &free);
         let h = damped_step(&a, &g, &free, &diag, damping, max_diag)?;
         let mut out = vec![0.0; self.dim];
         for (k, &i) in dofs.iter().enumerate() {

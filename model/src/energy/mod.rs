@@ -31,7 +31,7 @@ use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-pub use least_squares::{LeastSquares, RobustForm, damped_step};
+pub use least_squares::{LeastSquares, RobustForm, damped_step, marquardt_scaling};
 pub use prior::AnglePrior;
 
 use self::kinematics::{Adjoint, Kinematics};
