@@ -372,6 +372,51 @@ impl SkinTable {
     }
 }
 
+/// What an energy needs of its template that depends on nothing else (skinning table, rest
+/// normals, EP's ellipsoids and clusters, EA's limits): built once per template and EP stride and
+/// shared by every energy of it — an energy per frame costs no per-vertex work.
+struct TemplateParts {
+    skin: Arc<SkinTable>,
+    rest_normals: Arc<Vec<DVec3>>,
+    penetration: Arc<Penetration>,
+    limits: Arc<AngleLimits>,
+}
+
+impl TemplateParts {
+    /// The parts of `template` (by identity) and `stride`, from the cache or built. The cache
+    /// holds a [`std::sync::Weak`] to the template: while it does, `Arc::get_mut` cannot alter
+    /// the template in place, and `Arc::make_mut` moves it to a new allocation, so an entry never
+    /// describes a template that changed. Entries of dropped templates are pruned.
+    fn of(template: &Arc<Template>, stride: usize) -> Arc<Self> {
+        type Entry = (std::sync::Weak<Template>, usize, Arc<TemplateParts>);
+        static CACHE: std::sync::Mutex<Vec<Entry>> = std::sync::Mutex::new(Vec::new());
+        let mut cache = CACHE
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        cache.retain(|(weak, _, _)| weak.strong_count() > 0);
+        let weak = Arc::downgrade(template);
+        if let Some((_, _, parts)) = cache
+            .iter()
+            .find(|(w, s, _)| *s == stride && w.ptr_eq(&weak))
+        {
+            return parts.clone();
+        }
+        let parts = Arc::new(Self {
+            skin: Arc::new(SkinTable::new(template)),
+            rest_normals: Arc::new(
+                vertex_normals(&template.vertices, &template.faces)
+                    .iter()
+                    .map(|n| n.as_dvec3())
+                    .collect(),
+            ),
+            penetration: Arc::new(Penetration::new(template, stride)),
+            limits: Arc::new(AngleLimits::new(template)),
+        });
+        cache.push((weak, stride, parts.clone()));
+        parts
+    }
+}
+
 /// EJ's cameras (scaled to the render size) and target silhouettes (resampled to it).
 #[derive(Debug, Clone)]
 struct SilhouetteTerm {
@@ -386,11 +431,11 @@ pub struct Energy {
     sensor: Sensor,
     target: Target,
     config: EnergyConfig,
-    skin: SkinTable,
-    rest_normals: Vec<DVec3>,
+    skin: Arc<SkinTable>,
+    rest_normals: Arc<Vec<DVec3>>,
     groups: Vec<ResidualGroup>,
-    penetration: Penetration,
-    limits: AngleLimits,
+    penetration: Arc<Penetration>,
+    limits: Arc<AngleLimits>,
     silhouettes: Option<SilhouetteTerm>,
     /// `silhouettes`: the observation model at the render width (the sensor's is full size).
     render: Option<SilhouetteSetup>,
@@ -527,22 +572,17 @@ impl Energy {
             Target::Scan { grid, .. } => Some(Arc::new(direction_tensors(grid))),
             Target::Sparse { .. } | Target::Silhouettes { .. } => None,
         };
-        let rest_normals = vertex_normals(&template.vertices, &template.faces)
-            .iter()
-            .map(|n| n.as_dvec3())
-            .collect();
-        let penetration = Penetration::new(&template, config.penetration_stride);
-        let limits = AngleLimits::new(&template);
+        let parts = TemplateParts::of(&template, config.penetration_stride);
         let mut energy = Self {
-            limits,
-            skin: SkinTable::new(&template),
+            limits: parts.limits.clone(),
+            skin: parts.skin.clone(),
+            rest_normals: parts.rest_normals.clone(),
+            penetration: parts.penetration.clone(),
             template,
             sensor,
             target,
             config,
-            rest_normals,
             groups: Vec::new(),
-            penetration,
             silhouettes,
             render,
             axes,
