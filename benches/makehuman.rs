@@ -167,9 +167,97 @@ fn neural(c: &mut Criterion) {
     }
 }
 
+/// The cost model of one markers evaluation on the MakeHuman body (docs/results/cost-model.md):
+/// the value with and without EP (EP's share), residuals alone, residuals + Jacobian, the normal
+/// equations of that Jacobian and the damped Cholesky solve, one thread, same random poses as
+/// `model_speed`.
+fn cost_model(c: &mut Criterion) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/makehuman-cmu_mb.npz");
+    let template =
+        Arc::new(lfit::model::modelfile::load(&path).expect("models/makehuman-cmu_mb.npz"));
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
+    let ps = params(&template, 32);
+    let sensor = Sensor::default_for(Modality::Markers, &template);
+    let pred = sensor.predict_sparse(&template, &ps[0]);
+    let target = Target::Sparse {
+        values: pred.values,
+        visible: pred.visible,
+    };
+    let config = EnergyConfig::default().for_gradient();
+    let mut no_ep = config.clone();
+    no_ep.weights.ep = 0.0;
+    let e = Energy::new(template.clone(), sensor.clone(), target.clone(), config).expect("energy");
+    let e0 = Energy::new(template.clone(), sensor, target, no_ep).expect("energy");
+    let dofs: Vec<usize> = (0..e.dim()).collect();
+    let systems: Vec<_> = ps
+        .iter()
+        .map(|p| e.least_squares(p, true).expect("jacobian"))
+        .collect();
+    let normal: Vec<_> = systems.iter().map(|ls| ls.normal_equations(&dofs)).collect();
+    let mut group = c.benchmark_group("cost_model/makehuman/markers");
+    group.throughput(Throughput::Elements(ps.len() as u64));
+    group.bench_function("value", |b| {
+        b.iter(|| one.install(|| ps.iter().map(|p| e.evaluate(p).total).sum::<f64>()))
+    });
+    group.bench_function("value_without_ep", |b| {
+        b.iter(|| one.install(|| ps.iter().map(|p| e0.evaluate(p).total).sum::<f64>()))
+    });
+    group.bench_function("residuals", |b| {
+        b.iter(|| {
+            one.install(|| {
+                ps.iter()
+                    .map(|p| e.least_squares(p, false).expect("residuals").energy)
+                    .sum::<f64>()
+            })
+        })
+    });
+    group.bench_function("jacobian", |b| {
+        b.iter(|| {
+            one.install(|| {
+                ps.iter()
+                    .map(|p| e.least_squares(p, true).expect("jacobian").energy)
+                    .sum::<f64>()
+            })
+        })
+    });
+    group.bench_function("jacobian_without_ep", |b| {
+        b.iter(|| {
+            one.install(|| {
+                ps.iter()
+                    .map(|p| e0.least_squares(p, true).expect("jacobian").energy)
+                    .sum::<f64>()
+            })
+        })
+    });
+    group.bench_function("normal_equations", |b| {
+        b.iter(|| {
+            systems
+                .iter()
+                .map(|ls| ls.normal_equations(&dofs).1[0])
+                .sum::<f64>()
+        })
+    });
+    group.bench_function("damped_solve", |b| {
+        b.iter(|| {
+            normal
+                .iter()
+                .map(|(a, g)| {
+                    let (diag, max_diag) = lfit::model::energy::marquardt_scaling(a, &dofs);
+                    lfit::model::energy::damped_step(a, g, &dofs, &diag, 1e-2, max_diag)
+                        .map_or(0.0, |h| h[0])
+                })
+                .sum::<f64>()
+        })
+    });
+    group.finish();
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(10).warm_up_time(std::time::Duration::from_secs(1)).measurement_time(std::time::Duration::from_secs(3));
-    targets = bench, neural
+    targets = bench, neural, cost_model
 }
 criterion_main!(benches);

@@ -843,8 +843,14 @@ pub fn write_runs(path: &Path, runs: &[Run]) -> Result<()> {
     Ok(())
 }
 
-/// Merges shard directories into `out`: same `bench.json` everywhere, rows deduplicated.
-pub fn merge(shards: &[PathBuf], out: &Path) -> Result<(BenchConfig, Vec<Run>)> {
+/// Merges shard directories into `out`: same `bench.json` everywhere, rows deduplicated. Refuses
+/// when runs of the sweep are in no shard, unless `partial` (then the count of missing runs is
+/// returned, and the caller says so).
+pub fn merge(
+    shards: &[PathBuf],
+    out: &Path,
+    partial: bool,
+) -> Result<(BenchConfig, Vec<Run>, usize)> {
     if shards.is_empty() {
         bail!("bench merge needs at least one shard directory");
     }
@@ -873,6 +879,36 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<(BenchConfig, Vec<Run>)> 
         )?);
     }
     let (bytes, config) = config.context("no shard")?;
+    // Every run the sweep holds must be in some shard: count the missing ones before writing.
+    let data = match &config.data {
+        Some(d) => d.clone(),
+        None => shards
+            .iter()
+            .map(|d| d.join("data.npz"))
+            .find(|p| p.is_file())
+            .context("no shard holds the sweep's synthesised data.npz")?,
+    };
+    let dataset = Dataset::load(&data).with_context(|| format!("dataset {}", data.display()))?;
+    let frames = parse_frames(config.frames.as_deref(), dataset.len())?;
+    let mut expected = 0usize;
+    let mut missing = 0usize;
+    for (method, strategy) in config.entries()? {
+        for &budget in &config.budgets {
+            for rep in 0..config.repetitions {
+                for &frame in &frames {
+                    expected += 1;
+                    let key = (method.clone(), strategy.clone(), budget, rep, frame);
+                    missing += usize::from(!rows.contains_key(&key));
+                }
+            }
+        }
+    }
+    if missing > 0 && !partial {
+        bail!(
+            "{missing} of the sweep's {expected} runs are in none of the {} shard directories given (a shard not listed or not finished): list every shard, or pass --partial to merge what there is",
+            shards.len()
+        );
+    }
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     write_atomic(&out.join("bench.json"), &bytes)?;
     let mut runs: Vec<Run> = rows.into_values().collect();
@@ -880,9 +916,9 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<(BenchConfig, Vec<Run>)> 
     write_runs(&out.join("runs.csv"), &runs)?;
     crate::render::pictures::write_poses(&out.join(crate::render::pictures::POSES_FILE), &poses)?;
     // A synthesised dataset lives in each shard; the report's pictures read it from `out`.
-    let data = out.join("data.npz");
+    let merged_data = out.join("data.npz");
     if config.data.is_none()
-        && !data.exists()
+        && !merged_data.exists()
         && let Some(src) = shards
             .iter()
             .map(|d| d.join("data.npz"))
@@ -890,9 +926,9 @@ pub fn merge(shards: &[PathBuf], out: &Path) -> Result<(BenchConfig, Vec<Run>)> 
     {
         let bytes =
             std::fs::read(&src).with_context(|| format!("cannot read {}", src.display()))?;
-        write_atomic(&data, &bytes)?;
+        write_atomic(&merged_data, &bytes)?;
     }
-    Ok((config, runs))
+    Ok((config, runs, missing))
 }
 
 #[cfg(test)]

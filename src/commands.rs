@@ -443,10 +443,27 @@ pub fn bench_presets() -> Result<Value> {
 }
 
 /// `lfit bench merge`: merges shard directories and writes the report.
-pub fn bench_merge(shards: &[PathBuf], out: &Path) -> Result<Value> {
-    let (config, runs) = crate::bench::merge(shards, out)?;
+pub fn bench_merge(shards: &[PathBuf], out: &Path, partial: bool) -> Result<Value> {
+    let (config, runs, missing) = crate::bench::merge(shards, out, partial)?;
+    if missing > 0 {
+        eprintln!(
+            "warning: partial merge: {missing} runs of the sweep are in none of the shards given; the report says so"
+        );
+    }
     write_report(&config, &runs, out)?;
-    Ok(json!({ "out": out, "runs": runs.len(), "report": out.join("report.md") }))
+    if missing > 0 {
+        let path = out.join("report.md");
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("cannot read {}", path.display()))?;
+        let note = format!(
+            "> **Partial merge**: {missing} of the sweep's {} runs are missing (shards not given or not finished); every figure below covers only the runs present.\n\n",
+            runs.len() + missing
+        );
+        write_atomic(&path, format!("{note}{text}").as_bytes())?;
+    }
+    Ok(
+        json!({ "out": out, "runs": runs.len(), "missing": missing, "report": out.join("report.md") }),
+    )
 }
 
 /// A captured clip for `lfit quickstart --clip`: a BVH and its joint map onto the study's model.

@@ -87,7 +87,7 @@ pub struct ImportArgs {
     #[arg(long, default_value = "sequence")]
     pub scenario: String,
     /// Model: a template directory or an SMPL-layout .npz file; default: the procedural template.
-    #[arg(long, alias = "template")]
+    #[arg(long, visible_alias = "template")]
     pub model: Option<PathBuf>,
     /// Output dataset (.npz).
     #[arg(long)]

@@ -239,8 +239,10 @@ enum Command {
         /// Output directory (created if missing).
         #[arg(long)]
         out: PathBuf,
-        /// Template directory, if the dataset was not made with the procedural template.
-        #[arg(long)]
+        /// Model: a model file (.npz, SMPL-family layout, e.g. models/makehuman-cmu_mb.npz) or a
+        /// template directory (template.obj + rig.json), if the dataset was not made with the
+        /// procedural template.
+        #[arg(long = "model", visible_alias = "template")]
         template: Option<PathBuf>,
     },
     /// Run one optimizer on a standard test function (sphere, ellipsoid, rosenbrock, rastrigin)
@@ -284,7 +286,9 @@ enum Command {
         /// Refuse evaluations after this many.
         #[arg(long)]
         budget: Option<usize>,
-        #[arg(long)]
+        /// Model: a model file (.npz, SMPL-family layout, e.g. models/makehuman-cmu_mb.npz) or a
+        /// template directory (template.obj + rig.json); default: the procedural template.
+        #[arg(long = "model", visible_alias = "template")]
         template: Option<PathBuf>,
     },
 }
@@ -300,6 +304,9 @@ enum BenchAction {
         /// Shard output directories.
         #[arg(required = true)]
         shards: Vec<PathBuf>,
+        /// Merge even when runs of the sweep are in none of the shards (the report says so).
+        #[arg(long)]
+        partial: bool,
     },
 }
 
@@ -352,8 +359,10 @@ struct FitCmd {
     /// differentiable variant for lbfgs).
     #[arg(long)]
     energy: Option<PathBuf>,
-    /// Template directory, if the dataset was not made with the procedural template.
-    #[arg(long)]
+    /// Model: a model file (.npz, SMPL-family layout, e.g. models/makehuman-cmu_mb.npz) or a
+    /// template directory (template.obj + rig.json), if the dataset was not made with the
+    /// procedural template.
+    #[arg(long = "model", visible_alias = "template")]
     template: Option<PathBuf>,
     /// Neural fitter checkpoint directory (--method neural), e.g. checkpoints/markers.
     #[arg(long)]
@@ -389,9 +398,9 @@ struct FitCmd {
 
 #[derive(clap::Args)]
 struct TemplateArg {
-    /// Template directory (template.obj + rig.json) or model file (SMPL-family .npz layout);
-    /// default: the procedural template.
-    #[arg(long)]
+    /// Model: a model file (.npz, SMPL-family layout, e.g. models/makehuman-cmu_mb.npz) or a
+    /// template directory (template.obj + rig.json); default: the procedural template.
+    #[arg(long = "model", visible_alias = "template")]
     template: Option<PathBuf>,
     /// Body-proportion variant of the procedural template: default, tall, short, heavy, slim,
     /// long-legs, long-arms.
@@ -753,9 +762,14 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             result
         }
         Command::Bench {
-            action: Some(BenchAction::Merge { out, shards }),
+            action:
+                Some(BenchAction::Merge {
+                    out,
+                    shards,
+                    partial,
+                }),
             ..
-        } => commands::bench_merge(&shards, &out),
+        } => commands::bench_merge(&shards, &out, partial),
         Command::Bench {
             action: Some(BenchAction::Presets),
             ..

@@ -51,7 +51,7 @@ pub struct ImportArgs {
     pub amass: Option<PathBuf>,
     /// Model file (SMPL-family .npz layout) or template directory; default: the procedural
     /// template.
-    #[arg(long)]
+    #[arg(long, visible_alias = "template")]
     pub model: Option<PathBuf>,
     /// Output motion file (.npz).
     #[arg(long)]
@@ -88,7 +88,7 @@ pub struct ExportArgs {
     #[arg(long)]
     pub format: String,
     /// Model file or template directory; default: the procedural template.
-    #[arg(long)]
+    #[arg(long, visible_alias = "template")]
     pub model: Option<PathBuf>,
     /// Motion file written by `lfit motion import`.
     #[arg(long, conflicts_with = "fit")]
@@ -119,7 +119,7 @@ pub struct CoverageArgs {
     pub eval: PathBuf,
     /// Model the motions must be made for; default: the first training file's skeleton (every
     /// file must share it).
-    #[arg(long)]
+    #[arg(long, visible_alias = "template")]
     pub model: Option<PathBuf>,
     /// Slack (radians) around each [p1, p99] range, for joints that are constant up to rounding.
     #[arg(long, default_value_t = 1e-6)]

@@ -199,6 +199,45 @@ fn unknown_modality_scenario_and_flags() {
     ]);
     assert_one_line_error(&o, "giant");
     assert!(!out.exists(), "nothing written on a refused command");
+    // One flag name for the model everywhere: --model, with --template as its alias, on every
+    // subcommand that takes a model (a missing model file is named whichever spelling is used).
+    for command in [
+        &[
+            "fit", "--data", "x.npz", "--method", "lm", "--budget", "3", "--out", "x.json",
+        ][..],
+        &[
+            "synth",
+            "--modality",
+            "markers",
+            "--frames",
+            "2",
+            "--out",
+            "x.npz",
+        ][..],
+        &["data", "import", "--c3d", "x.c3d", "--out", "x.npz"][..],
+        &["render", "--data", "x.npz", "--out", "x.png"][..],
+        &[
+            "export", "--data", "x.npz", "--poses", "x.json", "--format", "obj", "--out", "x",
+        ][..],
+        &["motion", "import", "--bvh", "x.bvh", "--out", "x.npz"][..],
+    ] {
+        for flag in ["--model", "--template"] {
+            let mut args: Vec<&str> = command.to_vec();
+            args.extend([flag, "/nonexistent/body.npz"]);
+            let o = lfit(&args);
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(
+                !err.contains("unexpected argument"),
+                "{} {flag}: {err}",
+                command[..2].join(" ")
+            );
+            assert!(
+                !o.status.success(),
+                "{} {flag} succeeded",
+                command[..2].join(" ")
+            );
+        }
+    }
 }
 
 #[test]

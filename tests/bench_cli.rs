@@ -131,6 +131,28 @@ fn a_killed_run_resumes_to_the_same_csv_and_shards_merge_to_the_same_report() {
         assert!(rows(&s.join("runs.csv")) == 32, "shard {i}");
         shard_dirs.push(s);
     }
+    // Two of the three shards: refused with the count of missing runs, nothing written; with
+    // --partial merged, and the report says it is partial.
+    let two = d.join("two");
+    let mut args = vec!["-q", "bench", "merge", "--out", path_str(&two)];
+    args.extend(shard_dirs[..2].iter().map(|s| path_str(s)));
+    let out = lfit(&args);
+    assert_one_line_error(
+        &out,
+        "32 of the sweep's 96 runs are in none of the 2 shard directories",
+    );
+    assert!(!two.exists(), "a refused merge wrote {}", two.display());
+    args.push("--partial");
+    let partial = lfit_json(&args);
+    assert_eq!(partial["missing"], 32, "{partial}");
+    assert_eq!(rows(&two.join("runs.csv")), 64);
+    let md = std::fs::read_to_string(two.join("report.md")).expect("partial report");
+    assert!(
+        md.starts_with("> **Partial merge**: 32 of the sweep's 96 runs are missing"),
+        "{}",
+        &md[..200.min(md.len())]
+    );
+
     let merged = d.join("merged");
     let mut args = vec!["-q", "bench", "merge", "--out", path_str(&merged)];
     args.extend(shard_dirs.iter().map(|s| path_str(s)));
