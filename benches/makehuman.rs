@@ -196,7 +196,10 @@ fn cost_model(c: &mut Criterion) {
         .iter()
         .map(|p| e.least_squares(p, true).expect("jacobian"))
         .collect();
-    let normal: Vec<_> = systems.iter().map(|ls| ls.normal_equations(&dofs)).collect();
+    let normal: Vec<_> = systems
+        .iter()
+        .map(|ls| ls.normal_equations(&dofs))
+        .collect();
     let mut group = c.benchmark_group("cost_model/makehuman/markers");
     group.throughput(Throughput::Elements(ps.len() as u64));
     group.bench_function("value", |b| {

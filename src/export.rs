@@ -44,7 +44,7 @@ use anyhow::{Context, Result, bail};
 use glam::{DQuat, DVec3, Vec3};
 use lfit_model::pose::rot_offset;
 use lfit_model::skinning::{SkinningMethod, pose_vertices_batch, vertex_normals};
-use lfit_model::template::{Template, write_atomic, write_obj};
+use lfit_model::template::{ModelSignature, Template, write_atomic, write_obj};
 use lfit_synth::Dataset;
 use serde_json::{Value, json};
 
@@ -203,6 +203,65 @@ pub fn check_against_dataset(
     Ok(())
 }
 
+/// Checks a fit result against the model and dataset beyond what reading its poses checks
+/// (lengths, modality, frame range): a recorded model signature must be this model's, and a
+/// recorded V2V must be what the pose gives against this dataset's ground truth (a fit of
+/// another dataset with the same model fails here).
+pub fn check_fit_file(
+    value: &Value,
+    path: &Path,
+    template: &Template,
+    dataset: &Dataset,
+    frames: &[(usize, Vec<f64>)],
+) -> Result<()> {
+    if let Some(sig) = value.get("model") {
+        let recorded: ModelSignature = serde_json::from_value(sig.clone())
+            .with_context(|| format!("{}: malformed \"model\" signature", path.display()))?;
+        let ours = template.signature();
+        if recorded != ours {
+            bail!(
+                "{}: fitted with model '{}' (signature {}), not this model '{}' ({})",
+                path.display(),
+                recorded.id,
+                recorded.hash,
+                ours.id,
+                ours.hash
+            );
+        }
+    }
+    let rows = value
+        .get("frames")
+        .and_then(Value::as_array)
+        .map(Vec::as_slice)
+        .unwrap_or_default();
+    for row in rows {
+        let (Some(frame), Some(recorded)) = (
+            row.get("frame").and_then(Value::as_u64),
+            row.get("v2v_mm").and_then(Value::as_f64),
+        ) else {
+            continue;
+        };
+        let Some(params) = frames
+            .iter()
+            .find(|(f, _)| *f as u64 == frame)
+            .map(|(_, p)| p)
+        else {
+            continue;
+        };
+        let Some(gt) = dataset.ground_truth(frame as usize) else {
+            continue;
+        };
+        let v2v = lfit_model::metrics::v2v_mm(template, params, gt);
+        if recorded.is_finite() && (v2v - recorded).abs() > 1e-3 * (1.0 + recorded.abs()) {
+            bail!(
+                "{}: frame {frame} records V2V {recorded:.3} mm but its pose is {v2v:.3} mm from this dataset's ground truth: it was fitted on another dataset",
+                path.display()
+            );
+        }
+    }
+    Ok(())
+}
+
 /// `lfit export`: reads and checks everything, then writes OBJ files or one `.glb` into `out`.
 pub fn export(args: &ExportArgs) -> Result<Value> {
     let format: ExportFormat = args.format.parse()?;
@@ -211,6 +270,11 @@ pub fn export(args: &ExportArgs) -> Result<Value> {
     let template = crate::fit::template_for(&dataset, args.template.as_deref())?;
     let fitted = read_fitted_poses(&args.poses, &template)?;
     check_against_dataset(&fitted, &args.poses, &dataset, &args.data)?;
+    let text = std::fs::read_to_string(&args.poses)
+        .with_context(|| format!("cannot read {}", args.poses.display()))?;
+    let value: Value = serde_json::from_str(&text)
+        .with_context(|| format!("malformed poses JSON {}", args.poses.display()))?;
+    check_fit_file(&value, &args.poses, &template, &dataset, &fitted.frames)?;
     let fps = dataset.meta.config.fps;
     if !(fps.is_finite() && fps > 0.0) {
         bail!(

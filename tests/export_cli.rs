@@ -668,6 +668,23 @@ fn export_refuses_results_that_do_not_match_the_dataset_before_writing() {
     let dir = tempfile::tempdir().unwrap();
     let data = dataset(dir.path(), "markers");
     let other_modality = dataset(dir.path(), "keypoints2d");
+    let other_seed = dir.path().join("other-seed.npz");
+    lfit_json(&[
+        "synth",
+        "--modality",
+        "markers",
+        "--scenario",
+        "sequence",
+        "--frames",
+        &FRAMES.to_string(),
+        "--fps",
+        &FPS.to_string(),
+        "--seed",
+        "5",
+        "--out",
+        path_str(&other_seed),
+        "-q",
+    ]);
     let results = fit_results(dir.path(), &data);
     let good = read_json(&results);
     let out = dir.path().join("never");
@@ -705,6 +722,20 @@ fn export_refuses_results_that_do_not_match_the_dataset_before_writing() {
             "out of range",
         ),
         (other_modality.clone(), results.clone(), "gltf", "modality"),
+        // The fit of another dataset of the same model and modality (another seed): its
+        // recorded V2V is not what its poses give against this dataset's ground truth.
+        (
+            other_seed.clone(),
+            results.clone(),
+            "obj",
+            "another dataset",
+        ),
+        (
+            other_seed.clone(),
+            results.clone(),
+            "gltf",
+            "another dataset",
+        ),
         (other_modality.clone(), results.clone(), "obj", "modality"),
         (
             data.clone(),

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use lfit_model::skinning::SkinningMethod;
-use lfit_model::template::{ModelSignature, Template, write_atomic};
+use lfit_model::template::write_atomic;
 use lfit_synth::Dataset;
 use serde_json::{Value, json};
 
@@ -123,65 +123,6 @@ fn skinning(name: &str) -> Result<SkinningMethod> {
         "dqs" => Ok(SkinningMethod::DualQuaternion),
         other => bail!("unknown skinning '{other}' (expected lbs or dqs)"),
     }
-}
-
-/// Checks a fit result against the model and dataset beyond what reading its poses checks
-/// (lengths, modality, frame range): a recorded model signature must be this model's, and a
-/// recorded V2V must be what the pose gives against this dataset's ground truth (a fit of
-/// another dataset with the same model fails here).
-fn check_fit_file(
-    value: &Value,
-    path: &Path,
-    template: &Template,
-    dataset: &Dataset,
-    frames: &[(usize, Vec<f64>)],
-) -> Result<()> {
-    if let Some(sig) = value.get("model") {
-        let recorded: ModelSignature = serde_json::from_value(sig.clone())
-            .with_context(|| format!("{}: malformed \"model\" signature", path.display()))?;
-        let ours = template.signature();
-        if recorded != ours {
-            bail!(
-                "{}: fitted with model '{}' (signature {}), not this model '{}' ({})",
-                path.display(),
-                recorded.id,
-                recorded.hash,
-                ours.id,
-                ours.hash
-            );
-        }
-    }
-    let rows = value
-        .get("frames")
-        .and_then(Value::as_array)
-        .map(Vec::as_slice)
-        .unwrap_or_default();
-    for row in rows {
-        let (Some(frame), Some(recorded)) = (
-            row.get("frame").and_then(Value::as_u64),
-            row.get("v2v_mm").and_then(Value::as_f64),
-        ) else {
-            continue;
-        };
-        let Some(params) = frames
-            .iter()
-            .find(|(f, _)| *f as u64 == frame)
-            .map(|(_, p)| p)
-        else {
-            continue;
-        };
-        let Some(gt) = dataset.ground_truth(frame as usize) else {
-            continue;
-        };
-        let v2v = lfit_model::metrics::v2v_mm(template, params, gt);
-        if recorded.is_finite() && (v2v - recorded).abs() > 1e-3 * (1.0 + recorded.abs()) {
-            bail!(
-                "{}: frame {frame} records V2V {recorded:.3} mm but its pose is {v2v:.3} mm from this dataset's ground truth: it was fitted on another dataset",
-                path.display()
-            );
-        }
-    }
-    Ok(())
 }
 
 /// Default image size: 300 × 380 pixels per panel plus the title band.
@@ -311,7 +252,7 @@ fn dataset_scene(
                 .with_context(|| format!("cannot read {}", path.display()))?;
             let value: Value = serde_json::from_str(&text)
                 .with_context(|| format!("malformed fit JSON {}", path.display()))?;
-            check_fit_file(&value, path, &template, &dataset, &fitted.frames)?;
+            crate::export::check_fit_file(&value, path, &template, &dataset, &fitted.frames)?;
             let method = value
                 .get("method")
                 .and_then(Value::as_str)
