@@ -88,79 +88,12 @@ pub fn damped_step(
     max_diag: f64,
 ) -> Option<DVector<f64>> {
     let m = free.len();
-    // Row-major lower triangle (the system is symmetric).
-    let mut sys = vec![0.0; m * m];
-    for (r, &fr) in free.iter().enumerate() {
-        for (c, &fc) in free.iter().enumerate().take(r + 1) {
-            sys[r * m + c] = a[(fr, fc)];
-        }
-    }
+    let mut sys = DMatrix::<f64>::from_fn(m, m, |r, c| a[(free[r], free[c])]);
     for (k, dk) in diag.iter().enumerate() {
-        sys[k * m + k] += damping * dk + 1e-12 * max_diag;
+        sys[(k, k)] += damping * dk + 1e-12 * max_diag;
     }
-    let mut rhs: Vec<f64> = free.iter().map(|&p| -g[p]).collect();
-    cholesky_solve(m, &mut sys, &mut rhs)?;
-    Some(DVector::from_vec(rhs))
-}
-
-/// Solves `S x = b` in place for a symmetric positive definite `S` given by its lower triangle,
-/// row-major (`s[r·n + c]`, `c ≤ r`; the upper part is ignored and overwritten), by the
-/// Cholesky factorisation `S = L Lᵀ` (Cholesky–Banachiewicz: row by row, each entry a dot
-/// product of two contiguous row prefixes, four partial sums so that it vectorises). `None`
-/// when a pivot is not positive (or not finite): `S` is not positive definite.
-pub fn cholesky_solve(n: usize, s: &mut [f64], b: &mut [f64]) -> Option<()> {
-    debug_assert!(s.len() == n * n && b.len() == n);
-    for r in 0..n {
-        let (done, row) = s.split_at_mut(r * n);
-        let row = &mut row[..n];
-        for c in 0..=r {
-            let prefix = if c == r {
-                dot4(&row[..c], &row[..c])
-            } else {
-                dot4(&row[..c], &done[c * n..c * n + c])
-            };
-            let v = row[c] - prefix;
-            if c == r {
-                if !(v > 0.0 && v.is_finite()) {
-                    return None;
-                }
-                row[c] = v.sqrt();
-            } else {
-                row[c] = v / done[c * n + c];
-            }
-        }
-    }
-    // L y = b, then Lᵀ x = y.
-    for r in 0..n {
-        let v = b[r] - dot4(&s[r * n..r * n + r], &b[..r]);
-        b[r] = v / s[r * n + r];
-    }
-    for r in (0..n).rev() {
-        let mut v = b[r];
-        for k in r + 1..n {
-            v -= s[k * n + r] * b[k];
-        }
-        b[r] = v / s[r * n + r];
-    }
-    Some(())
-}
-
-/// `Σ aᵢ bᵢ` with four interleaved partial sums.
-#[inline]
-fn dot4(a: &[f64], b: &[f64]) -> f64 {
-    let mut acc = [0.0f64; 4];
-    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
-    let (ra, rb) = (ca.remainder(), cb.remainder());
-    for (x, y) in ca.zip(cb) {
-        for k in 0..4 {
-            acc[k] += x[k] * y[k];
-        }
-    }
-    let mut tail = 0.0;
-    for (x, y) in ra.iter().zip(rb) {
-        tail += x * y;
-    }
-    (acc[0] + acc[2]) + (acc[1] + acc[3]) + tail
+    let rhs = DVector::<f64>::from_iterator(m, free.iter().map(|&p| -g[p]));
+    sys.cholesky().map(|c| c.solve(&rhs))
 }
 
 impl LeastSquares {
@@ -188,21 +121,6 @@ impl LeastSquares {
         let mut upper = vec![0.0; n * n];
         let mut g = DVector::<f64>::zeros(n);
         let mut buffer: Vec<(usize, f64)> = vec![(0, 0.0); self.dim + 1];
-        // Consecutive rows with the same free nonzero columns (the axes of one marker, markers of
-        // one bone) are summed into a small dense Gram matrix over those columns, contiguous and
-        // vectorisable, and scattered into `upper` once per run of rows.
-        let mut pattern: Vec<usize> = Vec::with_capacity(self.dim);
-        let mut gram: Vec<f64> = Vec::with_capacity(self.dim * self.dim);
-        let mut values: Vec<f64> = Vec::with_capacity(self.dim);
-        let flush = |pattern: &[usize], gram: &mut [f64], upper: &mut [f64]| {
-            let s = pattern.len();
-            for (k, &p) in pattern.iter().enumerate() {
-                let row = &mut upper[p * n..(p + 1) * n];
-                for (l, &q) in pattern.iter().enumerate().skip(k) {
-                    row[q] += gram[k * s + l];
-                }
-            }
-        };
         for (i, &r) in self.residuals.iter().enumerate() {
             if self.zero_rows.get(i).copied().unwrap_or(false) {
                 continue;
@@ -219,27 +137,14 @@ impl LeastSquares {
                 nz.sort_unstable_by_key(|e| e.0);
             }
             let nz = &*nz;
-            let same = nz.len() == pattern.len() && nz.iter().zip(&pattern).all(|(e, &p)| e.0 == p);
-            if !same {
-                flush(&pattern, &mut gram, &mut upper);
-                pattern.clear();
-                pattern.extend(nz.iter().map(|e| e.0));
-                gram.clear();
-                gram.resize(len * len, 0.0);
-            }
-            values.clear();
-            values.extend(nz.iter().map(|e| e.1));
-            for (k, &vp) in values.iter().enumerate() {
-                g[pattern[k]] += vp * r;
-                for (o, &vq) in gram[k * len + k..(k + 1) * len]
-                    .iter_mut()
-                    .zip(&values[k..])
-                {
-                    *o += vp * vq;
+            for (k, &(p, vp)) in nz.iter().enumerate() {
+                g[p] += vp * r;
+                let row = &mut upper[p * n..(p + 1) * n];
+                for &(q, vq) in &nz[k..] {
+                    row[q] += vp * vq;
                 }
             }
         }
-        flush(&pattern, &mut gram, &mut upper);
         let a = DMatrix::<f64>::from_fn(n, n, |p, q| {
             if p <= q {
                 upper[p * n + q]
