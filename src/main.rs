@@ -242,7 +242,7 @@ enum Command {
         /// Model: a model file (.npz, SMPL-family layout, e.g. models/makehuman-cmu_mb.npz) or a
         /// template directory (template.obj + rig.json), if the dataset was not made with the
         /// procedural template.
-        #[arg(long = "model", visible_alias = "template")]
+        #[arg(long = "model", value_name = "MODEL", visible_alias = "template")]
         template: Option<PathBuf>,
     },
     /// Run one optimizer on a standard test function (sphere, ellipsoid, rosenbrock, rastrigin)
@@ -288,7 +288,7 @@ enum Command {
         budget: Option<usize>,
         /// Model: a model file (.npz, SMPL-family layout, e.g. models/makehuman-cmu_mb.npz) or a
         /// template directory (template.obj + rig.json); default: the procedural template.
-        #[arg(long = "model", visible_alias = "template")]
+        #[arg(long = "model", value_name = "MODEL", visible_alias = "template")]
         template: Option<PathBuf>,
     },
 }
@@ -362,7 +362,7 @@ struct FitCmd {
     /// Model: a model file (.npz, SMPL-family layout, e.g. models/makehuman-cmu_mb.npz) or a
     /// template directory (template.obj + rig.json), if the dataset was not made with the
     /// procedural template.
-    #[arg(long = "model", visible_alias = "template")]
+    #[arg(long = "model", value_name = "MODEL", visible_alias = "template")]
     template: Option<PathBuf>,
     /// Neural fitter checkpoint directory (--method neural), e.g. checkpoints/markers.
     #[arg(long)]
@@ -400,7 +400,7 @@ struct FitCmd {
 struct TemplateArg {
     /// Model: a model file (.npz, SMPL-family layout, e.g. models/makehuman-cmu_mb.npz) or a
     /// template directory (template.obj + rig.json); default: the procedural template.
-    #[arg(long = "model", visible_alias = "template")]
+    #[arg(long = "model", value_name = "MODEL", visible_alias = "template")]
     template: Option<PathBuf>,
     /// Body-proportion variant of the procedural template: default, tall, short, heavy, slim,
     /// long-legs, long-arms.
