@@ -262,6 +262,26 @@ impl Penetration {
         (centre, rho)
     }
 
+    /// The narrow phase: a posed point `p` against posed ellipsoid `i`. `Some((1 − q, Q d, d))`
+    /// when it is inside (`q = dᵀ Q d < 1`, `d = p − c`), `None` outside.
+    #[inline]
+    fn depth(
+        &self,
+        p: DVec3,
+        i: usize,
+        posed_ell: &[(DVec3, DMat3)],
+    ) -> Option<(f64, DVec3, DVec3)> {
+        let e = &self.ellipsoids[i];
+        let (c, q) = posed_ell[i];
+        let d = p - c;
+        if d.length_squared() >= e.radius * e.radius {
+            return None;
+        }
+        let qd = q * d;
+        let s = d.dot(qd);
+        (s < 1.0).then_some((1.0 - s, qd, d))
+    }
+
     /// Where the vertices of segment `bound` can be: the posed centre of their ball, its radius,
     /// and per influence `k` of the segment `(‖W_k − W_j‖_F, |A_k b − A_j b|)` at the segment's
     /// shaped centre `b` (what its clusters' bounds reuse).
@@ -441,25 +461,18 @@ impl Penetration {
                     if !near[i as usize] {
                         continue;
                     }
-                    let e = &self.ellipsoids[i as usize];
-                    let (c, q) = posed_ell[i as usize];
-                    let d = p - c;
-                    if d.length_squared() >= e.radius * e.radius {
+                    let Some((a, qd, d)) = self.depth(p, i as usize, &posed_ell) else {
                         continue;
-                    }
-                    let qd = q * d;
-                    let s = d.dot(qd);
-                    if s >= 1.0 {
-                        continue;
-                    }
-                    sum += (1.0 - s) * (1.0 - s);
+                    };
+                    sum += a * a;
                     if let Some((adj, scale)) = adjoint.as_mut() {
-                        // dρ/ds = −2(1 − s); ds/dp = 2 Q d; the ellipsoid's own motion enters as a
+                        // dρ/ds = −2a (a = 1 − s); ds/dp = 2 Q d; the ellipsoid's own motion enters as a
                         // point force at its centre and the torque h × d (see kinematics.rs).
-                        let h = qd * (-4.0 * (1.0 - s) * *scale / self.count as f64);
+                        let h = qd * (-4.0 * a * *scale / self.count as f64);
                         adj.skinned_point(kin, skin.weights(v), v, rest(v), h);
-                        adj.joint_point(kin, e.joint, c, -h);
-                        adj.torque(e.joint, h.cross(d));
+                        let joint = self.ellipsoids[i as usize].joint;
+                        adj.joint_point(kin, joint, posed_ell[i as usize].0, -h);
+                        adj.torque(joint, h.cross(d));
                     }
                 }
             }
@@ -565,16 +578,8 @@ impl Penetration {
                     if !near[i as usize] {
                         continue;
                     }
-                    let e = &self.ellipsoids[i as usize];
-                    let (c, q) = posed_ell[i as usize];
-                    let d = p - c;
-                    if d.length_squared() >= e.radius * e.radius {
-                        continue;
-                    }
-                    let qd = q * d;
-                    let s = d.dot(qd);
-                    if s < 1.0 {
-                        active.push((i as usize, 1.0 - s, qd, d));
+                    if let Some((a, qd, d)) = self.depth(p, i as usize, &posed_ell) {
+                        active.push((i as usize, a, qd, d));
                     }
                 }
                 let r = active.iter().map(|a| a.1 * a.1).sum::<f64>().sqrt();
