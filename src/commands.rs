@@ -623,3 +623,58 @@ pub fn quickstart(
     write_atomic(&out.join("comparison.md"), text.as_bytes())?;
     Ok(text)
 }
+
+/// `lfit model info`: what a model holds, as JSON — its joints (parent, body part, mirror,
+/// rotation limits), the parameter layout (blocks and entry names, the order of every pose
+/// vector and of `objective-server`'s columns), its markers, headset offset, hand tips, dense
+/// landmarks and shape spaces.
+pub fn model_info(template: &Template) -> Value {
+    use lfit_model::layout::Block;
+    let info = &template.info;
+    let joints = &template.rig.joints;
+    let name = |j: usize| joints.get(j).map(|joint| joint.name.clone());
+    let layout = template.layout();
+    let blocks: Vec<Value> = [
+        Block::Translation,
+        Block::Rotations,
+        Block::Shape,
+        Block::Expression,
+    ]
+    .into_iter()
+    .filter_map(|b| {
+        let r = layout.range(b);
+        (!r.is_empty()).then(|| json!({"block": b.name(), "start": r.start, "end": r.end}))
+    })
+    .collect();
+    json!({
+        "id": template.id,
+        "provenance": info.provenance,
+        "vertices": template.num_vertices(),
+        "faces": template.faces.len(),
+        "joints": joints.iter().enumerate().map(|(j, joint)| json!({
+            "index": j,
+            "name": joint.name,
+            "parent": joint.parent.and_then(name),
+            "part": info.parts.get(j),
+            "mirror": info.mirror.get(j).and_then(|&m| name(m)),
+            "rest_position_m": joint.rest_position,
+            "limits_deg": info.limits_deg.get(j),
+        })).collect::<Vec<_>>(),
+        "parameters": {
+            "dim": layout.dim(),
+            "blocks": blocks,
+            "names": layout.names(),
+        },
+        "shape_components": template.morph.shape,
+        "expression_components": template.morph.expression,
+        "pose_correctives": template.morph.posedirs.is_some(),
+        "markers": template.rig.markers.iter().map(|m| json!({"name": m.name, "vertex": m.vertex})).collect::<Vec<_>>(),
+        "papers000_joint_map": lfit_model::skeleton::JOINT_NAMES.iter().zip(&info.joint_map)
+            .map(|(p, m)| json!({"joint": p, "model_joint": m.and_then(name)}))
+            .collect::<Vec<_>>(),
+        "hmd_offset_m": info.hmd_offset,
+        "hand_tips": info.hand_tips,
+        "landmarks": info.landmark_vertices.len(),
+        "face_region_vertices": info.face_region.len(),
+    })
+}

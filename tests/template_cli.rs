@@ -332,3 +332,76 @@ fn reloaded_template_equals_the_generated_one_and_any_vertex_order_is_kept() {
     b.reverse();
     assert_eq!(a, b);
 }
+
+/// `lfit model info`: the procedural template and the committed MakeHuman body as JSON — joint
+/// names and parents, the parameter layout (whose names index `template pose` vectors), markers
+/// and limits — checked against what is known of each independently; a missing file is refused
+/// with one line.
+#[test]
+fn model_info_lists_joints_layout_markers_and_limits() {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let d = lfit_json(&["model", "info"]);
+    assert_eq!(d["id"], "default");
+    let joints = d["joints"].as_array().unwrap();
+    assert_eq!(joints.len(), 18);
+    assert_eq!(joints[0]["parent"], serde_json::Value::Null);
+    assert_eq!(d["parameters"]["dim"], 57);
+    assert_eq!(d["parameters"]["names"].as_array().unwrap().len(), 57);
+    assert_eq!(d["shape_components"], 0);
+
+    let model = format!("{root}/models/makehuman-cmu_mb.npz");
+    let d = lfit_json(&["model", "info", "--model", &model]);
+    assert_eq!(d["id"], "makehuman-cmu_mb");
+    assert_eq!(d["vertices"], 13380);
+    let joints = d["joints"].as_array().unwrap();
+    assert_eq!(joints.len(), 31);
+    let by_name = |n: &str| joints.iter().find(|j| j["name"] == n).unwrap().clone();
+    // The cmu_mb rig's chains (its joint names are the CMU database's).
+    assert_eq!(by_name("LeftForeArm")["parent"], "LeftArm");
+    assert_eq!(by_name("LeftArm")["mirror"], "RightArm");
+    assert_eq!(by_name("Hips")["parent"], serde_json::Value::Null);
+    // Limits: [lo, hi] in degrees per axis, lo < hi.
+    for j in joints {
+        for axis in j["limits_deg"].as_array().unwrap() {
+            let (lo, hi) = (axis[0].as_f64().unwrap(), axis[1].as_f64().unwrap());
+            assert!(lo < hi, "{}: {lo} .. {hi}", j["name"]);
+        }
+    }
+    // 3 translation + 3 × 31 rotations + 16 shape, in that order.
+    let p = &d["parameters"];
+    assert_eq!(p["dim"], 112);
+    let blocks: Vec<(String, u64, u64)> = p["blocks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| {
+            (
+                b["block"].as_str().unwrap().to_string(),
+                b["start"].as_u64().unwrap(),
+                b["end"].as_u64().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        blocks,
+        vec![
+            ("translation".to_string(), 0, 3),
+            ("rotations".to_string(), 3, 96),
+            ("shape".to_string(), 96, 112)
+        ]
+    );
+    assert_eq!(p["names"].as_array().unwrap().len(), 112);
+    // The markers the model file lists (the CMU/Vicon set), in its order.
+    let markers: Vec<&str> = d["markers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(markers.len(), 39);
+    assert_eq!(&markers[..4], &["LFHD", "RFHD", "LBHD", "RBHD"]);
+    assert!(d["markers"][0]["vertex"].as_u64().unwrap() < 13380);
+
+    let out = support::lfit(&["model", "info", "--model", "/nonexistent/model.npz"]);
+    support::assert_one_line_error(&out, "model.npz");
+}

@@ -197,7 +197,7 @@ fn bounded_step(
         return None;
     }
     let mut held = x.to_vec();
-    for (&p, &s) in fixed.iter().map(|(p, s)| (p, s)).chain(rest.iter().zip(&step)) {
+    for (p, s) in fixed.iter().copied().chain(rest.iter().copied().zip(step)) {
         let i = dofs[p];
         held[i] = (x[i] + s).clamp(bounds.lower[i], bounds.upper[i]);
     }
@@ -453,6 +453,9 @@ mod tests {
             }
             checked += 1;
         }
-        assert!(checked >= 20, "only {checked} models crossed a bound and were checked");
+        assert!(
+            checked >= 20,
+            "only {checked} models crossed a bound and were checked"
+        );
     }
 }
