@@ -63,6 +63,10 @@ pub struct ImportArgs {
     /// marker names.
     #[arg(long, requires = "c3d")]
     pub label_map: Option<PathBuf>,
+    /// Up axis of the C3D's lab frame: y, or z (points converted by (x, y, z) -> (x, z, -y), as
+    /// `lfit motion import --up z`, so that the fitted body stands in renders and exports).
+    #[arg(long, default_value = "y", requires = "c3d")]
+    pub up: String,
     /// Keypoint files (COCO keypoint JSON, or OpenPose per-frame JSON files or folders of them):
     /// one per camera in the camera file's order, or any number for a single camera.
     #[arg(long, num_args = 1..)]
@@ -199,6 +203,7 @@ pub fn import(args: &ImportArgs) -> Result<Value> {
         (Some(_), false) => bail!("give either --c3d or --keypoints, not both"),
         (None, true) => bail!("lfit data import needs --c3d FILE or --keypoints FILE..."),
         (Some(path), true) => {
+            let up: lfit_synth::retarget::Up = args.up.parse().map_err(anyhow::Error::msg)?;
             let map = args
                 .label_map
                 .as_deref()
@@ -211,7 +216,7 @@ pub fn import(args: &ImportArgs) -> Result<Value> {
                 || path.display().to_string(),
                 |n| n.to_string_lossy().into(),
             );
-            let imported = import_c3d(&c3d, &name, map.as_deref(), &template, scenario)
+            let imported = import_c3d(&c3d, &name, map.as_deref(), &template, scenario, up)
                 .with_context(|| format!("C3D file {}", path.display()))?;
             (imported, json!({ "c3d": path }))
         }

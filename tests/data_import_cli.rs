@@ -421,6 +421,23 @@ fn bad_input_is_one_line_and_writes_nothing() {
         assert_one_line_error(&o, needle);
         assert!(!out.exists(), "{needle}: output written");
     };
+    // An unknown up axis.
+    let f = d.join("good.c3d");
+    std::fs::write(&f, &good).expect("write");
+    let o = lfit(&[
+        "data",
+        "import",
+        "--c3d",
+        path_str(&f),
+        "--label-map",
+        path_str(&map_file),
+        "--up",
+        "x",
+        "--out",
+        path_str(&out),
+    ]);
+    assert_one_line_error(&o, "unknown up axis 'x'");
+    assert!(!out.exists(), "--up x: output written");
     // A label-map entry whose C3D label is not in the file; one whose model marker is unknown.
     let mut bad = map.clone();
     bad[3].0 = "S1:NOSUCH".into();

@@ -33,6 +33,7 @@ use crate::error::SynthError;
 use crate::keypoints::{KeypointLayout, KeypointTrack};
 use crate::motion::MotionKind;
 use crate::noise::NoiseConfig;
+use crate::retarget::Up;
 use crate::synth::{PoseSource, Scenario, SynthConfig};
 
 /// Errors of the import: each a one-line cause.
@@ -171,13 +172,16 @@ fn imported_dataset(
 }
 
 /// Imports the points of a C3D file as a `markers` dataset of `template`. `map`: C3D label →
-/// model marker (default: every model marker whose name is a C3D label).
+/// model marker (default: every model marker whose name is a C3D label). `up`: the lab frame's
+/// up axis; a Z-up file's points are turned into lfit's Y-up frame by `(x, y, z) → (x, z, −y)`
+/// (as `lfit motion import --up z`), so that the fitted body stands in renders and exports.
 pub fn import_c3d(
     c3d: &C3d,
     source: &str,
     map: Option<&[(String, String)]>,
     template: &Template,
     scenario: Scenario,
+    up: Up,
 ) -> Result<Imported, ImportError> {
     let markers = &template.rig.markers;
     if markers.is_empty() {
@@ -187,6 +191,7 @@ pub fn import_c3d(
         ));
     }
     let metres = c3d.metres_per_unit()?;
+    let to_lfit = up.to_lfit();
     let marker_names: Vec<String> = markers.iter().map(|m| m.name.clone()).collect();
     // (C3D point index, model marker index)
     let mut pairs = Vec::new();
@@ -234,9 +239,8 @@ pub fn import_c3d(
         for &(ci, mi) in &pairs {
             match row[ci] {
                 Some(p) => {
-                    for a in 0..3 {
-                        v[3 * mi + a] = p.position[a] * metres;
-                    }
+                    let q = to_lfit * (DVec3::from_array(p.position) * metres);
+                    v[3 * mi..3 * mi + 3].copy_from_slice(&q.to_array());
                     b[3 * mi..3 * mi + 3].fill(true);
                 }
                 None => gaps += 1,
@@ -302,6 +306,10 @@ pub fn import_c3d(
         "frames": n,
         "fps": c3d.rate,
         "units": c3d.units,
+        "up": match up {
+            Up::Y => "y",
+            Up::Z => "z",
+        },
         "point_format": if c3d.scale < 0.0 { "float" } else { "integer" },
         "mapped_markers": pairs.len(),
         "model_markers": m,
@@ -854,7 +862,7 @@ mod tests {
             .iter()
             .map(|m| (format!("S1:{}", m.name), m.name.clone()))
             .collect();
-        let imp = import_c3d(&c, "x.c3d", Some(&map), &t, Scenario::Sequence).unwrap();
+        let imp = import_c3d(&c, "x.c3d", Some(&map), &t, Scenario::Sequence, Up::Y).unwrap();
         let d = &imp.dataset;
         assert!(!d.has_ground_truth());
         assert_eq!(d.len(), 3);
@@ -876,17 +884,63 @@ mod tests {
         // Bad maps: an unknown C3D label, an unknown model marker; no map matches nothing.
         let mut bad = map.clone();
         bad[0].0 = "S1:NOPE".into();
-        let e = import_c3d(&c, "x", Some(&bad), &t, Scenario::Local).unwrap_err();
+        let e = import_c3d(&c, "x", Some(&bad), &t, Scenario::Local, Up::Y).unwrap_err();
         assert!(
             e.to_string().contains("'S1:NOPE' is not in the file"),
             "{e}"
         );
         let mut bad = map.clone();
         bad[0].1 = "NOPE".into();
-        let e = import_c3d(&c, "x", Some(&bad), &t, Scenario::Local).unwrap_err();
+        let e = import_c3d(&c, "x", Some(&bad), &t, Scenario::Local, Up::Y).unwrap_err();
         assert!(e.to_string().contains("'NOPE' is not a marker"), "{e}");
-        let e = import_c3d(&c, "x", None, &t, Scenario::Local).unwrap_err();
+        let e = import_c3d(&c, "x", None, &t, Scenario::Local, Up::Y).unwrap_err();
         assert!(e.to_string().contains("--label-map"), "{e}");
+    }
+
+    /// `--up z`: the same C3D read as Z-up lands in lfit's Y-up frame by (x, y, z) → (x, z, −y),
+    /// point by point, and the report says which axis was up.
+    #[test]
+    fn a_z_up_c3d_is_turned_into_the_y_up_frame() {
+        let t = template();
+        let mut pose = vec![0.0; t.layout().dim()];
+        pose[..3].copy_from_slice(&[0.3, 0.05, -0.2]);
+        let c = C3d::from_bytes(&c3d_of(&t, &pose).to_bytes().unwrap()).unwrap();
+        let map: Vec<(String, String)> = t
+            .rig
+            .markers
+            .iter()
+            .map(|m| (format!("S1:{}", m.name), m.name.clone()))
+            .collect();
+        let y = import_c3d(&c, "x", Some(&map), &t, Scenario::Local, Up::Y).unwrap();
+        let z = import_c3d(&c, "x", Some(&map), &t, Scenario::Local, Up::Z).unwrap();
+        assert_eq!(
+            (&y.report["up"], &z.report["up"]),
+            (&json!("y"), &json!("z"))
+        );
+        let (
+            Observations::Sparse {
+                values: vy,
+                visible: by,
+            },
+            Observations::Sparse {
+                values: vz,
+                visible: bz,
+            },
+        ) = (&y.dataset.observations, &z.dataset.observations)
+        else {
+            panic!()
+        };
+        assert_eq!(by, bz);
+        let mut seen = 0;
+        for (fy, fz) in vy.iter().zip(vz) {
+            for (a, b) in fy.chunks_exact(3).zip(fz.chunks_exact(3)) {
+                assert!((b[0] - a[0]).abs() < 1e-12, "{a:?} -> {b:?}");
+                assert!((b[1] - a[2]).abs() < 1e-12, "{a:?} -> {b:?}");
+                assert!((b[2] + a[1]).abs() < 1e-12, "{a:?} -> {b:?}");
+                seen += usize::from(a[1] != 0.0);
+            }
+        }
+        assert!(seen > 0);
     }
 
     #[test]
@@ -1041,6 +1095,7 @@ mod tests {
             ),
             &t,
             Scenario::Sequence,
+            Up::Y,
         )
         .unwrap();
         let d = tempfile::tempdir().unwrap();
