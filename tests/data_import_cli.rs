@@ -405,10 +405,10 @@ fn bad_input_is_one_line_and_writes_nothing() {
     let map_file = d.join("labels.json");
     write_map(&map_file, &map);
     let out = d.join("never.npz");
-    let run_c3d = |bytes: &[u8], map: &Path, needle: &str| {
+    let run_c3d_with = |bytes: &[u8], map: &Path, extra: &[&str], needle: &str| {
         let f = d.join("bad.c3d");
         std::fs::write(&f, bytes).expect("write");
-        let o = lfit(&[
+        let mut args = vec![
             "data",
             "import",
             "--c3d",
@@ -417,27 +417,15 @@ fn bad_input_is_one_line_and_writes_nothing() {
             path_str(map),
             "--out",
             path_str(&out),
-        ]);
+        ];
+        args.extend_from_slice(extra);
+        let o = lfit(&args);
         assert_one_line_error(&o, needle);
         assert!(!out.exists(), "{needle}: output written");
     };
+    let run_c3d = |bytes: &[u8], map: &Path, needle: &str| run_c3d_with(bytes, map, &[], needle);
     // An unknown up axis.
-    let f = d.join("good.c3d");
-    std::fs::write(&f, &good).expect("write");
-    let o = lfit(&[
-        "data",
-        "import",
-        "--c3d",
-        path_str(&f),
-        "--label-map",
-        path_str(&map_file),
-        "--up",
-        "x",
-        "--out",
-        path_str(&out),
-    ]);
-    assert_one_line_error(&o, "unknown up axis 'x'");
-    assert!(!out.exists(), "--up x: output written");
+    run_c3d_with(&good, &map_file, &["--up", "x"], "unknown up axis 'x'");
     // A label-map entry whose C3D label is not in the file; one whose model marker is unknown.
     let mut bad = map.clone();
     bad[3].0 = "S1:NOSUCH".into();

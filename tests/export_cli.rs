@@ -21,7 +21,13 @@ const FRAMES: usize = 6;
 
 /// A `sequence` dataset of `FRAMES` frames at `FPS` Hz.
 fn dataset(dir: &Path, modality: &str) -> PathBuf {
-    let out = dir.join(format!("{modality}.npz"));
+    dataset_seeded(dir, modality, 4, &format!("{modality}.npz"))
+}
+
+/// [`dataset`] with another seed, written to `dir/name`.
+fn dataset_seeded(dir: &Path, modality: &str, seed: u64, name: &str) -> PathBuf {
+    let out = dir.join(name);
+    let seed = seed.to_string();
     let frames = FRAMES.to_string();
     let fps = FPS.to_string();
     lfit_json(&[
@@ -35,7 +41,7 @@ fn dataset(dir: &Path, modality: &str) -> PathBuf {
         "--fps",
         &fps,
         "--seed",
-        "4",
+        &seed,
         "--out",
         path_str(&out),
         "-q",
@@ -668,23 +674,7 @@ fn export_refuses_results_that_do_not_match_the_dataset_before_writing() {
     let dir = tempfile::tempdir().unwrap();
     let data = dataset(dir.path(), "markers");
     let other_modality = dataset(dir.path(), "keypoints2d");
-    let other_seed = dir.path().join("other-seed.npz");
-    lfit_json(&[
-        "synth",
-        "--modality",
-        "markers",
-        "--scenario",
-        "sequence",
-        "--frames",
-        &FRAMES.to_string(),
-        "--fps",
-        &FPS.to_string(),
-        "--seed",
-        "5",
-        "--out",
-        path_str(&other_seed),
-        "-q",
-    ]);
+    let other_seed = dataset_seeded(dir.path(), "markers", 5, "other-seed.npz");
     let results = fit_results(dir.path(), &data);
     let good = read_json(&results);
     let out = dir.path().join("never");

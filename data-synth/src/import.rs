@@ -814,6 +814,16 @@ mod tests {
         assert!(triangulate(&cams, &views[..1]).is_none());
     }
 
+    /// The label map of [`c3d_of`]'s files: "S1:<marker>" → marker.
+    fn s1_label_map(template: &Template) -> Vec<(String, String)> {
+        template
+            .rig
+            .markers
+            .iter()
+            .map(|m| (format!("S1:{}", m.name), m.name.clone()))
+            .collect()
+    }
+
     /// A C3D file of the template's markers at a known rigid pose, one marker renamed and one gap.
     fn c3d_of(template: &Template, pose: &[f64]) -> C3d {
         let sensor = Sensor::default_for(Modality::Markers, template);
@@ -856,12 +866,7 @@ mod tests {
         pose[..3].copy_from_slice(&[0.3, 0.05, -0.2]);
         pose[4] = 0.8; // root yaw
         let c = C3d::from_bytes(&c3d_of(&t, &pose).to_bytes().unwrap()).unwrap();
-        let map: Vec<(String, String)> = t
-            .rig
-            .markers
-            .iter()
-            .map(|m| (format!("S1:{}", m.name), m.name.clone()))
-            .collect();
+        let map = s1_label_map(&t);
         let imp = import_c3d(&c, "x.c3d", Some(&map), &t, Scenario::Sequence, Up::Y).unwrap();
         let d = &imp.dataset;
         assert!(!d.has_ground_truth());
@@ -905,12 +910,7 @@ mod tests {
         let mut pose = vec![0.0; t.layout().dim()];
         pose[..3].copy_from_slice(&[0.3, 0.05, -0.2]);
         let c = C3d::from_bytes(&c3d_of(&t, &pose).to_bytes().unwrap()).unwrap();
-        let map: Vec<(String, String)> = t
-            .rig
-            .markers
-            .iter()
-            .map(|m| (format!("S1:{}", m.name), m.name.clone()))
-            .collect();
+        let map = s1_label_map(&t);
         let y = import_c3d(&c, "x", Some(&map), &t, Scenario::Local, Up::Y).unwrap();
         let z = import_c3d(&c, "x", Some(&map), &t, Scenario::Local, Up::Z).unwrap();
         assert_eq!(

@@ -204,17 +204,10 @@ fn bounded_step(
     Some(held)
 }
 
-/// The decrease of `Σr²` that the Gauss-Newton model predicts for moving `x` to `t` (over the
-/// entries `dofs`): `−(2 gᵀs + sᵀ A s)`, `s = t − x`.
-fn model_decrease(
-    a: &nalgebra::DMatrix<f64>,
-    g: &DVector<f64>,
-    dofs: &[usize],
-    x: &[f64],
-    t: &[f64],
-) -> f64 {
-    let s = DVector::<f64>::from_iterator(dofs.len(), dofs.iter().map(|&i| t[i] - x[i]));
-    -(2.0 * g.dot(&s) + s.dot(&(a * &s)))
+/// The decrease of `Σr²` that the Gauss-Newton model predicts for the step `s` (over the
+/// stage's entries): `−(2 gᵀs + sᵀ A s)` (the IRLS model under Triggs's form).
+fn model_decrease(a: &nalgebra::DMatrix<f64>, g: &DVector<f64>, s: &DVector<f64>) -> f64 {
+    -(2.0 * g.dot(s) + s.dot(&(a * s)))
 }
 
 impl StageSolver for LeastSquaresFitter {
@@ -291,18 +284,23 @@ impl StageSolver for LeastSquaresFitter {
                     let i = dofs[p];
                     trial[i] = (x[i] + alpha * h[k]).clamp(bounds.lower[i], bounds.upper[i]);
                 }
+                // The step, over every stage entry, and the decrease the model predicts for it.
+                let step_to =
+                    |t: &[f64]| DVector::<f64>::from_iterator(n, dofs.iter().map(|&i| t[i] - x[i]));
+                let mut step = step_to(&trial);
+                let mut predicted = model_decrease(&a, &g, &step);
                 // LM: the held step where the model prefers it to the projected one (holding can
                 // pin a coordinate whose Newton step crosses its bound while its descent
                 // direction points into the box; the projected step still moves it).
                 if self.method == LeastSquaresMethod::Lm
                     && let Some(held) = bounded_step(&a, &g, &free, &h, dofs, &x, bounds, damping)
-                    && model_decrease(&a, &g, dofs, &x, &held)
-                        >= model_decrease(&a, &g, dofs, &x, &trial)
                 {
-                    trial = held;
+                    let held_step = step_to(&held);
+                    let held_predicted = model_decrease(&a, &g, &held_step);
+                    if held_predicted >= predicted {
+                        (trial, step, predicted) = (held, held_step, held_predicted);
+                    }
                 }
-                // The projected step, over every stage entry.
-                let step = DVector::<f64>::from_iterator(n, dofs.iter().map(|&i| trial[i] - x[i]));
                 let xnorm = dofs.iter().map(|&i| x[i] * x[i]).sum::<f64>().sqrt();
                 if step.norm() <= o.parameter_tolerance * (xnorm + o.parameter_tolerance) {
                     break 'outer;
@@ -312,8 +310,6 @@ impl StageSolver for LeastSquaresFitter {
                 let f_new = next.energy;
                 let accepted = match self.method {
                     LeastSquaresMethod::Lm => {
-                        // Model decrease of Σr² (the IRLS model under Triggs): −(2 gᵀh + hᵀ A h).
-                        let predicted = -(2.0 * g.dot(&step) + step.dot(&(&a * &step)));
                         let rho = if predicted > 0.0 {
                             (f - f_new) / predicted
                         } else {
