@@ -5,24 +5,22 @@
 //! The observation models ([`observe`]) are the only place where pose → observation is computed.
 //!
 //! Folders: [`body`] (the body model: template, layout, pose, rig, skeleton, morph, skinning, the
-//! procedural default body), [`observe`] (observation models), [`energy`] (the objective).
+//! procedural default body), [`formats`] (model files and the MakeHuman importers), [`observe`]
+//! (observation models), [`energy`] (the objective).
 
 pub mod body;
 pub mod camera;
 pub mod energy;
 pub mod error;
-pub mod makehuman;
-pub mod makehuman_face;
-pub mod makehuman_import;
-pub mod makehuman_rom;
+pub mod formats;
 pub mod metrics;
-pub mod modelfile;
 pub mod noise;
 pub mod observe;
 pub mod scan;
 
 // The paths the modules had before they moved into their folders (issue 28), kept for every crate.
 pub use body::{info, layout, morph, pose, rig, skeleton, skinning, template};
+pub use formats::{makehuman, makehuman_face, makehuman_import, makehuman_rom, modelfile};
 
 pub use body::{
     Block, BodyShape, Bounds, DofMask, Joint, JointIndex, Layout, Marker, ModelInfo, Morph,
