@@ -6,21 +6,19 @@
 //!
 //! Folders: [`body`] (the body model: template, layout, pose, rig, skeleton, morph, skinning, the
 //! procedural default body), [`formats`] (model files and the MakeHuman importers), [`observe`]
-//! (observation models), [`energy`] (the objective).
+//! (observation models, with the cameras, the scan data and the noise), [`energy`] (the objective).
 
 pub mod body;
-pub mod camera;
 pub mod energy;
 pub mod error;
 pub mod formats;
 pub mod metrics;
-pub mod noise;
 pub mod observe;
-pub mod scan;
 
 // The paths the modules had before they moved into their folders (issue 28), kept for every crate.
 pub use body::{info, layout, morph, pose, rig, skeleton, skinning, template};
 pub use formats::{makehuman, makehuman_face, makehuman_import, makehuman_rom, modelfile};
+pub use observe::{camera, noise, scan};
 
 pub use body::{
     Block, BodyShape, Bounds, DofMask, Joint, JointIndex, Layout, Marker, ModelInfo, Morph,

@@ -6,9 +6,15 @@
 //! prediction and a visibility mask of the same size, so its residual
 //! `R(θ) = visible ⊙ (predicted − observed)` has a fixed length. papers/000's scan energy compares
 //! the posed surface with a distance transform of the whole point cloud instead of entry by entry.
+//!
+//! Beside the models live the sensors' geometry ([`camera`]), the `scan` modality's data (point
+//! cloud, distance transform, silhouette masks: [`scan`]) and the noise synthesis adds ([`noise`]).
 
 mod builtin;
+pub mod camera;
 mod landmarks;
+pub mod noise;
+pub mod scan;
 mod scan_model;
 mod silhouettes;
 mod view;
