@@ -77,3 +77,34 @@ if [ -z "${LFIT_MOCAPBANK_BVH:-}" ]; then
 fi
 
 cargo test --workspace --all-targets "$@"
+
+# The Python package (python/, PyO3 + maturin): after the Rust tests, which are the first gate,
+# maturin builds the wheel in release (the neural feature on) into the same target directory,
+# where the release `lfit` binary the parity tests compare with is built too; pip installs the
+# wheel into a venv under ~/.cache/lfit-tools and pytest runs python/tests. Pinned tools; a
+# missing piece fails under CI=true (the tests themselves skip with a reason locally and fail in
+# CI when the CLI, scipy or the MocapBank clip is missing).
+python_tests() {
+    local pyenv="${LFIT_TOOLS_DIR:-$HOME/.cache/lfit-tools}/pyenv-maturin1.16.0-pytest9.2.0"
+    if [ ! -x "$pyenv/bin/pytest" ] || [ ! -x "$pyenv/bin/maturin" ]; then
+        rm -rf "$pyenv"
+        python3 -m venv "$pyenv" &&
+            "$pyenv/bin/pip" install -q maturin==1.16.0 pytest==9.2.0 numpy==2.4.6 || return 1
+    fi
+    cargo build --release -p lfit --bin lfit || return 1
+    local wheels="$CARGO_TARGET_DIR/wheels"
+    rm -rf "$wheels"
+    "$pyenv/bin/maturin" build --release -m python/Cargo.toml --features neural --out "$wheels" || return 1
+    "$pyenv/bin/pip" install -q --force-reinstall --no-deps "$wheels"/lfit-*.whl || return 1
+    # numpy and scipy from scripts/fetch-scipy.sh first on the path (the venv's numpy otherwise).
+    (cd python/tests && LFIT_BIN="$CARGO_TARGET_DIR/release/lfit" \
+        PYTHONPATH="${LFIT_SCIPY_PYTHONPATH:-}" "$pyenv/bin/python" -m pytest -q -p no:cacheprovider .)
+}
+if command -v python3 >/dev/null 2>&1 && python3 -m venv --help >/dev/null 2>&1; then
+    python_tests
+elif [ "${CI:-}" = "true" ]; then
+    echo "error: python3 with venv is needed for the Python package tests" >&2
+    exit 1
+else
+    echo "warning: no python3 with venv; the Python package tests are skipped outside CI"
+fi

@@ -213,12 +213,17 @@ impl BenchConfig {
             if !c.join("config.json").exists() {
                 bail!("checkpoint {} has no config.json", c.display());
             }
-            self.neural_start()?;
-            if !self.known_shape && checkpoint_knows_shape(c)? {
-                bail!(
-                    "checkpoint {} was trained with the shape β known (papers/002 §3.2): set known_shape = true",
-                    c.display()
-                );
+            #[cfg(not(feature = "neural"))]
+            bail!(crate::method::NO_NEURAL);
+            #[cfg(feature = "neural")]
+            {
+                self.neural_start()?;
+                if !self.known_shape && checkpoint_knows_shape(c)? {
+                    bail!(
+                        "checkpoint {} was trained with the shape β known (papers/002 §3.2): set known_shape = true",
+                        c.display()
+                    );
+                }
             }
         }
         self.sequence_shape()?;
@@ -294,6 +299,7 @@ impl BenchConfig {
             .context("sequence_shape")
     }
 
+    #[cfg(feature = "neural")]
     fn neural_start(&self) -> Result<lfit_infer::Start> {
         self.neural_start
             .as_deref()
@@ -528,6 +534,7 @@ pub fn parse_shard(spec: Option<&str>) -> Result<(usize, usize)> {
 }
 
 /// Whether the checkpoint in `dir` was trained with the shape known.
+#[cfg(feature = "neural")]
 fn checkpoint_knows_shape(dir: &Path) -> Result<bool> {
     let path = dir.join("config.json");
     let text = std::fs::read_to_string(&path)
@@ -603,15 +610,13 @@ pub fn run(
         let kind: MethodKind = m.parse()?;
         if kind.is_neural() {
             let dir = config.checkpoint.as_deref().context("checkpoint")?;
-            fitters.push(crate::method::load_neural(
+            fitters.push(crate::method::load_neural_named(
                 kind,
-                &crate::method::NeuralOptions {
-                    checkpoint: dir,
-                    start: config.neural_start()?,
-                    runtime: lfit_infer::Runtime::Burn,
-                    device: "flex",
-                    ort_threads: None,
-                },
+                dir,
+                config.neural_start.as_deref().unwrap_or("given"),
+                "burn",
+                "flex",
+                None,
             )?);
         } else {
             let (step_scale, cma) = if config.tuned() && kind.zeroth_order().is_some() {

@@ -132,6 +132,7 @@ pub fn import_makehuman(args: &MakehumanImport) -> Result<Value> {
     }))
 }
 
+#[cfg(feature = "neural")]
 /// `lfit export-onnx`: the checkpoint's network as ONNX graphs in `out` (see
 /// `lfit_infer::onnx::export`); each file is written atomically.
 pub fn export_onnx(checkpoint_dir: &Path, out: &Path) -> Result<Value> {
@@ -313,6 +314,7 @@ pub fn template_pose(
     )
 }
 
+#[cfg(feature = "neural")]
 /// `lfit train`: trains a neural fitter as `config_path` says and writes checkpoints to `out`.
 #[allow(clippy::too_many_arguments)]
 pub fn train(

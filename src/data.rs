@@ -140,6 +140,25 @@ pub fn synth_with_cameras(
     template: &Template,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Value> {
+    let start = Instant::now();
+    let (dataset, mut summary) = synthesize_dataset(args, files, cameras, template, progress)?;
+    dataset.save(&args.out)?;
+    let bytes = std::fs::metadata(&args.out).map(|m| m.len()).unwrap_or(0);
+    summary["out"] = json!(args.out);
+    summary["bytes"] = json!(bytes);
+    summary["seconds"] = json!(start.elapsed().as_secs_f64());
+    Ok(summary)
+}
+
+/// `lfit synth` in memory: the dataset [`synth_with_cameras`] writes (`args.out` unused) and its
+/// summary, without `out`, `bytes` and `seconds`.
+pub fn synthesize_dataset(
+    args: &SynthArgs,
+    files: &MotionFilesArgs,
+    cameras: Option<usize>,
+    template: &Template,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<(Dataset, Value)> {
     let modality: Modality = args.modality.parse()?;
     let sensor = synth_sensor(modality, cameras, template)?;
     let scenario: Scenario = args.scenario.parse()?;
@@ -160,12 +179,8 @@ pub fn synth_with_cameras(
     config.motion_files = load_motion_files(&files.files, template)?;
     config.with_library = files.with_library;
     config.validate()?;
-    let start = Instant::now();
     let dataset = synthesize(&config, template, &sensor, progress)?;
-    dataset.save(&args.out)?;
-    let bytes = std::fs::metadata(&args.out).map(|m| m.len()).unwrap_or(0);
     let mut summary = json!({
-        "out": args.out,
         "modality": modality,
         "scenario": scenario,
         "source": config.source,
@@ -174,8 +189,6 @@ pub fn synth_with_cameras(
         "template": template.id,
         "noise": args.noise,
         "visible_fraction": visible_fraction(&dataset),
-        "bytes": bytes,
-        "seconds": start.elapsed().as_secs_f64(),
     });
     if modality == Modality::Keypoints2d {
         summary["cameras"] = json!(dataset.sensor.cameras().len());
@@ -189,7 +202,7 @@ pub fn synth_with_cameras(
             json!(names.iter().filter(|m| m.ends_with("(clamped)")).count());
         summary["fps"] = json!(dataset.meta.config.fps);
     }
-    Ok(summary)
+    Ok((dataset, summary))
 }
 
 /// Fraction of observation entries (or scan points, or foreground mask pixels) that are

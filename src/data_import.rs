@@ -198,6 +198,26 @@ pub fn export_c3d(args: &ExportC3dArgs) -> Result<Value> {
 /// `lfit data import`.
 pub fn import(args: &ImportArgs) -> Result<Value> {
     check_out(&args.out)?;
+    let (dataset, mut summary) = import_dataset(args, None)?;
+    dataset.save(&args.out)?;
+    summary["out"] = json!(args.out);
+    Ok(summary)
+}
+
+/// `lfit data import` in memory: the dataset [`import`] writes (`args.out` unused) and its
+/// summary without `out`. `model` replaces `args.model` (the model the data is imported for).
+pub fn import_dataset(
+    args: &ImportArgs,
+    model: Option<&lfit_model::template::Template>,
+) -> Result<(lfit_synth::Dataset, Value)> {
+    let load = || -> Result<std::borrow::Cow<'_, lfit_model::template::Template>> {
+        Ok(match model {
+            Some(t) => std::borrow::Cow::Borrowed(t),
+            None => {
+                std::borrow::Cow::Owned(crate::data::load_model(args.model.as_deref(), "default")?)
+            }
+        })
+    };
     let scenario: Scenario = args.scenario.parse()?;
     let (imported, source) = match (&args.c3d, args.keypoints.is_empty()) {
         (Some(_), false) => bail!("give either --c3d or --keypoints, not both"),
@@ -210,7 +230,7 @@ pub fn import(args: &ImportArgs) -> Result<Value> {
                 .map(|p| read_name_map(p, ["C3D label", "model marker"]))
                 .transpose()
                 .context("label map")?;
-            let template = crate::data::load_model(args.model.as_deref(), "default")?;
+            let template = load()?;
             let c3d = C3d::read(path).with_context(|| format!("C3D file {}", path.display()))?;
             let name = path.file_name().map_or_else(
                 || path.display().to_string(),
@@ -253,7 +273,7 @@ pub fn import(args: &ImportArgs) -> Result<Value> {
                 .iter()
                 .map(|g| read_track(g, layout))
                 .collect::<Result<Vec<_>, _>>()?;
-            let template = crate::data::load_model(args.model.as_deref(), "default")?;
+            let template = load()?;
             let imported = import_keypoints(
                 &tracks,
                 cameras,
@@ -270,17 +290,16 @@ pub fn import(args: &ImportArgs) -> Result<Value> {
             )
         }
     };
-    let dataset = &imported.dataset;
-    dataset.save(&args.out)?;
-    Ok(json!({
-        "out": args.out,
+    let dataset = imported.dataset;
+    let summary = json!({
         "source": source,
         "modality": dataset.modality().name(),
         "scenario": scenario.name(),
         "frames": dataset.len(),
         "template": dataset.meta.template_id,
         "ground_truth": false,
-        "visible_fraction": crate::data::visible_fraction(dataset),
+        "visible_fraction": crate::data::visible_fraction(&dataset),
         "import": imported.report,
-    }))
+    });
+    Ok((dataset, summary))
 }

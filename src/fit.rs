@@ -2,6 +2,7 @@
 
 use std::io::{BufRead, Write};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
 use lfit_fitters::optim::{self, Method, Preset};
@@ -141,9 +142,27 @@ pub struct FitArgs {
     pub sequence_shape: String,
 }
 
-/// `lfit fit`: fits every selected frame, writes the result JSON atomically and returns a summary.
-pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
-    // Settings first, before any work.
+/// What `lfit fit` settles before it touches the frames: the parsed settings, the fitter (a
+/// neural checkpoint loaded) and the energy configuration.
+struct Prepared {
+    strategy: Strategy,
+    known_shape: Option<crate::fitting::KnownShape>,
+    sequence_shape: crate::fitting::SequenceShape,
+    /// `tuned` when the steps are a recorded setting, else the preset's name.
+    preset_name: &'static str,
+    step_scale: f64,
+    cma: lfit_fitters::optim::cma::CmaVariant,
+    fitter: Box<dyn Fitter>,
+    config: EnergyConfig,
+}
+
+/// Checks the settings of `args` and builds the fitter, before any frame is fitted. `modality`
+/// gives the data's modality, asked only for `--preset tuned`; `config` replaces `--energy`.
+fn prepare(
+    args: &FitArgs,
+    modality: &mut dyn FnMut() -> Result<lfit_model::observe::Modality>,
+    config: Option<EnergyConfig>,
+) -> Result<Prepared> {
     if args.budget == 0 {
         bail!("--budget must be at least 1 evaluation");
     }
@@ -155,32 +174,32 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     }
     let sequence_shape: crate::fitting::SequenceShape =
         args.sequence_shape.parse().context("--sequence-shape")?;
-    let load =
-        || Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()));
-    // The tuned setting depends on the data's modality: the dataset is read then, once.
-    let mut loaded = None;
-    let (preset, step_scale, cma) = if args.preset == "tuned" {
+    // The tuned setting depends on the data's modality.
+    let (preset, preset_name, step_scale, cma) = if args.preset == "tuned" {
         if args.step_scale.is_some() || args.cma != Default::default() {
             bail!(
                 "--preset tuned sets the steps and CMA-ES options itself: drop --step-scale and --cma-*"
             );
         }
-        let dataset = loaded.insert(load()?);
-        let modality = dataset.sensor.modality();
+        let modality = modality()?;
         let t = crate::tuned::setting(args.method.name(), modality.name())?;
-        (Preset::Nevergrad, t.step_scale, t.cma)
+        (Preset::Nevergrad, "tuned", t.step_scale, t.cma)
     } else {
         let preset: Preset = args
             .preset
             .parse()
             .map_err(|_| lfit_fitters::FitError::UnknownPreset(args.preset.clone()))?;
-        (preset, args.step_scale.unwrap_or(1.0), args.cma)
+        (
+            preset,
+            preset.as_str(),
+            args.step_scale.unwrap_or(1.0),
+            args.cma,
+        )
     };
     if args.batch == 0 {
         bail!("--batch must be at least 1");
     }
-    let neural = args.method.is_neural();
-    let fitter: Box<dyn Fitter> = if neural {
+    let fitter: Box<dyn Fitter> = if args.method.is_neural() {
         if args.step_scale.is_some() || args.preset == "tuned" || args.cma != Default::default() {
             bail!(
                 "--step-scale, --cma-* and --preset tuned are for zeroth-order methods, not {}",
@@ -191,15 +210,13 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
             .checkpoint
             .as_deref()
             .with_context(|| format!("--method {} needs --checkpoint DIR", args.method))?;
-        crate::method::load_neural(
+        crate::method::load_neural_named(
             args.method,
-            &crate::method::NeuralOptions {
-                checkpoint: dir,
-                start: args.neural_start.parse().map_err(anyhow::Error::msg)?,
-                runtime: args.runtime.parse().map_err(anyhow::Error::msg)?,
-                device: &args.device,
-                ort_threads: args.ort_threads,
-            },
+            dir,
+            &args.neural_start,
+            &args.runtime,
+            &args.device,
+            args.ort_threads,
         )?
     } else {
         if args.checkpoint.is_some() {
@@ -218,15 +235,99 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
             },
         )?
     };
-    let fitter = fitter.as_ref();
-    let gradient = args.method.uses_gradient();
-    let config = read_energy_config(args.energy.as_deref(), gradient)?;
+    let config = match config {
+        Some(c) => {
+            c.validate()?;
+            c
+        }
+        None => read_energy_config(args.energy.as_deref(), args.method.uses_gradient())?,
+    };
+    Ok(Prepared {
+        strategy,
+        known_shape,
+        sequence_shape,
+        preset_name,
+        step_scale,
+        cma,
+        fitter,
+        config,
+    })
+}
+
+/// `lfit fit`: fits every selected frame, writes the result JSON atomically and returns a summary.
+pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
+    let load =
+        || Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()));
+    // Settings first, before any work; `--preset tuned` reads the dataset then, once.
+    let mut loaded = None;
+    let prepared = prepare(
+        args,
+        &mut || Ok(loaded.insert(load()?).sensor.modality()),
+        None,
+    )?;
     let dataset = match loaded {
         Some(d) => d,
         None => load()?,
     };
-    let frames = parse_frames(args.frames.as_deref(), dataset.len())?;
     let template = template_for(&dataset, args.template.as_deref())?;
+    let out = fit_prepared(args, &prepared, &dataset, template, &|done, total| {
+        progress(done, total);
+        Ok(())
+    })?;
+    let bytes = serde_json::to_vec_pretty(&out)?;
+    write_atomic(&args.out, &bytes)?;
+    Ok(
+        json!({ "out": args.out, "method": out["method"], "budget": args.budget, "summary": out["summary"] }),
+    )
+}
+
+/// `lfit fit` on a dataset held in memory: the result document `lfit fit` writes (`args.data`
+/// is only recorded, `args.out` unused), nothing written. `template` is the dataset's model
+/// (checked against it; `None`: `args.template` or the procedural body the dataset names);
+/// `config` replaces `args.energy`. `progress(done, total)` runs after every fitted frame; its
+/// error (e.g. an interrupt) stops the fit and is returned.
+pub fn fit_dataset(
+    args: &FitArgs,
+    dataset: &Dataset,
+    template: Option<Arc<Template>>,
+    config: Option<EnergyConfig>,
+    progress: &dyn Fn(usize, usize) -> Result<()>,
+) -> Result<Value> {
+    let prepared = prepare(args, &mut || Ok(dataset.sensor.modality()), config)?;
+    let template = match template {
+        Some(t) => {
+            crate::fitting::check_model(dataset, &t)?;
+            t
+        }
+        None => template_for(dataset, args.template.as_deref())?,
+    };
+    fit_prepared(args, &prepared, dataset, template, progress)
+}
+
+/// The fitting part of [`fit`] and [`fit_dataset`]: every selected frame, into the result
+/// document.
+fn fit_prepared(
+    args: &FitArgs,
+    prepared: &Prepared,
+    dataset: &Dataset,
+    template: Arc<Template>,
+    progress: &dyn Fn(usize, usize) -> Result<()>,
+) -> Result<Value> {
+    let Prepared {
+        strategy,
+        known_shape,
+        sequence_shape,
+        preset_name,
+        step_scale,
+        cma,
+        fitter,
+        config,
+    } = prepared;
+    let (strategy, sequence_shape, preset_name, step_scale, cma) =
+        (*strategy, *sequence_shape, *preset_name, *step_scale, *cma);
+    let fitter = fitter.as_ref();
+    let neural = args.method.is_neural();
+    let frames = parse_frames(args.frames.as_deref(), dataset.len())?;
     let scenario = dataset.meta.config.scenario;
     let mut rows = Vec::with_capacity(frames.len());
     let mut sum_coeff = 0.0;
@@ -239,7 +340,7 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         template: &template,
         budget: args.budget,
         batch: if neural { args.batch } else { 1 },
-        known_shape,
+        known_shape: known_shape.clone(),
         sequence_shape,
     };
     if sequence_shape == crate::fitting::SequenceShape::FirstPass && !plan.runs_shape_pass() {
@@ -320,8 +421,7 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
             }
             rows.push(row);
             done += 1;
-            progress(done, frames.len());
-            Ok(())
+            progress(done, frames.len())
         },
     )?;
     let n = frames.len().max(1) as f64;
@@ -351,11 +451,11 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         "method": fitter.name(),
         "budget": args.budget,
         "strategy": strategy.name(),
-        "preset": if args.preset == "tuned" { "tuned" } else { preset.as_str() },
+        "preset": preset_name,
         "step_scale": step_scale,
         "cma_variant": { "diagonal": cma.diagonal, "elitist": cma.elitist, "popsize": cma.popsize },
         "seed": args.seed,
-        "data": args.data,
+        "data": (!args.data.as_os_str().is_empty()).then_some(&args.data),
         "modality": dataset.modality().name(),
         "ground_truth": dataset.has_ground_truth(),
         "scenario": scenario.to_string(),
@@ -376,11 +476,7 @@ pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
         out["runtime"] = json!(args.runtime);
         out["batch"] = json!(plan.frames_per_call());
     }
-    let bytes = serde_json::to_vec_pretty(&out)?;
-    write_atomic(&args.out, &bytes)?;
-    Ok(
-        json!({ "out": args.out, "method": fitter.name(), "budget": args.budget, "summary": summary }),
-    )
+    Ok(out)
 }
 
 /// Arguments of `lfit objective-server`.
@@ -394,16 +490,94 @@ pub struct ServerArgs {
     pub template: Option<PathBuf>,
 }
 
-/// The energy, free DOFs, box and start of one frame, as served to external optimizers.
-pub struct Served {
+/// One frame as a problem for an external optimizer: its energy, the scenario's free entries,
+/// their box and the start, as `lfit fit` poses it (what `lfit objective-server` serves and the
+/// Python `lfit.Energy` wraps). Points `x` hold the free entries only.
+pub struct FrameProblem {
     pub energy: Energy,
-    /// The energy of residual/Jacobian answers: without `--energy`, the one `lfit fit --method
-    /// lm` minimises by default (the gradient variant); with it, the same as `energy`.
-    pub least_squares: Option<Energy>,
     pub mask: DofMask,
     pub lower: Vec<f64>,
     pub upper: Vec<f64>,
+    /// The full parameter vector the free entries are written into.
     pub start: Vec<f64>,
+}
+
+impl FrameProblem {
+    /// Frame `frame` of `dataset` with `config`: the dataset's start pose, the scenario's free
+    /// entries and box around it.
+    pub fn from_dataset(
+        dataset: &Dataset,
+        template: Arc<Template>,
+        frame: usize,
+        config: EnergyConfig,
+    ) -> Result<Self> {
+        let energy = energy_for_frame(dataset, template, frame, config)?;
+        let start = dataset.start_poses[frame].clone();
+        Ok(Self::around(energy, dataset.meta.config.scenario, start))
+    }
+
+    /// `energy` with `scenario`'s free entries and box around `start` (a full parameter vector).
+    pub fn around(energy: Energy, scenario: lfit_synth::Scenario, start: Vec<f64>) -> Self {
+        let template = energy.template().clone();
+        let mask = scenario_mask(scenario, &template);
+        let (lower, upper) = scenario_bounds(scenario, &template, &start).restrict(&mask);
+        Self {
+            energy,
+            mask,
+            lower,
+            upper,
+            start,
+        }
+    }
+
+    /// Number of free entries (the length of a point `x`).
+    pub fn dim(&self) -> usize {
+        self.mask.dim()
+    }
+
+    /// The full parameter vector of the point `x` of the free entries.
+    pub fn full(&self, x: &[f64]) -> Vec<f64> {
+        let mut pose = self.start.clone();
+        self.mask.scatter(x, &mut pose);
+        pose
+    }
+
+    /// Checks a point: as many numbers as free entries, all finite.
+    pub fn check_point(&self, x: &[f64]) -> Result<()> {
+        if x.len() != self.dim() {
+            bail!("x has {} numbers, expected {}", x.len(), self.dim());
+        }
+        if let Some(i) = x.iter().position(|v| !v.is_finite()) {
+            bail!("x[{i}] is not a finite number ({})", x[i]);
+        }
+        Ok(())
+    }
+
+    /// Residuals at `x` (energy = their sum of squares) and, when asked, the Jacobian over the
+    /// free entries, row-major `[residuals × dim]`.
+    pub fn residuals_at(&self, x: &[f64], jacobian: bool) -> Result<(Vec<f64>, Option<Vec<f64>>)> {
+        if let Some(why) = self.energy.least_squares_unsupported() {
+            bail!("no residuals for this energy: {why}");
+        }
+        let ls = self.energy.least_squares(&self.full(x), jacobian)?;
+        let jac = jacobian.then(|| {
+            (0..ls.residuals.len())
+                .flat_map(|i| {
+                    let row = ls.row(i);
+                    self.mask.free.iter().map(move |&j| row[j])
+                })
+                .collect()
+        });
+        Ok((ls.residuals, jac))
+    }
+}
+
+/// The energy, free DOFs, box and start of one frame, as served to external optimizers.
+pub struct Served {
+    pub problem: FrameProblem,
+    /// The energy of residual/Jacobian answers: without `--energy`, the one `lfit fit --method
+    /// lm` minimises by default (the gradient variant); with it, the same as `problem.energy`.
+    pub least_squares: Option<Energy>,
     pub budget: Option<usize>,
 }
 
@@ -416,40 +590,33 @@ impl Served {
         let dataset = Dataset::load(&args.data)
             .with_context(|| format!("dataset {}", args.data.display()))?;
         let template = template_for(&dataset, args.template.as_deref())?;
-        let energy = energy_for_frame(&dataset, template.clone(), args.frame, config)?;
+        let problem = FrameProblem::from_dataset(&dataset, template.clone(), args.frame, config)?;
         let least_squares = if args.energy.is_none() && !args.gradient {
             Some(energy_for_frame(
                 &dataset,
-                template.clone(),
+                template,
                 args.frame,
                 read_energy_config(None, true)?,
             )?)
         } else {
             None
         };
-        let scenario = dataset.meta.config.scenario;
-        let start = dataset.start_poses[args.frame].clone();
-        let mask = scenario_mask(scenario, &template);
-        let (lower, upper) = scenario_bounds(scenario, &template, &start).restrict(&mask);
         Ok(Self {
-            energy,
+            problem,
             least_squares,
-            mask,
-            lower,
-            upper,
-            start,
             budget: args.budget,
         })
     }
 
     /// The energy that residual answers serve.
     pub fn least_squares_energy(&self) -> &Energy {
-        self.least_squares.as_ref().unwrap_or(&self.energy)
+        self.least_squares.as_ref().unwrap_or(&self.problem.energy)
     }
 
     /// Evaluations served so far, values and residuals together.
     pub fn evaluations(&self) -> u64 {
-        self.energy.evaluations() + self.least_squares.as_ref().map_or(0, Energy::evaluations)
+        self.problem.energy.evaluations()
+            + self.least_squares.as_ref().map_or(0, Energy::evaluations)
     }
 
     /// Answers one request line; errors are answers too (`{"error": ...}`), so the server keeps
@@ -465,13 +632,13 @@ impl Served {
         let request: Value = serde_json::from_str(line).context("malformed JSON line")?;
         if request.get("describe").and_then(Value::as_bool) == Some(true) {
             return Ok(json!({
-                "dim": self.mask.dim(),
-                "lower": self.lower,
-                "upper": self.upper,
-                "start": self.mask.gather(&self.start),
-                "names": self.mask.free.iter().map(|&i| self.energy.template().layout().name(i)).collect::<Vec<_>>(),
-                "modality": self.energy.modality().name(),
-                "energy_config": self.energy.config(),
+                "dim": self.problem.mask.dim(),
+                "lower": self.problem.lower,
+                "upper": self.problem.upper,
+                "start": self.problem.mask.gather(&self.problem.start),
+                "names": self.problem.mask.free.iter().map(|&i| self.problem.energy.template().layout().name(i)).collect::<Vec<_>>(),
+                "modality": self.problem.energy.modality().name(),
+                "energy_config": self.problem.energy.config(),
                 "evaluations": self.evaluations(),
                 "residuals": self.least_squares_energy().least_squares_unsupported().is_none().then(|| self.least_squares_energy().residual_count()),
             }));
@@ -480,8 +647,12 @@ impl Served {
             bail!("expected {{\"x\": [...]}} or {{\"describe\": true}}")
         };
         let x = x.as_array().context("\"x\" is not an array")?;
-        if x.len() != self.mask.dim() {
-            bail!("x has {} numbers, expected {}", x.len(), self.mask.dim());
+        if x.len() != self.problem.mask.dim() {
+            bail!(
+                "x has {} numbers, expected {}",
+                x.len(),
+                self.problem.mask.dim()
+            );
         }
         let mut values = Vec::with_capacity(x.len());
         for (i, v) in x.iter().enumerate() {
@@ -509,8 +680,8 @@ impl Served {
         {
             bail!("budget of {b} evaluations spent");
         }
-        let mut pose = self.start.clone();
-        self.mask.scatter(&values, &mut pose);
+        let mut pose = self.problem.start.clone();
+        self.problem.mask.scatter(&values, &mut pose);
         if want_residuals || want_jacobian {
             let ls = self
                 .least_squares_energy()
@@ -518,7 +689,7 @@ impl Served {
             let mut answer = json!({ "energy": ls.value(), "residuals": ls.residuals });
             if want_jacobian {
                 let rows: Vec<Vec<f64>> = (0..ls.residuals.len())
-                    .map(|i| self.mask.gather(ls.row(i)))
+                    .map(|i| self.problem.mask.gather(ls.row(i)))
                     .collect();
                 answer["jacobian"] = json!(rows);
             }
@@ -526,12 +697,12 @@ impl Served {
         }
         let want_grad = request.get("gradient").and_then(Value::as_bool) == Some(true);
         if want_grad {
-            let (ev, g) = self.energy.evaluate_with_gradient(&pose);
+            let (ev, g) = self.problem.energy.evaluate_with_gradient(&pose);
             Ok(
-                json!({ "energy": ev.total, "terms": terms_json(&ev.terms), "gradient": self.mask.gather(&g) }),
+                json!({ "energy": ev.total, "terms": terms_json(&ev.terms), "gradient": self.problem.mask.gather(&g) }),
             )
         } else {
-            let ev = self.energy.evaluate(&pose);
+            let ev = self.problem.energy.evaluate(&pose);
             Ok(json!({ "energy": ev.total, "terms": terms_json(&ev.terms) }))
         }
     }

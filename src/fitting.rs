@@ -410,6 +410,13 @@ pub fn template_for(dataset: &Dataset, dir: Option<&Path>) -> Result<Arc<Templat
             crate::data::load_model(None, shape)?
         }
     };
+    check_model(dataset, &template)?;
+    Ok(Arc::new(template))
+}
+
+/// Checks that `template` is the model `dataset` was made with (id, vertex count and parameter
+/// layout), so that its frames can be fitted with it.
+pub fn check_model(dataset: &Dataset, template: &Template) -> Result<()> {
     let layout = template.layout();
     if template.id != dataset.meta.template_id
         || template.num_vertices() != dataset.meta.template_vertices
@@ -428,7 +435,7 @@ pub fn template_for(dataset: &Dataset, dir: Option<&Path>) -> Result<Arc<Templat
             template.num_vertices()
         );
     }
-    Ok(Arc::new(template))
+    Ok(())
 }
 
 /// The energy of frame `frame` of `dataset`.

@@ -887,20 +887,6 @@ fn one_line_clap_error(text: &str) -> String {
     out
 }
 
-/// An error and its causes on one line, each cause said once: errors whose message already
-/// quotes their source (`thiserror`'s `{0}` with `#[from]`) would otherwise repeat it.
-fn error_line(e: &anyhow::Error) -> String {
-    let mut text = e.to_string();
-    for cause in e.chain().skip(1) {
-        let c = cause.to_string();
-        if !text.contains(&c) {
-            text.push_str(": ");
-            text.push_str(&c);
-        }
-    }
-    text.replace('\n', " ")
-}
-
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
@@ -938,7 +924,7 @@ fn main() -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(e) => {
-            eprintln!("error: {}", error_line(&e));
+            eprintln!("error: {}", lfit::api::error_line(&e));
             ExitCode::from(1)
         }
     }

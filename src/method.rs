@@ -252,8 +252,48 @@ pub fn build_classic(kind: MethodKind, options: ClassicOptions) -> Result<Box<dy
     )?)
 }
 
+/// The error of a neural method in a build without the `neural` feature (no Burn).
+pub const NO_NEURAL: &str = "this build of lfit has no neural fitter: rebuild with the cargo feature `neural` (the Python wheel: maturin build --features neural)";
+
+/// The fitter of a neural method from the command line's words: `start` (`given`, `phi`,
+/// `best`), `runtime` (`burn`, `ort`), the Burn `device` and ONNX Runtime's threads.
+#[cfg(feature = "neural")]
+pub fn load_neural_named(
+    kind: MethodKind,
+    checkpoint: &std::path::Path,
+    start: &str,
+    runtime: &str,
+    device: &str,
+    ort_threads: Option<usize>,
+) -> Result<Box<dyn Fitter>> {
+    load_neural(
+        kind,
+        &NeuralOptions {
+            checkpoint,
+            start: start.parse().map_err(anyhow::Error::msg)?,
+            runtime: runtime.parse().map_err(anyhow::Error::msg)?,
+            device,
+            ort_threads,
+        },
+    )
+}
+
+/// Without the `neural` feature: the one-line error [`NO_NEURAL`].
+#[cfg(not(feature = "neural"))]
+pub fn load_neural_named(
+    _kind: MethodKind,
+    _checkpoint: &std::path::Path,
+    _start: &str,
+    _runtime: &str,
+    _device: &str,
+    _ort_threads: Option<usize>,
+) -> Result<Box<dyn Fitter>> {
+    bail!(NO_NEURAL)
+}
+
 /// Where and how a neural method's network runs (`lfit fit --checkpoint --neural-start
 /// --runtime --device --ort-threads`, bench `checkpoint`/`neural_start`).
+#[cfg(feature = "neural")]
 #[derive(Debug, Clone)]
 pub struct NeuralOptions<'a> {
     pub checkpoint: &'a std::path::Path,
@@ -266,6 +306,7 @@ pub struct NeuralOptions<'a> {
 }
 
 /// The fitter of a neural method (`neural`, `neural+lm`), loaded from its checkpoint.
+#[cfg(feature = "neural")]
 pub fn load_neural(kind: MethodKind, options: &NeuralOptions<'_>) -> Result<Box<dyn Fitter>> {
     if !kind.is_neural() {
         bail!("method {kind} does not run a network");

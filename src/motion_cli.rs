@@ -156,6 +156,15 @@ fn file_name(path: &Path) -> String {
 
 /// `lfit motion import`.
 pub fn import(args: &ImportArgs) -> Result<Value> {
+    let (clip, mut summary) = import_clip(args, None)?;
+    clip.write(&args.out)?;
+    summary["out"] = json!(args.out.display().to_string());
+    Ok(summary)
+}
+
+/// `lfit motion import` in memory: the motion [`import`] writes (`args.out` unused) and its
+/// summary without `out`. `model` replaces `args.model` (the model retargeted onto).
+pub fn import_clip(args: &ImportArgs, model: Option<&Template>) -> Result<(MotionClip, Value)> {
     let up: Up = args.up.parse().map_err(anyhow::Error::msg)?;
     if args.stride == 0 {
         bail!("--stride 0: keep every N-th frame needs N of at least 1");
@@ -163,7 +172,10 @@ pub fn import(args: &ImportArgs) -> Result<Value> {
     if args.rest_pose.is_some() && args.bvh.is_none() {
         bail!("--rest-pose applies to --bvh");
     }
-    let template = load(args.model.as_deref())?;
+    let template = match model {
+        Some(t) => std::borrow::Cow::Borrowed(t),
+        None => std::borrow::Cow::Owned(load(args.model.as_deref())?),
+    };
     let (clip, extra, source_frames) = match (&args.bvh, &args.amass) {
         (Some(bvh_path), None) => {
             let units: Units = args.units.parse().map_err(anyhow::Error::msg)?;
@@ -253,9 +265,7 @@ pub fn import(args: &ImportArgs) -> Result<Value> {
             bail!("lfit motion import needs --bvh FILE (with --map FILE) or --amass FILE")
         }
     };
-    clip.write(&args.out)?;
     let mut summary = json!({
-        "out": args.out.display().to_string(),
         "model": template.id,
         "frames": clip.poses.len(),
         "fps": clip.fps,
@@ -266,7 +276,7 @@ pub fn import(args: &ImportArgs) -> Result<Value> {
     if let (Value::Object(s), Value::Object(e)) = (&mut summary, extra) {
         s.extend(e);
     }
-    Ok(summary)
+    Ok((clip, summary))
 }
 
 /// `lfit motion export`.

@@ -1,0 +1,461 @@
+//! `lfit.Dataset` (frames of observations with their start poses and, for synthetic data, the
+//! ground truth) and `lfit.Motion` (an imported motion), with the functions that make them:
+//! `load_dataset`, `synth`, `import_c3d`, `import_keypoints`, `import_bvh`.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use lfit::synth::{Dataset as Data, Observations};
+use numpy::PyArrayMethods;
+use pyo3::prelude::*;
+
+use crate::convert::{OrPy, array_nd, bad, json_to_py, without_gil};
+use crate::model::optional_model;
+
+/// Frames of observations of one modality, their start poses and (synthetic data) the ground
+/// truth, as `lfit synth` and `lfit data import` write them.
+#[pyclass(module = "lfit", name = "Dataset", frozen)]
+pub struct Dataset {
+    pub inner: Arc<Data>,
+    /// The file it was read from or written to, if any (recorded in fit results).
+    pub path: Option<PathBuf>,
+    /// What the command that made it reported (synthesis or import), if it was made here.
+    pub summary: Option<serde_json::Value>,
+}
+
+/// A dataset argument: a `Dataset`, or the path of one.
+pub fn dataset_arg(obj: &Bound<'_, PyAny>) -> PyResult<(Arc<Data>, Option<PathBuf>)> {
+    if let Ok(d) = obj.cast::<Dataset>() {
+        let d = d.get();
+        return Ok((d.inner.clone(), d.path.clone()));
+    }
+    let path: PathBuf = obj
+        .extract()
+        .map_err(|_| bad("data: expected an lfit.Dataset or the path of a dataset file"))?;
+    let d = load(obj.py(), &path)?;
+    Ok((Arc::new(d), Some(path)))
+}
+
+fn load(py: Python<'_>, path: &PathBuf) -> PyResult<Data> {
+    without_gil(py, |_| {
+        use anyhow::Context as _;
+        Data::load(path).with_context(|| format!("dataset {}", path.display()))
+    })
+}
+
+fn rows_array<'py>(
+    py: Python<'py>,
+    rows: &[Vec<f64>],
+    width: usize,
+) -> PyResult<Bound<'py, PyAny>> {
+    let flat: Vec<f64> = rows.iter().flatten().copied().collect();
+    array_nd(py, flat, &[rows.len(), width])
+}
+
+fn save(py: Python<'_>, data: &Data, out: &PathBuf) -> PyResult<()> {
+    if out.is_dir() {
+        return Err(bad(format!(
+            "out {} is a directory, expected a file",
+            out.display()
+        )));
+    }
+    without_gil(py, |_| Ok(data.save(out)?))
+}
+
+#[pymethods]
+impl Dataset {
+    /// Reads a dataset file (`.npz` of `lfit synth` or `lfit data import`).
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let d = load(py, &path)?;
+        Ok(Self {
+            inner: Arc::new(d),
+            path: Some(path),
+            summary: None,
+        })
+    }
+
+    /// Writes the dataset (atomically: a temporary file renamed over `path`).
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        save(py, &self.inner, &path)
+    }
+
+    fn __len__(&self) -> usize {
+        self.inner.len()
+    }
+
+    /// What `synth` or the import reported when the dataset was made here (visible fraction,
+    /// the import's report), else None.
+    #[getter]
+    fn summary<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        match &self.summary {
+            Some(v) => json_to_py(py, v),
+            None => Ok(py.None().into_bound(py)),
+        }
+    }
+
+    /// `markers`, `keypoints2d`, `hmd`, `scan`, `silhouettes` or `landmarks2d`.
+    #[getter]
+    fn modality(&self) -> &'static str {
+        self.inner.modality().name()
+    }
+
+    /// `local`, `global` or `sequence` (the free entries and box of a fit).
+    #[getter]
+    fn scenario(&self) -> &'static str {
+        self.inner.meta.config.scenario.name()
+    }
+
+    /// The id of the model the dataset was made for.
+    #[getter]
+    fn model_id(&self) -> String {
+        self.inner.meta.template_id.clone()
+    }
+
+    /// Frame rate, Hz.
+    #[getter]
+    fn fps(&self) -> f64 {
+        self.inner.meta.config.fps
+    }
+
+    /// The file it was read from or written to, or None.
+    #[getter]
+    fn path(&self) -> Option<PathBuf> {
+        self.path.clone()
+    }
+
+    /// Whether the frames have ground-truth parameters (False for imported captures).
+    #[getter]
+    fn has_ground_truth(&self) -> bool {
+        self.inner.has_ground_truth()
+    }
+
+    /// Start parameters of every frame, `(N, P)` float64 (pose, then β and ψ).
+    #[getter]
+    fn start_params<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        rows_array(py, &self.inner.start_poses, self.inner.meta.param_dim())
+    }
+
+    /// Ground-truth parameters, `(N, P)` float64; `(0, P)` without ground truth.
+    #[getter]
+    fn gt_params<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        rows_array(py, &self.inner.gt_poses, self.inner.meta.param_dim())
+    }
+
+    /// Observations of a sparse modality, `(N, D)` float64 (markers: x, y, z per marker in
+    /// metres; keypoints2d: u, v per keypoint and camera in pixels; hmd: the trackers), or of
+    /// `scan`, `(N, V, 3)` points. `silhouettes` datasets hold masks: an error.
+    #[getter]
+    fn observations<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        match &self.inner.observations {
+            Observations::Sparse { values, .. } => {
+                rows_array(py, values, values.first().map_or(0, Vec::len))
+            }
+            Observations::Scan { points, .. } => {
+                let v = points.first().map_or(0, Vec::len);
+                let flat: Vec<f64> = points
+                    .iter()
+                    .flatten()
+                    .flat_map(|p| [p.x as f64, p.y as f64, p.z as f64])
+                    .collect();
+                array_nd(py, flat, &[points.len(), v, 3])
+            }
+            Observations::Silhouettes { .. } => Err(bad(
+                "a silhouettes dataset holds foreground masks, not observation vectors (numpy.load the file for its 'silhouettes' array)",
+            )),
+        }
+    }
+
+    /// Visibility of every observation entry (sparse: `(N, D)`; scan: `(N, V)`), bool.
+    #[getter]
+    fn visibility<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let rows = match &self.inner.observations {
+            Observations::Sparse { visible, .. } | Observations::Scan { visible, .. } => visible,
+            Observations::Silhouettes { .. } => {
+                return Err(bad("a silhouettes dataset has no visibility flags"));
+            }
+        };
+        let width = rows.first().map_or(0, Vec::len);
+        let flat: Vec<bool> = rows.iter().flatten().copied().collect();
+        Ok(numpy::PyArray1::from_vec(py, flat)
+            .reshape([rows.len(), width])?
+            .into_any())
+    }
+
+    /// The sensor setup (cameras, markers, trackers) as a dict; `lfit.Energy(sensor=...)` takes
+    /// it back.
+    #[getter]
+    fn sensor<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let v = serde_json::to_value(&self.inner.sensor).map_err(|e| bad(e.to_string()))?;
+        json_to_py(py, &v)
+    }
+
+    /// The metadata (`meta` of the file): model id, generator settings, seed, frame motions.
+    #[getter]
+    fn meta<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let v = serde_json::to_value(&self.inner.meta).map_err(|e| bad(e.to_string()))?;
+        json_to_py(py, &v)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Dataset({} frames, {}, {}, model '{}'{})",
+            self.inner.len(),
+            self.inner.modality().name(),
+            self.inner.meta.config.scenario.name(),
+            self.inner.meta.template_id,
+            if self.inner.has_ground_truth() {
+                ""
+            } else {
+                ", no ground truth"
+            }
+        )
+    }
+}
+
+/// Reads a dataset file; the same as `Dataset.load`.
+#[pyfunction]
+pub fn load_dataset(py: Python<'_>, path: PathBuf) -> PyResult<Dataset> {
+    Dataset::load(py, path)
+}
+
+fn finish(
+    py: Python<'_>,
+    data: Data,
+    summary: serde_json::Value,
+    out: Option<PathBuf>,
+) -> PyResult<Dataset> {
+    if let Some(out) = &out {
+        save(py, &data, out)?;
+    }
+    Ok(Dataset {
+        inner: Arc::new(data),
+        path: out,
+        summary: Some(summary),
+    })
+}
+
+fn model_or_default(
+    model: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Arc<lfit::model::template::Template>> {
+    match optional_model(model)? {
+        Some(t) => Ok(t),
+        None => Ok(Arc::new(lfit::api::load_model(None, "default").py_err()?)),
+    }
+}
+
+/// Synthesises a dataset as `lfit synth` does (same settings, same seed → same data); writes it
+/// to `out` too when given.
+#[pyfunction]
+#[pyo3(signature = (modality, model=None, *, scenario="local", frames=100, seed=0, source="motion", noise=1.0, fps=30.0, library_motions=None, motions=None, with_library=false, cameras=None, out=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn synth(
+    py: Python<'_>,
+    modality: String,
+    model: Option<&Bound<'_, PyAny>>,
+    scenario: &str,
+    frames: usize,
+    seed: u64,
+    source: &str,
+    noise: f64,
+    fps: f64,
+    library_motions: Option<Vec<String>>,
+    motions: Option<Vec<PathBuf>>,
+    with_library: bool,
+    cameras: Option<usize>,
+    out: Option<PathBuf>,
+) -> PyResult<Dataset> {
+    let template = model_or_default(model)?;
+    let args = lfit::api::SynthArgs {
+        modality,
+        scenario: scenario.to_string(),
+        source: source.to_string(),
+        frames,
+        seed,
+        fps,
+        noise,
+        motions: library_motions.map(|m| m.join(",")),
+        out: out.clone().unwrap_or_default(),
+    };
+    let files = lfit::api::MotionFilesArgs {
+        files: motions.unwrap_or_default(),
+        with_library,
+    };
+    let (data, summary) = without_gil(py, |_| {
+        lfit::api::synthesize_dataset(&args, &files, cameras, &template, &|_| {})
+    })?;
+    finish(py, data, summary, out)
+}
+
+fn data_import(
+    py: Python<'_>,
+    args: lfit::api::DataImportArgs,
+    model: Option<&Bound<'_, PyAny>>,
+    out: Option<PathBuf>,
+) -> PyResult<Dataset> {
+    let template = optional_model(model)?;
+    let (data, summary) = without_gil(py, |_| {
+        lfit::api::import_dataset(&args, template.as_deref())
+    })?;
+    finish(py, data, summary, out)
+}
+
+/// Imports 3D markers from a C3D file as `lfit data import --c3d` does: a `markers` dataset
+/// without ground truth for `model` (default: the procedural body). `label_map`: a JSON file
+/// `{"C3D label": "model marker"}` (default: labels equal to marker names); `up`: `y` or `z`.
+#[pyfunction]
+#[pyo3(signature = (path, model=None, *, label_map=None, up="y", scenario="sequence", out=None))]
+pub fn import_c3d(
+    py: Python<'_>,
+    path: PathBuf,
+    model: Option<&Bound<'_, PyAny>>,
+    label_map: Option<PathBuf>,
+    up: &str,
+    scenario: &str,
+    out: Option<PathBuf>,
+) -> PyResult<Dataset> {
+    let args = lfit::api::DataImportArgs {
+        c3d: Some(path),
+        label_map,
+        up: up.to_string(),
+        keypoints: Vec::new(),
+        layout: None,
+        camera: None,
+        keypoint_map: None,
+        min_confidence: 0.1,
+        fps: 30.0,
+        scenario: scenario.to_string(),
+        model: None,
+        out: out.clone().unwrap_or_default(),
+    };
+    data_import(py, args, model, out)
+}
+
+/// Imports 2D keypoints (COCO keypoint files, or OpenPose frame files/folders; one path per
+/// camera) in calibrated cameras as `lfit data import --keypoints` does: a `keypoints2d`
+/// dataset without ground truth. `layout`: `coco17` or `body25`; `camera`: the camera JSON file.
+#[pyfunction]
+#[pyo3(signature = (paths, layout, camera, model=None, *, keypoint_map=None, min_confidence=0.1, fps=30.0, scenario="sequence", out=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn import_keypoints(
+    py: Python<'_>,
+    paths: Vec<PathBuf>,
+    layout: String,
+    camera: PathBuf,
+    model: Option<&Bound<'_, PyAny>>,
+    keypoint_map: Option<PathBuf>,
+    min_confidence: f64,
+    fps: f64,
+    scenario: &str,
+    out: Option<PathBuf>,
+) -> PyResult<Dataset> {
+    if paths.is_empty() {
+        return Err(bad("import_keypoints needs at least one keypoint path"));
+    }
+    let args = lfit::api::DataImportArgs {
+        c3d: None,
+        label_map: None,
+        up: "y".into(),
+        keypoints: paths,
+        layout: Some(layout),
+        camera: Some(camera),
+        keypoint_map,
+        min_confidence,
+        fps,
+        scenario: scenario.to_string(),
+        model: None,
+        out: out.clone().unwrap_or_default(),
+    };
+    data_import(py, args, model, out)
+}
+
+/// A motion in one model's parameter layout (`lfit motion import`): `params` `(T, P)`, `fps`,
+/// `source`, and the import's report (`summary`: bone-direction cosines, scale).
+#[pyclass(module = "lfit", name = "Motion", frozen)]
+pub struct Motion {
+    clip: lfit::synth::motion_io::MotionClip,
+    summary: serde_json::Value,
+}
+
+#[pymethods]
+impl Motion {
+    /// Parameters of every frame, `(T, P)` float64.
+    #[getter]
+    fn params<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let width = self.clip.model.layout.dim();
+        rows_array(py, &self.clip.poses, width)
+    }
+
+    #[getter]
+    fn fps(&self) -> f64 {
+        self.clip.fps
+    }
+
+    #[getter]
+    fn source(&self) -> String {
+        self.clip.source.clone()
+    }
+
+    /// What the import reported (frames, scale, bone-direction cosines, ...).
+    #[getter]
+    fn summary<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_to_py(py, &self.summary)
+    }
+
+    /// Writes the motion file (`.npz`; `lfit synth --motions` and `synth(motions=...)` read it).
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        without_gil(py, |_| Ok(self.clip.write(&path)?))
+    }
+
+    fn __len__(&self) -> usize {
+        self.clip.poses.len()
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Motion({} frames at {} Hz, model '{}', {})",
+            self.clip.poses.len(),
+            self.clip.fps,
+            self.clip.model.id,
+            self.clip.source
+        )
+    }
+}
+
+/// Imports a BVH clip retargeted onto `model` as `lfit motion import --bvh` does. `map`: the
+/// joint-name map JSON (`configs/maps/`; default: identical names); `units`: `auto`, `cm` or
+/// `m`; `up`: `y` or `z`; `root`: `floor` or `keep`; `stride`: keep every N-th frame.
+#[pyfunction]
+#[pyo3(signature = (path, model=None, *, map=None, units="auto", up="y", root="floor", stride=1, rest_pose=None, out=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn import_bvh(
+    py: Python<'_>,
+    path: PathBuf,
+    model: Option<&Bound<'_, PyAny>>,
+    map: Option<PathBuf>,
+    units: &str,
+    up: &str,
+    root: &str,
+    stride: usize,
+    rest_pose: Option<PathBuf>,
+    out: Option<PathBuf>,
+) -> PyResult<Motion> {
+    let template = optional_model(model)?;
+    let args = lfit::api::MotionImportArgs {
+        bvh: Some(path),
+        map,
+        amass: None,
+        model: None,
+        out: out.clone().unwrap_or_default(),
+        units: units.to_string(),
+        up: up.to_string(),
+        root: root.to_string(),
+        stride,
+        rest_pose,
+    };
+    let (clip, summary) = without_gil(py, |_| lfit::api::import_clip(&args, template.as_deref()))?;
+    if let Some(out) = &out {
+        without_gil(py, |_| Ok(clip.write(out)?))?;
+    }
+    Ok(Motion { clip, summary })
+}

@@ -1,0 +1,373 @@
+//! `lfit.fit`: `lfit fit` on a dataset (held in memory or read from a file), its result as
+//! arrays (`lfit.FitResult`).
+
+use std::path::PathBuf;
+
+use pyo3::prelude::*;
+use serde_json::Value;
+
+use crate::convert::{OrPy, array_nd, array1, bad, floats, json_to_py, without_gil};
+use crate::dataset::dataset_arg;
+use crate::energy::energy_config;
+use crate::model::optional_model;
+
+/// The result of `lfit.fit`: one row per fitted frame. Arrays are float64 unless said; errors
+/// that need ground truth (`v2v_mm`, `mpjpe_mm`) are NaN without it, and the distance to the
+/// observations (`observation_error`, unit `observation_unit`) is NaN with it.
+#[pyclass(module = "lfit", name = "FitResult", frozen)]
+pub struct FitResult {
+    document: Value,
+    frames: Vec<i64>,
+    params: Vec<f64>,
+    dims: (usize, usize, usize),
+    columns: Vec<(&'static str, Vec<f64>)>,
+    observation_unit: Option<String>,
+}
+
+fn column(rows: &[Value], key: &str) -> Vec<f64> {
+    rows.iter()
+        .map(|r| r.get(key).and_then(Value::as_f64).unwrap_or(f64::NAN))
+        .collect()
+}
+
+fn numbers(v: Option<&Value>) -> Vec<f64> {
+    v.and_then(Value::as_array)
+        .map(|a| a.iter().map(|x| x.as_f64().unwrap_or(f64::NAN)).collect())
+        .unwrap_or_default()
+}
+
+impl FitResult {
+    fn new(document: Value, dims: (usize, usize, usize)) -> Self {
+        let rows: Vec<Value> = document["frames"].as_array().cloned().unwrap_or_default();
+        let frames = rows
+            .iter()
+            .map(|r| r["frame"].as_i64().unwrap_or(-1))
+            .collect();
+        let mut params = Vec::with_capacity(rows.len() * (dims.0 + dims.1 + dims.2));
+        for r in &rows {
+            for (key, n) in [("pose", dims.0), ("shape", dims.1), ("expression", dims.2)] {
+                let mut v = numbers(r.get(key));
+                v.resize(n, f64::NAN);
+                params.extend(v);
+            }
+        }
+        let unit = ["mm", "px"].into_iter().find(|u| {
+            rows.iter()
+                .any(|r| r.get(format!("observation_error_{u}")).is_some())
+        });
+        let mut columns = vec![
+            ("energies", column(&rows, "energy")),
+            ("start_energies", column(&rows, "start_energy")),
+            ("times", column(&rows, "time_s")),
+            ("evaluations", column(&rows, "evaluations")),
+            ("v2v_mm", column(&rows, "v2v_mm")),
+            ("mpjpe_mm", column(&rows, "mpjpe_mm")),
+        ];
+        let obs = unit.map_or_else(
+            || vec![f64::NAN; rows.len()],
+            |u| column(&rows, &format!("observation_error_{u}")),
+        );
+        columns.push(("observation_error", obs));
+        Self {
+            frames,
+            params,
+            dims,
+            columns,
+            observation_unit: unit.map(str::to_string),
+            document,
+        }
+    }
+
+    fn col<'py>(&self, py: Python<'py>, name: &str) -> Bound<'py, numpy::PyArray1<f64>> {
+        let v = self
+            .columns
+            .iter()
+            .find(|(k, _)| *k == name)
+            .map(|(_, v)| v.clone())
+            .unwrap_or_default();
+        array1(py, v)
+    }
+
+    fn block<'py>(
+        &self,
+        py: Python<'py>,
+        from: usize,
+        width: usize,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let total = self.dims.0 + self.dims.1 + self.dims.2;
+        let n = self.frames.len();
+        let flat: Vec<f64> = (0..n)
+            .flat_map(|i| {
+                self.params[i * total + from..i * total + from + width]
+                    .iter()
+                    .copied()
+            })
+            .collect();
+        array_nd(py, flat, &[n, width])
+    }
+}
+
+#[pymethods]
+impl FitResult {
+    /// The fitted frames' indices, int64 `(N,)`.
+    #[getter]
+    fn frames<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<i64>> {
+        numpy::PyArray1::from_vec(py, self.frames.clone())
+    }
+
+    /// Full fitted parameter vectors, `(N, P)` (pose, β, ψ).
+    #[getter]
+    fn params<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        self.block(py, 0, self.dims.0 + self.dims.1 + self.dims.2)
+    }
+
+    /// Fitted poses, `(N, 3 + 3J)`.
+    #[getter]
+    fn poses<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        self.block(py, 0, self.dims.0)
+    }
+
+    /// Fitted shape coefficients β, `(N, B)`.
+    #[getter]
+    fn shapes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        self.block(py, self.dims.0, self.dims.1)
+    }
+
+    /// Fitted expression coefficients ψ, `(N, E)`.
+    #[getter]
+    fn expressions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        self.block(py, self.dims.0 + self.dims.1, self.dims.2)
+    }
+
+    /// Final energy of every frame.
+    #[getter]
+    fn energies<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<f64>> {
+        self.col(py, "energies")
+    }
+
+    /// Energy at every frame's start (not counted as an evaluation).
+    #[getter]
+    fn start_energies<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<f64>> {
+        self.col(py, "start_energies")
+    }
+
+    /// Seconds spent on every frame.
+    #[getter]
+    fn times<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<f64>> {
+        self.col(py, "times")
+    }
+
+    /// Energy evaluations of every frame.
+    #[getter]
+    fn evaluations<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<f64>> {
+        self.col(py, "evaluations")
+    }
+
+    /// Mean vertex error against the ground truth, mm (NaN without ground truth).
+    #[getter]
+    fn v2v_mm<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<f64>> {
+        self.col(py, "v2v_mm")
+    }
+
+    /// Mean joint error against the ground truth, mm (NaN without ground truth).
+    #[getter]
+    fn mpjpe_mm<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<f64>> {
+        self.col(py, "mpjpe_mm")
+    }
+
+    /// Without ground truth: mean distance of the fit to the seen observations (markers: mm,
+    /// keypoints: px; `observation_unit`), NaN otherwise.
+    #[getter]
+    fn observation_error<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<f64>> {
+        self.col(py, "observation_error")
+    }
+
+    /// `mm`, `px`, or None (with ground truth).
+    #[getter]
+    fn observation_unit(&self) -> Option<String> {
+        self.observation_unit.clone()
+    }
+
+    /// The method's name.
+    #[getter]
+    fn method(&self) -> String {
+        self.document["method"]
+            .as_str()
+            .unwrap_or_default()
+            .to_string()
+    }
+
+    /// Means over the frames, as `lfit fit` prints them.
+    #[getter]
+    fn summary<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_to_py(py, &self.document["summary"])
+    }
+
+    /// The whole result document `lfit fit --out` writes (per-frame terms, traces, ...).
+    fn document<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_to_py(py, &self.document)
+    }
+
+    /// Writes the result document as JSON (what `lfit fit --out` writes; `lfit export` and
+    /// `lfit render` read it).
+    fn save(&self, path: PathBuf) -> PyResult<()> {
+        let bytes = serde_json::to_vec_pretty(&self.document).map_err(|e| bad(e.to_string()))?;
+        lfit::model::template::write_atomic(&path, &bytes)
+            .map_err(|e| crate::convert::err(e.into()))
+    }
+
+    fn __len__(&self) -> usize {
+        self.frames.len()
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "FitResult({}, {} frames, mean energy {})",
+            self.method(),
+            self.frames.len(),
+            self.document["summary"]["mean_energy"]
+        )
+    }
+}
+
+/// `frames`: None (all), a string as `lfit fit --frames` takes (`0..20`, `3-5`, `7`, or a comma
+/// list), or a sequence of frame indices.
+fn frames_arg(frames: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
+    let Some(f) = frames.filter(|f| !f.is_none()) else {
+        return Ok(None);
+    };
+    if let Ok(s) = f.extract::<String>() {
+        return Ok(Some(s));
+    }
+    let list: Vec<i64> = f.extract().map_err(|_| {
+        bad("frames: expected a string such as '0..20' or a sequence of frame indices")
+    })?;
+    if list.is_empty() {
+        return Err(bad("frames: empty list"));
+    }
+    if let Some(i) = list.iter().find(|&&i| i < 0) {
+        return Err(bad(format!("frames: {i} is not a frame index")));
+    }
+    Ok(Some(
+        list.iter()
+            .map(i64::to_string)
+            .collect::<Vec<_>>()
+            .join(","),
+    ))
+}
+
+/// `known_shape`: None, `"truth"`, or the subject's β as numbers.
+fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
+    let Some(k) = k.filter(|k| !k.is_none()) else {
+        return Ok(None);
+    };
+    if let Ok(s) = k.extract::<String>() {
+        return Ok(Some(s));
+    }
+    let f = floats(k, "known_shape")?.finite("known_shape")?;
+    if f.shape.len() != 1 {
+        return Err(bad(format!(
+            "known_shape has shape {}, expected (B,)",
+            crate::convert::shape_text(&f.shape)
+        )));
+    }
+    Ok(Some(
+        f.data
+            .iter()
+            .map(f64::to_string)
+            .collect::<Vec<_>>()
+            .join(","),
+    ))
+}
+
+/// Fits the frames of `data` as `lfit fit` does, with the same settings and the same result.
+///
+/// `model`: the dataset's model (a `Model`, path or name; default: the procedural body the
+/// dataset names). `data`: a `Dataset` or the path of one. `method`: `lm`, `lm-triggs`, `gn`,
+/// `lbfgs`, `cma`, `pso`, `de`, ... or `neural`/`neural+lm` (with `checkpoint`; needs a wheel
+/// built with the `neural` feature). `budget`: energy evaluations per frame. `frames`: a
+/// `--frames` string or a sequence of indices. `known_shape`: `"truth"` or β. `energy`: a dict
+/// or JSON file of the energy configuration. `progress(done, total)` is called after each
+/// frame. Runs with the GIL released; Ctrl-C stops it between frames (`KeyboardInterrupt`).
+#[pyfunction]
+#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", sequence_shape="per-frame", device="flex", runtime="burn", ort_threads=None, progress=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn fit(
+    py: Python<'_>,
+    model: Option<&Bound<'_, PyAny>>,
+    data: &Bound<'_, PyAny>,
+    method: &str,
+    budget: usize,
+    checkpoint: Option<PathBuf>,
+    known_shape: Option<&Bound<'_, PyAny>>,
+    frames: Option<&Bound<'_, PyAny>>,
+    seed: u64,
+    strategy: &str,
+    preset: Option<String>,
+    step_scale: Option<f64>,
+    cma_diagonal: bool,
+    cma_elitist: bool,
+    cma_popsize: Option<usize>,
+    energy: Option<&Bound<'_, PyAny>>,
+    batch: usize,
+    neural_start: &str,
+    sequence_shape: &str,
+    device: &str,
+    runtime: &str,
+    ort_threads: Option<usize>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<FitResult> {
+    let kind: lfit::api::MethodKind = method.parse().py_err()?;
+    let template = optional_model(model)?;
+    let (dataset, path) = dataset_arg(data)?;
+    let config = energy_config(energy)?;
+    let args = lfit::api::FitArgs {
+        data: path.unwrap_or_default(),
+        method: kind,
+        budget,
+        strategy: strategy.to_string(),
+        preset: preset.unwrap_or_else(|| "nevergrad".to_string()),
+        step_scale,
+        cma: lfit::fitters::optim::cma::CmaVariant {
+            diagonal: cma_diagonal,
+            elitist: cma_elitist,
+            popsize: cma_popsize,
+        },
+        frames: frames_arg(frames)?,
+        seed,
+        out: PathBuf::new(),
+        energy: None,
+        template: None,
+        checkpoint,
+        neural_start: neural_start.to_string(),
+        device: device.to_string(),
+        batch,
+        runtime: runtime.to_string(),
+        ort_threads,
+        known_shape: known_shape_arg(known_shape)?,
+        sequence_shape: sequence_shape.to_string(),
+    };
+    let document = without_gil(py, |interrupted| {
+        let report = |done: usize, total: usize| -> anyhow::Result<()> {
+            interrupted()?;
+            if let Some(p) = &progress {
+                Python::attach(|py| p.call1(py, (done, total)).map(|_| ()))
+                    .map_err(|e| anyhow::anyhow!("progress callback failed: {e}"))?;
+            }
+            Ok(())
+        };
+        lfit::api::fit_dataset(&args, &dataset, template.clone(), config.clone(), &report)
+    })?;
+    let dims = match &template {
+        Some(t) => {
+            let l = t.layout();
+            (l.pose_dim(), l.shape, l.expression)
+        }
+        None => (
+            dataset.meta.pose_dim,
+            dataset.meta.shape_dim,
+            dataset.meta.expression_dim,
+        ),
+    };
+    Ok(FitResult::new(document, dims))
+}

@@ -1,0 +1,122 @@
+"""synth, load_dataset and the imports (C3D, COCO keypoints, BVH): the same data as the CLI
+commands they mirror; bad input is a one-line error and writes nothing."""
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import lfit
+from conftest import ROOT, one_line, require
+
+MH = ROOT / "models" / "makehuman-cmu_mb.npz"
+
+
+def same_dataset(a, b):
+    assert len(a) == len(b) and a.modality == b.modality and a.scenario == b.scenario
+    np.testing.assert_array_equal(a.start_params, b.start_params)
+    np.testing.assert_array_equal(a.gt_params, b.gt_params)
+    np.testing.assert_array_equal(a.observations, b.observations)
+    np.testing.assert_array_equal(a.visibility, b.visibility)
+    assert a.sensor == b.sensor
+
+
+@pytest.mark.parametrize("modality", ["markers", "keypoints2d", "hmd"])
+def test_synth_equals_the_cli_byte_for_byte(cli, tmp_path, modality):
+    cli_out = tmp_path / "cli.npz"
+    cli("synth", "--modality", modality, "--model", MH, "--frames", 7, "--seed", 4, "--scenario", "sequence", "--out", cli_out)
+    py_out = tmp_path / "py.npz"
+    d = lfit.synth(modality, MH, frames=7, seed=4, scenario="sequence", out=py_out)
+    assert py_out.read_bytes() == cli_out.read_bytes()
+    same_dataset(d, lfit.load_dataset(cli_out))
+    assert d.path == py_out and d.summary["frames"] == 7
+    assert d.gt_params.shape == (7, 112) and d.fps == 30.0 and d.model_id == "makehuman-cmu_mb"
+
+
+def test_synth_bad_input_writes_nothing(tmp_path):
+    out = tmp_path / "x.npz"
+    with pytest.raises(lfit.LfitError) as e:
+        lfit.synth("radar", frames=3, out=out)
+    assert "radar" in one_line(e) and not out.exists()
+    with pytest.raises(lfit.LfitError, match="cannot read .*none.npz"):
+        lfit.synth("markers", frames=3, motions=[tmp_path / "none.npz"], out=out)
+    assert not out.exists()
+
+
+def test_c3d_import_equals_the_cli(cli, tmp_path):
+    synthetic = tmp_path / "m.npz"
+    cli("synth", "--modality", "markers", "--model", MH, "--frames", 5, "--seed", 8, "--out", synthetic)
+    c3d = tmp_path / "m.c3d"
+    cli("data", "export-c3d", "--data", synthetic, "--out", c3d)
+    cli_out = tmp_path / "cli.npz"
+    cli("data", "import", "--c3d", c3d, "--model", MH, "--out", cli_out)
+    d = lfit.import_c3d(c3d, MH)
+    same_dataset(d, lfit.load_dataset(cli_out))
+    assert not d.has_ground_truth and d.gt_params.shape == (0, 112)
+    assert d.summary["import"] is not None
+    # Fitting it reports the distance to the markers instead of V2V.
+    r = lfit.fit(MH, d, method="lm", budget=60, frames="0..2")
+    assert r.observation_unit == "mm" and np.isfinite(r.observation_error).all()
+    assert np.isnan(r.v2v_mm).all()
+
+
+def test_c3d_import_errors(cli, tmp_path):
+    bad = tmp_path / "bad.c3d"
+    bad.write_bytes(b"\x02\x50" + b"\x00" * 100)
+    out = tmp_path / "o.npz"
+    with pytest.raises(lfit.LfitError) as e:
+        lfit.import_c3d(bad, out=out)
+    p = cli("data", "import", "--c3d", bad, "--out", out, check=False)
+    assert p.stderr.strip() == f"error: {one_line(e)}"
+    assert not out.exists()
+
+
+def test_keypoint_import_equals_the_cli(cli, tmp_path):
+    cam = {"fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480,
+           "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "translation": [0.0, -1.0, 4.0]}
+    cams = tmp_path / "cams.json"
+    cams.write_text(json.dumps({"cameras": [cam]}))
+    rng = np.random.default_rng(1)
+    images = [{"id": i, "width": 640, "height": 480, "file_name": f"{i}.png"} for i in range(4)]
+    annotations = []
+    for i in range(4):
+        kp = np.zeros((17, 3))
+        kp[:, 0] = rng.uniform(250, 390, 17)
+        kp[:, 1] = rng.uniform(100, 400, 17)
+        kp[:, 2] = 2
+        annotations.append({"id": i + 1, "image_id": i, "category_id": 1, "keypoints": kp.ravel().tolist()})
+    coco = tmp_path / "cam0.json"
+    coco.write_text(json.dumps({"images": images, "annotations": annotations, "categories": [{"id": 1}]}))
+    cli_out = tmp_path / "cli.npz"
+    cli("data", "import", "--keypoints", coco, "--layout", "coco17", "--camera", cams, "--model", MH, "--out", cli_out)
+    d = lfit.import_keypoints([coco], "coco17", cams, MH)
+    same_dataset(d, lfit.load_dataset(cli_out))
+    assert d.modality == "keypoints2d" and len(d) == 4
+    with pytest.raises(lfit.LfitError, match="unknown keypoint layout|layout"):
+        lfit.import_keypoints([coco], "coco18", cams, MH)
+
+
+def test_bvh_import_equals_the_cli(cli, tmp_path):
+    bvh = os.environ.get("LFIT_MOCAPBANK_BVH")
+    if not bvh or not Path(bvh).exists():
+        require("LFIT_MOCAPBANK_BVH is not set (scripts/fetch-mocapbank.sh fetches the clip)")
+    m = ROOT / "configs" / "maps" / "mocapbank_to_makehuman_cmu_mb.json"
+    cli_out = tmp_path / "clip.npz"
+    cli("motion", "import", "--bvh", bvh, "--map", m, "--model", MH, "--stride", 5, "--out", cli_out)
+    motion = lfit.import_bvh(bvh, MH, map=m, stride=5)
+    np.testing.assert_array_equal(motion.params, np.load(cli_out)["poses"])
+    assert motion.summary["bone_cosine_mean"] > 0.95 and len(motion) == motion.params.shape[0]
+    py_out = tmp_path / "py.npz"
+    motion.save(py_out)
+    assert py_out.read_bytes() == cli_out.read_bytes()
+    # The motion drives synthesis as a file does.
+    d = lfit.synth("markers", MH, frames=3, seed=1, motions=[py_out])
+    assert all(":" in f for f in d.meta["frame_motions"])
+
+
+def test_missing_dataset_is_one_line(tmp_path):
+    with pytest.raises(lfit.LfitError) as e:
+        lfit.load_dataset(tmp_path / "none.npz")
+    assert one_line(e).startswith(f"dataset {tmp_path / 'none.npz'}")

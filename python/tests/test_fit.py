@@ -1,0 +1,123 @@
+"""lfit.fit: the same results as `lfit fit` on the same data, as arrays; bad input is the CLI's
+one-line error; Ctrl-C stops a fit."""
+
+import json
+import threading
+import time
+import _thread
+
+import numpy as np
+import pytest
+
+import lfit
+from conftest import ROOT, one_line
+
+
+@pytest.fixture(scope="module")
+def markers_file(tmp_path_factory, cli):
+    path = tmp_path_factory.mktemp("fit") / "markers.npz"
+    cli("synth", "--modality", "markers", "--model", ROOT / "models" / "makehuman-cmu_mb.npz",
+        "--frames", 6, "--seed", 5, "--out", path)
+    return path
+
+
+@pytest.mark.parametrize("method, budget", [("lm", 100), ("lbfgs", 60), ("cma", 150)])
+def test_fit_equals_the_cli(makehuman, markers_file, cli, tmp_path, method, budget):
+    out = tmp_path / "cli.json"
+    cli("fit", "--data", markers_file, "--model", ROOT / "models" / "makehuman-cmu_mb.npz",
+        "--method", method, "--budget", budget, "--frames", "1..5", "--seed", 3, "--out", out)
+    theirs = json.loads(out.read_text())
+    ours = lfit.fit(makehuman, markers_file, method=method, budget=budget, frames="1..5", seed=3)
+    assert list(ours.frames) == [1, 2, 3, 4]
+    rows = theirs["frames"]
+    np.testing.assert_array_equal(ours.energies, [r["energy"] for r in rows])
+    np.testing.assert_array_equal(ours.poses, [r["pose"] for r in rows])
+    np.testing.assert_array_equal(ours.shapes, [r["shape"] for r in rows])
+    np.testing.assert_array_equal(ours.v2v_mm, [r["v2v_mm"] for r in rows])
+    np.testing.assert_array_equal(ours.evaluations, [r["evaluations"] for r in rows])
+    assert ours.params.shape == (4, makehuman.dim)
+    assert ours.summary["frames"] == 4 and ours.method == theirs["method"]
+    assert np.isnan(ours.observation_error).all() and ours.observation_unit is None
+    doc = ours.document()
+    assert doc["energy_config"] == theirs["energy_config"] and doc["data"] == str(markers_file)
+
+
+def test_in_memory_dataset_and_frame_list(makehuman):
+    data = lfit.synth("keypoints2d", makehuman, frames=5, seed=2)
+    seen = []
+    result = lfit.fit(makehuman, data, method="lm", budget=50, frames=[0, 3], progress=lambda d, t: seen.append((d, t)))
+    assert list(result.frames) == [0, 3] and seen == [(1, 2), (2, 2)]
+    assert (result.energies <= result.start_energies + 1e-12).all()
+    assert result.document()["data"] is None
+
+
+def test_ctrl_c_stops_a_fit(makehuman):
+    data = lfit.synth("markers", makehuman, frames=400, seed=9)
+    timer = threading.Timer(0.5, _thread.interrupt_main)
+    start = time.perf_counter()
+    timer.start()
+    def guard(done, total):
+        # Fails the test instead of running for minutes when the interrupt is not honoured.
+        if done > 30:
+            raise RuntimeError("Ctrl-C did not stop the fit")
+
+    with pytest.raises(KeyboardInterrupt):
+        lfit.fit(makehuman, data, method="cma", budget=3000, progress=guard)
+    elapsed = time.perf_counter() - start
+    timer.cancel()
+    # 400 frames of 3000 evaluations take minutes; the interrupt lands within a frame or two.
+    assert elapsed < 20, elapsed
+
+
+def test_errors_are_the_cli_lines(cli, markers_file, tmp_path):
+    missing = tmp_path / "nothing.npz"
+    out = tmp_path / "never.json"
+    cases = [
+        ((None, missing), {"method": "lm", "budget": 10}, ["--data", missing, "--method", "lm", "--budget", 10]),
+        ((None, markers_file), {"method": "lm", "budget": 0}, ["--data", markers_file, "--method", "lm", "--budget", 0]),
+        ((None, markers_file), {"method": "lm", "budget": 10, "frames": "3..99"}, ["--data", markers_file, "--method", "lm", "--budget", 10, "--frames", "3..99"]),
+        ((None, markers_file), {"method": "lm", "budget": 10, "strategy": "sideways"}, ["--data", markers_file, "--method", "lm", "--budget", 10, "--strategy", "sideways"]),
+        ((None, markers_file), {"method": "lm", "budget": 10, "known_shape": "0.5,x"}, ["--data", markers_file, "--method", "lm", "--budget", 10, "--known-shape", "0.5,x"]),
+    ]
+    for args, kwargs, flags in cases:
+        with pytest.raises(lfit.LfitError) as e:
+            lfit.fit(*args, **kwargs)
+        p = cli("fit", *flags, "--out", out, check=False)
+        assert p.returncode == 1 and p.stderr.strip() == f"error: {one_line(e)}", (p.stderr, str(e.value))
+        assert not out.exists()
+
+
+def test_bad_arguments(makehuman, markers_file):
+    with pytest.raises(lfit.LfitError, match="unknown method 'lmm'"):
+        lfit.fit(makehuman, markers_file, method="lmm")
+    with pytest.raises(lfit.LfitError, match=r"known_shape\[2\] is not a finite number"):
+        lfit.fit(makehuman, markers_file, known_shape=[0.0, 1.0, np.nan])
+    with pytest.raises(lfit.LfitError, match="data: expected an lfit.Dataset"):
+        lfit.fit(makehuman, 3)
+    with pytest.raises(lfit.LfitError, match="frames: -1 is not a frame index"):
+        lfit.fit(makehuman, markers_file, frames=[-1])
+
+
+def test_neural_fit_and_a_checkpoint_of_another_model(makehuman, markers_file, cli, tmp_path):
+    if not lfit.HAS_NEURAL:
+        with pytest.raises(lfit.LfitError, match="no neural fitter"):
+            lfit.fit(makehuman, markers_file, method="neural", budget=10, checkpoint=ROOT / "checkpoints" / "markers-makehuman")
+        from conftest import require
+
+        require("this wheel was built without the neural feature (maturin build --features neural)")
+    ck = ROOT / "checkpoints" / "markers-makehuman"
+    out = tmp_path / "n.json"
+    cli("fit", "--data", markers_file, "--model", ROOT / "models" / "makehuman-cmu_mb.npz", "--method", "neural+lm",
+        "--checkpoint", ck, "--budget", 40, "--out", out)
+    theirs = json.loads(out.read_text())["frames"]
+    ours = lfit.fit(makehuman, markers_file, method="neural+lm", budget=40, checkpoint=ck)
+    np.testing.assert_allclose(ours.energies, [r["energy"] for r in theirs], rtol=1e-9)
+    # A checkpoint of another model: the CLI's line, nothing written.
+    other = tmp_path / "default.npz"
+    lfit.synth("markers", frames=2, seed=1, out=other)
+    with pytest.raises(lfit.LfitError) as e:
+        lfit.fit(None, other, method="neural", budget=10, checkpoint=ck)
+    never = tmp_path / "never.json"
+    p = cli("fit", "--data", other, "--method", "neural", "--budget", 10, "--checkpoint", ck, "--out", never, check=False)
+    assert p.returncode == 1 and p.stderr.strip() == f"error: {one_line(e)}", (p.stderr, str(e.value))
+    assert not never.exists()
