@@ -1,23 +1,26 @@
 #!/usr/bin/env bash
-# Installs the Python reference packages of the tests (scipy==1.17.1 and numpy from PyPI) into
-# ${LFIT_TOOLS_DIR:-$HOME/.cache/lfit-tools}/scipy-1.17.1 and prints that directory (use it as
-# PYTHONPATH). Idempotent.
+# Installs the Python reference packages of the tests from PyPI (scipy==1.17.1 with numpy, and
+# c3d==0.6.0, an independent C3D writer) into ${LFIT_TOOLS_DIR:-$HOME/.cache/lfit-tools}/scipy-1.17.1
+# and prints that directory (use it as PYTHONPATH). Idempotent: reinstalls when the package list
+# changes.
 set -euo pipefail
 VERSION=1.17.1
 TOOLS="${LFIT_TOOLS_DIR:-$HOME/.cache/lfit-tools}"
 DEST="$TOOLS/scipy-$VERSION"
+PACKAGES="scipy==$VERSION numpy c3d==0.6.0"
 if ! python3 -m pip --version >/dev/null 2>&1; then
     echo "fetch-scipy: needs python3 with pip" >&2
     exit 1
 fi
-if [ ! -f "$DEST/.complete" ]; then
+if [ "$(cat "$DEST/.complete" 2>/dev/null)" != "$PACKAGES" ]; then
     mkdir -p "$TOOLS"
     tmp="$(mktemp -d "$TOOLS/.scipy.XXXXXX")"
     trap 'rm -rf "$tmp"' EXIT
-    python3 -m pip install -q --target "$tmp" "scipy==$VERSION" numpy >&2
+    # shellcheck disable=SC2086
+    python3 -m pip install -q --target "$tmp" $PACKAGES >&2
     rm -rf "$DEST"
     mv "$tmp" "$DEST"
     trap - EXIT
-    touch "$DEST/.complete"
+    echo "$PACKAGES" > "$DEST/.complete"
 fi
 echo "$DEST"

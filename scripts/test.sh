@@ -35,8 +35,9 @@ if [ -z "${ORT_DYLIB_PATH:-}" ]; then
     fi
 fi
 
-# scipy (and numpy) for the reference tests against scipy.optimize.least_squares. Without them
-# those tests skip with a reason locally; in CI they fail.
+# scipy (and numpy) for the reference tests against scipy.optimize.least_squares, and the c3d
+# package (an independent C3D writer) for the C3D import test. Without them those tests skip with
+# a reason locally; in CI they fail.
 if [ -z "${LFIT_SCIPY_PYTHONPATH:-}" ]; then
     if scipy_dir="$(./scripts/fetch-scipy.sh)"; then
         export LFIT_SCIPY_PYTHONPATH="$scipy_dir"

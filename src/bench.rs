@@ -10,6 +10,7 @@ use std::sync::Mutex;
 
 use anyhow::{Context, Result, bail};
 use lfit_fitters::optim::Preset;
+use lfit_fitters::optim::cma::CmaVariant;
 use lfit_fitters::{Fitter, Strategy};
 
 use crate::method::{MethodKind, MethodSpec};
@@ -92,6 +93,7 @@ pub struct BenchConfig {
     pub frames: Option<String>,
     #[serde(default = "holistic")]
     pub strategies: Vec<String>,
+    /// `tuned`, `nevergrad` or `paper001` ([`BenchConfig::steps`]); none: tuned where recorded.
     #[serde(default)]
     pub preset: Option<String>,
     /// `paper` (papers/000 eq. 3), `gradient` (EJ off, hinge EA) or a JSON file; default
@@ -275,10 +277,18 @@ impl BenchConfig {
         seen.len() > 1
     }
 
-    /// Whether `preset = "tuned"`: each zeroth-order method with its recorded setting for the
-    /// data's modality ([`crate::tuned`]); gradient methods and the neural fitter have none.
-    pub fn tuned(&self) -> bool {
-        self.preset.as_deref() == Some("tuned")
+    /// The initial steps and CMA-ES variant of zeroth-order method `method` on `modality`.
+    /// `preset = "tuned"`: its recorded setting ([`crate::tuned`]; an error when there is none).
+    /// No preset: the recorded setting where there is one, papers/000's steps otherwise (each
+    /// baseline at its best; the papers' studies name their preset). `nevergrad`, `paper001`:
+    /// papers/000's steps.
+    pub fn steps(&self, method: &str, modality: &str) -> Result<(f64, CmaVariant)> {
+        let tuned = match self.preset.as_deref() {
+            Some("tuned") => Some(crate::tuned::setting(method, modality)?),
+            Some(_) => None,
+            None => crate::tuned::recorded(method, modality)?,
+        };
+        Ok(tuned.map_or((1.0, CmaVariant::default()), |t| (t.step_scale, t.cma)))
     }
 
     fn preset(&self) -> Result<Preset> {
@@ -619,9 +629,8 @@ pub fn run(
                 None,
             )?);
         } else {
-            let (step_scale, cma) = if config.tuned() && kind.zeroth_order().is_some() {
-                let t = crate::tuned::setting(kind.name(), dataset.modality().name())?;
-                (t.step_scale, t.cma)
+            let (step_scale, cma) = if kind.zeroth_order().is_some() {
+                config.steps(kind.name(), dataset.modality().name())?
             } else {
                 (1.0, Default::default())
             };

@@ -327,7 +327,7 @@ pub fn train(
     template: &Template,
     report: &(dyn Fn(lfit_train::Event) + Sync),
 ) -> Result<Value> {
-    let mut config = lfit_train::TrainConfig::load(config_path)?;
+    let mut config = lfit_train::TrainConfig::load(&crate::shipped::locate_or_given(config_path))?;
     if let Some(s) = steps {
         config.steps = s;
     }

@@ -18,7 +18,10 @@ use serde_json::{Value, json};
 /// layout (`--template`), or the default body in a named proportion variant (`--shape`).
 pub fn load_model(path: Option<&Path>, shape: &str) -> Result<Template> {
     match path {
-        Some(path) => Template::load(path).with_context(|| format!("template {}", path.display())),
+        Some(path) => {
+            let found = crate::shipped::locate(path)?;
+            Template::load(&found).with_context(|| format!("template {}", path.display()))
+        }
         None if shape == "morphable" => Ok(lfit_model::body::morphable_default_template()?.0),
         None => {
             let body = BodyShape::named(shape)

@@ -227,7 +227,12 @@ pub fn import_dataset(
             let map = args
                 .label_map
                 .as_deref()
-                .map(|p| read_name_map(p, ["C3D label", "model marker"]))
+                .map(|p| {
+                    read_name_map(
+                        &crate::shipped::locate_or_given(p),
+                        ["C3D label", "model marker"],
+                    )
+                })
                 .transpose()
                 .context("label map")?;
             let template = load()?;

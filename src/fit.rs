@@ -91,7 +91,7 @@ pub fn parse_frames(spec: Option<&str>, len: usize) -> Result<Vec<usize>> {
 pub fn read_energy_config(path: Option<&Path>, gradient: bool) -> Result<EnergyConfig> {
     let config = match path {
         Some(p) => {
-            let text = std::fs::read_to_string(p)
+            let text = std::fs::read_to_string(crate::shipped::locate_or_given(p))
                 .with_context(|| format!("cannot read {}", p.display()))?;
             serde_json::from_str(&text)
                 .with_context(|| format!("malformed energy configuration {}", p.display()))?
@@ -119,7 +119,9 @@ pub struct FitArgs {
     pub method: crate::method::MethodKind,
     pub budget: usize,
     pub strategy: String,
-    pub preset: String,
+    /// `tuned`, `nevergrad` or `paper001`; `None`: tuned where a setting is recorded for the
+    /// method and modality (and no step or CMA-ES flag is given), nevergrad's otherwise.
+    pub preset: Option<String>,
     pub step_scale: Option<f64>,
     /// CMA-ES's update variant (`--cma-diagonal`, `--cma-elitist`, `--cma-popsize`).
     pub cma: lfit_fitters::optim::cma::CmaVariant,
@@ -157,7 +159,8 @@ struct Prepared {
 }
 
 /// Checks the settings of `args` and builds the fitter, before any frame is fitted. `modality`
-/// gives the data's modality, asked only for `--preset tuned`; `config` replaces `--energy`.
+/// gives the data's modality, asked only when a recorded setting may apply (`--preset tuned`,
+/// or no preset); `config` replaces `--energy`.
 fn prepare(
     args: &FitArgs,
     modality: &mut dyn FnMut() -> Result<lfit_model::observe::Modality>,
@@ -174,33 +177,58 @@ fn prepare(
     }
     let sequence_shape: crate::fitting::SequenceShape =
         args.sequence_shape.parse().context("--sequence-shape")?;
-    // The tuned setting depends on the data's modality.
-    let (preset, preset_name, step_scale, cma) = if args.preset == "tuned" {
-        if args.step_scale.is_some() || args.cma != Default::default() {
-            bail!(
-                "--preset tuned sets the steps and CMA-ES options itself: drop --step-scale and --cma-*"
-            );
+    // The tuned setting depends on the data's modality (asked for only when it is needed).
+    let (preset, preset_name, step_scale, cma) = match args.preset.as_deref() {
+        Some("tuned") => {
+            if args.step_scale.is_some() || args.cma != Default::default() {
+                bail!(
+                    "--preset tuned sets the steps and CMA-ES options itself: drop --step-scale and --cma-*"
+                );
+            }
+            let modality = modality()?;
+            let t = crate::tuned::setting(args.method.name(), modality.name())?;
+            (Preset::Nevergrad, "tuned", t.step_scale, t.cma)
         }
-        let modality = modality()?;
-        let t = crate::tuned::setting(args.method.name(), modality.name())?;
-        (Preset::Nevergrad, "tuned", t.step_scale, t.cma)
-    } else {
-        let preset: Preset = args
-            .preset
-            .parse()
-            .map_err(|_| lfit_fitters::FitError::UnknownPreset(args.preset.clone()))?;
-        (
-            preset,
-            preset.as_str(),
-            args.step_scale.unwrap_or(1.0),
-            args.cma,
-        )
+        Some(p) => {
+            let preset: Preset = p
+                .parse()
+                .map_err(|_| lfit_fitters::FitError::UnknownPreset(p.to_string()))?;
+            (
+                preset,
+                preset.as_str(),
+                args.step_scale.unwrap_or(1.0),
+                args.cma,
+            )
+        }
+        None => {
+            // The recorded setting where there is one and no step or CMA-ES flag overrides it.
+            let recorded = if args.step_scale.is_none()
+                && args.cma == Default::default()
+                && args.method.zeroth_order().is_some()
+            {
+                crate::tuned::recorded(args.method.name(), modality()?.name())?
+            } else {
+                None
+            };
+            match recorded {
+                Some(t) => (Preset::Nevergrad, "tuned", t.step_scale, t.cma),
+                None => (
+                    Preset::Nevergrad,
+                    Preset::Nevergrad.as_str(),
+                    args.step_scale.unwrap_or(1.0),
+                    args.cma,
+                ),
+            }
+        }
     };
     if args.batch == 0 {
         bail!("--batch must be at least 1");
     }
     let fitter: Box<dyn Fitter> = if args.method.is_neural() {
-        if args.step_scale.is_some() || args.preset == "tuned" || args.cma != Default::default() {
+        if args.step_scale.is_some()
+            || args.preset.as_deref() == Some("tuned")
+            || args.cma != Default::default()
+        {
             bail!(
                 "--step-scale, --cma-* and --preset tuned are for zeroth-order methods, not {}",
                 args.method
@@ -258,7 +286,7 @@ fn prepare(
 pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     let load =
         || Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()));
-    // Settings first, before any work; `--preset tuned` reads the dataset then, once.
+    // Settings first, before any work; a recorded setting's modality reads the dataset, once.
     let mut loaded = None;
     let prepared = prepare(
         args,

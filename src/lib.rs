@@ -21,6 +21,7 @@ pub mod plots;
 pub mod presets;
 pub mod render;
 pub mod report;
+pub mod shipped;
 pub mod stats;
 pub mod tuned;
 

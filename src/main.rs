@@ -191,7 +191,7 @@ enum Command {
         config: Option<PathBuf>,
         /// A built-in study instead of a config: zeroth-order-local, zeroth-order-global,
         /// zeroth-order-sequence, ea-vs-pf, learned-vs-classical (on the MakeHuman body),
-        /// learned-vs-classical-procedural (`lfit bench presets` lists them).
+        /// learned-vs-classical-procedural, face (`lfit bench presets` lists them).
         #[arg(long)]
         preset: Option<String>,
         /// Use the config's `[quick]` sizes (presets: minutes on 2 cores instead of the paper's
@@ -205,8 +205,9 @@ enum Command {
         #[arg(long)]
         shard: Option<String>,
     },
-    /// Fit frames of a dataset with a classical method; writes per-frame pose, energy, terms,
-    /// V2V/MPJPE against the ground truth, evaluations and time.
+    /// Fit frames of a dataset with a classical optimizer, the neural fitter or both (neural+lm);
+    /// writes per-frame pose, energy, terms, V2V/MPJPE against the ground truth (or observation
+    /// errors for imported data), evaluations and time.
     Fit(FitCmd),
     /// Draw fitted frames to PNG: the fit (blue), the ground truth (grey ghost + outline) and the
     /// observations, front and side (and the dataset's camera for keypoints2d); or bare poses
@@ -248,16 +249,23 @@ enum Command {
     /// Run one optimizer on a standard test function (sphere, ellipsoid, rosenbrock, rastrigin)
     /// on [-5, 5]^d from 0, optimum at (1, ..., 1) with value 0.
     Optimize {
+        /// sphere, ellipsoid, rosenbrock or rastrigin.
         #[arg(long)]
         function: String,
+        /// Dimension d.
         #[arg(long)]
         dim: usize,
+        /// A zeroth-order method (random, one-plus-one, de, pso, cma, tbpsa, powell, cma-powell,
+        /// ngo, shiwa, apf, psapf).
         #[arg(long)]
         method: String,
+        /// Function evaluations (exact).
         #[arg(long)]
         budget: usize,
+        /// Random seed (same seed, same result).
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Optimizer settings: nevergrad (papers/000) or paper001 (papers/001 Table 3).
         #[arg(long, default_value = "nevergrad")]
         preset: String,
         /// Print JSON (the only output format; accepted for scripts).
@@ -329,11 +337,13 @@ struct FitCmd {
     /// (morphable models: translation and shape, then everything).
     #[arg(long, default_value = "holistic")]
     strategy: String,
-    /// Optimizer settings: nevergrad (papers/000), paper001 (papers/001 Table 3) or tuned
-    /// (nevergrad's with the initial steps a recorded sweep on validation frames chose per method
-    /// and modality: configs/tuned.json, docs/results/tuning.md).
-    #[arg(long, default_value = "nevergrad")]
-    preset: String,
+    /// Optimizer settings: tuned (nevergrad's with the initial steps and CMA-ES variant a
+    /// recorded sweep on validation frames chose per method and modality: configs/tuned.json,
+    /// docs/results/tuning.md), nevergrad (papers/000) or paper001 (papers/001 Table 3). Default:
+    /// tuned where a setting is recorded for the method and the data's modality and no
+    /// --step-scale/--cma-* is given, nevergrad otherwise.
+    #[arg(long)]
+    preset: Option<String>,
     /// Factor on the initial steps of a zeroth-order method (papers/000 §4.1's 0.1 m / 3°).
     #[arg(long)]
     step_scale: Option<f64>,

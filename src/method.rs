@@ -314,16 +314,17 @@ pub fn load_neural(kind: MethodKind, options: &NeuralOptions<'_>) -> Result<Box<
     if options.ort_threads == Some(0) {
         bail!("--ort-threads must be at least 1");
     }
+    let checkpoint = crate::shipped::locate_or_given(options.checkpoint);
     let fitter = match options.runtime {
         lfit_infer::Runtime::Burn => {
             if options.ort_threads.is_some() {
                 bail!("--ort-threads is only for --runtime ort");
             }
             let device = lfit_nn::tensor::device_from_name(options.device)?;
-            lfit_infer::NeuralFitter::load(options.checkpoint, &device, options.start)?
+            lfit_infer::NeuralFitter::load(&checkpoint, &device, options.start)?
         }
         lfit_infer::Runtime::Ort => lfit_infer::NeuralFitter::load_ort(
-            options.checkpoint,
+            &checkpoint,
             options.start,
             lfit_infer::onnx::runtime::SessionOptions {
                 threads: options.ort_threads,

@@ -194,7 +194,7 @@ pub fn import_clip(args: &ImportArgs, model: Option<&Template>) -> Result<(Motio
                 bvh.frame_time *= args.stride as f64;
             }
             let map = match &args.map {
-                Some(m) => JointMap::read(m)?,
+                Some(m) => JointMap::read(&crate::shipped::locate_or_given(m))?,
                 None => JointMap::identity(&bvh),
             };
             let options = RetargetOptions {

@@ -128,21 +128,9 @@ pub fn load(name: &str, quick: bool) -> Result<Vec<(String, BenchConfig)>> {
     Ok(out)
 }
 
-/// A path shipped with the sources (`checkpoints/...`): as given when it exists, else under the
-/// source tree of this build.
+/// A path shipped with lfit (`checkpoints/...`): [`crate::shipped::locate`].
 pub fn find_shipped(path: &Path) -> Result<PathBuf> {
-    if path.exists() || path.is_absolute() {
-        return Ok(path.to_path_buf());
-    }
-    let built = Path::new(env!("CARGO_MANIFEST_DIR")).join(path);
-    if built.exists() {
-        return Ok(built);
-    }
-    bail!(
-        "{} not found in the working directory nor in {} (run from the lfit checkout)",
-        path.display(),
-        env!("CARGO_MANIFEST_DIR")
-    )
+    crate::shipped::locate(path)
 }
 
 #[cfg(test)]

@@ -4,7 +4,7 @@
 //! `docs/results/tuning.py`; the sweep and its choices are in `docs/results/tuning.md`). The
 //! validation frames come from their own seeds, never from a test set.
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use lfit_fitters::optim::cma::CmaVariant;
 use serde_json::Value;
 
@@ -19,7 +19,32 @@ pub struct Tuned {
     pub cma: CmaVariant,
 }
 
-/// The recorded setting of `method` on `modality`.
+/// The recorded setting of `method` on `modality`, or `None` when the sweep recorded none (the
+/// gradient methods, the neural fitter, zeroth-order methods it did not sweep, modalities it did
+/// not cover): the default of `lfit fit` and `lfit bench` — each baseline at its best where a
+/// setting was measured, papers/000's (nevergrad's) initial steps elsewhere.
+pub fn recorded(method: &str, modality: &str) -> Result<Option<Tuned>> {
+    match setting(method, modality) {
+        Ok(t) => Ok(Some(t)),
+        Err(e) if e.downcast_ref::<Unrecorded>().is_some() => Ok(None),
+        Err(e) => Err(e),
+    }
+}
+
+/// No setting recorded for a method on a modality (the message lists the recorded ones).
+#[derive(Debug)]
+struct Unrecorded(String);
+
+impl std::fmt::Display for Unrecorded {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Unrecorded {}
+
+/// The recorded setting of `method` on `modality` (`--preset tuned`: an error naming the
+/// recorded pairs when there is none).
 pub fn setting(method: &str, modality: &str) -> Result<Tuned> {
     let table: Value = serde_json::from_str(TUNED).context("configs/tuned.json")?;
     let settings = table
@@ -36,10 +61,11 @@ pub fn setting(method: &str, modality: &str) -> Result<Tuned> {
             })
             .collect();
         known.sort();
-        bail!(
+        return Err(Unrecorded(format!(
             "no tuned setting for {method} on {modality} (configs/tuned.json has: {})",
             known.join(", ")
-        )
+        ))
+        .into());
     };
     let step_scale = entry
         .get("step_scale")
@@ -79,5 +105,12 @@ mod tests {
             err.contains("no tuned setting for lbfgs on markers") && err.contains("cma on markers"),
             "{err}"
         );
+        // The default: the recorded setting where there is one, none (not an error) elsewhere.
+        assert_eq!(
+            super::recorded("cma", "markers").unwrap(),
+            Some(super::setting("cma", "markers").unwrap())
+        );
+        assert_eq!(super::recorded("lbfgs", "markers").unwrap(), None);
+        assert_eq!(super::recorded("cma", "no-such-modality").unwrap(), None);
     }
 }

@@ -748,3 +748,124 @@ fn export_c3d_round_trips_through_data_import() {
         "directory",
     );
 }
+
+/// A C3D file written by an independent writer, the `c3d` package on PyPI (0.6.0, installed by
+/// scripts/fetch-scipy.sh): float points in mm, a gap (residual −1), and the parameter section's
+/// reserved bytes as that package writes them (0x00 0x00, which the format guide says readers
+/// ignore). It imports to the positions written, within 1e-6 m.
+#[test]
+fn c3d_written_by_the_c3d_package_on_pypi_imports_to_a_micrometre() {
+    let mut python = match support::python_with("numpy, c3d") {
+        Ok(p) => p,
+        Err(reason) => {
+            support::skip_unless_required(&reason, None);
+            return;
+        }
+    };
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let (_, truth) = synth(d, "markers", 4, 77);
+    let names = match &truth.sensor {
+        lfit::model::observe::Sensor::Markers(m) => m.names.clone(),
+        _ => panic!("markers"),
+    };
+    let (tv, tb) = sparse(&truth);
+    // Frame 1, marker 3: a gap.
+    let gap = |f: usize, k: usize| f == 1 && k == 3;
+    let frames: Vec<Vec<Value>> = tv
+        .iter()
+        .zip(tb)
+        .enumerate()
+        .map(|(f, (v, b))| {
+            (0..names.len())
+                .map(|k| {
+                    if b[3 * k] && !gap(f, k) {
+                        json!([v[3 * k] * 1e3, v[3 * k + 1] * 1e3, v[3 * k + 2] * 1e3, 0.5])
+                    } else {
+                        json!([0.0, 0.0, 0.0, -1.0])
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    let labels: Vec<String> = names.iter().map(|n| format!("S1:{n}")).collect();
+    let input = d.join("points.json");
+    std::fs::write(
+        &input,
+        json!({"labels": labels, "frames": frames}).to_string(),
+    )
+    .expect("json");
+    let file = d.join("pypi.c3d");
+    let script = r#"
+import json, sys, warnings
+import numpy as np
+import c3d
+spec = json.load(open(sys.argv[1]))
+w = c3d.Writer(point_rate=100.0, point_units='mm  ')
+w.set_point_labels(spec['labels'])
+frames = []
+for f in spec['frames']:
+    p = np.zeros((len(f), 5), np.float32)
+    p[:, :4] = np.array(f, np.float64)
+    p[:, 4] = 0x3F
+    frames.append((p, np.zeros((0, 0), np.float32)))
+w.add_frames(frames)
+with warnings.catch_warnings():
+    warnings.simplefilter('ignore')
+    with open(sys.argv[2], 'wb') as h:
+        w.write(h)
+"#;
+    let out = python
+        .args(["-c", script, path_str(&input), path_str(&file)])
+        .output()
+        .expect("python3");
+    assert!(
+        out.status.success(),
+        "the c3d package failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let bytes = std::fs::read(&file).expect("written C3D");
+    let parameters = (usize::from(bytes[0]) - 1) * 512;
+    assert_eq!(
+        &bytes[parameters..parameters + 2],
+        &[0, 0],
+        "the package writes 0x00 0x00 in the reserved bytes"
+    );
+    let map_file = d.join("labels.json");
+    let map: Vec<(String, String)> = labels.iter().cloned().zip(names.iter().cloned()).collect();
+    write_map(&map_file, &map);
+    let imported_file = d.join("imported.npz");
+    let summary = lfit_json(&[
+        "-q",
+        "data",
+        "import",
+        "--c3d",
+        path_str(&file),
+        "--label-map",
+        path_str(&map_file),
+        "--out",
+        path_str(&imported_file),
+    ]);
+    assert_eq!(summary["frames"], 4);
+    let imported = Dataset::load(&imported_file).expect("imported");
+    assert_eq!(imported.meta.config.fps, 100.0);
+    let (iv, ib) = sparse(&imported);
+    let mut max_err = 0.0;
+    for f in 0..tv.len() {
+        for k in 0..names.len() {
+            assert_eq!(
+                ib[f][3 * k],
+                tb[f][3 * k] && !gap(f, k),
+                "frame {f} marker {k}"
+            );
+            if ib[f][3 * k] {
+                for a in 0..3 {
+                    max_err =
+                        support::nan_max(max_err, (iv[f][3 * k + a] - tv[f][3 * k + a]).abs());
+                }
+            }
+        }
+    }
+    eprintln!("C3D of the c3d package (PyPI 0.6.0): max coordinate error {max_err:.3e} m");
+    assert!(max_err <= 1e-6, "imported positions differ by {max_err} m");
+}

@@ -54,7 +54,12 @@ fn fit_writes_the_result_contract_and_never_ends_above_the_start() {
         ]);
         let r: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
-        assert_eq!(r["method"], method);
+        // CMA-ES runs with its tuned setting by default, which its name spells out.
+        let name = r["method"].as_str().unwrap();
+        assert!(
+            name == method || (method == "cma" && name.starts_with("cma[")),
+            "{name}"
+        );
         assert_eq!(r["budget"], budget);
         let frames = r["frames"].as_array().unwrap();
         assert_eq!(frames.len(), 2);
@@ -575,6 +580,50 @@ fn tuned_preset_uses_the_recorded_setting_and_refuses_what_it_cannot_set() {
     let e: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&explicit).unwrap()).unwrap();
     assert_eq!(e["frames"][0]["pose"], r["frames"][0]["pose"]);
+    assert_eq!(
+        e["preset"], "nevergrad",
+        "explicit steps are not the tuned preset"
+    );
+    // Without --preset the recorded setting is the default: the same fit as --preset tuned; a
+    // method without a recorded setting runs with nevergrad's.
+    let default = dir.path().join("default.json");
+    lfit_json(&[
+        "fit",
+        "--data",
+        path_str(&data),
+        "--method",
+        "cma",
+        "--budget",
+        "50",
+        "--out",
+        path_str(&default),
+        "-q",
+    ]);
+    let d: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&default).unwrap()).unwrap();
+    assert_eq!(d["preset"], "tuned");
+    assert_eq!(d["step_scale"], chosen["step_scale"]);
+    assert_eq!(d["frames"][0]["pose"], r["frames"][0]["pose"]);
+    let papers = dir.path().join("nevergrad.json");
+    lfit_json(&[
+        "fit",
+        "--data",
+        path_str(&data),
+        "--method",
+        "cma",
+        "--preset",
+        "nevergrad",
+        "--budget",
+        "50",
+        "--out",
+        path_str(&papers),
+        "-q",
+    ]);
+    let n: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&papers).unwrap()).unwrap();
+    assert_eq!(n["preset"], "nevergrad");
+    assert_eq!(n["step_scale"].as_f64(), Some(1.0));
+    assert_eq!(n["cma_variant"]["diagonal"], false);
     let fit = |extra: &[&str]| {
         let mut a = vec![
             "fit",

@@ -1722,6 +1722,22 @@ fn clip_cosines(
     (mean, min, bones.len(), summary, clip, s)
 }
 
+/// The retargeted clip's bone-direction cosines at most a margin below the documented figures
+/// (GUIDE.md, "Measured"): 0.002 on the mean and 0.01 on the worst bone. Retargeting is
+/// deterministic; the margins leave room for rounding, not for a worse retarget.
+fn assert_cosines(mean: f64, min: f64, documented: (f64, f64)) {
+    assert!(
+        mean >= documented.0 - 0.002,
+        "mean bone cosine {mean:.4}, documented {:.4}",
+        documented.0
+    );
+    assert!(
+        min >= documented.1 - 0.01,
+        "worst bone cosine {min:.4}, documented {:.4}",
+        documented.1
+    );
+}
+
 #[test]
 fn the_mocapbank_clip_imports_with_bone_directions_matching() {
     let Some(clip_path) = support::mocapbank_clip() else {
@@ -1740,7 +1756,8 @@ fn the_mocapbank_clip_imports_with_bone_directions_matching() {
         summary["bone_cosine_mean"].as_f64().unwrap(),
         summary["bone_cosine_min"].as_f64().unwrap()
     );
-    assert!(mean >= 0.98, "mean cosine {mean}");
+    // GUIDE.md's figures: mean 0.9885, min 0.9242.
+    assert_cosines(mean, min, (0.9885, 0.9242));
     // The feet stay near the ground: the lowest ankle over the clip is within 10 cm of the
     // model's rest ankle height.
     let (l, r) = (index(&s, "l_ankle"), index(&s, "r_ankle"));
@@ -1814,7 +1831,8 @@ fn the_mocapbank_clip_drives_the_makehuman_game_engine_rig() {
         "MocapBank clip (455 frames, {bones} bones) -> MakeHuman game_engine: bone-direction cosine mean {mean:.4}, min {min:.4} (root motion scale {:.3})",
         summary["root_scale"].as_f64().unwrap()
     );
-    assert!(mean >= 0.98, "mean cosine {mean}");
+    // GUIDE.md's figures: mean 0.9870, min 0.8895.
+    assert_cosines(mean, min, (0.9870, 0.8895));
 }
 
 /// Most frames of the MocapBank clip on `cmu_mb` of which a joint leaves the human range of
@@ -1845,7 +1863,8 @@ fn the_mocapbank_clip_drives_the_makehuman_cmu_mb_model_and_feeds_synth() {
         "MocapBank clip (455 frames, {bones} bones) -> MakeHuman cmu_mb (committed model): bone-direction cosine mean {mean:.4}, min {min:.4} (root motion scale {:.3})",
         summary["root_scale"].as_f64().unwrap()
     );
-    assert!(mean >= 0.98, "mean cosine {mean}");
+    // GUIDE.md's figures: mean 0.9853, min 0.9013.
+    assert_cosines(mean, min, (0.9853, 0.9013));
     // The clip within the model's bounds (the root's orientation free, ±180°; its joints within
     // the human ranges of motion): the frames that lfit synth clamps, and the frames with a joint
     // outside its limits. With papers/000's limits on the mapped joints, 392 of the 455 frames

@@ -405,3 +405,72 @@ fn model_info_lists_joints_layout_markers_and_limits() {
     let out = support::lfit(&["model", "info", "--model", "/nonexistent/model.npz"]);
     support::assert_one_line_error(&out, "model.npz");
 }
+
+/// An installed lfit (`scripts/install.sh PREFIX`: `PREFIX/bin/lfit` and
+/// `PREFIX/share/lfit/{models,configs,checkpoints}`) finds the shipped data from any working
+/// directory; so does a binary whose data folder `LFIT_DATA_DIR` names; without either, a
+/// shipped path is a one-line error naming the places searched. No path of the build is
+/// compiled in.
+#[test]
+fn shipped_paths_resolve_next_to_the_binary_or_through_lfit_data_dir() {
+    let tmp = tempfile::tempdir().unwrap();
+    let prefix = tmp.path().join("prefix");
+    let bin = prefix.join("bin");
+    std::fs::create_dir_all(&bin).unwrap();
+    let exe = bin.join("lfit");
+    // A hard link where the file system allows it (the binary is large), else a copy.
+    if std::fs::hard_link(env!("CARGO_BIN_EXE_lfit"), &exe).is_err() {
+        std::fs::copy(env!("CARGO_BIN_EXE_lfit"), &exe).unwrap();
+    }
+    let elsewhere = tmp.path().join("work");
+    std::fs::create_dir_all(&elsewhere).unwrap();
+    let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let run = |data_dir: Option<&std::path::Path>| {
+        let mut c = std::process::Command::new(&exe);
+        c.args(["model", "info", "--model", "models/makehuman-face.npz"])
+            .current_dir(&elsewhere)
+            .env("RUST_BACKTRACE", "0")
+            .env_remove("LFIT_DATA_DIR");
+        if let Some(d) = data_dir {
+            c.env("LFIT_DATA_DIR", d);
+        }
+        c.output().unwrap()
+    };
+    // Nowhere: one line naming the variable and the install folder.
+    let out = run(None);
+    support::assert_one_line_error(&out, "models/makehuman-face.npz not found");
+    let line = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(
+        line.contains("LFIT_DATA_DIR") && line.contains("share/lfit"),
+        "{line}"
+    );
+    // Through LFIT_DATA_DIR (here: the checkout).
+    let out = run(Some(repo));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        info["joints"].as_array().unwrap().len(),
+        5,
+        "the face model"
+    );
+    // Installed: PREFIX/share/lfit/models next to PREFIX/bin.
+    let models = prefix.join("share/lfit/models");
+    std::fs::create_dir_all(&models).unwrap();
+    std::fs::copy(
+        repo.join("models/makehuman-face.npz"),
+        models.join("makehuman-face.npz"),
+    )
+    .unwrap();
+    let out = run(None);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let installed: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(installed, info);
+}

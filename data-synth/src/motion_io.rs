@@ -584,7 +584,9 @@ mod clip_tests {
             "mocapbank -> default: {} bones, cosine mean {:.5} min {:.5}, units scale {}, root scale {:.4}",
             r.bones, r.cosine_mean, r.cosine_min, r.scale, r.root_scale
         );
-        assert!(r.cosine_mean >= 0.98);
+        // GUIDE.md's figures (mean 0.9885, min 0.9242) less 0.002 and 0.01, as tests/motion_cli.rs.
+        assert!(r.cosine_mean >= 0.9885 - 0.002, "{}", r.cosine_mean);
+        assert!(r.cosine_min >= 0.9242 - 0.01, "{}", r.cosine_min);
         let rt =
             crate::retarget::Retargeter::new(&bvh, &map, &template, &RetargetOptions::default())
                 .unwrap();
