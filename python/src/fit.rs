@@ -326,7 +326,7 @@ pub fn fit(
         method: kind,
         budget,
         strategy: strategy.to_string(),
-        preset: preset.unwrap_or_else(|| "nevergrad".to_string()),
+        preset,
         step_scale,
         cma: lfit::fitters::optim::cma::CmaVariant {
             diagonal: cma_diagonal,
