@@ -1,7 +1,9 @@
 """lfit.Model: loading, layout, and the forward pass against `lfit template pose` (the CLI) and
-against an independent numpy implementation of SMPL's forward model written here."""
+against an independent numpy implementation of SMPL's forward model (tests/python/smpl_forward.py,
+shared with tests/makehuman_cli.rs)."""
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -9,58 +11,10 @@ import pytest
 import lfit
 from conftest import ROOT, one_line
 
+sys.path.insert(0, str(ROOT / "tests" / "python"))
+from smpl_forward import forward as numpy_forward  # noqa: E402
+
 SMPL_PARENTS = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21]
-
-
-def rodrigues(r):
-    theta = np.linalg.norm(r)
-    if theta < 1e-12:
-        return np.eye(3)
-    k = r / theta
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(theta) * kx + (1 - np.cos(theta)) * kx @ kx
-
-
-def numpy_forward(npz, params):
-    """SMPL's forward model (SMPL, Loper et al. 2015, eq. 1-4) from the arrays of a model file:
-    T = v_template + S β + E ψ + P (R(θ) - I); joints = J_regressor (v_template + S β + E ψ);
-    G_j = G_parent [R_j | c_j - c_parent]; v = Σ_j w_vj G_j (T_v - c_j) + t."""
-    v_template = npz["v_template"]
-    weights = npz["weights"]
-    reg = npz["J_regressor"]
-    parents = npz["kintree_table"][0].astype(np.int64)
-    nj = weights.shape[1]
-    shapedirs = npz["shapedirs"] if "shapedirs" in npz else np.zeros(v_template.shape + (0,))
-    n_expr = int(npz["num_expression"]) if "num_expression" in npz else 0
-    nb = shapedirs.shape[2] - n_expr
-    pose = params[: 3 + 3 * nj]
-    coeffs = params[3 + 3 * nj :]
-    beta = np.zeros(shapedirs.shape[2])
-    beta[: len(coeffs)] = coeffs[: shapedirs.shape[2]]
-    assert nb >= 0
-    shaped = v_template + shapedirs @ beta
-    joints = reg @ shaped
-    rots = [rodrigues(pose[3 + 3 * j : 6 + 3 * j]) for j in range(nj)]
-    t = shaped
-    if "posedirs" in npz:
-        feature = np.concatenate([(rots[j] - np.eye(3)).ravel() for j in range(1, nj)])
-        t = shaped + npz["posedirs"] @ feature
-    g_rot, g_t = [], []
-    for j in range(nj):
-        p = parents[j]
-        if p < 0 or p >= nj:
-            g_rot.append(rots[j])
-            g_t.append(joints[j])
-        else:
-            g_rot.append(g_rot[p] @ rots[j])
-            g_t.append(g_t[p] + g_rot[p] @ (joints[j] - joints[p]))
-    posed = np.zeros_like(t)
-    for j in range(nj):
-        w = weights[:, j]
-        nz = w != 0
-        if nz.any():
-            posed[nz] += w[nz, None] * ((t[nz] - joints[j]) @ g_rot[j].T + g_t[j])
-    return posed + pose[:3], np.asarray(g_t) + pose[:3]
 
 
 def random_smpl_file(path, seed=3, v=300, b=6):

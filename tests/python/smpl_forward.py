@@ -1,4 +1,5 @@
-"""SMPL's forward model in numpy, written independently of lfit, for tests/makehuman_cli.rs.
+"""SMPL's forward model in numpy, written independently of lfit, for tests/makehuman_cli.rs and
+the Python package's tests (python/tests/test_model.py imports `forward`).
 
 Usage: smpl_forward.py MODEL.npz PARAMS.json OUT.npy
 
@@ -22,39 +23,55 @@ def rodrigues(r):
     return np.eye(3) + np.sin(theta) * kx + (1 - np.cos(theta)) * kx @ kx
 
 
+def forward(npz, params):
+    """SMPL's forward model (SMPL, Loper et al. 2015, eq. 1-4) from the arrays of a model file:
+    T = v_template + S β + E ψ + P (R(θ) - I); joints = J_regressor (v_template + S β + E ψ);
+    G_j = G_parent [R_j | c_j - c_parent]; v = Σ_j w_vj G_j (T_v - c_j) + t."""
+    v_template = npz["v_template"]
+    weights = npz["weights"]
+    reg = npz["J_regressor"]
+    parents = npz["kintree_table"][0].astype(np.int64)
+    nj = weights.shape[1]
+    shapedirs = npz["shapedirs"] if "shapedirs" in npz else np.zeros(v_template.shape + (0,))
+    n_expr = int(npz["num_expression"]) if "num_expression" in npz else 0
+    nb = shapedirs.shape[2] - n_expr
+    pose = params[: 3 + 3 * nj]
+    coeffs = params[3 + 3 * nj :]
+    beta = np.zeros(shapedirs.shape[2])
+    beta[: len(coeffs)] = coeffs[: shapedirs.shape[2]]
+    assert nb >= 0
+    shaped = v_template + shapedirs @ beta
+    joints = reg @ shaped
+    rots = [rodrigues(pose[3 + 3 * j : 6 + 3 * j]) for j in range(nj)]
+    t = shaped
+    if "posedirs" in npz:
+        feature = np.concatenate([(rots[j] - np.eye(3)).ravel() for j in range(1, nj)])
+        t = shaped + npz["posedirs"] @ feature
+    g_rot, g_t = [], []
+    for j in range(nj):
+        p = parents[j]
+        if p < 0 or p >= nj:
+            g_rot.append(rots[j])
+            g_t.append(joints[j])
+        else:
+            g_rot.append(g_rot[p] @ rots[j])
+            g_t.append(g_t[p] + g_rot[p] @ (joints[j] - joints[p]))
+    posed = np.zeros_like(t)
+    for j in range(nj):
+        w = weights[:, j]
+        nz = w != 0
+        if nz.any():
+            posed[nz] += w[nz, None] * ((t[nz] - joints[j]) @ g_rot[j].T + g_t[j])
+    return posed + pose[:3], np.asarray(g_t) + pose[:3]
+
+
 def main():
     model = np.load(sys.argv[1])
     params = json.load(open(sys.argv[2]))
-    v_template = model["v_template"]
-    shapedirs = model["shapedirs"]
-    weights = model["weights"]
-    reg = model["J_regressor"]
-    parents = model["kintree_table"][0].astype(np.int64)
-    n_joints = weights.shape[1]
-    out = []
-    for pose, beta in zip(params["poses"], params["shapes"]):
-        pose = np.asarray(pose, dtype=np.float64)
-        beta = np.asarray(beta, dtype=np.float64)
-        t = v_template + shapedirs[:, :, : len(beta)] @ beta
-        joints = reg @ t
-        rot = [rodrigues(pose[3 + 3 * j : 6 + 3 * j]) for j in range(n_joints)]
-        g_rot, g_t = [], []
-        for j in range(n_joints):
-            p = parents[j]
-            if p < 0 or p >= n_joints:
-                g_rot.append(rot[j])
-                g_t.append(joints[j])
-            else:
-                g_rot.append(g_rot[p] @ rot[j])
-                g_t.append(g_t[p] + g_rot[p] @ (joints[j] - joints[p]))
-        posed = np.zeros_like(t)
-        for j in range(n_joints):
-            w = weights[:, j]
-            nz = w != 0
-            if nz.any():
-                local = (t[nz] - joints[j]) @ g_rot[j].T + g_t[j]
-                posed[nz] += w[nz, None] * local
-        out.append(posed + pose[:3])
+    out = [
+        forward(model, np.concatenate([np.asarray(p, np.float64), np.asarray(b, np.float64)]))[0]
+        for p, b in zip(params["poses"], params["shapes"])
+    ]
     np.save(sys.argv[3], np.asarray(out))
 
 
