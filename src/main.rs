@@ -690,7 +690,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             let bar = progress_bar(0, cli.quiet, "quickstart");
             let clip = clip.map(|bvh| commands::QuickstartClip {
                 bvh,
-                map: lfit::presets::find_shipped(&clip_map).unwrap_or(clip_map),
+                map: lfit::shipped::locate(&clip_map).unwrap_or(clip_map),
                 frames: clip_frames,
             });
             let result =

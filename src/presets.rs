@@ -2,7 +2,7 @@
 //! studies of papers/000 §4.1–4.3, papers/001 §5 and papers/002 Table 2, each at the paper's
 //! protocol size and, with `--quick`, at a size that finishes in minutes on a 2-core machine.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 
@@ -106,10 +106,10 @@ pub fn load(name: &str, quick: bool) -> Result<Vec<(String, BenchConfig)>> {
             .map_err(|e| anyhow::anyhow!("preset {name} {part}: {}", e.message()))?;
         let mut config = config.resolve(quick);
         if let Some(c) = &config.checkpoint {
-            config.checkpoint = Some(find_shipped(c)?);
+            config.checkpoint = Some(crate::shipped::locate(c)?);
         }
         if let Some(t) = &config.template {
-            config.template = Some(find_shipped(t)?);
+            config.template = Some(crate::shipped::locate(t)?);
         }
         // An energy file (anything but the names `paper`/`gradient` that
         // `BenchConfig::energy_config` knows), e.g. configs/face-energy.json.
@@ -118,7 +118,11 @@ pub fn load(name: &str, quick: bool) -> Result<Vec<(String, BenchConfig)>> {
             .clone()
             .filter(|e| !matches!(e.as_str(), "paper" | "gradient"))
         {
-            config.energy = Some(find_shipped(Path::new(&e))?.to_string_lossy().into_owned());
+            config.energy = Some(
+                crate::shipped::locate(Path::new(&e))?
+                    .to_string_lossy()
+                    .into_owned(),
+            );
         }
         config
             .validate()
@@ -126,11 +130,6 @@ pub fn load(name: &str, quick: bool) -> Result<Vec<(String, BenchConfig)>> {
         out.push((part.to_string(), config));
     }
     Ok(out)
-}
-
-/// A path shipped with lfit (`checkpoints/...`): [`crate::shipped::locate`].
-pub fn find_shipped(path: &Path) -> Result<PathBuf> {
-    crate::shipped::locate(path)
 }
 
 #[cfg(test)]

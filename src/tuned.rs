@@ -4,7 +4,7 @@
 //! `docs/results/tuning.py`; the sweep and its choices are in `docs/results/tuning.md`). The
 //! validation frames come from their own seeds, never from a test set.
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use lfit_fitters::optim::cma::CmaVariant;
 use serde_json::Value;
 
@@ -19,53 +19,24 @@ pub struct Tuned {
     pub cma: CmaVariant,
 }
 
+/// The settings table of configs/tuned.json.
+fn settings() -> Result<serde_json::Map<String, Value>> {
+    let table: Value = serde_json::from_str(TUNED).context("configs/tuned.json")?;
+    table
+        .get("settings")
+        .and_then(Value::as_object)
+        .cloned()
+        .context("configs/tuned.json has no \"settings\"")
+}
+
 /// The recorded setting of `method` on `modality`, or `None` when the sweep recorded none (the
 /// gradient methods, the neural fitter, zeroth-order methods it did not sweep, modalities it did
 /// not cover): the default of `lfit fit` and `lfit bench` — each baseline at its best where a
 /// setting was measured, papers/000's (nevergrad's) initial steps elsewhere.
 pub fn recorded(method: &str, modality: &str) -> Result<Option<Tuned>> {
-    match setting(method, modality) {
-        Ok(t) => Ok(Some(t)),
-        Err(e) if e.downcast_ref::<Unrecorded>().is_some() => Ok(None),
-        Err(e) => Err(e),
-    }
-}
-
-/// No setting recorded for a method on a modality (the message lists the recorded ones).
-#[derive(Debug)]
-struct Unrecorded(String);
-
-impl std::fmt::Display for Unrecorded {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-
-impl std::error::Error for Unrecorded {}
-
-/// The recorded setting of `method` on `modality` (`--preset tuned`: an error naming the
-/// recorded pairs when there is none).
-pub fn setting(method: &str, modality: &str) -> Result<Tuned> {
-    let table: Value = serde_json::from_str(TUNED).context("configs/tuned.json")?;
-    let settings = table
-        .get("settings")
-        .and_then(Value::as_object)
-        .context("configs/tuned.json has no \"settings\"")?;
+    let settings = settings()?;
     let Some(entry) = settings.get(modality).and_then(|m| m.get(method)) else {
-        let mut known: Vec<String> = settings
-            .iter()
-            .flat_map(|(m, v)| {
-                v.as_object()
-                    .into_iter()
-                    .flat_map(move |o| o.keys().map(move |k| format!("{k} on {m}")))
-            })
-            .collect();
-        known.sort();
-        return Err(Unrecorded(format!(
-            "no tuned setting for {method} on {modality} (configs/tuned.json has: {})",
-            known.join(", ")
-        ))
-        .into());
+        return Ok(None);
     };
     let step_scale = entry
         .get("step_scale")
@@ -77,7 +48,28 @@ pub fn setting(method: &str, modality: &str) -> Result<Tuned> {
         cma.elitist = c.get("elitist").and_then(Value::as_bool).unwrap_or(false);
         cma.popsize = c.get("popsize").and_then(Value::as_u64).map(|p| p as usize);
     }
-    Ok(Tuned { step_scale, cma })
+    Ok(Some(Tuned { step_scale, cma }))
+}
+
+/// The recorded setting of `method` on `modality` (`--preset tuned`: an error naming the
+/// recorded pairs when there is none).
+pub fn setting(method: &str, modality: &str) -> Result<Tuned> {
+    if let Some(t) = recorded(method, modality)? {
+        return Ok(t);
+    }
+    let mut known: Vec<String> = settings()?
+        .iter()
+        .flat_map(|(m, v)| {
+            v.as_object()
+                .into_iter()
+                .flat_map(move |o| o.keys().map(move |k| format!("{k} on {m}")))
+        })
+        .collect();
+    known.sort();
+    bail!(
+        "no tuned setting for {method} on {modality} (configs/tuned.json has: {})",
+        known.join(", ")
+    )
 }
 
 #[cfg(test)]

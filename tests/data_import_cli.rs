@@ -176,6 +176,21 @@ fn c3d_of(d: &Dataset, scale: f64) -> (C3d, Vec<(String, String)>) {
     )
 }
 
+/// `lfit data import --c3d FILE --label-map MAP --out OUT`; its JSON summary.
+fn import_c3d(file: &Path, map: &Path, out: &Path) -> Value {
+    lfit_json(&[
+        "-q",
+        "data",
+        "import",
+        "--c3d",
+        path_str(file),
+        "--label-map",
+        path_str(map),
+        "--out",
+        path_str(out),
+    ])
+}
+
 fn write_map(path: &Path, map: &[(String, String)]) {
     let obj: serde_json::Map<String, Value> =
         map.iter().map(|(a, b)| (a.clone(), json!(b))).collect();
@@ -193,17 +208,7 @@ fn c3d_markers_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     let map_file = d.join("labels.json");
     write_map(&map_file, &map);
     let out = d.join("imported.npz");
-    let summary = lfit_json(&[
-        "-q",
-        "data",
-        "import",
-        "--c3d",
-        path_str(&file),
-        "--label-map",
-        path_str(&map_file),
-        "--out",
-        path_str(&out),
-    ]);
+    let summary = import_c3d(&file, &map_file, &out);
     assert_eq!(summary["ground_truth"], false);
     assert_eq!(summary["frames"], 8);
     assert_eq!(summary["import"]["ignored_c3d_labels"], json!(["EXTRA"]));
@@ -233,17 +238,7 @@ fn c3d_markers_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     let file_int = d.join("capture_int.c3d");
     std::fs::write(&file_int, c3d_int.to_bytes().expect("C3D bytes")).expect("write");
     let out_int = d.join("imported_int.npz");
-    lfit_json(&[
-        "-q",
-        "data",
-        "import",
-        "--c3d",
-        path_str(&file_int),
-        "--label-map",
-        path_str(&map_file),
-        "--out",
-        path_str(&out_int),
-    ]);
+    import_c3d(&file_int, &map_file, &out_int);
     let int = Dataset::load(&out_int).expect("imported");
     let (jv, jb) = sparse(&int);
     let mut max_int: f64 = 0.0;
@@ -685,17 +680,7 @@ fn export_c3d_round_trips_through_data_import() {
     let map_file = d.join("map.json");
     write_map(&map_file, &map);
     let back = d.join("back.npz");
-    lfit_json(&[
-        "-q",
-        "data",
-        "import",
-        "--c3d",
-        path_str(&c3d),
-        "--label-map",
-        path_str(&map_file),
-        "--out",
-        path_str(&back),
-    ]);
+    import_c3d(&c3d, &map_file, &back);
     let imported = Dataset::load(&back).expect("imported");
     let (iv, ib) = sparse(&imported);
     let mut max_err: f64 = 0.0;
@@ -835,17 +820,7 @@ with warnings.catch_warnings():
     let map: Vec<(String, String)> = labels.iter().cloned().zip(names.iter().cloned()).collect();
     write_map(&map_file, &map);
     let imported_file = d.join("imported.npz");
-    let summary = lfit_json(&[
-        "-q",
-        "data",
-        "import",
-        "--c3d",
-        path_str(&file),
-        "--label-map",
-        path_str(&map_file),
-        "--out",
-        path_str(&imported_file),
-    ]);
+    let summary = import_c3d(&file, &map_file, &imported_file);
     assert_eq!(summary["frames"], 4);
     let imported = Dataset::load(&imported_file).expect("imported");
     assert_eq!(imported.meta.config.fps, 100.0);
