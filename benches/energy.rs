@@ -176,7 +176,7 @@ fn bench(c: &mut Criterion) {
 /// markers) with and without pose correctives.
 fn bench_smpl24(c: &mut Criterion) {
     for posedirs in [false, true] {
-        let model = Arc::new(lfit::model::morph::smpl_like(3, 6890, 10, posedirs));
+        let model = Arc::new(lfit::model::body::smpl_like(3, 6890, 10, posedirs));
         let dim = model.layout().dim();
         let params: Vec<Vec<f64>> = random_poses(64, 0.3)
             .iter()

@@ -73,9 +73,9 @@ fn bench(c: &mut Criterion) {
     );
     group.finish();
 
-    // The 24-joint SMPL-like test model (lfit_model::morph::smpl_like), f64 skinning with β.
+    // The 24-joint SMPL-like test model (lfit_model::body::smpl_like), f64 skinning with β.
     for posedirs in [false, true] {
-        let model = lfit::model::morph::smpl_like(3, 6890, 10, posedirs);
+        let model = lfit::model::body::smpl_like(3, 6890, 10, posedirs);
         let params: Vec<Vec<f64>> = random_poses(64, 0.5)
             .iter()
             .map(|p| {

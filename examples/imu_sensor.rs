@@ -12,7 +12,7 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
 use glam::DMat3;
-use lfit::fit::{scenario_bounds, scenario_mask};
+use lfit::cli::fit::{scenario_bounds, scenario_mask};
 use lfit::fitters::least_squares::{LeastSquaresFitter, LeastSquaresMethod};
 use lfit::fitters::{FitRequest, Fitter, Strategy};
 use lfit::model::metrics::v2v_mm;

@@ -3,13 +3,14 @@
 //! every one is the command's own code with the file reading and writing left to the caller,
 //! and the command calls it too.
 
-pub use crate::commands::{model_info, params_from_json};
+pub use crate::cli::commands::model_info;
+pub use crate::cli::data_import::{ImportArgs as DataImportArgs, import_dataset};
+pub use crate::cli::fit::{FitArgs, FrameProblem, fit_dataset, parse_frames, read_energy_config};
+pub use crate::cli::motion::{ImportArgs as MotionImportArgs, import_clip};
+pub use crate::data::params_from_json;
 pub use crate::data::{MotionFilesArgs, SynthArgs, load_model, synthesize_dataset};
-pub use crate::data_import::{ImportArgs as DataImportArgs, import_dataset};
-pub use crate::fit::{FitArgs, FrameProblem, fit_dataset, parse_frames, read_energy_config};
 pub use crate::fitting::{check_model, template_for};
 pub use crate::method::{MethodKind, NO_NEURAL};
-pub use crate::motion_cli::{ImportArgs as MotionImportArgs, import_clip};
 
 /// The one line an error prints (`lfit` prints it after `error: `): the error and its causes,
 /// each said once (errors whose message already quotes their source, `thiserror`'s `{0}` with

@@ -1,11 +1,11 @@
-//! Models and datasets, below every command: loading the model a command works on and
-//! synthesising a dataset. `fit`, `bench` and `commands` all build on this module and it on
-//! none of them, so the root package has no import circle (commands → bench → fit → data).
+//! Models, parameter files and datasets, below every command: loading the model a command works
+//! on, reading parameter vectors from JSON and synthesising a dataset. The commands, the studies
+//! and the renderer all build on this module and it on none of them.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use lfit_model::observe::{Modality, Sensor};
 use lfit_model::template::Template;
 use lfit_model::{BodyShape, build_template};
@@ -99,7 +99,7 @@ pub fn synth(
 }
 
 /// [`synth`] drawing target poses from imported motion files (next to the library with
-/// `with_library`); see [`lfit_synth::synth`] for how their frames are used.
+/// `with_library`); see [`lfit_synth::dataset::synth`] for how their frames are used.
 pub fn synth_with_motions(
     args: &SynthArgs,
     files: &MotionFilesArgs,
@@ -235,5 +235,125 @@ pub fn visible_fraction(dataset: &Dataset) -> f64 {
         0.0
     } else {
         seen as f64 / total as f64
+    }
+}
+
+/// One parameter vector of `template` from JSON values: `pose` (3 + 3J numbers) and optional
+/// `shape`/`expression` (at most B/E numbers, zero-padded). `suffix` goes after the field names
+/// in errors (`poses[3]`), which also name `path`.
+pub fn params_from_json(
+    template: &Template,
+    pose: &Value,
+    shape: Option<&Value>,
+    expr: Option<&Value>,
+    suffix: &str,
+    path: &Path,
+) -> Result<Vec<f64>> {
+    let layout = template.layout();
+    let pd = layout.pose_dim();
+    let numbers = |v: &Value, what: &str, len: Option<usize>, max: usize| -> Result<Vec<f64>> {
+        let items = v.as_array().with_context(|| {
+            format!(
+                "{}: {what} is missing or not an array of numbers",
+                path.display()
+            )
+        })?;
+        let out = items
+            .iter()
+            .enumerate()
+            .map(|(i, x)| {
+                x.as_f64().filter(|x| x.is_finite()).with_context(|| {
+                    format!(
+                        "{}: {what}[{i}] is not a finite number: {x} is not a number",
+                        path.display()
+                    )
+                })
+            })
+            .collect::<Result<Vec<f64>>>()?;
+        if let Some(n) = len
+            && out.len() != n
+        {
+            bail!(
+                "{}: {what} has {} numbers, expected {n} (3 + 3 × {} joints of '{}')",
+                path.display(),
+                out.len(),
+                layout.num_joints(),
+                template.id
+            );
+        }
+        if out.len() > max {
+            bail!(
+                "{}: {what} has {} numbers, but the model '{}' has only {max}",
+                path.display(),
+                out.len(),
+                template.id
+            );
+        }
+        Ok(out)
+    };
+    let mut params = numbers(pose, &format!("pose{suffix}"), Some(pd), pd)?;
+    for (v, what, n) in [
+        (shape, "shape", layout.shape),
+        (expr, "expression", layout.expression),
+    ] {
+        let mut b = match v {
+            Some(v) => numbers(v, &format!("{what}{suffix}"), None, n)?,
+            None => Vec::new(),
+        };
+        b.resize(n, 0.0);
+        params.extend(b);
+    }
+    Ok(params)
+}
+
+/// Reads a parameter file for `template`: `{"pose": [3 + 3J], "shape": [≤ B], "expression":
+/// [≤ E]}` or `{"poses": [[...], ...], "shapes": [[...], ...], "expressions": [[...], ...]}`
+/// (`shape`/`expression` optional, zero-padded to B/E; longer is an error). Returns full
+/// parameter vectors in the model's layout.
+pub fn read_params_file(path: &Path, template: &Template) -> Result<Vec<Vec<f64>>> {
+    let pd = template.layout().pose_dim();
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let value: Value = serde_json::from_str(&text)
+        .with_context(|| format!("malformed pose JSON {}", path.display()))?;
+    match (value.get("pose"), value.get("poses")) {
+        (Some(p), None) => Ok(vec![params_from_json(
+            template,
+            p,
+            value.get("shape"),
+            value.get("expression"),
+            "",
+            path,
+        )?]),
+        (None, Some(Value::Array(list))) if !list.is_empty() => {
+            let nth = |key: &str, i: usize| -> Result<Option<&Value>> {
+                match value.get(key) {
+                    None => Ok(None),
+                    Some(Value::Array(rows)) if rows.len() == list.len() => Ok(Some(&rows[i])),
+                    Some(_) => bail!(
+                        "{}: {key} must be a list with one entry per pose ({})",
+                        path.display(),
+                        list.len()
+                    ),
+                }
+            };
+            list.iter()
+                .enumerate()
+                .map(|(i, p)| {
+                    params_from_json(
+                        template,
+                        p,
+                        nth("shapes", i)?,
+                        nth("expressions", i)?,
+                        &format!("s[{i}]"),
+                        path,
+                    )
+                })
+                .collect()
+        }
+        _ => bail!(
+            "{}: expected {{\"pose\": [{pd} numbers]}} or {{\"poses\": [[{pd} numbers], ...]}}",
+            path.display()
+        ),
     }
 }

@@ -9,7 +9,7 @@ use anyhow::{Context, Result, bail};
 use lfit_fitters::{FitRequest, FitResult, Fitter};
 use lfit_model::energy::{Energy, EnergyConfig, Target};
 use lfit_model::layout::Block;
-use lfit_model::pose::{Bounds, DofMask, MaskKind};
+use lfit_model::pose::{Bounds, DofMask, MaskKind, SHAPE_BOUND};
 use lfit_model::template::Template;
 use lfit_synth::{Dataset, Observations, Scenario};
 
@@ -43,6 +43,15 @@ pub enum SequenceShape {
     /// shared out over the sequence's frames; its evaluations are reported apart
     /// ([`FitReport::shape_pass`]).
     FirstPass,
+    /// The sequence is fitted twice. The first pass fits it as `per-frame` does; the subject's β
+    /// is then the one that minimises the summed energy of all its frames, each frame's other
+    /// entries held at the first pass's result (Levenberg–Marquardt on the β columns of every
+    /// frame's Jacobian stacked: [`joint_shape`]), held fixed in the second pass. The
+    /// maximum-likelihood β of the sequence under the energy, rather than the median of noisy
+    /// per-frame estimates. Needs an energy in least-squares form. The first pass and the β
+    /// solve are reported apart ([`FitReport::shape_pass`]); their time is shared out over the
+    /// frames.
+    Joint,
 }
 
 /// Frames of [`SequenceShape::FirstPass`]'s first pass, at most.
@@ -53,6 +62,7 @@ impl SequenceShape {
         match self {
             Self::PerFrame => "per-frame",
             Self::FirstPass => "first-pass",
+            Self::Joint => "joint",
         }
     }
 }
@@ -63,20 +73,50 @@ impl std::str::FromStr for SequenceShape {
         match s {
             "per-frame" => Ok(Self::PerFrame),
             "first-pass" => Ok(Self::FirstPass),
-            _ => bail!("unknown sequence shape policy '{s}' (expected per-frame or first-pass)"),
+            "joint" => Ok(Self::Joint),
+            _ => bail!(
+                "unknown sequence shape policy '{s}' (expected per-frame, first-pass or joint)"
+            ),
         }
     }
 }
 
-/// The first pass of [`SequenceShape::FirstPass`].
+/// The β pass of [`SequenceShape::FirstPass`] or [`SequenceShape::Joint`].
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct ShapePass {
-    /// The frames fitted on their own.
+    /// The frames whose fits β was estimated from.
     pub frames: Vec<usize>,
-    /// The subject's β: the per-component median of their fits.
+    /// The subject's β: the per-component median of their fits (first pass), or the β that
+    /// minimises their summed energy (joint).
     pub beta: Vec<f64>,
     pub evaluations: u64,
     pub time_s: f64,
+    /// Joint: the summed energy of the first pass's frames before and after the β solve, and
+    /// its Levenberg–Marquardt iterations.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub joint: Option<JointSolve>,
+}
+
+/// What [`joint_shape`]'s β solve did.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct JointSolve {
+    pub energy_before: f64,
+    pub energy_after: f64,
+    pub iterations: usize,
+    /// Energy evaluations of the solve (value, or residuals and Jacobian), over all frames.
+    pub evaluations: u64,
+}
+
+/// `energy` with the gradient form of its terms ([`EnergyConfig::for_gradient`]: the hinge
+/// joint-angle prior, no silhouette term), for [`joint_shape`]. The joint-angle prior depends on
+/// the pose alone: with the poses held, both forms move β alike.
+fn least_squares_variant(energy: &Energy) -> Result<Energy> {
+    Ok(Energy::new(
+        energy.template().clone(),
+        energy.sensor().clone(),
+        energy.target().clone(),
+        energy.config().clone().for_gradient(),
+    )?)
 }
 
 /// What [`fit_frames`] did beyond the frames it handed to its sink.
@@ -162,10 +202,10 @@ impl Plan<'_> {
         self.mask_with(self.known_shape.as_ref())
     }
 
-    /// Whether this plan runs [`SequenceShape::FirstPass`]'s first pass: a sequence whose model
-    /// has shape parameters that are not given.
+    /// Whether this plan runs a β pass ([`SequenceShape::FirstPass`], [`SequenceShape::Joint`]):
+    /// a sequence whose model has shape parameters that are not given.
     pub fn runs_shape_pass(&self) -> bool {
-        self.sequence_shape == SequenceShape::FirstPass
+        self.sequence_shape != SequenceShape::PerFrame
             && self.dataset.meta.config.scenario == Scenario::Sequence
             && self.known_shape.is_none()
             && self.template.layout().shape > 0
@@ -214,8 +254,9 @@ pub struct FrameFit {
 /// A frame of a `sequence` dataset that directly follows the frame fitted before it starts from
 /// that frame's result (papers/000 §4.3's warm start); every other frame starts from the
 /// dataset's start pose. `energy` gives a frame's energy (its own copy: evaluation counters live
-/// in the energy) and `seed` its seed. With [`SequenceShape::FirstPass`] a first pass estimates
-/// the sequence's β before the frames are fitted with it fixed ([`FitReport::shape_pass`]).
+/// in the energy) and `seed` its seed. With [`SequenceShape::FirstPass`] or
+/// [`SequenceShape::Joint`] a β pass estimates the sequence's β before the frames are fitted
+/// with it fixed ([`FitReport::shape_pass`]).
 pub fn fit_frames(
     fitter: &dyn Fitter,
     plan: &Plan<'_>,
@@ -224,21 +265,49 @@ pub fn fit_frames(
     seed: &dyn Fn(usize) -> u64,
     sink: &mut dyn FnMut(FrameFit) -> Result<()>,
 ) -> Result<FitReport> {
-    let dataset = plan.dataset;
-    let scenario = dataset.meta.config.scenario;
     let mut report = FitReport::default();
     let mut known = plan.known_shape.clone();
     if plan.runs_shape_pass() && !frames.is_empty() {
-        let pass = shape_pass(fitter, plan, frames, energy, seed)?;
+        let pass = match plan.sequence_shape {
+            SequenceShape::Joint => joint_shape_pass(fitter, plan, frames, energy, seed)?,
+            _ => shape_pass(fitter, plan, frames, energy, seed)?,
+        };
         known = Some(KnownShape::Given(pass.beta.clone()));
         report.shape_pass = Some(pass);
     }
-    // The first pass's time, shared out over the sequence's frames.
+    // The β pass's time, shared out over the sequence's frames.
     let shared_time = report
         .shape_pass
         .as_ref()
         .map_or(0.0, |p| p.time_s / frames.len() as f64);
-    let mask = plan.mask_with(known.as_ref())?;
+    fit_pass(
+        fitter,
+        plan,
+        frames,
+        known.as_ref(),
+        energy,
+        seed,
+        &mut |mut f| {
+            f.result.time_s += shared_time;
+            sink(f)
+        },
+    )?;
+    Ok(report)
+}
+
+/// One pass of [`fit_frames`] over `frames` with the shape `known` (if any).
+fn fit_pass(
+    fitter: &dyn Fitter,
+    plan: &Plan<'_>,
+    frames: &[usize],
+    known: Option<&KnownShape>,
+    energy: &dyn Fn(usize) -> Result<Energy>,
+    seed: &dyn Fn(usize) -> u64,
+    sink: &mut dyn FnMut(FrameFit) -> Result<()>,
+) -> Result<()> {
+    let dataset = plan.dataset;
+    let scenario = dataset.meta.config.scenario;
+    let mask = plan.mask_with(known)?;
     let chunk = plan.frames_per_call();
     let mut previous: Option<(usize, Vec<f64>)> = None;
     for group in frames.chunks(chunk) {
@@ -254,15 +323,7 @@ pub fn fit_frames(
                     Some((p, pose)) if scenario == Scenario::Sequence && p + 1 == frame => pose,
                     _ => dataset.start_poses[frame].clone(),
                 };
-                request(
-                    plan,
-                    known.as_ref(),
-                    &mask,
-                    frame,
-                    start,
-                    energy,
-                    seed(frame),
-                )
+                request(plan, known, &mask, frame, start, energy, seed(frame))
             })
             .collect();
         let start_energies: Vec<f64> = requests
@@ -270,11 +331,10 @@ pub fn fit_frames(
             .map(|r| r.energy.inspect(&r.start).total)
             .collect();
         let results = fit_group(fitter, &requests, group)?;
-        for (((&frame, mut result), request), start_energy) in
+        for (((&frame, result), request), start_energy) in
             group.iter().zip(results).zip(&requests).zip(start_energies)
         {
             previous = Some((frame, result.pose.clone()));
-            result.time_s += shared_time;
             sink(FrameFit {
                 frame,
                 seed: request.seed,
@@ -283,7 +343,7 @@ pub fn fit_frames(
             })?;
         }
     }
-    Ok(report)
+    Ok(())
 }
 
 /// The fit request of one frame from `start`: the scenario's box around it, β fixed where it
@@ -392,7 +452,167 @@ fn shape_pass(
         beta,
         evaluations,
         time_s,
+        joint: None,
     })
+}
+
+/// [`SequenceShape::Joint`]'s β pass: the sequence fitted with β free in every frame, then
+/// [`joint_shape`] over all its frames.
+fn joint_shape_pass(
+    fitter: &dyn Fitter,
+    plan: &Plan<'_>,
+    frames: &[usize],
+    energy: &dyn Fn(usize) -> Result<Energy>,
+    seed: &dyn Fn(usize) -> u64,
+) -> Result<ShapePass> {
+    if let Some(why) = least_squares_variant(&energy(frames[0])?)?.least_squares_unsupported() {
+        bail!("--sequence-shape joint solves for β in least-squares form: {why}");
+    }
+    let (mut evaluations, mut time_s) = (0u64, 0.0);
+    let mut poses: Vec<Vec<f64>> = Vec::with_capacity(frames.len());
+    fit_pass(fitter, plan, frames, None, energy, seed, &mut |f| {
+        evaluations += f.result.evaluations;
+        time_s += f.result.time_s;
+        poses.push(f.result.pose);
+        Ok(())
+    })
+    .context("the first pass of --sequence-shape joint")?;
+    let timer = std::time::Instant::now();
+    let energies = frames
+        .iter()
+        .map(|&f| energy(f))
+        .collect::<Result<Vec<_>>>()?;
+    let shape = plan.template.layout().range(Block::Shape);
+    let (lower, upper) = (
+        vec![-SHAPE_BOUND; shape.len()],
+        vec![SHAPE_BOUND; shape.len()],
+    );
+    let (beta, solve) = joint_shape(&energies, &poses, shape, &lower, &upper)?;
+    evaluations += solve.evaluations;
+    time_s += timer.elapsed().as_secs_f64();
+    Ok(ShapePass {
+        frames: frames.to_vec(),
+        beta,
+        evaluations,
+        time_s,
+        joint: Some(solve),
+    })
+}
+
+/// Iterations of [`joint_shape`]'s Levenberg–Marquardt, at most.
+pub const JOINT_SHAPE_ITERATIONS: usize = 30;
+
+/// The β (entries `shape` of every pose) that minimises `Σ_k E_k(θ_k)` with every other entry of
+/// each `θ_k` held, inside `[lower, upper]`, from the per-component median of the poses' β:
+/// Levenberg–Marquardt on the normal equations of the β columns of every frame's Jacobian,
+/// summed (Marquardt scaling, Nielsen's damping update, a step that leaves the box clamped to
+/// it); stops when a step lowers the sum by less than 1e-6 of it, or after
+/// [`JOINT_SHAPE_ITERATIONS`]. Frames are evaluated in parallel, each on the least-squares form
+/// of its energy ([`least_squares_variant`]); [`JointSolve::evaluations`] counts them.
+pub fn joint_shape(
+    energies: &[Energy],
+    poses: &[Vec<f64>],
+    shape: std::ops::Range<usize>,
+    lower: &[f64],
+    upper: &[f64],
+) -> Result<(Vec<f64>, JointSolve)> {
+    use lfit_model::energy::{damped_step, marquardt_scaling};
+    use nalgebra::{DMatrix, DVector};
+    use rayon::prelude::*;
+    let n = shape.len();
+    if energies.is_empty() || energies.len() != poses.len() || lower.len() != n || upper.len() != n
+    {
+        bail!(
+            "joint β solve: {} energies, {} poses, {} shape entries",
+            energies.len(),
+            poses.len(),
+            n
+        );
+    }
+    // Their least-squares form (and their own evaluation counters).
+    let energies = energies
+        .iter()
+        .map(least_squares_variant)
+        .collect::<Result<Vec<_>>>()?;
+    let dofs: Vec<usize> = shape.clone().collect();
+    let with = |p: &[f64], b: &[f64]| {
+        let mut q = p.to_vec();
+        q[shape.clone()].copy_from_slice(b);
+        q
+    };
+    let total = |b: &[f64]| -> f64 {
+        energies
+            .par_iter()
+            .zip(poses)
+            .map(|(e, p)| e.evaluate(&with(p, b)).total)
+            .sum()
+    };
+    let mut beta: Vec<f64> = (0..n)
+        .map(|k| {
+            let mut v: Vec<f64> = poses.iter().map(|p| p[shape.start + k]).collect();
+            v.sort_by(f64::total_cmp);
+            0.5 * (v[(v.len() - 1) / 2] + v[v.len() / 2])
+        })
+        .collect();
+    for (k, b) in beta.iter_mut().enumerate() {
+        *b = b.clamp(lower[k], upper[k]);
+    }
+    let before = total(&beta);
+    let mut current = before;
+    let (mut damping, mut nu) = (1e-4, 2.0);
+    let mut iterations = 0;
+    while iterations < JOINT_SHAPE_ITERATIONS {
+        iterations += 1;
+        let (a, g) = energies
+            .par_iter()
+            .zip(poses)
+            .map(|(e, p)| -> Result<(DMatrix<f64>, DVector<f64>)> {
+                Ok(e.least_squares(&with(p, &beta), true)?
+                    .normal_equations(&dofs))
+            })
+            .try_reduce(
+                || (DMatrix::zeros(n, n), DVector::zeros(n)),
+                |(a1, g1), (a2, g2)| Ok((a1 + a2, g1 + g2)),
+            )?;
+        let free: Vec<usize> = (0..n).collect();
+        let (diag, max_diag) = marquardt_scaling(&a, &free);
+        let mut improved = false;
+        // Raise the damping until a step lowers the sum (at most 20 tries).
+        for _ in 0..20 {
+            let Some(h) = damped_step(&a, &g, &free, &diag, damping, max_diag) else {
+                damping *= nu;
+                nu *= 2.0;
+                continue;
+            };
+            let trial: Vec<f64> = (0..n)
+                .map(|k| (beta[k] + h[k]).clamp(lower[k], upper[k]))
+                .collect();
+            let value = total(&trial);
+            if value.is_finite() && value < current {
+                let gain = (current - value) / current.max(f64::MIN_POSITIVE);
+                beta = trial;
+                current = value;
+                damping = (damping / 3.0).max(1e-12);
+                nu = 2.0;
+                improved = gain >= 1e-6;
+                break;
+            }
+            damping *= nu;
+            nu *= 2.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    Ok((
+        beta,
+        JointSolve {
+            energy_before: before,
+            energy_after: current,
+            iterations,
+            evaluations: energies.iter().map(Energy::evaluations).sum(),
+        },
+    ))
 }
 
 /// The template a dataset was synthesised with: `--template DIR` when given (its id must match
@@ -504,4 +724,87 @@ pub fn iterate_errors(
         .iter()
         .map(|p| metric(template, p, truth))
         .collect()
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use lfit_model::observe::{Modality, Sensor};
+    use lfit_synth::{SynthConfig, synthesize};
+
+    /// [`joint_shape`] against its definition: from per-frame β that scatter around a biased
+    /// mean, it reaches a summed energy no higher than the subject's true β gives with the same
+    /// poses, much nearer that β than the per-frame values; it stays inside its box.
+    #[test]
+    fn the_joint_shape_minimises_the_summed_energy_and_recovers_the_subject() {
+        let (t, _) = lfit_model::body::morphable_default_template().unwrap();
+        let t = Arc::new(t);
+        let config = SynthConfig::new(Modality::Markers, Scenario::Sequence, 16, 7);
+        let sensor = Sensor::default_for(Modality::Markers, &t);
+        let d = synthesize(&config, &t, &sensor, &|_| {}).unwrap();
+        let shape = t.layout().range(Block::Shape);
+        let n = shape.len();
+        assert!(n > 0);
+        let energies: Vec<Energy> = (0..d.len())
+            .map(|f| {
+                energy_for_frame(&d, t.clone(), f, EnergyConfig::default().for_gradient()).unwrap()
+            })
+            .collect();
+        let truth = d.gt_poses[0][shape.clone()].to_vec();
+        let poses: Vec<Vec<f64>> = d
+            .gt_poses
+            .iter()
+            .enumerate()
+            .map(|(f, p)| {
+                let mut q = p.clone();
+                for (k, i) in shape.clone().enumerate() {
+                    q[i] += 0.4 + 0.3 * ((f * 7 + k * 3) as f64).sin();
+                }
+                q
+            })
+            .collect();
+        let summed = |b: &[f64]| -> f64 {
+            energies
+                .iter()
+                .zip(&poses)
+                .map(|(e, p)| {
+                    let mut q = p.clone();
+                    q[shape.clone()].copy_from_slice(b);
+                    e.inspect(&q).total
+                })
+                .sum()
+        };
+        let rms = |b: &[f64]| {
+            (b.iter()
+                .zip(&truth)
+                .map(|(a, t)| (a - t).powi(2))
+                .sum::<f64>()
+                / n as f64)
+                .sqrt()
+        };
+        let (lower, upper) = (vec![-SHAPE_BOUND; n], vec![SHAPE_BOUND; n]);
+        let (beta, solve) = joint_shape(&energies, &poses, shape.clone(), &lower, &upper).unwrap();
+        assert!((solve.energy_after - summed(&beta)).abs() <= 1e-9 * solve.energy_after);
+        assert!(solve.energy_after < solve.energy_before);
+        assert!(
+            solve.energy_after <= summed(&truth) * (1.0 + 1e-9),
+            "above the true β's summed energy: {} > {}",
+            solve.energy_after,
+            summed(&truth)
+        );
+        let per_frame =
+            poses.iter().map(|p| rms(&p[shape.clone()])).sum::<f64>() / poses.len() as f64;
+        assert!(
+            rms(&beta) < 0.25 * per_frame,
+            "β error {} against the per-frame values' {per_frame}",
+            rms(&beta)
+        );
+        // A box that excludes the solution: every entry inside it.
+        let (lo, hi) = (vec![-0.1; n], vec![0.1; n]);
+        let (boxed, _) = joint_shape(&energies, &poses, shape.clone(), &lo, &hi).unwrap();
+        assert!(boxed.iter().all(|b| (-0.1..=0.1).contains(b)), "{boxed:?}");
+        // Mismatched inputs: an error, not a panic.
+        assert!(joint_shape(&energies, &poses[1..], shape, &lower, &upper).is_err());
+    }
 }

@@ -7,8 +7,8 @@ use std::process::ExitCode;
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
-use lfit::commands::{self, SynthArgs};
-use lfit::fit;
+use lfit::cli::commands::{self, SynthArgs};
+use lfit::cli::fit;
 use lfit::model::skinning::SkinningMethod;
 
 #[derive(Parser)]
@@ -36,11 +36,11 @@ enum Command {
     /// Import a user's own captures (C3D markers, COCO/OpenPose 2D keypoints + cameras) as a
     /// dataset without ground truth.
     #[command(subcommand)]
-    Data(lfit::data_import::DataCommand),
+    Data(lfit::cli::data_import::DataCommand),
     /// Import motions (BVH through a joint-name map, AMASS-layout npz) as lfit motion files;
     /// export motion files and fitted sequences as BVH.
     #[command(subcommand)]
-    Motion(lfit::motion_cli::MotionCommand),
+    Motion(lfit::cli::motion::MotionCommand),
     /// Build model files from other assets.
     #[command(subcommand)]
     Model(ModelCommand),
@@ -382,8 +382,10 @@ struct FitCmd {
     /// evaluations).
     #[arg(long, default_value = "phi")]
     neural_start: String,
-    /// How a sequence estimates the subject's shape β: per-frame (free in every frame's fit) or
-    /// first-pass (the median β of up to 32 frames fitted on their own, then fixed).
+    /// How a sequence estimates the subject's shape β: per-frame (free in every frame's fit),
+    /// first-pass (the median β of up to 32 frames fitted on their own, then fixed) or joint
+    /// (the sequence fitted once, β solved over all its frames' energies, then fitted again
+    /// with that β fixed).
     #[arg(long, default_value = "per-frame")]
     sequence_shape: String,
     /// The subject's shape β is known, not estimated (papers/002 §3.2, HMD): `truth` (each
@@ -568,8 +570,8 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             out,
             report,
         }),
-        Command::Data(c) => lfit::data_import::run(&c),
-        Command::Motion(c) => lfit::motion_cli::run(&c),
+        Command::Data(c) => lfit::cli::data_import::run(&c),
+        Command::Motion(c) => lfit::cli::motion::run(&c),
         Command::Template(TemplateCommand::Export {
             out_dir,
             out,
@@ -717,14 +719,14 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             device,
             seed,
         } => {
-            let mut size = lfit::ablate::AblateSize::new(quick);
+            let mut size = lfit::study::ablate::AblateSize::new(quick);
             size.steps = steps.unwrap_or(size.steps);
             size.batch = batch.unwrap_or(size.batch);
             size.hidden = hidden.unwrap_or(size.hidden);
             size.test_frames = test_frames.unwrap_or(size.test_frames);
             let quiet = cli.quiet;
-            lfit::ablate::run(
-                &lfit::ablate::AblateArgs {
+            lfit::study::ablate::run(
+                &lfit::study::ablate::AblateArgs {
                     out,
                     size,
                     device,
@@ -841,7 +843,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             format,
             out,
             template,
-        } => lfit::export::export(&lfit::export::ExportArgs {
+        } => lfit::cli::export::export(&lfit::cli::export::ExportArgs {
             data,
             poses,
             format,

@@ -8,8 +8,8 @@ mod support;
 
 use std::path::{Path, PathBuf};
 
-use lfit::synth::c3d::{C3d, C3dPoint, Processor};
-use lfit::synth::keypoints::{COCO17, KeypointLayout, cameras_json};
+use lfit::synth::capture::c3d::{C3d, C3dPoint, Processor};
+use lfit::synth::capture::keypoints::{COCO17, KeypointLayout, cameras_json};
 use lfit::synth::{Dataset, Observations};
 use serde_json::{Value, json};
 use support::{assert_one_line_error, lfit, lfit_json, path_str};

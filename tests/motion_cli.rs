@@ -13,7 +13,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use lfit::model::template::Template;
-use lfit::synth::motion_io::MotionClip;
+use lfit::synth::motion::file::MotionClip;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use support::{assert_one_line_error, lfit, lfit_json, path_str, skip_unless_required};
@@ -1617,8 +1617,8 @@ fn coverage_of_an_evaluation_motion_by_training_motions() {
 
 /// World joint positions of a BVH frame, this test's own FK over the parsed hierarchy:
 /// channels in file order multiply left to right, degrees.
-fn bvh_positions(bvh: &lfit::synth::bvh::Bvh, frame: &[f64]) -> Vec<V3> {
-    use lfit::synth::bvh::{Axis, Channel};
+fn bvh_positions(bvh: &lfit::synth::motion::bvh::Bvh, frame: &[f64]) -> Vec<V3> {
+    use lfit::synth::motion::bvh::{Axis, Channel};
     let mut w: Vec<M3> = Vec::new();
     let mut x: Vec<V3> = Vec::new();
     for joint in &bvh.joints {
@@ -1682,7 +1682,8 @@ fn clip_cosines(
     assert_eq!(summary["metres_per_unit"], 0.01, "auto units: centimetres");
     let s = skeleton(model);
     let clip = read_motion(&out);
-    let bvh = lfit::synth::bvh::Bvh::parse(&std::fs::read_to_string(clip_path).unwrap()).unwrap();
+    let bvh =
+        lfit::synth::motion::bvh::Bvh::parse(&std::fs::read_to_string(clip_path).unwrap()).unwrap();
     // Map: model joint → BVH joint.
     let map: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&map_path).unwrap()).unwrap();

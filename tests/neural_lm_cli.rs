@@ -312,3 +312,80 @@ fn first_pass_gives_a_sequence_one_shape() {
     );
     assert!(!out_path.exists());
 }
+
+/// `--sequence-shape joint`: the sequence fitted once, one β solved over all its frames (the
+/// summed energy no higher than before the solve), then every frame fitted with that β; refused
+/// outside sequences.
+#[test]
+fn joint_shape_gives_a_sequence_the_beta_of_its_summed_energy() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let seq = synth(tmp.path(), "seq.npz", "sequence", 8, 0x5EED_0005);
+    let r = fit(
+        &seq,
+        &tmp.path().join("seq.json"),
+        &[
+            "--method",
+            "neural",
+            "--budget",
+            "12",
+            "--neural-start",
+            "best",
+            "--sequence-shape",
+            "joint",
+        ],
+    );
+    assert_eq!(r["sequence_shape"], "joint");
+    let pass = &r["summary"]["shape_pass"];
+    assert_eq!(
+        pass["frames"].as_array().map(Vec::len),
+        Some(8),
+        "every frame"
+    );
+    let joint = &pass["joint"];
+    let (before, after) = (num(&joint["energy_before"]), num(&joint["energy_after"]));
+    assert!(
+        after.is_finite() && after <= before,
+        "the β solve raised the summed energy: {before} -> {after}"
+    );
+    assert!(joint["iterations"].as_u64().expect("iterations") >= 1);
+    let beta: Vec<f64> = pass["beta"]
+        .as_array()
+        .expect("beta")
+        .iter()
+        .map(num)
+        .collect();
+    assert_eq!(beta.len(), 16);
+    assert!(beta.iter().all(|b| b.abs() <= 3.0), "inside the shape box");
+    // The first pass (8 frames × 12) and the solve are counted apart from the frames' own.
+    assert!(pass["evaluations"].as_u64().expect("evaluations") > 8 * 12);
+    for f in frames(&r) {
+        let shape: Vec<f64> = f["shape"]
+            .as_array()
+            .expect("shape")
+            .iter()
+            .map(num)
+            .collect();
+        assert_eq!(shape, beta, "frame {}: β is not the sequence's", f["frame"]);
+    }
+    // Outside a sequence: one line, nothing written.
+    let local = synth(tmp.path(), "local.npz", "local", 2, 0x5EED_0006);
+    let out_path = tmp.path().join("no.json");
+    let out = lfit(&[
+        "-q",
+        "fit",
+        "--data",
+        path_str(&local),
+        "--template",
+        path_str(&root(MODEL)),
+        "--method",
+        "lm",
+        "--budget",
+        "50",
+        "--sequence-shape",
+        "joint",
+        "--out",
+        path_str(&out_path),
+    ]);
+    assert_one_line_error(&out, "--sequence-shape joint needs a sequence dataset");
+    assert!(!out_path.exists());
+}

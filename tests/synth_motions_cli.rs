@@ -18,7 +18,7 @@ use lfit::model::default_template;
 use lfit::model::pose::Bounds;
 use lfit::model::template::Template;
 use lfit::synth::Dataset;
-use lfit::synth::motion_io::MotionClip;
+use lfit::synth::motion::file::MotionClip;
 use support::{assert_one_line_error, lfit, lfit_json, path_str};
 
 const FPS: f64 = 60.0;

@@ -27,7 +27,7 @@ pub enum SynthError {
     )]
     UnknownShape(String),
     #[error(transparent)]
-    Motion(#[from] crate::retarget::MotionError),
+    Motion(#[from] crate::motion::retarget::MotionError),
     #[error("motion file {path}: {reason}")]
     MotionFile { path: String, reason: String },
     #[error("invalid setting {name} = {value}: {reason}")]

@@ -1,23 +1,17 @@
-//! lfit's synthetic data: a procedural motion library, uniform pose sampling, the scenarios of
-//! papers/000 §4, observation synthesis with noise and occlusion per modality, and datasets on
-//! disk as numpy-readable `.npz` archives.
+//! lfit's synthetic and captured data: motion ([`motion`]: a procedural library, BVH import and
+//! retargeting, motion files), datasets ([`dataset`]: the scenarios of papers/000 §4 and
+//! observation synthesis with noise and occlusion per modality, stored as numpy-readable `.npz`
+//! archives) and captured observations imported into datasets ([`capture`]: C3D, 2D keypoints).
 
-pub mod bvh;
-pub mod c3d;
-pub mod coverage;
+pub mod capture;
 pub mod dataset;
 pub mod error;
-pub mod import;
-pub mod keypoints;
 pub mod motion;
-pub mod motion_io;
 pub mod noise;
 pub mod npz;
-pub mod rest_pose;
-pub mod retarget;
-pub mod synth;
 
+pub use dataset::config::{MotionFile, PoseSource, Scenario, SynthConfig};
+pub use dataset::synth::synthesize;
 pub use dataset::{Dataset, Meta, Observations};
 pub use error::SynthError;
 pub use noise::NoiseConfig;
-pub use synth::{MotionFile, PoseSource, Scenario, SynthConfig, synthesize};

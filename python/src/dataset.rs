@@ -373,7 +373,7 @@ pub fn import_keypoints(
 /// `source`, and the import's report (`summary`: bone-direction cosines, scale).
 #[pyclass(module = "lfit", name = "Motion", frozen)]
 pub struct Motion {
-    clip: lfit::synth::motion_io::MotionClip,
+    clip: lfit::synth::motion::file::MotionClip,
     summary: serde_json::Value,
 }
 

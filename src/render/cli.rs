@@ -184,7 +184,7 @@ fn pose_scene(
 ) -> Result<(Scene, Vec<[u32; 3]>, Value)> {
     let template = crate::data::load_model(args.model.as_deref(), &args.shape)?;
     let params = match &args.pose {
-        Some(path) => crate::commands::read_params_file(path, &template)?,
+        Some(path) => crate::data::read_params_file(path, &template)?,
         None => vec![vec![0.0; template.layout().dim()]],
     };
     if params.len() > MAX_POSES {
@@ -246,13 +246,13 @@ fn dataset_scene(
     let template = crate::fitting::template_for(&dataset, args.model.as_deref())?;
     let fitted = match &args.fit {
         Some(path) => {
-            let fitted = crate::export::read_fitted_poses(path, &template)?;
-            crate::export::check_against_dataset(&fitted, path, &dataset, data)?;
+            let fitted = crate::cli::export::read_fitted_poses(path, &template)?;
+            crate::cli::export::check_against_dataset(&fitted, path, &dataset, data)?;
             let text = std::fs::read_to_string(path)
                 .with_context(|| format!("cannot read {}", path.display()))?;
             let value: Value = serde_json::from_str(&text)
                 .with_context(|| format!("malformed fit JSON {}", path.display()))?;
-            crate::export::check_fit_file(&value, path, &template, &dataset, &fitted.frames)?;
+            crate::cli::export::check_fit_file(&value, path, &template, &dataset, &fitted.frames)?;
             let method = value
                 .get("method")
                 .and_then(Value::as_str)

@@ -131,7 +131,7 @@ pub struct Canvas {
     pub rgb: Vec<u8>,
 }
 
-/// Name under which the embedded font is registered with plotters (as `crate::plots` does).
+/// Name under which the embedded font is registered with plotters (as `crate::study::plots` does).
 const FONT: &str = "sans-serif";
 
 fn ensure_font() -> Result<()> {

@@ -257,7 +257,7 @@ mod tests {
         let small = lfit_model::default_template();
         let loss = Loss::new(&small, LossWeights::default(), &device);
         assert_eq!(loss.skinning.num_vertices(), small.num_vertices());
-        let big = lfit_model::morph::smpl_like(3, 4000, 4, false);
+        let big = lfit_model::body::smpl_like(3, 4000, 4, false);
         let loss = Loss::new(&big, LossWeights::default(), &device);
         assert_eq!(loss.skinning.num_vertices(), LOSS_MAX_VERTICES);
         // The loss of the truth against itself is zero, and a perturbed pose raises it.

@@ -237,8 +237,8 @@ pub fn rest_aligned(template: &Template, truth: &[f64]) -> Vec<f64> {
     let dim = template.layout().dim();
     let posed = lfit_model::skinning::joint_transforms(template, truth).joints;
     let rest = template.joint_rest();
-    match lfit_synth::import::rigid_fit(&rest, &posed) {
-        Some((q, s)) => lfit_synth::import::rigid_start(template, q, s),
+    match lfit_synth::capture::import::rigid_fit(&rest, &posed) {
+        Some((q, s)) => lfit_synth::capture::import::rigid_start(template, q, s),
         None => {
             let mut p = vec![0.0; dim];
             let shift: DVec3 = posed[0] - rest[0];

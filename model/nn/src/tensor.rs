@@ -589,7 +589,7 @@ mod tests {
     #[test]
     fn a_vertex_subset_poses_to_the_same_rows_as_the_full_model() {
         let device = ndarray_device();
-        let template = lfit_model::morph::smpl_like(3, 300, 6, true);
+        let template = lfit_model::body::smpl_like(3, 300, 6, true);
         let full = TensorSkinning::new(&template, &device);
         let ids: Vec<u32> = vec![299, 0, 17, 150, 151, 42];
         let sub = full.vertex_subset(&ids);
@@ -625,7 +625,7 @@ mod tests {
         // 24 joints, 6 shape coefficients, pose correctives, up to 6 influences per vertex.
         let device = ndarray_device();
         for posedirs in [false, true] {
-            let template = lfit_model::morph::smpl_like(3, 300, 6, posedirs);
+            let template = lfit_model::body::smpl_like(3, 300, 6, posedirs);
             let skin = TensorSkinning::new(&template, &device);
             assert_eq!(skin.param_dim(), 3 + 72 + 6);
             let mut rng = ChaCha8Rng::seed_from_u64(5);

@@ -9,6 +9,11 @@
 
 use serde::{Deserialize, Serialize};
 
+/// Index of the first number of joint `j`'s rotation in the pose vector.
+pub const fn rot_offset(j: usize) -> usize {
+    3 + 3 * j
+}
+
 /// A block of the parameter vector.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -57,7 +62,7 @@ impl Layout {
 
     /// Index of the first number of joint `j`'s rotation.
     pub fn rotation_offset(&self, j: usize) -> usize {
-        crate::pose::rot_offset(j)
+        rot_offset(j)
     }
 
     /// Index of β₀.

@@ -5,11 +5,14 @@
 //! `lfit_model::body::default_template` is the path it always had.
 
 pub mod info;
+pub(crate) mod jacobian;
+pub(crate) mod kinematics;
 pub mod layout;
 pub mod morph;
 pub mod pose;
 pub mod procedural;
 pub mod rig;
+pub mod rotation;
 pub mod skeleton;
 pub mod skinning;
 pub mod template;
@@ -20,7 +23,7 @@ pub use morph::Morph;
 pub use pose::{Bounds, DofMask, POSE_DIM, Pose};
 pub use procedural::{
     BodyShape, MORPHABLE_SAMPLES, MORPHABLE_SHAPE_DIM, build_template, default_template,
-    morphable_default_template, signed_volume,
+    fit_regressor, morphable_default_template, signed_volume, smpl_like,
 };
 pub use rig::{Joint, JointIndex, Marker, Rig};
 pub use skinning::SkinningMethod;

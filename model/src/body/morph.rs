@@ -16,7 +16,7 @@
 
 use glam::{DMat3, DVec3};
 
-use crate::skinning::exp_map;
+use crate::body::rotation::exp_map;
 
 /// A sparse matrix stored by rows (CSR).
 #[derive(Debug, Clone, PartialEq)]
@@ -230,97 +230,6 @@ pub fn pose_feature(params: &[f64], joints: usize) -> Vec<f64> {
 #[inline]
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
-}
-
-/// A random SMPL-like model for tests and benchmarks: 24 joints in SMPL's tree and names, `v`
-/// vertices in a standing body's box, 1–6 influences per vertex, `b` shape columns, optional pose
-/// correctives, a sparse regressor (5 vertices per joint), 30 markers. Same seed, same model.
-///
-/// # Panics
-/// Never for `v ≥ 3`.
-pub fn smpl_like(seed: u64, v: usize, b: usize, with_posedirs: bool) -> crate::template::Template {
-    use rand::{Rng, SeedableRng};
-    const PARENTS: [i64; 24] = [
-        -1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
-    ];
-    let j = PARENTS.len();
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let rest: Vec<DVec3> = (0..v)
-        .map(|_| {
-            DVec3::new(
-                rng.random_range(-0.4..0.4),
-                rng.random_range(0.0..1.7),
-                rng.random_range(-0.15..0.15),
-            )
-        })
-        .collect();
-    let mut reg = vec![0.0; j * v];
-    for r in 0..j {
-        let picks: Vec<(usize, f64)> = (0..5)
-            .map(|_| (rng.random_range(0..v), rng.random_range(0.1..1.0)))
-            .collect();
-        let total: f64 = picks.iter().map(|p| p.1).sum();
-        for (c, w) in picks {
-            reg[r * v + c] += w / total;
-        }
-    }
-    let reg = SparseRows::from_dense(j, v, &reg);
-    let joints_rest = reg.apply(&rest);
-    let weights: Vec<Vec<(usize, f64)>> = (0..v)
-        .map(|i| {
-            let mut raw = vec![0.0; j];
-            for _ in 0..1 + i % 6 {
-                raw[rng.random_range(0..j)] += rng.random_range(0.05..1.0);
-            }
-            let total: f64 = raw.iter().sum();
-            raw.iter()
-                .enumerate()
-                .filter(|(_, w)| **w > 0.0)
-                .map(|(c, w)| (c, w / total))
-                .collect()
-        })
-        .collect();
-    let faces: Vec<[u32; 3]> = (0..v / 2)
-        .map(|k| {
-            [
-                (2 * k) as u32,
-                ((2 * k + 1) % v) as u32,
-                ((2 * k + 2) % v) as u32,
-            ]
-        })
-        .collect();
-    let joints = (0..j)
-        .map(|c| crate::rig::Joint {
-            name: crate::info::SMPL_JOINT_NAMES[c].into(),
-            parent: (PARENTS[c] >= 0).then(|| PARENTS[c] as usize),
-            rest_position: joints_rest[c].to_array(),
-        })
-        .collect();
-    let markers = (0..30)
-        .map(|m| crate::rig::Marker {
-            name: format!("m{m}"),
-            vertex: rng.random_range(0..v) as u32,
-        })
-        .collect();
-    let rig = crate::rig::Rig {
-        joints,
-        weights,
-        markers,
-    };
-    let vertices: Vec<glam::Vec3> = rest.iter().map(|p| p.as_vec3()).collect();
-    let t = crate::template::Template::new("smpl-like", vertices, faces, rig)
-        .expect("valid test model");
-    let dirs: Vec<f64> = (0..3 * v * b)
-        .map(|_| rng.random_range(-0.02..0.02))
-        .collect();
-    let posedirs = with_posedirs.then(|| {
-        (0..3 * v * 9 * (j - 1))
-            .map(|_| rng.random_range(-0.01..0.01))
-            .collect()
-    });
-    let info = crate::info::ModelInfo::fallback(&t.rig);
-    t.with_morph(Morph::new(rest, b, 0, dirs, posedirs, Some(reg)), info)
-        .expect("consistent test morph")
 }
 
 #[cfg(test)]

@@ -16,10 +16,7 @@ pub const POSE_DIM: usize = 3 + 3 * NUM_JOINTS;
 /// A pose vector of the default 18-joint skeleton.
 pub type Pose = [f64; POSE_DIM];
 
-/// Index of the first number of joint `j`'s rotation in the pose vector.
-pub const fn rot_offset(j: usize) -> usize {
-    3 + 3 * j
-}
+pub use crate::layout::rot_offset;
 
 /// Checks a user-given pose: right length, all finite.
 pub fn pose_from_slice(values: &[f64]) -> Result<Pose> {
@@ -455,7 +452,7 @@ mod tests {
         let g = Bounds::global_for(&m);
         assert_eq!(g.lower.len(), 65);
         assert_eq!((g.lower[60], g.upper[60]), (-SHAPE_BOUND, SHAPE_BOUND));
-        let smpl = crate::morph::smpl_like(1, 120, 3, false);
+        let smpl = crate::body::smpl_like(1, 120, 3, false);
         let l = DofMask::standard(MaskKind::Local, &smpl, true);
         // SMPL's feet drop 6, ankles and wrists keep one axis each (−8): 3 + 72 + 3 − 14.
         assert_eq!(l.dim(), 3 + 72 + 3 - 14, "{}", l.name);

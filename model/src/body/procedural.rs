@@ -10,6 +10,7 @@ use glam::{DVec3, Vec3};
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
+use crate::morph::{Morph, SparseRows};
 use crate::rig::{Joint, JointIndex, MAX_INFLUENCES, Marker, Rig};
 use crate::skeleton::*;
 use crate::template::Template;
@@ -196,7 +197,7 @@ pub const MORPHABLE_SAMPLES: usize = 64;
 /// chest depth 0.85–1.2, shoulder width 0.9–1.12: our ranges, bracketing the named variants;
 /// seed fixed; nine proportions, so the eight directions all carry variance). Directions are scaled to one standard
 /// deviation of the samples, so β ~ N(0, I) is the sampled population. The rest joints follow the
-/// shape through a joint regressor fitted on the mean ([`crate::modelfile::fit_regressor`]).
+/// shape through a joint regressor fitted on the mean ([`fit_regressor`]).
 /// Returns the template and the fraction of the samples' variance each direction explains.
 pub fn morphable_default_template() -> Result<(Template, Vec<f64>)> {
     use rand::{Rng, SeedableRng};
@@ -263,16 +264,13 @@ pub fn morphable_default_template() -> Result<(Template, Vec<f64>)> {
             dirs[r * k + c] = sign * x;
         }
     }
-    let reg = crate::modelfile::fit_regressor(&mean);
+    let reg = fit_regressor(&mean);
     let rest = mean.vertices.iter().map(|p| p.as_dvec3()).collect();
     let mut info = mean.info.clone();
     info.provenance = format!(
         "lfit procedural default template with a PCA shape space of {MORPHABLE_SAMPLES} body-proportion variants"
     );
-    let mut t = mean.with_morph(
-        crate::morph::Morph::new(rest, k, 0, dirs, None, Some(reg)),
-        info,
-    )?;
+    let mut t = mean.with_morph(Morph::new(rest, k, 0, dirs, None, Some(reg)), info)?;
     t.id = "default+morphable".into();
     Ok((t, explained))
 }
@@ -882,6 +880,132 @@ fn place_markers(template: &Template, joints: &[DVec3], sk: &Skeleton) -> Vec<Ma
         }
     }
     markers
+}
+
+/// A random SMPL-like model for tests and benchmarks: 24 joints in SMPL's tree and names, `v`
+/// vertices in a standing body's box, 1–6 influences per vertex, `b` shape columns, optional pose
+/// correctives, a sparse regressor (5 vertices per joint), 30 markers. Same seed, same model.
+///
+/// # Panics
+/// Never for `v ≥ 3`.
+pub fn smpl_like(seed: u64, v: usize, b: usize, with_posedirs: bool) -> crate::template::Template {
+    use rand::{Rng, SeedableRng};
+    const PARENTS: [i64; 24] = [
+        -1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
+    ];
+    let j = PARENTS.len();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let rest: Vec<DVec3> = (0..v)
+        .map(|_| {
+            DVec3::new(
+                rng.random_range(-0.4..0.4),
+                rng.random_range(0.0..1.7),
+                rng.random_range(-0.15..0.15),
+            )
+        })
+        .collect();
+    let mut reg = vec![0.0; j * v];
+    for r in 0..j {
+        let picks: Vec<(usize, f64)> = (0..5)
+            .map(|_| (rng.random_range(0..v), rng.random_range(0.1..1.0)))
+            .collect();
+        let total: f64 = picks.iter().map(|p| p.1).sum();
+        for (c, w) in picks {
+            reg[r * v + c] += w / total;
+        }
+    }
+    let reg = SparseRows::from_dense(j, v, &reg);
+    let joints_rest = reg.apply(&rest);
+    let weights: Vec<Vec<(usize, f64)>> = (0..v)
+        .map(|i| {
+            let mut raw = vec![0.0; j];
+            for _ in 0..1 + i % 6 {
+                raw[rng.random_range(0..j)] += rng.random_range(0.05..1.0);
+            }
+            let total: f64 = raw.iter().sum();
+            raw.iter()
+                .enumerate()
+                .filter(|(_, w)| **w > 0.0)
+                .map(|(c, w)| (c, w / total))
+                .collect()
+        })
+        .collect();
+    let faces: Vec<[u32; 3]> = (0..v / 2)
+        .map(|k| {
+            [
+                (2 * k) as u32,
+                ((2 * k + 1) % v) as u32,
+                ((2 * k + 2) % v) as u32,
+            ]
+        })
+        .collect();
+    let joints = (0..j)
+        .map(|c| crate::rig::Joint {
+            name: crate::info::SMPL_JOINT_NAMES[c].into(),
+            parent: (PARENTS[c] >= 0).then(|| PARENTS[c] as usize),
+            rest_position: joints_rest[c].to_array(),
+        })
+        .collect();
+    let markers = (0..30)
+        .map(|m| crate::rig::Marker {
+            name: format!("m{m}"),
+            vertex: rng.random_range(0..v) as u32,
+        })
+        .collect();
+    let rig = crate::rig::Rig {
+        joints,
+        weights,
+        markers,
+    };
+    let vertices: Vec<glam::Vec3> = rest.iter().map(|p| p.as_vec3()).collect();
+    let t = crate::template::Template::new("smpl-like", vertices, faces, rig)
+        .expect("valid test model");
+    let dirs: Vec<f64> = (0..3 * v * b)
+        .map(|_| rng.random_range(-0.02..0.02))
+        .collect();
+    let posedirs = with_posedirs.then(|| {
+        (0..3 * v * 9 * (j - 1))
+            .map(|_| rng.random_range(-0.01..0.01))
+            .collect()
+    });
+    let info = crate::info::ModelInfo::fallback(&t.rig);
+    t.with_morph(Morph::new(rest, b, 0, dirs, posedirs, Some(reg)), info)
+        .expect("consistent test morph")
+}
+
+/// A joint regressor for a template without one: for each joint, the minimum-norm affine
+/// combination of the `K` rest vertices nearest to it that reproduces the joint exactly
+/// (`Σ w = 1`, `Σ w v = c`), so `J_regressor · v_template` gives the rig's rest joints.
+pub fn fit_regressor(template: &Template) -> SparseRows {
+    const K: usize = 32;
+    let v = template.num_vertices();
+    let rest: Vec<DVec3> = template.vertices.iter().map(|p| p.as_dvec3()).collect();
+    let mut dense = vec![0.0; template.rig.num_joints() * v];
+    for (j, joint) in template.rig.joints.iter().enumerate() {
+        let c = joint.rest();
+        let mut order: Vec<usize> = (0..v).collect();
+        order.sort_by(|&a, &b| {
+            rest[a]
+                .distance_squared(c)
+                .total_cmp(&rest[b].distance_squared(c))
+        });
+        order.truncate(K.min(v));
+        // A (4 × K) = [v; 1], w = Aᵀ (A Aᵀ)⁻¹ [c; 1], centred on c for conditioning.
+        let a = nalgebra::DMatrix::from_fn(4, order.len(), |r, k| {
+            if r < 3 { (rest[order[k]] - c)[r] } else { 1.0 }
+        });
+        let b = nalgebra::DVector::from_vec(vec![0.0, 0.0, 0.0, 1.0]);
+        let aat = &a * a.transpose();
+        let w = match aat.clone().cholesky() {
+            Some(ch) => a.transpose() * ch.solve(&b),
+            // Degenerate (all nearest vertices coplanar with the joint): the nearest vertex.
+            None => nalgebra::DVector::from_fn(order.len(), |k, _| if k == 0 { 1.0 } else { 0.0 }),
+        };
+        for (k, &vi) in order.iter().enumerate() {
+            dense[j * v + vi] = w[k];
+        }
+    }
+    SparseRows::from_dense(template.rig.num_joints(), v, &dense)
 }
 
 #[cfg(test)]

@@ -8,6 +8,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
 
+/// Most influences a model-file vertex may have (the JSON rig allows 4).
+pub const MAX_FILE_INFLUENCES: usize = 64;
+
 /// Index of a joint in [`Rig::joints`].
 pub type JointIndex = usize;
 

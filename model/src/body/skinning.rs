@@ -8,16 +8,12 @@
 //! ```
 //! Joint transforms are computed in f64; the vertex loops run in f32 SIMD (`Vec3A`).
 
+use super::rotation::exp_map;
 use glam::{Affine3A, DAffine3, DMat3, DQuat, DVec3, Mat3A, Vec3, Vec3A};
 use rayon::prelude::*;
 
 use crate::pose::rot_offset;
 use crate::template::Template;
-
-/// `R = exp([r]x)`, the rotation of axis-angle vector `r`.
-pub fn exp_map(r: DVec3) -> DMat3 {
-    DMat3::from_quat(DQuat::from_scaled_axis(r))
-}
 
 /// Skinning method of the CPU path.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]

@@ -88,7 +88,7 @@ impl Template {
                 reason: "the mesh has no triangles".into(),
             });
         }
-        rig.validate_with(vertices.len(), crate::modelfile::MAX_FILE_INFLUENCES)?;
+        rig.validate_with(vertices.len(), crate::rig::MAX_FILE_INFLUENCES)?;
         let wide = rig.weights.iter().any(|l| l.len() > MAX_INFLUENCES);
         let mut influence_joints = Vec::with_capacity(vertices.len());
         let mut influence_weights = Vec::with_capacity(vertices.len());
@@ -341,15 +341,6 @@ impl Template {
             .collect()
     }
 
-    /// Loads a model: a directory with `template.obj` + `rig.json`, or a model file in the
-    /// SMPL-family `.npz` layout ([`crate::modelfile`]). A pickled `.pkl` is refused with a hint.
-    pub fn load(path: &Path) -> Result<Self> {
-        if path.is_dir() {
-            return Self::load_dir(path);
-        }
-        crate::modelfile::load(path)
-    }
-
     /// Loads `template.obj` + `rig.json` from `dir`.
     pub fn load_dir(dir: &Path) -> Result<Self> {
         let obj_path = dir.join(OBJ_FILE);
@@ -554,7 +545,7 @@ mod tests {
     #[test]
     fn the_shaped_template_poses_like_the_morphable_model_at_its_coefficients() {
         // Without pose correctives a subject's rigid template is the morphable model at fixed β.
-        let m = crate::morph::smpl_like(2, 200, 4, false);
+        let m = crate::body::smpl_like(2, 200, 4, false);
         let beta = [1.5, -2.0, 0.7, 0.0];
         let shaped = m.shaped(&beta).unwrap();
         assert!(shaped.morph.is_rigid());

@@ -18,8 +18,8 @@
 use std::ops::Range;
 use std::sync::atomic::Ordering;
 
-use super::jacobian::PointJacobians;
-use super::kinematics::Kinematics;
+use crate::body::jacobian::PointJacobians;
+use crate::body::kinematics::Kinematics;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 

@@ -19,8 +19,6 @@
 //! Every evaluation goes through [`Energy::evaluate`], [`Energy::evaluate_with_gradient`] or
 //! [`Energy::evaluate_batch`], which count evaluations and gradient evaluations.
 
-pub(crate) mod jacobian;
-pub(crate) mod kinematics;
 mod least_squares;
 mod prior;
 
@@ -31,11 +29,12 @@ use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+pub use crate::observe::Scales;
 pub use least_squares::{LeastSquares, RobustForm, damped_step, marquardt_scaling};
 pub use prior::AnglePrior;
 
-use self::kinematics::{Adjoint, Kinematics};
 pub(crate) use self::prior::{AngleLimits, Penetration};
+use crate::body::kinematics::{Adjoint, Kinematics, SkinTable};
 use crate::camera::Camera;
 use crate::error::{ModelError, Result};
 use crate::observe::{
@@ -179,28 +178,6 @@ impl Robust {
     }
 }
 
-/// Noise scales σ of the sparse residual groups: the typical error that counts as one unit.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Scales {
-    /// Marker and hand-tip / headset / wrist positions, metres (1 cm).
-    pub position: f64,
-    /// 2D keypoints, pixels (4 px at 640×480).
-    pub pixel: f64,
-    /// HMD rotation matrices, Frobenius norm (0.05 ≈ 2° of rotation).
-    pub rotation: f64,
-}
-
-impl Default for Scales {
-    fn default() -> Self {
-        Self {
-            position: 0.01,
-            pixel: 4.0,
-            rotation: 0.05,
-        }
-    }
-}
-
 /// How the energy is put together. Print it with every result: two results are comparable only
 /// when their energy configurations are equal.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -340,35 +317,6 @@ pub struct Evaluation {
 impl Evaluation {
     pub fn term(&self, name: &str) -> Option<f64> {
         self.terms.iter().find(|(n, _)| *n == name).map(|&(_, v)| v)
-    }
-}
-
-/// Skinning weights and rest geometry in f64, flattened.
-#[derive(Debug, Clone)]
-pub(crate) struct SkinTable {
-    pub rest: Vec<DVec3>,
-    entries: Vec<(u16, f64)>,
-    offsets: Vec<u32>,
-}
-
-impl SkinTable {
-    fn new(template: &Template) -> Self {
-        let mut entries = Vec::new();
-        let mut offsets = vec![0u32];
-        for list in &template.rig.weights {
-            entries.extend(list.iter().map(|&(j, w)| (j as u16, w)));
-            offsets.push(entries.len() as u32);
-        }
-        Self {
-            rest: template.vertices.iter().map(|v| v.as_dvec3()).collect(),
-            entries,
-            offsets,
-        }
-    }
-
-    #[inline]
-    pub fn weights(&self, v: usize) -> &[(u16, f64)] {
-        &self.entries[self.offsets[v] as usize..self.offsets[v + 1] as usize]
     }
 }
 

@@ -4,9 +4,8 @@
 use glam::{DMat3, DVec3};
 use serde::{Deserialize, Serialize};
 
-use super::SkinTable;
-use super::jacobian::PointJacobians;
-use super::kinematics::{Adjoint, Kinematics};
+use crate::body::jacobian::PointJacobians;
+use crate::body::kinematics::{Adjoint, Kinematics, SkinTable};
 use crate::pose::{Bounds, rot_offset};
 use crate::template::Template;
 

@@ -507,7 +507,7 @@ mod morphable {
     //! rotations, β — against central finite differences, for each sparse modality and each term.
 
     use super::*;
-    use crate::morph::smpl_like;
+    use crate::body::smpl_like;
     use rand::{Rng, SeedableRng};
 
     /// `base` with the last 3 of its 6 directions as expression coefficients.
@@ -725,7 +725,7 @@ mod least_squares_form {
     //! relative to `max(|entry|, 1e-3 × its column's largest)`, small entries included; the
     //! only slack beyond that is the rounding of the differences themselves).
     use super::*;
-    use crate::morph::smpl_like;
+    use crate::body::smpl_like;
 
     /// Five-point central differences of the residual vector along every column (h = 1e-4:
     /// truncation ~h⁴, rounding ~1e-12 relative).
@@ -1156,7 +1156,7 @@ fn the_penetration_broad_phase_matches_testing_every_vertex() {
         ("default", template()),
         (
             "smpl-like",
-            Arc::new(crate::morph::smpl_like(7, 400, 6, true)),
+            Arc::new(crate::body::smpl_like(7, 400, 6, true)),
         ),
         ("makehuman", Arc::new(crate::modelfile::load(&mh).unwrap())),
     ];

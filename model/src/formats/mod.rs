@@ -12,3 +12,15 @@ pub mod modelfile;
 
 pub use makehuman_face::{FaceImportOptions, FaceImportReport};
 pub use makehuman_import::{ImportOptions, ImportReport};
+
+impl crate::template::Template {
+    /// Loads a model: a directory with `template.obj` + `rig.json`
+    /// ([`crate::template::Template::load_dir`]), or a model file in the SMPL-family `.npz`
+    /// layout ([`modelfile`]). A pickled `.pkl` is refused with a hint.
+    pub fn load(path: &std::path::Path) -> crate::error::Result<Self> {
+        if path.is_dir() {
+            return Self::load_dir(path);
+        }
+        modelfile::load(path)
+    }
+}

@@ -41,8 +41,7 @@ use crate::rig::{Joint, JointIndex, Marker, Rig};
 use crate::skeleton;
 use crate::template::{Template, write_atomic};
 
-/// Most influences a model-file vertex may have (the JSON rig allows 4).
-pub const MAX_FILE_INFLUENCES: usize = 64;
+pub use crate::rig::MAX_FILE_INFLUENCES;
 
 /// How to turn a pickled SMPL-family file into this layout.
 pub const PKL_HINT: &str = "pickled .pkl (chumpy) model files are not read; convert it once with Python: \
@@ -796,44 +795,9 @@ fn npy_bytes(out: &Out) -> std::io::Result<Vec<u8>> {
     Ok(buf)
 }
 
-/// A joint regressor for a template without one: for each joint, the minimum-norm affine
-/// combination of the `K` rest vertices nearest to it that reproduces the joint exactly
-/// (`Σ w = 1`, `Σ w v = c`), so `J_regressor · v_template` gives the rig's rest joints.
-pub fn fit_regressor(template: &Template) -> SparseRows {
-    const K: usize = 32;
-    let v = template.num_vertices();
-    let rest: Vec<DVec3> = template.vertices.iter().map(|p| p.as_dvec3()).collect();
-    let mut dense = vec![0.0; template.rig.num_joints() * v];
-    for (j, joint) in template.rig.joints.iter().enumerate() {
-        let c = joint.rest();
-        let mut order: Vec<usize> = (0..v).collect();
-        order.sort_by(|&a, &b| {
-            rest[a]
-                .distance_squared(c)
-                .total_cmp(&rest[b].distance_squared(c))
-        });
-        order.truncate(K.min(v));
-        // A (4 × K) = [v; 1], w = Aᵀ (A Aᵀ)⁻¹ [c; 1], centred on c for conditioning.
-        let a = nalgebra::DMatrix::from_fn(4, order.len(), |r, k| {
-            if r < 3 { (rest[order[k]] - c)[r] } else { 1.0 }
-        });
-        let b = nalgebra::DVector::from_vec(vec![0.0, 0.0, 0.0, 1.0]);
-        let aat = &a * a.transpose();
-        let w = match aat.clone().cholesky() {
-            Some(ch) => a.transpose() * ch.solve(&b),
-            // Degenerate (all nearest vertices coplanar with the joint): the nearest vertex.
-            None => nalgebra::DVector::from_fn(order.len(), |k, _| if k == 0 { 1.0 } else { 0.0 }),
-        };
-        for (k, &vi) in order.iter().enumerate() {
-            dense[j * v + vi] = w[k];
-        }
-    }
-    SparseRows::from_dense(template.rig.num_joints(), v, &dense)
-}
-
 /// Writes `template` as a model file (see the module documentation), atomically, its members
 /// deflated (as `numpy.savez_compressed` does). A template without a joint regressor gets one
-/// from [`fit_regressor`].
+/// from [`crate::body::procedural::fit_regressor`].
 pub fn save(template: &Template, path: &Path) -> Result<()> {
     let v = template.num_vertices();
     let j = template.rig.num_joints();
@@ -857,7 +821,7 @@ pub fn save(template: &Template, path: &Path) -> Result<()> {
     let reg = morph
         .regressor
         .clone()
-        .unwrap_or_else(|| fit_regressor(template));
+        .unwrap_or_else(|| crate::body::procedural::fit_regressor(template));
     let info = &template.info;
     let names: Vec<String> = template
         .rig

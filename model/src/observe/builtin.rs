@@ -8,9 +8,9 @@ use super::{
     PoseJacobian, PosedView, ResidualGroup, check_vertices, headset_pose, uniform_groups,
 };
 use crate::camera::Camera;
-use crate::energy::Scales;
 use crate::error::{ModelError, Result};
 use crate::noise::{NoiseConfig, corrupt_hmd, corrupt_pixels, corrupt_points};
+use crate::observe::Scales;
 use crate::template::Template;
 
 /// Depth below which a point counts as behind the camera (1 cm).

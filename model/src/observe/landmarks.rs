@@ -10,9 +10,9 @@ use super::{
     check_vertices, uniform_groups,
 };
 use crate::camera::Camera;
-use crate::energy::Scales;
 use crate::error::{ModelError, Result};
 use crate::noise::{NoiseConfig, corrupt_pixels};
+use crate::observe::Scales;
 use crate::skinning::vertex_normals;
 use crate::template::Template;
 

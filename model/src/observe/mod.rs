@@ -29,15 +29,36 @@ use serde::{Deserialize, Serialize};
 
 pub use self::landmarks::{LANDMARK_CAMERA_DISTANCE, LANDMARK_FOCAL, LANDMARK_IMAGE};
 pub use self::view::{PoseGradient, PoseJacobian, PosedView};
+use crate::body::kinematics::Kinematics;
 use crate::camera::{Camera, DEFAULT_RING_SIZE, default_ring};
-pub use crate::energy::Scales;
-use crate::energy::kinematics::Kinematics;
 use crate::error::{ModelError, Result};
 pub use crate::noise::NoiseConfig;
 use crate::scan::{Mask, VoxelGrid, render_silhouettes};
 use crate::skeleton::{L_HAND, R_HAND};
 use crate::skinning::vertex_normals;
 use crate::template::Template;
+
+/// Noise scales σ of the sparse residual groups: the typical error that counts as one unit.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Scales {
+    /// Marker and hand-tip / headset / wrist positions, metres (1 cm).
+    pub position: f64,
+    /// 2D keypoints, pixels (4 px at 640×480).
+    pub pixel: f64,
+    /// HMD rotation matrices, Frobenius norm (0.05 ≈ 2° of rotation).
+    pub rotation: f64,
+}
+
+impl Default for Scales {
+    fn default() -> Self {
+        Self {
+            position: 0.01,
+            pixel: 4.0,
+            rotation: 0.05,
+        }
+    }
+}
 
 /// The observation modalities of SPEC §4.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]

@@ -9,9 +9,9 @@ use super::{
     ObservationModel, PoseGradient, PoseJacobian, PosedView, ResidualGroup, ScanSetup,
     check_vertices, points_from_values, uniform_groups,
 };
-use crate::energy::Scales;
 use crate::error::{ModelError, Result};
 use crate::noise::{NoiseConfig, jitter_points, punch_holes};
+use crate::observe::Scales;
 use crate::template::Template;
 
 impl ObservationModel for ScanSetup {

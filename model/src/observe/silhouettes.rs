@@ -5,9 +5,9 @@ use glam::Vec3;
 use rand::{Rng, RngCore};
 
 use super::{ObservationModel, PoseJacobian, PosedView, ResidualGroup, SilhouetteSetup};
-use crate::energy::Scales;
 use crate::error::{ModelError, Result};
 use crate::noise::NoiseConfig;
+use crate::observe::Scales;
 use crate::scan::{Mask, render_silhouette};
 use crate::template::Template;
 

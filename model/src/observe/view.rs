@@ -5,14 +5,13 @@
 //! All three speak of the same three things a sensor can see: a skinned vertex, a point carried
 //! rigidly by a joint (the joint centre itself, a headset, a body-worn sensor) and a rotation
 //! carried by a joint (an IMU's or a tracker's orientation). Everything is f64, built on the
-//! energy's kinematics ([`crate::energy`]), so a prediction, its Jacobian and its gradient are
+//! body's kinematics with derivatives ([`crate::body::kinematics`]), so a prediction, its Jacobian and its gradient are
 //! the same function.
 
 use glam::{DMat3, DVec3, Vec3};
 
-use crate::energy::SkinTable;
-use crate::energy::jacobian::PointJacobians;
-use crate::energy::kinematics::{Adjoint, Kinematics, rotation_torque};
+use crate::body::jacobian::PointJacobians;
+use crate::body::kinematics::{Adjoint, Kinematics, SkinTable, rotation_torque};
 use crate::skinning::{Posed, skin_lbs_into};
 use crate::template::Template;
 

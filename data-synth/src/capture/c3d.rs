@@ -28,7 +28,7 @@
 
 use std::path::Path;
 
-use crate::import::ImportError;
+use crate::capture::ImportError;
 
 /// Bytes per block.
 pub const BLOCK: usize = 512;

@@ -140,7 +140,7 @@ pub struct FitArgs {
     pub ort_threads: Option<usize>,
     /// `--known-shape`: `truth` or comma-separated β values ([`crate::fitting::KnownShape`]).
     pub known_shape: Option<String>,
-    /// `--sequence-shape`: `per-frame` or `first-pass` ([`crate::fitting::SequenceShape`]).
+    /// `--sequence-shape`: `per-frame`, `first-pass` or `joint` ([`crate::fitting::SequenceShape`]).
     pub sequence_shape: String,
 }
 
@@ -186,7 +186,7 @@ fn prepare(
                 );
             }
             let modality = modality()?;
-            let t = crate::tuned::setting(args.method.name(), modality.name())?;
+            let t = crate::study::tuned::setting(args.method.name(), modality.name())?;
             (Preset::Nevergrad, "tuned", t.step_scale, t.cma)
         }
         Some(p) => {
@@ -206,7 +206,7 @@ fn prepare(
                 && args.cma == Default::default()
                 && args.method.zeroth_order().is_some()
             {
-                crate::tuned::recorded(args.method.name(), modality()?.name())?
+                crate::study::tuned::recorded(args.method.name(), modality()?.name())?
             } else {
                 None
             };
@@ -371,9 +371,10 @@ fn fit_prepared(
         known_shape: known_shape.clone(),
         sequence_shape,
     };
-    if sequence_shape == crate::fitting::SequenceShape::FirstPass && !plan.runs_shape_pass() {
+    if sequence_shape != crate::fitting::SequenceShape::PerFrame && !plan.runs_shape_pass() {
         bail!(
-            "--sequence-shape first-pass needs a sequence dataset (this one is {scenario}) of a model with shape parameters whose β is not given (--known-shape)"
+            "--sequence-shape {} needs a sequence dataset (this one is {scenario}) of a model with shape parameters whose β is not given (--known-shape)",
+            sequence_shape.name()
         );
     }
     let mask = plan.mask()?;
@@ -424,9 +425,9 @@ fn fit_prepared(
                         json!(iterate_errors(&template, &result.iterates, gt, mpjpe_mm));
                 }
             } else {
-                if let Some(e) =
-                    lfit_synth::import::observation_errors(&dataset, &template, frame, pose)
-                {
+                if let Some(e) = lfit_synth::capture::import::observation_errors(
+                    &dataset, &template, frame, pose,
+                ) {
                     let u = e.unit;
                     row[format!("observation_error_{u}")] = json!(e.mean);
                     row[format!("observation_rms_{u}")] = json!(e.rms);

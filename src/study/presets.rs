@@ -6,7 +6,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 
-use crate::bench::BenchConfig;
+use crate::study::bench::BenchConfig;
 
 /// `(preset, [(part, TOML)])`: a preset with several parts (one per modality) writes each part
 /// into its own subdirectory of `--out`.
@@ -15,21 +15,21 @@ pub const PRESETS: &[(&str, &[(&str, &str)])] = &[
         "zeroth-order-local",
         &[(
             "",
-            include_str!("../benches/presets/zeroth-order-local.toml"),
+            include_str!("../../benches/presets/zeroth-order-local.toml"),
         )],
     ),
     (
         "zeroth-order-global",
         &[(
             "",
-            include_str!("../benches/presets/zeroth-order-global.toml"),
+            include_str!("../../benches/presets/zeroth-order-global.toml"),
         )],
     ),
     (
         "zeroth-order-sequence",
         &[(
             "",
-            include_str!("../benches/presets/zeroth-order-sequence.toml"),
+            include_str!("../../benches/presets/zeroth-order-sequence.toml"),
         )],
     ),
     (
@@ -37,11 +37,11 @@ pub const PRESETS: &[(&str, &[(&str, &str)])] = &[
         &[
             (
                 "silhouettes",
-                include_str!("../benches/presets/ea-vs-pf-silhouettes.toml"),
+                include_str!("../../benches/presets/ea-vs-pf-silhouettes.toml"),
             ),
             (
                 "keypoints2d",
-                include_str!("../benches/presets/ea-vs-pf-keypoints2d.toml"),
+                include_str!("../../benches/presets/ea-vs-pf-keypoints2d.toml"),
             ),
         ],
     ),
@@ -50,15 +50,15 @@ pub const PRESETS: &[(&str, &[(&str, &str)])] = &[
         &[
             (
                 "markers",
-                include_str!("../benches/presets/learned-vs-classical-markers.toml"),
+                include_str!("../../benches/presets/learned-vs-classical-markers.toml"),
             ),
             (
                 "keypoints2d",
-                include_str!("../benches/presets/learned-vs-classical-keypoints2d.toml"),
+                include_str!("../../benches/presets/learned-vs-classical-keypoints2d.toml"),
             ),
             (
                 "hmd",
-                include_str!("../benches/presets/learned-vs-classical-hmd.toml"),
+                include_str!("../../benches/presets/learned-vs-classical-hmd.toml"),
             ),
         ],
     ),
@@ -67,21 +67,23 @@ pub const PRESETS: &[(&str, &[(&str, &str)])] = &[
         &[
             (
                 "markers",
-                include_str!("../benches/presets/learned-vs-classical-procedural-markers.toml"),
+                include_str!("../../benches/presets/learned-vs-classical-procedural-markers.toml"),
             ),
             (
                 "keypoints2d",
-                include_str!("../benches/presets/learned-vs-classical-procedural-keypoints2d.toml"),
+                include_str!(
+                    "../../benches/presets/learned-vs-classical-procedural-keypoints2d.toml"
+                ),
             ),
             (
                 "hmd",
-                include_str!("../benches/presets/learned-vs-classical-procedural-hmd.toml"),
+                include_str!("../../benches/presets/learned-vs-classical-procedural-hmd.toml"),
             ),
         ],
     ),
     (
         "face",
-        &[("", include_str!("../benches/presets/face.toml"))],
+        &[("", include_str!("../../benches/presets/face.toml"))],
     ),
 ];
 

@@ -34,9 +34,9 @@ use std::path::Path;
 use glam::{DMat3, DVec3};
 use lfit_model::template::{ModelSignature, Template, write_atomic};
 
-use crate::bvh::{Axis, Bvh, BvhJoint, Channel, EulerOrder};
+use crate::motion::bvh::{Axis, Bvh, BvhJoint, Channel, EulerOrder};
+use crate::motion::retarget::{MotionError, Up, log_map};
 use crate::npz::{Array, npz_bytes, read_npz};
-use crate::retarget::{MotionError, Up, log_map};
 
 const FORMAT: &str = "lfit-motion";
 const VERSION: u32 = 1;
@@ -333,7 +333,7 @@ pub fn read_amass(
         let tr = DVec3::from_slice(&trans.values[f * 3..f * 3 + 3]);
         p[..3].copy_from_slice(&tr.to_array());
         if up != Up::Y {
-            let r = lfit_model::skinning::exp_map(DVec3::from_slice(&p[3..6]));
+            let r = lfit_model::body::rotation::exp_map(DVec3::from_slice(&p[3..6]));
             p[3..6].copy_from_slice(&log_map(c * r).to_array());
             let t2 = c * (root_rest + tr) - root_rest;
             p[..3].copy_from_slice(&t2.to_array());
@@ -447,7 +447,8 @@ pub fn export_bvh(template: &Template, poses: &[Vec<f64>], fps: f64) -> Result<B
             if joints[j].parent.is_none() {
                 row.extend((DVec3::from_slice(&p[..3]) * CM).to_array());
             }
-            let r = lfit_model::skinning::exp_map(DVec3::from_slice(&p[3 + 3 * j..6 + 3 * j]));
+            let r =
+                lfit_model::body::rotation::exp_map(DVec3::from_slice(&p[3 + 3 * j..6 + 3 * j]));
             row.extend(EXPORT_ORDER.from_matrix(r).map(f64::to_degrees));
         }
         frames.push(row);
@@ -493,7 +494,9 @@ fn depth_first(joints: &[BvhJoint]) -> Vec<usize> {
 /// The rotation matrices of a pose vector's joints (for comparisons).
 pub fn rotations_of(pose: &[f64], joints: usize) -> Vec<DMat3> {
     (0..joints)
-        .map(|j| lfit_model::skinning::exp_map(DVec3::from_slice(&pose[3 + 3 * j..6 + 3 * j])))
+        .map(|j| {
+            lfit_model::body::rotation::exp_map(DVec3::from_slice(&pose[3 + 3 * j..6 + 3 * j]))
+        })
         .collect()
 }
 
@@ -501,7 +504,7 @@ pub fn rotations_of(pose: &[f64], joints: usize) -> Vec<DMat3> {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
-    use crate::retarget::{JointMap, RetargetOptions, retarget, rotation_angle_between};
+    use crate::motion::retarget::{JointMap, RetargetOptions, retarget, rotation_angle_between};
     use rand::{Rng, SeedableRng};
 
     fn random_poses(template: &Template, n: usize, seed: u64) -> Vec<Vec<f64>> {
@@ -556,7 +559,7 @@ mod tests {
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod clip_tests {
-    use crate::retarget::{JointMap, RetargetOptions, read_bvh, retarget};
+    use crate::motion::retarget::{JointMap, RetargetOptions, read_bvh, retarget};
 
     /// The MocapBank clip (scripts/fetch-mocapbank.sh) when `LFIT_MOCAPBANK_BVH` names it; the
     /// root package's tests/motion_cli.rs runs the same check through the CLI and requires it in CI.
@@ -587,9 +590,13 @@ mod clip_tests {
         // GUIDE.md's figures (mean 0.9885, min 0.9242) less 0.002 and 0.01, as tests/motion_cli.rs.
         assert!(r.cosine_mean >= 0.9885 - 0.002, "{}", r.cosine_mean);
         assert!(r.cosine_min >= 0.9242 - 0.01, "{}", r.cosine_min);
-        let rt =
-            crate::retarget::Retargeter::new(&bvh, &map, &template, &RetargetOptions::default())
-                .unwrap();
+        let rt = crate::motion::retarget::Retargeter::new(
+            &bvh,
+            &map,
+            &template,
+            &RetargetOptions::default(),
+        )
+        .unwrap();
         let mut per = vec![(0.0, 1.0f64); rt.bones.len()];
         for (values, params) in bvh.frames.iter().zip(&r.poses) {
             for (k, c) in rt

@@ -1,10 +1,10 @@
 //! Real observations → lfit datasets without ground truth (`lfit data import`).
 //!
-//! - 3D markers from a C3D file ([`crate::c3d`]): each C3D label named by the label map (or, without
+//! - 3D markers from a C3D file ([`crate::capture::c3d`]): each C3D label named by the label map (or, without
 //!   one, equal to a model marker's name) fills that model marker's three entries of the
 //!   `markers` observation, in metres; a gap (residual word < 0) or a model marker no label maps
 //!   to is an invisible entry.
-//! - 2D keypoints ([`crate::keypoints`]): per camera, the keypoints of a COCO-17 or BODY_25
+//! - 2D keypoints ([`crate::capture::keypoints`]): per camera, the keypoints of a COCO-17 or BODY_25
 //!   detector, each mapped to a model joint, fill that joint's entries of the `keypoints2d`
 //!   observation in that camera; a keypoint whose confidence is not above the threshold, or a
 //!   joint no keypoint maps to, is invisible.
@@ -17,7 +17,7 @@
 //! pose is placed along the ray of the seen keypoints' centroid at the depth where its size
 //! matches theirs; a frame that allows none of these starts where the previous one did.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use glam::{DMat3, DQuat, DVec3};
 use lfit_model::Template;
@@ -27,31 +27,15 @@ use serde::Deserialize;
 use serde::de::{Deserializer, MapAccess, Visitor};
 use serde_json::{Value, json};
 
-use crate::c3d::C3d;
+use crate::capture::c3d::C3d;
+use crate::capture::keypoints::{KeypointLayout, KeypointTrack};
+use crate::dataset::config::{PoseSource, Scenario, SynthConfig};
 use crate::dataset::{Dataset, FORMAT_VERSION, Meta, Observations};
-use crate::error::SynthError;
-use crate::keypoints::{KeypointLayout, KeypointTrack};
 use crate::motion::MotionKind;
+use crate::motion::retarget::Up;
 use crate::noise::NoiseConfig;
-use crate::retarget::Up;
-use crate::synth::{PoseSource, Scenario, SynthConfig};
 
-/// Errors of the import: each a one-line cause.
-#[derive(Debug, thiserror::Error)]
-pub enum ImportError {
-    #[error("cannot read {path}: {source}")]
-    Read {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("{0}")]
-    Invalid(String),
-    #[error(transparent)]
-    Synth(#[from] SynthError),
-    #[error(transparent)]
-    Model(#[from] lfit_model::ModelError),
-}
+pub use super::ImportError;
 
 fn fail<T>(msg: impl Into<String>) -> Result<T, ImportError> {
     Err(ImportError::Invalid(msg.into()))
@@ -774,7 +758,7 @@ pub fn observation_errors(
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
-    use crate::c3d::{C3dPoint, Processor};
+    use crate::capture::c3d::{C3dPoint, Processor};
     use lfit_model::camera::default_ring;
     use lfit_model::default_template;
 

@@ -14,8 +14,8 @@ use std::fmt::Write as _;
 
 use serde_json::{Value, json};
 
-use crate::bench::{BenchConfig, Run};
-use crate::stats::{friedman, relative_performance, verdict, wilcoxon};
+use crate::study::bench::{BenchConfig, Run};
+use crate::study::stats::{friedman, relative_performance, verdict, wilcoxon};
 
 /// The method label of a row: the method, with its strategy when the sweep has several.
 pub(crate) fn label(config: &BenchConfig, r: &Run) -> String {

@@ -1,17 +1,19 @@
 //! `lfit motion import` and `lfit motion export` (SPEC §3a "Motions", §10): BVH clips retargeted
 //! through a joint-name map and AMASS-layout `.npz` motions become lfit motion files
-//! ([`lfit_synth::motion_io::MotionClip`]); motion files and fitted sequences become BVH.
+//! ([`lfit_synth::motion::file::MotionClip`]); motion files and fitted sequences become BVH.
 //! `lfit motion coverage` measures how well training motions cover an evaluation motion
-//! ([`lfit_synth::coverage`]). Every input is read and checked before anything is written;
+//! ([`lfit_synth::motion::coverage`]). Every input is read and checked before anything is written;
 //! outputs are written atomically.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use lfit_model::template::{Template, write_atomic};
-use lfit_synth::motion_io::{MotionClip, export_bvh, read_amass};
-use lfit_synth::rest_pose::{RestPose, rebase, retarget_neutral};
-use lfit_synth::retarget::{JointMap, RetargetOptions, RootMode, Units, Up, read_bvh, retarget};
+use lfit_synth::motion::file::{MotionClip, export_bvh, read_amass};
+use lfit_synth::motion::rest_pose::{RestPose, rebase, retarget_neutral};
+use lfit_synth::motion::retarget::{
+    JointMap, RetargetOptions, RootMode, Units, Up, read_bvh, retarget,
+};
 use serde_json::{Value, json};
 
 /// `lfit motion ...`.
@@ -298,7 +300,7 @@ pub fn export(args: &ExportArgs) -> Result<Value> {
             (clip.poses, args.fps.unwrap_or(clip.fps))
         }
         (None, Some(f)) => {
-            let fitted = crate::export::read_fitted_poses(f, &template)?;
+            let fitted = crate::cli::export::read_fitted_poses(f, &template)?;
             let poses = fitted.frames.into_iter().map(|(_, p)| p).collect();
             (poses, args.fps.unwrap_or(30.0))
         }
@@ -315,7 +317,7 @@ pub fn export(args: &ExportArgs) -> Result<Value> {
         "fps": fps,
         "joints": bvh.joints.len(),
         "units": "cm",
-        "rotation_order": lfit_synth::motion_io::EXPORT_ORDER.name(),
+        "rotation_order": lfit_synth::motion::file::EXPORT_ORDER.name(),
     }))
 }
 
@@ -408,7 +410,7 @@ pub fn coverage(args: &CoverageArgs) -> Result<Value> {
         .map(|c| c.poses.as_slice())
         .chain(data_poses.iter().map(Vec::as_slice))
         .collect();
-    let c = lfit_synth::coverage::coverage(
+    let c = lfit_synth::motion::coverage::coverage(
         &layout,
         &slices,
         &eval.poses,
@@ -416,14 +418,14 @@ pub fn coverage(args: &CoverageArgs) -> Result<Value> {
         (!counted.is_empty()).then_some(counted.as_slice()),
     )
     .map_err(anyhow::Error::msg)?;
-    let body: Vec<&lfit_synth::coverage::AxisCoverage> = c
+    let body: Vec<&lfit_synth::motion::coverage::AxisCoverage> = c
         .axes
         .iter()
         .filter(|a| c.counted.contains(&a.joint))
         .collect();
     let mut worst = body.clone();
     worst.sort_by(|a, b| b.outside.total_cmp(&a.outside));
-    let row = |a: &lfit_synth::coverage::AxisCoverage| {
+    let row = |a: &lfit_synth::motion::coverage::AxisCoverage| {
         json!({
             "axis": a.name,
             "outside": a.outside,

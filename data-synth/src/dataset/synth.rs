@@ -2,10 +2,6 @@
 //! sampling, the scenarios of papers/000 §4 (a start pose and a target per frame), observations
 //! from the model crate's observation models, then noise and occlusion.
 
-use std::fmt;
-use std::path::Path;
-use std::str::FromStr;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::Vec3;
@@ -20,275 +16,12 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 
+use crate::dataset::config::{FACE_TRANSLATION, MotionFile, PoseSource, Scenario, SynthConfig};
 use crate::dataset::{Dataset, FORMAT_VERSION, Meta, Observations};
 use crate::error::SynthError;
-use crate::motion::{MotionKind, MotionParams, motion_pose};
-use crate::motion_io::MotionClip;
+use crate::motion::{MotionParams, motion_pose};
 use crate::noise::NoiseConfig;
-
-/// The experiment cases of papers/000 §4.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Scenario {
-    /// The target is near the start (0.03–0.25 s later in the same motion), inside the `local` box.
-    Local,
-    /// The start is the rest pose; the target is seconds into a motion, inside the `global` box.
-    Global,
-    /// Consecutive frames of one motion; each frame starts from the previous frame's pose.
-    Sequence,
-}
-
-impl Scenario {
-    pub fn name(self) -> &'static str {
-        match self {
-            Scenario::Local => "local",
-            Scenario::Global => "global",
-            Scenario::Sequence => "sequence",
-        }
-    }
-}
-
-impl fmt::Display for Scenario {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl FromStr for Scenario {
-    type Err = SynthError;
-    fn from_str(s: &str) -> Result<Self, SynthError> {
-        [Scenario::Local, Scenario::Global, Scenario::Sequence]
-            .into_iter()
-            .find(|x| x.name() == s)
-            .ok_or_else(|| SynthError::UnknownScenario(s.to_string()))
-    }
-}
-
-/// Where target poses come from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum PoseSource {
-    /// Motion: the procedural motion library, or the imported motion files of
-    /// [`SynthConfig::motion_files`] (with [`SynthConfig::with_library`]: both).
-    #[default]
-    Motion,
-    /// Uniform sampling within the global bounds (root height within ±0.3 m of standing).
-    Uniform,
-    /// papers/002's face protocol (supp.: "we vary pose, identity and expression"): every
-    /// rotation uniform between half its lower and half its upper joint limit, the root translation uniform within
-    /// ±[`FACE_TRANSLATION`] of the rest (in front of the `landmarks2d` camera), identity and
-    /// expression from the prior like every subject.
-    Face,
-}
-
-/// Half-widths (m) of the face protocol's translation box: 5 cm sideways and up, 10 cm towards
-/// or away from the camera (0.6 m away: about ±17 % in scale).
-pub const FACE_TRANSLATION: [f64; 3] = [0.05, 0.05, 0.1];
-
-impl PoseSource {
-    /// The name `--source` takes and datasets record.
-    pub fn name(self) -> &'static str {
-        match self {
-            PoseSource::Motion => "motion",
-            PoseSource::Uniform => "uniform",
-            PoseSource::Face => "face",
-        }
-    }
-}
-
-impl FromStr for PoseSource {
-    type Err = SynthError;
-    fn from_str(s: &str) -> Result<Self, SynthError> {
-        [PoseSource::Motion, PoseSource::Uniform, PoseSource::Face]
-            .into_iter()
-            .find(|p| p.name() == s)
-            .ok_or_else(|| SynthError::UnknownSource(s.to_string()))
-    }
-}
-
-/// Everything that determines a dataset (with the template and sensor).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SynthConfig {
-    pub modality: Modality,
-    pub scenario: Scenario,
-    pub source: PoseSource,
-    pub frames: usize,
-    pub seed: u64,
-    /// Frame rate of sequences, Hz.
-    pub fps: f64,
-    pub noise: NoiseConfig,
-    /// Procedural motions drawn from (all by default).
-    pub motions: Vec<MotionKind>,
-    /// Imported motion files (`lfit motion import`) that `source = motion` draws its frames
-    /// from instead of the procedural library; empty: the library. Recorded in the dataset's
-    /// metadata by path, size and hash (absent when empty, so other datasets keep their bytes).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub motion_files: Vec<MotionFile>,
-    /// With motion files: each frame (a sequence: the whole sequence) comes from the library or
-    /// from a file by a fair coin.
-    #[serde(default, skip_serializing_if = "is_false")]
-    pub with_library: bool,
-}
-
-fn is_false(b: &bool) -> bool {
-    !*b
-}
-
-/// An imported motion file (`lfit motion import`: poses in a model's parameter layout) that
-/// synthesis draws target poses from. Only its description is serialised (the dataset's
-/// metadata says where its frames came from); [`MotionFile::load`] reads the poses.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct MotionFile {
-    /// The path as given.
-    pub path: String,
-    /// The file's own record of its origin (e.g. `bvh:clip.bvh map:map.json`).
-    pub source: String,
-    pub frames: usize,
-    /// Frame rate, Hz.
-    pub fps: f64,
-    /// FNV-1a (64 bit) of the poses' little-endian f64 bytes, in hex: which contents were used.
-    pub poses_hash: String,
-    /// The poses (not serialised: a config read back from a dataset has none).
-    #[serde(skip)]
-    pub clip: Option<Arc<MotionClip>>,
-}
-
-impl MotionFile {
-    /// Reads a motion file and checks it against `template` (a motion made for another
-    /// parameter layout is refused).
-    pub fn load(path: &Path, template: &Template) -> Result<Self, SynthError> {
-        let clip = MotionClip::read(path)?;
-        Self::from_clip(&path.display().to_string(), clip, template)
-    }
-
-    /// A motion held in memory, named `path`, checked against `template`.
-    pub fn from_clip(
-        path: &str,
-        clip: MotionClip,
-        template: &Template,
-    ) -> Result<Self, SynthError> {
-        let bad = |reason: String| SynthError::MotionFile {
-            path: path.to_string(),
-            reason,
-        };
-        clip.check_model(template).map_err(|e| bad(e.to_string()))?;
-        let dim = template.layout().dim();
-        if clip.poses.is_empty() || clip.poses.iter().any(|p| p.len() != dim) {
-            return Err(bad(format!(
-                "needs at least one pose of {dim} numbers per frame"
-            )));
-        }
-        if clip.poses.iter().flatten().any(|v| !v.is_finite()) {
-            return Err(bad("a pose value is not finite".into()));
-        }
-        if !(clip.fps.is_finite() && clip.fps > 0.0) {
-            return Err(bad(format!("frame rate {} is not positive", clip.fps)));
-        }
-        let mut hash = 0xcbf2_9ce4_8422_2325_u64;
-        for byte in clip.poses.iter().flatten().flat_map(|v| v.to_le_bytes()) {
-            hash = (hash ^ u64::from(byte)).wrapping_mul(0x0100_0000_01b3);
-        }
-        Ok(Self {
-            path: path.to_string(),
-            source: clip.source.clone(),
-            frames: clip.poses.len(),
-            fps: clip.fps,
-            poses_hash: format!("{hash:016x}"),
-            clip: Some(Arc::new(clip)),
-        })
-    }
-
-    /// The file's name, for the per-frame motion names (`walk.npz:17`).
-    pub fn label(&self) -> String {
-        Path::new(&self.path)
-            .file_name()
-            .map_or_else(|| self.path.clone(), |n| n.to_string_lossy().into_owned())
-    }
-
-    fn poses(&self) -> Result<&[Vec<f64>], SynthError> {
-        match &self.clip {
-            Some(c) if c.poses.len() == self.frames => Ok(&c.poses),
-            _ => Err(SynthError::MotionFile {
-                path: self.path.clone(),
-                reason: "its poses are not loaded (a configuration read back from a dataset holds only the file's description)".into(),
-            }),
-        }
-    }
-
-    /// Frames between two sequence frames so that the sequence runs near `fps` (at least 1).
-    fn stride(&self, fps: f64) -> usize {
-        ((self.fps / fps).round() as usize).max(1)
-    }
-}
-
-impl SynthConfig {
-    pub fn new(modality: Modality, scenario: Scenario, frames: usize, seed: u64) -> Self {
-        Self {
-            modality,
-            scenario,
-            source: PoseSource::Motion,
-            frames,
-            seed,
-            fps: 30.0,
-            noise: NoiseConfig::default(),
-            motions: MotionKind::ALL.to_vec(),
-            motion_files: Vec::new(),
-            with_library: false,
-        }
-    }
-
-    /// Whether frames may come from the procedural library.
-    fn uses_library(&self) -> bool {
-        self.source == PoseSource::Motion && (self.motion_files.is_empty() || self.with_library)
-    }
-
-    pub fn validate(&self) -> Result<(), SynthError> {
-        let setting = |name, value: String, reason: &str| {
-            Err(SynthError::Setting {
-                name,
-                value,
-                reason: reason.into(),
-            })
-        };
-        if self.frames == 0 {
-            return setting("frames", "0".into(), "must be at least 1");
-        }
-        if !(self.fps.is_finite() && self.fps > 0.0) {
-            return setting("fps", self.fps.to_string(), "must be positive");
-        }
-        if self.motions.is_empty() {
-            return setting("motions", "[]".into(), "need at least one motion");
-        }
-        let source_name = self.source.name();
-        if self.scenario == Scenario::Sequence && self.source != PoseSource::Motion {
-            return setting(
-                "source",
-                source_name.into(),
-                "sequences need smooth motion: use --source motion",
-            );
-        }
-        if self.source != PoseSource::Motion && !self.motion_files.is_empty() {
-            return setting(
-                "source",
-                source_name.into(),
-                "motion files (--motions) are drawn from by --source motion",
-            );
-        }
-        if self.with_library && self.motion_files.is_empty() {
-            return setting(
-                "with_library",
-                "true".into(),
-                "mixes the library with motion files: give them (--motions FILE...)",
-            );
-        }
-        for f in &self.motion_files {
-            f.poses()?;
-        }
-        Ok(())
-    }
-}
 
 /// Per-frame random stream: the same (seed, stream) gives the same numbers whatever the thread.
 fn stream(seed: u64, index: u64) -> ChaCha8Rng {
@@ -801,7 +534,10 @@ fn assemble_scan(frames: Vec<FrameObs>, sensor: &Sensor) -> Result<Observations,
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+    use crate::motion::MotionKind;
+    use crate::motion::file::MotionClip;
     use lfit_model::default_template;
+    use std::sync::Arc;
 
     #[test]
     fn scenarios_respect_their_boxes() {

@@ -104,7 +104,7 @@ pub fn read_fitted_poses(path: &Path, template: &Template) -> Result<FittedPoses
         .with_context(|| format!("malformed poses JSON {}", path.display()))?;
     let Some(rows) = value.get("frames") else {
         if value.get("pose").is_some() || value.get("poses").is_some() {
-            let poses = crate::commands::read_params_file(path, template)?;
+            let poses = crate::data::read_params_file(path, template)?;
             return Ok(FittedPoses {
                 modality: None,
                 frames: poses.into_iter().enumerate().collect(),
@@ -137,7 +137,7 @@ pub fn read_fitted_poses(path: &Path, template: &Template) -> Result<FittedPoses
                 path.display()
             )
         })?;
-        let pose = crate::commands::params_from_json(
+        let pose = crate::data::params_from_json(
             template,
             row.get("pose").unwrap_or(&Value::Null),
             row.get("shape"),
@@ -267,7 +267,7 @@ pub fn export(args: &ExportArgs) -> Result<Value> {
     let format: ExportFormat = args.format.parse()?;
     let dataset =
         Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))?;
-    let template = crate::fit::template_for(&dataset, args.template.as_deref())?;
+    let template = crate::cli::fit::template_for(&dataset, args.template.as_deref())?;
     let fitted = read_fitted_poses(&args.poses, &template)?;
     check_against_dataset(&fitted, &args.poses, &dataset, &args.data)?;
     let text = std::fs::read_to_string(&args.poses)

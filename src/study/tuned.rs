@@ -8,7 +8,7 @@ use anyhow::{Context, Result, bail};
 use lfit_fitters::optim::cma::CmaVariant;
 use serde_json::Value;
 
-const TUNED: &str = include_str!("../configs/tuned.json");
+const TUNED: &str = include_str!("../../configs/tuned.json");
 
 /// What the `tuned` preset sets for one method on one modality.
 #[derive(Debug, Clone, Copy, PartialEq)]

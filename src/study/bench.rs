@@ -1,7 +1,7 @@
 //! `lfit bench`: methods × strategies × budgets × repetitions × frames on one energy
 //! configuration (SPEC §9). Runs in parallel, appends every finished run to `runs.csv` so a killed
 //! run resumes where it stopped, shards with `--shard i/n`, and merges shards
-//! (`lfit bench merge`). The report is written by [`crate::report`].
+//! (`lfit bench merge`). The report is written by [`crate::study::report`].
 
 use std::collections::{BTreeMap, HashSet};
 use std::io::Write;
@@ -23,7 +23,7 @@ use lfit_synth::{Dataset, Scenario};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::fit::{
+use crate::cli::fit::{
     energy_for_frame, frame_seed, iterate_errors, parse_frames, read_energy_config, template_for,
 };
 
@@ -103,7 +103,7 @@ pub struct BenchConfig {
     pub checkpoint: Option<PathBuf>,
     #[serde(default)]
     pub neural_start: Option<String>,
-    /// How a sequence estimates β: `per-frame` (default) or `first-pass`
+    /// How a sequence estimates β: `per-frame` (default), `first-pass` or `joint`
     /// ([`crate::fitting::SequenceShape`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sequence_shape: Option<String>,
@@ -278,15 +278,15 @@ impl BenchConfig {
     }
 
     /// The initial steps and CMA-ES variant of zeroth-order method `method` on `modality`.
-    /// `preset = "tuned"`: its recorded setting ([`crate::tuned`]; an error when there is none).
+    /// `preset = "tuned"`: its recorded setting ([`crate::study::tuned`]; an error when there is none).
     /// No preset: the recorded setting where there is one, papers/000's steps otherwise (each
     /// baseline at its best; the papers' studies name their preset). `nevergrad`, `paper001`:
     /// papers/000's steps.
     pub fn steps(&self, method: &str, modality: &str) -> Result<(f64, CmaVariant)> {
         let tuned = match self.preset.as_deref() {
-            Some("tuned") => Some(crate::tuned::setting(method, modality)?),
+            Some("tuned") => Some(crate::study::tuned::setting(method, modality)?),
             Some(_) => None,
-            None => crate::tuned::recorded(method, modality)?,
+            None => crate::study::tuned::recorded(method, modality)?,
         };
         Ok(tuned.map_or((1.0, CmaVariant::default()), |t| (t.step_scale, t.cma)))
     }
@@ -715,7 +715,7 @@ pub fn run(
             .with_context(|| format!("cannot append to {}", csv.display()))?,
     );
     // Fitted poses of the runs the report's pictures draw (crate::render::pictures).
-    let poses_path = out.join(crate::render::pictures::POSES_FILE);
+    let poses_path = out.join(crate::study::poses::POSES_FILE);
     let poses_file = Mutex::new(
         std::fs::OpenOptions::new()
             .create(true)
@@ -766,10 +766,10 @@ pub fn run(
                 }
                 let result = fitted.result;
                 let (pose, gt) = (&result.pose, &dataset.gt_poses[frame]);
-                if crate::render::pictures::records_pose(config, budget, rep) {
+                if crate::study::poses::records_pose(&config.budgets, budget, rep) {
                     // Before the row: a run killed in between is redone, its pose line repeated.
                     let key = (method.clone(), strategy.clone(), budget, rep, frame);
-                    let line = crate::render::pictures::pose_line(&key, pose);
+                    let line = crate::study::poses::pose_line(&key, pose);
                     let mut f = poses_file
                         .lock()
                         .map_err(|_| anyhow::anyhow!("poses.jsonl lock poisoned"))?;
@@ -789,7 +789,8 @@ pub fn run(
                     mpjpe_mm: mpjpe_mm(&template, pose, gt),
                     pa_mpjpe_mm: pa_mpjpe_mm(&template, pose, gt),
                     hausdorff_mm: hausdorff_rms_mm(&template, pose, gt),
-                    shape_rms: crate::fit::coefficient_rms(&template, pose, gt).unwrap_or(f64::NAN),
+                    shape_rms: crate::cli::fit::coefficient_rms(&template, pose, gt)
+                        .unwrap_or(f64::NAN),
                     evaluations: result.evaluations,
                     gradient_evaluations: result.gradient_evaluations,
                     iterations: result.iterations,
@@ -888,8 +889,8 @@ pub fn merge(
         for r in read_runs(&dir.join("runs.csv"))? {
             rows.insert(r.key(), r);
         }
-        poses.extend(crate::render::pictures::read_poses(
-            &dir.join(crate::render::pictures::POSES_FILE),
+        poses.extend(crate::study::poses::read_poses(
+            &dir.join(crate::study::poses::POSES_FILE),
         )?);
     }
     let (bytes, config) = config.context("no shard")?;
@@ -928,7 +929,7 @@ pub fn merge(
     let mut runs: Vec<Run> = rows.into_values().collect();
     sort_runs(&config, &mut runs);
     write_runs(&out.join("runs.csv"), &runs)?;
-    crate::render::pictures::write_poses(&out.join(crate::render::pictures::POSES_FILE), &poses)?;
+    crate::study::poses::write_poses(&out.join(crate::study::poses::POSES_FILE), &poses)?;
     // A synthesised dataset lives in each shard; the report's pictures read it from `out`.
     let merged_data = out.join("data.npz");
     if config.data.is_none()

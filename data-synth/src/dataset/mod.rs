@@ -6,6 +6,9 @@
 //! arrays have no rows and `meta` says `"ground_truth": false` (files with ground truth omit the
 //! key, so their bytes are those of before).
 
+pub mod config;
+pub mod synth;
+
 use std::path::Path;
 
 use glam::Vec3;
@@ -15,9 +18,9 @@ use lfit_model::scan::{Mask, VoxelGrid};
 use lfit_model::template::write_atomic;
 use serde::{Deserialize, Serialize};
 
+use crate::dataset::config::SynthConfig;
 use crate::error::SynthError;
 use crate::npz::{Array, npz_bytes, read_npz};
-use crate::synth::SynthConfig;
 
 /// Version of the on-disk layout; loading another version is an error.
 pub const FORMAT_VERSION: u32 = 1;

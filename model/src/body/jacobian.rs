@@ -18,10 +18,9 @@
 
 use glam::{DMat3, DVec3};
 
-use super::SkinTable;
-use super::kinematics::{Kinematics, left_jacobian, skew};
+use super::kinematics::{Kinematics, SkinTable, left_jacobian, skew};
+use crate::body::rotation::exp_map;
 use crate::pose::rot_offset;
-use crate::skinning::exp_map;
 use crate::template::Template;
 
 /// The per-evaluation factors of the forward-mode Jacobian, and scratch space.

@@ -19,8 +19,8 @@ use plotters::coord::ranged1d::{AsRangedCoord, DefaultFormatting, KeyPointHint, 
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use crate::bench::{BenchConfig, Run};
-use crate::report::{label, labels};
+use crate::study::bench::{BenchConfig, Run};
+use crate::study::report::{label, labels};
 
 const SIZE: (u32, u32) = (1100, 700);
 /// The family every text style names; [`ensure_font`] registers DejaVu Sans under it.

@@ -43,7 +43,7 @@ use std::path::{Path, PathBuf};
 use glam::{DMat3, DQuat, DVec3};
 use lfit_model::template::Template;
 
-use crate::bvh::{Bvh, BvhError, BvhPose};
+use crate::motion::bvh::{Bvh, BvhError, BvhPose};
 
 /// Errors of motion import and export.
 #[derive(Debug, thiserror::Error)]
@@ -771,13 +771,14 @@ mod tests {
             DVec3::new(0.0, std::f64::consts::PI - 1e-7, 0.0),
             DVec3::new(1.0, 1.0, 1.0).normalize() * 3.0,
         ] {
-            let m = lfit_model::skinning::exp_map(r);
+            let m = lfit_model::body::rotation::exp_map(r);
             let back = log_map(m);
-            assert!(rotation_angle_between(m, lfit_model::skinning::exp_map(back)) < 1e-12);
+            assert!(rotation_angle_between(m, lfit_model::body::rotation::exp_map(back)) < 1e-12);
         }
         assert!(
-            (log_map(lfit_model::skinning::exp_map(DVec3::new(0.0, 2.0, 0.0)))
-                - DVec3::new(0.0, 2.0, 0.0))
+            (log_map(lfit_model::body::rotation::exp_map(DVec3::new(
+                0.0, 2.0, 0.0
+            ))) - DVec3::new(0.0, 2.0, 0.0))
             .length()
                 < 1e-12
         );

@@ -1,17 +1,17 @@
 //! `lfit data import`: a user's own captures → an lfit dataset without ground truth.
 //!
-//! - `--c3d FILE [--label-map MAP.json]`: 3D markers from a C3D file (`lfit_synth::c3d`), each
+//! - `--c3d FILE [--label-map MAP.json]`: 3D markers from a C3D file (`lfit_synth::capture::c3d`), each
 //!   C3D label that the map names (`{"C3D label": "model marker", ...}`; without a map, labels
 //!   equal to a model marker's name) onto that marker of the model's `markers` modality; gaps and
 //!   markers no label maps to are invisible entries. Units from `POINT:UNITS` (mm, cm, m).
 //! - `--keypoints PATH... --layout coco17|body25 --camera CAMERAS.json [--keypoint-map MAP.json]`:
-//!   2D keypoints (COCO keypoint files or OpenPose frame files/folders, `lfit_synth::keypoints`)
+//!   2D keypoints (COCO keypoint files or OpenPose frame files/folders, `lfit_synth::capture::keypoints`)
 //!   in calibrated cameras as the `keypoints2d` modality; one path per camera in the camera
 //!   file's order (or, with one camera, any number of paths in frame order); a keypoint is seen
 //!   when its confidence is above `--min-confidence`.
 //!
 //! The dataset's start poses are the rest pose moved rigidly onto each frame's data
-//! (`lfit_synth::import`); the scenario (default `sequence`: each frame starts from the previous
+//! (`lfit_synth::capture::import`); the scenario (default `sequence`: each frame starts from the previous
 //! frame's fit) picks the free DOFs and the search box of `lfit fit`. Every check runs before
 //! anything is written; the file is written to a temporary name and renamed.
 
@@ -19,9 +19,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use lfit_synth::Scenario;
-use lfit_synth::c3d::C3d;
-use lfit_synth::import::{import_c3d, import_keypoints, read_name_map};
-use lfit_synth::keypoints::{KeypointLayout, read_cameras, read_track};
+use lfit_synth::capture::c3d::C3d;
+use lfit_synth::capture::import::{import_c3d, import_keypoints, read_name_map};
+use lfit_synth::capture::keypoints::{KeypointLayout, read_cameras, read_track};
 use serde_json::{Value, json};
 
 /// `lfit data ...`.
@@ -154,7 +154,7 @@ pub fn export_c3d(args: &ExportC3dArgs) -> Result<Value> {
         for k in 0..names.len() {
             let p = [v[3 * k], v[3 * k + 1], v[3 * k + 2]];
             if b[3 * k] && p.iter().all(|x| x.is_finite()) {
-                row.push(Some(lfit_synth::c3d::C3dPoint {
+                row.push(Some(lfit_synth::capture::c3d::C3dPoint {
                     position: p.map(|x| x * 1e3),
                     residual: 0.0,
                     cameras: 0,
@@ -167,7 +167,7 @@ pub fn export_c3d(args: &ExportC3dArgs) -> Result<Value> {
         frames.push(row);
     }
     let c3d = C3d {
-        processor: lfit_synth::c3d::Processor::Intel,
+        processor: lfit_synth::capture::c3d::Processor::Intel,
         labels: names
             .iter()
             .map(|n| format!("{}{n}", args.label_prefix))
@@ -223,7 +223,8 @@ pub fn import_dataset(
         (Some(_), false) => bail!("give either --c3d or --keypoints, not both"),
         (None, true) => bail!("lfit data import needs --c3d FILE or --keypoints FILE..."),
         (Some(path), true) => {
-            let up: lfit_synth::retarget::Up = args.up.parse().map_err(anyhow::Error::msg)?;
+            let up: lfit_synth::motion::retarget::Up =
+                args.up.parse().map_err(anyhow::Error::msg)?;
             let map = args
                 .label_map
                 .as_deref()

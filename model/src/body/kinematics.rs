@@ -27,9 +27,10 @@ use std::sync::Arc;
 
 use glam::{DAffine3, DMat3, DVec3};
 
+use crate::body::rotation::exp_map;
 use crate::morph::Morph;
 use crate::pose::rot_offset;
-use crate::skinning::{exp_map, joint_transforms};
+use crate::skinning::joint_transforms;
 use crate::template::Template;
 
 /// `[v]×`, the matrix of `x ↦ v × x`.
@@ -329,10 +330,39 @@ impl Adjoint {
     }
 }
 
+/// Skinning weights and rest geometry in f64, flattened.
+#[derive(Debug, Clone)]
+pub(crate) struct SkinTable {
+    pub rest: Vec<DVec3>,
+    entries: Vec<(u16, f64)>,
+    offsets: Vec<u32>,
+}
+
+impl SkinTable {
+    pub(crate) fn new(template: &Template) -> Self {
+        let mut entries = Vec::new();
+        let mut offsets = vec![0u32];
+        for list in &template.rig.weights {
+            entries.extend(list.iter().map(|&(j, w)| (j as u16, w)));
+            offsets.push(entries.len() as u32);
+        }
+        Self {
+            rest: template.vertices.iter().map(|v| v.as_dvec3()).collect(),
+            entries,
+            offsets,
+        }
+    }
+
+    #[inline]
+    pub fn weights(&self, v: usize) -> &[(u16, f64)] {
+        &self.entries[self.offsets[v] as usize..self.offsets[v + 1] as usize]
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::skinning::exp_map;
+    use crate::body::rotation::exp_map;
 
     #[test]
     fn left_jacobian_matches_finite_differences_of_exp() {

@@ -1,7 +1,7 @@
 //! A BVH's rest pose given explicitly (`lfit motion import --rest-pose`), for captures whose
 //! zero-channel pose is not a usable rest pose.
 //!
-//! [`crate::retarget`] measures every BVH rotation from the zero-channel pose and aligns the
+//! [`crate::motion::retarget`] measures every BVH rotation from the zero-channel pose and aligns the
 //! model's rest bones with that pose's bones by the minimal rotation. Some exporters write a
 //! zero-channel pose whose bones all point along one axis (Character Creator / iClone: every
 //! bone along +y, the legs *up* from the hips): a leg is then antiparallel to the model's and
@@ -40,8 +40,8 @@ use glam::{DMat3, DVec3};
 
 use lfit_model::template::Template;
 
-use crate::bvh::{Axis, Bvh, BvhJoint, Channel};
-use crate::retarget::{JointMap, MotionError, RetargetOptions, Retargeted, Retargeter};
+use crate::motion::bvh::{Axis, Bvh, BvhJoint, Channel};
+use crate::motion::retarget::{JointMap, MotionError, RetargetOptions, Retargeted, Retargeter};
 
 /// World rotations of named BVH joints in the rest pose, and the neutral joints (module docs).
 #[derive(Debug, Clone, PartialEq)]
@@ -244,7 +244,7 @@ pub fn rebase(bvh: &Bvh, rest: &RestPose) -> Result<Bvh, MotionError> {
     })
 }
 
-/// [`crate::retarget::retarget`] with the identity rest alignment at the model joints of the
+/// [`crate::motion::retarget::retarget`] with the identity rest alignment at the model joints of the
 /// `neutral` BVH joints (module docs); a mapped model joint without mapped descendants that is
 /// not neutral takes its nearest mapped ancestor's alignment afterwards, as the retargeter does.
 pub fn retarget_neutral(

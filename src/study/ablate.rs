@@ -193,8 +193,8 @@ pub struct Eval {
 
 fn base_config(modality: Modality) -> Result<TrainConfig> {
     let text = match modality {
-        Modality::Hmd => include_str!("../configs/hmd.json"),
-        Modality::Keypoints2d => include_str!("../configs/keypoints2d.json"),
+        Modality::Hmd => include_str!("../../configs/hmd.json"),
+        Modality::Keypoints2d => include_str!("../../configs/keypoints2d.json"),
         m => bail!("no ablation base for modality {m}"),
     };
     let config: TrainConfig = serde_json::from_str(text).context("base training config")?;

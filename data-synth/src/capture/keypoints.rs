@@ -27,7 +27,7 @@ use lfit_model::skeleton;
 use serde::Deserialize;
 use serde_json::Value;
 
-use crate::import::ImportError;
+use crate::capture::ImportError;
 
 fn fail<T>(msg: impl Into<String>) -> Result<T, ImportError> {
     Err(ImportError::Invalid(msg.into()))

@@ -7,6 +7,8 @@ use lfit_model::skinning::{SkinningMethod, pose_vertices_batch};
 use lfit_model::template::{Template, write_atomic, write_obj};
 use serde_json::{Value, json};
 
+use crate::data::read_params_file;
+
 pub use crate::data::{SynthArgs, load_model, shape_of_template_id, synth, visible_fraction};
 
 /// Output format of `lfit template export`.
@@ -164,126 +166,6 @@ pub fn numbered_path(out: &Path, i: usize, n: usize) -> PathBuf {
     out.with_file_name(format!("{stem}_{i:04}.{ext}"))
 }
 
-/// One parameter vector of `template` from JSON values: `pose` (3 + 3J numbers) and optional
-/// `shape`/`expression` (at most B/E numbers, zero-padded). `suffix` goes after the field names
-/// in errors (`poses[3]`), which also name `path`.
-pub fn params_from_json(
-    template: &Template,
-    pose: &Value,
-    shape: Option<&Value>,
-    expr: Option<&Value>,
-    suffix: &str,
-    path: &Path,
-) -> Result<Vec<f64>> {
-    let layout = template.layout();
-    let pd = layout.pose_dim();
-    let numbers = |v: &Value, what: &str, len: Option<usize>, max: usize| -> Result<Vec<f64>> {
-        let items = v.as_array().with_context(|| {
-            format!(
-                "{}: {what} is missing or not an array of numbers",
-                path.display()
-            )
-        })?;
-        let out = items
-            .iter()
-            .enumerate()
-            .map(|(i, x)| {
-                x.as_f64().filter(|x| x.is_finite()).with_context(|| {
-                    format!(
-                        "{}: {what}[{i}] is not a finite number: {x} is not a number",
-                        path.display()
-                    )
-                })
-            })
-            .collect::<Result<Vec<f64>>>()?;
-        if let Some(n) = len
-            && out.len() != n
-        {
-            bail!(
-                "{}: {what} has {} numbers, expected {n} (3 + 3 × {} joints of '{}')",
-                path.display(),
-                out.len(),
-                layout.num_joints(),
-                template.id
-            );
-        }
-        if out.len() > max {
-            bail!(
-                "{}: {what} has {} numbers, but the model '{}' has only {max}",
-                path.display(),
-                out.len(),
-                template.id
-            );
-        }
-        Ok(out)
-    };
-    let mut params = numbers(pose, &format!("pose{suffix}"), Some(pd), pd)?;
-    for (v, what, n) in [
-        (shape, "shape", layout.shape),
-        (expr, "expression", layout.expression),
-    ] {
-        let mut b = match v {
-            Some(v) => numbers(v, &format!("{what}{suffix}"), None, n)?,
-            None => Vec::new(),
-        };
-        b.resize(n, 0.0);
-        params.extend(b);
-    }
-    Ok(params)
-}
-
-/// Reads a parameter file for `template`: `{"pose": [3 + 3J], "shape": [≤ B], "expression":
-/// [≤ E]}` or `{"poses": [[...], ...], "shapes": [[...], ...], "expressions": [[...], ...]}`
-/// (`shape`/`expression` optional, zero-padded to B/E; longer is an error). Returns full
-/// parameter vectors in the model's layout.
-pub fn read_params_file(path: &Path, template: &Template) -> Result<Vec<Vec<f64>>> {
-    let pd = template.layout().pose_dim();
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let value: Value = serde_json::from_str(&text)
-        .with_context(|| format!("malformed pose JSON {}", path.display()))?;
-    match (value.get("pose"), value.get("poses")) {
-        (Some(p), None) => Ok(vec![params_from_json(
-            template,
-            p,
-            value.get("shape"),
-            value.get("expression"),
-            "",
-            path,
-        )?]),
-        (None, Some(Value::Array(list))) if !list.is_empty() => {
-            let nth = |key: &str, i: usize| -> Result<Option<&Value>> {
-                match value.get(key) {
-                    None => Ok(None),
-                    Some(Value::Array(rows)) if rows.len() == list.len() => Ok(Some(&rows[i])),
-                    Some(_) => bail!(
-                        "{}: {key} must be a list with one entry per pose ({})",
-                        path.display(),
-                        list.len()
-                    ),
-                }
-            };
-            list.iter()
-                .enumerate()
-                .map(|(i, p)| {
-                    params_from_json(
-                        template,
-                        p,
-                        nth("shapes", i)?,
-                        nth("expressions", i)?,
-                        &format!("s[{i}]"),
-                        path,
-                    )
-                })
-                .collect()
-        }
-        _ => bail!(
-            "{}: expected {{\"pose\": [{pd} numbers]}} or {{\"poses\": [[{pd} numbers], ...]}}",
-            path.display()
-        ),
-    }
-}
-
 /// `lfit template pose`: poses the template and writes one OBJ per pose (vertex order kept).
 pub fn template_pose(
     pose_file: &Path,
@@ -350,13 +232,13 @@ pub fn train(
 
 /// Writes `report.md` and `summary.json` of a finished sweep into `out`.
 pub fn write_report(
-    config: &crate::bench::BenchConfig,
-    runs: &[crate::bench::Run],
+    config: &crate::study::bench::BenchConfig,
+    runs: &[crate::study::bench::Run],
     out: &Path,
 ) -> Result<Value> {
     let (_, energy_name) = config.energy_config()?;
     let command = std::env::args().collect::<Vec<_>>().join(" ");
-    let (mut md, summary) = crate::report::report(config, runs, &energy_name, &command);
+    let (mut md, summary) = crate::study::report::report(config, runs, &energy_name, &command);
     // Best, median and worst frame per method, rendered next to the report.
     md.push_str(
         &crate::render::pictures::report_pictures(config, runs, out)
@@ -367,7 +249,7 @@ pub fn write_report(
         &out.join("summary.json"),
         &serde_json::to_vec_pretty(&summary)?,
     )?;
-    crate::plots::write_plots(config, runs, out).context("writing the bench plots")?;
+    crate::study::plots::write_plots(config, runs, out).context("writing the bench plots")?;
     Ok(summary)
 }
 
@@ -387,12 +269,15 @@ pub fn bench(
     shard: Option<&str>,
     progress: &(dyn Fn(&str, usize, usize) + Sync),
 ) -> Result<Value> {
-    let shard = crate::bench::parse_shard(shard)?;
-    let parts: Vec<(String, crate::bench::BenchConfig)> = match source {
+    let shard = crate::study::bench::parse_shard(shard)?;
+    let parts: Vec<(String, crate::study::bench::BenchConfig)> = match source {
         BenchSource::Config(path) => {
-            vec![(String::new(), crate::bench::BenchConfig::load(path, quick)?)]
+            vec![(
+                String::new(),
+                crate::study::bench::BenchConfig::load(path, quick)?,
+            )]
         }
-        BenchSource::Preset(name) => crate::presets::load(name, quick)?,
+        BenchSource::Preset(name) => crate::study::presets::load(name, quick)?,
     };
     let mut results = Vec::new();
     for (part, config) in &parts {
@@ -406,7 +291,7 @@ pub fn bench(
         } else {
             format!("{} {part}", config.name)
         };
-        let runs = crate::bench::run(config, &dir, shard, &|done, total| {
+        let runs = crate::study::bench::run(config, &dir, shard, &|done, total| {
             progress(&label, done, total)
         })?;
         if shard.1 > 1 {
@@ -426,10 +311,10 @@ pub fn bench(
 /// `lfit bench presets`: the built-in presets with their sizes.
 pub fn bench_presets() -> Result<Value> {
     let mut list = Vec::new();
-    for name in crate::presets::names() {
-        let full = crate::presets::load(name, false)?;
-        let quick = crate::presets::load(name, true)?;
-        let size = |parts: &[(String, crate::bench::BenchConfig)]| -> Vec<Value> {
+    for name in crate::study::presets::names() {
+        let full = crate::study::presets::load(name, false)?;
+        let quick = crate::study::presets::load(name, true)?;
+        let size = |parts: &[(String, crate::study::bench::BenchConfig)]| -> Vec<Value> {
             parts
                 .iter()
                 .map(|(p, c)| {
@@ -446,7 +331,7 @@ pub fn bench_presets() -> Result<Value> {
 
 /// `lfit bench merge`: merges shard directories and writes the report.
 pub fn bench_merge(shards: &[PathBuf], out: &Path, partial: bool) -> Result<Value> {
-    let (config, runs, missing) = crate::bench::merge(shards, out, partial)?;
+    let (config, runs, missing) = crate::study::bench::merge(shards, out, partial)?;
     if missing > 0 {
         eprintln!(
             "warning: partial merge: {missing} runs of the sweep are in none of the shards given; the report says so"
@@ -498,7 +383,7 @@ pub fn quickstart(
     if clip.is_some_and(|c| c.frames == Some(0)) {
         anyhow::bail!("--clip-frames must be at least 1");
     }
-    let mut parts = crate::presets::load("learned-vs-classical", true)?;
+    let mut parts = crate::study::presets::load("learned-vs-classical", true)?;
     for (_, c) in &mut parts {
         if let Some(s) = c.synth.as_mut() {
             s.frames = frames;
@@ -511,7 +396,7 @@ pub fn quickstart(
         let model = parts[0].1.template.clone();
         std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
         let motion = out.join("clip-motion.npz");
-        let imported = crate::motion_cli::import(&crate::motion_cli::ImportArgs {
+        let imported = crate::cli::motion::import(&crate::cli::motion::ImportArgs {
             bvh: Some(clip.bvh.clone()),
             map: Some(clip.map.clone()),
             amass: None,
@@ -555,7 +440,7 @@ pub fn quickstart(
     );
     for (part, config) in &parts {
         let dir = out.join(part);
-        let runs = crate::bench::run(config, &dir, (0, 1), &|done, total| {
+        let runs = crate::study::bench::run(config, &dir, (0, 1), &|done, total| {
             progress(part, done, total)
         })?;
         let summary = write_report(config, &runs, &dir)?;

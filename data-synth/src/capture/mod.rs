@@ -1,0 +1,28 @@
+//! Captured observations into datasets (`lfit data import`): C3D marker files ([`c3d`]), 2D
+//! keypoint and camera files ([`keypoints`]), and their import onto a model with rigid start poses
+//! and observation errors ([`import`]).
+
+use std::path::PathBuf;
+
+use crate::error::SynthError;
+
+pub mod c3d;
+pub mod import;
+pub mod keypoints;
+
+/// Errors of the import: each a one-line cause.
+#[derive(Debug, thiserror::Error)]
+pub enum ImportError {
+    #[error("cannot read {path}: {source}")]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{0}")]
+    Invalid(String),
+    #[error(transparent)]
+    Synth(#[from] SynthError),
+    #[error(transparent)]
+    Model(#[from] lfit_model::ModelError),
+}
