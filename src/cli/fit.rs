@@ -177,49 +177,30 @@ fn prepare(
     }
     let sequence_shape: crate::fitting::SequenceShape =
         args.sequence_shape.parse().context("--sequence-shape")?;
-    // The tuned setting depends on the data's modality (asked for only when it is needed).
-    let (preset, preset_name, step_scale, cma) = match args.preset.as_deref() {
-        Some("tuned") => {
-            if args.step_scale.is_some() || args.cma != Default::default() {
-                bail!(
-                    "--preset tuned sets the steps and CMA-ES options itself: drop --step-scale and --cma-*"
-                );
-            }
-            let modality = modality()?;
-            let t = crate::study::tuned::setting(args.method.name(), modality.name())?;
-            (Preset::Nevergrad, "tuned", t.step_scale, t.cma)
-        }
-        Some(p) => {
-            let preset: Preset = p
-                .parse()
-                .map_err(|_| lfit_fitters::FitError::UnknownPreset(p.to_string()))?;
-            (
-                preset,
-                preset.as_str(),
-                args.step_scale.unwrap_or(1.0),
-                args.cma,
-            )
-        }
-        None => {
-            // The recorded setting where there is one and no step or CMA-ES flag overrides it.
-            let recorded = if args.step_scale.is_none()
-                && args.cma == Default::default()
-                && args.method.zeroth_order().is_some()
-            {
-                crate::study::tuned::recorded(args.method.name(), modality()?.name())?
-            } else {
-                None
-            };
-            match recorded {
-                Some(t) => (Preset::Nevergrad, "tuned", t.step_scale, t.cma),
-                None => (
-                    Preset::Nevergrad,
-                    Preset::Nevergrad.as_str(),
-                    args.step_scale.unwrap_or(1.0),
-                    args.cma,
-                ),
-            }
-        }
+    // The steps of a zeroth-order method (crate::study::tuned::choose): a flag that sets them
+    // (--step-scale, --cma-*) keeps the recorded setting out, and goes with no `tuned` preset.
+    let overridden = args.step_scale.is_some() || args.cma != Default::default();
+    if args.preset.as_deref() == Some("tuned") && overridden {
+        bail!(
+            "--preset tuned sets the steps and CMA-ES options itself: drop --step-scale and --cma-*"
+        );
+    }
+    let preset: Preset = match args.preset.as_deref() {
+        None | Some("tuned") => Preset::Nevergrad,
+        Some(p) => p
+            .parse()
+            .map_err(|_| lfit_fitters::FitError::UnknownPreset(p.to_string()))?,
+    };
+    let tuned = if args.preset.is_some() || (!overridden && args.method.zeroth_order().is_some()) {
+        crate::study::tuned::choose(args.preset.as_deref(), args.method.name(), &mut || {
+            Ok(modality()?.name().to_string())
+        })?
+    } else {
+        None
+    };
+    let (preset_name, step_scale, cma) = match tuned {
+        Some(t) => ("tuned", t.step_scale, t.cma),
+        None => (preset.as_str(), args.step_scale.unwrap_or(1.0), args.cma),
     };
     if args.batch == 0 {
         bail!("--batch must be at least 1");

@@ -283,11 +283,9 @@ impl BenchConfig {
     /// baseline at its best; the papers' studies name their preset). `nevergrad`, `paper001`:
     /// papers/000's steps.
     pub fn steps(&self, method: &str, modality: &str) -> Result<(f64, CmaVariant)> {
-        let tuned = match self.preset.as_deref() {
-            Some("tuned") => Some(crate::study::tuned::setting(method, modality)?),
-            Some(_) => None,
-            None => crate::study::tuned::recorded(method, modality)?,
-        };
+        let tuned = crate::study::tuned::choose(self.preset.as_deref(), method, &mut || {
+            Ok(modality.to_string())
+        })?;
         Ok(tuned.map_or((1.0, CmaVariant::default()), |t| (t.step_scale, t.cma)))
     }
 

@@ -106,3 +106,19 @@ mod tests {
         assert_eq!(super::recorded("cma", "no-such-modality").unwrap(), None);
     }
 }
+
+/// The one rule by which `lfit fit` and `lfit bench` choose a zeroth-order method's steps:
+/// `preset` `tuned` takes the recorded setting (an error where none is recorded), another preset
+/// its own steps (`None` here), and no preset the recorded setting where there is one.
+/// `modality` is asked for only when a recorded setting may apply.
+pub fn choose(
+    preset: Option<&str>,
+    method: &str,
+    modality: &mut dyn FnMut() -> Result<String>,
+) -> Result<Option<Tuned>> {
+    match preset {
+        Some("tuned") => setting(method, &modality()?).map(Some),
+        Some(_) => Ok(None),
+        None => recorded(method, &modality()?),
+    }
+}
