@@ -77,7 +77,9 @@ if [ -z "${LFIT_MOCAPBANK_BVH:-}" ]; then
     fi
 fi
 
-cargo test --workspace --all-targets "$@"
+# Every library, binary, integration test and example of the workspace; the criterion benches are
+# not built or run here (`cargo bench --workspace` does: they measure, they do not test).
+cargo test --workspace --lib --bins --tests --examples "$@"
 
 # The Python package (python/, PyO3 + maturin): after the Rust tests, which are the first gate,
 # maturin builds the wheel, neural fitter included, with python/Cargo.toml's dev profile: its
