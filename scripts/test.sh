@@ -82,14 +82,17 @@ fi
 cargo test --workspace --lib --bins --tests --examples "$@"
 
 # The Python package (python/, PyO3 + maturin): after the Rust tests, which are the first gate,
-# maturin builds the wheel, neural fitter included, with python/Cargo.toml's dev profile: its
-# dependencies are compiled exactly as `cargo test` just compiled them (the root package turns on
-# the ndarray and num-complex features numpy asks for, so the feature sets agree), so Burn is
-# reused rather than compiled a second time, and lfit's own crates are optimised. pip installs it
-# into a venv under ~/.cache/lfit-tools and pytest runs python/tests against the `lfit` binary
-# that cargo test just built (target/debug/lfit). Pinned tools; a missing piece fails under
-# CI=true (the tests themselves skip with a reason locally and fail in CI when the CLI, scipy or
-# the MocapBank clip is missing).
+# maturin builds the wheel in release into the same target directory; pip installs it into a venv
+# under ~/.cache/lfit-tools and pytest runs python/tests against the `lfit` binary that cargo test
+# just built (target/debug/lfit: same library code, no second build of the CLI). The wheel is
+# Burn-free unless LFIT_PY_NEURAL=1: a wheel build shares no compiled Burn with the test profile
+# (the tests' dev-dependencies change the features of crates Burn uses), so the neural feature
+# would compile Burn again and take CI past its 35 min; the Burn-free wheel's refusal of the
+# neural methods is tested instead. After `cargo build --release --workspace` (the main job's
+# build) a release neural wheel does reuse its Burn (the root package turns on the ndarray and
+# num-complex features numpy asks for). Pinned tools; a missing piece fails under CI=true (the
+# tests themselves skip with a reason locally and fail in CI when the CLI, scipy or the
+# MocapBank clip is missing).
 python_tests() {
     local pyenv="${LFIT_TOOLS_DIR:-$HOME/.cache/lfit-tools}/pyenv-maturin1.16.0-pytest9.2.0"
     if [ ! -x "$pyenv/bin/pytest" ] || [ ! -x "$pyenv/bin/maturin" ]; then
@@ -97,9 +100,10 @@ python_tests() {
         python3 -m venv "$pyenv" &&
             "$pyenv/bin/pip" install -q maturin==1.16.0 pytest==9.2.0 numpy==2.4.6 || return 1
     fi
-    local wheels="$CARGO_TARGET_DIR/wheels"
+    local wheels="$CARGO_TARGET_DIR/wheels" features=()
+    [ "${LFIT_PY_NEURAL:-}" = "1" ] && features=(--features neural)
     rm -rf "$wheels"
-    "$pyenv/bin/maturin" build -m python/Cargo.toml --features neural --out "$wheels" || return 1
+    "$pyenv/bin/maturin" build --release -m python/Cargo.toml ${features[@]+"${features[@]}"} --out "$wheels" || return 1
     "$pyenv/bin/pip" install -q --force-reinstall --no-deps "$wheels"/lfit-*.whl || return 1
     # numpy and scipy from scripts/fetch-scipy.sh first on the path (the venv's numpy otherwise).
     (cd python/tests && LFIT_BIN="$CARGO_TARGET_DIR/debug/lfit" \
