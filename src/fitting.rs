@@ -435,18 +435,7 @@ fn shape_pass(
             betas.push(r.pose[shape.clone()].to_vec());
         }
     }
-    let beta = (0..shape.len())
-        .map(|k| {
-            let mut v: Vec<f64> = betas.iter().map(|b| b[k]).collect();
-            v.sort_by(f64::total_cmp);
-            let n = v.len();
-            if n % 2 == 1 {
-                v[n / 2]
-            } else {
-                0.5 * (v[n / 2 - 1] + v[n / 2])
-            }
-        })
-        .collect();
+    let beta = median_per_component(betas.iter().map(Vec::as_slice), shape.len());
     Ok(ShapePass {
         frames: picked,
         beta,
@@ -454,6 +443,18 @@ fn shape_pass(
         time_s,
         joint: None,
     })
+}
+
+/// The per-component median of `rows` (each `n` long; the mean of the two middle values for an
+/// even count): the β of [`shape_pass`] and [`joint_shape`]'s start.
+fn median_per_component<'a>(rows: impl Iterator<Item = &'a [f64]> + Clone, n: usize) -> Vec<f64> {
+    (0..n)
+        .map(|k| {
+            let mut v: Vec<f64> = rows.clone().map(|r| r[k]).collect();
+            v.sort_by(f64::total_cmp);
+            0.5 * (v[(v.len() - 1) / 2] + v[v.len() / 2])
+        })
+        .collect()
 }
 
 /// [`SequenceShape::Joint`]'s β pass: the sequence fitted with β free in every frame, then
@@ -547,16 +548,11 @@ pub fn joint_shape(
             .map(|(e, p)| e.evaluate(&with(p, b)).total)
             .sum()
     };
-    let mut beta: Vec<f64> = (0..n)
-        .map(|k| {
-            let mut v: Vec<f64> = poses.iter().map(|p| p[shape.start + k]).collect();
-            v.sort_by(f64::total_cmp);
-            0.5 * (v[(v.len() - 1) / 2] + v[v.len() / 2])
-        })
-        .collect();
+    let mut beta = median_per_component(poses.iter().map(|p| &p[shape.clone()]), n);
     for (k, b) in beta.iter_mut().enumerate() {
         *b = b.clamp(lower[k], upper[k]);
     }
+    let free: Vec<usize> = (0..n).collect();
     let before = total(&beta);
     let mut current = before;
     let (mut damping, mut nu) = (1e-4, 2.0);
@@ -574,7 +570,6 @@ pub fn joint_shape(
                 || (DMatrix::zeros(n, n), DVector::zeros(n)),
                 |(a1, g1), (a2, g2)| Ok((a1 + a2, g1 + g2)),
             )?;
-        let free: Vec<usize> = (0..n).collect();
         let (diag, max_diag) = marquardt_scaling(&a, &free);
         let mut improved = false;
         // Raise the damping until a step lowers the sum (at most 20 tries).

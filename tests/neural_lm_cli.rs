@@ -212,6 +212,24 @@ fn neural_then_lm_refines_the_network_within_one_budget() {
     assert!(!out_path.exists());
 }
 
+/// The β of a sequence's β pass (`summary.shape_pass.beta`, 16 numbers), asserted to be every
+/// frame's β.
+fn sequence_beta(r: &Value) -> Vec<f64> {
+    let numbers =
+        |v: &Value, what: &str| -> Vec<f64> { v.as_array().expect(what).iter().map(num).collect() };
+    let beta = numbers(&r["summary"]["shape_pass"]["beta"], "beta");
+    assert_eq!(beta.len(), 16);
+    for f in frames(r) {
+        assert_eq!(
+            numbers(&f["shape"], "shape"),
+            beta,
+            "frame {}: β is not the sequence's",
+            f["frame"]
+        );
+    }
+    beta
+}
+
 /// `--sequence-shape first-pass`: one β for the whole sequence, the median of the first pass,
 /// and one-line refusals where it cannot apply.
 #[test]
@@ -235,23 +253,8 @@ fn first_pass_gives_a_sequence_one_shape() {
     assert_eq!(r["sequence_shape"], "first-pass");
     let pass = &r["summary"]["shape_pass"];
     assert_eq!(pass["frames"].as_array().map(Vec::len), Some(8));
-    let beta: Vec<f64> = pass["beta"]
-        .as_array()
-        .expect("beta")
-        .iter()
-        .map(num)
-        .collect();
-    assert_eq!(beta.len(), 16);
+    sequence_beta(&r);
     assert!(pass["evaluations"].as_u64().expect("evaluations") >= 8 * 12);
-    for f in frames(&r) {
-        let shape: Vec<f64> = f["shape"]
-            .as_array()
-            .expect("shape")
-            .iter()
-            .map(num)
-            .collect();
-        assert_eq!(shape, beta, "frame {}: β is not the sequence's", f["frame"]);
-    }
     // Per frame (the default), β moves from frame to frame.
     let free = fit(
         &seq,
@@ -348,25 +351,10 @@ fn joint_shape_gives_a_sequence_the_beta_of_its_summed_energy() {
         "the β solve raised the summed energy: {before} -> {after}"
     );
     assert!(joint["iterations"].as_u64().expect("iterations") >= 1);
-    let beta: Vec<f64> = pass["beta"]
-        .as_array()
-        .expect("beta")
-        .iter()
-        .map(num)
-        .collect();
-    assert_eq!(beta.len(), 16);
+    let beta = sequence_beta(&r);
     assert!(beta.iter().all(|b| b.abs() <= 3.0), "inside the shape box");
     // The first pass (8 frames × 12) and the solve are counted apart from the frames' own.
     assert!(pass["evaluations"].as_u64().expect("evaluations") > 8 * 12);
-    for f in frames(&r) {
-        let shape: Vec<f64> = f["shape"]
-            .as_array()
-            .expect("shape")
-            .iter()
-            .map(num)
-            .collect();
-        assert_eq!(shape, beta, "frame {}: β is not the sequence's", f["frame"]);
-    }
     // Outside a sequence: one line, nothing written.
     let local = synth(tmp.path(), "local.npz", "local", 2, 0x5EED_0006);
     let out_path = tmp.path().join("no.json");
