@@ -82,17 +82,16 @@ fi
 cargo test --workspace --lib --bins --tests --examples "$@"
 
 # The Python package (python/, PyO3 + maturin): after the Rust tests, which are the first gate,
-# maturin builds the wheel in release into the same target directory; pip installs it into a venv
-# under ~/.cache/lfit-tools and pytest runs python/tests against the `lfit` binary that cargo test
-# just built (target/debug/lfit: same library code, no second build of the CLI). The wheel is
-# Burn-free unless LFIT_PY_NEURAL=1: a wheel build shares no compiled Burn with the test profile
-# (the tests' dev-dependencies change the features of crates Burn uses), so the neural feature
-# would compile Burn again and take CI past its 35 min; the Burn-free wheel's refusal of the
-# neural methods is tested instead. After `cargo build --release --workspace` (the main job's
-# build) a release neural wheel does reuse its Burn (the root package turns on the ndarray and
-# num-complex features numpy asks for). Pinned tools; a missing piece fails under CI=true (the
-# tests themselves skip with a reason locally and fail in CI when the CLI, scipy or the
-# MocapBank clip is missing).
+# maturin builds the wheel with the neural fitter into the same target directory; pip installs it
+# into a venv under ~/.cache/lfit-tools and pytest runs python/tests against the `lfit` binary that
+# cargo test just built (target/debug/lfit: same library code, no second build of the CLI). The
+# wheel is built in the dev profile: python/Cargo.toml gives its graph the test build's profile
+# and features, so it reuses the Burn and every other dependency that `cargo test` compiled; only
+# pyo3, numpy, the bindings and lfit's own crates (optimised there, as the package's dependencies)
+# are compiled (1m42s warm on 2 cores; a release wheel would compile Burn a second time). LFIT_PY_NEURAL=0 builds the Burn-free wheel instead (its refusal of the neural methods
+# is tested then; under CI=true the neural test requires the neural wheel). Pinned tools; a
+# missing piece fails under CI=true (the tests themselves skip with a reason locally and fail in
+# CI when the CLI, scipy or the MocapBank clip is missing).
 python_tests() {
     local pyenv="${LFIT_TOOLS_DIR:-$HOME/.cache/lfit-tools}/pyenv-maturin1.16.0-pytest9.2.0"
     if [ ! -x "$pyenv/bin/pytest" ] || [ ! -x "$pyenv/bin/maturin" ]; then
@@ -100,10 +99,10 @@ python_tests() {
         python3 -m venv "$pyenv" &&
             "$pyenv/bin/pip" install -q maturin==1.16.0 pytest==9.2.0 numpy==2.4.6 || return 1
     fi
-    local wheels="$CARGO_TARGET_DIR/wheels" features=()
-    [ "${LFIT_PY_NEURAL:-}" = "1" ] && features=(--features neural)
+    local wheels="$CARGO_TARGET_DIR/wheels" features=(--features neural)
+    [ "${LFIT_PY_NEURAL:-1}" = "0" ] && features=()
     rm -rf "$wheels"
-    "$pyenv/bin/maturin" build --release -m python/Cargo.toml ${features[@]+"${features[@]}"} --out "$wheels" || return 1
+    "$pyenv/bin/maturin" build --profile dev -m python/Cargo.toml ${features[@]+"${features[@]}"} --out "$wheels" || return 1
     "$pyenv/bin/pip" install -q --force-reinstall --no-deps "$wheels"/lfit-*.whl || return 1
     # numpy and scipy from scripts/fetch-scipy.sh first on the path (the venv's numpy otherwise).
     (cd python/tests && LFIT_BIN="$CARGO_TARGET_DIR/debug/lfit" \

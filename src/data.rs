@@ -10,7 +10,8 @@ use lfit_model::observe::{Modality, Sensor};
 use lfit_model::template::Template;
 use lfit_model::{BodyShape, build_template};
 use lfit_synth::{
-    Dataset, MotionFile, NoiseConfig, Observations, PoseSource, Scenario, SynthConfig, synthesize,
+    Dataset, MotionFile, NoiseConfig, Observations, PoseSource, Scenario, SynthConfig,
+    synthesize_until,
 };
 use serde_json::{Value, json};
 
@@ -144,7 +145,9 @@ pub fn synth_with_cameras(
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Value> {
     let start = Instant::now();
-    let (dataset, mut summary) = synthesize_dataset(args, files, cameras, template, progress)?;
+    let never = std::sync::atomic::AtomicBool::new(false);
+    let (dataset, mut summary) =
+        synthesize_dataset(args, files, cameras, template, progress, &never)?;
     dataset.save(&args.out)?;
     let bytes = std::fs::metadata(&args.out).map(|m| m.len()).unwrap_or(0);
     summary["out"] = json!(args.out);
@@ -154,13 +157,15 @@ pub fn synth_with_cameras(
 }
 
 /// `lfit synth` in memory: the dataset [`synth_with_cameras`] writes (`args.out` unused) and its
-/// summary, without `out`, `bytes` and `seconds`.
+/// summary, without `out`, `bytes` and `seconds`. Setting `cancel` (from another thread) stops
+/// it with an "interrupted" error before the next frame.
 pub fn synthesize_dataset(
     args: &SynthArgs,
     files: &MotionFilesArgs,
     cameras: Option<usize>,
     template: &Template,
     progress: &(dyn Fn(usize) + Sync),
+    cancel: &std::sync::atomic::AtomicBool,
 ) -> Result<(Dataset, Value)> {
     let modality: Modality = args.modality.parse()?;
     let sensor = synth_sensor(modality, cameras, template)?;
@@ -182,7 +187,7 @@ pub fn synthesize_dataset(
     config.motion_files = load_motion_files(&files.files, template)?;
     config.with_library = files.with_library;
     config.validate()?;
-    let dataset = synthesize(&config, template, &sensor, progress)?;
+    let dataset = synthesize_until(&config, template, &sensor, progress, cancel)?;
     let mut summary = json!({
         "modality": modality,
         "scenario": scenario,

@@ -30,6 +30,8 @@ pub enum SynthError {
     Motion(#[from] crate::motion::retarget::MotionError),
     #[error("motion file {path}: {reason}")]
     MotionFile { path: String, reason: String },
+    #[error("interrupted")]
+    Cancelled,
     #[error("invalid setting {name} = {value}: {reason}")]
     Setting {
         name: &'static str,

@@ -11,7 +11,7 @@ pub mod noise;
 pub mod npz;
 
 pub use dataset::config::{MotionFile, PoseSource, Scenario, SynthConfig};
-pub use dataset::synth::synthesize;
+pub use dataset::synth::{synthesize, synthesize_until};
 pub use dataset::{Dataset, Meta, Observations};
 pub use error::SynthError;
 pub use noise::NoiseConfig;

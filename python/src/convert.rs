@@ -251,3 +251,35 @@ pub fn without_gil<T: Send>(
         (Err(e), None) => Err(err(e)),
     }
 }
+
+/// Runs `work` on a worker thread while this thread, which holds the GIL only between 20 ms
+/// sleeps, watches for Ctrl-C. On one it sets the flag `work` gets (work checks it between units
+/// of work and stops), waits for it and raises `KeyboardInterrupt`. For work that runs on rayon's
+/// threads: Python runs signal handlers only on its main thread, so a check from a worker would
+/// never see the interrupt.
+pub fn cancellable<T: Send>(
+    py: Python<'_>,
+    work: impl FnOnce(&std::sync::atomic::AtomicBool) -> anyhow::Result<T> + Send,
+) -> PyResult<T> {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let cancel = AtomicBool::new(false);
+    let mut interrupted = None;
+    let joined = std::thread::scope(|scope| {
+        let handle = scope.spawn(|| work(&cancel));
+        while !handle.is_finished() {
+            py.detach(|| std::thread::sleep(std::time::Duration::from_millis(20)));
+            if let Err(e) = py.check_signals() {
+                interrupted = Some(e);
+                cancel.store(true, Ordering::Relaxed);
+                break;
+            }
+        }
+        py.detach(|| handle.join())
+    });
+    match (joined, interrupted) {
+        (_, Some(e)) => Err(e),
+        (Ok(Ok(v)), None) => Ok(v),
+        (Ok(Err(e)), None) => Err(err(e)),
+        (Err(_), None) => Err(bad("internal error: the worker thread panicked")),
+    }
+}

@@ -9,7 +9,7 @@ use lfit::synth::{Dataset as Data, Observations};
 use numpy::PyArrayMethods;
 use pyo3::prelude::*;
 
-use crate::convert::{OrPy, array_nd, bad, json_to_py, without_gil};
+use crate::convert::{OrPy, array_nd, bad, cancellable, json_to_py, without_gil};
 use crate::model::optional_model;
 
 /// Frames of observations of one modality, their start poses and (synthetic data) the ground
@@ -245,7 +245,7 @@ fn model_or_default(
 }
 
 /// Synthesises a dataset as `lfit synth` does (same settings, same seed → same data); writes it
-/// to `out` too when given.
+/// to `out` too when given. Ctrl-C stops it (`KeyboardInterrupt`, nothing written).
 #[pyfunction]
 #[pyo3(signature = (modality, model=None, *, scenario="local", frames=100, seed=0, source="motion", noise=1.0, fps=30.0, library_motions=None, motions=None, with_library=false, cameras=None, out=None))]
 #[allow(clippy::too_many_arguments)]
@@ -281,8 +281,8 @@ pub fn synth(
         files: motions.unwrap_or_default(),
         with_library,
     };
-    let (data, summary) = without_gil(py, |_| {
-        lfit::api::synthesize_dataset(&args, &files, cameras, &template, &|_| {})
+    let (data, summary) = cancellable(py, |cancel| {
+        lfit::api::synthesize_dataset(&args, &files, cameras, &template, &|_| {}, cancel)
     })?;
     finish(py, data, summary, out)
 }

@@ -1,8 +1,11 @@
 """synth, load_dataset and the imports (C3D, COCO keypoints, BVH): the same data as the CLI
 commands they mirror; bad input is a one-line error and writes nothing."""
 
+import _thread
 import json
 import os
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +45,27 @@ def test_synth_bad_input_writes_nothing(tmp_path):
     assert "radar" in one_line(e) and not out.exists()
     with pytest.raises(lfit.LfitError, match="cannot read .*none.npz"):
         lfit.synth("markers", frames=3, motions=[tmp_path / "none.npz"], out=out)
+    assert not out.exists()
+
+
+def test_ctrl_c_stops_synth(tmp_path):
+    """Synthesis runs on rayon's threads, where Python's signal handlers never run: Ctrl-C must
+    still stop it within a frame or two, raise KeyboardInterrupt and write nothing."""
+    out = tmp_path / "never.npz"
+    # Calibrate: scan frames of the MakeHuman body (a rendered depth scan each).
+    t0 = time.perf_counter()
+    lfit.synth("scan", MH, frames=4, seed=2)
+    per_frame = (time.perf_counter() - t0) / 4
+    # Enough frames for ~60 s on two threads; the interrupt lands after 0.5 s.
+    frames = max(200, int(120 / per_frame))
+    timer = threading.Timer(0.5, _thread.interrupt_main)
+    start = time.perf_counter()
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        lfit.synth("scan", MH, frames=frames, seed=2, out=out)
+    elapsed = time.perf_counter() - start
+    timer.cancel()
+    assert elapsed < 10, (elapsed, per_frame, frames)
     assert not out.exists()
 
 

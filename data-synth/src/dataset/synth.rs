@@ -2,7 +2,7 @@
 //! sampling, the scenarios of papers/000 §4 (a start pose and a target per frame), observations
 //! from the model crate's observation models, then noise and occlusion.
 
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use glam::Vec3;
 use lfit_model::Template;
@@ -42,6 +42,19 @@ pub fn synthesize(
     sensor: &Sensor,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Dataset, SynthError> {
+    synthesize_until(config, template, sensor, progress, &AtomicBool::new(false))
+}
+
+/// [`synthesize`] that stops with [`SynthError::Cancelled`] once `cancel` is set (another thread
+/// sets it: a Ctrl-C seen by the caller); checked before every frame. Frames are independent
+/// draws, so a run that is not cancelled gives exactly [`synthesize`]'s dataset.
+pub fn synthesize_until(
+    config: &SynthConfig,
+    template: &Template,
+    sensor: &Sensor,
+    progress: &(dyn Fn(usize) + Sync),
+    cancel: &AtomicBool,
+) -> Result<Dataset, SynthError> {
     config.validate()?;
     sensor.validate(template)?;
     if sensor.modality() != config.modality {
@@ -64,12 +77,15 @@ pub fn synthesize(
     let frames: Vec<FrameObs> = (0..config.frames)
         .into_par_iter()
         .map(|i| {
+            if cancel.load(Ordering::Relaxed) {
+                return Err(SynthError::Cancelled);
+            }
             let mut rng = stream(config.seed, i as u64);
             let obs = observe_frame(template, sensor, &targets[i], &config.noise, &mut rng);
             progress(done.fetch_add(1, Ordering::Relaxed) + 1);
-            obs
+            Ok(obs)
         })
-        .collect();
+        .collect::<Result<_, _>>()?;
     let observations = match config.modality {
         Modality::Scan => assemble_scan(frames, sensor)?,
         Modality::Silhouettes => Observations::Silhouettes {
@@ -767,6 +783,42 @@ mod tests {
         let mut c = with_files(Scenario::Local, 3, vec![file]);
         c.motion_files[0].clip = None;
         assert!(c.validate().unwrap_err().to_string().contains("not loaded"));
+    }
+
+    #[test]
+    fn a_cancelled_synthesis_stops_and_an_uncancelled_one_is_synthesize() {
+        let t = default_template();
+        let sensor = Sensor::default_for(Modality::Markers, &t);
+        let c = SynthConfig::new(Modality::Markers, Scenario::Local, 40, 3);
+        let plain = synthesize(&c, &t, &sensor, &|_| {}).unwrap();
+        let until = synthesize_until(&c, &t, &sensor, &|_| {}, &AtomicBool::new(false)).unwrap();
+        let (Observations::Sparse { values: a, .. }, Observations::Sparse { values: b, .. }) =
+            (&plain.observations, &until.observations)
+        else {
+            panic!("markers datasets are sparse")
+        };
+        assert_eq!(a, b);
+        assert_eq!(plain.gt_poses, until.gt_poses);
+        // Set after 5 frames (from inside the run, as a Ctrl-C watcher would from outside).
+        let cancel = AtomicBool::new(false);
+        let seen = AtomicUsize::new(0);
+        let big = SynthConfig::new(Modality::Markers, Scenario::Local, 5000, 3);
+        let stopped = synthesize_until(
+            &big,
+            &t,
+            &sensor,
+            &|done| {
+                seen.store(done, Ordering::Relaxed);
+                if done >= 5 {
+                    cancel.store(true, Ordering::Relaxed);
+                }
+            },
+            &cancel,
+        );
+        assert!(matches!(stopped, Err(SynthError::Cancelled)), "{stopped:?}");
+        // Each worker finishes at most the frame it was on.
+        let done = seen.load(Ordering::Relaxed);
+        assert!(done < 5 + rayon::current_num_threads() + 1, "{done} frames");
     }
 
     #[test]

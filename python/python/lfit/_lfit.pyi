@@ -229,7 +229,8 @@ def synth(
     cameras: Optional[int] = None,
     out: Optional[_Path] = None,
 ) -> Dataset:
-    """``lfit synth``: same settings and seed, same data; written to ``out`` too when given."""
+    """``lfit synth``: same settings and seed, same data; written to ``out`` too when given.
+    Ctrl-C stops it (``KeyboardInterrupt``, nothing written)."""
 
 def import_c3d(
     path: _Path,
