@@ -610,19 +610,38 @@ pub fn joint_shape(
     ))
 }
 
-/// The template a dataset was synthesised with: `--template DIR` when given (its id must match
-/// the dataset's), else the procedural body named by the dataset's template id.
+/// The template a dataset was synthesised with: `--model` when given (its id must match the
+/// dataset's), else the procedural body named by the dataset's template id, else the shipped
+/// model file of that id (`models/<id>.npz`, found as every shipped path is: the MakeHuman body
+/// and face).
+/// `models/<id>.npz` where the shipped data are found, for a plain model id (letters, digits,
+/// `-`, `_`, `+`, `.`; not a path).
+fn shipped_model(id: &str) -> Option<std::path::PathBuf> {
+    let plain = !id.is_empty()
+        && !id.starts_with('.')
+        && id
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_+.".contains(c));
+    if !plain {
+        return None;
+    }
+    crate::shipped::locate(&Path::new("models").join(format!("{id}.npz"))).ok()
+}
+
 pub fn template_for(dataset: &Dataset, dir: Option<&Path>) -> Result<Arc<Template>> {
     let template = match dir {
         Some(d) => crate::data::load_model(Some(d), "default")?,
         None => {
             let id = &dataset.meta.template_id;
-            let Some(shape) = crate::data::shape_of_template_id(id) else {
-                bail!(
-                    "dataset was made with template '{id}': pass that template with --template DIR"
-                );
-            };
-            crate::data::load_model(None, shape)?
+            match crate::data::shape_of_template_id(id) {
+                Some(shape) => crate::data::load_model(None, shape)?,
+                None => match shipped_model(id) {
+                    Some(path) => crate::data::load_model(Some(&path), "default")?,
+                    None => bail!(
+                        "dataset was made with model '{id}', which is not a shipped one: pass it with --model (its model file or template directory)"
+                    ),
+                },
+            }
         }
     };
     check_model(dataset, &template)?;

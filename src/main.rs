@@ -240,9 +240,9 @@ enum Command {
         /// Output directory (created if missing).
         #[arg(long)]
         out: PathBuf,
-        /// Model: a model file (.npz, SMPL-family layout, e.g. models/makehuman-cmu_mb.npz) or a
-        /// template directory (template.obj + rig.json), if the dataset was not made with the
-        /// procedural template.
+        /// Model: a model file (.npz, SMPL-family layout) or a template directory (template.obj +
+        /// rig.json), if the dataset was made with neither the procedural template nor a shipped
+        /// model (models/<id>.npz, found by the dataset's model id).
         #[arg(long = "model", value_name = "MODEL", visible_alias = "template")]
         template: Option<PathBuf>,
     },
@@ -369,9 +369,9 @@ struct FitCmd {
     /// differentiable variant for lbfgs).
     #[arg(long)]
     energy: Option<PathBuf>,
-    /// Model: a model file (.npz, SMPL-family layout, e.g. models/makehuman-cmu_mb.npz) or a
-    /// template directory (template.obj + rig.json), if the dataset was not made with the
-    /// procedural template.
+    /// Model: a model file (.npz, SMPL-family layout) or a template directory (template.obj +
+    /// rig.json), if the dataset was made with neither the procedural template nor a shipped
+    /// model (models/<id>.npz, found by the dataset's model id).
     #[arg(long = "model", value_name = "MODEL", visible_alias = "template")]
     template: Option<PathBuf>,
     /// Neural fitter checkpoint directory (--method neural), e.g. checkpoints/markers.

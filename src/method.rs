@@ -314,7 +314,9 @@ pub fn load_neural(kind: MethodKind, options: &NeuralOptions<'_>) -> Result<Box<
     if options.ort_threads == Some(0) {
         bail!("--ort-threads must be at least 1");
     }
-    let checkpoint = crate::shipped::locate_or_given(options.checkpoint);
+    // A relative checkpoint found nowhere names the places searched (LFIT_DATA_DIR, ...).
+    let checkpoint = crate::shipped::locate(options.checkpoint)
+        .map_err(|e| anyhow::anyhow!("checkpoint {e}"))?;
     let fitter = match options.runtime {
         lfit_infer::Runtime::Burn => {
             if options.ort_threads.is_some() {

@@ -729,3 +729,110 @@ fn silhouettes_fit_with_zeroth_order_methods_and_gradient_methods_refuse() {
         "the server keeps serving"
     );
 }
+
+#[test]
+fn a_dataset_of_a_shipped_model_needs_no_model_flag_and_others_say_which_flag() {
+    let dir = tempfile::tempdir().unwrap();
+    let mh = "models/makehuman-cmu_mb.npz";
+    let data = dir.path().join("mh.npz");
+    lfit_json(&[
+        "synth",
+        "--modality",
+        "markers",
+        "--model",
+        mh,
+        "--frames",
+        "2",
+        "--seed",
+        "5",
+        "--out",
+        path_str(&data),
+        "-q",
+    ]);
+    // Found by the dataset's model id (models/<id>.npz): the same fit as with --model.
+    let fit = |extra: &[&str], out: &str| {
+        let out = dir.path().join(out);
+        let mut args = vec![
+            "fit",
+            "--data",
+            path_str(&data),
+            "--method",
+            "lm",
+            "--budget",
+            "30",
+            "--out",
+            path_str(&out),
+            "-q",
+        ];
+        args.extend_from_slice(extra);
+        lfit_json(&args);
+        let doc: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+        doc["frames"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|f| f["energy"].as_f64().unwrap())
+            .collect::<Vec<f64>>()
+    };
+    let found = fit(&[], "found.json");
+    assert_eq!(found, fit(&["--model", mh], "given.json"));
+    assert_eq!(found.len(), 2);
+    // A model that is not shipped: one line naming --model, nothing written.
+    let own = dir.path().join("mybody.npz");
+    std::fs::copy(mh, &own).unwrap();
+    let data2 = dir.path().join("own.npz");
+    lfit_json(&[
+        "synth",
+        "--modality",
+        "markers",
+        "--model",
+        path_str(&own),
+        "--frames",
+        "1",
+        "--out",
+        path_str(&data2),
+        "-q",
+    ]);
+    let never = dir.path().join("never.json");
+    let out = lfit(&[
+        "fit",
+        "--data",
+        path_str(&data2),
+        "--method",
+        "lm",
+        "--budget",
+        "10",
+        "--out",
+        path_str(&never),
+    ]);
+    assert_one_line_error(
+        &out,
+        "made with model 'mybody', which is not a shipped one: pass it with --model",
+    );
+    assert!(!never.exists());
+    // A relative checkpoint found nowhere names the places searched.
+    let out = Command::new(env!("CARGO_BIN_EXE_lfit"))
+        .current_dir(dir.path())
+        .env_remove("LFIT_DATA_DIR")
+        .args([
+            "fit",
+            "--data",
+            "mh.npz",
+            "--method",
+            "neural",
+            "--checkpoint",
+            "checkpoints/no-such-fitter",
+            "--budget",
+            "10",
+            "--out",
+            "n.json",
+        ])
+        .output()
+        .unwrap();
+    assert_one_line_error(
+        &out,
+        "checkpoint checkpoints/no-such-fitter not found in the working directory, LFIT_DATA_DIR (unset)",
+    );
+    assert!(!dir.path().join("n.json").exists());
+}

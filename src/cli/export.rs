@@ -80,7 +80,8 @@ pub struct ExportArgs {
     pub format: String,
     /// Output directory (created if missing).
     pub out: PathBuf,
-    /// Template directory, if the dataset was not made with the procedural template.
+    /// Model file or template directory, if the dataset was made with neither the procedural
+    /// template nor a shipped model.
     pub template: Option<PathBuf>,
 }
 

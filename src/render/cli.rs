@@ -27,7 +27,8 @@ pub const MAX_SIDE: u32 = 8192;
 #[derive(Debug, Clone, clap::Args)]
 pub struct RenderArgs {
     /// Model: a model file (.npz) or template directory. Default: the dataset's model (the
-    /// procedural template named by its id), or the procedural template in --shape.
+    /// procedural template or shipped model named by its id), or the procedural template in
+    /// --shape.
     #[arg(long, visible_alias = "template")]
     pub model: Option<PathBuf>,
     /// Body-proportion variant of the procedural template when neither --model nor --data names
