@@ -97,6 +97,61 @@ pub struct Morph {
     pub regressor: Option<SparseRows>,
     /// `(3J) × (B + E)` = `J_regressor · dirs`, row-major.
     pub joint_dirs: Vec<f64>,
+    /// The full-mesh loop's f32 copies of the directions, built on first use.
+    mesh: MeshColumns,
+}
+
+/// `[S E]` and `P` column by column in f32 (`[k][3v + axis]`): the rest mesh of a parameter
+/// vector is then one contiguous `out += c_k · column_k` per coefficient, which vectorises,
+/// instead of a dot product of B + E entries per vertex axis. A cache, not part of the value: a
+/// clone (whose directions may be changed) starts without it and two morphs compare equal
+/// whatever their caches hold.
+#[derive(Default)]
+struct MeshColumns(std::sync::OnceLock<(Vec<f32>, Vec<f32>)>);
+
+impl Clone for MeshColumns {
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+impl PartialEq for MeshColumns {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+impl std::fmt::Debug for MeshColumns {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.0.get().is_some() {
+            "MeshColumns(built)"
+        } else {
+            "MeshColumns(not built)"
+        })
+    }
+}
+
+/// The columns of a row-major `rows × cols` matrix, each contiguous, in f32.
+fn columns_f32(matrix: &[f64], cols: usize) -> Vec<f32> {
+    if cols == 0 {
+        return Vec::new();
+    }
+    let rows = matrix.len() / cols;
+    let mut out = vec![0f32; matrix.len()];
+    for (r, row) in matrix.chunks_exact(cols).enumerate() {
+        for (c, &x) in row.iter().enumerate() {
+            out[c * rows + r] = x as f32;
+        }
+    }
+    out
+}
+
+/// `out += c · column`, the loop the compiler vectorises.
+#[inline]
+fn axpy(out: &mut [f32], c: f32, column: &[f32]) {
+    for (o, &d) in out.iter_mut().zip(column) {
+        *o += c * d;
+    }
 }
 
 impl Morph {
@@ -154,6 +209,68 @@ impl Morph {
             posedirs,
             regressor,
             joint_dirs,
+            mesh: MeshColumns::default(),
+        }
+    }
+
+    /// The rest mesh `T(β, ψ) + P (R(θ) − I)` of every vertex in f32 (`out[3v + axis]`, resized),
+    /// for the full-mesh loops: [`Morph::rest_vertex`] of every vertex. The offsets
+    /// `S β + E ψ + P f` are summed in f32 in coefficient order (their rounding is relative to the
+    /// offsets, centimetres, not to the body), then added to the f64 rest position with one
+    /// rounding. `base`: the template's own vertices, used when the morph has no `rest`. A zero
+    /// coefficient costs nothing.
+    pub fn rest_mesh_f32(
+        &self,
+        base: &[glam::Vec3],
+        coeffs: &[f64],
+        pose_feature: &[f64],
+        out: &mut Vec<f32>,
+    ) {
+        out.clear();
+        let n = 3 * if self.rest.is_empty() {
+            base.len()
+        } else {
+            self.rest.len()
+        };
+        out.resize(n, 0.0);
+        let k = self.coefficients();
+        let with_pose = self.posedirs.is_some() && !pose_feature.is_empty();
+        let with_shape = k > 0 && coeffs.iter().any(|&c| c != 0.0);
+        if n > 0 && (with_shape || with_pose) {
+            let (dirs, posedirs) = self.mesh.0.get_or_init(|| {
+                let pose_cols = self.posedirs.as_ref().map_or(0, |pd| pd.len() / n);
+                (
+                    columns_f32(&self.dirs, k),
+                    self.posedirs
+                        .as_ref()
+                        .map_or_else(Vec::new, |pd| columns_f32(pd, pose_cols)),
+                )
+            });
+            for (column, &c) in dirs.chunks_exact(n).zip(coeffs) {
+                if c != 0.0 {
+                    axpy(out, c as f32, column);
+                }
+            }
+            if with_pose {
+                for (column, &f) in posedirs.chunks_exact(n).zip(pose_feature) {
+                    if f != 0.0 {
+                        axpy(out, f as f32, column);
+                    }
+                }
+            }
+        }
+        if self.rest.is_empty() {
+            for (o, r) in out.chunks_exact_mut(3).zip(base) {
+                for a in 0..3 {
+                    o[a] = (f64::from(o[a]) + f64::from(r[a])) as f32;
+                }
+            }
+        } else {
+            for (o, r) in out.chunks_exact_mut(3).zip(&self.rest) {
+                for a in 0..3 {
+                    o[a] = (f64::from(o[a]) + r[a]) as f32;
+                }
+            }
         }
     }
 

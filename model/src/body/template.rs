@@ -47,6 +47,17 @@ pub struct Template {
     /// Packed influences for the skinning loops: joint indices and weights, zero-padded to 4.
     pub(crate) influence_joints: Vec<[u16; MAX_INFLUENCES]>,
     pub(crate) influence_weights: Vec<Vec4>,
+    /// Every vertex's influences as flat f32 lists when some vertex has more than 4 (`wide`):
+    /// vertex v's are `offsets[v]..offsets[v + 1]` of `joints` and `weights`.
+    pub(crate) wide_influences: Option<WideInfluences>,
+}
+
+/// The influences of a template with more than 4 per vertex, flat (CSR), for the f32 loops.
+#[derive(Debug, Clone)]
+pub(crate) struct WideInfluences {
+    pub(crate) offsets: Vec<u32>,
+    pub(crate) joints: Vec<u16>,
+    pub(crate) weights: Vec<f32>,
 }
 
 impl Template {
@@ -102,6 +113,23 @@ impl Template {
             influence_joints.push(joints);
             influence_weights.push(Vec4::from_array(weights));
         }
+        let wide_influences = wide.then(|| {
+            let mut offsets = Vec::with_capacity(rig.weights.len() + 1);
+            offsets.push(0u32);
+            let (mut joints, mut weights) = (Vec::new(), Vec::new());
+            for list in &rig.weights {
+                for &(j, w) in list {
+                    joints.push(j as u16);
+                    weights.push(w as f32);
+                }
+                offsets.push(joints.len() as u32);
+            }
+            WideInfluences {
+                offsets,
+                joints,
+                weights,
+            }
+        });
         let info = crate::info::ModelInfo::fallback(&rig);
         Ok(Self {
             id: id.into(),
@@ -113,6 +141,7 @@ impl Template {
             wide,
             influence_joints,
             influence_weights,
+            wide_influences,
         })
     }
 

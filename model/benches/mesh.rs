@@ -1,0 +1,85 @@
+//! Full meshes per second on one thread (FK + LBS of every vertex): the f32 loop
+//! (`skin_lbs_into`, what rendering, export, synthesis and the silhouettes model use) against the
+//! f64 reference it replaced for morphable and wide-influence models (`skin_lbs_f64`: each
+//! vertex shaped by a dot product per axis, its influences read from the rig's lists), in the
+//! same run. Models: the committed MakeHuman body (`models/makehuman-cmu_mb.npz`: 13,380
+//! vertices, 31 joints, B = 16, up to 7 influences), the default template and an SMPL-like model
+//! with pose correctives; 32 random parameter vectors (±0.3 rad, translation ±0.3 m,
+//! β ~ N(0, 0.5²)) as in the root package's `makehuman` bench. Report f32 / f64 ratios.
+//!
+//! Run with `cargo bench -p lfit-model --bench mesh` (Burn-free: builds in minutes).
+
+use std::hint::black_box;
+use std::path::Path;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use lfit_model::Template;
+use lfit_model::body::{default_template, smpl_like};
+use lfit_model::skinning::{joint_transforms, skin_lbs_f64, skin_lbs_into};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+fn params(template: &Template, n: usize) -> Vec<Vec<f64>> {
+    let layout = template.layout();
+    let mut rng = ChaCha8Rng::seed_from_u64(42);
+    (0..n)
+        .map(|_| {
+            let mut p: Vec<f64> = (0..layout.pose_dim())
+                .map(|_| rng.random_range(-0.3..0.3))
+                .collect();
+            for _ in 0..layout.shape + layout.expression {
+                let z: f64 = StandardNormal.sample(&mut rng);
+                p.push(0.5 * z);
+            }
+            p
+        })
+        .collect()
+}
+
+fn bench(c: &mut Criterion) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/makehuman-cmu_mb.npz");
+    let models = [
+        (
+            "makehuman",
+            lfit_model::modelfile::load(&path).expect("models/makehuman-cmu_mb.npz"),
+        ),
+        ("default", default_template()),
+        ("smpl_like_6890_posedirs", smpl_like(1, 6890, 10, true)),
+    ];
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
+    for (name, template) in &models {
+        let ps = params(template, 32);
+        let mut group = c.benchmark_group(format!("mesh/{name}"));
+        group.throughput(Throughput::Elements(ps.len() as u64));
+        group.bench_function("f32", |b| {
+            let mut out = Vec::with_capacity(template.num_vertices());
+            b.iter(|| {
+                one.install(|| {
+                    for p in &ps {
+                        let a = joint_transforms(template, p);
+                        skin_lbs_into(template, &a, &mut out);
+                        black_box(&out);
+                    }
+                })
+            })
+        });
+        group.bench_function("f64_reference", |b| {
+            b.iter(|| {
+                one.install(|| {
+                    for p in &ps {
+                        let a = joint_transforms(template, p);
+                        black_box(skin_lbs_f64(template, &a));
+                    }
+                })
+            })
+        });
+        group.finish();
+    }
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
