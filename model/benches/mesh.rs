@@ -5,7 +5,8 @@
 //! same run. Models: the committed MakeHuman body (`models/makehuman-cmu_mb.npz`: 13,380
 //! vertices, 31 joints, B = 16, up to 7 influences), the default template and an SMPL-like model
 //! with pose correctives; 32 random parameter vectors (±0.3 rad, translation ±0.3 m,
-//! β ~ N(0, 0.5²)) as in the root package's `makehuman` bench. Report f32 / f64 ratios.
+//! β ~ N(0, 0.5²)) as in the root package's `makehuman` bench. Report f32 / f64 ratios;
+//! `f32_rest_mesh_only` is the f32 loop's shape pass (FK included) without the skinning.
 //!
 //! Run with `cargo bench -p lfit-model --bench mesh` (Burn-free: builds in minutes).
 
@@ -63,6 +64,24 @@ fn bench(c: &mut Criterion) {
                         let a = joint_transforms(template, p);
                         skin_lbs_into(template, &a, &mut out);
                         black_box(&out);
+                    }
+                })
+            })
+        });
+        // The shape pass alone (what the f32 loop spends before skinning).
+        group.bench_function("f32_rest_mesh_only", |b| {
+            let mut rest = Vec::new();
+            b.iter(|| {
+                one.install(|| {
+                    for p in &ps {
+                        let a = joint_transforms(template, p);
+                        template.morph.rest_mesh_f32(
+                            &template.vertices,
+                            &a.coeffs,
+                            &a.pose_feature,
+                            &mut rest,
+                        );
+                        black_box(&rest);
                     }
                 })
             })
