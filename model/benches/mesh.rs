@@ -6,7 +6,8 @@
 //! vertices, 31 joints, B = 16, up to 7 influences), the default template and an SMPL-like model
 //! with pose correctives; 32 random parameter vectors (±0.3 rad, translation ±0.3 m,
 //! β ~ N(0, 0.5²)) as in the root package's `makehuman` bench. Report f32 / f64 ratios;
-//! `f32_rest_mesh_only` is the f32 loop's shape pass (FK included) without the skinning.
+//! `f32_rest_mesh_only` is the f32 loop's shape pass (FK included) without the skinning;
+//! `f32_one_shape` the f32 loop on poses that share one β (a sequence of one subject).
 //!
 //! Run with `cargo bench -p lfit-model --bench mesh` (Burn-free: builds in minutes).
 
@@ -61,6 +62,29 @@ fn bench(c: &mut Criterion) {
             b.iter(|| {
                 one.install(|| {
                     for p in &ps {
+                        let a = joint_transforms(template, p);
+                        skin_lbs_into(template, &a, &mut out);
+                        black_box(&out);
+                    }
+                })
+            })
+        });
+        // One subject: the 32 poses share the first vector's β (rendering or exporting a
+        // sequence fitted with one β), so the shape offsets are computed once.
+        let one_shape: Vec<Vec<f64>> = ps
+            .iter()
+            .map(|p| {
+                let mut q = p.clone();
+                let pose_dim = template.layout().pose_dim();
+                q[pose_dim..].copy_from_slice(&ps[0][pose_dim..]);
+                q
+            })
+            .collect();
+        group.bench_function("f32_one_shape", |b| {
+            let mut out = Vec::with_capacity(template.num_vertices());
+            b.iter(|| {
+                one.install(|| {
+                    for p in &one_shape {
                         let a = joint_transforms(template, p);
                         skin_lbs_into(template, &a, &mut out);
                         black_box(&out);

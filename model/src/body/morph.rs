@@ -107,7 +107,13 @@ pub struct Morph {
 /// clone (whose directions may be changed) starts without it and two morphs compare equal
 /// whatever their caches hold.
 #[derive(Default)]
-struct MeshColumns(std::sync::OnceLock<(Vec<f32>, Vec<f32>)>);
+#[allow(clippy::type_complexity)]
+struct MeshColumns(
+    std::sync::OnceLock<(Vec<f32>, Vec<f32>)>,
+    /// The last shape coefficients and, once they came twice in a row, their offsets
+    /// `S β + E ψ` (f32, `[3v + axis]`).
+    std::sync::Mutex<Option<(Vec<f64>, Option<Vec<f32>>)>>,
+);
 
 impl Clone for MeshColumns {
     fn clone(&self) -> Self {
@@ -218,7 +224,8 @@ impl Morph {
     /// `S β + E ψ + P f` are summed in f32 in coefficient order (their rounding is relative to the
     /// offsets, centimetres, not to the body), then added to the f64 rest position with one
     /// rounding. `base`: the template's own vertices, used when the morph has no `rest`. A zero
-    /// coefficient costs nothing.
+    /// coefficient costs nothing; the offsets of coefficients given twice in a row are kept and
+    /// reused while they repeat (bit for bit the same mesh).
     pub fn rest_mesh_f32(
         &self,
         base: &[glam::Vec3],
@@ -246,9 +253,33 @@ impl Morph {
                         .map_or_else(Vec::new, |pd| columns_f32(pd, pose_cols)),
                 )
             });
-            for (column, &c) in dirs.chunks_exact(n).zip(coeffs) {
-                if c != 0.0 {
-                    axpy(out, c as f32, column);
+            // The last coefficients are remembered, and their shape offsets kept once they come
+            // twice in a row: a sequence of one subject (one β: rendering, export,
+            // `--sequence-shape`) pays the shape pass twice, not per mesh, and a mesh per random β
+            // copies nothing.
+            let mut keep = false;
+            let cached = with_shape
+                && self.mesh.1.try_lock().is_ok_and(|last| match &*last {
+                    Some((c, offsets)) if c.as_slice() == coeffs => match offsets {
+                        Some(o) if o.len() == n => {
+                            out.copy_from_slice(o);
+                            true
+                        }
+                        _ => {
+                            keep = true;
+                            false
+                        }
+                    },
+                    _ => false,
+                });
+            if with_shape && !cached {
+                for (column, &c) in dirs.chunks_exact(n).zip(coeffs) {
+                    if c != 0.0 {
+                        axpy(out, c as f32, column);
+                    }
+                }
+                if let Ok(mut last) = self.mesh.1.try_lock() {
+                    *last = Some((coeffs.to_vec(), keep.then(|| out.clone())));
                 }
             }
             if with_pose {

@@ -161,7 +161,8 @@ fn blend_vertex_f64(template: &Template, posed: &Posed, v: usize) -> DVec3 {
 /// Linear blend skinning of every vertex into `out` (resized to the vertex count), in f32 SIMD
 /// (`Vec3A`). A morphable model's rest mesh is shaped first, one vectorised pass per non-zero
 /// coefficient ([`crate::morph::Morph::rest_mesh_f32`]); a vertex with more than 4 influences
-/// reads the template's flat lists. Within ~1e-6 of the f64 [`skin_lbs_f64`] relative to the
+/// reads the template's flat lists. The shape offsets of a β that repeats are kept by the morph
+/// (one subject's sequence shapes once). Within ~1e-6 of the f64 [`skin_lbs_f64`] relative to the
 /// mesh size (tested; 2-4e-7 m on the bodies of the tests).
 pub fn skin_lbs_into(template: &Template, posed: &Posed, out: &mut Vec<Vec3>) {
     out.clear();
@@ -415,6 +416,33 @@ mod tests {
                 }
                 let posed = joint_transforms(t, &p);
                 skin_lbs_into(t, &posed, &mut out);
+                // Again with the same β (its offsets kept on the second call, reused on the
+                // third) and another pose: the same mesh as computed afresh.
+                let mut again = Vec::new();
+                for _ in 0..2 {
+                    skin_lbs_into(t, &posed, &mut again);
+                    assert_eq!(again, out, "{name}, trial {trial}: kept shape offsets");
+                }
+                let mut q = p.clone();
+                q[5] += 0.2;
+                let other = joint_transforms(t, &q);
+                skin_lbs_into(t, &other, &mut again);
+                let fresh = skin_lbs_f64(t, &other);
+                let worst = again
+                    .iter()
+                    .zip(&fresh)
+                    .map(|(a, b)| (a.as_dvec3() - *b).length())
+                    .fold(0.0f64, |m, d| {
+                        if m.is_nan() || d.is_nan() {
+                            f64::NAN
+                        } else {
+                            m.max(d)
+                        }
+                    });
+                assert!(
+                    worst < 2e-6,
+                    "{name}, trial {trial}: cached β, new pose: {worst:e}"
+                );
                 let reference = skin_lbs_f64(t, &posed);
                 assert_eq!(out.len(), reference.len());
                 // NaN-propagating max: a NaN vertex fails the bound instead of being skipped.
