@@ -614,20 +614,6 @@ pub fn joint_shape(
 /// dataset's), else the procedural body named by the dataset's template id, else the shipped
 /// model file of that id (`models/<id>.npz`, found as every shipped path is: the MakeHuman body
 /// and face).
-/// `models/<id>.npz` where the shipped data are found, for a plain model id (letters, digits,
-/// `-`, `_`, `+`, `.`; not a path).
-fn shipped_model(id: &str) -> Option<std::path::PathBuf> {
-    let plain = !id.is_empty()
-        && !id.starts_with('.')
-        && id
-            .chars()
-            .all(|c| c.is_ascii_alphanumeric() || "-_+.".contains(c));
-    if !plain {
-        return None;
-    }
-    crate::shipped::locate(&Path::new("models").join(format!("{id}.npz"))).ok()
-}
-
 pub fn template_for(dataset: &Dataset, dir: Option<&Path>) -> Result<Arc<Template>> {
     let template = match dir {
         Some(d) => crate::data::load_model(Some(d), "default")?,
@@ -646,6 +632,20 @@ pub fn template_for(dataset: &Dataset, dir: Option<&Path>) -> Result<Arc<Templat
     };
     check_model(dataset, &template)?;
     Ok(Arc::new(template))
+}
+
+/// `models/<id>.npz` where the shipped data are found, for a plain model id (letters, digits,
+/// `-`, `_`, `+`, `.`; not a path).
+fn shipped_model(id: &str) -> Option<std::path::PathBuf> {
+    let plain = !id.is_empty()
+        && !id.starts_with('.')
+        && id
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_+.".contains(c));
+    if !plain {
+        return None;
+    }
+    crate::shipped::locate(&Path::new("models").join(format!("{id}.npz"))).ok()
 }
 
 /// Checks that `template` is the model `dataset` was made with (id, vertex count and parameter

@@ -57,41 +57,31 @@ fn bench(c: &mut Criterion) {
         let ps = params(template, 32);
         let mut group = c.benchmark_group(format!("mesh/{name}"));
         group.throughput(Throughput::Elements(ps.len() as u64));
-        group.bench_function("f32", |b| {
-            let mut out = Vec::with_capacity(template.num_vertices());
-            b.iter(|| {
-                one.install(|| {
-                    for p in &ps {
-                        let a = joint_transforms(template, p);
-                        skin_lbs_into(template, &a, &mut out);
-                        black_box(&out);
-                    }
-                })
-            })
-        });
         // One subject: the 32 poses share the first vector's β (rendering or exporting a
         // sequence fitted with one β), so the shape offsets are computed once.
+        let pose_dim = template.layout().pose_dim();
         let one_shape: Vec<Vec<f64>> = ps
             .iter()
             .map(|p| {
                 let mut q = p.clone();
-                let pose_dim = template.layout().pose_dim();
                 q[pose_dim..].copy_from_slice(&ps[0][pose_dim..]);
                 q
             })
             .collect();
-        group.bench_function("f32_one_shape", |b| {
-            let mut out = Vec::with_capacity(template.num_vertices());
-            b.iter(|| {
-                one.install(|| {
-                    for p in &one_shape {
-                        let a = joint_transforms(template, p);
-                        skin_lbs_into(template, &a, &mut out);
-                        black_box(&out);
-                    }
+        for (label, list) in [("f32", &ps), ("f32_one_shape", &one_shape)] {
+            group.bench_function(label, |b| {
+                let mut out = Vec::with_capacity(template.num_vertices());
+                b.iter(|| {
+                    one.install(|| {
+                        for p in list {
+                            let a = joint_transforms(template, p);
+                            skin_lbs_into(template, &a, &mut out);
+                            black_box(&out);
+                        }
+                    })
                 })
-            })
-        });
+            });
+        }
         // The shape pass alone (what the f32 loop spends before skinning).
         group.bench_function("f32_rest_mesh_only", |b| {
             let mut rest = Vec::new();

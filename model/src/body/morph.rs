@@ -257,29 +257,24 @@ impl Morph {
             // twice in a row: a sequence of one subject (one β: rendering, export,
             // `--sequence-shape`) pays the shape pass twice, not per mesh, and a mesh per random β
             // copies nothing.
-            let mut keep = false;
-            let cached = with_shape
-                && self.mesh.1.try_lock().is_ok_and(|last| match &*last {
-                    Some((c, offsets)) if c.as_slice() == coeffs => match offsets {
-                        Some(o) if o.len() == n => {
-                            out.copy_from_slice(o);
-                            true
-                        }
-                        _ => {
-                            keep = true;
-                            false
-                        }
-                    },
-                    _ => false,
-                });
-            if with_shape && !cached {
-                for (column, &c) in dirs.chunks_exact(n).zip(coeffs) {
-                    if c != 0.0 {
-                        axpy(out, c as f32, column);
+            if with_shape {
+                // Other threads never wait: a locked slot is skipped (the mesh is computed).
+                let mut slot = self.mesh.1.try_lock().ok();
+                match slot.as_deref() {
+                    Some(Some((c, Some(kept)))) if c.as_slice() == coeffs && kept.len() == n => {
+                        out.copy_from_slice(kept);
                     }
-                }
-                if let Ok(mut last) = self.mesh.1.try_lock() {
-                    *last = Some((coeffs.to_vec(), keep.then(|| out.clone())));
+                    _ => {
+                        for (column, &c) in dirs.chunks_exact(n).zip(coeffs) {
+                            if c != 0.0 {
+                                axpy(out, c as f32, column);
+                            }
+                        }
+                        if let Some(last) = slot.as_deref_mut() {
+                            let repeated = matches!(last, Some((c, _)) if c.as_slice() == coeffs);
+                            *last = Some((coeffs.to_vec(), repeated.then(|| out.clone())));
+                        }
+                    }
                 }
             }
             if with_pose {

@@ -378,6 +378,16 @@ mod tests {
         }
     }
 
+    /// `max` that is NaN once either side is (`f64::max` drops NaN): a NaN vertex fails a bound
+    /// instead of being skipped.
+    fn nan_max(m: f64, d: f64) -> f64 {
+        if m.is_nan() || d.is_nan() {
+            f64::NAN
+        } else {
+            m.max(d)
+        }
+    }
+
     #[test]
     fn the_f32_mesh_loop_equals_the_f64_reference() {
         use rand::{Rng, SeedableRng};
@@ -432,31 +442,18 @@ mod tests {
                     .iter()
                     .zip(&fresh)
                     .map(|(a, b)| (a.as_dvec3() - *b).length())
-                    .fold(0.0f64, |m, d| {
-                        if m.is_nan() || d.is_nan() {
-                            f64::NAN
-                        } else {
-                            m.max(d)
-                        }
-                    });
+                    .fold(0.0f64, nan_max);
                 assert!(
                     worst < 2e-6,
                     "{name}, trial {trial}: cached β, new pose: {worst:e}"
                 );
                 let reference = skin_lbs_f64(t, &posed);
                 assert_eq!(out.len(), reference.len());
-                // NaN-propagating max: a NaN vertex fails the bound instead of being skipped.
                 let max = out
                     .iter()
                     .zip(&reference)
                     .map(|(a, b)| (a.as_dvec3() - *b).abs().max_element())
-                    .fold(0.0f64, |m, d| {
-                        if m.is_nan() || d.is_nan() {
-                            f64::NAN
-                        } else {
-                            m.max(d)
-                        }
-                    });
+                    .fold(0.0f64, nan_max);
                 let tol = 1e-6 * (1.0 + f64::from(extent));
                 println!("{name}, trial {trial}: f32 loop vs f64 reference {max:.2e} m");
                 assert!(max <= tol, "{name}, trial {trial}: {max:e} > {tol:e}");
