@@ -5,8 +5,9 @@
 //! - `data`: the sparse prediction minus the target, per residual group `g` divided by its σ and
 //!   folded with the robust loss, `√(λ_data/n) φ(s_g) u_g` ([`Robust::fold`]; `n` visible groups),
 //!   so that its squares sum to `λ_data · data`. Unseen groups are rows of zeros.
-//! - `EP`: one row per tested vertex, `√(λ_P/N) ‖((1 − q_e)₊)_e‖` over the ellipsoids it is tested
-//!   against (papers/000 eq. 8; the norm keeps one row per vertex, not per pair).
+//! - `EP`: in the capsule form one row per tested pair of capsules, `√(λ_P κ) (1 − q)₊`; in the
+//!   vertex form one row per tested vertex, `√(λ_P/N) ‖((1 − q_e)₊)_e‖` over the ellipsoids it is
+//!   tested against (papers/000 eq. 8; the norm keeps one row per vertex, not per pair).
 //! - `EA`: one row per non-root rotation entry, `√λ_A` times its excess over the limits (the
 //!   [`AnglePrior::Hinge`] form; the binary form of eq. 7 is not a sum of squares).
 //! - `shape`, `expression`: `√λ β_k`, `√λ ψ_k`.
@@ -23,7 +24,7 @@ use crate::body::kinematics::Kinematics;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
-use super::{AnglePrior, Energy, Target};
+use super::{AnglePrior, Energy, PenetrationForm, Target};
 use crate::error::{ModelError, Result};
 use crate::observe::{PoseJacobian, Sensor};
 use crate::pose::rot_offset;
@@ -217,10 +218,18 @@ impl Energy {
             Target::Scan { .. } | Target::Silhouettes { .. } => 0,
         };
         let pose_end = self.limits.lower.len();
-        data + self.penetration.tests.len()
+        data + self.penetration_rows()
             + pose_end.saturating_sub(rot_offset(1))
             + self.pose_prior_rows().len()
             + self.template.morph.coefficients()
+    }
+
+    /// EP's rows: one per tested vertex (vertex form) or per tested pair of capsules.
+    fn penetration_rows(&self) -> usize {
+        match self.config.penetration {
+            PenetrationForm::Vertices => self.penetration.tests.len(),
+            PenetrationForm::Capsules => self.capsules.pairs.len(),
+        }
     }
 
     /// Parameters of the rotation prior's residual rows (papers/002 eq. 9's `w_θ‖θ‖²`): every
@@ -358,9 +367,8 @@ impl Energy {
         }
 
         // EP rows.
-        let tests = self.penetration.tests.len();
+        let tests = self.penetration_rows();
         if w.ep > 0.0 {
-            let c0 = (w.ep / self.penetration.count as f64).sqrt();
             let (r, j) = (
                 &mut residuals[row..row + tests],
                 if with_jacobian {
@@ -369,8 +377,17 @@ impl Energy {
                     &mut [][..]
                 },
             );
-            self.penetration
-                .residuals(&kin, &self.skin, pj.as_mut(), c0, r, j);
+            match self.config.penetration {
+                PenetrationForm::Vertices => {
+                    let c0 = (w.ep / self.penetration.count as f64).sqrt();
+                    self.penetration
+                        .residuals(&kin, &self.skin, pj.as_mut(), c0, r, j);
+                }
+                PenetrationForm::Capsules => {
+                    let c0 = (w.ep * self.capsules.scale).sqrt();
+                    self.capsules.residuals(&kin, pj.as_mut(), c0, r, j);
+                }
+            }
         }
         blocks.push(("EP", row..row + tests));
         row += tests;

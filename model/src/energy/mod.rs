@@ -19,6 +19,7 @@
 //! Every evaluation goes through [`Energy::evaluate`], [`Energy::evaluate_with_gradient`] or
 //! [`Energy::evaluate_batch`], which count evaluations and gradient evaluations.
 
+mod capsules;
 mod least_squares;
 mod prior;
 
@@ -33,6 +34,7 @@ pub use crate::observe::Scales;
 pub use least_squares::{LeastSquares, RobustForm, damped_step, marquardt_scaling};
 pub use prior::AnglePrior;
 
+use self::capsules::Capsules;
 pub(crate) use self::prior::{AngleLimits, Penetration};
 use crate::body::kinematics::{Adjoint, Kinematics, SkinTable};
 use crate::camera::Camera;
@@ -194,8 +196,26 @@ pub struct EnergyConfig {
     /// Width in pixels at which EJ renders (heights keep the cameras' aspect ratio).
     pub silhouette_width: u32,
     /// EP tests every `penetration_stride`-th template vertex (default 16: 195 of the default
-    /// template's 3,106, a coarse proxy like the paper's; EP dominates the sparse energies' cost).
+    /// template's 3,106, a coarse proxy like the paper's) in the vertex form; the capsule form
+    /// is scaled against that form.
     pub penetration_stride: usize,
+    /// How EP tests for self-penetration. Default [`PenetrationForm::Capsules`].
+    pub penetration: PenetrationForm,
+}
+
+/// The form of the self-penetration prior EP.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PenetrationForm {
+    /// Capsule against capsule: every segment's ellipsoid as the capsule along its long axis,
+    /// `(1 − q)²₊` per pair of non-adjacent capsules, scaled to the vertex form (see
+    /// `capsules.rs`). Reads the posed skeleton only: what the sparse energies use.
+    #[default]
+    Capsules,
+    /// papers/000 eq. (8) as written: every `penetration_stride`-th vertex against the
+    /// ellipsoids of the other segments (shapes and skins the tested vertices at every
+    /// evaluation).
+    Vertices,
 }
 
 impl Default for EnergyConfig {
@@ -208,6 +228,7 @@ impl Default for EnergyConfig {
             silhouettes: true,
             silhouette_width: 128,
             penetration_stride: 16,
+            penetration: PenetrationForm::default(),
         }
     }
 }
@@ -327,6 +348,7 @@ struct TemplateParts {
     skin: Arc<SkinTable>,
     rest_normals: Arc<Vec<DVec3>>,
     penetration: Arc<Penetration>,
+    capsules: Arc<Capsules>,
     limits: Arc<AngleLimits>,
 }
 
@@ -349,7 +371,9 @@ impl TemplateParts {
         {
             return parts.clone();
         }
+        let penetration = Penetration::new(template, stride);
         let parts = Arc::new(Self {
+            capsules: Arc::new(Capsules::new(template, &penetration)),
             skin: Arc::new(SkinTable::new(template)),
             rest_normals: Arc::new(
                 vertex_normals(&template.vertices, &template.faces)
@@ -357,7 +381,7 @@ impl TemplateParts {
                     .map(|n| n.as_dvec3())
                     .collect(),
             ),
-            penetration: Arc::new(Penetration::new(template, stride)),
+            penetration: Arc::new(penetration),
             limits: Arc::new(AngleLimits::new(template)),
         });
         cache.push((weak, stride, parts.clone()));
@@ -383,6 +407,7 @@ pub struct Energy {
     rest_normals: Arc<Vec<DVec3>>,
     groups: Vec<ResidualGroup>,
     penetration: Arc<Penetration>,
+    capsules: Arc<Capsules>,
     limits: Arc<AngleLimits>,
     silhouettes: Option<SilhouetteTerm>,
     /// `silhouettes`: the observation model at the render width (the sensor's is full size).
@@ -405,6 +430,7 @@ impl Clone for Energy {
             rest_normals: self.rest_normals.clone(),
             groups: self.groups.clone(),
             penetration: self.penetration.clone(),
+            capsules: self.capsules.clone(),
             limits: self.limits.clone(),
             silhouettes: self.silhouettes.clone(),
             render: self.render.clone(),
@@ -526,6 +552,7 @@ impl Energy {
             skin: parts.skin.clone(),
             rest_normals: parts.rest_normals.clone(),
             penetration: parts.penetration.clone(),
+            capsules: parts.capsules.clone(),
             template,
             sensor,
             target,
@@ -783,12 +810,17 @@ impl Energy {
                 None
             }
         };
-        let ep = self.penetration.evaluate(
-            &kin,
-            &self.skin,
-            posed.as_deref(),
-            adj.as_mut().map(|a| (a, w.ep)),
-        );
+        let ep = match self.config.penetration {
+            PenetrationForm::Vertices => self.penetration.evaluate(
+                &kin,
+                &self.skin,
+                posed.as_deref(),
+                adj.as_mut().map(|a| (a, w.ep)),
+            ),
+            PenetrationForm::Capsules => self
+                .capsules
+                .evaluate(&kin, adj.as_mut().map(|a| (a, w.ep))),
+        };
         terms.push(("EP", ep));
         total += w.ep * ep;
         let ea = self.limits.evaluate(

@@ -1,0 +1,154 @@
+//! The cost model of one evaluation on the MakeHuman body (`docs/results/cost-model.md`), per
+//! modality (`markers`, `keypoints2d`, `hmd`), one thread: the energy value, value + gradient,
+//! residuals alone, residuals + Jacobian and the normal equations of that Jacobian, each with EP
+//! in its capsule form (the default), in the vertex form of papers/000 eq. (8) it replaced
+//! (`_vertex_ep`, the reference in the same run) and without EP (`_without_ep`); and the damped
+//! Cholesky solve (what one Levenberg–Marquardt iteration and one Gauss-Newton step of the neural
+//! fitter pay). 32 random parameter vectors
+//! (±0.3 rad, translation ±0.3 m, β ~ N(0, 0.5²)) as in the mesh bench.
+//!
+//! Run with `cargo bench -p lfit-model --bench energy` (Burn-free: builds in minutes).
+
+use std::hint::black_box;
+use std::path::Path;
+use std::sync::Arc;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use lfit_model::Template;
+use lfit_model::energy::{
+    Energy, EnergyConfig, PenetrationForm, Target, damped_step, marquardt_scaling,
+};
+use lfit_model::observe::{Modality, Sensor};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+fn params(template: &Template, n: usize) -> Vec<Vec<f64>> {
+    let layout = template.layout();
+    let mut rng = ChaCha8Rng::seed_from_u64(42);
+    (0..n)
+        .map(|_| {
+            let mut p: Vec<f64> = (0..layout.pose_dim())
+                .map(|_| rng.random_range(-0.3..0.3))
+                .collect();
+            for _ in 0..layout.shape + layout.expression {
+                let z: f64 = StandardNormal.sample(&mut rng);
+                p.push(0.5 * z);
+            }
+            p
+        })
+        .collect()
+}
+
+fn bench(c: &mut Criterion) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/makehuman-cmu_mb.npz");
+    let template =
+        Arc::new(lfit_model::modelfile::load(&path).expect("models/makehuman-cmu_mb.npz"));
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
+    let ps = params(&template, 32);
+    for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
+        let sensor = Sensor::default_for(modality, &template);
+        let pred = sensor.predict_sparse(&template, &ps[0]);
+        let target = Target::Sparse {
+            values: pred.values,
+            visible: pred.visible,
+        };
+        // The capsule form of EP (the default), the vertex form of papers/000 eq. (8) it
+        // replaced (the reference: the code before issue 26's change), and EP's weight 0.
+        let config = EnergyConfig::default().for_gradient();
+        let vertex = EnergyConfig {
+            penetration: PenetrationForm::Vertices,
+            ..config.clone()
+        };
+        let mut no_ep = config.clone();
+        no_ep.weights.ep = 0.0;
+        let forms = [("", config), ("_vertex_ep", vertex), ("_without_ep", no_ep)].map(
+            |(label, config)| {
+                let e = Energy::new(template.clone(), sensor.clone(), target.clone(), config)
+                    .expect("energy");
+                (label, e)
+            },
+        );
+        let dofs: Vec<usize> = (0..forms[0].1.dim()).collect();
+        let mut group = c.benchmark_group(format!("cost_model/makehuman/{modality}"));
+        group.throughput(Throughput::Elements(ps.len() as u64));
+        for (label, e) in &forms {
+            group.bench_function(format!("value{label}"), |b| {
+                b.iter(|| one.install(|| ps.iter().map(|p| e.evaluate(p).total).sum::<f64>()))
+            });
+            group.bench_function(format!("value_and_gradient{label}"), |b| {
+                b.iter(|| {
+                    one.install(|| {
+                        ps.iter()
+                            .map(|p| e.evaluate_with_gradient(p).1[0])
+                            .sum::<f64>()
+                    })
+                })
+            });
+            group.bench_function(format!("residuals{label}"), |b| {
+                b.iter(|| {
+                    one.install(|| {
+                        ps.iter()
+                            .map(|p| e.least_squares(p, false).expect("residuals").energy)
+                            .sum::<f64>()
+                    })
+                })
+            });
+            group.bench_function(format!("jacobian{label}"), |b| {
+                b.iter(|| {
+                    one.install(|| {
+                        ps.iter()
+                            .map(|p| e.least_squares(p, true).expect("jacobian").energy)
+                            .sum::<f64>()
+                    })
+                })
+            });
+            let systems: Vec<_> = ps
+                .iter()
+                .map(|p| e.least_squares(p, true).expect("jacobian"))
+                .collect();
+            group.bench_function(format!("normal_equations{label}"), |b| {
+                b.iter(|| {
+                    systems
+                        .iter()
+                        .map(|ls| ls.normal_equations(&dofs).1[0])
+                        .sum::<f64>()
+                })
+            });
+        }
+        let normal: Vec<_> = ps
+            .iter()
+            .map(|p| {
+                forms[0]
+                    .1
+                    .least_squares(p, true)
+                    .expect("jacobian")
+                    .normal_equations(&dofs)
+            })
+            .collect();
+        group.bench_function("damped_solve", |b| {
+            b.iter(|| {
+                black_box(
+                    normal
+                        .iter()
+                        .map(|(a, g)| {
+                            let (diag, max_diag) = marquardt_scaling(a, &dofs);
+                            damped_step(a, g, &dofs, &diag, 1e-2, max_diag).map_or(0.0, |h| h[0])
+                        })
+                        .sum::<f64>(),
+                )
+            })
+        });
+        group.finish();
+    }
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(10).warm_up_time(std::time::Duration::from_secs(1)).measurement_time(std::time::Duration::from_secs(2));
+    targets = bench
+}
+criterion_main!(benches);
