@@ -118,6 +118,17 @@ fn bench(c: &mut Criterion) {
                         .sum::<f64>()
                 })
             });
+            // The row-by-row reference (the code before the rows of one pattern were grouped).
+            if label.is_empty() {
+                group.bench_function("normal_equations_by_row", |b| {
+                    b.iter(|| {
+                        systems
+                            .iter()
+                            .map(|ls| ls.normal_equations_by_row(&dofs).1[0])
+                            .sum::<f64>()
+                    })
+                });
+            }
         }
         let normal: Vec<_> = ps
             .iter()

@@ -111,14 +111,54 @@ impl LeastSquares {
     /// The Gauss-Newton normal equations `(JᵀJ, Jᵀr)` over the columns `dofs` (in their order),
     /// skipping zero rows and entries (a row of a skinned point is zero outside its joint chain;
     /// most penetration rows are zero). `∇E = 2 Jᵀr`. Empty without a Jacobian.
+    ///
+    /// Consecutive rows with the same nonzero columns (the x, y, z rows of one marker, the u, v
+    /// rows of one keypoint) are applied together, up to three at a time: one scattered update of
+    /// `JᵀJ` per pair of columns instead of one per row. Every entry still sums the rows in
+    /// order, so the result is bit for bit [`LeastSquares::normal_equations_by_row`]'s.
     pub fn normal_equations(&self, dofs: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
         let n = dofs.len();
-        // Column → position among the free entries (usize::MAX: held).
-        let mut position = vec![usize::MAX; self.dim];
-        for (p, &c) in dofs.iter().enumerate() {
-            position[c] = p;
+        let position = self.positions(dofs);
+        let mut upper = vec![0.0; n * n];
+        let mut g = DVector::<f64>::zeros(n);
+        // The group: its positions, its rows' values interleaved (`values[3k + r]`: row r of the
+        // group at its k-th position) and residuals.
+        let mut group: Vec<usize> = Vec::with_capacity(self.dim);
+        let mut values = vec![0.0; 3 * self.dim];
+        let mut residuals = [0.0; 3];
+        let mut rows = 0usize;
+        let mut next: Vec<(usize, f64)> = vec![(0, 0.0); self.dim + 1];
+        for (i, &r) in self.residuals.iter().enumerate() {
+            if self.zero_rows.get(i).copied().unwrap_or(false) {
+                continue;
+            }
+            let len = self.compact(i, &position, &mut next);
+            let nz = &next[..len];
+            let same = rows > 0
+                && rows < 3
+                && len == group.len()
+                && nz.iter().zip(&group).all(|(e, &p)| e.0 == p);
+            if !same {
+                accumulate(&mut upper, &mut g, n, &group, &values, &residuals[..rows]);
+                group.clear();
+                group.extend(nz.iter().map(|e| e.0));
+                rows = 0;
+            }
+            for (k, e) in nz.iter().enumerate() {
+                values[3 * k + rows] = e.1;
+            }
+            residuals[rows] = r;
+            rows += 1;
         }
-        // Upper triangle, row-major, then mirrored into nalgebra's column-major matrix.
+        accumulate(&mut upper, &mut g, n, &group, &values, &residuals[..rows]);
+        (mirror(&upper, n), g)
+    }
+
+    /// [`LeastSquares::normal_equations`] one row at a time: the reference it is tested against
+    /// and benchmarked with (`cargo bench -p lfit-model --bench energy`).
+    pub fn normal_equations_by_row(&self, dofs: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
+        let n = dofs.len();
+        let position = self.positions(dofs);
         let mut upper = vec![0.0; n * n];
         let mut g = DVector::<f64>::zeros(n);
         let mut buffer: Vec<(usize, f64)> = vec![(0, 0.0); self.dim + 1];
@@ -126,18 +166,8 @@ impl LeastSquares {
             if self.zero_rows.get(i).copied().unwrap_or(false) {
                 continue;
             }
-            // Branch-free compaction of the row's free nonzero entries.
-            let mut len = 0;
-            for (c, &v) in self.row(i).iter().enumerate() {
-                buffer[len] = (position[c], v);
-                len += usize::from((v != 0.0) & (position[c] != usize::MAX));
-            }
-            let nz = &mut buffer[..len];
-            // Positions ascend with columns when `dofs` is sorted; sort otherwise.
-            if !nz.is_sorted_by_key(|e| e.0) {
-                nz.sort_unstable_by_key(|e| e.0);
-            }
-            let nz = &*nz;
+            let len = self.compact(i, &position, &mut buffer);
+            let nz = &buffer[..len];
             for (k, &(p, vp)) in nz.iter().enumerate() {
                 g[p] += vp * r;
                 let row = &mut upper[p * n..(p + 1) * n];
@@ -146,14 +176,33 @@ impl LeastSquares {
                 }
             }
         }
-        let a = DMatrix::<f64>::from_fn(n, n, |p, q| {
-            if p <= q {
-                upper[p * n + q]
-            } else {
-                upper[q * n + p]
-            }
-        });
-        (a, g)
+        (mirror(&upper, n), g)
+    }
+
+    /// Column → position among the free entries `dofs` (usize::MAX: held).
+    fn positions(&self, dofs: &[usize]) -> Vec<usize> {
+        let mut position = vec![usize::MAX; self.dim];
+        for (p, &c) in dofs.iter().enumerate() {
+            position[c] = p;
+        }
+        position
+    }
+
+    /// Row `i`'s free nonzero entries as `(position, value)` in ascending positions, into
+    /// `buffer` (at least `dim + 1` long); returns how many.
+    fn compact(&self, i: usize, position: &[usize], buffer: &mut [(usize, f64)]) -> usize {
+        // Branch-free compaction.
+        let mut len = 0;
+        for (c, &v) in self.row(i).iter().enumerate() {
+            buffer[len] = (position[c], v);
+            len += usize::from((v != 0.0) & (position[c] != usize::MAX));
+        }
+        let nz = &mut buffer[..len];
+        // Positions ascend with columns when `dofs` is sorted; sort otherwise.
+        if !nz.is_sorted_by_key(|e| e.0) {
+            nz.sort_unstable_by_key(|e| e.0);
+        }
+        len
     }
 
     /// The Marquardt-damped Gauss-Newton step over the entries `dofs`: `h` with
@@ -192,6 +241,63 @@ impl LeastSquares {
         }
         g
     }
+}
+
+/// Adds the rows of one group (positions `group`, values interleaved `values[rows·k + r]` with
+/// stride 3, residuals `residuals`, 0–3 rows) to the upper triangle of `JᵀJ` (row-major, `n`
+/// wide) and to `Jᵀr`, each entry summing the rows in order.
+fn accumulate(
+    upper: &mut [f64],
+    g: &mut DVector<f64>,
+    n: usize,
+    group: &[usize],
+    values: &[f64],
+    residuals: &[f64],
+) {
+    match residuals.len() {
+        0 => {}
+        1 => accumulate_rows::<1>(upper, g, n, group, values, residuals),
+        2 => accumulate_rows::<2>(upper, g, n, group, values, residuals),
+        _ => accumulate_rows::<3>(upper, g, n, group, values, residuals),
+    }
+}
+
+fn accumulate_rows<const R: usize>(
+    upper: &mut [f64],
+    g: &mut DVector<f64>,
+    n: usize,
+    group: &[usize],
+    values: &[f64],
+    residuals: &[f64],
+) {
+    for (k, &p) in group.iter().enumerate() {
+        let vp = &values[3 * k..3 * k + R];
+        let mut gp = g[p];
+        for r in 0..R {
+            gp += vp[r] * residuals[r];
+        }
+        g[p] = gp;
+        let row = &mut upper[p * n..(p + 1) * n];
+        for (l, &q) in group.iter().enumerate().skip(k) {
+            let vq = &values[3 * l..3 * l + R];
+            let mut acc = row[q];
+            for r in 0..R {
+                acc += vp[r] * vq[r];
+            }
+            row[q] = acc;
+        }
+    }
+}
+
+/// The symmetric matrix of an upper triangle stored row-major.
+fn mirror(upper: &[f64], n: usize) -> DMatrix<f64> {
+    DMatrix::<f64>::from_fn(n, n, |p, q| {
+        if p <= q {
+            upper[p * n + q]
+        } else {
+            upper[q * n + p]
+        }
+    })
 }
 
 impl Energy {
