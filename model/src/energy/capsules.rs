@@ -45,7 +45,7 @@ struct Capsule {
 #[derive(Debug, Clone)]
 pub(crate) struct Capsules {
     capsules: Vec<Capsule>,
-    /// Indices into `capsules`, one residual row each.
+    /// Indices into `capsules` (`a < b`); the pair's term is in capsule `a`'s residual row.
     pub(crate) pairs: Vec<(u16, u16)>,
     /// `κ`: EP = κ Σ (1 − q)²₊.
     pub(crate) scale: f64,
@@ -166,11 +166,11 @@ impl Capsules {
             .collect()
     }
 
-    /// The overlapping pairs, as `(row, contact)` (the row: the pair's index).
-    fn contacts_indexed(&self, kin: &Kinematics) -> Vec<(usize, Contact)> {
+    /// The overlapping pairs.
+    fn contacts(&self, kin: &Kinematics) -> Vec<Contact> {
         let posed = self.posed(kin);
         let mut out = Vec::new();
-        for (row, &(a, b)) in self.pairs.iter().enumerate() {
+        for &(a, b) in &self.pairs {
             let (a, b) = (a as usize, b as usize);
             let (ea, eb) = (posed[a], posed[b]);
             let r = self.capsules[a].radius + self.capsules[b].radius;
@@ -184,27 +184,17 @@ impl Capsules {
             let inv_r2 = 1.0 / (r * r);
             let q = pa.distance_squared(pb) * inv_r2;
             if q < 1.0 {
-                out.push((
-                    row,
-                    Contact {
-                        a,
-                        b,
-                        pa,
-                        pb,
-                        depth: 1.0 - q,
-                        inv_r2,
-                    },
-                ));
+                out.push(Contact {
+                    a,
+                    b,
+                    pa,
+                    pb,
+                    depth: 1.0 - q,
+                    inv_r2,
+                });
             }
         }
         out
-    }
-
-    fn contacts(&self, kin: &Kinematics) -> Vec<Contact> {
-        self.contacts_indexed(kin)
-            .into_iter()
-            .map(|(_, c)| c)
-            .collect()
     }
 
     /// EP, accumulating its gradient (times the given scale) into the adjoint when given.
@@ -221,9 +211,16 @@ impl Capsules {
         self.scale * contacts.iter().map(|c| c.depth * c.depth).sum::<f64>()
     }
 
-    /// EP in least-squares form: per pair `c0 (1 − q)₊` with `c0 = √(λ_P κ)` (so `Σ r²` is
-    /// `λ_P EP`) into `residuals` (one per pair, all written) and, with `jacobians`, its row of
-    /// `jacobian` (pairs × dim, zero as given; only overlapping pairs' rows are written).
+    /// Rows of EP's least-squares form: one per capsule.
+    pub(crate) fn rows(&self) -> usize {
+        self.capsules.len()
+    }
+
+    /// EP in least-squares form: per capsule `a`, `c0 ‖((1 − q_ab)₊)_b‖` over the pairs `(a, b)`
+    /// it opens (`b > a`), with `c0 = √(λ_P κ)` (so `Σ r²` is `λ_P EP`; one row per capsule, not
+    /// per pair, as the vertex form keeps one row per vertex: 31 rows on the MakeHuman body, not
+    /// 433), into `residuals` (one per capsule, all written) and, with `jacobians`, its row of
+    /// `jacobian` (capsules × dim, zero as given; only rows with an overlap are written).
     pub fn residuals(
         &self,
         kin: &Kinematics,
@@ -233,23 +230,27 @@ impl Capsules {
         jacobian: &mut [f64],
     ) {
         residuals.fill(0.0);
-        let contacts = self.contacts_indexed(kin);
-        for (row, c) in &contacts {
-            residuals[*row] = c0 * c.depth;
+        let contacts = self.contacts(kin);
+        for c in &contacts {
+            residuals[c.a] += c.depth * c.depth;
+        }
+        for r in residuals.iter_mut() {
+            *r = c0 * r.sqrt();
         }
         let Some(pj) = jacobians else {
             return;
         };
         let dim = pj.dim;
         let (mut ja, mut jb) = (vec![0.0; 3 * dim], vec![0.0; 3 * dim]);
-        for (row, c) in &contacts {
+        for c in &contacts {
             pj.joint_point(self.capsules[c.a].joint, c.pa, &mut ja);
             pj.joint_point(self.capsules[c.b].joint, c.pb, &mut jb);
-            // ∂r = −c0 ∂q = −c0 · 2 (p_a − p_b)ᵀ (∂p_a − ∂p_b) / R².
-            let d = (c.pa - c.pb) * (-2.0 * c0 * c.inv_r2);
-            let out = &mut jacobian[row * dim..(row + 1) * dim];
+            // r_a = c0 √(Σ_b s_b²), s_b = 1 − q_ab: ∂r_a = c0² Σ_b s_b ∂s_b / r_a, and
+            // ∂s_b = −∂q = −2 (p_a − p_b)ᵀ (∂p_a − ∂p_b) / R².
+            let d = (c.pa - c.pb) * (-2.0 * c0 * c0 * c.depth * c.inv_r2 / residuals[c.a]);
+            let out = &mut jacobian[c.a * dim..(c.a + 1) * dim];
             for (k, o) in out.iter_mut().enumerate() {
-                *o = d.x * (ja[k] - jb[k])
+                *o += d.x * (ja[k] - jb[k])
                     + d.y * (ja[dim + k] - jb[dim + k])
                     + d.z * (ja[2 * dim + k] - jb[2 * dim + k]);
             }

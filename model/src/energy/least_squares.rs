@@ -5,8 +5,8 @@
 //! - `data`: the sparse prediction minus the target, per residual group `g` divided by its σ and
 //!   folded with the robust loss, `√(λ_data/n) φ(s_g) u_g` ([`Robust::fold`]; `n` visible groups),
 //!   so that its squares sum to `λ_data · data`. Unseen groups are rows of zeros.
-//! - `EP`: in the capsule form one row per tested pair of capsules, `√(λ_P κ) (1 − q)₊`; in the
-//!   vertex form one row per tested vertex, `√(λ_P/N) ‖((1 − q_e)₊)_e‖` over the ellipsoids it is
+//! - `EP`: in the capsule form one row per capsule, `√(λ_P κ) ‖((1 − q_ab)₊)_b‖` over the pairs
+//!   it opens; in the vertex form one row per tested vertex, `√(λ_P/N) ‖((1 − q_e)₊)_e‖` over the ellipsoids it is
 //!   tested against (papers/000 eq. 8; the norm keeps one row per vertex, not per pair).
 //! - `EA`: one row per non-root rotation entry, `√λ_A` times its excess over the limits (the
 //!   [`AnglePrior::Hinge`] form; the binary form of eq. 7 is not a sum of squares).
@@ -334,7 +334,7 @@ impl Energy {
     fn penetration_rows(&self) -> usize {
         match self.config.penetration {
             PenetrationForm::Vertices => self.penetration.tests.len(),
-            PenetrationForm::Capsules => self.capsules.pairs.len(),
+            PenetrationForm::Capsules => self.capsules.rows(),
         }
     }
 
