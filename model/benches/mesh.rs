@@ -15,29 +15,10 @@ use std::hint::black_box;
 use std::path::Path;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use lfit_model::Template;
 use lfit_model::body::{default_template, smpl_like};
 use lfit_model::skinning::{joint_transforms, skin_lbs_f64, skin_lbs_into};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
-use rand_distr::{Distribution, StandardNormal};
-
-fn params(template: &Template, n: usize) -> Vec<Vec<f64>> {
-    let layout = template.layout();
-    let mut rng = ChaCha8Rng::seed_from_u64(42);
-    (0..n)
-        .map(|_| {
-            let mut p: Vec<f64> = (0..layout.pose_dim())
-                .map(|_| rng.random_range(-0.3..0.3))
-                .collect();
-            for _ in 0..layout.shape + layout.expression {
-                let z: f64 = StandardNormal.sample(&mut rng);
-                p.push(0.5 * z);
-            }
-            p
-        })
-        .collect()
-}
+mod support;
+use support::params;
 
 fn bench(c: &mut Criterion) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/makehuman-cmu_mb.npz");

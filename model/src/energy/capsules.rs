@@ -258,14 +258,6 @@ impl Capsules {
     }
 }
 
-#[cfg(test)]
-impl Capsules {
-    /// The number of capsules.
-    pub(crate) fn len(&self) -> usize {
-        self.capsules.len()
-    }
-}
-
 /// The closest points of segments `s` and `t` (Ericson, *Real-Time Collision Detection*, 2005,
 /// §5.1.9): `s(σ) = s₀ + σ (s₁ − s₀)`, `t(τ)` likewise, σ, τ ∈ [0, 1].
 pub(crate) fn closest_points(s: [DVec3; 2], t: [DVec3; 2]) -> (DVec3, DVec3) {
