@@ -192,7 +192,11 @@ pub fn direction(
             };
             // Not positive definite (only with a degenerate Jacobian, the ridge aside): no step.
             let h = ls
-                .damped_gauss_newton(&dofs, config.gn_damping)
+                .damped_gauss_newton(
+                    &dofs,
+                    config.gn_damping,
+                    &energy.template().elimination_rank(),
+                )
                 .unwrap_or_else(|| vec![0.0; pose.len()]);
             let cap = config.gn_max_step;
             h.iter().map(|v| -v.clamp(-cap, cap)).collect()

@@ -319,6 +319,52 @@ impl Template {
         }
     }
 
+    /// Where each parameter entry comes in the elimination order of a normal matrix `JᵀJ`
+    /// (`rank[i]`; sort a system's entries by it before [`crate::energy::damped_step`]): the
+    /// joints' rotations in post-order (every joint after its whole subtree, a joint's three
+    /// entries together), then translation, shape and expression, which every row of a skinned
+    /// point reads. A point depends on the joints of its chain only, so in this order the rows
+    /// of a joint's entries reach back only over its own subtree and the Cholesky factor has no
+    /// fill (George & Liu 1981, ch. 4: the elimination tree is the skeleton).
+    pub fn elimination_rank(&self) -> Vec<usize> {
+        let n = self.rig.num_joints();
+        let mut children: Vec<Vec<usize>> = vec![Vec::new(); n];
+        let mut roots = Vec::new();
+        for (j, joint) in self.rig.joints.iter().enumerate() {
+            match joint.parent {
+                Some(p) if p < n => children[p].push(j),
+                _ => roots.push(j),
+            }
+        }
+        // Iterative post-order: a joint is emitted once its children are.
+        let mut order = Vec::with_capacity(n);
+        let mut stack: Vec<(usize, usize)> = roots.iter().rev().map(|&r| (r, 0)).collect();
+        while let Some((j, k)) = stack.pop() {
+            if k < children[j].len() {
+                stack.push((j, k + 1));
+                stack.push((children[j][k], 0));
+            } else {
+                order.push(j);
+            }
+        }
+        let dim = self.param_dim();
+        let mut rank = vec![0; dim];
+        let mut next = 0;
+        for &j in &order {
+            for axis in 0..3 {
+                rank[crate::pose::rot_offset(j) + axis] = next;
+                next += 1;
+            }
+        }
+        for (i, r) in rank.iter_mut().enumerate() {
+            if !(3..3 + 3 * n).contains(&i) {
+                *r = next;
+                next += 1;
+            }
+        }
+        rank
+    }
+
     /// Whether this is the 18-joint skeleton of papers/000 (names and parents), rigid (no shape
     /// or expression): the model every part of lfit supports.
     pub fn is_default_skeleton(&self) -> bool {

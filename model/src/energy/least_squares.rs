@@ -76,10 +76,14 @@ pub fn marquardt_scaling(a: &DMatrix<f64>, free: &[usize]) -> (Vec<f64>, f64) {
 
 /// The step of one damped Gauss-Newton system on the entries `free` (positions in `a` and `g`):
 /// `(A + μ D + 1e-12 max(D) I) h = −g` with `A = JᵀJ`, `g = Jᵀr`, `D = diag` (Marquardt's
-/// scaling) and `μ = damping` (0: Gauss-Newton), by dense Cholesky; `None` when the system is
-/// not positive definite. Levenberg–Marquardt's parameter update given the residuals and the
-/// Jacobian (papers/002 compares its cost with the neural update's, Table 7), and the neural
-/// fitter's Gauss-Newton direction ([`LeastSquares::damped_gauss_newton`]).
+/// scaling) and `μ = damping` (0: Gauss-Newton), by Cholesky in envelope form
+/// ([`envelope_cholesky_solve`]); `None` when the system is not positive definite. `h[k]` is the
+/// step of entry `free[k]`; listing `free` in the model's elimination order
+/// ([`crate::Template::elimination_rank`]: children before parents, then the entries every row
+/// shares) makes the factorisation cost what the Jacobian's tree structure needs, not `m³/6`.
+/// Levenberg–Marquardt's parameter update given the residuals and the Jacobian (papers/002
+/// compares its cost with the neural update's, Table 7), and the neural fitter's Gauss-Newton
+/// direction ([`LeastSquares::damped_gauss_newton`]).
 pub fn damped_step(
     a: &DMatrix<f64>,
     g: &DVector<f64>,
@@ -89,12 +93,96 @@ pub fn damped_step(
     max_diag: f64,
 ) -> Option<DVector<f64>> {
     let m = free.len();
-    let mut sys = DMatrix::<f64>::from_fn(m, m, |r, c| a[(free[r], free[c])]);
-    for (k, dk) in diag.iter().enumerate() {
-        sys[(k, k)] += damping * dk + 1e-12 * max_diag;
+    // Row-major lower triangle (the upper one is not read).
+    let mut sys = vec![0.0; m * m];
+    for (r, &pr) in free.iter().enumerate() {
+        let row = &mut sys[r * m..r * m + r + 1];
+        // Column pr of the symmetric a: contiguous.
+        let column = a.column(pr);
+        for (c, &pc) in free[..=r].iter().enumerate() {
+            row[c] = column[pc];
+        }
+        row[r] += damping * diag[r] + 1e-12 * max_diag;
     }
-    let rhs = DVector::<f64>::from_iterator(m, free.iter().map(|&p| -g[p]));
-    sys.cholesky().map(|c| c.solve(&rhs))
+    let mut h: Vec<f64> = free.iter().map(|&p| -g[p]).collect();
+    envelope_cholesky_solve(&mut sys, m, &mut h).then(|| DVector::from_vec(h))
+}
+
+/// Solves `S x = b` for a symmetric positive definite `S` (`m × m`, row-major; only the lower
+/// triangle is read) by the row-oriented Cholesky factorisation of its envelope (Jennings's
+/// profile method; George & Liu, *Computer Solution of Large Sparse Positive Definite Systems*,
+/// 1981, ch. 4): row `i` of the factor `L` is nonzero only from the first nonzero of row `i` of
+/// `S`, so a row whose earlier entries are zero costs nothing there. The factor overwrites the
+/// lower triangle of `s`; `b` becomes `x`. Returns false (leaving `s` and `b` undefined) when a
+/// pivot is not positive and finite: `S` is not positive definite. On a normal matrix `JᵀJ`
+/// ordered children before parents, the rows of a joint's rotation reach back only to its own
+/// subtree: no fill, and the work is a fraction of the dense factorisation's.
+pub fn envelope_cholesky_solve(s: &mut [f64], m: usize, b: &mut [f64]) -> bool {
+    debug_assert!(s.len() == m * m && b.len() == m);
+    let first: Vec<usize> = (0..m)
+        .map(|i| {
+            s[i * m..i * m + i]
+                .iter()
+                .position(|&v| v != 0.0)
+                .unwrap_or(i)
+        })
+        .collect();
+    // Column by column (the entries of one column are independent of each other, so their dot
+    // products overlap in the pipeline; row by row each waits on the one before).
+    for j in 0..m {
+        let (head, tail) = s.split_at_mut((j + 1) * m);
+        let lj = &mut head[j * m..j * m + j + 1];
+        let fj = first[j];
+        let d = lj[j] - dot(&lj[fj..j], &lj[fj..j]);
+        if !(d > 0.0 && d.is_finite()) {
+            return false;
+        }
+        lj[j] = d.sqrt();
+        let inv = 1.0 / lj[j];
+        let lj = &head[j * m..j * m + j];
+        for (i, row) in tail.chunks_exact_mut(m).enumerate() {
+            let fi = first[j + 1 + i];
+            if fi > j {
+                continue;
+            }
+            let k0 = fi.max(fj);
+            row[j] = (row[j] - dot(&row[k0..j], &lj[k0..j])) * inv;
+        }
+    }
+    // L y = b, then Lᵀ x = y.
+    for i in 0..m {
+        let row = &s[i * m..i * m + i + 1];
+        b[i] = (b[i] - dot(&row[first[i]..i], &b[first[i]..i])) / row[i];
+    }
+    for i in (0..m).rev() {
+        let row = &s[i * m..i * m + i + 1];
+        let x = b[i] / row[i];
+        b[i] = x;
+        for (bk, lk) in b[first[i]..i].iter_mut().zip(&row[first[i]..i]) {
+            *bk -= lk * x;
+        }
+    }
+    b.iter().all(|v| v.is_finite())
+}
+
+/// `Σ x_k y_k` over four lanes (so the compiler vectorises it).
+fn dot(x: &[f64], y: &[f64]) -> f64 {
+    if x.len() < 8 {
+        return x.iter().zip(y).map(|(a, b)| a * b).sum();
+    }
+    let mut acc = [0.0; 4];
+    let (xc, yc) = (x.chunks_exact(4), y.chunks_exact(4));
+    let (xr, yr) = (xc.remainder(), yc.remainder());
+    for (a, b) in xc.zip(yc) {
+        for l in 0..4 {
+            acc[l] += a[l] * b[l];
+        }
+    }
+    let mut tail = 0.0;
+    for (a, b) in xr.iter().zip(yr) {
+        tail += a * b;
+    }
+    (acc[0] + acc[2]) + (acc[1] + acc[3]) + tail
 }
 
 impl LeastSquares {
@@ -128,9 +216,30 @@ impl LeastSquares {
         let mut residuals = [0.0; 3];
         let mut rows = 0usize;
         let mut next: Vec<(usize, f64)> = vec![(0, 0.0); self.dim + 1];
+        // The open group's columns, and which columns are free.
+        let mut columns: Vec<usize> = Vec::with_capacity(self.dim);
+        let free: Vec<bool> = position.iter().map(|&p| p != usize::MAX).collect();
         for (i, &r) in self.residuals.iter().enumerate() {
             if self.zero_rows.get(i).copied().unwrap_or(false) {
                 continue;
+            }
+            // A row with the open group's nonzero columns (as many free nonzeros, none of the
+            // group's columns zero) joins it without compaction: the values compaction would give.
+            if rows > 0 && rows < 3 && columns.first().is_some_and(|&c| self.row(i)[c] != 0.0) {
+                let row = self.row(i);
+                let count: usize = row
+                    .iter()
+                    .zip(&free)
+                    .map(|(&v, &f)| usize::from((v != 0.0) & f))
+                    .sum();
+                if count == columns.len() && columns.iter().all(|&c| row[c] != 0.0) {
+                    for (k, &c) in columns.iter().enumerate() {
+                        values[3 * k + rows] = row[c];
+                    }
+                    residuals[rows] = r;
+                    rows += 1;
+                    continue;
+                }
             }
             let len = self.compact(i, &position, &mut next);
             let nz = &next[..len];
@@ -142,6 +251,8 @@ impl LeastSquares {
                 accumulate(&mut upper, &mut g, n, &group, &values, &residuals[..rows]);
                 group.clear();
                 group.extend(nz.iter().map(|e| e.0));
+                columns.clear();
+                columns.extend(group.iter().map(|&p| dofs[p]));
                 rows = 0;
             }
             for (k, e) in nz.iter().enumerate() {
@@ -151,7 +262,7 @@ impl LeastSquares {
             rows += 1;
         }
         accumulate(&mut upper, &mut g, n, &group, &values, &residuals[..rows]);
-        (mirror(&upper, n), g)
+        (mirror(upper, n), g)
     }
 
     /// [`LeastSquares::normal_equations`] one row at a time: the reference it is tested against
@@ -176,7 +287,7 @@ impl LeastSquares {
                 }
             }
         }
-        (mirror(&upper, n), g)
+        (mirror(upper, n), g)
     }
 
     /// Column → position among the free entries `dofs` (usize::MAX: held).
@@ -191,11 +302,20 @@ impl LeastSquares {
     /// Row `i`'s free nonzero entries as `(position, value)` in ascending positions, into
     /// `buffer` (at least `dim + 1` long); returns how many.
     fn compact(&self, i: usize, position: &[usize], buffer: &mut [(usize, f64)]) -> usize {
-        // Branch-free compaction.
+        // Branch-free compaction, skipping runs of eight zeros (a skinned point's row is zero
+        // outside its joints' chain).
+        let row = self.row(i);
         let mut len = 0;
-        for (c, &v) in self.row(i).iter().enumerate() {
-            buffer[len] = (position[c], v);
-            len += usize::from((v != 0.0) & (position[c] != usize::MAX));
+        let mut c0 = 0;
+        for chunk in row.chunks(8) {
+            if chunk.iter().fold(0u32, |z, &v| z | u32::from(v != 0.0)) != 0 {
+                for (k, &v) in chunk.iter().enumerate() {
+                    let p = position[c0 + k];
+                    buffer[len] = (p, v);
+                    len += usize::from((v != 0.0) & (p != usize::MAX));
+                }
+            }
+            c0 += chunk.len();
         }
         let nz = &mut buffer[..len];
         // Positions ascend with columns when `dofs` is sorted; sort otherwise.
@@ -209,19 +329,27 @@ impl LeastSquares {
     /// `(JᵀJ + μ D) h = −Jᵀr`, `D = diag(JᵀJ)` clamped to `[1e-6, 1e32]` as Levenberg–Marquardt
     /// scales it ([`damped_step`]), as a full parameter vector (zero outside `dofs`); `θ + h`
     /// minimises the damped quadratic model of E. `None` without a Jacobian or when the system
-    /// is not positive definite. The neural fitter's Gauss-Newton direction
+    /// is not positive definite. The system is solved in the order `rank` gives the entries
+    /// ([`crate::Template::elimination_rank`] of the energy's model; any order gives the same
+    /// step up to rounding). The neural fitter's Gauss-Newton direction
     /// (`lfit_nn::Direction::GaussNewton`).
-    pub fn damped_gauss_newton(&self, dofs: &[usize], damping: f64) -> Option<Vec<f64>> {
+    pub fn damped_gauss_newton(
+        &self,
+        dofs: &[usize],
+        damping: f64,
+        rank: &[usize],
+    ) -> Option<Vec<f64>> {
         if self.jacobian.is_empty() {
             return None;
         }
         let (a, g) = self.normal_equations(dofs);
-        let free: Vec<usize> = (0..dofs.len()).collect();
+        let mut free: Vec<usize> = (0..dofs.len()).collect();
+        free.sort_by_key(|&p| rank.get(dofs[p]).copied().unwrap_or(usize::MAX));
         let (diag, max_diag) = marquardt_scaling(&a, &free);
         let h = damped_step(&a, &g, &free, &diag, damping, max_diag)?;
         let mut out = vec![0.0; self.dim];
-        for (k, &i) in dofs.iter().enumerate() {
-            out[i] = h[k];
+        for (k, &p) in free.iter().enumerate() {
+            out[dofs[p]] = h[k];
         }
         Some(out)
     }
@@ -289,15 +417,12 @@ fn accumulate_rows<const R: usize>(
     }
 }
 
-/// The symmetric matrix of an upper triangle stored row-major.
-fn mirror(upper: &[f64], n: usize) -> DMatrix<f64> {
-    DMatrix::<f64>::from_fn(n, n, |p, q| {
-        if p <= q {
-            upper[p * n + q]
-        } else {
-            upper[q * n + p]
-        }
-    })
+/// The symmetric matrix of an upper triangle stored row-major (read column-major, the same
+/// numbers are the lower triangle, copied up in place).
+fn mirror(upper: Vec<f64>, n: usize) -> DMatrix<f64> {
+    let mut m = DMatrix::<f64>::from_vec(n, n, upper);
+    m.fill_upper_triangle_with_lower_triangle();
+    m
 }
 
 impl Energy {

@@ -31,7 +31,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 pub use crate::observe::Scales;
-pub use least_squares::{LeastSquares, RobustForm, damped_step, marquardt_scaling};
+pub use least_squares::{
+    LeastSquares, RobustForm, damped_step, envelope_cholesky_solve, marquardt_scaling,
+};
 pub use prior::AnglePrior;
 
 use self::capsules::Capsules;
