@@ -121,6 +121,63 @@ fn bench(c: &mut Criterion) {
                     .normal_equations(&dofs)
             })
             .collect();
+        // The work each piece does (multiply-adds, mean over the 32 systems), printed for the
+        // cost model (docs/results/cost-model.md): the Jacobian's nonzero and stored entries,
+        // the normal equations' multiply-adds, the Cholesky factorisation's (dense, envelope in
+        // the parameters' order, envelope in the elimination order) and the two triangular
+        // solves'.
+        {
+            let rank = template.elimination_rank();
+            let mut ordered = dofs.clone();
+            ordered.sort_by_key(|&p| rank[p]);
+            let n = dofs.len();
+            let (mut jnz, mut jall, mut ne) = (0usize, 0usize, 0usize);
+            let (mut natural, mut tree, mut solves) = (0usize, 0usize, 0usize);
+            for (p, (a, _)) in ps.iter().zip(&normal) {
+                let ls = forms[0].1.least_squares(p, true).expect("jacobian");
+                jall += ls.residuals.len() * n;
+                for i in 0..ls.residuals.len() {
+                    if ls.zero_rows.get(i).copied().unwrap_or(false) {
+                        continue;
+                    }
+                    let nz = ls.row(i).iter().filter(|v| **v != 0.0).count();
+                    jnz += nz;
+                    ne += nz * (nz + 1) / 2 + nz;
+                }
+                let work = |order: &[usize]| -> (usize, usize) {
+                    let first: Vec<usize> = (0..n)
+                        .map(|r| {
+                            (0..r)
+                                .find(|&c| a[(order[r], order[c])] != 0.0)
+                                .unwrap_or(r)
+                        })
+                        .collect();
+                    let factor = (0..n)
+                        .map(|i| {
+                            (first[i]..i)
+                                .map(|j| j - first[i].max(first[j]) + 1)
+                                .sum::<usize>()
+                        })
+                        .sum();
+                    (factor, 2 * (0..n).map(|i| i - first[i] + 1).sum::<usize>())
+                };
+                natural += work(&dofs).0;
+                let (t, s) = work(&ordered);
+                tree += t;
+                solves += s;
+            }
+            let k = ps.len();
+            println!(
+                "cost_model/makehuman/{modality} work per system (multiply-adds): Jacobian {} nonzero of {} stored entries; normal equations {}; Cholesky dense {}, envelope {} (parameter order), {} (elimination order); triangular solves {}",
+                jnz / k,
+                jall / k,
+                ne / k,
+                n * (n * n - 1) / 6,
+                natural / k,
+                tree / k,
+                solves / k
+            );
+        }
         // The Cholesky solve before the envelope form (nalgebra's dense factorisation), the
         // envelope form in the parameters' own order, and in the elimination order.
         let rank = template.elimination_rank();

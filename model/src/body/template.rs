@@ -352,7 +352,7 @@ impl Template {
         let mut next = 0;
         for &j in &order {
             for axis in 0..3 {
-                rank[crate::pose::rot_offset(j) + axis] = next;
+                rank[crate::layout::rot_offset(j) + axis] = next;
                 next += 1;
             }
         }
