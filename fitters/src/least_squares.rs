@@ -27,8 +27,10 @@
 //!
 //! **Stopping**, as Ceres: the projected gradient `‖x − Π(x − ∇E)‖∞ ≤ gradient_tolerance`, a step
 //! `‖Δx‖ ≤ parameter_tolerance (‖x‖ + parameter_tolerance)`, a relative decrease
-//! `ΔE ≤ function_tolerance · E`, or the budget: one evaluation = one residual and Jacobian
-//! evaluation, a cap as for L-BFGS.
+//! `ΔE ≤ function_tolerance · E`, or the budget: one evaluation = one residual vector at a new
+//! point, a cap as for L-BFGS. Trial points are evaluated without the Jacobian; an accepted point
+//! gets its Jacobian then (counted as a gradient evaluation: a rejected trial costs only its
+//! residuals).
 
 use lfit_model::energy::{Energy, RobustForm, marquardt_scaling};
 use lfit_model::pose::Bounds;
@@ -226,13 +228,20 @@ impl StageSolver for LeastSquaresFitter {
         _seed: u64,
     ) -> Result<StageOutcome, FitError> {
         let o = self.options;
-        let eval = |x: &[f64]| {
+        let eval = |x: &[f64], with_jacobian: bool| {
             energy
-                .least_squares_in(x, true, o.robust)
+                .least_squares_in(x, with_jacobian, o.robust)
+                .map_err(|e| FitError::LeastSquares(e.to_string()))
+        };
+        // Trial points are evaluated without the Jacobian; an accepted one gets it then (a
+        // gradient evaluation, not a second evaluation of the point).
+        let jacobian = |x: &[f64]| {
+            energy
+                .jacobian_in(x, o.robust)
                 .map_err(|e| FitError::LeastSquares(e.to_string()))
         };
         let mut x = pose.to_vec();
-        let mut current = eval(&x)?;
+        let mut current = eval(&x, true)?;
         let mut count = 1usize;
         let mut f = current.energy;
         let mut trace = vec![(1u64, f)];
@@ -313,7 +322,7 @@ impl StageSolver for LeastSquaresFitter {
                 if step.norm() <= o.parameter_tolerance * (xnorm + o.parameter_tolerance) {
                     break 'outer;
                 }
-                let next = eval(&trial)?;
+                let next = eval(&trial, false)?;
                 count += 1;
                 let f_new = next.energy;
                 let accepted = match self.method {
@@ -338,12 +347,16 @@ impl StageSolver for LeastSquaresFitter {
                 if accepted {
                     let decrease = f - f_new;
                     x = trial;
-                    current = next;
                     f = f_new;
                     trace.push((count as u64, f));
                     if decrease <= o.function_tolerance * (f + decrease) {
                         break 'outer;
                     }
+                    // The next iteration's normal equations need the Jacobian here.
+                    if count >= budget {
+                        break 'outer;
+                    }
+                    current = jacobian(&x)?;
                     continue 'outer;
                 }
                 if count >= budget {

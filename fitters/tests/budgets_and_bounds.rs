@@ -88,11 +88,22 @@ fn every_method_and_strategy_spends_exactly_its_budget_inside_the_bounds() {
                         "{label}: {}",
                         r.evaluations
                     );
-                    assert_eq!(
-                        r.gradient_evaluations + 1,
-                        r.evaluations.max(1),
-                        "{label}: the start is a value-only evaluation"
-                    );
+                    if method == "lbfgs" {
+                        assert_eq!(
+                            r.gradient_evaluations + 1,
+                            r.evaluations.max(1),
+                            "{label}: the start is a value-only evaluation"
+                        );
+                    } else {
+                        // Least squares: a Jacobian at each stage's start and at the points it
+                        // accepts, none at the trial points it rejects.
+                        assert!(
+                            r.gradient_evaluations < r.evaluations.max(1),
+                            "{label}: {} Jacobians, {} evaluations",
+                            r.gradient_evaluations,
+                            r.evaluations
+                        );
+                    }
                 } else {
                     assert_eq!(r.evaluations, budget as u64, "{label}");
                     assert_eq!(r.gradient_evaluations, 0, "{label}");
@@ -226,6 +237,12 @@ fn cma_lbfgs_lm_and_gn_recover_the_truth_from_a_nearby_start() {
             "{method}: {} evaluations (it stops on its tolerances)",
             r.evaluations
         );
-        assert_eq!(r.gradient_evaluations + 1, r.evaluations);
+        // Rejected trial points cost no Jacobian.
+        assert!(
+            r.gradient_evaluations >= 1 && r.gradient_evaluations < r.evaluations,
+            "{method}: {} Jacobians, {} evaluations",
+            r.gradient_evaluations,
+            r.evaluations
+        );
     }
 }

@@ -487,6 +487,25 @@ impl Energy {
         with_jacobian: bool,
         form: RobustForm,
     ) -> Result<LeastSquares> {
+        self.check_least_squares(params)?;
+        self.evaluations.fetch_add(1, Ordering::Relaxed);
+        if with_jacobian {
+            self.gradient_evaluations.fetch_add(1, Ordering::Relaxed);
+        }
+        Ok(self.compute_least_squares(params, with_jacobian, form))
+    }
+
+    /// The residuals and Jacobian at a point whose residuals were just evaluated and counted
+    /// ([`Energy::least_squares_in`] without the Jacobian): counts one gradient evaluation and
+    /// no new evaluation. Levenberg–Marquardt evaluates its trial points without the Jacobian
+    /// and asks for it only at the points it accepts.
+    pub fn jacobian_in(&self, params: &[f64], form: RobustForm) -> Result<LeastSquares> {
+        self.check_least_squares(params)?;
+        self.gradient_evaluations.fetch_add(1, Ordering::Relaxed);
+        Ok(self.compute_least_squares(params, true, form))
+    }
+
+    fn check_least_squares(&self, params: &[f64]) -> Result<()> {
         if let Some(why) = self.least_squares_unsupported() {
             return Err(ModelError::Target(why));
         }
@@ -498,11 +517,7 @@ impl Energy {
                 got: params.len().to_string(),
             });
         }
-        self.evaluations.fetch_add(1, Ordering::Relaxed);
-        if with_jacobian {
-            self.gradient_evaluations.fetch_add(1, Ordering::Relaxed);
-        }
-        Ok(self.compute_least_squares(params, with_jacobian, form))
+        Ok(())
     }
 
     fn compute_least_squares(
