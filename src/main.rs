@@ -329,8 +329,9 @@ struct FitCmd {
     /// then LM from its result, within one budget; with --checkpoint).
     #[arg(long, value_enum, hide_possible_values = true)]
     method: lfit::method::MethodKind,
-    /// Energy evaluations per frame (exact for zeroth-order methods; a cap for lbfgs, lm,
-    /// lm-triggs and gn, whose evaluations include the gradient / Jacobian).
+    /// Energy evaluations per frame (exact for zeroth-order methods; a cap for lbfgs, each with
+    /// its gradient, and for lm, lm-triggs and gn, whose Jacobian is computed only at the points
+    /// they accept).
     #[arg(long)]
     budget: usize,
     /// holistic, grouped (papers/000 Algorithm 1), hierarchical (papers/001 §3.3) or shape-first
