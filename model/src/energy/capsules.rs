@@ -169,17 +169,22 @@ impl Capsules {
     /// The overlapping pairs.
     fn contacts(&self, kin: &Kinematics) -> Vec<Contact> {
         let posed = self.posed(kin);
+        // Bounding balls, once per capsule: the axis midpoint and half length.
+        let balls: Vec<(DVec3, f64)> = posed
+            .iter()
+            .map(|e| (0.5 * (e[0] + e[1]), 0.5 * (e[1] - e[0]).length()))
+            .collect();
         let mut out = Vec::new();
         for &(a, b) in &self.pairs {
             let (a, b) = (a as usize, b as usize);
-            let (ea, eb) = (posed[a], posed[b]);
             let r = self.capsules[a].radius + self.capsules[b].radius;
             // Bounding balls first: the axis midpoints, half lengths plus radii.
-            let (ma, mb) = (0.5 * (ea[0] + ea[1]), 0.5 * (eb[0] + eb[1]));
-            let reach = 0.5 * (ea[1] - ea[0]).length() + 0.5 * (eb[1] - eb[0]).length() + r;
+            let ((ma, ha), (mb, hb)) = (balls[a], balls[b]);
+            let reach = ha + hb + r;
             if ma.distance_squared(mb) >= reach * reach {
                 continue;
             }
+            let (ea, eb) = (posed[a], posed[b]);
             let (pa, pb) = closest_points(ea, eb);
             let inv_r2 = 1.0 / (r * r);
             let q = pa.distance_squared(pb) * inv_r2;
