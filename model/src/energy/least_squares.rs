@@ -109,10 +109,11 @@ pub fn damped_step(
 }
 
 /// Solves `S x = b` for a symmetric positive definite `S` (`m × m`, row-major; only the lower
-/// triangle is read) by the row-oriented Cholesky factorisation of its envelope (Jennings's
-/// profile method; George & Liu, *Computer Solution of Large Sparse Positive Definite Systems*,
-/// 1981, ch. 4): row `i` of the factor `L` is nonzero only from the first nonzero of row `i` of
-/// `S`, so a row whose earlier entries are zero costs nothing there. The factor overwrites the
+/// triangle is read) by the Cholesky factorisation of its envelope (Jennings's profile method;
+/// George & Liu, *Computer Solution of Large Sparse Positive Definite Systems*, 1981, ch. 4),
+/// computed column by column: row `i` of the factor `L` is nonzero only from the first nonzero
+/// of row `i` of `S`, so a row whose earlier entries are zero costs nothing there
+/// ([`envelope_work`] counts what it does). The factor overwrites the
 /// lower triangle of `s`; `b` becomes `x`. Returns false (leaving `s` and `b` undefined) when a
 /// pivot is not positive and finite: `S` is not positive definite. On a normal matrix `JᵀJ`
 /// ordered children before parents, the rows of a joint's rotation reach back only to its own
@@ -163,6 +164,29 @@ pub fn envelope_cholesky_solve(s: &mut [f64], m: usize, b: &mut [f64]) -> bool {
         }
     }
     b.iter().all(|v| v.is_finite())
+}
+
+/// The multiply-adds [`envelope_cholesky_solve`] does on the symmetric `a` with its entries
+/// taken in `order`: `(factorisation, the two triangular solves)`. Row `i` reaches back to its
+/// first nonzero `first[i]`; its entry at column `j` costs the overlap of rows `i` and `j`
+/// before `j`, plus one. The cost model's count (`cargo bench -p lfit-model --bench energy`).
+pub fn envelope_work(a: &DMatrix<f64>, order: &[usize]) -> (usize, usize) {
+    let n = order.len();
+    let first: Vec<usize> = (0..n)
+        .map(|r| {
+            (0..r)
+                .find(|&c| a[(order[r], order[c])] != 0.0)
+                .unwrap_or(r)
+        })
+        .collect();
+    let factor = (0..n)
+        .map(|i| {
+            (first[i]..i)
+                .map(|j| j - first[i].max(first[j]) + 1)
+                .sum::<usize>()
+        })
+        .sum();
+    (factor, 2 * (0..n).map(|i| i - first[i] + 1).sum::<usize>())
 }
 
 /// `Σ x_k y_k` over four lanes (so the compiler vectorises it).

@@ -767,36 +767,48 @@ mod least_squares_form {
             .collect()
     }
 
+    /// A MakeHuman least-squares system of `modality`: targets from a random truth (±0.3 per
+    /// entry), evaluated with its Jacobian at the truth moved by ±0.2 per entry.
+    fn makehuman_system(
+        t: &Arc<crate::Template>,
+        modality: Modality,
+        rng: &mut rand_chacha::ChaCha8Rng,
+    ) -> LeastSquares {
+        use rand::Rng;
+        let dim = t.layout().dim();
+        let sensor = Sensor::default_for(modality, t);
+        let truth: Vec<f64> = (0..dim).map(|_| rng.random_range(-0.3..0.3)).collect();
+        let pred = sensor.predict_sparse(t, &truth);
+        let e = Energy::new(
+            t.clone(),
+            sensor,
+            Target::Sparse {
+                values: pred.values,
+                visible: pred.visible,
+            },
+            EnergyConfig::default().for_gradient(),
+        )
+        .unwrap();
+        let x: Vec<f64> = truth
+            .iter()
+            .map(|v| v + rng.random_range(-0.2..0.2))
+            .collect();
+        e.least_squares(&x, true).unwrap()
+    }
+
     /// The normal equations with rows of one pattern applied together equal the row-by-row
     /// reference bit for bit (every entry sums the rows in the same order), on the MakeHuman
     /// body's three sparse modalities, over all columns, a subset, and a subset out of order.
     #[test]
     fn grouped_normal_equations_are_the_row_by_row_ones() {
-        use rand::{Rng, SeedableRng};
+        use rand::SeedableRng;
         let mh =
             std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/makehuman-cmu_mb.npz");
         let t = Arc::new(crate::modelfile::load(&mh).unwrap());
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(112);
         let dim = t.layout().dim();
         for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
-            let sensor = Sensor::default_for(modality, &t);
-            let truth: Vec<f64> = (0..dim).map(|_| rng.random_range(-0.3..0.3)).collect();
-            let pred = sensor.predict_sparse(&t, &truth);
-            let e = Energy::new(
-                t.clone(),
-                sensor,
-                Target::Sparse {
-                    values: pred.values,
-                    visible: pred.visible,
-                },
-                EnergyConfig::default().for_gradient(),
-            )
-            .unwrap();
-            let x: Vec<f64> = truth
-                .iter()
-                .map(|v| v + rng.random_range(-0.2..0.2))
-                .collect();
-            let ls = e.least_squares(&x, true).unwrap();
+            let ls = makehuman_system(&t, modality, &mut rng);
             let all: Vec<usize> = (0..dim).collect();
             let some: Vec<usize> = (0..dim).filter(|c| c % 3 != 1).collect();
             let shuffled: Vec<usize> = some.iter().rev().copied().collect();
@@ -879,7 +891,7 @@ mod least_squares_form {
     /// step in the parameters' own order.
     #[test]
     fn the_elimination_order_shrinks_the_envelope_and_keeps_the_step() {
-        use rand::{Rng, SeedableRng};
+        use rand::SeedableRng;
         let mh =
             std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/makehuman-cmu_mb.npz");
         let t = Arc::new(crate::modelfile::load(&mh).unwrap());
@@ -902,47 +914,12 @@ mod least_squares_form {
         }
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(114);
         for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
-            let sensor = Sensor::default_for(modality, &t);
-            let truth: Vec<f64> = (0..dim).map(|_| rng.random_range(-0.3..0.3)).collect();
-            let pred = sensor.predict_sparse(&t, &truth);
-            let e = Energy::new(
-                t.clone(),
-                sensor,
-                Target::Sparse {
-                    values: pred.values,
-                    visible: pred.visible,
-                },
-                EnergyConfig::default().for_gradient(),
-            )
-            .unwrap();
-            let x: Vec<f64> = truth
-                .iter()
-                .map(|v| v + rng.random_range(-0.2..0.2))
-                .collect();
-            let ls = e.least_squares(&x, true).unwrap();
+            let ls = makehuman_system(&t, modality, &mut rng);
             let dofs: Vec<usize> = (0..dim).collect();
             let (a, g) = ls.normal_equations(&dofs);
             let mut ordered = dofs.clone();
             ordered.sort_by_key(|&p| rank[p]);
-            // Multiply-adds of the envelope factorisation in an order (row i reaches back to
-            // first[i]; entry (i, j) costs the overlap of rows i and j before j).
-            let work = |order: &[usize]| -> usize {
-                let first: Vec<usize> = (0..dim)
-                    .map(|r| {
-                        (0..r)
-                            .find(|&c| a[(order[r], order[c])] != 0.0)
-                            .unwrap_or(r)
-                    })
-                    .collect();
-                (0..dim)
-                    .map(|i| {
-                        (first[i]..i)
-                            .map(|j| j - first[i].max(first[j]) + 1)
-                            .sum::<usize>()
-                    })
-                    .sum()
-            };
-            let (natural, tree) = (work(&dofs), work(&ordered));
+            let (natural, tree) = (envelope_work(&a, &dofs).0, envelope_work(&a, &ordered).0);
             let dense = dim * (dim * dim - 1) / 6;
             eprintln!(
                 "{modality}: factorisation multiply-adds: dense {dense}, natural order {natural}, elimination order {tree}"
