@@ -740,12 +740,62 @@ pub fn iterate_errors(
         .collect()
 }
 
+/// V2V of each iterate of a fit against the truth, the truth's mesh posed once
+/// ([`lfit_model::metrics::TruthMesh`]); an iterate equal to the fit's `result`, whose V2V is
+/// `result_v2v`, is not posed again. The figures of [`iterate_errors`] with
+/// [`lfit_model::metrics::v2v_mm`], bit for bit, from one mesh per distinct pose instead of two
+/// per iterate.
+pub fn iterate_v2v(
+    template: &Template,
+    iterates: &[Vec<f64>],
+    truth: &lfit_model::metrics::TruthMesh,
+    result: &[f64],
+    result_v2v: f64,
+) -> Vec<f64> {
+    iterates
+        .iter()
+        .map(|p| {
+            if p.as_slice() == result {
+                result_v2v
+            } else {
+                truth.v2v_mm(template, p)
+            }
+        })
+        .collect()
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use lfit_model::observe::{Modality, Sensor};
     use lfit_synth::{SynthConfig, synthesize};
+
+    /// [`iterate_v2v`] gives [`iterate_errors`]'s V2V bit for bit, the iterate equal to the
+    /// result included.
+    #[test]
+    fn iterate_v2v_is_iterate_errors_with_v2v() {
+        use lfit_model::metrics::{TruthMesh, v2v_mm};
+        let t = lfit_model::default_template();
+        let dim = t.layout().dim();
+        let pose = |k: usize| -> Vec<f64> {
+            (0..dim)
+                .map(|i| 0.01 * ((i * 7 + k * 13) % 11) as f64 - 0.05)
+                .collect()
+        };
+        let truth = pose(0);
+        let iterates: Vec<Vec<f64>> = (1..5).map(pose).collect();
+        let result = iterates[3].clone();
+        let mesh = TruthMesh::new(&t, &truth);
+        let v2v = mesh.v2v_mm(&t, &result);
+        let got = iterate_v2v(&t, &iterates, &mesh, &result, v2v);
+        let want = iterate_errors(&t, &iterates, &truth, v2v_mm);
+        assert_eq!(got.len(), 4);
+        assert!(want.iter().all(|&v| v > 0.0), "{want:?}");
+        for (g, w) in got.iter().zip(&want) {
+            assert_eq!(g.to_bits(), w.to_bits(), "{got:?} vs {want:?}");
+        }
+    }
 
     /// [`joint_shape`] against its definition: from per-frame β that scatter around a biased
     /// mean, it reaches a summed energy no higher than the subject's true β gives with the same

@@ -8,14 +8,15 @@ use anyhow::{Context, Result, bail};
 use lfit_fitters::optim::{self, Method, Preset};
 use lfit_fitters::{Fitter, Strategy};
 use lfit_model::energy::{Energy, EnergyConfig};
-use lfit_model::metrics::{mpjpe_mm, v2v_mm};
+use lfit_model::metrics::{TruthMesh, mpjpe_mm};
 use lfit_model::pose::DofMask;
 use lfit_model::template::{Template, write_atomic};
 use lfit_synth::Dataset;
 use serde_json::{Map, Value, json};
 
 pub use crate::fitting::{
-    energy_for_frame, frame_seed, iterate_errors, scenario_bounds, scenario_mask, template_for,
+    energy_for_frame, frame_seed, iterate_errors, iterate_v2v, scenario_bounds, scenario_mask,
+    template_for,
 };
 
 /// The JSON fields of a parameter vector: `pose`, and `shape`/`expression` when the model has them.
@@ -386,7 +387,8 @@ fn fit_prepared(
                 fields.extend(params_json(&template, pose));
             }
             if let Some(gt) = dataset.ground_truth(frame) {
-                let v2v = v2v_mm(&template, pose, gt);
+                let truth = TruthMesh::new(&template, gt);
+                let v2v = truth.v2v_mm(&template, pose);
                 let mpjpe = mpjpe_mm(&template, pose, gt);
                 sum_v2v += v2v;
                 sum_mpjpe += mpjpe;
@@ -401,7 +403,7 @@ fn fit_prepared(
                 }
                 if !result.iterates.is_empty() {
                     row["v2v_mm_per_iteration"] =
-                        json!(iterate_errors(&template, &result.iterates, gt, v2v_mm));
+                        json!(iterate_v2v(&template, &result.iterates, &truth, pose, v2v));
                     row["mpjpe_mm_per_iteration"] =
                         json!(iterate_errors(&template, &result.iterates, gt, mpjpe_mm));
                 }

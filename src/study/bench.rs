@@ -15,16 +15,14 @@ use lfit_fitters::{Fitter, Strategy};
 
 use crate::method::{MethodKind, MethodSpec};
 use lfit_model::energy::{Energy, EnergyConfig};
-use lfit_model::metrics::{
-    FaceErrors, face_errors_mm, hausdorff_rms_mm, mpjpe_mm, pa_mpjpe_mm, v2v_mm,
-};
+use lfit_model::metrics::{FaceErrors, TruthMesh, face_errors_mm, mpjpe_mm, pa_mpjpe_mm};
 use lfit_model::template::write_atomic;
 use lfit_synth::{Dataset, Scenario};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::cli::fit::{
-    energy_for_frame, frame_seed, iterate_errors, parse_frames, read_energy_config, template_for,
+    energy_for_frame, frame_seed, iterate_v2v, parse_frames, read_energy_config, template_for,
 };
 
 /// Dataset to synthesise when the config names none.
@@ -774,6 +772,12 @@ pub fn run(
                     f.write_all(line.as_bytes())?;
                     f.flush()?;
                 }
+                // The truth posed once, the result once (V2V and Hausdorff), each other iterate
+                // once.
+                let truth = TruthMesh::new(&template, gt);
+                let (v2v_mm, hausdorff_mm) = truth.v2v_and_hausdorff_mm(&template, pose);
+                let v2v_per_iteration =
+                    iterate_v2v(&template, &result.iterates, &truth, pose, v2v_mm);
                 let row = Run {
                     method: method.clone(),
                     strategy: strategy.clone(),
@@ -783,17 +787,17 @@ pub fn run(
                     seed: fitted.seed,
                     energy: result.energy,
                     start_energy: fitted.start_energy,
-                    v2v_mm: v2v_mm(&template, pose, gt),
+                    v2v_mm,
                     mpjpe_mm: mpjpe_mm(&template, pose, gt),
                     pa_mpjpe_mm: pa_mpjpe_mm(&template, pose, gt),
-                    hausdorff_mm: hausdorff_rms_mm(&template, pose, gt),
+                    hausdorff_mm,
                     shape_rms: crate::cli::fit::coefficient_rms(&template, pose, gt)
                         .unwrap_or(f64::NAN),
                     evaluations: result.evaluations,
                     gradient_evaluations: result.gradient_evaluations,
                     iterations: result.iterations,
                     time_s: result.time_s,
-                    v2v_per_iteration: iterate_errors(&template, &result.iterates, gt, v2v_mm),
+                    v2v_per_iteration,
                     trace: result.trace,
                     face: face_errors_mm(&template, pose, gt),
                 };
