@@ -180,8 +180,29 @@ pub fn direction(
     pose: &[f64],
     free: Option<&[bool]>,
 ) -> Result<Vec<f64>> {
-    let mut g = match config.direction {
-        Direction::Gradient => energy.evaluate_with_gradient(pose).1.to_vec(),
+    Ok(residual_and_direction(config, energy, pose, free, false)?.1)
+}
+
+/// R(θ) (when `with_residual`, else empty) and [`direction`] at `pose`. The Gauss-Newton
+/// direction's least-squares evaluation gives R(θ) from its own prediction
+/// ([`lfit_model::energy::LeastSquares::observation_residual`]), so it costs no second residual pass;
+/// the gradient direction computes it apart.
+fn residual_and_direction(
+    config: &NetConfig,
+    energy: &Energy,
+    pose: &[f64],
+    free: Option<&[bool]>,
+    with_residual: bool,
+) -> Result<(Vec<f64>, Vec<f64>)> {
+    let (r, mut g) = match config.direction {
+        Direction::Gradient => (
+            if with_residual {
+                energy.residual(pose)
+            } else {
+                Vec::new()
+            },
+            energy.evaluate_with_gradient(pose).1.to_vec(),
+        ),
         Direction::GaussNewton => {
             let ls = energy.least_squares(pose, true)?;
             let dofs: Vec<usize> = match free {
@@ -199,7 +220,14 @@ pub fn direction(
                 )
                 .unwrap_or_else(|| vec![0.0; pose.len()]);
             let cap = config.gn_max_step;
-            h.iter().map(|v| -v.clamp(-cap, cap)).collect()
+            (
+                if with_residual {
+                    ls.observation_residual
+                } else {
+                    Vec::new()
+                },
+                h.iter().map(|v| -v.clamp(-cap, cap)).collect(),
+            )
         }
     };
     for x in g.iter_mut() {
@@ -207,7 +235,7 @@ pub fn direction(
             *x = 0.0;
         }
     }
-    Ok(g)
+    Ok((r, g))
 }
 
 /// R(θ) and the update direction g(θ) ([`direction`]) of every frame at its current pose, on
@@ -224,7 +252,7 @@ pub fn evaluate(
         .enumerate()
         .map(|(i, (e, p))| {
             let f = free.and_then(|f| f.get(i)).map(Vec::as_slice);
-            Ok((e.residual(p), direction(config, e, p, f)?))
+            residual_and_direction(config, e, p, f, true)
         })
         .collect()
 }

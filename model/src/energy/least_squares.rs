@@ -45,6 +45,10 @@ pub struct LeastSquares {
     /// The energy E at these parameters: `Σ r²` in the folded form, `Σ ρ` (not `Σ r²`) in
     /// Triggs's form ([`RobustForm`]).
     pub energy: f64,
+    /// The observation residual R(θ) = prediction − target (0 where the target is unseen), as
+    /// [`Energy::residual`] gives it, from the same prediction: the unweighted, unfolded data
+    /// residual the neural fitter reads as a feature.
+    pub observation_residual: Vec<f64>,
 }
 
 /// How the robust loss enters the least-squares form of the data term.
@@ -567,6 +571,7 @@ impl Energy {
         // E's data part, Σ λ/n ρ(s_g), and the data rows (their squares are E's only when folded).
         let mut data_energy = 0.0;
         let mut data_rows = 0..0;
+        let mut observation_residual = Vec::new();
 
         // Data rows: the prediction's Jacobian is written into the block, then folded in place.
         if let Target::Sparse { values, visible } = &self.target {
@@ -574,6 +579,7 @@ impl Energy {
             let p = values.len();
             let view = self.view(&kin);
             let pred = self.prediction(model, &view);
+            observation_residual = Sensor::sparse_residual(&pred, values, visible);
             if let Some(pj) = pj.as_mut() {
                 let mut jac = PoseJacobian {
                     inner: pj,
@@ -738,6 +744,7 @@ impl Energy {
             blocks,
             zero_rows,
             energy,
+            observation_residual,
         }
     }
 }
