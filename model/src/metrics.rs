@@ -59,7 +59,7 @@ impl TruthMesh {
         let a = posed_mesh(template, fitted);
         (
             mean_distance_mm(&a, &self.mesh),
-            1000.0 * rms_directed(&a, &self.mesh).max(rms_directed(&self.mesh, &a)),
+            hausdorff_between_mm(&a, &self.mesh),
         )
     }
 }
@@ -134,9 +134,12 @@ pub fn procrustes_align(p: &[DVec3], q: &[DVec3]) -> Vec<DVec3> {
 /// meshes, in mm: `max(dist(A, B), dist(B, A))` with `dist(A, B) = sqrt(mean_{v∈A} min_{u∈B}
 /// |v − u|²)` over vertices.
 pub fn hausdorff_rms_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> f64 {
-    let a = posed_mesh(template, fitted);
-    let b = posed_mesh(template, truth);
-    1000.0 * rms_directed(&a, &b).max(rms_directed(&b, &a))
+    hausdorff_between_mm(&posed_mesh(template, fitted), &posed_mesh(template, truth))
+}
+
+/// The RMS Hausdorff distance of [`hausdorff_rms_mm`] between two meshes, in mm.
+fn hausdorff_between_mm(a: &[Vec3], b: &[Vec3]) -> f64 {
+    1000.0 * rms_directed(a, b).max(rms_directed(b, a))
 }
 
 /// RMS over `a` of the distance to the nearest point of `b` (an R*-tree over `b`: the meshes of

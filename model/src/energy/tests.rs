@@ -15,6 +15,13 @@ fn template() -> Arc<Template> {
     T.get_or_init(|| Arc::new(default_template())).clone()
 }
 
+/// The committed MakeHuman body (`models/makehuman-cmu_mb.npz`).
+fn makehuman_body() -> Arc<Template> {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/makehuman-cmu_mb.npz");
+    Arc::new(crate::modelfile::load(&path).unwrap())
+}
+
 /// A walking-like ground-truth pose.
 fn gt_pose() -> Pose {
     let mut p = [0.0; POSE_DIM];
@@ -812,9 +819,7 @@ mod least_squares_form {
     #[test]
     fn the_least_squares_observation_residual_is_the_residual() {
         use rand::SeedableRng;
-        let mh =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/makehuman-cmu_mb.npz");
-        let t = Arc::new(crate::modelfile::load(&mh).unwrap());
+        let t = makehuman_body();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(113);
         for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
             let (e, x) = makehuman_energy(&t, modality, &mut rng);
@@ -840,9 +845,7 @@ mod least_squares_form {
     #[test]
     fn grouped_normal_equations_are_the_row_by_row_ones() {
         use rand::SeedableRng;
-        let mh =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/makehuman-cmu_mb.npz");
-        let t = Arc::new(crate::modelfile::load(&mh).unwrap());
+        let t = makehuman_body();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(112);
         let dim = t.layout().dim();
         for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
@@ -930,9 +933,7 @@ mod least_squares_form {
     #[test]
     fn the_elimination_order_shrinks_the_envelope_and_keeps_the_step() {
         use rand::SeedableRng;
-        let mh =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/makehuman-cmu_mb.npz");
-        let t = Arc::new(crate::modelfile::load(&mh).unwrap());
+        let t = makehuman_body();
         let dim = t.layout().dim();
         let rank = t.elimination_rank();
         let mut sorted = rank.clone();
@@ -1426,15 +1427,13 @@ fn with_sensor_equals_a_new_energy_of_that_sensor() {
 #[test]
 fn the_penetration_broad_phase_matches_testing_every_vertex() {
     use rand::{Rng, SeedableRng};
-    let mh =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/makehuman-cmu_mb.npz");
     let models: Vec<(&str, Arc<Template>)> = vec![
         ("default", template()),
         (
             "smpl-like",
             Arc::new(crate::body::smpl_like(7, 400, 6, true)),
         ),
-        ("makehuman", Arc::new(crate::modelfile::load(&mh).unwrap())),
+        ("makehuman", makehuman_body()),
     ];
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(26);
     for (name, t) in models {
@@ -1506,12 +1505,7 @@ fn the_penetration_broad_phase_matches_testing_every_vertex() {
 #[test]
 fn capsules_see_the_penetrations_the_vertex_form_sees() {
     use rand::{Rng, SeedableRng};
-    let mh =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/makehuman-cmu_mb.npz");
-    let models = [
-        ("default", template()),
-        ("makehuman", Arc::new(crate::modelfile::load(&mh).unwrap())),
-    ];
+    let models = [("default", template()), ("makehuman", makehuman_body())];
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2626);
     for (name, t) in models {
         let sensor = Sensor::default_for(Modality::Markers, &t);
