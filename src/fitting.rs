@@ -9,7 +9,7 @@ use anyhow::{Context, Result, bail};
 use lfit_fitters::{FitRequest, FitResult, Fitter};
 use lfit_model::energy::{Energy, EnergyConfig, Target};
 use lfit_model::layout::Block;
-use lfit_model::pose::{Bounds, DofMask, MaskKind, SHAPE_BOUND};
+use lfit_model::pose::{Bounds, DofMask, MaskKind};
 use lfit_model::template::Template;
 use lfit_synth::{Dataset, Observations, Scenario};
 
@@ -44,10 +44,11 @@ pub enum SequenceShape {
     /// ([`FitReport::shape_pass`]).
     FirstPass,
     /// The sequence is fitted twice. The first pass fits it as `per-frame` does; the subject's β
-    /// is then the one that minimises the summed energy of all its frames, each frame's other
-    /// entries held at the first pass's result (Levenberg–Marquardt on the β columns of every
-    /// frame's Jacobian stacked: [`joint_shape`]), held fixed in the second pass. The
-    /// maximum-likelihood β of the sequence under the energy, rather than the median of noisy
+    /// is then the one that, with every frame's pose free from the first pass's result,
+    /// minimises the summed energy of its frames (up to [`JOINT_SHAPE_FRAMES`], spread evenly)
+    /// with the shape prior counted once (Levenberg–Marquardt over the whole sequence, the poses
+    /// eliminated as in bundle adjustment: [`joint_shape`]), held fixed in the second pass. The
+    /// most probable β of the sequence under the energy, rather than the median of noisy
     /// per-frame estimates. Needs an energy in least-squares form. The first pass and the β
     /// solve are reported apart ([`FitReport::shape_pass`]); their time is shared out over the
     /// frames.
@@ -87,12 +88,12 @@ pub struct ShapePass {
     /// The frames whose fits β was estimated from.
     pub frames: Vec<usize>,
     /// The subject's β: the per-component median of their fits (first pass), or the β that
-    /// minimises their summed energy (joint).
+    /// minimises their summed energy with the shape prior counted once (joint).
     pub beta: Vec<f64>,
     pub evaluations: u64,
     pub time_s: f64,
-    /// Joint: the summed energy of the first pass's frames before and after the β solve, and
-    /// its Levenberg–Marquardt iterations.
+    /// Joint: the summed energy of the first pass's frames (the shape prior counted once)
+    /// before and after the β solve, and its Levenberg–Marquardt iterations.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub joint: Option<JointSolve>,
 }
@@ -108,14 +109,17 @@ pub struct JointSolve {
 }
 
 /// `energy` with the gradient form of its terms ([`EnergyConfig::for_gradient`]: the hinge
-/// joint-angle prior, no silhouette term), for [`joint_shape`]. The joint-angle prior depends on
-/// the pose alone: with the poses held, both forms move β alike.
-fn least_squares_variant(energy: &Energy) -> Result<Energy> {
+/// joint-angle prior, no silhouette term) and its shape prior's weight times `shape_share`, for
+/// [`joint_shape`]. The joint-angle prior depends on the pose alone: with the poses held, both
+/// forms move β alike.
+fn least_squares_variant(energy: &Energy, shape_share: f64) -> Result<Energy> {
+    let mut config = energy.config().clone().for_gradient();
+    config.weights.shape *= shape_share;
     Ok(Energy::new(
         energy.template().clone(),
         energy.sensor().clone(),
         energy.target().clone(),
-        energy.config().clone().for_gradient(),
+        config,
     )?)
 }
 
@@ -466,7 +470,8 @@ fn joint_shape_pass(
     energy: &dyn Fn(usize) -> Result<Energy>,
     seed: &dyn Fn(usize) -> u64,
 ) -> Result<ShapePass> {
-    if let Some(why) = least_squares_variant(&energy(frames[0])?)?.least_squares_unsupported() {
+    if let Some(why) = least_squares_variant(&energy(frames[0])?, 1.0)?.least_squares_unsupported()
+    {
         bail!("--sequence-shape joint solves for β in least-squares form: {why}");
     }
     let (mut evaluations, mut time_s) = (0u64, 0.0);
@@ -479,20 +484,29 @@ fn joint_shape_pass(
     })
     .context("the first pass of --sequence-shape joint")?;
     let timer = std::time::Instant::now();
-    let energies = frames
+    // At most JOINT_SHAPE_FRAMES of them, evenly spread (the i-th the middle of its share).
+    let count = frames.len().min(JOINT_SHAPE_FRAMES);
+    let picked: Vec<usize> = (0..count)
+        .map(|i| (2 * i + 1) * frames.len() / (2 * count))
+        .collect();
+    let energies = picked
         .iter()
-        .map(|&f| energy(f))
+        .map(|&k| energy(frames[k]))
         .collect::<Result<Vec<_>>>()?;
+    let poses: Vec<Vec<f64>> = picked.iter().map(|&k| poses[k].clone()).collect();
     let shape = plan.template.layout().range(Block::Shape);
-    let (lower, upper) = (
-        vec![-SHAPE_BOUND; shape.len()],
-        vec![SHAPE_BOUND; shape.len()],
-    );
-    let (beta, solve) = joint_shape(&energies, &poses, shape, &lower, &upper)?;
+    let free = plan.mask_with(None)?.free;
+    let (beta, _, solve) = joint_shape(
+        &energies,
+        &poses,
+        shape,
+        &free,
+        &Bounds::global_for(plan.template),
+    )?;
     evaluations += solve.evaluations;
     time_s += timer.elapsed().as_secs_f64();
     Ok(ShapePass {
-        frames: frames.to_vec(),
+        frames: picked.iter().map(|&k| frames[k]).collect(),
         beta,
         evaluations,
         time_s,
@@ -501,91 +515,150 @@ fn joint_shape_pass(
 }
 
 /// Iterations of [`joint_shape`]'s Levenberg–Marquardt, at most.
-pub const JOINT_SHAPE_ITERATIONS: usize = 30;
+pub const JOINT_SHAPE_ITERATIONS: usize = 50;
 
-/// The β (entries `shape` of every pose) that minimises `Σ_k E_k(θ_k)` with every other entry of
-/// each `θ_k` held, inside `[lower, upper]`, from the per-component median of the poses' β:
-/// Levenberg–Marquardt on the normal equations of the β columns of every frame's Jacobian,
-/// summed (Marquardt scaling, Nielsen's damping update, a step that leaves the box clamped to
-/// it); stops when a step lowers the sum by less than 1e-6 of it, or after
+/// Frames of [`SequenceShape::Joint`]'s β solve, at most (spread evenly over the sequence): its
+/// memory (a frame's blocks of the normal equations, ~90 KB on the MakeHuman body) and time grow
+/// with them. Ours: the captured clip's 454 frames fit under it; solving on 256, 128, 64 or 32
+/// of them moved the clip's β RMS by up to 0.3 and V2V by up to 2 mm either way
+/// (`docs/results/captured-motion.md`, round 6).
+pub const JOINT_SHAPE_FRAMES: usize = 512;
+
+/// What [`joint_shape`] returns: the sequence's β, every frame's pose with it, and the solve.
+pub type JointShape = (Vec<f64>, Vec<Vec<f64>>, JointSolve);
+
+/// The β (entries `shape` of every pose) and the poses that together minimise the sequence's
+/// energy, from `poses` (each frame's fit with β free) and the per-component median of their β:
+/// one β for every frame, each frame's other `free` entries its own, all inside `bounds`.
+///
+/// The sequence's energy is `Σ_k E_k(θ_k)` with the shape prior counted once, not once per
+/// frame: each frame's energy carries the prior `w‖β‖²` for a β seen by that frame alone, and
+/// summing N of them would weigh the one subject's prior N times against the data (the
+/// per-frame estimate's shrinkage towards the mean, however long the sequence), where the
+/// posterior of one β given N frames' independent observations has it once (each frame's prior
+/// weight is `w / N` here). The poses are free with β: held at fits made with another β, they
+/// would carry that β's errors (a bone too short bent into the joints) into the solve.
+///
+/// Levenberg–Marquardt on the whole sequence, as bundle adjustment solves cameras and points
+/// (Triggs et al. 2000, §6.1): each frame's normal equations `[A_k B_k; B_kᵀ C_k]` (pose, β),
+/// the poses eliminated frame by frame (the Schur complement `Σ_k C_k − B_kᵀ A_k⁻¹ B_k` on β,
+/// then each frame's pose step), Marquardt scaling, Nielsen's damping update, a step that leaves
+/// the box clamped to it; stops when a step lowers the energy by less than 1e-6 of it, or after
 /// [`JOINT_SHAPE_ITERATIONS`]. Frames are evaluated in parallel, each on the least-squares form
-/// of its energy ([`least_squares_variant`]); [`JointSolve::evaluations`] counts them.
+/// of its energy ([`least_squares_variant`]); [`JointSolve::evaluations`] counts them,
+/// [`JointSolve::energy_before`] and `energy_after` are the sequence's energy.
 pub fn joint_shape(
     energies: &[Energy],
     poses: &[Vec<f64>],
     shape: std::ops::Range<usize>,
-    lower: &[f64],
-    upper: &[f64],
-) -> Result<(Vec<f64>, JointSolve)> {
-    use lfit_model::energy::{damped_step, marquardt_scaling};
-    use nalgebra::{DMatrix, DVector};
+    free: &[usize],
+    bounds: &Bounds,
+) -> Result<JointShape> {
+    use nalgebra::DMatrix;
     use rayon::prelude::*;
     let n = shape.len();
-    if energies.is_empty() || energies.len() != poses.len() || lower.len() != n || upper.len() != n
+    let dim = bounds.lower.len();
+    if energies.is_empty()
+        || energies.len() != poses.len()
+        || poses.iter().any(|p| p.len() != dim)
+        || bounds.upper.len() != dim
+        || shape.end > dim
     {
         bail!(
-            "joint β solve: {} energies, {} poses, {} shape entries",
+            "joint β solve: {} energies, {} poses, {} parameters in the box, shape entries {shape:?}",
             energies.len(),
             poses.len(),
-            n
+            dim
         );
     }
-    // Their least-squares form (and their own evaluation counters).
+    // Their least-squares form (and their own evaluation counters), the prior once in all.
+    let share = 1.0 / energies.len() as f64;
     let energies = energies
         .iter()
-        .map(least_squares_variant)
+        .map(|e| least_squares_variant(e, share))
         .collect::<Result<Vec<_>>>()?;
-    let dofs: Vec<usize> = shape.clone().collect();
-    let with = |p: &[f64], b: &[f64]| {
-        let mut q = p.to_vec();
-        q[shape.clone()].copy_from_slice(b);
-        q
-    };
-    let total = |b: &[f64]| -> f64 {
+    // The system's entries: each frame's free pose entries, then β.
+    let pose_free: Vec<usize> = free
+        .iter()
+        .copied()
+        .filter(|i| !shape.contains(i))
+        .collect();
+    let np = pose_free.len();
+    let dofs: Vec<usize> = pose_free.iter().copied().chain(shape.clone()).collect();
+    let clamp = |i: usize, v: f64| v.clamp(bounds.lower[i], bounds.upper[i]);
+    let mut beta = median_per_component(poses.iter().map(|p| &p[shape.clone()]), n);
+    for (k, b) in beta.iter_mut().enumerate() {
+        *b = clamp(shape.start + k, *b);
+    }
+    let mut poses: Vec<Vec<f64>> = poses
+        .iter()
+        .map(|p| {
+            let mut q: Vec<f64> = p.iter().enumerate().map(|(i, &v)| clamp(i, v)).collect();
+            q[shape.clone()].copy_from_slice(&beta);
+            q
+        })
+        .collect();
+    let total = |poses: &[Vec<f64>]| -> f64 {
         energies
             .par_iter()
             .zip(poses)
-            .map(|(e, p)| e.evaluate(&with(p, b)).total)
+            .map(|(e, p)| e.evaluate(p).total)
             .sum()
     };
-    let mut beta = median_per_component(poses.iter().map(|p| &p[shape.clone()]), n);
-    for (k, b) in beta.iter_mut().enumerate() {
-        *b = b.clamp(lower[k], upper[k]);
-    }
-    let free: Vec<usize> = (0..n).collect();
-    let before = total(&beta);
+    let before = total(&poses);
     let mut current = before;
     let (mut damping, mut nu) = (1e-4, 2.0);
     let mut iterations = 0;
     while iterations < JOINT_SHAPE_ITERATIONS {
         iterations += 1;
-        let (a, g) = energies
+        // Each frame's blocks: A (pose), B (pose × β), C (β), and the gradient's two parts.
+        let systems: Vec<FrameSystem> = energies
             .par_iter()
-            .zip(poses)
-            .map(|(e, p)| -> Result<(DMatrix<f64>, DVector<f64>)> {
-                Ok(e.least_squares(&with(p, &beta), true)?
-                    .normal_equations(&dofs))
+            .zip(&poses)
+            .map(|(e, p)| -> Result<_> {
+                let (h, g) = e.least_squares(p, true)?.normal_equations(&dofs);
+                Ok((
+                    h.view((0, 0), (np, np)).into_owned(),
+                    h.view((0, np), (np, n)).into_owned(),
+                    h.view((np, np), (n, n)).into_owned(),
+                    g.rows(0, np).into_owned(),
+                    g.rows(np, n).into_owned(),
+                ))
             })
-            .try_reduce(
-                || (DMatrix::zeros(n, n), DVector::zeros(n)),
-                |(a1, g1), (a2, g2)| Ok((a1 + a2, g1 + g2)),
-            )?;
-        let (diag, max_diag) = marquardt_scaling(&a, &free);
+            .collect::<Result<_>>()?;
+        let summed_c = systems
+            .iter()
+            .fold(DMatrix::zeros(n, n), |s, (_, _, c, _, _)| s + c);
+        let scale = |d: f64| d.clamp(1e-6, 1e32);
         let mut improved = false;
-        // Raise the damping until a step lowers the sum (at most 20 tries).
+        // Raise the damping until a step lowers the energy (at most 20 tries).
         for _ in 0..20 {
-            let Some(h) = damped_step(&a, &g, &free, &diag, damping, max_diag) else {
+            let step = schur_step(&systems, &summed_c, damping, &scale);
+            let Some((dbeta, dposes)) = step else {
                 damping *= nu;
                 nu *= 2.0;
                 continue;
             };
-            let trial: Vec<f64> = (0..n)
-                .map(|k| (beta[k] + h[k]).clamp(lower[k], upper[k]))
+            let trial_beta: Vec<f64> = (0..n)
+                .map(|k| clamp(shape.start + k, beta[k] + dbeta[k]))
+                .collect();
+            let trial: Vec<Vec<f64>> = poses
+                .iter()
+                .zip(&dposes)
+                .map(|(p, d)| {
+                    let mut q = p.clone();
+                    for (k, &i) in pose_free.iter().enumerate() {
+                        q[i] = clamp(i, q[i] + d[k]);
+                    }
+                    q[shape.clone()].copy_from_slice(&trial_beta);
+                    q
+                })
                 .collect();
             let value = total(&trial);
             if value.is_finite() && value < current {
                 let gain = (current - value) / current.max(f64::MIN_POSITIVE);
-                beta = trial;
+                beta = trial_beta;
+                poses = trial;
                 current = value;
                 damping = (damping / 3.0).max(1e-12);
                 nu = 2.0;
@@ -599,15 +672,81 @@ pub fn joint_shape(
             break;
         }
     }
+    let evaluations = energies.iter().map(Energy::evaluations).sum();
     Ok((
         beta,
+        poses,
         JointSolve {
             energy_before: before,
             energy_after: current,
             iterations,
-            evaluations: energies.iter().map(Energy::evaluations).sum(),
+            evaluations,
         },
     ))
+}
+
+/// One frame's blocks of the sequence's normal equations in [`joint_shape`]: `A` (pose),
+/// `B` (pose × β), `C` (β), and the gradient's pose and β parts.
+type FrameSystem = (
+    nalgebra::DMatrix<f64>,
+    nalgebra::DMatrix<f64>,
+    nalgebra::DMatrix<f64>,
+    nalgebra::DVector<f64>,
+    nalgebra::DVector<f64>,
+);
+
+/// The damped Gauss-Newton step of [`joint_shape`]'s sequence system by the Schur complement on
+/// β: with `Ã_k = A_k + μ D_k` (`D` Marquardt's scaling, `scale` of each diagonal entry),
+/// `(Σ_k C̃_k − B_kᵀ Ã_k⁻¹ B_k) Δβ = −Σ_k (g_β,k − B_kᵀ Ã_k⁻¹ g_θ,k)`, then
+/// `Δθ_k = −Ã_k⁻¹ (g_θ,k + B_k Δβ)`. `None` when a system is not positive definite.
+fn schur_step(
+    systems: &[FrameSystem],
+    summed_c: &nalgebra::DMatrix<f64>,
+    damping: f64,
+    scale: &(dyn Fn(f64) -> f64 + Sync),
+) -> Option<(nalgebra::DVector<f64>, Vec<nalgebra::DVector<f64>>)> {
+    use nalgebra::{DMatrix, DVector};
+    use rayon::prelude::*;
+    let n = summed_c.nrows();
+    // Per frame: Ã⁻¹ [B | g_θ].
+    let solved: Vec<DMatrix<f64>> = systems
+        .par_iter()
+        .map(|(a, b, _, gt, _)| {
+            let np = a.nrows();
+            let mut damped = a.clone();
+            let max = (0..np).fold(0.0f64, |m, i| m.max(scale(a[(i, i)])));
+            for i in 0..np {
+                damped[(i, i)] += damping * scale(a[(i, i)]) + 1e-12 * max;
+            }
+            let chol = damped.cholesky()?;
+            let mut rhs = DMatrix::zeros(np, n + 1);
+            rhs.view_mut((0, 0), (np, n)).copy_from(b);
+            rhs.column_mut(n).copy_from(gt);
+            Some(chol.solve(&rhs))
+        })
+        .collect::<Option<_>>()?;
+    let mut s = summed_c.clone();
+    let max = (0..n).fold(0.0f64, |m, i| m.max(scale(summed_c[(i, i)])));
+    for i in 0..n {
+        s[(i, i)] += damping * scale(summed_c[(i, i)]) + 1e-12 * max;
+    }
+    let mut rhs = DVector::zeros(n);
+    for ((_, b, _, _, gb), x) in systems.iter().zip(&solved) {
+        let ainv_b = x.view((0, 0), (x.nrows(), n));
+        let ainv_g = x.column(n);
+        s -= b.transpose() * ainv_b;
+        rhs -= gb - b.transpose() * ainv_g;
+    }
+    // Symmetric up to rounding: its lower triangle is what the factorisation reads.
+    let dbeta = s.cholesky()?.solve(&rhs);
+    let dposes = solved
+        .iter()
+        .map(|x| {
+            let ainv_b = x.view((0, 0), (x.nrows(), n));
+            -(x.column(n) + ainv_b * &dbeta)
+        })
+        .collect();
+    Some((dbeta, dposes))
 }
 
 /// The template a dataset was synthesised with: `--model` when given (its id must match the
@@ -798,10 +937,11 @@ mod tests {
     }
 
     /// [`joint_shape`] against its definition: from per-frame β that scatter around a biased
-    /// mean, it reaches a summed energy no higher than the subject's true β gives with the same
-    /// poses, much nearer that β than the per-frame values; it stays inside its box.
+    /// mean and poses a few degrees off, it reaches a sequence energy (the frames' summed, the
+    /// shape prior once) no higher than the truth's, with β much nearer the subject's than the
+    /// per-frame values and the poses moved with it; it stays inside its box.
     #[test]
-    fn the_joint_shape_minimises_the_summed_energy_and_recovers_the_subject() {
+    fn the_joint_shape_minimises_the_sequence_energy_and_recovers_the_subject() {
         let (t, _) = lfit_model::body::morphable_default_template().unwrap();
         let t = Arc::new(t);
         let config = SynthConfig::new(Modality::Markers, Scenario::Sequence, 16, 7);
@@ -816,6 +956,8 @@ mod tests {
             })
             .collect();
         let truth = d.gt_poses[0][shape.clone()].to_vec();
+        let bounds = Bounds::global_for(&t);
+        let free = scenario_mask(Scenario::Sequence, &t).free;
         let poses: Vec<Vec<f64>> = d
             .gt_poses
             .iter()
@@ -825,19 +967,24 @@ mod tests {
                 for (k, i) in shape.clone().enumerate() {
                     q[i] += 0.4 + 0.3 * ((f * 7 + k * 3) as f64).sin();
                 }
+                // Joint rotations a few degrees off (not the root's translation).
+                for i in 3..shape.start {
+                    q[i] += 0.05 * ((f * 5 + i) as f64).cos();
+                }
+                bounds.clamp(&mut q);
                 q
             })
             .collect();
-        let summed = |b: &[f64]| -> f64 {
-            energies
+        // The sequence's energy counts the one subject's shape prior once, not once per frame.
+        let sequence = |ps: &[Vec<f64>]| -> f64 {
+            let summed: f64 = energies
                 .iter()
-                .zip(&poses)
-                .map(|(e, p)| {
-                    let mut q = p.clone();
-                    q[shape.clone()].copy_from_slice(b);
-                    e.inspect(&q).total
-                })
-                .sum()
+                .zip(ps)
+                .map(|(e, p)| e.inspect(p).total)
+                .sum();
+            let prior = energies[0].config().weights.shape
+                * energies[0].inspect(&ps[0]).term("shape").unwrap();
+            summed - (ps.len() - 1) as f64 * prior
         };
         let rms = |b: &[f64]| {
             (b.iter()
@@ -847,15 +994,21 @@ mod tests {
                 / n as f64)
                 .sqrt()
         };
-        let (lower, upper) = (vec![-SHAPE_BOUND; n], vec![SHAPE_BOUND; n]);
-        let (beta, solve) = joint_shape(&energies, &poses, shape.clone(), &lower, &upper).unwrap();
-        assert!((solve.energy_after - summed(&beta)).abs() <= 1e-9 * solve.energy_after);
+        let (beta, fitted, solve) =
+            joint_shape(&energies, &poses, shape.clone(), &free, &bounds).unwrap();
+        assert!(fitted.iter().all(|p| p[shape.clone()] == beta[..]), "one β");
+        assert!(
+            (solve.energy_after - sequence(&fitted)).abs() <= 1e-9 * solve.energy_after,
+            "{} against the sequence's energy {}",
+            solve.energy_after,
+            sequence(&fitted)
+        );
         assert!(solve.energy_after < solve.energy_before);
         assert!(
-            solve.energy_after <= summed(&truth) * (1.0 + 1e-9),
-            "above the true β's summed energy: {} > {}",
+            solve.energy_after <= sequence(&d.gt_poses) * (1.0 + 1e-9),
+            "above the truth's energy: {} > {}",
             solve.energy_after,
-            summed(&truth)
+            sequence(&d.gt_poses)
         );
         let per_frame =
             poses.iter().map(|p| rms(&p[shape.clone()])).sum::<f64>() / poses.len() as f64;
@@ -864,11 +1017,48 @@ mod tests {
             "β error {} against the per-frame values' {per_frame}",
             rms(&beta)
         );
+        // The poses moved too: with β alone at its solution they would be worse off.
+        let held: Vec<Vec<f64>> = poses
+            .iter()
+            .map(|p| {
+                let mut q = p.clone();
+                q[shape.clone()].copy_from_slice(&beta);
+                q
+            })
+            .collect();
+        assert!(
+            solve.energy_after < 0.9 * sequence(&held),
+            "{} against {} with the poses held",
+            solve.energy_after,
+            sequence(&held)
+        );
+        // The prior counted once shrinks β less towards the mean than once per frame would: at
+        // the solution, the frames' plain sum still falls when β is shrunk a little.
+        let plain = |b: &[f64]| -> f64 {
+            energies
+                .iter()
+                .zip(&fitted)
+                .map(|(e, p)| {
+                    let mut q = p.clone();
+                    q[shape.clone()].copy_from_slice(b);
+                    e.inspect(&q).total
+                })
+                .sum()
+        };
+        let shrunk = plain(&beta.iter().map(|b| 0.9999 * b).collect::<Vec<_>>());
+        assert!(shrunk < plain(&beta), "{shrunk} {}", plain(&beta));
         // A box that excludes the solution: every entry inside it.
-        let (lo, hi) = (vec![-0.1; n], vec![0.1; n]);
-        let (boxed, _) = joint_shape(&energies, &poses, shape.clone(), &lo, &hi).unwrap();
+        let mut boxed_bounds = bounds.clone();
+        for i in shape.clone() {
+            boxed_bounds.lower[i] = -0.1;
+            boxed_bounds.upper[i] = 0.1;
+        }
+        let (boxed, boxed_poses, _) =
+            joint_shape(&energies, &poses, shape.clone(), &free, &boxed_bounds).unwrap();
         assert!(boxed.iter().all(|b| (-0.1..=0.1).contains(b)), "{boxed:?}");
+        assert!(boxed_poses.iter().all(|p| boxed_bounds.contains(p)));
         // Mismatched inputs: an error, not a panic.
-        assert!(joint_shape(&energies, &poses[1..], shape, &lower, &upper).is_err());
+        assert!(joint_shape(&energies, &poses[1..], shape.clone(), &free, &bounds).is_err());
+        assert!(joint_shape(&energies, &poses, 0..200, &free, &bounds).is_err());
     }
 }

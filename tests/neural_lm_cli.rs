@@ -316,9 +316,9 @@ fn first_pass_gives_a_sequence_one_shape() {
     assert!(!out_path.exists());
 }
 
-/// `--sequence-shape joint`: the sequence fitted once, one β solved over all its frames (the
-/// summed energy no higher than before the solve), then every frame fitted with that β; refused
-/// outside sequences.
+/// `--sequence-shape joint`: the sequence fitted once, one β solved with the poses of all its
+/// frames (the sequence's energy no higher than before the solve), then every frame fitted with
+/// that β; refused outside sequences.
 #[test]
 fn joint_shape_gives_a_sequence_the_beta_of_its_summed_energy() {
     let tmp = tempfile::tempdir().expect("tmp");

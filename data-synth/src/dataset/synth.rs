@@ -294,23 +294,30 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
             p[0] -= mx / (n + 1) as f64;
             p[2] -= mz / (n + 1) as f64;
         }
-        // One subject for the whole sequence; every frame starts from the previous frame's truth.
+        // One subject for the whole sequence; every frame starts from the previous frame's truth
+        // pose with the mean coefficients (a fitter does not know the subject's: only frames that
+        // are not warm-started read these starts, the first and a β pass's).
         let subject = subject_coefficients(&layout, config.seed, 0);
         let poses: Vec<Vec<f64>> = poses
             .into_iter()
             .map(|p| {
-                let p = if from_file {
+                if from_file {
                     p
                 } else {
                     let mut pose = [0.0; POSE_DIM];
                     pose.copy_from_slice(&p);
                     retarget(&pose, template, &layout)
-                };
-                with_coefficients(p, &subject)
+                }
             })
             .collect();
-        let starts = poses[..n].to_vec();
-        let targets = poses[1..].to_vec();
+        let starts = poses[..n]
+            .iter()
+            .map(|p| with_coefficients(p.clone(), &zeros))
+            .collect();
+        let targets = poses[1..]
+            .iter()
+            .map(|p| with_coefficients(p.clone(), &subject))
+            .collect();
         return Ok((starts, targets, names[1..].to_vec(), fps));
     }
     let per_frame: Vec<(Vec<f64>, Vec<f64>, String)> = (0..n)
@@ -576,6 +583,24 @@ mod tests {
         let (starts, targets, _, _) = scenario_poses(&c, &t).unwrap();
         for i in 1..30 {
             assert_eq!(starts[i], targets[i - 1]);
+        }
+    }
+
+    #[test]
+    fn a_sequence_starts_from_the_previous_truth_pose_with_the_mean_shape() {
+        // The subject's β is the truth: a sequence's starts (read by its first frame and by a β
+        // pass) hold the previous frame's pose and the prior's mean, as local starts do.
+        let (m, _) = lfit_model::body::morphable_default_template().unwrap();
+        let pd = m.layout().pose_dim();
+        let c = SynthConfig::new(Modality::Markers, Scenario::Sequence, 30, 5);
+        let (starts, targets, _, _) = scenario_poses(&c, &m).unwrap();
+        assert!(targets[0][pd..].iter().any(|&b| b != 0.0));
+        for i in 0..30 {
+            assert!(starts[i][pd..].iter().all(|&b| b == 0.0), "frame {i}");
+            assert_eq!(targets[i][pd..], targets[0][pd..], "one subject");
+            if i > 0 {
+                assert_eq!(starts[i][..pd], targets[i - 1][..pd], "frame {i}");
+            }
         }
     }
 
