@@ -121,3 +121,23 @@ def test_neural_fit_and_a_checkpoint_of_another_model(makehuman, markers_file, c
     p = cli("fit", "--data", other, "--method", "neural", "--budget", 10, "--checkpoint", ck, "--out", never, check=False)
     assert p.returncode == 1 and p.stderr.strip() == f"error: {one_line(e)}", (p.stderr, str(e.value))
     assert not never.exists()
+
+
+def test_one_shape_per_sequence_equals_the_cli(makehuman, cli, tmp_path):
+    """sequence_shape="joint": one β for the whole sequence (solved with every frame's pose),
+    the CLI's bit for bit; the policy names are the CLI's."""
+    data = tmp_path / "seq.npz"
+    cli("synth", "--modality", "markers", "--scenario", "sequence", "--model",
+        ROOT / "models" / "makehuman-cmu_mb.npz", "--frames", 5, "--seed", 11, "--out", data)
+    out = tmp_path / "cli.json"
+    cli("fit", "--data", data, "--model", ROOT / "models" / "makehuman-cmu_mb.npz", "--method", "lm",
+        "--budget", 200, "--sequence-shape", "joint", "--seed", 3, "--out", out)
+    theirs = json.loads(out.read_text())
+    ours = lfit.fit(makehuman, data, method="lm", budget=200, sequence_shape="joint", seed=3)
+    rows = theirs["frames"]
+    np.testing.assert_array_equal(ours.shapes, [r["shape"] for r in rows])
+    np.testing.assert_array_equal(ours.poses, [r["pose"] for r in rows])
+    assert (ours.shapes == ours.shapes[0]).all(), "one β for the sequence"
+    assert np.abs(ours.shapes[0]).max() > 0, "β was estimated, not left at the mean"
+    with pytest.raises(lfit.LfitError, match="unknown sequence shape policy 'median'"):
+        lfit.fit(makehuman, data, method="lm", budget=20, sequence_shape="median")
