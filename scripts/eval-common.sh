@@ -5,7 +5,7 @@
 #   source scripts/eval-common.sh
 #   eval_setup NAME OUT          # LFIT, MODEL; OUT created; OUT/clip-motion.npz written
 #   eval_need_dir NAME DIR       # exits with a one-line error unless DIR is a directory
-#   eval_table fits OUT ROW...   # V2V, MPJPE, β RMS, energy, evaluations, time per frame
+#   eval_table fits OUT ROW...   # V2V, MPJPE, β RMS, shape V2V, energy, evaluations, time per frame
 #   eval_table c3d OUT ROW...    # share within 5 mm marker RMS, mean/median RMS, evaluations, time
 #
 # LFIT (default: the release build under CARGO_TARGET_DIR or ~/.cache/lfit-target) is the binary.
@@ -38,8 +38,8 @@ eval_table() {
 import json, statistics, sys
 kind, out, names = sys.argv[1], sys.argv[2], sys.argv[3:]
 if kind == "fits":
-    print("| run | frames | V2V (mm) | MPJPE (mm) | β RMS | energy | evaluations | time / frame (ms) |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| run | frames | V2V (mm) | MPJPE (mm) | β RMS | shape V2V (mm) | energy | evaluations | time / frame (ms) |")
+    print("|---|---|---|---|---|---|---|---|---|")
 else:
     print("| source, method | frames | within 5 mm RMS | mean RMS (mm) | median RMS (mm) | evaluations | time / frame (ms) |")
     print("|---|---|---|---|---|---|---|")
@@ -49,9 +49,11 @@ for n in names:
     ev = sum(f["evaluations"] for f in fr) / len(fr)
     ms = 1000 * s["mean_time_s"]
     if kind == "fits":
-        beta = s.get("mean_shape_rms")
-        beta = f"{beta:.3f}" if beta is not None and "hmd" not in n else "given"
-        print(f"| {n} | {len(fr)} | {s['mean_v2v_mm']:.1f} | {s['mean_mpjpe_mm']:.1f} | {beta} | "
+        beta, surface = s.get("mean_shape_rms"), s.get("mean_shape_v2v_mm")
+        given = beta is None or "hmd" in n
+        beta = "given" if given else f"{beta:.3f}"
+        surface = "given" if given or surface is None else f"{surface:.1f}"
+        print(f"| {n} | {len(fr)} | {s['mean_v2v_mm']:.1f} | {s['mean_mpjpe_mm']:.1f} | {beta} | {surface} | "
               f"{s['mean_energy']:.4f} | {ev:.0f} | {ms:.2f} |")
     else:
         rms = [f["observation_rms_mm"] for f in fr]

@@ -121,12 +121,20 @@ fn a_known_shape_is_frozen_for_every_method_and_required_by_a_known_shape_networ
         assert_eq!(shapes(&r), truth, "{method}: β must stay the truth");
         for f in r["frames"].as_array().expect("frames") {
             assert_eq!(f["shape_rms"], 0.0, "{method}");
+            assert_eq!(f["shape_v2v_mm"], 0.0, "{method}");
         }
+        assert_eq!(r["summary"]["mean_shape_v2v_mm"], 0.0, "{method}");
     }
-    // Without --known-shape LM moves β (so the equality above is the flag's doing).
+    // Without --known-shape LM moves β (so the equality above is the flag's doing), and the
+    // rest-pose surface with it.
     let (o, out) = fit("lm", None, "lm-free.json");
     assert!(o.status.success());
-    assert_ne!(shapes(&read(&out)), truth);
+    let free = read(&out);
+    assert_ne!(shapes(&free), truth);
+    for f in free["frames"].as_array().expect("frames") {
+        let d = f["shape_v2v_mm"].as_f64().expect("shape_v2v_mm");
+        assert!(d > 0.0 && d.is_finite(), "{d}");
+    }
     // One β for every frame.
     let given = "0.5,-0.25,0,0,0,0,0,1";
     let (o, out) = fit("lm", Some(given), "lm-given.json");

@@ -64,6 +64,25 @@ impl TruthMesh {
     }
 }
 
+/// The shape error in mm: the mean distance between corresponding vertices of the rest-pose
+/// meshes (every rotation and the translation zero, expression zero) of the fitted and the true
+/// shape coefficients β — the per-vertex error in the T-pose that body-shape estimation reports
+/// (e.g. PVE-T), where a β RMS weighs every coefficient alike whatever it does to the surface.
+/// `None` for a model without shape coefficients.
+pub fn shape_v2v_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> Option<f64> {
+    let layout = template.layout();
+    let shape = layout.range(crate::layout::Block::Shape);
+    if shape.is_empty() || fitted.len() < shape.end || truth.len() < shape.end {
+        return None;
+    }
+    let rest = |params: &[f64]| {
+        let mut p = vec![0.0; layout.dim()];
+        p[shape.clone()].copy_from_slice(&params[shape.clone()]);
+        posed_mesh(template, &p)
+    };
+    Some(mean_distance_mm(&rest(fitted), &rest(truth)))
+}
+
 /// Mean distance between corresponding posed joint centres, in mm.
 pub fn mpjpe_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> f64 {
     let a = joint_transforms(template, fitted).joints;
@@ -286,6 +305,56 @@ mod tests {
     use super::*;
     use crate::body::default_template;
     use crate::pose::POSE_DIM;
+
+    /// The shape error sees β alone (poses and translation do not count), and is the mean
+    /// length of the shape directions' displacement `S (β − β*)` per vertex, computed here from
+    /// the blend shapes directly; a rigid model has none.
+    #[test]
+    fn shape_v2v_is_the_rest_mesh_distance_of_the_coefficients() {
+        let (t, _) = crate::body::morphable_default_template().unwrap();
+        let layout = t.layout();
+        let shape = layout.range(crate::layout::Block::Shape);
+        assert!(!shape.is_empty());
+        let mut truth = vec![0.0; layout.dim()];
+        let mut fitted = truth.clone();
+        for (k, i) in shape.clone().enumerate() {
+            truth[i] = 0.5 * (k as f64 + 1.0).sin();
+            fitted[i] = truth[i] + 0.3 * (k as f64 * 2.0 + 0.5).cos();
+        }
+        // Another pose and place: the same shape error.
+        fitted[0] = 0.4;
+        fitted[crate::pose::rot_offset(3)] = 0.7;
+        let e = shape_v2v_mm(&t, &fitted, &truth).unwrap();
+        let k = t.morph.coefficients();
+        let n = t.num_vertices();
+        let direct = (0..n)
+            .map(|v| {
+                let d: f64 = (0..3)
+                    .map(|a| {
+                        let row = &t.morph.dirs[(3 * v + a) * k..(3 * v + a) * k + k];
+                        let c: f64 = shape
+                            .clone()
+                            .enumerate()
+                            .map(|(j, i)| f64::from(row[j]) * (fitted[i] - truth[i]))
+                            .sum();
+                        c * c
+                    })
+                    .sum();
+                d.sqrt()
+            })
+            .sum::<f64>()
+            * 1000.0
+            / n as f64;
+        assert!(direct > 1.0, "{direct}");
+        assert!((e - direct).abs() < 1e-3 * direct, "{e} against {direct}");
+        let mut same_shape = truth.clone();
+        same_shape[1] = -0.2;
+        same_shape[crate::pose::rot_offset(5) + 2] = 0.4;
+        assert!(shape_v2v_mm(&t, &same_shape, &truth).unwrap() < 1e-6);
+        let rigid = default_template();
+        let zero = [0.0; POSE_DIM];
+        assert!(shape_v2v_mm(&rigid, &zero, &zero).is_none());
+    }
 
     /// A rigid motion of the whole model moves every vertex (plain errors) and is undone by the
     /// alignment (PA errors ~0); a pose change inside the face is not.

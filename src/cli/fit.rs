@@ -341,6 +341,7 @@ fn fit_prepared(
     let scenario = dataset.meta.config.scenario;
     let mut rows = Vec::with_capacity(frames.len());
     let mut sum_coeff = 0.0;
+    let mut sum_shape_v2v = 0.0;
     let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
     // Without ground truth (imported observations): how far the fit lies from the observations.
     let (mut sum_obs, mut obs_frames, mut obs_unit) = (0.0, 0usize, "");
@@ -398,6 +399,10 @@ fn fit_prepared(
                     row["shape_rms"] = json!(c);
                     sum_coeff += c;
                 }
+                if let Some(d) = lfit_model::metrics::shape_v2v_mm(&template, pose, gt) {
+                    row["shape_v2v_mm"] = json!(d);
+                    sum_shape_v2v += d;
+                }
                 if let Some(f) = lfit_model::metrics::face_errors_mm(&template, pose, gt) {
                     row["face"] = json!(f);
                 }
@@ -447,6 +452,9 @@ fn fit_prepared(
         summary["mean_mpjpe_mm"] = json!(sum_mpjpe / n);
         if template.morph.coefficients() > 0 {
             summary["mean_shape_rms"] = json!(sum_coeff / n);
+        }
+        if template.layout().shape > 0 {
+            summary["mean_shape_v2v_mm"] = json!(sum_shape_v2v / n);
         }
     } else {
         // No V2V/MPJPE without ground truth: energies and distances to the observations.
