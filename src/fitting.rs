@@ -496,13 +496,14 @@ fn joint_shape_pass(
     let poses: Vec<Vec<f64>> = picked.iter().map(|&k| poses[k].clone()).collect();
     let shape = plan.template.layout().range(Block::Shape);
     let free = plan.mask_with(None)?.free;
-    let (beta, _, solve) = joint_shape(
-        &energies,
-        &poses,
-        shape,
-        &free,
-        &Bounds::global_for(plan.template),
-    )?;
+    // Each frame in the scenario's box around its first-pass result (a sequence's fits have no
+    // other: the joint limits are EA's, a soft prior, and the root goes where the motion goes).
+    let scenario = plan.dataset.meta.config.scenario;
+    let bounds: Vec<Bounds> = poses
+        .iter()
+        .map(|p| scenario_bounds(scenario, plan.template, p))
+        .collect();
+    let (beta, _, solve) = joint_shape(&energies, &poses, shape, &free, &bounds)?;
     evaluations += solve.evaluations;
     time_s += timer.elapsed().as_secs_f64();
     Ok(ShapePass {
@@ -520,7 +521,7 @@ pub const JOINT_SHAPE_ITERATIONS: usize = 50;
 /// Frames of [`SequenceShape::Joint`]'s β solve, at most (spread evenly over the sequence): its
 /// memory (a frame's blocks of the normal equations, ~90 KB on the MakeHuman body) and time grow
 /// with them. Ours: the captured clip's 454 frames fit under it; solving on 256, 128, 64 or 32
-/// of them moved the clip's β RMS by up to 0.3 and V2V by up to 2 mm either way
+/// of them moved the clip's β RMS by up to 0.4 and V2V by up to 3 mm either way
 /// (`docs/results/captured-motion.md`, round 6).
 pub const JOINT_SHAPE_FRAMES: usize = 512;
 
@@ -529,7 +530,8 @@ pub type JointShape = (Vec<f64>, Vec<Vec<f64>>, JointSolve);
 
 /// The β (entries `shape` of every pose) and the poses that together minimise the sequence's
 /// energy, from `poses` (each frame's fit with β free) and the per-component median of their β:
-/// one β for every frame, each frame's other `free` entries its own, all inside `bounds`.
+/// one β for every frame, each frame's other `free` entries its own, each frame inside its own
+/// box (`bounds[k]`; β inside every frame's shape box).
 ///
 /// The sequence's energy is `Σ_k E_k(θ_k)` with the shape prior counted once, not once per
 /// frame: each frame's energy carries the prior `w‖β‖²` for a β seen by that frame alone, and
@@ -552,23 +554,26 @@ pub fn joint_shape(
     poses: &[Vec<f64>],
     shape: std::ops::Range<usize>,
     free: &[usize],
-    bounds: &Bounds,
+    bounds: &[Bounds],
 ) -> Result<JointShape> {
     use nalgebra::DMatrix;
     use rayon::prelude::*;
     let n = shape.len();
-    let dim = bounds.lower.len();
+    let dim = poses.first().map_or(0, Vec::len);
     if energies.is_empty()
         || energies.len() != poses.len()
+        || bounds.len() != poses.len()
         || poses.iter().any(|p| p.len() != dim)
-        || bounds.upper.len() != dim
+        || bounds
+            .iter()
+            .any(|b| b.lower.len() != dim || b.upper.len() != dim)
         || shape.end > dim
     {
         bail!(
-            "joint β solve: {} energies, {} poses, {} parameters in the box, shape entries {shape:?}",
+            "joint β solve: {} energies, {} poses, {} boxes, shape entries {shape:?}",
             energies.len(),
             poses.len(),
-            dim
+            bounds.len()
         );
     }
     // Their least-squares form (and their own evaluation counters), the prior once in all.
@@ -585,15 +590,31 @@ pub fn joint_shape(
         .collect();
     let np = pose_free.len();
     let dofs: Vec<usize> = pose_free.iter().copied().chain(shape.clone()).collect();
-    let clamp = |i: usize, v: f64| v.clamp(bounds.lower[i], bounds.upper[i]);
+    // β's box: every frame's shape box at once.
+    let beta_box: Vec<(f64, f64)> = shape
+        .clone()
+        .map(|i| {
+            bounds
+                .iter()
+                .fold((f64::NEG_INFINITY, f64::INFINITY), |(l, u), b| {
+                    (l.max(b.lower[i]), u.min(b.upper[i]))
+                })
+        })
+        .collect();
+    if beta_box.iter().any(|(l, u)| l > u) {
+        bail!("joint β solve: the frames' shape boxes do not overlap");
+    }
+    let clamp_beta = |k: usize, v: f64| v.clamp(beta_box[k].0, beta_box[k].1);
     let mut beta = median_per_component(poses.iter().map(|p| &p[shape.clone()]), n);
     for (k, b) in beta.iter_mut().enumerate() {
-        *b = clamp(shape.start + k, *b);
+        *b = clamp_beta(k, *b);
     }
     let mut poses: Vec<Vec<f64>> = poses
         .iter()
-        .map(|p| {
-            let mut q: Vec<f64> = p.iter().enumerate().map(|(i, &v)| clamp(i, v)).collect();
+        .zip(bounds)
+        .map(|(p, b)| {
+            let mut q = p.clone();
+            b.clamp(&mut q);
             q[shape.clone()].copy_from_slice(&beta);
             q
         })
@@ -639,16 +660,15 @@ pub fn joint_shape(
                 nu *= 2.0;
                 continue;
             };
-            let trial_beta: Vec<f64> = (0..n)
-                .map(|k| clamp(shape.start + k, beta[k] + dbeta[k]))
-                .collect();
+            let trial_beta: Vec<f64> = (0..n).map(|k| clamp_beta(k, beta[k] + dbeta[k])).collect();
             let trial: Vec<Vec<f64>> = poses
                 .iter()
                 .zip(&dposes)
-                .map(|(p, d)| {
+                .zip(bounds)
+                .map(|((p, d), b)| {
                     let mut q = p.clone();
                     for (k, &i) in pose_free.iter().enumerate() {
-                        q[i] = clamp(i, q[i] + d[k]);
+                        q[i] = (q[i] + d[k]).clamp(b.lower[i], b.upper[i]);
                     }
                     q[shape.clone()].copy_from_slice(&trial_beta);
                     q
@@ -994,8 +1014,9 @@ mod tests {
                 / n as f64)
                 .sqrt()
         };
+        let boxes = vec![bounds.clone(); poses.len()];
         let (beta, fitted, solve) =
-            joint_shape(&energies, &poses, shape.clone(), &free, &bounds).unwrap();
+            joint_shape(&energies, &poses, shape.clone(), &free, &boxes).unwrap();
         assert!(fitted.iter().all(|p| p[shape.clone()] == beta[..]), "one β");
         assert!(
             (solve.energy_after - sequence(&fitted)).abs() <= 1e-9 * solve.energy_after,
@@ -1053,12 +1074,33 @@ mod tests {
             boxed_bounds.lower[i] = -0.1;
             boxed_bounds.upper[i] = 0.1;
         }
+        // Each frame in its own box: a box around its start, shape boxes that differ by frame
+        // (β in all of them: ±0.1).
+        let own: Vec<Bounds> = poses
+            .iter()
+            .enumerate()
+            .map(|(f, p)| {
+                let mut b = Bounds::local_in(&t.layout(), p);
+                for i in shape.clone() {
+                    b.lower[i] = boxed_bounds.lower[i] - 0.01 * f as f64;
+                    b.upper[i] = boxed_bounds.upper[i] + 0.01 * f as f64;
+                }
+                b
+            })
+            .collect();
         let (boxed, boxed_poses, _) =
-            joint_shape(&energies, &poses, shape.clone(), &free, &boxed_bounds).unwrap();
+            joint_shape(&energies, &poses, shape.clone(), &free, &own).unwrap();
         assert!(boxed.iter().all(|b| (-0.1..=0.1).contains(b)), "{boxed:?}");
-        assert!(boxed_poses.iter().all(|p| boxed_bounds.contains(p)));
-        // Mismatched inputs: an error, not a panic.
-        assert!(joint_shape(&energies, &poses[1..], shape.clone(), &free, &bounds).is_err());
-        assert!(joint_shape(&energies, &poses, 0..200, &free, &bounds).is_err());
+        assert!(boxed_poses.iter().zip(&own).all(|(p, b)| b.contains(p)));
+        // Mismatched inputs, boxes that share no β: an error, not a panic.
+        assert!(joint_shape(&energies, &poses[1..], shape.clone(), &free, &boxes).is_err());
+        assert!(joint_shape(&energies, &poses, shape.clone(), &free, &boxes[1..]).is_err());
+        assert!(joint_shape(&energies, &poses, 0..200, &free, &boxes).is_err());
+        let mut apart = boxes.clone();
+        let s0 = shape.start;
+        (apart[0].lower[s0], apart[0].upper[s0]) = (1.0, 2.0);
+        (apart[1].lower[s0], apart[1].upper[s0]) = (-2.0, -1.0);
+        let e = joint_shape(&energies, &poses, shape.clone(), &free, &apart).unwrap_err();
+        assert!(e.to_string().contains("do not overlap"), "{e}");
     }
 }
