@@ -385,8 +385,8 @@ struct FitCmd {
     neural_start: String,
     /// How a sequence estimates the subject's shape β: per-frame (free in every frame's fit),
     /// first-pass (the median β of up to 32 frames fitted on their own, then fixed) or joint
-    /// (the sequence fitted once, β solved over all its frames' energies, then fitted again
-    /// with that β fixed).
+    /// (the sequence fitted once; one β solved with every frame's pose over up to 512 frames'
+    /// energies, the shape prior counted once; the sequence fitted again with that β fixed).
     #[arg(long, default_value = "per-frame")]
     sequence_shape: String,
     /// The subject's shape β is known, not estimated (papers/002 §3.2, HMD): `truth` (each
