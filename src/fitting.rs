@@ -583,11 +583,15 @@ pub fn joint_shape(
         .map(|e| least_squares_variant(e, share))
         .collect::<Result<Vec<_>>>()?;
     // The system's entries: each frame's free pose entries, then β.
-    let pose_free: Vec<usize> = free
+    // The pose entries in the skeleton's elimination order (children before parents): the
+    // envelope factorisation of each frame's pose block then has no fill.
+    let rank = energies[0].template().elimination_rank();
+    let mut pose_free: Vec<usize> = free
         .iter()
         .copied()
         .filter(|i| !shape.contains(i))
         .collect();
+    pose_free.sort_by_key(|&i| rank.get(i).copied().unwrap_or(usize::MAX));
     let np = pose_free.len();
     let dofs: Vec<usize> = pose_free.iter().copied().chain(shape.clone()).collect();
     // β's box: every frame's shape box at once.
@@ -725,6 +729,7 @@ fn schur_step(
     damping: f64,
     scale: &(dyn Fn(f64) -> f64 + Sync),
 ) -> Option<(nalgebra::DVector<f64>, Vec<nalgebra::DVector<f64>>)> {
+    use lfit_model::energy::{envelope_cholesky, envelope_solve};
     use nalgebra::{DMatrix, DVector};
     use rayon::prelude::*;
     let n = summed_c.nrows();
@@ -733,16 +738,31 @@ fn schur_step(
         .par_iter()
         .map(|(a, b, _, gt, _)| {
             let np = a.nrows();
-            let mut damped = a.clone();
+            // Row-major lower triangle of Ã; the pose entries come in the skeleton's elimination
+            // order, so the envelope factorisation has no fill (`damped_step`'s reasoning).
             let max = (0..np).fold(0.0f64, |m, i| m.max(scale(a[(i, i)])));
-            for i in 0..np {
-                damped[(i, i)] += damping * scale(a[(i, i)]) + 1e-12 * max;
+            let mut damped = vec![0.0; np * np];
+            for r in 0..np {
+                for c in 0..=r {
+                    damped[r * np + c] = a[(r, c)];
+                }
+                damped[r * np + r] += damping * scale(a[(r, r)]) + 1e-12 * max;
             }
-            let chol = damped.cholesky()?;
-            let mut rhs = DMatrix::zeros(np, n + 1);
-            rhs.view_mut((0, 0), (np, n)).copy_from(b);
-            rhs.column_mut(n).copy_from(gt);
-            Some(chol.solve(&rhs))
+            let first = envelope_cholesky(&mut damped, np)?;
+            let mut x = DMatrix::zeros(np, n + 1);
+            for k in 0..=n {
+                let mut column: Vec<f64> = if k < n {
+                    b.column(k).iter().copied().collect()
+                } else {
+                    gt.iter().copied().collect()
+                };
+                envelope_solve(&damped, np, &first, &mut column);
+                if column.iter().any(|v| !v.is_finite()) {
+                    return None;
+                }
+                x.column_mut(k).copy_from_slice(&column);
+            }
+            Some(x)
         })
         .collect::<Option<_>>()?;
     let mut s = summed_c.clone();

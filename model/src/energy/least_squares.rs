@@ -124,6 +124,21 @@ pub fn damped_step(
 /// subtree: no fill, and the work is a fraction of the dense factorisation's.
 pub fn envelope_cholesky_solve(s: &mut [f64], m: usize, b: &mut [f64]) -> bool {
     debug_assert!(s.len() == m * m && b.len() == m);
+    match envelope_cholesky(s, m) {
+        Some(first) => {
+            envelope_solve(s, m, &first, b);
+            b.iter().all(|v| v.is_finite())
+        }
+        None => false,
+    }
+}
+
+/// The factorisation of [`envelope_cholesky_solve`] alone, for systems with several right-hand
+/// sides ([`envelope_solve`] each): `L` overwrites the lower triangle of `s` (`m × m`,
+/// row-major), and the result is each row's first nonzero column, which the solves need. `None`
+/// (leaving `s` undefined) when a pivot is not positive and finite.
+pub fn envelope_cholesky(s: &mut [f64], m: usize) -> Option<Vec<usize>> {
+    debug_assert!(s.len() == m * m);
     let first: Vec<usize> = (0..m)
         .map(|i| {
             s[i * m..i * m + i]
@@ -140,7 +155,7 @@ pub fn envelope_cholesky_solve(s: &mut [f64], m: usize, b: &mut [f64]) -> bool {
         let fj = first[j];
         let d = lj[j] - dot(&lj[fj..j], &lj[fj..j]);
         if !(d > 0.0 && d.is_finite()) {
-            return false;
+            return None;
         }
         lj[j] = d.sqrt();
         let inv = 1.0 / lj[j];
@@ -154,6 +169,13 @@ pub fn envelope_cholesky_solve(s: &mut [f64], m: usize, b: &mut [f64]) -> bool {
             row[j] = (row[j] - dot(&row[k0..j], &lj[k0..j])) * inv;
         }
     }
+    Some(first)
+}
+
+/// Solves `L Lᵀ x = b` with the factor [`envelope_cholesky`] left in `s` and its `first`
+/// columns; `b` becomes `x`.
+pub fn envelope_solve(s: &[f64], m: usize, first: &[usize], b: &mut [f64]) {
+    debug_assert!(s.len() == m * m && b.len() == m && first.len() == m);
     // L y = b, then Lᵀ x = y.
     for i in 0..m {
         let row = &s[i * m..i * m + i + 1];
@@ -167,7 +189,6 @@ pub fn envelope_cholesky_solve(s: &mut [f64], m: usize, b: &mut [f64]) -> bool {
             *bk -= lk * x;
         }
     }
-    b.iter().all(|v| v.is_finite())
 }
 
 /// The multiply-adds [`envelope_cholesky_solve`] does on the symmetric `a` with its entries
