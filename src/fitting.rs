@@ -409,14 +409,13 @@ fn shape_pass(
     energy: &dyn Fn(usize) -> Result<Energy>,
     seed: &dyn Fn(usize) -> u64,
 ) -> Result<ShapePass> {
-    let count = frames.len().min(FIRST_PASS_FRAMES);
-    // Evenly spread: the i-th of `count` picks the middle of its share of the sequence.
-    let picked: Vec<usize> = (0..count)
-        .map(|i| frames[(2 * i + 1) * frames.len() / (2 * count)])
+    let picked: Vec<usize> = spread(frames.len(), FIRST_PASS_FRAMES)
+        .into_iter()
+        .map(|k| frames[k])
         .collect();
     let mask = plan.mask_with(None)?;
     let (mut evaluations, mut time_s) = (0u64, 0.0);
-    let mut betas: Vec<Vec<f64>> = Vec::with_capacity(count);
+    let mut betas: Vec<Vec<f64>> = Vec::with_capacity(picked.len());
     let shape = plan.template.layout().range(Block::Shape);
     for group in picked.chunks(plan.batch.max(1)) {
         let energies = group
@@ -447,6 +446,15 @@ fn shape_pass(
         time_s,
         joint: None,
     })
+}
+
+/// Up to `count` of the positions `0..len`, evenly spread: the i-th picks the middle of its share
+/// (every position when `len ≤ count`). The frames of a β pass.
+fn spread(len: usize, count: usize) -> Vec<usize> {
+    let count = len.min(count);
+    (0..count)
+        .map(|i| (2 * i + 1) * len / (2 * count))
+        .collect()
 }
 
 /// The per-component median of `rows` (each `n` long; the mean of the two middle values for an
@@ -484,11 +492,7 @@ fn joint_shape_pass(
     })
     .context("the first pass of --sequence-shape joint")?;
     let timer = std::time::Instant::now();
-    // At most JOINT_SHAPE_FRAMES of them, evenly spread (the i-th the middle of its share).
-    let count = frames.len().min(JOINT_SHAPE_FRAMES);
-    let picked: Vec<usize> = (0..count)
-        .map(|i| (2 * i + 1) * frames.len() / (2 * count))
-        .collect();
+    let picked = spread(frames.len(), JOINT_SHAPE_FRAMES);
     let energies = picked
         .iter()
         .map(|&k| energy(frames[k]))
@@ -582,9 +586,8 @@ pub fn joint_shape(
         .iter()
         .map(|e| least_squares_variant(e, share))
         .collect::<Result<Vec<_>>>()?;
-    // The system's entries: each frame's free pose entries, then β.
-    // The pose entries in the skeleton's elimination order (children before parents): the
-    // envelope factorisation of each frame's pose block then has no fill.
+    // The system's entries: each frame's free pose entries, in the skeleton's elimination order
+    // (children before parents: the envelope factorisation of a pose block has no fill), then β.
     let rank = energies[0].template().elimination_rank();
     let mut pose_free: Vec<usize> = free
         .iter()
@@ -654,11 +657,10 @@ pub fn joint_shape(
         let summed_c = systems
             .iter()
             .fold(DMatrix::zeros(n, n), |s, (_, _, c, _, _)| s + c);
-        let scale = |d: f64| d.clamp(1e-6, 1e32);
         let mut improved = false;
         // Raise the damping until a step lowers the energy (at most 20 tries).
         for _ in 0..20 {
-            let step = schur_step(&systems, &summed_c, damping, &scale);
+            let step = schur_step(&systems, &summed_c, damping);
             let Some((dbeta, dposes)) = step else {
                 damping *= nu;
                 nu *= 2.0;
@@ -720,16 +722,16 @@ type FrameSystem = (
 );
 
 /// The damped Gauss-Newton step of [`joint_shape`]'s sequence system by the Schur complement on
-/// β: with `Ã_k = A_k + μ D_k` (`D` Marquardt's scaling, `scale` of each diagonal entry),
+/// β: with `Ã_k = A_k + μ D_k` (`D` Marquardt's scaling, damped as
+/// [`lfit_model::energy::damped_step`] damps),
 /// `(Σ_k C̃_k − B_kᵀ Ã_k⁻¹ B_k) Δβ = −Σ_k (g_β,k − B_kᵀ Ã_k⁻¹ g_θ,k)`, then
 /// `Δθ_k = −Ã_k⁻¹ (g_θ,k + B_k Δβ)`. `None` when a system is not positive definite.
 fn schur_step(
     systems: &[FrameSystem],
     summed_c: &nalgebra::DMatrix<f64>,
     damping: f64,
-    scale: &(dyn Fn(f64) -> f64 + Sync),
 ) -> Option<(nalgebra::DVector<f64>, Vec<nalgebra::DVector<f64>>)> {
-    use lfit_model::energy::{envelope_cholesky, envelope_solve};
+    use lfit_model::energy::{damped_system, envelope_cholesky, envelope_solve, marquardt_scaling};
     use nalgebra::{DMatrix, DVector};
     use rayon::prelude::*;
     let n = summed_c.nrows();
@@ -738,16 +740,11 @@ fn schur_step(
         .par_iter()
         .map(|(a, b, _, gt, _)| {
             let np = a.nrows();
-            // Row-major lower triangle of Ã; the pose entries come in the skeleton's elimination
-            // order, so the envelope factorisation has no fill (`damped_step`'s reasoning).
-            let max = (0..np).fold(0.0f64, |m, i| m.max(scale(a[(i, i)])));
-            let mut damped = vec![0.0; np * np];
-            for r in 0..np {
-                for c in 0..=r {
-                    damped[r * np + c] = a[(r, c)];
-                }
-                damped[r * np + r] += damping * scale(a[(r, r)]) + 1e-12 * max;
-            }
+            // The pose entries come in the skeleton's elimination order, so the envelope
+            // factorisation has no fill (`damped_step`'s reasoning).
+            let all: Vec<usize> = (0..np).collect();
+            let (diag, max) = marquardt_scaling(a, &all);
+            let mut damped = damped_system(a, &all, &diag, damping, max);
             let first = envelope_cholesky(&mut damped, np)?;
             let mut x = DMatrix::zeros(np, n + 1);
             for k in 0..=n {
@@ -766,9 +763,9 @@ fn schur_step(
         })
         .collect::<Option<_>>()?;
     let mut s = summed_c.clone();
-    let max = (0..n).fold(0.0f64, |m, i| m.max(scale(summed_c[(i, i)])));
+    let (diag, max) = marquardt_scaling(summed_c, &(0..n).collect::<Vec<_>>());
     for i in 0..n {
-        s[(i, i)] += damping * scale(summed_c[(i, i)]) + 1e-12 * max;
+        s[(i, i)] += damping * diag[i] + 1e-12 * max;
     }
     let mut rhs = DVector::zeros(n);
     for ((_, b, _, _, gb), x) in systems.iter().zip(&solved) {

@@ -96,8 +96,22 @@ pub fn damped_step(
     damping: f64,
     max_diag: f64,
 ) -> Option<DVector<f64>> {
+    let mut sys = damped_system(a, free, diag, damping, max_diag);
+    let mut h: Vec<f64> = free.iter().map(|&p| -g[p]).collect();
+    envelope_cholesky_solve(&mut sys, free.len(), &mut h).then(|| DVector::from_vec(h))
+}
+
+/// The damped system of [`damped_step`], `A + μ D + 1e-12 max(D) I` on the entries `free` (in
+/// their order), as the row-major lower triangle [`envelope_cholesky`] reads (the upper one is
+/// left zero): for solves with other right-hand sides than `−g`.
+pub fn damped_system(
+    a: &DMatrix<f64>,
+    free: &[usize],
+    diag: &[f64],
+    damping: f64,
+    max_diag: f64,
+) -> Vec<f64> {
     let m = free.len();
-    // Row-major lower triangle (the upper one is not read).
     let mut sys = vec![0.0; m * m];
     for (r, &pr) in free.iter().enumerate() {
         let row = &mut sys[r * m..r * m + r + 1];
@@ -108,8 +122,7 @@ pub fn damped_step(
         }
         row[r] += damping * diag[r] + 1e-12 * max_diag;
     }
-    let mut h: Vec<f64> = free.iter().map(|&p| -g[p]).collect();
-    envelope_cholesky_solve(&mut sys, m, &mut h).then(|| DVector::from_vec(h))
+    sys
 }
 
 /// Solves `S x = b` for a symmetric positive definite `S` (`m × m`, row-major; only the lower

@@ -32,8 +32,8 @@ use serde::{Deserialize, Serialize};
 
 pub use crate::observe::Scales;
 pub use least_squares::{
-    LeastSquares, RobustForm, damped_step, envelope_cholesky, envelope_cholesky_solve,
-    envelope_solve, envelope_work, marquardt_scaling,
+    LeastSquares, RobustForm, damped_step, damped_system, envelope_cholesky,
+    envelope_cholesky_solve, envelope_solve, envelope_work, marquardt_scaling,
 };
 pub use prior::AnglePrior;
 
