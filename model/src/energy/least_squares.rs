@@ -26,7 +26,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{AnglePrior, Energy, PenetrationForm, Target};
 use crate::error::{ModelError, Result};
-use crate::observe::{PoseJacobian, Sensor};
+use crate::observe::{PoseJacobian, Sensor, combine_rows};
 use crate::pose::rot_offset;
 
 /// Residuals and (optionally) their Jacobian at one parameter vector.
@@ -49,6 +49,21 @@ pub struct LeastSquares {
     /// [`Energy::residual`] gives it, from the same prediction: the unweighted, unfolded data
     /// residual the neural fitter reads as a feature.
     pub observation_residual: Vec<f64>,
+    /// The data rows in factored form, where the observation model has one
+    /// ([`crate::observe::ObservationModel::point_factors`]) and the Jacobian was asked for.
+    pub points: Option<PointFactors>,
+}
+
+/// Data rows `i < rows.len()` of a [`LeastSquares`] Jacobian as `aᵢᵀ ∂X_p/∂θ`: the Jacobian of
+/// one posed point `p` times a 3-vector, the robust folding and weights included (`aᵢ = 0` for
+/// an unseen row). [`LeastSquares::normal_equations`] adds each point's rows as one
+/// `∂X_pᵀ (Σ aᵢaᵢᵀ) ∂X_p`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PointFactors {
+    /// Each point's `3 × dim` Jacobian, row-major, one after the other.
+    pub points: Vec<f64>,
+    /// Per data row: its point and `a`.
+    pub rows: Vec<(usize, [f64; 3])>,
 }
 
 /// How the robust loss enters the least-squares form of the data term.
@@ -281,7 +296,15 @@ impl LeastSquares {
         // The open group's columns, and which columns are free.
         let mut columns: Vec<usize> = Vec::with_capacity(self.dim);
         let free: Vec<bool> = position.iter().map(|&p| p != usize::MAX).collect();
-        for (i, &r) in self.residuals.iter().enumerate() {
+        // Rows in factored form first: one 3-row update per point.
+        let factored = match &self.points {
+            Some(f) if !self.jacobian.is_empty() => {
+                self.accumulate_points(f, &position, &mut upper, &mut g, n);
+                f.rows.len()
+            }
+            _ => 0,
+        };
+        for (i, &r) in self.residuals.iter().enumerate().skip(factored) {
             if self.zero_rows.get(i).copied().unwrap_or(false) {
                 continue;
             }
@@ -325,6 +348,69 @@ impl LeastSquares {
         }
         accumulate(&mut upper, &mut g, n, &group, &values, &residuals[..rows]);
         (mirror(upper, n), g)
+    }
+
+    /// Adds the factored rows ([`PointFactors`]) to `JᵀJ`'s upper triangle and `Jᵀr`: per point
+    /// `C = Σ aᵢaᵢᵀ` and `b = Σ aᵢrᵢ` over its rows that are not zero, then
+    /// `JᵀJ[α][β] += ∂X_αᵀ C ∂X_β` and `Jᵀr[α] += ∂X_αᵀ b` over the point's nonzero free columns
+    /// (3 multiply-adds per pair of columns, where its k rows take k).
+    fn accumulate_points(
+        &self,
+        f: &PointFactors,
+        position: &[usize],
+        upper: &mut [f64],
+        g: &mut DVector<f64>,
+        n: usize,
+    ) {
+        let dim = self.dim;
+        let count = f.points.len() / (3 * dim);
+        let mut c = vec![[0.0f64; 9]; count];
+        let mut b = vec![[0.0f64; 3]; count];
+        let mut seen = vec![false; count];
+        for (i, &(p, a)) in f.rows.iter().enumerate() {
+            if self.zero_rows.get(i).copied().unwrap_or(false) {
+                continue;
+            }
+            let r = self.residuals[i];
+            seen[p] = true;
+            for x in 0..3 {
+                b[p][x] += a[x] * r;
+                for y in 0..3 {
+                    c[p][3 * x + y] += a[x] * a[y];
+                }
+            }
+        }
+        // The point's free nonzero columns: position, ∂X column, C ∂X column.
+        let mut columns: Vec<(usize, [f64; 3], [f64; 3])> = Vec::with_capacity(dim);
+        for p in (0..count).filter(|&p| seen[p]) {
+            let jp = &f.points[3 * p * dim..3 * (p + 1) * dim];
+            let cp = &c[p];
+            columns.clear();
+            for col in 0..dim {
+                let v = [jp[col], jp[dim + col], jp[2 * dim + col]];
+                let q = position[col];
+                if q == usize::MAX || v == [0.0; 3] {
+                    continue;
+                }
+                let w = [
+                    cp[0] * v[0] + cp[1] * v[1] + cp[2] * v[2],
+                    cp[3] * v[0] + cp[4] * v[1] + cp[5] * v[2],
+                    cp[6] * v[0] + cp[7] * v[1] + cp[8] * v[2],
+                ];
+                columns.push((q, v, w));
+            }
+            if !columns.is_sorted_by_key(|e| e.0) {
+                columns.sort_unstable_by_key(|e| e.0);
+            }
+            let bp = b[p];
+            for (k, &(qa, va, wa)) in columns.iter().enumerate() {
+                g[qa] += va[0] * bp[0] + va[1] * bp[1] + va[2] * bp[2];
+                let row = &mut upper[qa * n..(qa + 1) * n];
+                for &(qb, vb, _) in &columns[k..] {
+                    row[qb] += wa[0] * vb[0] + wa[1] * vb[1] + wa[2] * vb[2];
+                }
+            }
+        }
     }
 
     /// [`LeastSquares::normal_equations`] one row at a time: the reference it is tested against
@@ -606,6 +692,7 @@ impl Energy {
         let mut data_energy = 0.0;
         let mut data_rows = 0..0;
         let mut observation_residual = Vec::new();
+        let mut points: Option<PointFactors> = None;
 
         // Data rows: the prediction's Jacobian is written into the block, then folded in place.
         if let Target::Sparse { values, visible } = &self.target {
@@ -619,7 +706,22 @@ impl Energy {
                     inner: pj,
                     kin: &kin,
                 };
-                model.jacobian(&view, &mut jac, &mut jacobian[..p * dim]);
+                let mut f = PointFactors {
+                    points: Vec::new(),
+                    rows: Vec::new(),
+                };
+                if model.point_factors(&view, &mut jac, &mut f.points, &mut f.rows)
+                    && f.rows.len() == p
+                {
+                    for (i, &(q, a)) in f.rows.iter().enumerate() {
+                        let jq = &f.points[3 * q * dim..3 * (q + 1) * dim];
+                        let out = &mut jacobian[i * dim..(i + 1) * dim];
+                        combine_rows(out, glam::DVec3::from_array(a), jq, dim);
+                    }
+                    points = Some(f);
+                } else {
+                    model.jacobian(&view, &mut jac, &mut jacobian[..p * dim]);
+                }
             }
             let seen = self.groups.iter().filter(|g| visible[g.start]).count();
             let c0 = if seen > 0 {
@@ -635,6 +737,11 @@ impl Energy {
                 if !visible[g.start] || c0 == 0.0 {
                     if with_jacobian {
                         jacobian[rows].fill(0.0);
+                    }
+                    if let Some(f) = points.as_mut() {
+                        f.rows[g.start..g.start + g.len]
+                            .iter_mut()
+                            .for_each(|r| r.1 = [0.0; 3]);
                     }
                     continue;
                 }
@@ -669,6 +776,21 @@ impl Energy {
                     } else {
                         let f = c0 * phi / g.sigma;
                         block.iter_mut().for_each(|d| *d *= f);
+                    }
+                    // The same folding on the factors' vectors.
+                    if let Some(f) = points.as_mut() {
+                        let rows = &mut f.rows[g.start..g.start + g.len];
+                        let mut va = [0.0; 3];
+                        for (r, &uk) in rows.iter().zip(&u) {
+                            for x in 0..3 {
+                                va[x] += uk * r.1[x] / g.sigma;
+                            }
+                        }
+                        for (r, &uk) in rows.iter_mut().zip(&u) {
+                            for x in 0..3 {
+                                r.1[x] = c0 * (phi * r.1[x] / g.sigma + dphi * uk * va[x]);
+                            }
+                        }
                     }
                 }
             }
@@ -779,6 +901,7 @@ impl Energy {
             zero_rows,
             energy,
             observation_residual,
+            points,
         }
     }
 }

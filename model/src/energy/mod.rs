@@ -32,7 +32,7 @@ use serde::{Deserialize, Serialize};
 
 pub use crate::observe::Scales;
 pub use least_squares::{
-    LeastSquares, RobustForm, damped_step, damped_system, envelope_cholesky,
+    LeastSquares, PointFactors, RobustForm, damped_step, damped_system, envelope_cholesky,
     envelope_cholesky_solve, envelope_solve, envelope_work, marquardt_scaling,
 };
 pub use prior::AnglePrior;

@@ -849,7 +849,10 @@ mod least_squares_form {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(112);
         let dim = t.layout().dim();
         for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
-            let ls = makehuman_system(&t, modality, &mut rng);
+            let mut ls = makehuman_system(&t, modality, &mut rng);
+            // keypoints2d's rows come factored (`PointFactors`, tested below); here its dense rows.
+            assert_eq!(ls.points.is_some(), modality == Modality::Keypoints2d);
+            ls.points = None;
             let all: Vec<usize> = (0..dim).collect();
             let some: Vec<usize> = (0..dim).filter(|c| c % 3 != 1).collect();
             let shuffled: Vec<usize> = some.iter().rev().copied().collect();
@@ -859,6 +862,91 @@ mod least_squares_form {
                 assert!(g.iter().any(|v| *v != 0.0), "{modality}: Jᵀr is zero");
                 assert_eq!(a, a0, "{modality}: JᵀJ over {} columns", dofs.len());
                 assert_eq!(g, g0, "{modality}: Jᵀr over {} columns", dofs.len());
+            }
+        }
+    }
+
+    /// keypoints2d's data rows in factored form (each joint centre's Jacobian times a camera's
+    /// projection row, folded by the robust loss): every factored row is the dense Jacobian's
+    /// row, in the folded and in Triggs's form, with the Huber loss active on some groups and
+    /// unseen groups zero; and the normal equations that add each joint's rows as one
+    /// `∂Xᵀ C ∂X` are the row-by-row ones to 1e-12 relative, over every, some and shuffled
+    /// columns. Breaks if the factors miss the folding's `φ'` term, an unseen group or a row.
+    #[test]
+    fn factored_keypoint_rows_are_the_dense_rows_and_give_the_same_normal_equations() {
+        use rand::SeedableRng;
+        let t = makehuman_body();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(115);
+        let dim = t.layout().dim();
+        let (e0, x) = makehuman_energy(&t, Modality::Keypoints2d, &mut rng);
+        // Every fifth keypoint unseen.
+        let Target::Sparse { values, visible } = e0.target.clone() else {
+            unreachable!()
+        };
+        let visible: Vec<bool> = visible
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| v && (i / 2) % 5 != 3)
+            .collect();
+        let e = Energy::new(
+            t.clone(),
+            e0.sensor.clone(),
+            Target::Sparse { values, visible },
+            EnergyConfig::default().for_gradient(),
+        )
+        .unwrap();
+        for form in [RobustForm::Folded, RobustForm::Triggs] {
+            let ls = e.least_squares_in(&x, true, form).unwrap();
+            let f = ls.points.as_ref().expect("keypoints2d rows factored");
+            let p = f.rows.len();
+            assert!(p > 0 && p < ls.residuals.len());
+            let scale = ls.jacobian.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let mut unseen = 0;
+            for (i, &(q, a)) in f.rows.iter().enumerate() {
+                let jq = &f.points[3 * q * dim..3 * (q + 1) * dim];
+                let row = ls.row(i);
+                for c in 0..dim {
+                    let v = a[0] * jq[c] + a[1] * jq[dim + c] + a[2] * jq[2 * dim + c];
+                    assert!(
+                        (v - row[c]).abs() <= 1e-12 * scale,
+                        "{form:?}: row {i} column {c}: {v} against {}",
+                        row[c]
+                    );
+                }
+                unseen += usize::from(ls.zero_rows[i]);
+                if ls.zero_rows[i] {
+                    assert_eq!(a, [0.0; 3], "{form:?}: unseen row {i} not zero");
+                }
+            }
+            // Groups past the Huber threshold (δ = 3 noise scales): there φ' ≠ 0 in the folding.
+            let residual = e.residual(&x);
+            let sigma = e.config.scales.pixel;
+            let robust = (0..p / 2)
+                .filter(|&k| !ls.zero_rows[2 * k])
+                .filter(|&k| residual[2 * k].hypot(residual[2 * k + 1]) / sigma > 3.0)
+                .count();
+            assert!(
+                unseen > 0 && robust > 0,
+                "{form:?}: {unseen} unseen, {robust} past Huber"
+            );
+            let all: Vec<usize> = (0..dim).collect();
+            let some: Vec<usize> = (0..dim).filter(|c| c % 3 != 1).collect();
+            let shuffled: Vec<usize> = some.iter().rev().copied().collect();
+            for dofs in [all, some, shuffled] {
+                let (a, g) = ls.normal_equations(&dofs);
+                let (a0, g0) = ls.normal_equations_by_row(&dofs);
+                let sa = a0.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                let sg = g0.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                assert!(
+                    (&a - &a0).amax() <= 1e-12 * sa,
+                    "{form:?}: JᵀJ {:e}",
+                    (&a - &a0).amax()
+                );
+                assert!(
+                    (&g - &g0).amax() <= 1e-12 * sg,
+                    "{form:?}: Jᵀr {:e}",
+                    (&g - &g0).amax()
+                );
             }
         }
     }

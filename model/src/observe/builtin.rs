@@ -154,22 +154,38 @@ impl ObservationModel for KeypointSetup {
 
     fn jacobian(&self, posed: &PosedView<'_>, jac: &mut PoseJacobian<'_, '_>, out: &mut [f64]) {
         let d = jac.dim();
-        let nj = posed.num_joints();
-        let mut joint_jac = vec![0.0; 3 * nj * d];
-        for j in 0..nj {
-            jac.joint(j, &mut joint_jac[3 * j * d..3 * (j + 1) * d]);
+        let (mut points, mut rows) = (Vec::new(), Vec::new());
+        self.point_factors(posed, jac, &mut points, &mut rows);
+        for (i, &(j, a)) in rows.iter().enumerate() {
+            let jj = &points[3 * j * d..3 * (j + 1) * d];
+            combine_rows(&mut out[i * d..(i + 1) * d], DVec3::from_array(a), jj, d);
         }
-        for (c, cam) in self.cameras.iter().enumerate() {
+    }
+
+    /// Each joint centre's Jacobian, and per row the camera's projection row `∂uv/∂X`.
+    fn point_factors(
+        &self,
+        posed: &PosedView<'_>,
+        jac: &mut PoseJacobian<'_, '_>,
+        points: &mut Vec<f64>,
+        rows: &mut Vec<(usize, [f64; 3])>,
+    ) -> bool {
+        let d = jac.dim();
+        let nj = posed.num_joints();
+        points.clear();
+        points.resize(3 * nj * d, 0.0);
+        for j in 0..nj {
+            jac.joint(j, &mut points[3 * j * d..3 * (j + 1) * d]);
+        }
+        rows.clear();
+        for cam in &self.cameras {
             let rot_t = cam.rot().transpose();
             for j in 0..nj {
                 let (_, dq) = project(cam, posed.joint(j));
-                let jj = &joint_jac[3 * j * d..3 * (j + 1) * d];
-                for (r, dq) in dq.iter().enumerate() {
-                    let row = 2 * (c * nj + j) + r;
-                    combine_rows(&mut out[row * d..(row + 1) * d], rot_t * *dq, jj, d);
-                }
+                rows.extend(dq.iter().map(|dq| (j, (rot_t * *dq).to_array())));
             }
         }
+        true
     }
 
     fn backprop(&self, posed: &PosedView<'_>, dpred: &[f64], grad: &mut PoseGradient<'_, '_>) {

@@ -11,6 +11,7 @@
 //! cloud, distance transform, silhouette masks: [`scan`]) and the noise synthesis adds ([`noise`]).
 
 mod builtin;
+pub(crate) use builtin::combine_rows;
 pub mod camera;
 mod landmarks;
 pub mod noise;
@@ -234,6 +235,24 @@ pub trait ObservationModel: fmt::Debug + Send + Sync {
     /// The Jacobian of the prediction over the whole parameter vector: `dim × jac.dim()`,
     /// row-major, written into `out`.
     fn jacobian(&self, posed: &PosedView<'_>, jac: &mut PoseJacobian<'_, '_>, out: &mut [f64]);
+
+    /// The Jacobian of the prediction in factored form, where every row is `aᵀ ∂X/∂θ` for a
+    /// 3-vector `a` and the Jacobian `∂X/∂θ` of one posed point (keypoints2d: a joint centre
+    /// seen through a camera's projection). Fills `points` (each point's `3 × jac.dim()`
+    /// Jacobian, row-major, one after the other) and `rows` (per prediction entry: its point and
+    /// `a`; cleared first) and returns true; the default returns false and [`Self::jacobian`]
+    /// serves. Where it returns true, `aᵀ ∂X/∂θ` must be [`Self::jacobian`]'s row. The
+    /// least-squares normal equations use it: a point seen in k rows costs one update of
+    /// `∂Xᵀ (Σ a aᵀ) ∂X` instead of k row updates ([`crate::energy::LeastSquares::normal_equations`]).
+    fn point_factors(
+        &self,
+        _posed: &PosedView<'_>,
+        _jac: &mut PoseJacobian<'_, '_>,
+        _points: &mut Vec<f64>,
+        _rows: &mut Vec<(usize, [f64; 3])>,
+    ) -> bool {
+        false
+    }
 
     /// Adds `(∂prediction/∂θ)ᵀ dpred` to `grad`. The default goes through [`Self::jacobian`];
     /// the built-in models override it with cheaper reverse-mode sums.
