@@ -853,10 +853,7 @@ mod least_squares_form {
             // keypoints2d's rows come factored (`PointFactors`, tested below); here its dense rows.
             assert_eq!(ls.points.is_some(), modality == Modality::Keypoints2d);
             ls.points = None;
-            let all: Vec<usize> = (0..dim).collect();
-            let some: Vec<usize> = (0..dim).filter(|c| c % 3 != 1).collect();
-            let shuffled: Vec<usize> = some.iter().rev().copied().collect();
-            for dofs in [all, some, shuffled] {
+            for dofs in column_sets(dim) {
                 let (a, g) = ls.normal_equations(&dofs);
                 let (a0, g0) = ls.normal_equations_by_row(&dofs);
                 assert!(g.iter().any(|v| *v != 0.0), "{modality}: Jᵀr is zero");
@@ -864,6 +861,14 @@ mod least_squares_form {
                 assert_eq!(g, g0, "{modality}: Jᵀr over {} columns", dofs.len());
             }
         }
+    }
+
+    /// Every column, two thirds of them, and those in reverse order: the column sets the
+    /// normal equations are checked over.
+    fn column_sets(dim: usize) -> [Vec<usize>; 3] {
+        let some: Vec<usize> = (0..dim).filter(|c| c % 3 != 1).collect();
+        let shuffled: Vec<usize> = some.iter().rev().copied().collect();
+        [(0..dim).collect(), some, shuffled]
     }
 
     /// keypoints2d's data rows in factored form (each joint centre's Jacobian times a camera's
@@ -929,10 +934,7 @@ mod least_squares_form {
                 unseen > 0 && robust > 0,
                 "{form:?}: {unseen} unseen, {robust} past Huber"
             );
-            let all: Vec<usize> = (0..dim).collect();
-            let some: Vec<usize> = (0..dim).filter(|c| c % 3 != 1).collect();
-            let shuffled: Vec<usize> = some.iter().rev().copied().collect();
-            for dofs in [all, some, shuffled] {
+            for dofs in column_sets(dim) {
                 let (a, g) = ls.normal_equations(&dofs);
                 let (a0, g0) = ls.normal_equations_by_row(&dofs);
                 let sa = a0.iter().fold(0.0f64, |m, v| m.max(v.abs()));
