@@ -69,18 +69,45 @@ impl TruthMesh {
 /// shape coefficients β — the per-vertex error in the T-pose that body-shape estimation reports
 /// (e.g. PVE-T), where a β RMS weighs every coefficient alike whatever it does to the surface.
 /// `None` for a model without shape coefficients.
+///
+/// At the rest pose the skinning is the identity and the pose correctives are zero, so the two
+/// meshes differ by the blend shapes of the coefficients' difference alone: `S (β − β*)`, one
+/// pass over the shape directions instead of two posed meshes (0 when the coefficients agree).
 pub fn shape_v2v_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> Option<f64> {
     let layout = template.layout();
     let shape = layout.range(crate::layout::Block::Shape);
     if shape.is_empty() || fitted.len() < shape.end || truth.len() < shape.end {
         return None;
     }
-    let rest = |params: &[f64]| {
-        let mut p = vec![0.0; layout.dim()];
-        p[shape.clone()].copy_from_slice(&params[shape.clone()]);
-        posed_mesh(template, &p)
-    };
-    Some(mean_distance_mm(&rest(fitted), &rest(truth)))
+    // The shape coefficients are the first columns of the directions (β before ψ).
+    let delta: Vec<(usize, f64)> = shape
+        .clone()
+        .enumerate()
+        .map(|(j, i)| (j, fitted[i] - truth[i]))
+        .filter(|&(_, d)| d != 0.0)
+        .collect();
+    if delta.is_empty() {
+        return Some(0.0);
+    }
+    let morph = &template.morph;
+    let k = morph.coefficients();
+    let n = template.num_vertices();
+    let sum: f64 = morph
+        .dirs
+        .chunks_exact(3 * k)
+        .take(n)
+        .map(|rows| {
+            (0..3)
+                .map(|a| {
+                    let row = &rows[a * k..(a + 1) * k];
+                    let c: f64 = delta.iter().map(|&(j, d)| row[j] * d).sum();
+                    c * c
+                })
+                .sum::<f64>()
+                .sqrt()
+        })
+        .sum();
+    Some(1000.0 * sum / n.max(1) as f64)
 }
 
 /// Mean distance between corresponding posed joint centres, in mm.
@@ -307,8 +334,8 @@ mod tests {
     use crate::pose::POSE_DIM;
 
     /// The shape error sees β alone (poses and translation do not count), and is the mean
-    /// length of the shape directions' displacement `S (β − β*)` per vertex, computed here from
-    /// the blend shapes directly; a rigid model has none.
+    /// distance between the rest-pose meshes of the two coefficient vectors, posed and skinned
+    /// here (the function takes the blend shapes of their difference); a rigid model has none.
     #[test]
     fn shape_v2v_is_the_rest_mesh_distance_of_the_coefficients() {
         let (t, _) = crate::body::morphable_default_template().unwrap();
@@ -325,26 +352,13 @@ mod tests {
         fitted[0] = 0.4;
         fitted[crate::pose::rot_offset(3)] = 0.7;
         let e = shape_v2v_mm(&t, &fitted, &truth).unwrap();
-        let k = t.morph.coefficients();
-        let n = t.num_vertices();
-        let direct = (0..n)
-            .map(|v| {
-                let d: f64 = (0..3)
-                    .map(|a| {
-                        let row = &t.morph.dirs[(3 * v + a) * k..(3 * v + a) * k + k];
-                        let c: f64 = shape
-                            .clone()
-                            .enumerate()
-                            .map(|(j, i)| f64::from(row[j]) * (fitted[i] - truth[i]))
-                            .sum();
-                        c * c
-                    })
-                    .sum();
-                d.sqrt()
-            })
-            .sum::<f64>()
-            * 1000.0
-            / n as f64;
+        // The rest-pose meshes themselves: every rotation and the translation zero.
+        let rest = |params: &[f64]| {
+            let mut p = vec![0.0; layout.dim()];
+            p[shape.clone()].copy_from_slice(&params[shape.clone()]);
+            posed_mesh(&t, &p)
+        };
+        let direct = mean_distance_mm(&rest(&fitted), &rest(&truth));
         assert!(direct > 1.0, "{direct}");
         assert!((e - direct).abs() < 1e-3 * direct, "{e} against {direct}");
         let mut same_shape = truth.clone();
