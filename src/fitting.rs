@@ -731,7 +731,7 @@ fn schur_step(
     summed_c: &nalgebra::DMatrix<f64>,
     damping: f64,
 ) -> Option<(nalgebra::DVector<f64>, Vec<nalgebra::DVector<f64>>)> {
-    use lfit_model::energy::{damped_system, envelope_cholesky, envelope_solve, marquardt_scaling};
+    use lfit_model::energy::{DampedFactor, marquardt_scaling};
     use nalgebra::{DMatrix, DVector};
     use rayon::prelude::*;
     let n = summed_c.nrows();
@@ -744,8 +744,7 @@ fn schur_step(
             // factorisation has no fill (`damped_step`'s reasoning).
             let all: Vec<usize> = (0..np).collect();
             let (diag, max) = marquardt_scaling(a, &all);
-            let mut damped = damped_system(a, &all, &diag, damping, max);
-            let first = envelope_cholesky(&mut damped, np)?;
+            let factor = DampedFactor::new(a, &all, &diag, damping, max)?;
             let mut x = DMatrix::zeros(np, n + 1);
             for k in 0..=n {
                 let mut column: Vec<f64> = if k < n {
@@ -753,8 +752,7 @@ fn schur_step(
                 } else {
                     gt.iter().copied().collect()
                 };
-                envelope_solve(&damped, np, &first, &mut column);
-                if column.iter().any(|v| !v.is_finite()) {
+                if !factor.solve(&mut column) {
                     return None;
                 }
                 x.column_mut(k).copy_from_slice(&column);

@@ -34,9 +34,7 @@
 //! gets its Jacobian then (counted as a gradient evaluation: a rejected trial costs only its
 //! residuals).
 
-use lfit_model::energy::{
-    Energy, RobustForm, damped_system, envelope_cholesky, envelope_solve, marquardt_scaling,
-};
+use lfit_model::energy::{DampedFactor, Energy, RobustForm, marquardt_scaling};
 use lfit_model::pose::Bounds;
 use nalgebra::DVector;
 use serde::Serialize;
@@ -135,35 +133,6 @@ impl Fitter for LeastSquaresFitter {
     }
 }
 
-/// The damped system `K = A + μD + 1e-12 max(D) I` on the entries `free`, factorised once
-/// ([`damped_system`], [`envelope_cholesky`]) for every right-hand side a step needs.
-struct DampedFactor {
-    factor: Vec<f64>,
-    first: Vec<usize>,
-    m: usize,
-}
-
-impl DampedFactor {
-    fn new(
-        a: &nalgebra::DMatrix<f64>,
-        free: &[usize],
-        diag: &[f64],
-        damping: f64,
-        max_diag: f64,
-    ) -> Option<Self> {
-        let m = free.len();
-        let mut factor = damped_system(a, free, diag, damping, max_diag);
-        let first = envelope_cholesky(&mut factor, m)?;
-        Some(Self { factor, first, m })
-    }
-
-    /// `K⁻¹ b`, in place; false when the result is not finite.
-    fn solve(&self, b: &mut [f64]) -> bool {
-        envelope_solve(&self.factor, self.m, &self.first, b);
-        b.iter().all(|v| v.is_finite())
-    }
-}
-
 /// Working-set changes of [`box_step`] at most per factorisation (each costs one solve).
 const BOX_CHANGES: usize = 16;
 
@@ -182,10 +151,11 @@ const BOX_PEELS: usize = 4;
 const BOX_PEEL_ABOVE: usize = 8;
 
 /// Levenberg–Marquardt's step inside the box: the minimiser of the damped model
-/// `q(s) = 2gᵀs + sᵀKs`, `K = A + μD + 1e-12 max(D) I` ([`damped_system`]), over
-/// `lo ≤ s ≤ hi` (`lo ≤ 0 ≤ hi`; every slice indexed like `free`, the positions of `a` and `g`
-/// in elimination order), by the primal active-set method for convex quadratic programs
-/// (Nocedal & Wright, *Numerical Optimization*, 2nd ed., 2006, Algorithm 16.3) from `s = 0`.
+/// `q(s) = 2gᵀs + sᵀKs`, `K = A + μD + 1e-12 max(D) I` ([`lfit_model::energy::damped_system`],
+/// factorised as [`DampedFactor`]), over `lo ≤ s ≤ hi` (`lo ≤ 0 ≤ hi`; every slice indexed like
+/// `free`, the positions of `a` and `g` in elimination order), by the primal active-set method
+/// for convex quadratic programs (Nocedal & Wright, *Numerical Optimization*, 2nd ed., 2006,
+/// Algorithm 16.3) from `s = 0`.
 ///
 /// Entries on a bound that the unconstrained step `h = −K⁻¹g` would leave are held at zero:
 /// through the working set below when they are few, otherwise taken out of the system and
@@ -440,6 +410,15 @@ impl StageSolver for LeastSquaresFitter {
                 break;
             }
             let (diag, max_diag) = marquardt_scaling(&a, &free);
+            // How far each free entry may move: LM's box (the same for every damping tried).
+            let lo: Vec<f64> = free
+                .iter()
+                .map(|&p| (bounds.lower[dofs[p]] - x[dofs[p]]).min(0.0))
+                .collect();
+            let hi: Vec<f64> = free
+                .iter()
+                .map(|&p| (bounds.upper[dofs[p]] - x[dofs[p]]).max(0.0))
+                .collect();
             // Gauss-Newton's halving factor along its direction.
             let mut alpha = 1.0;
             loop {
@@ -449,28 +428,18 @@ impl StageSolver for LeastSquaresFitter {
                 };
                 let solved = match self.method {
                     // LM: the damped model's minimiser inside the box (`box_step`).
-                    LeastSquaresMethod::Lm => {
-                        let lo: Vec<f64> = free
-                            .iter()
-                            .map(|&p| (bounds.lower[dofs[p]] - x[dofs[p]]).min(0.0))
-                            .collect();
-                        let hi: Vec<f64> = free
-                            .iter()
-                            .map(|&p| (bounds.upper[dofs[p]] - x[dofs[p]]).max(0.0))
-                            .collect();
-                        box_step(
-                            &a,
-                            &g,
-                            &free,
-                            &diag,
-                            damping,
-                            max_diag,
-                            &lo,
-                            &hi,
-                            BOX_PEEL_ABOVE,
-                        )
-                        .map(|(h, _)| h)
-                    }
+                    LeastSquaresMethod::Lm => box_step(
+                        &a,
+                        &g,
+                        &free,
+                        &diag,
+                        damping,
+                        max_diag,
+                        &lo,
+                        &hi,
+                        BOX_PEEL_ABOVE,
+                    )
+                    .map(|(h, _)| h),
                     LeastSquaresMethod::Gn => damped_step(&a, &g, &free, &diag, damping, max_diag)
                         .map(|h| h.iter().copied().collect()),
                 };

@@ -26,7 +26,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{AnglePrior, Energy, PenetrationForm, Target};
 use crate::error::{ModelError, Result};
-use crate::observe::{PoseJacobian, Sensor, combine_rows};
+use crate::observe::{PoseJacobian, Sensor, expand_point_factors};
 use crate::pose::rot_offset;
 
 /// Residuals and (optionally) their Jacobian at one parameter vector.
@@ -96,7 +96,7 @@ pub fn marquardt_scaling(a: &DMatrix<f64>, free: &[usize]) -> (Vec<f64>, f64) {
 /// The step of one damped Gauss-Newton system on the entries `free` (positions in `a` and `g`):
 /// `(A + μ D + 1e-12 max(D) I) h = −g` with `A = JᵀJ`, `g = Jᵀr`, `D = diag` (Marquardt's
 /// scaling) and `μ = damping` (0: Gauss-Newton), by Cholesky in envelope form
-/// ([`envelope_cholesky_solve`]); `None` when the system is not positive definite. `h[k]` is the
+/// ([`DampedFactor`]); `None` when the system is not positive definite. `h[k]` is the
 /// step of entry `free[k]`; listing `free` in the model's elimination order
 /// ([`crate::Template::elimination_rank`]: children before parents, then the entries every row
 /// shares) makes the factorisation cost what the Jacobian's tree structure needs, not `m³/6`.
@@ -111,9 +111,41 @@ pub fn damped_step(
     damping: f64,
     max_diag: f64,
 ) -> Option<DVector<f64>> {
-    let mut sys = damped_system(a, free, diag, damping, max_diag);
+    let factor = DampedFactor::new(a, free, diag, damping, max_diag)?;
     let mut h: Vec<f64> = free.iter().map(|&p| -g[p]).collect();
-    envelope_cholesky_solve(&mut sys, free.len(), &mut h).then(|| DVector::from_vec(h))
+    factor.solve(&mut h).then(|| DVector::from_vec(h))
+}
+
+/// The damped system of [`damped_step`] on the entries `free` ([`damped_system`]), factorised
+/// once ([`envelope_cholesky`]) for every right-hand side a solve needs: `−g` ([`damped_step`]),
+/// the columns of Levenberg–Marquardt's box step, the sequence β solve's Schur complement.
+pub struct DampedFactor {
+    factor: Vec<f64>,
+    first: Vec<usize>,
+    m: usize,
+}
+
+impl DampedFactor {
+    /// `None` when the damped system is not positive definite.
+    pub fn new(
+        a: &DMatrix<f64>,
+        free: &[usize],
+        diag: &[f64],
+        damping: f64,
+        max_diag: f64,
+    ) -> Option<Self> {
+        let m = free.len();
+        let mut factor = damped_system(a, free, diag, damping, max_diag);
+        let first = envelope_cholesky(&mut factor, m)?;
+        Some(Self { factor, first, m })
+    }
+
+    /// `b` becomes the system's inverse times `b` ([`envelope_solve`]); false when that is not
+    /// finite.
+    pub fn solve(&self, b: &mut [f64]) -> bool {
+        envelope_solve(&self.factor, self.m, &self.first, b);
+        b.iter().all(|v| v.is_finite())
+    }
 }
 
 /// The damped system of [`damped_step`], `A + μ D + 1e-12 max(D) I` on the entries `free` (in
@@ -713,11 +745,7 @@ impl Energy {
                 if model.point_factors(&view, &mut jac, &mut f.points, &mut f.rows)
                     && f.rows.len() == p
                 {
-                    for (i, &(q, a)) in f.rows.iter().enumerate() {
-                        let jq = &f.points[3 * q * dim..3 * (q + 1) * dim];
-                        let out = &mut jacobian[i * dim..(i + 1) * dim];
-                        combine_rows(out, glam::DVec3::from_array(a), jq, dim);
-                    }
+                    expand_point_factors(&f.points, &f.rows, dim, &mut jacobian[..p * dim]);
                     points = Some(f);
                 } else {
                     model.jacobian(&view, &mut jac, &mut jacobian[..p * dim]);

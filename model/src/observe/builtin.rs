@@ -41,6 +41,24 @@ pub(crate) fn combine_rows(out: &mut [f64], a: DVec3, rows: &[f64], d: usize) {
     }
 }
 
+/// The dense Jacobian rows of a factored one ([`ObservationModel::point_factors`]): row `i` is
+/// `aᵢᵀ ∂X_p/∂θ` for `rows[i] = (p, aᵢ)`, each point's `3 × d` Jacobian in `points`.
+pub(crate) fn expand_point_factors(
+    points: &[f64],
+    rows: &[(usize, [f64; 3])],
+    d: usize,
+    out: &mut [f64],
+) {
+    for (&(p, a), row) in rows.iter().zip(out.chunks_exact_mut(d)) {
+        combine_rows(
+            row,
+            DVec3::from_array(a),
+            &points[3 * p * d..3 * (p + 1) * d],
+            d,
+        );
+    }
+}
+
 impl ObservationModel for MarkerSetup {
     fn name(&self) -> &str {
         "markers"
@@ -153,13 +171,9 @@ impl ObservationModel for KeypointSetup {
     }
 
     fn jacobian(&self, posed: &PosedView<'_>, jac: &mut PoseJacobian<'_, '_>, out: &mut [f64]) {
-        let d = jac.dim();
         let (mut points, mut rows) = (Vec::new(), Vec::new());
         self.point_factors(posed, jac, &mut points, &mut rows);
-        for (i, &(j, a)) in rows.iter().enumerate() {
-            let jj = &points[3 * j * d..3 * (j + 1) * d];
-            combine_rows(&mut out[i * d..(i + 1) * d], DVec3::from_array(a), jj, d);
-        }
+        expand_point_factors(&points, &rows, jac.dim(), out);
     }
 
     /// Each joint centre's Jacobian, and per row the camera's projection row `∂uv/∂X`.

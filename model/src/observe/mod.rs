@@ -11,7 +11,7 @@
 //! cloud, distance transform, silhouette masks: [`scan`]) and the noise synthesis adds ([`noise`]).
 
 mod builtin;
-pub(crate) use builtin::combine_rows;
+pub(crate) use builtin::expand_point_factors;
 pub mod camera;
 mod landmarks;
 pub mod noise;
