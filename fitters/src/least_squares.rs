@@ -5,7 +5,8 @@
 //! `(JᵀJ + μ D) h = −Jᵀr` by Cholesky in envelope form, the entries ordered children before
 //! parents so the factor has no fill ([`damped_step`], `Template::elimination_rank`), with
 //! `D = diag(JᵀJ)` clamped to `[1e-6, 1e32]` (Marquardt's scaling, so metres, radians and shape
-//! coefficients need no hand-set scales) and `μ = 1/radius`. The radius
+//! coefficients need no hand-set scales) and raised to at least `3e-3 max(D)` (lfit's
+//! `scaling_floor`, below), and `μ = 1/radius`. The radius
 //! starts at 1e4 and follows Nielsen's update: on a step with gain ratio `ρ > 1e-3` the radius is
 //! divided by `max(1/3, 1 − (2ρ − 1)³)` and the growth factor reset to 2; on a failed step it is
 //! divided by the growth factor, which doubles. The defaults are Ceres's
@@ -16,6 +17,22 @@
 //! sparse modality and on the captured clip, mean energies equal to four digits, V2V within
 //! 0.1 %, and scipy's parity test passing. (Measured before the box step, 1e-5 left one face frame
 //! of that test 1.03 % above scipy's energy, and 1e-6 stayed then.)
+//!
+//! **The scaling's floor** (`LeastSquaresOptions::scaling_floor`, 3e-3; not in Ceres, whose
+//! floor is the absolute `min_lm_diagonal` 1e-6): an entry the data barely see (a finger joint
+//! of the MakeHuman body under 39 markers, a twist under head and hand tracking) has a diagonal
+//! of `JᵀJ` orders of magnitude below the largest, so Marquardt's damping `μ D` barely restrains
+//! it: the Gauss-Newton step sends it across its whole box, the next step back (a trace of LM
+//! on MakeHuman markers frames: one finger angle hopped ±0.52 rad for 6 accepted iterations
+//! while the energy fell by 1 %), and LM converges linearly: the behaviour of Marquardt's
+//! scaling on sloppy models that Transtrum & Sethna discuss ("Improvements to the
+//! Levenberg-Marquardt algorithm for nonlinear least-squares minimization", 2012). Flooring `D`
+//! relative to its largest entry damps those entries like the well-determined ones once the
+//! radius shrinks; the other entries keep Marquardt's scale invariance. Chosen by measurement (issue 26,
+//! `docs/results/makehuman-import.md`, 2026-12-03 night): on 500 held-out MakeHuman frames per
+//! sparse modality and the captured clip, evaluations fell 15–20 % on markers, ~9 % on
+//! keypoints2d and ~4 % on hmd for floors 1e-3–1e-2, mean energies equal or lower and V2V
+//! lower; 3e-3 had the fewest in total.
 //!
 //! **Gauss-Newton** solves `JᵀJ h = −Jᵀr` (a 1e-12 relative ridge keeps a rank-deficient system
 //! solvable) and halves the step until the energy decreases.
@@ -75,6 +92,9 @@ pub struct LeastSquaresOptions {
     pub parameter_tolerance: f64,
     pub initial_trust_region_radius: f64,
     pub min_relative_decrease: f64,
+    /// LM's scaling `D` is raised to at least this fraction of its largest entry (see the
+    /// module's notes; 0: Ceres's scaling).
+    pub scaling_floor: f64,
     /// How the robust loss enters the normal equations: folded (default: the exact Jacobian of
     /// `√ρ`-folded residuals, the least-squares problem `objective-server` serves) or Triggs's
     /// correction (IRLS weights for the losses here). Both have E's exact gradient.
@@ -89,6 +109,7 @@ impl Default for LeastSquaresOptions {
             parameter_tolerance: 1e-8,
             initial_trust_region_radius: 1e4,
             min_relative_decrease: 1e-3,
+            scaling_floor: 3e-3,
             robust: RobustForm::Folded,
         }
     }
@@ -346,6 +367,15 @@ fn box_step(
     Some((s, false))
 }
 
+/// LM's scaling of the damping on the positions `free`: Marquardt's ([`marquardt_scaling`])
+/// raised to at least `floor` times its largest entry, and that largest entry.
+fn lm_scaling(a: &nalgebra::DMatrix<f64>, free: &[usize], floor: f64) -> (Vec<f64>, f64) {
+    let (mut diag, max_diag) = marquardt_scaling(a, free);
+    let low = floor * max_diag;
+    diag.iter_mut().for_each(|d| *d = d.max(low));
+    (diag, max_diag)
+}
+
 /// The decrease of `Σr²` that the Gauss-Newton model predicts for the step `s` (over the
 /// stage's entries): `−(2 gᵀs + sᵀ A s)` (the IRLS model under Triggs's form).
 fn model_decrease(a: &nalgebra::DMatrix<f64>, g: &DVector<f64>, s: &DVector<f64>) -> f64 {
@@ -409,7 +439,7 @@ impl StageSolver for LeastSquaresFitter {
             if free.is_empty() {
                 break;
             }
-            let (diag, max_diag) = marquardt_scaling(&a, &free);
+            let (diag, max_diag) = lm_scaling(&a, &free, o.scaling_floor);
             // How far each free entry may move: LM's box (the same for every damping tried).
             let lo: Vec<f64> = free
                 .iter()
@@ -551,6 +581,19 @@ mod tests {
     /// same step to 1e-9, reported exact, inside the box, and never a higher model value than
     /// the projected step (lfit's step before) or the step that holds the crossing entries on
     /// their bound and re-solves the rest.
+    #[test]
+    fn lm_scaling_floors_the_diagonal_relative_to_its_largest_entry() {
+        let a = DMatrix::from_diagonal(&DVector::from_vec(vec![1e-9, 5.0, 100.0, 0.2, -1.0]));
+        // Position 4 is not free: its entry neither counts nor is returned.
+        let (d, max) = lm_scaling(&a, &[2, 0, 3, 1], 3e-3);
+        assert_eq!(max, 100.0);
+        assert_eq!(d, vec![100.0, 0.3, 0.3, 5.0]);
+        // Without a floor: Marquardt's scaling, clamped below at 1e-6 as Ceres does.
+        let (d, max) = lm_scaling(&a, &[2, 0, 3, 1], 0.0);
+        assert_eq!(max, 100.0);
+        assert_eq!(d, vec![100.0, 1e-6, 0.2, 5.0]);
+    }
+
     #[test]
     fn the_box_step_is_the_damped_models_minimiser_in_the_box() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);

@@ -246,3 +246,42 @@ fn cma_lbfgs_lm_and_gn_recover_the_truth_from_a_nearby_start() {
         );
     }
 }
+
+/// LM's scaling floor (`LeastSquaresOptions::scaling_floor`) is what LM runs with: the same
+/// frame with and without it takes a different path and both reach the noise-free truth.
+#[test]
+fn lm_runs_with_its_scaling_floor() {
+    use lfit_fitters::{Fitter, LeastSquaresFitter, LeastSquaresMethod};
+    let energy = markers_energy(EnergyConfig::default().for_gradient());
+    let request = FitRequest {
+        energy: &energy,
+        start: start().to_vec(),
+        mask: DofMask::local43(),
+        bounds: Bounds::local(&start()),
+        budget: 60,
+        seed: 3,
+    };
+    let mut results = Vec::new();
+    for floor in [0.0, 3e-3, 0.1] {
+        let mut lm = LeastSquaresFitter::new(LeastSquaresMethod::Lm, Strategy::Holistic);
+        assert_eq!(lm.options.scaling_floor, 3e-3, "the default floor");
+        lm.options.scaling_floor = floor;
+        let r = lm.fit(&request).unwrap();
+        let mut pose = [0.0; POSE_DIM];
+        pose.copy_from_slice(&r.pose);
+        let v2v = lfit_model::metrics::v2v_mm(&template(), &pose, &truth());
+        assert!(v2v < 0.1, "floor {floor}: V2V {v2v:.3} mm");
+        results.push(r);
+    }
+    assert_ne!(
+        results[0].pose, results[1].pose,
+        "the floor changes LM's path"
+    );
+    assert_ne!(
+        results[1].pose, results[2].pose,
+        "the floor's value changes LM's path"
+    );
+    // The default LM (`build_fitter("lm")`) is the one with the floor.
+    let lm = build_fitter("lm", Preset::Nevergrad, Strategy::Holistic).unwrap();
+    assert_eq!(lm.fit(&request).unwrap().pose, results[1].pose);
+}
