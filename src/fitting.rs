@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
 use lfit_fitters::{FitRequest, FitResult, Fitter};
-use lfit_model::energy::{Energy, EnergyConfig, Target};
+use lfit_model::energy::{Energy, EnergyConfig, JacobianRows, RobustForm, Target};
 use lfit_model::layout::Block;
 use lfit_model::pose::{Bounds, DofMask, MaskKind};
 use lfit_model::template::Template;
@@ -644,7 +644,9 @@ pub fn joint_shape(
             .par_iter()
             .zip(&poses)
             .map(|(e, p)| -> Result<_> {
-                let (h, g) = e.least_squares(p, true)?.normal_equations(&dofs);
+                let (h, g) = e
+                    .least_squares_with(p, true, RobustForm::Folded, JacobianRows::Factored)?
+                    .normal_equations(&dofs);
                 Ok((
                     h.view((0, 0), (np, np)).into_owned(),
                     h.view((0, np), (np, n)).into_owned(),

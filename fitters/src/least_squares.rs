@@ -51,7 +51,7 @@
 //! gets its Jacobian then (counted as a gradient evaluation: a rejected trial costs only its
 //! residuals).
 
-use lfit_model::energy::{DampedFactor, Energy, RobustForm, marquardt_scaling};
+use lfit_model::energy::{DampedFactor, Energy, JacobianRows, RobustForm, marquardt_scaling};
 use lfit_model::pose::Bounds;
 use nalgebra::DVector;
 use serde::Serialize;
@@ -395,14 +395,14 @@ impl StageSolver for LeastSquaresFitter {
         let o = self.options;
         let eval = |x: &[f64], with_jacobian: bool| {
             energy
-                .least_squares_in(x, with_jacobian, o.robust)
+                .least_squares_with(x, with_jacobian, o.robust, JacobianRows::Factored)
                 .map_err(|e| FitError::LeastSquares(e.to_string()))
         };
         // Trial points are evaluated without the Jacobian; an accepted one gets it then (a
         // gradient evaluation, not a second evaluation of the point).
         let jacobian = |x: &[f64]| {
             energy
-                .jacobian_in(x, o.robust)
+                .jacobian_with(x, o.robust, JacobianRows::Factored)
                 .map_err(|e| FitError::LeastSquares(e.to_string()))
         };
         let mut x = pose.to_vec();

@@ -204,7 +204,13 @@ fn residual_and_direction(
             energy.evaluate_with_gradient(pose).1.to_vec(),
         ),
         Direction::GaussNewton => {
-            let ls = energy.least_squares(pose, true)?;
+            // The normal equations read the data rows in factored form where there is one.
+            let ls = energy.least_squares_with(
+                pose,
+                true,
+                lfit_model::energy::RobustForm::Folded,
+                lfit_model::energy::JacobianRows::Factored,
+            )?;
             let dofs: Vec<usize> = match free {
                 Some(f) => (0..pose.len())
                     .filter(|&i| f.get(i).copied().unwrap_or(false))

@@ -33,8 +33,13 @@ use crate::pose::rot_offset;
 #[derive(Debug, Clone, PartialEq)]
 pub struct LeastSquares {
     pub residuals: Vec<f64>,
-    /// `residuals.len() × dim`, row-major; empty when not asked for.
+    /// Rows `dense_from..residuals.len()` of the Jacobian, `dim` wide, row-major; empty when
+    /// not asked for.
     pub jacobian: Vec<f64>,
+    /// The first row `jacobian` holds: 0 (every row) unless the rows were asked for in
+    /// [`JacobianRows::Factored`] form and the data rows have one ([`LeastSquares::points`]);
+    /// then the data rows are only in `points`.
+    pub dense_from: usize,
     /// Columns of the Jacobian: the energy's parameter vector length.
     pub dim: usize,
     /// The term of every block of rows.
@@ -64,6 +69,20 @@ pub struct PointFactors {
     pub points: Vec<f64>,
     /// Per data row: its point and `a`.
     pub rows: Vec<(usize, [f64; 3])>,
+}
+
+/// Which rows of the Jacobian [`Energy::least_squares_with`] writes densely.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum JacobianRows {
+    /// Every row, `dim` wide ([`LeastSquares::jacobian`]; the factored form as well, where the
+    /// observation model has one).
+    #[default]
+    Dense,
+    /// Data rows that have a factored form only in that form ([`LeastSquares::points`],
+    /// [`LeastSquares::dense_from`]): what the normal equations and the gradient read, without
+    /// writing `rows × dim` entries (keypoints2d: 372 × 112 on the MakeHuman body).
+    /// Levenberg–Marquardt and the neural fitter's Gauss-Newton direction ask for this.
+    Factored,
 }
 
 /// How the robust loss enters the least-squares form of the data term.
@@ -300,9 +319,24 @@ impl LeastSquares {
         self.residuals.iter().map(|r| r * r).sum()
     }
 
-    /// Row `i` of the Jacobian.
+    /// Row `i` of the Jacobian, for `i ≥ dense_from` ([`LeastSquares::dense`] has every row).
     pub fn row(&self, i: usize) -> &[f64] {
-        &self.jacobian[i * self.dim..(i + 1) * self.dim]
+        let k = i - self.dense_from;
+        &self.jacobian[k * self.dim..(k + 1) * self.dim]
+    }
+
+    /// These residuals with every Jacobian row dense: the factored-only data rows
+    /// ([`JacobianRows::Factored`]) expanded, the same numbers [`JacobianRows::Dense`] writes.
+    pub fn dense(&self) -> LeastSquares {
+        let mut out = self.clone();
+        if let (Some(f), true) = (&self.points, self.dense_from > 0) {
+            let mut jacobian = vec![0.0; self.dense_from * self.dim];
+            expand_point_factors(&f.points, &f.rows, self.dim, &mut jacobian);
+            jacobian.extend_from_slice(&self.jacobian);
+            out.jacobian = jacobian;
+            out.dense_from = 0;
+        }
+        out
     }
 
     /// The Gauss-Newton normal equations `(JᵀJ, Jᵀr)` over the columns `dofs` (in their order),
@@ -448,6 +482,9 @@ impl LeastSquares {
     /// [`LeastSquares::normal_equations`] one row at a time: the reference it is tested against
     /// and benchmarked with (`cargo bench -p lfit-model --bench energy`).
     pub fn normal_equations_by_row(&self, dofs: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
+        if self.dense_from > 0 {
+            return self.dense().normal_equations_by_row(dofs);
+        }
         let n = dofs.len();
         let position = self.positions(dofs);
         let mut upper = vec![0.0; n * n];
@@ -540,7 +577,20 @@ impl LeastSquares {
             return Vec::new();
         }
         let mut g = vec![0.0; self.dim];
-        for (i, &r) in self.residuals.iter().enumerate() {
+        let dim = self.dim;
+        if let (Some(f), true) = (&self.points, self.dense_from > 0) {
+            // 2 r aᵀ ∂X, as [`expand_point_factors`] forms the row.
+            for (&(p, a), &r) in f.rows.iter().zip(&self.residuals) {
+                if r != 0.0 {
+                    let jp = &f.points[3 * p * dim..3 * (p + 1) * dim];
+                    for (c, gi) in g.iter_mut().enumerate() {
+                        *gi +=
+                            2.0 * r * (a[0] * jp[c] + a[1] * jp[dim + c] + a[2] * jp[2 * dim + c]);
+                    }
+                }
+            }
+        }
+        for (i, &r) in self.residuals.iter().enumerate().skip(self.dense_from) {
             if r != 0.0 {
                 for (gi, j) in g.iter_mut().zip(self.row(i)) {
                     *gi += 2.0 * r * j;
@@ -667,12 +717,23 @@ impl Energy {
         with_jacobian: bool,
         form: RobustForm,
     ) -> Result<LeastSquares> {
+        self.least_squares_with(params, with_jacobian, form, JacobianRows::Dense)
+    }
+
+    /// [`Energy::least_squares_in`] with the Jacobian's rows in the given form.
+    pub fn least_squares_with(
+        &self,
+        params: &[f64],
+        with_jacobian: bool,
+        form: RobustForm,
+        rows: JacobianRows,
+    ) -> Result<LeastSquares> {
         self.check_least_squares(params)?;
         self.evaluations.fetch_add(1, Ordering::Relaxed);
         if with_jacobian {
             self.gradient_evaluations.fetch_add(1, Ordering::Relaxed);
         }
-        Ok(self.compute_least_squares(params, with_jacobian, form))
+        Ok(self.compute_least_squares(params, with_jacobian, form, rows))
     }
 
     /// The residuals and Jacobian at a point whose residuals were just evaluated and counted
@@ -680,9 +741,19 @@ impl Energy {
     /// no new evaluation. Levenberg–Marquardt evaluates its trial points without the Jacobian
     /// and asks for it only at the points it accepts.
     pub fn jacobian_in(&self, params: &[f64], form: RobustForm) -> Result<LeastSquares> {
+        self.jacobian_with(params, form, JacobianRows::Dense)
+    }
+
+    /// [`Energy::jacobian_in`] with the Jacobian's rows in the given form.
+    pub fn jacobian_with(
+        &self,
+        params: &[f64],
+        form: RobustForm,
+        rows: JacobianRows,
+    ) -> Result<LeastSquares> {
         self.check_least_squares(params)?;
         self.gradient_evaluations.fetch_add(1, Ordering::Relaxed);
-        Ok(self.compute_least_squares(params, true, form))
+        Ok(self.compute_least_squares(params, true, form, rows))
     }
 
     fn check_least_squares(&self, params: &[f64]) -> Result<()> {
@@ -705,6 +776,7 @@ impl Energy {
         params: &[f64],
         with_jacobian: bool,
         form: RobustForm,
+        dense_rows: JacobianRows,
     ) -> LeastSquares {
         let m = self.residual_count();
         let dim = self.dim();
@@ -712,11 +784,9 @@ impl Energy {
         let mut pj =
             with_jacobian.then(|| PointJacobians::new(&self.template, &kin, &self.skin, params));
         let mut residuals = vec![0.0; m];
-        let mut jacobian = if with_jacobian {
-            vec![0.0; m * dim]
-        } else {
-            Vec::new()
-        };
+        // Allocated once the data rows' form is known (`dense_from`).
+        let mut jacobian = Vec::new();
+        let mut dense_from = 0;
         let w = self.config.weights;
         let mut blocks = Vec::with_capacity(5);
         let mut row = 0;
@@ -745,9 +815,16 @@ impl Energy {
                 if model.point_factors(&view, &mut jac, &mut f.points, &mut f.rows)
                     && f.rows.len() == p
                 {
-                    expand_point_factors(&f.points, &f.rows, dim, &mut jacobian[..p * dim]);
+                    if dense_rows == JacobianRows::Factored {
+                        dense_from = p;
+                        jacobian = vec![0.0; (m - p) * dim];
+                    } else {
+                        jacobian = vec![0.0; m * dim];
+                        expand_point_factors(&f.points, &f.rows, dim, &mut jacobian[..p * dim]);
+                    }
                     points = Some(f);
                 } else {
+                    jacobian = vec![0.0; m * dim];
                     model.jacobian(&view, &mut jac, &mut jacobian[..p * dim]);
                 }
             }
@@ -760,10 +837,12 @@ impl Energy {
             let mut u = Vec::with_capacity(12);
             let mut v = vec![0.0; dim];
             data_rows = row..row + p;
+            // The data rows written densely (none when only factored).
+            let dense_data = with_jacobian && dense_from == 0;
             for g in &self.groups {
                 let rows = g.start * dim..(g.start + g.len) * dim;
                 if !visible[g.start] || c0 == 0.0 {
-                    if with_jacobian {
+                    if dense_data {
                         jacobian[rows].fill(0.0);
                     }
                     if let Some(f) = points.as_mut() {
@@ -786,7 +865,7 @@ impl Energy {
                 for (k, &uk) in u.iter().enumerate() {
                     residuals[row + g.start + k] = c0 * phi * uk;
                 }
-                if with_jacobian {
+                if dense_data {
                     // J̃ = c0 (φ Ju + (φ'/s) u (uᵀ Ju)), Ju = Jpred / σ.
                     let block = &mut jacobian[rows];
                     if dphi != 0.0 {
@@ -805,6 +884,8 @@ impl Energy {
                         let f = c0 * phi / g.sigma;
                         block.iter_mut().for_each(|d| *d *= f);
                     }
+                }
+                if with_jacobian {
                     // The same folding on the factors' vectors.
                     if let Some(f) = points.as_mut() {
                         let rows = &mut f.rows[g.start..g.start + g.len];
@@ -826,13 +907,19 @@ impl Energy {
             row += p;
         }
 
+        if with_jacobian && dense_from == 0 && jacobian.len() != m * dim {
+            jacobian = vec![0.0; m * dim];
+        }
+        // Rows below are written at `row * dim - off` (`jacobian` starts at row `dense_from`).
+        let off = dense_from * dim;
+
         // EP rows.
         let tests = self.penetration_rows();
         if w.ep > 0.0 {
             let (r, j) = (
                 &mut residuals[row..row + tests],
                 if with_jacobian {
-                    &mut jacobian[row * dim..(row + tests) * dim]
+                    &mut jacobian[row * dim - off..(row + tests) * dim - off]
                 } else {
                     &mut [][..]
                 },
@@ -861,7 +948,7 @@ impl Energy {
             let over = (params[i] - upper[i]).max(0.0) - (lower[i] - params[i]).max(0.0);
             residuals[row + k] = c0 * over;
             if with_jacobian && over != 0.0 {
-                jacobian[(row + k) * dim + i] = c0;
+                jacobian[(row + k) * dim + i - off] = c0;
             }
         }
         blocks.push(("EA", row..row + ea_rows));
@@ -887,7 +974,7 @@ impl Energy {
             for i in range {
                 residuals[row] = c0 * params[i];
                 if with_jacobian {
-                    jacobian[row * dim + i] = c0;
+                    jacobian[row * dim + i - off] = c0;
                 }
                 row += 1;
             }
@@ -924,6 +1011,7 @@ impl Energy {
         LeastSquares {
             residuals,
             jacobian,
+            dense_from,
             dim,
             blocks,
             zero_rows,

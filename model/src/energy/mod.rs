@@ -32,7 +32,7 @@ use serde::{Deserialize, Serialize};
 
 pub use crate::observe::Scales;
 pub use least_squares::{
-    DampedFactor, LeastSquares, PointFactors, RobustForm, damped_step, damped_system,
+    DampedFactor, JacobianRows, LeastSquares, PointFactors, RobustForm, damped_step, damped_system,
     envelope_cholesky, envelope_cholesky_solve, envelope_solve, envelope_work, marquardt_scaling,
 };
 pub use prior::AnglePrior;

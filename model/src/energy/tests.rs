@@ -934,8 +934,44 @@ mod least_squares_form {
                 unseen > 0 && robust > 0,
                 "{form:?}: {unseen} unseen, {robust} past Huber"
             );
+            // Only factored (as LM asks): the same residuals, energy and factors, the other
+            // rows as they were, the dense rows when expanded (to rounding: folded before or
+            // after the expansion), the same normal equations bit for bit, the gradient to
+            // rounding.
+            let lf = e
+                .least_squares_with(&x, true, form, JacobianRows::Factored)
+                .unwrap();
+            assert_eq!(lf.dense_from, p);
+            assert_eq!(lf.jacobian.len(), (ls.residuals.len() - p) * dim);
+            assert_eq!(
+                (&lf.residuals, lf.energy, &lf.points, &lf.zero_rows),
+                (&ls.residuals, ls.energy, &ls.points, &ls.zero_rows)
+            );
+            assert_eq!(&lf.jacobian[..], &ls.jacobian[p * dim..]);
+            assert_eq!(lf.row(p), ls.row(p));
+            let ld = lf.dense();
+            assert_eq!((ld.dense_from, ld.jacobian.len()), (0, ls.jacobian.len()));
+            for (k, (u, v)) in ld.jacobian.iter().zip(&ls.jacobian).enumerate() {
+                assert!(
+                    (u - v).abs() <= 1e-12 * scale,
+                    "{form:?}: expanded entry {k}"
+                );
+            }
+            let (g0, g1) = (ls.gradient(), lf.gradient());
+            let sg = g0.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (c, (u, v)) in g0.iter().zip(&g1).enumerate() {
+                assert!(
+                    (u - v).abs() <= 1e-12 * sg,
+                    "{form:?}: gradient {c}: {u} against {v}"
+                );
+            }
+            assert_eq!(
+                e.jacobian_with(&x, form, JacobianRows::Factored).unwrap(),
+                lf
+            );
             for dofs in column_sets(dim) {
                 let (a, g) = ls.normal_equations(&dofs);
+                assert_eq!(lf.normal_equations(&dofs), (a.clone(), g.clone()));
                 let (a0, g0) = ls.normal_equations_by_row(&dofs);
                 let sa = a0.iter().fold(0.0f64, |m, v| m.max(v.abs()));
                 let sg = g0.iter().fold(0.0f64, |m, v| m.max(v.abs()));
