@@ -15,7 +15,8 @@ use std::sync::Arc;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use lfit_model::energy::{
-    Energy, EnergyConfig, PenetrationForm, Target, damped_step, envelope_work, marquardt_scaling,
+    Energy, EnergyConfig, JacobianRows, PenetrationForm, RobustForm, Target, damped_step,
+    envelope_work, marquardt_scaling,
 };
 use lfit_model::observe::{Modality, Sensor};
 mod support;
@@ -87,10 +88,44 @@ fn bench(c: &mut Criterion) {
                     })
                 })
             });
+            // As LM asks: factored data rows where the sensor has them, prior rows as entries.
+            group.bench_function(format!("jacobian_factored{label}"), |b| {
+                b.iter(|| {
+                    one.install(|| {
+                        ps.iter()
+                            .map(|p| {
+                                e.least_squares_with(
+                                    p,
+                                    true,
+                                    RobustForm::Folded,
+                                    JacobianRows::Factored,
+                                )
+                                .expect("jacobian")
+                                .energy
+                            })
+                            .sum::<f64>()
+                    })
+                })
+            });
             let systems: Vec<_> = ps
                 .iter()
                 .map(|p| e.least_squares(p, true).expect("jacobian"))
                 .collect();
+            let factored: Vec<_> = ps
+                .iter()
+                .map(|p| {
+                    e.least_squares_with(p, true, RobustForm::Folded, JacobianRows::Factored)
+                        .expect("jacobian")
+                })
+                .collect();
+            group.bench_function(format!("normal_equations_factored{label}"), |b| {
+                b.iter(|| {
+                    factored
+                        .iter()
+                        .map(|ls| ls.normal_equations(&dofs).1[0])
+                        .sum::<f64>()
+                })
+            });
             group.bench_function(format!("normal_equations{label}"), |b| {
                 b.iter(|| {
                     systems

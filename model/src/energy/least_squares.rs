@@ -33,13 +33,19 @@ use crate::pose::rot_offset;
 #[derive(Debug, Clone, PartialEq)]
 pub struct LeastSquares {
     pub residuals: Vec<f64>,
-    /// Rows `dense_from..residuals.len()` of the Jacobian, `dim` wide, row-major; empty when
-    /// not asked for.
+    /// Rows `dense_from..dense_to` of the Jacobian, `dim` wide, row-major; empty when not
+    /// asked for.
     pub jacobian: Vec<f64>,
     /// The first row `jacobian` holds: 0 (every row) unless the rows were asked for in
     /// [`JacobianRows::Factored`] form and the data rows have one ([`LeastSquares::points`]);
     /// then the data rows are only in `points`.
     pub dense_from: usize,
+    /// The row after the last that `jacobian` holds: `residuals.len()` unless the rows were
+    /// asked for in [`JacobianRows::Factored`] form; then the rows from here on (joint limits,
+    /// pose, shape and expression priors: one nonzero each) are only in `singles`.
+    pub dense_to: usize,
+    /// Rows `dense_to..` as (column, value) of their one entry (value 0 where the row is zero).
+    pub singles: Vec<(usize, f64)>,
     /// Columns of the Jacobian: the energy's parameter vector length.
     pub dim: usize,
     /// The term of every block of rows.
@@ -79,9 +85,12 @@ pub enum JacobianRows {
     #[default]
     Dense,
     /// Data rows that have a factored form only in that form ([`LeastSquares::points`],
-    /// [`LeastSquares::dense_from`]): what the normal equations and the gradient read, without
-    /// writing `rows × dim` entries (keypoints2d: 372 × 112 on the MakeHuman body).
-    /// Levenberg–Marquardt and the neural fitter's Gauss-Newton direction ask for this.
+    /// [`LeastSquares::dense_from`]), and rows with one nonzero (joint limits, pose, shape and
+    /// expression priors) as that entry ([`LeastSquares::singles`]): what the normal equations
+    /// and the gradient read, without writing `rows × dim` entries (keypoints2d: 372 × 112
+    /// data rows, and 106 prior rows on every sensor, on the MakeHuman body).
+    /// Levenberg–Marquardt, the neural fitter's Gauss-Newton direction and the sequence β
+    /// solve ask for this.
     Factored,
 }
 
@@ -319,23 +328,39 @@ impl LeastSquares {
         self.residuals.iter().map(|r| r * r).sum()
     }
 
-    /// Row `i` of the Jacobian, for `i ≥ dense_from` ([`LeastSquares::dense`] has every row).
+    /// Row `i` of the Jacobian, for `dense_from ≤ i < dense_to` ([`LeastSquares::dense`] has
+    /// every row).
     pub fn row(&self, i: usize) -> &[f64] {
         let k = i - self.dense_from;
         &self.jacobian[k * self.dim..(k + 1) * self.dim]
+    }
+
+    /// Whether every row is in `jacobian` ([`JacobianRows::Dense`]).
+    pub fn is_dense(&self) -> bool {
+        self.dense_from == 0 && self.dense_to == self.residuals.len()
     }
 
     /// These residuals with every Jacobian row dense: the factored-only data rows
     /// ([`JacobianRows::Factored`]) expanded, the same numbers [`JacobianRows::Dense`] writes.
     pub fn dense(&self) -> LeastSquares {
         let mut out = self.clone();
-        if let (Some(f), true) = (&self.points, self.dense_from > 0) {
-            let mut jacobian = vec![0.0; self.dense_from * self.dim];
-            expand_point_factors(&f.points, &f.rows, self.dim, &mut jacobian);
-            jacobian.extend_from_slice(&self.jacobian);
-            out.jacobian = jacobian;
-            out.dense_from = 0;
+        if self.jacobian.is_empty() || self.is_dense() {
+            return out;
         }
+        let dim = self.dim;
+        let mut jacobian = vec![0.0; self.residuals.len() * dim];
+        if let Some(f) = &self.points {
+            let p = self.dense_from;
+            expand_point_factors(&f.points, &f.rows[..p], dim, &mut jacobian[..p * dim]);
+        }
+        jacobian[self.dense_from * dim..self.dense_to * dim].copy_from_slice(&self.jacobian);
+        for (k, &(c, v)) in self.singles.iter().enumerate() {
+            jacobian[(self.dense_to + k) * dim + c] = v;
+        }
+        out.jacobian = jacobian;
+        out.dense_from = 0;
+        out.dense_to = self.residuals.len();
+        out.singles.clear();
         out
     }
 
@@ -370,7 +395,11 @@ impl LeastSquares {
             }
             _ => 0,
         };
-        for (i, &r) in self.residuals.iter().enumerate().skip(factored) {
+        for (i, &r) in self.residuals[..self.dense_to]
+            .iter()
+            .enumerate()
+            .skip(factored)
+        {
             if self.zero_rows.get(i).copied().unwrap_or(false) {
                 continue;
             }
@@ -413,6 +442,20 @@ impl LeastSquares {
             rows += 1;
         }
         accumulate(&mut upper, &mut g, n, &group, &values, &residuals[..rows]);
+        // Rows with one entry, as their dense rows would add it.
+        for (k, (&(c, v), &r)) in self
+            .singles
+            .iter()
+            .zip(&self.residuals[self.dense_to..])
+            .enumerate()
+        {
+            let p = position[c];
+            if v == 0.0 || p == usize::MAX || self.zero_rows[self.dense_to + k] {
+                continue;
+            }
+            g[p] += v * r;
+            upper[p * n + p] += v * v;
+        }
         (mirror(upper, n), g)
     }
 
@@ -482,7 +525,7 @@ impl LeastSquares {
     /// [`LeastSquares::normal_equations`] one row at a time: the reference it is tested against
     /// and benchmarked with (`cargo bench -p lfit-model --bench energy`).
     pub fn normal_equations_by_row(&self, dofs: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
-        if self.dense_from > 0 {
+        if !self.is_dense() {
             return self.dense().normal_equations_by_row(dofs);
         }
         let n = dofs.len();
@@ -590,12 +633,19 @@ impl LeastSquares {
                 }
             }
         }
-        for (i, &r) in self.residuals.iter().enumerate().skip(self.dense_from) {
+        for (i, &r) in self.residuals[..self.dense_to]
+            .iter()
+            .enumerate()
+            .skip(self.dense_from)
+        {
             if r != 0.0 {
                 for (gi, j) in g.iter_mut().zip(self.row(i)) {
                     *gi += 2.0 * r * j;
                 }
             }
+        }
+        for (&(c, v), &r) in self.singles.iter().zip(&self.residuals[self.dense_to..]) {
+            g[c] += 2.0 * r * v;
         }
         g
     }
@@ -784,9 +834,18 @@ impl Energy {
         let mut pj =
             with_jacobian.then(|| PointJacobians::new(&self.template, &kin, &self.skin, params));
         let mut residuals = vec![0.0; m];
-        // Allocated once the data rows' form is known (`dense_from`).
+        // Allocated once the data rows' form is known (`dense_from`). With factored rows, the
+        // rows from the joint limits on are `singles`.
         let mut jacobian = Vec::new();
         let mut dense_from = 0;
+        let factored = dense_rows == JacobianRows::Factored;
+        let dense_to = match (&self.target, factored) {
+            (Target::Sparse { values, .. }, true) if with_jacobian => {
+                values.len() + self.penetration_rows()
+            }
+            _ => m,
+        };
+        let mut singles: Vec<(usize, f64)> = Vec::new();
         let w = self.config.weights;
         let mut blocks = Vec::with_capacity(5);
         let mut row = 0;
@@ -815,16 +874,16 @@ impl Energy {
                 if model.point_factors(&view, &mut jac, &mut f.points, &mut f.rows)
                     && f.rows.len() == p
                 {
-                    if dense_rows == JacobianRows::Factored {
+                    if factored {
                         dense_from = p;
-                        jacobian = vec![0.0; (m - p) * dim];
+                        jacobian = vec![0.0; (dense_to - p) * dim];
                     } else {
-                        jacobian = vec![0.0; m * dim];
+                        jacobian = vec![0.0; dense_to * dim];
                         expand_point_factors(&f.points, &f.rows, dim, &mut jacobian[..p * dim]);
                     }
                     points = Some(f);
                 } else {
-                    jacobian = vec![0.0; m * dim];
+                    jacobian = vec![0.0; dense_to * dim];
                     model.jacobian(&view, &mut jac, &mut jacobian[..p * dim]);
                 }
             }
@@ -907,8 +966,8 @@ impl Energy {
             row += p;
         }
 
-        if with_jacobian && dense_from == 0 && jacobian.len() != m * dim {
-            jacobian = vec![0.0; m * dim];
+        if with_jacobian && dense_from == 0 && jacobian.len() != dense_to * dim {
+            jacobian = vec![0.0; dense_to * dim];
         }
         // Rows below are written at `row * dim - off` (`jacobian` starts at row `dense_from`).
         let off = dense_from * dim;
@@ -947,7 +1006,9 @@ impl Energy {
         for (k, i) in (first..lower.len()).enumerate() {
             let over = (params[i] - upper[i]).max(0.0) - (lower[i] - params[i]).max(0.0);
             residuals[row + k] = c0 * over;
-            if with_jacobian && over != 0.0 {
+            if with_jacobian && row + k >= dense_to {
+                singles.push((i, if over != 0.0 { c0 } else { 0.0 }));
+            } else if with_jacobian && over != 0.0 {
                 jacobian[(row + k) * dim + i - off] = c0;
             }
         }
@@ -973,7 +1034,9 @@ impl Energy {
             let start = row;
             for i in range {
                 residuals[row] = c0 * params[i];
-                if with_jacobian {
+                if with_jacobian && row >= dense_to {
+                    singles.push((i, c0));
+                } else if with_jacobian {
                     jacobian[row * dim + i - off] = c0;
                 }
                 row += 1;
@@ -1012,6 +1075,8 @@ impl Energy {
             residuals,
             jacobian,
             dense_from,
+            dense_to,
+            singles,
             dim,
             blocks,
             zero_rows,

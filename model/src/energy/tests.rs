@@ -813,6 +813,51 @@ mod least_squares_form {
         (e, x)
     }
 
+    /// The Jacobian in [`JacobianRows::Factored`] form (what LM asks for) on every sparse
+    /// sensor of the MakeHuman body: the prior rows as single entries, the same normal
+    /// equations bit for bit over several column sets, the same gradient, and expanded, the
+    /// dense Jacobian (bit for bit where no data row is factored: markers and hmd).
+    #[test]
+    fn factored_rows_give_the_dense_normal_equations_on_every_sensor() {
+        use rand::SeedableRng;
+        let t = makehuman_body();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(116);
+        let dim = t.layout().dim();
+        for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
+            let (e, x) = makehuman_energy(&t, modality, &mut rng);
+            let ls = e.least_squares(&x, true).unwrap();
+            let lf = e
+                .least_squares_with(&x, true, RobustForm::Folded, JacobianRows::Factored)
+                .unwrap();
+            let ea = lf.blocks.iter().find(|b| b.0 == "EA").unwrap().1.start;
+            assert_eq!(lf.dense_to, ea, "{modality}");
+            assert_eq!(lf.singles.len(), ls.residuals.len() - ea, "{modality}");
+            assert_eq!(lf.jacobian.len(), (ea - lf.dense_from) * dim, "{modality}");
+            let ld = lf.dense();
+            assert!(ld.is_dense() && ld.jacobian.len() == ls.jacobian.len());
+            if modality != Modality::Keypoints2d {
+                assert_eq!(ld, ls, "{modality}");
+            }
+            for dofs in column_sets(dim) {
+                assert_eq!(
+                    lf.normal_equations(&dofs),
+                    ls.normal_equations(&dofs),
+                    "{modality}: {} columns",
+                    dofs.len()
+                );
+            }
+            let (g0, g1) = (ls.gradient(), lf.gradient());
+            let sg = g0.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            assert!(sg > 0.0);
+            for (u, v) in g0.iter().zip(&g1) {
+                assert!(
+                    (u - v).abs() <= 1e-12 * sg,
+                    "{modality}: gradient {u} against {v}"
+                );
+            }
+        }
+    }
+
     /// The least-squares evaluation's observation residual is `Energy::residual`'s bit for bit,
     /// with and without the Jacobian, on the MakeHuman body's three sparse modalities (unseen
     /// entries included: the truth's own visibility).
@@ -941,14 +986,34 @@ mod least_squares_form {
             let lf = e
                 .least_squares_with(&x, true, form, JacobianRows::Factored)
                 .unwrap();
-            assert_eq!(lf.dense_from, p);
-            assert_eq!(lf.jacobian.len(), (ls.residuals.len() - p) * dim);
+            let m = ls.residuals.len();
+            let ea = lf.blocks.iter().find(|b| b.0 == "EA").unwrap().1.clone();
+            let to = ea.start;
+            assert_eq!((lf.dense_from, lf.dense_to), (p, to));
+            assert!(!lf.is_dense() && ls.is_dense());
+            assert_eq!(lf.jacobian.len(), (to - p) * dim);
+            assert_eq!(lf.singles.len(), m - to);
             assert_eq!(
                 (&lf.residuals, lf.energy, &lf.points, &lf.zero_rows),
                 (&ls.residuals, ls.energy, &ls.points, &ls.zero_rows)
             );
-            assert_eq!(&lf.jacobian[..], &ls.jacobian[p * dim..]);
+            assert_eq!(&lf.jacobian[..], &ls.jacobian[p * dim..to * dim]);
             assert_eq!(lf.row(p), ls.row(p));
+            // Each single row is the dense row's one entry (active joint limits among them).
+            let mut active = 0;
+            for (k, &(c, v)) in lf.singles.iter().enumerate() {
+                let row = ls.row(to + k);
+                assert_eq!(row[c], v, "{form:?}: row {}", to + k);
+                let others = row.iter().enumerate().filter(|&(j, &w)| j != c && w != 0.0);
+                assert_eq!(
+                    others.count(),
+                    0,
+                    "{form:?}: row {} has another entry",
+                    to + k
+                );
+                active += usize::from(v != 0.0 && ea.contains(&(to + k)));
+            }
+            assert!(active > 0, "{form:?}: no joint limit active");
             let ld = lf.dense();
             assert_eq!((ld.dense_from, ld.jacobian.len()), (0, ls.jacobian.len()));
             for (k, (u, v)) in ld.jacobian.iter().zip(&ls.jacobian).enumerate() {
