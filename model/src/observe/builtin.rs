@@ -103,6 +103,29 @@ impl ObservationModel for MarkerSetup {
         }
     }
 
+    /// Each marker vertex's Jacobian, and its x, y, z rows as the unit vectors: the robust
+    /// folding then acts on 3-vectors, and the normal equations add one `∂Xᵀ C ∂X` per marker.
+    fn point_factors(
+        &self,
+        posed: &PosedView<'_>,
+        jac: &mut PoseJacobian<'_, '_>,
+        points: &mut Vec<f64>,
+        rows: &mut Vec<(usize, [f64; 3])>,
+    ) -> bool {
+        points.clear();
+        points.resize(3 * self.vertices.len() * jac.dim(), 0.0);
+        self.jacobian(posed, jac, points);
+        rows.clear();
+        for k in 0..self.vertices.len() {
+            rows.extend([
+                (k, [1.0, 0.0, 0.0]),
+                (k, [0.0, 1.0, 0.0]),
+                (k, [0.0, 0.0, 1.0]),
+            ]);
+        }
+        true
+    }
+
     fn backprop(&self, _: &PosedView<'_>, dpred: &[f64], grad: &mut PoseGradient<'_, '_>) {
         for (k, &v) in self.vertices.iter().enumerate() {
             let g = DVec3::new(dpred[3 * k], dpred[3 * k + 1], dpred[3 * k + 2]);
