@@ -340,11 +340,17 @@ impl LeastSquares {
         self.dense_from == 0 && self.dense_to == self.residuals.len()
     }
 
+    /// Whether the Jacobian was asked for (in either form: a factored one may hold no dense
+    /// row at all).
+    pub fn has_jacobian(&self) -> bool {
+        !self.jacobian.is_empty() || self.dense_from > 0 || !self.singles.is_empty()
+    }
+
     /// These residuals with every Jacobian row dense: the factored-only data rows
     /// ([`JacobianRows::Factored`]) expanded, the same numbers [`JacobianRows::Dense`] writes.
     pub fn dense(&self) -> LeastSquares {
         let mut out = self.clone();
-        if self.jacobian.is_empty() || self.is_dense() {
+        if !self.has_jacobian() || self.is_dense() {
             return out;
         }
         let dim = self.dim;
@@ -389,7 +395,7 @@ impl LeastSquares {
         let free: Vec<bool> = position.iter().map(|&p| p != usize::MAX).collect();
         // Rows in factored form first: one 3-row update per point.
         let factored = match &self.points {
-            Some(f) if !self.jacobian.is_empty() => {
+            Some(f) if self.has_jacobian() => {
                 self.accumulate_points(f, &position, &mut upper, &mut g, n);
                 f.rows.len()
             }
@@ -599,7 +605,7 @@ impl LeastSquares {
         damping: f64,
         rank: &[usize],
     ) -> Option<Vec<f64>> {
-        if self.jacobian.is_empty() {
+        if !self.has_jacobian() {
             return None;
         }
         let (a, g) = self.normal_equations(dofs);
@@ -616,7 +622,7 @@ impl LeastSquares {
 
     /// `∇E = 2 Jᵀ r` (empty without a Jacobian).
     pub fn gradient(&self) -> Vec<f64> {
-        if self.jacobian.is_empty() {
+        if !self.has_jacobian() {
             return Vec::new();
         }
         let mut g = vec![0.0; self.dim];
