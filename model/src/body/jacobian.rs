@@ -107,8 +107,15 @@ impl<'a> PointJacobians<'a> {
 
     /// The 3 × dim Jacobian (row-major, overwritten) of skinned vertex `v`; returns its position.
     pub fn skinned_point(&mut self, v: usize, out: &mut [f64]) -> DVec3 {
+        out[..3 * self.dim].fill(0.0);
+        self.skinned_point_on_zero(v, out)
+    }
+
+    /// [`PointJacobians::skinned_point`] into rows the caller has just zeroed (a freshly
+    /// resized buffer): writes only the non-zero entries.
+    pub fn skinned_point_on_zero(&mut self, v: usize, out: &mut [f64]) -> DVec3 {
         let d = self.dim;
-        out[..3 * d].fill(0.0);
+        debug_assert!(out[..3 * d].iter().all(|&x| x == 0.0));
         let kin = self.kin;
         let x = kin.rest(&self.skin.rest, v);
         let weights = self.skin.weights(v);
@@ -203,8 +210,14 @@ impl<'a> PointJacobians<'a> {
     /// rest position is the joint's rest centre plus a constant offset (the joint centre itself,
     /// a headset, an ellipsoid's centre).
     pub fn joint_point(&self, joint: usize, p: DVec3, out: &mut [f64]) {
+        out[..3 * self.dim].fill(0.0);
+        self.joint_point_on_zero(joint, p, out);
+    }
+
+    /// [`PointJacobians::joint_point`] into rows the caller has just zeroed.
+    pub fn joint_point_on_zero(&self, joint: usize, p: DVec3, out: &mut [f64]) {
         let d = self.dim;
-        out[..3 * d].fill(0.0);
+        debug_assert!(out[..3 * d].iter().all(|&x| x == 0.0));
         for a in 0..3 {
             out[a * d + a] = 1.0;
         }

@@ -912,8 +912,9 @@ impl Energy {
             let (rho, dr) = self.config.robust.eval(s);
             sum += rho;
             if !dpred.is_empty() {
+                let f = dr / (g.sigma * g.sigma * n);
                 for i in g.start..g.start + g.len {
-                    dpred[i] = dr * (pred[i] - values[i]) / (g.sigma * g.sigma) / n;
+                    dpred[i] = f * (pred[i] - values[i]);
                 }
             }
         }

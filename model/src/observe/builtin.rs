@@ -20,7 +20,13 @@ pub(crate) const DEPTH_FLOOR: f64 = 0.01;
 /// to the camera-frame point `q`. Depths are floored at 1 cm (in front of the camera), where the
 /// derivative along depth is zero.
 pub(crate) fn project(cam: &Camera, p: DVec3) -> ([f64; 2], [DVec3; 2]) {
-    let q = cam.to_camera(p);
+    project_camera(cam, cam.to_camera(p))
+}
+
+/// [`project`] of a point already in the camera frame. The pixel is `f x / z + c` as
+/// [`Camera::project_camera`] writes it; the derivative rows share one reciprocal of the depth.
+#[inline]
+pub(crate) fn project_camera(cam: &Camera, q: DVec3) -> ([f64; 2], [DVec3; 2]) {
     let (z, dz) = if q.z > DEPTH_FLOOR {
         (q.z, 1.0)
     } else {
@@ -28,8 +34,10 @@ pub(crate) fn project(cam: &Camera, p: DVec3) -> ([f64; 2], [DVec3; 2]) {
     };
     let u = cam.fx * q.x / z + cam.cx;
     let v = cam.fy * q.y / z + cam.cy;
-    let du = DVec3::new(cam.fx / z, 0.0, -dz * cam.fx * q.x / (z * z));
-    let dv = DVec3::new(0.0, cam.fy / z, -dz * cam.fy * q.y / (z * z));
+    let iz = 1.0 / z;
+    let (fx, fy) = (cam.fx * iz, cam.fy * iz);
+    let du = DVec3::new(fx, 0.0, -dz * fx * q.x * iz);
+    let dv = DVec3::new(0.0, fy, -dz * fy * q.y * iz);
     ([u, v], [du, dv])
 }
 
@@ -107,14 +115,17 @@ impl ObservationModel for MarkerSetup {
     /// folding then acts on 3-vectors, and the normal equations add one `∂Xᵀ C ∂X` per marker.
     fn point_factors(
         &self,
-        posed: &PosedView<'_>,
+        _: &PosedView<'_>,
         jac: &mut PoseJacobian<'_, '_>,
         points: &mut Vec<f64>,
         rows: &mut Vec<(usize, [f64; 3])>,
     ) -> bool {
+        let d = jac.dim();
         points.clear();
-        points.resize(3 * self.vertices.len() * jac.dim(), 0.0);
-        self.jacobian(posed, jac, points);
+        points.resize(3 * self.vertices.len() * d, 0.0);
+        for (k, &v) in self.vertices.iter().enumerate() {
+            jac.vertex_on_zero(v as usize, &mut points[3 * k * d..3 * (k + 1) * d]);
+        }
         rows.clear();
         for k in 0..self.vertices.len() {
             rows.extend([
@@ -182,12 +193,11 @@ impl ObservationModel for KeypointSetup {
         let nj = posed.num_joints();
         for (c, cam) in self.cameras.iter().enumerate() {
             for j in 0..nj {
-                let p = posed.joint(j);
-                let (uv, _) = project(cam, p);
+                let q = cam.to_camera(posed.joint(j));
+                let (uv, _) = project_camera(cam, q);
                 let i = 2 * (c * nj + j);
                 values[i..i + 2].copy_from_slice(&uv);
-                let seen = cam.to_camera(p).z > DEPTH_FLOOR
-                    && cam.in_image(glam::DVec2::new(uv[0], uv[1]));
+                let seen = q.z > DEPTH_FLOOR && cam.in_image(glam::DVec2::new(uv[0], uv[1]));
                 visible[i..i + 2].fill(seen);
             }
         }
@@ -212,7 +222,7 @@ impl ObservationModel for KeypointSetup {
         points.clear();
         points.resize(3 * nj * d, 0.0);
         for j in 0..nj {
-            jac.joint(j, &mut points[3 * j * d..3 * (j + 1) * d]);
+            jac.joint_on_zero(j, &mut points[3 * j * d..3 * (j + 1) * d]);
         }
         rows.clear();
         for cam in &self.cameras {
@@ -226,17 +236,24 @@ impl ObservationModel for KeypointSetup {
     }
 
     fn backprop(&self, posed: &PosedView<'_>, dpred: &[f64], grad: &mut PoseGradient<'_, '_>) {
+        // A joint's gradient summed over the cameras first: one reverse-mode point per joint.
         let nj = posed.num_joints();
+        let mut g = vec![DVec3::ZERO; nj];
         for (c, cam) in self.cameras.iter().enumerate() {
             let rot_t = cam.rot().transpose();
-            for j in 0..nj {
+            for (j, gj) in g.iter_mut().enumerate() {
                 let i = 2 * (c * nj + j);
                 let (gu, gv) = (dpred[i], dpred[i + 1]);
                 if gu == 0.0 && gv == 0.0 {
                     continue;
                 }
                 let (_, dq) = project(cam, posed.joint(j));
-                grad.joint(j, rot_t * (dq[0] * gu + dq[1] * gv));
+                *gj += rot_t * (dq[0] * gu + dq[1] * gv);
+            }
+        }
+        for (j, gj) in g.into_iter().enumerate() {
+            if gj != DVec3::ZERO {
+                grad.joint(j, gj);
             }
         }
     }

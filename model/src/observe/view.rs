@@ -104,6 +104,17 @@ impl PoseJacobian<'_, '_> {
         self.inner.joint_point(j, self.kin.joints[j], out);
     }
 
+    /// [`PoseJacobian::vertex`] into rows the caller has just zeroed (a freshly resized buffer):
+    /// skips the second zero fill.
+    pub(crate) fn vertex_on_zero(&mut self, v: usize, out: &mut [f64]) -> DVec3 {
+        self.inner.skinned_point_on_zero(v, out)
+    }
+
+    /// [`PoseJacobian::joint`] into rows the caller has just zeroed.
+    pub(crate) fn joint_on_zero(&self, j: usize, out: &mut [f64]) {
+        self.inner.joint_point_on_zero(j, self.kin.joints[j], out);
+    }
+
     /// 3 rows: the world point `p` carried rigidly by joint `j` at a constant offset from its
     /// centre (a headset, a body-worn sensor).
     pub fn joint_point(&self, j: usize, p: DVec3, out: &mut [f64]) {
