@@ -8,7 +8,8 @@
 //! Issue 6 adds ONNX Runtime (`ort`, when libonnxruntime is found, see
 //! scripts/fetch-onnxruntime.sh) to the same run: whole fits (`fit-*`, the energy included) and
 //! the network alone (`network-*`: Φ/Φh and N × (f, fλγ, update) on fixed features, outputs read
-//! back to the host), each at batch 1 and 256, for ndarray, flex and ort.
+//! back to the host), each at batch 1 and 256, for ndarray, flex and ort; and lfit's own host
+//! forward (`native`, `--runtime native`).
 
 use std::hint::black_box;
 use std::path::Path;
@@ -24,7 +25,7 @@ use lfit::model::pose::{Bounds, DofMask};
 use lfit::nn::Dropout;
 use lfit::nn::checkpoint::{Checkpoint, CheckpointMeta};
 use lfit::nn::unroll::{core_rows, evaluate, observation_rows, step_rows};
-use lfit::nn::{FeatureStats, NeuralNet};
+use lfit::nn::{FeatureStats, NeuralNet, RowNetwork};
 
 use burn::tensor::{Tensor, TensorData};
 use lfit::model::{Energy, default_template};
@@ -108,11 +109,18 @@ fn bench(c: &mut Criterion) {
     let mut group = c.benchmark_group(format!("fit-{}", modality.name()));
     group.sample_size(10);
     let mut engines: Vec<&str> = devices.clone();
+    engines.push("native");
     if ort_ok {
         engines.push("ort");
     }
     for name in engines {
-        let f = if name == "ort" {
+        let f = if name == "native" {
+            NeuralFitter::load_native(
+                &Path::new("checkpoints").join(modality.name()),
+                Start::Given,
+            )
+            .expect("native fitter")
+        } else if name == "ort" {
             NeuralFitter::load_ort(
                 &Path::new("checkpoints").join(modality.name()),
                 Start::Given,
@@ -235,6 +243,11 @@ fn network_only(
             );
         }
     }
+    // lfit's own forward on the host (`--runtime native`), from the flex fitter's weights.
+    let f = fitter(modality, "flex", frames);
+    let input = inputs(&f, frames);
+    let host = lfit::nn::HostNet::new(f.burn_net().expect("burn"), f.stats.clone()).expect("host");
+    rows_network(&mut group, "neural-native", &mut &host, &input, total);
     if ort_ok {
         let f = NeuralFitter::load_ort(
             &Path::new("checkpoints").join(modality.name()),
@@ -247,36 +260,47 @@ fn network_only(
             panic!("ort engine")
         };
         let mut ort = network.lock().expect("sessions");
-        let iterations = f.meta.network.iterations;
-        for batch in [1usize, total] {
-            let (obs, core, step, grad) = (
-                take(&input.obs, batch, total),
-                take(&input.core, batch, total),
-                take(&input.step, batch, total),
-                take(&input.grad, batch, total),
-            );
-            group.throughput(Throughput::Elements(batch as u64));
-            group.bench_function(
-                BenchmarkId::new("neural-ort", format!("batch{batch}")),
-                |b| {
-                    b.iter(|| {
-                        let (theta0, mut state) = ort.initial(&obs, batch).expect("init");
-                        let mut out = theta0;
-                        for n in 0..iterations {
-                            let d = ort.propose(n, &core, batch, &mut state).expect("propose");
-                            out = ort
-                                .step(n, &step, &d, &grad, batch, &mut state)
-                                .expect("step")
-                                .update;
-                        }
-                        black_box(out)
-                    })
-                },
-            );
-        }
+        rows_network(&mut group, "neural-ort", &mut *ort, &input, total);
     }
     group.finish();
 }
 
 criterion_group!(benches, bench);
 criterion_main!(benches);
+
+/// A host-row network (ONNX Runtime or native): Φ/Φh, then N × (f, fλγ, update), at batch 1
+/// and `total`.
+fn rows_network<N: RowNetwork>(
+    group: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>,
+    name: &str,
+    net: &mut N,
+    input: &Inputs,
+    total: usize,
+) where
+    N::Error: std::fmt::Debug,
+{
+    let iterations = net.config().iterations;
+    for batch in [1usize, total] {
+        let (obs, core, step, grad) = (
+            take(&input.obs, batch, total),
+            take(&input.core, batch, total),
+            take(&input.step, batch, total),
+            take(&input.grad, batch, total),
+        );
+        group.throughput(Throughput::Elements(batch as u64));
+        group.bench_function(BenchmarkId::new(name, format!("batch{batch}")), |b| {
+            b.iter(|| {
+                let (theta0, mut state) = net.initial(&obs, batch).expect("init");
+                let mut out = theta0;
+                for n in 0..iterations {
+                    let d = net.propose(n, &core, batch, &mut state).expect("propose");
+                    out = net
+                        .step(n, &step, &d, &grad, batch, &mut state)
+                        .expect("step")
+                        .update;
+                }
+                black_box(out)
+            })
+        });
+    }
+}

@@ -400,8 +400,9 @@ struct FitCmd {
     /// Frames per network pass of the neural fitter (sequences always go one by one).
     #[arg(long, default_value_t = 1)]
     batch: usize,
-    /// What runs the neural fitter's network: burn (on --device) or ort (ONNX Runtime on the
-    /// CPU; --checkpoint may then also be a directory written by `lfit export-onnx`).
+    /// What runs the neural fitter's network: burn (on --device), ort (ONNX Runtime on the
+    /// CPU; --checkpoint may then also be a directory written by `lfit export-onnx`) or native
+    /// (lfit's own f32 forward on the CPU, the fastest at batch 1).
     #[arg(long, default_value = "burn")]
     runtime: String,
     /// Intra-op threads of ONNX Runtime (default: its own, one per core).

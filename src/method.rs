@@ -325,6 +325,12 @@ pub fn load_neural(kind: MethodKind, options: &NeuralOptions<'_>) -> Result<Box<
             let device = lfit_nn::tensor::device_from_name(options.device)?;
             lfit_infer::NeuralFitter::load(&checkpoint, &device, options.start)?
         }
+        lfit_infer::Runtime::Native => {
+            if options.ort_threads.is_some() {
+                bail!("--ort-threads is only for --runtime ort");
+            }
+            lfit_infer::NeuralFitter::load_native(&checkpoint, options.start)?
+        }
         lfit_infer::Runtime::Ort => lfit_infer::NeuralFitter::load_ort(
             &checkpoint,
             options.start,

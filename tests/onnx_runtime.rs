@@ -1,10 +1,12 @@
-//! ONNX export and ONNX Runtime (issue 6): per shipped checkpoint, every network output of every
-//! iteration matches Burn within 1e-4 when both get the same inputs and states, and whole fits
-//! end within 1 mm V2V of each other; the ablation variants export and match too; bad exports and
-//! a missing library give one-line errors.
+//! The network outside Burn: ONNX export and ONNX Runtime (issue 6), and lfit's own f32 forward
+//! on the host (`--runtime native`, [`lfit::nn::HostNet`]). Per shipped checkpoint, every network
+//! output of every iteration matches Burn within 1e-4 when both get the same inputs and states,
+//! and whole fits end within 1 mm V2V of each other; the ablation variants export (run natively)
+//! and match too; bad exports and a missing library give one-line errors.
 //!
-//! The tests need libonnxruntime.so (scripts/fetch-onnxruntime.sh, which scripts/test.sh runs);
-//! without it they print why and skip, except in CI (`CI=true`), where they fail.
+//! The ONNX tests need libonnxruntime.so (scripts/fetch-onnxruntime.sh, which scripts/test.sh
+//! runs); without it they print why and skip, except in CI (`CI=true`), where they fail. The
+//! native tests need nothing.
 
 mod support;
 
@@ -15,7 +17,7 @@ use burn::tensor::{Tensor, TensorData};
 use lfit::fitters::FitRequest;
 use lfit::infer::onnx::export::export;
 use lfit::infer::onnx::proto::{ModelProto, StringStringEntryProto};
-use lfit::infer::onnx::runtime::{OrtNetwork, OrtState, SessionOptions, library_path};
+use lfit::infer::onnx::runtime::{OrtNetwork, SessionOptions, library_path};
 use lfit::infer::{NeuralFitter, Start};
 use lfit::model::observe::{Modality, Sensor};
 use lfit::model::pose::{Bounds, DofMask, POSE_DIM};
@@ -24,8 +26,8 @@ use lfit::nn::checkpoint::{self, CheckpointMeta};
 use lfit::nn::tensor::{ndarray_device, poses_to_tensor, tensor_to_rows};
 use lfit::nn::unroll::{core_rows, evaluate, observation_rows, rows_to_poses, step_rows};
 use lfit::nn::{
-    CoreKind, Direction, Dropout, FeatureStats, GammaMode, NetConfig, NeuralNet, StepShape,
-    UpdateRule,
+    CoreKind, Direction, Dropout, FeatureStats, GammaMode, HostNet, NetConfig, NeuralNet,
+    RowNetwork, RowState, StepShape, UpdateRule,
 };
 use lfit::train::{
     Frames, Motions, TrainConfig, base_energy, measure_stats, measure_stats_with, synth_frames,
@@ -78,6 +80,7 @@ fn flat(t: &Tensor<2>) -> Vec<f32> {
 }
 
 fn assert_close(what: &str, burn: &[f32], ort: &[f32], tol: f32) -> f32 {
+    // `ort`: the values of the runtime under test (ONNX Runtime or the native forward).
     assert_eq!(burn.len(), ort.len(), "{what}: lengths");
     let worst = burn
         .iter()
@@ -92,7 +95,7 @@ fn assert_close(what: &str, burn: &[f32], ort: &[f32], tol: f32) -> f32 {
         });
     assert!(
         worst <= tol,
-        "{what}: Burn and ONNX Runtime differ by {worst:e} > {tol:e}"
+        "{what}: Burn and the other runtime differ by {worst:e} > {tol:e}"
     );
     assert!(
         burn.iter().chain(ort).all(|v| v.is_finite()),
@@ -101,21 +104,27 @@ fn assert_close(what: &str, burn: &[f32], ort: &[f32], tol: f32) -> f32 {
     worst
 }
 
-/// Runs the loop of papers/002 Alg. 1 with Burn, and at every network call gives ONNX Runtime
-/// the same inputs and states, comparing every output. Returns the worst difference.
-fn lockstep(
+/// Runs the loop of papers/002 Alg. 1 with Burn, and at every network call gives the other
+/// runtime (ONNX Runtime, or the native forward) the same inputs and states, comparing every
+/// output. Returns the worst difference.
+fn lockstep<N: RowNetwork>(
     net: &NeuralNet,
     stats: &FeatureStats,
-    ort: &mut OrtNetwork,
+    mut ort: N,
     energies: &[&Energy],
     starts: &[Vec<f64>],
-) -> f32 {
+) -> f32
+where
+    N::Error: std::fmt::Display,
+{
     let c = &net.config;
     let batch = energies.len();
     let device = ndarray_device();
     let obs = observation_rows(c, stats, energies).expect("obs").concat();
     let (theta0, mut state) = net.initial(rows(&obs, batch));
-    let (theta0_ort, mut ort_state) = ort.initial(&obs, batch).expect("ort init");
+    let (theta0_ort, mut ort_state) = ort
+        .initial(&obs, batch)
+        .unwrap_or_else(|e| panic!("init: {e}"));
     let mut worst = assert_close("θ0 = Φ(D)", &flat(&theta0), &theta0_ort, STEP_TOLERANCE);
     for (l, h) in state.core.iter().enumerate() {
         worst = worst.max(assert_close(
@@ -141,7 +150,7 @@ fn lockstep(
         )
         .expect("core rows");
         // The same states on both sides: copy Burn's into the ORT state.
-        ort_state = OrtState {
+        ort_state = RowState {
             core: state.core.iter().map(flat).collect(),
             lambda: state.lambda.iter().map(flat).collect(),
             gamma: if c.separate_gamma_network() {
@@ -153,7 +162,7 @@ fn lockstep(
         let delta = net.propose(n, rows(&core_in, batch), &mut state, &mut Dropout::off());
         let delta_ort = ort
             .propose(n, &core_in, batch, &mut ort_state)
-            .expect("ort propose");
+            .unwrap_or_else(|e| panic!("propose: {e}"));
         worst = worst.max(assert_close(
             &format!("Δθ of iteration {n}"),
             &flat(&delta),
@@ -190,7 +199,7 @@ fn lockstep(
                     batch,
                     &mut ort_state,
                 )
-                .expect("ort step");
+                .unwrap_or_else(|e| panic!("step: {e}"));
             let update = net.update(delta, grad, &sizes);
             worst = worst.max(assert_close(
                 &format!("λ of iteration {n}"),
@@ -241,16 +250,29 @@ fn lockstep(
 
 #[test]
 fn every_step_of_every_shipped_checkpoint_matches_burn_within_1e_4() {
-    if !ort_ready() {
-        return;
-    }
+    let with_ort = ort_ready();
     for (k, m) in MODALITIES.iter().enumerate() {
         let ckpt = checkpoint::load(&shipped(m), &ndarray_device()).expect("checkpoint");
+        let frames = frames_for(m.parse().expect("modality"), 8, 0x0077_0000 + k as u64);
+        let energies: Vec<&Energy> = frames.energies.iter().collect();
+        let host = HostNet::new(&ckpt.net, ckpt.stats.clone()).expect("native");
+        let worst = lockstep(
+            &ckpt.net,
+            &ckpt.stats,
+            &host,
+            &energies,
+            &frames.dataset.start_poses,
+        );
+        eprintln!(
+            "{m}: worst |Burn − native| over θ0, h0 and {} iterations of Δθ, λ, γ, update, states: {worst:e}",
+            ckpt.meta.network.iterations
+        );
+        if !with_ort {
+            continue;
+        }
         let exported = export(&ckpt.net, &ckpt.meta, &ckpt.stats).expect("export");
         let mut ort = OrtNetwork::from_exported(&exported, &shipped(m), SessionOptions::default())
             .expect("sessions");
-        let frames = frames_for(m.parse().expect("modality"), 8, 0x0077_0000 + k as u64);
-        let energies: Vec<&Energy> = frames.energies.iter().collect();
         let worst = lockstep(
             &ckpt.net,
             &ckpt.stats,
@@ -266,17 +288,20 @@ fn every_step_of_every_shipped_checkpoint_matches_burn_within_1e_4() {
 }
 
 #[test]
-fn full_fits_with_onnx_runtime_end_within_1_mm_v2v_of_burn_per_shipped_checkpoint() {
-    if !ort_ready() {
-        return;
-    }
+fn full_fits_natively_and_with_onnx_runtime_end_within_1_mm_v2v_of_burn_per_shipped_checkpoint() {
+    let with_ort = ort_ready();
     for (k, m) in MODALITIES.iter().enumerate() {
         let dir = shipped(m);
         let modality: Modality = m.parse().expect("modality");
         let frames = frames_for(modality, 32, 0x0078_0000 + k as u64);
         let burn = NeuralFitter::load(&dir, &ndarray_device(), Start::Given).expect("burn");
-        let ort =
-            NeuralFitter::load_ort(&dir, Start::Given, SessionOptions::default()).expect("ort");
+        let native = NeuralFitter::load_native(&dir, Start::Given).expect("native");
+        let mut others = vec![("native", native)];
+        if with_ort {
+            let ort =
+                NeuralFitter::load_ort(&dir, Start::Given, SessionOptions::default()).expect("ort");
+            others.push(("ort", ort));
+        }
         let requests: Vec<FitRequest<'_>> = frames
             .energies
             .iter()
@@ -291,42 +316,46 @@ fn full_fits_with_onnx_runtime_end_within_1_mm_v2v_of_burn_per_shipped_checkpoin
             })
             .collect();
         let a = burn.fit_batch(&requests).expect("burn fit");
-        let b = ort.fit_batch(&requests).expect("ort fit");
-        let template = frames.energies[0].template();
-        let mut worst = 0.0f64;
-        let (mut start_err, mut fit_err) = (0.0, 0.0);
-        for (((ra, rb), gt), r) in a
-            .iter()
-            .zip(&b)
-            .zip(&frames.dataset.gt_poses)
-            .zip(&requests)
-        {
-            let pa: lfit::model::pose::Pose = std::array::from_fn(|i| ra.pose[i]);
-            let pb: lfit::model::pose::Pose = std::array::from_fn(|i| rb.pose[i]);
-            worst = worst.max(v2v_mm(template, &pa, &pb));
-            start_err += v2v_mm(template, &r.start, gt);
-            fit_err += v2v_mm(template, &pb, gt);
-            assert_eq!(ra.evaluations, rb.evaluations, "{m}: the same evaluations");
-            assert!(r.bounds.contains(&pb), "{m}: ORT result outside the bounds");
+        for (runtime, other) in &others {
+            let b = other.fit_batch(&requests).expect("other fit");
+            let template = frames.energies[0].template();
+            let mut worst = 0.0f64;
+            let (mut start_err, mut fit_err) = (0.0, 0.0);
+            for (((ra, rb), gt), r) in a
+                .iter()
+                .zip(&b)
+                .zip(&frames.dataset.gt_poses)
+                .zip(&requests)
+            {
+                let pa: lfit::model::pose::Pose = std::array::from_fn(|i| ra.pose[i]);
+                let pb: lfit::model::pose::Pose = std::array::from_fn(|i| rb.pose[i]);
+                worst = worst.max(v2v_mm(template, &pa, &pb));
+                start_err += v2v_mm(template, &r.start, gt);
+                fit_err += v2v_mm(template, &pb, gt);
+                assert_eq!(ra.evaluations, rb.evaluations, "{m}: the same evaluations");
+                assert!(
+                    r.bounds.contains(&pb),
+                    "{m}: {runtime} result outside the bounds"
+                );
+            }
+            assert!(
+                fit_err < 0.7 * start_err,
+                "{m}: the {runtime} fits must improve on the start: {start_err} -> {fit_err}"
+            );
+            eprintln!(
+                "{m}: 32 frames, worst V2V between the Burn and {runtime} fits {worst:.2e} mm"
+            );
+            assert!(worst <= 1.0, "{m}: fits {worst} mm V2V apart (> 1e-3 m)");
+            assert_eq!(b[0].method, format!("neural-given-{runtime}"));
         }
-        assert!(
-            fit_err < 0.7 * start_err,
-            "{m}: the ORT fits must improve on the start: {start_err} -> {fit_err}"
-        );
-        eprintln!(
-            "{m}: 32 frames, worst V2V between the Burn and ONNX Runtime fits {worst:.2e} mm"
-        );
-        assert!(worst <= 1.0, "{m}: fits {worst} mm V2V apart (> 1e-3 m)");
-        assert_eq!(b[0].method, "neural-given-ort");
     }
 }
 
-/// Networks of every ablation switch (fresh weights; BatchNorm statistics made non-trivial).
+/// Networks of every ablation switch (fresh weights; BatchNorm statistics made non-trivial), run
+/// natively and (where the library is) exported to ONNX Runtime.
 #[test]
-fn every_ablation_variant_exports_and_matches_burn() {
-    if !ort_ready() {
-        return;
-    }
+fn every_ablation_variant_runs_natively_exports_and_matches_burn() {
+    let with_ort = ort_ready();
     let frames = frames_for(Modality::Markers, 4, 0x0079_0000);
     let stats = measure_stats(&frames);
     let energies: Vec<&Energy> = frames.energies.iter().collect();
@@ -436,6 +465,26 @@ fn every_ablation_variant_exports_and_matches_burn() {
         };
         perturb(&mut net.phi.bn1, 1.0);
         perturb(&mut net.phi.bn2, 2.0);
+        if let Some(phi_h) = &mut net.phi_h {
+            perturb(&mut phi_h.bn1, 3.0);
+            perturb(&mut phi_h.bn2, 4.0);
+        }
+        // The whole loop, from the start poses: the host computes the direction (gradient or
+        // Gauss-Newton) for every runtime.
+        let starts: Vec<Option<Vec<f64>>> = frames
+            .dataset
+            .start_poses
+            .iter()
+            .cloned()
+            .map(Some)
+            .collect();
+        let host = HostNet::new(&net, stats.clone()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let worst = lockstep(&net, &stats, &host, &energies, &frames.dataset.start_poses);
+        eprintln!("{name}: native, worst difference {worst:e}");
+        whole_loops_agree(name, &net, &stats, &host, &energies, &starts, template);
+        if !with_ort {
+            continue;
+        }
         let meta = CheckpointMeta {
             format: checkpoint::FORMAT.into(),
             version: checkpoint::VERSION,
@@ -459,31 +508,24 @@ fn every_ablation_variant_exports_and_matches_burn() {
             &energies,
             &frames.dataset.start_poses,
         );
-        eprintln!("{name}: worst difference {worst:e}");
-        // The whole loop, from the start poses: the host computes the direction (gradient or
-        // Gauss-Newton) for both runtimes.
-        let starts: Vec<Option<Vec<f64>>> = frames
-            .dataset
-            .start_poses
-            .iter()
-            .cloned()
-            .map(Some)
-            .collect();
+        eprintln!("{name}: ONNX Runtime, worst difference {worst:e}");
         whole_loops_agree(name, &net, &stats, &mut ort, &energies, &starts, template);
     }
 }
 
-/// The whole fitting loop in Burn and in ONNX Runtime from `starts`: every iterate of every frame
-/// within 1 mm V2V (and finite).
-fn whole_loops_agree(
+/// The whole fitting loop in Burn and in the other runtime from `starts`: every iterate of every
+/// frame within 1 mm V2V (and finite).
+fn whole_loops_agree<N: RowNetwork>(
     what: &str,
     net: &NeuralNet,
     stats: &FeatureStats,
-    ort: &mut OrtNetwork,
+    mut ort: N,
     energies: &[&Energy],
     starts: &[Option<Vec<f64>>],
     template: &lfit::model::Template,
-) {
+) where
+    N::Error: std::fmt::Display,
+{
     let burn = lfit::nn::unroll(
         net,
         stats,
@@ -494,25 +536,23 @@ fn whole_loops_agree(
         &mut Dropout::off(),
     )
     .unwrap_or_else(|e| panic!("{what}: burn: {e}"));
-    let onnx = lfit::infer::onnx::runtime::unroll_ort(ort, energies, starts, None)
-        .unwrap_or_else(|e| panic!("{what}: ort: {e}"));
+    let onnx = lfit::nn::unroll_rows(&mut ort, energies, starts, None)
+        .unwrap_or_else(|e| panic!("{what}: other runtime: {e}"));
     for (a, b) in burn.host.iter().flatten().zip(onnx.iter().flatten()) {
         let d = v2v_mm(template, a, b);
         assert!(
             d.is_finite() && d < 1.0,
-            "{what}: Burn and ORT {d} mm apart"
+            "{what}: Burn and the other runtime {d} mm apart"
         );
     }
 }
 
 /// A pooled (camera-agnostic) keypoints2d network exports like any other (the pooling is on the
 /// host, the graphs keep fixed-size inputs): on a batch of random rigs of 1–8 cameras every
-/// network output of every iteration matches Burn, and so does the whole loop.
+/// network output of every iteration matches Burn, and so does the whole loop; natively too.
 #[test]
 fn a_pooled_keypoints_network_matches_burn_on_rigs_of_1_to_8_cameras() {
-    if !ort_ready() {
-        return;
-    }
+    let with_ort = ort_ready();
     let template = Arc::new(default_template());
     let sensor = Sensor::default_for(Modality::Keypoints2d, &template);
     let base = base_energy(&template, &sensor).expect("energy");
@@ -552,12 +592,37 @@ fn a_pooled_keypoints_network_matches_burn_on_rigs_of_1_to_8_cameras() {
     );
     let stats = measure_stats_with(&frames, &network).expect("stats");
     let net = NeuralNet::new(&network, 7, &ndarray_device()).expect("net");
+    let energies: Vec<&Energy> = frames.energies.iter().collect();
+    let starts_of = |given: bool| -> Vec<Option<Vec<f64>>> {
+        frames
+            .dataset
+            .start_poses
+            .iter()
+            .map(|s| given.then(|| s.clone()))
+            .collect()
+    };
+    let host = HostNet::new(&net, stats.clone()).expect("native");
+    let worst = lockstep(&net, &stats, &host, &energies, &frames.dataset.start_poses);
+    eprintln!("pooled, native, cameras {counts:?}: worst difference {worst:e}");
+    for given in [false, true] {
+        whole_loops_agree(
+            &format!("pooled, native, given {given}"),
+            &net,
+            &stats,
+            &host,
+            &energies,
+            &starts_of(given),
+            &template,
+        );
+    }
+    if !with_ort {
+        return;
+    }
     let meta = CheckpointMeta::new(&template, network.clone());
     let exported = export(&net, &meta, &stats).expect("export");
     let mut ort =
         OrtNetwork::from_exported(&exported, Path::new("pooled"), SessionOptions::default())
             .expect("sessions");
-    let energies: Vec<&Energy> = frames.energies.iter().collect();
     let worst = lockstep(
         &net,
         &stats,
@@ -568,19 +633,13 @@ fn a_pooled_keypoints_network_matches_burn_on_rigs_of_1_to_8_cameras() {
     eprintln!("pooled, cameras {counts:?}: worst difference {worst:e}");
     // The whole loop, from Φ(D) and from the start poses.
     for given in [false, true] {
-        let starts: Vec<Option<Vec<f64>>> = frames
-            .dataset
-            .start_poses
-            .iter()
-            .map(|s| given.then(|| s.clone()))
-            .collect();
         whole_loops_agree(
             &format!("pooled, given {given}"),
             &net,
             &stats,
             &mut ort,
             &energies,
-            &starts,
+            &starts_of(given),
             &template,
         );
     }
@@ -763,6 +822,81 @@ fn fit_with_runtime_ort_matches_runtime_burn_and_runs_an_exported_directory() {
             o["v2v_mm"]
         );
     }
+}
+
+/// `lfit fit --runtime native` runs the same fits as Burn (within 1 mm V2V of the truth's
+/// distance per frame, the same evaluations), names itself, and refuses ONNX Runtime's flag.
+#[test]
+fn fit_with_runtime_native_matches_runtime_burn() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let data = tmp.path().join("markers.npz");
+    lfit_json(&[
+        "-q",
+        "synth",
+        "--modality",
+        "markers",
+        "--frames",
+        "12",
+        "--seed",
+        "9201",
+        "--out",
+        path_str(&data),
+    ]);
+    let args = |runtime: &'static str, out: &Path| -> Vec<String> {
+        [
+            "-q",
+            "fit",
+            "--data",
+            path_str(&data),
+            "--method",
+            "neural",
+            "--checkpoint",
+            path_str(&shipped("markers")),
+            "--budget",
+            "10",
+            "--batch",
+            "4",
+            "--runtime",
+            runtime,
+            "--device",
+            "ndarray",
+            "--out",
+            path_str(out),
+        ]
+        .map(String::from)
+        .to_vec()
+    };
+    let run = |runtime: &'static str| -> serde_json::Value {
+        let out = tmp.path().join(format!("{runtime}.json"));
+        let a = args(runtime, &out);
+        lfit_json(&a.iter().map(String::as_str).collect::<Vec<_>>());
+        serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json")
+    };
+    let (burn, native) = (run("burn"), run("native"));
+    assert_eq!(native["runtime"], "native");
+    assert_eq!(native["method"], "neural-native");
+    let (fb, fnat) = (
+        burn["frames"].as_array().expect("f"),
+        native["frames"].as_array().expect("f"),
+    );
+    assert_eq!(fb.len(), 12);
+    for (b, n) in fb.iter().zip(fnat) {
+        assert_eq!(b["evaluations"], n["evaluations"], "frame {}", b["frame"]);
+        let diff = (b["v2v_mm"].as_f64().expect("v2v") - n["v2v_mm"].as_f64().expect("v2v")).abs();
+        assert!(
+            diff < 1.0,
+            "frame {}: V2V to the truth {} (burn) vs {} (native)",
+            b["frame"],
+            b["v2v_mm"],
+            n["v2v_mm"]
+        );
+    }
+    let out = tmp.path().join("refused.json");
+    let mut a = args("native", &out);
+    a.extend(["--ort-threads".into(), "2".into()]);
+    let refused = lfit(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_one_line_error(&refused, "--ort-threads is only for --runtime ort");
+    assert!(!out.exists(), "a refused fit writes nothing");
 }
 
 #[test]

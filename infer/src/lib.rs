@@ -2,7 +2,8 @@
 //! backend (`ndarray`, `flex`, `wgpu`) and fits frames through the same [`Fitter`] abstraction
 //! as the classical methods — per frame, as one batch of frames, or along a sequence (each frame
 //! starting from the previous result). The same loop runs with the network in ONNX Runtime
-//! ([`onnx`], `--runtime ort`).
+//! ([`onnx`], `--runtime ort`) and with lfit's own f32 forward on the host
+//! ([`lfit_nn::host`], `--runtime native`).
 
 pub mod onnx;
 pub mod refine;
@@ -53,6 +54,9 @@ pub enum Runtime {
     Burn,
     /// ONNX Runtime (CPU) on the exported graphs.
     Ort,
+    /// lfit's own f32 forward on the host ([`lfit_nn::HostNet`]): no per-operation dispatch,
+    /// the fastest at batch 1 on a CPU.
+    Native,
 }
 
 impl std::str::FromStr for Runtime {
@@ -61,7 +65,10 @@ impl std::str::FromStr for Runtime {
         match s {
             "burn" => Ok(Runtime::Burn),
             "ort" | "onnxruntime" => Ok(Runtime::Ort),
-            _ => Err(format!("unknown runtime '{s}' (expected burn or ort)")),
+            "native" => Ok(Runtime::Native),
+            _ => Err(format!(
+                "unknown runtime '{s}' (expected burn, ort or native)"
+            )),
         }
     }
 }
@@ -75,6 +82,8 @@ pub enum Engine {
     },
     /// Sessions need exclusive access to run; frames of one batch share one call.
     Ort(Box<Mutex<onnx::runtime::OrtNetwork>>),
+    /// The weights copied to the host once ([`lfit_nn::host`]).
+    Native(Box<lfit_nn::HostNet>),
 }
 
 /// A trained fitter.
@@ -136,6 +145,24 @@ impl NeuralFitter {
         }
     }
 
+    /// The checkpoint in `dir` with its network run by lfit's own f32 forward on the host
+    /// (`--runtime native`): the weights are read through Burn's CPU backend once.
+    pub fn load_native(dir: &Path, start: Start) -> Result<Self, ModelError> {
+        let Checkpoint {
+            meta, stats, net, ..
+        } = checkpoint::load(dir, &lfit_nn::tensor::ndarray_device())?;
+        let host = lfit_nn::HostNet::new(&net, stats.clone())
+            .map_err(|e| ModelError::Config(format!("{}: {e}", dir.display())))?;
+        Ok(Self {
+            meta,
+            stats,
+            engine: Engine::Native(Box::new(host)),
+            dir: dir.to_path_buf(),
+            start,
+            verified: Mutex::new(Vec::new()),
+        })
+    }
+
     /// The fitter with its network in ONNX Runtime: `dir` is a checkpoint (exported to ONNX in
     /// memory) or a directory written by `lfit export-onnx`.
     pub fn load_ort(
@@ -168,7 +195,7 @@ impl NeuralFitter {
     pub fn burn_net(&self) -> Option<&NeuralNet> {
         match &self.engine {
             Engine::Burn { net, .. } => Some(net.as_ref()),
-            Engine::Ort(_) => None,
+            Engine::Ort(_) | Engine::Native(_) => None,
         }
     }
 
@@ -217,7 +244,10 @@ impl NeuralFitter {
                         "the ONNX Runtime session was poisoned by an earlier failure".into(),
                     )
                 })?;
-                onnx::runtime::initial_poses_ort(&mut network, energies).map_err(neural)
+                lfit_nn::initial_poses_rows(&mut *network, energies).map_err(neural)
+            }
+            Engine::Native(host) => {
+                lfit_nn::initial_poses_rows(&mut host.as_ref(), energies).map_err(neural)
             }
         }
     }
@@ -255,7 +285,11 @@ impl NeuralFitter {
                         "the ONNX Runtime session was poisoned by an earlier failure".into(),
                     )
                 })?;
-                onnx::runtime::unroll_ort(&mut network, energies, starts, Some(constraints))
+                lfit_nn::unroll_rows(&mut *network, energies, starts, Some(constraints))
+                    .map_err(neural)
+            }
+            Engine::Native(host) => {
+                lfit_nn::unroll_rows(&mut host.as_ref(), energies, starts, Some(constraints))
                     .map_err(neural)
             }
         }
@@ -417,6 +451,7 @@ impl Fitter for NeuralFitter {
         match self.engine {
             Engine::Burn { .. } => base.into(),
             Engine::Ort(_) => format!("{base}-ort"),
+            Engine::Native(_) => format!("{base}-native"),
         }
     }
 

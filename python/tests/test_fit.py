@@ -112,6 +112,18 @@ def test_neural_fit_and_a_checkpoint_of_another_model(makehuman, markers_file, c
     theirs = json.loads(out.read_text())["frames"]
     ours = lfit.fit(makehuman, markers_file, method="neural+lm", budget=40, checkpoint=ck)
     np.testing.assert_allclose(ours.energies, [r["energy"] for r in theirs], rtol=1e-9)
+    # runtime="native" (lfit's own f32 forward): the CLI's native fits, and within f32 rounding of
+    # Burn's (the network outputs agree to ~1e-6, tests/onnx_runtime.rs).
+    out = tmp_path / "native.json"
+    cli("fit", "--data", markers_file, "--model", ROOT / "models" / "makehuman-cmu_mb.npz", "--method", "neural",
+        "--checkpoint", ck, "--budget", 10, "--runtime", "native", "--out", out)
+    theirs = json.loads(out.read_text())["frames"]
+    native = lfit.fit(makehuman, markers_file, method="neural", budget=10, checkpoint=ck, runtime="native")
+    burn = lfit.fit(makehuman, markers_file, method="neural", budget=10, checkpoint=ck)
+    np.testing.assert_allclose(native.energies, [r["energy"] for r in theirs], rtol=1e-9)
+    np.testing.assert_allclose(native.poses, burn.poses, atol=1e-4)
+    with pytest.raises(lfit.LfitError, match="unknown runtime 'cuda' \\(expected burn, ort or native\\)"):
+        lfit.fit(makehuman, markers_file, method="neural", budget=10, checkpoint=ck, runtime="cuda")
     # A checkpoint of another model: the CLI's line, nothing written.
     other = tmp_path / "default.npz"
     lfit.synth("markers", frames=2, seed=1, out=other)

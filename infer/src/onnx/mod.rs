@@ -50,6 +50,12 @@ pub enum OnnxError {
     Runtime(String),
 }
 
+impl From<lfit_model::ModelError> for OnnxError {
+    fn from(e: lfit_model::ModelError) -> Self {
+        OnnxError::Runtime(e.to_string())
+    }
+}
+
 impl OnnxError {
     pub fn model(path: &Path, reason: impl Into<String>) -> Self {
         OnnxError::Model {

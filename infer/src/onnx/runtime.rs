@@ -6,13 +6,11 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use lfit_model::{Energy, ModelError};
-use lfit_nn::Constraints;
+use lfit_nn::NetConfig;
 use lfit_nn::checkpoint::{self, CheckpointMeta};
 use lfit_nn::features::FeatureStats;
-use lfit_nn::unroll::{
-    check_batch, constraint_rows, core_rows, evaluate, observation_rows, rows_to_poses, step_rows,
-};
+pub use lfit_nn::unroll::StepOut;
+use lfit_nn::unroll::{RowNetwork, RowState};
 use ort::environment::Environment;
 use ort::session::Session;
 use ort::session::builder::GraphOptimizationLevel;
@@ -136,21 +134,8 @@ pub struct OrtNetwork {
     step: Vec<Session>,
 }
 
-/// Outputs of the step graph.
-#[derive(Debug, Clone)]
-pub struct StepOut {
-    pub update: Vec<f32>,
-    pub lambda: Vec<f32>,
-    pub gamma: Vec<f32>,
-}
-
 /// Recurrent state of a batch: per GRU layer of `f`, of fλ(γ) and of a separate fγ.
-#[derive(Debug, Clone, Default)]
-pub struct OrtState {
-    pub core: Vec<Vec<f32>>,
-    pub lambda: Vec<Vec<f32>>,
-    pub gamma: Vec<Vec<f32>>,
-}
+pub type OrtState = RowState;
 
 fn runtime(e: impl std::fmt::Display) -> OnnxError {
     OnnxError::Runtime(e.to_string())
@@ -267,13 +252,22 @@ impl OrtNetwork {
         }
         Self::from_exported(&Exported { files }, dir, options)
     }
+}
+
+/// The loop of [`lfit_nn::unroll::unroll_rows`] with the network in these sessions.
+impl RowNetwork for OrtNetwork {
+    type Error = OnnxError;
+
+    fn config(&self) -> &NetConfig {
+        &self.meta.network
+    }
+
+    fn stats(&self) -> &FeatureStats {
+        &self.stats
+    }
 
     /// θ0 = Φ(D) `[B, param_dim]` and the initial state, from normalised observations `[B, 2R]`.
-    pub fn initial(
-        &mut self,
-        obs: &[f32],
-        batch: usize,
-    ) -> Result<(Vec<f32>, OrtState), OnnxError> {
+    fn initial(&mut self, obs: &[f32], batch: usize) -> Result<(Vec<f32>, OrtState), OnnxError> {
         let c = &self.meta.network;
         let layers = c.recurrent_layers();
         let inputs = vec![("obs".to_string(), tensor(obs, batch, c.obs_features())?)];
@@ -282,31 +276,11 @@ impl OrtNetwork {
         let core = (0..layers)
             .map(|l| extract(&mut out, &format!("h0.{l}"), batch * c.hidden))
             .collect::<Result<Vec<_>, _>>()?;
-        let zeros = || {
-            (0..layers)
-                .map(|_| vec![0.0f32; batch * c.hidden])
-                .collect::<Vec<_>>()
-        };
-        Ok((
-            theta0,
-            OrtState {
-                core,
-                lambda: if c.has_step_network() {
-                    zeros()
-                } else {
-                    Vec::new()
-                },
-                gamma: if c.separate_gamma_network() {
-                    zeros()
-                } else {
-                    Vec::new()
-                },
-            },
-        ))
+        Ok((theta0, RowState::zeros(c, batch, core)))
     }
 
     /// Δθ of iteration `n` from the normalised core inputs; updates the core state.
-    pub fn propose(
+    fn propose(
         &mut self,
         n: usize,
         core_in: &[f32],
@@ -332,7 +306,7 @@ impl OrtNetwork {
 
     /// λ, γ and the update of iteration `n`; updates the λ/γ states. `delta` and `grad` are
     /// already masked.
-    pub fn step(
+    fn step(
         &mut self,
         n: usize,
         step_in: &[f32],
@@ -399,102 +373,4 @@ fn extract(
         )));
     }
     Ok(data.to_vec())
-}
-
-/// Φ(D) of every frame through ONNX Runtime, as [`lfit_nn::initial_poses`] does through Burn.
-pub fn initial_poses_ort(
-    net: &mut OrtNetwork,
-    energies: &[&Energy],
-) -> Result<Vec<Vec<f64>>, OnnxError> {
-    let model = |e: ModelError| OnnxError::Runtime(e.to_string());
-    let c = net.meta.network.clone();
-    let stats = net.stats.clone();
-    let none: Vec<Option<Vec<f64>>> = vec![None; energies.len()];
-    check_batch(&c, energies, &none).map_err(model)?;
-    let obs_norm = observation_rows(&c, &stats, energies).map_err(model)?;
-    let (phi, _) = net.initial(&obs_norm.concat(), energies.len())?;
-    Ok(rows_to_poses(&phi, c.param_dim))
-}
-
-/// Runs N iterations through ONNX Runtime on `energies`, exactly as
-/// [`lfit_nn::unroll`] does through Burn; returns θ0 … θN per frame (`[N + 1][B]`).
-pub fn unroll_ort(
-    net: &mut OrtNetwork,
-    energies: &[&Energy],
-    starts: &[Option<Vec<f64>>],
-    constraints: Option<&Constraints>,
-) -> Result<Vec<Vec<Vec<f64>>>, OnnxError> {
-    let model = |e: ModelError| OnnxError::Runtime(e.to_string());
-    let c = net.meta.network.clone();
-    let stats = net.stats.clone();
-    check_batch(&c, energies, starts).map_err(model)?;
-    let batch = energies.len();
-    let obs_norm = observation_rows(&c, &stats, energies).map_err(model)?;
-    let (phi, mut state) = net.initial(&obs_norm.concat(), batch)?;
-    // θ0: the given pose where there is one, Φ(D) elsewhere (in f32, as the Burn loop).
-    let dim = c.param_dim;
-    let mut theta: Vec<f32> = Vec::with_capacity(batch * dim);
-    for (i, s) in starts.iter().enumerate() {
-        match s {
-            Some(p) => theta.extend(p.iter().map(|&v| v as f32)),
-            None => theta.extend_from_slice(&phi[i * dim..(i + 1) * dim]),
-        }
-    }
-    let limits = constraints
-        .map(|k| constraint_rows(k, batch, dim))
-        .transpose()
-        .map_err(model)?;
-    let constrain = |t: &mut [f32]| {
-        if let Some((_, lo, hi)) = &limits {
-            for ((v, l), h) in t.iter_mut().zip(lo).zip(hi) {
-                *v = v.max(*l).min(*h);
-            }
-        }
-    };
-    constrain(&mut theta);
-    let mut host = vec![rows_to_poses(&theta, dim)];
-    for n in 0..c.iterations {
-        let current = host.last().cloned().unwrap_or_default();
-        let evals = evaluate(
-            &c,
-            energies,
-            &current,
-            constraints.map(|k| k.free.as_slice()),
-        )
-        .map_err(model)?;
-        let core_in =
-            core_rows(&c, &stats, energies, &evals, &current, &obs_norm).map_err(model)?;
-        let mut delta = net.propose(n, &core_in, batch, &mut state)?;
-        let mut grad: Vec<f32> = evals
-            .iter()
-            .flat_map(|(_, g)| g.iter().map(|&v| v as f32))
-            .collect();
-        if let Some((free, _, _)) = &limits {
-            for ((d, g), f) in delta.iter_mut().zip(grad.iter_mut()).zip(free) {
-                *d *= f;
-                *g *= f;
-            }
-        }
-        let update = if c.has_step_network() {
-            let step_in = step_rows(
-                &c,
-                &stats,
-                energies,
-                &current,
-                &evals,
-                &rows_to_poses(&delta, dim),
-            )
-            .map_err(model)?;
-            net.step(n, &step_in, &delta, &grad, batch, &mut state)?
-                .update
-        } else {
-            delta
-        };
-        for (t, u) in theta.iter_mut().zip(&update) {
-            *t += u;
-        }
-        constrain(&mut theta);
-        host.push(rows_to_poses(&theta, dim));
-    }
-    Ok(host)
 }

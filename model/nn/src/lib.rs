@@ -8,6 +8,7 @@
 pub mod checkpoint;
 pub mod config;
 pub mod features;
+pub mod host;
 pub mod layers;
 pub mod net;
 pub mod tensor;
@@ -20,9 +21,13 @@ pub use config::{
 pub use features::{
     FeatureStats, Norm, observation_features, observation_features_for, residual_features,
 };
+pub use host::HostNet;
 pub use layers::Dropout;
 pub use net::{NeuralNet, State, StepSizes};
-pub use unroll::{Constraints, Unrolled, direction, initial_poses, unroll};
+pub use unroll::{
+    Constraints, RowNetwork, RowState, StepOut, Unrolled, direction, initial_poses,
+    initial_poses_rows, unroll, unroll_rows,
+};
 
 #[cfg(test)]
 mod tests;

@@ -450,3 +450,203 @@ pub fn unroll(
         residual_evaluations: (c.evaluations_per_iteration() * c.iterations) as u64,
     })
 }
+
+/// Recurrent state of a batch on the host, `[B, H]` rows per GRU layer: of `f`, of fλ(γ) (with
+/// a λ/γ network) and of a separate fγ.
+#[derive(Debug, Clone, Default)]
+pub struct RowState {
+    pub core: Vec<Vec<f32>>,
+    pub lambda: Vec<Vec<f32>>,
+    pub gamma: Vec<Vec<f32>>,
+}
+
+impl RowState {
+    /// `core` (Φh(D)) and zeros for the λ/γ cores, as [`NeuralNet::initial`].
+    pub fn zeros(config: &NetConfig, batch: usize, core: Vec<Vec<f32>>) -> Self {
+        let zeros = |on: bool| {
+            if on {
+                (0..config.recurrent_layers())
+                    .map(|_| vec![0.0f32; batch * config.hidden])
+                    .collect()
+            } else {
+                Vec::new()
+            }
+        };
+        Self {
+            core,
+            lambda: zeros(config.has_step_network()),
+            gamma: zeros(config.separate_gamma_network()),
+        }
+    }
+}
+
+/// What the λ/γ part of one iteration gives: the update (θn − θ(n−1) before clamping), λ and γ,
+/// `[B, dim]`, `[B, k]`, `[B, kg]` row-major.
+#[derive(Debug, Clone)]
+pub struct StepOut {
+    pub update: Vec<f32>,
+    pub lambda: Vec<f32>,
+    pub gamma: Vec<f32>,
+}
+
+/// A network executed on host rows (`f32`, `[B, width]` row-major): ONNX Runtime sessions or
+/// [`crate::host::HostNet`]. [`unroll_rows`] runs papers/002 Alg. 1 with it, with the energy side
+/// of [`unroll`].
+pub trait RowNetwork {
+    type Error: From<ModelError>;
+    fn config(&self) -> &NetConfig;
+    fn stats(&self) -> &FeatureStats;
+    /// θ0 = Φ(D) `[B, param_dim]` and the initial state, from normalised observations.
+    fn initial(
+        &mut self,
+        obs: &[f32],
+        batch: usize,
+    ) -> std::result::Result<(Vec<f32>, RowState), Self::Error>;
+    /// Δθ of iteration `n` (0-based) from the normalised core inputs; updates the core state.
+    fn propose(
+        &mut self,
+        n: usize,
+        core_in: &[f32],
+        batch: usize,
+        state: &mut RowState,
+    ) -> std::result::Result<Vec<f32>, Self::Error>;
+    /// λ, γ and the update of iteration `n`; updates the λ/γ states. `delta` and `grad` are
+    /// already masked; `grad` is the raw direction.
+    #[allow(clippy::too_many_arguments)]
+    fn step(
+        &mut self,
+        n: usize,
+        step_in: &[f32],
+        delta: &[f32],
+        grad: &[f32],
+        batch: usize,
+        state: &mut RowState,
+    ) -> std::result::Result<StepOut, Self::Error>;
+}
+
+/// Φ(D) of every frame through a host network, as [`initial_poses`] does through Burn.
+pub fn initial_poses_rows<N: RowNetwork>(
+    net: &mut N,
+    energies: &[&Energy],
+) -> std::result::Result<Vec<Vec<f64>>, N::Error> {
+    let c = net.config().clone();
+    let none: Vec<Option<Vec<f64>>> = vec![None; energies.len()];
+    check_batch(&c, energies, &none)?;
+    let obs_norm = observation_rows(&c, net.stats(), energies)?;
+    let (phi, _) = net.initial(&obs_norm.concat(), energies.len())?;
+    Ok(rows_to_poses(&phi, c.param_dim))
+}
+
+/// Runs N iterations through a host network on `energies`, exactly as [`unroll`] does through
+/// Burn (θ in `f32` as there); returns θ0 … θN per frame (`[N + 1][B]`).
+pub fn unroll_rows<N: RowNetwork>(
+    net: &mut N,
+    energies: &[&Energy],
+    starts: &[Option<Vec<f64>>],
+    constraints: Option<&Constraints>,
+) -> std::result::Result<Vec<Vec<Vec<f64>>>, N::Error> {
+    let c = net.config().clone();
+    check_batch(&c, energies, starts)?;
+    let batch = energies.len();
+    let obs_norm = observation_rows(&c, net.stats(), energies)?;
+    let (phi, mut state) = net.initial(&obs_norm.concat(), batch)?;
+    // θ0: the given pose where there is one, Φ(D) elsewhere (in f32, as the Burn loop).
+    let dim = c.param_dim;
+    let mut theta: Vec<f32> = Vec::with_capacity(batch * dim);
+    for (i, s) in starts.iter().enumerate() {
+        match s {
+            Some(p) => theta.extend(p.iter().map(|&v| v as f32)),
+            None => theta.extend_from_slice(&phi[i * dim..(i + 1) * dim]),
+        }
+    }
+    let limits = constraints
+        .map(|k| constraint_rows(k, batch, dim))
+        .transpose()?;
+    let constrain = |t: &mut [f32]| {
+        if let Some((_, lo, hi)) = &limits {
+            for ((v, l), h) in t.iter_mut().zip(lo).zip(hi) {
+                *v = v.max(*l).min(*h);
+            }
+        }
+    };
+    constrain(&mut theta);
+    let mut host = vec![rows_to_poses(&theta, dim)];
+    for n in 0..c.iterations {
+        let current = host.last().cloned().unwrap_or_default();
+        let evals = evaluate(
+            &c,
+            energies,
+            &current,
+            constraints.map(|k| k.free.as_slice()),
+        )?;
+        let core_in = core_rows(&c, net.stats(), energies, &evals, &current, &obs_norm)?;
+        let mut delta = net.propose(n, &core_in, batch, &mut state)?;
+        let mut grad: Vec<f32> = evals
+            .iter()
+            .flat_map(|(_, g)| g.iter().map(|&v| v as f32))
+            .collect();
+        if let Some((free, _, _)) = &limits {
+            for ((d, g), f) in delta.iter_mut().zip(grad.iter_mut()).zip(free) {
+                *d *= f;
+                *g *= f;
+            }
+        }
+        let update = if c.has_step_network() {
+            let step_in = step_rows(
+                &c,
+                net.stats(),
+                energies,
+                &current,
+                &evals,
+                &rows_to_poses(&delta, dim),
+            )?;
+            net.step(n, &step_in, &delta, &grad, batch, &mut state)?
+                .update
+        } else {
+            delta
+        };
+        for (t, u) in theta.iter_mut().zip(&update) {
+            *t += u;
+        }
+        constrain(&mut theta);
+        host.push(rows_to_poses(&theta, dim));
+    }
+    Ok(host)
+}
+
+impl<T: RowNetwork + ?Sized> RowNetwork for &mut T {
+    type Error = T::Error;
+    fn config(&self) -> &NetConfig {
+        (**self).config()
+    }
+    fn stats(&self) -> &FeatureStats {
+        (**self).stats()
+    }
+    fn initial(
+        &mut self,
+        obs: &[f32],
+        batch: usize,
+    ) -> std::result::Result<(Vec<f32>, RowState), Self::Error> {
+        (**self).initial(obs, batch)
+    }
+    fn propose(
+        &mut self,
+        n: usize,
+        core_in: &[f32],
+        batch: usize,
+        state: &mut RowState,
+    ) -> std::result::Result<Vec<f32>, Self::Error> {
+        (**self).propose(n, core_in, batch, state)
+    }
+    fn step(
+        &mut self,
+        n: usize,
+        step_in: &[f32],
+        delta: &[f32],
+        grad: &[f32],
+        batch: usize,
+        state: &mut RowState,
+    ) -> std::result::Result<StepOut, Self::Error> {
+        (**self).step(n, step_in, delta, grad, batch, state)
+    }
+}

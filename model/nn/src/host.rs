@@ -1,0 +1,619 @@
+//! The trained network's inference forward on the host, in plain `f32` (`--runtime native`).
+//!
+//! At batch 1 a Burn backend spends most of a network call in per-operation overhead: each of
+//! the ~110 tensor operations of an iteration on `[1, 128]` rows costs about a microsecond of
+//! dispatch, more than its arithmetic (`docs/results/cost-model.md`). [`HostNet`] copies the
+//! weights of a [`NeuralNet`] once and runs the same layers as loops over rows: Linear
+//! (`y = x W + b`, `W` `[in, out]` as Burn stores it), LayerNorm, BatchNorm with its running
+//! statistics (inference mode), the layer-normalized GRU of papers/002 supp. eq. (12), the
+//! residual MLP core, the initializers Φ/Φh, the λ/γ network and the update rules of
+//! [`NeuralNet::update`]. It is inference only (no autodiff, no dropout) and is tested against
+//! the Burn modules it was read from (`tests.rs`, `host_forward_matches_burn_*`).
+//!
+//! It runs through [`crate::unroll::unroll_rows`], the same host loop as ONNX Runtime.
+
+use burn::nn::{BatchNorm, LayerNorm, LayerNormConfig, Linear};
+use burn::tensor::Tensor;
+use wide::f32x4;
+
+use crate::config::{NetConfig, UpdateRule};
+use crate::features::FeatureStats;
+use crate::layers::{GruStack, InitMlp, LnGruCell, ResidualMlp};
+use crate::net::{Core, NeuralNet};
+use crate::unroll::{RowNetwork, RowState, StepOut};
+use lfit_model::error::{ModelError, Result};
+
+/// Output columns a Linear layer accumulates at once: 32 `f32` accumulators stay in registers
+/// (eight SSE registers) while the input is streamed, one weight load per four multiply-adds
+/// (a `[575] × [575, 384]` product: 25 µs as one `axpy` per input, 14 µs in blocks of 32).
+const LANES: usize = 32;
+
+/// Host values of a Burn tensor, row-major.
+pub fn values<const D: usize>(t: Tensor<D>) -> Result<Vec<f32>> {
+    t.into_data()
+        .convert::<f32>()
+        .try_to_vec::<f32>()
+        .map_err(|e| ModelError::Config(format!("cannot read the network's weights: {e:?}")))
+}
+
+/// Epsilon of the LayerNorms lfit builds (Burn's `LayerNormConfig` default: the field is
+/// private in Burn, and every LayerNorm of the network is created with the default).
+pub fn layer_norm_epsilon() -> f64 {
+    LayerNormConfig::new(1).epsilon
+}
+
+/// `y = x W + b` (`W` `[in, out]` as Burn stores it), the weights packed in blocks of [`LANES`]
+/// output columns: block `k` holds `W[i, 32k..32k + 32]` for every input `i` in turn (the last
+/// block zero-padded), so one block streams contiguously past its accumulators. The arithmetic is
+/// explicit 4-wide SIMD (`wide::f32x4`: SSE2 in the portable build, no `unsafe`): the compiler
+/// does not vectorise the 32 scalar accumulators reliably (measured: it kept them scalar here).
+#[derive(Debug, Clone)]
+struct HostLinear {
+    packed: Vec<f32>,
+    /// The bias of each block of [`LANES`] outputs, zero-padded.
+    bias: Vec<[f32x4; LANES / 4]>,
+    d_in: usize,
+    d_out: usize,
+}
+
+impl HostLinear {
+    fn new(linear: &Linear) -> Result<Self> {
+        let [d_in, d_out] = linear.weight.val().dims();
+        let w = values(linear.weight.val())?;
+        let b = match &linear.bias {
+            Some(b) => values(b.val())?,
+            None => vec![0.0; d_out],
+        };
+        let blocks = d_out.div_ceil(LANES);
+        let mut packed = vec![0.0f32; blocks * d_in * LANES];
+        for (k, block) in packed.chunks_exact_mut(d_in * LANES).enumerate() {
+            for (i, lanes) in block.chunks_exact_mut(LANES).enumerate() {
+                for (l, v) in lanes.iter_mut().enumerate() {
+                    let j = k * LANES + l;
+                    if j < d_out {
+                        *v = w[i * d_out + j];
+                    }
+                }
+            }
+        }
+        let bias = (0..blocks)
+            .map(|k| {
+                std::array::from_fn(|q| {
+                    f32x4::from(std::array::from_fn::<f32, 4, _>(|l| {
+                        b.get(k * LANES + 4 * q + l).copied().unwrap_or(0.0)
+                    }))
+                })
+            })
+            .collect();
+        Ok(Self {
+            packed,
+            bias,
+            d_in,
+            d_out,
+        })
+    }
+
+    /// `x` `[batch, in]` → `[batch, out]`; each output is `b_j + Σ_i x_i W_ij` summed in the
+    /// order of `i`. A block of weights serves every row of the batch before the next block.
+    fn forward(&self, x: &[f32], batch: usize) -> Vec<f32> {
+        let (d_in, d_out) = (self.d_in, self.d_out);
+        debug_assert_eq!(x.len(), batch * d_in);
+        let mut y = vec![0.0f32; batch * d_out];
+        for (k, (block, bias)) in self
+            .packed
+            .chunks_exact(d_in * LANES)
+            .zip(&self.bias)
+            .enumerate()
+        {
+            let j0 = k * LANES;
+            let width = LANES.min(d_out - j0);
+            for (xb, yb) in x.chunks_exact(d_in).zip(y.chunks_exact_mut(d_out)) {
+                let mut acc = *bias;
+                for (&xi, lanes) in xb.iter().zip(block.as_chunks::<LANES>().0) {
+                    let xv = f32x4::splat(xi);
+                    for (a, w) in acc.iter_mut().zip(lanes.as_chunks::<4>().0) {
+                        *a += xv * f32x4::from(*w);
+                    }
+                }
+                let out: [f32; LANES] = std::array::from_fn(|l| acc[l / 4].to_array()[l % 4]);
+                yb[j0..j0 + width].copy_from_slice(&out[..width]);
+            }
+        }
+        y
+    }
+}
+
+/// LayerNorm over the last axis: `(x − mean) / sqrt(var + ε) · g + b` (biased variance).
+#[derive(Debug, Clone)]
+struct HostLayerNorm {
+    gamma: Vec<f32>,
+    beta: Vec<f32>,
+    epsilon: f32,
+}
+
+impl HostLayerNorm {
+    fn new(ln: &LayerNorm) -> Result<Self> {
+        let gamma = values(ln.gamma.val())?;
+        let beta = match &ln.beta {
+            Some(b) => values(b.val())?,
+            None => vec![0.0; gamma.len()],
+        };
+        Ok(Self {
+            gamma,
+            beta,
+            epsilon: layer_norm_epsilon() as f32,
+        })
+    }
+
+    /// Normalises one row into `out`.
+    fn row(&self, x: &[f32], out: &mut [f32]) {
+        let n = x.len() as f32;
+        let mean = x.iter().sum::<f32>() / n;
+        let var = x.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / n;
+        let inv = 1.0 / (var + self.epsilon).sqrt();
+        for (((o, v), g), b) in out.iter_mut().zip(x).zip(&self.gamma).zip(&self.beta) {
+            *o = (v - mean) * inv * g + b;
+        }
+    }
+}
+
+fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+/// `ln(1 + eˣ)`, stable for large |x|.
+fn softplus(x: f32) -> f32 {
+    x.max(0.0) + (-x.abs()).exp().ln_1p()
+}
+
+#[derive(Debug, Clone)]
+struct HostGruCell {
+    w: HostLinear,
+    u_zr: HostLinear,
+    u_h: HostLinear,
+    /// ln_wz, ln_wr, ln_wh, ln_uz, ln_ur, ln_uh.
+    ln: [HostLayerNorm; 6],
+    hidden: usize,
+}
+
+impl HostGruCell {
+    fn new(cell: &LnGruCell) -> Result<Self> {
+        Ok(Self {
+            w: HostLinear::new(&cell.w)?,
+            u_zr: HostLinear::new(&cell.u_zr)?,
+            u_h: HostLinear::new(&cell.u_h)?,
+            ln: [
+                HostLayerNorm::new(&cell.ln_wz)?,
+                HostLayerNorm::new(&cell.ln_wr)?,
+                HostLayerNorm::new(&cell.ln_wh)?,
+                HostLayerNorm::new(&cell.ln_uz)?,
+                HostLayerNorm::new(&cell.ln_ur)?,
+                HostLayerNorm::new(&cell.ln_uh)?,
+            ],
+            hidden: cell.hidden,
+        })
+    }
+
+    /// papers/002 supp. eq. (12), as [`LnGruCell::forward`]: `x` `[B, in]`, `h` `[B, H]` → `h'`.
+    fn forward(&self, x: &[f32], h: &[f32], batch: usize) -> Vec<f32> {
+        let hd = self.hidden;
+        let wx = self.w.forward(x, batch);
+        let uh = self.u_zr.forward(h, batch);
+        let [ln_wz, ln_wr, ln_wh, ln_uz, ln_ur, ln_uh] = &self.ln;
+        let (mut a, mut b) = (vec![0.0f32; hd], vec![0.0f32; hd]);
+        let mut z = vec![0.0f32; batch * hd];
+        let mut rh = vec![0.0f32; batch * hd];
+        for i in 0..batch {
+            let (wx, uh, h) = (
+                &wx[i * 3 * hd..(i + 1) * 3 * hd],
+                &uh[i * 2 * hd..(i + 1) * 2 * hd],
+                &h[i * hd..(i + 1) * hd],
+            );
+            ln_wz.row(&wx[..hd], &mut a);
+            ln_uz.row(&uh[..hd], &mut b);
+            for ((zj, aj), bj) in z[i * hd..(i + 1) * hd].iter_mut().zip(&a).zip(&b) {
+                *zj = sigmoid(aj + bj);
+            }
+            ln_wr.row(&wx[hd..2 * hd], &mut a);
+            ln_ur.row(&uh[hd..], &mut b);
+            for (((o, aj), bj), hj) in rh[i * hd..(i + 1) * hd].iter_mut().zip(&a).zip(&b).zip(h) {
+                *o = sigmoid(aj + bj) * hj;
+            }
+        }
+        let uhh = self.u_h.forward(&rh, batch);
+        let mut out = vec![0.0f32; batch * hd];
+        for i in 0..batch {
+            let r = i * hd..(i + 1) * hd;
+            ln_wh.row(&wx[i * 3 * hd + 2 * hd..(i + 1) * 3 * hd], &mut a);
+            ln_uh.row(&uhh[r.clone()], &mut b);
+            for ((((o, aj), bj), zj), hj) in out[r.clone()]
+                .iter_mut()
+                .zip(&a)
+                .zip(&b)
+                .zip(&z[r.clone()])
+                .zip(&h[r.clone()])
+            {
+                let cand = (aj + bj).tanh();
+                *o = (1.0 - zj) * hj + zj * cand;
+            }
+        }
+        out
+    }
+}
+
+/// A recurrent (GRU stack) or memoryless (residual MLP) core.
+#[derive(Debug, Clone)]
+enum HostCore {
+    Gru(Vec<HostGruCell>),
+    Mlp {
+        input: HostLinear,
+        blocks: Vec<HostLinear>,
+    },
+}
+
+impl HostCore {
+    fn new(core: &Core) -> Result<Self> {
+        match (&core.gru, &core.mlp) {
+            (Some(GruStack { cells }), _) => Ok(HostCore::Gru(
+                cells.iter().map(HostGruCell::new).collect::<Result<_>>()?,
+            )),
+            (None, Some(ResidualMlp { input, blocks })) => Ok(HostCore::Mlp {
+                input: HostLinear::new(input)?,
+                blocks: blocks.iter().map(HostLinear::new).collect::<Result<_>>()?,
+            }),
+            (None, None) => Err(ModelError::Config(
+                "a network core without GRU or MLP".into(),
+            )),
+        }
+    }
+
+    /// Output `[B, H]`; a GRU's `states` (one per layer) are replaced by the new ones.
+    fn forward(&self, x: &[f32], states: &mut [Vec<f32>], batch: usize) -> Result<Vec<f32>> {
+        match self {
+            HostCore::Gru(cells) => {
+                if states.len() != cells.len() {
+                    return Err(ModelError::Shape {
+                        what: "GRU states".into(),
+                        expected: cells.len().to_string(),
+                        got: states.len().to_string(),
+                    });
+                }
+                let mut input = x.to_vec();
+                for (cell, h) in cells.iter().zip(states.iter_mut()) {
+                    if h.len() != batch * cell.hidden {
+                        return Err(ModelError::Shape {
+                            what: "GRU state".into(),
+                            expected: (batch * cell.hidden).to_string(),
+                            got: h.len().to_string(),
+                        });
+                    }
+                    let next = cell.forward(&input, h, batch);
+                    input.clone_from(&next);
+                    *h = next;
+                }
+                Ok(input)
+            }
+            HostCore::Mlp { input, blocks } => {
+                let mut y = input.forward(x, batch);
+                relu(&mut y);
+                for block in blocks {
+                    let mut b = block.forward(&y, batch);
+                    relu(&mut b);
+                    for (v, d) in y.iter_mut().zip(&b) {
+                        *v += d;
+                    }
+                }
+                Ok(y)
+            }
+        }
+    }
+}
+
+fn relu(x: &mut [f32]) {
+    for v in x {
+        *v = v.max(0.0);
+    }
+}
+
+/// BatchNorm in inference mode, folded: `y = x · scale + shift`.
+#[derive(Debug, Clone)]
+struct HostBatchNorm {
+    scale: Vec<f32>,
+    shift: Vec<f32>,
+}
+
+impl HostBatchNorm {
+    fn new(bn: &BatchNorm) -> Result<Self> {
+        let gamma = values(bn.gamma.val())?;
+        let beta = values(bn.beta.val())?;
+        let mean = values(bn.running_mean.value())?;
+        let var = values(bn.running_var.value())?;
+        let eps = bn.epsilon as f32;
+        let scale: Vec<f32> = gamma
+            .iter()
+            .zip(&var)
+            .map(|(g, v)| g / (v + eps).sqrt())
+            .collect();
+        let shift = beta
+            .iter()
+            .zip(&mean)
+            .zip(&scale)
+            .map(|((b, m), s)| b - m * s)
+            .collect();
+        Ok(Self { scale, shift })
+    }
+
+    /// In place on `[B, C]` rows, then ReLU.
+    fn forward_relu(&self, x: &mut [f32]) {
+        for row in x.chunks_exact_mut(self.scale.len()) {
+            for ((v, s), t) in row.iter_mut().zip(&self.scale).zip(&self.shift) {
+                *v = (*v * s + t).max(0.0);
+            }
+        }
+    }
+}
+
+/// Φ / Φh: Linear → BatchNorm → ReLU, twice, then Linear.
+#[derive(Debug, Clone)]
+struct HostInit {
+    l1: HostLinear,
+    bn1: HostBatchNorm,
+    l2: HostLinear,
+    bn2: HostBatchNorm,
+    out: HostLinear,
+}
+
+impl HostInit {
+    fn new(m: &InitMlp) -> Result<Self> {
+        Ok(Self {
+            l1: HostLinear::new(&m.l1)?,
+            bn1: HostBatchNorm::new(&m.bn1)?,
+            l2: HostLinear::new(&m.l2)?,
+            bn2: HostBatchNorm::new(&m.bn2)?,
+            out: HostLinear::new(&m.out)?,
+        })
+    }
+
+    fn forward(&self, x: &[f32], batch: usize) -> Vec<f32> {
+        let mut y = self.l1.forward(x, batch);
+        self.bn1.forward_relu(&mut y);
+        let mut y = self.l2.forward(&y, batch);
+        self.bn2.forward_relu(&mut y);
+        self.out.forward(&y, batch)
+    }
+}
+
+#[derive(Debug, Clone)]
+struct HostStep {
+    lambda_core: HostCore,
+    lambda_head: HostLinear,
+    gamma: Option<(HostCore, HostLinear)>,
+}
+
+/// The whole network on the host, read once from a [`NeuralNet`], with the feature statistics
+/// of its checkpoint.
+#[derive(Debug, Clone)]
+pub struct HostNet {
+    pub config: NetConfig,
+    pub stats: FeatureStats,
+    phi: HostInit,
+    phi_h: Option<HostInit>,
+    cores: Vec<HostCore>,
+    delta_heads: Vec<HostLinear>,
+    steps: Vec<HostStep>,
+}
+
+fn shape(what: &str, expected: usize, got: usize) -> ModelError {
+    ModelError::Shape {
+        what: what.into(),
+        expected: expected.to_string(),
+        got: got.to_string(),
+    }
+}
+
+impl HostNet {
+    /// Copies the weights of `net` (on any Burn device) to the host.
+    pub fn new(net: &NeuralNet, stats: FeatureStats) -> Result<Self> {
+        let c = &net.config;
+        c.validate()?;
+        stats.validate(c)?;
+        let steps = net
+            .steps
+            .iter()
+            .map(|s| {
+                Ok(HostStep {
+                    lambda_core: HostCore::new(&s.lambda_core)?,
+                    lambda_head: HostLinear::new(&s.lambda_head)?,
+                    gamma: match (&s.gamma_core, &s.gamma_head) {
+                        (Some(core), Some(head)) => {
+                            Some((HostCore::new(core)?, HostLinear::new(head)?))
+                        }
+                        _ => None,
+                    },
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let host = Self {
+            config: c.clone(),
+            stats,
+            phi: HostInit::new(&net.phi)?,
+            phi_h: net.phi_h.as_ref().map(HostInit::new).transpose()?,
+            cores: net.cores.iter().map(HostCore::new).collect::<Result<_>>()?,
+            delta_heads: net
+                .delta_heads
+                .iter()
+                .map(HostLinear::new)
+                .collect::<Result<_>>()?,
+            steps,
+        };
+        let sets = c.weight_sets();
+        if host.cores.len() != sets
+            || host.delta_heads.len() != sets
+            || (c.has_step_network() && host.steps.len() != sets)
+        {
+            return Err(ModelError::Config(format!(
+                "the network has {} core(s) and {} step network(s), its configuration {sets} weight set(s)",
+                host.cores.len(),
+                host.steps.len()
+            )));
+        }
+        Ok(host)
+    }
+}
+
+impl RowNetwork for &HostNet {
+    type Error = ModelError;
+
+    fn config(&self) -> &NetConfig {
+        &self.config
+    }
+
+    fn stats(&self) -> &FeatureStats {
+        &self.stats
+    }
+
+    fn initial(&mut self, obs: &[f32], batch: usize) -> Result<(Vec<f32>, RowState)> {
+        let c = &self.config;
+        if obs.len() != batch * c.obs_features() {
+            return Err(shape(
+                "observation features",
+                batch * c.obs_features(),
+                obs.len(),
+            ));
+        }
+        let theta0 = self.phi.forward(obs, batch);
+        let core = match &self.phi_h {
+            Some(phi_h) => {
+                let h = phi_h.forward(obs, batch);
+                let width = c.layers * c.hidden;
+                (0..c.layers)
+                    .map(|l| {
+                        (0..batch)
+                            .flat_map(|b| {
+                                h[b * width + l * c.hidden..b * width + (l + 1) * c.hidden]
+                                    .iter()
+                                    .copied()
+                            })
+                            .collect()
+                    })
+                    .collect()
+            }
+            None => Vec::new(),
+        };
+        Ok((theta0, RowState::zeros(c, batch, core)))
+    }
+
+    fn propose(
+        &mut self,
+        n: usize,
+        core_in: &[f32],
+        batch: usize,
+        state: &mut RowState,
+    ) -> Result<Vec<f32>> {
+        let c = &self.config;
+        if core_in.len() != batch * c.core_inputs() {
+            return Err(shape("core inputs", batch * c.core_inputs(), core_in.len()));
+        }
+        let s = c.weight_set(n);
+        let h = self.cores[s].forward(core_in, &mut state.core, batch)?;
+        Ok(self.delta_heads[s].forward(&h, batch))
+    }
+
+    fn step(
+        &mut self,
+        n: usize,
+        step_in: &[f32],
+        delta: &[f32],
+        grad: &[f32],
+        batch: usize,
+        state: &mut RowState,
+    ) -> Result<StepOut> {
+        let c = &self.config;
+        if !c.has_step_network() {
+            return Err(ModelError::Config(
+                "the Δθ-only rule has no step network".into(),
+            ));
+        }
+        if step_in.len() != batch * c.step_inputs() {
+            return Err(shape("step inputs", batch * c.step_inputs(), step_in.len()));
+        }
+        let dim = c.param_dim;
+        if delta.len() != batch * dim || grad.len() != batch * dim {
+            return Err(shape(
+                "Δθ and gradient",
+                batch * dim,
+                delta.len().min(grad.len()),
+            ));
+        }
+        let net = &self.steps[c.weight_set(n)];
+        let (k, kg) = (c.step_outputs(), c.gamma_outputs());
+        let out = net.lambda_head.forward(
+            &net.lambda_core.forward(step_in, &mut state.lambda, batch)?,
+            batch,
+        );
+        // Raw λ and γ head outputs, `[B, k]` and `[B, kg]`.
+        let (a, b): (Vec<f32>, Option<Vec<f32>>) = match &net.gamma {
+            Some((core, head)) => (
+                out,
+                Some(head.forward(&core.forward(step_in, &mut state.gamma, batch)?, batch)),
+            ),
+            None if c.learns_gamma() => {
+                let w = k + kg;
+                let a = (0..batch)
+                    .flat_map(|i| out[i * w..i * w + k].iter().copied())
+                    .collect();
+                let b = (0..batch)
+                    .flat_map(|i| out[i * w + k..(i + 1) * w].iter().copied())
+                    .collect();
+                (a, Some(b))
+            }
+            None => (out, None),
+        };
+        let lambda: Vec<f32> = match c.update {
+            UpdateRule::Eq1 => a.iter().map(|v| v + 1.0).collect(),
+            _ => a.iter().map(|&v| sigmoid(v)).collect(),
+        };
+        let gamma: Vec<f32> = match b {
+            Some(b) => {
+                let scale = (c.gamma_init / std::f64::consts::LN_2) as f32;
+                b.iter().map(|&v| softplus(v) * scale).collect()
+            }
+            None => vec![c.gamma_constant as f32; batch * kg],
+        };
+        let mut update = vec![0.0f32; batch * dim];
+        for i in 0..batch {
+            let (d, g) = (
+                &delta[i * dim..(i + 1) * dim],
+                &grad[i * dim..(i + 1) * dim],
+            );
+            let l = |j: usize| lambda[i * k + if k == 1 { 0 } else { j }];
+            let gm = |j: usize| gamma[i * kg + if kg == 1 { 0 } else { j }];
+            let u = &mut update[i * dim..(i + 1) * dim];
+            match c.update {
+                UpdateRule::DeltaOnly => u.copy_from_slice(d),
+                UpdateRule::Eq1 => {
+                    for j in 0..dim {
+                        u[j] = l(j) * d[j] - gm(j) * g[j];
+                    }
+                }
+                UpdateRule::Convex => {
+                    for j in 0..dim {
+                        u[j] = l(j) * d[j] - (1.0 - l(j)) * gm(j) * g[j];
+                    }
+                }
+                UpdateRule::ConvexNormalized => {
+                    let norm = |x: &[f32]| (x.iter().map(|v| v * v).sum::<f32>() + 1e-12).sqrt();
+                    let (nd, ng) = (norm(d), norm(g));
+                    for j in 0..dim {
+                        u[j] = gm(j) * (l(j) * (d[j] / nd) - (1.0 - l(j)) * (g[j] / ng));
+                    }
+                }
+            }
+        }
+        Ok(StepOut {
+            update,
+            lambda,
+            gamma,
+        })
+    }
+}
