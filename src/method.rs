@@ -256,7 +256,7 @@ pub fn build_classic(kind: MethodKind, options: ClassicOptions) -> Result<Box<dy
 pub const NO_NEURAL: &str = "this build of lfit has no neural fitter: rebuild with the cargo feature `neural` (the Python wheel: maturin build --features neural)";
 
 /// The fitter of a neural method from the command line's words: `start` (`given`, `phi`,
-/// `best`), `runtime` (`burn`, `ort`), the Burn `device` and ONNX Runtime's threads.
+/// `best`), `runtime` (`burn`, `ort`, `native`), the Burn `device` and ONNX Runtime's threads.
 #[cfg(feature = "neural")]
 pub fn load_neural_named(
     kind: MethodKind,

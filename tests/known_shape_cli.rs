@@ -212,12 +212,12 @@ fn a_known_shape_is_frozen_for_every_method_and_required_by_a_known_shape_networ
     assert!(!d.join("t").join("config.json").exists());
 
     // A bench with the known-shape checkpoint must give β.
-    let bench = |known: bool| {
-        let toml = d.join(format!("bench-{known}.toml"));
+    let bench_with = |known: bool, extra: &str, name: &str| {
+        let toml = d.join(format!("bench-{name}.toml"));
         std::fs::write(
             &toml,
             format!(
-                "name = \"k\"\ndata = \"{}\"\nmethods = [\"neural\", \"lm\"]\nbudgets = [50]\ncheckpoint = \"{}\"\nneural_start = \"given\"\nknown_shape = {known}\nframes = \"0-1\"\n",
+                "name = \"k\"\ndata = \"{}\"\nmethods = [\"neural\", \"lm\"]\nbudgets = [50]\ncheckpoint = \"{}\"\nneural_start = \"given\"\nknown_shape = {known}\nframes = \"0-1\"\n{extra}",
                 path_str(&data),
                 path_str(&ck)
             ),
@@ -229,10 +229,20 @@ fn a_known_shape_is_frozen_for_every_method_and_required_by_a_known_shape_networ
             "--config",
             path_str(&toml),
             "--out",
-            path_str(&d.join(format!("b-{known}"))),
+            path_str(&d.join(format!("b-{name}"))),
         ])
     };
+    let bench = |known: bool| bench_with(known, "", &known.to_string());
     assert_one_line_error(&bench(false), "known_shape = true");
+    // The network's runtime is a bench key too: native gives Burn's fits (to f32 rounding of the
+    // network's outputs); an unknown one is refused before anything runs.
+    assert_one_line_error(
+        &bench_with(true, "runtime = \"cuda\"\n", "cuda"),
+        "unknown runtime 'cuda'",
+    );
+    assert!(!d.join("b-cuda").join("runs.csv").exists());
+    let o = bench_with(true, "runtime = \"native\"\n", "native");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let o = bench(true);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let csv = std::fs::read_to_string(d.join("b-true/runs.csv")).expect("runs.csv");
@@ -243,7 +253,29 @@ fn a_known_shape_is_frozen_for_every_method_and_required_by_a_known_shape_networ
         .expect("shape_rms");
     let rows: Vec<&str> = csv.lines().skip(1).collect();
     assert_eq!(rows.len(), 4);
-    for row in rows {
+    for row in &rows {
         assert_eq!(row.split(',').nth(col), Some("0.00000"), "{row}");
     }
+    let native = std::fs::read_to_string(d.join("b-native/runs.csv")).expect("runs.csv");
+    let v2v = header.iter().position(|h| *h == "v2v_mm").expect("v2v_mm");
+    let key = |row: &str| -> (String, String) {
+        let f: Vec<&str> = row.split(',').collect();
+        // The method column names the runtime ("neural-given-native"): compare by family.
+        let family = f[0].split('-').next().unwrap_or_default().to_string();
+        (family, f[4].to_string())
+    };
+    let mut compared = 0;
+    for n in native.lines().skip(1) {
+        let b = rows
+            .iter()
+            .find(|r| key(r) == key(n))
+            .unwrap_or_else(|| panic!("no Burn row for {n}"));
+        let (x, y): (f64, f64) = (
+            n.split(',').nth(v2v).expect("v2v").parse().expect("number"),
+            b.split(',').nth(v2v).expect("v2v").parse().expect("number"),
+        );
+        assert!((x - y).abs() < 1e-2, "native {n} vs burn {b}");
+        compared += 1;
+    }
+    assert_eq!(compared, 4);
 }

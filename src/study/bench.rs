@@ -101,6 +101,10 @@ pub struct BenchConfig {
     pub checkpoint: Option<PathBuf>,
     #[serde(default)]
     pub neural_start: Option<String>,
+    /// What runs a neural method's network: `burn` (default, on flex), `native` (lfit's own f32
+    /// forward, the fastest at batch 1) or `ort` (ONNX Runtime); as `lfit fit --runtime`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub runtime: Option<String>,
     /// How a sequence estimates β: `per-frame` (default), `first-pass` or `joint`
     /// ([`crate::fitting::SequenceShape`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -218,6 +222,7 @@ impl BenchConfig {
             #[cfg(feature = "neural")]
             {
                 self.neural_start()?;
+                self.runtime()?;
                 if !self.known_shape && checkpoint_knows_shape(c)? {
                     bail!(
                         "checkpoint {} was trained with the shape β known (papers/002 §3.2): set known_shape = true",
@@ -312,6 +317,16 @@ impl BenchConfig {
             .unwrap_or("given")
             .parse()
             .map_err(anyhow::Error::msg)
+    }
+
+    #[cfg(feature = "neural")]
+    fn runtime(&self) -> Result<lfit_infer::Runtime> {
+        self.runtime
+            .as_deref()
+            .unwrap_or("burn")
+            .parse()
+            .map_err(anyhow::Error::msg)
+            .context("runtime")
     }
 
     /// The one energy configuration of the benchmark and its name.
@@ -620,7 +635,7 @@ pub fn run(
                 kind,
                 dir,
                 config.neural_start.as_deref().unwrap_or("given"),
-                "burn",
+                config.runtime.as_deref().unwrap_or("burn"),
                 "flex",
                 None,
             )?);
