@@ -2,7 +2,7 @@
 //! the layers of lfit's network (Linear as `Gemm`, LayerNorm as `LayerNormalization`, BatchNorm
 //! in inference mode as `BatchNormalization`) read from Burn modules.
 
-use burn::nn::{BatchNorm, LayerNorm, LayerNormConfig, Linear};
+use burn::nn::{BatchNorm, LayerNorm, Linear};
 use burn::tensor::Tensor;
 
 use super::proto::{
@@ -11,19 +11,12 @@ use super::proto::{
 };
 use super::{FLOAT, INT64, OnnxError};
 
-/// Host values of a Burn tensor, row-major.
+/// Host values of a Burn tensor, row-major ([`lfit_nn::host::values`], as an export error).
 pub fn values<const D: usize>(t: Tensor<D>) -> Result<Vec<f32>, OnnxError> {
-    t.into_data()
-        .convert::<f32>()
-        .try_to_vec::<f32>()
-        .map_err(|e| OnnxError::Export(format!("cannot read weights: {e:?}")))
+    lfit_nn::host::values(t).map_err(|e| OnnxError::Export(e.to_string()))
 }
 
-/// Epsilon of the LayerNorms lfit builds (Burn's `LayerNormConfig` default; the field is private
-/// in Burn, and every LayerNorm of the network is created with the default).
-pub fn layer_norm_epsilon() -> f64 {
-    LayerNormConfig::new(1).epsilon
-}
+pub use lfit_nn::host::layer_norm_epsilon;
 
 /// A graph under construction.
 #[derive(Debug, Default)]
