@@ -64,6 +64,9 @@ impl HostLinear {
             Some(b) => values(b.val())?,
             None => vec![0.0; d_out],
         };
+        if b.len() != d_out {
+            return Err(shape("Linear bias", d_out, b.len()));
+        }
         let blocks = d_out.div_ceil(LANES);
         let mut packed = vec![0.0f32; blocks * d_in * LANES];
         for (k, block) in packed.chunks_exact_mut(d_in * LANES).enumerate() {
@@ -91,6 +94,19 @@ impl HostLinear {
             d_in,
             d_out,
         })
+    }
+
+    /// A one-line error unless this layer is `[d_in, d_out]`.
+    fn expect(&self, what: &str, d_in: usize, d_out: usize) -> Result<()> {
+        if (self.d_in, self.d_out) == (d_in, d_out) {
+            Ok(())
+        } else {
+            Err(ModelError::Shape {
+                what: format!("network layer {what}"),
+                expected: format!("[{d_in}, {d_out}]"),
+                got: format!("[{}, {}]", self.d_in, self.d_out),
+            })
+        }
     }
 
     /// `x` `[batch, in]` → `[batch, out]`; each output is `b_j + Σ_i x_i W_ij` summed in the
@@ -457,7 +473,79 @@ impl HostNet {
                 host.steps.len()
             )));
         }
+        host.check_shapes()?;
         Ok(host)
+    }
+
+    /// Every layer's shape against the configuration, so that a checkpoint whose weights do not
+    /// match its `config.json` is a one-line error here and never a slice out of range later.
+    fn check_shapes(&self) -> Result<()> {
+        let c = &self.config;
+        let h = c.hidden;
+        let init = |m: &HostInit, what: &str, d_out: usize| -> Result<()> {
+            let w = c.init_width;
+            m.l1.expect(&format!("{what}.l1"), c.obs_features(), w)?;
+            m.l2.expect(&format!("{what}.l2"), w, w)?;
+            m.out.expect(&format!("{what}.out"), w, d_out)?;
+            for (bn, name) in [(&m.bn1, "bn1"), (&m.bn2, "bn2")] {
+                if bn.scale.len() != w {
+                    return Err(shape(&format!("{what}.{name} width"), w, bn.scale.len()));
+                }
+            }
+            Ok(())
+        };
+        init(&self.phi, "Φ", c.param_dim)?;
+        if let Some(phi_h) = &self.phi_h {
+            init(phi_h, "Φh", c.layers * h)?;
+        } else if c.recurrent_layers() > 0 {
+            return Err(ModelError::Config(
+                "the network has a GRU core but no Φh".into(),
+            ));
+        }
+        let core = |core: &HostCore, what: &str, d_in: usize| -> Result<()> {
+            match core {
+                HostCore::Gru(cells) => {
+                    if cells.len() != c.layers {
+                        return Err(shape(&format!("{what} GRU layers"), c.layers, cells.len()));
+                    }
+                    for (l, cell) in cells.iter().enumerate() {
+                        let input = if l == 0 { d_in } else { h };
+                        cell.w.expect(&format!("{what}.gru{l}.w"), input, 3 * h)?;
+                        cell.u_zr.expect(&format!("{what}.gru{l}.u_zr"), h, 2 * h)?;
+                        cell.u_h.expect(&format!("{what}.gru{l}.u_h"), h, h)?;
+                        if cell.hidden != h || cell.ln.iter().any(|ln| ln.gamma.len() != h) {
+                            return Err(shape(&format!("{what}.gru{l} LayerNorm"), h, cell.hidden));
+                        }
+                    }
+                }
+                HostCore::Mlp { input, blocks } => {
+                    input.expect(&format!("{what}.mlp_in"), d_in, h)?;
+                    for (l, b) in blocks.iter().enumerate() {
+                        b.expect(&format!("{what}.mlp{l}"), h, h)?;
+                    }
+                }
+            }
+            Ok(())
+        };
+        for (s, (f, head)) in self.cores.iter().zip(&self.delta_heads).enumerate() {
+            core(f, &format!("f[{s}]"), c.core_inputs())?;
+            head.expect(&format!("Δθ head[{s}]"), h, c.param_dim)?;
+        }
+        let (k, kg) = (c.step_outputs(), c.gamma_outputs());
+        for (s, step) in self.steps.iter().enumerate() {
+            core(&step.lambda_core, &format!("fλ[{s}]"), c.step_inputs())?;
+            let width = if step.gamma.is_none() && c.learns_gamma() {
+                k + kg
+            } else {
+                k
+            };
+            step.lambda_head.expect(&format!("λ head[{s}]"), h, width)?;
+            if let Some((g, head)) = &step.gamma {
+                core(g, &format!("fγ[{s}]"), c.step_inputs())?;
+                head.expect(&format!("γ head[{s}]"), h, kg)?;
+            }
+        }
+        Ok(())
     }
 }
 

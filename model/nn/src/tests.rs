@@ -1031,3 +1031,28 @@ fn the_direction_switch_round_trips_and_a_bad_damping_is_refused() {
         assert!(err.contains("gn_damping"), "{err}");
     }
 }
+
+/// The native forward refuses weights that do not match the configuration they came with (a
+/// checkpoint edited by hand, or of another build), with a one-line error naming the layer,
+/// instead of reading past a row later.
+#[test]
+fn the_host_forward_refuses_weights_of_another_shape() {
+    let config = small_config(Modality::Markers, 39 * 3);
+    let mut net = NeuralNet::new(&config, 3, &ndarray_device()).expect("net");
+    let stats = unit_stats_for(&config);
+    assert!(crate::host::HostNet::new(&net, stats.clone()).is_ok());
+    // The same weights under a configuration with another hidden width.
+    net.config.hidden = config.hidden + 8;
+    let err = crate::host::HostNet::new(&net, stats.clone())
+        .expect_err("a hidden width the weights do not have")
+        .to_string();
+    assert!(err.contains("network layer"), "{err}");
+    assert!(!err.contains('\n'), "one line: {err}");
+    // And under one with another parameter count (Φ's output no longer matches).
+    net.config.hidden = config.hidden;
+    net.config.init_width = config.init_width * 2;
+    let err = crate::host::HostNet::new(&net, stats)
+        .expect_err("an initializer width the weights do not have")
+        .to_string();
+    assert!(err.contains("Φ.l1"), "{err}");
+}
