@@ -294,8 +294,9 @@ impl HostCore {
                         got: states.len().to_string(),
                     });
                 }
-                let mut input = x.to_vec();
-                for (cell, h) in cells.iter().zip(states.iter_mut()) {
+                // Layer l reads layer l−1's new state (the first reads `x`, uncopied).
+                let mut input: Vec<f32> = Vec::new();
+                for (l, (cell, h)) in cells.iter().zip(states.iter_mut()).enumerate() {
                     if h.len() != batch * cell.hidden {
                         return Err(ModelError::Shape {
                             what: "GRU state".into(),
@@ -303,7 +304,7 @@ impl HostCore {
                             got: h.len().to_string(),
                         });
                     }
-                    let next = cell.forward(&input, h, batch);
+                    let next = cell.forward(if l == 0 { x } else { &input }, h, batch);
                     input.clone_from(&next);
                     *h = next;
                 }
