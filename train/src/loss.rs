@@ -53,7 +53,8 @@ pub struct Truth {
     pub poses: Tensor<2>,
     pub skinned: SkinnedBatch,
     pub local: Tensor<3>,
-    pub edges: Tensor<3>,
+    /// Edge vectors `[B, 3E]` (x, y, z of each edge in turn; see [`Loss::edge_vectors`]).
+    pub edges: Tensor<2>,
 }
 
 /// The loss with its precomputed template tensors.
@@ -161,8 +162,15 @@ impl Loss {
         } else {
             (full, mesh_edges(template))
         };
+        // Coordinate indices into the flattened `[B, 3V]` vertices: x, y, z of each edge's end.
         let idx = |f: fn(&(u32, u32)) -> u32| {
-            let v: Vec<i64> = edges.iter().map(|e| i64::from(f(e))).collect();
+            let v: Vec<i64> = edges
+                .iter()
+                .flat_map(|e| {
+                    let v = 3 * i64::from(f(e));
+                    [v, v + 1, v + 2]
+                })
+                .collect();
             let n = v.len();
             Tensor::<1, Int>::from_data(TensorData::new(v, [n]), device)
         };
@@ -174,8 +182,15 @@ impl Loss {
         }
     }
 
-    fn edge_vectors(&self, vertices: Tensor<3>) -> Tensor<3> {
-        vertices.clone().select(1, self.edge_a.clone()) - vertices.select(1, self.edge_b.clone())
+    /// `M_i − M_j` of every edge, `[B, 3E]`: the vertices `[B, V, 3]` flattened to `[B, 3V]`
+    /// (a free reshape) and their coordinates selected along the last axis. The same numbers as
+    /// selecting whole vertices of `[B, V, 3]`, but Burn flex's `select` and its backward
+    /// (`select_add`) have a row loop for 2-d tensors and an index computation per element for
+    /// 3-d ones: a third of a markers training step went there.
+    fn edge_vectors(&self, vertices: Tensor<3>) -> Tensor<2> {
+        let [batch, n, _] = vertices.dims();
+        let flat = vertices.reshape([batch, 3 * n]);
+        flat.clone().select(1, self.edge_a.clone()) - flat.select(1, self.edge_b.clone())
     }
 
     /// Forward model of the ground-truth parameter vectors `[B, param_dim]` (detached).
@@ -199,7 +214,9 @@ impl Loss {
         let out = self.skinning.forward(poses.clone());
         let l1 = |a: Tensor<3>, b: Tensor<3>| (a - b).abs().mean();
         let lm = l1(out.vertices.clone(), truth.skinned.vertices.clone());
-        let le = l1(self.edge_vectors(out.vertices), truth.edges.clone());
+        let le = (self.edge_vectors(out.vertices) - truth.edges.clone())
+            .abs()
+            .mean();
         let lt = (out.world_rotations - truth.skinned.world_rotations.clone())
             .abs()
             .mean()
