@@ -134,6 +134,18 @@ pub struct TrainConfig {
     /// `network.start` decides alone (Φ(D), the scenario's start, or either by a fair coin).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub starts: Option<StartMix>,
+    /// Data-parallel shards of each batch (1, the default: the whole batch in one autodiff
+    /// graph). With K > 1, row `i` goes to shard `i mod K` and the K shards run forward and
+    /// backward on K threads at once, their gradients summed (weighted by rows: the gradient of
+    /// the batch mean). BatchNorm then normalises each shard by its own statistics (as in
+    /// multi-GPU training without synchronised BatchNorm), and dropout draws from one stream per
+    /// shard, so a run with K shards is a different run from K = 1, deterministic for its K.
+    #[serde(skip_serializing_if = "is_one")]
+    pub shards: usize,
+}
+
+fn is_one(x: &usize) -> bool {
+    *x == 1
 }
 
 fn is_zero(x: &f64) -> bool {
@@ -169,6 +181,7 @@ impl Default for TrainConfig {
             rigs: None,
             marker_dropout: 0.0,
             starts: None,
+            shards: 1,
         }
     }
 }
@@ -243,6 +256,16 @@ impl TrainConfig {
                 "batch",
                 self.batch.to_string(),
                 "must be at least 2 (BatchNorm needs batch statistics)",
+            );
+        }
+        if self.shards == 0 || self.shards > 16 || self.batch / self.shards.max(1) < 2 {
+            return bad(
+                "shards",
+                self.shards.to_string(),
+                &format!(
+                    "must be 1 to 16 and leave each shard at least 2 rows of the batch of {} (BatchNorm needs batch statistics)",
+                    self.batch
+                ),
             );
         }
         if !(self.learning_rate.is_finite() && self.learning_rate > 0.0) {
@@ -717,6 +740,123 @@ pub fn measure_stats(frames: &Frames) -> FeatureStats {
     FeatureStats::measure(&obs, &res, &grad, &pose)
 }
 
+/// One training batch as the loss sees it: the energies, starts and ground truths of its rows.
+#[derive(Clone, Copy)]
+struct Shard<'a> {
+    energies: &'a [&'a Energy],
+    starts: &'a [Option<Vec<f64>>],
+    gt: &'a [Vec<f64>],
+}
+
+/// What a step's backward pass gives the optimiser: the whole batch's loss (differentiated
+/// when the loss has been checked finite) or the shards' summed gradients.
+enum StepGrads {
+    Whole(burn::tensor::Tensor<1>),
+    Sharded(GradientsParams),
+}
+
+impl StepGrads {
+    fn into_params(self, net: &NeuralNet) -> GradientsParams {
+        match self {
+            StepGrads::Whole(total) => GradientsParams::from_grads(total.backward(), net),
+            StepGrads::Sharded(grads) => grads,
+        }
+    }
+}
+
+fn scalar_of(total: &burn::tensor::Tensor<1>) -> Result<f64> {
+    Ok(f64::from(
+        total
+            .clone()
+            .detach()
+            .try_into_scalar::<f32>()
+            .map_err(|e| lfit_model::ModelError::Backend(format!("cannot read the loss: {e}")))?,
+    ))
+}
+
+/// Data-parallel step ([`TrainConfig::shards`]): row `i` of the batch goes to shard `i mod K`;
+/// each shard unrolls and differentiates its rows on its own thread with its own copy of the
+/// network (same parameters, its own autodiff leaves and BatchNorm statistics) and its own
+/// dropout stream (seeded from `rng` in shard order), its loss weighted by its share of the rows
+/// so the summed gradients are those of the batch mean. Gradients are summed and the BatchNorm
+/// running statistics averaged in shard order, so the result does not depend on scheduling.
+#[allow(clippy::too_many_arguments)]
+fn sharded_step(
+    net: &NeuralNet,
+    stats: &FeatureStats,
+    loss: &Loss,
+    template: &Template,
+    batch: Shard<'_>,
+    shards: usize,
+    dropout: f64,
+    rng: &mut ChaCha8Rng,
+    device: &Device,
+) -> Result<(f64, StepGrads)> {
+    let rows = batch.energies.len();
+    let seeds: Vec<u64> = (0..shards).map(|_| rng.random::<u64>()).collect();
+    let copies: Vec<NeuralNet> = (0..shards)
+        .map(|k| if k == 0 { net.clone() } else { net.valid().train() })
+        .collect();
+    let pick = |k: usize| -> Vec<usize> { (k..rows).step_by(shards).collect() };
+    let run = |k: usize, copy: &NeuralNet| -> Result<(f64, GradientsParams)> {
+        let idx = pick(k);
+        let energies: Vec<&Energy> = idx.iter().map(|&i| batch.energies[i]).collect();
+        let starts: Vec<Option<Vec<f64>>> = idx.iter().map(|&i| batch.starts[i].clone()).collect();
+        let gt: Vec<Vec<f64>> = idx.iter().map(|&i| batch.gt[i].clone()).collect();
+        let truth = loss.truth(poses_to_tensor(&gt, device));
+        let constraints = copy
+            .config
+            .known_shape
+            .then(|| known_shape_constraints(template, &gt));
+        let mut shard_rng = ChaCha8Rng::seed_from_u64(seeds[k]);
+        let out = unroll(
+            copy,
+            stats,
+            &energies,
+            &starts,
+            constraints.as_ref(),
+            device,
+            &mut Dropout {
+                p: dropout,
+                rng: Some(&mut shard_rng),
+            },
+        )?;
+        let total = loss.total(&out.poses, &truth);
+        let value = scalar_of(&total)?;
+        let share = idx.len() as f64 / rows as f64;
+        if !value.is_finite() {
+            // The caller stops on the non-finite loss; no gradient is taken.
+            return Ok((value * share, GradientsParams::new()));
+        }
+        let grads = GradientsParams::from_grads(total.mul_scalar(share).backward(), copy);
+        Ok((value * share, grads))
+    };
+    let results: Vec<Result<(f64, GradientsParams)>> = std::thread::scope(|scope| {
+        let handles: Vec<_> = copies[1..]
+            .iter()
+            .enumerate()
+            .map(|(j, copy)| scope.spawn(move || run(j + 1, copy)))
+            .collect();
+        let mut results = vec![run(0, &copies[0])];
+        for h in handles {
+            results.push(h.join().unwrap_or_else(|_| {
+                Err(lfit_model::ModelError::Backend("a training shard's thread panicked".into()).into())
+            }));
+        }
+        results
+    });
+    let mut value = 0.0;
+    let mut sum = burn::optim::GradientsAccumulator::<NeuralNet>::new();
+    for r in results {
+        let (v, g) = r?;
+        value += v;
+        sum.accumulate(net, g);
+    }
+    let others: Vec<&NeuralNet> = copies[1..].iter().collect();
+    copies[0].average_running_stats(&others);
+    Ok((value, StepGrads::Sharded(sum.grads())))
+}
+
 /// Constraints of a known-shape network ([`lfit_nn::NetConfig::known_shape`], papers/002 §3.2):
 /// every pose entry free and unbounded, the shape entries frozen at the truth (lower = upper =
 /// β of `gt`), so θ0 (Φ(D) or the start pose) is clamped onto the true β and no update moves it.
@@ -1151,33 +1291,44 @@ pub fn train_with_sensor(
         energies.extend(chained.0.iter());
         gt.extend(chained.1.iter().cloned());
         starts.extend(chained.2.iter().cloned());
-        let truth = loss.truth(poses_to_tensor(&gt, &ad));
-        let constraints = net
-            .config
-            .known_shape
-            .then(|| known_shape_constraints(&template, &gt));
-        let out = unroll(
-            &net,
-            &stats,
-            &energies,
-            &starts,
-            constraints.as_ref(),
-            &ad,
-            &mut Dropout {
-                p: net_config.dropout,
-                rng: Some(&mut rng),
-            },
-        )?;
-        let total = loss.total(&out.poses, &truth);
-        let value = f64::from(
-            total
-                .clone()
-                .detach()
-                .try_into_scalar::<f32>()
-                .map_err(|e| {
-                    lfit_model::ModelError::Backend(format!("cannot read the loss: {e}"))
-                })?,
-        );
+        let (value, grads) = if config.shards <= 1 {
+            let truth = loss.truth(poses_to_tensor(&gt, &ad));
+            let constraints = net
+                .config
+                .known_shape
+                .then(|| known_shape_constraints(&template, &gt));
+            let out = unroll(
+                &net,
+                &stats,
+                &energies,
+                &starts,
+                constraints.as_ref(),
+                &ad,
+                &mut Dropout {
+                    p: net_config.dropout,
+                    rng: Some(&mut rng),
+                },
+            )?;
+            let total = loss.total(&out.poses, &truth);
+            let value = scalar_of(&total)?;
+            (value, StepGrads::Whole(total))
+        } else {
+            sharded_step(
+                &net,
+                &stats,
+                &loss,
+                &template,
+                Shard {
+                    energies: &energies,
+                    starts: &starts,
+                    gt: &gt,
+                },
+                config.shards,
+                net_config.dropout,
+                &mut rng,
+                &ad,
+            )?
+        };
         let elapsed = elapsed0 + started.elapsed().as_secs_f64();
         if !value.is_finite() {
             return Err(TrainError::NotFinite {
@@ -1187,7 +1338,7 @@ pub fn train_with_sensor(
                 dir: options.out.clone(),
             });
         }
-        let grads = GradientsParams::from_grads(total.backward(), &net);
+        let grads = grads.into_params(&net);
         net = optim.step(config.lr_at(step), net, grads);
         csv_rows.push(format!(
             "{},train,{value},{},{elapsed:.3}",

@@ -48,6 +48,24 @@ fn template() -> Arc<Template> {
     Arc::new(default_template())
 }
 
+/// Trains `config` into `out` and returns the loss of every step.
+fn losses_of_run(config: &TrainConfig, out: &std::path::Path) -> Vec<f64> {
+    let losses = Mutex::new(Vec::new());
+    train(
+        config,
+        template(),
+        &ndarray_device(),
+        &options(out, false),
+        &|e| {
+            if let Event::Step { loss, .. } = e {
+                losses.lock().expect("lock").push(loss);
+            }
+        },
+    )
+    .expect("train");
+    losses.into_inner().expect("losses")
+}
+
 #[test]
 fn a_short_run_halves_the_validation_error() {
     let tmp = tempfile::tempdir().expect("tmp");
@@ -242,6 +260,10 @@ fn bad_configs_are_one_line_errors() {
             "face protocol has no sequences",
         ),
         (r#"{"starts": {"bogus": 1}}"#, "unknown field"),
+        // Data-parallel shards: at least one, each with two rows for BatchNorm.
+        (r#"{"shards": 0}"#, "shards"),
+        (r#"{"batch": 8, "shards": 5}"#, "shards"),
+        (r#"{"shards": 17}"#, "shards"),
     ] {
         std::fs::write(&p, text).expect("write");
         let r = TrainConfig::load(&p);
@@ -390,20 +412,8 @@ fn the_start_mix_trains_and_is_deterministic() {
     config.starts = Some(lfit_train::StartMix::default());
     let run = |dir: &str| {
         let out = tmp.path().join(dir);
-        let losses = Mutex::new(Vec::new());
-        train(
-            &config,
-            template(),
-            &ndarray_device(),
-            &options(&out, false),
-            &|e| {
-                if let Event::Step { loss, .. } = e {
-                    losses.lock().expect("lock").push(loss);
-                }
-            },
-        )
-        .expect("train");
-        (weights_of(&out), losses.into_inner().expect("losses"))
+        let losses = losses_of_run(&config, &out);
+        (weights_of(&out), losses)
     };
     let (a, la) = run("a");
     let (b, lb) = run("b");
@@ -415,20 +425,85 @@ fn the_start_mix_trains_and_is_deterministic() {
     let mut plain = small(6);
     plain.val_every = 3;
     plain.checkpoint_every = 6;
-    let losses = Mutex::new(Vec::new());
-    train(
-        &plain,
-        template(),
-        &ndarray_device(),
-        &options(&tmp.path().join("plain"), false),
-        &|e| {
-            if let Event::Step { loss, .. } = e {
-                losses.lock().expect("lock").push(loss);
-            }
-        },
-    )
-    .expect("train");
-    assert_ne!(losses.into_inner().expect("losses"), la);
+    assert_ne!(losses_of_run(&plain, &tmp.path().join("plain")), la);
     let text = serde_json::to_string(&plain).expect("json");
     assert!(!text.contains("starts"), "{text}");
+}
+
+/// Every float of the network's recurrent cores, Δθ heads and λ/γ networks (no BatchNorm
+/// running statistics: those are what data-parallel shards compute differently by design).
+fn core_weights_of(dir: &std::path::Path) -> Vec<f32> {
+    use burn::module::{Module, ModuleVisitor, Param};
+    use burn::tensor::Tensor;
+    struct Floats(Vec<f32>);
+    impl ModuleVisitor for Floats {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            self.0
+                .extend(param.val().into_data().try_to_vec::<f32>().expect("f32"));
+        }
+    }
+    let ck = checkpoint::load(dir, &ndarray_device()).expect("checkpoint");
+    let mut v = Floats(Vec::new());
+    ck.net.cores.visit(&mut v);
+    ck.net.delta_heads.visit(&mut v);
+    ck.net.steps.visit(&mut v);
+    assert!(!v.0.is_empty());
+    v.0
+}
+
+/// `"shards": 2` splits each batch over two threads and sums the shards' gradients weighted by
+/// rows. Where no BatchNorm lies on the path (given starts, the memory-less residual-MLP core),
+/// that is the whole batch's gradient: the same loss and, after the optimiser's steps, the same
+/// weights as one shard up to float summation order. With BatchNorm on the path (Φ's θ0) the
+/// runs differ from one shard, and two sharded runs with one seed are equal.
+#[test]
+fn data_parallel_shards_sum_to_the_whole_batch_gradient() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let run = |config: &TrainConfig, dir: &str| {
+        let out = tmp.path().join(dir);
+        let losses = losses_of_run(config, &out);
+        (out, losses)
+    };
+    let mut whole = small(3);
+    whole.val_every = 3;
+    whole.checkpoint_every = 3;
+    whole.network.start = StartMode::Given;
+    whole.network.core = lfit_nn::CoreKind::ResidualMlp;
+    let sharded = TrainConfig {
+        shards: 2,
+        ..whole.clone()
+    };
+    let (dw, lw) = run(&whole, "whole");
+    let (ds, ls) = run(&sharded, "sharded");
+    assert_eq!(lw.len(), 3);
+    for (a, b) in lw.iter().zip(&ls) {
+        assert!((a - b).abs() <= 1e-4 * a.abs(), "losses {lw:?} vs {ls:?}");
+    }
+    let (a, b) = (core_weights_of(&dw), core_weights_of(&ds));
+    assert_eq!(a.len(), b.len());
+    let worst = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0f32, f32::max);
+    // Adam moves each weight by about the learning rate (2e-3) per step: a wrongly weighted
+    // or missing shard moves many of them by that much.
+    assert!(worst < 2e-5, "weights differ by up to {worst}");
+
+    // BatchNorm on the path: a different run, deterministic for its shard count.
+    let mut phi = small(3);
+    phi.val_every = 3;
+    phi.checkpoint_every = 3;
+    let phi2 = TrainConfig {
+        shards: 2,
+        ..phi.clone()
+    };
+    let (_, l1) = run(&phi, "phi1");
+    let (d2, l2) = run(&phi2, "phi2");
+    let (d3, l3) = run(&phi2, "phi3");
+    assert_eq!(l2, l3, "same seed and shards, same losses");
+    assert_eq!(weights_of(&d2), weights_of(&d3), "same seed and shards, same weights");
+    assert_ne!(l1, l2);
+    let text = serde_json::to_string(&phi).expect("json");
+    assert!(!text.contains("shards"), "{text}");
 }

@@ -195,6 +195,44 @@ impl NeuralNet {
         self.num_params()
     }
 
+    /// The BatchNorm layers (Φ's, then Φh's), in a fixed order.
+    fn batch_norms(&self) -> Vec<&burn::nn::BatchNorm> {
+        std::iter::once(&self.phi)
+            .chain(self.phi_h.as_ref())
+            .flat_map(|m| [&m.bn1, &m.bn2])
+            .collect()
+    }
+
+    /// Data-parallel training: sets every BatchNorm running mean and variance of this network
+    /// to the mean of its own and the `copies`' (copies of this network that each trained on a
+    /// shard of the batch), summed in the order given. With equal shards and BatchNorm's linear
+    /// update this is the update one whole-batch pass gives the mean. Each state's pending
+    /// per-thread updates are flushed first (Burn keeps them per thread until read).
+    pub fn average_running_stats(&self, copies: &[&NeuralNet]) {
+        let own = self.batch_norms();
+        let others: Vec<Vec<&burn::nn::BatchNorm>> =
+            copies.iter().map(|c| c.batch_norms()).collect();
+        let count = (1 + copies.len()) as f64;
+        for (i, bn) in own.iter().enumerate() {
+            for pick in [
+                |b: &burn::nn::BatchNorm| b.running_mean.clone(),
+                |b: &burn::nn::BatchNorm| b.running_var.clone(),
+            ] {
+                let state = pick(bn);
+                // `valid` flushes the per-thread updates into the value (and returns a copy).
+                let _ = state.valid();
+                let mut sum = state.value();
+                for other in &others {
+                    let s = pick(other[i]);
+                    let _ = s.valid();
+                    sum = sum + s.value();
+                }
+                state.update(sum.div_scalar(count).detach());
+                let _ = state.valid();
+            }
+        }
+    }
+
     /// θ0 = Φ(D) `[B, 57]` and the initial state (h0 = Φh(D) for `f`, zeros for `fλγ`).
     pub fn initial(&self, obs: Tensor<2>) -> (Tensor<2>, State) {
         let [batch, _] = obs.dims();
