@@ -258,7 +258,7 @@ impl TrainConfig {
                 "must be at least 2 (BatchNorm needs batch statistics)",
             );
         }
-        if self.shards == 0 || self.shards > 16 || self.batch / self.shards.max(1) < 2 {
+        if self.shards == 0 || self.shards > 16 || self.batch / self.shards < 2 {
             return bad(
                 "shards",
                 self.shards.to_string(),
@@ -740,12 +740,41 @@ pub fn measure_stats(frames: &Frames) -> FeatureStats {
     FeatureStats::measure(&obs, &res, &grad, &pose)
 }
 
-/// One training batch as the loss sees it: the energies, starts and ground truths of its rows.
+/// Rows of a training batch as the loss sees them: their energies, starts and ground truths.
 #[derive(Clone, Copy)]
-struct Shard<'a> {
+struct BatchRows<'a> {
     energies: &'a [&'a Energy],
     starts: &'a [Option<Vec<f64>>],
     gt: &'a [Vec<f64>],
+}
+
+/// The loss of `rows` unrolled by `net` (papers/002 supp. eq. 13, summed over the iterates), on
+/// the autodiff `device`; a known-shape network is held at the rows' true β.
+#[allow(clippy::too_many_arguments)]
+fn rows_loss(
+    net: &NeuralNet,
+    stats: &FeatureStats,
+    loss: &Loss,
+    template: &Template,
+    rows: BatchRows<'_>,
+    dropout: &mut Dropout<'_>,
+    device: &Device,
+) -> Result<burn::tensor::Tensor<1>> {
+    let truth = loss.truth(poses_to_tensor(rows.gt, device));
+    let constraints = net
+        .config
+        .known_shape
+        .then(|| known_shape_constraints(template, rows.gt));
+    let out = unroll(
+        net,
+        stats,
+        rows.energies,
+        rows.starts,
+        constraints.as_ref(),
+        device,
+        dropout,
+    )?;
+    Ok(loss.total(&out.poses, &truth))
 }
 
 /// What a step's backward pass gives the optimiser: the whole batch's loss (differentiated
@@ -786,7 +815,7 @@ fn sharded_step(
     stats: &FeatureStats,
     loss: &Loss,
     template: &Template,
-    batch: Shard<'_>,
+    batch: BatchRows<'_>,
     shards: usize,
     dropout: f64,
     rng: &mut ChaCha8Rng,
@@ -795,7 +824,13 @@ fn sharded_step(
     let rows = batch.energies.len();
     let seeds: Vec<u64> = (0..shards).map(|_| rng.random::<u64>()).collect();
     let copies: Vec<NeuralNet> = (0..shards)
-        .map(|k| if k == 0 { net.clone() } else { net.valid().train() })
+        .map(|k| {
+            if k == 0 {
+                net.clone()
+            } else {
+                net.valid().train()
+            }
+        })
         .collect();
     let pick = |k: usize| -> Vec<usize> { (k..rows).step_by(shards).collect() };
     let run = |k: usize, copy: &NeuralNet| -> Result<(f64, GradientsParams)> {
@@ -803,25 +838,23 @@ fn sharded_step(
         let energies: Vec<&Energy> = idx.iter().map(|&i| batch.energies[i]).collect();
         let starts: Vec<Option<Vec<f64>>> = idx.iter().map(|&i| batch.starts[i].clone()).collect();
         let gt: Vec<Vec<f64>> = idx.iter().map(|&i| batch.gt[i].clone()).collect();
-        let truth = loss.truth(poses_to_tensor(&gt, device));
-        let constraints = copy
-            .config
-            .known_shape
-            .then(|| known_shape_constraints(template, &gt));
         let mut shard_rng = ChaCha8Rng::seed_from_u64(seeds[k]);
-        let out = unroll(
+        let total = rows_loss(
             copy,
             stats,
-            &energies,
-            &starts,
-            constraints.as_ref(),
-            device,
+            loss,
+            template,
+            BatchRows {
+                energies: &energies,
+                starts: &starts,
+                gt: &gt,
+            },
             &mut Dropout {
                 p: dropout,
                 rng: Some(&mut shard_rng),
             },
+            device,
         )?;
-        let total = loss.total(&out.poses, &truth);
         let value = scalar_of(&total)?;
         let share = idx.len() as f64 / rows as f64;
         if !value.is_finite() {
@@ -840,7 +873,10 @@ fn sharded_step(
         let mut results = vec![run(0, &copies[0])];
         for h in handles {
             results.push(h.join().unwrap_or_else(|_| {
-                Err(lfit_model::ModelError::Backend("a training shard's thread panicked".into()).into())
+                Err(
+                    lfit_model::ModelError::Backend("a training shard's thread panicked".into())
+                        .into(),
+                )
             }));
         }
         results
@@ -1291,25 +1327,24 @@ pub fn train_with_sensor(
         energies.extend(chained.0.iter());
         gt.extend(chained.1.iter().cloned());
         starts.extend(chained.2.iter().cloned());
+        let rows = BatchRows {
+            energies: &energies,
+            starts: &starts,
+            gt: &gt,
+        };
         let (value, grads) = if config.shards <= 1 {
-            let truth = loss.truth(poses_to_tensor(&gt, &ad));
-            let constraints = net
-                .config
-                .known_shape
-                .then(|| known_shape_constraints(&template, &gt));
-            let out = unroll(
+            let total = rows_loss(
                 &net,
                 &stats,
-                &energies,
-                &starts,
-                constraints.as_ref(),
-                &ad,
+                &loss,
+                &template,
+                rows,
                 &mut Dropout {
                     p: net_config.dropout,
                     rng: Some(&mut rng),
                 },
+                &ad,
             )?;
-            let total = loss.total(&out.poses, &truth);
             let value = scalar_of(&total)?;
             (value, StepGrads::Whole(total))
         } else {
@@ -1318,11 +1353,7 @@ pub fn train_with_sensor(
                 &stats,
                 &loss,
                 &template,
-                Shard {
-                    energies: &energies,
-                    starts: &starts,
-                    gt: &gt,
-                },
+                rows,
                 config.shards,
                 net_config.dropout,
                 &mut rng,

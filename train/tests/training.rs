@@ -376,10 +376,9 @@ fn tensor_loss_matches_a_cpu_computation() {
     assert!(POSE_DIM == 57);
 }
 
-/// Every float parameter of a checkpoint's network, in module order (the burnpack file also holds
-/// per-run parameter ids, so its bytes differ between equal runs).
-fn weights_of(dir: &std::path::Path) -> Vec<f32> {
-    use burn::module::{Module, ModuleVisitor, Param};
+/// Every float of `module` (parameters and BatchNorm running statistics), in module order.
+fn floats_of<M: burn::module::Module>(module: &M) -> Vec<f32> {
+    use burn::module::{ModuleVisitor, Param};
     use burn::tensor::Tensor;
     struct Floats(Vec<f32>);
     impl ModuleVisitor for Floats {
@@ -393,11 +392,21 @@ fn weights_of(dir: &std::path::Path) -> Vec<f32> {
             );
         }
     }
-    let ck = checkpoint::load(dir, &ndarray_device()).expect("checkpoint");
     let mut v = Floats(Vec::new());
-    ck.net.visit(&mut v);
-    assert!(!v.0.is_empty());
+    module.visit(&mut v);
     v.0
+}
+
+/// Every float parameter of a checkpoint's network, in module order (the burnpack file also holds
+/// per-run parameter ids, so its bytes differ between equal runs).
+fn weights_of(dir: &std::path::Path) -> Vec<f32> {
+    let v = floats_of(
+        &checkpoint::load(dir, &ndarray_device())
+            .expect("checkpoint")
+            .net,
+    );
+    assert!(!v.is_empty());
+    v
 }
 
 /// A run with the start mix (`"starts"`): every source, including the network's own results fed
@@ -433,22 +442,14 @@ fn the_start_mix_trains_and_is_deterministic() {
 /// Every float of the network's recurrent cores, Δθ heads and λ/γ networks (no BatchNorm
 /// running statistics: those are what data-parallel shards compute differently by design).
 fn core_weights_of(dir: &std::path::Path) -> Vec<f32> {
-    use burn::module::{Module, ModuleVisitor, Param};
-    use burn::tensor::Tensor;
-    struct Floats(Vec<f32>);
-    impl ModuleVisitor for Floats {
-        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-            self.0
-                .extend(param.val().into_data().try_to_vec::<f32>().expect("f32"));
-        }
-    }
-    let ck = checkpoint::load(dir, &ndarray_device()).expect("checkpoint");
-    let mut v = Floats(Vec::new());
-    ck.net.cores.visit(&mut v);
-    ck.net.delta_heads.visit(&mut v);
-    ck.net.steps.visit(&mut v);
-    assert!(!v.0.is_empty());
-    v.0
+    let net = checkpoint::load(dir, &ndarray_device())
+        .expect("checkpoint")
+        .net;
+    let mut v = floats_of(&net.cores);
+    v.extend(floats_of(&net.delta_heads));
+    v.extend(floats_of(&net.steps));
+    assert!(!v.is_empty());
+    v
 }
 
 /// `"shards": 2` splits each batch over two threads and sums the shards' gradients weighted by
@@ -502,7 +503,11 @@ fn data_parallel_shards_sum_to_the_whole_batch_gradient() {
     let (d2, l2) = run(&phi2, "phi2");
     let (d3, l3) = run(&phi2, "phi3");
     assert_eq!(l2, l3, "same seed and shards, same losses");
-    assert_eq!(weights_of(&d2), weights_of(&d3), "same seed and shards, same weights");
+    assert_eq!(
+        weights_of(&d2),
+        weights_of(&d3),
+        "same seed and shards, same weights"
+    );
     assert_ne!(l1, l2);
     let text = serde_json::to_string(&phi).expect("json");
     assert!(!text.contains("shards"), "{text}");
