@@ -66,6 +66,8 @@ pub struct SynthArgs {
 pub struct MotionFilesArgs {
     pub files: Vec<PathBuf>,
     pub with_library: bool,
+    /// Transforms of the files' frames (`--mirror`, `--heading`, `--jitter-deg`).
+    pub augment: lfit_synth::MotionAugment,
 }
 
 /// Reads imported motion files for `template` (paths as given, relative to the working
@@ -186,6 +188,7 @@ pub fn synthesize_dataset(
     }
     config.motion_files = load_motion_files(&files.files, template)?;
     config.with_library = files.with_library;
+    config.motion_augment = files.augment;
     config.validate()?;
     let dataset = synthesize_until(&config, template, &sensor, progress, cancel)?;
     let mut summary = json!({

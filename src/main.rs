@@ -87,6 +87,18 @@ enum Command {
         /// sequence, from the library or the files by a fair coin).
         #[arg(long)]
         with_library: bool,
+        /// With --motions: mirror half the files' frames left-right (joints swap with their
+        /// partner by name; refused for a model that is not left-right symmetric at rest).
+        #[arg(long)]
+        mirror: bool,
+        /// With --motions: turn each frame (each sequence as a whole) about the vertical
+        /// through the root by a uniform heading.
+        #[arg(long)]
+        heading: bool,
+        /// With --motions: turn every joint but the root by a small rotation of its own, each
+        /// axis normal with this standard deviation in degrees, in [0, 45] (default 0: none).
+        #[arg(long, value_name = "DEG", default_value_t = 0.0)]
+        jitter_deg: f64,
         /// Comma-separated procedural motions to draw from (default: all): walk, jog, wave,
         /// squat, reach, punch, kick, jump, turn.
         #[arg(long, value_name = "LIST")]
@@ -617,6 +629,9 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             fps,
             motions,
             with_library,
+            mirror,
+            heading,
+            jitter_deg,
             library_motions,
             cameras,
             template,
@@ -636,6 +651,11 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             let files = lfit::data::MotionFilesArgs {
                 files: motions,
                 with_library,
+                augment: lfit_synth::MotionAugment {
+                    mirror,
+                    heading,
+                    jitter_deg,
+                },
             };
             // Settings are checked before the progress bar appears.
             let bar = progress_bar(frames, cli.quiet, "synth");

@@ -275,6 +275,27 @@ fn same_seed_same_bytes_and_the_library_mixes_in() {
             .iter()
             .all(|n| n.starts_with("walk.npz:") || library.contains(&n.as_str()))
     );
+    // Augmented: reproducible, and other frames than the plain draws (--mirror, --heading).
+    let augmented = |name: &str, extra: &[&str]| {
+        let out = tmp.path().join(name);
+        let mut args = vec!["--motions", m];
+        args.extend(extra);
+        synth(&out, "local", "40", "5", &args);
+        std::fs::read(&out).unwrap()
+    };
+    let plain = augmented("plain.npz", &[]);
+    let turned = augmented(
+        "turned.npz",
+        &["--mirror", "--heading", "--jitter-deg", "3"],
+    );
+    assert_eq!(
+        turned,
+        augmented(
+            "turned2.npz",
+            &["--mirror", "--heading", "--jitter-deg", "3"]
+        )
+    );
+    assert_ne!(turned, plain, "augmentation changes the frames");
     // Without --motions the library is what it was: library names only, and --library-motions
     // (formerly --motions LIST) restricts it.
     let out = tmp.path().join("lib.npz");
@@ -318,6 +339,9 @@ fn motions_for_other_models_and_bad_settings_are_refused_with_nothing_written() 
             "--source motion",
         ),
         (vec!["--with-library"], "--motions"),
+        (vec!["--mirror"], "--motions FILE"),
+        (vec!["--motions", m, "--jitter-deg", "90"], "jitter_deg"),
+        (vec!["--motions", m, "--jitter-deg", "nan"], "jitter_deg"),
         (
             vec!["--motions", m, "--scenario", "sequence", "--frames", "100"],
             "longest file has 120",

@@ -14,4 +14,5 @@ pub use dataset::config::{MotionFile, PoseSource, Scenario, SynthConfig};
 pub use dataset::synth::{synthesize, synthesize_until};
 pub use dataset::{Dataset, Meta, Observations};
 pub use error::SynthError;
+pub use motion::augment::MotionAugment;
 pub use noise::NoiseConfig;

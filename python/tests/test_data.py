@@ -138,6 +138,16 @@ def test_bvh_import_equals_the_cli(cli, tmp_path):
     # The motion drives synthesis as a file does.
     d = lfit.synth("markers", MH, frames=3, seed=1, motions=[py_out])
     assert all(":" in f for f in d.meta["frame_motions"])
+    # Augmented frames (mirror, heading, jitter) are the CLI's, byte for byte.
+    aug = ["--mirror", "--heading", "--jitter-deg", 4]
+    cli_aug = tmp_path / "cli-aug.npz"
+    cli("synth", "--modality", "markers", "--model", MH, "--frames", 6, "--seed", 2, "--motions", py_out, *aug, "--out", cli_aug)
+    py_aug = tmp_path / "py-aug.npz"
+    a = lfit.synth("markers", MH, frames=6, seed=2, motions=[py_out], mirror=True, heading=True, jitter_deg=4.0, out=py_aug)
+    assert py_aug.read_bytes() == cli_aug.read_bytes()
+    assert not np.array_equal(a.gt_params, lfit.synth("markers", MH, frames=6, seed=2, motions=[py_out]).gt_params)
+    with pytest.raises(lfit.LfitError, match="jitter_deg"):
+        lfit.synth("markers", MH, frames=3, motions=[py_out], jitter_deg=60.0)
 
 
 def test_missing_dataset_is_one_line(tmp_path):

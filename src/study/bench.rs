@@ -604,7 +604,7 @@ pub fn run(
                 };
                 let files = crate::data::MotionFilesArgs {
                     files: s.motions.clone(),
-                    with_library: false,
+                    ..Default::default()
                 };
                 crate::data::synth_with_motions(&args, &files, &template, &|_| {})?;
             }

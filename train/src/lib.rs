@@ -27,7 +27,8 @@ use lfit_nn::{
     observation_features, observation_features_for, residual_features, unroll,
 };
 use lfit_synth::{
-    Dataset, MotionFile, NoiseConfig, Observations, PoseSource, Scenario, SynthConfig, synthesize,
+    Dataset, MotionAugment, MotionFile, NoiseConfig, Observations, PoseSource, Scenario,
+    SynthConfig, synthesize,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -108,6 +109,10 @@ pub struct TrainConfig {
     /// (`lfit synth --with-library`).
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub with_library: bool,
+    /// With `motions`: transforms of the files' frames in every synthesised set
+    /// ([`MotionAugment`]: `{"mirror": true, "heading": true, "jitter_deg": 5}`); absent: none.
+    #[serde(skip_serializing_if = "MotionAugment::is_none")]
+    pub motion_augment: MotionAugment,
     /// Where target poses come from (`lfit synth --source`): `motion` (the default: the library
     /// or `motions`, local scenario) or `face` (papers/002's face protocol, global scenario: the
     /// fitter starts from the rest pose or Φ(D)). `uniform` is refused.
@@ -176,6 +181,7 @@ impl Default for TrainConfig {
             noise: 1.0,
             motions: Vec::new(),
             with_library: false,
+            motion_augment: MotionAugment::default(),
             source: PoseSource::Motion,
             energy: None,
             rigs: None,
@@ -314,6 +320,20 @@ impl TrainConfig {
                 );
             }
         }
+        if !self.motion_augment.is_none() && self.motions.is_empty() {
+            return bad(
+                "motion_augment",
+                format!("{:?}", self.motion_augment),
+                "transforms motion-file frames: list them in \"motions\"",
+            );
+        }
+        if let Err(reason) = self.motion_augment.validate() {
+            return bad(
+                "motion_augment",
+                format!("{:?}", self.motion_augment),
+                &reason,
+            );
+        }
         if self.with_library && self.motions.is_empty() {
             return bad(
                 "with_library",
@@ -422,6 +442,8 @@ pub struct Frames {
 pub struct Motions {
     pub files: Vec<MotionFile>,
     pub with_library: bool,
+    /// Transforms of the files' frames.
+    pub augment: MotionAugment,
     /// `face`: papers/002's face protocol in the global scenario instead.
     pub source: PoseSource,
 }
@@ -436,6 +458,7 @@ impl Motions {
                 .map(|p| MotionFile::load(p, template))
                 .collect::<Result<_, _>>()?,
             with_library: config.with_library,
+            augment: config.motion_augment,
             source: config.source,
         })
     }
@@ -480,6 +503,7 @@ pub fn synth_frames_with(
     let mut config = SynthConfig::new(sensor.modality(), scenario, frames, seed);
     config.motion_files = motions.files.clone();
     config.with_library = motions.with_library;
+    config.motion_augment = motions.augment;
     config.source = motions.source;
     config.noise = if noise == 0.0 {
         NoiseConfig::none()

@@ -264,6 +264,16 @@ fn bad_configs_are_one_line_errors() {
         (r#"{"shards": 0}"#, "shards"),
         (r#"{"batch": 8, "shards": 5}"#, "shards"),
         (r#"{"shards": 17}"#, "shards"),
+        // Motion-file augmentation: needs files, a jitter in [0, 45] degrees, known keys.
+        (r#"{"motion_augment": {"mirror": true}}"#, "list them in"),
+        (
+            r#"{"motions": ["a.npz"], "motion_augment": {"jitter_deg": 90}}"#,
+            "jitter_deg",
+        ),
+        (
+            r#"{"motions": ["a.npz"], "motion_augment": {"flip": true}}"#,
+            "unknown field",
+        ),
     ] {
         std::fs::write(&p, text).expect("write");
         let r = TrainConfig::load(&p);

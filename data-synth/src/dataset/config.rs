@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::SynthError;
 use crate::motion::MotionKind;
+use crate::motion::augment::MotionAugment;
 use crate::motion::file::MotionClip;
 use crate::noise::NoiseConfig;
 
@@ -118,6 +119,10 @@ pub struct SynthConfig {
     /// from a file by a fair coin.
     #[serde(default, skip_serializing_if = "is_false")]
     pub with_library: bool,
+    /// Transforms of motion-file frames ([`MotionAugment`]: mirror, heading, jitter); none by
+    /// default (and then absent from the metadata, so other datasets keep their bytes).
+    #[serde(default, skip_serializing_if = "MotionAugment::is_none")]
+    pub motion_augment: MotionAugment,
 }
 
 fn is_false(b: &bool) -> bool {
@@ -224,6 +229,7 @@ impl SynthConfig {
             motions: MotionKind::ALL.to_vec(),
             motion_files: Vec::new(),
             with_library: false,
+            motion_augment: MotionAugment::default(),
         }
     }
 
@@ -262,6 +268,20 @@ impl SynthConfig {
                 "source",
                 source_name.into(),
                 "motion files (--motions) are drawn from by --source motion",
+            );
+        }
+        if !self.motion_augment.is_none() && self.motion_files.is_empty() {
+            return setting(
+                "motion_augment",
+                format!("{:?}", self.motion_augment),
+                "transforms motion-file frames: give them (--motions FILE...)",
+            );
+        }
+        if let Err(reason) = self.motion_augment.validate() {
+            return setting(
+                "motion_augment",
+                format!("{:?}", self.motion_augment),
+                &reason,
             );
         }
         if self.with_library && self.motion_files.is_empty() {

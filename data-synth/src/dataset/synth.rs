@@ -20,6 +20,7 @@ use rayon::prelude::*;
 use crate::dataset::config::{FACE_TRANSLATION, MotionFile, PoseSource, Scenario, SynthConfig};
 use crate::dataset::{Dataset, FORMAT_VERSION, Meta, Observations};
 use crate::error::SynthError;
+use crate::motion::augment::Augmenter;
 use crate::motion::{MotionParams, motion_pose};
 use crate::noise::NoiseConfig;
 
@@ -34,6 +35,9 @@ const POSE_STREAM: u64 = 1 << 32;
 /// Streams of the shape and expression draws (apart from the pose streams, so a rigid model's
 /// poses are what they were before models had shape).
 const SHAPE_STREAM: u64 = 3 << 32;
+/// Streams of the motion-file augmentation draws (apart from the pose streams, so a
+/// configuration without augmentation gives the poses it gave before).
+const AUGMENT_STREAM: u64 = 5 << 32;
 
 /// Generates a dataset; `progress` is called with the number of frames done.
 pub fn synthesize(
@@ -230,6 +234,19 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
         }
         clips.push(poses);
     }
+    let augmenter = if files.is_empty() || config.motion_augment.is_none() {
+        None
+    } else {
+        Some(
+            Augmenter::new(config.motion_augment, template).map_err(|reason| {
+                SynthError::Setting {
+                    name: "motion_augment",
+                    value: format!("{:?}", config.motion_augment),
+                    reason,
+                }
+            })?,
+        )
+    };
     let with_coefficients = |mut pose: Vec<f64>, coefficients: &[f64]| {
         pose.extend_from_slice(coefficients);
         pose
@@ -260,10 +277,17 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
             let stride = file.stride(config.fps);
             let first = rng.random_range(0..=file.frames - 1 - n * stride);
             let mut names = Vec::with_capacity(n + 1);
+            // One draw of the augmentation for the whole window.
+            let transform = augmenter
+                .as_ref()
+                .map(|a| (a, a.draw(&mut stream(config.seed, AUGMENT_STREAM))));
             let poses = (0..=n)
                 .map(|i| {
                     let index = first + i * stride;
                     let mut pose = clips[k][index][..pd].to_vec();
+                    if let Some((a, t)) = &transform {
+                        a.apply(t, &mut pose);
+                    }
                     let before = pose.clone();
                     global.clamp(&mut pose[..]);
                     // Rotations into the limits; the path stays the file's (centred below).
@@ -339,6 +363,11 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
                     };
                     let mut target = poses[index][..pd].to_vec();
                     let mut previous = poses[before][..pd].to_vec();
+                    if let Some(a) = &augmenter {
+                        let t = a.draw(&mut stream(config.seed, AUGMENT_STREAM + 1 + i as u64));
+                        a.apply(&t, &mut target);
+                        a.apply(&t, &mut previous);
+                    }
                     let (x, z) = (rng.random_range(-0.6..0.6), rng.random_range(-0.6..0.6));
                     let (tx, tz) = (target[0], target[2]);
                     for p in [&mut previous, &mut target] {
@@ -718,6 +747,97 @@ mod tests {
                 assert_eq!(&a[pd..], &b[pd..]);
             }
         }
+    }
+
+    #[test]
+    fn augmented_file_frames_are_the_plain_draws_mirrored_or_turned() {
+        use crate::motion::augment::{MotionAugment, Transform};
+        use glam::{DMat3, DQuat, DVec3};
+        let t = default_template();
+        let pd = t.layout().pose_dim();
+        let n = t.rig.num_joints();
+        let global = Bounds::global_for(&t);
+        let c = clip(&t, 60, 30.0);
+        let file = MotionFile::from_clip("walk.npz", c.clone(), &t).unwrap();
+        let plain = with_files(Scenario::Local, 200, vec![file.clone()]);
+        let (_, base, base_names, _) = scenario_poses(&plain, &t).unwrap();
+        let mut config = plain.clone();
+        config.motion_augment = MotionAugment {
+            mirror: true,
+            ..Default::default()
+        };
+        let (_, targets, names, _) = scenario_poses(&config, &t).unwrap();
+        assert_eq!(scenario_poses(&config, &t).unwrap().1, targets, "same seed");
+        let a = Augmenter::new(config.motion_augment, &t).unwrap();
+        let flip = Transform {
+            mirrored: true,
+            heading: 0.0,
+            jitter: vec![DVec3::ZERO; n],
+        };
+        let (mut kept, mut mirrored) = (0, 0);
+        for i in 0..200 {
+            // The pose stream is the plain run's: the same file frame, the same floor spot.
+            let f = frame_of(&base_names[i], "walk.npz").0;
+            assert_eq!(frame_of(&names[i], "walk.npz").0, f);
+            if targets[i] == base[i] {
+                kept += 1;
+                continue;
+            }
+            let mut want = c.poses[f][..pd].to_vec();
+            a.apply(&flip, &mut want);
+            want[0] = targets[i][0];
+            want[2] = targets[i][2];
+            global.clamp(&mut want);
+            for k in 0..pd {
+                assert!(
+                    (targets[i][k] - want[k]).abs() < 1e-12,
+                    "frame {i} entry {k}"
+                );
+            }
+            mirrored += 1;
+        }
+        assert!(
+            kept > 60 && mirrored > 60,
+            "{kept} kept, {mirrored} mirrored"
+        );
+        // Augmentation without motion files is refused; without it the key is not written.
+        let mut library = SynthConfig::new(Modality::Markers, Scenario::Local, 5, 1);
+        assert!(
+            !serde_json::to_string(&library)
+                .unwrap()
+                .contains("motion_augment")
+        );
+        library.motion_augment.heading = true;
+        let e = library.validate().unwrap_err().to_string();
+        assert!(e.contains("motion_augment"), "{e}");
+
+        // A sequence turns as a whole: one heading for every frame of the window.
+        let c = clip(&t, 200, 120.0);
+        let file = MotionFile::from_clip("a.npz", c.clone(), &t).unwrap();
+        let mut config = with_files(Scenario::Sequence, 30, vec![file]);
+        config.motion_augment = MotionAugment {
+            heading: true,
+            ..Default::default()
+        };
+        let (_, targets, names, _) = scenario_poses(&config, &t).unwrap();
+        let quat = |p: &[f64]| {
+            let r = DVec3::new(p[3], p[4], p[5]);
+            DQuat::from_scaled_axis(r)
+        };
+        let mut turn = None;
+        for i in 0..30 {
+            let f = frame_of(&names[i], "a.npz").0;
+            let file_rot = DMat3::from_quat(quat(&c.poses[f]));
+            let got = DMat3::from_quat(quat(&targets[i]));
+            let q = got * file_rot.transpose();
+            // A turn about the vertical, the same for the whole window.
+            assert!((q * DVec3::Y - DVec3::Y).length() < 1e-9, "frame {i}");
+            let q = DQuat::from_mat3(&q);
+            let q0 = *turn.get_or_insert(q);
+            assert!(q.dot(q0).abs() > 1.0 - 1e-12, "frame {i}");
+        }
+        let angle = DQuat::to_axis_angle(turn.unwrap()).1;
+        assert!(angle > 1e-3, "turned: {angle}");
     }
 
     #[test]

@@ -2,6 +2,7 @@
 //! their retargeting onto a model ([`retarget`], [`rest_pose`]), motion files on disk
 //! ([`file`]), and how well training motion covers an evaluation clip ([`coverage`]).
 
+pub mod augment;
 pub mod bvh;
 pub mod coverage;
 pub mod file;

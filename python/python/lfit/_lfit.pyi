@@ -226,6 +226,9 @@ def synth(
     library_motions: Optional[Sequence[str]] = None,
     motions: Optional[Sequence[_Path]] = None,
     with_library: bool = False,
+    mirror: bool = False,
+    heading: bool = False,
+    jitter_deg: float = 0.0,
     cameras: Optional[int] = None,
     out: Optional[_Path] = None,
 ) -> Dataset:
