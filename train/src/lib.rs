@@ -320,14 +320,10 @@ impl TrainConfig {
                 );
             }
         }
-        if !self.motion_augment.is_none() && self.motions.is_empty() {
-            return bad(
-                "motion_augment",
-                format!("{:?}", self.motion_augment),
-                "transforms motion-file frames: list them in \"motions\"",
-            );
-        }
-        if let Err(reason) = self.motion_augment.validate() {
+        if let Err(reason) = self
+            .motion_augment
+            .validate_for(self.motions.len(), "list them in \"motions\"")
+        {
             return bad(
                 "motion_augment",
                 format!("{:?}", self.motion_augment),

@@ -270,14 +270,10 @@ impl SynthConfig {
                 "motion files (--motions) are drawn from by --source motion",
             );
         }
-        if !self.motion_augment.is_none() && self.motion_files.is_empty() {
-            return setting(
-                "motion_augment",
-                format!("{:?}", self.motion_augment),
-                "transforms motion-file frames: give them (--motions FILE...)",
-            );
-        }
-        if let Err(reason) = self.motion_augment.validate() {
+        if let Err(reason) = self
+            .motion_augment
+            .validate_for(self.motion_files.len(), "give them (--motions FILE...)")
+        {
             return setting(
                 "motion_augment",
                 format!("{:?}", self.motion_augment),

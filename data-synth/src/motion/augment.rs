@@ -53,6 +53,15 @@ impl MotionAugment {
         !self.mirror && !self.heading && self.jitter_deg == 0.0
     }
 
+    /// [`Self::validate`] for a configuration with `files` motion files: a transform without
+    /// files to transform is refused too (`give_them` says how to give them).
+    pub fn validate_for(&self, files: usize, give_them: &str) -> Result<(), String> {
+        if !self.is_none() && files == 0 {
+            return Err(format!("transforms motion-file frames: {give_them}"));
+        }
+        self.validate()
+    }
+
     /// Checks the values; the error names the bad one.
     pub fn validate(&self) -> Result<(), String> {
         if !(self.jitter_deg.is_finite() && (0.0..=MAX_JITTER_DEG).contains(&self.jitter_deg)) {
