@@ -91,8 +91,8 @@ enum Command {
         /// partner by name; refused for a model that is not left-right symmetric at rest).
         #[arg(long)]
         mirror: bool,
-        /// With --motions: turn each frame (each sequence as a whole) about the vertical
-        /// through the root by a uniform heading.
+        /// With --motions: turn each frame (each sequence as a whole, its path with it) about
+        /// the vertical by a uniform heading.
         #[arg(long)]
         heading: bool,
         /// With --motions: turn every joint but the root by a small rotation of its own, each

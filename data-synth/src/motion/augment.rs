@@ -10,8 +10,9 @@
 //!   valid because a model's joint rotations act in frames aligned with the world at rest) and
 //!   the root's x flips. Refused for a model whose rest skeleton is not left–right symmetric
 //!   (a joint's partner more than [`SYMMETRY_TOLERANCE`] from its mirror image).
-//! - **heading**: the whole body turned about the vertical (y) axis through the root by a
-//!   uniform angle, so every direction of travel and facing is seen, not only the studio's.
+//! - **heading**: the motion turned about the world's vertical (y) axis by a uniform angle —
+//!   each body about its root, the root's path about the origin, so a sequence travels the way
+//!   it now faces — and every direction of travel and facing is seen, not only the studio's.
 //! - **jitter_deg**: every joint but the root turned by a small rotation of its own (each axis
 //!   normal with this standard deviation, degrees), the same for every frame the transform is
 //!   applied to (a sequence stays as smooth as the file): poses near the captured ones, e.g.
@@ -259,7 +260,8 @@ impl Augmenter {
             let q = DMat3::from_rotation_y(t.heading);
             let root = rotvec(q * matrix(get(pose, 0)));
             pose[3..6].copy_from_slice(&root.to_array());
-            // Turn about the vertical through the root joint: Q (j0 + t) − j0.
+            // The root's world position j0 + t turns about the world's vertical axis too (a
+            // sequence's path turns with its facing): t' = Q (j0 + t) − j0.
             let tr = DVec3::new(pose[0], pose[1], pose[2]);
             let moved = q * (self.root_rest + tr) - self.root_rest;
             pose[..3].copy_from_slice(&moved.to_array());
