@@ -99,8 +99,9 @@ enum Command {
         /// axis normal with this standard deviation in degrees, in [0, 45] (default 0: none).
         #[arg(long, value_name = "DEG", default_value_t = 0.0)]
         jitter_deg: f64,
-        /// Comma-separated procedural motions to draw from (default: all): walk, jog, wave,
-        /// squat, reach, punch, kick, jump, turn.
+        /// Comma-separated procedural motions to draw from (default: the papers' nine): walk,
+        /// jog, wave, squat, reach, punch, kick, jump, turn, and the extended sit, crouch, kneel,
+        /// pickup, throw, overhead (deep flexions and overhead reaches, within clinical ranges).
         #[arg(long, value_name = "LIST")]
         library_motions: Option<String>,
         /// keypoints2d: the number of cameras, on the default ring's circle (4 m around the

@@ -311,6 +311,26 @@ fn same_seed_same_bytes_and_the_library_mixes_in() {
         names.iter().all(|n| n == "squat" || n == "kick"),
         "{names:?}"
     );
+    // The extended kinds join by name, and the default stays the papers' nine.
+    let out = tmp.path().join("ext.npz");
+    synth(
+        &out,
+        "local",
+        "40",
+        "5",
+        &["--library-motions", "sit,crouch,kneel,pickup,throw,overhead"],
+    );
+    let names = Dataset::load(&out).unwrap().meta.frame_motions;
+    let extended = ["sit", "crouch", "kneel", "pickup", "throw", "overhead"];
+    assert!(
+        names.iter().all(|n| extended.contains(&n.as_str())),
+        "{names:?}"
+    );
+    assert!(extended.iter().all(|k| names.iter().any(|n| n == k)), "{names:?}");
+    let out = tmp.path().join("default.npz");
+    synth(&out, "local", "200", "5", &[]);
+    let names = Dataset::load(&out).unwrap().meta.frame_motions;
+    assert!(names.iter().all(|n| library.contains(&n.as_str())), "{names:?}");
 }
 
 #[test]

@@ -26,6 +26,7 @@ use lfit_nn::{
     Constraints, Direction, Dropout, FeatureStats, NetConfig, NeuralNet, StartMode, Views,
     observation_features, observation_features_for, residual_features, unroll,
 };
+use lfit_synth::motion::MotionKind;
 use lfit_synth::{
     Dataset, MotionAugment, MotionFile, NoiseConfig, Observations, PoseSource, Scenario,
     SynthConfig, synthesize,
@@ -113,6 +114,12 @@ pub struct TrainConfig {
     /// ([`MotionAugment`]: `{"mirror": true, "heading": true, "jitter_deg": 5}`); absent: none.
     #[serde(skip_serializing_if = "MotionAugment::is_none")]
     pub motion_augment: MotionAugment,
+    /// The procedural library's motion kinds the synthesised sets draw from (`lfit synth
+    /// --library-motions`), by name: e.g. the papers' nine and the six extended kinds
+    /// (`"sit"`, `"crouch"`, `"kneel"`, `"pickup"`, `"throw"`, `"overhead"`). Absent: the papers'
+    /// nine ([`MotionKind::CLASSIC`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub library_motions: Option<Vec<MotionKind>>,
     /// Where target poses come from (`lfit synth --source`): `motion` (the default: the library
     /// or `motions`, local scenario) or `face` (papers/002's face protocol, global scenario: the
     /// fitter starts from the rest pose or Φ(D)). `uniform` is refused.
@@ -182,6 +189,7 @@ impl Default for TrainConfig {
             motions: Vec::new(),
             with_library: false,
             motion_augment: MotionAugment::default(),
+            library_motions: None,
             source: PoseSource::Motion,
             energy: None,
             rigs: None,
@@ -330,6 +338,23 @@ impl TrainConfig {
                 &reason,
             );
         }
+        if self.library_motions.as_ref().is_some_and(Vec::is_empty) {
+            return bad(
+                "library_motions",
+                "[]".into(),
+                "names no motion kind: list some, or drop the key for the papers' nine",
+            );
+        }
+        if self.library_motions.is_some()
+            && !self.motions.is_empty()
+            && !self.with_library
+        {
+            return bad(
+                "library_motions",
+                format!("{:?}", self.library_motions),
+                "is unused: the frames come from \"motions\" only; add \"with_library\": true",
+            );
+        }
         if self.with_library && self.motions.is_empty() {
             return bad(
                 "with_library",
@@ -440,6 +465,8 @@ pub struct Motions {
     pub with_library: bool,
     /// Transforms of the files' frames.
     pub augment: MotionAugment,
+    /// The library's motion kinds; `None`: [`MotionKind::CLASSIC`].
+    pub library: Option<Vec<MotionKind>>,
     /// `face`: papers/002's face protocol in the global scenario instead.
     pub source: PoseSource,
 }
@@ -455,6 +482,7 @@ impl Motions {
                 .collect::<Result<_, _>>()?,
             with_library: config.with_library,
             augment: config.motion_augment,
+            library: config.library_motions.clone(),
             source: config.source,
         })
     }
@@ -500,6 +528,9 @@ pub fn synth_frames_with(
     config.motion_files = motions.files.clone();
     config.with_library = motions.with_library;
     config.motion_augment = motions.augment;
+    if let Some(kinds) = &motions.library {
+        config.motions = kinds.clone();
+    }
     config.source = motions.source;
     config.noise = if noise == 0.0 {
         NoiseConfig::none()
@@ -1451,6 +1482,35 @@ pub fn train_with_sensor(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `"library_motions"` reaches the synthesised frames: only the named kinds, the papers'
+    /// nine without it.
+    #[test]
+    fn library_motions_pick_the_kinds_of_the_synthesised_frames() {
+        let template = Arc::new(lfit_model::default_template());
+        let sensor = Sensor::default_for(Modality::Markers, &template);
+        let base = base_energy(&template, &sensor).expect("energy");
+        let config = TrainConfig {
+            library_motions: Some(vec![MotionKind::Sit, MotionKind::Kneel]),
+            ..TrainConfig::default()
+        };
+        let motions = Motions::load(&config, &template).expect("motions");
+        let frames = synth_frames_with(&template, &sensor, &base, 24, 3, 0.0, &motions)
+            .expect("frames");
+        let names = &frames.dataset.meta.frame_motions;
+        assert!(names.iter().all(|n| n == "sit" || n == "kneel"), "{names:?}");
+        assert!(names.iter().any(|n| n == "sit") && names.iter().any(|n| n == "kneel"));
+        let plain = synth_frames_with(&template, &sensor, &base, 24, 3, 0.0, &Motions::default())
+            .expect("frames");
+        assert!(
+            plain
+                .dataset
+                .meta
+                .frame_motions
+                .iter()
+                .all(|n| MotionKind::CLASSIC.iter().any(|k| k.name() == n))
+        );
+    }
 
     /// A known-shape network starts and stays on the true β (θ0 = Φ(D) or the start pose,
     /// clamped); the same network without the flag does not.

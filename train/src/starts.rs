@@ -293,6 +293,9 @@ pub fn previous_frames(
             c.motion_files = motions.files.clone();
             c.with_library = motions.with_library;
             c.motion_augment = motions.augment;
+            if let Some(kinds) = &motions.library {
+                c.motions = kinds.clone();
+            }
             c.noise = noise.clone();
             let d = synthesize(&c, template, sensor, &|_| {})?;
             let Observations::Sparse { values, visible } = &d.observations else {

@@ -274,6 +274,13 @@ fn bad_configs_are_one_line_errors() {
             r#"{"motions": ["a.npz"], "motion_augment": {"flip": true}}"#,
             "unknown field",
         ),
+        // The library's kinds: named ones, at least one, and only where the library is drawn.
+        (r#"{"library_motions": []}"#, "names no motion kind"),
+        (r#"{"library_motions": ["moonwalk"]}"#, "moonwalk"),
+        (
+            r#"{"motions": ["a.npz"], "library_motions": ["sit"]}"#,
+            "with_library",
+        ),
     ] {
         std::fs::write(&p, text).expect("write");
         let r = TrainConfig::load(&p);

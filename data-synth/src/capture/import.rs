@@ -134,7 +134,7 @@ fn imported_dataset(
     config.source = PoseSource::Motion;
     config.fps = fps;
     config.noise = NoiseConfig::none();
-    config.motions = MotionKind::ALL.to_vec();
+    config.motions = MotionKind::CLASSIC.to_vec();
     config.validate()?;
     Ok(Dataset {
         meta: Meta {

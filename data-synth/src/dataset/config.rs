@@ -108,7 +108,7 @@ pub struct SynthConfig {
     /// Frame rate of sequences, Hz.
     pub fps: f64,
     pub noise: NoiseConfig,
-    /// Procedural motions drawn from (all by default).
+    /// Procedural motions drawn from (the papers' library, [`MotionKind::CLASSIC`], by default).
     pub motions: Vec<MotionKind>,
     /// Imported motion files (`lfit motion import`) that `source = motion` draws its frames
     /// from instead of the procedural library; empty: the library. Recorded in the dataset's
@@ -226,7 +226,7 @@ impl SynthConfig {
             seed,
             fps: 30.0,
             noise: NoiseConfig::default(),
-            motions: MotionKind::ALL.to_vec(),
+            motions: MotionKind::CLASSIC.to_vec(),
             motion_files: Vec::new(),
             with_library: false,
             motion_augment: MotionAugment::default(),

@@ -1,5 +1,9 @@
 //! Procedural motion library (SPEC §8): walk, jog, wave, squat, reach, punch, kick, jump and turn
-//! as smooth functions of time that return pose vectors of the default 18-joint skeleton.
+//! as smooth functions of time that return pose vectors of the default 18-joint skeleton — the
+//! papers' library ([`MotionKind::CLASSIC`], the default everywhere) — and six kinds of what people
+//! do that it lacks ([`MotionKind::EXTENDED`], chosen by name: `--library-motions`,
+//! `"library_motions"`): sit down and stand up, a deep crouch, kneeling on one knee, bending to
+//! pick something up, an overarm throw, reaching overhead or behind.
 //!
 //! Every motion is written in a *heading frame*: the body's own rotations, with the root path
 //! (position on the floor and yaw) added on top. One-sided motions are written for a left lead
@@ -22,8 +26,13 @@
 //! 7 rad/s (brisk, not ballistic, motion) so that sequences at 30 fps stay smooth; where a real
 //! motion is faster (running knees, punches) the timing is stretched rather than the range cut.
 //!
-//! The output always lies inside the rotation limits of [`Bounds::global`]
-//! ([`skeleton::rotation_limits_deg`]); amplitudes are chosen so that the final clamp rarely acts.
+//! The output of a classic kind always lies inside the rotation limits of [`Bounds::global`]
+//! ([`skeleton::rotation_limits_deg`], papers/000 Table 1); amplitudes are chosen so that the final
+//! clamp rarely acts. Those limits stop a knee at 100°, a hip at 100° and a shoulder 60° from the
+//! A-pose, so a person's deep flexions and overhead reaches cannot be written inside them: the
+//! extended kinds lie inside [`clinical_limits_deg`] instead (AAOS and Soucie 2011 normal adult
+//! ranges on the legs' flexion axes and the arms, the table's other ranges kept), and a model's own
+//! limits clamp them again when they are retargeted onto it.
 //! Two limits shape the library: the root yaw box is ±50°, so the heading of walks stays within
 //! [`YAW_LIMIT`] (approached smoothly) and a turn sweeps at most about 80° in total (±41°); the
 //! ankle dorsiflexion limit is 10°, so deep squats lift the heels slightly. The root translation is
@@ -31,7 +40,7 @@
 //!
 //! [`Bounds::global`]: lfit_model::Bounds::global
 
-use std::f64::consts::{FRAC_PI_4, PI, TAU};
+use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI, TAU};
 use std::fmt;
 use std::str::FromStr;
 
@@ -86,12 +95,27 @@ pub enum MotionKind {
     Jump,
     /// Turning in place back and forth through up to 82° of root yaw, stepping while turning.
     Turn,
+    /// Sitting down onto a seat 42–54 cm high and standing up again, the trunk leaning forward
+    /// through the transfer (extended).
+    Sit,
+    /// A deep crouch with the heels rising: thighs 70–95° forward, knees to 130° (extended).
+    Crouch,
+    /// Kneeling down on one knee (the trailing leg's) and getting up (extended).
+    Kneel,
+    /// Bending to pick something up from the floor with one hand, from a stoop (straight legs) to
+    /// a squat lift (extended).
+    Pickup,
+    /// An overarm throw: cocking with the trunk turned back, a step, release and follow-through
+    /// (extended).
+    Throw,
+    /// Reaching both arms overhead, or one arm behind the body with the trunk turned (extended).
+    Overhead,
 }
 
 /// Error of [`MotionKind::from_str`]: the name matches no motion kind.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error(
-    "unknown motion kind '{name}' (expected one of walk, jog, wave, squat, reach, punch, kick, jump, turn)"
+    "unknown motion kind '{name}' (expected one of walk, jog, wave, squat, reach, punch, kick, jump, turn, sit, crouch, kneel, pickup, throw, overhead)"
 )]
 pub struct UnknownMotionKind {
     /// The name that was given.
@@ -99,8 +123,9 @@ pub struct UnknownMotionKind {
 }
 
 impl MotionKind {
-    /// Every kind, in declaration order.
-    pub const ALL: [MotionKind; 9] = [
+    /// The papers' library (SPEC §8), in declaration order: what the library draws from unless
+    /// told otherwise (so datasets and checkpoints made before the extended kinds keep their bytes).
+    pub const CLASSIC: [MotionKind; 9] = [
         MotionKind::Walk,
         MotionKind::Jog,
         MotionKind::Wave,
@@ -110,6 +135,35 @@ impl MotionKind {
         MotionKind::Kick,
         MotionKind::Jump,
         MotionKind::Turn,
+    ];
+
+    /// The kinds added for captured motion (issue 25, item 2), in declaration order.
+    pub const EXTENDED: [MotionKind; 6] = [
+        MotionKind::Sit,
+        MotionKind::Crouch,
+        MotionKind::Kneel,
+        MotionKind::Pickup,
+        MotionKind::Throw,
+        MotionKind::Overhead,
+    ];
+
+    /// Every kind, in declaration order.
+    pub const ALL: [MotionKind; 15] = [
+        MotionKind::Walk,
+        MotionKind::Jog,
+        MotionKind::Wave,
+        MotionKind::Squat,
+        MotionKind::Reach,
+        MotionKind::Punch,
+        MotionKind::Kick,
+        MotionKind::Jump,
+        MotionKind::Turn,
+        MotionKind::Sit,
+        MotionKind::Crouch,
+        MotionKind::Kneel,
+        MotionKind::Pickup,
+        MotionKind::Throw,
+        MotionKind::Overhead,
     ];
 
     /// Lower-case name, as accepted by [`FromStr`] and written by serde.
@@ -124,6 +178,37 @@ impl MotionKind {
             MotionKind::Kick => "kick",
             MotionKind::Jump => "jump",
             MotionKind::Turn => "turn",
+            MotionKind::Sit => "sit",
+            MotionKind::Crouch => "crouch",
+            MotionKind::Kneel => "kneel",
+            MotionKind::Pickup => "pickup",
+            MotionKind::Throw => "throw",
+            MotionKind::Overhead => "overhead",
+        }
+    }
+
+    /// Whether the kind is one of [`MotionKind::EXTENDED`] (written inside
+    /// [`clinical_limits_deg`] rather than papers/000's limits).
+    pub const fn is_extended(self) -> bool {
+        matches!(
+            self,
+            MotionKind::Sit
+                | MotionKind::Crouch
+                | MotionKind::Kneel
+                | MotionKind::Pickup
+                | MotionKind::Throw
+                | MotionKind::Overhead
+        )
+    }
+
+    /// The rotation limits (degrees, about x, y, z) the kind's poses lie in for joint `j`:
+    /// [`skeleton::rotation_limits_deg`] for the classic kinds, [`clinical_limits_deg`] for the
+    /// extended ones.
+    pub fn limits_deg(self, j: usize) -> [(f64, f64); 3] {
+        if self.is_extended() {
+            clinical_limits_deg(j)
+        } else {
+            skeleton::rotation_limits_deg(j)
         }
     }
 
@@ -132,12 +217,20 @@ impl MotionKind {
         matches!(self, MotionKind::Walk | MotionKind::Jog)
     }
 
-    /// Whether [`MotionParams::side`] picks the lead limb (wave, reach, punch, kick); for
-    /// [`MotionKind::Turn`] it picks the first turning direction instead.
+    /// Whether [`MotionParams::side`] picks the lead limb (wave, reach, punch, kick, kneel,
+    /// pickup, throw, overhead); for [`MotionKind::Turn`] it picks the first turning direction
+    /// instead.
     pub const fn is_one_sided(self) -> bool {
         matches!(
             self,
-            MotionKind::Wave | MotionKind::Reach | MotionKind::Punch | MotionKind::Kick
+            MotionKind::Wave
+                | MotionKind::Reach
+                | MotionKind::Punch
+                | MotionKind::Kick
+                | MotionKind::Kneel
+                | MotionKind::Pickup
+                | MotionKind::Throw
+                | MotionKind::Overhead
         )
     }
 
@@ -154,8 +247,48 @@ impl MotionKind {
             MotionKind::Kick => (0.7, 1.2),
             MotionKind::Jump => (0.8, 1.2),
             MotionKind::Turn => (0.7, 1.3),
+            MotionKind::Sit => (0.7, 1.3),
+            MotionKind::Crouch => (0.7, 1.3),
+            MotionKind::Kneel => (0.7, 1.3),
+            MotionKind::Pickup => (0.7, 1.3),
+            MotionKind::Throw => (0.7, 1.1),
+            MotionKind::Overhead => (0.7, 1.3),
         }
     }
+}
+
+/// Rotation limits (degrees, `[(min, max); 3]` about x, y, z) of the extended kinds on the
+/// default skeleton: papers/000's table ([`skeleton::rotation_limits_deg`]) with the ranges a
+/// person has where that table is narrower, in this crate's convention (−x flexes a hip, +x flexes
+/// a knee, +x plantar-flexes an ankle):
+///
+/// - hip flexion 120°, extension 30° (AAOS: Greene & Heckman, *The Clinical Measurement of Joint
+///   Motion*, 1994);
+/// - knee flexion 140° (Soucie et al. 2011, *Haemophilia* 17(3):500–507), hyperextension 10°;
+/// - ankle dorsiflexion 20°, plantar flexion 50° (AAOS);
+/// - shoulder: AAOS's 180° of flexion and abduction are 135° from the A-pose's 45°; as a box of
+///   rotation-vector components about the A-pose arm, ±150° on the swing axes (y, z) and ±90° on
+///   the twist (x, AAOS's 70° internal and 90° external rotation);
+/// - elbow: AAOS's 150° of flexion about an axis 45° between −x and −y gives up to 106° on each
+///   of x and y: ±110° there, papers/000's ±90° on z.
+///
+/// The root, the spine, the head, the feet and the hands keep papers/000's ranges.
+pub fn clinical_limits_deg(j: usize) -> [(f64, f64); 3] {
+    let mut limits = skeleton::rotation_limits_deg(j);
+    match j {
+        skeleton::R_HIP | L_HIP => limits[0] = (-120.0, 30.0),
+        skeleton::R_KNEE | L_KNEE => limits[0] = (-10.0, 140.0),
+        skeleton::R_ANKLE | L_ANKLE => limits[0] = (-20.0, 50.0),
+        skeleton::R_SHOULDER | L_SHOULDER => {
+            limits = [(-90.0, 90.0), (-150.0, 150.0), (-150.0, 150.0)];
+        }
+        skeleton::R_ELBOW | L_ELBOW => {
+            limits[0] = (-110.0, 110.0);
+            limits[1] = (-110.0, 110.0);
+        }
+        _ => {}
+    }
+    limits
 }
 
 impl fmt::Display for MotionKind {
@@ -326,13 +459,14 @@ impl MotionParams {
 /// The pose of a `kind` motion with parameters `params` at time `time_s` (seconds; any real, a
 /// non-finite time is read as 0).
 ///
-/// The result is finite, C1 (at least) in time, and its rotations lie within the limits of
-/// [`lfit_model::Bounds::global`]. The root translation is the rest root position's offset: the
+/// The result is finite, C1 (at least) in time, and its rotations lie within
+/// [`MotionKind::limits_deg`] (for the classic kinds the limits of
+/// [`lfit_model::Bounds::global`]). The root translation is the rest root position's offset: the
 /// floor path (x, z) plus vertical motion (y); walks travel away from the origin (see
 /// [`recentre`]).
 pub fn motion_pose(kind: MotionKind, params: &MotionParams, time_s: f64) -> Pose {
     let mut pose = motion_pose_unclamped(kind, params, time_s);
-    clamp_rotations(&mut pose);
+    clamp_rotations(&mut pose, kind);
     pose
 }
 
@@ -409,6 +543,12 @@ fn motion_pose_unclamped(kind: MotionKind, params: &MotionParams, time_s: f64) -
         MotionKind::Kick => kick(&p, t),
         MotionKind::Jump => jump(&p, t),
         MotionKind::Turn => turn(&p, t),
+        MotionKind::Sit => sit(&p, t),
+        MotionKind::Crouch => deep_crouch(&p, t),
+        MotionKind::Kneel => kneel(&p, t),
+        MotionKind::Pickup => pickup(&p, t),
+        MotionKind::Throw => throw(&p, t),
+        MotionKind::Overhead => overhead(&p, t),
     };
     let mut pose = if kind.is_one_sided() && p.side == Side::Right {
         mirror_pose(&body.pose)
@@ -423,11 +563,12 @@ fn motion_pose_unclamped(kind: MotionKind, params: &MotionParams, time_s: f64) -
     pose
 }
 
-/// Clamps every rotation into [`skeleton::rotation_limits_deg`]; returns whether anything moved.
-fn clamp_rotations(pose: &mut Pose) -> bool {
+/// Clamps every rotation into `kind`'s [`MotionKind::limits_deg`]; returns whether anything
+/// moved.
+fn clamp_rotations(pose: &mut Pose, kind: MotionKind) -> bool {
     let mut clamped = false;
     for j in 0..NUM_JOINTS {
-        for (axis, (lo, hi)) in skeleton::rotation_limits_deg(j).into_iter().enumerate() {
+        for (axis, (lo, hi)) in kind.limits_deg(j).into_iter().enumerate() {
             let i = rot_offset(j) + axis;
             let v = pose[i].clamp(lo.to_radians(), hi.to_radians());
             clamped |= v != pose[i];
@@ -610,10 +751,14 @@ fn hanging_arm(drop: f64, swing: f64) -> DVec3 {
 /// twist (about the rest arm, which leaves the arm's direction unchanged) is searched for the
 /// rotation vector that best fits them.
 fn arm_towards(dir: DVec3) -> DVec3 {
+    arm_towards_within(dir, skeleton::rotation_limits_deg(L_SHOULDER))
+}
+
+/// [`arm_towards`] within the shoulder limits `limits` (degrees per axis).
+fn arm_towards_within(dir: DVec3, limits: [(f64, f64); 3]) -> DVec3 {
     let a = rest_arm();
     let d = dir.try_normalize().unwrap_or(DVec3::Z);
     let arc = DQuat::from_rotation_arc(a, d);
-    let limits = skeleton::rotation_limits_deg(L_SHOULDER);
     let usage = |r: DVec3| {
         r.to_array()
             .into_iter()
@@ -1404,6 +1549,278 @@ fn turn(p: &MotionParams, t: f64) -> Local {
     }
 }
 
+// ---------------------------------------------------------------------------------------------
+// Extended kinds (issue 25, item 2): what people do that the papers' library lacks. Written
+// inside [`clinical_limits_deg`]; left lead where one-sided (mirrored by the caller).
+
+/// Left shoulder rotation that points the upper arm along `dir`, within the clinical limits.
+fn arm_reaching(dir: DVec3) -> DVec3 {
+    arm_towards_within(dir, clinical_limits_deg(L_SHOULDER))
+}
+
+/// Sets one leg (left convention): hip flexion, knee flexion and ankle dorsiflexion (rad; the
+/// crate's signs are −x, +x and −x).
+fn leg(body: &mut Body, side: Side, hip: f64, knee: f64, dorsi: f64) {
+    body.limb(side, L_HIP, DVec3::new(-hip, 0.0, 0.0));
+    body.limb(side, L_KNEE, DVec3::new(knee, 0.0, 0.0));
+    body.limb(side, L_ANKLE, DVec3::new(-dorsi, 0.0, 0.0));
+}
+
+/// Sit: 6 s cycles that dwell standing and seated. The thighs go from vertical to 80–95° forward
+/// (a higher seat, less; root 40–46 cm down, the hips 35 cm back over the planted feet), the
+/// shanks lean forward through the transfer and stand nearly vertical on the seat, the trunk
+/// leans 20–30° forward at the transfer's middle (sit-to-stand kinematics: hip flexion peaks near
+/// seat-off, e.g. Schenkman et al., *Phys Ther* 70(10), 1990), the hands come to the thighs.
+fn sit(p: &MotionParams, t: f64) -> Local {
+    let q = dwell(p.speed * t / 6.0 + p.phase / TAU);
+    let transfer = (PI * q).sin();
+    let alpha = (80.0 + 15.0 * (1.0 - p.style)).to_radians() * q;
+    let beta = 0.1 * q + 0.25 * transfer;
+    let pitch = 0.1 * alpha + (0.3 + 0.15 * p.amplitude.min(1.2)) * transfer;
+    let mut body = Body::new();
+    for side in [Side::Left, Side::Right] {
+        leg(&mut body, side, alpha + pitch, (1.0 + beta) * alpha, beta * alpha);
+        body.limb(side, L_HIP, DVec3::new(-alpha - pitch, 0.0, (5.0 * q).to_radians()));
+    }
+    let (drop, shift) = crouch_offset(alpha, beta);
+    // The feet 20 cm in front of the origin, so that the root stays near it.
+    body.translate(DVec3::new(0.0, -drop, shift + 0.2));
+    body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
+    body.set(LOWER_TORSO, deg(6.0 * transfer + 4.0 * q, 0.0, 0.0));
+    body.set(MIDDLE_TORSO, deg(4.0 * transfer + 4.0 * q, 0.0, 0.0));
+    body.set(HEAD, DVec3::new(-0.4 * pitch, 0.0, 0.0));
+    let swing = -(0.35 * q + 0.35 * transfer);
+    let elbow = (12.0 + 45.0 * q).to_radians();
+    relaxed_arms(&mut body, p.arm_drop, [swing; 2], [elbow; 2]);
+    Local::fixed(body, p.heading)
+}
+
+/// Crouch: 5 s cycles down into a deep crouch and up: thighs to 70–95° forward, shanks leaning
+/// 0.4 as far (knees to 98–133°), the heels rising (ankles dorsiflexed half the shank lean), the
+/// trunk 12–24° forward, the arms forward or towards the floor.
+fn deep_crouch(p: &MotionParams, t: f64) -> Local {
+    let q = dwell(p.speed * t / 5.0 + p.phase / TAU);
+    let beta = 0.4;
+    let alpha = (70.0 + 25.0 * p.style).to_radians() * q;
+    let pitch = (0.12 + 0.1 * p.amplitude.min(1.2)) * alpha;
+    let mut body = Body::new();
+    for side in [Side::Left, Side::Right] {
+        leg(&mut body, side, alpha + pitch, (1.0 + beta) * alpha, 0.5 * beta * alpha);
+        body.limb(side, L_HIP, DVec3::new(-alpha - pitch, 0.0, (8.0 * q).to_radians()));
+    }
+    let (drop, shift) = crouch_offset(alpha, beta);
+    body.translate(DVec3::new(0.0, -drop, shift));
+    body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
+    body.set(LOWER_TORSO, DVec3::new(0.12 * alpha, 0.0, 0.0));
+    body.set(MIDDLE_TORSO, DVec3::new(0.1 * alpha, 0.0, 0.0));
+    body.set(HEAD, DVec3::new(-0.3 * (pitch + 0.22 * alpha), 0.0, 0.0));
+    // arm_drop's range [0.35, 0.6) also picks where the hands go: forward or to the floor.
+    let down = ((p.arm_drop - 0.35) / 0.25).clamp(0.0, 1.0);
+    let forward = arm_reaching(direction(17f64.to_radians(), 0.0));
+    let floor = arm_reaching(direction(10f64.to_radians(), -50f64.to_radians()));
+    let target = lerp(forward, floor, down);
+    for side in [Side::Left, Side::Right] {
+        body.limb(
+            side,
+            L_SHOULDER,
+            lerp(hanging_arm(p.arm_drop, 0.0), target, 0.9 * q),
+        );
+        body.limb(side, L_ELBOW, elbow_flex((12.0 + 20.0 * q).to_radians()));
+    }
+    Local::fixed(body, p.heading)
+}
+
+/// Kneel: 7 s cycles from standing down onto the right knee and up (left lead): the left foot
+/// steps 18 cm forward and its thigh comes to horizontal or a little above over a shank leaning
+/// 5–33° forward (the heel rising as it leans), the right shank swings back to the floor (toes
+/// tucked) under a thigh that stays near vertical (an upright kneel, knee 95°) or, as the body
+/// sinks back towards the heel, leans 40° forward (knee 125°, the trunk leaning over the front
+/// thigh); the root drops 40–52 cm. The amplitude sets how far the body sinks, the style the
+/// front shank's lean.
+fn kneel(p: &MotionParams, t: f64) -> Local {
+    let q = dwell(p.speed * t / 7.0 + p.phase / TAU);
+    let transfer = (PI * q).sin();
+    let sink = ((p.amplitude - 0.6) / 0.6).clamp(0.0, 1.0);
+    let pitch = (0.1 + 0.12 * p.amplitude.min(1.2)) * transfer + (0.05 + 0.3 * sink) * q;
+    let lean = (5.0 + 10.0 * p.style + 18.0 * sink).to_radians() * q;
+    let lead = (85.0 + 10.0 * sink).to_radians() * q;
+    let back = (10.0 + 30.0 * sink).to_radians() * q;
+    let back_shank = 85f64.to_radians() * q;
+    let mut body = Body::new();
+    leg(&mut body, Side::Left, lead + pitch, lead + lean, 0.6 * lean);
+    leg(&mut body, Side::Right, back + pitch, back + back_shank, 0.0);
+    body.limb(Side::Right, L_ANKLE, deg(25.0 * q, 0.0, 0.0));
+    let drop = THIGH * (1.0 - lead.cos()) + SHANK * (1.0 - lean.cos());
+    let shift = SHANK * lean.sin() - THIGH * lead.sin();
+    body.translate(DVec3::new(0.0, -drop, 0.18 * q + shift + 0.1));
+    body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
+    body.set(LOWER_TORSO, DVec3::new(0.2 * pitch, 0.0, 0.0));
+    body.set(HEAD, DVec3::new(-0.5 * pitch, 0.0, 0.0));
+    body.limb(Side::Left, L_SHOULDER, hanging_arm(p.arm_drop, -0.5 * q));
+    body.limb(Side::Left, L_ELBOW, elbow_flex((12.0 + 30.0 * q).to_radians()));
+    body.limb(
+        Side::Right,
+        L_SHOULDER,
+        hanging_arm(p.arm_drop, -0.1 * q - 0.2 * transfer),
+    );
+    body.limb(Side::Right, L_ELBOW, elbow_flex(15f64.to_radians()));
+    Local::fixed(body, p.heading)
+}
+
+/// Pickup: 4.5 s cycles bending down to the floor and back: style 0 a stoop (pelvis ~80°
+/// forward, knees ~18°), style 1 a squat lift (thighs 85° forward, knees 104°, pelvis ~30°); the
+/// spine rounds, the left hand reaches to the floor, the right arm hangs.
+fn pickup(p: &MotionParams, t: f64) -> Local {
+    let q = dwell(p.speed * t / 4.5 + p.phase / TAU);
+    let squat = p.style;
+    let beta = 0.22;
+    let alpha_max = (15.0 + 70.0 * squat).to_radians();
+    let bend_max = ((80.0 - 50.0 * squat) * (0.8 + 0.2 * p.amplitude.min(1.2))).to_radians();
+    let spine_max = (30.0 - 7.5 * squat).to_radians();
+    let (alpha, bend) = (alpha_max * q, bend_max * q);
+    let mut body = Body::new();
+    for side in [Side::Left, Side::Right] {
+        leg(&mut body, side, alpha + bend, (1.0 + beta) * alpha, beta * alpha);
+    }
+    let (drop, shift) = crouch_offset(alpha, beta);
+    // The hips go back over the planted feet, which stand 12 cm in front of the origin.
+    body.translate(DVec3::new(0.0, -drop, shift - 0.1 * q * (1.0 - squat) + 0.12));
+    body.set(ROOT, DVec3::new(bend, 0.0, 0.0));
+    body.set(LOWER_TORSO, DVec3::new(0.5 * spine_max * q, 0.0, 0.0));
+    body.set(MIDDLE_TORSO, DVec3::new(0.5 * spine_max * q, 0.0, 0.0));
+    let total = bend_max + spine_max;
+    body.set(HEAD, DVec3::new(-0.2 * total * q, 0.0, 0.0));
+    // At the bottom the left arm points at the floor: world down in the thorax's frame.
+    let reach = arm_reaching(direction(0.15, total - FRAC_PI_2));
+    body.limb(
+        Side::Left,
+        L_SHOULDER,
+        lerp(hanging_arm(p.arm_drop, 0.0), reach, q),
+    );
+    body.limb(Side::Left, L_ELBOW, elbow_flex((12.0 - 4.0 * q).to_radians()));
+    body.limb(
+        Side::Right,
+        L_SHOULDER,
+        hanging_arm(p.arm_drop, -0.7 * total * q),
+    );
+    body.limb(Side::Right, L_ELBOW, elbow_flex((12.0 + 15.0 * q).to_radians()));
+    Local::fixed(body, p.heading)
+}
+
+/// Throw: an overarm throw with the left arm every 3 s. The body blends from a relaxed stance
+/// into the cocked pose (throwing arm out to the side and back, elbow 90°, trunk turned 40° back,
+/// the right foot stepping forward), then — a third of a second or more, the timing stretched to
+/// keep joint speeds near 7 rad/s — into the follow-through (arm forward and down across the
+/// body, trunk turned 40° the other way and bent forward, weight on the front leg), holds, and
+/// returns.
+fn throw(p: &MotionParams, t: f64) -> Local {
+    let phi = (p.speed * t / 3.0 + p.phase / TAU).rem_euclid(1.0);
+    let cock = hermite(
+        &[key(0.1, 0.0, 0.0), key(0.42, 1.0, 0.0), key(0.68, 0.0, 0.0)],
+        phi,
+    );
+    let follow = hermite(
+        &[
+            key(0.45, 0.0, 0.0),
+            key(0.68, 1.0, 0.0),
+            key(0.8, 1.0, 0.0),
+            key(1.0, 0.0, 0.0),
+        ],
+        phi,
+    );
+    let turn = 0.7 + 0.3 * p.amplitude.min(1.2);
+
+    let mut neutral = Body::new();
+    for side in [Side::Left, Side::Right] {
+        leg(&mut neutral, side, 2f64.to_radians(), 4f64.to_radians(), 2f64.to_radians());
+    }
+    relaxed_arms(&mut neutral, p.arm_drop, [0.0; 2], [12f64.to_radians(); 2]);
+
+    let mut cocked = neutral.clone();
+    cocked.limb(
+        Side::Left,
+        L_SHOULDER,
+        arm_reaching(direction(100f64.to_radians(), (5.0 + 10.0 * p.style).to_radians())),
+    );
+    cocked.limb(Side::Left, L_ELBOW, elbow_flex(FRAC_PI_2));
+    cocked.limb(
+        Side::Right,
+        L_SHOULDER,
+        arm_towards(direction(15f64.to_radians(), 15f64.to_radians())),
+    );
+    cocked.limb(Side::Right, L_ELBOW, elbow_flex(20f64.to_radians()));
+    cocked.set(ROOT, deg(0.0, 10.0 * turn, 0.0));
+    cocked.set(LOWER_TORSO, deg(0.0, 15.0 * turn, -4.0));
+    cocked.set(MIDDLE_TORSO, deg(-5.0, 15.0 * turn, -4.0));
+    cocked.set(HEAD, deg(0.0, -20.0 * turn, 0.0));
+    leg(&mut cocked, Side::Right, 25f64.to_radians(), 20f64.to_radians(), 5f64.to_radians());
+    leg(&mut cocked, Side::Left, -8f64.to_radians(), 15f64.to_radians(), -5f64.to_radians());
+    cocked.translate(DVec3::new(0.0, -0.04, -0.05));
+
+    let mut through = neutral.clone();
+    through.limb(
+        Side::Left,
+        L_SHOULDER,
+        arm_reaching(direction(-30f64.to_radians(), -45f64.to_radians())),
+    );
+    through.limb(Side::Left, L_ELBOW, elbow_flex(25f64.to_radians()));
+    through.limb(Side::Right, L_SHOULDER, hanging_arm(p.arm_drop, 0.4));
+    through.limb(Side::Right, L_ELBOW, elbow_flex(60f64.to_radians()));
+    through.set(ROOT, deg(10.0, -10.0 * turn, 0.0));
+    through.set(LOWER_TORSO, deg(10.0, -15.0 * turn, 0.0));
+    through.set(MIDDLE_TORSO, deg(10.0, -15.0 * turn, 0.0));
+    through.set(HEAD, deg(-10.0, 20.0 * turn, 0.0));
+    leg(&mut through, Side::Right, 50f64.to_radians(), 35f64.to_radians(), 12f64.to_radians());
+    leg(&mut through, Side::Left, -5f64.to_radians(), 40f64.to_radians(), -25f64.to_radians());
+    through.translate(DVec3::new(0.0, -0.08, 0.15));
+
+    let mut body = neutral.clone();
+    for i in 0..POSE_DIM {
+        body.pose[i] += cock * (cocked.pose[i] - neutral.pose[i])
+            + follow * (through.pose[i] - neutral.pose[i]);
+    }
+    Local::fixed(body, p.heading)
+}
+
+/// Overhead: 4 s cycles reaching and back. Style below ½: both arms overhead (60–85° above
+/// horizontal), the trunk extending and the head tilting back; from ½: the left arm reaches
+/// behind the body (110–160° from the front, 15° below the shoulder), the trunk and head turning
+/// towards it.
+fn overhead(p: &MotionParams, t: f64) -> Local {
+    let q = dwell(p.speed * t / 4.0 + p.phase / TAU);
+    let a = p.amplitude.min(1.2);
+    let mut body = Body::new();
+    let root_shift = idle_legs(&mut body, t, p.phase);
+    body.translate(root_shift);
+    if p.style < 0.5 {
+        let elevation = (60.0 + 50.0 * p.style).to_radians();
+        let up = arm_reaching(direction(15f64.to_radians(), elevation));
+        for side in [Side::Left, Side::Right] {
+            body.limb(side, L_SHOULDER, lerp(hanging_arm(p.arm_drop, 0.0), up, q));
+            body.limb(side, L_ELBOW, elbow_flex((12.0 - 4.0 * q).to_radians()));
+        }
+        body.set(LOWER_TORSO, deg(-6.0 * a * q, 0.0, 0.0));
+        body.set(MIDDLE_TORSO, deg(-8.0 * a * q, 0.0, 0.0));
+        body.set(HEAD, deg(-15.0 * q, 0.0, 0.0));
+    } else {
+        let azimuth = (110.0 + 100.0 * (p.style - 0.5)).to_radians();
+        let behind = arm_reaching(direction(azimuth, -15f64.to_radians()));
+        body.limb(
+            Side::Left,
+            L_SHOULDER,
+            lerp(hanging_arm(p.arm_drop, 0.0), behind, q),
+        );
+        body.limb(Side::Left, L_ELBOW, elbow_flex((12.0 + 8.0 * q).to_radians()));
+        body.limb(Side::Right, L_SHOULDER, hanging_arm(p.arm_drop, -0.2 * q));
+        body.limb(Side::Right, L_ELBOW, elbow_flex(20f64.to_radians()));
+        body.set(ROOT, deg(0.0, 8.0 * a * q, 0.0));
+        body.set(LOWER_TORSO, deg(0.0, 15.0 * a * q, 0.0));
+        body.set(MIDDLE_TORSO, deg(0.0, 18.0 * a * q, 0.0));
+        body.set(HEAD, deg(0.0, 20.0 * q, 0.0));
+    }
+    Local::fixed(body, p.heading)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1428,6 +1845,19 @@ mod tests {
         (3..POSE_DIM).all(|i| pose[i] >= bounds.lower[i] && pose[i] <= bounds.upper[i])
     }
 
+    /// Whether every rotation of `pose` lies inside `kind`'s limits.
+    fn inside_limits(pose: &Pose, kind: MotionKind) -> bool {
+        (0..NUM_JOINTS).all(|j| {
+            kind.limits_deg(j)
+                .into_iter()
+                .enumerate()
+                .all(|(axis, (lo, hi))| {
+                    let v = pose[rot_offset(j) + axis];
+                    v >= lo.to_radians() && v <= hi.to_radians()
+                })
+        })
+    }
+
     #[test]
     fn every_kind_is_finite_and_inside_the_rotation_bounds() {
         let bounds = Bounds::global();
@@ -1436,10 +1866,79 @@ mod tests {
                 let p = params(kind, seed);
                 for pose in sequence(kind, &p, FPS, FRAMES, 0.0) {
                     assert!(pose.iter().all(|v| v.is_finite()), "{kind} seed {seed}");
-                    assert!(rotations_inside(&pose, &bounds), "{kind} seed {seed}");
+                    assert!(inside_limits(&pose, kind), "{kind} seed {seed}");
+                    if !kind.is_extended() {
+                        assert!(rotations_inside(&pose, &bounds), "{kind} seed {seed}");
+                    }
                 }
             }
         }
+    }
+
+    #[test]
+    fn the_kind_lists_partition_every_kind_and_the_default_is_the_classic_library() {
+        assert_eq!(
+            MotionKind::CLASSIC.len() + MotionKind::EXTENDED.len(),
+            MotionKind::ALL.len()
+        );
+        for kind in MotionKind::ALL {
+            assert_eq!(
+                MotionKind::EXTENDED.contains(&kind),
+                kind.is_extended(),
+                "{kind}"
+            );
+            assert_ne!(
+                MotionKind::CLASSIC.contains(&kind),
+                MotionKind::EXTENDED.contains(&kind),
+                "{kind}"
+            );
+        }
+        // The clinical limits are papers/000's but for the legs' flexion axes and the arms,
+        // where they allow more flexion (and less of the hip's and knee's other way).
+        for j in 0..NUM_JOINTS {
+            let (c, s) = (clinical_limits_deg(j), skeleton::rotation_limits_deg(j));
+            let changed = [
+                skeleton::R_HIP,
+                L_HIP,
+                skeleton::R_KNEE,
+                L_KNEE,
+                skeleton::R_ANKLE,
+                L_ANKLE,
+                skeleton::R_SHOULDER,
+                L_SHOULDER,
+                skeleton::R_ELBOW,
+                L_ELBOW,
+            ];
+            assert_eq!(c != s, changed.contains(&j), "joint {j}");
+        }
+        assert!(clinical_limits_deg(L_HIP)[0].0 < skeleton::rotation_limits_deg(L_HIP)[0].0);
+        assert!(clinical_limits_deg(L_KNEE)[0].1 > skeleton::rotation_limits_deg(L_KNEE)[0].1);
+    }
+
+    #[test]
+    fn extended_kinds_reach_what_the_papers_limits_cut() {
+        // Largest flexions over many draws: a deep crouch bends the knees past papers/000's 100°,
+        // sitting and crouching flex the hips past 90°, overhead reaches raise the arm past the
+        // 60° the papers' shoulder allows.
+        let peak = |kind: MotionKind, dof: usize, sign: f64| {
+            (0..20)
+                .flat_map(|seed| sequence(kind, &params(kind, seed), FPS, FRAMES, 0.0))
+                .map(|pose| sign * pose[dof])
+                .fold(f64::MIN, f64::max)
+                .to_degrees()
+        };
+        let knee = peak(MotionKind::Crouch, rot_offset(L_KNEE), 1.0);
+        assert!(knee > 120.0 && knee <= 140.0, "crouch knee {knee}");
+        let hip = peak(MotionKind::Sit, rot_offset(L_HIP), -1.0);
+        assert!(hip > 95.0 && hip <= 120.0, "sit hip {hip}");
+        let shoulder = peak(MotionKind::Overhead, rot_offset(L_SHOULDER) + 2, 1.0);
+        assert!(shoulder > 100.0 && shoulder <= 150.0, "overhead shoulder {shoulder}");
+        // The classic kinds stay inside the papers' limits.
+        let classic_knee = MotionKind::CLASSIC
+            .into_iter()
+            .map(|k| peak(k, rot_offset(L_KNEE), 1.0))
+            .fold(f64::MIN, f64::max);
+        assert!(classic_knee <= 100.0, "{classic_knee}");
     }
 
     #[test]
@@ -1451,7 +1950,7 @@ mod tests {
                 let p = params(kind, seed);
                 for i in 0..FRAMES {
                     let mut pose = motion_pose_unclamped(kind, &p, i as f64 / FPS);
-                    clamped += usize::from(clamp_rotations(&mut pose));
+                    clamped += usize::from(clamp_rotations(&mut pose, kind));
                 }
             }
             let fraction = clamped as f64 / (20 * FRAMES) as f64;
@@ -1663,7 +2162,10 @@ mod tests {
                 for p in [&bad, &MotionParams::default()] {
                     let pose = motion_pose(kind, p, t);
                     assert!(pose.iter().all(|v| v.is_finite()), "{kind} t={t}");
-                    assert!(rotations_inside(&pose, &bounds), "{kind} t={t}");
+                    assert!(inside_limits(&pose, kind), "{kind} t={t}");
+                    if !kind.is_extended() {
+                        assert!(rotations_inside(&pose, &bounds), "{kind} t={t}");
+                    }
                 }
             }
         }
@@ -1841,5 +2343,73 @@ mod tests {
         let span = yaws.iter().fold(f64::MIN, |m, &v| m.max(v))
             - yaws.iter().fold(f64::MAX, |m, &v| m.min(v));
         assert!(span > 60f64.to_radians(), "turn span {}", span.to_degrees());
+    }
+
+    #[test]
+    fn forward_kinematics_look_like_the_extended_motions() {
+        use lfit_model::skeleton::{L_HAND, R_ANKLE, R_HAND, R_KNEE};
+        let template = lfit_model::default_template();
+        let rest = joints(&template, &[0.0; POSE_DIM]);
+        // The rest ankles are 8.5 cm above the floor.
+        let floor = rest[L_ANKLE].y - 0.085;
+        let run = |kind: MotionKind, p: &MotionParams| -> Vec<Vec<DVec3>> {
+            sequence(kind, p, FPS, 600, 0.0)
+                .iter()
+                .map(|q| joints(&template, q))
+                .collect()
+        };
+        let lowest = |frames: &[Vec<DVec3>], j: usize| {
+            frames.iter().map(|f| f[j].y).fold(f64::MAX, f64::min)
+        };
+        for seed in 0..6 {
+            let p = MotionParams {
+                heading: 0.0,
+                side: Side::Left,
+                ..params(MotionKind::Sit, seed)
+            };
+            // Sit and crouch: the hips go down by 35 cm or more, the ankles stay on the floor.
+            for kind in [MotionKind::Sit, MotionKind::Crouch] {
+                let frames = run(kind, &MotionParams { ..p });
+                assert!(
+                    lowest(&frames, ROOT) < rest[ROOT].y - 0.33,
+                    "{kind} seed {seed}: root {}",
+                    lowest(&frames, ROOT)
+                );
+                for f in &frames {
+                    for a in [L_ANKLE, R_ANKLE] {
+                        assert!((f[a].y - rest[a].y).abs() < 0.08, "{kind}: ankle at {}", f[a].y);
+                    }
+                }
+            }
+            // Kneel: the trailing (right) knee comes down to the floor, the lead knee does not.
+            let frames = run(MotionKind::Kneel, &p);
+            let (knee, lead) = (
+                lowest(&frames, R_KNEE) - floor,
+                lowest(&frames, lfit_model::skeleton::L_KNEE) - floor,
+            );
+            assert!(knee < 0.12 && lead > 0.3, "seed {seed}: knees {knee:.2}, {lead:.2}");
+            // Pickup: the left wrist comes within 45 cm of the floor (the fingertips ~20 cm
+            // lower; standing it hangs ~80 cm up), the right stays higher.
+            let frames = run(MotionKind::Pickup, &p);
+            let hand = lowest(&frames, L_HAND);
+            assert!(hand < floor + 0.45, "seed {seed}: hand {:.2} above the floor", hand - floor);
+            assert!(lowest(&frames, R_HAND) > hand);
+        }
+        let p = MotionParams::default();
+        // Throw: the throwing hand goes behind the shoulder line when cocked and well in front of
+        // the chest after release.
+        let frames = run(MotionKind::Throw, &p);
+        let back = frames.iter().map(|f| f[L_HAND].z - f[MIDDLE_TORSO].z).fold(f64::MAX, f64::min);
+        let front = frames.iter().map(|f| f[L_HAND].z - f[MIDDLE_TORSO].z).fold(f64::MIN, f64::max);
+        assert!(back < -0.1 && front > 0.3, "throw hand {back:.2} .. {front:.2}");
+        // Overhead: both hands above the head (style < ½); one hand behind the back (style ≥ ½).
+        let frames = run(MotionKind::Overhead, &MotionParams { style: 0.3, ..p });
+        for hand in [L_HAND, R_HAND] {
+            let top = frames.iter().map(|f| f[hand].y - f[HEAD].y).fold(f64::MIN, f64::max);
+            assert!(top > 0.2, "hand {top:.2} above the head");
+        }
+        let frames = run(MotionKind::Overhead, &MotionParams { style: 0.8, ..p });
+        let behind = frames.iter().map(|f| f[L_HAND].z - f[ROOT].z).fold(f64::MAX, f64::min);
+        assert!(behind < -0.2, "hand {behind:.2} behind");
     }
 }
