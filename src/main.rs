@@ -396,6 +396,10 @@ struct FitCmd {
     /// evaluations).
     #[arg(long, default_value = "phi")]
     neural_start: String,
+    /// Which iterate the neural fitter returns: last (θN, papers/002) or lowest (the lowest
+    /// energy among θ0 … θN, one more evaluation: a step that made the fit worse is not kept).
+    #[arg(long, default_value = "last")]
+    neural_pick: String,
     /// How a sequence estimates the subject's shape β: per-frame (free in every frame's fit),
     /// first-pass (the median β of up to 32 frames fitted on their own, then fixed) or joint
     /// (the sequence fitted once; one β solved with every frame's pose over up to 512 frames'
@@ -688,6 +692,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 template: c.template,
                 checkpoint: c.checkpoint,
                 neural_start: c.neural_start,
+                neural_pick: c.neural_pick,
                 device: c.device,
                 batch: c.batch,
                 runtime: c.runtime,

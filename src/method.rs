@@ -256,12 +256,14 @@ pub fn build_classic(kind: MethodKind, options: ClassicOptions) -> Result<Box<dy
 pub const NO_NEURAL: &str = "this build of lfit has no neural fitter: rebuild with the cargo feature `neural` (the Python wheel: maturin build --features neural)";
 
 /// The fitter of a neural method from the command line's words: `start` (`given`, `phi`,
-/// `best`), `runtime` (`burn`, `ort`, `native`), the Burn `device` and ONNX Runtime's threads.
+/// `best`), `pick` (`last`, `lowest`), `runtime` (`burn`, `ort`, `native`), the Burn `device`
+/// and ONNX Runtime's threads.
 #[cfg(feature = "neural")]
 pub fn load_neural_named(
     kind: MethodKind,
     checkpoint: &std::path::Path,
     start: &str,
+    pick: &str,
     runtime: &str,
     device: &str,
     ort_threads: Option<usize>,
@@ -271,6 +273,7 @@ pub fn load_neural_named(
         &NeuralOptions {
             checkpoint,
             start: start.parse().map_err(anyhow::Error::msg)?,
+            pick: pick.parse().map_err(anyhow::Error::msg)?,
             runtime: runtime.parse().map_err(anyhow::Error::msg)?,
             device,
             ort_threads,
@@ -284,6 +287,7 @@ pub fn load_neural_named(
     _kind: MethodKind,
     _checkpoint: &std::path::Path,
     _start: &str,
+    _pick: &str,
     _runtime: &str,
     _device: &str,
     _ort_threads: Option<usize>,
@@ -298,6 +302,8 @@ pub fn load_neural_named(
 pub struct NeuralOptions<'a> {
     pub checkpoint: &'a std::path::Path,
     pub start: lfit_infer::Start,
+    /// Which iterate a fit returns (`--neural-pick`).
+    pub pick: lfit_infer::Pick,
     pub runtime: lfit_infer::Runtime,
     /// Burn device name (`ndarray`, `flex`, `wgpu`); Burn only.
     pub device: &'a str,
@@ -339,6 +345,7 @@ pub fn load_neural(kind: MethodKind, options: &NeuralOptions<'_>) -> Result<Box<
             },
         )?,
     };
+    let fitter = fitter.with_pick(options.pick);
     Ok(match kind {
         MethodKind::NeuralLm => Box::new(lfit_infer::NeuralThenLm::new(fitter)?),
         _ => Box::new(fitter),

@@ -127,6 +127,82 @@ fn best_start_takes_the_lower_energy_candidate() {
     assert!(!tmp.path().join("no.json").exists());
 }
 
+/// `--neural-pick lowest` returns the iterate of lowest energy among θ0 … θN (the last one's
+/// energy counted: one more evaluation), never above the last iterate's; `last` is the default
+/// and unknown picks or a budget without room for the choice are refused with nothing written.
+#[test]
+fn lowest_pick_returns_the_lowest_energy_iterate() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let data = synth(tmp.path(), "local.npz", "local", 12, 0x5EED_0005);
+    let run = |pick: &str, budget: &str| {
+        fit(
+            &data,
+            &tmp.path().join(format!("{pick}.json")),
+            &[
+                "--method",
+                "neural",
+                "--budget",
+                budget,
+                "--neural-start",
+                "given",
+                "--neural-pick",
+                pick,
+            ],
+        )
+    };
+    let (last, lowest) = (run("last", "10"), run("lowest", "11"));
+    assert_eq!(lowest["method"], "neural-given-lowest");
+    assert_eq!(lowest["neural_pick"], "lowest");
+    assert!(last.get("neural_pick").is_none(), "the default leaves no key");
+    let mut moved = 0;
+    for (a, b) in frames(&last).iter().zip(frames(&lowest)) {
+        // The same network run: the same iterates and trace.
+        assert_eq!(a["trace"].as_array().unwrap().len(), b["trace"].as_array().unwrap().len());
+        let energies: Vec<f64> = b["trace"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| num(&p[1]))
+            .collect();
+        let min = energies.iter().copied().fold(f64::INFINITY, f64::min);
+        let (ea, eb) = (num(&a["energy"]), num(&b["energy"]));
+        assert!((eb - min).abs() <= 1e-9 * min.abs().max(1.0), "{eb} is not the lowest {min}");
+        assert!(eb <= ea);
+        assert!((ea - energies[energies.len() - 1]).abs() <= 1e-9 * ea.abs().max(1.0));
+        assert_eq!(b["evaluations"], num(&a["evaluations"]) as u64 + 1);
+        moved += usize::from(eb < ea);
+    }
+    eprintln!("lowest pick: an earlier iterate on {moved} of 12 frames");
+    assert!(moved > 0, "no frame where an earlier iterate is lower: the check saw nothing");
+    for (extra, want) in [
+        (["--neural-pick", "best", "--budget", "11"], "unknown neural pick 'best'"),
+        (["--neural-pick", "lowest", "--budget", "10"], "and the iterate choice"),
+    ] {
+        let out_path = tmp.path().join("no.json");
+        let (model, ck) = (root(MODEL), root(CHECKPOINT));
+        let mut args = vec![
+            "-q",
+            "fit",
+            "--data",
+            path_str(&data),
+            "--template",
+            path_str(&model),
+            "--checkpoint",
+            path_str(&ck),
+            "--method",
+            "neural",
+            "--neural-start",
+            "given",
+            "--out",
+            path_str(&out_path),
+        ];
+        args.extend(extra);
+        let out = lfit(&args);
+        assert_one_line_error(&out, want);
+        assert!(!out_path.exists());
+    }
+}
+
 /// `neural+lm` spends the network's evaluations, then LM's from the network's result: its
 /// energy is never above the network's alone, its evaluations add up and stay within the budget,
 /// and its iterates are the network's followed by the final pose.

@@ -47,6 +47,32 @@ impl std::str::FromStr for Start {
     }
 }
 
+/// Which iterate a neural fit returns.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Pick {
+    /// θN, the last iterate (papers/002 Alg. 1).
+    #[default]
+    Last,
+    /// The iterate of lowest energy among θ0 … θN, as a classical optimizer returns the best
+    /// point it has seen: the loop has evaluated θ0 … θN−1 already (each iteration's gradient
+    /// carries the energy), θN costs one more counted evaluation. A step that made the energy
+    /// worse is not returned, so a sequence does not carry it forward.
+    Lowest,
+}
+
+impl std::str::FromStr for Pick {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "last" => Ok(Pick::Last),
+            "lowest" => Ok(Pick::Lowest),
+            _ => Err(format!(
+                "unknown neural pick '{s}' (expected last or lowest)"
+            )),
+        }
+    }
+}
+
 /// What executes the network.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Runtime {
@@ -94,6 +120,8 @@ pub struct NeuralFitter {
     pub engine: Engine,
     pub dir: PathBuf,
     pub start: Start,
+    /// Which iterate a fit returns ([`Pick::Last`] unless [`NeuralFitter::with_pick`]).
+    pub pick: Pick,
     /// Models (with modality and residual length) already checked against the checkpoint: the
     /// check hashes the whole model (13,380 vertices and 16 shape directions take milliseconds),
     /// so it runs once per model, not once per call. A `Weak` keeps the model's allocation, so
@@ -141,6 +169,7 @@ impl NeuralFitter {
             },
             dir: dir.to_path_buf(),
             start,
+            pick: Pick::Last,
             verified: Mutex::new(Vec::new()),
         }
     }
@@ -159,6 +188,7 @@ impl NeuralFitter {
             engine: Engine::Native(Box::new(host)),
             dir: dir.to_path_buf(),
             start,
+            pick: Pick::Last,
             verified: Mutex::new(Vec::new()),
         })
     }
@@ -187,6 +217,7 @@ impl NeuralFitter {
             engine: Engine::Ort(Box::new(Mutex::new(network))),
             dir: dir.to_path_buf(),
             start,
+            pick: Pick::Last,
             verified: Mutex::new(Vec::new()),
         })
     }
@@ -252,12 +283,19 @@ impl NeuralFitter {
         }
     }
 
-    /// Evaluations a fit of this fitter makes: 2 per iteration, and 2 more to choose the start
-    /// with [`Start::Best`].
+    /// The same fitter returning the iterate `pick` chooses.
+    pub fn with_pick(mut self, pick: Pick) -> Self {
+        self.pick = pick;
+        self
+    }
+
+    /// Evaluations a fit of this fitter makes: 2 per iteration, 2 more to choose the start
+    /// with [`Start::Best`], 1 more for the last iterate's energy with [`Pick::Lowest`].
     pub fn evaluations_per_fit(&self) -> usize {
         let n = self.meta.network.iterations;
         let choose = if self.start == Start::Best { 2 } else { 0 };
-        self.meta.network.evaluations_per_iteration() * n + choose
+        let pick = usize::from(self.pick == Pick::Lowest);
+        self.meta.network.evaluations_per_iteration() * n + choose + pick
     }
 
     /// θ0 … θN of every frame, `[N + 1][B]`, from the engine.
@@ -324,10 +362,11 @@ impl NeuralFitter {
                     "budget {} is below the {} evaluations of {n} iterations{}",
                     r.budget,
                     self.evaluations_per_fit(),
-                    if self.start == Start::Best {
-                        " and the start choice"
-                    } else {
-                        ""
+                    match (self.start == Start::Best, self.pick == Pick::Lowest) {
+                        (true, true) => " and the start and iterate choices",
+                        (true, false) => " and the start choice",
+                        (false, true) => " and the iterate choice",
+                        (false, false) => "",
                     }
                 )));
             }
@@ -410,7 +449,20 @@ impl NeuralFitter {
             .iter()
             .enumerate()
             .map(|(i, r)| {
-                let pose = host[n][i].clone();
+                let chosen = match self.pick {
+                    Pick::Last => n,
+                    Pick::Lowest => {
+                        // θ0 … θN−1 were evaluated by the loop (uncounted here); θN is new.
+                        let last = r.energy.evaluate(&host[n][i]).total;
+                        (0..n)
+                            .map(|k| (k, r.energy.inspect(&host[k][i]).total))
+                            .fold((n, last), |(bk, be), (k, e)| {
+                                if e < be { (k, e) } else { (bk, be) }
+                            })
+                            .0
+                    }
+                };
+                let pose = host[chosen][i].clone();
                 let report = r.energy.inspect(&pose);
                 let evaluations =
                     r.energy.evaluations() - e0[i].0 + residual_evaluations - n as u64;
@@ -443,10 +495,14 @@ impl NeuralFitter {
 
 impl Fitter for NeuralFitter {
     fn name(&self) -> String {
-        let base = match self.start {
+        let start = match self.start {
             Start::Phi => "neural",
             Start::Given => "neural-given",
             Start::Best => "neural-best",
+        };
+        let base = match self.pick {
+            Pick::Last => start.to_string(),
+            Pick::Lowest => format!("{start}-lowest"),
         };
         match self.engine {
             Engine::Burn { .. } => base.into(),

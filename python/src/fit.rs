@@ -290,7 +290,7 @@ fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
 /// or JSON file of the energy configuration. `progress(done, total)` is called after each
 /// frame. Runs with the GIL released; Ctrl-C stops it between frames (`KeyboardInterrupt`).
 #[pyfunction]
-#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", sequence_shape="per-frame", device="flex", runtime="burn", ort_threads=None, progress=None))]
+#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", sequence_shape="per-frame", device="flex", runtime="burn", ort_threads=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn fit(
     py: Python<'_>,
@@ -311,6 +311,7 @@ pub fn fit(
     energy: Option<&Bound<'_, PyAny>>,
     batch: usize,
     neural_start: &str,
+    neural_pick: &str,
     sequence_shape: &str,
     device: &str,
     runtime: &str,
@@ -340,6 +341,7 @@ pub fn fit(
         template: None,
         checkpoint,
         neural_start: neural_start.to_string(),
+        neural_pick: neural_pick.to_string(),
         device: device.to_string(),
         batch,
         runtime: runtime.to_string(),

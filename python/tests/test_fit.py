@@ -122,6 +122,16 @@ def test_neural_fit_and_a_checkpoint_of_another_model(makehuman, markers_file, c
     burn = lfit.fit(makehuman, markers_file, method="neural", budget=10, checkpoint=ck)
     np.testing.assert_allclose(native.energies, [r["energy"] for r in theirs], rtol=1e-9)
     np.testing.assert_allclose(native.poses, burn.poses, atol=1e-4)
+    # neural_pick="lowest": the CLI's fits (the lowest-energy iterate, one more evaluation).
+    out = tmp_path / "lowest.json"
+    cli("fit", "--data", markers_file, "--model", ROOT / "models" / "makehuman-cmu_mb.npz", "--method", "neural",
+        "--checkpoint", ck, "--budget", 11, "--neural-pick", "lowest", "--out", out)
+    theirs = json.loads(out.read_text())["frames"]
+    lowest = lfit.fit(makehuman, markers_file, method="neural", budget=11, checkpoint=ck, neural_pick="lowest")
+    np.testing.assert_allclose(lowest.energies, [r["energy"] for r in theirs], rtol=1e-9)
+    assert all(a <= b for a, b in zip(lowest.energies, burn.energies))
+    with pytest.raises(lfit.LfitError, match="unknown neural pick 'first'"):
+        lfit.fit(makehuman, markers_file, method="neural", budget=11, checkpoint=ck, neural_pick="first")
     with pytest.raises(lfit.LfitError, match="unknown runtime 'cuda' \\(expected burn, ort or native\\)"):
         lfit.fit(makehuman, markers_file, method="neural", budget=10, checkpoint=ck, runtime="cuda")
     # A checkpoint of another model: the CLI's line, nothing written.

@@ -134,6 +134,8 @@ pub struct FitArgs {
     /// Neural fitter: checkpoint directory, θ0 source, backend, frames per network pass.
     pub checkpoint: Option<PathBuf>,
     pub neural_start: String,
+    /// `last` or `lowest` ([`lfit_infer::Pick`] by name).
+    pub neural_pick: String,
     pub device: String,
     pub batch: usize,
     /// `burn` or `ort`, and ONNX Runtime's intra-op threads.
@@ -224,6 +226,7 @@ fn prepare(
             args.method,
             dir,
             &args.neural_start,
+            &args.neural_pick,
             &args.runtime,
             &args.device,
             args.ort_threads,
@@ -495,6 +498,10 @@ fn fit_prepared(
         });
         out["runtime"] = json!(args.runtime);
         out["batch"] = json!(plan.frames_per_call());
+        // Only when not the default, so that earlier results keep their keys.
+        if args.neural_pick != "last" {
+            out["neural_pick"] = json!(args.neural_pick);
+        }
     }
     Ok(out)
 }

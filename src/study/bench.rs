@@ -101,6 +101,10 @@ pub struct BenchConfig {
     pub checkpoint: Option<PathBuf>,
     #[serde(default)]
     pub neural_start: Option<String>,
+    /// Which iterate a neural fit returns: `last` (default) or `lowest` (`lfit fit
+    /// --neural-pick`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub neural_pick: Option<String>,
     /// What runs a neural method's network: `burn` (default, on flex), `native` (lfit's own f32
     /// forward, the fastest at batch 1) or `ort` (ONNX Runtime); as `lfit fit --runtime`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -635,6 +639,7 @@ pub fn run(
                 kind,
                 dir,
                 config.neural_start.as_deref().unwrap_or("given"),
+                config.neural_pick.as_deref().unwrap_or("last"),
                 config.runtime.as_deref().unwrap_or("burn"),
                 "flex",
                 None,

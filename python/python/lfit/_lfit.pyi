@@ -293,6 +293,7 @@ def fit(
     energy: Optional[Union[Dict[str, Any], _Path]] = None,
     batch: int = 1,
     neural_start: str = "phi",
+    neural_pick: str = "last",
     sequence_shape: str = "per-frame",
     device: str = "flex",
     runtime: str = "burn",
