@@ -73,7 +73,7 @@ const CHECKPOINTS: [Shipped; 8] = [
         model: MAKEHUMAN,
         synth: &[],
         fit: &[],
-        documented: (121.256, 7.188),
+        documented: (121.256, 7.139),
     },
     Shipped {
         name: "keypoints2d-makehuman",
@@ -81,7 +81,7 @@ const CHECKPOINTS: [Shipped; 8] = [
         model: MAKEHUMAN,
         synth: &[],
         fit: &[],
-        documented: (121.256, 12.083),
+        documented: (121.256, 12.085),
     },
     Shipped {
         name: "hmd-makehuman",

@@ -147,24 +147,20 @@ impl MotionKind {
         MotionKind::Overhead,
     ];
 
-    /// Every kind, in declaration order.
-    pub const ALL: [MotionKind; 15] = [
-        MotionKind::Walk,
-        MotionKind::Jog,
-        MotionKind::Wave,
-        MotionKind::Squat,
-        MotionKind::Reach,
-        MotionKind::Punch,
-        MotionKind::Kick,
-        MotionKind::Jump,
-        MotionKind::Turn,
-        MotionKind::Sit,
-        MotionKind::Crouch,
-        MotionKind::Kneel,
-        MotionKind::Pickup,
-        MotionKind::Throw,
-        MotionKind::Overhead,
-    ];
+    /// Every kind, in declaration order: [`MotionKind::CLASSIC`] then [`MotionKind::EXTENDED`].
+    pub const ALL: [MotionKind; 15] = {
+        let mut all = [MotionKind::Walk; 15];
+        let mut i = 0;
+        while i < all.len() {
+            all[i] = if i < Self::CLASSIC.len() {
+                Self::CLASSIC[i]
+            } else {
+                Self::EXTENDED[i - Self::CLASSIC.len()]
+            };
+            i += 1;
+        }
+        all
+    };
 
     /// Lower-case name, as accepted by [`FromStr`] and written by serde.
     pub const fn name(self) -> &'static str {
@@ -1881,6 +1877,8 @@ mod tests {
             MotionKind::CLASSIC.len() + MotionKind::EXTENDED.len(),
             MotionKind::ALL.len()
         );
+        // In declaration order (`Ord` is derived from it), each kind once.
+        assert!(MotionKind::ALL.windows(2).all(|w| w[0] < w[1]));
         for kind in MotionKind::ALL {
             assert_eq!(
                 MotionKind::EXTENDED.contains(&kind),
