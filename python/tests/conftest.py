@@ -7,6 +7,7 @@ do (tests/support).
 
 import json
 import os
+import signal
 import subprocess
 from pathlib import Path
 
@@ -27,6 +28,16 @@ def require(reason):
     if os.environ.get("CI") == "true":
         pytest.fail(f"required in CI: {reason}")
     pytest.skip(reason)
+
+
+@pytest.fixture
+def sigint_handled():
+    """Python's own SIGINT handler for the test. A shell that starts the tests in the background
+    (`./scripts/test.sh &`) leaves SIGINT ignored, Python then installs no handler, and
+    `_thread.interrupt_main` does nothing: the Ctrl-C tests would run their work to the end."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
 
 
 def cli_path():

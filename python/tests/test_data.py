@@ -48,7 +48,7 @@ def test_synth_bad_input_writes_nothing(tmp_path):
     assert not out.exists()
 
 
-def test_ctrl_c_stops_synth(tmp_path):
+def test_ctrl_c_stops_synth(tmp_path, sigint_handled):
     """Synthesis runs on rayon's threads, where Python's signal handlers never run: Ctrl-C must
     still stop it within a frame or two, raise KeyboardInterrupt and write nothing."""
     out = tmp_path / "never.npz"

@@ -51,7 +51,7 @@ def test_in_memory_dataset_and_frame_list(makehuman):
     assert result.document()["data"] is None
 
 
-def test_ctrl_c_stops_a_fit(makehuman):
+def test_ctrl_c_stops_a_fit(makehuman, sigint_handled):
     data = lfit.synth("markers", makehuman, frames=400, seed=9)
     timer = threading.Timer(0.5, _thread.interrupt_main)
     start = time.perf_counter()

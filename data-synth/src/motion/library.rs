@@ -1563,7 +1563,7 @@ fn leg(body: &mut Body, side: Side, hip: f64, knee: f64, dorsi: f64) {
 }
 
 /// Sit: 6 s cycles that dwell standing and seated. The thighs go from vertical to 80–95° forward
-/// (a higher seat, less; root 40–46 cm down, the hips 35 cm back over the planted feet), the
+/// (a higher seat, less; root 35–46 cm down, the hips 35 cm back over the planted feet), the
 /// shanks lean forward through the transfer and stand nearly vertical on the seat, the trunk
 /// leans 20–30° forward at the transfer's middle (sit-to-stand kinematics: hip flexion peaks near
 /// seat-off, e.g. Schenkman et al., *Phys Ther* 70(10), 1990), the hands come to the thighs.
@@ -1631,7 +1631,7 @@ fn deep_crouch(p: &MotionParams, t: f64) -> Local {
 /// 5–33° forward (the heel rising as it leans), the right shank swings back to the floor (toes
 /// tucked) under a thigh that stays near vertical (an upright kneel, knee 95°) or, as the body
 /// sinks back towards the heel, leans 40° forward (knee 125°, the trunk leaning over the front
-/// thigh); the root drops 40–52 cm. The amplitude sets how far the body sinks, the style the
+/// thigh); the root drops 38–52 cm. The amplitude sets how far the body sinks, the style the
 /// front shank's lean.
 fn kneel(p: &MotionParams, t: f64) -> Local {
     let q = dwell(p.speed * t / 7.0 + p.phase / TAU);
