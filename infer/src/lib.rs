@@ -449,30 +449,34 @@ impl NeuralFitter {
             .iter()
             .enumerate()
             .map(|(i, r)| {
+                // Energy of every iterate, once: for the trace and the pick. θ0 … θN−1 were
+                // evaluated by the loop (reporting only here: `inspect` is not counted); θN is
+                // new to the fit, so [`Pick::Lowest`], which chooses by it, counts it.
+                let energies: Vec<f64> = (0..=n)
+                    .map(|k| {
+                        if k == n && self.pick == Pick::Lowest {
+                            r.energy.evaluate(&host[k][i]).total
+                        } else {
+                            r.energy.inspect(&host[k][i]).total
+                        }
+                    })
+                    .collect();
                 let chosen = match self.pick {
                     Pick::Last => n,
-                    Pick::Lowest => {
-                        // θ0 … θN−1 were evaluated by the loop (uncounted here); θN is new.
-                        let last = r.energy.evaluate(&host[n][i]).total;
-                        (0..n)
-                            .map(|k| (k, r.energy.inspect(&host[k][i]).total))
-                            .fold((n, last), |(bk, be), (k, e)| {
-                                if e < be { (k, e) } else { (bk, be) }
-                            })
-                            .0
-                    }
+                    Pick::Lowest => (0..n).fold(n, |best, k| {
+                        if energies[k] < energies[best] { k } else { best }
+                    }),
                 };
                 let pose = host[chosen][i].clone();
                 let report = r.energy.inspect(&pose);
                 let evaluations =
                     r.energy.evaluations() - e0[i].0 + residual_evaluations - n as u64;
-                // Energy of every iterate (reporting only: `inspect` is not counted); the x axis
-                // is the evaluations used to reach it.
+                // The x axis of the trace is the evaluations used to reach each iterate.
                 let trace = (0..=n)
                     .map(|k| {
                         (
                             (self.evaluations_per_fit() - per_iteration * (n - k)) as u64,
-                            r.energy.inspect(&host[k][i]).total,
+                            energies[k],
                         )
                     })
                     .collect();

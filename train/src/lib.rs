@@ -486,6 +486,17 @@ impl Motions {
             source: config.source,
         })
     }
+
+    /// Sets `config`'s motion files, library mix, augmentation and library kinds to these (the
+    /// pose source is the caller's).
+    pub fn apply_to(&self, config: &mut SynthConfig) {
+        config.motion_files = self.files.clone();
+        config.with_library = self.with_library;
+        config.motion_augment = self.augment;
+        if let Some(kinds) = &self.library {
+            config.motions = kinds.clone();
+        }
+    }
 }
 
 /// A dataset of `frames` local-scenario frames (start near the target, papers/000 §4) with
@@ -525,12 +536,7 @@ pub fn synth_frames_with(
         Scenario::Local
     };
     let mut config = SynthConfig::new(sensor.modality(), scenario, frames, seed);
-    config.motion_files = motions.files.clone();
-    config.with_library = motions.with_library;
-    config.motion_augment = motions.augment;
-    if let Some(kinds) = &motions.library {
-        config.motions = kinds.clone();
-    }
+    motions.apply_to(&mut config);
     config.source = motions.source;
     config.noise = if noise == 0.0 {
         NoiseConfig::none()

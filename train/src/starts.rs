@@ -290,12 +290,7 @@ pub fn previous_frames(
                 chain + 1,
                 window_seed,
             );
-            c.motion_files = motions.files.clone();
-            c.with_library = motions.with_library;
-            c.motion_augment = motions.augment;
-            if let Some(kinds) = &motions.library {
-                c.motions = kinds.clone();
-            }
+            motions.apply_to(&mut c);
             c.noise = noise.clone();
             let d = synthesize(&c, template, sensor, &|_| {})?;
             let Observations::Sparse { values, visible } = &d.observations else {
