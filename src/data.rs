@@ -68,6 +68,9 @@ pub struct MotionFilesArgs {
     pub with_library: bool,
     /// Transforms of the files' frames (`--mirror`, `--heading`, `--jitter-deg`).
     pub augment: lfit_synth::MotionAugment,
+    /// Share of frames with poses uniform within the model's limits instead (`--uniform-share`,
+    /// [`SynthConfig::uniform_share`]).
+    pub uniform_share: f64,
 }
 
 /// Reads imported motion files for `template` (paths as given, relative to the working
@@ -189,6 +192,7 @@ pub fn synthesize_dataset(
     config.motion_files = load_motion_files(&files.files, template)?;
     config.with_library = files.with_library;
     config.motion_augment = files.augment;
+    config.uniform_share = files.uniform_share;
     config.validate()?;
     let dataset = synthesize_until(&config, template, &sensor, progress, cancel)?;
     let mut summary = json!({
@@ -212,6 +216,16 @@ pub fn synthesize_dataset(
         summary["frames_clamped"] =
             json!(names.iter().filter(|m| m.ends_with("(clamped)")).count());
         summary["fps"] = json!(dataset.meta.config.fps);
+    }
+    if config.uniform_share > 0.0 {
+        summary["frames_uniform"] = json!(
+            dataset
+                .meta
+                .frame_motions
+                .iter()
+                .filter(|m| *m == "uniform")
+                .count()
+        );
     }
     Ok((dataset, summary))
 }

@@ -101,9 +101,15 @@ enum Command {
         jitter_deg: f64,
         /// Comma-separated procedural motions to draw from (default: the papers' nine): walk,
         /// jog, wave, squat, reach, punch, kick, jump, turn, and the extended sit, crouch, kneel,
-        /// pickup, throw, overhead (deep flexions and overhead reaches, within clinical ranges).
+        /// pickup, throw, overhead (deep flexions and overhead reaches, within clinical ranges),
+        /// lie, crawl, fall, stairs, spin (on the floor, on a step, full turns: any root
+        /// orientation).
         #[arg(long, value_name = "LIST")]
         library_motions: Option<String>,
+        /// With --source motion (local or global scenario): this share of frames, in [0, 1],
+        /// takes a pose uniform within the model's joint limits instead (default 0).
+        #[arg(long, value_name = "F", default_value_t = 0.0)]
+        uniform_share: f64,
         /// keypoints2d: the number of cameras, on the default ring's circle (4 m around the
         /// origin, 1.3 m high, evenly spaced from the front, 640×480, fx = 550); default: the
         /// default rig's 6.
@@ -638,6 +644,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             heading,
             jitter_deg,
             library_motions,
+            uniform_share,
             cameras,
             template,
         } => {
@@ -661,6 +668,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                     heading,
                     jitter_deg,
                 },
+                uniform_share,
             };
             // Settings are checked before the progress bar appears.
             let bar = progress_bar(frames, cli.quiet, "synth");

@@ -153,11 +153,17 @@ fn lowest_pick_returns_the_lowest_energy_iterate() {
     let (last, lowest) = (run("last", "10"), run("lowest", "11"));
     assert_eq!(lowest["method"], "neural-given-lowest");
     assert_eq!(lowest["neural_pick"], "lowest");
-    assert!(last.get("neural_pick").is_none(), "the default leaves no key");
+    assert!(
+        last.get("neural_pick").is_none(),
+        "the default leaves no key"
+    );
     let mut moved = 0;
     for (a, b) in frames(&last).iter().zip(frames(&lowest)) {
         // The same network run: the same iterates and trace.
-        assert_eq!(a["trace"].as_array().unwrap().len(), b["trace"].as_array().unwrap().len());
+        assert_eq!(
+            a["trace"].as_array().unwrap().len(),
+            b["trace"].as_array().unwrap().len()
+        );
         let energies: Vec<f64> = b["trace"]
             .as_array()
             .unwrap()
@@ -166,17 +172,29 @@ fn lowest_pick_returns_the_lowest_energy_iterate() {
             .collect();
         let min = energies.iter().copied().fold(f64::INFINITY, f64::min);
         let (ea, eb) = (num(&a["energy"]), num(&b["energy"]));
-        assert!((eb - min).abs() <= 1e-9 * min.abs().max(1.0), "{eb} is not the lowest {min}");
+        assert!(
+            (eb - min).abs() <= 1e-9 * min.abs().max(1.0),
+            "{eb} is not the lowest {min}"
+        );
         assert!(eb <= ea);
         assert!((ea - energies[energies.len() - 1]).abs() <= 1e-9 * ea.abs().max(1.0));
         assert_eq!(b["evaluations"], num(&a["evaluations"]) as u64 + 1);
         moved += usize::from(eb < ea);
     }
     eprintln!("lowest pick: an earlier iterate on {moved} of 12 frames");
-    assert!(moved > 0, "no frame where an earlier iterate is lower: the check saw nothing");
+    assert!(
+        moved > 0,
+        "no frame where an earlier iterate is lower: the check saw nothing"
+    );
     for (extra, want) in [
-        (["--neural-pick", "best", "--budget", "11"], "unknown neural pick 'best'"),
-        (["--neural-pick", "lowest", "--budget", "10"], "and the iterate choice"),
+        (
+            ["--neural-pick", "best", "--budget", "11"],
+            "unknown neural pick 'best'",
+        ),
+        (
+            ["--neural-pick", "lowest", "--budget", "10"],
+            "and the iterate choice",
+        ),
     ] {
         let out_path = tmp.path().join("no.json");
         let (model, ck) = (root(MODEL), root(CHECKPOINT));

@@ -316,21 +316,33 @@ fn same_seed_same_bytes_and_the_library_mixes_in() {
     synth(
         &out,
         "local",
-        "40",
+        "120",
         "5",
-        &["--library-motions", "sit,crouch,kneel,pickup,throw,overhead"],
+        &[
+            "--library-motions",
+            "sit,crouch,kneel,pickup,throw,overhead,lie,crawl,fall,stairs,spin",
+        ],
     );
     let names = Dataset::load(&out).unwrap().meta.frame_motions;
-    let extended = ["sit", "crouch", "kneel", "pickup", "throw", "overhead"];
+    let extended = [
+        "sit", "crouch", "kneel", "pickup", "throw", "overhead", "lie", "crawl", "fall", "stairs",
+        "spin",
+    ];
     assert!(
         names.iter().all(|n| extended.contains(&n.as_str())),
         "{names:?}"
     );
-    assert!(extended.iter().all(|k| names.iter().any(|n| n == k)), "{names:?}");
+    assert!(
+        extended.iter().all(|k| names.iter().any(|n| n == k)),
+        "{names:?}"
+    );
     let out = tmp.path().join("default.npz");
     synth(&out, "local", "200", "5", &[]);
     let names = Dataset::load(&out).unwrap().meta.frame_motions;
-    assert!(names.iter().all(|n| library.contains(&n.as_str())), "{names:?}");
+    assert!(
+        names.iter().all(|n| library.contains(&n.as_str())),
+        "{names:?}"
+    );
 }
 
 #[test]
@@ -368,6 +380,16 @@ fn motions_for_other_models_and_bad_settings_are_refused_with_nothing_written() 
         ),
         (vec!["--motions", o], "cannot read"),
         (vec!["--motions", "Cargo.toml"], "Cargo.toml"),
+        (vec!["--uniform-share", "1.5"], "uniform_share"),
+        (vec!["--uniform-share", "nan"], "uniform_share"),
+        (
+            vec!["--uniform-share", "0.3", "--source", "face"],
+            "uniform_share",
+        ),
+        (
+            vec!["--uniform-share", "0.3", "--scenario", "sequence"],
+            "uniform_share",
+        ),
     ];
     for (extra, needle) in cases {
         let mut args = base.to_vec();

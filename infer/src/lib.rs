@@ -464,7 +464,11 @@ impl NeuralFitter {
                 let chosen = match self.pick {
                     Pick::Last => n,
                     Pick::Lowest => (0..n).fold(n, |best, k| {
-                        if energies[k] < energies[best] { k } else { best }
+                        if energies[k] < energies[best] {
+                            k
+                        } else {
+                            best
+                        }
                     }),
                 };
                 let pose = host[chosen][i].clone();

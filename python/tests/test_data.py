@@ -38,6 +38,24 @@ def test_synth_equals_the_cli_byte_for_byte(cli, tmp_path, modality):
     assert d.gt_params.shape == (7, 112) and d.fps == 30.0 and d.model_id == "makehuman-cmu_mb"
 
 
+def test_synth_new_library_kinds_and_uniform_share_equal_the_cli(cli, tmp_path):
+    kinds = "lie,crawl,fall,stairs,spin"
+    cli_out = tmp_path / "cli.npz"
+    cli("synth", "--modality", "markers", "--model", MH, "--frames", 40, "--seed", 3, "--library-motions", kinds, "--uniform-share", 0.25, "--out", cli_out)
+    py_out = tmp_path / "py.npz"
+    d = lfit.synth("markers", MH, frames=40, seed=3, library_motions=kinds.split(","), uniform_share=0.25, out=py_out)
+    assert py_out.read_bytes() == cli_out.read_bytes()
+    names = d.meta["frame_motions"]
+    assert set(names) <= set(kinds.split(",")) | {"uniform"} and "uniform" in names
+    assert d.summary["frames_uniform"] == names.count("uniform")
+    for bad in (1.5, -0.1):
+        with pytest.raises(lfit.LfitError, match="uniform_share"):
+            lfit.synth("markers", MH, frames=3, uniform_share=bad, out=tmp_path / "bad.npz")
+    with pytest.raises(lfit.LfitError, match="uniform_share"):
+        lfit.synth("markers", MH, frames=3, scenario="sequence", uniform_share=0.2, out=tmp_path / "bad.npz")
+    assert not (tmp_path / "bad.npz").exists()
+
+
 def test_synth_bad_input_writes_nothing(tmp_path):
     out = tmp_path / "x.npz"
     with pytest.raises(lfit.LfitError) as e:

@@ -115,11 +115,17 @@ pub struct TrainConfig {
     #[serde(skip_serializing_if = "MotionAugment::is_none")]
     pub motion_augment: MotionAugment,
     /// The procedural library's motion kinds the synthesised sets draw from (`lfit synth
-    /// --library-motions`), by name: e.g. the papers' nine and the six extended kinds
-    /// (`"sit"`, `"crouch"`, `"kneel"`, `"pickup"`, `"throw"`, `"overhead"`). Absent: the papers'
-    /// nine ([`MotionKind::CLASSIC`]).
+    /// --library-motions`), by name: e.g. the papers' nine and the eleven extended kinds
+    /// (`"sit"`, `"crouch"`, `"kneel"`, `"pickup"`, `"throw"`, `"overhead"`, `"lie"`, `"crawl"`,
+    /// `"fall"`, `"stairs"`, `"spin"`). Absent: the papers' nine ([`MotionKind::CLASSIC`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub library_motions: Option<Vec<MotionKind>>,
+    /// The share of single-frame targets (training batches, validation, statistics; not the
+    /// sequence windows of `"starts"`) drawn uniformly within the model's joint limits instead
+    /// of from the motions ([`SynthConfig::uniform_share`]; issue 25's "poses sampled uniformly
+    /// within the limits"). Absent: 0.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub uniform_poses: f64,
     /// Where target poses come from (`lfit synth --source`): `motion` (the default: the library
     /// or `motions`, local scenario) or `face` (papers/002's face protocol, global scenario: the
     /// fitter starts from the rest pose or Φ(D)). `uniform` is refused.
@@ -190,6 +196,7 @@ impl Default for TrainConfig {
             with_library: false,
             motion_augment: MotionAugment::default(),
             library_motions: None,
+            uniform_poses: 0.0,
             source: PoseSource::Motion,
             energy: None,
             rigs: None,
@@ -345,10 +352,7 @@ impl TrainConfig {
                 "names no motion kind: list some, or drop the key for the papers' nine",
             );
         }
-        if self.library_motions.is_some()
-            && !self.motions.is_empty()
-            && !self.with_library
-        {
+        if self.library_motions.is_some() && !self.motions.is_empty() && !self.with_library {
             return bad(
                 "library_motions",
                 format!("{:?}", self.library_motions),
@@ -360,6 +364,20 @@ impl TrainConfig {
                 "with_library",
                 "true".into(),
                 "mixes the library with motion files: list them in \"motions\"",
+            );
+        }
+        if !(0.0..=1.0).contains(&self.uniform_poses) {
+            return bad(
+                "uniform_poses",
+                self.uniform_poses.to_string(),
+                "is a share of frames: between 0 and 1",
+            );
+        }
+        if self.uniform_poses > 0.0 && self.source != PoseSource::Motion {
+            return bad(
+                "uniform_poses",
+                self.uniform_poses.to_string(),
+                "mixes uniform poses into motion frames: drop it with \"source\": \"face\"",
             );
         }
         Ok(())
@@ -469,6 +487,8 @@ pub struct Motions {
     pub library: Option<Vec<MotionKind>>,
     /// `face`: papers/002's face protocol in the global scenario instead.
     pub source: PoseSource,
+    /// The share of single frames with uniform poses ([`SynthConfig::uniform_share`]).
+    pub uniform_share: f64,
 }
 
 impl Motions {
@@ -484,17 +504,22 @@ impl Motions {
             augment: config.motion_augment,
             library: config.library_motions.clone(),
             source: config.source,
+            uniform_share: config.uniform_poses,
         })
     }
 
-    /// Sets `config`'s motion files, library mix, augmentation and library kinds to these (the
-    /// pose source is the caller's).
+    /// Sets `config`'s motion files, library mix, augmentation, library kinds and (but for a
+    /// sequence, which follows one motion) share of uniform poses to these (the pose source is
+    /// the caller's).
     pub fn apply_to(&self, config: &mut SynthConfig) {
         config.motion_files = self.files.clone();
         config.with_library = self.with_library;
         config.motion_augment = self.augment;
         if let Some(kinds) = &self.library {
             config.motions = kinds.clone();
+        }
+        if config.scenario != Scenario::Sequence {
+            config.uniform_share = self.uniform_share;
         }
     }
 }
@@ -1501,10 +1526,13 @@ mod tests {
             ..TrainConfig::default()
         };
         let motions = Motions::load(&config, &template).expect("motions");
-        let frames = synth_frames_with(&template, &sensor, &base, 24, 3, 0.0, &motions)
-            .expect("frames");
+        let frames =
+            synth_frames_with(&template, &sensor, &base, 24, 3, 0.0, &motions).expect("frames");
         let names = &frames.dataset.meta.frame_motions;
-        assert!(names.iter().all(|n| n == "sit" || n == "kneel"), "{names:?}");
+        assert!(
+            names.iter().all(|n| n == "sit" || n == "kneel"),
+            "{names:?}"
+        );
         assert!(names.iter().any(|n| n == "sit") && names.iter().any(|n| n == "kneel"));
         let plain = synth_frames_with(&template, &sensor, &base, 24, 3, 0.0, &Motions::default())
             .expect("frames");
@@ -1516,6 +1544,62 @@ mod tests {
                 .iter()
                 .all(|n| MotionKind::CLASSIC.iter().any(|k| k.name() == n))
         );
+    }
+
+    /// `"uniform_poses"` reaches the single frames (about that share named `uniform`, their
+    /// targets inside the model's bounds) but not the sequence windows; 0 leaves every frame as
+    /// it was; a share outside [0, 1] or with the face source is refused.
+    #[test]
+    fn uniform_poses_mix_into_single_frames_only() {
+        let template = Arc::new(lfit_model::default_template());
+        let sensor = Sensor::default_for(Modality::Markers, &template);
+        let base = base_energy(&template, &sensor).expect("energy");
+        let with = |share: f64| TrainConfig {
+            uniform_poses: share,
+            ..TrainConfig::default()
+        };
+        let motions = Motions::load(&with(0.5), &template).expect("motions");
+        let frames =
+            synth_frames_with(&template, &sensor, &base, 200, 5, 0.0, &motions).expect("frames");
+        let names = &frames.dataset.meta.frame_motions;
+        let uniform = names.iter().filter(|n| *n == "uniform").count();
+        assert!((70..=130).contains(&uniform), "{uniform} of 200 uniform");
+        let bounds = Bounds::global_for(&template);
+        let pd = template.layout().pose_dim();
+        for (name, target) in names.iter().zip(&frames.dataset.gt_poses) {
+            if name == "uniform" {
+                assert!(
+                    (0..pd).all(|k| target[k] >= bounds.lower[k] && target[k] <= bounds.upper[k])
+                );
+            }
+        }
+        // The other frames are the library frames a config without the share makes.
+        let plain = synth_frames_with(&template, &sensor, &base, 200, 5, 0.0, &Motions::default())
+            .expect("frames");
+        for (i, name) in names.iter().enumerate() {
+            if name != "uniform" {
+                assert_eq!(
+                    frames.dataset.gt_poses[i], plain.dataset.gt_poses[i],
+                    "frame {i}"
+                );
+            }
+        }
+        let mut sequence = SynthConfig::new(Modality::Markers, Scenario::Sequence, 4, 1);
+        motions.apply_to(&mut sequence);
+        assert_eq!(sequence.uniform_share, 0.0);
+        for (bad, source) in [
+            (1.5, PoseSource::Motion),
+            (-0.1, PoseSource::Motion),
+            (f64::NAN, PoseSource::Motion),
+            (0.2, PoseSource::Face),
+        ] {
+            let config = TrainConfig {
+                source,
+                ..with(bad)
+            };
+            let err = config.validate().expect_err("refused").to_string();
+            assert!(err.contains("uniform_poses"), "{err}");
+        }
     }
 
     /// A known-shape network starts and stays on the true β (θ0 = Φ(D) or the start pose,

@@ -123,10 +123,22 @@ pub struct SynthConfig {
     /// default (and then absent from the metadata, so other datasets keep their bytes).
     #[serde(default, skip_serializing_if = "MotionAugment::is_none")]
     pub motion_augment: MotionAugment,
+    /// With `source = motion` in the local and global scenarios: the share of frames (each by its
+    /// own coin) whose target pose is drawn uniformly within the model's joint limits and
+    /// global box instead (as `source = uniform` draws them; papers/000's uniform sampling, the
+    /// "poses sampled uniformly within the limits" of issue 25). 0 by default (and then absent
+    /// from the metadata, so other datasets keep their bytes); a sequence follows a motion, so
+    /// it refuses a share above 0.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub uniform_share: f64,
 }
 
 fn is_false(b: &bool) -> bool {
     !*b
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 /// An imported motion file (`lfit motion import`: poses in a model's parameter layout) that
@@ -230,6 +242,7 @@ impl SynthConfig {
             motion_files: Vec::new(),
             with_library: false,
             motion_augment: MotionAugment::default(),
+            uniform_share: 0.0,
         }
     }
 
@@ -285,6 +298,27 @@ impl SynthConfig {
                 "with_library",
                 "true".into(),
                 "mixes the library with motion files: give them (--motions FILE...)",
+            );
+        }
+        if !(0.0..=1.0).contains(&self.uniform_share) {
+            return setting(
+                "uniform_share",
+                self.uniform_share.to_string(),
+                "is a share of frames: between 0 and 1",
+            );
+        }
+        if self.uniform_share > 0.0 && self.source != PoseSource::Motion {
+            return setting(
+                "uniform_share",
+                self.uniform_share.to_string(),
+                "mixes uniform poses into --source motion",
+            );
+        }
+        if self.uniform_share > 0.0 && self.scenario == Scenario::Sequence {
+            return setting(
+                "uniform_share",
+                self.uniform_share.to_string(),
+                "a sequence follows one motion: uniform poses are for single frames",
             );
         }
         for f in &self.motion_files {

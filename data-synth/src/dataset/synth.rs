@@ -38,6 +38,9 @@ const SHAPE_STREAM: u64 = 3 << 32;
 /// Streams of the motion-file augmentation draws (apart from the pose streams, so a
 /// configuration without augmentation gives the poses it gave before).
 const AUGMENT_STREAM: u64 = 5 << 32;
+/// Streams of the coins of [`SynthConfig::uniform_share`] (apart from the pose streams, so a
+/// configuration without uniform poses gives the poses it gave before).
+const UNIFORM_STREAM: u64 = 7 << 32;
 
 /// Generates a dataset; `progress` is called with the number of frames done.
 pub fn synthesize(
@@ -349,7 +352,15 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
         .map(|i| {
             let mut rng = stream(config.seed, POSE_STREAM + 1 + i as u64);
             let from_file = !files.is_empty() && (!config.with_library || rng.random_bool(0.5));
-            let (mut target, previous, name) = match config.source {
+            let source = if config.uniform_share > 0.0
+                && stream(config.seed, UNIFORM_STREAM + 1 + i as u64)
+                    .random_bool(config.uniform_share)
+            {
+                PoseSource::Uniform
+            } else {
+                config.source
+            };
+            let (mut target, previous, name) = match source {
                 PoseSource::Motion if from_file => {
                     let k = rng.random_range(0..files.len());
                     let (file, poses) = (&files[k], clips[k]);

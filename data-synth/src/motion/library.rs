@@ -1,9 +1,12 @@
 //! Procedural motion library (SPEC §8): walk, jog, wave, squat, reach, punch, kick, jump and turn
 //! as smooth functions of time that return pose vectors of the default 18-joint skeleton — the
-//! papers' library ([`MotionKind::CLASSIC`], the default everywhere) — and six kinds of what people
-//! do that it lacks ([`MotionKind::EXTENDED`], chosen by name: `--library-motions`,
+//! papers' library ([`MotionKind::CLASSIC`], the default everywhere) — and eleven kinds of what
+//! people do that it lacks ([`MotionKind::EXTENDED`], chosen by name: `--library-motions`,
 //! `"library_motions"`): sit down and stand up, a deep crouch, kneeling on one knee, bending to
-//! pick something up, an overarm throw, reaching overhead or behind.
+//! pick something up, an overarm throw, reaching overhead or behind; lying down on the back and
+//! getting up, crawling on hands and knees, falling forward or backward and getting up, stepping
+//! up onto a step and down, turning full circles. The last four of those leave papers/000's root
+//! box (lying, on all fours, every heading: [`MotionKind::has_free_root`]).
 //!
 //! Every motion is written in a *heading frame*: the body's own rotations, with the root path
 //! (position on the floor and yaw) added on top. One-sided motions are written for a left lead
@@ -110,12 +113,24 @@ pub enum MotionKind {
     Throw,
     /// Reaching both arms overhead, or one arm behind the body with the trunk turned (extended).
     Overhead,
+    /// Getting down onto the floor (crouch, sit), lying on the back, and getting up again
+    /// (extended, free root).
+    Lie,
+    /// Crawling forward on hands and knees (extended, free root).
+    Crawl,
+    /// Falling forward onto the knees and hands, or backward onto the seat and back, then getting
+    /// up (extended, free root).
+    Fall,
+    /// Stepping up onto a step 15–27 cm high and down again, one leg leading (extended).
+    Stairs,
+    /// Turning in place through full circles, stepping (extended, free root).
+    Spin,
 }
 
 /// Error of [`MotionKind::from_str`]: the name matches no motion kind.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error(
-    "unknown motion kind '{name}' (expected one of walk, jog, wave, squat, reach, punch, kick, jump, turn, sit, crouch, kneel, pickup, throw, overhead)"
+    "unknown motion kind '{name}' (expected one of walk, jog, wave, squat, reach, punch, kick, jump, turn, sit, crouch, kneel, pickup, throw, overhead, lie, crawl, fall, stairs, spin)"
 )]
 pub struct UnknownMotionKind {
     /// The name that was given.
@@ -138,18 +153,23 @@ impl MotionKind {
     ];
 
     /// The kinds added for captured motion (issue 25, item 2), in declaration order.
-    pub const EXTENDED: [MotionKind; 6] = [
+    pub const EXTENDED: [MotionKind; 11] = [
         MotionKind::Sit,
         MotionKind::Crouch,
         MotionKind::Kneel,
         MotionKind::Pickup,
         MotionKind::Throw,
         MotionKind::Overhead,
+        MotionKind::Lie,
+        MotionKind::Crawl,
+        MotionKind::Fall,
+        MotionKind::Stairs,
+        MotionKind::Spin,
     ];
 
     /// Every kind, in declaration order: [`MotionKind::CLASSIC`] then [`MotionKind::EXTENDED`].
-    pub const ALL: [MotionKind; 15] = {
-        let mut all = [MotionKind::Walk; 15];
+    pub const ALL: [MotionKind; 20] = {
+        let mut all = [MotionKind::Walk; 20];
         let mut i = 0;
         while i < all.len() {
             all[i] = if i < Self::CLASSIC.len() {
@@ -180,6 +200,11 @@ impl MotionKind {
             MotionKind::Pickup => "pickup",
             MotionKind::Throw => "throw",
             MotionKind::Overhead => "overhead",
+            MotionKind::Lie => "lie",
+            MotionKind::Crawl => "crawl",
+            MotionKind::Fall => "fall",
+            MotionKind::Stairs => "stairs",
+            MotionKind::Spin => "spin",
         }
     }
 
@@ -194,28 +219,48 @@ impl MotionKind {
                 | MotionKind::Pickup
                 | MotionKind::Throw
                 | MotionKind::Overhead
+                | MotionKind::Lie
+                | MotionKind::Crawl
+                | MotionKind::Fall
+                | MotionKind::Stairs
+                | MotionKind::Spin
+        )
+    }
+
+    /// Whether the kind's root (the body's global orientation) leaves papers/000's root box
+    /// (pitch −30…100°, yaw and roll ±50°): lying on the back, crawling, falling and full turns.
+    /// Their root may take any orientation (±180° per axis-angle component, as a person's does:
+    /// issue 25, item 1); its axis-angle vector jumps where the rotation angle passes π (a full
+    /// turn), the rotation itself stays continuous.
+    pub const fn has_free_root(self) -> bool {
+        matches!(
+            self,
+            MotionKind::Lie | MotionKind::Crawl | MotionKind::Fall | MotionKind::Spin
         )
     }
 
     /// The rotation limits (degrees, about x, y, z) the kind's poses lie in for joint `j`:
     /// [`skeleton::rotation_limits_deg`] for the classic kinds, [`clinical_limits_deg`] for the
-    /// extended ones.
+    /// extended ones, with ±180° at the root for those with [`MotionKind::has_free_root`].
     pub fn limits_deg(self, j: usize) -> [(f64, f64); 3] {
-        if self.is_extended() {
+        if self.has_free_root() && j == ROOT {
+            [(-180.0, 180.0); 3]
+        } else if self.is_extended() {
             clinical_limits_deg(j)
         } else {
             skeleton::rotation_limits_deg(j)
         }
     }
 
-    /// Whether the root travels along a path (walk, jog); the other kinds stay near the origin.
+    /// Whether the root travels along a path (walk, jog, crawl); the other kinds stay near the
+    /// origin.
     pub const fn is_locomotion(self) -> bool {
-        matches!(self, MotionKind::Walk | MotionKind::Jog)
+        matches!(self, MotionKind::Walk | MotionKind::Jog | MotionKind::Crawl)
     }
 
     /// Whether [`MotionParams::side`] picks the lead limb (wave, reach, punch, kick, kneel,
-    /// pickup, throw, overhead); for [`MotionKind::Turn`] it picks the first turning direction
-    /// instead.
+    /// pickup, throw, overhead, stairs); for [`MotionKind::Turn`] and [`MotionKind::Spin`] it
+    /// picks the (first) turning direction instead.
     pub const fn is_one_sided(self) -> bool {
         matches!(
             self,
@@ -227,6 +272,7 @@ impl MotionKind {
                 | MotionKind::Pickup
                 | MotionKind::Throw
                 | MotionKind::Overhead
+                | MotionKind::Stairs
         )
     }
 
@@ -249,6 +295,11 @@ impl MotionKind {
             MotionKind::Pickup => (0.7, 1.3),
             MotionKind::Throw => (0.7, 1.1),
             MotionKind::Overhead => (0.7, 1.3),
+            MotionKind::Lie => (0.7, 1.3),
+            MotionKind::Crawl => (0.7, 1.3),
+            MotionKind::Fall => (0.8, 1.1),
+            MotionKind::Stairs => (0.7, 1.3),
+            MotionKind::Spin => (0.7, 1.2),
         }
     }
 }
@@ -545,6 +596,11 @@ fn motion_pose_unclamped(kind: MotionKind, params: &MotionParams, time_s: f64) -
         MotionKind::Pickup => pickup(&p, t),
         MotionKind::Throw => throw(&p, t),
         MotionKind::Overhead => overhead(&p, t),
+        MotionKind::Lie => lie(&p, t),
+        MotionKind::Crawl => crawl(&p, t),
+        MotionKind::Fall => fall(&p, t),
+        MotionKind::Stairs => stairs(&p, t),
+        MotionKind::Spin => spin(&p, t),
     };
     let mut pose = if kind.is_one_sided() && p.side == Side::Right {
         mirror_pose(&body.pose)
@@ -1575,8 +1631,18 @@ fn sit(p: &MotionParams, t: f64) -> Local {
     let pitch = 0.1 * alpha + (0.3 + 0.15 * p.amplitude.min(1.2)) * transfer;
     let mut body = Body::new();
     for side in [Side::Left, Side::Right] {
-        leg(&mut body, side, alpha + pitch, (1.0 + beta) * alpha, beta * alpha);
-        body.limb(side, L_HIP, DVec3::new(-alpha - pitch, 0.0, (5.0 * q).to_radians()));
+        leg(
+            &mut body,
+            side,
+            alpha + pitch,
+            (1.0 + beta) * alpha,
+            beta * alpha,
+        );
+        body.limb(
+            side,
+            L_HIP,
+            DVec3::new(-alpha - pitch, 0.0, (5.0 * q).to_radians()),
+        );
     }
     let (drop, shift) = crouch_offset(alpha, beta);
     // The feet 20 cm in front of the origin, so that the root stays near it.
@@ -1601,8 +1667,18 @@ fn deep_crouch(p: &MotionParams, t: f64) -> Local {
     let pitch = (0.12 + 0.1 * p.amplitude.min(1.2)) * alpha;
     let mut body = Body::new();
     for side in [Side::Left, Side::Right] {
-        leg(&mut body, side, alpha + pitch, (1.0 + beta) * alpha, 0.5 * beta * alpha);
-        body.limb(side, L_HIP, DVec3::new(-alpha - pitch, 0.0, (8.0 * q).to_radians()));
+        leg(
+            &mut body,
+            side,
+            alpha + pitch,
+            (1.0 + beta) * alpha,
+            0.5 * beta * alpha,
+        );
+        body.limb(
+            side,
+            L_HIP,
+            DVec3::new(-alpha - pitch, 0.0, (8.0 * q).to_radians()),
+        );
     }
     let (drop, shift) = crouch_offset(alpha, beta);
     body.translate(DVec3::new(0.0, -drop, shift));
@@ -1653,7 +1729,11 @@ fn kneel(p: &MotionParams, t: f64) -> Local {
     body.set(LOWER_TORSO, DVec3::new(0.2 * pitch, 0.0, 0.0));
     body.set(HEAD, DVec3::new(-0.5 * pitch, 0.0, 0.0));
     body.limb(Side::Left, L_SHOULDER, hanging_arm(p.arm_drop, -0.5 * q));
-    body.limb(Side::Left, L_ELBOW, elbow_flex((12.0 + 30.0 * q).to_radians()));
+    body.limb(
+        Side::Left,
+        L_ELBOW,
+        elbow_flex((12.0 + 30.0 * q).to_radians()),
+    );
     body.limb(
         Side::Right,
         L_SHOULDER,
@@ -1676,11 +1756,21 @@ fn pickup(p: &MotionParams, t: f64) -> Local {
     let (alpha, bend) = (alpha_max * q, bend_max * q);
     let mut body = Body::new();
     for side in [Side::Left, Side::Right] {
-        leg(&mut body, side, alpha + bend, (1.0 + beta) * alpha, beta * alpha);
+        leg(
+            &mut body,
+            side,
+            alpha + bend,
+            (1.0 + beta) * alpha,
+            beta * alpha,
+        );
     }
     let (drop, shift) = crouch_offset(alpha, beta);
     // The hips go back over the planted feet, which stand 12 cm in front of the origin.
-    body.translate(DVec3::new(0.0, -drop, shift - 0.1 * q * (1.0 - squat) + 0.12));
+    body.translate(DVec3::new(
+        0.0,
+        -drop,
+        shift - 0.1 * q * (1.0 - squat) + 0.12,
+    ));
     body.set(ROOT, DVec3::new(bend, 0.0, 0.0));
     body.set(LOWER_TORSO, DVec3::new(0.5 * spine_max * q, 0.0, 0.0));
     body.set(MIDDLE_TORSO, DVec3::new(0.5 * spine_max * q, 0.0, 0.0));
@@ -1693,13 +1783,21 @@ fn pickup(p: &MotionParams, t: f64) -> Local {
         L_SHOULDER,
         lerp(hanging_arm(p.arm_drop, 0.0), reach, q),
     );
-    body.limb(Side::Left, L_ELBOW, elbow_flex((12.0 - 4.0 * q).to_radians()));
+    body.limb(
+        Side::Left,
+        L_ELBOW,
+        elbow_flex((12.0 - 4.0 * q).to_radians()),
+    );
     body.limb(
         Side::Right,
         L_SHOULDER,
         hanging_arm(p.arm_drop, -0.7 * total * q),
     );
-    body.limb(Side::Right, L_ELBOW, elbow_flex((12.0 + 15.0 * q).to_radians()));
+    body.limb(
+        Side::Right,
+        L_ELBOW,
+        elbow_flex((12.0 + 15.0 * q).to_radians()),
+    );
     Local::fixed(body, p.heading)
 }
 
@@ -1728,7 +1826,13 @@ fn throw(p: &MotionParams, t: f64) -> Local {
 
     let mut neutral = Body::new();
     for side in [Side::Left, Side::Right] {
-        leg(&mut neutral, side, 2f64.to_radians(), 4f64.to_radians(), 2f64.to_radians());
+        leg(
+            &mut neutral,
+            side,
+            2f64.to_radians(),
+            4f64.to_radians(),
+            2f64.to_radians(),
+        );
     }
     relaxed_arms(&mut neutral, p.arm_drop, [0.0; 2], [12f64.to_radians(); 2]);
 
@@ -1736,7 +1840,10 @@ fn throw(p: &MotionParams, t: f64) -> Local {
     cocked.limb(
         Side::Left,
         L_SHOULDER,
-        arm_reaching(direction(100f64.to_radians(), (5.0 + 10.0 * p.style).to_radians())),
+        arm_reaching(direction(
+            100f64.to_radians(),
+            (5.0 + 10.0 * p.style).to_radians(),
+        )),
     );
     cocked.limb(Side::Left, L_ELBOW, elbow_flex(FRAC_PI_2));
     cocked.limb(
@@ -1749,8 +1856,20 @@ fn throw(p: &MotionParams, t: f64) -> Local {
     cocked.set(LOWER_TORSO, deg(0.0, 15.0 * turn, -4.0));
     cocked.set(MIDDLE_TORSO, deg(-5.0, 15.0 * turn, -4.0));
     cocked.set(HEAD, deg(0.0, -20.0 * turn, 0.0));
-    leg(&mut cocked, Side::Right, 25f64.to_radians(), 20f64.to_radians(), 5f64.to_radians());
-    leg(&mut cocked, Side::Left, -8f64.to_radians(), 15f64.to_radians(), -5f64.to_radians());
+    leg(
+        &mut cocked,
+        Side::Right,
+        25f64.to_radians(),
+        20f64.to_radians(),
+        5f64.to_radians(),
+    );
+    leg(
+        &mut cocked,
+        Side::Left,
+        -8f64.to_radians(),
+        15f64.to_radians(),
+        -5f64.to_radians(),
+    );
     cocked.translate(DVec3::new(0.0, -0.04, -0.05));
 
     let mut through = neutral.clone();
@@ -1766,8 +1885,20 @@ fn throw(p: &MotionParams, t: f64) -> Local {
     through.set(LOWER_TORSO, deg(10.0, -15.0 * turn, 0.0));
     through.set(MIDDLE_TORSO, deg(10.0, -15.0 * turn, 0.0));
     through.set(HEAD, deg(-10.0, 20.0 * turn, 0.0));
-    leg(&mut through, Side::Right, 50f64.to_radians(), 35f64.to_radians(), 12f64.to_radians());
-    leg(&mut through, Side::Left, -5f64.to_radians(), 40f64.to_radians(), -25f64.to_radians());
+    leg(
+        &mut through,
+        Side::Right,
+        50f64.to_radians(),
+        35f64.to_radians(),
+        12f64.to_radians(),
+    );
+    leg(
+        &mut through,
+        Side::Left,
+        -5f64.to_radians(),
+        40f64.to_radians(),
+        -25f64.to_radians(),
+    );
     through.translate(DVec3::new(0.0, -0.08, 0.15));
 
     let mut body = neutral.clone();
@@ -1806,7 +1937,11 @@ fn overhead(p: &MotionParams, t: f64) -> Local {
             L_SHOULDER,
             lerp(hanging_arm(p.arm_drop, 0.0), behind, q),
         );
-        body.limb(Side::Left, L_ELBOW, elbow_flex((12.0 + 8.0 * q).to_radians()));
+        body.limb(
+            Side::Left,
+            L_ELBOW,
+            elbow_flex((12.0 + 8.0 * q).to_radians()),
+        );
         body.limb(Side::Right, L_SHOULDER, hanging_arm(p.arm_drop, -0.2 * q));
         body.limb(Side::Right, L_ELBOW, elbow_flex(20f64.to_radians()));
         body.set(ROOT, deg(0.0, 8.0 * a * q, 0.0));
@@ -1815,6 +1950,503 @@ fn overhead(p: &MotionParams, t: f64) -> Local {
         body.set(HEAD, deg(0.0, 20.0 * q, 0.0));
     }
     Local::fixed(body, p.heading)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Extended kinds down on the floor, on steps and turning full circles (issue 25, item 2). Lie,
+// crawl, fall and spin leave papers/000's root box ([`MotionKind::has_free_root`]). Heights are
+// those of the default template (hips 0.92 m, ankles 0.085 m above the floor).
+
+/// Height (m) of the hip joints of the default template standing at rest.
+const HIP_HEIGHT: f64 = 0.92;
+/// Height (m) of the ankle joints above the floor, standing.
+const ANKLE_HEIGHT: f64 = 0.085;
+/// Height (m) of the hip joints above the floor when sitting or lying on it (half the pelvis'
+/// depth, about).
+const HIPS_ON_FLOOR: f64 = 0.11;
+/// Height (m) of the knee joints above the floor when kneeling on them.
+const KNEE_ON_FLOOR: f64 = 0.06;
+
+/// The pose at `phase` (period 1) of a cycle through key poses: `keys` are (time, pose) with
+/// times increasing from 0 within [0, 1); between consecutive keys (and from the last back to
+/// the first at phase 1) every degree of freedom blends by a smoothstep, so the motion is C1 and
+/// rests at every key. Rotation vectors blend linearly, which stays inside any box holding both.
+fn key_poses(keys: &[(f64, Body)], phase: f64) -> Body {
+    let f = phase.rem_euclid(1.0);
+    let i = keys.iter().rposition(|(t, _)| *t <= f).unwrap_or(0);
+    let (t0, a) = (keys[i].0, &keys[i].1);
+    let (t1, b) = match keys.get(i + 1) {
+        Some((t, b)) => (*t, b),
+        None => (1.0 + keys[0].0, &keys[0].1),
+    };
+    let s = smoothstep(((f - t0) / (t1 - t0)).clamp(0.0, 1.0));
+    let mut body = a.clone();
+    for (v, w) in body.pose.iter_mut().zip(&b.pose) {
+        *v += (w - *v) * s;
+    }
+    body
+}
+
+/// Sagittal two-link inverse kinematics of a leg (left convention): the hip flexion, knee
+/// flexion and ankle dorsiflexion (rad) that put the ankle at `ankle` ((z, y) in the heading
+/// frame, m) from hip joints at `hip`, under a root pitched forward by `pitch`, the foot flat
+/// (dorsiflexion within 19°: beyond it the heel rises). An ankle out of reach gets the straight
+/// leg pointing at it.
+fn leg_to(hip: DVec2, ankle: DVec2, pitch: f64) -> (f64, f64, f64) {
+    let d = ankle - hip;
+    // Smooth saturations (a hard clamp would put a kink into the motion).
+    let reach = soft_min(d.length(), 0.995 * (THIGH + SHANK), 0.004).max(0.3);
+    let knee = PI
+        - ((THIGH * THIGH + SHANK * SHANK - reach * reach) / (2.0 * THIGH * SHANK))
+            .clamp(-1.0, 1.0)
+            .acos();
+    // The thigh's forward angle from straight down: the hip→ankle line's, plus the knee's offset.
+    let line = d.x.atan2(-d.y);
+    let thigh = line
+        + ((THIGH * THIGH + reach * reach - SHANK * SHANK) / (2.0 * THIGH * reach))
+            .clamp(-1.0, 1.0)
+            .acos();
+    let dorsi = -soft_min(
+        -soft_min(knee - thigh, 19f64.to_radians(), 0.03),
+        45f64.to_radians(),
+        0.03,
+    );
+    (thigh + pitch, knee, dorsi)
+}
+
+/// A smooth minimum of `a` and `b` (log-sum-exp with width `k`): within `k·ln 2` of
+/// `min(a, b)`, and as smooth as they are.
+fn soft_min(a: f64, b: f64, k: f64) -> f64 {
+    a.min(b) - k * (-(a - b).abs() / k).exp().ln_1p()
+}
+
+/// Standing at rest (knees 4°), relaxed arms.
+fn standing(p: &MotionParams) -> Body {
+    let mut body = Body::new();
+    for side in [Side::Left, Side::Right] {
+        leg(
+            &mut body,
+            side,
+            2f64.to_radians(),
+            4f64.to_radians(),
+            2f64.to_radians(),
+        );
+    }
+    relaxed_arms(&mut body, p.arm_drop, [0.0; 2], [12f64.to_radians(); 2]);
+    body
+}
+
+/// A crouch on the way down to the floor or up from it (thighs `thigh_deg` forward: 85° a deep
+/// crouch with the knees at 119° and the heels rising, 45° half-way), the hands reaching towards
+/// the floor, the feet at the origin.
+fn crouching(thigh_deg: f64) -> Body {
+    let (alpha, beta) = (thigh_deg.to_radians(), 0.4);
+    let pitch = 0.25 * alpha;
+    let mut body = Body::new();
+    for side in [Side::Left, Side::Right] {
+        leg(
+            &mut body,
+            side,
+            alpha + pitch,
+            (1.0 + beta) * alpha,
+            0.5 * beta * alpha,
+        );
+    }
+    let (drop, shift) = crouch_offset(alpha, beta);
+    body.translate(DVec3::new(0.0, -drop, shift));
+    body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
+    body.set(LOWER_TORSO, DVec3::new(0.1 * alpha, 0.0, 0.0));
+    body.set(HEAD, DVec3::new(-0.3 * pitch, 0.0, 0.0));
+    let down = arm_reaching(direction(10f64.to_radians(), -40f64.to_radians()));
+    for side in [Side::Left, Side::Right] {
+        body.limb(
+            side,
+            L_SHOULDER,
+            lerp(hanging_arm(0.5, 0.0), down, alpha / 1.5),
+        );
+        body.limb(side, L_ELBOW, elbow_flex(20f64.to_radians()));
+    }
+    body
+}
+
+/// Sitting on the floor, the hips `hips` m behind the origin, leaning back 15° on the hands
+/// behind, the knees flexed by `knee` (rad: ~0.2 legs out straight, ~1.4 knees up, feet flat).
+fn sitting_on_floor(p: &MotionParams, hips: f64, knee: f64) -> Body {
+    let pitch = -15f64.to_radians();
+    // Hips and ankles at about the same height: thigh and shank make equal angles with the
+    // floor, the thigh rising knee/2 above horizontal.
+    let thigh = FRAC_PI_2 + 0.5 * knee;
+    let mut body = Body::new();
+    for side in [Side::Left, Side::Right] {
+        leg(
+            &mut body,
+            side,
+            thigh + pitch,
+            knee,
+            -(20.0 + 20.0 * knee).to_radians(),
+        );
+    }
+    body.translate(DVec3::new(0.0, HIPS_ON_FLOOR + 0.01 - HIP_HEIGHT, -hips));
+    body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
+    body.set(LOWER_TORSO, deg(6.0, 0.0, 0.0));
+    body.set(MIDDLE_TORSO, deg(6.0, 0.0, 0.0));
+    body.set(HEAD, deg(6.0, 0.0, 0.0));
+    let behind = arm_reaching(direction(150f64.to_radians(), -55f64.to_radians()));
+    for side in [Side::Left, Side::Right] {
+        body.limb(
+            side,
+            L_SHOULDER,
+            lerp(hanging_arm(p.arm_drop, 0.0), behind, 0.9),
+        );
+        body.limb(side, L_ELBOW, elbow_flex(10f64.to_radians()));
+    }
+    body
+}
+
+/// Sitting on the floor just after sitting down from a crouch: the hips `hips` m behind the
+/// feet (which stand at the origin), the knees up (about 123° for 0.4 m), the trunk 30° back on
+/// the hands behind (the hip then flexes 117°, inside the clinical 120°).
+fn sitting_tucked(p: &MotionParams, hips: f64) -> Body {
+    let pitch = -30f64.to_radians();
+    let (h, k, a) = leg_to(
+        DVec2::new(-hips, HIPS_ON_FLOOR),
+        DVec2::new(0.0, ANKLE_HEIGHT),
+        pitch,
+    );
+    let mut body = Body::new();
+    for side in [Side::Left, Side::Right] {
+        leg(&mut body, side, h, k, a);
+    }
+    body.translate(DVec3::new(0.0, HIPS_ON_FLOOR - HIP_HEIGHT, -hips));
+    body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
+    body.set(LOWER_TORSO, deg(10.0, 0.0, 0.0));
+    body.set(MIDDLE_TORSO, deg(10.0, 0.0, 0.0));
+    body.set(HEAD, deg(10.0, 0.0, 0.0));
+    let behind = arm_reaching(direction(150f64.to_radians(), -50f64.to_radians()));
+    for side in [Side::Left, Side::Right] {
+        body.limb(
+            side,
+            L_SHOULDER,
+            lerp(hanging_arm(p.arm_drop, 0.0), behind, 0.9),
+        );
+        body.limb(side, L_ELBOW, elbow_flex(10f64.to_radians()));
+    }
+    body
+}
+
+/// Lying on the back (supine), the hips `hips` m behind the origin, the head towards −z, the
+/// knees flexed by `knee` (rad; with the feet flat: a hook-lying position), the arms by the sides
+/// or (`arms_up`) beside the head.
+fn lying(p: &MotionParams, hips: f64, knee: f64, arms_up: bool) -> Body {
+    let pitch = -FRAC_PI_2;
+    let thigh = FRAC_PI_2 + 0.5 * knee;
+    let mut body = Body::new();
+    for side in [Side::Left, Side::Right] {
+        leg(
+            &mut body,
+            side,
+            thigh + pitch,
+            knee,
+            -(25.0 + 15.0 * knee).to_radians(),
+        );
+    }
+    body.translate(DVec3::new(0.0, HIPS_ON_FLOOR - HIP_HEIGHT, -hips));
+    body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
+    body.set(HEAD, deg(8.0, 0.0, 0.0));
+    for side in [Side::Left, Side::Right] {
+        let arm = if arms_up {
+            arm_reaching(direction(30f64.to_radians(), 80f64.to_radians()))
+        } else {
+            hanging_arm(p.arm_drop, 0.0)
+        };
+        body.limb(side, L_SHOULDER, arm);
+        body.limb(side, L_ELBOW, elbow_flex(15f64.to_radians()));
+    }
+    body
+}
+
+/// Kneeling upright on both knees (thighs vertical, shanks on the floor, toes pointing back),
+/// the knees `knees` m in front of the origin; the arms forward and down by `arms` (0 hanging,
+/// 1 reaching for the floor).
+fn kneeling_upright(p: &MotionParams, knees: f64, arms: f64) -> Body {
+    let mut body = Body::new();
+    for side in [Side::Left, Side::Right] {
+        leg(
+            &mut body,
+            side,
+            0.0,
+            92f64.to_radians(),
+            -40f64.to_radians(),
+        );
+    }
+    body.translate(DVec3::new(0.0, KNEE_ON_FLOOR + THIGH - HIP_HEIGHT, knees));
+    body.set(ROOT, deg(10.0 * arms, 0.0, 0.0));
+    let forward = arm_reaching(direction(12f64.to_radians(), -20f64.to_radians()));
+    for side in [Side::Left, Side::Right] {
+        body.limb(
+            side,
+            L_SHOULDER,
+            lerp(hanging_arm(p.arm_drop, 0.0), forward, arms),
+        );
+        body.limb(side, L_ELBOW, elbow_flex((12.0 + 8.0 * arms).to_radians()));
+    }
+    body
+}
+
+/// Root pitch (rad) of the hands-and-knees position: the trunk about 10° above horizontal, so
+/// that straight arms reach the floor.
+const ON_ALL_FOURS: f64 = 1.4;
+
+/// On hands and knees, the knees `knees` m in front of the origin: thighs vertical under the
+/// hips, shanks on the floor, the arms straight down under the shoulders, the head up. `legs` and
+/// `arms` swing the left and right thighs and upper arms forward (rad, world sagittal angle);
+/// `lift` bends the knees further while they swing (rad).
+fn on_all_fours(knees: f64, legs: [f64; 2], arms: [f64; 2], lift: [f64; 2]) -> Body {
+    let pitch = ON_ALL_FOURS;
+    let mut body = Body::new();
+    for (i, side) in [Side::Left, Side::Right].into_iter().enumerate() {
+        leg(
+            &mut body,
+            side,
+            pitch + legs[i],
+            90f64.to_radians() + lift[i],
+            -45f64.to_radians(),
+        );
+        // World down in the trunk's frame is `direction(·, pitch − 90°)`; forward swings raise it.
+        let trunk = pitch + 10f64.to_radians();
+        body.limb(
+            side,
+            L_SHOULDER,
+            arm_reaching(direction(0.12, trunk - FRAC_PI_2 + arms[i])),
+        );
+        body.limb(side, L_ELBOW, elbow_flex(8f64.to_radians()));
+    }
+    body.translate(DVec3::new(0.0, KNEE_ON_FLOOR + THIGH - HIP_HEIGHT, knees));
+    body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
+    body.set(MIDDLE_TORSO, deg(10.0, 0.0, 0.0));
+    body.set(HEAD, deg(-25.0, 0.0, 0.0));
+    body
+}
+
+/// Lie: 14 s cycles: from standing down into a crouch, onto the seat (sitting on the floor,
+/// first with the knees up, then the legs out, hands behind), back onto the floor (lying supine, legs out straight or knees up by the style,
+/// arms by the sides or, with an amplitude above 0.9, beside the head), a rest, and up again the
+/// same way (sit up, crouch, stand): one of the common adult ways of rising from the floor
+/// (VanSant, *Phys Ther* 68(2), 1988, describes the components).
+fn lie(p: &MotionParams, t: f64) -> Local {
+    let knee = (10.0 + 70.0 * p.style).to_radians();
+    let hips = 0.4;
+    let lying = lying(p, hips, knee, p.amplitude > 0.9);
+    let keys = [
+        (0.0, standing(p)),
+        (0.05, crouching(45.0)),
+        (0.09, crouching(85.0)),
+        (0.17, sitting_tucked(p, hips)),
+        (0.24, sitting_on_floor(p, hips, knee)),
+        (0.33, lying.clone()),
+        (0.55, lying),
+        (0.64, sitting_on_floor(p, hips, knee)),
+        (0.71, sitting_tucked(p, hips)),
+        (0.8, crouching(85.0)),
+        (0.85, crouching(45.0)),
+        (0.9, standing(p)),
+    ];
+    Local::fixed(
+        key_poses(&keys, p.speed * t / 14.0 + p.phase / TAU),
+        p.heading,
+    )
+}
+
+/// Crawl: on hands and knees along a gently curving path, the diagonal limbs moving together
+/// (left hand with right knee; the crawling pattern of adults, Patrick et al., *J Neurophysiol*
+/// 101, 2009): about 0.7 cycles/s × speed, thighs swinging ±(11–22)° by the amplitude, upper arms
+/// ±12°, each knee lifting as it swings forward; speed = stride × cadence (0.1–0.25 m/s).
+fn crawl(p: &MotionParams, t: f64) -> Local {
+    let freq = 0.7 * p.speed;
+    let phase = freq * t + p.phase / TAU;
+    let swing = (18.0 * p.amplitude.min(1.2)).to_radians();
+    let leg_of = |offset: f64| swing * (TAU * (phase + offset)).sin();
+    // Forward motion of a limb: the derivative's sign; the knee lifts while it is positive.
+    let lift_of = |offset: f64| 10f64.to_radians() * pulse(phase + offset, 0.0, 2);
+    let legs = [leg_of(0.0), leg_of(0.5)];
+    let arms = [0.7 * leg_of(0.5), 0.7 * leg_of(0.0)];
+    let mut body = on_all_fours(0.0, legs, arms, [lift_of(0.0), lift_of(0.5)]);
+    // The pelvis rolls and yaws a little with the stepping knee.
+    let sway = (TAU * phase).sin();
+    let root = joint(&body.pose, ROOT);
+    body.set(ROOT, root + deg(0.0, 0.0, 3.0 * sway));
+    body.set(LOWER_TORSO, deg(0.0, 0.0, -2.0 * sway));
+    let v = 2.0 * THIGH * swing.sin() * freq;
+    let path = path_integral(p.heading, p.curvature, t) * v;
+    Local {
+        body,
+        yaw: path_yaw(p.heading, p.curvature, t),
+        path: DVec3::new(path.x, 0.0, path.y),
+    }
+}
+
+/// Fall: 9 s cycles. Style below ½: a fall forward (0.5 s onto both knees, 0.4 s more onto the
+/// hands), a rest on hands and knees, and up through kneeling and a crouch. From ½: a fall
+/// backward (0.6 s onto the seat, knees up, hands behind, then half-way onto the back), a rest,
+/// and up through sitting and a crouch. The falls are the fastest motions of the library (joint speeds near
+/// 6 rad/s, the root dropping at up to 1.5 m/s).
+fn fall(p: &MotionParams, t: f64) -> Local {
+    let phase = p.speed * t / 9.0 + p.phase / TAU;
+    let body = if p.style < 0.5 {
+        let fours = on_all_fours(0.2, [0.0; 2], [0.0; 2], [0.0; 2]);
+        key_poses(
+            &[
+                (0.0, standing(p)),
+                (0.06, kneeling_upright(p, 0.2, 0.6)),
+                (0.11, fours.clone()),
+                (0.3, fours),
+                (0.42, kneeling_upright(p, 0.2, 0.0)),
+                (0.58, crouching(85.0)),
+                (0.65, crouching(45.0)),
+                (0.72, standing(p)),
+            ],
+            phase,
+        )
+    } else {
+        let knee = (40.0 + 40.0 * p.amplitude.min(1.2) - 24.0).to_radians();
+        let mut back = lying(p, 0.4, knee, false);
+        // Half-way onto the back: the trunk 55° behind the vertical, not flat.
+        back.set(ROOT, DVec3::new(-55f64.to_radians(), 0.0, 0.0));
+        for side in [Side::Left, Side::Right] {
+            let thigh = FRAC_PI_2 + 0.5 * knee;
+            let ankle = -(25.0 + 15.0 * knee).to_radians();
+            leg(&mut back, side, thigh - 55f64.to_radians(), knee, ankle);
+        }
+        key_poses(
+            &[
+                (0.0, standing(p)),
+                (0.07, sitting_tucked(p, 0.4)),
+                (0.13, back.clone()),
+                (0.3, back),
+                (0.42, sitting_tucked(p, 0.4)),
+                (0.56, crouching(85.0)),
+                (0.63, crouching(45.0)),
+                (0.7, standing(p)),
+            ],
+            phase,
+        )
+    };
+    Local::fixed(body, p.heading)
+}
+
+/// Stairs: 4.5 s step-up cycles onto a step 15–27 cm high (by the style) whose tread begins
+/// 15 cm in front: the lead (left) foot steps up onto it (28 cm forward), the body rises over
+/// it, the trailing foot follows, then the lead foot steps back down, the body lowers, and the
+/// trailing foot follows (the step test's up-up-down-down). The legs follow the feet by
+/// two-link inverse kinematics (feet flat; the trailing heel rises where the foot is out of
+/// reach); the trunk leans 8–16° forward while rising.
+fn stairs(p: &MotionParams, t: f64) -> Local {
+    let f = (p.speed * t / 4.5 + p.phase / TAU).rem_euclid(1.0);
+    let rise = 0.15 + 0.12 * p.style;
+    let tread = 0.28;
+    let floor = DVec2::new(0.0, ANKLE_HEIGHT);
+    let step = DVec2::new(tread, ANKLE_HEIGHT + rise);
+    // A foot's swing from `a` to `b` during [t0, t1], clearing the step edge.
+    let swing = |a: DVec2, b: DVec2, t0: f64, t1: f64| {
+        let s = ((f - t0) / (t1 - t0)).clamp(0.0, 1.0);
+        let e = smoothstep(s);
+        a + (b - a) * e + DVec2::new(0.0, 0.08 * (PI * s).sin().powi(2))
+    };
+    let lead = if f < 0.5 {
+        swing(floor, step, 0.05, 0.25)
+    } else {
+        swing(step, floor, 0.62, 0.78)
+    };
+    let trail = if f < 0.6 {
+        swing(floor, step, 0.34, 0.52)
+    } else {
+        swing(step, floor, 0.78, 0.94)
+    };
+    // The hips: up and forward over the lead foot during [0.2, 0.5], back down during [0.6, 0.8]
+    // (ending 5 cm ahead), home by 0.94.
+    let up = hermite(
+        &[
+            key(0.2, 0.0, 0.0),
+            key(0.5, 1.0, 0.0),
+            key(0.6, 1.0, 0.0),
+            key(0.8, 0.0, 0.0),
+        ],
+        f,
+    );
+    let ahead = hermite(
+        &[
+            key(0.2, 0.0, 0.0),
+            key(0.5, tread, 0.0),
+            key(0.6, tread, 0.0),
+            key(0.8, 0.05, 0.0),
+            key(0.94, 0.0, 0.0),
+        ],
+        f,
+    );
+    let hip = DVec2::new(ahead, HIP_HEIGHT - 0.005 + rise * up);
+    let lean =
+        (8.0 + 8.0 * p.amplitude.min(1.2)) * (PI * ((f - 0.2) / 0.3).clamp(0.0, 1.0)).sin().powi(2);
+    let pitch = (2.0 + lean).to_radians();
+    let mut body = Body::new();
+    for (side, foot) in [(Side::Left, lead), (Side::Right, trail)] {
+        let (h, k, a) = leg_to(hip, foot, pitch);
+        leg(&mut body, side, h, k, a);
+    }
+    body.translate(DVec3::new(0.0, hip.y - HIP_HEIGHT, hip.x));
+    body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
+    body.set(
+        HEAD,
+        DVec3::new(-0.5 * pitch + 10f64.to_radians() * up, 0.0, 0.0),
+    );
+    // The arms swing against the legs: the right forward while the left leg steps up.
+    let arm = 0.25 * (PI * ((f - 0.05) / 0.45).clamp(0.0, 1.0)).sin().powi(2);
+    relaxed_arms(
+        &mut body,
+        p.arm_drop,
+        [arm, -arm],
+        [(15f64).to_radians(); 2],
+    );
+    Local::fixed(body, p.heading)
+}
+
+/// Spin: turning in place through full circles towards `side`: each 4 s × speed⁻¹ the body
+/// turns once round (360° in the first three quarters, easing in and out, up to about
+/// 3.5 rad/s), stepping in place while it turns, head and thorax leading; then stands a moment.
+fn spin(p: &MotionParams, t: f64) -> Local {
+    let u = p.speed * t / 4.0 + p.phase / TAU;
+    let (turns, f) = (u.floor(), u - u.floor());
+    let s = (f / 0.75).clamp(0.0, 1.0);
+    let yaw = p.heading + p.side.sign() * TAU * (turns + smoothstep(s));
+    // How much the body steps and leads with the head: the turning rate relative to its peak,
+    // squared (so that it starts and ends smoothly), in [0, 1].
+    let rate = (4.0 * s * (1.0 - s)).powi(2);
+    let mut body = Body::new();
+    let step_phase = 1.1 * p.speed * t + p.phase / TAU;
+    for (side, offset) in [(Side::Left, 0.0), (Side::Right, 0.5)] {
+        let lift = pulse(step_phase, offset, 2) * rate;
+        body.limb(side, L_HIP, deg(-2.0 - 30.0 * lift, 0.0, 0.0));
+        body.limb(side, L_KNEE, deg(4.0 + 50.0 * lift, 0.0, 0.0));
+        body.limb(side, L_ANKLE, deg(-2.0 + 15.0 * lift, 0.0, 0.0));
+    }
+    let sway = (TAU * step_phase).cos();
+    body.translate(DVec3::new(0.025 * rate * sway, -0.004 - 0.015 * rate, 0.0));
+    body.set(ROOT, deg(0.0, 0.0, -2.0 * rate * sway));
+    let lead = p.side.sign() * rate * p.amplitude.min(1.2);
+    body.set(LOWER_TORSO, deg(0.0, 4.0 * lead, 0.0));
+    body.set(MIDDLE_TORSO, deg(1.0, 8.0 * lead, 0.0));
+    body.set(HEAD, deg(0.0, 18.0 * lead, 0.0));
+    let arm = (8.0 * rate * sway).to_radians();
+    relaxed_arms(
+        &mut body,
+        p.arm_drop,
+        [arm, -arm],
+        [(25f64).to_radians(); 2],
+    );
+    Local {
+        body,
+        yaw,
+        path: DVec3::ZERO,
+    }
 }
 
 #[cfg(test)]
@@ -1839,6 +2471,10 @@ mod tests {
 
     fn rotations_inside(pose: &Pose, bounds: &Bounds) -> bool {
         (3..POSE_DIM).all(|i| pose[i] >= bounds.lower[i] && pose[i] <= bounds.upper[i])
+    }
+
+    fn root_rotation(pose: &Pose) -> DQuat {
+        DQuat::from_scaled_axis(joint(pose, ROOT))
     }
 
     /// Whether every rotation of `pose` lies inside `kind`'s limits.
@@ -1930,7 +2566,10 @@ mod tests {
         let hip = peak(MotionKind::Sit, rot_offset(L_HIP), -1.0);
         assert!(hip > 95.0 && hip <= 120.0, "sit hip {hip}");
         let shoulder = peak(MotionKind::Overhead, rot_offset(L_SHOULDER) + 2, 1.0);
-        assert!(shoulder > 100.0 && shoulder <= 150.0, "overhead shoulder {shoulder}");
+        assert!(
+            shoulder > 100.0 && shoulder <= 150.0,
+            "overhead shoulder {shoulder}"
+        );
         // The classic kinds stay inside the papers' limits.
         let classic_knee = MotionKind::CLASSIC
             .into_iter()
@@ -1967,7 +2606,17 @@ mod tests {
                 let p = params(kind, seed);
                 let poses = sequence(kind, &p, FPS, FRAMES, 0.0);
                 for (f, w) in poses.windows(2).enumerate() {
+                    // A free root's rotation vector jumps where its angle passes π: its step is
+                    // the angle between the two rotations.
+                    let root_step = root_rotation(&w[0]).angle_between(root_rotation(&w[1]));
+                    assert!(
+                        root_step < MAX_ROT_STEP,
+                        "{kind} seed {seed} frame {f}: root turns {root_step:.3}"
+                    );
                     for (i, (a, b)) in w[0].iter().zip(&w[1]).enumerate() {
+                        if kind.has_free_root() && (3..6).contains(&i) {
+                            continue;
+                        }
                         let step = (b - a).abs();
                         let bound = if i < 3 { MAX_TRANS_STEP } else { MAX_ROT_STEP };
                         assert!(
@@ -1991,7 +2640,17 @@ mod tests {
                 let p = params(kind, seed);
                 let poses = sequence(kind, &p, 1.0 / dt, 8000, -1.0);
                 for w in poses.windows(3) {
+                    // The root's angular velocity (world frame) and its change.
+                    let q: Vec<DQuat> = w.iter().map(root_rotation).collect();
+                    let omega = |a: DQuat, b: DQuat| rotvec(b * a.inverse()) / dt;
+                    let (w0, w1) = (omega(q[0], q[1]), omega(q[1], q[2]));
+                    assert!(w0.length() < 12.0, "{kind} seed {seed}: root turns at {w0}");
+                    let spin = (w1 - w0).length() / dt;
+                    assert!(spin < 600.0, "{kind} seed {seed}: root acceleration {spin}");
                     for (i, ((a, b), c)) in w[0].iter().zip(&w[1]).zip(&w[2]).enumerate() {
+                        if kind.has_free_root() && (3..6).contains(&i) {
+                            continue;
+                        }
                         let d1 = (b - a).abs() / dt;
                         let d2 = (c - 2.0 * b + a).abs() / (dt * dt);
                         assert!(d1 < 12.0, "{kind} seed {seed} dof {i}: speed {d1}");
@@ -2031,11 +2690,16 @@ mod tests {
     #[test]
     fn static_motions_stay_near_the_origin() {
         for kind in MotionKind::ALL.into_iter().filter(|k| !k.is_locomotion()) {
+            // Sitting and lying on the floor put the hips 40 cm behind the feet.
+            let limit = if kind.has_free_root() { 0.45 } else { 0.3 };
             for seed in 0..20 {
                 let p = params(kind, seed);
                 for pose in sequence(kind, &p, FPS, FRAMES, 0.0) {
                     let r = DVec2::new(pose[0], pose[2]).length();
-                    assert!(r < 0.3, "{kind} seed {seed}: root {r:.3} m from the origin");
+                    assert!(
+                        r < limit,
+                        "{kind} seed {seed}: root {r:.3} m from the origin"
+                    );
                 }
             }
         }
@@ -2375,7 +3039,11 @@ mod tests {
                 );
                 for f in &frames {
                     for a in [L_ANKLE, R_ANKLE] {
-                        assert!((f[a].y - rest[a].y).abs() < 0.08, "{kind}: ankle at {}", f[a].y);
+                        assert!(
+                            (f[a].y - rest[a].y).abs() < 0.08,
+                            "{kind}: ankle at {}",
+                            f[a].y
+                        );
                     }
                 }
             }
@@ -2385,29 +3053,196 @@ mod tests {
                 lowest(&frames, R_KNEE) - floor,
                 lowest(&frames, lfit_model::skeleton::L_KNEE) - floor,
             );
-            assert!(knee < 0.12 && lead > 0.3, "seed {seed}: knees {knee:.2}, {lead:.2}");
+            assert!(
+                knee < 0.12 && lead > 0.3,
+                "seed {seed}: knees {knee:.2}, {lead:.2}"
+            );
             // Pickup: the left wrist comes within 45 cm of the floor (the fingertips ~20 cm
             // lower; standing it hangs ~80 cm up), the right stays higher.
             let frames = run(MotionKind::Pickup, &p);
             let hand = lowest(&frames, L_HAND);
-            assert!(hand < floor + 0.45, "seed {seed}: hand {:.2} above the floor", hand - floor);
+            assert!(
+                hand < floor + 0.45,
+                "seed {seed}: hand {:.2} above the floor",
+                hand - floor
+            );
             assert!(lowest(&frames, R_HAND) > hand);
         }
         let p = MotionParams::default();
         // Throw: the throwing hand goes behind the shoulder line when cocked and well in front of
         // the chest after release.
         let frames = run(MotionKind::Throw, &p);
-        let back = frames.iter().map(|f| f[L_HAND].z - f[MIDDLE_TORSO].z).fold(f64::MAX, f64::min);
-        let front = frames.iter().map(|f| f[L_HAND].z - f[MIDDLE_TORSO].z).fold(f64::MIN, f64::max);
-        assert!(back < -0.1 && front > 0.3, "throw hand {back:.2} .. {front:.2}");
+        let back = frames
+            .iter()
+            .map(|f| f[L_HAND].z - f[MIDDLE_TORSO].z)
+            .fold(f64::MAX, f64::min);
+        let front = frames
+            .iter()
+            .map(|f| f[L_HAND].z - f[MIDDLE_TORSO].z)
+            .fold(f64::MIN, f64::max);
+        assert!(
+            back < -0.1 && front > 0.3,
+            "throw hand {back:.2} .. {front:.2}"
+        );
         // Overhead: both hands above the head (style < ½); one hand behind the back (style ≥ ½).
         let frames = run(MotionKind::Overhead, &MotionParams { style: 0.3, ..p });
         for hand in [L_HAND, R_HAND] {
-            let top = frames.iter().map(|f| f[hand].y - f[HEAD].y).fold(f64::MIN, f64::max);
+            let top = frames
+                .iter()
+                .map(|f| f[hand].y - f[HEAD].y)
+                .fold(f64::MIN, f64::max);
             assert!(top > 0.2, "hand {top:.2} above the head");
         }
         let frames = run(MotionKind::Overhead, &MotionParams { style: 0.8, ..p });
-        let behind = frames.iter().map(|f| f[L_HAND].z - f[ROOT].z).fold(f64::MAX, f64::min);
+        let behind = frames
+            .iter()
+            .map(|f| f[L_HAND].z - f[ROOT].z)
+            .fold(f64::MAX, f64::min);
         assert!(behind < -0.2, "hand {behind:.2} behind");
+    }
+
+    #[test]
+    fn forward_kinematics_look_like_the_floor_stairs_and_spin_motions() {
+        use lfit_model::skeleton::{L_HAND, R_ANKLE, R_HAND, R_HIP, R_KNEE};
+        let template = lfit_model::default_template();
+        let rest = joints(&template, &[0.0; POSE_DIM]);
+        let floor = rest[L_ANKLE].y - ANKLE_HEIGHT;
+        let run = |kind: MotionKind, p: &MotionParams| -> Vec<Vec<DVec3>> {
+            sequence(kind, p, FPS, 450, 0.0)
+                .iter()
+                .map(|q| joints(&template, q))
+                .collect()
+        };
+        let lowest = |frames: &[Vec<DVec3>], j: usize| {
+            frames
+                .iter()
+                .map(|f| f[j].y - floor)
+                .fold(f64::MAX, f64::min)
+        };
+        // The largest drop of the root within one second (30 frames).
+        let fastest_drop = |frames: &[Vec<DVec3>]| {
+            frames
+                .windows(31)
+                .map(|w| w[0][ROOT].y - w[30][ROOT].y)
+                .fold(f64::MIN, f64::max)
+        };
+        for seed in 0..6 {
+            let p = MotionParams {
+                heading: 0.0,
+                ..params(MotionKind::Lie, seed)
+            };
+            // Lie: down to the floor (pelvis and head within 20 cm of it, the trunk flat), up
+            // again to standing, the ankles never more than 5 cm under the floor.
+            let frames = run(MotionKind::Lie, &p);
+            assert!(
+                lowest(&frames, ROOT) < 0.2,
+                "lie seed {seed}: pelvis {:.2}",
+                lowest(&frames, ROOT)
+            );
+            assert!(
+                lowest(&frames, HEAD) < 0.2,
+                "lie seed {seed}: head {:.2}",
+                lowest(&frames, HEAD)
+            );
+            assert!(
+                frames
+                    .iter()
+                    .any(|f| (f[ROOT].y - rest[ROOT].y).abs() < 0.02)
+            );
+            for a in [L_ANKLE, R_ANKLE] {
+                assert!(
+                    lowest(&frames, a) > ANKLE_HEIGHT - 0.05,
+                    "lie seed {seed}: ankle {:.2}",
+                    lowest(&frames, a)
+                );
+            }
+            // Crawl: knees and wrists on the floor in every frame, the pelvis half a metre up,
+            // moving forward along the heading by half a metre or more in 15 s.
+            let p = MotionParams {
+                heading: 0.0,
+                curvature: 0.0,
+                ..params(MotionKind::Crawl, seed)
+            };
+            let frames = run(MotionKind::Crawl, &p);
+            for f in &frames {
+                for j in [L_KNEE, R_KNEE] {
+                    assert!(
+                        f[j].y - floor < 0.15,
+                        "crawl seed {seed}: knee {:.2}",
+                        f[j].y - floor
+                    );
+                }
+                for j in [L_HAND, R_HAND] {
+                    assert!(
+                        f[j].y - floor < 0.12,
+                        "crawl seed {seed}: wrist {:.2}",
+                        f[j].y - floor
+                    );
+                }
+                assert!((f[ROOT].y - floor - 0.5).abs() < 0.08);
+            }
+            let travelled = frames[449][ROOT].z - frames[0][ROOT].z;
+            assert!(travelled > 0.5, "crawl seed {seed}: {travelled:.2} m");
+            // Fall: the root drops 0.4 m or more within a second; forward onto the knees and
+            // hands, backward onto the seat.
+            for style in [0.2, 0.8] {
+                let p = MotionParams {
+                    style,
+                    heading: 0.0,
+                    ..params(MotionKind::Fall, seed)
+                };
+                let frames = run(MotionKind::Fall, &p);
+                assert!(
+                    fastest_drop(&frames) > 0.4,
+                    "fall {style} seed {seed}: {:.2}",
+                    fastest_drop(&frames)
+                );
+                if style < 0.5 {
+                    assert!(lowest(&frames, L_KNEE) < 0.1 && lowest(&frames, L_HAND) < 0.1);
+                } else {
+                    assert!(lowest(&frames, ROOT) < 0.2 && lowest(&frames, HEAD) > 0.3);
+                }
+            }
+            // Stairs: each foot comes up onto the step (its height by the style) and back, the
+            // pelvis rises by the step's height.
+            let p = MotionParams {
+                heading: 0.0,
+                ..params(MotionKind::Stairs, seed)
+            };
+            let rise = 0.15 + 0.12 * p.style;
+            let frames = run(MotionKind::Stairs, &p);
+            for a in [L_ANKLE, R_ANKLE] {
+                let on_step = frames
+                    .iter()
+                    .filter(|f| (f[a].y - floor - ANKLE_HEIGHT - rise).abs() < 0.03)
+                    .count();
+                assert!(
+                    on_step > 30,
+                    "stairs seed {seed}: ankle {a} on the step in {on_step} frames"
+                );
+                assert!(lowest(&frames, a) > ANKLE_HEIGHT - 0.02);
+            }
+            let top = frames.iter().map(|f| f[ROOT].y).fold(f64::MIN, f64::max) - rest[ROOT].y;
+            assert!(
+                (top - rise).abs() < 0.03,
+                "stairs seed {seed}: pelvis up {top:.3} for a {rise:.3} step"
+            );
+            // Spin: the hip line turns through more than two full circles in 15 s, one way.
+            let p = params(MotionKind::Spin, seed);
+            let frames = run(MotionKind::Spin, &p);
+            let facing = |f: &Vec<DVec3>| {
+                let across = f[L_HIP] - f[R_HIP];
+                (-across.z).atan2(across.x)
+            };
+            let turned: f64 = frames
+                .windows(2)
+                .map(|w| (facing(&w[1]) - facing(&w[0]) + PI).rem_euclid(TAU) - PI)
+                .sum();
+            assert!(
+                turned * p.side.sign() > 2.0 * TAU,
+                "spin seed {seed}: {:.0}°",
+                turned.to_degrees()
+            );
+        }
     }
 }

@@ -229,6 +229,7 @@ def synth(
     mirror: bool = False,
     heading: bool = False,
     jitter_deg: float = 0.0,
+    uniform_share: float = 0.0,
     cameras: Optional[int] = None,
     out: Optional[_Path] = None,
 ) -> Dataset:
