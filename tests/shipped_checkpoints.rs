@@ -81,7 +81,7 @@ const CHECKPOINTS: [Shipped; 8] = [
         model: MAKEHUMAN,
         synth: &[],
         fit: &[],
-        documented: (121.256, 12.085),
+        documented: (121.256, 12.241),
     },
     Shipped {
         name: "hmd-makehuman",
