@@ -1554,6 +1554,81 @@ fn turn_half_sweep(amplitude: f64) -> f64 {
     (0.6 * amplitude).min(0.72)
 }
 
+/// How a turn in place steps and leads: peak hip and knee flexion and ankle plantar flexion of
+/// a stepping leg (degrees), the root's lateral sway and drop (m), the lower torso's, thorax's
+/// and head's lead into the turn (degrees of yaw), the arms' swing and the elbows (degrees).
+struct TurnSteps {
+    hip: f64,
+    knee: f64,
+    ankle: f64,
+    sway: f64,
+    drop: f64,
+    lead: [f64; 3],
+    arm: f64,
+    elbow: f64,
+}
+
+/// [`MotionKind::Turn`]'s steps.
+const TURN_STEPS: TurnSteps = TurnSteps {
+    hip: 25.0,
+    knee: 45.0,
+    ankle: 12.0,
+    sway: 0.02,
+    drop: 0.01,
+    lead: [3.0, 6.0, 12.0],
+    arm: 6.0,
+    elbow: 15.0,
+};
+
+/// [`MotionKind::Spin`]'s steps: higher and livelier, for a faster turn.
+const SPIN_STEPS: TurnSteps = TurnSteps {
+    hip: 30.0,
+    knee: 50.0,
+    ankle: 15.0,
+    sway: 0.025,
+    drop: 0.015,
+    lead: [4.0, 8.0, 18.0],
+    arm: 8.0,
+    elbow: 25.0,
+};
+
+/// A body stepping in place while it turns (heading frame): each leg lifts once per cycle of
+/// `step_phase` (the legs half a cycle apart), scaled by `stepping` in [0, 1]; the trunk and head
+/// lead by `lead` (signed: the turn's direction and strength).
+fn stepping_round(
+    p: &MotionParams,
+    steps: &TurnSteps,
+    step_phase: f64,
+    stepping: f64,
+    lead: f64,
+) -> Body {
+    let mut body = Body::new();
+    for (side, offset) in [(Side::Left, 0.0), (Side::Right, 0.5)] {
+        let lift = pulse(step_phase, offset, 2) * stepping;
+        body.limb(side, L_HIP, deg(-2.0 - steps.hip * lift, 0.0, 0.0));
+        body.limb(side, L_KNEE, deg(4.0 + steps.knee * lift, 0.0, 0.0));
+        body.limb(side, L_ANKLE, deg(-2.0 + steps.ankle * lift, 0.0, 0.0));
+    }
+    let sway = (TAU * step_phase).cos();
+    body.translate(DVec3::new(
+        steps.sway * stepping * sway,
+        -0.004 - steps.drop * stepping,
+        0.0,
+    ));
+    body.set(ROOT, deg(0.0, 0.0, -2.0 * stepping * sway));
+    body.set(LOWER_TORSO, deg(0.0, steps.lead[0] * lead, 0.0));
+    body.set(MIDDLE_TORSO, deg(1.0, steps.lead[1] * lead, 0.0));
+    body.set(HEAD, deg(0.0, steps.lead[2] * lead, 0.0));
+    let arm = (steps.arm * stepping * sway).to_radians();
+    relaxed_arms(
+        &mut body,
+        p.arm_drop,
+        [arm, -arm],
+        [steps.elbow.to_radians(); 2],
+    );
+    body
+}
+
 /// Turn: every 4 s the body turns towards `side` by up to 2 × 41°, holds, and turns back,
 /// stepping in place (about 0.9 steps/s per leg) while the yaw changes; head and thorax lead the
 /// turn. The root yaw limit (±50°) bounds the sweep.
@@ -1568,32 +1643,9 @@ fn turn(p: &MotionParams, t: f64) -> Local {
     let stepping = rate * rate;
     let yaw = centre + p.side.sign() * sweep * g;
 
-    let mut body = Body::new();
     let step_phase = 0.9 * p.speed * t + p.phase / TAU;
     let lead = p.side.sign() * rate * p.amplitude;
-    for (side, offset) in [(Side::Left, 0.0), (Side::Right, 0.5)] {
-        let lift = pulse(step_phase, offset, 2) * stepping;
-        body.limb(side, L_HIP, deg(-2.0 - 25.0 * lift, 0.0, 0.0));
-        body.limb(side, L_KNEE, deg(4.0 + 45.0 * lift, 0.0, 0.0));
-        body.limb(side, L_ANKLE, deg(-2.0 + 12.0 * lift, 0.0, 0.0));
-    }
-    let sway = (TAU * step_phase).cos();
-    body.translate(DVec3::new(
-        0.02 * stepping * sway,
-        -0.004 - 0.01 * stepping,
-        0.0,
-    ));
-    body.set(ROOT, deg(0.0, 0.0, -2.0 * stepping * sway));
-    body.set(LOWER_TORSO, deg(0.0, 3.0 * lead, 0.0));
-    body.set(MIDDLE_TORSO, deg(1.0, 6.0 * lead, 0.0));
-    body.set(HEAD, deg(0.0, 12.0 * lead, 0.0));
-    let arm = (6.0 * stepping * sway).to_radians();
-    relaxed_arms(
-        &mut body,
-        p.arm_drop,
-        [arm, -arm],
-        [(15f64).to_radians(); 2],
-    );
+    let body = stepping_round(p, &TURN_STEPS, step_phase, stepping, lead);
     Local {
         body,
         yaw,
@@ -2069,29 +2121,43 @@ fn crouching(thigh_deg: f64) -> Body {
     body
 }
 
+/// Both legs of sitting or lying on the floor under a root pitched by `pitch` (rad), the knees
+/// flexed by `knee` (rad): hips and ankles at about the same height, so thigh and shank make
+/// equal angles with the floor (the thigh rising knee/2 above horizontal); the ankles plantar
+/// flexed by `ankle + ankle_per_rad · knee` degrees.
+fn legs_on_the_floor(body: &mut Body, pitch: f64, knee: f64, ankle: f64, ankle_per_rad: f64) {
+    let thigh = FRAC_PI_2 + 0.5 * knee;
+    for side in [Side::Left, Side::Right] {
+        leg(
+            body,
+            side,
+            thigh + pitch,
+            knee,
+            -(ankle + ankle_per_rad * knee).to_radians(),
+        );
+    }
+}
+
 /// Sitting on the floor, the hips `hips` m behind the origin, leaning back 15° on the hands
 /// behind, the knees flexed by `knee` (rad: ~0.2 legs out straight, ~1.4 knees up, feet flat).
 fn sitting_on_floor(p: &MotionParams, hips: f64, knee: f64) -> Body {
     let pitch = -15f64.to_radians();
-    // Hips and ankles at about the same height: thigh and shank make equal angles with the
-    // floor, the thigh rising knee/2 above horizontal.
-    let thigh = FRAC_PI_2 + 0.5 * knee;
     let mut body = Body::new();
-    for side in [Side::Left, Side::Right] {
-        leg(
-            &mut body,
-            side,
-            thigh + pitch,
-            knee,
-            -(20.0 + 20.0 * knee).to_radians(),
-        );
-    }
+    legs_on_the_floor(&mut body, pitch, knee, 20.0, 20.0);
     body.translate(DVec3::new(0.0, HIPS_ON_FLOOR + 0.01 - HIP_HEIGHT, -hips));
+    seated_on_the_hands(&mut body, p, pitch, 6.0, -55.0);
+    body
+}
+
+/// The trunk and arms of sitting on the floor: the root pitched by `pitch` (rad), the spine and
+/// head flexed `flex` degrees each, the arms reaching back (150° from the front) and down
+/// (`elevation` degrees) to the hands on the floor behind.
+fn seated_on_the_hands(body: &mut Body, p: &MotionParams, pitch: f64, flex: f64, elevation: f64) {
     body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
-    body.set(LOWER_TORSO, deg(6.0, 0.0, 0.0));
-    body.set(MIDDLE_TORSO, deg(6.0, 0.0, 0.0));
-    body.set(HEAD, deg(6.0, 0.0, 0.0));
-    let behind = arm_reaching(direction(150f64.to_radians(), -55f64.to_radians()));
+    for j in [LOWER_TORSO, MIDDLE_TORSO, HEAD] {
+        body.set(j, deg(flex, 0.0, 0.0));
+    }
+    let behind = arm_reaching(direction(150f64.to_radians(), elevation.to_radians()));
     for side in [Side::Left, Side::Right] {
         body.limb(
             side,
@@ -2100,7 +2166,6 @@ fn sitting_on_floor(p: &MotionParams, hips: f64, knee: f64) -> Body {
         );
         body.limb(side, L_ELBOW, elbow_flex(10f64.to_radians()));
     }
-    body
 }
 
 /// Sitting on the floor just after sitting down from a crouch: the hips `hips` m behind the
@@ -2118,19 +2183,7 @@ fn sitting_tucked(p: &MotionParams, hips: f64) -> Body {
         leg(&mut body, side, h, k, a);
     }
     body.translate(DVec3::new(0.0, HIPS_ON_FLOOR - HIP_HEIGHT, -hips));
-    body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
-    body.set(LOWER_TORSO, deg(10.0, 0.0, 0.0));
-    body.set(MIDDLE_TORSO, deg(10.0, 0.0, 0.0));
-    body.set(HEAD, deg(10.0, 0.0, 0.0));
-    let behind = arm_reaching(direction(150f64.to_radians(), -50f64.to_radians()));
-    for side in [Side::Left, Side::Right] {
-        body.limb(
-            side,
-            L_SHOULDER,
-            lerp(hanging_arm(p.arm_drop, 0.0), behind, 0.9),
-        );
-        body.limb(side, L_ELBOW, elbow_flex(10f64.to_radians()));
-    }
+    seated_on_the_hands(&mut body, p, pitch, 10.0, -50.0);
     body
 }
 
@@ -2139,17 +2192,8 @@ fn sitting_tucked(p: &MotionParams, hips: f64) -> Body {
 /// or (`arms_up`) beside the head.
 fn lying(p: &MotionParams, hips: f64, knee: f64, arms_up: bool) -> Body {
     let pitch = -FRAC_PI_2;
-    let thigh = FRAC_PI_2 + 0.5 * knee;
     let mut body = Body::new();
-    for side in [Side::Left, Side::Right] {
-        leg(
-            &mut body,
-            side,
-            thigh + pitch,
-            knee,
-            -(25.0 + 15.0 * knee).to_radians(),
-        );
-    }
+    legs_on_the_floor(&mut body, pitch, knee, 25.0, 15.0);
     body.translate(DVec3::new(0.0, HIPS_ON_FLOOR - HIP_HEIGHT, -hips));
     body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
     body.set(HEAD, deg(8.0, 0.0, 0.0));
@@ -2311,12 +2355,9 @@ fn fall(p: &MotionParams, t: f64) -> Local {
         let knee = (40.0 + 40.0 * p.amplitude.min(1.2) - 24.0).to_radians();
         let mut back = lying(p, 0.4, knee, false);
         // Half-way onto the back: the trunk 55° behind the vertical, not flat.
-        back.set(ROOT, DVec3::new(-55f64.to_radians(), 0.0, 0.0));
-        for side in [Side::Left, Side::Right] {
-            let thigh = FRAC_PI_2 + 0.5 * knee;
-            let ankle = -(25.0 + 15.0 * knee).to_radians();
-            leg(&mut back, side, thigh - 55f64.to_radians(), knee, ankle);
-        }
+        let pitch = -55f64.to_radians();
+        back.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
+        legs_on_the_floor(&mut back, pitch, knee, 25.0, 15.0);
         key_poses(
             &[
                 (0.0, standing(p)),
@@ -2420,28 +2461,9 @@ fn spin(p: &MotionParams, t: f64) -> Local {
     // How much the body steps and leads with the head: the turning rate relative to its peak,
     // squared (so that it starts and ends smoothly), in [0, 1].
     let rate = (4.0 * s * (1.0 - s)).powi(2);
-    let mut body = Body::new();
     let step_phase = 1.1 * p.speed * t + p.phase / TAU;
-    for (side, offset) in [(Side::Left, 0.0), (Side::Right, 0.5)] {
-        let lift = pulse(step_phase, offset, 2) * rate;
-        body.limb(side, L_HIP, deg(-2.0 - 30.0 * lift, 0.0, 0.0));
-        body.limb(side, L_KNEE, deg(4.0 + 50.0 * lift, 0.0, 0.0));
-        body.limb(side, L_ANKLE, deg(-2.0 + 15.0 * lift, 0.0, 0.0));
-    }
-    let sway = (TAU * step_phase).cos();
-    body.translate(DVec3::new(0.025 * rate * sway, -0.004 - 0.015 * rate, 0.0));
-    body.set(ROOT, deg(0.0, 0.0, -2.0 * rate * sway));
     let lead = p.side.sign() * rate * p.amplitude.min(1.2);
-    body.set(LOWER_TORSO, deg(0.0, 4.0 * lead, 0.0));
-    body.set(MIDDLE_TORSO, deg(1.0, 8.0 * lead, 0.0));
-    body.set(HEAD, deg(0.0, 18.0 * lead, 0.0));
-    let arm = (8.0 * rate * sway).to_radians();
-    relaxed_arms(
-        &mut body,
-        p.arm_drop,
-        [arm, -arm],
-        [(25f64).to_radians(); 2],
-    );
+    let body = stepping_round(p, &SPIN_STEPS, step_phase, rate, lead);
     Local {
         body,
         yaw,
