@@ -885,15 +885,16 @@ fn crouch_angle(drop: f64, beta: f64) -> f64 {
 
 /// Crouches both legs (thigh world angle −`alpha`, shank `beta·alpha`) under a root pitched
 /// forward by `pitch`: the hips flex by `alpha + pitch`, the knees by `(1 + beta)·alpha`, the
-/// ankles dorsiflex by about half the shank lean (the ankle limit is 10°: heels lift slightly).
-fn crouch_legs(body: &mut Body, alpha: f64, beta: f64, pitch: f64) {
+/// ankles dorsiflex by `ankle` times the shank lean (1: the foot flat; less lifts the heels —
+/// the papers' ankle limit is 10°, so their squats take [`CROUCH_ANKLE`]).
+fn crouch_legs(body: &mut Body, alpha: f64, beta: f64, pitch: f64, ankle: f64) {
     for side in [Side::Left, Side::Right] {
-        body.limb(side, L_HIP, DVec3::new(-alpha - pitch, 0.0, 0.0));
-        body.limb(side, L_KNEE, DVec3::new((1.0 + beta) * alpha, 0.0, 0.0));
-        body.limb(
+        leg(
+            body,
             side,
-            L_ANKLE,
-            DVec3::new(-CROUCH_ANKLE * beta * alpha, 0.0, 0.0),
+            alpha + pitch,
+            (1.0 + beta) * alpha,
+            ankle * beta * alpha,
         );
     }
 }
@@ -1227,7 +1228,7 @@ fn squat(p: &MotionParams, t: f64) -> Local {
     let beta = 0.28;
     let pitch = 0.35 * alpha;
     let mut body = Body::new();
-    crouch_legs(&mut body, alpha, beta, pitch);
+    crouch_legs(&mut body, alpha, beta, pitch, CROUCH_ANKLE);
     let (drop, shift) = crouch_offset(alpha, beta);
     body.translate(DVec3::new(0.0, -drop, shift));
     body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
@@ -1682,14 +1683,8 @@ fn sit(p: &MotionParams, t: f64) -> Local {
     let beta = 0.1 * q + 0.25 * transfer;
     let pitch = 0.1 * alpha + (0.3 + 0.15 * p.amplitude.min(1.2)) * transfer;
     let mut body = Body::new();
+    crouch_legs(&mut body, alpha, beta, pitch, 1.0);
     for side in [Side::Left, Side::Right] {
-        leg(
-            &mut body,
-            side,
-            alpha + pitch,
-            (1.0 + beta) * alpha,
-            beta * alpha,
-        );
         body.limb(
             side,
             L_HIP,
@@ -1718,14 +1713,8 @@ fn deep_crouch(p: &MotionParams, t: f64) -> Local {
     let alpha = (70.0 + 25.0 * p.style).to_radians() * q;
     let pitch = (0.12 + 0.1 * p.amplitude.min(1.2)) * alpha;
     let mut body = Body::new();
+    crouch_legs(&mut body, alpha, beta, pitch, 0.5);
     for side in [Side::Left, Side::Right] {
-        leg(
-            &mut body,
-            side,
-            alpha + pitch,
-            (1.0 + beta) * alpha,
-            0.5 * beta * alpha,
-        );
         body.limb(
             side,
             L_HIP,
@@ -1807,15 +1796,7 @@ fn pickup(p: &MotionParams, t: f64) -> Local {
     let spine_max = (30.0 - 7.5 * squat).to_radians();
     let (alpha, bend) = (alpha_max * q, bend_max * q);
     let mut body = Body::new();
-    for side in [Side::Left, Side::Right] {
-        leg(
-            &mut body,
-            side,
-            alpha + bend,
-            (1.0 + beta) * alpha,
-            beta * alpha,
-        );
-    }
+    crouch_legs(&mut body, alpha, beta, bend, 1.0);
     let (drop, shift) = crouch_offset(alpha, beta);
     // The hips go back over the planted feet, which stand 12 cm in front of the origin.
     body.translate(DVec3::new(
@@ -2095,15 +2076,7 @@ fn crouching(thigh_deg: f64) -> Body {
     let (alpha, beta) = (thigh_deg.to_radians(), 0.4);
     let pitch = 0.25 * alpha;
     let mut body = Body::new();
-    for side in [Side::Left, Side::Right] {
-        leg(
-            &mut body,
-            side,
-            alpha + pitch,
-            (1.0 + beta) * alpha,
-            0.5 * beta * alpha,
-        );
-    }
+    crouch_legs(&mut body, alpha, beta, pitch, 0.5);
     let (drop, shift) = crouch_offset(alpha, beta);
     body.translate(DVec3::new(0.0, -drop, shift));
     body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
@@ -2280,20 +2253,24 @@ fn on_all_fours(knees: f64, legs: [f64; 2], arms: [f64; 2], lift: [f64; 2]) -> B
 fn lie(p: &MotionParams, t: f64) -> Local {
     let knee = (10.0 + 70.0 * p.style).to_radians();
     let hips = 0.4;
+    // Down and up the same way: each pose built once.
+    let stand = standing(p);
+    let (half, deep) = (crouching(45.0), crouching(85.0));
+    let (tucked, sitting) = (sitting_tucked(p, hips), sitting_on_floor(p, hips, knee));
     let lying = lying(p, hips, knee, p.amplitude > 0.9);
     let keys = [
-        (0.0, standing(p)),
-        (0.05, crouching(45.0)),
-        (0.09, crouching(85.0)),
-        (0.17, sitting_tucked(p, hips)),
-        (0.24, sitting_on_floor(p, hips, knee)),
+        (0.0, stand.clone()),
+        (0.05, half.clone()),
+        (0.09, deep.clone()),
+        (0.17, tucked.clone()),
+        (0.24, sitting.clone()),
         (0.33, lying.clone()),
         (0.55, lying),
-        (0.64, sitting_on_floor(p, hips, knee)),
-        (0.71, sitting_tucked(p, hips)),
-        (0.8, crouching(85.0)),
-        (0.85, crouching(45.0)),
-        (0.9, standing(p)),
+        (0.64, sitting),
+        (0.71, tucked),
+        (0.8, deep),
+        (0.85, half),
+        (0.9, stand),
     ];
     Local::fixed(
         key_poses(&keys, p.speed * t / 14.0 + p.phase / TAU),
@@ -2358,13 +2335,14 @@ fn fall(p: &MotionParams, t: f64) -> Local {
         let pitch = -55f64.to_radians();
         back.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
         legs_on_the_floor(&mut back, pitch, knee, 25.0, 15.0);
+        let tucked = sitting_tucked(p, 0.4);
         key_poses(
             &[
                 (0.0, standing(p)),
-                (0.07, sitting_tucked(p, 0.4)),
+                (0.07, tucked.clone()),
                 (0.13, back.clone()),
                 (0.3, back),
-                (0.42, sitting_tucked(p, 0.4)),
+                (0.42, tucked),
                 (0.56, crouching(85.0)),
                 (0.63, crouching(45.0)),
                 (0.7, standing(p)),
