@@ -278,4 +278,27 @@ fn a_known_shape_is_frozen_for_every_method_and_required_by_a_known_shape_networ
         compared += 1;
     }
     assert_eq!(compared, 4);
+
+    // Re-running into the same directory resumes (nothing left to fit) only while the inputs
+    // are the ones its rows were fitted with: a checkpoint changed in place (here its feature
+    // statistics, rewritten with other bytes) is refused, the rows kept; restored, it resumes.
+    let o = bench(true);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        std::fs::read_to_string(d.join("b-true/runs.csv")).expect("runs.csv"),
+        csv
+    );
+    let stats = ck.join("stats.json");
+    let original = std::fs::read(&stats).expect("stats");
+    let mut changed = original.clone();
+    changed.extend_from_slice(b"\n");
+    std::fs::write(&stats, &changed).expect("stats");
+    assert_one_line_error(&bench(true), "other inputs (checkpoint changed since");
+    assert_eq!(
+        std::fs::read_to_string(d.join("b-true/runs.csv")).expect("runs.csv"),
+        csv
+    );
+    std::fs::write(&stats, &original).expect("stats");
+    let o = bench(true);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }

@@ -73,7 +73,7 @@ const CHECKPOINTS: [Shipped; 8] = [
         model: MAKEHUMAN,
         synth: &[],
         fit: &[],
-        documented: (121.256, 7.139),
+        documented: (121.256, 7.109),
     },
     Shipped {
         name: "keypoints2d-makehuman",

@@ -21,7 +21,7 @@ pub use formats::{makehuman, makehuman_face, makehuman_import, makehuman_rom, mo
 pub use observe::{camera, noise, scan};
 
 pub use body::{
-    Block, BodyShape, Bounds, DofMask, Joint, JointIndex, Layout, Marker, ModelInfo, Morph,
+    Block, BodyShape, Bounds, DofMask, Fnv1a, Joint, JointIndex, Layout, Marker, ModelInfo, Morph,
     POSE_DIM, Pose, Rig, SkinningMethod, Template, build_template, default_template,
 };
 pub use energy::{Energy, EnergyConfig, Evaluation, Target};

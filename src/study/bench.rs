@@ -558,6 +558,103 @@ pub fn parse_shard(spec: Option<&str>) -> Result<(usize, usize)> {
     }
 }
 
+/// What the rows of `runs.csv` depend on beyond `bench.json`: the bytes of the data file, the
+/// model's signature, the energy configuration and the checkpoint's files (a retrained network
+/// under the same path), each as an FNV-1a hash.
+fn input_hashes(
+    config: &BenchConfig,
+    data: &Path,
+    template: &lfit_model::Template,
+    energy: &EnergyConfig,
+) -> Result<serde_json::Map<String, serde_json::Value>> {
+    let file_hash = |paths: &[PathBuf]| -> Result<String> {
+        let mut h = lfit_model::Fnv1a::default();
+        for p in paths {
+            let bytes = std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?;
+            h.eat(&(bytes.len() as u64).to_le_bytes());
+            h.eat(&bytes);
+        }
+        Ok(h.hex())
+    };
+    let mut inputs = serde_json::Map::new();
+    inputs.insert("data".into(), file_hash(&[data.to_path_buf()])?.into());
+    inputs.insert("model".into(), template.signature().hash.into());
+    let mut h = lfit_model::Fnv1a::default();
+    h.eat(&serde_json::to_vec(energy)?);
+    inputs.insert("energy".into(), h.hex().into());
+    if let Some(c) = &config.checkpoint
+        && config.methods.iter().any(|m| m.kind.is_neural())
+    {
+        let dir = crate::shipped::locate_or_given(c);
+        // The files a fit reads: the network's description, feature statistics and weights, and
+        // the graphs of an `lfit export-onnx` directory (not metrics or optimizer state).
+        let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+            .with_context(|| format!("cannot read checkpoint {}", dir.display()))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| {
+                let name = p.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+                matches!(name, "config.json" | "stats.json" | "weights.bpk")
+                    || name.ends_with(".onnx")
+            })
+            .collect();
+        files.sort();
+        inputs.insert("checkpoint".into(), file_hash(&files)?.into());
+    }
+    Ok(inputs)
+}
+
+/// Resuming is safe only over the same inputs: refuses an `out` whose runs were fitted with
+/// another data file, model, energy or checkpoint than now (a checkpoint retrained in place would
+/// otherwise leave its old rows in the report), and records the inputs of a new one.
+fn check_inputs(
+    config: &BenchConfig,
+    out: &Path,
+    data: &Path,
+    template: &lfit_model::Template,
+    energy: &EnergyConfig,
+) -> Result<()> {
+    let now = input_hashes(config, data, template, energy)?;
+    let path = out.join("inputs.json");
+    if let Ok(text) = std::fs::read_to_string(&path) {
+        let before: serde_json::Map<String, serde_json::Value> =
+            serde_json::from_str(&text).with_context(|| format!("malformed {}", path.display()))?;
+        let changed: Vec<&str> = now
+            .iter()
+            .filter(|(k, v)| before.get(*k) != Some(*v))
+            .map(|(k, _)| k.as_str())
+            .chain(
+                before
+                    .keys()
+                    .filter(|k| !now.contains_key(*k))
+                    .map(String::as_str),
+            )
+            .collect();
+        if !changed.is_empty() {
+            bail!(
+                "{} holds runs fitted with other inputs ({} changed since: {}); use another --out or remove it",
+                out.display(),
+                changed.join(", "),
+                path.display()
+            );
+        }
+        return Ok(());
+    }
+    // Rows without a record of their inputs (a directory of a build before this one) cannot be
+    // vouched for.
+    let rows = std::fs::read_to_string(out.join("runs.csv"))
+        .map(|t| t.lines().skip(1).any(|l| !l.trim().is_empty()))
+        .unwrap_or(false);
+    if rows {
+        bail!(
+            "{} holds runs without a record of their inputs ({} is missing: written by an older lfit); use another --out or remove it",
+            out.display(),
+            path.display()
+        );
+    }
+    write_atomic(&path, &serde_json::to_vec_pretty(&now)?)?;
+    Ok(())
+}
+
 /// Whether the checkpoint in `dir` was trained with the shape known.
 #[cfg(feature = "neural")]
 fn checkpoint_knows_shape(dir: &Path) -> Result<bool> {
@@ -626,6 +723,7 @@ pub fn run(
     let frames = parse_frames(config.frames.as_deref(), dataset.len())?;
     let template = template_for(&dataset, config.template.as_deref())?;
     let (energy_config, _) = config.energy_config()?;
+    check_inputs(config, out, &data, &template, &energy_config)?;
     let scenario = dataset.meta.config.scenario;
     let entries = config.entries()?;
     let preset = config.preset()?;

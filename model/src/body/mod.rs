@@ -27,4 +27,4 @@ pub use procedural::{
 };
 pub use rig::{Joint, JointIndex, Marker, Rig};
 pub use skinning::SkinningMethod;
-pub use template::Template;
+pub use template::{Fnv1a, Template};

@@ -28,6 +28,32 @@ pub struct ModelSignature {
     pub hash: String,
 }
 
+/// FNV-1a, 64 bit: a hash stable across runs and platforms, for fingerprints of a model's
+/// arrays ([`Template::signature`]) and of the files a study's results depend on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Fnv1a(u64);
+
+impl Default for Fnv1a {
+    fn default() -> Self {
+        Fnv1a(0xcbf2_9ce4_8422_2325)
+    }
+}
+
+impl Fnv1a {
+    /// Folds `bytes` into the hash.
+    pub fn eat(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 ^= u64::from(b);
+            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+
+    /// The hash so far, 16 lowercase hex digits.
+    pub fn hex(&self) -> String {
+        format!("{:016x}", self.0)
+    }
+}
+
 /// A skinned template mesh.
 #[derive(Debug, Clone)]
 pub struct Template {
@@ -206,13 +232,8 @@ impl Template {
     /// stores it; fitting with another model is refused.
     pub fn signature(&self) -> ModelSignature {
         // FNV-1a, 64 bit: stable across runs and platforms (little-endian bytes of every value).
-        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-        let mut eat = |bytes: &[u8]| {
-            for &b in bytes {
-                h ^= u64::from(b);
-                h = h.wrapping_mul(0x0000_0100_0000_01b3);
-            }
-        };
+        let mut hash = Fnv1a::default();
+        let mut eat = |bytes: &[u8]| hash.eat(bytes);
         for v in &self.vertices {
             for x in v.to_array() {
                 eat(&x.to_le_bytes());
@@ -252,7 +273,7 @@ impl Template {
         ModelSignature {
             id: self.id.clone(),
             layout: self.layout(),
-            hash: format!("{h:016x}"),
+            hash: hash.hex(),
         }
     }
 
