@@ -398,8 +398,9 @@ struct FitCmd {
     #[arg(long)]
     checkpoint: Option<PathBuf>,
     /// Neural fitter's θ0: phi (its initializer Φ(D)), given (the scenario's start pose; in
-    /// sequences the previous frame's result), or best (the lower-energy of the two, 2 more
-    /// evaluations).
+    /// sequences the previous frame's result), best (the lower-energy of the two, 2 more
+    /// evaluations), or both (a fit from each, the lower-energy result: twice the evaluations
+    /// and 2 more).
     #[arg(long, default_value = "phi")]
     neural_start: String,
     /// Which iterate the neural fitter returns: last (θN, papers/002) or lowest (the lowest

@@ -127,6 +127,90 @@ fn best_start_takes_the_lower_energy_candidate() {
     assert!(!tmp.path().join("no.json").exists());
 }
 
+/// `both` fits from the given start and from Φ(D) and keeps the lower-energy result: on single
+/// frames (and a sequence's first) it is exactly the better of the `given` and `phi` fits, at
+/// their evaluations plus the two results' energies.
+#[test]
+fn both_starts_keep_the_lower_energy_fit() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let data = synth(tmp.path(), "local.npz", "local", 6, 0x5EED_0011);
+    let run = |data: &Path, start: &str, budget: &str| {
+        fit(
+            data,
+            &tmp.path().join(format!("{start}-{budget}.json")),
+            &[
+                "--method",
+                "neural",
+                "--budget",
+                budget,
+                "--neural-start",
+                start,
+            ],
+        )
+    };
+    let (phi, given, both) = (
+        run(&data, "phi", "10"),
+        run(&data, "given", "10"),
+        run(&data, "both", "22"),
+    );
+    assert_eq!(both["method"], "neural-both");
+    let (mut chose_phi, mut chose_given) = (0, 0);
+    for ((p, g), b) in frames(&phi).iter().zip(frames(&given)).zip(frames(&both)) {
+        let (ep, eg, eb) = (num(&p["energy"]), num(&g["energy"]), num(&b["energy"]));
+        let (want, from) = if ep < eg { (ep, p) } else { (eg, g) };
+        assert!(
+            (eb - want).abs() <= 1e-9 * want.abs().max(1.0),
+            "energy {eb} is not the lower of the fits from Φ(D) {ep} and from the start {eg}"
+        );
+        assert_eq!(b["pose"], from["pose"]);
+        if ep < eg {
+            chose_phi += 1;
+        } else {
+            chose_given += 1;
+        }
+        assert_eq!(b["evaluations"], 2 * (num(&g["evaluations"]) as u64 + 1));
+        // Both fits' iterates in the trace, on an evaluation axis ending at the budget used.
+        let trace = b["trace"].as_array().expect("trace");
+        assert_eq!(trace.len(), 2 * g["trace"].as_array().expect("trace").len());
+        assert_eq!(trace.last().expect("last")[0], b["evaluations"]);
+    }
+    eprintln!("both: the fit from Φ(D) on {chose_phi} frames, from the start on {chose_given}");
+
+    // In a sequence each frame's box is the scenario's around the previous result, so the fits
+    // depend on the chain after the first frame; the first frame starts alike in every run.
+    let seq = synth(tmp.path(), "seq.npz", "sequence", 6, 0x5EED_0012);
+    let (phi, given, both) = (
+        run(&seq, "phi", "10"),
+        run(&seq, "given", "10"),
+        run(&seq, "both", "22"),
+    );
+    let first = |r: &Value| num(&frames(r)[0]["energy"]);
+    let want = first(&phi).min(first(&given));
+    assert!((first(&both) - want).abs() <= 1e-9 * want.abs().max(1.0));
+    assert!(frames(&both).iter().all(|f| f["evaluations"] == 22));
+    // A budget that covers one fit and a half is refused, nothing written.
+    let out = lfit(&[
+        "-q",
+        "fit",
+        "--data",
+        path_str(&data),
+        "--template",
+        path_str(&root(MODEL)),
+        "--checkpoint",
+        path_str(&root(CHECKPOINT)),
+        "--method",
+        "neural",
+        "--budget",
+        "21",
+        "--neural-start",
+        "both",
+        "--out",
+        path_str(&tmp.path().join("no.json")),
+    ]);
+    assert_one_line_error(&out, "twice, and the choice between the two fits");
+    assert!(!tmp.path().join("no.json").exists());
+}
+
 /// `--neural-pick lowest` returns the iterate of lowest energy among θ0 … θN (the last one's
 /// energy counted: one more evaluation), never above the last iterate's; `last` is the default
 /// and unknown picks or a budget without room for the choice are refused with nothing written.

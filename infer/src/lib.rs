@@ -31,6 +31,11 @@ pub enum Start {
     /// θ0 = the better by energy of the request's start and Φ(D) (two counted evaluations): a
     /// sequence restarts from Φ(D) where its previous result no longer explains the frame.
     Best,
+    /// Two fits, one from the request's start and one from Φ(D), and the result of lower energy
+    /// (twice the iterations' evaluations, and the two results' energies): a sequence whose
+    /// previous result has drifted where the data do not see it is caught by the fit that does
+    /// not depend on it once that fit explains the frame better.
+    Both,
 }
 
 impl std::str::FromStr for Start {
@@ -40,8 +45,9 @@ impl std::str::FromStr for Start {
             "phi" => Ok(Start::Phi),
             "given" | "start" => Ok(Start::Given),
             "best" => Ok(Start::Best),
+            "both" => Ok(Start::Both),
             _ => Err(format!(
-                "unknown neural start '{s}' (expected phi, given or best)"
+                "unknown neural start '{s}' (expected phi, given, best or both)"
             )),
         }
     }
@@ -290,12 +296,18 @@ impl NeuralFitter {
     }
 
     /// Evaluations a fit of this fitter makes: 2 per iteration, 2 more to choose the start
-    /// with [`Start::Best`], 1 more for the last iterate's energy with [`Pick::Lowest`].
+    /// with [`Start::Best`], 1 more for the last iterate's energy with [`Pick::Lowest`]; with
+    /// [`Start::Both`] the iterations twice and each fit's last iterate's energy (which the
+    /// pick reads too).
     pub fn evaluations_per_fit(&self) -> usize {
-        let n = self.meta.network.iterations;
+        let iterations =
+            self.meta.network.evaluations_per_iteration() * self.meta.network.iterations;
+        if self.start == Start::Both {
+            return 2 * (iterations + 1);
+        }
         let choose = if self.start == Start::Best { 2 } else { 0 };
         let pick = usize::from(self.pick == Pick::Lowest);
-        self.meta.network.evaluations_per_iteration() * n + choose + pick
+        iterations + choose + pick
     }
 
     /// θ0 … θN of every frame, `[N + 1][B]`, from the engine.
@@ -362,11 +374,12 @@ impl NeuralFitter {
                     "budget {} is below the {} evaluations of {n} iterations{}",
                     r.budget,
                     self.evaluations_per_fit(),
-                    match (self.start == Start::Best, self.pick == Pick::Lowest) {
-                        (true, true) => " and the start and iterate choices",
-                        (true, false) => " and the start choice",
-                        (false, true) => " and the iterate choice",
-                        (false, false) => "",
+                    match (self.start, self.pick == Pick::Lowest) {
+                        (Start::Both, _) => ", twice, and the choice between the two fits",
+                        (Start::Best, true) => " and the start and iterate choices",
+                        (Start::Best, false) => " and the start choice",
+                        (_, true) => " and the iterate choice",
+                        (_, false) => "",
                     }
                 )));
             }
@@ -400,7 +413,7 @@ impl NeuralFitter {
         });
         let starts: Vec<Option<Vec<f64>>> = match self.start {
             Start::Phi => vec![None; requests.len()],
-            Start::Given => given.map(Some).collect(),
+            Start::Given | Start::Both => given.map(Some).collect(),
             Start::Best => {
                 // Both candidates inside the box, each evaluated once (counted).
                 let phi = self.initial(&energies)?;
@@ -434,10 +447,14 @@ impl NeuralFitter {
                 .map(|r| r.bounds.clone())
                 .collect::<Vec<Bounds>>(),
         };
-        let mut host = self.run(&energies, &starts, &constraints)?;
+        // One fit, or with Start::Both the fit from the given start and the fit from Φ(D).
+        let mut runs = vec![self.run(&energies, &starts, &constraints)?];
+        if self.start == Start::Both {
+            runs.push(self.run(&energies, &vec![None; requests.len()], &constraints)?);
+        }
         // The loop clamps in f32; clamp again in f64 so that every iterate is exactly inside
         // the request's bounds (the two differ by at most an f32 rounding).
-        for iterate in host.iter_mut() {
+        for iterate in runs.iter_mut().flatten() {
             for (p, r) in iterate.iter_mut().zip(requests) {
                 r.bounds.clamp(p);
             }
@@ -449,41 +466,72 @@ impl NeuralFitter {
             .iter()
             .enumerate()
             .map(|(i, r)| {
-                // Energy of every iterate, once: for the trace and the pick. θ0 … θN−1 were
-                // evaluated by the loop (reporting only here: `inspect` is not counted); θN is
-                // new to the fit, so [`Pick::Lowest`], which chooses by it, counts it.
-                let energies: Vec<f64> = (0..=n)
-                    .map(|k| {
-                        if k == n && self.pick == Pick::Lowest {
-                            r.energy.evaluate(&host[k][i]).total
-                        } else {
-                            r.energy.inspect(&host[k][i]).total
+                // Energy of every iterate of every fit, once: for the trace and the picks.
+                // θ0 … θN−1 were evaluated by the loop (reporting only here: `inspect` is not
+                // counted); θN is new to the fit, so a choice made by it ([`Pick::Lowest`], the
+                // choice between the fits of [`Start::Both`]) counts it.
+                let both = runs.len() > 1;
+                let energies: Vec<Vec<f64>> = runs
+                    .iter()
+                    .map(|host| {
+                        (0..=n)
+                            .map(|k| {
+                                if k == n && (both || self.pick == Pick::Lowest) {
+                                    r.energy.evaluate(&host[k][i]).total
+                                } else {
+                                    r.energy.inspect(&host[k][i]).total
+                                }
+                            })
+                            .collect()
+                    })
+                    .collect();
+                let picked: Vec<usize> = energies
+                    .iter()
+                    .map(|e| match self.pick {
+                        Pick::Last => n,
+                        Pick::Lowest => {
+                            (0..n).fold(n, |best, k| if e[k] < e[best] { k } else { best })
                         }
                     })
                     .collect();
-                let chosen = match self.pick {
-                    Pick::Last => n,
-                    Pick::Lowest => (0..n).fold(n, |best, k| {
-                        if energies[k] < energies[best] {
-                            k
-                        } else {
-                            best
-                        }
-                    }),
-                };
-                let pose = host[chosen][i].clone();
+                // The fit whose pick has the lower energy (the given start's on a tie).
+                let fit = (1..runs.len()).fold(0, |best, f| {
+                    if energies[f][picked[f]] < energies[best][picked[best]] {
+                        f
+                    } else {
+                        best
+                    }
+                });
+                let host = &runs[fit];
+                let pose = host[picked[fit]][i].clone();
                 let report = r.energy.inspect(&pose);
-                let evaluations =
-                    r.energy.evaluations() - e0[i].0 + residual_evaluations - n as u64;
-                // The x axis of the trace is the evaluations used to reach each iterate.
-                let trace = (0..=n)
-                    .map(|k| {
-                        (
-                            (self.evaluations_per_fit() - per_iteration * (n - k)) as u64,
-                            energies[k],
-                        )
-                    })
-                    .collect();
+                let evaluations = r.energy.evaluations() - e0[i].0
+                    + runs.len() as u64 * (residual_evaluations - n as u64);
+                // The x axis of the trace is the evaluations used to reach each iterate; with
+                // two fits, the second's iterates follow the first's.
+                let trace = if both {
+                    (0..runs.len())
+                        .flat_map(|f| {
+                            let offset = f * (per_iteration * n + 1);
+                            let e = &energies[f];
+                            (0..=n).map(move |k| {
+                                (
+                                    (offset + per_iteration * k + usize::from(k == n)) as u64,
+                                    e[k],
+                                )
+                            })
+                        })
+                        .collect()
+                } else {
+                    (0..=n)
+                        .map(|k| {
+                            (
+                                (self.evaluations_per_fit() - per_iteration * (n - k)) as u64,
+                                energies[0][k],
+                            )
+                        })
+                        .collect()
+                };
                 FitResult {
                     method: name.clone(),
                     pose,
@@ -507,6 +555,7 @@ impl Fitter for NeuralFitter {
             Start::Phi => "neural",
             Start::Given => "neural-given",
             Start::Best => "neural-best",
+            Start::Both => "neural-both",
         };
         let base = match self.pick {
             Pick::Last => start.to_string(),
