@@ -130,6 +130,17 @@ def test_neural_fit_and_a_checkpoint_of_another_model(makehuman, markers_file, c
     lowest = lfit.fit(makehuman, markers_file, method="neural", budget=11, checkpoint=ck, neural_pick="lowest")
     np.testing.assert_allclose(lowest.energies, [r["energy"] for r in theirs], rtol=1e-9)
     assert all(a <= b for a, b in zip(lowest.energies, burn.energies))
+    # neural_start="both" (a fit from the given start and one from Φ(D), the lower-energy result):
+    # the CLI's fits, never above the fit from Φ(D) alone on these single frames.
+    out = tmp_path / "both.json"
+    cli("fit", "--data", markers_file, "--model", ROOT / "models" / "makehuman-cmu_mb.npz", "--method", "neural",
+        "--checkpoint", ck, "--budget", 22, "--neural-start", "both", "--out", out)
+    theirs = json.loads(out.read_text())["frames"]
+    both = lfit.fit(makehuman, markers_file, method="neural", budget=22, checkpoint=ck, neural_start="both")
+    np.testing.assert_allclose(both.energies, [r["energy"] for r in theirs], rtol=1e-9)
+    assert all(a <= b * (1 + 1e-9) for a, b in zip(both.energies, burn.energies))
+    with pytest.raises(lfit.LfitError, match="unknown neural start 'all' \\(expected phi, given, best or both\\)"):
+        lfit.fit(makehuman, markers_file, method="neural", budget=22, checkpoint=ck, neural_start="all")
     with pytest.raises(lfit.LfitError, match="unknown neural pick 'first'"):
         lfit.fit(makehuman, markers_file, method="neural", budget=11, checkpoint=ck, neural_pick="first")
     with pytest.raises(lfit.LfitError, match="unknown runtime 'cuda' \\(expected burn, ort or native\\)"):
