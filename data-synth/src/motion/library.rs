@@ -1,12 +1,13 @@
 //! Procedural motion library (SPEC §8): walk, jog, wave, squat, reach, punch, kick, jump and turn
 //! as smooth functions of time that return pose vectors of the default 18-joint skeleton — the
-//! papers' library ([`MotionKind::CLASSIC`], the default everywhere) — and eleven kinds of what
+//! papers' library ([`MotionKind::CLASSIC`], the default everywhere) — and twelve kinds of what
 //! people do that it lacks ([`MotionKind::EXTENDED`], chosen by name: `--library-motions`,
 //! `"library_motions"`): sit down and stand up, a deep crouch, kneeling on one knee, bending to
 //! pick something up, an overarm throw, reaching overhead or behind; lying down on the back and
 //! getting up, crawling on hands and knees, falling forward or backward and getting up, stepping
-//! up onto a step and down, turning full circles. The last four of those leave papers/000's root
-//! box (lying, on all fours, every heading: [`MotionKind::has_free_root`]).
+//! up onto a step and down, turning full circles in place and walking round a circle. The last
+//! five of those but stairs leave papers/000's root box (lying, on all fours, every heading:
+//! [`MotionKind::has_free_root`]).
 //!
 //! Every motion is written in a *heading frame*: the body's own rotations, with the root path
 //! (position on the floor and yaw) added on top. One-sided motions are written for a left lead
@@ -125,12 +126,15 @@ pub enum MotionKind {
     Stairs,
     /// Turning in place through full circles, stepping (extended, free root).
     Spin,
+    /// Walking round a circle of 0.7–1.1 m radius, leaning into the turn: turning while walking
+    /// (extended, free root).
+    Circle,
 }
 
 /// Error of [`MotionKind::from_str`]: the name matches no motion kind.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error(
-    "unknown motion kind '{name}' (expected one of walk, jog, wave, squat, reach, punch, kick, jump, turn, sit, crouch, kneel, pickup, throw, overhead, lie, crawl, fall, stairs, spin)"
+    "unknown motion kind '{name}' (expected one of walk, jog, wave, squat, reach, punch, kick, jump, turn, sit, crouch, kneel, pickup, throw, overhead, lie, crawl, fall, stairs, spin, circle)"
 )]
 pub struct UnknownMotionKind {
     /// The name that was given.
@@ -153,7 +157,7 @@ impl MotionKind {
     ];
 
     /// The kinds added for captured motion (issue 25, item 2), in declaration order.
-    pub const EXTENDED: [MotionKind; 11] = [
+    pub const EXTENDED: [MotionKind; 12] = [
         MotionKind::Sit,
         MotionKind::Crouch,
         MotionKind::Kneel,
@@ -165,11 +169,12 @@ impl MotionKind {
         MotionKind::Fall,
         MotionKind::Stairs,
         MotionKind::Spin,
+        MotionKind::Circle,
     ];
 
     /// Every kind, in declaration order: [`MotionKind::CLASSIC`] then [`MotionKind::EXTENDED`].
-    pub const ALL: [MotionKind; 20] = {
-        let mut all = [MotionKind::Walk; 20];
+    pub const ALL: [MotionKind; 21] = {
+        let mut all = [MotionKind::Walk; 21];
         let mut i = 0;
         while i < all.len() {
             all[i] = if i < Self::CLASSIC.len() {
@@ -205,6 +210,7 @@ impl MotionKind {
             MotionKind::Fall => "fall",
             MotionKind::Stairs => "stairs",
             MotionKind::Spin => "spin",
+            MotionKind::Circle => "circle",
         }
     }
 
@@ -224,18 +230,24 @@ impl MotionKind {
                 | MotionKind::Fall
                 | MotionKind::Stairs
                 | MotionKind::Spin
+                | MotionKind::Circle
         )
     }
 
     /// Whether the kind's root (the body's global orientation) leaves papers/000's root box
-    /// (pitch −30…100°, yaw and roll ±50°): lying on the back, crawling, falling and full turns.
+    /// (pitch −30…100°, yaw and roll ±50°): lying on the back, crawling, falling and full turns
+    /// (in place or walking).
     /// Their root may take any orientation (±180° per axis-angle component, as a person's does:
     /// issue 25, item 1); its axis-angle vector jumps where the rotation angle passes π (a full
     /// turn), the rotation itself stays continuous.
     pub const fn has_free_root(self) -> bool {
         matches!(
             self,
-            MotionKind::Lie | MotionKind::Crawl | MotionKind::Fall | MotionKind::Spin
+            MotionKind::Lie
+                | MotionKind::Crawl
+                | MotionKind::Fall
+                | MotionKind::Spin
+                | MotionKind::Circle
         )
     }
 
@@ -252,10 +264,13 @@ impl MotionKind {
         }
     }
 
-    /// Whether the root travels along a path (walk, jog, crawl); the other kinds stay near the
-    /// origin.
+    /// Whether the root travels along a path (walk, jog, crawl, circle); the other kinds stay
+    /// near the origin.
     pub const fn is_locomotion(self) -> bool {
-        matches!(self, MotionKind::Walk | MotionKind::Jog | MotionKind::Crawl)
+        matches!(
+            self,
+            MotionKind::Walk | MotionKind::Jog | MotionKind::Crawl | MotionKind::Circle
+        )
     }
 
     /// Whether [`MotionParams::side`] picks the lead limb (wave, reach, punch, kick, kneel,
@@ -300,6 +315,7 @@ impl MotionKind {
             MotionKind::Fall => (0.8, 1.1),
             MotionKind::Stairs => (0.7, 1.3),
             MotionKind::Spin => (0.7, 1.2),
+            MotionKind::Circle => (0.75, 1.2),
         }
     }
 }
@@ -601,6 +617,7 @@ fn motion_pose_unclamped(kind: MotionKind, params: &MotionParams, time_s: f64) -
         MotionKind::Fall => fall(&p, t),
         MotionKind::Stairs => stairs(&p, t),
         MotionKind::Spin => spin(&p, t),
+        MotionKind::Circle => circle(&p, t),
     };
     let mut pose = if kind.is_one_sided() && p.side == Side::Right {
         mirror_pose(&body.pose)
@@ -2449,6 +2466,33 @@ fn spin(p: &MotionParams, t: f64) -> Local {
     }
 }
 
+/// Circle: walking round a circle centred on the origin, towards `side` (its turning direction),
+/// of radius 0.7–1.1 m by `style`, from the facing `heading`. The walk's gait at 0.7 of its
+/// cadence (people slow down in a tight turn), the root path the circle (its tangent the facing),
+/// the body leaning into the turn by `atan(v² / (r g))` (up to ~12°) — turning while walking,
+/// a full circle every 3.5–12 s.
+fn circle(p: &MotionParams, t: f64) -> Local {
+    let slow = MotionParams {
+        speed: 0.7 * p.speed,
+        heading: 0.0,
+        curvature: 0.0,
+        ..*p
+    };
+    let Local { mut body, .. } = gait(&WALK, &slow, t);
+    let v = WALK.speed * slow.speed * (0.55 + 0.45 * p.amplitude);
+    let radius = 0.7 + 0.4 * p.style;
+    let omega = p.side.sign() * v / radius;
+    let yaw = p.heading + omega * t;
+    // +z raises the left side: a turn to the left leans the body to its left, −z.
+    let lean = (v * v / (radius * 9.81)).atan();
+    let root = joint(&body.pose, ROOT);
+    body.set(ROOT, root + DVec3::new(0.0, 0.0, -p.side.sign() * lean));
+    // The circle's point whose tangent is the facing (sin ψ, cos ψ): r·(−cos ψ, sin ψ) turning
+    // left, r·(cos ψ, −sin ψ) turning right.
+    let path = DVec3::new(-yaw.cos(), 0.0, yaw.sin()) * (v / omega);
+    Local { body, yaw, path }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -2912,6 +2956,64 @@ mod tests {
 
     fn joints(template: &Template, pose: &Pose) -> Vec<DVec3> {
         lfit_model::skinning::joint_transforms(template, pose).joints
+    }
+
+    /// Circle: the root goes round a circle of the drawn radius about the origin, more than one
+    /// full turn in 15 s in the side's direction, the hips facing along the path, the pelvis
+    /// leaning into the turn.
+    #[test]
+    fn circle_walks_round_its_circle_facing_along_it() {
+        let template = lfit_model::default_template();
+        for seed in 0..10 {
+            let p = params(MotionKind::Circle, seed);
+            let poses = sequence(MotionKind::Circle, &p, FPS, 450, 0.0);
+            let radius = 0.7 + 0.4 * p.style;
+            for pose in &poses {
+                let r = DVec2::new(pose[0], pose[2]).length();
+                assert!(
+                    (r - radius).abs() < 0.06,
+                    "seed {seed}: {r:.3} m from the centre of a {radius:.3} m circle"
+                );
+            }
+            let frames: Vec<Vec<DVec3>> = poses.iter().map(|q| joints(&template, q)).collect();
+            let facing = |f: &Vec<DVec3>| {
+                let across = f[L_HIP] - f[R_HIP];
+                (-across.z).atan2(across.x)
+            };
+            let turned: f64 = frames
+                .windows(2)
+                .map(|w| (facing(&w[1]) - facing(&w[0]) + PI).rem_euclid(TAU) - PI)
+                .sum();
+            assert!(
+                turned * p.side.sign() > TAU,
+                "seed {seed}: {:.0}° in 15 s",
+                turned.to_degrees()
+            );
+            // The direction of travel over a third of a second against the facing.
+            for (i, w) in poses.windows(11).enumerate().step_by(15) {
+                let step = DVec2::new(w[10][0] - w[0][0], w[10][2] - w[0][2]);
+                let travel = step.x.atan2(step.y);
+                let off = (travel - facing(&frames[i + 5]) + PI).rem_euclid(TAU) - PI;
+                assert!(
+                    off.abs() < 25f64.to_radians(),
+                    "seed {seed} frame {i}: travelling {:.0}° off the facing",
+                    off.to_degrees()
+                );
+            }
+            // Leaning in: the pelvis' up axis tilts towards the centre.
+            let tilt: f64 = poses
+                .iter()
+                .map(|q| {
+                    let up = root_rotation(q) * DVec3::Y;
+                    DVec2::new(up.x, up.z).dot(-DVec2::new(q[0], q[2]).normalize())
+                })
+                .sum::<f64>()
+                / poses.len() as f64;
+            assert!(
+                tilt > 0.02,
+                "seed {seed}: mean tilt towards the centre {tilt:.3}"
+            );
+        }
     }
 
     #[test]
