@@ -397,28 +397,21 @@ fn sequences_run_as_warm_started_chains_like_lfit_fit_and_resume_mid_chain() {
         .collect();
     std::fs::write(resumed.join("runs.csv"), text.concat()).expect("partial");
     // Rows without the record of their inputs are not resumed (nor touched).
-    let out = lfit(&[
+    let args = [
         "-q",
         "bench",
         "--config",
         path_str(&cfg),
         "--out",
         path_str(&resumed),
-    ]);
-    assert_one_line_error(&out, "without a record of their inputs");
+    ];
+    assert_one_line_error(&lfit(&args), "without a record of their inputs");
     assert_eq!(
         std::fs::read_to_string(resumed.join("runs.csv")).expect("csv"),
         text.concat()
     );
     std::fs::copy(full.join("inputs.json"), resumed.join("inputs.json")).expect("copy");
-    lfit_json(&[
-        "-q",
-        "bench",
-        "--config",
-        path_str(&cfg),
-        "--out",
-        path_str(&resumed),
-    ]);
+    lfit_json(&args);
     assert_eq!(
         csv_without_time(&resumed.join("runs.csv")),
         csv_without_time(&full.join("runs.csv"))

@@ -105,11 +105,18 @@ fn best_start_takes_the_lower_energy_candidate() {
     }
     eprintln!("best start: Φ(D) on {chose_phi} frames, the given start on {chose_given}");
     // A budget that covers the iterations but not the choice is refused.
+    refused_budget(&data, tmp.path(), "best", "10", "and the start choice");
+}
+
+/// A neural fit with `--neural-start start` and too small a `budget` fails with one line
+/// containing `reason` and writes nothing.
+fn refused_budget(data: &Path, dir: &Path, start: &str, budget: &str, reason: &str) {
+    let no = dir.join("no.json");
     let out = lfit(&[
         "-q",
         "fit",
         "--data",
-        path_str(&data),
+        path_str(data),
         "--template",
         path_str(&root(MODEL)),
         "--checkpoint",
@@ -117,14 +124,14 @@ fn best_start_takes_the_lower_energy_candidate() {
         "--method",
         "neural",
         "--budget",
-        "10",
+        budget,
         "--neural-start",
-        "best",
+        start,
         "--out",
-        path_str(&tmp.path().join("no.json")),
+        path_str(&no),
     ]);
-    assert_one_line_error(&out, "and the start choice");
-    assert!(!tmp.path().join("no.json").exists());
+    assert_one_line_error(&out, reason);
+    assert!(!no.exists());
 }
 
 /// `both` fits from the given start and from Φ(D) and keeps the lower-energy result: on single
@@ -189,26 +196,13 @@ fn both_starts_keep_the_lower_energy_fit() {
     assert!((first(&both) - want).abs() <= 1e-9 * want.abs().max(1.0));
     assert!(frames(&both).iter().all(|f| f["evaluations"] == 22));
     // A budget that covers one fit and a half is refused, nothing written.
-    let out = lfit(&[
-        "-q",
-        "fit",
-        "--data",
-        path_str(&data),
-        "--template",
-        path_str(&root(MODEL)),
-        "--checkpoint",
-        path_str(&root(CHECKPOINT)),
-        "--method",
-        "neural",
-        "--budget",
-        "21",
-        "--neural-start",
+    refused_budget(
+        &data,
+        tmp.path(),
         "both",
-        "--out",
-        path_str(&tmp.path().join("no.json")),
-    ]);
-    assert_one_line_error(&out, "twice, and the choice between the two fits");
-    assert!(!tmp.path().join("no.json").exists());
+        "21",
+        "twice, and the choice between the two fits",
+    );
 }
 
 /// `--neural-pick lowest` returns the iterate of lowest energy among θ0 … θN (the last one's

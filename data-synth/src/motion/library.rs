@@ -2958,6 +2958,20 @@ mod tests {
         lfit_model::skinning::joint_transforms(template, pose).joints
     }
 
+    /// The yaw (rad, about +y, 0 facing +z) of the hip line of forward-kinematics joints.
+    fn hip_facing(joints: &[DVec3]) -> f64 {
+        let across = joints[L_HIP] - joints[R_HIP];
+        (-across.z).atan2(across.x)
+    }
+
+    /// The signed angle the hip line turns through over the frames (unwrapped frame to frame).
+    fn hip_line_turn(frames: &[Vec<DVec3>]) -> f64 {
+        frames
+            .windows(2)
+            .map(|w| (hip_facing(&w[1]) - hip_facing(&w[0]) + PI).rem_euclid(TAU) - PI)
+            .sum()
+    }
+
     /// Circle: the root goes round a circle of the drawn radius about the origin, more than one
     /// full turn in 15 s in the side's direction, the hips facing along the path, the pelvis
     /// leaning into the turn.
@@ -2976,14 +2990,7 @@ mod tests {
                 );
             }
             let frames: Vec<Vec<DVec3>> = poses.iter().map(|q| joints(&template, q)).collect();
-            let facing = |f: &Vec<DVec3>| {
-                let across = f[L_HIP] - f[R_HIP];
-                (-across.z).atan2(across.x)
-            };
-            let turned: f64 = frames
-                .windows(2)
-                .map(|w| (facing(&w[1]) - facing(&w[0]) + PI).rem_euclid(TAU) - PI)
-                .sum();
+            let turned = hip_line_turn(&frames);
             assert!(
                 turned * p.side.sign() > TAU,
                 "seed {seed}: {:.0}° in 15 s",
@@ -2993,7 +3000,7 @@ mod tests {
             for (i, w) in poses.windows(11).enumerate().step_by(15) {
                 let step = DVec2::new(w[10][0] - w[0][0], w[10][2] - w[0][2]);
                 let travel = step.x.atan2(step.y);
-                let off = (travel - facing(&frames[i + 5]) + PI).rem_euclid(TAU) - PI;
+                let off = (travel - hip_facing(&frames[i + 5]) + PI).rem_euclid(TAU) - PI;
                 assert!(
                     off.abs() < 25f64.to_radians(),
                     "seed {seed} frame {i}: travelling {:.0}° off the facing",
@@ -3205,7 +3212,7 @@ mod tests {
 
     #[test]
     fn forward_kinematics_look_like_the_floor_stairs_and_spin_motions() {
-        use lfit_model::skeleton::{L_HAND, R_ANKLE, R_HAND, R_HIP, R_KNEE};
+        use lfit_model::skeleton::{L_HAND, R_ANKLE, R_HAND, R_KNEE};
         let template = lfit_model::default_template();
         let rest = joints(&template, &[0.0; POSE_DIM]);
         let floor = rest[L_ANKLE].y - ANKLE_HEIGHT;
@@ -3332,14 +3339,7 @@ mod tests {
             // Spin: the hip line turns through more than two full circles in 15 s, one way.
             let p = params(MotionKind::Spin, seed);
             let frames = run(MotionKind::Spin, &p);
-            let facing = |f: &Vec<DVec3>| {
-                let across = f[L_HIP] - f[R_HIP];
-                (-across.z).atan2(across.x)
-            };
-            let turned: f64 = frames
-                .windows(2)
-                .map(|w| (facing(&w[1]) - facing(&w[0]) + PI).rem_euclid(TAU) - PI)
-                .sum();
+            let turned = hip_line_turn(&frames);
             assert!(
                 turned * p.side.sign() > 2.0 * TAU,
                 "spin seed {seed}: {:.0}°",
