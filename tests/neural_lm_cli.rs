@@ -105,32 +105,35 @@ fn best_start_takes_the_lower_energy_candidate() {
     }
     eprintln!("best start: Φ(D) on {chose_phi} frames, the given start on {chose_given}");
     // A budget that covers the iterations but not the choice is refused.
-    refused_budget(&data, tmp.path(), "best", "10", "and the start choice");
+    refused(
+        &data,
+        tmp.path(),
+        &["--neural-start", "best", "--budget", "10"],
+        "and the start choice",
+    );
 }
 
-/// A neural fit with `--neural-start start` and too small a `budget` fails with one line
-/// containing `reason` and writes nothing.
-fn refused_budget(data: &Path, dir: &Path, start: &str, budget: &str, reason: &str) {
+/// A neural fit of `data` with `extra` flags fails with one line containing `reason` and writes
+/// nothing.
+fn refused(data: &Path, dir: &Path, extra: &[&str], reason: &str) {
     let no = dir.join("no.json");
-    let out = lfit(&[
+    let (model, ck) = (root(MODEL), root(CHECKPOINT));
+    let mut args = vec![
         "-q",
         "fit",
         "--data",
         path_str(data),
         "--template",
-        path_str(&root(MODEL)),
+        path_str(&model),
         "--checkpoint",
-        path_str(&root(CHECKPOINT)),
+        path_str(&ck),
         "--method",
         "neural",
-        "--budget",
-        budget,
-        "--neural-start",
-        start,
         "--out",
         path_str(&no),
-    ]);
-    assert_one_line_error(&out, reason);
+    ];
+    args.extend(extra);
+    assert_one_line_error(&lfit(&args), reason);
     assert!(!no.exists());
 }
 
@@ -196,11 +199,10 @@ fn both_starts_keep_the_lower_energy_fit() {
     assert!((first(&both) - want).abs() <= 1e-9 * want.abs().max(1.0));
     assert!(frames(&both).iter().all(|f| f["evaluations"] == 22));
     // A budget that covers one fit and a half is refused, nothing written.
-    refused_budget(
+    refused(
         &data,
         tmp.path(),
-        "both",
-        "21",
+        &["--neural-start", "both", "--budget", "21"],
         "twice, and the choice between the two fits",
     );
 }
@@ -274,28 +276,9 @@ fn lowest_pick_returns_the_lowest_energy_iterate() {
             "and the iterate choice",
         ),
     ] {
-        let out_path = tmp.path().join("no.json");
-        let (model, ck) = (root(MODEL), root(CHECKPOINT));
-        let mut args = vec![
-            "-q",
-            "fit",
-            "--data",
-            path_str(&data),
-            "--template",
-            path_str(&model),
-            "--checkpoint",
-            path_str(&ck),
-            "--method",
-            "neural",
-            "--neural-start",
-            "given",
-            "--out",
-            path_str(&out_path),
-        ];
+        let mut args = vec!["--neural-start", "given"];
         args.extend(extra);
-        let out = lfit(&args);
-        assert_one_line_error(&out, want);
-        assert!(!out_path.exists());
+        refused(&data, tmp.path(), &args, want);
     }
 }
 

@@ -122,22 +122,22 @@ def test_neural_fit_and_a_checkpoint_of_another_model(makehuman, markers_file, c
     burn = lfit.fit(makehuman, markers_file, method="neural", budget=10, checkpoint=ck)
     np.testing.assert_allclose(native.energies, [r["energy"] for r in theirs], rtol=1e-9)
     np.testing.assert_allclose(native.poses, burn.poses, atol=1e-4)
+    def as_cli(budget, flag, value):
+        """The neural fit with `--flag value` (Python keyword `flag`), asserted equal to the CLI's."""
+        out = tmp_path / f"{value}.json"
+        cli("fit", "--data", markers_file, "--model", ROOT / "models" / "makehuman-cmu_mb.npz", "--method", "neural",
+            "--checkpoint", ck, "--budget", budget, "--" + flag.replace("_", "-"), value, "--out", out)
+        theirs = json.loads(out.read_text())["frames"]
+        ours = lfit.fit(makehuman, markers_file, method="neural", budget=budget, checkpoint=ck, **{flag: value})
+        np.testing.assert_allclose(ours.energies, [r["energy"] for r in theirs], rtol=1e-9)
+        return ours
+
     # neural_pick="lowest": the CLI's fits (the lowest-energy iterate, one more evaluation).
-    out = tmp_path / "lowest.json"
-    cli("fit", "--data", markers_file, "--model", ROOT / "models" / "makehuman-cmu_mb.npz", "--method", "neural",
-        "--checkpoint", ck, "--budget", 11, "--neural-pick", "lowest", "--out", out)
-    theirs = json.loads(out.read_text())["frames"]
-    lowest = lfit.fit(makehuman, markers_file, method="neural", budget=11, checkpoint=ck, neural_pick="lowest")
-    np.testing.assert_allclose(lowest.energies, [r["energy"] for r in theirs], rtol=1e-9)
+    lowest = as_cli(11, "neural_pick", "lowest")
     assert all(a <= b for a, b in zip(lowest.energies, burn.energies))
     # neural_start="both" (a fit from the given start and one from Φ(D), the lower-energy result):
     # the CLI's fits, never above the fit from Φ(D) alone on these single frames.
-    out = tmp_path / "both.json"
-    cli("fit", "--data", markers_file, "--model", ROOT / "models" / "makehuman-cmu_mb.npz", "--method", "neural",
-        "--checkpoint", ck, "--budget", 22, "--neural-start", "both", "--out", out)
-    theirs = json.loads(out.read_text())["frames"]
-    both = lfit.fit(makehuman, markers_file, method="neural", budget=22, checkpoint=ck, neural_start="both")
-    np.testing.assert_allclose(both.energies, [r["energy"] for r in theirs], rtol=1e-9)
+    both = as_cli(22, "neural_start", "both")
     assert all(a <= b * (1 + 1e-9) for a, b in zip(both.energies, burn.energies))
     with pytest.raises(lfit.LfitError, match="unknown neural start 'all' \\(expected phi, given, best or both\\)"):
         lfit.fit(makehuman, markers_file, method="neural", budget=22, checkpoint=ck, neural_start="all")

@@ -605,13 +605,15 @@ fn input_hashes(
 
 /// Resuming is safe only over the same inputs: refuses an `out` whose runs were fitted with
 /// another data file, model, energy or checkpoint than now (a checkpoint retrained in place would
-/// otherwise leave its old rows in the report), and records the inputs of a new one.
+/// otherwise leave its old rows in the report), and records the inputs of a new one; `has_rows`:
+/// `runs.csv` holds complete rows already.
 fn check_inputs(
     config: &BenchConfig,
     out: &Path,
     data: &Path,
     template: &lfit_model::Template,
     energy: &EnergyConfig,
+    has_rows: bool,
 ) -> Result<()> {
     let now = input_hashes(config, data, template, energy)?;
     let path = out.join("inputs.json");
@@ -641,10 +643,7 @@ fn check_inputs(
     }
     // Rows without a record of their inputs (a directory of a build before this one) cannot be
     // vouched for.
-    let rows = std::fs::read_to_string(out.join("runs.csv"))
-        .map(|t| t.lines().skip(1).any(|l| !l.trim().is_empty()))
-        .unwrap_or(false);
-    if rows {
+    if has_rows {
         bail!(
             "{} holds runs without a record of their inputs ({} is missing: written by an older lfit); use another --out or remove it",
             out.display(),
@@ -723,7 +722,16 @@ pub fn run(
     let frames = parse_frames(config.frames.as_deref(), dataset.len())?;
     let template = template_for(&dataset, config.template.as_deref())?;
     let (energy_config, _) = config.energy_config()?;
-    check_inputs(config, out, &data, &template, &energy_config)?;
+    let csv = out.join("runs.csv");
+    let existing = read_runs(&csv)?;
+    check_inputs(
+        config,
+        out,
+        &data,
+        &template,
+        &energy_config,
+        !existing.is_empty(),
+    )?;
     let scenario = dataset.meta.config.scenario;
     let entries = config.entries()?;
     let preset = config.preset()?;
@@ -795,8 +803,6 @@ pub fn run(
         .filter(|(i, _)| i % shard.1 == shard.0)
         .map(|(_, u)| u)
         .collect();
-    let csv = out.join("runs.csv");
-    let existing = read_runs(&csv)?;
     let done: HashSet<(String, String, usize, usize, usize)> =
         existing.iter().map(Run::key).collect();
     let key = |u: &Unit, f: usize| {
