@@ -413,6 +413,12 @@ struct FitCmd {
     /// energies, the shape prior counted once; the sequence fitted again with that β fixed).
     #[arg(long, default_value = "per-frame")]
     sequence_shape: String,
+    /// Which free entries the fit moves: all, or observed (only the rotation entries the
+    /// observations determine to within 2°, from the data term's information at the start; the
+    /// others keep the start's values). Default: observed for neural+lm's LM stage (which also
+    /// keeps the network's β), all for every other method; not for --method neural.
+    #[arg(long)]
+    dofs: Option<String>,
     /// The subject's shape β is known, not estimated (papers/002 §3.2, HMD): `truth` (each
     /// frame's ground-truth β) or comma-separated β values; the shape entries are then frozen
     /// for every method. Required by checkpoints trained with the shape known.
@@ -708,6 +714,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 ort_threads: c.ort_threads,
                 known_shape: c.known_shape,
                 sequence_shape: c.sequence_shape,
+                dofs: c.dofs,
             };
             let bar = progress_bar(0, cli.quiet, "fit");
             let result = fit::fit(&args, &|done, total| {

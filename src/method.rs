@@ -133,6 +133,17 @@ impl MethodKind {
         matches!(self, MethodKind::Neural | MethodKind::NeuralLm)
     }
 
+    /// Which entries the method moves unless told (`--dofs`): `neural+lm`'s LM stage only the
+    /// observed ones (`lfit_fitters::observed`: on the captured clip's markers it ends at 8.4 mm
+    /// V2V where LM over every entry ends at 11.7, the network alone at 9.5), every other method
+    /// every free entry (their published figures and the scipy parity are over all entries).
+    pub fn default_dofs(self) -> lfit_fitters::Dofs {
+        match self {
+            MethodKind::NeuralLm => lfit_fitters::Dofs::Observed,
+            _ => lfit_fitters::Dofs::All,
+        }
+    }
+
     /// Every name, comma-separated (for messages).
     pub fn list() -> String {
         MethodKind::ALL.map(MethodKind::name).join(", ")
@@ -222,6 +233,8 @@ pub struct ClassicOptions {
     pub step_scale: f64,
     /// CMA-ES's update variant (diagonal, elitist, population; `cma` only).
     pub cma: lfit_fitters::optim::cma::CmaVariant,
+    /// Which free entries the fit moves (`--dofs`).
+    pub dofs: lfit_fitters::Dofs,
 }
 
 impl Default for ClassicOptions {
@@ -231,6 +244,7 @@ impl Default for ClassicOptions {
             strategy: Strategy::Holistic,
             step_scale: 1.0,
             cma: Default::default(),
+            dofs: lfit_fitters::Dofs::All,
         }
     }
 }
@@ -243,13 +257,29 @@ pub fn build_classic(kind: MethodKind, options: ClassicOptions) -> Result<Box<dy
             "method {kind} runs the neural fitter, which is loaded from a checkpoint (--checkpoint DIR), not built"
         );
     }
-    Ok(lfit_fitters::build_fitter_tuned(
+    let fitter = lfit_fitters::build_fitter_tuned(
         kind.name(),
         options.preset,
         options.strategy,
         options.step_scale,
         options.cma,
-    )?)
+    )?;
+    Ok(match options.dofs {
+        lfit_fitters::Dofs::All => fitter,
+        lfit_fitters::Dofs::Observed => Box::new(lfit_fitters::ObservedDofs::new(fitter)),
+    })
+}
+
+/// `--dofs` by name, or the method's default ([`MethodKind::default_dofs`]); refused for
+/// `neural` (the network moves the entries of its checkpoint's mask).
+pub fn dofs_for(kind: MethodKind, name: Option<&str>) -> Result<lfit_fitters::Dofs> {
+    match name {
+        None => Ok(kind.default_dofs()),
+        Some(_) if kind == MethodKind::Neural => bail!(
+            "--dofs is for classical methods and neural+lm's LM stage: --method neural moves the entries of its checkpoint's DOF mask"
+        ),
+        Some(n) => n.parse().map_err(anyhow::Error::msg),
+    }
 }
 
 /// The error of a neural method in a build without the `neural` feature (no Burn).
@@ -267,6 +297,7 @@ pub fn load_neural_named(
     runtime: &str,
     device: &str,
     ort_threads: Option<usize>,
+    dofs: Option<&str>,
 ) -> Result<Box<dyn Fitter>> {
     load_neural(
         kind,
@@ -277,6 +308,7 @@ pub fn load_neural_named(
             runtime: runtime.parse().map_err(anyhow::Error::msg)?,
             device,
             ort_threads,
+            dofs: dofs_for(kind, dofs)?,
         },
     )
 }
@@ -291,6 +323,7 @@ pub fn load_neural_named(
     _runtime: &str,
     _device: &str,
     _ort_threads: Option<usize>,
+    _dofs: Option<&str>,
 ) -> Result<Box<dyn Fitter>> {
     bail!(NO_NEURAL)
 }
@@ -309,6 +342,8 @@ pub struct NeuralOptions<'a> {
     pub device: &'a str,
     /// ONNX Runtime's intra-op threads; ORT only.
     pub ort_threads: Option<usize>,
+    /// Which entries `neural+lm`'s LM stage moves (`neural`: `All` only).
+    pub dofs: lfit_fitters::Dofs,
 }
 
 /// The fitter of a neural method (`neural`, `neural+lm`), loaded from its checkpoint.
@@ -347,8 +382,15 @@ pub fn load_neural(kind: MethodKind, options: &NeuralOptions<'_>) -> Result<Box<
     };
     let fitter = fitter.with_pick(options.pick);
     Ok(match kind {
-        MethodKind::NeuralLm => Box::new(lfit_infer::NeuralThenLm::new(fitter)?),
-        _ => Box::new(fitter),
+        MethodKind::NeuralLm => {
+            Box::new(lfit_infer::NeuralThenLm::new(fitter)?.with_dofs(options.dofs)?)
+        }
+        _ => {
+            if options.dofs != lfit_fitters::Dofs::All {
+                bail!("--dofs is for classical methods and neural+lm's LM stage, not {kind}");
+            }
+            Box::new(fitter)
+        }
     })
 }
 

@@ -64,6 +64,21 @@ fn num(v: &Value) -> f64 {
     v.as_f64().expect("number")
 }
 
+/// Indices of the thumbs' rotation entries in the MakeHuman body's parameter vector (`lfit model
+/// info`'s names): no marker lies on a thumb.
+fn thumb_entries() -> Vec<usize> {
+    let info = lfit_json(&["model", "info", "--model", path_str(&root(MODEL))]);
+    let names = info["parameters"]["names"].as_array().expect("names");
+    let thumbs: Vec<usize> = names
+        .iter()
+        .enumerate()
+        .filter(|(_, n)| n.as_str().is_some_and(|n| n.contains("Thumb.")))
+        .map(|(i, _)| i)
+        .collect();
+    assert_eq!(thumbs.len(), 6);
+    thumbs
+}
+
 /// `best` starts from the lower-energy of the given start and Φ(D), and counts the two
 /// evaluations the choice costs.
 #[test]
@@ -284,7 +299,10 @@ fn lowest_pick_returns_the_lowest_energy_iterate() {
 
 /// `neural+lm` spends the network's evaluations, then LM's from the network's result: its
 /// energy is never above the network's alone, its evaluations add up and stay within the budget,
-/// and its iterates are the network's followed by the final pose.
+/// and its iterates are the network's followed by the final pose. By default (`--dofs observed`)
+/// LM keeps the network's β and the rotations the markers do not determine (the thumbs) and
+/// spends one evaluation on the data's information; with `--dofs all` it moves every entry, the
+/// thumbs included, and ends further from the truth.
 #[test]
 fn neural_then_lm_refines_the_network_within_one_budget() {
     let tmp = tempfile::tempdir().expect("tmp");
@@ -300,16 +318,42 @@ fn neural_then_lm_refines_the_network_within_one_budget() {
         &tmp.path().join("both.json"),
         &[&["--method", "neural+lm"][..], &common[..]].concat(),
     );
-    assert_eq!(both["method"], "neural-given+lm");
-    let mut lower = 0;
-    for (a, b) in frames(&nn).iter().zip(frames(&both)) {
+    let all = fit(
+        &data,
+        &tmp.path().join("all.json"),
+        &[&["--method", "neural+lm", "--dofs", "all"][..], &common[..]].concat(),
+    );
+    assert_eq!(both["method"], "neural-given+lm-observed");
+    assert_eq!(both["dofs"], "observed");
+    assert_eq!(all["method"], "neural-given+lm");
+    assert!(all.get("dofs").is_none());
+    let thumbs = thumb_entries();
+    let (mut lower, mut thumbs_moved) = (0, 0);
+    for ((a, b), c) in frames(&nn).iter().zip(frames(&both)).zip(frames(&all)) {
         let (ea, eb) = (num(&a["energy"]), num(&b["energy"]));
         assert!(eb <= ea, "neural+lm {eb} above the network alone {ea}");
+        assert!(num(&c["energy"]) <= ea);
         if eb < 0.99 * ea {
             lower += 1;
         }
+        // Observed: the network's β and thumbs, exactly.
+        assert_eq!(b["shape"], a["shape"], "β is the network's");
+        for &i in &thumbs {
+            assert_eq!(
+                b["pose"][i], a["pose"][i],
+                "thumb entry {i} is the network's"
+            );
+            if c["pose"][i] != a["pose"][i] {
+                thumbs_moved += 1;
+            }
+        }
         let evals = b["evaluations"].as_u64().expect("evaluations");
-        assert!(evals > 10 && evals <= 300, "evaluations {evals}");
+        assert!(evals > 11 && evals <= 300, "evaluations {evals}");
+        assert_eq!(
+            b["trace"][0][0].as_u64(),
+            a["trace"][0][0].as_u64(),
+            "the trace starts with the network's"
+        );
         let iterates = b["v2v_mm_per_iteration"].as_array().expect("iterates");
         assert_eq!(
             iterates.len(),
@@ -328,6 +372,14 @@ fn neural_then_lm_refines_the_network_within_one_budget() {
     assert!(
         lower >= 4,
         "LM lowered the energy of only {lower} of 6 frames"
+    );
+    assert!(thumbs_moved > 0, "--dofs all left every thumb where it was");
+    let v2v = |r: &Value| num(&r["summary"]["mean_v2v_mm"]);
+    assert!(
+        v2v(&both) < v2v(&all),
+        "observed {} not below all {}",
+        v2v(&both),
+        v2v(&all)
     );
     // A budget the network alone uses up is refused, and nothing is written.
     let out_path = tmp.path().join("no.json");
@@ -348,6 +400,25 @@ fn neural_then_lm_refines_the_network_within_one_budget() {
         path_str(&out_path),
     ]);
     assert_one_line_error(&out, "leaves LM nothing");
+    assert!(!out_path.exists());
+    // With --dofs observed (the default) the information costs one more: 11 is refused too.
+    let out = lfit(&[
+        "-q",
+        "fit",
+        "--data",
+        path_str(&data),
+        "--template",
+        path_str(&root(MODEL)),
+        "--checkpoint",
+        path_str(&root(CHECKPOINT)),
+        "--method",
+        "neural+lm",
+        "--budget",
+        "11",
+        "--out",
+        path_str(&out_path),
+    ]);
+    assert_one_line_error(&out, "needs at least 12 (with --dofs observed");
     assert!(!out_path.exists());
     let out = lfit(&[
         "-q",
@@ -531,4 +602,106 @@ fn joint_shape_gives_a_sequence_the_beta_of_its_summed_energy() {
     ]);
     assert_one_line_error(&out, "--sequence-shape joint needs a sequence dataset");
     assert!(!out_path.exists());
+}
+
+/// `--dofs observed` for a classical method: LM from the dataset's start keeps the thumbs (which
+/// no marker determines) at the start's values and moves the rest, and counts the one evaluation
+/// the data information costs; bad `--dofs` values and `--dofs` with `--method neural` are
+/// refused with one line and nothing written.
+#[test]
+fn observed_dofs_keep_what_the_markers_do_not_see() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let data = synth(tmp.path(), "local.npz", "local", 4, 0x5EED_0009);
+    let model = root(MODEL);
+    let lm = |out: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "-q",
+            "fit",
+            "--data",
+            path_str(&data),
+            "--template",
+            path_str(&model),
+            "--method",
+            "lm",
+            "--out",
+            path_str(out),
+        ];
+        args.extend(extra);
+        lfit(&args)
+    };
+    let out = lm(
+        &tmp.path().join("obs.json"),
+        &["--dofs", "observed", "--budget", "200"],
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let obs: Value =
+        serde_json::from_slice(&std::fs::read(tmp.path().join("obs.json")).expect("result"))
+            .expect("json");
+    assert_eq!(obs["method"], "lm-observed");
+    assert_eq!(obs["dofs"], "observed");
+    let dataset = lfit::synth::Dataset::load(&data).expect("dataset");
+    let thumbs = thumb_entries();
+    let mut moved = 0;
+    for f in frames(&obs) {
+        let k = f["frame"].as_u64().expect("frame") as usize;
+        let start = &dataset.start_poses[k];
+        for &i in &thumbs {
+            assert_eq!(
+                num(&f["pose"][i]),
+                start[i],
+                "frame {k}: thumb entry {i} moved"
+            );
+        }
+        // The hips' rotation is seen by every marker: it moved.
+        if num(&f["pose"][3]) != start[3] {
+            moved += 1;
+        }
+        assert!(num(&f["energy"]) <= num(&f["start_energy"]));
+        let evals = f["evaluations"].as_u64().expect("evaluations");
+        assert!((2..=200).contains(&evals), "evaluations {evals}");
+    }
+    assert!(moved >= 3, "the hips moved in only {moved} of 4 frames");
+    for (extra, want) in [
+        (
+            &["--dofs", "some", "--budget", "200"][..],
+            "unknown dofs 'some' (expected all or observed)",
+        ),
+        (
+            &["--dofs", "observed", "--budget", "1"][..],
+            "budget of at least 2",
+        ),
+    ] {
+        let path = tmp.path().join("no.json");
+        let out = lm(&path, extra);
+        assert_one_line_error(&out, want);
+        assert!(!path.exists());
+    }
+    let path = tmp.path().join("no.json");
+    let out = lfit(&[
+        "-q",
+        "fit",
+        "--data",
+        path_str(&data),
+        "--template",
+        path_str(&root(MODEL)),
+        "--checkpoint",
+        path_str(&root(CHECKPOINT)),
+        "--method",
+        "neural",
+        "--budget",
+        "10",
+        "--dofs",
+        "observed",
+        "--out",
+        path_str(&path),
+    ]);
+    assert_one_line_error(
+        &out,
+        "--dofs is for classical methods and neural+lm's LM stage",
+    );
+    assert!(!path.exists());
 }

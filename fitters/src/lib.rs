@@ -8,6 +8,7 @@ pub mod error;
 pub mod fitter;
 pub mod lbfgs;
 pub mod least_squares;
+pub mod observed;
 pub mod optim;
 pub mod zeroth;
 
@@ -15,6 +16,7 @@ pub use error::FitError;
 pub use fitter::{FitRequest, FitResult, Fitter, Strategy, split_budget};
 pub use lbfgs::LbfgsFitter;
 pub use least_squares::{LeastSquaresFitter, LeastSquaresMethod};
+pub use observed::{Dofs, ObservedDofs};
 pub use optim::{Method, Preset};
 pub use zeroth::ZerothOrderFitter;
 

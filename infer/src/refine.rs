@@ -3,9 +3,16 @@
 //! evaluations; LM then converges there on the exact energy (papers/002 §4 suggests a learned
 //! start for classical refinement; LM is lfit's most accurate classical solver on the sparse
 //! modalities, `docs/results/learned-vs-classical.md`).
+//!
+//! With [`Dofs::Observed`] (the CLI's default for `neural+lm`) LM moves only the rotation
+//! entries the observations determine ([`lfit_fitters::observed`]) and keeps the network's β:
+//! what the sensor leaves open (fingers, thumbs, a limb's twist under 2D keypoints; the subject's
+//! shape from one frame) stays the network's estimate, which is learned from human motion, where
+//! LM would set it from the noise of the few rows that touch it.
 
 use lfit_fitters::optim::Preset;
-use lfit_fitters::{FitError, FitRequest, FitResult, Fitter, Strategy};
+use lfit_fitters::{Dofs, FitError, FitRequest, FitResult, Fitter, ObservedDofs, Strategy};
+use lfit_model::{Block, DofMask};
 
 use crate::NeuralFitter;
 
@@ -14,6 +21,7 @@ use crate::NeuralFitter;
 pub struct NeuralThenLm {
     pub neural: NeuralFitter,
     lm: LmFitter,
+    dofs: Dofs,
 }
 
 struct LmFitter(Box<dyn Fitter>);
@@ -25,20 +33,55 @@ impl std::fmt::Debug for LmFitter {
 }
 
 impl NeuralThenLm {
-    /// The network of `neural` followed by holistic LM (exact Jacobian).
+    /// The network of `neural` followed by holistic LM (exact Jacobian) over every free entry
+    /// ([`Dofs::All`]).
     pub fn new(neural: NeuralFitter) -> Result<Self, FitError> {
         let lm = lfit_fitters::build_fitter("lm", Preset::Nevergrad, Strategy::Holistic)?;
         Ok(Self {
             neural,
             lm: LmFitter(lm),
+            dofs: Dofs::All,
         })
+    }
+
+    /// Which entries LM moves (module docs).
+    pub fn with_dofs(mut self, dofs: Dofs) -> Result<Self, FitError> {
+        let lm = lfit_fitters::build_fitter("lm", Preset::Nevergrad, Strategy::Holistic)?;
+        self.lm = LmFitter(match dofs {
+            Dofs::All => lm,
+            Dofs::Observed => Box::new(ObservedDofs::new(lm)),
+        });
+        self.dofs = dofs;
+        Ok(self)
+    }
+
+    /// Evaluations the network leaves LM at the least (one for the data information with
+    /// [`Dofs::Observed`], one for LM).
+    fn lm_minimum(&self) -> usize {
+        match self.dofs {
+            Dofs::All => 1,
+            Dofs::Observed => 2,
+        }
+    }
+
+    /// LM's mask: the request's, without β with [`Dofs::Observed`] (the network's β is kept).
+    fn lm_mask(&self, request: &FitRequest<'_>) -> DofMask {
+        let mut mask = request.mask.clone();
+        if self.dofs == Dofs::Observed {
+            let shape = request.energy.template().layout().range(Block::Shape);
+            mask.free.retain(|i| !shape.contains(i));
+        }
+        mask
     }
 }
 
 impl Fitter for NeuralThenLm {
     fn name(&self) -> String {
         let neural = self.neural.name();
-        format!("{neural}+lm")
+        match self.dofs {
+            Dofs::All => format!("{neural}+lm"),
+            Dofs::Observed => format!("{neural}+lm-observed"),
+        }
     }
 
     fn fit(&self, request: &FitRequest<'_>) -> Result<FitResult, FitError> {
@@ -52,11 +95,17 @@ impl Fitter for NeuralThenLm {
     /// trace are the sums of both stages; the iterates are the network's, then LM's result.
     fn fit_batch(&self, requests: &[FitRequest<'_>]) -> Result<Vec<FitResult>, FitError> {
         let network = self.neural.evaluations_per_fit();
-        if let Some(r) = requests.iter().find(|r| r.budget <= network) {
+        let least = network + self.lm_minimum();
+        if let Some(r) = requests.iter().find(|r| r.budget < least) {
+            let what = match self.dofs {
+                Dofs::All => "",
+                Dofs::Observed => {
+                    " (with --dofs observed: one for the data's information, one for LM)"
+                }
+            };
             return Err(FitError::Neural(format!(
-                "budget {} leaves LM nothing after the network's {network} evaluations (neural+lm needs at least {})",
+                "budget {} leaves LM nothing after the network's {network} evaluations (neural+lm needs at least {least}{what})",
                 r.budget,
-                network + 1
             )));
         }
         let first = self.neural.fit_batch(requests)?;
@@ -65,7 +114,7 @@ impl Fitter for NeuralThenLm {
             let refine = FitRequest {
                 energy: r.energy,
                 start: nn.pose.clone(),
-                mask: r.mask.clone(),
+                mask: self.lm_mask(r),
                 bounds: r.bounds.clone(),
                 budget: r.budget - nn.evaluations as usize,
                 seed: r.seed,

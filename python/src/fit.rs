@@ -286,11 +286,12 @@ fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
 /// dataset names). `data`: a `Dataset` or the path of one. `method`: `lm`, `lm-triggs`, `gn`,
 /// `lbfgs`, `cma`, `pso`, `de`, ... or `neural`/`neural+lm` (with `checkpoint`; needs a wheel
 /// built with the `neural` feature). `budget`: energy evaluations per frame. `frames`: a
-/// `--frames` string or a sequence of indices. `known_shape`: `"truth"` or β. `energy`: a dict
+/// `--frames` string or a sequence of indices. `known_shape`: `"truth"` or β. `dofs`: `"all"` or
+/// `"observed"` (`lfit fit --dofs`; default the method's own). `energy`: a dict
 /// or JSON file of the energy configuration. `progress(done, total)` is called after each
 /// frame. Runs with the GIL released; Ctrl-C stops it between frames (`KeyboardInterrupt`).
 #[pyfunction]
-#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", sequence_shape="per-frame", device="flex", runtime="burn", ort_threads=None, progress=None))]
+#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", sequence_shape="per-frame", dofs=None, device="flex", runtime="burn", ort_threads=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn fit(
     py: Python<'_>,
@@ -313,6 +314,7 @@ pub fn fit(
     neural_start: &str,
     neural_pick: &str,
     sequence_shape: &str,
+    dofs: Option<String>,
     device: &str,
     runtime: &str,
     ort_threads: Option<usize>,
@@ -348,6 +350,7 @@ pub fn fit(
         ort_threads,
         known_shape: known_shape_arg(known_shape)?,
         sequence_shape: sequence_shape.to_string(),
+        dofs,
     };
     let document = without_gil(py, |interrupted| {
         let report = |done: usize, total: usize| -> anyhow::Result<()> {

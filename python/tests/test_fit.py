@@ -112,6 +112,16 @@ def test_neural_fit_and_a_checkpoint_of_another_model(makehuman, markers_file, c
     theirs = json.loads(out.read_text())["frames"]
     ours = lfit.fit(makehuman, markers_file, method="neural+lm", budget=40, checkpoint=ck)
     np.testing.assert_allclose(ours.energies, [r["energy"] for r in theirs], rtol=1e-9)
+    # dofs="all": LM over every entry, the CLI's `--dofs all`; a different fit from the default's.
+    out = tmp_path / "all.json"
+    cli("fit", "--data", markers_file, "--model", ROOT / "models" / "makehuman-cmu_mb.npz", "--method", "neural+lm",
+        "--checkpoint", ck, "--budget", 40, "--dofs", "all", "--out", out)
+    theirs = json.loads(out.read_text())["frames"]
+    everything = lfit.fit(makehuman, markers_file, method="neural+lm", budget=40, checkpoint=ck, dofs="all")
+    np.testing.assert_allclose(everything.energies, [r["energy"] for r in theirs], rtol=1e-9)
+    assert not np.allclose(everything.poses, ours.poses)
+    with pytest.raises(lfit.LfitError, match="unknown dofs 'most'"):
+        lfit.fit(makehuman, markers_file, method="neural+lm", budget=40, checkpoint=ck, dofs="most")
     # runtime="native" (lfit's own f32 forward): the CLI's native fits, and within f32 rounding of
     # Burn's (the network outputs agree to ~1e-6, tests/onnx_runtime.rs).
     out = tmp_path / "native.json"

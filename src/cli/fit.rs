@@ -145,6 +145,8 @@ pub struct FitArgs {
     pub known_shape: Option<String>,
     /// `--sequence-shape`: `per-frame`, `first-pass` or `joint` ([`crate::fitting::SequenceShape`]).
     pub sequence_shape: String,
+    /// `--dofs`: `all` or `observed` ([`lfit_fitters::Dofs`]); `None`: the method's default.
+    pub dofs: Option<String>,
 }
 
 /// What `lfit fit` settles before it touches the frames: the parsed settings, the fitter (a
@@ -230,6 +232,7 @@ fn prepare(
             &args.runtime,
             &args.device,
             args.ort_threads,
+            args.dofs.as_deref(),
         )?
     } else {
         if args.checkpoint.is_some() {
@@ -245,6 +248,7 @@ fn prepare(
                 strategy,
                 step_scale,
                 cma,
+                dofs: crate::method::dofs_for(args.method, args.dofs.as_deref())?,
             },
         )?
     };
@@ -502,6 +506,11 @@ fn fit_prepared(
         if args.neural_pick != "last" {
             out["neural_pick"] = json!(args.neural_pick);
         }
+    }
+    // Which entries moved, where not all of them (the method's name says it too).
+    let dofs = crate::method::dofs_for(args.method, args.dofs.as_deref())?;
+    if dofs != lfit_fitters::Dofs::All {
+        out["dofs"] = json!(dofs.name());
     }
     Ok(out)
 }

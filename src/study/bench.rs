@@ -113,6 +113,11 @@ pub struct BenchConfig {
     /// ([`crate::fitting::SequenceShape`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sequence_shape: Option<String>,
+    /// Which free entries each fit moves: `all` or `observed` (`lfit fit --dofs`); default each
+    /// method's own (`observed` for `neural+lm`'s LM stage, `all` otherwise). `neural` always
+    /// moves its checkpoint's entries.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dofs: Option<String>,
     #[serde(default)]
     pub seed: u64,
     #[serde(default = "alpha")]
@@ -195,6 +200,9 @@ impl BenchConfig {
             bail!("strategies: need at least one");
         }
         self.preset()?;
+        for m in &self.methods {
+            self.dofs_for(m.kind)?;
+        }
         self.entries()?;
         match (&self.data, &self.synth) {
             (Some(d), None) if !d.exists() => bail!("data file {} does not exist", d.display()),
@@ -303,6 +311,12 @@ impl BenchConfig {
         }
         p.parse()
             .map_err(|_| lfit_fitters::FitError::UnknownPreset(p.to_string()).into())
+    }
+
+    /// `dofs` for one method (`None` for `neural`: its checkpoint's entries).
+    fn dofs_for(&self, kind: MethodKind) -> Result<lfit_fitters::Dofs> {
+        let name = self.dofs.as_deref().filter(|_| kind != MethodKind::Neural);
+        crate::method::dofs_for(kind, name).context("dofs")
     }
 
     /// The sequence shape policy (`sequence_shape`, default per-frame).
@@ -749,6 +763,10 @@ pub fn run(
                 config.runtime.as_deref().unwrap_or("burn"),
                 "flex",
                 None,
+                config
+                    .dofs
+                    .as_deref()
+                    .filter(|_| kind != MethodKind::Neural),
             )?);
         } else {
             let (step_scale, cma) = if kind.zeroth_order().is_some() {
@@ -763,6 +781,7 @@ pub fn run(
                     strategy: s.parse()?,
                     step_scale,
                     cma,
+                    dofs: config.dofs_for(kind)?,
                 },
             )?);
         }

@@ -812,6 +812,37 @@ impl Energy {
         Ok(self.compute_least_squares(params, true, form, rows))
     }
 
+    /// How well the observations alone determine each parameter at `params`: the diagonal of the
+    /// data term's Fisher information in σ-normalised units, `Σ_g Σ_k (∂pred_k/∂θ_j / σ_g)²` over
+    /// the visible groups (the robust loss's folding included: an outlier beyond Huber's δ informs
+    /// less). `1/√info_j` is the standard deviation to which the data fix entry `j` with every
+    /// other entry held (conditional, not marginal); a parameter no observation moves has 0.
+    /// Priors and joint limits are not included. Counts one evaluation with a Jacobian; fails as
+    /// [`Energy::least_squares`] does (a dense modality, a wrong-length vector).
+    pub fn data_information(&self, params: &[f64]) -> Result<Vec<f64>> {
+        let ls = self.least_squares_with(params, true, RobustForm::Folded, JacobianRows::Dense)?;
+        let dim = self.dim();
+        let mut info = vec![0.0; dim];
+        let Target::Sparse { visible, .. } = &self.target else {
+            return Ok(info);
+        };
+        let seen = self.groups.iter().filter(|g| visible[g.start]).count();
+        let w = self.config.weights.data;
+        if seen == 0 || w <= 0.0 {
+            return Ok(info);
+        }
+        // The rows carry c0 = √(w / seen) (the data term is the mean over visible groups).
+        let scale = seen as f64 / w;
+        for (_, rows) in ls.blocks.iter().filter(|(name, _)| *name == "data") {
+            for r in rows.clone() {
+                for (i, j) in info.iter_mut().zip(ls.row(r)) {
+                    *i += scale * j * j;
+                }
+            }
+        }
+        Ok(info)
+    }
+
     fn check_least_squares(&self, params: &[f64]) -> Result<()> {
         if let Some(why) = self.least_squares_unsupported() {
             return Err(ModelError::Target(why));

@@ -892,6 +892,120 @@ mod least_squares_form {
         }
     }
 
+    /// The data information is the σ-normalised observation Jacobian's column sums of squares,
+    /// against central differences of the unweighted residual R(θ) (near the truth, inside
+    /// Huber's δ), on every sparse sensor of the MakeHuman body; it does not depend on the data
+    /// term's weight or on the priors; an unseen group adds nothing; a parameter no observation
+    /// moves has none (markers: no marker on the thumbs).
+    #[test]
+    fn data_information_is_the_sigma_normalised_jacobian_columns() {
+        use rand::{Rng, SeedableRng};
+        let t = makehuman_body();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(141);
+        let dim = t.layout().dim();
+        for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
+            let sensor = Sensor::default_for(modality, &t);
+            let truth: Vec<f64> = (0..dim).map(|_| rng.random_range(-0.3..0.3)).collect();
+            let pred = sensor.predict_sparse(&t, &truth);
+            let make = |config: EnergyConfig, visible: Vec<bool>| {
+                Energy::new(
+                    t.clone(),
+                    sensor.clone(),
+                    Target::Sparse {
+                        values: pred.values.clone(),
+                        visible,
+                    },
+                    config,
+                )
+                .unwrap()
+            };
+            let e = make(EnergyConfig::default().for_gradient(), pred.visible.clone());
+            let x: Vec<f64> = truth
+                .iter()
+                .map(|v| v + rng.random_range(-0.01..0.01))
+                .collect();
+            let info = e.data_information(&x).unwrap();
+            let h = 1e-5;
+            let mut want = vec![0.0; dim];
+            for (c, w) in want.iter_mut().enumerate() {
+                let at = |k: f64| {
+                    let mut y = x.clone();
+                    y[c] += k * h;
+                    e.residual(&y)
+                };
+                let (a, b) = (at(-1.0), at(1.0));
+                for g in e.groups.iter().filter(|g| pred.visible[g.start]) {
+                    for i in g.start..g.start + g.len {
+                        let d = (b[i] - a[i]) / (2.0 * h) / g.sigma;
+                        *w += d * d;
+                    }
+                }
+            }
+            let top = want.iter().cloned().fold(0.0, f64::max);
+            assert!(top > 0.0, "{modality}");
+            for (c, (a, b)) in info.iter().zip(&want).enumerate() {
+                assert!(
+                    (a - b).abs() <= 1e-5 * b.abs().max(1e-3 * top),
+                    "{modality} column {c}: {a} against differences {b}"
+                );
+            }
+            // Not the weights': the data term's weight and the priors leave it as it is.
+            let mut heavy = EnergyConfig::default().for_gradient();
+            heavy.weights.data = 4.0;
+            heavy.weights.shape = 0.5;
+            let other = make(heavy, pred.visible.clone())
+                .data_information(&x)
+                .unwrap();
+            for (a, b) in info.iter().zip(&other) {
+                assert!(
+                    (a - b).abs() <= 1e-9 * a.abs().max(1e-12),
+                    "{modality}: {a} vs {b}"
+                );
+            }
+            // One group unseen: its rows' part is gone, nothing else changes.
+            let g = e.groups[0];
+            let mut visible = pred.visible.clone();
+            visible[g.start..g.start + g.len].fill(false);
+            let less = make(EnergyConfig::default().for_gradient(), visible)
+                .data_information(&x)
+                .unwrap();
+            let mut seen_group = vec![0.0; dim];
+            for (c, v) in seen_group.iter_mut().enumerate() {
+                let at = |k: f64| {
+                    let mut y = x.clone();
+                    y[c] += k * h;
+                    e.residual(&y)
+                };
+                let (a, b) = (at(-1.0), at(1.0));
+                for i in g.start..g.start + g.len {
+                    let d = (b[i] - a[i]) / (2.0 * h) / g.sigma;
+                    *v += d * d;
+                }
+            }
+            for c in 0..dim {
+                assert!(
+                    (info[c] - less[c] - seen_group[c]).abs() <= 1e-5 * top,
+                    "{modality} column {c}: unseen group"
+                );
+            }
+        }
+        // The markers set has no marker on a thumb: next to nothing (the hand marker's skinning
+        // weights on it), against the root's rotation.
+        let e = makehuman_energy(&t, Modality::Markers, &mut rng).0;
+        let info = e.data_information(&vec![0.0; dim]).unwrap();
+        for axis in ["rx", "ry", "rz"] {
+            let i = t
+                .layout()
+                .index_of(&format!("LThumb.{axis}"))
+                .expect("LThumb");
+            assert!(
+                info[i] < 1e-6 * info[rot_offset(0)],
+                "LThumb.{axis}: {}",
+                info[i]
+            );
+        }
+    }
+
     /// The normal equations with rows of one pattern applied together equal the row-by-row
     /// reference bit for bit (every entry sums the rows in the same order), on the MakeHuman
     /// body's three sparse modalities, over all columns, a subset, and a subset out of order.

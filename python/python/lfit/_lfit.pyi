@@ -296,6 +296,7 @@ def fit(
     neural_start: str = "phi",
     neural_pick: str = "last",
     sequence_shape: str = "per-frame",
+    dofs: Optional[str] = None,
     device: str = "flex",
     runtime: str = "burn",
     ort_threads: Optional[int] = None,

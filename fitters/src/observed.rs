@@ -1,0 +1,215 @@
+//! `--dofs observed`: a fit moves only the entries its observations determine.
+//!
+//! A sparse sensor does not see every joint: a markers set has one marker per hand for the 18
+//! finger and thumb rotations of the MakeHuman body, 2D keypoints see no fingers and little of a
+//! limb's twist. The energy has no pose prior (only joint limits), so a converging solver sets
+//! those rotations from the noise of the few rows that touch them; on the captured clip this alone
+//! costs Levenberg–Marquardt 2–3 mm of V2V (hands are a large share of the mesh's vertices). With
+//! `Observed`, every rotation entry the data term determines to no better than
+//! [`OBSERVED_MAX_STD_DEG`] (the conditional standard deviation `1/√info` of
+//! [`Energy::data_information`] at the start) keeps its start value; translation, shape and
+//! expression entries stay as the request frees them. Marker-based body fitting keeps unobserved
+//! hands at a given pose in the same way (MoSh++, Mahmood et al. 2019, fits the fingers only where
+//! hand markers exist). The objective is unchanged: only the mask is.
+
+use std::time::Instant;
+
+use lfit_model::{Block, DofMask, Energy};
+
+use crate::{FitError, FitRequest, FitResult, Fitter};
+
+/// Largest conditional standard deviation, in degrees, of a rotation entry that an `Observed`
+/// fit still moves. Chosen on the validation subject's frames (CMU subject 6, markers, 300 local
+/// frames, `neural+lm`): 1° 9.11 mm, **2° 9.09**, 3° 9.55, 5° 9.64, no entry frozen 11.42
+/// (`docs/results/captured-motion.md`, round 14); the evaluation clip was not used to choose it.
+pub const OBSERVED_MAX_STD_DEG: f64 = 2.0;
+
+/// Which of a request's free entries a fit moves (`lfit fit --dofs`, bench `dofs`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Dofs {
+    /// Every free entry of the request (the scenario's mask).
+    #[default]
+    All,
+    /// Only the entries the observations determine (module docs); the others keep the start's
+    /// values.
+    Observed,
+}
+
+impl Dofs {
+    pub fn name(self) -> &'static str {
+        match self {
+            Dofs::All => "all",
+            Dofs::Observed => "observed",
+        }
+    }
+}
+
+impl std::str::FromStr for Dofs {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "all" => Ok(Dofs::All),
+            "observed" => Ok(Dofs::Observed),
+            _ => Err(format!("unknown dofs '{s}' (expected all or observed)")),
+        }
+    }
+}
+
+/// `mask` without the rotation entries whose data information `info` (per entry of the
+/// parameter vector, [`Energy::data_information`]) leaves a conditional standard deviation above
+/// `max_std` radians: `info · max_std² < 1`. `None` when nothing would stay free.
+pub fn observed_mask(
+    mask: &DofMask,
+    info: &[f64],
+    rotations: std::ops::Range<usize>,
+    max_std: f64,
+) -> Option<DofMask> {
+    let free: Vec<usize> = mask
+        .free
+        .iter()
+        .copied()
+        .filter(|&i| !rotations.contains(&i) || info[i] * max_std * max_std >= 1.0)
+        .collect();
+    if free.is_empty() {
+        return None;
+    }
+    Some(DofMask {
+        name: format!("{}-observed", mask.name),
+        free,
+    })
+}
+
+/// The request's mask for an `Observed` fit from `at`: one counted evaluation with a Jacobian
+/// (the data information). `None`: no entry would stay free.
+pub fn observed_request_mask(
+    energy: &Energy,
+    mask: &DofMask,
+    at: &[f64],
+) -> Result<Option<DofMask>, FitError> {
+    let info = energy
+        .data_information(at)
+        .map_err(|e| FitError::LeastSquares(format!("--dofs observed: {e}")))?;
+    let rotations = energy.template().layout().range(Block::Rotations);
+    Ok(observed_mask(
+        mask,
+        &info,
+        rotations,
+        OBSERVED_MAX_STD_DEG.to_radians(),
+    ))
+}
+
+/// A fitter that moves only the observed entries (module docs): it spends one evaluation of the
+/// budget on the data information at the (clamped) start, then runs `inner` with the rest on the
+/// reduced mask. The evaluations, time and trace it reports include that evaluation.
+pub struct ObservedDofs {
+    inner: Box<dyn Fitter>,
+}
+
+impl ObservedDofs {
+    pub fn new(inner: Box<dyn Fitter>) -> Self {
+        Self { inner }
+    }
+}
+
+impl std::fmt::Debug for ObservedDofs {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "ObservedDofs({})", self.inner.name())
+    }
+}
+
+impl Fitter for ObservedDofs {
+    fn name(&self) -> String {
+        format!("{}-observed", self.inner.name())
+    }
+
+    fn fit(&self, request: &FitRequest<'_>) -> Result<FitResult, FitError> {
+        let clock = Instant::now();
+        if request.budget < 2 {
+            return Err(FitError::LeastSquares(format!(
+                "--dofs observed needs a budget of at least 2 evaluations (one for the data's information at the start, then the fit); got {}",
+                request.budget
+            )));
+        }
+        let mut start = request.start.clone();
+        request.bounds.clamp(&mut start);
+        let (e0, g0) = (
+            request.energy.evaluations(),
+            request.energy.gradient_evaluations(),
+        );
+        let mask = observed_request_mask(request.energy, &request.mask, &start)?;
+        let spent = request.energy.evaluations() - e0;
+        let spent_gradients = request.energy.gradient_evaluations() - g0;
+        let Some(mask) = mask else {
+            return Err(FitError::LeastSquares(
+                "--dofs observed: the observations determine none of the free entries".into(),
+            ));
+        };
+        let inner = FitRequest {
+            energy: request.energy,
+            start: request.start.clone(),
+            mask,
+            bounds: request.bounds.clone(),
+            budget: request.budget - spent as usize,
+            seed: request.seed,
+        };
+        let mut result = self.inner.fit(&inner)?;
+        result.method = self.name();
+        result.evaluations += spent;
+        result.gradient_evaluations += spent_gradients;
+        for t in &mut result.trace {
+            t.0 += spent;
+        }
+        result.time_s = clock.elapsed().as_secs_f64();
+        Ok(result)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip_and_unknown_is_refused() {
+        for d in [Dofs::All, Dofs::Observed] {
+            assert_eq!(d.name().parse::<Dofs>().unwrap(), d);
+        }
+        let e = "some".parse::<Dofs>().unwrap_err();
+        assert!(e.contains("all or observed"), "{e}");
+    }
+
+    #[test]
+    fn only_rotations_below_the_information_threshold_are_frozen() {
+        // Entries: 0..3 translation, 3..9 rotations, 9..11 shape.
+        let mask = DofMask {
+            name: "m".into(),
+            free: (0..11).collect(),
+        };
+        let max_std = 0.1_f64; // information ≥ 100 keeps an entry
+        let mut info = vec![0.0; 11];
+        info[3] = 100.0; // exactly at the threshold: kept
+        info[4] = 99.0; // just below: frozen
+        info[5] = 1e6;
+        info[6] = 0.0; // unseen: frozen
+        info[7] = 500.0;
+        info[8] = 1.0;
+        // translation and shape kept whatever their information (0 here)
+        let m = observed_mask(&mask, &info, 3..9, max_std).unwrap();
+        assert_eq!(m.free, vec![0, 1, 2, 3, 5, 7, 9, 10]);
+        assert_eq!(m.name, "m-observed");
+        // Entries already fixed stay fixed.
+        let fixed = DofMask {
+            name: "k".into(),
+            free: vec![4, 5],
+        };
+        assert_eq!(
+            observed_mask(&fixed, &info, 3..9, max_std).unwrap().free,
+            vec![5]
+        );
+        // Nothing left: None.
+        let only = DofMask {
+            name: "k".into(),
+            free: vec![4, 6],
+        };
+        assert!(observed_mask(&only, &info, 3..9, max_std).is_none());
+    }
+}
