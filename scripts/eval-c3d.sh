@@ -3,9 +3,11 @@
 # the procedural library and 50 of the MocapBank clip (./scripts/fetch-mocapbank.sh; evaluation
 # only), written as C3D files (`lfit data export-c3d`), imported back (`lfit data import`: no
 # ground truth, each frame starts from the rest pose moved rigidly onto its markers, global
-# scenario: every frame fitted on its own), then fitted by LM, the neural fitter (from Φ(D)) and
-# neural+lm. Prints one Markdown table: per source and method, the share of frames whose fit ends
-# within 5 mm marker RMS, the mean and median marker RMS, evaluations and time per frame.
+# scenario: every frame fitted on its own), then fitted by LM, the neural fitter (from Φ(D)),
+# neural+lm (LM on the entries the markers determine, the default) and neural+lm with
+# `--dofs all` (LM on every entry: row `neural+lm-all`). Prints one Markdown table: per source
+# and method, the share of frames whose fit ends within 5 mm marker RMS, the mean and median
+# marker RMS, evaluations and time per frame.
 #
 #   scripts/eval-c3d.sh [OUT] [CHECKPOINT]
 #
@@ -29,14 +31,16 @@ for src in library captured; do
     "$LFIT" -q data export-c3d --data "$OUT/$src-truth.npz" --out "$OUT/$src.c3d" >/dev/null
     "$LFIT" -q data import --c3d "$OUT/$src.c3d" --model "$MODEL" --scenario global \
         --out "$OUT/$src.npz" >/dev/null
-    for method in lm neural neural+lm; do
+    for row in lm neural neural+lm neural+lm-all; do
+        method="${row%-all}"
         budget=4000
-        ck=()
-        [ "$method" != lm ] && ck=(--checkpoint "$CK")
+        args=()
+        [ "$method" != lm ] && args=(--checkpoint "$CK")
         [ "$method" = neural ] && budget=10
+        [ "$row" = neural+lm-all ] && args+=(--dofs all)
         "$LFIT" -q fit --data "$OUT/$src.npz" --template "$MODEL" --method "$method" \
-            --budget "$budget" "${ck[@]}" --out "$OUT/$src-$method.json" >/dev/null
-        rows+=("$src-$method")
+            --budget "$budget" "${args[@]}" --out "$OUT/$src-$row.json" >/dev/null
+        rows+=("$src-$row")
     done
 done
 eval_table c3d "$OUT" "${rows[@]}"

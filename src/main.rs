@@ -415,8 +415,9 @@ struct FitCmd {
     sequence_shape: String,
     /// Which free entries the fit moves: all, or observed (only the rotation entries the
     /// observations determine to within 2°, from the data term's information at the start; the
-    /// others keep the start's values). Default: observed for neural+lm's LM stage (which also
-    /// keeps the network's β), all for every other method; not for --method neural.
+    /// others keep the start's values; observed:DEG another threshold). Default: observed for
+    /// neural+lm's LM stage (which also keeps the network's β), all for every other method; not
+    /// for --method neural.
     #[arg(long)]
     dofs: Option<String>,
     /// The subject's shape β is known, not estimated (papers/002 §3.2, HMD): `truth` (each

@@ -139,7 +139,7 @@ impl MethodKind {
     /// every free entry (their published figures and the scipy parity are over all entries).
     pub fn default_dofs(self) -> lfit_fitters::Dofs {
         match self {
-            MethodKind::NeuralLm => lfit_fitters::Dofs::Observed,
+            MethodKind::NeuralLm => lfit_fitters::Dofs::OBSERVED,
             _ => lfit_fitters::Dofs::All,
         }
     }
@@ -266,7 +266,9 @@ pub fn build_classic(kind: MethodKind, options: ClassicOptions) -> Result<Box<dy
     )?;
     Ok(match options.dofs {
         lfit_fitters::Dofs::All => fitter,
-        lfit_fitters::Dofs::Observed => Box::new(lfit_fitters::ObservedDofs::new(fitter)),
+        lfit_fitters::Dofs::Observed { max_std_deg } => {
+            Box::new(lfit_fitters::ObservedDofs::new(fitter, max_std_deg))
+        }
     })
 }
 

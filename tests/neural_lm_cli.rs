@@ -665,10 +665,38 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
         assert!((2..=200).contains(&evals), "evaluations {evals}");
     }
     assert!(moved >= 3, "the hips moved in only {moved} of 4 frames");
+    // Another threshold by name: its fitter's name and the result say it.
+    let out = lm(
+        &tmp.path().join("obs30.json"),
+        &["--dofs", "observed:30", "--budget", "200"],
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let loose: Value =
+        serde_json::from_slice(&std::fs::read(tmp.path().join("obs30.json")).expect("result"))
+            .expect("json");
+    assert_eq!(loose["method"], "lm-observed-30deg");
+    assert_eq!(loose["dofs"], "observed:30");
+    let thumbs_moved = frames(&loose)
+        .iter()
+        .filter(|f| {
+            let k = f["frame"].as_u64().expect("frame") as usize;
+            thumbs
+                .iter()
+                .any(|&i| num(&f["pose"][i]) != dataset.start_poses[k][i])
+        })
+        .count();
+    assert_eq!(
+        thumbs_moved, 0,
+        "30° still keeps the thumbs (std in the hundreds of degrees)"
+    );
     for (extra, want) in [
         (
             &["--dofs", "some", "--budget", "200"][..],
-            "unknown dofs 'some' (expected all or observed)",
+            "unknown dofs 'some' (expected all, observed or observed:DEG)",
         ),
         (
             &["--dofs", "observed", "--budget", "1"][..],

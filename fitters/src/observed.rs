@@ -25,21 +25,42 @@ use crate::{FitError, FitRequest, FitResult, Fitter};
 pub const OBSERVED_MAX_STD_DEG: f64 = 2.0;
 
 /// Which of a request's free entries a fit moves (`lfit fit --dofs`, bench `dofs`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub enum Dofs {
     /// Every free entry of the request (the scenario's mask).
     #[default]
     All,
-    /// Only the entries the observations determine (module docs); the others keep the start's
-    /// values.
-    Observed,
+    /// Only the rotation entries the observations determine to within `max_std_deg` degrees
+    /// (module docs); the others keep the start's values. `observed` is
+    /// [`OBSERVED_MAX_STD_DEG`], `observed:DEG` another threshold.
+    Observed { max_std_deg: f64 },
 }
 
 impl Dofs {
-    pub fn name(self) -> &'static str {
+    /// `Observed` at [`OBSERVED_MAX_STD_DEG`].
+    pub const OBSERVED: Dofs = Dofs::Observed {
+        max_std_deg: OBSERVED_MAX_STD_DEG,
+    };
+
+    /// What a fitter's name gets for it: `observed` or `observed-<DEG>deg` (`all`: empty).
+    pub fn suffix(self) -> String {
         match self {
-            Dofs::All => "all",
-            Dofs::Observed => "observed",
+            Dofs::All => String::new(),
+            Dofs::Observed { max_std_deg } if max_std_deg == OBSERVED_MAX_STD_DEG => {
+                "observed".into()
+            }
+            Dofs::Observed { max_std_deg } => format!("observed-{max_std_deg}deg"),
+        }
+    }
+
+    /// The name it is given by (`all`, `observed`, `observed:DEG`).
+    pub fn name(self) -> String {
+        match self {
+            Dofs::All => "all".into(),
+            Dofs::Observed { max_std_deg } if max_std_deg == OBSERVED_MAX_STD_DEG => {
+                "observed".into()
+            }
+            Dofs::Observed { max_std_deg } => format!("observed:{max_std_deg}"),
         }
     }
 }
@@ -49,8 +70,16 @@ impl std::str::FromStr for Dofs {
     fn from_str(s: &str) -> Result<Self, String> {
         match s {
             "all" => Ok(Dofs::All),
-            "observed" => Ok(Dofs::Observed),
-            _ => Err(format!("unknown dofs '{s}' (expected all or observed)")),
+            "observed" => Ok(Dofs::OBSERVED),
+            _ => match s.strip_prefix("observed:").map(str::parse::<f64>) {
+                Some(Ok(d)) if d.is_finite() && d > 0.0 => Ok(Dofs::Observed { max_std_deg: d }),
+                Some(_) => Err(format!(
+                    "dofs '{s}': the threshold after observed: must be a positive number of degrees"
+                )),
+                None => Err(format!(
+                    "unknown dofs '{s}' (expected all, observed or observed:DEG)"
+                )),
+            },
         }
     }
 }
@@ -79,12 +108,13 @@ pub fn observed_mask(
     })
 }
 
-/// The request's mask for an `Observed` fit from `at`: one counted evaluation with a Jacobian
-/// (the data information). `None`: no entry would stay free.
+/// The request's mask for an `Observed` fit from `at` with threshold `max_std_deg`: one counted
+/// evaluation with a Jacobian (the data information). `None`: no entry would stay free.
 pub fn observed_request_mask(
     energy: &Energy,
     mask: &DofMask,
     at: &[f64],
+    max_std_deg: f64,
 ) -> Result<Option<DofMask>, FitError> {
     let info = energy
         .data_information(at)
@@ -94,7 +124,7 @@ pub fn observed_request_mask(
         mask,
         &info,
         rotations,
-        OBSERVED_MAX_STD_DEG.to_radians(),
+        max_std_deg.to_radians(),
     ))
 }
 
@@ -103,11 +133,13 @@ pub fn observed_request_mask(
 /// reduced mask. The evaluations, time and trace it reports include that evaluation.
 pub struct ObservedDofs {
     inner: Box<dyn Fitter>,
+    max_std_deg: f64,
 }
 
 impl ObservedDofs {
-    pub fn new(inner: Box<dyn Fitter>) -> Self {
-        Self { inner }
+    /// `inner` on the rotations determined to within `max_std_deg` degrees.
+    pub fn new(inner: Box<dyn Fitter>, max_std_deg: f64) -> Self {
+        Self { inner, max_std_deg }
     }
 }
 
@@ -118,8 +150,17 @@ impl std::fmt::Debug for ObservedDofs {
 }
 
 impl Fitter for ObservedDofs {
+    /// `<inner>-observed`, or `<inner>-observed-<DEG>deg` at another threshold than the default
+    /// (no `:`, which separates a method from its strategy in study configs).
     fn name(&self) -> String {
-        format!("{}-observed", self.inner.name())
+        format!(
+            "{}-{}",
+            self.inner.name(),
+            Dofs::Observed {
+                max_std_deg: self.max_std_deg
+            }
+            .suffix()
+        )
     }
 
     fn fit(&self, request: &FitRequest<'_>) -> Result<FitResult, FitError> {
@@ -136,7 +177,7 @@ impl Fitter for ObservedDofs {
             request.energy.evaluations(),
             request.energy.gradient_evaluations(),
         );
-        let mask = observed_request_mask(request.energy, &request.mask, &start)?;
+        let mask = observed_request_mask(request.energy, &request.mask, &start, self.max_std_deg)?;
         let spent = request.energy.evaluations() - e0;
         let spent_gradients = request.energy.gradient_evaluations() - g0;
         let Some(mask) = mask else {
@@ -170,11 +211,24 @@ mod tests {
 
     #[test]
     fn names_round_trip_and_unknown_is_refused() {
-        for d in [Dofs::All, Dofs::Observed] {
+        let three = Dofs::Observed { max_std_deg: 3.0 };
+        for d in [Dofs::All, Dofs::OBSERVED, three] {
             assert_eq!(d.name().parse::<Dofs>().unwrap(), d);
         }
+        assert_eq!(Dofs::OBSERVED.name(), "observed");
+        assert_eq!(three.name(), "observed:3");
         let e = "some".parse::<Dofs>().unwrap_err();
-        assert!(e.contains("all or observed"), "{e}");
+        assert!(e.contains("all, observed or observed:DEG"), "{e}");
+        for bad in [
+            "observed:",
+            "observed:-1",
+            "observed:0",
+            "observed:nan",
+            "observed:x",
+        ] {
+            let e = bad.parse::<Dofs>().unwrap_err();
+            assert!(e.contains("positive number of degrees"), "{bad}: {e}");
+        }
     }
 
     #[test]

@@ -4,7 +4,7 @@
 //! start for classical refinement; LM is lfit's most accurate classical solver on the sparse
 //! modalities, `docs/results/learned-vs-classical.md`).
 //!
-//! With [`Dofs::Observed`] (the CLI's default for `neural+lm`) LM moves only the rotation
+//! With [`Dofs::OBSERVED`] (the CLI's default for `neural+lm`) LM moves only the rotation
 //! entries the observations determine ([`lfit_fitters::observed`]) and keeps the network's β:
 //! what the sensor leaves open (fingers, thumbs, a limb's twist under 2D keypoints; the subject's
 //! shape from one frame) stays the network's estimate, which is learned from human motion, where
@@ -49,7 +49,7 @@ impl NeuralThenLm {
         let lm = lfit_fitters::build_fitter("lm", Preset::Nevergrad, Strategy::Holistic)?;
         self.lm = LmFitter(match dofs {
             Dofs::All => lm,
-            Dofs::Observed => Box::new(ObservedDofs::new(lm)),
+            Dofs::Observed { max_std_deg } => Box::new(ObservedDofs::new(lm, max_std_deg)),
         });
         self.dofs = dofs;
         Ok(self)
@@ -60,14 +60,14 @@ impl NeuralThenLm {
     fn lm_minimum(&self) -> usize {
         match self.dofs {
             Dofs::All => 1,
-            Dofs::Observed => 2,
+            Dofs::Observed { .. } => 2,
         }
     }
 
     /// LM's mask: the request's, without β with [`Dofs::Observed`] (the network's β is kept).
     fn lm_mask(&self, request: &FitRequest<'_>) -> DofMask {
         let mut mask = request.mask.clone();
-        if self.dofs == Dofs::Observed {
+        if matches!(self.dofs, Dofs::Observed { .. }) {
             let shape = request.energy.template().layout().range(Block::Shape);
             mask.free.retain(|i| !shape.contains(i));
         }
@@ -80,7 +80,7 @@ impl Fitter for NeuralThenLm {
         let neural = self.neural.name();
         match self.dofs {
             Dofs::All => format!("{neural}+lm"),
-            Dofs::Observed => format!("{neural}+lm-observed"),
+            d @ Dofs::Observed { .. } => format!("{neural}+lm-{}", d.suffix()),
         }
     }
 
@@ -99,7 +99,7 @@ impl Fitter for NeuralThenLm {
         if let Some(r) = requests.iter().find(|r| r.budget < least) {
             let what = match self.dofs {
                 Dofs::All => "",
-                Dofs::Observed => {
+                Dofs::Observed { .. } => {
                     " (with --dofs observed: one for the data's information, one for LM)"
                 }
             };

@@ -113,9 +113,9 @@ pub struct BenchConfig {
     /// ([`crate::fitting::SequenceShape`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sequence_shape: Option<String>,
-    /// Which free entries each fit moves: `all` or `observed` (`lfit fit --dofs`); default each
-    /// method's own (`observed` for `neural+lm`'s LM stage, `all` otherwise). `neural` always
-    /// moves its checkpoint's entries.
+    /// Which free entries each fit moves: `all`, `observed` or `observed:DEG` (`lfit fit
+    /// --dofs`); default each method's own (`observed` for `neural+lm`'s LM stage, `all`
+    /// otherwise). `neural` always moves its checkpoint's entries.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dofs: Option<String>,
     #[serde(default)]
