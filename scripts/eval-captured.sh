@@ -3,7 +3,8 @@
 # evaluation clip, never training data) retargeted onto the MakeHuman body, fitted frame by frame
 # (local scenario: a start near the target) and as a sequence (each frame from the previous
 # result), by the neural fitter (with each start policy and sequence shape policy), LM and
-# neural+lm, on markers and keypoints2d (pose and β) and hmd (β given). Prints one Markdown table
+# neural+lm (LM on the entries the sensor determines, the default; on single frames also LM that
+# way, `-lm-observed`, and neural+lm with LM on every entry, `-neural+lm-all`), on markers and keypoints2d (pose and β) and hmd (β given). Prints one Markdown table
 # (mean V2V, MPJPE, β RMS, time per frame, evaluations) and writes every result under OUT. First
 # per modality: 500 procedural held-out frames (PROC_FRAMES), neural and LM, for comparison with
 # what the fitter was trained on. MODALITIES (default "markers keypoints2d hmd") picks modalities.
@@ -41,6 +42,7 @@ for m in ${MODALITIES:-markers keypoints2d hmd}; do
         --template "$MODEL" --out "$data" >/dev/null
     run "$m-procedural-neural" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}"
     run "$m-procedural-lm" "$data" lm --budget 4000 "${known[@]}"
+    run "$m-procedural-neural+lm" "$data" neural+lm --checkpoint "$ck" --neural-start given --budget 4000 "${known[@]}"
     for scenario in local sequence; do
         data="$OUT/clip-$scenario-$m.npz"
         "$LFIT" -q synth --modality "$m" --scenario "$scenario" --frames "$FRAMES" --seed "$SEED" \
@@ -50,6 +52,9 @@ for m in ${MODALITIES:-markers keypoints2d hmd}; do
             run "$m-$scenario-neural" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}"
             run "$m-$scenario-neural-best" "$data" neural --checkpoint "$ck" --neural-start best --budget 12 "${known[@]}"
             run "$m-$scenario-neural+lm" "$data" neural+lm --checkpoint "$ck" --neural-start given --budget 4000 "${known[@]}"
+            run "$m-$scenario-neural+lm-all" "$data" neural+lm --checkpoint "$ck" --neural-start given --budget 4000 \
+                --dofs all "${known[@]}"
+            run "$m-$scenario-lm-observed" "$data" lm --budget 4000 --dofs observed "${known[@]}"
         else
             run "$m-$scenario-neural-previous" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}"
             run "$m-$scenario-neural-best" "$data" neural --checkpoint "$ck" --neural-start best --budget 12 "${known[@]}"

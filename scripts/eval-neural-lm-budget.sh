@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # neural+lm against its budget on the held-out CMU subject 6 (validation frames, not the evaluation
-# clip), next to the network and LM alone (docs/results/captured-motion.md round 4).
-#   M=markers BUDGETS="12 14 20 4000" ./scripts/eval-neural-lm-budget.sh [OUT]
+# clip), next to the network and LM alone (docs/results/captured-motion.md round 4), for each of
+# DOFS (`lfit fit --dofs`: default `observed`; round 14 chose the threshold of `observed` with
+# DOFS="all observed:1 observed observed:3 observed:5" BUDGETS=4000).
+#   M=markers BUDGETS="12 14 20 4000" DOFS="all observed" ./scripts/eval-neural-lm-budget.sh [OUT]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT="${1:-target/eval-neural-lm-budget}"
@@ -16,7 +18,9 @@ run() { local name="$1"; shift; "$LFIT" -q fit --data "$data" --template "$MODEL
 ck=checkpoints/$M-makehuman
 run "$M-neural" --method neural --checkpoint $ck --neural-start given --budget 10
 run "$M-lm" --method lm --budget 4000
-for b in ${BUDGETS:-12 14 16 18 20 25 30 40 60 4000}; do
-  run "$M-neural+lm-$b" --method neural+lm --checkpoint $ck --neural-start given --budget $b
+for d in ${DOFS:-observed}; do
+  for b in ${BUDGETS:-12 14 16 18 20 25 30 40 60 4000}; do
+    run "$M-neural+lm-$d-$b" --method neural+lm --checkpoint $ck --neural-start given --budget $b --dofs $d
+  done
 done
 eval_table fits "$OUT" "${rows[@]}"

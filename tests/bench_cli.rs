@@ -250,6 +250,10 @@ fn bad_bench_configs_fail_before_any_work() {
             "sideways",
         ),
         (format!("methods = [\"cma\"]\nbogus = 1\n{base}"), "bogus"),
+        (
+            format!("methods = [\"lm\"]\ndofs = \"some\"\n{base}"),
+            "unknown dofs 'some'",
+        ),
         ("methods = [".to_string(), "malformed bench config"),
     ] {
         let c = config(d, "c.toml", &body);

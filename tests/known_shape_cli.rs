@@ -301,4 +301,20 @@ fn a_known_shape_is_frozen_for_every_method_and_required_by_a_known_shape_networ
     std::fs::write(&stats, &original).expect("stats");
     let o = bench(true);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // Rows of a build whose fitters were others under the same config (their names, e.g.
+    // `neural+lm` before its LM stage kept to the observed entries) are refused as well.
+    let record = d.join("b-true/inputs.json");
+    let kept = std::fs::read(&record).expect("inputs.json");
+    let mut inputs: serde_json::Value = serde_json::from_slice(&kept).expect("json");
+    assert!(inputs["fitters"].is_string(), "{inputs}");
+    inputs["fitters"] = serde_json::json!("0000000000000000");
+    std::fs::write(&record, serde_json::to_vec(&inputs).expect("json")).expect("write");
+    assert_one_line_error(&bench(true), "other inputs (fitters changed since");
+    assert_eq!(
+        std::fs::read_to_string(d.join("b-true/runs.csv")).expect("runs.csv"),
+        csv
+    );
+    std::fs::write(&record, &kept).expect("restore");
+    let o = bench(true);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }

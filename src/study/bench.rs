@@ -572,15 +572,29 @@ pub fn parse_shard(spec: Option<&str>) -> Result<(usize, usize)> {
     }
 }
 
+/// What a sweep's rows are fitted from, beyond `bench.json`.
+struct Inputs<'a> {
+    data: &'a Path,
+    template: &'a lfit_model::Template,
+    energy: &'a EnergyConfig,
+    /// The fitters' names, one per entry: they say what a method does where a build changed it
+    /// under the same config (`neural+lm`'s LM stage on the observed entries: `…+lm-observed`).
+    fitters: &'a [String],
+}
+
 /// What the rows of `runs.csv` depend on beyond `bench.json`: the bytes of the data file, the
-/// model's signature, the energy configuration and the checkpoint's files (a retrained network
-/// under the same path), each as an FNV-1a hash.
+/// model's signature, the energy configuration, the checkpoint's files (a retrained network
+/// under the same path) and the fitters' names, each as an FNV-1a hash.
 fn input_hashes(
     config: &BenchConfig,
-    data: &Path,
-    template: &lfit_model::Template,
-    energy: &EnergyConfig,
+    inputs: &Inputs<'_>,
 ) -> Result<serde_json::Map<String, serde_json::Value>> {
+    let Inputs {
+        data,
+        template,
+        energy,
+        fitters,
+    } = *inputs;
     let file_hash = |paths: &[PathBuf]| -> Result<String> {
         let mut h = lfit_model::Fnv1a::default();
         for p in paths {
@@ -614,22 +628,23 @@ fn input_hashes(
         files.sort();
         inputs.insert("checkpoint".into(), file_hash(&files)?.into());
     }
+    let mut h = lfit_model::Fnv1a::default();
+    h.eat(&serde_json::to_vec(fitters)?);
+    inputs.insert("fitters".into(), h.hex().into());
     Ok(inputs)
 }
 
 /// Resuming is safe only over the same inputs: refuses an `out` whose runs were fitted with
-/// another data file, model, energy or checkpoint than now (a checkpoint retrained in place would
-/// otherwise leave its old rows in the report), and records the inputs of a new one; `has_rows`:
-/// `runs.csv` holds complete rows already.
+/// another data file, model, energy, checkpoint or fitter than now (a checkpoint retrained in
+/// place would otherwise leave its old rows in the report), and records the inputs of a new one;
+/// `has_rows`: `runs.csv` holds complete rows already.
 fn check_inputs(
     config: &BenchConfig,
     out: &Path,
-    data: &Path,
-    template: &lfit_model::Template,
-    energy: &EnergyConfig,
+    inputs: &Inputs<'_>,
     has_rows: bool,
 ) -> Result<()> {
-    let now = input_hashes(config, data, template, energy)?;
+    let now = input_hashes(config, inputs)?;
     let path = out.join("inputs.json");
     if let Ok(text) = std::fs::read_to_string(&path) {
         let before: serde_json::Map<String, serde_json::Value> =
@@ -738,14 +753,6 @@ pub fn run(
     let (energy_config, _) = config.energy_config()?;
     let csv = out.join("runs.csv");
     let existing = read_runs(&csv)?;
-    check_inputs(
-        config,
-        out,
-        &data,
-        &template,
-        &energy_config,
-        !existing.is_empty(),
-    )?;
     let scenario = dataset.meta.config.scenario;
     let entries = config.entries()?;
     let preset = config.preset()?;
@@ -786,6 +793,18 @@ pub fn run(
             )?);
         }
     }
+    let names: Vec<String> = fitters.iter().map(|f| f.name()).collect();
+    check_inputs(
+        config,
+        out,
+        &Inputs {
+            data: &data,
+            template: &template,
+            energy: &energy_config,
+            fitters: &names,
+        },
+        !existing.is_empty(),
+    )?;
     let energies: Vec<Energy> = frames
         .iter()
         .map(|&f| energy_for_frame(&dataset, template.clone(), f, energy_config.clone()))

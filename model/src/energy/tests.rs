@@ -925,22 +925,32 @@ mod least_squares_form {
                 .map(|v| v + rng.random_range(-0.01..0.01))
                 .collect();
             let info = e.data_information(&x).unwrap();
-            let h = 1e-5;
-            let mut want = vec![0.0; dim];
-            for (c, w) in want.iter_mut().enumerate() {
-                let at = |k: f64| {
-                    let mut y = x.clone();
-                    y[c] += k * h;
-                    e.residual(&y)
-                };
-                let (a, b) = (at(-1.0), at(1.0));
-                for g in e.groups.iter().filter(|g| pred.visible[g.start]) {
-                    for i in g.start..g.start + g.len {
-                        let d = (b[i] - a[i]) / (2.0 * h) / g.sigma;
-                        *w += d * d;
-                    }
-                }
-            }
+            // Σ (∂R_i/∂θ_c / σ_g)² over `groups`' rows, by central differences.
+            let differences = |groups: &[crate::observe::ResidualGroup]| -> Vec<f64> {
+                let h = 1e-5;
+                (0..dim)
+                    .map(|c| {
+                        let at = |k: f64| {
+                            let mut y = x.clone();
+                            y[c] += k * h;
+                            e.residual(&y)
+                        };
+                        let (a, b) = (at(-1.0), at(1.0));
+                        groups
+                            .iter()
+                            .flat_map(|g| (g.start..g.start + g.len).map(move |i| (i, g.sigma)))
+                            .map(|(i, sigma)| ((b[i] - a[i]) / (2.0 * h) / sigma).powi(2))
+                            .sum()
+                    })
+                    .collect()
+            };
+            let seen: Vec<_> = e
+                .groups
+                .iter()
+                .copied()
+                .filter(|g| pred.visible[g.start])
+                .collect();
+            let want = differences(&seen);
             let top = want.iter().cloned().fold(0.0, f64::max);
             assert!(top > 0.0, "{modality}");
             for (c, (a, b)) in info.iter().zip(&want).enumerate() {
@@ -962,26 +972,14 @@ mod least_squares_form {
                     "{modality}: {a} vs {b}"
                 );
             }
-            // One group unseen: its rows' part is gone, nothing else changes.
-            let g = e.groups[0];
+            // One seen group hidden: its rows' part is gone, nothing else changes.
+            let g = seen[0];
             let mut visible = pred.visible.clone();
             visible[g.start..g.start + g.len].fill(false);
             let less = make(EnergyConfig::default().for_gradient(), visible)
                 .data_information(&x)
                 .unwrap();
-            let mut seen_group = vec![0.0; dim];
-            for (c, v) in seen_group.iter_mut().enumerate() {
-                let at = |k: f64| {
-                    let mut y = x.clone();
-                    y[c] += k * h;
-                    e.residual(&y)
-                };
-                let (a, b) = (at(-1.0), at(1.0));
-                for i in g.start..g.start + g.len {
-                    let d = (b[i] - a[i]) / (2.0 * h) / g.sigma;
-                    *v += d * d;
-                }
-            }
+            let seen_group = differences(&[g]);
             for c in 0..dim {
                 assert!(
                     (info[c] - less[c] - seen_group[c]).abs() <= 1e-5 * top,
