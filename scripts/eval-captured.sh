@@ -66,6 +66,16 @@ for m in ${MODALITIES:-markers keypoints2d hmd}; do
             fi
             run "$m-$scenario-neural+lm-best" "$data" neural+lm --checkpoint "$ck" --neural-start best \
                 --budget 4000 "${known[@]}"
+            # The best measured sequence policies (round 14): a fit from the previous result and
+            # one from Φ(D) per frame, the lower-energy kept, then LM (markers, keypoints2d); each
+            # frame from Φ(D), then LM (hmd, whose legs the trackers do not see).
+            if [ "$m" != hmd ]; then
+                run "$m-$scenario-neural+lm-both" "$data" neural+lm --checkpoint "$ck" --neural-start both \
+                    --budget 4000
+            else
+                run "$m-$scenario-neural+lm-phi" "$data" neural+lm --checkpoint "$ck" --neural-start phi \
+                    --budget 4000 "${known[@]}"
+            fi
         fi
     done
 done
