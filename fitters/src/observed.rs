@@ -44,12 +44,10 @@ impl Dofs {
 
     /// What a fitter's name gets for it: `observed` or `observed-<DEG>deg` (`all`: empty).
     pub fn suffix(self) -> String {
-        match self {
-            Dofs::All => String::new(),
-            Dofs::Observed { max_std_deg } if max_std_deg == OBSERVED_MAX_STD_DEG => {
-                "observed".into()
-            }
-            Dofs::Observed { max_std_deg } => format!("observed-{max_std_deg}deg"),
+        match (self, self.name().split_once(':')) {
+            (Dofs::All, _) => String::new(),
+            (_, Some((name, deg))) => format!("{name}-{deg}deg"),
+            (_, None) => self.name(),
         }
     }
 
@@ -217,6 +215,10 @@ mod tests {
         }
         assert_eq!(Dofs::OBSERVED.name(), "observed");
         assert_eq!(three.name(), "observed:3");
+        assert_eq!(
+            [Dofs::All, Dofs::OBSERVED, three].map(Dofs::suffix),
+            ["", "observed", "observed-3deg"]
+        );
         let e = "some".parse::<Dofs>().unwrap_err();
         assert!(e.contains("all, observed or observed:DEG"), "{e}");
         for bad in [

@@ -145,7 +145,8 @@ pub struct FitArgs {
     pub known_shape: Option<String>,
     /// `--sequence-shape`: `per-frame`, `first-pass` or `joint` ([`crate::fitting::SequenceShape`]).
     pub sequence_shape: String,
-    /// `--dofs`: `all` or `observed` ([`lfit_fitters::Dofs`]); `None`: the method's default.
+    /// `--dofs`: `all`, `observed` or `observed:DEG` ([`lfit_fitters::Dofs`]); `None`: the
+    /// method's default ([`crate::method::MethodKind::default_dofs`]).
     pub dofs: Option<String>,
 }
 
