@@ -416,8 +416,8 @@ struct FitCmd {
     /// Which free entries the fit moves: all, or observed (only the rotation entries the
     /// observations determine to within 2°, from the data term's information at the start; the
     /// others keep the start's values; observed:DEG another threshold). Default: observed for
-    /// neural+lm's LM stage (which also keeps the network's β), all for every other method; not
-    /// for --method neural.
+    /// neural+lm's LM stage on markers, keypoints2d and hmd (which also keeps the network's β),
+    /// all for every other method and sensor; not for --method neural.
     #[arg(long)]
     dofs: Option<String>,
     /// The subject's shape β is known, not estimated (papers/002 §3.2, HMD): `truth` (each

@@ -133,13 +133,19 @@ impl MethodKind {
         matches!(self, MethodKind::Neural | MethodKind::NeuralLm)
     }
 
-    /// Which entries the method moves unless told (`--dofs`): `neural+lm`'s LM stage only the
-    /// observed ones (`lfit_fitters::observed`: on the captured clip's markers it ends at 8.4 mm
-    /// V2V where LM over every entry ends at 11.7, the network alone at 9.5), every other method
-    /// every free entry (their published figures and the scipy parity are over all entries).
-    pub fn default_dofs(self) -> lfit_fitters::Dofs {
-        match self {
-            MethodKind::NeuralLm => lfit_fitters::Dofs::OBSERVED,
+    /// Which entries the method moves unless told (`--dofs`): `neural+lm`'s LM stage on the sparse
+    /// body sensors (markers, keypoints2d, hmd) only the observed ones (`lfit_fitters::observed`:
+    /// on the captured clip's markers it ends at 8.4 mm V2V where LM over every entry ends at
+    /// 11.7, the network alone at 9.5); every other method, and `neural+lm` on dense face
+    /// landmarks (which determine every entry: 40 face frames 21.5 mm with `all` against 27.8
+    /// with `observed`) or a custom sensor, every free entry (the classical methods' published
+    /// figures and the scipy parity are over all entries).
+    pub fn default_dofs(self, modality: lfit_model::observe::Modality) -> lfit_fitters::Dofs {
+        use lfit_model::observe::Modality;
+        match (self, modality) {
+            (MethodKind::NeuralLm, Modality::Markers | Modality::Keypoints2d | Modality::Hmd) => {
+                lfit_fitters::Dofs::OBSERVED
+            }
             _ => lfit_fitters::Dofs::All,
         }
     }
@@ -272,11 +278,17 @@ pub fn build_classic(kind: MethodKind, options: ClassicOptions) -> Result<Box<dy
     })
 }
 
-/// `--dofs` by name, or the method's default ([`MethodKind::default_dofs`]); refused for
-/// `neural` (the network moves the entries of its checkpoint's mask).
-pub fn dofs_for(kind: MethodKind, name: Option<&str>) -> Result<lfit_fitters::Dofs> {
+/// `--dofs` by name, or the method's default for the data's modality
+/// ([`MethodKind::default_dofs`]; `modality` is asked only then); refused for `neural` (the
+/// network moves the entries of its checkpoint's mask).
+pub fn dofs_for(
+    kind: MethodKind,
+    name: Option<&str>,
+    modality: &mut dyn FnMut() -> Result<lfit_model::observe::Modality>,
+) -> Result<lfit_fitters::Dofs> {
     match name {
-        None => Ok(kind.default_dofs()),
+        None if kind == MethodKind::NeuralLm => Ok(kind.default_dofs(modality()?)),
+        None => Ok(lfit_fitters::Dofs::All),
         Some(_) if kind == MethodKind::Neural => bail!(
             "--dofs is for classical methods and neural+lm's LM stage: --method neural moves the entries of its checkpoint's DOF mask"
         ),
@@ -299,7 +311,7 @@ pub fn load_neural_named(
     runtime: &str,
     device: &str,
     ort_threads: Option<usize>,
-    dofs: Option<&str>,
+    dofs: lfit_fitters::Dofs,
 ) -> Result<Box<dyn Fitter>> {
     load_neural(
         kind,
@@ -310,7 +322,7 @@ pub fn load_neural_named(
             runtime: runtime.parse().map_err(anyhow::Error::msg)?,
             device,
             ort_threads,
-            dofs: dofs_for(kind, dofs)?,
+            dofs,
         },
     )
 }
@@ -325,7 +337,7 @@ pub fn load_neural_named(
     _runtime: &str,
     _device: &str,
     _ort_threads: Option<usize>,
-    _dofs: Option<&str>,
+    _dofs: lfit_fitters::Dofs,
 ) -> Result<Box<dyn Fitter>> {
     bail!(NO_NEURAL)
 }

@@ -720,3 +720,62 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
     );
     assert!(!path.exists());
 }
+
+/// `neural+lm`'s default `--dofs` follows the sensor: `observed` on the sparse body sensors
+/// (above), `all` on dense face landmarks, which determine every entry (the face network's β is
+/// not the better estimate there); `--dofs observed` still asks for it by name.
+#[test]
+fn dense_face_landmarks_keep_every_entry_by_default() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let (model, data) = (
+        root("models/makehuman-face.npz"),
+        tmp.path().join("face.npz"),
+    );
+    let (ck, energy) = (root("checkpoints/face"), root("configs/face-energy.json"));
+    lfit_json(&[
+        "-q",
+        "synth",
+        "--modality",
+        "landmarks2d",
+        "--source",
+        "face",
+        "--frames",
+        "2",
+        "--seed",
+        "7",
+        "--template",
+        path_str(&model),
+        "--out",
+        path_str(&data),
+    ]);
+    let run = |name: &str, extra: &[&str]| -> Value {
+        let out = tmp.path().join(name);
+        let mut args = vec![
+            "-q",
+            "fit",
+            "--data",
+            path_str(&data),
+            "--template",
+            path_str(&model),
+            "--method",
+            "neural+lm",
+            "--checkpoint",
+            path_str(&ck),
+            "--energy",
+            path_str(&energy),
+            "--budget",
+            "40",
+            "--out",
+            path_str(&out),
+        ];
+        args.extend(extra);
+        lfit_json(&args);
+        serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json")
+    };
+    let default = run("default.json", &[]);
+    assert_eq!(default["method"], "neural+lm");
+    assert!(default.get("dofs").is_none());
+    let observed = run("observed.json", &["--dofs", "observed"]);
+    assert_eq!(observed["method"], "neural+lm-observed");
+    assert_eq!(observed["dofs"], "observed");
+}

@@ -4,11 +4,11 @@
 //! start for classical refinement; LM is lfit's most accurate classical solver on the sparse
 //! modalities, `docs/results/learned-vs-classical.md`).
 //!
-//! With [`Dofs::OBSERVED`] (the CLI's default for `neural+lm`) LM moves only the rotation
-//! entries the observations determine ([`lfit_fitters::observed`]) and keeps the network's β:
-//! what the sensor leaves open (fingers, thumbs, a limb's twist under 2D keypoints; the subject's
-//! shape from one frame) stays the network's estimate, which is learned from human motion, where
-//! LM would set it from the noise of the few rows that touch it.
+//! With [`Dofs::OBSERVED`] (the CLI's default for `neural+lm` on the sparse body sensors) LM
+//! moves only the rotation entries the observations determine ([`lfit_fitters::observed`]) and
+//! keeps the network's β: what the sensor leaves open (fingers, thumbs, a limb's twist under 2D
+//! keypoints; the subject's shape from one frame) stays the network's estimate, which is learned
+//! from human motion, where LM would set it from the noise of the few rows that touch it.
 
 use lfit_fitters::optim::Preset;
 use lfit_fitters::{Dofs, FitError, FitRequest, FitResult, Fitter, ObservedDofs, Strategy};

@@ -162,6 +162,8 @@ struct Prepared {
     cma: lfit_fitters::optim::cma::CmaVariant,
     fitter: Box<dyn Fitter>,
     config: EnergyConfig,
+    /// Which entries the fit moves (`--dofs`, or the method's default for the data).
+    dofs: lfit_fitters::Dofs,
 }
 
 /// Checks the settings of `args` and builds the fitter, before any frame is fitted. `modality`
@@ -211,6 +213,7 @@ fn prepare(
     if args.batch == 0 {
         bail!("--batch must be at least 1");
     }
+    let dofs;
     let fitter: Box<dyn Fitter> = if args.method.is_neural() {
         if args.step_scale.is_some()
             || args.preset.as_deref() == Some("tuned")
@@ -225,6 +228,7 @@ fn prepare(
             .checkpoint
             .as_deref()
             .with_context(|| format!("--method {} needs --checkpoint DIR", args.method))?;
+        dofs = crate::method::dofs_for(args.method, args.dofs.as_deref(), modality)?;
         crate::method::load_neural_named(
             args.method,
             dir,
@@ -233,7 +237,7 @@ fn prepare(
             &args.runtime,
             &args.device,
             args.ort_threads,
-            args.dofs.as_deref(),
+            dofs,
         )?
     } else {
         if args.checkpoint.is_some() {
@@ -242,6 +246,7 @@ fn prepare(
         if args.runtime != "burn" || args.ort_threads.is_some() {
             bail!("--runtime and --ort-threads are only for --method neural or neural+lm");
         }
+        dofs = crate::method::dofs_for(args.method, args.dofs.as_deref(), modality)?;
         crate::method::build_classic(
             args.method,
             crate::method::ClassicOptions {
@@ -249,7 +254,7 @@ fn prepare(
                 strategy,
                 step_scale,
                 cma,
-                dofs: crate::method::dofs_for(args.method, args.dofs.as_deref())?,
+                dofs,
             },
         )?
     };
@@ -269,6 +274,7 @@ fn prepare(
         cma,
         fitter,
         config,
+        dofs,
     })
 }
 
@@ -340,6 +346,7 @@ fn fit_prepared(
         cma,
         fitter,
         config,
+        dofs,
     } = prepared;
     let (strategy, sequence_shape, preset_name, step_scale, cma) =
         (*strategy, *sequence_shape, *preset_name, *step_scale, *cma);
@@ -509,8 +516,7 @@ fn fit_prepared(
         }
     }
     // Which entries moved, where not all of them (the method's name says it too).
-    let dofs = crate::method::dofs_for(args.method, args.dofs.as_deref())?;
-    if dofs != lfit_fitters::Dofs::All {
+    if *dofs != lfit_fitters::Dofs::All {
         out["dofs"] = json!(dofs.name());
     }
     Ok(out)

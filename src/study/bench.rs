@@ -114,8 +114,8 @@ pub struct BenchConfig {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sequence_shape: Option<String>,
     /// Which free entries each fit moves: `all`, `observed` or `observed:DEG` (`lfit fit
-    /// --dofs`); default each method's own (`observed` for `neural+lm`'s LM stage, `all`
-    /// otherwise). `neural` always moves its checkpoint's entries.
+    /// --dofs`); default each method's own (`observed` for `neural+lm`'s LM stage on markers,
+    /// keypoints2d and hmd, `all` otherwise). `neural` always moves its checkpoint's entries.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dofs: Option<String>,
     #[serde(default)]
@@ -200,8 +200,10 @@ impl BenchConfig {
             bail!("strategies: need at least one");
         }
         self.preset()?;
-        for m in &self.methods {
-            self.dofs_for(m.kind)?;
+        if let Some(d) = &self.dofs {
+            d.parse::<lfit_fitters::Dofs>()
+                .map_err(anyhow::Error::msg)
+                .context("dofs")?;
         }
         self.entries()?;
         match (&self.data, &self.synth) {
@@ -313,10 +315,15 @@ impl BenchConfig {
             .map_err(|_| lfit_fitters::FitError::UnknownPreset(p.to_string()).into())
     }
 
-    /// `dofs` for one method (`None` for `neural`: its checkpoint's entries).
-    fn dofs_for(&self, kind: MethodKind) -> Result<lfit_fitters::Dofs> {
+    /// `dofs` for one method on data of `modality` (not applied to `neural`: its checkpoint's
+    /// entries).
+    fn dofs_for(
+        &self,
+        kind: MethodKind,
+        modality: lfit_model::observe::Modality,
+    ) -> Result<lfit_fitters::Dofs> {
         let name = self.dofs.as_deref().filter(|_| kind != MethodKind::Neural);
-        crate::method::dofs_for(kind, name).context("dofs")
+        crate::method::dofs_for(kind, name, &mut || Ok(modality)).context("dofs")
     }
 
     /// The sequence shape policy (`sequence_shape`, default per-frame).
@@ -770,10 +777,7 @@ pub fn run(
                 config.runtime.as_deref().unwrap_or("burn"),
                 "flex",
                 None,
-                config
-                    .dofs
-                    .as_deref()
-                    .filter(|_| kind != MethodKind::Neural),
+                config.dofs_for(kind, dataset.modality())?,
             )?);
         } else {
             let (step_scale, cma) = if kind.zeroth_order().is_some() {
@@ -788,7 +792,7 @@ pub fn run(
                     strategy: s.parse()?,
                     step_scale,
                     cma,
-                    dofs: config.dofs_for(kind)?,
+                    dofs: config.dofs_for(kind, dataset.modality())?,
                 },
             )?);
         }
