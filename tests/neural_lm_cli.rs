@@ -616,18 +616,18 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
         args.extend(extra);
         lfit(&args)
     };
-    let out = lm(
-        &tmp.path().join("obs.json"),
-        &["--dofs", "observed", "--budget", "200"],
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let obs: Value =
-        serde_json::from_slice(&std::fs::read(tmp.path().join("obs.json")).expect("result"))
-            .expect("json");
+    // A fit that succeeds, its result.
+    let fitted = |name: &str, dofs: &str| -> Value {
+        let path = tmp.path().join(name);
+        let out = lm(&path, &["--dofs", dofs, "--budget", "200"]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        serde_json::from_slice(&std::fs::read(&path).expect("result")).expect("json")
+    };
+    let obs = fitted("obs.json", "observed");
     assert_eq!(obs["method"], "lm-observed");
     assert_eq!(obs["dofs"], "observed");
     let dataset = lfit::synth::Dataset::load(&data).expect("dataset");
@@ -653,18 +653,7 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
     }
     assert!(moved >= 3, "the hips moved in only {moved} of 4 frames");
     // Another threshold by name: its fitter's name and the result say it.
-    let out = lm(
-        &tmp.path().join("obs30.json"),
-        &["--dofs", "observed:30", "--budget", "200"],
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let loose: Value =
-        serde_json::from_slice(&std::fs::read(tmp.path().join("obs30.json")).expect("result"))
-            .expect("json");
+    let loose = fitted("obs30.json", "observed:30");
     assert_eq!(loose["method"], "lm-observed-30deg");
     assert_eq!(loose["dofs"], "observed:30");
     let thumbs_moved = frames(&loose)
@@ -688,6 +677,10 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
         (
             &["--dofs", "observed", "--budget", "1"][..],
             "budget of at least 2",
+        ),
+        (
+            &["--dofs", "observed:0", "--budget", "200"][..],
+            "positive number of degrees",
         ),
     ] {
         let path = tmp.path().join("no.json");
