@@ -669,6 +669,43 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
         thumbs_moved, 0,
         "30° still keeps the thumbs (std in the hundreds of degrees)"
     );
+    // A zeroth-order method on its own energy (the binary angle prior, which has no
+    // least-squares form; the data rows do): its exact budget holds, the information counted in
+    // it, and the thumbs stay.
+    let path = tmp.path().join("cma.json");
+    let out = lfit(&[
+        "-q",
+        "fit",
+        "--data",
+        path_str(&data),
+        "--template",
+        path_str(&model),
+        "--method",
+        "cma",
+        "--dofs",
+        "observed",
+        "--budget",
+        "60",
+        "--out",
+        path_str(&path),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let cma: Value = serde_json::from_slice(&std::fs::read(&path).expect("result")).expect("json");
+    for f in frames(&cma) {
+        let k = f["frame"].as_u64().expect("frame") as usize;
+        assert_eq!(f["evaluations"].as_u64(), Some(60), "frame {k}");
+        for &i in &thumbs {
+            assert_eq!(
+                num(&f["pose"][i]),
+                dataset.start_poses[k][i],
+                "frame {k}, entry {i}"
+            );
+        }
+    }
     for (extra, want) in [
         (
             &["--dofs", "some", "--budget", "200"][..],

@@ -817,15 +817,32 @@ impl Energy {
     /// the visible groups (the robust loss's folding included: an outlier beyond Huber's δ informs
     /// less). `1/√info_j` is the standard deviation to which the data fix entry `j` with every
     /// other entry held (conditional, not marginal); a parameter no observation moves has 0.
-    /// Priors and joint limits are not included. Counts one evaluation with a Jacobian; fails as
-    /// [`Energy::least_squares`] does (a dense modality, a wrong-length vector).
+    /// Priors and joint limits are not included, so it exists for every prior form (the binary
+    /// angle prior of the zeroth-order methods' energy too). Counts one evaluation with a
+    /// Jacobian; fails for a dense sensor (scan, silhouettes: no per-observation rows) and a
+    /// wrong-length vector.
     pub fn data_information(&self, params: &[f64]) -> Result<Vec<f64>> {
-        let ls = self.least_squares_with(params, true, RobustForm::Folded, JacobianRows::Dense)?;
-        let dim = self.dim();
-        let mut info = vec![0.0; dim];
+        if let Some(why) = self.gradient_unsupported() {
+            return Err(ModelError::Target(why));
+        }
         let Target::Sparse { visible, .. } = &self.target else {
-            return Ok(info);
+            return Err(ModelError::Target(
+                "the data information needs a sparse sensor (markers, keypoints, hmd, landmarks): a scan or silhouettes have no per-observation rows".into(),
+            ));
         };
+        let dim = self.dim();
+        if params.len() != dim {
+            return Err(ModelError::Shape {
+                what: "parameter vector".into(),
+                expected: dim.to_string(),
+                got: params.len().to_string(),
+            });
+        }
+        self.evaluations.fetch_add(1, Ordering::Relaxed);
+        self.gradient_evaluations.fetch_add(1, Ordering::Relaxed);
+        // The data rows do not depend on the prior's form (the EA rows are written as hinges).
+        let ls = self.compute_least_squares(params, true, RobustForm::Folded, JacobianRows::Dense);
+        let mut info = vec![0.0; dim];
         let seen = self.groups.iter().filter(|g| visible[g.start]).count();
         let w = self.config.weights.data;
         if seen == 0 || w <= 0.0 {
