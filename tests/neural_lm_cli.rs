@@ -123,14 +123,15 @@ fn best_start_takes_the_lower_energy_candidate() {
     refused(
         &data,
         tmp.path(),
+        "neural",
         &["--neural-start", "best", "--budget", "10"],
         "and the start choice",
     );
 }
 
-/// A neural fit of `data` with `extra` flags fails with one line containing `reason` and writes
-/// nothing.
-fn refused(data: &Path, dir: &Path, extra: &[&str], reason: &str) {
+/// A fit of `data` by the shipped markers fitter's `method` (`neural`, `neural+lm`) with `extra`
+/// flags fails with one line containing `reason` and writes nothing.
+fn refused(data: &Path, dir: &Path, method: &str, extra: &[&str], reason: &str) {
     let no = dir.join("no.json");
     let (model, ck) = (root(MODEL), root(CHECKPOINT));
     let mut args = vec![
@@ -143,7 +144,7 @@ fn refused(data: &Path, dir: &Path, extra: &[&str], reason: &str) {
         "--checkpoint",
         path_str(&ck),
         "--method",
-        "neural",
+        method,
         "--out",
         path_str(&no),
     ];
@@ -217,6 +218,7 @@ fn both_starts_keep_the_lower_energy_fit() {
     refused(
         &data,
         tmp.path(),
+        "neural",
         &["--neural-start", "both", "--budget", "21"],
         "twice, and the choice between the two fits",
     );
@@ -293,7 +295,7 @@ fn lowest_pick_returns_the_lowest_energy_iterate() {
     ] {
         let mut args = vec!["--neural-start", "given"];
         args.extend(extra);
-        refused(&data, tmp.path(), &args, want);
+        refused(&data, tmp.path(), "neural", &args, want);
     }
 }
 
@@ -383,30 +385,13 @@ fn neural_then_lm_refines_the_network_within_one_budget() {
     );
     // A budget the network alone uses up is refused, and nothing is written; with --dofs
     // observed (the default) the data information costs one more, so 11 is refused too.
-    let out_path = tmp.path().join("no.json");
     for (budget, want) in [
         ("10", "leaves LM nothing"),
         ("11", "needs at least 12 (with --dofs observed"),
     ] {
-        let out = lfit(&[
-            "-q",
-            "fit",
-            "--data",
-            path_str(&data),
-            "--template",
-            path_str(&root(MODEL)),
-            "--checkpoint",
-            path_str(&root(CHECKPOINT)),
-            "--method",
-            "neural+lm",
-            "--budget",
-            budget,
-            "--out",
-            path_str(&out_path),
-        ]);
-        assert_one_line_error(&out, want);
-        assert!(!out_path.exists());
+        refused(&data, tmp.path(), "neural+lm", &["--budget", budget], want);
     }
+    let out_path = tmp.path().join("no.json");
     let out = lfit(&[
         "-q",
         "fit",
@@ -725,30 +710,13 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
         assert_one_line_error(&out, want);
         assert!(!path.exists());
     }
-    let path = tmp.path().join("no.json");
-    let out = lfit(&[
-        "-q",
-        "fit",
-        "--data",
-        path_str(&data),
-        "--template",
-        path_str(&root(MODEL)),
-        "--checkpoint",
-        path_str(&root(CHECKPOINT)),
-        "--method",
+    refused(
+        &data,
+        tmp.path(),
         "neural",
-        "--budget",
-        "10",
-        "--dofs",
-        "observed",
-        "--out",
-        path_str(&path),
-    ]);
-    assert_one_line_error(
-        &out,
+        &["--budget", "10", "--dofs", "observed"],
         "--dofs is for classical methods and neural+lm's LM stage",
     );
-    assert!(!path.exists());
 }
 
 /// `neural+lm`'s default `--dofs` follows the sensor: `observed` on the sparse body sensors

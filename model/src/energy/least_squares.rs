@@ -830,14 +830,8 @@ impl Energy {
                 "the data information needs a sparse sensor (markers, keypoints, hmd, landmarks): a scan or silhouettes have no per-observation rows".into(),
             ));
         };
+        self.check_length(params)?;
         let dim = self.dim();
-        if params.len() != dim {
-            return Err(ModelError::Shape {
-                what: "parameter vector".into(),
-                expected: dim.to_string(),
-                got: params.len().to_string(),
-            });
-        }
         self.evaluations.fetch_add(1, Ordering::Relaxed);
         self.gradient_evaluations.fetch_add(1, Ordering::Relaxed);
         // The data rows do not depend on the prior's form (the EA rows are written as hinges).
@@ -864,6 +858,11 @@ impl Energy {
         if let Some(why) = self.least_squares_unsupported() {
             return Err(ModelError::Target(why));
         }
+        self.check_length(params)
+    }
+
+    /// A parameter vector of the energy's length ([`Energy::dim`]).
+    fn check_length(&self, params: &[f64]) -> Result<()> {
         let dim = self.dim();
         if params.len() != dim {
             return Err(ModelError::Shape {
