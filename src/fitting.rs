@@ -53,10 +53,21 @@ pub enum SequenceShape {
     /// solve are reported apart ([`FitReport::shape_pass`]); their time is shared out over the
     /// frames.
     Joint,
+    /// [`SequenceShape::FirstPass`]'s frames (up to [`FIRST_PASS_JOINT_FRAMES`] spread evenly,
+    /// each fitted on its own from the dataset's start pose with β free), then [`joint_shape`]'s
+    /// β solve over them alone, that β held fixed in the sequence pass: `joint`'s estimate (the
+    /// prior once, the poses free) without fitting the whole sequence twice nor solving over
+    /// every frame. Needs an energy in least-squares form.
+    FirstPassJoint,
 }
 
 /// Frames of [`SequenceShape::FirstPass`]'s first pass, at most.
 pub const FIRST_PASS_FRAMES: usize = 32;
+
+/// Frames of [`SequenceShape::FirstPassJoint`]'s first pass and β solve, at most. Round 6 of
+/// `docs/results/captured-motion.md`: solved over 64 frames of the captured clip's keypoints2d
+/// sequence β stayed below 1.0 (0.86), over 32 it reached 0.98.
+pub const FIRST_PASS_JOINT_FRAMES: usize = 64;
 
 impl SequenceShape {
     pub fn name(self) -> &'static str {
@@ -64,6 +75,7 @@ impl SequenceShape {
             Self::PerFrame => "per-frame",
             Self::FirstPass => "first-pass",
             Self::Joint => "joint",
+            Self::FirstPassJoint => "first-pass-joint",
         }
     }
 }
@@ -75,14 +87,15 @@ impl std::str::FromStr for SequenceShape {
             "per-frame" => Ok(Self::PerFrame),
             "first-pass" => Ok(Self::FirstPass),
             "joint" => Ok(Self::Joint),
+            "first-pass-joint" => Ok(Self::FirstPassJoint),
             _ => bail!(
-                "unknown sequence shape policy '{s}' (expected per-frame, first-pass or joint)"
+                "unknown sequence shape policy '{s}' (expected per-frame, first-pass, joint or first-pass-joint)"
             ),
         }
     }
 }
 
-/// The β pass of [`SequenceShape::FirstPass`] or [`SequenceShape::Joint`].
+/// The β pass of a [`SequenceShape`] other than `PerFrame`.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct ShapePass {
     /// The frames whose fits β was estimated from.
@@ -206,7 +219,7 @@ impl Plan<'_> {
         self.mask_with(self.known_shape.as_ref())
     }
 
-    /// Whether this plan runs a β pass ([`SequenceShape::FirstPass`], [`SequenceShape::Joint`]):
+    /// Whether this plan runs a β pass (every [`SequenceShape`] but `PerFrame`):
     /// a sequence whose model has shape parameters that are not given.
     pub fn runs_shape_pass(&self) -> bool {
         self.sequence_shape != SequenceShape::PerFrame
@@ -258,8 +271,8 @@ pub struct FrameFit {
 /// A frame of a `sequence` dataset that directly follows the frame fitted before it starts from
 /// that frame's result (papers/000 §4.3's warm start); every other frame starts from the
 /// dataset's start pose. `energy` gives a frame's energy (its own copy: evaluation counters live
-/// in the energy) and `seed` its seed. With [`SequenceShape::FirstPass`] or
-/// [`SequenceShape::Joint`] a β pass estimates the sequence's β before the frames are fitted
+/// in the energy) and `seed` its seed. With a [`SequenceShape`] other than `PerFrame` a β pass
+/// estimates the sequence's β before the frames are fitted
 /// with it fixed ([`FitReport::shape_pass`]).
 pub fn fit_frames(
     fitter: &dyn Fitter,
@@ -399,9 +412,11 @@ fn fit_group(
     })
 }
 
-/// [`SequenceShape::FirstPass`]'s first pass: up to [`FIRST_PASS_FRAMES`] frames spread evenly
-/// over `frames`, each fitted on its own from the dataset's start pose with β free (in batches of
-/// the plan's `batch`); β is the per-component median of their fits.
+/// [`SequenceShape::FirstPass`]'s and [`SequenceShape::FirstPassJoint`]'s first pass: up to
+/// [`FIRST_PASS_FRAMES`] (or [`FIRST_PASS_JOINT_FRAMES`]) frames spread evenly over `frames`, each
+/// fitted on its own from the dataset's start pose with β free (in batches of the plan's
+/// `batch`); β is the per-component median of their fits (first pass), or [`joint_shape`]'s
+/// solve over them (first-pass-joint).
 fn shape_pass(
     fitter: &dyn Fitter,
     plan: &Plan<'_>,
@@ -409,43 +424,100 @@ fn shape_pass(
     energy: &dyn Fn(usize) -> Result<Energy>,
     seed: &dyn Fn(usize) -> u64,
 ) -> Result<ShapePass> {
-    let picked: Vec<usize> = spread(frames.len(), FIRST_PASS_FRAMES)
+    let joint = plan.sequence_shape == SequenceShape::FirstPassJoint;
+    if joint {
+        least_squares_check(&energy(frames[0])?)?;
+    }
+    let count = if joint {
+        FIRST_PASS_JOINT_FRAMES
+    } else {
+        FIRST_PASS_FRAMES
+    };
+    let picked: Vec<usize> = spread(frames.len(), count)
         .into_iter()
         .map(|k| frames[k])
         .collect();
     let mask = plan.mask_with(None)?;
     let (mut evaluations, mut time_s) = (0u64, 0.0);
-    let mut betas: Vec<Vec<f64>> = Vec::with_capacity(picked.len());
+    let mut poses: Vec<Vec<f64>> = Vec::with_capacity(picked.len());
+    let mut energies: Vec<Energy> = Vec::with_capacity(picked.len());
     let shape = plan.template.layout().range(Block::Shape);
     for group in picked.chunks(plan.batch.max(1)) {
-        let energies = group
+        let group_energies = group
             .iter()
             .map(|&f| energy(f))
             .collect::<Result<Vec<_>>>()?;
         let requests: Vec<FitRequest<'_>> = group
             .iter()
-            .zip(&energies)
+            .zip(&group_energies)
             .map(|(&frame, e)| {
                 let start = plan.dataset.start_poses[frame].clone();
                 request(plan, None, &mask, frame, start, e, seed(frame))
             })
             .collect();
-        let results = fit_group(fitter, &requests, group)
-            .context("the first pass of --sequence-shape first-pass")?;
+        let results = fit_group(fitter, &requests, group).with_context(|| {
+            format!(
+                "the first pass of --sequence-shape {}",
+                plan.sequence_shape.name()
+            )
+        })?;
         for r in results {
             evaluations += r.evaluations;
             time_s += r.time_s;
-            betas.push(r.pose[shape.clone()].to_vec());
+            poses.push(r.pose);
+        }
+        if joint {
+            energies.extend(group_energies);
         }
     }
-    let beta = median_per_component(betas.iter().map(Vec::as_slice), shape.len());
+    if !joint {
+        let beta = median_per_component(poses.iter().map(|p| &p[shape.clone()]), shape.len());
+        return Ok(ShapePass {
+            frames: picked,
+            beta,
+            evaluations,
+            time_s,
+            joint: None,
+        });
+    }
+    let timer = std::time::Instant::now();
+    let (beta, solve) = solve_sequence_shape(plan, &energies, &poses)?;
     Ok(ShapePass {
         frames: picked,
         beta,
-        evaluations,
-        time_s,
-        joint: None,
+        evaluations: evaluations + solve.evaluations,
+        time_s: time_s + timer.elapsed().as_secs_f64(),
+        joint: Some(solve),
     })
+}
+
+/// Refuses an energy that [`joint_shape`] cannot solve (no least-squares form).
+fn least_squares_check(energy: &Energy) -> Result<()> {
+    if let Some(why) = least_squares_variant(energy, 1.0)?.least_squares_unsupported() {
+        bail!(
+            "--sequence-shape joint and first-pass-joint solve for β in least-squares form: {why}"
+        );
+    }
+    Ok(())
+}
+
+/// [`joint_shape`] over `poses` (first-pass fits) and their energies, each frame in the
+/// scenario's box around its first-pass result (a sequence's fits have no other: the joint
+/// limits are EA's, a soft prior, and the root goes where the motion goes): the sequence's β.
+fn solve_sequence_shape(
+    plan: &Plan<'_>,
+    energies: &[Energy],
+    poses: &[Vec<f64>],
+) -> Result<(Vec<f64>, JointSolve)> {
+    let shape = plan.template.layout().range(Block::Shape);
+    let free = plan.mask_with(None)?.free;
+    let scenario = plan.dataset.meta.config.scenario;
+    let bounds: Vec<Bounds> = poses
+        .iter()
+        .map(|p| scenario_bounds(scenario, plan.template, p))
+        .collect();
+    let (beta, _, solve) = joint_shape(energies, poses, shape, &free, &bounds)?;
+    Ok((beta, solve))
 }
 
 /// Up to `count` of the positions `0..len`, evenly spread: the i-th picks the middle of its share
@@ -478,10 +550,7 @@ fn joint_shape_pass(
     energy: &dyn Fn(usize) -> Result<Energy>,
     seed: &dyn Fn(usize) -> u64,
 ) -> Result<ShapePass> {
-    if let Some(why) = least_squares_variant(&energy(frames[0])?, 1.0)?.least_squares_unsupported()
-    {
-        bail!("--sequence-shape joint solves for β in least-squares form: {why}");
-    }
+    least_squares_check(&energy(frames[0])?)?;
     let (mut evaluations, mut time_s) = (0u64, 0.0);
     let mut poses: Vec<Vec<f64>> = Vec::with_capacity(frames.len());
     fit_pass(fitter, plan, frames, None, energy, seed, &mut |f| {
@@ -498,16 +567,7 @@ fn joint_shape_pass(
         .map(|&k| energy(frames[k]))
         .collect::<Result<Vec<_>>>()?;
     let poses: Vec<Vec<f64>> = picked.iter().map(|&k| poses[k].clone()).collect();
-    let shape = plan.template.layout().range(Block::Shape);
-    let free = plan.mask_with(None)?.free;
-    // Each frame in the scenario's box around its first-pass result (a sequence's fits have no
-    // other: the joint limits are EA's, a soft prior, and the root goes where the motion goes).
-    let scenario = plan.dataset.meta.config.scenario;
-    let bounds: Vec<Bounds> = poses
-        .iter()
-        .map(|p| scenario_bounds(scenario, plan.template, p))
-        .collect();
-    let (beta, _, solve) = joint_shape(&energies, &poses, shape, &free, &bounds)?;
+    let (beta, solve) = solve_sequence_shape(plan, &energies, &poses)?;
     evaluations += solve.evaluations;
     time_s += timer.elapsed().as_secs_f64();
     Ok(ShapePass {

@@ -410,7 +410,8 @@ struct FitCmd {
     /// How a sequence estimates the subject's shape β: per-frame (free in every frame's fit),
     /// first-pass (the median β of up to 32 frames fitted on their own, then fixed) or joint
     /// (the sequence fitted once; one β solved with every frame's pose over up to 512 frames'
-    /// energies, the shape prior counted once; the sequence fitted again with that β fixed).
+    /// energies, the shape prior counted once; the sequence fitted again with that β fixed) or
+    /// first-pass-joint (that solve over up to 64 frames fitted on their own, then fixed).
     #[arg(long, default_value = "per-frame")]
     sequence_shape: String,
     /// Which free entries the fit moves: all, or observed (only the rotation entries the

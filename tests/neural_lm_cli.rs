@@ -576,6 +576,80 @@ fn joint_shape_gives_a_sequence_the_beta_of_its_summed_energy() {
     assert!(!out_path.exists());
 }
 
+/// `--sequence-shape first-pass-joint`: up to 64 frames spread evenly over the sequence, each
+/// fitted on its own, then one β solved with their poses (the summed energy no higher than
+/// before the solve) and held in every frame; refused outside sequences.
+#[test]
+fn first_pass_joint_solves_beta_over_spread_frames() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let n = 70;
+    let seq = synth(tmp.path(), "seq.npz", "sequence", n, 0x5EED_000A);
+    let r = fit(
+        &seq,
+        &tmp.path().join("seq.json"),
+        &[
+            "--method",
+            "neural",
+            "--budget",
+            "12",
+            "--neural-start",
+            "best",
+            "--sequence-shape",
+            "first-pass-joint",
+        ],
+    );
+    assert_eq!(r["sequence_shape"], "first-pass-joint");
+    let pass = &r["summary"]["shape_pass"];
+    let picked: Vec<u64> = pass["frames"]
+        .as_array()
+        .expect("frames")
+        .iter()
+        .map(|f| f.as_u64().expect("frame"))
+        .collect();
+    // 64 of the 70, the i-th the middle of its share.
+    let want: Vec<u64> = (0..64u64).map(|i| (2 * i + 1) * n as u64 / 128).collect();
+    assert_eq!(picked, want);
+    let joint = &pass["joint"];
+    let (before, after) = (num(&joint["energy_before"]), num(&joint["energy_after"]));
+    assert!(
+        after.is_finite() && after < before,
+        "the β solve did not lower the summed energy: {before} -> {after}"
+    );
+    assert!(joint["iterations"].as_u64().expect("iterations") >= 1);
+    let beta = sequence_beta(&r);
+    assert!(beta.iter().all(|b| b.abs() <= 3.0), "inside the shape box");
+    // The 64 first-pass fits (12 each) and the solve, apart from the frames' own.
+    let solve = joint["evaluations"].as_u64().expect("solve evaluations");
+    assert!(solve > 0);
+    assert_eq!(
+        pass["evaluations"].as_u64().expect("evaluations"),
+        64 * 12 + solve
+    );
+    let out_path = tmp.path().join("no.json");
+    let local = synth(tmp.path(), "local.npz", "local", 2, 0x5EED_000B);
+    let out = lfit(&[
+        "-q",
+        "fit",
+        "--data",
+        path_str(&local),
+        "--template",
+        path_str(&root(MODEL)),
+        "--method",
+        "lm",
+        "--budget",
+        "50",
+        "--sequence-shape",
+        "first-pass-joint",
+        "--out",
+        path_str(&out_path),
+    ]);
+    assert_one_line_error(
+        &out,
+        "--sequence-shape first-pass-joint needs a sequence dataset",
+    );
+    assert!(!out_path.exists());
+}
+
 /// `--dofs observed` for a classical method: LM from the dataset's start keeps the thumbs (which
 /// no marker determines) at the start's values and moves the rest, and counts the one evaluation
 /// the data information costs; bad `--dofs` values and `--dofs` with `--method neural` are

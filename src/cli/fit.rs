@@ -143,7 +143,7 @@ pub struct FitArgs {
     pub ort_threads: Option<usize>,
     /// `--known-shape`: `truth` or comma-separated β values ([`crate::fitting::KnownShape`]).
     pub known_shape: Option<String>,
-    /// `--sequence-shape`: `per-frame`, `first-pass` or `joint` ([`crate::fitting::SequenceShape`]).
+    /// `--sequence-shape`: `per-frame`, `first-pass`, `joint` or `first-pass-joint` ([`crate::fitting::SequenceShape`]).
     pub sequence_shape: String,
     /// `--dofs`: `all`, `observed` or `observed:DEG` ([`lfit_fitters::Dofs`]); `None`: the
     /// method's default ([`crate::method::MethodKind::default_dofs`]).

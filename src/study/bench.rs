@@ -109,7 +109,8 @@ pub struct BenchConfig {
     /// forward, the fastest at batch 1) or `ort` (ONNX Runtime); as `lfit fit --runtime`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub runtime: Option<String>,
-    /// How a sequence estimates β: `per-frame` (default), `first-pass` or `joint`
+    /// How a sequence estimates β: `per-frame` (default), `first-pass`, `joint` or
+    /// `first-pass-joint`
     /// ([`crate::fitting::SequenceShape`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sequence_shape: Option<String>,
