@@ -72,6 +72,13 @@ for m in ${MODALITIES:-markers keypoints2d hmd}; do
             if [ "$m" != hmd ]; then
                 run "$m-$scenario-neural+lm-both" "$data" neural+lm --checkpoint "$ck" --neural-start both \
                     --budget 4000
+                # One β for the sequence (round 15): solved jointly over 64 frames fitted on their
+                # own, then held; every method the same way.
+                run "$m-$scenario-lm-first-pass-joint" "$data" lm --budget 4000 --sequence-shape first-pass-joint
+                run "$m-$scenario-neural-both-first-pass-joint" "$data" neural --checkpoint "$ck" \
+                    --neural-start both --budget 24 --sequence-shape first-pass-joint
+                run "$m-$scenario-neural+lm-both-first-pass-joint" "$data" neural+lm --checkpoint "$ck" \
+                    --neural-start both --budget 4000 --sequence-shape first-pass-joint
             else
                 run "$m-$scenario-neural+lm-phi" "$data" neural+lm --checkpoint "$ck" --neural-start phi \
                     --budget 4000 "${known[@]}"

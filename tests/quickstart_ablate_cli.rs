@@ -158,6 +158,23 @@ fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
         );
         let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("csv");
         assert_eq!(csv.lines().count(), 1 + 6 * 4);
+        // One subject, one β (`first-pass-joint`): each method's β error is the same in every
+        // frame of the clip.
+        let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
+        let col = |name: &str| header.iter().position(|h| *h == name).expect(name);
+        let (method, shape) = (col("method"), col("shape_rms"));
+        let mut by_method: std::collections::BTreeMap<String, Vec<String>> = Default::default();
+        for line in csv.lines().skip(1) {
+            let cells: Vec<&str> = line.split(',').collect();
+            by_method
+                .entry(cells[method].to_string())
+                .or_default()
+                .push(cells[shape].to_string());
+        }
+        assert_eq!(by_method.len(), 6);
+        for (name, rms) in &by_method {
+            assert!(rms.windows(2).all(|w| w[0] == w[1]), "{m} {name}: {rms:?}");
+        }
     }
     assert!(!table.contains("hmd, captured clip"));
     // A clip that is not there: one line, before any fit.
