@@ -34,8 +34,14 @@ pub struct Plan<'a> {
 /// worse than the prior's 1.0: `docs/results/learned-vs-classical.md`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum SequenceShape {
-    /// β free in every frame's fit, carried by the warm start (papers/000 §4.3).
+    /// The default: [`SequenceShape::FirstPassJoint`] where a sequence estimates β (its model has
+    /// shape parameters, not given) and the energy has a least-squares form,
+    /// [`SequenceShape::PerFrame`] otherwise ([`Plan::sequence_shape_for`]). One subject has one
+    /// β: on the captured clip and the validation subject this beat `per-frame` in every
+    /// method's V2V and β (`docs/results/captured-motion.md`, round 15).
     #[default]
+    Auto,
+    /// β free in every frame's fit, carried by the warm start (papers/000 §4.3).
     PerFrame,
     /// A first pass fits up to [`FIRST_PASS_FRAMES`] frames spread evenly over the sequence,
     /// each on its own from the dataset's start pose with β free; the per-component median of
@@ -72,6 +78,7 @@ pub const FIRST_PASS_JOINT_FRAMES: usize = 64;
 impl SequenceShape {
     pub fn name(self) -> &'static str {
         match self {
+            Self::Auto => "auto",
             Self::PerFrame => "per-frame",
             Self::FirstPass => "first-pass",
             Self::Joint => "joint",
@@ -84,12 +91,13 @@ impl std::str::FromStr for SequenceShape {
     type Err = anyhow::Error;
     fn from_str(s: &str) -> Result<Self> {
         match s {
+            "auto" => Ok(Self::Auto),
             "per-frame" => Ok(Self::PerFrame),
             "first-pass" => Ok(Self::FirstPass),
             "joint" => Ok(Self::Joint),
             "first-pass-joint" => Ok(Self::FirstPassJoint),
             _ => bail!(
-                "unknown sequence shape policy '{s}' (expected per-frame, first-pass, joint or first-pass-joint)"
+                "unknown sequence shape policy '{s}' (expected auto, per-frame, first-pass, joint or first-pass-joint)"
             ),
         }
     }
@@ -139,6 +147,9 @@ fn least_squares_variant(energy: &Energy, shape_share: f64) -> Result<Energy> {
 /// What [`fit_frames`] did beyond the frames it handed to its sink.
 #[derive(Debug, Clone, Default)]
 pub struct FitReport {
+    /// The sequence shape policy the frames were fitted with ([`Plan::sequence_shape_for`]:
+    /// never `Auto`).
+    pub sequence_shape: SequenceShape,
     pub shape_pass: Option<ShapePass>,
 }
 
@@ -219,13 +230,30 @@ impl Plan<'_> {
         self.mask_with(self.known_shape.as_ref())
     }
 
-    /// Whether this plan runs a β pass (every [`SequenceShape`] but `PerFrame`):
-    /// a sequence whose model has shape parameters that are not given.
-    pub fn runs_shape_pass(&self) -> bool {
-        self.sequence_shape != SequenceShape::PerFrame
-            && self.dataset.meta.config.scenario == Scenario::Sequence
+    /// Whether this plan's frames can share a β pass: a sequence whose model has shape
+    /// parameters that are not given.
+    pub fn estimates_sequence_shape(&self) -> bool {
+        self.dataset.meta.config.scenario == Scenario::Sequence
             && self.known_shape.is_none()
             && self.template.layout().shape > 0
+    }
+
+    /// The policy this plan runs with frames of `energy`'s form: the plan's own, with
+    /// [`SequenceShape::Auto`] resolved (`first-pass-joint` where the plan estimates a sequence's
+    /// β and the energy has a least-squares form, `per-frame` otherwise).
+    pub fn sequence_shape_for(&self, energy: &Energy) -> Result<SequenceShape> {
+        Ok(match self.sequence_shape {
+            SequenceShape::Auto
+                if self.estimates_sequence_shape()
+                    && least_squares_variant(energy, 1.0)?
+                        .least_squares_unsupported()
+                        .is_none() =>
+            {
+                SequenceShape::FirstPassJoint
+            }
+            SequenceShape::Auto => SequenceShape::PerFrame,
+            s => s,
+        })
     }
 
     fn mask_with(&self, known: Option<&KnownShape>) -> Result<DofMask> {
@@ -284,10 +312,19 @@ pub fn fit_frames(
 ) -> Result<FitReport> {
     let mut report = FitReport::default();
     let mut known = plan.known_shape.clone();
-    if plan.runs_shape_pass() && !frames.is_empty() {
-        let pass = match plan.sequence_shape {
-            SequenceShape::Joint => joint_shape_pass(fitter, plan, frames, energy, seed)?,
-            _ => shape_pass(fitter, plan, frames, energy, seed)?,
+    let Some(&first) = frames.first() else {
+        return Ok(report);
+    };
+    report.sequence_shape = plan.sequence_shape_for(&energy(first)?)?;
+    if report.sequence_shape != SequenceShape::PerFrame && plan.estimates_sequence_shape() {
+        let policy = Plan {
+            sequence_shape: report.sequence_shape,
+            known_shape: None,
+            ..*plan
+        };
+        let pass = match report.sequence_shape {
+            SequenceShape::Joint => joint_shape_pass(fitter, &policy, frames, energy, seed)?,
+            _ => shape_pass(fitter, &policy, frames, energy, seed)?,
         };
         known = Some(KnownShape::Given(pass.beta.clone()));
         report.shape_pass = Some(pass);

@@ -414,11 +414,120 @@ fn sequences_run_as_warm_started_chains_like_lfit_fit_and_resume_mid_chain() {
         std::fs::read_to_string(resumed.join("runs.csv")).expect("csv"),
         text.concat()
     );
+    // A model without shape parameters: per-frame, not recorded (as before the record).
+    let inputs = std::fs::read_to_string(full.join("inputs.json")).expect("inputs");
+    assert!(!inputs.contains("sequence_shape"), "{inputs}");
     std::fs::copy(full.join("inputs.json"), resumed.join("inputs.json")).expect("copy");
     lfit_json(&args);
     assert_eq!(
         csv_without_time(&resumed.join("runs.csv")),
         csv_without_time(&full.join("runs.csv"))
+    );
+}
+
+/// A sequence whose β is estimated: the bench's default sequence shape (`auto`) is
+/// first-pass-joint, as `lfit fit`'s, with the same fits; the policy is recorded in inputs.json
+/// and rows fitted under another (an inputs.json without it: per-frame, an older build) are not
+/// resumed.
+#[test]
+fn a_beta_free_sequence_gets_one_beta_and_records_its_policy() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let data = d.join("seq.npz");
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/models/makehuman-cmu_mb.npz");
+    lfit_json(&[
+        "-q",
+        "synth",
+        "--modality",
+        "markers",
+        "--scenario",
+        "sequence",
+        "--frames",
+        "3",
+        "--seed",
+        "5",
+        "--template",
+        model,
+        "--out",
+        path_str(&data),
+    ]);
+    let body = format!(
+        "name = \"seq-beta\"\nmethods = [\"lm\"]\nbudgets = [40]\nseed = 7\ntemplate = \"{model}\"\ndata = \"{}\"\n",
+        path_str(&data)
+    );
+    let cfg = config(d, "seq.toml", &body);
+    let full = d.join("full");
+    let args = |out: &Path| -> Vec<String> {
+        [
+            "-q",
+            "bench",
+            "--config",
+            path_str(&cfg),
+            "--out",
+            path_str(out),
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
+    };
+    let run = |out: &Path| lfit(&args(out).iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(run(&full).status.success());
+    let inputs: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(full.join("inputs.json")).expect("inputs"))
+            .expect("json");
+    assert_eq!(inputs["sequence_shape"], "first-pass-joint");
+    // The same fits as `lfit fit` with its default: one β, the same energies.
+    let fit = d.join("fit.json");
+    lfit_json(&[
+        "-q",
+        "fit",
+        "--data",
+        path_str(&data),
+        "--template",
+        model,
+        "--method",
+        "lm",
+        "--budget",
+        "40",
+        "--seed",
+        "7",
+        "--out",
+        path_str(&fit),
+    ]);
+    let fitted: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&fit).expect("fit")).expect("json");
+    assert_eq!(fitted["sequence_shape"], "first-pass-joint");
+    let bench = energies(&full.join("runs.csv"), "lm");
+    assert_eq!(bench.len(), 3);
+    for (frame, e) in &bench {
+        let want = fitted["frames"][*frame]["energy"].as_f64().expect("energy");
+        assert_eq!(e.parse::<f64>().expect("e"), want, "frame {frame}");
+    }
+    // Rows of a directory that recorded no policy (per-frame) are kept and not resumed.
+    let older = d.join("older");
+    std::fs::create_dir_all(&older).expect("dir");
+    std::fs::copy(full.join("bench.json"), older.join("bench.json")).expect("copy");
+    let rows: String = std::fs::read_to_string(full.join("runs.csv"))
+        .expect("csv")
+        .lines()
+        .take(2)
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(older.join("runs.csv"), &rows).expect("rows");
+    let mut without = inputs.clone();
+    without
+        .as_object_mut()
+        .expect("object")
+        .remove("sequence_shape");
+    std::fs::write(
+        older.join("inputs.json"),
+        serde_json::to_vec(&without).expect("json"),
+    )
+    .expect("inputs");
+    assert_one_line_error(&run(&older), "(sequence_shape changed since");
+    assert_eq!(
+        std::fs::read_to_string(older.join("runs.csv")).expect("csv"),
+        rows
     );
 }
 

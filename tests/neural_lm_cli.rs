@@ -160,6 +160,7 @@ fn refused(data: &Path, dir: &Path, method: &str, extra: &[&str], reason: &str) 
 fn both_starts_keep_the_lower_energy_fit() {
     let tmp = tempfile::tempdir().expect("tmp");
     let data = synth(tmp.path(), "local.npz", "local", 6, 0x5EED_0011);
+    // β per frame (in the sequence below: each run's own β pass would differ).
     let run = |data: &Path, start: &str, budget: &str| {
         fit(
             data,
@@ -171,6 +172,8 @@ fn both_starts_keep_the_lower_energy_fit() {
                 budget,
                 "--neural-start",
                 start,
+                "--sequence-shape",
+                "per-frame",
             ],
         )
     };
@@ -453,7 +456,7 @@ fn first_pass_gives_a_sequence_one_shape() {
     assert_eq!(pass["frames"].as_array().map(Vec::len), Some(8));
     sequence_beta(&r);
     assert!(pass["evaluations"].as_u64().expect("evaluations") >= 8 * 12);
-    // Per frame (the default), β moves from frame to frame.
+    // Per frame, β moves from frame to frame.
     let free = fit(
         &seq,
         &tmp.path().join("free.json"),
@@ -464,10 +467,46 @@ fn first_pass_gives_a_sequence_one_shape() {
             "12",
             "--neural-start",
             "best",
+            "--sequence-shape",
+            "per-frame",
         ],
     );
+    assert_eq!(free["sequence_shape"], "per-frame");
     let shapes: Vec<&Value> = frames(&free).iter().map(|f| &f["shape"]).collect();
     assert!(shapes.windows(2).any(|w| w[0] != w[1]));
+    // The default (`auto`) is first-pass-joint on a sequence whose β is estimated, per-frame
+    // where β is given.
+    let auto = fit(
+        &seq,
+        &tmp.path().join("auto.json"),
+        &[
+            "--method",
+            "neural",
+            "--budget",
+            "12",
+            "--neural-start",
+            "best",
+        ],
+    );
+    assert_eq!(auto["sequence_shape"], "first-pass-joint");
+    sequence_beta(&auto);
+    assert!(auto["summary"]["shape_pass"]["joint"]["iterations"].as_u64() >= Some(1));
+    let given = fit(
+        &seq,
+        &tmp.path().join("given.json"),
+        &[
+            "--method",
+            "neural",
+            "--budget",
+            "12",
+            "--neural-start",
+            "best",
+            "--known-shape",
+            "truth",
+        ],
+    );
+    assert_eq!(given["sequence_shape"], "per-frame");
+    assert!(given["summary"]["shape_pass"].is_null());
 
     // Refusals: not a sequence, an unknown policy, β already given.
     let local = synth(tmp.path(), "local.npz", "local", 2, 0x5EED_0004);
