@@ -47,10 +47,7 @@ for m in ${MODALITIES:-markers keypoints2d hmd}; do
         data="$OUT/clip-$scenario-$m.npz"
         "$LFIT" -q synth --modality "$m" --scenario "$scenario" --frames "$FRAMES" --seed "$SEED" \
             --template "$MODEL" --motions "$OUT/clip-motion.npz" --out "$data" >/dev/null
-        # Sequences fit β per frame here unless a row says otherwise (the rows of rounds 4–14).
-        seqb=()
-        [ "$scenario" = sequence ] && seqb=(--sequence-shape per-frame)
-        run "$m-$scenario-lm" "$data" lm --budget 4000 "${known[@]}" "${seqb[@]}"
+        run "$m-$scenario-lm" "$data" lm --budget 4000 "${known[@]}"
         if [ "$scenario" = local ]; then
             run "$m-$scenario-neural" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}"
             run "$m-$scenario-neural-best" "$data" neural --checkpoint "$ck" --neural-start best --budget 12 "${known[@]}"
@@ -59,8 +56,8 @@ for m in ${MODALITIES:-markers keypoints2d hmd}; do
                 --dofs all "${known[@]}"
             run "$m-$scenario-lm-observed" "$data" lm --budget 4000 --dofs observed "${known[@]}"
         else
-            run "$m-$scenario-neural-previous" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}" "${seqb[@]}"
-            run "$m-$scenario-neural-best" "$data" neural --checkpoint "$ck" --neural-start best --budget 12 "${known[@]}" "${seqb[@]}"
+            run "$m-$scenario-neural-previous" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}"
+            run "$m-$scenario-neural-best" "$data" neural --checkpoint "$ck" --neural-start best --budget 12 "${known[@]}"
             if [ "$m" != hmd ]; then
                 run "$m-$scenario-neural-best-first-pass" "$data" neural --checkpoint "$ck" --neural-start best \
                     --budget 12 --sequence-shape first-pass
@@ -68,23 +65,23 @@ for m in ${MODALITIES:-markers keypoints2d hmd}; do
                     --neural-start best --budget 4000 --sequence-shape first-pass
             fi
             run "$m-$scenario-neural+lm-best" "$data" neural+lm --checkpoint "$ck" --neural-start best \
-                --budget 4000 "${known[@]}" "${seqb[@]}"
+                --budget 4000 "${known[@]}"
             # The best measured sequence policies (round 14): a fit from the previous result and
             # one from Φ(D) per frame, the lower-energy kept, then LM (markers, keypoints2d); each
             # frame from Φ(D), then LM (hmd, whose legs the trackers do not see).
             if [ "$m" != hmd ]; then
                 run "$m-$scenario-neural+lm-both" "$data" neural+lm --checkpoint "$ck" --neural-start both \
-                    --budget 4000 "${seqb[@]}"
-                # One β for the sequence (round 15): solved jointly over 64 frames fitted on their
-                # own, then held; every method the same way.
-                run "$m-$scenario-lm-first-pass-joint" "$data" lm --budget 4000 --sequence-shape first-pass-joint
-                run "$m-$scenario-neural-both-first-pass-joint" "$data" neural --checkpoint "$ck" \
-                    --neural-start both --budget 24 --sequence-shape first-pass-joint
-                run "$m-$scenario-neural+lm-both-first-pass-joint" "$data" neural+lm --checkpoint "$ck" \
-                    --neural-start both --budget 4000 --sequence-shape first-pass-joint
+                    --budget 4000
+                # One β for the sequence (round 15): the sequence fitted once, β solved jointly
+                # over 64 of its frames, the sequence fitted again with it; every method alike.
+                run "$m-$scenario-lm-joint64" "$data" lm --budget 4000 --sequence-shape joint:64
+                run "$m-$scenario-neural-both-joint64" "$data" neural --checkpoint "$ck" \
+                    --neural-start both --budget 24 --sequence-shape joint:64
+                run "$m-$scenario-neural+lm-both-joint64" "$data" neural+lm --checkpoint "$ck" \
+                    --neural-start both --budget 4000 --sequence-shape joint:64
             else
                 run "$m-$scenario-neural+lm-phi" "$data" neural+lm --checkpoint "$ck" --neural-start phi \
-                    --budget 4000 "${known[@]}" "${seqb[@]}"
+                    --budget 4000 "${known[@]}"
             fi
         fi
     done

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# The beta policies of a sequence (--sequence-shape per-frame, first-pass, joint, first-pass-joint)
-# on the MocapBank clip as a sequence, for the network and LM (docs/results/captured-motion.md
-# rounds 4, 6 and 15).
+# The beta policies of a sequence (--sequence-shape per-frame, first-pass, joint, joint:64) on the
+# MocapBank clip as a sequence, for the network and LM (docs/results/captured-motion.md rounds 4,
+# 6 and 15).
 #   ./scripts/eval-sequence-shape.sh [OUT]     (MODALITIES="keypoints2d markers" by default)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -17,12 +17,12 @@ for m in ${MODALITIES:-keypoints2d markers}; do
   ck="checkpoints/$m-makehuman"
   data="$OUT/clip-sequence-$m.npz"
   [ -f "$data" ] || "$LFIT" -q synth --modality "$m" --scenario sequence --frames 454 --seed "$SEED" --template "$MODEL" --motions "$OUT/clip-motion.npz" --out "$data" >/dev/null
-  run "$m-seq-neural-per-frame" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 --sequence-shape per-frame
+  run "$m-seq-neural-per-frame" "$data" neural --checkpoint "$ck" --neural-start given --budget 10
   run "$m-seq-neural-first-pass" "$data" neural --checkpoint "$ck" --neural-start best --budget 12 --sequence-shape first-pass
   run "$m-seq-neural-joint" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 --sequence-shape joint
-  run "$m-seq-lm" "$data" lm --budget 4000 --sequence-shape per-frame
+  run "$m-seq-lm" "$data" lm --budget 4000
   run "$m-seq-lm-joint" "$data" lm --budget 4000 --sequence-shape joint
-  run "$m-seq-neural-first-pass-joint" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 --sequence-shape first-pass-joint
-  run "$m-seq-lm-first-pass-joint" "$data" lm --budget 4000 --sequence-shape first-pass-joint
+  run "$m-seq-neural-joint64" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 --sequence-shape joint:64
+  run "$m-seq-lm-joint64" "$data" lm --budget 4000 --sequence-shape joint:64
 done
 eval_table fits "$OUT" "${rows[@]}"

@@ -34,14 +34,10 @@ pub struct Plan<'a> {
 /// worse than the prior's 1.0: `docs/results/learned-vs-classical.md`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum SequenceShape {
-    /// The default: [`SequenceShape::FirstPassJoint`] where a sequence estimates β (its model has
-    /// shape parameters, not given) and the energy has a least-squares form,
-    /// [`SequenceShape::PerFrame`] otherwise ([`Plan::sequence_shape_for`]). One subject has one
-    /// β: on the captured clip and the validation subject this beat `per-frame` in every
-    /// method's V2V and β (`docs/results/captured-motion.md`, round 15).
+    /// β free in every frame's fit, carried by the warm start (papers/000 §4.3). The default:
+    /// one β per sequence (`joint:64`) helps on observations the model explains but can fit the
+    /// model's mismatch into β (a C3D import: `docs/results/captured-motion.md`, round 15).
     #[default]
-    Auto,
-    /// β free in every frame's fit, carried by the warm start (papers/000 §4.3).
     PerFrame,
     /// A first pass fits up to [`FIRST_PASS_FRAMES`] frames spread evenly over the sequence,
     /// each on its own from the dataset's start pose with β free; the per-component median of
@@ -51,38 +47,34 @@ pub enum SequenceShape {
     FirstPass,
     /// The sequence is fitted twice. The first pass fits it as `per-frame` does; the subject's β
     /// is then the one that, with every frame's pose free from the first pass's result,
-    /// minimises the summed energy of its frames (up to [`JOINT_SHAPE_FRAMES`], spread evenly)
-    /// with the shape prior counted once (Levenberg–Marquardt over the whole sequence, the poses
-    /// eliminated as in bundle adjustment: [`joint_shape`]), held fixed in the second pass. The
-    /// most probable β of the sequence under the energy, rather than the median of noisy
-    /// per-frame estimates. Needs an energy in least-squares form. The first pass and the β
-    /// solve are reported apart ([`FitReport::shape_pass`]); their time is shared out over the
-    /// frames.
-    Joint,
-    /// [`SequenceShape::FirstPass`]'s frames (up to [`FIRST_PASS_JOINT_FRAMES`] spread evenly,
-    /// each fitted on its own from the dataset's start pose with β free), then [`joint_shape`]'s
-    /// β solve over them alone, that β held fixed in the sequence pass: `joint`'s estimate (the
-    /// prior once, the poses free) without fitting the whole sequence twice nor solving over
-    /// every frame. Needs an energy in least-squares form.
-    FirstPassJoint,
+    /// minimises the summed energy of up to `frames` of its frames (spread evenly) with the
+    /// shape prior counted once (Levenberg–Marquardt over those frames, the poses eliminated as
+    /// in bundle adjustment: [`joint_shape`]), held fixed in the second pass. The most probable
+    /// β of the sequence under the energy, rather than the median of noisy per-frame estimates.
+    /// Needs an energy in least-squares form. The first pass and the β solve are reported apart
+    /// ([`FitReport::shape_pass`]); their time is shared out over the frames. `joint` solves
+    /// over up to [`JOINT_SHAPE_FRAMES`], `joint:N` over up to N.
+    Joint { frames: usize },
 }
 
 /// Frames of [`SequenceShape::FirstPass`]'s first pass, at most.
 pub const FIRST_PASS_FRAMES: usize = 32;
 
-/// Frames of [`SequenceShape::FirstPassJoint`]'s first pass and β solve, at most. Round 6 of
-/// `docs/results/captured-motion.md`: solved over 64 frames of the captured clip's keypoints2d
-/// sequence β stayed below 1.0 (0.86), over 32 it reached 0.98.
-pub const FIRST_PASS_JOINT_FRAMES: usize = 64;
+/// Frames of the β solve of `joint:64`, the sequences of the quickstart's clip and
+/// `scripts/eval-captured.sh`. Round 6 of `docs/results/captured-motion.md`: solved over 64
+/// frames of the captured clip's keypoints2d sequence β stayed below 1.0 (0.86), over 32 it
+/// reached 0.98; the solve's time grows with its frames (~7 s over the clip's 454, two threads).
+pub const FEW_JOINT_FRAMES: usize = 64;
 
 impl SequenceShape {
-    pub fn name(self) -> &'static str {
+    pub fn name(self) -> String {
         match self {
-            Self::Auto => "auto",
-            Self::PerFrame => "per-frame",
-            Self::FirstPass => "first-pass",
-            Self::Joint => "joint",
-            Self::FirstPassJoint => "first-pass-joint",
+            Self::PerFrame => "per-frame".into(),
+            Self::FirstPass => "first-pass".into(),
+            Self::Joint {
+                frames: JOINT_SHAPE_FRAMES,
+            } => "joint".into(),
+            Self::Joint { frames } => format!("joint:{frames}"),
         }
     }
 }
@@ -90,16 +82,22 @@ impl SequenceShape {
 impl std::str::FromStr for SequenceShape {
     type Err = anyhow::Error;
     fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "auto" => Ok(Self::Auto),
-            "per-frame" => Ok(Self::PerFrame),
-            "first-pass" => Ok(Self::FirstPass),
-            "joint" => Ok(Self::Joint),
-            "first-pass-joint" => Ok(Self::FirstPassJoint),
-            _ => bail!(
-                "unknown sequence shape policy '{s}' (expected auto, per-frame, first-pass, joint or first-pass-joint)"
-            ),
-        }
+        let unknown = || {
+            anyhow::anyhow!(
+                "unknown sequence shape policy '{s}' (expected per-frame, first-pass, joint or joint:N with N frames ≥ 1)"
+            )
+        };
+        Ok(match s {
+            "per-frame" => Self::PerFrame,
+            "first-pass" => Self::FirstPass,
+            "joint" => Self::Joint {
+                frames: JOINT_SHAPE_FRAMES,
+            },
+            _ => match s.strip_prefix("joint:").map(str::parse::<usize>) {
+                Some(Ok(frames)) if frames >= 1 => Self::Joint { frames },
+                _ => return Err(unknown()),
+            },
+        })
     }
 }
 
@@ -147,9 +145,6 @@ fn least_squares_variant(energy: &Energy, shape_share: f64) -> Result<Energy> {
 /// What [`fit_frames`] did beyond the frames it handed to its sink.
 #[derive(Debug, Clone, Default)]
 pub struct FitReport {
-    /// The sequence shape policy the frames were fitted with ([`Plan::sequence_shape_for`]:
-    /// never `Auto`).
-    pub sequence_shape: SequenceShape,
     pub shape_pass: Option<ShapePass>,
 }
 
@@ -230,30 +225,13 @@ impl Plan<'_> {
         self.mask_with(self.known_shape.as_ref())
     }
 
-    /// Whether this plan's frames can share a β pass: a sequence whose model has shape
-    /// parameters that are not given.
-    pub fn estimates_sequence_shape(&self) -> bool {
-        self.dataset.meta.config.scenario == Scenario::Sequence
+    /// Whether this plan runs a β pass (every [`SequenceShape`] but `PerFrame`): a sequence
+    /// whose model has shape parameters that are not given.
+    pub fn runs_shape_pass(&self) -> bool {
+        self.sequence_shape != SequenceShape::PerFrame
+            && self.dataset.meta.config.scenario == Scenario::Sequence
             && self.known_shape.is_none()
             && self.template.layout().shape > 0
-    }
-
-    /// The policy this plan runs with frames of `energy`'s form: the plan's own, with
-    /// [`SequenceShape::Auto`] resolved (`first-pass-joint` where the plan estimates a sequence's
-    /// β and the energy has a least-squares form, `per-frame` otherwise).
-    pub fn sequence_shape_for(&self, energy: &Energy) -> Result<SequenceShape> {
-        Ok(match self.sequence_shape {
-            SequenceShape::Auto
-                if self.estimates_sequence_shape()
-                    && least_squares_variant(energy, 1.0)?
-                        .least_squares_unsupported()
-                        .is_none() =>
-            {
-                SequenceShape::FirstPassJoint
-            }
-            SequenceShape::Auto => SequenceShape::PerFrame,
-            s => s,
-        })
     }
 
     fn mask_with(&self, known: Option<&KnownShape>) -> Result<DofMask> {
@@ -312,19 +290,12 @@ pub fn fit_frames(
 ) -> Result<FitReport> {
     let mut report = FitReport::default();
     let mut known = plan.known_shape.clone();
-    let Some(&first) = frames.first() else {
-        return Ok(report);
-    };
-    report.sequence_shape = plan.sequence_shape_for(&energy(first)?)?;
-    if report.sequence_shape != SequenceShape::PerFrame && plan.estimates_sequence_shape() {
-        let policy = Plan {
-            sequence_shape: report.sequence_shape,
-            known_shape: None,
-            ..*plan
-        };
-        let pass = match report.sequence_shape {
-            SequenceShape::Joint => joint_shape_pass(fitter, &policy, frames, energy, seed)?,
-            _ => shape_pass(fitter, &policy, frames, energy, seed)?,
+    if plan.runs_shape_pass() && !frames.is_empty() {
+        let pass = match plan.sequence_shape {
+            SequenceShape::Joint { frames: count } => {
+                joint_shape_pass(fitter, plan, frames, energy, seed, count)?
+            }
+            _ => shape_pass(fitter, plan, frames, energy, seed)?,
         };
         known = Some(KnownShape::Given(pass.beta.clone()));
         report.shape_pass = Some(pass);
@@ -449,11 +420,9 @@ fn fit_group(
     })
 }
 
-/// [`SequenceShape::FirstPass`]'s and [`SequenceShape::FirstPassJoint`]'s first pass: up to
-/// [`FIRST_PASS_FRAMES`] (or [`FIRST_PASS_JOINT_FRAMES`]) frames spread evenly over `frames`, each
-/// fitted on its own from the dataset's start pose with β free (in batches of the plan's
-/// `batch`); β is the per-component median of their fits (first pass), or [`joint_shape`]'s
-/// solve over them (first-pass-joint).
+/// [`SequenceShape::FirstPass`]'s first pass: up to [`FIRST_PASS_FRAMES`] frames spread evenly
+/// over `frames`, each fitted on its own from the dataset's start pose with β free (in batches of
+/// the plan's `batch`); β is the per-component median of their fits.
 fn shape_pass(
     fitter: &dyn Fitter,
     plan: &Plan<'_>,
@@ -461,79 +430,49 @@ fn shape_pass(
     energy: &dyn Fn(usize) -> Result<Energy>,
     seed: &dyn Fn(usize) -> u64,
 ) -> Result<ShapePass> {
-    let joint = plan.sequence_shape == SequenceShape::FirstPassJoint;
-    if joint {
-        least_squares_check(&energy(frames[0])?)?;
-    }
-    let count = if joint {
-        FIRST_PASS_JOINT_FRAMES
-    } else {
-        FIRST_PASS_FRAMES
-    };
-    let picked: Vec<usize> = spread(frames.len(), count)
+    let picked: Vec<usize> = spread(frames.len(), FIRST_PASS_FRAMES)
         .into_iter()
         .map(|k| frames[k])
         .collect();
     let mask = plan.mask_with(None)?;
     let (mut evaluations, mut time_s) = (0u64, 0.0);
-    let mut poses: Vec<Vec<f64>> = Vec::with_capacity(picked.len());
-    let mut energies: Vec<Energy> = Vec::with_capacity(picked.len());
+    let mut betas: Vec<Vec<f64>> = Vec::with_capacity(picked.len());
     let shape = plan.template.layout().range(Block::Shape);
     for group in picked.chunks(plan.batch.max(1)) {
-        let group_energies = group
+        let energies = group
             .iter()
             .map(|&f| energy(f))
             .collect::<Result<Vec<_>>>()?;
         let requests: Vec<FitRequest<'_>> = group
             .iter()
-            .zip(&group_energies)
+            .zip(&energies)
             .map(|(&frame, e)| {
                 let start = plan.dataset.start_poses[frame].clone();
                 request(plan, None, &mask, frame, start, e, seed(frame))
             })
             .collect();
-        let results = fit_group(fitter, &requests, group).with_context(|| {
-            format!(
-                "the first pass of --sequence-shape {}",
-                plan.sequence_shape.name()
-            )
-        })?;
+        let results = fit_group(fitter, &requests, group)
+            .context("the first pass of --sequence-shape first-pass")?;
         for r in results {
             evaluations += r.evaluations;
             time_s += r.time_s;
-            poses.push(r.pose);
-        }
-        if joint {
-            energies.extend(group_energies);
+            betas.push(r.pose[shape.clone()].to_vec());
         }
     }
-    if !joint {
-        let beta = median_per_component(poses.iter().map(|p| &p[shape.clone()]), shape.len());
-        return Ok(ShapePass {
-            frames: picked,
-            beta,
-            evaluations,
-            time_s,
-            joint: None,
-        });
-    }
-    let timer = std::time::Instant::now();
-    let (beta, solve) = solve_sequence_shape(plan, &energies, &poses)?;
+    let beta = median_per_component(betas.iter().map(Vec::as_slice), shape.len());
     Ok(ShapePass {
         frames: picked,
         beta,
-        evaluations: evaluations + solve.evaluations,
-        time_s: time_s + timer.elapsed().as_secs_f64(),
-        joint: Some(solve),
+        evaluations,
+        time_s,
+        joint: None,
     })
 }
 
 /// Refuses an energy that [`joint_shape`] cannot solve (no least-squares form).
 fn least_squares_check(energy: &Energy) -> Result<()> {
     if let Some(why) = least_squares_variant(energy, 1.0)?.least_squares_unsupported() {
-        bail!(
-            "--sequence-shape joint and first-pass-joint solve for β in least-squares form: {why}"
-        );
+        bail!("--sequence-shape joint solves for β in least-squares form: {why}");
     }
     Ok(())
 }
@@ -579,13 +518,14 @@ fn median_per_component<'a>(rows: impl Iterator<Item = &'a [f64]> + Clone, n: us
 }
 
 /// [`SequenceShape::Joint`]'s β pass: the sequence fitted with β free in every frame, then
-/// [`joint_shape`] over all its frames.
+/// [`joint_shape`] over up to `count` of its frames, spread evenly.
 fn joint_shape_pass(
     fitter: &dyn Fitter,
     plan: &Plan<'_>,
     frames: &[usize],
     energy: &dyn Fn(usize) -> Result<Energy>,
     seed: &dyn Fn(usize) -> u64,
+    count: usize,
 ) -> Result<ShapePass> {
     least_squares_check(&energy(frames[0])?)?;
     let (mut evaluations, mut time_s) = (0u64, 0.0);
@@ -598,7 +538,7 @@ fn joint_shape_pass(
     })
     .context("the first pass of --sequence-shape joint")?;
     let timer = std::time::Instant::now();
-    let picked = spread(frames.len(), JOINT_SHAPE_FRAMES);
+    let picked = spread(frames.len(), count);
     let energies = picked
         .iter()
         .map(|&k| energy(frames[k]))

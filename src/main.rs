@@ -407,14 +407,12 @@ struct FitCmd {
     /// energy among θ0 … θN, one more evaluation: a step that made the fit worse is not kept).
     #[arg(long, default_value = "last")]
     neural_pick: String,
-    /// How a sequence estimates the subject's shape β: auto (the default: first-pass-joint
-    /// where the sequence's β is estimated and the energy has a least-squares form, per-frame
-    /// otherwise), per-frame (free in every frame's fit), first-pass (the median β of up to 32
-    /// frames fitted on their own, then fixed), joint (the sequence fitted once; one β solved
-    /// with every frame's pose over up to 512 frames' energies, the shape prior counted once;
-    /// the sequence fitted again with that β fixed) or first-pass-joint (that solve over up to
-    /// 64 frames fitted on their own, then fixed).
-    #[arg(long, default_value = "auto")]
+    /// How a sequence estimates the subject's shape β: per-frame (free in every frame's fit),
+    /// first-pass (the median β of up to 32 frames fitted on their own, then fixed), joint (the
+    /// sequence fitted once; one β solved with every frame's pose over up to 512 frames'
+    /// energies, the shape prior counted once; the sequence fitted again with that β fixed) or
+    /// joint:N (that solve over up to N frames, spread evenly; joint:64 on the clip).
+    #[arg(long, default_value = "per-frame")]
     sequence_shape: String,
     /// Which free entries the fit moves: all, or observed (only the rotation entries the
     /// observations determine to within 2°, from the data term's information at the start; the

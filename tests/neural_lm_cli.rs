@@ -160,7 +160,6 @@ fn refused(data: &Path, dir: &Path, method: &str, extra: &[&str], reason: &str) 
 fn both_starts_keep_the_lower_energy_fit() {
     let tmp = tempfile::tempdir().expect("tmp");
     let data = synth(tmp.path(), "local.npz", "local", 6, 0x5EED_0011);
-    // β per frame (in the sequence below: each run's own β pass would differ).
     let run = |data: &Path, start: &str, budget: &str| {
         fit(
             data,
@@ -172,8 +171,6 @@ fn both_starts_keep_the_lower_energy_fit() {
                 budget,
                 "--neural-start",
                 start,
-                "--sequence-shape",
-                "per-frame",
             ],
         )
     };
@@ -456,7 +453,7 @@ fn first_pass_gives_a_sequence_one_shape() {
     assert_eq!(pass["frames"].as_array().map(Vec::len), Some(8));
     sequence_beta(&r);
     assert!(pass["evaluations"].as_u64().expect("evaluations") >= 8 * 12);
-    // Per frame, β moves from frame to frame.
+    // Per frame (the default), β moves from frame to frame.
     let free = fit(
         &seq,
         &tmp.path().join("free.json"),
@@ -467,46 +464,10 @@ fn first_pass_gives_a_sequence_one_shape() {
             "12",
             "--neural-start",
             "best",
-            "--sequence-shape",
-            "per-frame",
         ],
     );
-    assert_eq!(free["sequence_shape"], "per-frame");
     let shapes: Vec<&Value> = frames(&free).iter().map(|f| &f["shape"]).collect();
     assert!(shapes.windows(2).any(|w| w[0] != w[1]));
-    // The default (`auto`) is first-pass-joint on a sequence whose β is estimated, per-frame
-    // where β is given.
-    let auto = fit(
-        &seq,
-        &tmp.path().join("auto.json"),
-        &[
-            "--method",
-            "neural",
-            "--budget",
-            "12",
-            "--neural-start",
-            "best",
-        ],
-    );
-    assert_eq!(auto["sequence_shape"], "first-pass-joint");
-    sequence_beta(&auto);
-    assert!(auto["summary"]["shape_pass"]["joint"]["iterations"].as_u64() >= Some(1));
-    let given = fit(
-        &seq,
-        &tmp.path().join("given.json"),
-        &[
-            "--method",
-            "neural",
-            "--budget",
-            "12",
-            "--neural-start",
-            "best",
-            "--known-shape",
-            "truth",
-        ],
-    );
-    assert_eq!(given["sequence_shape"], "per-frame");
-    assert!(given["summary"]["shape_pass"].is_null());
 
     // Refusals: not a sequence, an unknown policy, β already given.
     let local = synth(tmp.path(), "local.npz", "local", 2, 0x5EED_0004);
@@ -615,11 +576,11 @@ fn joint_shape_gives_a_sequence_the_beta_of_its_summed_energy() {
     assert!(!out_path.exists());
 }
 
-/// `--sequence-shape first-pass-joint`: up to 64 frames spread evenly over the sequence, each
-/// fitted on its own, then one β solved with their poses (the summed energy no higher than
-/// before the solve) and held in every frame; refused outside sequences.
+/// `--sequence-shape joint:N`: the sequence fitted once, one β solved over N of its frames
+/// spread evenly (the summed energy no higher than before the solve), held in every frame of the
+/// second pass; `joint:0` and malformed counts refused.
 #[test]
-fn first_pass_joint_solves_beta_over_spread_frames() {
+fn joint_over_n_frames_solves_beta_over_spread_frames() {
     let tmp = tempfile::tempdir().expect("tmp");
     let n = 70;
     let seq = synth(tmp.path(), "seq.npz", "sequence", n, 0x5EED_000A);
@@ -634,10 +595,10 @@ fn first_pass_joint_solves_beta_over_spread_frames() {
             "--neural-start",
             "best",
             "--sequence-shape",
-            "first-pass-joint",
+            "joint:64",
         ],
     );
-    assert_eq!(r["sequence_shape"], "first-pass-joint");
+    assert_eq!(r["sequence_shape"], "joint:64");
     let pass = &r["summary"]["shape_pass"];
     let picked: Vec<u64> = pass["frames"]
         .as_array()
@@ -654,38 +615,38 @@ fn first_pass_joint_solves_beta_over_spread_frames() {
         after.is_finite() && after < before,
         "the β solve did not lower the summed energy: {before} -> {after}"
     );
-    assert!(joint["iterations"].as_u64().expect("iterations") >= 1);
     let beta = sequence_beta(&r);
     assert!(beta.iter().all(|b| b.abs() <= 3.0), "inside the shape box");
-    // The 64 first-pass fits (12 each) and the solve, apart from the frames' own.
+    // The first pass (every frame, 12 each) and the solve, apart from the frames' own.
     let solve = joint["evaluations"].as_u64().expect("solve evaluations");
     assert!(solve > 0);
     assert_eq!(
         pass["evaluations"].as_u64().expect("evaluations"),
-        64 * 12 + solve
+        n as u64 * 12 + solve
     );
     let out_path = tmp.path().join("no.json");
-    let local = synth(tmp.path(), "local.npz", "local", 2, 0x5EED_000B);
-    let out = lfit(&[
-        "-q",
-        "fit",
-        "--data",
-        path_str(&local),
-        "--template",
-        path_str(&root(MODEL)),
-        "--method",
-        "lm",
-        "--budget",
-        "50",
-        "--sequence-shape",
-        "first-pass-joint",
-        "--out",
-        path_str(&out_path),
-    ]);
-    assert_one_line_error(
-        &out,
-        "--sequence-shape first-pass-joint needs a sequence dataset",
-    );
+    for (policy, want) in [
+        ("joint:0", "unknown sequence shape policy 'joint:0'"),
+        ("joint:x", "unknown sequence shape policy 'joint:x'"),
+    ] {
+        let out = lfit(&[
+            "-q",
+            "fit",
+            "--data",
+            path_str(&seq),
+            "--template",
+            path_str(&root(MODEL)),
+            "--method",
+            "lm",
+            "--budget",
+            "50",
+            "--sequence-shape",
+            policy,
+            "--out",
+            path_str(&out_path),
+        ]);
+        assert_one_line_error(&out, want);
+    }
     assert!(!out_path.exists());
 }
 

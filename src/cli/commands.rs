@@ -369,7 +369,7 @@ pub struct QuickstartClip {
 /// `out/<modality>/` and `out/comparison.md`, and returns the comparison table (Markdown): the
 /// rows of each report's papers/002 Table 2. With `clip`, the markers and keypoints2d studies are
 /// repeated on every frame of a captured motion (a sequence, each frame warm-started from the
-/// previous fit, β from `--sequence-shape first-pass-joint`) under `out/<modality>-clip/`.
+/// previous fit, β from `--sequence-shape joint:64`) under `out/<modality>-clip/`.
 pub fn quickstart(
     out: &Path,
     frames: usize,
@@ -430,10 +430,14 @@ pub fn quickstart(
                 s.frames = n;
                 s.motions = vec![motion.clone()];
             }
-            // One subject, one β: every method's β solved jointly over 64 frames of the clip
-            // fitted on their own, then held (per frame it drifts: docs/results/captured-motion.md,
-            // round 15).
-            c.sequence_shape = Some(crate::fitting::SequenceShape::FirstPassJoint.name().into());
+            // One subject, one β: every method's β solved jointly over 64 frames of its first
+            // pass, then held (per frame it drifts: docs/results/captured-motion.md, round 15).
+            c.sequence_shape = Some(
+                crate::fitting::SequenceShape::Joint {
+                    frames: crate::fitting::FEW_JOINT_FRAMES,
+                }
+                .name(),
+            );
             c.validate()?;
             extra.push((format!("{part}-clip"), c));
         }

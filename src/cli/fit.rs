@@ -143,7 +143,8 @@ pub struct FitArgs {
     pub ort_threads: Option<usize>,
     /// `--known-shape`: `truth` or comma-separated β values ([`crate::fitting::KnownShape`]).
     pub known_shape: Option<String>,
-    /// `--sequence-shape`: `auto`, `per-frame`, `first-pass`, `joint` or `first-pass-joint` ([`crate::fitting::SequenceShape`]).
+    /// `--sequence-shape`: `per-frame`, `first-pass`, `joint` or `joint:N`
+    /// ([`crate::fitting::SequenceShape`]).
     pub sequence_shape: String,
     /// `--dofs`: `all`, `observed` or `observed:DEG` ([`lfit_fitters::Dofs`]); `None`: the
     /// method's default ([`crate::method::MethodKind::default_dofs`]).
@@ -369,12 +370,7 @@ fn fit_prepared(
         known_shape: known_shape.clone(),
         sequence_shape,
     };
-    use crate::fitting::SequenceShape;
-    if !matches!(
-        sequence_shape,
-        SequenceShape::Auto | SequenceShape::PerFrame
-    ) && !plan.estimates_sequence_shape()
-    {
+    if sequence_shape != crate::fitting::SequenceShape::PerFrame && !plan.runs_shape_pass() {
         bail!(
             "--sequence-shape {} needs a sequence dataset (this one is {scenario}) of a model with shape parameters whose β is not given (--known-shape)",
             sequence_shape.name()
@@ -500,7 +496,7 @@ fn fit_prepared(
         "ground_truth": dataset.has_ground_truth(),
         "scenario": scenario.to_string(),
         "mask": mask.name,
-        "sequence_shape": report.sequence_shape.name(),
+        "sequence_shape": sequence_shape.name(),
         "energy_config": config,
         "energy_variant": if config.is_differentiable() { "gradient (EJ off, hinge EA)" } else { "paper (papers/000 eq. 3)" },
         "summary": summary,

@@ -109,8 +109,7 @@ pub struct BenchConfig {
     /// forward, the fastest at batch 1) or `ort` (ONNX Runtime); as `lfit fit --runtime`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub runtime: Option<String>,
-    /// How a sequence estimates β: `auto` (default), `per-frame`, `first-pass`, `joint` or
-    /// `first-pass-joint`
+    /// How a sequence estimates β: `per-frame` (default), `first-pass`, `joint` or `joint:N`
     /// ([`crate::fitting::SequenceShape`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sequence_shape: Option<String>,
@@ -327,11 +326,11 @@ impl BenchConfig {
         crate::method::dofs_for(kind, name, &mut || Ok(modality)).context("dofs")
     }
 
-    /// The sequence shape policy (`sequence_shape`, default auto).
+    /// The sequence shape policy (`sequence_shape`, default per-frame).
     pub fn sequence_shape(&self) -> Result<crate::fitting::SequenceShape> {
         self.sequence_shape
             .as_deref()
-            .unwrap_or("auto")
+            .unwrap_or("per-frame")
             .parse()
             .context("sequence_shape")
     }
@@ -588,15 +587,11 @@ struct Inputs<'a> {
     /// The fitters' names, one per entry: they say what a method does where a build changed it
     /// under the same config (`neural+lm`'s LM stage on the observed entries: `…+lm-observed`).
     fitters: &'a [String],
-    /// The sequence shape policy the frames are fitted with (`auto` resolved); recorded when it
-    /// is not `per-frame` (the policy of every directory written before it was recorded).
-    sequence_shape: crate::fitting::SequenceShape,
 }
 
 /// What the rows of `runs.csv` depend on beyond `bench.json`: the bytes of the data file, the
 /// model's signature, the energy configuration, the checkpoint's files (a retrained network
-/// under the same path) and the fitters' names, each as an FNV-1a hash, and the sequence shape
-/// policy when it is not `per-frame`.
+/// under the same path) and the fitters' names, each as an FNV-1a hash.
 fn input_hashes(
     config: &BenchConfig,
     inputs: &Inputs<'_>,
@@ -606,7 +601,6 @@ fn input_hashes(
         template,
         energy,
         fitters,
-        sequence_shape,
     } = *inputs;
     let file_hash = |paths: &[PathBuf]| -> Result<String> {
         let mut h = lfit_model::Fnv1a::default();
@@ -644,9 +638,6 @@ fn input_hashes(
     let mut h = lfit_model::Fnv1a::default();
     h.eat(&serde_json::to_vec(fitters)?);
     inputs.insert("fitters".into(), h.hex().into());
-    if sequence_shape != crate::fitting::SequenceShape::PerFrame {
-        inputs.insert("sequence_shape".into(), sequence_shape.name().into());
-    }
     Ok(inputs)
 }
 
@@ -807,26 +798,6 @@ pub fn run(
         }
     }
     let names: Vec<String> = fitters.iter().map(|f| f.name()).collect();
-    let energies: Vec<Energy> = frames
-        .iter()
-        .map(|&f| energy_for_frame(&dataset, template.clone(), f, energy_config.clone()))
-        .collect::<Result<_>>()?;
-    // The β policy a sequence runs with (`auto` resolved): rows of another policy are not
-    // resumed into these.
-    let sequence_shape = match energies.first() {
-        Some(e) => crate::fitting::Plan {
-            dataset: &dataset,
-            template: &template,
-            budget: 0,
-            batch: 1,
-            known_shape: config
-                .known_shape
-                .then_some(crate::fitting::KnownShape::Truth),
-            sequence_shape: config.sequence_shape()?,
-        }
-        .sequence_shape_for(e)?,
-        None => crate::fitting::SequenceShape::PerFrame,
-    };
     check_inputs(
         config,
         out,
@@ -835,10 +806,13 @@ pub fn run(
             template: &template,
             energy: &energy_config,
             fitters: &names,
-            sequence_shape,
         },
         !existing.is_empty(),
     )?;
+    let energies: Vec<Energy> = frames
+        .iter()
+        .map(|&f| energy_for_frame(&dataset, template.clone(), f, energy_config.clone()))
+        .collect::<Result<_>>()?;
 
     // A unit of work: one frame, or in a sequence the whole chain of frames, where each frame
     // starts from the previous frame's result (papers/000 §4.3 warm start).

@@ -295,7 +295,7 @@ def fit(
     batch: int = 1,
     neural_start: str = "phi",
     neural_pick: str = "last",
-    sequence_shape: str = "auto",
+    sequence_shape: str = "per-frame",
     dofs: Optional[str] = None,
     device: str = "flex",
     runtime: str = "burn",
