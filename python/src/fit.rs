@@ -290,7 +290,8 @@ fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
 /// `"observed"` or `"observed:DEG"` (`lfit fit --dofs`; default the method's own).
 /// `sequence_shape`: `"per-frame"` (default), `"first-pass"`, `"joint"` or `"joint:N"` (`lfit
 /// fit --sequence-shape`). `energy`: a dict or JSON file of the energy configuration.
-/// `progress(done, total)` is called after each frame. Runs with the GIL released; Ctrl-C stops it between frames (`KeyboardInterrupt`).
+/// `progress(done, total)` is called after each frame. Runs with the GIL released; Ctrl-C stops
+/// it between frames (`KeyboardInterrupt`).
 #[pyfunction]
 #[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", sequence_shape="per-frame", dofs=None, device="flex", runtime="burn", ort_threads=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
