@@ -102,8 +102,8 @@ enum Command {
         /// Comma-separated procedural motions to draw from (default: the papers' nine): walk,
         /// jog, wave, squat, reach, punch, kick, jump, turn, and the extended sit, crouch, kneel,
         /// pickup, throw, overhead (deep flexions and overhead reaches, within clinical ranges),
-        /// lie, crawl, fall, stairs, spin, circle (on the floor, on a step, full turns in place
-        /// and walking: any root orientation).
+        /// lie, crawl, fall, stairs, spin, circle, flight (on the floor, on a step, full turns in
+        /// place, walking and on a flight of stairs: any root orientation).
         #[arg(long, value_name = "LIST")]
         library_motions: Option<String>,
         /// With --source motion (local or global scenario): this share of frames, in [0, 1],

@@ -320,13 +320,13 @@ fn same_seed_same_bytes_and_the_library_mixes_in() {
         "5",
         &[
             "--library-motions",
-            "sit,crouch,kneel,pickup,throw,overhead,lie,crawl,fall,stairs,spin,circle",
+            "sit,crouch,kneel,pickup,throw,overhead,lie,crawl,fall,stairs,spin,circle,flight",
         ],
     );
     let names = Dataset::load(&out).unwrap().meta.frame_motions;
     let extended = [
         "sit", "crouch", "kneel", "pickup", "throw", "overhead", "lie", "crawl", "fall", "stairs",
-        "spin", "circle",
+        "spin", "circle", "flight",
     ];
     assert!(
         names.iter().all(|n| extended.contains(&n.as_str())),

@@ -39,7 +39,7 @@ def test_synth_equals_the_cli_byte_for_byte(cli, tmp_path, modality):
 
 
 def test_synth_new_library_kinds_and_uniform_share_equal_the_cli(cli, tmp_path):
-    kinds = "lie,crawl,fall,stairs,spin,circle"
+    kinds = "lie,crawl,fall,stairs,spin,circle,flight"
     cli_out = tmp_path / "cli.npz"
     cli("synth", "--modality", "markers", "--model", MH, "--frames", 40, "--seed", 3, "--library-motions", kinds, "--uniform-share", 0.25, "--out", cli_out)
     py_out = tmp_path / "py.npz"

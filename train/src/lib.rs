@@ -115,9 +115,10 @@ pub struct TrainConfig {
     #[serde(skip_serializing_if = "MotionAugment::is_none")]
     pub motion_augment: MotionAugment,
     /// The procedural library's motion kinds the synthesised sets draw from (`lfit synth
-    /// --library-motions`), by name: e.g. the papers' nine and the twelve extended kinds
+    /// --library-motions`), by name: e.g. the papers' nine and the thirteen extended kinds
     /// (`"sit"`, `"crouch"`, `"kneel"`, `"pickup"`, `"throw"`, `"overhead"`, `"lie"`, `"crawl"`,
-    /// `"fall"`, `"stairs"`, `"spin"`, `"circle"`). Absent: the papers' nine ([`MotionKind::CLASSIC`]).
+    /// `"fall"`, `"stairs"`, `"spin"`, `"circle"`, `"flight"`). Absent: the papers' nine
+    /// ([`MotionKind::CLASSIC`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub library_motions: Option<Vec<MotionKind>>,
     /// The share of single-frame targets (training batches, validation, statistics; not the

@@ -1,12 +1,13 @@
 //! Procedural motion library (SPEC §8): walk, jog, wave, squat, reach, punch, kick, jump and turn
 //! as smooth functions of time that return pose vectors of the default 18-joint skeleton — the
-//! papers' library ([`MotionKind::CLASSIC`], the default everywhere) — and twelve kinds of what
+//! papers' library ([`MotionKind::CLASSIC`], the default everywhere) — and thirteen kinds of what
 //! people do that it lacks ([`MotionKind::EXTENDED`], chosen by name: `--library-motions`,
 //! `"library_motions"`): sit down and stand up, a deep crouch, kneeling on one knee, bending to
 //! pick something up, an overarm throw, reaching overhead or behind; lying down on the back and
 //! getting up, crawling on hands and knees, falling forward or backward and getting up, stepping
-//! up onto a step and down, turning full circles in place and walking round a circle. The last
-//! five of those but stairs leave papers/000's root box (lying, on all fours, every heading:
+//! up onto a step and down, turning full circles in place, walking round a circle and climbing a
+//! flight of stairs, turning on the landing and coming down. The last six of those but stairs
+//! leave papers/000's root box (lying, on all fours, every heading:
 //! [`MotionKind::has_free_root`]).
 //!
 //! Every motion is written in a *heading frame*: the body's own rotations, with the root path
@@ -129,12 +130,15 @@ pub enum MotionKind {
     /// Walking round a circle of 0.7–1.1 m radius, leaning into the turn: turning while walking
     /// (extended, free root).
     Circle,
+    /// Climbing a flight of 3–5 stairs step over step, turning round on the landing, coming down
+    /// and turning round at the foot (extended, free root).
+    Flight,
 }
 
 /// Error of [`MotionKind::from_str`]: the name matches no motion kind.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error(
-    "unknown motion kind '{name}' (expected one of walk, jog, wave, squat, reach, punch, kick, jump, turn, sit, crouch, kneel, pickup, throw, overhead, lie, crawl, fall, stairs, spin, circle)"
+    "unknown motion kind '{name}' (expected one of walk, jog, wave, squat, reach, punch, kick, jump, turn, sit, crouch, kneel, pickup, throw, overhead, lie, crawl, fall, stairs, spin, circle, flight)"
 )]
 pub struct UnknownMotionKind {
     /// The name that was given.
@@ -157,7 +161,7 @@ impl MotionKind {
     ];
 
     /// The kinds added for captured motion (issue 25, item 2), in declaration order.
-    pub const EXTENDED: [MotionKind; 12] = [
+    pub const EXTENDED: [MotionKind; 13] = [
         MotionKind::Sit,
         MotionKind::Crouch,
         MotionKind::Kneel,
@@ -170,11 +174,12 @@ impl MotionKind {
         MotionKind::Stairs,
         MotionKind::Spin,
         MotionKind::Circle,
+        MotionKind::Flight,
     ];
 
     /// Every kind, in declaration order: [`MotionKind::CLASSIC`] then [`MotionKind::EXTENDED`].
-    pub const ALL: [MotionKind; 21] = {
-        let mut all = [MotionKind::Walk; 21];
+    pub const ALL: [MotionKind; 22] = {
+        let mut all = [MotionKind::Walk; 22];
         let mut i = 0;
         while i < all.len() {
             all[i] = if i < Self::CLASSIC.len() {
@@ -211,6 +216,7 @@ impl MotionKind {
             MotionKind::Stairs => "stairs",
             MotionKind::Spin => "spin",
             MotionKind::Circle => "circle",
+            MotionKind::Flight => "flight",
         }
     }
 
@@ -231,12 +237,13 @@ impl MotionKind {
                 | MotionKind::Stairs
                 | MotionKind::Spin
                 | MotionKind::Circle
+                | MotionKind::Flight
         )
     }
 
     /// Whether the kind's root (the body's global orientation) leaves papers/000's root box
     /// (pitch −30…100°, yaw and roll ±50°): lying on the back, crawling, falling and full turns
-    /// (in place or walking).
+    /// (in place, walking, on a flight's landing).
     /// Their root may take any orientation (±180° per axis-angle component, as a person's does:
     /// issue 25, item 1); its axis-angle vector jumps where the rotation angle passes π (a full
     /// turn), the rotation itself stays continuous.
@@ -248,6 +255,7 @@ impl MotionKind {
                 | MotionKind::Fall
                 | MotionKind::Spin
                 | MotionKind::Circle
+                | MotionKind::Flight
         )
     }
 
@@ -264,17 +272,21 @@ impl MotionKind {
         }
     }
 
-    /// Whether the root travels along a path (walk, jog, crawl, circle); the other kinds stay
-    /// near the origin.
+    /// Whether the root travels along a path (walk, jog, crawl, circle, flight); the other kinds
+    /// stay near the origin.
     pub const fn is_locomotion(self) -> bool {
         matches!(
             self,
-            MotionKind::Walk | MotionKind::Jog | MotionKind::Crawl | MotionKind::Circle
+            MotionKind::Walk
+                | MotionKind::Jog
+                | MotionKind::Crawl
+                | MotionKind::Circle
+                | MotionKind::Flight
         )
     }
 
     /// Whether [`MotionParams::side`] picks the lead limb (wave, reach, punch, kick, kneel,
-    /// pickup, throw, overhead, stairs); for [`MotionKind::Turn`] and [`MotionKind::Spin`] it
+    /// pickup, throw, overhead, stairs, flight); for [`MotionKind::Turn`] and [`MotionKind::Spin`] it
     /// picks the (first) turning direction instead.
     pub const fn is_one_sided(self) -> bool {
         matches!(
@@ -288,6 +300,7 @@ impl MotionKind {
                 | MotionKind::Throw
                 | MotionKind::Overhead
                 | MotionKind::Stairs
+                | MotionKind::Flight
         )
     }
 
@@ -316,6 +329,7 @@ impl MotionKind {
             MotionKind::Stairs => (0.7, 1.3),
             MotionKind::Spin => (0.7, 1.2),
             MotionKind::Circle => (0.75, 1.2),
+            MotionKind::Flight => (0.8, 1.1),
         }
     }
 }
@@ -618,6 +632,7 @@ fn motion_pose_unclamped(kind: MotionKind, params: &MotionParams, time_s: f64) -
         MotionKind::Stairs => stairs(&p, t),
         MotionKind::Spin => spin(&p, t),
         MotionKind::Circle => circle(&p, t),
+        MotionKind::Flight => flight(&p, t),
     };
     let mut pose = if kind.is_one_sided() && p.side == Side::Right {
         mirror_pose(&body.pose)
@@ -2493,6 +2508,167 @@ fn circle(p: &MotionParams, t: f64) -> Local {
     Local { body, yaw, path }
 }
 
+/// Flight: climbing a flight of 3–5 stairs (by `style`; rise 15–18 cm, tread 28 cm) step over
+/// step — the lead (left) foot onto the first stair, each foot then two stairs up, the trailing
+/// foot closing beside the other on the landing — at 0.95 s per step × speed⁻¹ (55–70 steps/min:
+/// a calm pace; stair cadences run ~70–100), turning round on the landing while stepping in place
+/// (1.8 s × speed⁻¹), coming down step over step the same way, and turning round again at the
+/// foot. The legs follow the feet by two-link inverse kinematics (feet flat; the trailing heel
+/// rises where the foot is out of reach); the pelvis follows 0.7 of a step behind the feet, eight
+/// centimetres low while stepping (the knees bent), and going down it leads by 0.9 of a stair
+/// (the stance knee lowers the body before the swinging foot lands). The trunk leans 6–12°
+/// forward going up; the head looks down going down.
+fn flight(p: &MotionParams, t: f64) -> Local {
+    let n = 3 + (3.0 * p.style).floor().min(2.0) as usize;
+    let steps = n as f64;
+    let rise = 0.15 + 0.03 * p.style;
+    let tread = 0.28;
+    let step_t = 0.95 / p.speed;
+    let turn_t = 1.8 / p.speed;
+    let climb_t = (steps + 1.2) * step_t;
+    let cycle = 2.0 * (climb_t + turn_t);
+    let tau = (t + p.phase / TAU * cycle).rem_euclid(cycle);
+    let heading = DQuat::from_rotation_y(p.heading);
+    // World (forward z, up y) of the stair levels' ankles and of the pelvis, in the heading frame.
+    let level = |i: f64| DVec2::new(i * tread, ANKLE_HEIGHT + i * rise);
+    let at_rest = |i: f64| DVec3::new(0.0, i * rise, i * tread);
+    let (phase, local) = if tau < climb_t {
+        (0, tau)
+    } else if tau < climb_t + turn_t {
+        (1, tau - climb_t)
+    } else if tau < 2.0 * climb_t + turn_t {
+        (2, tau - climb_t - turn_t)
+    } else {
+        (3, tau - 2.0 * climb_t - turn_t)
+    };
+    // Turning towards the lead side: left for a left lead (the caller mirrors a right lead,
+    // whose yaw turns the other way here).
+    let turn = p.side.sign() * PI;
+    let pitch_at_rest = 2f64.to_radians();
+    if phase == 1 || phase == 3 {
+        // Turning round on the landing (1) or at the foot (3), stepping in place: the legs are
+        // those of standing on the stair (as the climb ends and starts) with each foot lifted
+        // in turn, so that the motion stays smooth across the phases.
+        let s = local / turn_t;
+        let rate = (4.0 * s * (1.0 - s)).powi(2);
+        let step_phase = 0.8 * p.speed * local;
+        let mut body = Body::new();
+        for (side, offset) in [(Side::Left, 0.0), (Side::Right, 0.5)] {
+            let lift = 0.04 * pulse(step_phase, offset, 2) * rate;
+            let foot = DVec2::new(0.0, ANKLE_HEIGHT + lift - HIP_HEIGHT);
+            let (h, k, a) = leg_to(DVec2::ZERO, foot, pitch_at_rest);
+            leg(&mut body, side, h, k, a);
+        }
+        body.set(ROOT, DVec3::new(pitch_at_rest, 0.0, 0.0));
+        body.set(MIDDLE_TORSO, deg(0.0, 8.0 * rate, 0.0));
+        body.set(
+            HEAD,
+            DVec3::new(-0.5 * pitch_at_rest, 12f64.to_radians() * rate, 0.0),
+        );
+        relaxed_arms(&mut body, p.arm_drop, [0.0, 0.0], [(15f64).to_radians(); 2]);
+        let (floor, from) = if phase == 1 {
+            (steps, 0.0)
+        } else {
+            (0.0, turn)
+        };
+        return Local {
+            body,
+            yaw: p.heading + from + turn * smoothstep(s),
+            path: heading * at_rest(floor),
+        };
+    }
+    let up = phase == 0;
+    // Progress in steps: swing k (1 ..= n + 1) of the foot of its parity (odd: the lead foot)
+    // takes it from stair k − 2 to stair k (the last, n + 1, closes on stair n) during
+    // [k − 1, k − 0.1] of `u`.
+    let u = local / step_t;
+    let stair = |k: f64| {
+        if up {
+            k.clamp(0.0, steps)
+        } else {
+            steps - k.clamp(0.0, steps)
+        }
+    };
+    let foot = |parity: usize| -> DVec2 {
+        let mut at = level(stair(0.0));
+        for k in (1..=n + 1).filter(|k| k % 2 == parity) {
+            let kf = k as f64;
+            let s = ((u - (kf - 1.0)) / 0.9).clamp(0.0, 1.0);
+            if s <= 0.0 {
+                break;
+            }
+            let (a, b) = (level(stair(kf - 2.0)), level(stair(kf)));
+            // Up: the foot rises before it moves forward (over the stair's nose); down: it moves
+            // forward first, then down.
+            let (sz, sy) = if up {
+                (smoothstep(s), smoothstep((1.25 * s).min(1.0)))
+            } else {
+                (smoothstep((1.25 * s).min(1.0)), smoothstep(s))
+            };
+            at = DVec2::new(a.x + (b.x - a.x) * sz, a.y + (b.y - a.y) * sy)
+                + DVec2::new(0.0, 0.03 * (PI * s).sin().powi(2));
+        }
+        at
+    };
+    // The body's progress in stairs: u − 0.7 (0.7 of a step behind the feet), clamped to
+    // [0, n] with the corners rounded over half a step either side (velocity eased in and out).
+    let x = u - 0.7;
+    let progress = if x <= -0.5 {
+        0.0
+    } else if x < 0.5 {
+        (x + 0.5).powi(2) / 2.0
+    } else if x <= steps - 0.5 {
+        x
+    } else if x < steps + 0.5 {
+        steps - (steps + 0.5 - x).powi(2) / 2.0
+    } else {
+        steps
+    };
+    // Eight centimetres low while stepping (the knees bent), eased in and out; down, the pelvis
+    // leads by 0.9 of a stair (the stance knee lowers the body before the swinging foot lands).
+    let busy =
+        smoothstep(u.clamp(0.0, 1.0)) * (1.0 - smoothstep((u - steps - 0.2).clamp(0.0, 1.0)));
+    let (z, y) = if up {
+        (progress * tread, progress * rise - 0.08 * busy)
+    } else {
+        (
+            (steps - progress) * tread,
+            (steps - progress - 0.9 * busy) * rise - 0.08 * busy,
+        )
+    };
+    let hip = DVec2::new(z, HIP_HEIGHT + y);
+    let dir = if up { 1.0 } else { -1.0 };
+    let lean = if up {
+        (6.0 + 6.0 * p.amplitude.min(1.0)) * busy
+    } else {
+        2.0 * busy
+    };
+    let pitch = pitch_at_rest + lean.to_radians();
+    let mut body = Body::new();
+    for (side, parity) in [(Side::Left, 1), (Side::Right, 0)] {
+        let f = foot(parity);
+        // The legs' plane is the body's: forward is +z going up, −z coming down.
+        let rel = DVec2::new(dir * (f.x - hip.x), f.y - hip.y);
+        let (h, k, a) = leg_to(DVec2::ZERO, rel, pitch);
+        leg(&mut body, side, h, k, a);
+    }
+    body.set(ROOT, DVec3::new(pitch, 0.0, 0.0));
+    let look = if up { 0.0 } else { 15f64.to_radians() * busy };
+    body.set(HEAD, DVec3::new(-0.5 * pitch + look, 0.0, 0.0));
+    let arm = 0.2 * (PI * u).sin() * busy;
+    relaxed_arms(
+        &mut body,
+        p.arm_drop,
+        [arm, -arm],
+        [(15f64).to_radians(); 2],
+    );
+    Local {
+        body,
+        yaw: p.heading + if up { 0.0 } else { turn },
+        path: heading * DVec3::new(0.0, y, z),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -2970,6 +3146,95 @@ mod tests {
             .windows(2)
             .map(|w| (hip_facing(&w[1]) - hip_facing(&w[0]) + PI).rem_euclid(TAU) - PI)
             .sum()
+    }
+
+    /// Flight: the pelvis climbs the flight's height and comes back to the floor, the feet stand
+    /// on every stair (each foot on its own stairs, step over step) and never sink under the
+    /// floor, the body travels the flight's length and turns round at its top and foot, one way.
+    #[test]
+    fn a_flight_climbs_turns_round_and_comes_down() {
+        use lfit_model::skeleton::R_ANKLE;
+        let template = lfit_model::default_template();
+        let rest = joints(&template, &[0.0; POSE_DIM]);
+        let floor = rest[L_ANKLE].y - ANKLE_HEIGHT;
+        for seed in 0..6 {
+            let p = MotionParams {
+                heading: 0.0,
+                phase: 0.0,
+                side: Side::Left,
+                ..params(MotionKind::Flight, seed)
+            };
+            let n = 3 + (3.0 * p.style).floor().min(2.0) as usize;
+            let rise = 0.15 + 0.03 * p.style;
+            // One whole cycle: up, round, down, round.
+            let climb = (n as f64 + 1.2) * 0.95 / p.speed;
+            let cycle = 2.0 * (climb + 1.8 / p.speed);
+            let count = (cycle * FPS).ceil() as usize;
+            let frames: Vec<Vec<DVec3>> = sequence(MotionKind::Flight, &p, FPS, count, 0.0)
+                .iter()
+                .map(|q| joints(&template, q))
+                .collect();
+            let heights: Vec<f64> = frames.iter().map(|f| f[ROOT].y - rest[ROOT].y).collect();
+            let top = heights.iter().copied().fold(f64::MIN, f64::max);
+            let want = n as f64 * rise;
+            assert!(
+                (top - want).abs() < 0.03,
+                "flight seed {seed}: pelvis up {top:.3} for {n} stairs of {rise:.3}"
+            );
+            assert!(heights[0].abs() < 0.03 && heights[count - 1].abs() < 0.03);
+            // Each stair carries a foot for a while; going up, the lead foot the odd stairs below
+            // the landing, the other the even ones.
+            let on_in = |frames: &[Vec<DVec3>], a: usize, i: usize| {
+                let h = ANKLE_HEIGHT + i as f64 * rise;
+                frames
+                    .iter()
+                    .filter(|f| (f[a].y - floor - h).abs() < 0.02)
+                    .count()
+            };
+            let climbing = &frames[..(climb * FPS) as usize];
+            let frames_on = |a: usize, i: usize| on_in(climbing, a, i);
+            for i in 1..n {
+                let (on, off) = if i % 2 == 1 {
+                    (L_ANKLE, R_ANKLE)
+                } else {
+                    (R_ANKLE, L_ANKLE)
+                };
+                assert!(
+                    frames_on(on, i) >= 6,
+                    "flight seed {seed}: stair {i} under the stepping foot {} frames",
+                    frames_on(on, i)
+                );
+                assert!(
+                    frames_on(off, i) < frames_on(on, i) / 2,
+                    "flight seed {seed}: stair {i} under the other foot too"
+                );
+            }
+            for a in [L_ANKLE, R_ANKLE] {
+                assert!(on_in(&frames, a, n) >= 15, "flight seed {seed}: landing");
+                let lowest = frames
+                    .iter()
+                    .map(|f| f[a].y - floor)
+                    .fold(f64::MAX, f64::min);
+                assert!(
+                    lowest > ANKLE_HEIGHT - 0.02,
+                    "flight seed {seed}: {lowest:.3}"
+                );
+            }
+            let (zmin, zmax) = frames.iter().fold((f64::MAX, f64::MIN), |(lo, hi), f| {
+                (lo.min(f[ROOT].z), hi.max(f[ROOT].z))
+            });
+            assert!(
+                (zmax - zmin - n as f64 * 0.28).abs() < 0.1,
+                "flight seed {seed}: travelled {:.2} m",
+                zmax - zmin
+            );
+            let turned = hip_line_turn(&frames);
+            assert!(
+                (turned.abs() - TAU).abs() < 0.5,
+                "flight seed {seed}: turned {:.0}°",
+                turned.to_degrees()
+            );
+        }
     }
 
     /// Circle: the root goes round a circle of the drawn radius about the origin, more than one
