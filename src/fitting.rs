@@ -35,8 +35,9 @@ pub struct Plan<'a> {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum SequenceShape {
     /// β free in every frame's fit, carried by the warm start (papers/000 §4.3). The default:
-    /// one β per sequence (`joint:64`) helps on observations the model explains but can fit the
-    /// model's mismatch into β (a C3D import: `docs/results/captured-motion.md`, round 15).
+    /// one β per sequence (`joint:64`) helps where the model explains the observations, but the
+    /// solve takes the model's mismatch into β (a C3D import: `docs/results/captured-motion.md`,
+    /// round 15).
     #[default]
     PerFrame,
     /// A first pass fits up to [`FIRST_PASS_FRAMES`] frames spread evenly over the sequence,
@@ -278,8 +279,8 @@ pub struct FrameFit {
 /// that frame's result (papers/000 §4.3's warm start); every other frame starts from the
 /// dataset's start pose. `energy` gives a frame's energy (its own copy: evaluation counters live
 /// in the energy) and `seed` its seed. With a [`SequenceShape`] other than `PerFrame` a β pass
-/// estimates the sequence's β before the frames are fitted
-/// with it fixed ([`FitReport::shape_pass`]).
+/// estimates the sequence's β before the frames are fitted with it fixed
+/// ([`FitReport::shape_pass`]).
 pub fn fit_frames(
     fitter: &dyn Fitter,
     plan: &Plan<'_>,
@@ -469,33 +470,6 @@ fn shape_pass(
     })
 }
 
-/// Refuses an energy that [`joint_shape`] cannot solve (no least-squares form).
-fn least_squares_check(energy: &Energy) -> Result<()> {
-    if let Some(why) = least_squares_variant(energy, 1.0)?.least_squares_unsupported() {
-        bail!("--sequence-shape joint solves for β in least-squares form: {why}");
-    }
-    Ok(())
-}
-
-/// [`joint_shape`] over `poses` (first-pass fits) and their energies, each frame in the
-/// scenario's box around its first-pass result (a sequence's fits have no other: the joint
-/// limits are EA's, a soft prior, and the root goes where the motion goes): the sequence's β.
-fn solve_sequence_shape(
-    plan: &Plan<'_>,
-    energies: &[Energy],
-    poses: &[Vec<f64>],
-) -> Result<(Vec<f64>, JointSolve)> {
-    let shape = plan.template.layout().range(Block::Shape);
-    let free = plan.mask_with(None)?.free;
-    let scenario = plan.dataset.meta.config.scenario;
-    let bounds: Vec<Bounds> = poses
-        .iter()
-        .map(|p| scenario_bounds(scenario, plan.template, p))
-        .collect();
-    let (beta, _, solve) = joint_shape(energies, poses, shape, &free, &bounds)?;
-    Ok((beta, solve))
-}
-
 /// Up to `count` of the positions `0..len`, evenly spread: the i-th picks the middle of its share
 /// (every position when `len ≤ count`). The frames of a β pass.
 fn spread(len: usize, count: usize) -> Vec<usize> {
@@ -527,7 +501,10 @@ fn joint_shape_pass(
     seed: &dyn Fn(usize) -> u64,
     count: usize,
 ) -> Result<ShapePass> {
-    least_squares_check(&energy(frames[0])?)?;
+    if let Some(why) = least_squares_variant(&energy(frames[0])?, 1.0)?.least_squares_unsupported()
+    {
+        bail!("--sequence-shape joint solves for β in least-squares form: {why}");
+    }
     let (mut evaluations, mut time_s) = (0u64, 0.0);
     let mut poses: Vec<Vec<f64>> = Vec::with_capacity(frames.len());
     fit_pass(fitter, plan, frames, None, energy, seed, &mut |f| {
@@ -544,7 +521,16 @@ fn joint_shape_pass(
         .map(|&k| energy(frames[k]))
         .collect::<Result<Vec<_>>>()?;
     let poses: Vec<Vec<f64>> = picked.iter().map(|&k| poses[k].clone()).collect();
-    let (beta, solve) = solve_sequence_shape(plan, &energies, &poses)?;
+    let shape = plan.template.layout().range(Block::Shape);
+    let free = plan.mask_with(None)?.free;
+    // Each frame in the scenario's box around its first-pass result (a sequence's fits have no
+    // other: the joint limits are EA's, a soft prior, and the root goes where the motion goes).
+    let scenario = plan.dataset.meta.config.scenario;
+    let bounds: Vec<Bounds> = poses
+        .iter()
+        .map(|p| scenario_bounds(scenario, plan.template, p))
+        .collect();
+    let (beta, _, solve) = joint_shape(&energies, &poses, shape, &free, &bounds)?;
     evaluations += solve.evaluations;
     time_s += timer.elapsed().as_secs_f64();
     Ok(ShapePass {
