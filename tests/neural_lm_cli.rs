@@ -514,16 +514,13 @@ fn first_pass_gives_a_sequence_one_shape() {
     assert!(!out_path.exists());
 }
 
-/// `--sequence-shape joint`: the sequence fitted once, one β solved with the poses of all its
-/// frames (the sequence's energy no higher than before the solve), then every frame fitted with
-/// that β; refused outside sequences.
-#[test]
-fn joint_shape_gives_a_sequence_the_beta_of_its_summed_energy() {
-    let tmp = tempfile::tempdir().expect("tmp");
-    let seq = synth(tmp.path(), "seq.npz", "sequence", 8, 0x5EED_0005);
+/// The network's fit of `seq` (12 evaluations a frame, the better start) with the joint β
+/// `policy`, asserted to have solved one β for the whole sequence: the summed energy no higher
+/// than before the solve, at least one iteration, β inside the shape box and in every frame.
+fn joint_pass(seq: &Path, out: &Path, policy: &str) -> Value {
     let r = fit(
-        &seq,
-        &tmp.path().join("seq.json"),
+        seq,
+        out,
         &[
             "--method",
             "neural",
@@ -532,17 +529,11 @@ fn joint_shape_gives_a_sequence_the_beta_of_its_summed_energy() {
             "--neural-start",
             "best",
             "--sequence-shape",
-            "joint",
+            policy,
         ],
     );
-    assert_eq!(r["sequence_shape"], "joint");
-    let pass = &r["summary"]["shape_pass"];
-    assert_eq!(
-        pass["frames"].as_array().map(Vec::len),
-        Some(8),
-        "every frame"
-    );
-    let joint = &pass["joint"];
+    assert_eq!(r["sequence_shape"], policy);
+    let joint = &r["summary"]["shape_pass"]["joint"];
     let (before, after) = (num(&joint["energy_before"]), num(&joint["energy_after"]));
     assert!(
         after.is_finite() && after <= before,
@@ -551,89 +542,42 @@ fn joint_shape_gives_a_sequence_the_beta_of_its_summed_energy() {
     assert!(joint["iterations"].as_u64().expect("iterations") >= 1);
     let beta = sequence_beta(&r);
     assert!(beta.iter().all(|b| b.abs() <= 3.0), "inside the shape box");
-    // The first pass (8 frames × 12) and the solve are counted apart from the frames' own.
-    assert!(pass["evaluations"].as_u64().expect("evaluations") > 8 * 12);
-    // Outside a sequence: one line, nothing written.
-    let local = synth(tmp.path(), "local.npz", "local", 2, 0x5EED_0006);
-    let out_path = tmp.path().join("no.json");
-    let out = lfit(&[
-        "-q",
-        "fit",
-        "--data",
-        path_str(&local),
-        "--template",
-        path_str(&root(MODEL)),
-        "--method",
-        "lm",
-        "--budget",
-        "50",
-        "--sequence-shape",
-        "joint",
-        "--out",
-        path_str(&out_path),
-    ]);
-    assert_one_line_error(&out, "--sequence-shape joint needs a sequence dataset");
-    assert!(!out_path.exists());
+    r
 }
 
-/// `--sequence-shape joint:N`: the sequence fitted once, one β solved over N of its frames
-/// spread evenly (the summed energy no higher than before the solve), held in every frame of the
-/// second pass; `joint:0` and malformed counts refused.
+/// `--sequence-shape joint`: the sequence fitted once, one β solved with the poses of all its
+/// frames (the sequence's energy no higher than before the solve), then every frame fitted with
+/// that β; refused outside sequences, and `joint:0` and `joint:x` refused.
 #[test]
-fn joint_over_n_frames_solves_beta_over_spread_frames() {
+fn joint_shape_gives_a_sequence_the_beta_of_its_summed_energy() {
     let tmp = tempfile::tempdir().expect("tmp");
-    let n = 70;
-    let seq = synth(tmp.path(), "seq.npz", "sequence", n, 0x5EED_000A);
-    let r = fit(
-        &seq,
-        &tmp.path().join("seq.json"),
-        &[
-            "--method",
-            "neural",
-            "--budget",
-            "12",
-            "--neural-start",
-            "best",
-            "--sequence-shape",
-            "joint:64",
-        ],
-    );
-    assert_eq!(r["sequence_shape"], "joint:64");
+    let seq = synth(tmp.path(), "seq.npz", "sequence", 8, 0x5EED_0005);
+    let r = joint_pass(&seq, &tmp.path().join("seq.json"), "joint");
     let pass = &r["summary"]["shape_pass"];
-    let picked: Vec<u64> = pass["frames"]
-        .as_array()
-        .expect("frames")
-        .iter()
-        .map(|f| f.as_u64().expect("frame"))
-        .collect();
-    // 64 of the 70, the i-th the middle of its share.
-    let want: Vec<u64> = (0..64u64).map(|i| (2 * i + 1) * n as u64 / 128).collect();
-    assert_eq!(picked, want);
-    let joint = &pass["joint"];
-    let (before, after) = (num(&joint["energy_before"]), num(&joint["energy_after"]));
-    assert!(
-        after.is_finite() && after < before,
-        "the β solve did not lower the summed energy: {before} -> {after}"
-    );
-    let beta = sequence_beta(&r);
-    assert!(beta.iter().all(|b| b.abs() <= 3.0), "inside the shape box");
-    // The first pass (every frame, 12 each) and the solve, apart from the frames' own.
-    let solve = joint["evaluations"].as_u64().expect("solve evaluations");
-    assert!(solve > 0);
     assert_eq!(
-        pass["evaluations"].as_u64().expect("evaluations"),
-        n as u64 * 12 + solve
+        pass["frames"].as_array().map(Vec::len),
+        Some(8),
+        "every frame"
     );
+    // The first pass (8 frames × 12) and the solve are counted apart from the frames' own.
+    assert!(pass["evaluations"].as_u64().expect("evaluations") > 8 * 12);
+    // Outside a sequence, and frame counts that are none: one line, nothing written.
+    let local = synth(tmp.path(), "local.npz", "local", 2, 0x5EED_0006);
     let out_path = tmp.path().join("no.json");
-    for (policy, want) in [
-        ("joint:0", "unknown sequence shape policy 'joint:0'"),
-        ("joint:x", "unknown sequence shape policy 'joint:x'"),
+    for (data, policy, want) in [
+        (
+            &local,
+            "joint",
+            "--sequence-shape joint needs a sequence dataset",
+        ),
+        (&seq, "joint:0", "unknown sequence shape policy 'joint:0'"),
+        (&seq, "joint:x", "unknown sequence shape policy 'joint:x'"),
     ] {
         let out = lfit(&[
             "-q",
             "fit",
             "--data",
-            path_str(&seq),
+            path_str(data),
             "--template",
             path_str(&root(MODEL)),
             "--method",
@@ -648,6 +592,36 @@ fn joint_over_n_frames_solves_beta_over_spread_frames() {
         assert_one_line_error(&out, want);
     }
     assert!(!out_path.exists());
+}
+
+/// `--sequence-shape joint:N`: the sequence fitted once, one β solved over N of its frames
+/// spread evenly (the summed energy no higher than before the solve), held in every frame of the
+/// second pass (`joint:0` and malformed counts: the joint test above).
+#[test]
+fn joint_over_n_frames_solves_beta_over_spread_frames() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let n = 70;
+    let seq = synth(tmp.path(), "seq.npz", "sequence", n, 0x5EED_000A);
+    let r = joint_pass(&seq, &tmp.path().join("seq.json"), "joint:64");
+    let pass = &r["summary"]["shape_pass"];
+    let picked: Vec<u64> = pass["frames"]
+        .as_array()
+        .expect("frames")
+        .iter()
+        .map(|f| f.as_u64().expect("frame"))
+        .collect();
+    // 64 of the 70, the i-th the middle of its share.
+    let want: Vec<u64> = (0..64u64).map(|i| (2 * i + 1) * n as u64 / 128).collect();
+    assert_eq!(picked, want);
+    // The first pass (every frame, 12 each) and the solve, apart from the frames' own.
+    let solve = pass["joint"]["evaluations"]
+        .as_u64()
+        .expect("solve evaluations");
+    assert!(solve > 0);
+    assert_eq!(
+        pass["evaluations"].as_u64().expect("evaluations"),
+        n as u64 * 12 + solve
+    );
 }
 
 /// `--dofs observed` for a classical method: LM from the dataset's start keeps the thumbs (which
