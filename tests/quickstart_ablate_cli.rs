@@ -158,7 +158,7 @@ fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
         );
         let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("csv");
         assert_eq!(csv.lines().count(), 1 + 6 * 4);
-        // One subject, one β (`first-pass-joint`): each method's β error is the same in every
+        // One subject, one β (`joint:64`): each method's β error is the same in every
         // frame of the clip.
         let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
         let col = |name: &str| header.iter().position(|h| *h == name).expect(name);
