@@ -270,12 +270,7 @@ pub fn build_classic(kind: MethodKind, options: ClassicOptions) -> Result<Box<dy
         options.step_scale,
         options.cma,
     )?;
-    Ok(match options.dofs {
-        lfit_fitters::Dofs::All => fitter,
-        lfit_fitters::Dofs::Observed { max_std_deg } => {
-            Box::new(lfit_fitters::ObservedDofs::new(fitter, max_std_deg))
-        }
-    })
+    Ok(options.dofs.wrap(fitter))
 }
 
 /// `--dofs` by name, or the method's default for the data's modality
@@ -396,9 +391,7 @@ pub fn load_neural(kind: MethodKind, options: &NeuralOptions<'_>) -> Result<Box<
     };
     let fitter = fitter.with_pick(options.pick);
     Ok(match kind {
-        MethodKind::NeuralLm => {
-            Box::new(lfit_infer::NeuralThenLm::new(fitter)?.with_dofs(options.dofs)?)
-        }
+        MethodKind::NeuralLm => Box::new(lfit_infer::NeuralThenLm::new(fitter, options.dofs)?),
         _ => {
             if options.dofs != lfit_fitters::Dofs::All {
                 bail!("--dofs is for classical methods and neural+lm's LM stage, not {kind}");

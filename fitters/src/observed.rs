@@ -42,6 +42,15 @@ impl Dofs {
         max_std_deg: OBSERVED_MAX_STD_DEG,
     };
 
+    /// `fitter` moving these entries: itself for `All`, wrapped in [`ObservedDofs`] for
+    /// `Observed`.
+    pub fn wrap(self, fitter: Box<dyn Fitter>) -> Box<dyn Fitter> {
+        match self {
+            Dofs::All => fitter,
+            Dofs::Observed { max_std_deg } => Box::new(ObservedDofs::new(fitter, max_std_deg)),
+        }
+    }
+
     /// What a fitter's name gets for it: `observed` or `observed-<DEG>deg` (`all`: empty).
     pub fn suffix(self) -> String {
         match (self, self.name().split_once(':')) {

@@ -11,7 +11,7 @@
 //! from human motion, where LM would set it from the noise of the few rows that touch it.
 
 use lfit_fitters::optim::Preset;
-use lfit_fitters::{Dofs, FitError, FitRequest, FitResult, Fitter, ObservedDofs, Strategy};
+use lfit_fitters::{Dofs, FitError, FitRequest, FitResult, Fitter, Strategy};
 use lfit_model::{Block, DofMask};
 
 use crate::NeuralFitter;
@@ -33,26 +33,15 @@ impl std::fmt::Debug for LmFitter {
 }
 
 impl NeuralThenLm {
-    /// The network of `neural` followed by holistic LM (exact Jacobian) over every free entry
-    /// ([`Dofs::All`]).
-    pub fn new(neural: NeuralFitter) -> Result<Self, FitError> {
+    /// The network of `neural` followed by holistic LM (exact Jacobian) over the entries `dofs`
+    /// names (module docs).
+    pub fn new(neural: NeuralFitter, dofs: Dofs) -> Result<Self, FitError> {
         let lm = lfit_fitters::build_fitter("lm", Preset::Nevergrad, Strategy::Holistic)?;
         Ok(Self {
             neural,
-            lm: LmFitter(lm),
-            dofs: Dofs::All,
+            lm: LmFitter(dofs.wrap(lm)),
+            dofs,
         })
-    }
-
-    /// Which entries LM moves (module docs).
-    pub fn with_dofs(mut self, dofs: Dofs) -> Result<Self, FitError> {
-        let lm = lfit_fitters::build_fitter("lm", Preset::Nevergrad, Strategy::Holistic)?;
-        self.lm = LmFitter(match dofs {
-            Dofs::All => lm,
-            Dofs::Observed { max_std_deg } => Box::new(ObservedDofs::new(lm, max_std_deg)),
-        });
-        self.dofs = dofs;
-        Ok(self)
     }
 
     /// Evaluations the network leaves LM at the least (one for the data information with
