@@ -58,6 +58,9 @@ pub struct SynthArgs {
     pub noise: f64,
     /// Comma-separated procedural motions (`--library-motions`; default: all).
     pub motions: Option<String>,
+    /// markers: σ of each subject's marker slip in millimetres (`--marker-slip-mm`,
+    /// [`SynthConfig::marker_slip`]); 0: the model's marker vertices.
+    pub marker_slip_mm: f64,
     pub out: PathBuf,
 }
 
@@ -193,6 +196,7 @@ pub fn synthesize_dataset(
     config.with_library = files.with_library;
     config.motion_augment = files.augment;
     config.uniform_share = files.uniform_share;
+    config.marker_slip = args.marker_slip_mm / 1000.0;
     config.validate()?;
     let dataset = synthesize_until(&config, template, &sensor, progress, cancel)?;
     let mut summary = json!({
@@ -216,6 +220,9 @@ pub fn synthesize_dataset(
         summary["frames_clamped"] =
             json!(names.iter().filter(|m| m.ends_with("(clamped)")).count());
         summary["fps"] = json!(dataset.meta.config.fps);
+    }
+    if config.marker_slip > 0.0 {
+        summary["marker_slip_mm"] = json!(args.marker_slip_mm);
     }
     if config.uniform_share > 0.0 {
         summary["frames_uniform"] = json!(

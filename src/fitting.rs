@@ -345,11 +345,21 @@ fn fit_pass(
             .iter()
             .zip(&energies)
             .map(|(&frame, energy)| {
-                let start = match previous.take() {
-                    Some((p, pose)) if scenario == Scenario::Sequence && p + 1 == frame => pose,
-                    _ => dataset.start_poses[frame].clone(),
+                let (start, warm) = match previous.take() {
+                    Some((p, pose)) if scenario == Scenario::Sequence && p + 1 == frame => {
+                        (pose, true)
+                    }
+                    _ => (dataset.start_poses[frame].clone(), false),
                 };
-                request(plan, known, &mask, frame, start, energy, seed(frame))
+                request(
+                    plan,
+                    known,
+                    &mask,
+                    frame,
+                    (start, warm),
+                    energy,
+                    seed(frame),
+                )
             })
             .collect();
         let start_energies: Vec<f64> = requests
@@ -372,18 +382,26 @@ fn fit_pass(
     Ok(())
 }
 
-/// The fit request of one frame from `start`: the scenario's box around it, β fixed where it
-/// is known.
+/// The fit request of one frame from `start` (`warm`: the previous frame's fit in a sequence):
+/// the scenario's box around it, β fixed where it is known. A sequence frame that does not start
+/// from the previous frame's fit (the first frame, a β pass's frames) is searched in the global
+/// box around its start ([`scenario_bounds`]): the sequence box describes a frame's
+/// neighbourhood of the previous one, and the dataset's start of an imported sequence is the rest
+/// pose aligned rigidly to the data (from it the sequence box left a C3D import's first frames
+/// 108 → 4 mm off over its first 9 frames: `docs/results/captured-motion.md`, round 16).
 fn request<'e>(
     plan: &Plan<'_>,
     known: Option<&KnownShape>,
     mask: &DofMask,
     frame: usize,
-    mut start: Vec<f64>,
+    (mut start, warm): (Vec<f64>, bool),
     energy: &'e Energy,
     seed: u64,
 ) -> FitRequest<'e> {
-    let scenario = plan.dataset.meta.config.scenario;
+    let scenario = match plan.dataset.meta.config.scenario {
+        Scenario::Sequence if !warm => Scenario::Global,
+        s => s,
+    };
     let mut bounds = scenario_bounds(scenario, plan.template, &start);
     if let Some(k) = known {
         // β is fixed: the start holds it and the box is the single point.
@@ -449,7 +467,7 @@ fn shape_pass(
             .zip(&energies)
             .map(|(&frame, e)| {
                 let start = plan.dataset.start_poses[frame].clone();
-                request(plan, None, &mask, frame, start, e, seed(frame))
+                request(plan, None, &mask, frame, (start, false), e, seed(frame))
             })
             .collect();
         let results = fit_group(fitter, &requests, group)
@@ -913,10 +931,13 @@ pub fn scenario_mask(scenario: Scenario, template: &Template) -> DofMask {
     DofMask::standard(kind, template, true)
 }
 
-/// Search box of a scenario around a start (shape and expression within their own box).
+/// Search box of a scenario around a start (shape and expression within their own box): the
+/// local box around it, or the global one ([`Bounds::global_around`]: the model's rotation limits,
+/// the translation within ±1.25 m of the start's, which is the origin for synthetic global frames
+/// and the rigid alignment to the data for imported ones).
 pub fn scenario_bounds(scenario: Scenario, template: &Template, start: &[f64]) -> Bounds {
     match scenario {
-        Scenario::Global => Bounds::global_for(template),
+        Scenario::Global => Bounds::global_around(template, start),
         Scenario::Local | Scenario::Sequence => Bounds::local_in(&template.layout(), start),
     }
 }

@@ -110,6 +110,13 @@ enum Command {
         /// takes a pose uniform within the model's joint limits instead (default 0).
         #[arg(long, value_name = "F", default_value_t = 0.0)]
         uniform_share: f64,
+        /// markers: each subject's markers sit where a hand-placed set would, off the model's
+        /// marker vertices: per marker a normal offset of this σ per axis (mm) from its rest
+        /// position, moved to the nearest vertex of the same body part; one placement per
+        /// subject (per frame in local/global, once per sequence); the dataset keeps the
+        /// model's marker set, so fits meet that mismatch. In [0, 100] (default 0: none).
+        #[arg(long, value_name = "MM", default_value_t = 0.0)]
+        marker_slip_mm: f64,
         /// keypoints2d: the number of cameras, on the default ring's circle (4 m around the
         /// origin, 1.3 m high, evenly spaced from the front, 640×480, fx = 550); default: the
         /// default rig's 6.
@@ -654,6 +661,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             jitter_deg,
             library_motions,
             uniform_share,
+            marker_slip_mm,
             cameras,
             template,
         } => {
@@ -667,6 +675,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 fps,
                 noise,
                 motions: library_motions,
+                marker_slip_mm,
                 out,
             };
             let files = lfit::data::MotionFilesArgs {

@@ -15,8 +15,9 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 use burn::tensor::Device;
+use glam::DVec3;
 use lfit_fitters::{FitError, FitRequest, FitResult, Fitter};
-use lfit_model::pose::Bounds;
+use lfit_model::pose::{Bounds, FLOOR_SPREAD, LOCAL_TRANSLATION};
 use lfit_model::{Energy, ModelError};
 use lfit_nn::checkpoint::{self, Checkpoint, CheckpointMeta};
 use lfit_nn::{Constraints, Dropout, FeatureStats, NeuralNet, unroll};
@@ -353,7 +354,6 @@ impl NeuralFitter {
             return Ok(Vec::new());
         }
         let n = self.meta.network.iterations;
-        let per_iteration = self.meta.network.evaluations_per_iteration();
         // `check` remembers the models it has checked: the signature hash runs once per model.
         for r in requests {
             self.check(r.energy).map_err(neural)?;
@@ -400,6 +400,60 @@ impl NeuralFitter {
                 return Err(FitError::Start("not finite".into()));
             }
         }
+        // Frames that stand off the floor the network was trained on are fitted moved onto it
+        // ([`floor_move`]), and their results moved back.
+        let moves: Vec<DVec3> = requests.iter().map(|r| floor_move(&r.start)).collect();
+        if moves.iter().all(|m| *m == DVec3::ZERO) {
+            return self.fit_checked(requests);
+        }
+        let moved: Vec<Option<Energy>> = requests
+            .iter()
+            .zip(&moves)
+            .map(|(r, &m)| match m == DVec3::ZERO {
+                true => Ok(None),
+                false => r.energy.translated(m),
+            })
+            .collect::<Result<_, _>>()
+            .map_err(neural)?;
+        let shift = |p: &mut [f64], m: DVec3| {
+            p[0] += m.x;
+            p[2] += m.z;
+        };
+        let on_floor: Vec<FitRequest<'_>> = requests
+            .iter()
+            .zip(&moves)
+            .zip(&moved)
+            .map(|((r, &m), e)| match e {
+                Some(energy) => {
+                    let mut request = FitRequest {
+                        energy,
+                        ..r.clone()
+                    };
+                    shift(&mut request.start, m);
+                    shift(&mut request.bounds.lower, m);
+                    shift(&mut request.bounds.upper, m);
+                    request
+                }
+                // A sensor without a translated form is fitted where it stands.
+                None => r.clone(),
+            })
+            .collect();
+        let mut results = self.fit_checked(&on_floor)?;
+        for ((result, &m), e) in results.iter_mut().zip(&moves).zip(&moved) {
+            if e.is_some() {
+                shift(&mut result.pose, -m);
+                for p in &mut result.iterates {
+                    shift(p, -m);
+                }
+            }
+        }
+        Ok(results)
+    }
+
+    /// [`NeuralFitter::fit_batch`] on requests it has checked.
+    fn fit_checked(&self, requests: &[FitRequest<'_>]) -> Result<Vec<FitResult>, FitError> {
+        let n = self.meta.network.iterations;
+        let per_iteration = self.meta.network.evaluations_per_iteration();
         let timer = Instant::now();
         let e0: Vec<(u64, u64)> = requests
             .iter()
@@ -549,6 +603,27 @@ impl NeuralFitter {
     }
 }
 
+/// The horizontal move (world x, z) that brings a frame whose start stands beyond the starts
+/// the networks were trained from onto the floor their targets covered. Synthesis puts the root
+/// of every training frame within ±[`FLOOR_SPREAD`] (0.6 m) of the origin and starts it at most
+/// [`LOCAL_TRANSLATION`] (0.4 m) from there; a capture's subject stands anywhere in the lab's
+/// volume (a C3D's lab frame has its origin wherever the studio put it), and the network reads
+/// positions, not only their differences: a frame imported 3.6 m from the origin ended 88 mm
+/// off where the same frame at the origin ended 12 mm (`docs/results/captured-motion.md`, round
+/// 16). Each of x and z beyond ±1.0 m is moved to ±0.6 m; the energy does not change under the
+/// move ([`Energy::translated`]). Frames that start within ±1.0 m are not moved: their results
+/// are bit for bit those of the fitter without it.
+pub fn floor_move(start: &[f64]) -> DVec3 {
+    let along = |x: f64| {
+        if x.abs() > FLOOR_SPREAD + LOCAL_TRANSLATION {
+            x.clamp(-FLOOR_SPREAD, FLOOR_SPREAD) - x
+        } else {
+            0.0
+        }
+    };
+    DVec3::new(along(start[0]), 0.0, along(start[2]))
+}
+
 impl Fitter for NeuralFitter {
     fn name(&self) -> String {
         let start = match self.start {
@@ -642,5 +717,109 @@ mod tests {
         );
         f.check(&energy(&third)).unwrap();
         assert_eq!(f.verified.lock().unwrap().len(), 1);
+    }
+
+    /// A frame whose start stands beyond the floor the network was trained on is fitted moved
+    /// onto it: the frame 3 m further along x gives the fit of the frame on the floor's edge,
+    /// moved back (within the network's f32 rounding), where without the move the network,
+    /// which reads positions, fits another pose. Starts within ±1.0 m are not moved, nor is y.
+    #[test]
+    fn a_frame_far_across_the_floor_fits_as_the_frame_on_it() {
+        let mut p = vec![0.0; 6];
+        for (x, want) in [(0.9, 0.0), (-1.0, 0.0), (1.2, -0.6), (-3.0, 2.4)] {
+            p[0] = x;
+            p[1] = 7.0;
+            p[2] = -x;
+            let m = floor_move(&p);
+            assert!(
+                (m.x - want).abs() < 1e-12 && (m.z + want).abs() < 1e-12,
+                "{x}: {m}"
+            );
+            assert_eq!(m.y, 0.0);
+        }
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let model = Arc::new(
+            lfit_model::modelfile::load(&root.join("models/makehuman-cmu_mb.npz")).unwrap(),
+        );
+        let f =
+            NeuralFitter::load_native(&root.join("checkpoints/markers-makehuman"), Start::Given)
+                .unwrap();
+        let dim = model.param_dim();
+        let pose_dim = model.layout().pose_dim();
+        let truth: Vec<f64> = (0..dim)
+            .map(|i| match i {
+                0 => 0.6,
+                1 => 0.0,
+                2 => 0.3,
+                i if i < pose_dim => 0.12 * ((i * 7) as f64).sin(),
+                _ => 0.5 * ((i * 3) as f64).cos(),
+            })
+            .collect();
+        let mut start = truth.clone();
+        for (i, v) in start.iter_mut().enumerate().skip(3) {
+            *v = if i < pose_dim { *v + 0.05 } else { 0.0 };
+        }
+        let sensor = Sensor::default_for(Modality::Markers, &model);
+        let pred = sensor.predict_sparse(&model, &truth);
+        let target = Target::Sparse {
+            values: pred.values,
+            visible: pred.visible,
+        };
+        let config = EnergyConfig::default().for_gradient();
+        let near = Energy::new(model.clone(), sensor, target, config).unwrap();
+        let offset = DVec3::new(3.0, 0.0, 0.0);
+        let far = near.translated(offset).unwrap().unwrap();
+        let layout = model.layout();
+        let mask = lfit_model::pose::DofMask {
+            name: "custom".into(),
+            free: (0..dim).collect(),
+        };
+        let request = |energy, start: Vec<f64>| FitRequest {
+            energy,
+            bounds: Bounds::local_in(&layout, &start),
+            start,
+            mask: mask.clone(),
+            budget: 100,
+            seed: 1,
+        };
+        let mut far_start = start.clone();
+        far_start[0] += offset.x;
+        let a = f.fit_batch(&[request(&near, start)]).unwrap().remove(0);
+        let b = f
+            .fit_batch(&[request(&far, far_start.clone())])
+            .unwrap()
+            .remove(0);
+        assert_eq!(a.evaluations, b.evaluations);
+        assert!(
+            (a.energy - b.energy).abs() <= 1e-4 * a.energy,
+            "{} vs {}",
+            a.energy,
+            b.energy
+        );
+        let gap = |x: &[f64], y: &[f64]| {
+            (0..dim).fold(0.0f64, |m, i| {
+                let shift = if i == 0 { offset.x } else { 0.0 };
+                m.max((x[i] + shift - y[i]).abs())
+            })
+        };
+        assert!(
+            gap(&a.pose, &b.pose) < 1e-4,
+            "moved fit off by {}",
+            gap(&a.pose, &b.pose)
+        );
+        assert_eq!(a.iterates.len(), b.iterates.len());
+        for (x, y) in a.iterates.iter().zip(&b.iterates) {
+            assert!(gap(x, y) < 1e-4);
+        }
+        // Fitted where it stands, the far frame is another fit.
+        let unmoved = f
+            .fit_checked(&[request(&far, far_start)])
+            .unwrap()
+            .remove(0);
+        assert!(
+            gap(&a.pose, &unmoved.pose) > 1e-3,
+            "{}",
+            gap(&a.pose, &unmoved.pose)
+        );
     }
 }

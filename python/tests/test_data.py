@@ -56,6 +56,27 @@ def test_synth_new_library_kinds_and_uniform_share_equal_the_cli(cli, tmp_path):
     assert not (tmp_path / "bad.npz").exists()
 
 
+def test_synth_marker_slip_equals_the_cli_and_moves_only_the_observations(cli, tmp_path):
+    cli_out = tmp_path / "cli.npz"
+    cli("synth", "--modality", "markers", "--model", MH, "--frames", 6, "--seed", 8, "--noise", 0, "--marker-slip-mm", 15, "--out", cli_out)
+    py_out = tmp_path / "py.npz"
+    d = lfit.synth("markers", MH, frames=6, seed=8, noise=0.0, marker_slip_mm=15.0, out=py_out)
+    assert py_out.read_bytes() == cli_out.read_bytes()
+    assert d.summary["marker_slip_mm"] == 15.0 and d.meta["config"]["marker_slip"] == 0.015
+    plain = lfit.synth("markers", MH, frames=6, seed=8, noise=0.0)
+    # The same poses and the model's marker set; markers observed off their vertices by centimetres.
+    np.testing.assert_array_equal(d.gt_params, plain.gt_params)
+    assert d.sensor == plain.sensor
+    moved = np.linalg.norm((d.observations - plain.observations).reshape(6, -1, 3), axis=2)
+    assert 0.005 < moved.mean() < 0.05 and (moved == 0).any()
+    for bad, why in ((150.0, "marker_slip"), (-1.0, "marker_slip")):
+        with pytest.raises(lfit.LfitError, match=why):
+            lfit.synth("markers", MH, frames=3, marker_slip_mm=bad, out=tmp_path / "bad.npz")
+    with pytest.raises(lfit.LfitError, match="marker_slip.*hmd"):
+        lfit.synth("hmd", MH, frames=3, marker_slip_mm=10.0, out=tmp_path / "bad.npz")
+    assert not (tmp_path / "bad.npz").exists()
+
+
 def test_synth_bad_input_writes_nothing(tmp_path):
     out = tmp_path / "x.npz"
     with pytest.raises(lfit.LfitError) as e:

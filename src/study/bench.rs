@@ -736,6 +736,7 @@ pub fn run(
                     fps: 30.0,
                     noise: s.noise,
                     motions: None,
+                    marker_slip_mm: 0.0,
                     out: path.clone(),
                 };
                 let files = crate::data::MotionFilesArgs {

@@ -131,7 +131,20 @@ pub struct SynthConfig {
     /// it refuses a share above 0.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub uniform_share: f64,
+    /// markers: each subject's markers are observed on vertices slipped from the model's marker
+    /// vertices (a hand-placed marker set never sits exactly where the model's does): per marker
+    /// and subject a normal offset of this σ per axis, in metres, from the marker's rest
+    /// position, moved to the nearest rest vertex of the same body part (the same dominant
+    /// joint). The dataset keeps the model's marker set, so fits see the mismatch a user's
+    /// capture has. One draw per subject: per frame in the local and global scenarios, once for
+    /// a sequence. 0 by default (and then absent from the metadata, so other datasets keep their
+    /// bytes); at most [`MAX_MARKER_SLIP`].
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub marker_slip: f64,
 }
+
+/// The largest [`SynthConfig::marker_slip`] accepted, metres.
+pub const MAX_MARKER_SLIP: f64 = 0.1;
 
 fn is_false(b: &bool) -> bool {
     !*b
@@ -243,6 +256,7 @@ impl SynthConfig {
             with_library: false,
             motion_augment: MotionAugment::default(),
             uniform_share: 0.0,
+            marker_slip: 0.0,
         }
     }
 
@@ -319,6 +333,20 @@ impl SynthConfig {
                 "uniform_share",
                 self.uniform_share.to_string(),
                 "a sequence follows one motion: uniform poses are for single frames",
+            );
+        }
+        if !(self.marker_slip.is_finite() && (0.0..=MAX_MARKER_SLIP).contains(&self.marker_slip)) {
+            return setting(
+                "marker_slip",
+                self.marker_slip.to_string(),
+                &format!("is a standard deviation in metres: between 0 and {MAX_MARKER_SLIP}"),
+            );
+        }
+        if self.marker_slip > 0.0 && self.modality != Modality::Markers {
+            return setting(
+                "marker_slip",
+                self.marker_slip.to_string(),
+                &format!("moves markers: the modality is {}", self.modality),
             );
         }
         for f in &self.motion_files {

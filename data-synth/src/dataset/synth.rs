@@ -4,12 +4,12 @@
 
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use lfit_model::Template;
 use lfit_model::layout::Layout;
-use lfit_model::observe::{Modality, Sensor, points_from_values};
+use lfit_model::observe::{MarkerSetup, Modality, Sensor, points_from_values};
 use lfit_model::pose::{
-    Bounds, LOCAL_ROTATION_DEG, LOCAL_TRANSLATION, POSE_DIM, Pose, SHAPE_BOUND,
+    Bounds, FLOOR_SPREAD, LOCAL_ROTATION_DEG, LOCAL_TRANSLATION, POSE_DIM, Pose, SHAPE_BOUND,
 };
 use lfit_model::scan::{VoxelGrid, render_silhouettes, squared_edt};
 use rand::{Rng, SeedableRng};
@@ -35,6 +35,8 @@ const POSE_STREAM: u64 = 1 << 32;
 /// Streams of the shape and expression draws (apart from the pose streams, so a rigid model's
 /// poses are what they were before models had shape).
 const SHAPE_STREAM: u64 = 3 << 32;
+/// Streams of the marker slips ([`SynthConfig::marker_slip`]), one per subject.
+const SLIP_STREAM: u64 = 9 << 32;
 /// Streams of the motion-file augmentation draws (apart from the pose streams, so a
 /// configuration without augmentation gives the poses it gave before).
 const AUGMENT_STREAM: u64 = 5 << 32;
@@ -81,6 +83,8 @@ pub fn synthesize_until(
             reason: format!("frame {i} has {} parameters", targets[i].len()),
         });
     }
+    let slip = MarkerSlip::new(config, template, sensor);
+    let sequence_sensor = slip.as_ref().map(|s| s.sensor(0));
     let frames: Vec<FrameObs> = (0..config.frames)
         .into_par_iter()
         .map(|i| {
@@ -88,7 +92,13 @@ pub fn synthesize_until(
                 return Err(SynthError::Cancelled);
             }
             let mut rng = stream(config.seed, i as u64);
-            let obs = observe_frame(template, sensor, &targets[i], &config.noise, &mut rng);
+            // The subject's own marker placement (sequence: one subject, subject 0).
+            let own = match (&slip, config.scenario) {
+                (Some(s), Scenario::Local | Scenario::Global) => Some(s.sensor(1 + i as u64)),
+                _ => None,
+            };
+            let observed = own.as_ref().or(sequence_sensor.as_ref()).unwrap_or(sensor);
+            let obs = observe_frame(template, observed, &targets[i], &config.noise, &mut rng);
             progress(done.fetch_add(1, Ordering::Relaxed) + 1);
             Ok(obs)
         })
@@ -135,6 +145,84 @@ pub fn synthesize_until(
         gt_poses: targets,
         observations,
     })
+}
+
+/// The marker placements of [`SynthConfig::marker_slip`]: each marker's candidate vertices
+/// (those of its vertex's body part within four σ of its rest position, the mean shape's), and
+/// per subject the candidate nearest to the rest position plus a normal draw of σ per axis.
+struct MarkerSlip {
+    setup: MarkerSetup,
+    sigma: f64,
+    seed: u64,
+    rest: Vec<DVec3>,
+    candidates: Vec<Vec<u32>>,
+}
+
+impl MarkerSlip {
+    /// `None` without a slip (or for a sensor that is not markers: the config refuses that).
+    fn new(config: &SynthConfig, template: &Template, sensor: &Sensor) -> Option<Self> {
+        let Sensor::Markers(setup) = sensor else {
+            return None;
+        };
+        if config.marker_slip <= 0.0 {
+            return None;
+        }
+        let sigma = config.marker_slip;
+        let rest = template.rest_positions();
+        let dominant = template.dominant_joint();
+        let reach2 = (4.0 * sigma).powi(2);
+        let candidates = setup
+            .vertices
+            .iter()
+            .map(|&m| {
+                let (p, j) = (rest[m as usize], dominant[m as usize]);
+                (0..rest.len() as u32)
+                    .filter(|&u| {
+                        dominant[u as usize] == j && rest[u as usize].distance_squared(p) <= reach2
+                    })
+                    .collect()
+            })
+            .collect();
+        Some(Self {
+            setup: setup.clone(),
+            sigma,
+            seed: config.seed,
+            rest,
+            candidates,
+        })
+    }
+
+    /// The markers sensor of subject `subject`: every marker moved to its slipped vertex.
+    fn sensor(&self, subject: u64) -> Sensor {
+        let mut rng = stream(self.seed, SLIP_STREAM + subject);
+        let vertices = self
+            .setup
+            .vertices
+            .iter()
+            .zip(&self.candidates)
+            .map(|(&m, near)| {
+                let offset = DVec3::new(
+                    StandardNormal.sample(&mut rng),
+                    StandardNormal.sample(&mut rng),
+                    StandardNormal.sample(&mut rng),
+                ) * self.sigma;
+                let aim = self.rest[m as usize] + offset;
+                // The marker's own vertex is always a candidate; the first nearest wins ties.
+                near.iter()
+                    .copied()
+                    .min_by(|&a, &b| {
+                        let da = self.rest[a as usize].distance_squared(aim);
+                        let db = self.rest[b as usize].distance_squared(aim);
+                        da.total_cmp(&db).then(a.cmp(&b))
+                    })
+                    .unwrap_or(m)
+            })
+            .collect();
+        Sensor::Markers(MarkerSetup {
+            names: self.setup.names.clone(),
+            vertices,
+        })
+    }
 }
 
 /// A pose of the default skeleton (the motion library's) on `template`'s skeleton: the root
@@ -379,7 +467,10 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
                         a.apply(&t, &mut target);
                         a.apply(&t, &mut previous);
                     }
-                    let (x, z) = (rng.random_range(-0.6..0.6), rng.random_range(-0.6..0.6));
+                    let (x, z) = (
+                        rng.random_range(-FLOOR_SPREAD..FLOOR_SPREAD),
+                        rng.random_range(-FLOOR_SPREAD..FLOOR_SPREAD),
+                    );
                     let (tx, tz) = (target[0], target[2]);
                     for p in [&mut previous, &mut target] {
                         p[0] += x - tx;
@@ -398,7 +489,10 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
                     let mut target = motion_pose(kind, &params, t);
                     let mut previous = motion_pose(kind, &params, t - dt);
                     // Put the subject somewhere on the capture floor, keeping the motion's step.
-                    let (x, z) = (rng.random_range(-0.6..0.6), rng.random_range(-0.6..0.6));
+                    let (x, z) = (
+                        rng.random_range(-FLOOR_SPREAD..FLOOR_SPREAD),
+                        rng.random_range(-FLOOR_SPREAD..FLOOR_SPREAD),
+                    );
                     let (tx, tz) = (target[0], target[2]);
                     for p in [&mut previous, &mut target] {
                         p[0] += x - tx;
@@ -978,7 +1072,89 @@ mod tests {
     }
 
     #[test]
+    fn slipped_markers_stay_on_their_body_part_one_placement_per_subject() {
+        let t = default_template();
+        let sensor = Sensor::default_for(Modality::Markers, &t);
+        let Sensor::Markers(nominal) = &sensor else {
+            panic!("markers sensor")
+        };
+        let sigma = 0.03;
+        let mut c = SynthConfig::new(Modality::Markers, Scenario::Local, 12, 5);
+        c.noise = NoiseConfig::none();
+        c.marker_slip = sigma;
+        let slip = MarkerSlip::new(&c, &t, &sensor).expect("a slip");
+        let (rest, dominant) = (t.rest_positions(), t.dominant_joint());
+        let markers = |s: Sensor| match s {
+            Sensor::Markers(m) => m,
+            _ => panic!("markers sensor"),
+        };
+        let a = markers(slip.sensor(4));
+        assert_eq!(a.names, nominal.names);
+        let mut moved = 0.0;
+        for (&m, &v) in nominal.vertices.iter().zip(&a.vertices) {
+            assert_eq!(
+                dominant[m as usize], dominant[v as usize],
+                "marker {m} → {v}"
+            );
+            let d = rest[m as usize].distance(rest[v as usize]);
+            assert!(d <= 4.0 * sigma + 1e-12, "marker {m} moved {d} m");
+            moved += d;
+        }
+        let mean = moved / a.vertices.len() as f64;
+        assert!(
+            mean > 0.3 * sigma && mean < 3.0 * sigma,
+            "mean slip {mean} m"
+        );
+        // One draw per subject: the same subject again is the same placement, another is not.
+        assert_eq!(markers(slip.sensor(4)), a);
+        assert_ne!(markers(slip.sensor(5)), a);
+
+        // Local frames: frame i is subject 1 + i's placement; the dataset keeps the model's set.
+        let data = synthesize(&c, &t, &sensor, &|_| {}).unwrap();
+        assert_eq!(&markers(data.sensor.clone()), nominal);
+        let Observations::Sparse { values, .. } = &data.observations else {
+            panic!("sparse")
+        };
+        for (i, (obs, gt)) in values.iter().zip(&data.gt_poses).enumerate() {
+            let own = slip.sensor(1 + i as u64).predict_sparse(&t, gt).values;
+            assert_eq!(obs, &own, "frame {i}");
+            assert_ne!(obs, &sensor.predict_sparse(&t, gt).values, "frame {i}");
+        }
+        // A sequence: one subject, one placement (subject 0) for every frame.
+        let mut q = SynthConfig::new(Modality::Markers, Scenario::Sequence, 6, 5);
+        q.noise = NoiseConfig::none();
+        q.marker_slip = sigma;
+        let seq = synthesize(&q, &t, &sensor, &|_| {}).unwrap();
+        let Observations::Sparse { values, .. } = &seq.observations else {
+            panic!("sparse")
+        };
+        let placed = MarkerSlip::new(&q, &t, &sensor).unwrap().sensor(0);
+        for (obs, gt) in values.iter().zip(&seq.gt_poses) {
+            assert_eq!(obs, &placed.predict_sparse(&t, gt).values);
+        }
+        // Without a slip the metadata does not name it (datasets keep their bytes).
+        let plain = SynthConfig::new(Modality::Markers, Scenario::Local, 3, 5);
+        assert!(
+            !serde_json::to_string(&plain)
+                .unwrap()
+                .contains("marker_slip")
+        );
+        assert!(serde_json::to_string(&c).unwrap().contains("marker_slip"));
+        assert!(MarkerSlip::new(&plain, &t, &sensor).is_none());
+    }
+
+    #[test]
     fn bad_configs_are_refused() {
+        for bad in [-0.01, 0.2, f64::NAN] {
+            let mut c = SynthConfig::new(Modality::Markers, Scenario::Local, 3, 1);
+            c.marker_slip = bad;
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains("marker_slip"), "{e}");
+        }
+        let mut c = SynthConfig::new(Modality::Hmd, Scenario::Local, 3, 1);
+        c.marker_slip = 0.01;
+        let e = c.validate().unwrap_err().to_string();
+        assert!(e.contains("marker_slip") && e.contains("hmd"), "{e}");
         assert!(
             SynthConfig::new(Modality::Hmd, Scenario::Local, 0, 1)
                 .validate()

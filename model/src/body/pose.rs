@@ -304,6 +304,9 @@ pub struct Bounds {
 /// 30° range around the start pose).
 pub const LOCAL_TRANSLATION: f64 = 0.4;
 pub const LOCAL_ROTATION_DEG: f64 = 15.0;
+/// Half-width of the floor square on which synthesis places the root of local and global frames
+/// (x and z within ±0.6 m of the origin): the frames every shipped network was trained on.
+pub const FLOOR_SPREAD: f64 = 0.6;
 /// Translation box of the `global` scenario (papers/000 §4.2: [−1.25, 1.25] on every axis).
 pub const GLOBAL_TRANSLATION: f64 = 1.25;
 
@@ -348,6 +351,20 @@ impl Bounds {
     /// this is [`Bounds::global`].
     pub fn global_for(template: &Template) -> Self {
         Self::global_from_limits(&template.info.limits_deg, template.morph.coefficients())
+    }
+
+    /// [`Bounds::global_for`] with its ±1.25 m translation box around `start`'s root translation
+    /// instead of the origin: the box of a frame whose start is a rigid alignment to its data
+    /// (`lfit data import`: a capture's subject stands wherever the lab's volume has them, not
+    /// within 1.25 m of its origin). A start at the origin (every synthetic global frame's) gives
+    /// [`Bounds::global_for`] exactly.
+    pub fn global_around(template: &Template, start: &[f64]) -> Self {
+        let mut b = Self::global_for(template);
+        for i in 0..3 {
+            b.lower[i] += start[i];
+            b.upper[i] += start[i];
+        }
+        b
     }
 
     /// Translation ±1.25 m, rotations within `limits_deg` (per joint and axis), then

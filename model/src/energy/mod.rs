@@ -625,6 +625,19 @@ impl Energy {
         Ok(energy)
     }
 
+    /// The same frame with the body and its observations moved rigidly by `offset`
+    /// ([`Sensor::translated`]): `E'(θ') = E(θ)` for `θ'` the pose `θ` with its root translation
+    /// moved by `offset`. `Ok(None)` for a sensor without that form or a dense target.
+    pub fn translated(&self, offset: DVec3) -> Result<Option<Self>> {
+        let Target::Sparse { values, visible } = &self.target else {
+            return Ok(None);
+        };
+        match self.sensor.translated(values, offset) {
+            Some((sensor, moved)) => self.with_sensor(sensor, moved, visible.clone()).map(Some),
+            None => Ok(None),
+        }
+    }
+
     pub fn template(&self) -> &Arc<Template> {
         &self.template
     }

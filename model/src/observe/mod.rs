@@ -383,6 +383,53 @@ pub struct ScanObservation {
 }
 
 impl Sensor {
+    /// This sensor and its observations `values` of the body moved rigidly by `offset` (a world
+    /// translation): 3D points (markers, the headset's and wrists' positions, hand tips) move
+    /// with it, cameras move with it (`keypoints2d`: pixels unchanged); rotations and
+    /// visibility do not change. With the root translation moved by `offset` too, every
+    /// observation model predicts the moved values, so the energy of a frame is unchanged. `None`
+    /// for the modalities without this form (scan, silhouettes, landmarks2d, custom sensors).
+    pub fn translated(&self, values: &[f64], offset: DVec3) -> Option<(Sensor, Vec<f64>)> {
+        let mut moved = values.to_vec();
+        let shift = |v: &mut [f64]| {
+            for p in v.chunks_exact_mut(3) {
+                p[0] += offset.x;
+                p[1] += offset.y;
+                p[2] += offset.z;
+            }
+        };
+        let sensor = match self {
+            Sensor::Markers(_) => {
+                shift(&mut moved);
+                self.clone()
+            }
+            Sensor::Hmd(_) => {
+                for d in 0..3 {
+                    shift(&mut moved[12 * d + 9..12 * d + 12]);
+                }
+                shift(&mut moved[36..HMD_DIM]);
+                self.clone()
+            }
+            Sensor::Keypoints2d(setup) => {
+                // camera_from_world: q = R p + t; for p' = p + offset, t' = t − R offset.
+                let cameras = setup
+                    .cameras
+                    .iter()
+                    .map(|c| {
+                        let mut c = *c;
+                        for (i, row) in c.rotation.iter().enumerate() {
+                            c.translation[i] -= DVec3::from_array(*row).dot(offset);
+                        }
+                        c
+                    })
+                    .collect();
+                Sensor::Keypoints2d(KeypointSetup { cameras })
+            }
+            _ => return None,
+        };
+        Some((sensor, moved))
+    }
+
     /// The default setup of `modality` for `template` (a custom modality has none: its sensor
     /// refuses every template with that reason).
     pub fn default_for(modality: Modality, template: &Template) -> Self {

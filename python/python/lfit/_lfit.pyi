@@ -230,6 +230,7 @@ def synth(
     heading: bool = False,
     jitter_deg: float = 0.0,
     uniform_share: float = 0.0,
+    marker_slip_mm: float = 0.0,
     cameras: Optional[int] = None,
     out: Optional[_Path] = None,
 ) -> Dataset:
