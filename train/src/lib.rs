@@ -148,6 +148,13 @@ pub struct TrainConfig {
     /// network learns to fit with missing markers. 0 (the default): none.
     #[serde(skip_serializing_if = "is_zero")]
     pub marker_dropout: f64,
+    /// `markers`: every synthesised set (training batches, validation, statistics, the sequence
+    /// windows of `"starts"`) observes each subject's markers slipped off the model's marker
+    /// vertices by this σ in millimetres ([`SynthConfig::marker_slip`], `lfit synth
+    /// --marker-slip-mm`), so the network learns to fit a hand-placed marker set. 0 (the
+    /// default): the model's marker vertices.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub marker_slip_mm: f64,
     /// Where each sample's θ0 comes from ([`StartMix`]: Φ(D), the scenario's start, perturbed
     /// truth, the rigidly aligned rest pose, the network's own previous-frame result). Absent:
     /// `network.start` decides alone (Φ(D), the scenario's start, or either by a fair coin).
@@ -202,6 +209,7 @@ impl Default for TrainConfig {
             energy: None,
             rigs: None,
             marker_dropout: 0.0,
+            marker_slip_mm: 0.0,
             starts: None,
             shards: 1,
         }
@@ -430,6 +438,24 @@ impl TrainConfig {
                 format!("drops markers; {} data has none", self.modality),
             );
         }
+        let slip = self.marker_slip_mm;
+        if !(slip.is_finite() && (0.0..=1000.0 * lfit_synth::MAX_MARKER_SLIP).contains(&slip)) {
+            return bad(
+                "marker_slip_mm",
+                slip.to_string(),
+                format!(
+                    "is a standard deviation in millimetres: between 0 and {}",
+                    1000.0 * lfit_synth::MAX_MARKER_SLIP
+                ),
+            );
+        }
+        if slip > 0.0 && self.modality != Modality::Markers {
+            return bad(
+                "marker_slip_mm",
+                slip.to_string(),
+                format!("moves markers; {} data has none", self.modality),
+            );
+        }
         Ok(())
     }
 
@@ -490,6 +516,8 @@ pub struct Motions {
     pub source: PoseSource,
     /// The share of single frames with uniform poses ([`SynthConfig::uniform_share`]).
     pub uniform_share: f64,
+    /// The markers' slip σ in metres ([`SynthConfig::marker_slip`]).
+    pub marker_slip: f64,
 }
 
 impl Motions {
@@ -506,12 +534,13 @@ impl Motions {
             library: config.library_motions.clone(),
             source: config.source,
             uniform_share: config.uniform_poses,
+            marker_slip: config.marker_slip_mm / 1000.0,
         })
     }
 
-    /// Sets `config`'s motion files, library mix, augmentation, library kinds and (but for a
-    /// sequence, which follows one motion) share of uniform poses to these (the pose source is
-    /// the caller's).
+    /// Sets `config`'s motion files, library mix, augmentation, library kinds, (but for a
+    /// sequence, which follows one motion) share of uniform poses and the markers' slip to these
+    /// (the pose source is the caller's).
     pub fn apply_to(&self, config: &mut SynthConfig) {
         config.motion_files = self.files.clone();
         config.with_library = self.with_library;
@@ -522,6 +551,7 @@ impl Motions {
         if config.scenario != Scenario::Sequence {
             config.uniform_share = self.uniform_share;
         }
+        config.marker_slip = self.marker_slip;
     }
 }
 
@@ -1545,6 +1575,61 @@ mod tests {
                 .iter()
                 .all(|n| MotionKind::CLASSIC.iter().any(|k| k.name() == n))
         );
+    }
+
+    /// `"marker_slip_mm"` reaches every synthesised set, single frames and sequence windows: the
+    /// same targets, the markers observed off the model's vertices; bad values and other
+    /// modalities are refused.
+    #[test]
+    fn marker_slip_reaches_every_synthesised_set() {
+        let template = Arc::new(lfit_model::default_template());
+        let sensor = Sensor::default_for(Modality::Markers, &template);
+        let base = base_energy(&template, &sensor).expect("energy");
+        let config = TrainConfig {
+            marker_slip_mm: 20.0,
+            ..TrainConfig::default()
+        };
+        config.validate().expect("a markers config with a slip");
+        let motions = Motions::load(&config, &template).expect("motions");
+        let slipped =
+            synth_frames_with(&template, &sensor, &base, 20, 5, 0.0, &motions).expect("frames");
+        let plain = synth_frames_with(&template, &sensor, &base, 20, 5, 0.0, &Motions::default())
+            .expect("frames");
+        assert_eq!(slipped.dataset.gt_poses, plain.dataset.gt_poses);
+        let (Observations::Sparse { values: a, .. }, Observations::Sparse { values: b, .. }) =
+            (&slipped.dataset.observations, &plain.dataset.observations)
+        else {
+            panic!("sparse")
+        };
+        let moved = a
+            .iter()
+            .zip(b)
+            .flat_map(|(x, y)| x.iter().zip(y).map(|(p, q)| (p - q).abs()))
+            .fold(0.0f64, f64::max);
+        assert!(moved > 0.005, "markers moved by at most {moved} m");
+        assert_eq!(slipped.dataset.meta.config.marker_slip, 0.02);
+        let mut sequence = SynthConfig::new(Modality::Markers, Scenario::Sequence, 4, 1);
+        motions.apply_to(&mut sequence);
+        assert_eq!(sequence.marker_slip, 0.02);
+        for bad in [-1.0, 150.0, f64::NAN] {
+            let e = TrainConfig {
+                marker_slip_mm: bad,
+                ..TrainConfig::default()
+            }
+            .validate()
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("marker_slip_mm"), "{e}");
+        }
+        let e = TrainConfig {
+            modality: Modality::Hmd,
+            marker_slip_mm: 10.0,
+            ..TrainConfig::default()
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("marker_slip_mm") && e.contains("hmd"), "{e}");
     }
 
     /// `"uniform_poses"` reaches the single frames (about that share named `uniform`, their
