@@ -15,6 +15,17 @@ use serde_json::{Value, json};
 use support::{assert_one_line_error, lfit, lfit_json, path_str};
 
 fn synth(dir: &Path, modality: &str, frames: usize, seed: u64) -> (PathBuf, Dataset) {
+    synth_in(dir, modality, "sequence", frames, seed)
+}
+
+/// `lfit synth` of noise-free frames of `modality` in `scenario` into `DIR/<modality>.npz`.
+fn synth_in(
+    dir: &Path,
+    modality: &str,
+    scenario: &str,
+    frames: usize,
+    seed: u64,
+) -> (PathBuf, Dataset) {
     let out = dir.join(format!("{modality}.npz"));
     lfit_json(&[
         "-q",
@@ -22,7 +33,7 @@ fn synth(dir: &Path, modality: &str, frames: usize, seed: u64) -> (PathBuf, Data
         "--modality",
         modality,
         "--scenario",
-        "sequence",
+        scenario,
         "--frames",
         &frames.to_string(),
         "--noise",
@@ -746,24 +757,7 @@ fn export_c3d_round_trips_through_data_import() {
 fn a_capture_far_from_the_lab_origin_fits_as_the_same_capture_at_it() {
     let tmp = tempfile::tempdir().expect("tmp");
     let d = tmp.path();
-    let data = d.join("frames.npz");
-    lfit_json(&[
-        "-q",
-        "synth",
-        "--modality",
-        "markers",
-        "--scenario",
-        "local",
-        "--frames",
-        "4",
-        "--noise",
-        "0",
-        "--seed",
-        "5",
-        "--out",
-        path_str(&data),
-    ]);
-    let truth = Dataset::load(&data).expect("dataset");
+    let (_, truth) = synth_in(d, "markers", "local", 4, 5);
     let (near, map) = c3d_of(&truth, -0.1);
     let mut far = near.clone();
     for row in &mut far.frames {
