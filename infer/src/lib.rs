@@ -608,9 +608,9 @@ impl NeuralFitter {
 /// of every training frame within ±[`FLOOR_SPREAD`] (0.6 m) of the origin and starts it at most
 /// [`LOCAL_TRANSLATION`] (0.4 m) from there; a capture's subject stands anywhere in the lab's
 /// volume (a C3D's lab frame has its origin wherever the studio put it), and the network reads
-/// positions, not only their differences: a frame imported 3.6 m from the origin ended 88 mm
-/// off where the same frame at the origin ended 12 mm (`docs/results/captured-motion.md`, round
-/// 16). Each of x and z beyond ±1.0 m is moved to ±0.6 m; the energy does not change under the
+/// positions, not only their differences: frames imported 3.6 m from the origin ended at a
+/// marker RMS of 88 mm (V2V 124) where the same frames at the origin ended at 12 (V2V 17;
+/// `docs/results/captured-motion.md`, round 16). Each of x and z beyond ±1.0 m is moved to ±0.6 m; the energy does not change under the
 /// move ([`Energy::translated`]). Frames that start within ±1.0 m are not moved: their results
 /// are bit for bit those of the fitter without it.
 pub fn floor_move(start: &[f64]) -> DVec3 {
