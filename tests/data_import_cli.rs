@@ -709,6 +709,56 @@ fn export_c3d_round_trips_through_data_import() {
     }
     assert!(max_err <= 1e-6, "round trip differs by {max_err} m");
 
+    // --translate moves every point (a capture away from the lab's origin).
+    let moved = d.join("moved.c3d");
+    let s = lfit_json(&[
+        "-q",
+        "data",
+        "export-c3d",
+        "--data",
+        path_str(&data),
+        "--out",
+        path_str(&moved),
+        "--translate",
+        "3,0,-2",
+    ]);
+    assert_eq!(s["translate_m"], json!([3.0, 0.0, -2.0]));
+    let (a, b) = (
+        C3d::read(&c3d).expect("C3D"),
+        C3d::read(&moved).expect("C3D"),
+    );
+    for (ra, rb) in a.frames.iter().zip(&b.frames) {
+        for (pa, pb) in ra.iter().zip(rb) {
+            match (pa, pb) {
+                (Some(pa), Some(pb)) => {
+                    for (k, off) in [3000.0, 0.0, -2000.0].into_iter().enumerate() {
+                        let e = (pb.position[k] - pa.position[k] - off).abs();
+                        assert!(e < 1e-3, "moved by {off} mm ± {e}");
+                    }
+                }
+                (None, None) => {}
+                _ => panic!("a gap moved"),
+            }
+        }
+    }
+    for bad in ["3,0", "a,b,c", "nan,0,0", "1,2,3,4"] {
+        let out = d.join("bad.c3d");
+        assert_one_line_error(
+            &lfit(&[
+                "data",
+                "export-c3d",
+                "--data",
+                path_str(&data),
+                "--out",
+                path_str(&out),
+                "--translate",
+                bad,
+            ]),
+            "--translate",
+        );
+        assert!(!out.exists());
+    }
+
     // Bad input: a keypoints dataset, a missing dataset, a directory as --out; nothing written.
     let (kp, _) = synth(d, "keypoints2d", 2, 3);
     let out = d.join("kp.c3d");

@@ -51,6 +51,24 @@ pub struct ExportC3dArgs {
     /// Prefix of every point label (e.g. "S1:" as Vicon writes them); default none.
     #[arg(long, default_value = "")]
     pub label_prefix: String,
+    /// Moves every point by this vector before writing, metres: `X,Y,Z` (e.g. `3,0,-2`: a capture
+    /// away from the lab's origin, to test that fits follow it); default none.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
+    pub translate: Option<String>,
+}
+
+/// `--translate X,Y,Z`: three finite numbers, metres.
+fn parse_translation(text: &str) -> Result<[f64; 3]> {
+    let parts: Vec<Option<f64>> = text
+        .split(',')
+        .map(|s| s.trim().parse::<f64>().ok().filter(|x| x.is_finite()))
+        .collect();
+    match parts.as_slice() {
+        [Some(x), Some(y), Some(z)] => Ok([*x, *y, *z]),
+        _ => bail!(
+            "--translate {text}: expected three finite numbers in metres, X,Y,Z (e.g. 3,0,-2)"
+        ),
+    }
 }
 
 /// Arguments of `lfit data import`.
@@ -116,6 +134,10 @@ fn check_out(out: &Path) -> Result<()> {
 /// `lfit data export-c3d`.
 pub fn export_c3d(args: &ExportC3dArgs) -> Result<Value> {
     check_out(&args.out)?;
+    let shift = match &args.translate {
+        Some(text) => parse_translation(text)?,
+        None => [0.0; 3],
+    };
     let dataset = lfit_synth::Dataset::load(&args.data)
         .with_context(|| format!("dataset {}", args.data.display()))?;
     let names = match &dataset.sensor {
@@ -152,7 +174,11 @@ pub fn export_c3d(args: &ExportC3dArgs) -> Result<Value> {
         }
         let mut row = Vec::with_capacity(names.len());
         for k in 0..names.len() {
-            let p = [v[3 * k], v[3 * k + 1], v[3 * k + 2]];
+            let p = [
+                v[3 * k] + shift[0],
+                v[3 * k + 1] + shift[1],
+                v[3 * k + 2] + shift[2],
+            ];
             if b[3 * k] && p.iter().all(|x| x.is_finite()) {
                 row.push(Some(lfit_synth::capture::c3d::C3dPoint {
                     position: p.map(|x| x * 1e3),
@@ -192,6 +218,7 @@ pub fn export_c3d(args: &ExportC3dArgs) -> Result<Value> {
         "gaps": gaps,
         "fps": fps,
         "units": "mm",
+        "translate_m": shift,
     }))
 }
 
