@@ -54,6 +54,11 @@ fn sparse(d: &Dataset) -> (&Vec<Vec<f64>>, &Vec<Vec<bool>>) {
     }
 }
 
+/// Borrowed argument strings.
+fn args(a: &[String]) -> Vec<&str> {
+    a.iter().map(String::as_str).collect()
+}
+
 fn read_json(p: &Path) -> Value {
     serde_json::from_slice(&std::fs::read(p).expect("result file")).expect("JSON")
 }
@@ -667,17 +672,18 @@ fn export_c3d_round_trips_through_data_import() {
     ]);
     let truth = Dataset::load(&data).expect("dataset");
     let c3d = d.join("noisy.c3d");
-    let s = lfit_json(&[
-        "-q",
-        "data",
-        "export-c3d",
-        "--data",
-        path_str(&data),
-        "--out",
-        path_str(&c3d),
-        "--label-prefix",
-        "S1:",
-    ]);
+    // `lfit data export-c3d --data DATA --out OUT` and more arguments.
+    let export = |out: &Path, more: &[&str]| -> Vec<String> {
+        let mut a: Vec<String> = ["data", "export-c3d", "--data", path_str(&data), "--out"]
+            .map(String::from)
+            .to_vec();
+        a.push(path_str(out).to_string());
+        a.extend(more.iter().map(|s| s.to_string()));
+        a
+    };
+    let mut quiet = vec!["-q".to_string()];
+    quiet.extend(export(&c3d, &["--label-prefix", "S1:"]));
+    let s = lfit_json(&args(&quiet));
     assert_eq!(s["frames"], 6);
     let (tv, tb) = sparse(&truth);
     let hidden = tb.iter().flatten().step_by(3).filter(|b| !**b).count();
@@ -711,17 +717,9 @@ fn export_c3d_round_trips_through_data_import() {
 
     // --translate moves every point (a capture away from the lab's origin).
     let moved = d.join("moved.c3d");
-    let s = lfit_json(&[
-        "-q",
-        "data",
-        "export-c3d",
-        "--data",
-        path_str(&data),
-        "--out",
-        path_str(&moved),
-        "--translate",
-        "3,0,-2",
-    ]);
+    let mut quiet = vec!["-q".to_string()];
+    quiet.extend(export(&moved, &["--translate", "3,0,-2"]));
+    let s = lfit_json(&args(&quiet));
     assert_eq!(s["translate_m"], json!([3.0, 0.0, -2.0]));
     let (a, b) = (
         C3d::read(&c3d).expect("C3D"),
@@ -744,16 +742,7 @@ fn export_c3d_round_trips_through_data_import() {
     for bad in ["3,0", "a,b,c", "nan,0,0", "1,2,3,4"] {
         let out = d.join("bad.c3d");
         assert_one_line_error(
-            &lfit(&[
-                "data",
-                "export-c3d",
-                "--data",
-                path_str(&data),
-                "--out",
-                path_str(&out),
-                "--translate",
-                bad,
-            ]),
+            &lfit(&args(&export(&out, &["--translate", bad]))),
             "--translate",
         );
         assert!(!out.exists());

@@ -360,9 +360,9 @@ impl Bounds {
     /// [`Bounds::global_for`] exactly.
     pub fn global_around(template: &Template, start: &[f64]) -> Self {
         let mut b = Self::global_for(template);
-        for i in 0..3 {
-            b.lower[i] += start[i];
-            b.upper[i] += start[i];
+        for ((lower, upper), s) in b.lower.iter_mut().zip(&mut b.upper).zip(&start[..3]) {
+            *lower += s;
+            *upper += s;
         }
         b
     }
