@@ -35,9 +35,10 @@ pub struct Plan<'a> {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum SequenceShape {
     /// β free in every frame's fit, carried by the warm start (papers/000 §4.3). The default:
-    /// one β per sequence (`joint:64`) helps where the model explains the observations, but the
-    /// solve takes the model's mismatch into β (a C3D import: `docs/results/captured-motion.md`,
-    /// round 15).
+    /// one β per sequence (`joint:64`) helps where the model explains the observations, but with
+    /// markers that do not sit where the model's marker set puts them the solve takes the
+    /// placement into β (`lfit synth --marker-slip-mm`: `docs/results/captured-motion.md`,
+    /// round 16).
     #[default]
     PerFrame,
     /// A first pass fits up to [`FIRST_PASS_FRAMES`] frames spread evenly over the sequence,

@@ -56,6 +56,28 @@ fn fit(data: &Path, out: &Path, extra: &[&str]) -> Value {
     serde_json::from_slice(&std::fs::read(out).expect("result")).expect("json")
 }
 
+/// `lfit -q fit --data DATA --template MODEL --method lm --budget 50 --out OUT EXTRA...` (the
+/// refusals' command line).
+fn lm50(data: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
+    let model = root(MODEL);
+    let mut args = vec![
+        "-q",
+        "fit",
+        "--data",
+        path_str(data),
+        "--template",
+        path_str(&model),
+        "--method",
+        "lm",
+        "--budget",
+        "50",
+        "--out",
+        path_str(out),
+    ];
+    args.extend(extra);
+    lfit(&args)
+}
+
 fn frames(r: &Value) -> &Vec<Value> {
     r["frames"].as_array().expect("frames")
 }
@@ -471,31 +493,8 @@ fn first_pass_gives_a_sequence_one_shape() {
 
     // Refusals: not a sequence, an unknown policy, β already given.
     let local = synth(tmp.path(), "local.npz", "local", 2, 0x5EED_0004);
-    let base = |data: &Path, out: &Path| -> Vec<String> {
-        [
-            "-q",
-            "fit",
-            "--data",
-            path_str(data),
-            "--template",
-            path_str(&root(MODEL)),
-            "--method",
-            "lm",
-            "--budget",
-            "50",
-            "--out",
-            path_str(out),
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .collect()
-    };
     let out_path = tmp.path().join("no.json");
-    let run = |data: &Path, extra: &[&str]| {
-        let mut a = base(data, &out_path);
-        a.extend(extra.iter().map(|s| s.to_string()));
-        lfit(&a.iter().map(String::as_str).collect::<Vec<_>>())
-    };
+    let run = |data: &Path, extra: &[&str]| lm50(data, &out_path, extra);
     assert_one_line_error(
         &run(&local, &["--sequence-shape", "first-pass"]),
         "needs a sequence dataset",
@@ -573,23 +572,7 @@ fn joint_shape_gives_a_sequence_the_beta_of_its_summed_energy() {
         (&seq, "joint:0", "unknown sequence shape policy 'joint:0'"),
         (&seq, "joint:x", "unknown sequence shape policy 'joint:x'"),
     ] {
-        let out = lfit(&[
-            "-q",
-            "fit",
-            "--data",
-            path_str(data),
-            "--template",
-            path_str(&root(MODEL)),
-            "--method",
-            "lm",
-            "--budget",
-            "50",
-            "--sequence-shape",
-            policy,
-            "--out",
-            path_str(&out_path),
-        ]);
-        assert_one_line_error(&out, want);
+        assert_one_line_error(&lm50(data, &out_path, &["--sequence-shape", policy]), want);
     }
     assert!(!out_path.exists());
 }

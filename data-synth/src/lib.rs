@@ -10,7 +10,9 @@ pub mod motion;
 pub mod noise;
 pub mod npz;
 
-pub use dataset::config::{MAX_MARKER_SLIP, MotionFile, PoseSource, Scenario, SynthConfig};
+pub use dataset::config::{
+    MAX_MARKER_SLIP, MotionFile, PoseSource, Scenario, SynthConfig, marker_slip_problem,
+};
 pub use dataset::synth::{synthesize, synthesize_until};
 pub use dataset::{Dataset, Meta, Observations};
 pub use error::SynthError;

@@ -438,23 +438,10 @@ impl TrainConfig {
                 format!("drops markers; {} data has none", self.modality),
             );
         }
-        let slip = self.marker_slip_mm;
-        if !(slip.is_finite() && (0.0..=1000.0 * lfit_synth::MAX_MARKER_SLIP).contains(&slip)) {
-            return bad(
-                "marker_slip_mm",
-                slip.to_string(),
-                format!(
-                    "is a standard deviation in millimetres: between 0 and {}",
-                    1000.0 * lfit_synth::MAX_MARKER_SLIP
-                ),
-            );
-        }
-        if slip > 0.0 && self.modality != Modality::Markers {
-            return bad(
-                "marker_slip_mm",
-                slip.to_string(),
-                format!("moves markers; {} data has none", self.modality),
-            );
+        if let Some(reason) =
+            lfit_synth::marker_slip_problem(self.marker_slip_mm / 1000.0, self.modality)
+        {
+            return bad("marker_slip_mm", self.marker_slip_mm.to_string(), reason);
         }
         Ok(())
     }

@@ -146,6 +146,20 @@ pub struct SynthConfig {
 /// The largest [`SynthConfig::marker_slip`] accepted, metres.
 pub const MAX_MARKER_SLIP: f64 = 0.1;
 
+/// Why `slip` (metres) is not a marker slip of `modality` data, or `None` when it is: a standard
+/// deviation within [0, [`MAX_MARKER_SLIP`]], above 0 only for markers. The check of
+/// `SynthConfig::marker_slip` and of a training config's `marker_slip_mm`.
+pub fn marker_slip_problem(slip: f64, modality: Modality) -> Option<String> {
+    if !(slip.is_finite() && (0.0..=MAX_MARKER_SLIP).contains(&slip)) {
+        return Some(format!(
+            "is a standard deviation between 0 and {} mm",
+            1000.0 * MAX_MARKER_SLIP
+        ));
+    }
+    (slip > 0.0 && modality != Modality::Markers)
+        .then(|| format!("moves markers: the modality is {modality}"))
+}
+
 fn is_false(b: &bool) -> bool {
     !*b
 }
@@ -335,19 +349,8 @@ impl SynthConfig {
                 "a sequence follows one motion: uniform poses are for single frames",
             );
         }
-        if !(self.marker_slip.is_finite() && (0.0..=MAX_MARKER_SLIP).contains(&self.marker_slip)) {
-            return setting(
-                "marker_slip",
-                self.marker_slip.to_string(),
-                &format!("is a standard deviation in metres: between 0 and {MAX_MARKER_SLIP}"),
-            );
-        }
-        if self.marker_slip > 0.0 && self.modality != Modality::Markers {
-            return setting(
-                "marker_slip",
-                self.marker_slip.to_string(),
-                &format!("moves markers: the modality is {}", self.modality),
-            );
+        if let Some(reason) = marker_slip_problem(self.marker_slip, self.modality) {
+            return setting("marker_slip", format!("{} m", self.marker_slip), &reason);
         }
         for f in &self.motion_files {
             f.poses()?;

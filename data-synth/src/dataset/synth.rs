@@ -84,7 +84,6 @@ pub fn synthesize_until(
         });
     }
     let slip = MarkerSlip::new(config, template, sensor);
-    let sequence_sensor = slip.as_ref().map(|s| s.sensor(0));
     let frames: Vec<FrameObs> = (0..config.frames)
         .into_par_iter()
         .map(|i| {
@@ -92,12 +91,11 @@ pub fn synthesize_until(
                 return Err(SynthError::Cancelled);
             }
             let mut rng = stream(config.seed, i as u64);
-            // The subject's own marker placement (sequence: one subject, subject 0).
-            let own = match (&slip, config.scenario) {
-                (Some(s), Scenario::Local | Scenario::Global) => Some(s.sensor(1 + i as u64)),
-                _ => None,
-            };
-            let observed = own.as_ref().or(sequence_sensor.as_ref()).unwrap_or(sensor);
+            // The subject's own marker placement.
+            let own = slip
+                .as_ref()
+                .map(|s| s.sensor(subject_of(config.scenario, i)));
+            let observed = own.as_ref().unwrap_or(sensor);
             let obs = observe_frame(template, observed, &targets[i], &config.noise, &mut rng);
             progress(done.fetch_add(1, Ordering::Relaxed) + 1);
             Ok(obs)
@@ -248,6 +246,16 @@ pub fn retarget(pose: &Pose, template: &Template, layout: &Layout) -> Vec<f64> {
         }
     }
     out
+}
+
+/// The subject of frame `frame`: a sequence is one subject (0), every local or global frame its
+/// own (`1 + frame`). Its β ([`subject_coefficients`]) and its marker placement
+/// ([`MarkerSlip::sensor`]) are drawn from this index.
+fn subject_of(scenario: Scenario, frame: usize) -> u64 {
+    match scenario {
+        Scenario::Sequence => 0,
+        Scenario::Local | Scenario::Global => 1 + frame as u64,
+    }
 }
 
 /// Shape and expression coefficients of a subject: `N(0, I)` (the shape prior), clipped to
@@ -412,7 +420,7 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
         // One subject for the whole sequence; every frame starts from the previous frame's truth
         // pose with the mean coefficients (a fitter does not know the subject's: only frames that
         // are not warm-started read these starts, the first and a β pass's).
-        let subject = subject_coefficients(&layout, config.seed, 0);
+        let subject = subject_coefficients(&layout, config.seed, subject_of(config.scenario, 0));
         let poses: Vec<Vec<f64>> = poses
             .into_iter()
             .map(|p| {
@@ -555,7 +563,8 @@ fn scenario_poses(config: &SynthConfig, template: &Template) -> Result<ScenarioP
                 }
                 _ => vec![0.0; pd],
             };
-            let subject = subject_coefficients(&layout, config.seed, 1 + i as u64);
+            let subject =
+                subject_coefficients(&layout, config.seed, subject_of(config.scenario, i));
             (
                 with_coefficients(start, &zeros),
                 with_coefficients(target, &subject),
