@@ -5,8 +5,9 @@
 # (`lfit synth --marker-slip-mm`: per marker the nearest vertex of the same body part to its rest
 # position plus a normal draw; one placement per subject: per frame for single frames, once per
 # sequence), default noise on top. Fitted as single frames (local scenario) and as a sequence by
-# LM, the shipped network and neural+lm; sequences per frame and with one β (`joint:64`). Prints
-# one Markdown table per slip and writes every result under OUT.
+# LM, the shipped network and neural+lm; sequences per frame, with one β (`joint:64`) and with one
+# β and each marker's offset solved (`joint:64+solve`: `--marker-placement solve`). Prints one
+# Markdown table per slip and writes every result under OUT.
 #
 #   scripts/eval-marker-slip.sh [OUT] [CHECKPOINT]
 #
@@ -41,13 +42,16 @@ for slip in ${SLIPS:-0 10 20}; do
             run "$p-neural" "$data" neural --checkpoint "$CK" --neural-start given --budget 10
             run "$p-neural+lm" "$data" neural+lm --checkpoint "$CK" --neural-start given --budget 4000
         else
-            for shape in per-frame joint:64; do
+            for shape in per-frame joint:64 joint:64+solve; do
                 s="${shape/:/}"
-                run "$p-lm-$s" "$data" lm --budget 4000 --sequence-shape "$shape"
+                # joint:64+solve: the joint β pass with each marker's offset solved.
+                flags=(--sequence-shape "${shape%+solve}")
+                [ "$shape" = "${shape%+solve}" ] || flags+=(--marker-placement solve)
+                run "$p-lm-$s" "$data" lm --budget 4000 "${flags[@]}"
                 run "$p-neural-both-$s" "$data" neural --checkpoint "$CK" --neural-start both --budget 24 \
-                    --sequence-shape "$shape"
+                    "${flags[@]}"
                 run "$p-neural+lm-both-$s" "$data" neural+lm --checkpoint "$CK" --neural-start both \
-                    --budget 4000 --sequence-shape "$shape"
+                    --budget 4000 "${flags[@]}"
             done
         fi
     done

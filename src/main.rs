@@ -421,6 +421,12 @@ struct FitCmd {
     /// joint:N (that solve over up to N frames, spread evenly; joint:64 on the clip).
     #[arg(long, default_value = "per-frame")]
     sequence_shape: String,
+    /// Where a markers sequence's markers sit on the body: model (on the model's marker
+    /// vertices) or solve (each marker's offset from its vertex solved with the sequence's β,
+    /// as MoSh does; needs --sequence-shape joint[:N]; the offsets are written to the summary's
+    /// shape_pass.marker_offsets).
+    #[arg(long, default_value = "model")]
+    marker_placement: String,
     /// Which free entries the fit moves: all, or observed (only the rotation entries the
     /// observations determine to within 2°, from the data term's information at the start; the
     /// others keep the start's values; observed:DEG another threshold). Default: observed for
@@ -725,6 +731,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 ort_threads: c.ort_threads,
                 known_shape: c.known_shape,
                 sequence_shape: c.sequence_shape,
+                marker_placement: c.marker_placement,
                 dofs: c.dofs,
             };
             let bar = progress_bar(0, cli.quiet, "fit");

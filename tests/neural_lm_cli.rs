@@ -808,3 +808,105 @@ fn dense_face_landmarks_keep_every_entry_by_default() {
     assert_eq!(observed["method"], "neural+lm-observed");
     assert_eq!(observed["dofs"], "observed");
 }
+
+/// `--marker-placement solve`: markers observed 20 mm off the model's marker set (`lfit synth
+/// --marker-slip-mm 20`, noise-free), fitted as a sequence with the joint β pass, get each
+/// marker's offset solved (written to the summary) and explain the observations better than
+/// with the markers on the model's vertices; one-line refusals where it cannot apply.
+#[test]
+fn solved_marker_placement_explains_slipped_markers() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let seq = tmp.path().join("slip.npz");
+    lfit_json(&[
+        "-q",
+        "synth",
+        "--modality",
+        "markers",
+        "--scenario",
+        "sequence",
+        "--frames",
+        "24",
+        "--seed",
+        "2517",
+        "--noise",
+        "0",
+        "--marker-slip-mm",
+        "20",
+        "--template",
+        path_str(&root(MODEL)),
+        "--out",
+        path_str(&seq),
+    ]);
+    let lm = |name: &str, placement: &str| -> Value {
+        let out = tmp.path().join(name);
+        let args = ["--sequence-shape", "joint", "--marker-placement", placement];
+        let o = lm50(&seq, &out, &args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json")
+    };
+    let model = lm("model.json", "model");
+    let solved = lm("solved.json", "solve");
+    assert_eq!(model["marker_placement"], "model");
+    assert_eq!(solved["marker_placement"], "solve");
+    assert!(model["summary"]["shape_pass"]["marker_offsets"].is_null());
+    let offsets = solved["summary"]["shape_pass"]["marker_offsets"]
+        .as_array()
+        .expect("offsets");
+    assert_eq!(
+        offsets.len(),
+        39,
+        "one offset per marker of the MakeHuman set"
+    );
+    let squares: Vec<f64> = offsets
+        .iter()
+        .flat_map(|d| d.as_array().expect("offset").iter().map(num))
+        .map(|x| x * x)
+        .collect();
+    let rms = (squares.iter().sum::<f64>() / offsets.len() as f64).sqrt();
+    assert!(
+        (0.005..0.06).contains(&rms),
+        "offsets of markers slipped 20 mm per axis: RMS {rms} m"
+    );
+    sequence_beta(&solved);
+    let energy = |r: &Value| num(&r["summary"]["mean_energy"]);
+    assert!(
+        energy(&solved) < 0.3 * energy(&model),
+        "solved placement explains the slipped markers: {} vs {}",
+        energy(&solved),
+        energy(&model)
+    );
+    // Refusals: per frame, another modality, an unknown placement; nothing written.
+    let out_path = tmp.path().join("no.json");
+    assert_one_line_error(
+        &lm50(&seq, &out_path, &["--marker-placement", "solve"]),
+        "--marker-placement solve runs in the β pass of --sequence-shape joint[:N]",
+    );
+    assert_one_line_error(
+        &lm50(&seq, &out_path, &["--marker-placement", "sometimes"]),
+        "unknown marker placement 'sometimes'",
+    );
+    let kp = tmp.path().join("kp.npz");
+    lfit_json(&[
+        "-q",
+        "synth",
+        "--modality",
+        "keypoints2d",
+        "--scenario",
+        "sequence",
+        "--frames",
+        "3",
+        "--template",
+        path_str(&root(MODEL)),
+        "--out",
+        path_str(&kp),
+    ]);
+    assert_one_line_error(
+        &lm50(
+            &kp,
+            &out_path,
+            &["--sequence-shape", "joint", "--marker-placement", "solve"],
+        ),
+        "--marker-placement solve places markers: the data's modality is keypoints2d",
+    );
+    assert!(!out_path.exists());
+}

@@ -184,3 +184,26 @@ def test_one_shape_per_sequence_equals_the_cli(makehuman, cli, tmp_path):
     assert np.abs(ours.shapes[0]).max() > 0, "β was estimated, not left at the mean"
     with pytest.raises(lfit.LfitError, match="unknown sequence shape policy 'median'"):
         lfit.fit(makehuman, data, method="lm", budget=20, sequence_shape="median")
+
+
+def test_solved_marker_placement_equals_the_cli(makehuman, cli, tmp_path):
+    """marker_placement="solve": each marker's offset solved with the sequence's β, the CLI's
+    fits bit for bit; refused with the CLI's line where it cannot apply."""
+    model = ROOT / "models" / "makehuman-cmu_mb.npz"
+    data = tmp_path / "slip.npz"
+    cli("synth", "--modality", "markers", "--scenario", "sequence", "--model", model,
+        "--frames", 6, "--seed", 12, "--marker-slip-mm", 15, "--out", data)
+    out = tmp_path / "cli.json"
+    cli("fit", "--data", data, "--model", model, "--method", "lm", "--budget", 100,
+        "--sequence-shape", "joint", "--marker-placement", "solve", "--seed", 3, "--out", out)
+    theirs = json.loads(out.read_text())
+    assert len(theirs["summary"]["shape_pass"]["marker_offsets"]) == 39
+    ours = lfit.fit(makehuman, data, method="lm", budget=100, sequence_shape="joint",
+                    marker_placement="solve", seed=3)
+    np.testing.assert_array_equal(ours.poses, [r["pose"] for r in theirs["frames"]])
+    on_model = lfit.fit(makehuman, data, method="lm", budget=100, sequence_shape="joint", seed=3)
+    assert not np.array_equal(on_model.poses, ours.poses), "the placement changed the fits"
+    with pytest.raises(lfit.LfitError, match="unknown marker placement 'nearby'"):
+        lfit.fit(makehuman, data, method="lm", budget=20, sequence_shape="joint", marker_placement="nearby")
+    with pytest.raises(lfit.LfitError, match="runs in the β pass of --sequence-shape joint"):
+        lfit.fit(makehuman, data, method="lm", budget=20, marker_placement="solve")

@@ -146,6 +146,8 @@ pub struct FitArgs {
     /// `--sequence-shape`: `per-frame`, `first-pass`, `joint` or `joint:N`
     /// ([`crate::fitting::SequenceShape`]).
     pub sequence_shape: String,
+    /// `--marker-placement`: `model` or `solve` ([`crate::fitting::MarkerPlacement`]).
+    pub marker_placement: String,
     /// `--dofs`: `all`, `observed` or `observed:DEG` ([`lfit_fitters::Dofs`]); `None`: the
     /// method's default ([`crate::method::MethodKind::default_dofs`]).
     pub dofs: Option<String>,
@@ -157,6 +159,7 @@ struct Prepared {
     strategy: Strategy,
     known_shape: Option<crate::fitting::KnownShape>,
     sequence_shape: crate::fitting::SequenceShape,
+    marker_placement: crate::fitting::MarkerPlacement,
     /// `tuned` when the steps are a recorded setting, else the preset's name.
     preset_name: &'static str,
     step_scale: f64,
@@ -186,6 +189,10 @@ fn prepare(
     }
     let sequence_shape: crate::fitting::SequenceShape =
         args.sequence_shape.parse().context("--sequence-shape")?;
+    let marker_placement: crate::fitting::MarkerPlacement = args
+        .marker_placement
+        .parse()
+        .context("--marker-placement")?;
     // The steps of a zeroth-order method (crate::study::tuned::choose): a flag that sets them
     // (--step-scale, --cma-*) keeps the recorded setting out, and goes with no `tuned` preset.
     let overridden = args.step_scale.is_some() || args.cma != Default::default();
@@ -270,6 +277,7 @@ fn prepare(
         strategy,
         known_shape,
         sequence_shape,
+        marker_placement,
         preset_name,
         step_scale,
         cma,
@@ -342,6 +350,7 @@ fn fit_prepared(
         strategy,
         known_shape,
         sequence_shape,
+        marker_placement,
         preset_name,
         step_scale,
         cma,
@@ -369,6 +378,7 @@ fn fit_prepared(
         batch: if neural { args.batch } else { 1 },
         known_shape: known_shape.clone(),
         sequence_shape,
+        marker_placement: *marker_placement,
     };
     if sequence_shape != crate::fitting::SequenceShape::PerFrame && !plan.runs_shape_pass() {
         bail!(
@@ -376,6 +386,7 @@ fn fit_prepared(
             sequence_shape.name()
         );
     }
+    plan.check_marker_placement()?;
     let mask = plan.mask()?;
     let mut done = 0;
     let report = crate::fitting::fit_frames(
@@ -497,6 +508,7 @@ fn fit_prepared(
         "scenario": scenario.to_string(),
         "mask": mask.name,
         "sequence_shape": sequence_shape.name(),
+        "marker_placement": marker_placement.name(),
         "energy_config": config,
         "energy_variant": if config.is_differentiable() { "gradient (EJ off, hinge EA)" } else { "paper (papers/000 eq. 3)" },
         "summary": summary,

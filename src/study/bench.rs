@@ -908,6 +908,7 @@ pub fn run(
                 .known_shape
                 .then_some(crate::fitting::KnownShape::Truth),
             sequence_shape: config.sequence_shape()?,
+            marker_placement: crate::fitting::MarkerPlacement::Model,
         };
         let unit_frames: Vec<usize> = unit.frames.iter().map(|&fi| frames[fi]).collect();
         crate::fitting::fit_frames(

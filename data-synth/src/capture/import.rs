@@ -239,6 +239,7 @@ pub fn import_c3d(
     let sensor = Sensor::Markers(MarkerSetup {
         names: marker_names.clone(),
         vertices: markers.iter().map(|m| m.vertex).collect(),
+        offsets: Vec::new(),
     });
     let rest = sensor
         .predict_sparse(template, &vec![0.0; template.layout().dim()])

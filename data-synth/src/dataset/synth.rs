@@ -219,6 +219,7 @@ impl MarkerSlip {
         Sensor::Markers(MarkerSetup {
             names: self.setup.names.clone(),
             vertices,
+            offsets: Vec::new(),
         })
     }
 }

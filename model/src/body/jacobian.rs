@@ -108,16 +108,21 @@ impl<'a> PointJacobians<'a> {
     /// The 3 × dim Jacobian (row-major, overwritten) of skinned vertex `v`; returns its position.
     pub fn skinned_point(&mut self, v: usize, out: &mut [f64]) -> DVec3 {
         out[..3 * self.dim].fill(0.0);
-        self.skinned_point_on_zero(v, out)
+        self.skinned_point_on_zero(v, DVec3::ZERO, out)
     }
 
     /// [`PointJacobians::skinned_point`] into rows the caller has just zeroed (a freshly
-    /// resized buffer): writes only the non-zero entries.
-    pub fn skinned_point_on_zero(&mut self, v: usize, out: &mut [f64]) -> DVec3 {
+    /// resized buffer): writes only the non-zero entries. With a nonzero `offset` the point is
+    /// skinned like vertex `v` from its rest position plus `offset` (a constant: the shape
+    /// columns are the vertex's).
+    pub fn skinned_point_on_zero(&mut self, v: usize, offset: DVec3, out: &mut [f64]) -> DVec3 {
         let d = self.dim;
         debug_assert!(out[..3 * d].iter().all(|&x| x == 0.0));
         let kin = self.kin;
-        let x = kin.rest(&self.skin.rest, v);
+        let mut x = kin.rest(&self.skin.rest, v);
+        if offset != DVec3::ZERO {
+            x += offset;
+        }
         let weights = self.skin.weights(v);
         let mut position = DVec3::ZERO;
         let mut wsum = 0.0;

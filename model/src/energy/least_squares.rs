@@ -862,7 +862,7 @@ impl Energy {
     }
 
     /// A parameter vector of the energy's length ([`Energy::dim`]).
-    fn check_length(&self, params: &[f64]) -> Result<()> {
+    pub(crate) fn check_length(&self, params: &[f64]) -> Result<()> {
         let dim = self.dim();
         if params.len() != dim {
             return Err(ModelError::Shape {

@@ -21,6 +21,7 @@
 
 mod capsules;
 mod least_squares;
+mod placement;
 mod prior;
 
 use std::sync::Arc;
@@ -35,6 +36,7 @@ pub use least_squares::{
     DampedFactor, JacobianRows, LeastSquares, PointFactors, RobustForm, damped_step, damped_system,
     envelope_cholesky, envelope_cholesky_solve, envelope_solve, envelope_work, marquardt_scaling,
 };
+pub use placement::marker_offsets;
 pub use prior::AnglePrior;
 
 use self::capsules::Capsules;

@@ -4,6 +4,8 @@ use proptest::prelude::*;
 
 use super::*;
 use crate::body::default_template;
+use crate::body::jacobian::PointJacobians;
+use crate::observe::{MarkerSetup, PoseJacobian};
 use crate::pose::{POSE_DIM, Pose, rot_offset};
 use crate::scan::{distance_transform, render_silhouettes};
 use crate::skeleton::HEAD;
@@ -1492,6 +1494,61 @@ mod least_squares_form {
         }
     }
 
+    /// Markers off their vertices (MoSh-style rest offsets, [`MarkerSetup::offsets`]) on the
+    /// MakeHuman body: the prediction is the vertex's skinning of the moved rest point, and its
+    /// Jacobian (factored and dense), gradient and normal equations agree as for any sensor.
+    #[test]
+    fn markers_off_their_vertices_have_exact_derivatives() {
+        use rand::{Rng, SeedableRng};
+        let t = makehuman_body();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2512);
+        let (e, x) = makehuman_energy(&t, Modality::Markers, &mut rng);
+        let Sensor::Markers(setup) = e.sensor().clone() else {
+            unreachable!()
+        };
+        let offsets: Vec<DVec3> = (0..setup.vertices.len())
+            .map(|_| DVec3::from_array([0; 3].map(|_| rng.random_range(-0.03..0.03))))
+            .collect();
+        let moved = e.with_marker_offsets(&offsets).unwrap();
+        let active = check(&moved, &x, "markers with offsets");
+        assert!(active.contains(&"data"));
+        // The dense rows the observation model writes itself equal the factored ones.
+        let kin = Kinematics::build(&t, &x, true);
+        let mut pj = PointJacobians::new(&t, &kin, &moved.skin, &x);
+        let mut jac = PoseJacobian {
+            inner: &mut pj,
+            kin: &kin,
+        };
+        let model = moved.observation_model();
+        let dim = t.layout().dim();
+        let mut dense = vec![1.0; 3 * setup.vertices.len() * dim];
+        model.jacobian(&moved.view(&kin), &mut jac, &mut dense);
+        let (mut points, mut rows) = (Vec::new(), Vec::new());
+        assert!(model.point_factors(&moved.view(&kin), &mut jac, &mut points, &mut rows));
+        assert_eq!(dense, points);
+        // Each marker moves by its offset carried by its vertex's skinning, and an offset of
+        // zero is the vertex itself, bit for bit.
+        let view = moved.view(&kin);
+        let plain = e.sensor().predict_sparse(&t, &x).values;
+        let off = moved.sensor().predict_sparse(&t, &x).values;
+        for (k, &v) in setup.vertices.iter().enumerate() {
+            let want =
+                DVec3::from_slice(&plain[3 * k..]) + view.skin_linear(v as usize) * offsets[k];
+            assert!(
+                want.distance(DVec3::from_slice(&off[3 * k..])) < 1e-12,
+                "marker {k}"
+            );
+        }
+        let zero = e
+            .with_marker_offsets(&vec![DVec3::ZERO; offsets.len()])
+            .unwrap();
+        assert_eq!(zero.sensor().predict_sparse(&t, &x).values, plain);
+        assert_eq!(
+            zero.least_squares(&x, true).unwrap(),
+            e.least_squares(&x, true).unwrap()
+        );
+    }
+
     #[test]
     fn every_robust_loss_folds_into_the_residuals() {
         let pose = perturbed(&[0.5; POSE_DIM]);
@@ -2014,4 +2071,89 @@ fn a_translated_frame_has_the_energy_of_the_frame() {
             .unwrap()
             .is_none()
     );
+}
+
+/// [`marker_offsets`] at the poses that made the observations recovers the offsets the markers
+/// were observed with (noise-free, a weak prior), shrinks them towards the marker set under a
+/// strong one, and refuses what it cannot use.
+#[test]
+fn marker_offsets_recover_where_the_markers_sat() {
+    use rand::{Rng, SeedableRng};
+    let t = makehuman_body();
+    let dim = t.layout().dim();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(77);
+    let plain = Sensor::default_for(Modality::Markers, &t);
+    let Sensor::Markers(setup) = plain.clone() else {
+        unreachable!()
+    };
+    let truth: Vec<DVec3> = (0..setup.vertices.len())
+        .map(|_| DVec3::from_array([0; 3].map(|_| rng.random_range(-0.02..0.02))))
+        .collect();
+    let placed = Sensor::Markers(MarkerSetup {
+        offsets: truth.iter().map(|d| d.to_array()).collect(),
+        ..setup.clone()
+    });
+    let beta: Vec<f64> = (0..dim - 3 - 3 * t.rig.num_joints())
+        .map(|_| rng.random_range(-1.0..1.0))
+        .collect();
+    let mut poses = Vec::new();
+    let mut energies = Vec::new();
+    for f in 0..6 {
+        let mut pose: Vec<f64> = (0..dim).map(|_| rng.random_range(-0.4..0.4)).collect();
+        let n = beta.len();
+        pose[dim - n..].copy_from_slice(&beta);
+        let pred = placed.predict_sparse(&t, &pose);
+        let mut visible = pred.visible;
+        // A marker unseen in one frame.
+        visible[3 * f..3 * f + 3].fill(false);
+        let e = Energy::new(
+            t.clone(),
+            plain.clone(),
+            Target::Sparse {
+                values: pred.values,
+                visible,
+            },
+            EnergyConfig::default(),
+        )
+        .unwrap();
+        energies.push(e);
+        poses.push(pose);
+    }
+    let solved = marker_offsets(&energies, &poses, 1.0).unwrap();
+    for (k, (s, d)) in solved.iter().zip(&truth).enumerate() {
+        assert!(s.distance(*d) < 1e-5, "marker {k}: {s} vs {d}");
+    }
+    // From the solved offsets the frames are explained: the data term vanishes.
+    for (e, p) in energies.iter().zip(&poses) {
+        let at = e.with_marker_offsets(&solved).unwrap().evaluate(p);
+        assert!(
+            at.term("data").unwrap() < 1e-6,
+            "{}",
+            at.term("data").unwrap()
+        );
+        assert!(e.evaluate(p).term("data").unwrap() > 1.0);
+    }
+    // A strong prior keeps them near the marker set.
+    let shrunk = marker_offsets(&energies, &poses, 1e-4).unwrap();
+    for (s, d) in shrunk.iter().zip(&truth) {
+        assert!(s.length() < 0.2 * d.length() + 1e-6, "{s} vs {d}");
+    }
+    assert!(marker_offsets(&energies, &poses, 0.0).is_err());
+    assert!(marker_offsets(&energies, &poses[1..], 1.0).is_err());
+    assert!(
+        marker_offsets(
+            &[energy(Modality::Hmd, EnergyConfig::default())],
+            &[gt_pose().to_vec()],
+            1.0
+        )
+        .is_err()
+    );
+    assert!(energies[0].with_marker_offsets(&solved[1..]).is_err());
+    let mut nan = solved.clone();
+    nan[2].y = f64::NAN;
+    let err = energies[0]
+        .with_marker_offsets(&nan)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("non-finite offset"), "{err}");
 }

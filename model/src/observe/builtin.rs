@@ -86,6 +86,23 @@ impl ObservationModel for MarkerSetup {
                 template.id
             )));
         }
+        if !self.offsets.is_empty() && self.offsets.len() != self.vertices.len() {
+            return Err(ModelError::Shape {
+                what: "marker offsets".into(),
+                expected: self.vertices.len().to_string(),
+                got: self.offsets.len().to_string(),
+            });
+        }
+        if let Some(k) = self
+            .offsets
+            .iter()
+            .position(|d| d.iter().any(|x| !x.is_finite()))
+        {
+            return Err(ModelError::Config(format!(
+                "marker '{}' has a non-finite offset {:?}",
+                self.names[k], self.offsets[k]
+            )));
+        }
         check_vertices(template, &self.vertices, "marker vertex")
     }
 
@@ -99,7 +116,8 @@ impl ObservationModel for MarkerSetup {
 
     fn predict(&self, posed: &PosedView<'_>, values: &mut [f64], visible: &mut [bool]) {
         for (k, &v) in self.vertices.iter().enumerate() {
-            values[3 * k..3 * k + 3].copy_from_slice(&posed.vertex(v as usize).to_array());
+            let p = posed.skinned_offset(v as usize, self.offset(k));
+            values[3 * k..3 * k + 3].copy_from_slice(&p.to_array());
         }
         visible.fill(true);
     }
@@ -107,7 +125,8 @@ impl ObservationModel for MarkerSetup {
     fn jacobian(&self, _: &PosedView<'_>, jac: &mut PoseJacobian<'_, '_>, out: &mut [f64]) {
         let d = jac.dim();
         for (k, &v) in self.vertices.iter().enumerate() {
-            jac.vertex(v as usize, &mut out[3 * k * d..3 * (k + 1) * d]);
+            let rows = &mut out[3 * k * d..3 * (k + 1) * d];
+            jac.offset_vertex(v as usize, self.offset(k), rows);
         }
     }
 
@@ -124,7 +143,8 @@ impl ObservationModel for MarkerSetup {
         points.clear();
         points.resize(3 * self.vertices.len() * d, 0.0);
         for (k, &v) in self.vertices.iter().enumerate() {
-            jac.vertex_on_zero(v as usize, &mut points[3 * k * d..3 * (k + 1) * d]);
+            let rows = &mut points[3 * k * d..3 * (k + 1) * d];
+            jac.offset_vertex_on_zero(v as usize, self.offset(k), rows);
         }
         rows.clear();
         for k in 0..self.vertices.len() {
@@ -140,7 +160,7 @@ impl ObservationModel for MarkerSetup {
     fn backprop(&self, _: &PosedView<'_>, dpred: &[f64], grad: &mut PoseGradient<'_, '_>) {
         for (k, &v) in self.vertices.iter().enumerate() {
             let g = DVec3::new(dpred[3 * k], dpred[3 * k + 1], dpred[3 * k + 2]);
-            grad.vertex(v as usize, g);
+            grad.offset_vertex(v as usize, self.offset(k), g);
         }
     }
 

@@ -173,6 +173,23 @@ pub struct LandmarkSetup {
 pub struct MarkerSetup {
     pub names: Vec<String>,
     pub vertices: Vec<u32>,
+    /// Each marker's offset from its vertex in the rest pose (metres, the model's rest frame),
+    /// carried by the vertex's skinning: the marker is the skinned point `Σ_j w_j A_j (x_v + d)`.
+    /// Empty (the default, and what every synthesised dataset has): the markers sit on their
+    /// vertices. Solved per subject by `lfit fit --marker-placement solve`
+    /// ([`crate::energy::marker_offsets`]), as MoSh solves a marker's place on the body.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub offsets: Vec<[f64; 3]>,
+}
+
+impl MarkerSetup {
+    /// Marker `k`'s rest offset from its vertex (zero without offsets).
+    #[inline]
+    pub fn offset(&self, k: usize) -> DVec3 {
+        self.offsets
+            .get(k)
+            .map_or(DVec3::ZERO, |&d| DVec3::from_array(d))
+    }
 }
 
 /// Fixed setup of the `keypoints2d` modality: calibrated cameras that see every joint centre.
@@ -442,6 +459,7 @@ impl Sensor {
                     .map(|m| m.name.clone())
                     .collect(),
                 vertices: template.rig.markers.iter().map(|m| m.vertex).collect(),
+                offsets: Vec::new(),
             }),
             Modality::Keypoints2d => Sensor::Keypoints2d(KeypointSetup {
                 cameras: default_ring(DEFAULT_RING_SIZE),

@@ -43,6 +43,43 @@ impl<'a> PosedView<'a> {
         self.kin.world(j)
     }
 
+    /// The point skinned like vertex `v` from its rest position plus `offset` (rest frame,
+    /// metres): a marker that sits off its vertex ([`crate::observe::MarkerSetup::offsets`]).
+    /// [`PosedView::vertex`] when `offset` is zero.
+    pub fn skinned_offset(&self, v: usize, offset: DVec3) -> DVec3 {
+        if offset == DVec3::ZERO {
+            return self.vertex(v);
+        }
+        match self.skin {
+            Some(s) => self
+                .kin
+                .skin(s.weights(v), self.kin.rest(&s.rest, v) + offset),
+            None => {
+                let x = self.kin.rest_of(v, self.template.vertices[v].as_dvec3()) + offset;
+                self.template.rig.weights[v]
+                    .iter()
+                    .fold(DVec3::ZERO, |acc, &(j, w)| {
+                        acc + w * self.kin.transforms[j].transform_point3(x)
+                    })
+            }
+        }
+    }
+
+    /// The linear part `Σ_j w_j W_j` of vertex `v`'s skinning: how a rest-frame offset of a point
+    /// skinned like `v` moves it ([`PosedView::skinned_offset`] is affine in the offset).
+    pub fn skin_linear(&self, v: usize) -> DMat3 {
+        let weights: Vec<(usize, f64)> = match self.skin {
+            Some(s) => s.weights(v).iter().map(|&(j, w)| (j as usize, w)).collect(),
+            None => self.template.rig.weights[v]
+                .iter()
+                .map(|&(j, w)| (j, w))
+                .collect(),
+        };
+        weights.into_iter().fold(DMat3::ZERO, |acc, (j, w)| {
+            acc + self.kin.transforms[j].matrix3 * w
+        })
+    }
+
     /// Skinned position of template vertex `v` (blend shapes and pose correctives included).
     pub fn vertex(&self, v: usize) -> DVec3 {
         match self.skin {
@@ -99,15 +136,27 @@ impl PoseJacobian<'_, '_> {
         self.inner.skinned_point(v, out)
     }
 
+    /// 3 rows: the point skinned like vertex `v` from its rest position plus `offset`
+    /// ([`PosedView::skinned_offset`]). Returns its position.
+    pub fn offset_vertex(&mut self, v: usize, offset: DVec3, out: &mut [f64]) -> DVec3 {
+        out[..3 * self.dim()].fill(0.0);
+        self.inner.skinned_point_on_zero(v, offset, out)
+    }
+
     /// 3 rows: joint `j`'s centre.
     pub fn joint(&self, j: usize, out: &mut [f64]) {
         self.inner.joint_point(j, self.kin.joints[j], out);
     }
 
-    /// [`PoseJacobian::vertex`] into rows the caller has just zeroed (a freshly resized buffer):
-    /// skips the second zero fill.
-    pub(crate) fn vertex_on_zero(&mut self, v: usize, out: &mut [f64]) -> DVec3 {
-        self.inner.skinned_point_on_zero(v, out)
+    /// [`PoseJacobian::offset_vertex`] into rows the caller has just zeroed (a freshly resized
+    /// buffer): skips the second zero fill.
+    pub(crate) fn offset_vertex_on_zero(
+        &mut self,
+        v: usize,
+        offset: DVec3,
+        out: &mut [f64],
+    ) -> DVec3 {
+        self.inner.skinned_point_on_zero(v, offset, out)
     }
 
     /// [`PoseJacobian::joint`] into rows the caller has just zeroed.
@@ -161,6 +210,19 @@ impl PoseGradient<'_, '_> {
             let s = self.skin;
             self.adjoint
                 .skinned_point(self.kin, s.weights(v), v, self.kin.rest(&s.rest, v), g);
+        }
+    }
+
+    /// The point skinned like vertex `v` from its rest position plus `offset`
+    /// ([`PosedView::skinned_offset`]).
+    pub fn offset_vertex(&mut self, v: usize, offset: DVec3, g: DVec3) {
+        if g != DVec3::ZERO {
+            let s = self.skin;
+            let mut x = self.kin.rest(&s.rest, v);
+            if offset != DVec3::ZERO {
+                x += offset;
+            }
+            self.adjoint.skinned_point(self.kin, s.weights(v), v, x, g);
         }
     }
 
