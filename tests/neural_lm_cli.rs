@@ -875,6 +875,43 @@ fn solved_marker_placement_explains_slipped_markers() {
         energy(&solved),
         energy(&model)
     );
+    // The same markers as a C3D capture (no ground truth): the distances to the observations
+    // are measured with the markers where the fit put them.
+    let c3d = tmp.path().join("slip.c3d");
+    let imported = tmp.path().join("imported.npz");
+    lfit_json(&[
+        "-q",
+        "data",
+        "export-c3d",
+        "--data",
+        path_str(&seq),
+        "--out",
+        path_str(&c3d),
+    ]);
+    lfit_json(&[
+        "-q",
+        "data",
+        "import",
+        "--c3d",
+        path_str(&c3d),
+        "--model",
+        path_str(&root(MODEL)),
+        "--out",
+        path_str(&imported),
+    ]);
+    let observed = |placement: &str| -> f64 {
+        let out = tmp.path().join(format!("imported-{placement}.json"));
+        let args = ["--sequence-shape", "joint", "--marker-placement", placement];
+        let o = lm50(&imported, &out, &args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let r: Value = serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json");
+        num(&r["summary"]["mean_observation_error_mm"])
+    };
+    let (on_model, placed) = (observed("model"), observed("solve"));
+    assert!(
+        placed < 0.5 * on_model,
+        "markers 20 mm off the model's set: {placed} mm from the observations with the placement solved, {on_model} mm without"
+    );
     // Refusals: per frame, another modality, an unknown placement; nothing written.
     let out_path = tmp.path().join("no.json");
     assert_one_line_error(

@@ -370,6 +370,7 @@ fn fit_prepared(
     let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
     // Without ground truth (imported observations): how far the fit lies from the observations.
     let (mut sum_obs, mut obs_frames, mut obs_unit) = (0.0, 0usize, "");
+    let mut observed: Vec<(usize, usize, Vec<f64>)> = Vec::new();
     // Frames go through the network `--batch` at a time (the plan keeps sequences one by one).
     let plan = crate::fitting::Plan {
         dataset: &dataset,
@@ -440,18 +441,9 @@ fn fit_prepared(
                         json!(iterate_errors(&template, &result.iterates, gt, mpjpe_mm));
                 }
             } else {
-                if let Some(e) = lfit_synth::capture::import::observation_errors(
-                    &dataset, &template, frame, pose,
-                ) {
-                    let u = e.unit;
-                    row[format!("observation_error_{u}")] = json!(e.mean);
-                    row[format!("observation_rms_{u}")] = json!(e.rms);
-                    row[format!("observation_max_{u}")] = json!(e.max);
-                    row["observations_seen"] = json!(e.count);
-                    sum_obs += e.mean;
-                    obs_frames += 1;
-                    obs_unit = u;
-                }
+                // The distances to the observations come after the pass, with the markers
+                // where it put them (a solved placement is known once the β pass is done).
+                observed.push((rows.len(), frame, pose.clone()));
                 if !result.iterates.is_empty() {
                     let energy =
                         energy_for_frame(&dataset, template.clone(), frame, config.clone())?;
@@ -468,6 +460,35 @@ fn fit_prepared(
             progress(done, frames.len())
         },
     )?;
+    let sensor = match (
+        &dataset.sensor,
+        report
+            .shape_pass
+            .as_ref()
+            .and_then(|p| p.marker_offsets.as_ref()),
+    ) {
+        (lfit_model::observe::Sensor::Markers(m), Some(offsets)) => {
+            lfit_model::observe::Sensor::Markers(lfit_model::observe::MarkerSetup {
+                offsets: offsets.clone(),
+                ..m.clone()
+            })
+        }
+        (s, _) => s.clone(),
+    };
+    for (k, frame, pose) in observed {
+        if let Some(e) = lfit_synth::capture::import::observation_errors(
+            &dataset, &sensor, &template, frame, &pose,
+        ) {
+            let (u, row) = (e.unit, &mut rows[k]);
+            row[format!("observation_error_{u}")] = json!(e.mean);
+            row[format!("observation_rms_{u}")] = json!(e.rms);
+            row[format!("observation_max_{u}")] = json!(e.max);
+            row["observations_seen"] = json!(e.count);
+            sum_obs += e.mean;
+            obs_frames += 1;
+            obs_unit = u;
+        }
+    }
     let n = frames.len().max(1) as f64;
     let mut summary = json!({
         "frames": frames.len(),

@@ -87,12 +87,13 @@ pub fn overlay(dataset: &Dataset, frame: usize, camera: usize) -> Overlay {
                 Sensor::Hmd(_) if v.len() >= lfit_model::observe::HMD_DIM => {
                     // Headset, left wrist, right wrist: R (9, row-major) then t (3); then the
                     // hand tips.
-                    for d in 0..3 {
-                        let o = 12 * d;
+                    use lfit_model::observe::hmd_layout;
+                    for d in 0..hmd_layout::DEVICES {
+                        let o = hmd_layout::device(d);
                         if !vis[o] {
                             continue;
                         }
-                        let p = dvec(v, o + 9);
+                        let p = dvec(v, hmd_layout::position(d));
                         let color = if d == 0 { HEADSET } else { WRIST };
                         out.points.push(Point::World(p, color));
                         if d == 0 {
@@ -102,13 +103,13 @@ pub fn overlay(dataset: &Dataset, frame: usize, camera: usize) -> Overlay {
                         }
                     }
                     for k in 0..2 {
-                        let o = 36 + 3 * k;
+                        let o = hmd_layout::tip(k);
                         if vis[o] {
                             let tip = dvec(v, o);
                             out.points.push(Point::World(tip, OBSERVED));
-                            let w = 12 * (k + 1);
-                            if vis[w] {
-                                let wrist = dvec(v, w + 9);
+                            let w = hmd_layout::tip_device(k);
+                            if vis[hmd_layout::device(w)] {
+                                let wrist = dvec(v, hmd_layout::position(w));
                                 out.segments.push((wrist, tip, WRIST));
                             }
                         }

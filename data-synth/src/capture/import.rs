@@ -711,10 +711,12 @@ pub struct ObservationErrors {
     pub count: usize,
 }
 
-/// [`ObservationErrors`] of `pose` on frame `frame` (`markers` and `keypoints2d` only; `None`
-/// for other modalities and frames with nothing seen).
+/// [`ObservationErrors`] of `pose` on frame `frame` as `sensor` predicts it (the dataset's, or
+/// its markers at offsets a fit solved: `lfit fit --marker-placement solve`; `markers` and
+/// `keypoints2d` only; `None` for other modalities and frames with nothing seen).
 pub fn observation_errors(
     dataset: &Dataset,
+    sensor: &Sensor,
     template: &Template,
     frame: usize,
     pose: &[f64],
@@ -728,7 +730,7 @@ pub fn observation_errors(
         return None;
     };
     let (obs, seen) = (values.get(frame)?, visible.get(frame)?);
-    let pred = dataset.sensor.predict_sparse(template, pose).values;
+    let pred = sensor.predict_sparse(template, pose).values;
     if pred.len() != obs.len() {
         return None;
     }
@@ -868,7 +870,7 @@ mod tests {
         for (a, b) in d.start_poses[2].iter().zip(&pose) {
             assert!((a - b).abs() < 1e-5, "{:?}", &d.start_poses[2][..6]);
         }
-        let e = observation_errors(d, &t, 0, &pose).unwrap();
+        let e = observation_errors(d, &d.sensor, &t, 0, &pose).unwrap();
         assert!(e.max < 1e-3 && e.count == t.rig.markers.len());
 
         // Bad maps: an unknown C3D label, an unknown model marker; no map matches nothing.

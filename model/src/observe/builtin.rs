@@ -5,7 +5,8 @@ use rand::RngCore;
 
 use super::{
     HMD_DIM, HandVisibility, HmdSetup, KeypointSetup, MarkerSetup, ObservationModel, PoseGradient,
-    PoseJacobian, PosedView, ResidualGroup, check_vertices, headset_pose, uniform_groups,
+    PoseJacobian, PosedView, ResidualGroup, check_vertices, headset_pose, hmd_layout,
+    uniform_groups,
 };
 use crate::camera::Camera;
 use crate::error::{ModelError, Result};
@@ -317,20 +318,20 @@ impl ObservationModel for HmdSetup {
     /// Per device a rotation group (9 entries) and a position group (3), then the two hand tips.
     fn groups(&self, _: &Template, scales: &Scales) -> Vec<ResidualGroup> {
         let mut out = Vec::with_capacity(8);
-        for d in 0..3 {
+        for d in 0..hmd_layout::DEVICES {
             out.push(ResidualGroup {
-                start: 12 * d,
+                start: hmd_layout::device(d),
                 len: 9,
                 sigma: scales.rotation,
             });
             out.push(ResidualGroup {
-                start: 12 * d + 9,
+                start: hmd_layout::position(d),
                 len: 3,
                 sigma: scales.position,
             });
         }
         out.extend((0..2).map(|k| ResidualGroup {
-            start: 36 + 3 * k,
+            start: hmd_layout::tip(k),
             len: 3,
             sigma: scales.position,
         }));
@@ -353,7 +354,7 @@ impl ObservationModel for HmdSetup {
         }
         .inverse();
         for (d, &(_, rot, pos)) in devices.iter().enumerate() {
-            let o = 12 * d;
+            let (o, p) = (hmd_layout::device(d), hmd_layout::position(d));
             for row in 0..3 {
                 values[o + 3 * row..o + 3 * row + 3].copy_from_slice(&[
                     rot.x_axis[row],
@@ -361,18 +362,18 @@ impl ObservationModel for HmdSetup {
                     rot.z_axis[row],
                 ]);
             }
-            values[o + 9..o + 12].copy_from_slice(&pos.to_array());
+            values[p..p + 3].copy_from_slice(&pos.to_array());
             let seen = d == 0
                 || match self.visibility {
                     HandVisibility::Full => true,
                     HandVisibility::HalfSpace => device_from_world.transform_point3(pos).z < 0.0,
                 };
-            visible[o..o + 12].fill(seen);
+            visible[o..o + hmd_layout::BLOCK].fill(seen);
         }
         for (k, &tip) in self.hand_tips.iter().enumerate() {
-            let o = 36 + 3 * k;
+            let o = hmd_layout::tip(k);
             values[o..o + 3].copy_from_slice(&posed.vertex(tip as usize).to_array());
-            let seen = visible[12 + 12 * k];
+            let seen = visible[hmd_layout::device(hmd_layout::tip_device(k))];
             visible[o..o + 3].fill(seen);
         }
     }
@@ -384,12 +385,12 @@ impl ObservationModel for HmdSetup {
             return;
         };
         for (dev, &(joint, rot, pos)) in devices.iter().enumerate() {
-            let o = 12 * dev;
+            let (o, p) = (hmd_layout::device(dev), hmd_layout::position(dev));
             jac.carried_rotation(joint, rot, &mut out[o * d..(o + 9) * d]);
-            jac.joint_point(joint, pos, &mut out[(o + 9) * d..(o + 12) * d]);
+            jac.joint_point(joint, pos, &mut out[p * d..(p + 3) * d]);
         }
         for (k, &tip) in self.hand_tips.iter().enumerate() {
-            let o = 36 + 3 * k;
+            let o = hmd_layout::tip(k);
             jac.vertex(tip as usize, &mut out[o * d..(o + 3) * d]);
         }
     }
@@ -400,17 +401,17 @@ impl ObservationModel for HmdSetup {
         };
         let vec3 = |i: usize| DVec3::new(dpred[i], dpred[i + 1], dpred[i + 2]);
         for (dev, &(joint, rot, pos)) in devices.iter().enumerate() {
-            let o = 12 * dev;
+            let o = hmd_layout::device(dev);
             let g = DMat3::from_cols(
                 DVec3::new(dpred[o], dpred[o + 3], dpred[o + 6]),
                 DVec3::new(dpred[o + 1], dpred[o + 4], dpred[o + 7]),
                 DVec3::new(dpred[o + 2], dpred[o + 5], dpred[o + 8]),
             );
             grad.carried_rotation(joint, rot, g);
-            grad.joint_point(joint, pos, vec3(o + 9));
+            grad.joint_point(joint, pos, vec3(hmd_layout::position(dev)));
         }
         for (k, &tip) in self.hand_tips.iter().enumerate() {
-            grad.vertex(tip as usize, vec3(36 + 3 * k));
+            grad.vertex(tip as usize, vec3(hmd_layout::tip(k)));
         }
     }
 

@@ -13,6 +13,7 @@
 mod builtin;
 pub(crate) use builtin::expand_point_factors;
 pub mod camera;
+pub mod hmd_layout;
 mod landmarks;
 pub mod noise;
 pub mod scan;
@@ -372,8 +373,8 @@ impl PartialEq for Sensor {
 }
 
 /// Entries per HMD prediction: head, left wrist and right wrist as 3×4 `[R | t]` (12 each), then
-/// the left and right hand tips (3 each).
-pub const HMD_DIM: usize = 42;
+/// the left and right hand tips (3 each) — [`hmd_layout`].
+pub const HMD_DIM: usize = hmd_layout::tip(2);
 
 /// A prediction of a sparse modality: a flat vector and, per entry, whether the sensor sees it.
 #[derive(Debug, Clone, PartialEq)]
@@ -421,10 +422,11 @@ impl Sensor {
                 self.clone()
             }
             Sensor::Hmd(_) => {
-                for d in 0..3 {
-                    shift(&mut moved[12 * d + 9..12 * d + 12]);
+                for d in 0..hmd_layout::DEVICES {
+                    let p = hmd_layout::position(d);
+                    shift(&mut moved[p..p + 3]);
                 }
-                shift(&mut moved[36..HMD_DIM]);
+                shift(&mut moved[hmd_layout::tip(0)..HMD_DIM]);
                 self.clone()
             }
             Sensor::Keypoints2d(setup) => {

@@ -181,12 +181,13 @@ pub fn corrupt_hmd<R: Rng + ?Sized>(
     cfg: &NoiseConfig,
     rng: &mut R,
 ) {
-    for block in 0..3 {
-        let b = &mut values[12 * block..12 * block + 12];
+    use super::hmd_layout::{BLOCK, DEVICES, device, tip};
+    for d in 0..DEVICES {
+        let b = &mut values[device(d)..device(d) + BLOCK];
         perturb_rotation(&mut b[..9], cfg.rotation_sigma_deg, rng);
         add_gaussian(&mut b[9..12], cfg.position_sigma, rng);
     }
-    add_gaussian(&mut values[36..], cfg.point_sigma, rng);
+    add_gaussian(&mut values[tip(0)..], cfg.point_sigma, rng);
     for (v, &vis) in values.iter_mut().zip(visible) {
         if !vis {
             *v = 0.0;
