@@ -17,8 +17,21 @@ fn root(p: &str) -> PathBuf {
 }
 
 fn synth(dir: &Path, name: &str, scenario: &str, frames: usize, seed: u64) -> PathBuf {
+    synth_with(dir, name, scenario, frames, seed, &[])
+}
+
+/// [`synth`] with more `lfit synth` arguments.
+fn synth_with(
+    dir: &Path,
+    name: &str,
+    scenario: &str,
+    frames: usize,
+    seed: u64,
+    extra: &[&str],
+) -> PathBuf {
     let data = dir.join(name);
-    lfit_json(&[
+    let (frames, seed, model) = (frames.to_string(), seed.to_string(), root(MODEL));
+    let mut args = vec![
         "-q",
         "synth",
         "--modality",
@@ -26,14 +39,16 @@ fn synth(dir: &Path, name: &str, scenario: &str, frames: usize, seed: u64) -> Pa
         "--scenario",
         scenario,
         "--frames",
-        &frames.to_string(),
+        &frames,
         "--seed",
-        &seed.to_string(),
+        &seed,
         "--template",
-        path_str(&root(MODEL)),
+        path_str(&model),
         "--out",
         path_str(&data),
-    ]);
+    ];
+    args.extend(extra);
+    lfit_json(&args);
     data
 }
 
@@ -816,27 +831,8 @@ fn dense_face_landmarks_keep_every_entry_by_default() {
 #[test]
 fn solved_marker_placement_explains_slipped_markers() {
     let tmp = tempfile::tempdir().expect("tmp");
-    let seq = tmp.path().join("slip.npz");
-    lfit_json(&[
-        "-q",
-        "synth",
-        "--modality",
-        "markers",
-        "--scenario",
-        "sequence",
-        "--frames",
-        "24",
-        "--seed",
-        "2517",
-        "--noise",
-        "0",
-        "--marker-slip-mm",
-        "20",
-        "--template",
-        path_str(&root(MODEL)),
-        "--out",
-        path_str(&seq),
-    ]);
+    let slip = ["--noise", "0", "--marker-slip-mm", "20"];
+    let seq = synth_with(tmp.path(), "slip.npz", "sequence", 24, 2517, &slip);
     let lm = |name: &str, placement: &str| -> Value {
         let out = tmp.path().join(name);
         let args = ["--sequence-shape", "joint", "--marker-placement", placement];
