@@ -67,15 +67,15 @@ impl<'a> PointJacobians<'a> {
                 if let Some(p) = parents[j] {
                     uj.copy_from_slice(&head[p * 3 * k..(p + 1) * 3 * k]);
                 }
-                for kk in 0..k {
-                    let c = DVec3::new(
-                        morph.joint_dirs[3 * j * k + kk],
-                        morph.joint_dirs[(3 * j + 1) * k + kk],
-                        morph.joint_dirs[(3 * j + 2) * k + kk],
-                    );
-                    let v = d * c;
-                    for a in 0..3 {
-                        uj[a * k + kk] += v[a];
+                // U_j += (W_parent − W_j) ∂c_j/∂c, row by row over the K contiguous columns
+                // (each entry summed as the matrix-vector product sums it).
+                let dirs = &morph.joint_dirs[3 * j * k..3 * (j + 1) * k];
+                let (cx, rest) = dirs.split_at(k);
+                let (cy, cz) = rest.split_at(k);
+                for a in 0..3 {
+                    let (mx, my, mz) = (d.x_axis[a], d.y_axis[a], d.z_axis[a]);
+                    for (i, o) in uj[a * k..(a + 1) * k].iter_mut().enumerate() {
+                        *o += mx * cx[i] + my * cy[i] + mz * cz[i];
                     }
                 }
             }
@@ -163,21 +163,27 @@ impl<'a> PointJacobians<'a> {
         let k = self.coefficients;
         if let Some((m, _, _)) = &kin.morph {
             if k > 0 {
-                for kk in 0..k {
-                    let dir = DVec3::new(
-                        m.dirs[3 * v * k + kk],
-                        m.dirs[(3 * v + 1) * k + kk],
-                        m.dirs[(3 * v + 2) * k + kk],
-                    );
-                    let mut col = linear * dir;
+                // Column kk is `linear · ∂T_v/∂c_kk + Σ_j w_j U_j[:, kk]`, written row by row
+                // over the K columns (contiguous in `dirs`, `U` and `out`), each entry summed in
+                // the order of the product and the influences: the same numbers to the bit as
+                // column by column.
+                let dirs = &m.dirs[3 * v * k..3 * (v + 1) * k];
+                let (dx, rest) = dirs.split_at(k);
+                let (dy, dz) = rest.split_at(k);
+                let base = self.coefficient_base;
+                for a in 0..3 {
+                    let row = &mut out[a * d + base..a * d + base + k];
+                    let (lx, ly, lz) = (linear.x_axis[a], linear.y_axis[a], linear.z_axis[a]);
+                    for (i, o) in row.iter_mut().enumerate() {
+                        *o = lx * dx[i] + ly * dy[i] + lz * dz[i];
+                    }
                     if !self.u.is_empty() {
                         for &(j, w) in weights {
-                            let uj = &self.u[j as usize * 3 * k..];
-                            col += w * DVec3::new(uj[kk], uj[k + kk], uj[2 * k + kk]);
+                            let uj = &self.u[j as usize * 3 * k + a * k..][..k];
+                            for (o, &u) in row.iter_mut().zip(uj) {
+                                *o += w * u;
+                            }
                         }
-                    }
-                    for a in 0..3 {
-                        out[a * d + self.coefficient_base + kk] = col[a];
                     }
                 }
             }

@@ -338,8 +338,19 @@ impl Morph {
         };
         let k = self.coefficients();
         if k > 0 {
+            // The three rows' dot products in one loop: three independent chains (each summed in
+            // the order `dot` sums it, so the position is the same to the bit).
+            let rows = &self.dirs[3 * v * k..3 * (v + 1) * k];
+            let (x, rest) = rows.split_at(k);
+            let (y, z) = rest.split_at(k);
+            let mut s = [-0.0f64; 3];
+            for (i, &c) in coeffs.iter().enumerate().take(k) {
+                s[0] += x[i] * c;
+                s[1] += y[i] * c;
+                s[2] += z[i] * c;
+            }
             for a in 0..3 {
-                p[a] += dot(&self.dirs[(3 * v + a) * k..(3 * v + a + 1) * k], coeffs);
+                p[a] += s[a];
             }
         }
         if let Some(pd) = &self.posedirs
