@@ -30,8 +30,8 @@ pub struct Plan<'a> {
     pub marker_placement: MarkerPlacement,
 }
 
-/// Where a markers sequence's markers sit on the body (`lfit fit --marker-placement`, bench
-/// `marker_placement`). Real markers are not on the model's marker vertices: they sit where the
+/// Where a markers sequence's markers sit on the body (`lfit fit --marker-placement`, Python
+/// `marker_placement=`; bench runs keep them on the model's set). Real markers are not on the model's marker vertices: they sit where the
 /// subject's suit or the operator put them, a marker's radius off the skin. Markers observed
 /// off the model's set cost every fitter ~5 mm V2V at 10 mm of slip and make a sequence's one β
 /// take up the placement (`docs/results/captured-motion.md`, round 16).
@@ -644,12 +644,12 @@ fn joint_shape_pass(
             // offsets with the poses held and β with the poses with the offsets held; the last
             // round's joint solve is the pass's. (Offsets first, from the per-frame fits, took
             // up their β errors: on the clip without slip β RMS 0.41 -> 0.88.)
-            let (_, mut poses, first) =
+            let (beta, mut poses, first) =
                 joint_shape(&energies, &poses, shape.clone(), &free, &bounds)?;
             let mut placed = energies;
             let mut evaluations = first.evaluations;
             let mut iterations = first.iterations;
-            let mut last = None;
+            let mut last = (beta, first);
             let mut offsets = Vec::new();
             for _ in 0..MARKER_PLACEMENT_ROUNDS {
                 offsets =
@@ -664,11 +664,11 @@ fn joint_shape_pass(
                 poses = next;
                 evaluations += solve.evaluations;
                 iterations += solve.iterations;
-                last = Some((beta, solve));
+                last = (beta, solve);
             }
             // The pass's solve: from the energy before the first β solve to the last one's
             // result, iterations and evaluations over all of them.
-            let (beta, mut solve) = last.expect("MARKER_PLACEMENT_ROUNDS ≥ 1");
+            let (beta, mut solve) = last;
             solve.energy_before = first.energy_before;
             solve.iterations = iterations;
             solve.evaluations = evaluations;
