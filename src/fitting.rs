@@ -31,7 +31,7 @@ pub struct Plan<'a> {
 }
 
 /// Where a markers sequence's markers sit on the body (`lfit fit --marker-placement`, Python
-/// `marker_placement=`; bench runs keep them on the model's set). Real markers are not on the model's marker vertices: they sit where the
+/// `marker_placement=`, bench `marker_placement`). Real markers are not on the model's marker vertices: they sit where the
 /// subject's suit or the operator put them, a marker's radius off the skin. Markers observed
 /// off the model's set cost every fitter ~5 mm V2V at 10 mm of slip and make a sequence's one β
 /// take up the placement (`docs/results/captured-motion.md`, round 16).

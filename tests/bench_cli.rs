@@ -543,3 +543,92 @@ fn quick_sizes_apply_to_user_configs_too() {
     );
     assert!(!out_dir.exists());
 }
+
+/// `marker_placement = "solve"` in a bench config: the same computation as `lfit fit
+/// --sequence-shape joint --marker-placement solve` on a MakeHuman markers sequence whose markers
+/// sit 15 mm off the model's set (every frame's energy to the last digit); an unknown value is
+/// refused with one line before anything runs.
+#[test]
+fn bench_solves_the_marker_placement_like_lfit_fit() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/makehuman-cmu_mb.npz");
+    let data = d.join("slip.npz");
+    lfit_json(&[
+        "-q",
+        "synth",
+        "--modality",
+        "markers",
+        "--scenario",
+        "sequence",
+        "--frames",
+        "5",
+        "--seed",
+        "4",
+        "--marker-slip-mm",
+        "15",
+        "--template",
+        path_str(&model),
+        "--out",
+        path_str(&data),
+    ]);
+    let body = |placement: &str| {
+        format!(
+            "name = \"placed\"\nmethods = [\"lm\"]\nbudgets = [60]\nseed = 5\ndata = \"{}\"\ntemplate = \"{}\"\nsequence_shape = \"joint\"\nmarker_placement = \"{placement}\"\n",
+            path_str(&data),
+            path_str(&model)
+        )
+    };
+    let out = d.join("bench");
+    let cfg = config(d, "placed.toml", &body("solve"));
+    lfit_json(&[
+        "-q",
+        "bench",
+        "--config",
+        path_str(&cfg),
+        "--out",
+        path_str(&out),
+    ]);
+    let fit = d.join("fit.json");
+    lfit_json(&[
+        "-q",
+        "fit",
+        "--data",
+        path_str(&data),
+        "--template",
+        path_str(&model),
+        "--method",
+        "lm",
+        "--budget",
+        "60",
+        "--seed",
+        "5",
+        "--sequence-shape",
+        "joint",
+        "--marker-placement",
+        "solve",
+        "--out",
+        path_str(&fit),
+    ]);
+    let fitted: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&fit).expect("fit")).expect("json");
+    let bench = energies(&out.join("runs.csv"), "lm");
+    assert_eq!(bench.len(), 5);
+    for (frame, e) in &bench {
+        let want = fitted["frames"][*frame]["energy"].as_f64().expect("energy");
+        assert_eq!(e.parse::<f64>().expect("e"), want, "frame {frame}");
+    }
+    let bad = config(d, "bad.toml", &body("nearby"));
+    let never = d.join("never");
+    assert_one_line_error(
+        &lfit(&[
+            "bench",
+            "--config",
+            path_str(&bad),
+            "--out",
+            path_str(&never),
+        ]),
+        "unknown marker placement 'nearby'",
+    );
+    assert!(!never.join("runs.csv").exists());
+}

@@ -113,6 +113,10 @@ pub struct BenchConfig {
     /// ([`crate::fitting::SequenceShape`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sequence_shape: Option<String>,
+    /// Where a markers sequence's markers sit: `model` (default) or `solve` (with
+    /// `sequence_shape = "joint[:N]"`; [`crate::fitting::MarkerPlacement`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub marker_placement: Option<String>,
     /// Which free entries each fit moves: `all`, `observed` or `observed:DEG` (`lfit fit
     /// --dofs`); default each method's own (`observed` for `neural+lm`'s LM stage on markers,
     /// keypoints2d and hmd, `all` otherwise). `neural` always moves its checkpoint's entries.
@@ -246,6 +250,7 @@ impl BenchConfig {
             }
         }
         self.sequence_shape()?;
+        self.marker_placement()?;
         if !(self.alpha > 0.0 && self.alpha < 1.0) {
             bail!("alpha must be in (0, 1), got {}", self.alpha);
         }
@@ -333,6 +338,15 @@ impl BenchConfig {
             .unwrap_or("per-frame")
             .parse()
             .context("sequence_shape")
+    }
+
+    /// Where a markers sequence's markers sit (`marker_placement`, default model).
+    pub fn marker_placement(&self) -> Result<crate::fitting::MarkerPlacement> {
+        self.marker_placement
+            .as_deref()
+            .unwrap_or("model")
+            .parse()
+            .context("marker_placement")
     }
 
     #[cfg(feature = "neural")]
@@ -908,7 +922,7 @@ pub fn run(
                 .known_shape
                 .then_some(crate::fitting::KnownShape::Truth),
             sequence_shape: config.sequence_shape()?,
-            marker_placement: crate::fitting::MarkerPlacement::Model,
+            marker_placement: config.marker_placement()?,
         };
         let unit_frames: Vec<usize> = unit.frames.iter().map(|&fi| frames[fi]).collect();
         crate::fitting::fit_frames(
