@@ -201,6 +201,7 @@ def test_solved_marker_placement_equals_the_cli(makehuman, cli, tmp_path):
     ours = lfit.fit(makehuman, data, method="lm", budget=100, sequence_shape="joint",
                     marker_placement="solve", seed=3)
     np.testing.assert_array_equal(ours.poses, [r["pose"] for r in theirs["frames"]])
+    assert ours.summary["shape_pass"]["marker_offsets"] == theirs["summary"]["shape_pass"]["marker_offsets"]
     on_model = lfit.fit(makehuman, data, method="lm", budget=100, sequence_shape="joint", seed=3)
     assert not np.array_equal(on_model.poses, ours.poses), "the placement changed the fits"
     with pytest.raises(lfit.LfitError, match="unknown marker placement 'nearby'"):
