@@ -307,6 +307,19 @@ fn energies(path: &Path, method: &str) -> Vec<(usize, String)> {
         .collect()
 }
 
+/// The bench rows of `method` in `runs` (`count` of them) have, frame by frame, the energies of
+/// the `lfit fit` result `fit` to the last digit.
+fn same_energies(runs: &Path, method: &str, fit: &Path, count: usize) {
+    let fitted: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(fit).expect("fit")).expect("json");
+    let bench = energies(runs, method);
+    assert_eq!(bench.len(), count);
+    for (frame, e) in &bench {
+        let want = fitted["frames"][*frame]["energy"].as_f64().expect("energy");
+        assert_eq!(e.parse::<f64>().expect("e"), want, "frame {frame}");
+    }
+}
+
 #[test]
 fn sequences_run_as_warm_started_chains_like_lfit_fit_and_resume_mid_chain() {
     let tmp = tempfile::tempdir().expect("tmp");
@@ -358,14 +371,7 @@ fn sequences_run_as_warm_started_chains_like_lfit_fit_and_resume_mid_chain() {
         "--out",
         path_str(&fit),
     ]);
-    let fitted: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(&fit).expect("fit")).expect("json");
-    let bench = energies(&full.join("runs.csv"), "cma");
-    assert_eq!(bench.len(), 6);
-    for (frame, e) in &bench {
-        let want = fitted["frames"][*frame]["energy"].as_f64().expect("energy");
-        assert_eq!(e.parse::<f64>().expect("e"), want, "frame {frame}");
-    }
+    same_energies(&full.join("runs.csv"), "cma", &fit, 6);
     // Parallel fits of one frame count their evaluations apart: the budget holds exactly.
     let evaluations = column(&full.join("runs.csv"), "evaluations");
     for line in std::fs::read_to_string(full.join("runs.csv"))
@@ -610,14 +616,7 @@ fn bench_solves_the_marker_placement_like_lfit_fit() {
         "--out",
         path_str(&fit),
     ]);
-    let fitted: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(&fit).expect("fit")).expect("json");
-    let bench = energies(&out.join("runs.csv"), "lm");
-    assert_eq!(bench.len(), 5);
-    for (frame, e) in &bench {
-        let want = fitted["frames"][*frame]["energy"].as_f64().expect("energy");
-        assert_eq!(e.parse::<f64>().expect("e"), want, "frame {frame}");
-    }
+    same_energies(&out.join("runs.csv"), "lm", &fit, 5);
     let bad = config(d, "bad.toml", &body("nearby"));
     let never = d.join("never");
     assert_one_line_error(
