@@ -871,6 +871,39 @@ fn solved_marker_placement_explains_slipped_markers() {
         energy(&solved),
         energy(&model)
     );
+    // The network fits with the markers where the solve put them too (its residual features
+    // come from the same observation model), and its sequence explains them better as well.
+    let net = |name: &str, placement: &str| -> Value {
+        let args = [
+            "--method",
+            "neural",
+            "--budget",
+            "24",
+            "--neural-start",
+            "both",
+            "--sequence-shape",
+            "joint",
+            "--marker-placement",
+            placement,
+        ];
+        fit(&seq, &tmp.path().join(name), &args)
+    };
+    let (net_model, net_solved) = (
+        net("net-model.json", "model"),
+        net("net-solved.json", "solve"),
+    );
+    assert_eq!(
+        net_solved["summary"]["shape_pass"]["marker_offsets"]
+            .as_array()
+            .map(Vec::len),
+        Some(39)
+    );
+    assert!(
+        energy(&net_solved) < energy(&net_model),
+        "the network with the solved placement: {} vs {}",
+        energy(&net_solved),
+        energy(&net_model)
+    );
     // The same markers as a C3D capture (no ground truth): the distances to the observations
     // are measured with the markers where the fit put them.
     let c3d = tmp.path().join("slip.c3d");
