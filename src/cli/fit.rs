@@ -468,10 +468,7 @@ fn fit_prepared(
             .and_then(|p| p.marker_offsets.as_ref()),
     ) {
         (lfit_model::observe::Sensor::Markers(m), Some(offsets)) => {
-            lfit_model::observe::Sensor::Markers(lfit_model::observe::MarkerSetup {
-                offsets: offsets.clone(),
-                ..m.clone()
-            })
+            lfit_model::observe::Sensor::Markers(m.placed(offsets.clone()))
         }
         (s, _) => s.clone(),
     };

@@ -18,7 +18,7 @@ use glam::{DMat3, DVec3};
 use super::{Energy, Target};
 use crate::body::kinematics::Kinematics;
 use crate::error::{ModelError, Result};
-use crate::observe::{MarkerSetup, Sensor};
+use crate::observe::Sensor;
 
 impl Energy {
     /// This energy with its markers at `offsets` from their vertices (rest frame, metres; one
@@ -33,10 +33,7 @@ impl Energy {
                 self.sensor.name()
             )));
         };
-        let sensor = Sensor::Markers(MarkerSetup {
-            offsets: offsets.iter().map(|d| d.to_array()).collect(),
-            ..setup.clone()
-        });
+        let sensor = Sensor::Markers(setup.placed(offsets.iter().map(|d| d.to_array()).collect()));
         self.with_sensor(sensor, values.clone(), visible.clone())
     }
 }

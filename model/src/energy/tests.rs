@@ -5,7 +5,7 @@ use proptest::prelude::*;
 use super::*;
 use crate::body::default_template;
 use crate::body::jacobian::PointJacobians;
-use crate::observe::{MarkerSetup, PoseJacobian};
+use crate::observe::PoseJacobian;
 use crate::pose::{POSE_DIM, Pose, rot_offset};
 use crate::scan::{distance_transform, render_silhouettes};
 use crate::skeleton::HEAD;
@@ -1494,7 +1494,7 @@ mod least_squares_form {
         }
     }
 
-    /// Markers off their vertices (MoSh-style rest offsets, [`MarkerSetup::offsets`]) on the
+    /// Markers off their vertices (MoSh-style rest offsets, [`crate::observe::MarkerSetup::offsets`]) on the
     /// MakeHuman body: the prediction is the vertex's skinning of the moved rest point, and its
     /// Jacobian (factored and dense), gradient and normal equations agree as for any sensor.
     #[test]
@@ -2089,10 +2089,7 @@ fn marker_offsets_recover_where_the_markers_sat() {
     let truth: Vec<DVec3> = (0..setup.vertices.len())
         .map(|_| DVec3::from_array([0; 3].map(|_| rng.random_range(-0.02..0.02))))
         .collect();
-    let placed = Sensor::Markers(MarkerSetup {
-        offsets: truth.iter().map(|d| d.to_array()).collect(),
-        ..setup.clone()
-    });
+    let placed = Sensor::Markers(setup.placed(truth.iter().map(|d| d.to_array()).collect()));
     let beta: Vec<f64> = (0..dim - 3 - 3 * t.rig.num_joints())
         .map(|_| rng.random_range(-1.0..1.0))
         .collect();

@@ -191,6 +191,15 @@ impl MarkerSetup {
             .get(k)
             .map_or(DVec3::ZERO, |&d| DVec3::from_array(d))
     }
+
+    /// This marker set with its markers at `offsets` from their vertices (rest frame, metres;
+    /// one per marker, checked by the sensor's validation).
+    pub fn placed(&self, offsets: Vec<[f64; 3]>) -> Self {
+        Self {
+            offsets,
+            ..self.clone()
+        }
+    }
 }
 
 /// Fixed setup of the `keypoints2d` modality: calibrated cameras that see every joint centre.

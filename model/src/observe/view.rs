@@ -47,15 +47,14 @@ impl<'a> PosedView<'a> {
     /// metres): a marker that sits off its vertex ([`crate::observe::MarkerSetup::offsets`]).
     /// [`PosedView::vertex`] when `offset` is zero.
     pub fn skinned_offset(&self, v: usize, offset: DVec3) -> DVec3 {
-        if offset == DVec3::ZERO {
-            return self.vertex(v);
-        }
+        // The offset is added only when there is one: a vertex's own position to the bit.
+        let moved = |x: DVec3| if offset == DVec3::ZERO { x } else { x + offset };
         match self.skin {
             Some(s) => self
                 .kin
-                .skin(s.weights(v), self.kin.rest(&s.rest, v) + offset),
+                .skin(s.weights(v), moved(self.kin.rest(&s.rest, v))),
             None => {
-                let x = self.kin.rest_of(v, self.template.vertices[v].as_dvec3()) + offset;
+                let x = moved(self.kin.rest_of(v, self.template.vertices[v].as_dvec3()));
                 self.template.rig.weights[v]
                     .iter()
                     .fold(DVec3::ZERO, |acc, &(j, w)| {
@@ -68,31 +67,21 @@ impl<'a> PosedView<'a> {
     /// The linear part `Σ_j w_j W_j` of vertex `v`'s skinning: how a rest-frame offset of a point
     /// skinned like `v` moves it ([`PosedView::skinned_offset`] is affine in the offset).
     pub fn skin_linear(&self, v: usize) -> DMat3 {
-        let weights: Vec<(usize, f64)> = match self.skin {
-            Some(s) => s.weights(v).iter().map(|&(j, w)| (j as usize, w)).collect(),
+        let add = |acc: DMat3, j: usize, w: f64| acc + self.kin.world(j) * w;
+        match self.skin {
+            Some(s) => s
+                .weights(v)
+                .iter()
+                .fold(DMat3::ZERO, |acc, &(j, w)| add(acc, j as usize, w)),
             None => self.template.rig.weights[v]
                 .iter()
-                .map(|&(j, w)| (j, w))
-                .collect(),
-        };
-        weights.into_iter().fold(DMat3::ZERO, |acc, (j, w)| {
-            acc + self.kin.transforms[j].matrix3 * w
-        })
+                .fold(DMat3::ZERO, |acc, &(j, w)| add(acc, j, w)),
+        }
     }
 
     /// Skinned position of template vertex `v` (blend shapes and pose correctives included).
     pub fn vertex(&self, v: usize) -> DVec3 {
-        match self.skin {
-            Some(s) => self.kin.skin(s.weights(v), self.kin.rest(&s.rest, v)),
-            None => {
-                let x = self.kin.rest_of(v, self.template.vertices[v].as_dvec3());
-                self.template.rig.weights[v]
-                    .iter()
-                    .fold(DVec3::ZERO, |acc, &(j, w)| {
-                        acc + w * self.kin.transforms[j].transform_point3(x)
-                    })
-            }
-        }
+        self.skinned_offset(v, DVec3::ZERO)
     }
 }
 
@@ -133,7 +122,7 @@ impl PoseJacobian<'_, '_> {
 
     /// 3 rows: skinned vertex `v`. Returns its position.
     pub fn vertex(&mut self, v: usize, out: &mut [f64]) -> DVec3 {
-        self.inner.skinned_point(v, out)
+        self.offset_vertex(v, DVec3::ZERO, out)
     }
 
     /// 3 rows: the point skinned like vertex `v` from its rest position plus `offset`
@@ -206,11 +195,7 @@ impl PoseGradient<'_, '_> {
 
     /// Skinned vertex `v`.
     pub fn vertex(&mut self, v: usize, g: DVec3) {
-        if g != DVec3::ZERO {
-            let s = self.skin;
-            self.adjoint
-                .skinned_point(self.kin, s.weights(v), v, self.kin.rest(&s.rest, v), g);
-        }
+        self.offset_vertex(v, DVec3::ZERO, g);
     }
 
     /// The point skinned like vertex `v` from its rest position plus `offset`

@@ -297,6 +297,7 @@ def fit(
     neural_start: str = "phi",
     neural_pick: str = "last",
     sequence_shape: str = "per-frame",
+    marker_placement: str = "model",
     dofs: Optional[str] = None,
     device: str = "flex",
     runtime: str = "burn",
