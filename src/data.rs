@@ -61,6 +61,9 @@ pub struct SynthArgs {
     /// markers: σ of each subject's marker slip in millimetres (`--marker-slip-mm`,
     /// [`SynthConfig::marker_slip`]); 0: the model's marker vertices.
     pub marker_slip_mm: f64,
+    /// keypoints2d: σ of each subject's keypoint offsets from the joint centres in millimetres
+    /// (`--keypoint-bias-mm`, [`SynthConfig::keypoint_bias`]); 0: the joint centres.
+    pub keypoint_bias_mm: f64,
     pub out: PathBuf,
 }
 
@@ -130,9 +133,9 @@ pub fn synth_sensor(
         (None, _) => Ok(Sensor::default_for(modality, template)),
         (Some(0), _) => anyhow::bail!("--cameras must be at least 1"),
         (Some(n), Modality::Keypoints2d) if n <= lfit_model::camera::RigRanges::MAX_CAMERAS => {
-            Ok(Sensor::Keypoints2d(lfit_model::observe::KeypointSetup {
-                cameras: lfit_model::camera::default_ring(n),
-            }))
+            Ok(Sensor::Keypoints2d(
+                lfit_model::observe::KeypointSetup::new(lfit_model::camera::default_ring(n)),
+            ))
         }
         (Some(n), Modality::Keypoints2d) => anyhow::bail!(
             "--cameras {n} is more than {}",
@@ -197,6 +200,7 @@ pub fn synthesize_dataset(
     config.motion_augment = files.augment;
     config.uniform_share = files.uniform_share;
     config.marker_slip = args.marker_slip_mm / 1000.0;
+    config.keypoint_bias = args.keypoint_bias_mm / 1000.0;
     config.validate()?;
     let dataset = synthesize_until(&config, template, &sensor, progress, cancel)?;
     let mut summary = json!({
@@ -223,6 +227,9 @@ pub fn synthesize_dataset(
     }
     if config.marker_slip > 0.0 {
         summary["marker_slip_mm"] = json!(args.marker_slip_mm);
+    }
+    if config.keypoint_bias > 0.0 {
+        summary["keypoint_bias_mm"] = json!(args.keypoint_bias_mm);
     }
     if config.uniform_share > 0.0 {
         summary["frames_uniform"] = json!(

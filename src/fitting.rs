@@ -9,6 +9,7 @@ use anyhow::{Context, Result, bail};
 use lfit_fitters::{FitRequest, FitResult, Fitter};
 use lfit_model::energy::{Energy, EnergyConfig, JacobianRows, RobustForm, Target};
 use lfit_model::layout::Block;
+use lfit_model::observe::Modality;
 use lfit_model::pose::{Bounds, DofMask, MaskKind};
 use lfit_model::template::Template;
 use lfit_synth::{Dataset, Observations, Scenario};
@@ -26,26 +27,32 @@ pub struct Plan<'a> {
     pub known_shape: Option<KnownShape>,
     /// How a sequence estimates β (ignored outside sequences and with a known shape).
     pub sequence_shape: SequenceShape,
-    /// Where a markers sequence's markers sit on the body (solved only with a joint β pass).
+    /// Where a markers or keypoints2d sequence's points sit on the body (solved only with a
+    /// joint β pass).
     pub marker_placement: MarkerPlacement,
 }
 
-/// Where a markers sequence's markers sit on the body (`lfit fit --marker-placement`, Python
-/// `marker_placement=`, bench `marker_placement`). Real markers are not on the model's marker vertices: they sit where the
-/// subject's suit or the operator put them, a marker's radius off the skin. Markers observed
-/// off the model's set cost every fitter ~5 mm V2V at 10 mm of slip and make a sequence's one β
-/// take up the placement (`docs/results/captured-motion.md`, round 16).
+/// Where a sequence's markers or 2D keypoints sit on the body (`lfit fit --marker-placement`,
+/// Python `marker_placement=`, bench `marker_placement`). Real markers are not on the model's
+/// marker vertices: they sit where the subject's suit or the operator put them, a marker's
+/// radius off the skin. Markers observed off the model's set cost every fitter ~5 mm V2V at
+/// 10 mm of slip and make a sequence's one β take up the placement
+/// (`docs/results/captured-motion.md`, round 16). A detector's keypoints are not the
+/// skeleton's joint centres either (a COCO hip is where annotators clicked on the outline).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum MarkerPlacement {
     /// On the model's marker vertices.
     #[default]
     Model,
-    /// Each marker's rest-frame offset from its vertex, solved per sequence with its β
-    /// (MoSh, Loper et al. 2014, solves marker places, shape and poses together): within
-    /// `--sequence-shape joint[:N]`'s β pass, [`MARKER_PLACEMENT_ROUNDS`] rounds of the offsets
-    /// in closed form with the poses held ([`lfit_model::energy::marker_offsets`], a Gaussian
-    /// prior of [`MARKER_OFFSET_PRIOR_M`] at the marker set) and β with the poses by the joint
-    /// solve ([`joint_shape`]) with the offsets held; the sequence is then fitted with both.
+    /// Each marker's rest-frame offset from its vertex, or each keypoint's from its joint's
+    /// centre, solved per sequence with its β (MoSh, Loper et al. 2014, solves marker places,
+    /// shape and poses together): within `--sequence-shape joint[:N]`'s β pass,
+    /// [`MARKER_PLACEMENT_ROUNDS`] rounds of the offsets with the poses held (markers in closed
+    /// form, [`lfit_model::energy::marker_offsets`], a Gaussian prior of
+    /// [`MARKER_OFFSET_PRIOR_M`] at the marker set; keypoints by Gauss-Newton,
+    /// [`lfit_model::energy::keypoint_offsets`], a prior of [`KEYPOINT_OFFSET_PRIOR_M`] at the
+    /// joint centres) and β with the poses by the joint solve ([`joint_shape`]) with the offsets
+    /// held; the sequence is then fitted with both.
     Solved,
 }
 
@@ -54,6 +61,10 @@ pub const MARKER_PLACEMENT_ROUNDS: usize = 3;
 
 /// The prior scale of a marker's offset from its vertex in [`MarkerPlacement::Solved`] (metres).
 pub const MARKER_OFFSET_PRIOR_M: f64 = 0.02;
+
+/// The prior scale of a 2D keypoint's offset from its joint's centre in
+/// [`MarkerPlacement::Solved`] (metres).
+pub const KEYPOINT_OFFSET_PRIOR_M: f64 = 0.03;
 
 impl MarkerPlacement {
     pub fn name(self) -> &'static str {
@@ -166,10 +177,23 @@ pub struct ShapePass {
     /// at their solved offsets; iterations and evaluations of every solve).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub joint: Option<JointSolve>,
-    /// [`MarkerPlacement::Solved`]: each marker's rest-frame offset from its vertex (metres),
-    /// in the sensor's marker order.
+    /// [`MarkerPlacement::Solved`] on markers: each marker's rest-frame offset from its vertex
+    /// (metres), in the sensor's marker order.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub marker_offsets: Option<Vec<[f64; 3]>>,
+    /// [`MarkerPlacement::Solved`] on keypoints2d: each keypoint's rest-frame offset from its
+    /// joint's centre (metres), in the skeleton's joint order.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub keypoint_offsets: Option<Vec<[f64; 3]>>,
+}
+
+impl ShapePass {
+    /// The solved offsets of the sensor's points ([`MarkerPlacement::Solved`]), if any.
+    pub fn offsets(&self) -> Option<&Vec<[f64; 3]>> {
+        self.marker_offsets
+            .as_ref()
+            .or(self.keypoint_offsets.as_ref())
+    }
 }
 
 /// What [`joint_shape`]'s β solve did.
@@ -308,14 +332,17 @@ impl Plan<'_> {
         Ok(known)
     }
 
-    /// [`MarkerPlacement::Solved`] needs a markers sequence and the joint β pass it runs in.
+    /// [`MarkerPlacement::Solved`] needs a markers or keypoints2d sequence and the joint β
+    /// pass it runs in.
     pub fn check_marker_placement(&self) -> Result<()> {
         if self.marker_placement == MarkerPlacement::Model {
             return Ok(());
         }
         let modality = self.dataset.meta.config.modality;
-        if modality != lfit_model::observe::Modality::Markers {
-            bail!("--marker-placement solve places markers: the data's modality is {modality}");
+        if !matches!(modality, Modality::Markers | Modality::Keypoints2d) {
+            bail!(
+                "--marker-placement solve places markers or 2D keypoints: the data's modality is {modality}"
+            );
         }
         if !matches!(self.sequence_shape, SequenceShape::Joint { .. }) || !self.runs_shape_pass() {
             bail!(
@@ -382,12 +409,12 @@ pub fn fit_frames(
     let offsets: Option<Vec<glam::DVec3>> = report
         .shape_pass
         .as_ref()
-        .and_then(|p| p.marker_offsets.as_ref())
+        .and_then(ShapePass::offsets)
         .map(|o| o.iter().map(|&d| glam::DVec3::from_array(d)).collect());
     let placed = |f: usize| -> Result<Energy> {
         let e = energy(f)?;
         match &offsets {
-            Some(o) => Ok(e.with_marker_offsets(o)?),
+            Some(o) => Ok(e.with_offsets(o)?),
             None => Ok(e),
         }
     };
@@ -571,6 +598,7 @@ fn shape_pass(
         time_s,
         joint: None,
         marker_offsets: None,
+        keypoint_offsets: None,
     })
 }
 
@@ -634,16 +662,18 @@ fn joint_shape_pass(
         .iter()
         .map(|p| scenario_bounds(scenario, plan.template, p))
         .collect();
+    let modality = plan.dataset.meta.config.modality;
     let (beta, solve, offsets) = match plan.marker_placement {
         MarkerPlacement::Model => {
             let (beta, _, solve) = joint_shape(&energies, &poses, shape, &free, &bounds)?;
             (beta, solve, None)
         }
         MarkerPlacement::Solved => {
-            // joint's β pass with the markers on the model's vertices, then rounds of the
-            // offsets with the poses held and β with the poses with the offsets held; the last
-            // round's joint solve is the pass's. (Offsets first, from the per-frame fits, took
-            // up their β errors: on the clip without slip β RMS 0.41 -> 0.88.)
+            // joint's β pass with the markers on the model's vertices (the keypoints at the
+            // joint centres), then rounds of the offsets with the poses held and β with the
+            // poses with the offsets held; the last round's joint solve is the pass's. (Offsets
+            // first, from the per-frame fits, took up their β errors: on the clip without slip
+            // β RMS 0.41 -> 0.88.)
             let (beta, mut poses, first) =
                 joint_shape(&energies, &poses, shape.clone(), &free, &bounds)?;
             let mut placed = energies;
@@ -652,12 +682,20 @@ fn joint_shape_pass(
             let mut last = (beta, first);
             let mut offsets = Vec::new();
             for _ in 0..MARKER_PLACEMENT_ROUNDS {
-                offsets =
-                    lfit_model::energy::marker_offsets(&placed, &poses, MARKER_OFFSET_PRIOR_M)
-                        .context("--marker-placement solve")?;
+                offsets = match modality {
+                    Modality::Markers => {
+                        lfit_model::energy::marker_offsets(&placed, &poses, MARKER_OFFSET_PRIOR_M)
+                    }
+                    _ => lfit_model::energy::keypoint_offsets(
+                        &placed,
+                        &poses,
+                        KEYPOINT_OFFSET_PRIOR_M,
+                    ),
+                }
+                .context("--marker-placement solve")?;
                 placed = placed
                     .iter()
-                    .map(|e| e.with_marker_offsets(&offsets))
+                    .map(|e| e.with_offsets(&offsets))
                     .collect::<std::result::Result<Vec<_>, _>>()?;
                 let (beta, next, solve) =
                     joint_shape(&placed, &poses, shape.clone(), &free, &bounds)?;
@@ -687,7 +725,10 @@ fn joint_shape_pass(
         evaluations,
         time_s,
         joint: Some(solve),
-        marker_offsets: offsets,
+        keypoint_offsets: offsets
+            .clone()
+            .filter(|_| modality == Modality::Keypoints2d),
+        marker_offsets: offsets.filter(|_| modality == Modality::Markers),
     })
 }
 

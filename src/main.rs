@@ -117,6 +117,13 @@ enum Command {
         /// model's marker set, so fits meet that mismatch. In [0, 100] (default 0: none).
         #[arg(long, value_name = "MM", default_value_t = 0.0)]
         marker_slip_mm: f64,
+        /// keypoints2d: each subject's keypoints sit off its joints' centres, as a 2D detector's
+        /// do: per joint a normal offset of this σ per axis (mm) in the joint's rest frame,
+        /// carried by the joint; one set per subject (per frame in local/global, once per
+        /// sequence); the dataset keeps the joint centres, so fits meet that mismatch. In
+        /// [0, 100] (default 0: none).
+        #[arg(long, value_name = "MM", default_value_t = 0.0)]
+        keypoint_bias_mm: f64,
         /// keypoints2d: the number of cameras, on the default ring's circle (4 m around the
         /// origin, 1.3 m high, evenly spaced from the front, 640×480, fx = 550); default: the
         /// default rig's 6.
@@ -421,10 +428,11 @@ struct FitCmd {
     /// joint:N (that solve over up to N frames, spread evenly; joint:64 on the clip).
     #[arg(long, default_value = "per-frame")]
     sequence_shape: String,
-    /// Where a markers sequence's markers sit on the body: model (on the model's marker
-    /// vertices) or solve (each marker's offset from its vertex solved with the sequence's β,
-    /// as MoSh does; needs --sequence-shape joint[:N]; the offsets are written to the summary's
-    /// shape_pass.marker_offsets).
+    /// Where a sequence's markers or 2D keypoints sit on the body: model (on the model's marker
+    /// vertices, at the joint centres) or solve (each marker's offset from its vertex, or each
+    /// keypoint's from its joint's centre, solved with the sequence's β, as MoSh does for
+    /// markers; needs --sequence-shape joint[:N]; the offsets are written to the summary's
+    /// shape_pass.marker_offsets or shape_pass.keypoint_offsets).
     #[arg(long, default_value = "model")]
     marker_placement: String,
     /// Which free entries the fit moves: all, or observed (only the rotation entries the
@@ -668,6 +676,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             library_motions,
             uniform_share,
             marker_slip_mm,
+            keypoint_bias_mm,
             cameras,
             template,
         } => {
@@ -682,6 +691,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 noise,
                 motions: library_motions,
                 marker_slip_mm,
+                keypoint_bias_mm,
                 out,
             };
             let files = lfit::data::MotionFilesArgs {

@@ -29,13 +29,26 @@ fn synth_with(
     seed: u64,
     extra: &[&str],
 ) -> PathBuf {
+    synth_modality(dir, name, "markers", scenario, frames, seed, extra)
+}
+
+/// [`synth_with`] of another modality.
+fn synth_modality(
+    dir: &Path,
+    name: &str,
+    modality: &str,
+    scenario: &str,
+    frames: usize,
+    seed: u64,
+    extra: &[&str],
+) -> PathBuf {
     let data = dir.join(name);
     let (frames, seed, model) = (frames.to_string(), seed.to_string(), root(MODEL));
     let mut args = vec![
         "-q",
         "synth",
         "--modality",
-        "markers",
+        modality,
         "--scenario",
         scenario,
         "--frames",
@@ -951,28 +964,58 @@ fn solved_marker_placement_explains_slipped_markers() {
         &lm50(&seq, &out_path, &["--marker-placement", "sometimes"]),
         "unknown marker placement 'sometimes'",
     );
-    let kp = tmp.path().join("kp.npz");
-    lfit_json(&[
-        "-q",
-        "synth",
-        "--modality",
-        "keypoints2d",
-        "--scenario",
-        "sequence",
-        "--frames",
-        "3",
-        "--template",
-        path_str(&root(MODEL)),
-        "--out",
-        path_str(&kp),
-    ]);
+    let hmd = synth_modality(tmp.path(), "hmd.npz", "hmd", "sequence", 3, 1, &[]);
     assert_one_line_error(
         &lm50(
-            &kp,
+            &hmd,
             &out_path,
             &["--sequence-shape", "joint", "--marker-placement", "solve"],
         ),
-        "--marker-placement solve places markers: the data's modality is keypoints2d",
+        "--marker-placement solve places markers or 2D keypoints: the data's modality is hmd",
     );
     assert!(!out_path.exists());
+}
+
+/// `--marker-placement solve` on 2D keypoints observed off the joint centres (`lfit synth
+/// --keypoint-bias-mm 20`, noise-free, as a detector's keypoints are): each keypoint's offset
+/// solved (written to the summary, one per joint) explains the observations better than the
+/// joint centres do.
+#[test]
+fn solved_keypoint_placement_explains_biased_keypoints() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let bias = ["--noise", "0", "--keypoint-bias-mm", "20"];
+    let seq = synth_modality(
+        tmp.path(),
+        "kp.npz",
+        "keypoints2d",
+        "sequence",
+        16,
+        2518,
+        &bias,
+    );
+    let lm = |name: &str, placement: &str| -> Value {
+        let out = tmp.path().join(name);
+        let args = ["--sequence-shape", "joint", "--marker-placement", placement];
+        let o = lm50(&seq, &out, &args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json")
+    };
+    let (model, solved) = (lm("model.json", "model"), lm("solved.json", "solve"));
+    assert!(model["summary"]["shape_pass"]["keypoint_offsets"].is_null());
+    assert!(solved["summary"]["shape_pass"]["marker_offsets"].is_null());
+    let offsets = solved["summary"]["shape_pass"]["keypoint_offsets"]
+        .as_array()
+        .expect("offsets");
+    assert_eq!(
+        offsets.len(),
+        31,
+        "one offset per joint of the MakeHuman rig"
+    );
+    let energy = |r: &Value| num(&r["summary"]["mean_energy"]);
+    assert!(
+        energy(&solved) < 0.3 * energy(&model),
+        "solved keypoint offsets explain the biased keypoints: {} vs {}",
+        energy(&solved),
+        energy(&model)
+    );
 }

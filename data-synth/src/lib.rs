@@ -11,7 +11,8 @@ pub mod noise;
 pub mod npz;
 
 pub use dataset::config::{
-    MAX_MARKER_SLIP, MotionFile, PoseSource, Scenario, SynthConfig, marker_slip_problem,
+    MAX_MARKER_SLIP, MotionFile, PoseSource, Scenario, SynthConfig, keypoint_bias_problem,
+    marker_slip_problem,
 };
 pub use dataset::synth::{synthesize, synthesize_until};
 pub use dataset::{Dataset, Meta, Observations};

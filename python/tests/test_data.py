@@ -77,6 +77,28 @@ def test_synth_marker_slip_equals_the_cli_and_moves_only_the_observations(cli, t
     assert not (tmp_path / "bad.npz").exists()
 
 
+def test_synth_keypoint_bias_equals_the_cli_and_moves_only_the_observations(cli, tmp_path):
+    cli_out = tmp_path / "cli.npz"
+    cli("synth", "--modality", "keypoints2d", "--model", MH, "--frames", 5, "--seed", 8, "--noise", 0, "--keypoint-bias-mm", 30, "--out", cli_out)
+    py_out = tmp_path / "py.npz"
+    d = lfit.synth("keypoints2d", MH, frames=5, seed=8, noise=0.0, keypoint_bias_mm=30.0, out=py_out)
+    assert py_out.read_bytes() == cli_out.read_bytes()
+    assert d.summary["keypoint_bias_mm"] == 30.0 and d.meta["config"]["keypoint_bias"] == 0.03
+    plain = lfit.synth("keypoints2d", MH, frames=5, seed=8, noise=0.0)
+    # The same poses and cameras, the keypoints seen pixels off the joint centres.
+    np.testing.assert_array_equal(d.gt_params, plain.gt_params)
+    assert d.sensor == plain.sensor
+    seen = np.asarray(d.visibility, dtype=bool) & np.asarray(plain.visibility, dtype=bool)
+    moved = np.abs(d.observations - plain.observations)[seen]
+    assert 1.0 < moved.mean() < 20.0
+    for bad, why in ((150.0, "keypoint_bias"), (-1.0, "keypoint_bias")):
+        with pytest.raises(lfit.LfitError, match=why):
+            lfit.synth("keypoints2d", MH, frames=3, keypoint_bias_mm=bad, out=tmp_path / "bad.npz")
+    with pytest.raises(lfit.LfitError, match="keypoint_bias.*markers"):
+        lfit.synth("markers", MH, frames=3, keypoint_bias_mm=10.0, out=tmp_path / "bad.npz")
+    assert not (tmp_path / "bad.npz").exists()
+
+
 def test_synth_bad_input_writes_nothing(tmp_path):
     out = tmp_path / "x.npz"
     with pytest.raises(lfit.LfitError) as e:

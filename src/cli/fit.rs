@@ -460,17 +460,13 @@ fn fit_prepared(
             progress(done, frames.len())
         },
     )?;
-    let sensor = match (
-        &dataset.sensor,
-        report
-            .shape_pass
-            .as_ref()
-            .and_then(|p| p.marker_offsets.as_ref()),
-    ) {
-        (lfit_model::observe::Sensor::Markers(m), Some(offsets)) => {
-            lfit_model::observe::Sensor::Markers(m.placed(offsets.clone()))
-        }
-        (s, _) => s.clone(),
+    let sensor = match report
+        .shape_pass
+        .as_ref()
+        .and_then(crate::fitting::ShapePass::offsets)
+    {
+        Some(offsets) => dataset.sensor.placed(offsets.clone())?,
+        None => dataset.sensor.clone(),
     };
     for (k, frame, pose) in observed {
         if let Some(e) = lfit_synth::capture::import::observation_errors(

@@ -751,6 +751,7 @@ pub fn run(
                     noise: s.noise,
                     motions: None,
                     marker_slip_mm: 0.0,
+                    keypoint_bias_mm: 0.0,
                     out: path.clone(),
                 };
                 let files = crate::data::MotionFilesArgs {

@@ -697,9 +697,7 @@ pub fn random_rigs(
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
             rng.set_stream(i as u64);
             let at = root + glam::DVec3::new(gt[0], gt[1], gt[2]);
-            let sensor = Sensor::Keypoints2d(KeypointSetup {
-                cameras: ranges.sample(&mut rng, at),
-            });
+            let sensor = Sensor::Keypoints2d(KeypointSetup::new(ranges.sample(&mut rng, at)));
             let pred = sensor.predict_sparse(template, gt);
             let (mut values, mut visible) = (pred.values, pred.visible);
             sensor

@@ -496,7 +496,7 @@ pub fn import_keypoints(
         "triangulated_starts": rigid,
         "single_view_starts": ray,
     });
-    let sensor = Sensor::Keypoints2d(KeypointSetup { cameras });
+    let sensor = Sensor::Keypoints2d(KeypointSetup::new(cameras));
     let dataset = imported_dataset(
         template, sensor, scenario, fps, sources, starts, values, visible,
     )?;
@@ -956,9 +956,7 @@ mod tests {
         let mut pose = vec![0.0; t.layout().dim()];
         pose[..3].copy_from_slice(&[0.1, 0.0, 0.2]);
         pose[4] = -0.5;
-        let sensor = Sensor::Keypoints2d(KeypointSetup {
-            cameras: cams.clone(),
-        });
+        let sensor = Sensor::Keypoints2d(KeypointSetup::new(cams.clone()));
         let p = sensor.predict_sparse(&t, &pose).values;
         let nj = t.rig.num_joints();
         let layout = KeypointLayout::Coco17;

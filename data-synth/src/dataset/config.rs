@@ -141,9 +141,19 @@ pub struct SynthConfig {
     /// bytes); at most [`MAX_MARKER_SLIP`].
     #[serde(default, skip_serializing_if = "is_zero")]
     pub marker_slip: f64,
+    /// keypoints2d: each subject's keypoints are observed off its joints' centres, as a 2D
+    /// detector's are (a COCO hip or shoulder is a point on the body that annotators clicked,
+    /// not the skeleton's joint centre): per joint and subject a normal offset of this σ per
+    /// axis, in metres, in the joint's rest frame, carried by the joint
+    /// ([`lfit_model::observe::KeypointSetup::offsets`]). The dataset keeps the joint centres,
+    /// so fits see the mismatch a detector's keypoints have. One draw per subject: per frame in
+    /// the local and global scenarios, once for a sequence. 0 by default (and then absent from
+    /// the metadata, so other datasets keep their bytes); at most [`MAX_MARKER_SLIP`].
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub keypoint_bias: f64,
 }
 
-/// The largest [`SynthConfig::marker_slip`] accepted, metres.
+/// The largest [`SynthConfig::marker_slip`] and [`SynthConfig::keypoint_bias`] accepted, metres.
 pub const MAX_MARKER_SLIP: f64 = 0.1;
 
 /// Why `slip` (metres) is not a marker slip of `modality` data, or `None` when it is: a standard
@@ -158,6 +168,20 @@ pub fn marker_slip_problem(slip: f64, modality: Modality) -> Option<String> {
     }
     (slip > 0.0 && modality != Modality::Markers)
         .then(|| format!("moves markers: the modality is {modality}"))
+}
+
+/// Why `bias` (metres) is not a keypoint bias of `modality` data, or `None` when it is: a
+/// standard deviation within [0, [`MAX_MARKER_SLIP`]], above 0 only for keypoints2d. The check
+/// of `SynthConfig::keypoint_bias`.
+pub fn keypoint_bias_problem(bias: f64, modality: Modality) -> Option<String> {
+    if !(bias.is_finite() && (0.0..=MAX_MARKER_SLIP).contains(&bias)) {
+        return Some(format!(
+            "is a standard deviation between 0 and {} mm",
+            1000.0 * MAX_MARKER_SLIP
+        ));
+    }
+    (bias > 0.0 && modality != Modality::Keypoints2d)
+        .then(|| format!("moves 2D keypoints off the joints: the modality is {modality}"))
 }
 
 fn is_false(b: &bool) -> bool {
@@ -271,6 +295,7 @@ impl SynthConfig {
             motion_augment: MotionAugment::default(),
             uniform_share: 0.0,
             marker_slip: 0.0,
+            keypoint_bias: 0.0,
         }
     }
 
@@ -351,6 +376,13 @@ impl SynthConfig {
         }
         if let Some(reason) = marker_slip_problem(self.marker_slip, self.modality) {
             return setting("marker_slip", format!("{} m", self.marker_slip), &reason);
+        }
+        if let Some(reason) = keypoint_bias_problem(self.keypoint_bias, self.modality) {
+            return setting(
+                "keypoint_bias",
+                format!("{} m", self.keypoint_bias),
+                &reason,
+            );
         }
         for f in &self.motion_files {
             f.poses()?;

@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use glam::{DVec3, Vec3};
 use lfit_model::Template;
 use lfit_model::layout::Layout;
-use lfit_model::observe::{MarkerSetup, Modality, Sensor, points_from_values};
+use lfit_model::observe::{KeypointSetup, MarkerSetup, Modality, Sensor, points_from_values};
 use lfit_model::pose::{
     Bounds, FLOOR_SPREAD, LOCAL_ROTATION_DEG, LOCAL_TRANSLATION, POSE_DIM, Pose, SHAPE_BOUND,
 };
@@ -37,6 +37,8 @@ const POSE_STREAM: u64 = 1 << 32;
 const SHAPE_STREAM: u64 = 3 << 32;
 /// Streams of the marker slips ([`SynthConfig::marker_slip`]), one per subject.
 const SLIP_STREAM: u64 = 9 << 32;
+/// Streams of the keypoint biases ([`SynthConfig::keypoint_bias`]), one per subject.
+const BIAS_STREAM: u64 = 11 << 32;
 /// Streams of the motion-file augmentation draws (apart from the pose streams, so a
 /// configuration without augmentation gives the poses it gave before).
 const AUGMENT_STREAM: u64 = 5 << 32;
@@ -84,6 +86,7 @@ pub fn synthesize_until(
         });
     }
     let slip = MarkerSlip::new(config, template, sensor);
+    let bias = KeypointBias::new(config, template, sensor);
     let frames: Vec<FrameObs> = (0..config.frames)
         .into_par_iter()
         .map(|i| {
@@ -91,10 +94,13 @@ pub fn synthesize_until(
                 return Err(SynthError::Cancelled);
             }
             let mut rng = stream(config.seed, i as u64);
-            // The subject's own marker placement.
-            let own = slip
-                .as_ref()
-                .map(|s| s.sensor(subject_of(config.scenario, i)));
+            // The subject's own marker placement, or its keypoints' offsets.
+            let subject = subject_of(config.scenario, i);
+            let own = match (&slip, &bias) {
+                (Some(s), _) => Some(s.sensor(subject)),
+                (None, Some(b)) => Some(b.sensor(subject)),
+                (None, None) => None,
+            };
             let observed = own.as_ref().unwrap_or(sensor);
             let obs = observe_frame(template, observed, &targets[i], &config.noise, &mut rng);
             progress(done.fetch_add(1, Ordering::Relaxed) + 1);
@@ -221,6 +227,44 @@ impl MarkerSlip {
             vertices,
             offsets: Vec::new(),
         })
+    }
+}
+
+/// The keypoint offsets of [`SynthConfig::keypoint_bias`]: per subject and joint a normal draw
+/// of σ per axis in the joint's rest frame.
+struct KeypointBias {
+    setup: KeypointSetup,
+    sigma: f64,
+    seed: u64,
+    joints: usize,
+}
+
+impl KeypointBias {
+    /// `None` without a bias (or for a sensor that is not keypoints2d: the config refuses that).
+    fn new(config: &SynthConfig, template: &Template, sensor: &Sensor) -> Option<Self> {
+        let Sensor::Keypoints2d(setup) = sensor else {
+            return None;
+        };
+        (config.keypoint_bias > 0.0).then(|| Self {
+            setup: setup.clone(),
+            sigma: config.keypoint_bias,
+            seed: config.seed,
+            joints: template.rig.num_joints(),
+        })
+    }
+
+    /// The keypoints2d sensor of subject `subject`: every keypoint at its drawn offset.
+    fn sensor(&self, subject: u64) -> Sensor {
+        let mut rng = stream(self.seed, BIAS_STREAM + subject);
+        let offsets = (0..self.joints)
+            .map(|_| {
+                [0; 3].map(|_| {
+                    let x: f64 = StandardNormal.sample(&mut rng);
+                    x * self.sigma
+                })
+            })
+            .collect();
+        Sensor::Keypoints2d(self.setup.placed(offsets))
     }
 }
 
@@ -1151,6 +1195,69 @@ mod tests {
         );
         assert!(serde_json::to_string(&c).unwrap().contains("marker_slip"));
         assert!(MarkerSlip::new(&plain, &t, &sensor).is_none());
+    }
+
+    #[test]
+    fn biased_keypoints_one_offset_set_per_subject() {
+        let t = default_template();
+        let sensor = Sensor::default_for(Modality::Keypoints2d, &t);
+        let sigma = 0.03;
+        let mut c = SynthConfig::new(Modality::Keypoints2d, Scenario::Local, 8, 5);
+        c.noise = NoiseConfig::none();
+        c.keypoint_bias = sigma;
+        let bias = KeypointBias::new(&c, &t, &sensor).expect("a bias");
+        let setup = |s: Sensor| match s {
+            Sensor::Keypoints2d(k) => k,
+            _ => panic!("keypoints2d sensor"),
+        };
+        let a = setup(bias.sensor(4));
+        assert_eq!(a.offsets.len(), t.rig.num_joints());
+        let n = 3 * a.offsets.len();
+        let rms = (a.offsets.iter().flatten().map(|x| x * x).sum::<f64>() / n as f64).sqrt();
+        assert!(rms > 0.7 * sigma && rms < 1.3 * sigma, "rms {rms} m");
+        assert_eq!(setup(bias.sensor(4)), a);
+        assert_ne!(setup(bias.sensor(5)), a);
+        // Local frames: frame i is subject 1 + i's offsets; the dataset keeps the joint centres.
+        let data = synthesize(&c, &t, &sensor, &|_| {}).unwrap();
+        assert_eq!(data.sensor, sensor);
+        let Observations::Sparse { values, .. } = &data.observations else {
+            panic!("sparse")
+        };
+        for (i, (obs, gt)) in values.iter().zip(&data.gt_poses).enumerate() {
+            let own = bias.sensor(1 + i as u64).predict_sparse(&t, gt).values;
+            assert_eq!(obs, &own, "frame {i}");
+            assert_ne!(obs, &sensor.predict_sparse(&t, gt).values, "frame {i}");
+        }
+        // A sequence: one subject, one set of offsets.
+        let mut q = SynthConfig::new(Modality::Keypoints2d, Scenario::Sequence, 5, 5);
+        q.noise = NoiseConfig::none();
+        q.keypoint_bias = sigma;
+        let seq = synthesize(&q, &t, &sensor, &|_| {}).unwrap();
+        let Observations::Sparse { values, .. } = &seq.observations else {
+            panic!("sparse")
+        };
+        let placed = KeypointBias::new(&q, &t, &sensor).unwrap().sensor(0);
+        for (obs, gt) in values.iter().zip(&seq.gt_poses) {
+            assert_eq!(obs, &placed.predict_sparse(&t, gt).values);
+        }
+        let plain = SynthConfig::new(Modality::Keypoints2d, Scenario::Local, 3, 5);
+        assert!(
+            !serde_json::to_string(&plain)
+                .unwrap()
+                .contains("keypoint_bias")
+        );
+        assert!(serde_json::to_string(&c).unwrap().contains("keypoint_bias"));
+        assert!(KeypointBias::new(&plain, &t, &sensor).is_none());
+        for bad in [-0.01, 0.2, f64::NAN] {
+            let mut c = SynthConfig::new(Modality::Keypoints2d, Scenario::Local, 3, 1);
+            c.keypoint_bias = bad;
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains("keypoint_bias"), "{e}");
+        }
+        let mut m = SynthConfig::new(Modality::Markers, Scenario::Local, 3, 1);
+        m.keypoint_bias = 0.01;
+        let e = m.validate().unwrap_err().to_string();
+        assert!(e.contains("keypoint_bias") && e.contains("markers"), "{e}");
     }
 
     #[test]

@@ -664,9 +664,7 @@ fn rig_energy(
     cameras: &[lfit_model::camera::Camera],
     pose: &Pose,
 ) -> Energy {
-    let sensor = Sensor::Keypoints2d(lfit_model::observe::KeypointSetup {
-        cameras: cameras.to_vec(),
-    });
+    let sensor = Sensor::Keypoints2d(lfit_model::observe::KeypointSetup::new(cameras.to_vec()));
     let pred = sensor.predict_sparse(template, pose);
     let (mut values, mut visible) = (pred.values, pred.visible);
     // Noise and dropouts that depend on the camera, not on its place in the rig.

@@ -227,13 +227,21 @@ impl<'a> PointJacobians<'a> {
 
     /// [`PointJacobians::joint_point`] into rows the caller has just zeroed.
     pub fn joint_point_on_zero(&self, joint: usize, p: DVec3, out: &mut [f64]) {
+        self.carried_point_on_zero(joint, joint, p, out);
+    }
+
+    /// Into rows the caller has just zeroed: the world point `p` at a constant offset from
+    /// `joint`'s centre in the frame of `carrier` (`joint` itself or one of its ancestors), `p =
+    /// x_joint + W_carrier d`: the rotations from `carrier` up move it, β moves it as it moves the
+    /// joint's centre. [`PointJacobians::joint_point_on_zero`] when `carrier` is `joint`.
+    pub fn carried_point_on_zero(&self, joint: usize, carrier: usize, p: DVec3, out: &mut [f64]) {
         let d = self.dim;
         debug_assert!(out[..3 * d].iter().all(|&x| x == 0.0));
         for a in 0..3 {
             out[a * d + a] = 1.0;
         }
         let kin = self.kin;
-        let mut a = Some(joint);
+        let mut a = Some(carrier);
         while let Some(b) = a {
             write_block(
                 out,

@@ -216,6 +216,24 @@ impl Adjoint {
         self.joint_rest[joint] += kin.world(joint).transpose() * g;
     }
 
+    /// A point `p = x_joint + W_carrier d` at a constant offset `d` from `joint`'s centre in the
+    /// frame of `carrier` (one of `joint`'s ancestors; see
+    /// `PointJacobians::carried_point_on_zero`): the joint's centre, and the offset as a
+    /// direction the carrier turns.
+    #[inline]
+    pub fn carried_point(
+        &mut self,
+        kin: &Kinematics,
+        joint: usize,
+        carrier: usize,
+        p: DVec3,
+        g: DVec3,
+    ) {
+        let centre = kin.joints[joint];
+        self.joint_point(kin, joint, centre, g);
+        self.moment[carrier] += (p - centre).cross(g);
+    }
+
     /// Skinned rest vertex `v` (rest point `x`) with gradient `g` of its posed position.
     #[inline]
     pub fn skinned_point(

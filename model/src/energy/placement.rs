@@ -1,7 +1,8 @@
-//! Where a subject's markers sit on the body: each marker's rest-frame offset from its model
-//! vertex, estimated from fitted frames of one subject (MoSh, Loper et al. 2014, solves each
-//! marker's place on the body jointly with shape and poses; here one alternation of it: the
-//! poses held, the offsets in closed form).
+//! Where a subject's sensor points sit on the body, estimated from fitted frames of one subject
+//! with the poses held: each marker's rest-frame offset from its model vertex (MoSh, Loper et
+//! al. 2014, solves each marker's place on the body jointly with shape and poses; here one
+//! alternation of it), and each 2D keypoint's offset from its joint's centre (a detector's
+//! keypoint is not a skeleton's joint centre).
 //!
 //! A marker offset by `d` from vertex `v` is the skinned point `Σ_j w_j A_j (x_v + d)`, affine in
 //! `d` with the linear part `L = Σ_j w_j W_j` ([`PosedView::skin_linear`]). With the poses held,
@@ -12,28 +13,37 @@
 //! frame's residual with the offsets it was fitted with (1 for the quadratic loss), and `σ_d` the
 //! prior's scale of an offset (a Gaussian prior at the model's marker set) — a 3 × 3 system per
 //! marker.
+//!
+//! A keypoint offset by `d` from joint `j`'s centre `x_j` is `x_j + W d` (`W` the world rotation
+//! of its carrier, [`crate::observe::KeypointSetup::carrier`]), seen through each
+//! camera's projection `π_c`: `Σ_{f,c} w ‖π_c(x_j + W d) − y_{fc}‖² / σ² + ‖d‖² / σ_d²`, not
+//! affine in `d`, so each keypoint's offset is a few Gauss-Newton steps on its own 3 × 3 system
+//! (the IRLS weights retaken at every step, `σ` the pixel scale
+//! [`crate::observe::Scales::pixel`]).
 
 use glam::{DMat3, DVec3};
 
 use super::{Energy, Target};
 use crate::body::kinematics::Kinematics;
 use crate::error::{ModelError, Result};
-use crate::observe::Sensor;
+use crate::observe::builtin::project;
+use crate::observe::{KeypointSetup, Sensor};
 
 impl Energy {
-    /// This energy with its markers at `offsets` from their vertices (rest frame, metres; one
-    /// per marker), the observations unchanged. Fails on a sensor other than markers and on
-    /// offsets of the wrong count or not finite.
-    pub fn with_marker_offsets(&self, offsets: &[DVec3]) -> Result<Self> {
-        let (Sensor::Markers(setup), Target::Sparse { values, visible }) =
-            (&self.sensor, &self.target)
-        else {
+    /// This energy with its sensor's points at `offsets` (rest frame, metres; [`Sensor::placed`]:
+    /// markers from their vertices, one per marker, keypoints from their joints' centres, one
+    /// per joint), the observations unchanged. Fails on another sensor and on offsets of the
+    /// wrong count or not finite.
+    pub fn with_offsets(&self, offsets: &[DVec3]) -> Result<Self> {
+        let Target::Sparse { values, visible } = &self.target else {
             return Err(ModelError::Config(format!(
-                "marker offsets need a markers energy, this one's sensor is {}",
+                "point offsets need a markers or keypoints2d energy, this one's sensor is {}",
                 self.sensor.name()
             )));
         };
-        let sensor = Sensor::Markers(setup.placed(offsets.iter().map(|d| d.to_array()).collect()));
+        let sensor = self
+            .sensor
+            .placed(offsets.iter().map(|d| d.to_array()).collect())?;
         self.with_sensor(sensor, values.clone(), visible.clone())
     }
 }
@@ -121,4 +131,132 @@ pub fn marker_offsets(
             }
         })
         .collect()
+}
+
+/// Gauss-Newton steps of [`keypoint_offsets`] per keypoint, at most.
+pub const KEYPOINT_OFFSET_STEPS: usize = 20;
+
+/// Each keypoint's rest-frame offset from its joint's centre that best explains the frames
+/// `energies[f]` at the poses `poses[f]` (all of one subject: keypoints2d energies of one joint
+/// set), with a Gaussian prior of scale `prior_sigma` (metres) at the joint centres (module
+/// docs): from the frames' own offsets (the first frame's sensor's), up to
+/// [`KEYPOINT_OFFSET_STEPS`] Gauss-Newton steps per keypoint, ending at a step under 1 nm. The
+/// cameras may differ per frame. A keypoint no frame sees keeps its start.
+pub fn keypoint_offsets(
+    energies: &[Energy],
+    poses: &[Vec<f64>],
+    prior_sigma: f64,
+) -> Result<Vec<DVec3>> {
+    if !(prior_sigma.is_finite() && prior_sigma > 0.0) {
+        return Err(ModelError::Config(format!(
+            "the keypoint offsets' prior scale must be positive and finite (got {prior_sigma} m)"
+        )));
+    }
+    if energies.len() != poses.len() {
+        return Err(ModelError::Shape {
+            what: "poses of the keypoint-offset frames".into(),
+            expected: energies.len().to_string(),
+            got: poses.len().to_string(),
+        });
+    }
+    let Some(first) = energies.first() else {
+        return Ok(Vec::new());
+    };
+    let Sensor::Keypoints2d(setup) = first.sensor() else {
+        return Err(ModelError::Config(format!(
+            "keypoint offsets need keypoints2d energies, these are {}",
+            first.sensor().name()
+        )));
+    };
+    let nj = first.template().rig.num_joints();
+    // What a keypoint's residuals need of each frame, the poses held: its joint's centre, its
+    // carrier's world rotation, and per camera the observation (visible ones only) and its noise
+    // scale.
+    struct Seen {
+        centre: DVec3,
+        rotation: DMat3,
+        camera: usize,
+        frame: usize,
+        y: [f64; 2],
+        sigma: f64,
+    }
+    let mut seen: Vec<Vec<Seen>> = (0..nj).map(|_| Vec::new()).collect();
+    for (f, (energy, pose)) in energies.iter().zip(poses).enumerate() {
+        let (Sensor::Keypoints2d(s), Target::Sparse { values, visible }) =
+            (energy.sensor(), energy.target())
+        else {
+            return Err(ModelError::Config(
+                "keypoint offsets need every frame's energy to be a keypoints2d energy".into(),
+            ));
+        };
+        if energy.template().rig.num_joints() != nj {
+            return Err(ModelError::Config(
+                "keypoint offsets need one skeleton over the frames (one subject's)".into(),
+            ));
+        }
+        energy.check_length(pose)?;
+        let kin = Kinematics::build(energy.template(), pose, false);
+        let view = energy.view(&kin);
+        for c in 0..s.cameras.len() {
+            for (j, list) in seen.iter_mut().enumerate() {
+                let g = c * nj + j;
+                let i = 2 * g;
+                if !visible[i] {
+                    continue;
+                }
+                list.push(Seen {
+                    centre: view.joint(j),
+                    rotation: view.joint_rotation(KeypointSetup::carrier(energy.template(), j)),
+                    camera: c,
+                    frame: f,
+                    y: [values[i], values[i + 1]],
+                    sigma: energy.groups[g].sigma,
+                });
+            }
+        }
+    }
+    let prior = 1.0 / (prior_sigma * prior_sigma);
+    seen.iter()
+        .enumerate()
+        .map(|(j, list)| {
+            let mut d = setup.offset(j);
+            for _ in 0..KEYPOINT_OFFSET_STEPS {
+                // Σ w JᵀJ/σ² + I/σ_d² and −(Σ w Jᵀr/σ² + d/σ_d²), J = ∂π/∂X · W.
+                let (mut a, mut b) = (DMat3::IDENTITY * prior, -d * prior);
+                for o in list {
+                    let energy = &energies[o.frame];
+                    let Sensor::Keypoints2d(s) = energy.sensor() else {
+                        unreachable!("checked above")
+                    };
+                    let cam = &s.cameras[o.camera];
+                    let (uv, dq) = project(cam, o.centre + o.rotation * d);
+                    let r = DVec3::new(uv[0] - o.y[0], uv[1] - o.y[1], 0.0);
+                    let scaled = (r / o.sigma).length();
+                    let w = 0.5 * energy.config().robust.eval(scaled).1 / (o.sigma * o.sigma);
+                    let rot_t = cam.rot().transpose();
+                    for (row, res) in dq.iter().zip([r.x, r.y]) {
+                        let jrow = o.rotation.transpose() * (rot_t * *row);
+                        a += outer(jrow, jrow) * w;
+                        b -= jrow * (res * w);
+                    }
+                }
+                let step = a.inverse() * b;
+                if !step.is_finite() {
+                    return Err(ModelError::Config(format!(
+                        "the keypoint of joint {j}: its offset's system is singular"
+                    )));
+                }
+                d += step;
+                if step.length() < 1e-9 {
+                    break;
+                }
+            }
+            Ok(d)
+        })
+        .collect()
+}
+
+/// `u vᵀ`.
+fn outer(u: DVec3, v: DVec3) -> DMat3 {
+    DMat3::from_cols(u * v.x, u * v.y, u * v.z)
 }

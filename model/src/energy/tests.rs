@@ -1509,7 +1509,7 @@ mod least_squares_form {
         let offsets: Vec<DVec3> = (0..setup.vertices.len())
             .map(|_| DVec3::from_array([0; 3].map(|_| rng.random_range(-0.03..0.03))))
             .collect();
-        let moved = e.with_marker_offsets(&offsets).unwrap();
+        let moved = e.with_offsets(&offsets).unwrap();
         let active = check(&moved, &x, "markers with offsets");
         assert!(active.contains(&"data"));
         // The dense rows the observation model writes itself equal the factored ones.
@@ -1539,14 +1539,97 @@ mod least_squares_form {
                 "marker {k}"
             );
         }
-        let zero = e
-            .with_marker_offsets(&vec![DVec3::ZERO; offsets.len()])
-            .unwrap();
+        let zero = e.with_offsets(&vec![DVec3::ZERO; offsets.len()]).unwrap();
         assert_eq!(zero.sensor().predict_sparse(&t, &x).values, plain);
         assert_eq!(
             zero.least_squares(&x, true).unwrap(),
             e.least_squares(&x, true).unwrap()
         );
+    }
+
+    /// Keypoints off their joints' centres (a detector's keypoints): value, gradient and
+    /// Jacobian against finite differences, the model's dense rows equal to the factored ones,
+    /// each keypoint its joint's centre plus its parent's rotation of its offset, and offsets
+    /// of zero the plain sensor bit for bit.
+    #[test]
+    fn keypoints_off_their_joints_have_exact_derivatives() {
+        use rand::{Rng, SeedableRng};
+        let t = makehuman_body();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2513);
+        let (e, x) = makehuman_energy(&t, Modality::Keypoints2d, &mut rng);
+        let nj = t.rig.num_joints();
+        let offsets: Vec<DVec3> = (0..nj)
+            .map(|_| DVec3::from_array([0; 3].map(|_| rng.random_range(-0.05..0.05))))
+            .collect();
+        let moved = e.with_offsets(&offsets).unwrap();
+        let active = check(&moved, &x, "keypoints with offsets");
+        assert!(active.contains(&"data"));
+        let kin = Kinematics::build(&t, &x, true);
+        let mut pj = PointJacobians::new(&t, &kin, &moved.skin, &x);
+        let mut jac = PoseJacobian {
+            inner: &mut pj,
+            kin: &kin,
+        };
+        let model = moved.observation_model();
+        let dim = t.layout().dim();
+        let Sensor::Keypoints2d(setup) = moved.sensor().clone() else {
+            unreachable!()
+        };
+        let rows = 2 * setup.cameras.len() * nj;
+        let mut dense = vec![1.0; rows * dim];
+        model.jacobian(&moved.view(&kin), &mut jac, &mut dense);
+        let (mut points, mut factors) = (Vec::new(), Vec::new());
+        assert!(model.point_factors(&moved.view(&kin), &mut jac, &mut points, &mut factors));
+        let mut expanded = vec![0.0; rows * dim];
+        crate::observe::builtin::expand_point_factors(&points, &factors, dim, &mut expanded);
+        assert_eq!(dense, expanded);
+        // A keypoint does not turn with its own joint (its twist stays the prior's, as a joint
+        // centre's does), it does with its parent.
+        for j in 1..nj {
+            let parent = t.rig.joints[j].parent.unwrap();
+            let rows_j = &points[3 * j * dim..3 * (j + 1) * dim];
+            for r in 0..3 {
+                let row = &rows_j[r * dim..(r + 1) * dim];
+                assert!(
+                    row[rot_offset(j)..rot_offset(j) + 3]
+                        .iter()
+                        .all(|&x| x == 0.0)
+                );
+                if offsets[j] != DVec3::ZERO {
+                    assert!(
+                        row[rot_offset(parent)..rot_offset(parent) + 3]
+                            .iter()
+                            .any(|&x| x != 0.0)
+                    );
+                }
+            }
+        }
+        // Each keypoint is its joint's centre plus its parent's rotation of its offset (the
+        // root's own): at the rest pose the offset itself (the camera sees that point).
+        let view = moved.view(&kin);
+        for j in 0..nj {
+            let carrier = t.rig.joints[j].parent.unwrap_or(j);
+            assert_eq!(crate::observe::KeypointSetup::carrier(&t, j), carrier);
+            let want = view.joint(j) + view.joint_rotation(carrier) * offsets[j];
+            assert!(want.distance(setup.keypoint(&view, j)) < 1e-12, "joint {j}");
+        }
+        let rest = vec![0.0; dim];
+        let rest_kin = Kinematics::build(&t, &rest, false);
+        let rest_view = moved.view(&rest_kin);
+        for j in 0..nj {
+            let moved_by = setup.keypoint(&rest_view, j) - rest_view.joint(j);
+            assert!(moved_by.distance(offsets[j]) < 1e-12, "joint {j} at rest");
+        }
+        let zero = e.with_offsets(&vec![DVec3::ZERO; nj]).unwrap();
+        assert_eq!(
+            zero.sensor().predict_sparse(&t, &x).values,
+            e.sensor().predict_sparse(&t, &x).values
+        );
+        assert_eq!(
+            zero.least_squares(&x, true).unwrap(),
+            e.least_squares(&x, true).unwrap()
+        );
+        assert_eq!(zero.evaluate(&x).total, e.evaluate(&x).total);
     }
 
     #[test]
@@ -1765,9 +1848,9 @@ fn with_sensor_equals_a_new_energy_of_that_sensor() {
         EnergyConfig::default().for_gradient(),
     )
     .unwrap();
-    let two = Sensor::Keypoints2d(crate::observe::KeypointSetup {
-        cameras: crate::camera::default_ring(2),
-    });
+    let two = Sensor::Keypoints2d(crate::observe::KeypointSetup::new(
+        crate::camera::default_ring(2),
+    ));
     let Target::Sparse { values, visible } = target_for(&two, &truth) else {
         unreachable!()
     };
@@ -2122,7 +2205,7 @@ fn marker_offsets_recover_where_the_markers_sat() {
     }
     // From the solved offsets the frames are explained: the data term vanishes.
     for (e, p) in energies.iter().zip(&poses) {
-        let at = e.with_marker_offsets(&solved).unwrap().evaluate(p);
+        let at = e.with_offsets(&solved).unwrap().evaluate(p);
         assert!(
             at.term("data").unwrap() < 1e-6,
             "{}",
@@ -2145,12 +2228,104 @@ fn marker_offsets_recover_where_the_markers_sat() {
         )
         .is_err()
     );
-    assert!(energies[0].with_marker_offsets(&solved[1..]).is_err());
+    assert!(energies[0].with_offsets(&solved[1..]).is_err());
     let mut nan = solved.clone();
     nan[2].y = f64::NAN;
-    let err = energies[0]
-        .with_marker_offsets(&nan)
-        .unwrap_err()
-        .to_string();
+    let err = energies[0].with_offsets(&nan).unwrap_err().to_string();
     assert!(err.contains("non-finite offset"), "{err}");
+}
+
+/// [`keypoint_offsets`] at the poses that made the observations recovers the offsets the
+/// keypoints were observed with (noise-free, a weak prior, a keypoint unseen in some frames),
+/// also from one camera, shrinks them towards the joint centres under a strong prior, and
+/// refuses what it cannot use.
+#[test]
+fn keypoint_offsets_recover_where_the_keypoints_sat() {
+    use rand::{Rng, SeedableRng};
+    let t = makehuman_body();
+    let dim = t.layout().dim();
+    let nj = t.rig.num_joints();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(78);
+    for cameras in [6, 2] {
+        let plain = Sensor::Keypoints2d(crate::observe::KeypointSetup::new(
+            crate::camera::default_ring(cameras),
+        ));
+        let Sensor::Keypoints2d(setup) = plain.clone() else {
+            unreachable!()
+        };
+        let truth: Vec<DVec3> = (0..nj)
+            .map(|_| DVec3::from_array([0; 3].map(|_| rng.random_range(-0.04..0.04))))
+            .collect();
+        let placed =
+            Sensor::Keypoints2d(setup.placed(truth.iter().map(|d| d.to_array()).collect()));
+        let beta: Vec<f64> = (0..dim - 3 - 3 * nj)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect();
+        let mut poses = Vec::new();
+        let mut energies = Vec::new();
+        for f in 0..8 {
+            let mut pose: Vec<f64> = (0..dim).map(|_| rng.random_range(-0.4..0.4)).collect();
+            pose[..3].fill(0.0);
+            let n = beta.len();
+            pose[dim - n..].copy_from_slice(&beta);
+            let pred = placed.predict_sparse(&t, &pose);
+            let mut visible = pred.visible;
+            // Joint f unseen by the first camera in frame f.
+            visible[2 * f..2 * f + 2].fill(false);
+            let e = Energy::new(
+                t.clone(),
+                plain.clone(),
+                Target::Sparse {
+                    values: pred.values,
+                    visible,
+                },
+                EnergyConfig::default(),
+            )
+            .unwrap();
+            energies.push(e);
+            poses.push(pose);
+        }
+        // Two cameras face each other (default_ring(2)): depth along their axis is seen only
+        // through perspective, so the weak prior is weaker than the markers'.
+        let solved = keypoint_offsets(&energies, &poses, 100.0).unwrap();
+        for (j, (s, d)) in solved.iter().zip(&truth).enumerate() {
+            assert!(
+                s.distance(*d) < 1e-5,
+                "{cameras} cameras, joint {j}: {s} vs {d}"
+            );
+        }
+        for (e, p) in energies.iter().zip(&poses) {
+            let at = e.with_offsets(&solved).unwrap().evaluate(p);
+            assert!(
+                at.term("data").unwrap() < 1e-6,
+                "{}",
+                at.term("data").unwrap()
+            );
+            assert!(e.evaluate(p).term("data").unwrap() > 1.0);
+        }
+        let shrunk = keypoint_offsets(&energies, &poses, 1e-4).unwrap();
+        for (s, d) in shrunk.iter().zip(&truth) {
+            assert!(s.length() < 0.2 * d.length() + 1e-6, "{s} vs {d}");
+        }
+        if cameras == 2 {
+            assert!(keypoint_offsets(&energies, &poses, f64::NAN).is_err());
+            assert!(keypoint_offsets(&energies, &poses[1..], 1.0).is_err());
+            assert!(
+                keypoint_offsets(
+                    &[energy(Modality::Markers, EnergyConfig::default())],
+                    &[gt_pose().to_vec()],
+                    1.0
+                )
+                .is_err()
+            );
+            assert!(energies[0].with_offsets(&solved[1..]).is_err());
+            let mut nan = solved.clone();
+            nan[2].x = f64::INFINITY;
+            let err = energies[0].with_offsets(&nan).unwrap_err().to_string();
+            assert!(err.contains("non-finite offset"), "{err}");
+            let hmd = energy(Modality::Hmd, EnergyConfig::default());
+            let err = hmd.with_offsets(&solved).unwrap_err().to_string();
+            assert!(err.contains("no point offsets"), "{err}");
+        }
+    }
 }

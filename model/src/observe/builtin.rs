@@ -189,11 +189,30 @@ impl ObservationModel for KeypointSetup {
         "keypoints2d"
     }
 
-    fn validate(&self, _: &Template) -> Result<()> {
+    fn validate(&self, template: &Template) -> Result<()> {
         self.cameras
             .iter()
             .enumerate()
-            .try_for_each(|(i, c)| c.validate(i))
+            .try_for_each(|(i, c)| c.validate(i))?;
+        let nj = template.rig.num_joints();
+        if !self.offsets.is_empty() && self.offsets.len() != nj {
+            return Err(ModelError::Shape {
+                what: "keypoint offsets (one per joint)".into(),
+                expected: nj.to_string(),
+                got: self.offsets.len().to_string(),
+            });
+        }
+        if let Some(j) = self
+            .offsets
+            .iter()
+            .position(|d| d.iter().any(|x| !x.is_finite()))
+        {
+            return Err(ModelError::Config(format!(
+                "the keypoint of joint {j} has a non-finite offset {:?}",
+                self.offsets[j]
+            )));
+        }
+        Ok(())
     }
 
     fn dim(&self, template: &Template) -> usize {
@@ -208,13 +227,13 @@ impl ObservationModel for KeypointSetup {
         )
     }
 
-    /// Every joint centre in every camera; a joint is seen when it is in front of the camera
-    /// (depth > 1 cm) and projects inside the image.
+    /// Every keypoint (a joint centre, or the point at its offset) in every camera; a keypoint
+    /// is seen when it is in front of the camera (depth > 1 cm) and projects inside the image.
     fn predict(&self, posed: &PosedView<'_>, values: &mut [f64], visible: &mut [bool]) {
         let nj = posed.num_joints();
         for (c, cam) in self.cameras.iter().enumerate() {
             for j in 0..nj {
-                let q = cam.to_camera(posed.joint(j));
+                let q = cam.to_camera(self.keypoint(posed, j));
                 let (uv, _) = project_camera(cam, q);
                 let i = 2 * (c * nj + j);
                 values[i..i + 2].copy_from_slice(&uv);
@@ -230,7 +249,8 @@ impl ObservationModel for KeypointSetup {
         expand_point_factors(&points, &rows, jac.dim(), out);
     }
 
-    /// Each joint centre's Jacobian, and per row the camera's projection row `∂uv/∂X`.
+    /// Each keypoint's Jacobian (its joint's centre, or the point at its offset), and per row
+    /// the camera's projection row `∂uv/∂X`.
     fn point_factors(
         &self,
         posed: &PosedView<'_>,
@@ -243,13 +263,15 @@ impl ObservationModel for KeypointSetup {
         points.clear();
         points.resize(3 * nj * d, 0.0);
         for j in 0..nj {
-            jac.joint_on_zero(j, &mut points[3 * j * d..3 * (j + 1) * d]);
+            let carrier = KeypointSetup::carrier(posed.template(), j);
+            let p = self.keypoint(posed, j);
+            jac.carried_point_on_zero(j, carrier, p, &mut points[3 * j * d..3 * (j + 1) * d]);
         }
         rows.clear();
         for cam in &self.cameras {
             let rot_t = cam.rot().transpose();
             for j in 0..nj {
-                let (_, dq) = project(cam, posed.joint(j));
+                let (_, dq) = project(cam, self.keypoint(posed, j));
                 rows.extend(dq.iter().map(|dq| (j, (rot_t * *dq).to_array())));
             }
         }
@@ -257,7 +279,7 @@ impl ObservationModel for KeypointSetup {
     }
 
     fn backprop(&self, posed: &PosedView<'_>, dpred: &[f64], grad: &mut PoseGradient<'_, '_>) {
-        // A joint's gradient summed over the cameras first: one reverse-mode point per joint.
+        // A keypoint's gradient summed over the cameras first: one reverse-mode point per joint.
         let nj = posed.num_joints();
         let mut g = vec![DVec3::ZERO; nj];
         for (c, cam) in self.cameras.iter().enumerate() {
@@ -268,13 +290,14 @@ impl ObservationModel for KeypointSetup {
                 if gu == 0.0 && gv == 0.0 {
                     continue;
                 }
-                let (_, dq) = project(cam, posed.joint(j));
+                let (_, dq) = project(cam, self.keypoint(posed, j));
                 *gj += rot_t * (dq[0] * gu + dq[1] * gv);
             }
         }
         for (j, gj) in g.into_iter().enumerate() {
             if gj != DVec3::ZERO {
-                grad.joint(j, gj);
+                let carrier = KeypointSetup::carrier(posed.template(), j);
+                grad.carried_point(j, carrier, self.keypoint(posed, j), gj);
             }
         }
     }

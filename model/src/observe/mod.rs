@@ -10,7 +10,7 @@
 //! Beside the models live the sensors' geometry ([`camera`]), the `scan` modality's data (point
 //! cloud, distance transform, silhouette masks: [`scan`]) and the noise synthesis adds ([`noise`]).
 
-mod builtin;
+pub(crate) mod builtin;
 pub(crate) use builtin::expand_point_factors;
 pub mod camera;
 pub mod hmd_layout;
@@ -202,10 +202,71 @@ impl MarkerSetup {
     }
 }
 
-/// Fixed setup of the `keypoints2d` modality: calibrated cameras that see every joint centre.
+/// Fixed setup of the `keypoints2d` modality: calibrated cameras that see a keypoint per joint,
+/// the joint's centre or a point it carries.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct KeypointSetup {
     pub cameras: Vec<Camera>,
+    /// Each keypoint's offset from its joint's centre (metres, the rest frame), carried by the
+    /// segment that ends at the joint: keypoint `j` is `x_j + W_p d_j` (`W_p` the world rotation
+    /// of `j`'s parent; of the root itself for the root) [`KeypointSetup::carrier`]. Empty (the
+    /// default, and what every synthesised and imported dataset has): the keypoints are the
+    /// joint centres. A detector's keypoint is not a skeleton's joint centre (a COCO hip is a
+    /// point on the body's outline that annotators clicked, not the femoral head), so a
+    /// subject's keypoints sit off them by a fixed amount; solved per sequence by `lfit fit
+    /// --marker-placement solve` ([`crate::energy::keypoint_offsets`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub offsets: Vec<[f64; 3]>,
+}
+
+impl KeypointSetup {
+    /// Cameras that see the joint centres (no offsets).
+    pub fn new(cameras: Vec<Camera>) -> Self {
+        Self {
+            cameras,
+            offsets: Vec::new(),
+        }
+    }
+
+    /// Keypoint `j`'s offset from its joint's centre (zero without offsets).
+    #[inline]
+    pub fn offset(&self, j: usize) -> DVec3 {
+        self.offsets
+            .get(j)
+            .map_or(DVec3::ZERO, |&d| DVec3::from_array(d))
+    }
+
+    /// The joint whose frame carries keypoint `j`'s offset: `j`'s parent, the root itself.
+    /// Not `j`: a joint's centre does not move with its own rotation, so 2D keypoints at the
+    /// centres leave a limb's twist to the prior; an offset that turned with it would make the
+    /// twist follow the offset (one sequence's solve turned every twist with its offsets: V2V
+    /// 30.2 → 33.0 mm noise-free, `docs/results/captured-motion.md`, round 18).
+    #[inline]
+    pub fn carrier(template: &Template, j: usize) -> usize {
+        template.rig.joints[j].parent.unwrap_or(j)
+    }
+
+    /// Keypoint `j` of a posed model: its joint's centre, moved by its carrier's rotation of its
+    /// offset when it has one.
+    #[inline]
+    pub fn keypoint(&self, posed: &PosedView<'_>, j: usize) -> DVec3 {
+        match self.offsets.get(j) {
+            Some(&d) => {
+                let carrier = Self::carrier(posed.template(), j);
+                posed.joint(j) + posed.joint_rotation(carrier) * DVec3::from_array(d)
+            }
+            None => posed.joint(j),
+        }
+    }
+
+    /// These cameras with the keypoints at `offsets` from their joints (rest frame, metres; one
+    /// per joint, checked by the sensor's validation).
+    pub fn placed(&self, offsets: Vec<[f64; 3]>) -> Self {
+        Self {
+            offsets,
+            ..self.clone()
+        }
+    }
 }
 
 /// One robust group of a prediction: `len` entries from `start` whose residual is judged as one
@@ -451,7 +512,7 @@ impl Sensor {
                         c
                     })
                     .collect();
-                Sensor::Keypoints2d(KeypointSetup { cameras })
+                Sensor::Keypoints2d(KeypointSetup::new(cameras))
             }
             _ => return None,
         };
@@ -472,9 +533,9 @@ impl Sensor {
                 vertices: template.rig.markers.iter().map(|m| m.vertex).collect(),
                 offsets: Vec::new(),
             }),
-            Modality::Keypoints2d => Sensor::Keypoints2d(KeypointSetup {
-                cameras: default_ring(DEFAULT_RING_SIZE),
-            }),
+            Modality::Keypoints2d => {
+                Sensor::Keypoints2d(KeypointSetup::new(default_ring(DEFAULT_RING_SIZE)))
+            }
             Modality::Hmd => Sensor::Hmd(HmdSetup {
                 offset: template.info.hmd_offset,
                 visibility: HandVisibility::HalfSpace,
@@ -503,6 +564,21 @@ impl Sensor {
             Sensor::Silhouettes(_) => Modality::Silhouettes,
             Sensor::Landmarks2d(_) => Modality::Landmarks2d,
             Sensor::Custom(_) => Modality::Custom,
+        }
+    }
+
+    /// This sensor with its points at `offsets` (rest frame, metres): a markers sensor's
+    /// markers from their vertices ([`MarkerSetup::placed`]), a keypoints2d sensor's keypoints
+    /// from their joints' centres ([`KeypointSetup::placed`]). The count and values are checked
+    /// by the sensor's validation; other sensors have no placement and give an error.
+    pub fn placed(&self, offsets: Vec<[f64; 3]>) -> Result<Sensor> {
+        match self {
+            Sensor::Markers(m) => Ok(Sensor::Markers(m.placed(offsets))),
+            Sensor::Keypoints2d(k) => Ok(Sensor::Keypoints2d(k.placed(offsets))),
+            s => Err(ModelError::Config(format!(
+                "a {} sensor has no point offsets (markers and keypoints2d have)",
+                s.name()
+            ))),
         }
     }
 

@@ -148,9 +148,16 @@ impl PoseJacobian<'_, '_> {
         self.inner.skinned_point_on_zero(v, offset, out)
     }
 
-    /// [`PoseJacobian::joint`] into rows the caller has just zeroed.
-    pub(crate) fn joint_on_zero(&self, j: usize, out: &mut [f64]) {
-        self.inner.joint_point_on_zero(j, self.kin.joints[j], out);
+    /// Into rows the caller has just zeroed: the world point `p` at a constant offset from joint
+    /// `j`'s centre in the frame of `carrier` (`j` or an ancestor): `p = x_j + W_carrier d`.
+    pub(crate) fn carried_point_on_zero(
+        &self,
+        j: usize,
+        carrier: usize,
+        p: DVec3,
+        out: &mut [f64],
+    ) {
+        self.inner.carried_point_on_zero(j, carrier, p, out);
     }
 
     /// 3 rows: the world point `p` carried rigidly by joint `j` at a constant offset from its
@@ -219,6 +226,12 @@ impl PoseGradient<'_, '_> {
     /// A world point `p` carried rigidly by joint `j` (see [`PoseJacobian::joint_point`]).
     pub fn joint_point(&mut self, j: usize, p: DVec3, g: DVec3) {
         self.adjoint.joint_point(self.kin, j, p, g);
+    }
+
+    /// A world point `p = x_j + W_carrier d` at a constant offset `d` from joint `j`'s centre in
+    /// the frame of `carrier` (`j` or an ancestor).
+    pub(crate) fn carried_point(&mut self, j: usize, carrier: usize, p: DVec3, g: DVec3) {
+        self.adjoint.carried_point(self.kin, j, carrier, p, g);
     }
 
     /// The world rotation `rot` carried by joint `j`, with `g[row][col] = ∂E/∂rot[row][col]`

@@ -231,6 +231,7 @@ def synth(
     jitter_deg: float = 0.0,
     uniform_share: float = 0.0,
     marker_slip_mm: float = 0.0,
+    keypoint_bias_mm: float = 0.0,
     cameras: Optional[int] = None,
     out: Optional[_Path] = None,
 ) -> Dataset:
