@@ -106,6 +106,15 @@ fn lm50(data: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
     lfit(&args)
 }
 
+/// [`lm50`] of a sequence with `joint`'s β pass and `--marker-placement placement`, written to
+/// `out`: the result, after asserting the fit succeeded.
+fn lm50_placed(data: &Path, out: &Path, placement: &str) -> Value {
+    let args = ["--sequence-shape", "joint", "--marker-placement", placement];
+    let o = lm50(data, out, &args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_slice(&std::fs::read(out).expect("result")).expect("json")
+}
+
 fn frames(r: &Value) -> &Vec<Value> {
     r["frames"].as_array().expect("frames")
 }
@@ -846,13 +855,7 @@ fn solved_marker_placement_explains_slipped_markers() {
     let tmp = tempfile::tempdir().expect("tmp");
     let slip = ["--noise", "0", "--marker-slip-mm", "20"];
     let seq = synth_with(tmp.path(), "slip.npz", "sequence", 24, 2517, &slip);
-    let lm = |name: &str, placement: &str| -> Value {
-        let out = tmp.path().join(name);
-        let args = ["--sequence-shape", "joint", "--marker-placement", placement];
-        let o = lm50(&seq, &out, &args);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json")
-    };
+    let lm = |name: &str, placement: &str| lm50_placed(&seq, &tmp.path().join(name), placement);
     let model = lm("model.json", "model");
     let solved = lm("solved.json", "solve");
     assert_eq!(model["marker_placement"], "model");
@@ -943,11 +946,7 @@ fn solved_marker_placement_explains_slipped_markers() {
     ]);
     let observed = |placement: &str| -> f64 {
         let out = tmp.path().join(format!("imported-{placement}.json"));
-        let args = ["--sequence-shape", "joint", "--marker-placement", placement];
-        let o = lm50(&imported, &out, &args);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let r: Value = serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json");
-        num(&r["summary"]["mean_observation_error_mm"])
+        num(&lm50_placed(&imported, &out, placement)["summary"]["mean_observation_error_mm"])
     };
     let (on_model, placed) = (observed("model"), observed("solve"));
     assert!(
@@ -993,13 +992,7 @@ fn solved_keypoint_placement_explains_biased_keypoints() {
         2518,
         &bias,
     );
-    let lm = |name: &str, placement: &str| -> Value {
-        let out = tmp.path().join(name);
-        let args = ["--sequence-shape", "joint", "--marker-placement", placement];
-        let o = lm50(&seq, &out, &args);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json")
-    };
+    let lm = |name: &str, placement: &str| lm50_placed(&seq, &tmp.path().join(name), placement);
     let (model, solved) = (lm("model.json", "model"), lm("solved.json", "solve"));
     assert!(model["summary"]["shape_pass"]["keypoint_offsets"].is_null());
     assert!(solved["summary"]["shape_pass"]["marker_offsets"].is_null());

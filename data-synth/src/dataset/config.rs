@@ -160,28 +160,37 @@ pub const MAX_MARKER_SLIP: f64 = 0.1;
 /// deviation within [0, [`MAX_MARKER_SLIP`]], above 0 only for markers. The check of
 /// `SynthConfig::marker_slip` and of a training config's `marker_slip_mm`.
 pub fn marker_slip_problem(slip: f64, modality: Modality) -> Option<String> {
-    if !(slip.is_finite() && (0.0..=MAX_MARKER_SLIP).contains(&slip)) {
-        return Some(format!(
-            "is a standard deviation between 0 and {} mm",
-            1000.0 * MAX_MARKER_SLIP
-        ));
-    }
-    (slip > 0.0 && modality != Modality::Markers)
-        .then(|| format!("moves markers: the modality is {modality}"))
+    placement_sigma_problem(slip, modality, Modality::Markers, "moves markers")
 }
 
 /// Why `bias` (metres) is not a keypoint bias of `modality` data, or `None` when it is: a
 /// standard deviation within [0, [`MAX_MARKER_SLIP`]], above 0 only for keypoints2d. The check
 /// of `SynthConfig::keypoint_bias`.
 pub fn keypoint_bias_problem(bias: f64, modality: Modality) -> Option<String> {
-    if !(bias.is_finite() && (0.0..=MAX_MARKER_SLIP).contains(&bias)) {
+    placement_sigma_problem(
+        bias,
+        modality,
+        Modality::Keypoints2d,
+        "moves 2D keypoints off the joints",
+    )
+}
+
+/// Why `sigma` (metres) is not a standard deviation within [0, [`MAX_MARKER_SLIP`]] that `moves`
+/// the points of `for_modality` data, given `modality` data.
+fn placement_sigma_problem(
+    sigma: f64,
+    modality: Modality,
+    for_modality: Modality,
+    moves: &str,
+) -> Option<String> {
+    if !(sigma.is_finite() && (0.0..=MAX_MARKER_SLIP).contains(&sigma)) {
         return Some(format!(
             "is a standard deviation between 0 and {} mm",
             1000.0 * MAX_MARKER_SLIP
         ));
     }
-    (bias > 0.0 && modality != Modality::Keypoints2d)
-        .then(|| format!("moves 2D keypoints off the joints: the modality is {modality}"))
+    (sigma > 0.0 && modality != for_modality)
+        .then(|| format!("{moves}: the modality is {modality}"))
 }
 
 fn is_false(b: &bool) -> bool {

@@ -58,18 +58,7 @@ pub fn marker_offsets(
     poses: &[Vec<f64>],
     prior_sigma: f64,
 ) -> Result<Vec<DVec3>> {
-    if !(prior_sigma.is_finite() && prior_sigma > 0.0) {
-        return Err(ModelError::Config(format!(
-            "the marker offsets' prior scale must be positive and finite (got {prior_sigma} m)"
-        )));
-    }
-    if energies.len() != poses.len() {
-        return Err(ModelError::Shape {
-            what: "poses of the marker-offset frames".into(),
-            expected: energies.len().to_string(),
-            got: poses.len().to_string(),
-        });
-    }
+    check_frames(energies, poses, prior_sigma, "marker")?;
     let Some(first) = energies.first() else {
         return Ok(Vec::new());
     };
@@ -133,6 +122,29 @@ pub fn marker_offsets(
         .collect()
 }
 
+/// What [`marker_offsets`] and [`keypoint_offsets`] check first: a positive, finite prior scale
+/// and a pose per frame (`what` names the points in the errors).
+fn check_frames(
+    energies: &[Energy],
+    poses: &[Vec<f64>],
+    prior_sigma: f64,
+    what: &str,
+) -> Result<()> {
+    if !(prior_sigma.is_finite() && prior_sigma > 0.0) {
+        return Err(ModelError::Config(format!(
+            "the {what} offsets' prior scale must be positive and finite (got {prior_sigma} m)"
+        )));
+    }
+    if energies.len() != poses.len() {
+        return Err(ModelError::Shape {
+            what: format!("poses of the {what}-offset frames"),
+            expected: energies.len().to_string(),
+            got: poses.len().to_string(),
+        });
+    }
+    Ok(())
+}
+
 /// Gauss-Newton steps of [`keypoint_offsets`] per keypoint, at most.
 pub const KEYPOINT_OFFSET_STEPS: usize = 20;
 
@@ -147,18 +159,7 @@ pub fn keypoint_offsets(
     poses: &[Vec<f64>],
     prior_sigma: f64,
 ) -> Result<Vec<DVec3>> {
-    if !(prior_sigma.is_finite() && prior_sigma > 0.0) {
-        return Err(ModelError::Config(format!(
-            "the keypoint offsets' prior scale must be positive and finite (got {prior_sigma} m)"
-        )));
-    }
-    if energies.len() != poses.len() {
-        return Err(ModelError::Shape {
-            what: "poses of the keypoint-offset frames".into(),
-            expected: energies.len().to_string(),
-            got: poses.len().to_string(),
-        });
-    }
+    check_frames(energies, poses, prior_sigma, "keypoint")?;
     let Some(first) = energies.first() else {
         return Ok(Vec::new());
     };

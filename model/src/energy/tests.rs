@@ -2156,6 +2156,44 @@ fn a_translated_frame_has_the_energy_of_the_frame() {
     );
 }
 
+/// `count` frames of one subject (one random β) at random poses (the root translation zero when
+/// `centred`), observed noise-free by `placed` (the sensor at its true offsets) with the `width`
+/// entries of group `f` unseen in frame `f`, each an energy of the `plain` sensor: what the
+/// offset solves are given.
+fn one_subject_frames(
+    t: &Arc<crate::Template>,
+    plain: &Sensor,
+    placed: &Sensor,
+    count: usize,
+    width: usize,
+    centred: bool,
+    rng: &mut rand_chacha::ChaCha8Rng,
+) -> (Vec<Energy>, Vec<Vec<f64>>) {
+    use rand::Rng;
+    let dim = t.layout().dim();
+    let beta: Vec<f64> = (0..dim - 3 - 3 * t.rig.num_joints())
+        .map(|_| rng.random_range(-1.0..1.0))
+        .collect();
+    (0..count)
+        .map(|f| {
+            let mut pose: Vec<f64> = (0..dim).map(|_| rng.random_range(-0.4..0.4)).collect();
+            if centred {
+                pose[..3].fill(0.0);
+            }
+            pose[dim - beta.len()..].copy_from_slice(&beta);
+            let pred = placed.predict_sparse(t, &pose);
+            let mut visible = pred.visible;
+            visible[width * f..width * (f + 1)].fill(false);
+            let target = Target::Sparse {
+                values: pred.values,
+                visible,
+            };
+            let e = Energy::new(t.clone(), plain.clone(), target, EnergyConfig::default());
+            (e.unwrap(), pose)
+        })
+        .unzip()
+}
+
 /// [`marker_offsets`] at the poses that made the observations recovers the offsets the markers
 /// were observed with (noise-free, a weak prior), shrinks them towards the marker set under a
 /// strong one, and refuses what it cannot use.
@@ -2163,7 +2201,6 @@ fn a_translated_frame_has_the_energy_of_the_frame() {
 fn marker_offsets_recover_where_the_markers_sat() {
     use rand::{Rng, SeedableRng};
     let t = makehuman_body();
-    let dim = t.layout().dim();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(77);
     let plain = Sensor::default_for(Modality::Markers, &t);
     let Sensor::Markers(setup) = plain.clone() else {
@@ -2173,32 +2210,8 @@ fn marker_offsets_recover_where_the_markers_sat() {
         .map(|_| DVec3::from_array([0; 3].map(|_| rng.random_range(-0.02..0.02))))
         .collect();
     let placed = Sensor::Markers(setup.placed(truth.iter().map(|d| d.to_array()).collect()));
-    let beta: Vec<f64> = (0..dim - 3 - 3 * t.rig.num_joints())
-        .map(|_| rng.random_range(-1.0..1.0))
-        .collect();
-    let mut poses = Vec::new();
-    let mut energies = Vec::new();
-    for f in 0..6 {
-        let mut pose: Vec<f64> = (0..dim).map(|_| rng.random_range(-0.4..0.4)).collect();
-        let n = beta.len();
-        pose[dim - n..].copy_from_slice(&beta);
-        let pred = placed.predict_sparse(&t, &pose);
-        let mut visible = pred.visible;
-        // A marker unseen in one frame.
-        visible[3 * f..3 * f + 3].fill(false);
-        let e = Energy::new(
-            t.clone(),
-            plain.clone(),
-            Target::Sparse {
-                values: pred.values,
-                visible,
-            },
-            EnergyConfig::default(),
-        )
-        .unwrap();
-        energies.push(e);
-        poses.push(pose);
-    }
+    // Marker f unseen in frame f.
+    let (energies, poses) = one_subject_frames(&t, &plain, &placed, 6, 3, false, &mut rng);
     let solved = marker_offsets(&energies, &poses, 1.0).unwrap();
     for (k, (s, d)) in solved.iter().zip(&truth).enumerate() {
         assert!(s.distance(*d) < 1e-5, "marker {k}: {s} vs {d}");
@@ -2243,7 +2256,6 @@ fn marker_offsets_recover_where_the_markers_sat() {
 fn keypoint_offsets_recover_where_the_keypoints_sat() {
     use rand::{Rng, SeedableRng};
     let t = makehuman_body();
-    let dim = t.layout().dim();
     let nj = t.rig.num_joints();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(78);
     for cameras in [6, 2] {
@@ -2258,33 +2270,8 @@ fn keypoint_offsets_recover_where_the_keypoints_sat() {
             .collect();
         let placed =
             Sensor::Keypoints2d(setup.placed(truth.iter().map(|d| d.to_array()).collect()));
-        let beta: Vec<f64> = (0..dim - 3 - 3 * nj)
-            .map(|_| rng.random_range(-1.0..1.0))
-            .collect();
-        let mut poses = Vec::new();
-        let mut energies = Vec::new();
-        for f in 0..8 {
-            let mut pose: Vec<f64> = (0..dim).map(|_| rng.random_range(-0.4..0.4)).collect();
-            pose[..3].fill(0.0);
-            let n = beta.len();
-            pose[dim - n..].copy_from_slice(&beta);
-            let pred = placed.predict_sparse(&t, &pose);
-            let mut visible = pred.visible;
-            // Joint f unseen by the first camera in frame f.
-            visible[2 * f..2 * f + 2].fill(false);
-            let e = Energy::new(
-                t.clone(),
-                plain.clone(),
-                Target::Sparse {
-                    values: pred.values,
-                    visible,
-                },
-                EnergyConfig::default(),
-            )
-            .unwrap();
-            energies.push(e);
-            poses.push(pose);
-        }
+        // Joint f unseen by the first camera in frame f; the subject at the rig's centre.
+        let (energies, poses) = one_subject_frames(&t, &plain, &placed, 8, 2, true, &mut rng);
         // Two cameras face each other (default_ring(2)): depth along their axis is seen only
         // through perspective, so the weak prior is weaker than the markers'.
         let solved = keypoint_offsets(&energies, &poses, 100.0).unwrap();

@@ -68,6 +68,34 @@ pub(crate) fn expand_point_factors(
     }
 }
 
+/// A sensor's point offsets: none, or `count` finite ones (`what` names them in a count error,
+/// `point(k)` point `k` in a value error).
+fn check_offsets(
+    offsets: &[[f64; 3]],
+    count: usize,
+    what: &str,
+    point: impl Fn(usize) -> String,
+) -> Result<()> {
+    if !offsets.is_empty() && offsets.len() != count {
+        return Err(ModelError::Shape {
+            what: what.into(),
+            expected: count.to_string(),
+            got: offsets.len().to_string(),
+        });
+    }
+    match offsets
+        .iter()
+        .position(|d| d.iter().any(|x| !x.is_finite()))
+    {
+        Some(k) => Err(ModelError::Config(format!(
+            "{} has a non-finite offset {:?}",
+            point(k),
+            offsets[k]
+        ))),
+        None => Ok(()),
+    }
+}
+
 impl ObservationModel for MarkerSetup {
     fn name(&self) -> &str {
         "markers"
@@ -87,23 +115,9 @@ impl ObservationModel for MarkerSetup {
                 template.id
             )));
         }
-        if !self.offsets.is_empty() && self.offsets.len() != self.vertices.len() {
-            return Err(ModelError::Shape {
-                what: "marker offsets".into(),
-                expected: self.vertices.len().to_string(),
-                got: self.offsets.len().to_string(),
-            });
-        }
-        if let Some(k) = self
-            .offsets
-            .iter()
-            .position(|d| d.iter().any(|x| !x.is_finite()))
-        {
-            return Err(ModelError::Config(format!(
-                "marker '{}' has a non-finite offset {:?}",
-                self.names[k], self.offsets[k]
-            )));
-        }
+        check_offsets(&self.offsets, self.vertices.len(), "marker offsets", |k| {
+            format!("marker '{}'", self.names[k])
+        })?;
         check_vertices(template, &self.vertices, "marker vertex")
     }
 
@@ -194,25 +208,12 @@ impl ObservationModel for KeypointSetup {
             .iter()
             .enumerate()
             .try_for_each(|(i, c)| c.validate(i))?;
-        let nj = template.rig.num_joints();
-        if !self.offsets.is_empty() && self.offsets.len() != nj {
-            return Err(ModelError::Shape {
-                what: "keypoint offsets (one per joint)".into(),
-                expected: nj.to_string(),
-                got: self.offsets.len().to_string(),
-            });
-        }
-        if let Some(j) = self
-            .offsets
-            .iter()
-            .position(|d| d.iter().any(|x| !x.is_finite()))
-        {
-            return Err(ModelError::Config(format!(
-                "the keypoint of joint {j} has a non-finite offset {:?}",
-                self.offsets[j]
-            )));
-        }
-        Ok(())
+        check_offsets(
+            &self.offsets,
+            template.rig.num_joints(),
+            "keypoint offsets (one per joint)",
+            |j| format!("the keypoint of joint {j}"),
+        )
     }
 
     fn dim(&self, template: &Template) -> usize {
