@@ -52,7 +52,8 @@ pub enum MarkerPlacement {
     /// [`MARKER_OFFSET_PRIOR_M`] at the marker set; keypoints by Gauss-Newton,
     /// [`lfit_model::energy::keypoint_offsets`], a prior of [`KEYPOINT_OFFSET_PRIOR_M`] at the
     /// joint centres) and β with the poses by the joint solve ([`joint_shape`]) with the offsets
-    /// held; the sequence is then fitted with both.
+    /// held; the sequence is then fitted with both. With `--known-shape` the sequence is fitted
+    /// with the given β and the joint solves move the poses alone.
     Solved,
 }
 
@@ -313,6 +314,17 @@ impl Plan<'_> {
             && self.template.layout().shape > 0
     }
 
+    /// Whether a pass runs before a sequence's frames are fitted: a β pass
+    /// ([`Self::runs_shape_pass`]), or with β given (`--known-shape`) the placement pass of
+    /// [`MarkerPlacement::Solved`] in `--sequence-shape joint[:N]`.
+    pub fn runs_pass(&self) -> bool {
+        self.runs_shape_pass()
+            || (self.marker_placement == MarkerPlacement::Solved
+                && self.known_shape.is_some()
+                && self.dataset.meta.config.scenario == Scenario::Sequence
+                && matches!(self.sequence_shape, SequenceShape::Joint { .. }))
+    }
+
     fn mask_with(&self, known: Option<&KnownShape>) -> Result<DofMask> {
         let mask = scenario_mask(self.dataset.meta.config.scenario, self.template);
         let Some(k) = known else {
@@ -344,9 +356,9 @@ impl Plan<'_> {
                 "--marker-placement solve places markers or 2D keypoints: the data's modality is {modality}"
             );
         }
-        if !matches!(self.sequence_shape, SequenceShape::Joint { .. }) || !self.runs_shape_pass() {
+        if !matches!(self.sequence_shape, SequenceShape::Joint { .. }) || !self.runs_pass() {
             bail!(
-                "--marker-placement solve runs in the β pass of --sequence-shape joint[:N]: it needs a sequence dataset of a model with shape parameters whose β is not given (--known-shape), with --sequence-shape joint or joint:N (got {})",
+                "--marker-placement solve runs in the β pass of --sequence-shape joint[:N]: it needs a sequence dataset (β estimated, or given by --known-shape), with --sequence-shape joint or joint:N (got {})",
                 self.sequence_shape.name()
             );
         }
@@ -394,11 +406,20 @@ pub fn fit_frames(
     if plan.runs_shape_pass() && !frames.is_empty() {
         let pass = match plan.sequence_shape {
             SequenceShape::Joint { frames: count } => {
-                joint_shape_pass(fitter, plan, frames, energy, seed, count)?
+                joint_shape_pass(fitter, plan, frames, energy, seed, count, None)?
             }
             _ => shape_pass(fitter, plan, frames, energy, seed)?,
         };
         known = Some(KnownShape::Given(pass.beta.clone()));
+        report.shape_pass = Some(pass);
+    } else if let (MarkerPlacement::Solved, Some(given), SequenceShape::Joint { frames: count }) = (
+        plan.marker_placement,
+        &plan.known_shape,
+        plan.sequence_shape,
+    ) && !frames.is_empty()
+    {
+        // β given: the placement pass with the poses alone beside the offsets.
+        let pass = joint_shape_pass(fitter, plan, frames, energy, seed, count, Some(given))?;
         report.shape_pass = Some(pass);
     }
     // The β pass's time, shared out over the sequence's frames.
@@ -625,6 +646,9 @@ fn median_per_component<'a>(rows: impl Iterator<Item = &'a [f64]> + Clone, n: us
 
 /// [`SequenceShape::Joint`]'s β pass: the sequence fitted with β free in every frame, then
 /// [`joint_shape`] over up to `count` of its frames, spread evenly.
+///
+/// With `known` (a β given, [`MarkerPlacement::Solved`] only) the sequence is fitted with that β
+/// and the solves move the poses alone beside the offsets (β stays the given one).
 fn joint_shape_pass(
     fitter: &dyn Fitter,
     plan: &Plan<'_>,
@@ -632,6 +656,7 @@ fn joint_shape_pass(
     energy: &dyn Fn(usize) -> Result<Energy>,
     seed: &dyn Fn(usize) -> u64,
     count: usize,
+    known: Option<&KnownShape>,
 ) -> Result<ShapePass> {
     if let Some(why) = least_squares_variant(&energy(frames[0])?, 1.0)?.least_squares_unsupported()
     {
@@ -639,7 +664,7 @@ fn joint_shape_pass(
     }
     let (mut evaluations, mut time_s) = (0u64, 0.0);
     let mut poses: Vec<Vec<f64>> = Vec::with_capacity(frames.len());
-    fit_pass(fitter, plan, frames, None, energy, seed, &mut |f| {
+    fit_pass(fitter, plan, frames, known, energy, seed, &mut |f| {
         evaluations += f.result.evaluations;
         time_s += f.result.time_s;
         poses.push(f.result.pose);
@@ -653,8 +678,13 @@ fn joint_shape_pass(
         .map(|&k| energy(frames[k]))
         .collect::<Result<Vec<_>>>()?;
     let poses: Vec<Vec<f64>> = picked.iter().map(|&k| poses[k].clone()).collect();
-    let shape = plan.template.layout().range(Block::Shape);
-    let free = plan.mask_with(None)?.free;
+    let full_shape = plan.template.layout().range(Block::Shape);
+    // With β given, none of it is solved for (the poses keep theirs).
+    let shape = match known {
+        Some(_) => full_shape.start..full_shape.start,
+        None => full_shape.clone(),
+    };
+    let free = plan.mask_with(known)?.free;
     // Each frame in the scenario's box around its first-pass result (a sequence's fits have no
     // other: the joint limits are EA's, a soft prior, and the root goes where the motion goes).
     let scenario = plan.dataset.meta.config.scenario;
@@ -716,6 +746,11 @@ fn joint_shape_pass(
                 Some(offsets.iter().map(|d| d.to_array()).collect()),
             )
         }
+    };
+    // β given: the pass reports the β it fitted with (the first picked frame's).
+    let beta = match known {
+        Some(_) => poses[0][full_shape].to_vec(),
+        None => beta,
     };
     evaluations += solve.evaluations;
     time_s += timer.elapsed().as_secs_f64();

@@ -431,8 +431,9 @@ struct FitCmd {
     /// Where a sequence's markers or 2D keypoints sit on the body: model (on the model's marker
     /// vertices, at the joint centres) or solve (each marker's offset from its vertex, or each
     /// keypoint's from its joint's centre, solved with the sequence's β, as MoSh does for
-    /// markers; needs --sequence-shape joint[:N]; the offsets are written to the summary's
-    /// shape_pass.marker_offsets or shape_pass.keypoint_offsets).
+    /// markers; needs --sequence-shape joint[:N]; with --known-shape β stays the given one; the
+    /// offsets are written to the summary's shape_pass.marker_offsets or
+    /// shape_pass.keypoint_offsets).
     #[arg(long, default_value = "model")]
     marker_placement: String,
     /// Which free entries the fit moves: all, or observed (only the rotation entries the

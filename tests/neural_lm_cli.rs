@@ -106,10 +106,11 @@ fn lm50(data: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
     lfit(&args)
 }
 
-/// [`lm50`] of a sequence with `joint`'s β pass and `--marker-placement placement`, written to
-/// `out`: the result, after asserting the fit succeeded.
-fn lm50_placed(data: &Path, out: &Path, placement: &str) -> Value {
-    let args = ["--sequence-shape", "joint", "--marker-placement", placement];
+/// [`lm50`] of a sequence with `joint`'s β pass, `--marker-placement placement` and `extra`,
+/// written to `out`: the result, after asserting the fit succeeded.
+fn lm50_placed(data: &Path, out: &Path, placement: &str, extra: &[&str]) -> Value {
+    let mut args = vec!["--sequence-shape", "joint", "--marker-placement", placement];
+    args.extend(extra);
     let o = lm50(data, out, &args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     serde_json::from_slice(&std::fs::read(out).expect("result")).expect("json")
@@ -855,7 +856,8 @@ fn solved_marker_placement_explains_slipped_markers() {
     let tmp = tempfile::tempdir().expect("tmp");
     let slip = ["--noise", "0", "--marker-slip-mm", "20"];
     let seq = synth_with(tmp.path(), "slip.npz", "sequence", 24, 2517, &slip);
-    let lm = |name: &str, placement: &str| lm50_placed(&seq, &tmp.path().join(name), placement);
+    let lm =
+        |name: &str, placement: &str| lm50_placed(&seq, &tmp.path().join(name), placement, &[]);
     let model = lm("model.json", "model");
     let solved = lm("solved.json", "solve");
     assert_eq!(model["marker_placement"], "model");
@@ -886,6 +888,26 @@ fn solved_marker_placement_explains_slipped_markers() {
         "solved placement explains the slipped markers: {} vs {}",
         energy(&solved),
         energy(&model)
+    );
+    // β given (a measured subject): the sequence fitted with it, the poses alone solved beside
+    // the offsets; β stays the given one.
+    let known = ["--known-shape", "truth"];
+    let out = tmp.path().join("known-model.json");
+    let o = lm50(&seq, &out, &known);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let known_model: Value =
+        serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json");
+    let known_solved = lm50_placed(&seq, &tmp.path().join("known.json"), "solve", &known);
+    assert!(known_model["summary"]["shape_pass"].is_null());
+    let pass = &known_solved["summary"]["shape_pass"];
+    assert_eq!(pass["marker_offsets"].as_array().map(Vec::len), Some(39));
+    // Every frame with the given β, which the pass reports.
+    sequence_beta(&known_solved);
+    assert!(
+        energy(&known_solved) < 0.3 * energy(&known_model),
+        "with β given the solved placement explains the slipped markers: {} vs {}",
+        energy(&known_solved),
+        energy(&known_model)
     );
     // The network fits with the markers where the solve put them too (its residual features
     // come from the same observation model), and its sequence explains them better as well.
@@ -946,7 +968,7 @@ fn solved_marker_placement_explains_slipped_markers() {
     ]);
     let observed = |placement: &str| -> f64 {
         let out = tmp.path().join(format!("imported-{placement}.json"));
-        num(&lm50_placed(&imported, &out, placement)["summary"]["mean_observation_error_mm"])
+        num(&lm50_placed(&imported, &out, placement, &[])["summary"]["mean_observation_error_mm"])
     };
     let (on_model, placed) = (observed("model"), observed("solve"));
     assert!(
@@ -992,7 +1014,8 @@ fn solved_keypoint_placement_explains_biased_keypoints() {
         2518,
         &bias,
     );
-    let lm = |name: &str, placement: &str| lm50_placed(&seq, &tmp.path().join(name), placement);
+    let lm =
+        |name: &str, placement: &str| lm50_placed(&seq, &tmp.path().join(name), placement, &[]);
     let (model, solved) = (lm("model.json", "model"), lm("solved.json", "solve"));
     assert!(model["summary"]["shape_pass"]["keypoint_offsets"].is_null());
     assert!(solved["summary"]["shape_pass"]["marker_offsets"].is_null());

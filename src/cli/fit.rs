@@ -381,9 +381,9 @@ fn fit_prepared(
         sequence_shape,
         marker_placement: *marker_placement,
     };
-    if sequence_shape != crate::fitting::SequenceShape::PerFrame && !plan.runs_shape_pass() {
+    if sequence_shape != crate::fitting::SequenceShape::PerFrame && !plan.runs_pass() {
         bail!(
-            "--sequence-shape {} needs a sequence dataset (this one is {scenario}) of a model with shape parameters whose β is not given (--known-shape)",
+            "--sequence-shape {} needs a sequence dataset (this one is {scenario}) of a model with shape parameters whose β is not given (--known-shape; with it, only for --marker-placement solve)",
             sequence_shape.name()
         );
     }
