@@ -436,6 +436,13 @@ struct FitCmd {
     /// shape_pass.keypoint_offsets).
     #[arg(long, default_value = "model")]
     marker_placement: String,
+    /// Where the markers or keypoints sit, from an earlier fit of the same subject and sensor:
+    /// its result JSON (summary.shape_pass.marker_offsets or keypoint_offsets, from
+    /// --marker-placement solve on a sequence) or a JSON list of [x, y, z] offsets in metres
+    /// (markers from their vertices, keypoints from their joints' centres, rest frame). Any
+    /// scenario; a placement solve starts from them.
+    #[arg(long, value_name = "FILE")]
+    offsets: Option<PathBuf>,
     /// Which free entries the fit moves: all, or observed (only the rotation entries the
     /// observations determine to within 2°, from the data term's information at the start; the
     /// others keep the start's values; observed:DEG another threshold). Default: observed for
@@ -743,6 +750,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 known_shape: c.known_shape,
                 sequence_shape: c.sequence_shape,
                 marker_placement: c.marker_placement,
+                offsets: c.offsets,
                 dofs: c.dofs,
             };
             let bar = progress_bar(0, cli.quiet, "fit");

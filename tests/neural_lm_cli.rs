@@ -975,8 +975,78 @@ fn solved_marker_placement_explains_slipped_markers() {
         placed < 0.5 * on_model,
         "markers 20 mm off the model's set: {placed} mm from the observations with the placement solved, {on_model} mm without"
     );
-    // Refusals: per frame, another modality, an unknown placement; nothing written.
+    // The placement reused (`--offsets`, e.g. solved on one trial, used on the next of the same
+    // subject): the sequence fitted per frame with the solve's offsets explains the markers
+    // better than on the model's set; a bare list of the same offsets gives the same fit.
+    let per_frame = |name: &str, extra: &[&str]| -> Value {
+        let out = tmp.path().join(name);
+        let o = lm50(&seq, &out, extra);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json")
+    };
+    let solved_path = tmp.path().join("solved.json");
+    let (plain, reused) = (
+        per_frame("plain.json", &[]),
+        per_frame("reused.json", &["--offsets", path_str(&solved_path)]),
+    );
+    assert!(
+        energy(&reused) < 0.3 * energy(&plain),
+        "per frame with the solved offsets: {} vs {}",
+        energy(&reused),
+        energy(&plain)
+    );
+    assert_eq!(
+        reused["offsets"]["values"],
+        solved["summary"]["shape_pass"]["marker_offsets"]
+    );
+    let list = tmp.path().join("list.json");
+    std::fs::write(
+        &list,
+        solved["summary"]["shape_pass"]["marker_offsets"].to_string(),
+    )
+    .expect("write");
+    let from_list = per_frame("from-list.json", &["--offsets", path_str(&list)]);
+    assert_eq!(energy(&from_list), energy(&reused));
+    // Refusals: per frame, another modality, an unknown placement, unusable offsets; nothing
+    // written.
     let out_path = tmp.path().join("no.json");
+    let bad = |name: &str, text: &str| -> PathBuf {
+        let p = tmp.path().join(name);
+        std::fs::write(&p, text).expect("write");
+        p
+    };
+    for (file, needle) in [
+        (tmp.path().join("absent.json"), "--offsets"),
+        (bad("text.json", "not json"), "not JSON"),
+        (
+            bad("empty.json", "{}"),
+            "neither a list of [x, y, z] offsets",
+        ),
+        (
+            bad("words.json", r#"[["a", 0, 0]]"#),
+            "not a list of [x, y, z] numbers",
+        ),
+        (bad("short.json", "[[0, 0, 0]]"), "marker offsets"),
+        (
+            bad(
+                "kp.json",
+                r#"{"summary": {"shape_pass": {"keypoint_offsets": [[0, 0, 0]]}}}"#,
+            ),
+            "the file holds keypoint offsets, the data's modality is markers",
+        ),
+        (
+            bad(
+                "nan.json",
+                &format!("[{}]", vec!["[0, 0, 1e999]"; 39].join(",")),
+            ),
+            "offsets",
+        ),
+    ] {
+        assert_one_line_error(
+            &lm50(&seq, &out_path, &["--offsets", path_str(&file)]),
+            needle,
+        );
+    }
     assert_one_line_error(
         &lm50(&seq, &out_path, &["--marker-placement", "solve"]),
         "--marker-placement solve runs in the β pass of --sequence-shape joint[:N]",

@@ -290,11 +290,12 @@ fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
 /// `"observed"` or `"observed:DEG"` (`lfit fit --dofs`; default the method's own).
 /// `sequence_shape`: `"per-frame"` (default), `"first-pass"`, `"joint"` or `"joint:N"` (`lfit
 /// fit --sequence-shape`). `marker_placement`: `"model"` (default) or `"solve"` (`lfit fit
-/// --marker-placement`). `energy`: a dict or JSON file of the energy configuration.
+/// --marker-placement`). `offsets`: a file of where the markers or keypoints sit (`lfit fit
+/// --offsets`). `energy`: a dict or JSON file of the energy configuration.
 /// `progress(done, total)` is called after each frame. Runs with the GIL released; Ctrl-C stops
 /// it between frames (`KeyboardInterrupt`).
 #[pyfunction]
-#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", sequence_shape="per-frame", marker_placement="model", dofs=None, device="flex", runtime="burn", ort_threads=None, progress=None))]
+#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", sequence_shape="per-frame", marker_placement="model", offsets=None, dofs=None, device="flex", runtime="burn", ort_threads=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn fit(
     py: Python<'_>,
@@ -318,6 +319,7 @@ pub fn fit(
     neural_pick: &str,
     sequence_shape: &str,
     marker_placement: &str,
+    offsets: Option<PathBuf>,
     dofs: Option<String>,
     device: &str,
     runtime: &str,
@@ -355,6 +357,7 @@ pub fn fit(
         known_shape: known_shape_arg(known_shape)?,
         sequence_shape: sequence_shape.to_string(),
         marker_placement: marker_placement.to_string(),
+        offsets,
         dofs,
     };
     let document = without_gil(py, |interrupted| {

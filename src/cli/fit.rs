@@ -148,6 +148,9 @@ pub struct FitArgs {
     pub sequence_shape: String,
     /// `--marker-placement`: `model` or `solve` ([`crate::fitting::MarkerPlacement`]).
     pub marker_placement: String,
+    /// `--offsets`: where the markers or keypoints sit, from an earlier fit of the same subject
+    /// and sensor ([`read_offsets`]); `None`: the dataset's sensor as it is.
+    pub offsets: Option<PathBuf>,
     /// `--dofs`: `all`, `observed` or `observed:DEG` ([`lfit_fitters::Dofs`]); `None`: the
     /// method's default ([`crate::method::MethodKind::default_dofs`]).
     pub dofs: Option<String>,
@@ -160,6 +163,9 @@ struct Prepared {
     known_shape: Option<crate::fitting::KnownShape>,
     sequence_shape: crate::fitting::SequenceShape,
     marker_placement: crate::fitting::MarkerPlacement,
+    /// `--offsets`, read: the offsets and what they place (`"marker"` or `"keypoint"`, `None`
+    /// for a bare list).
+    offsets: Option<(Vec<[f64; 3]>, Option<&'static str>)>,
     /// `tuned` when the steps are a recorded setting, else the preset's name.
     preset_name: &'static str,
     step_scale: f64,
@@ -193,6 +199,7 @@ fn prepare(
         .marker_placement
         .parse()
         .context("--marker-placement")?;
+    let offsets = args.offsets.as_deref().map(read_offsets).transpose()?;
     // The steps of a zeroth-order method (crate::study::tuned::choose): a flag that sets them
     // (--step-scale, --cma-*) keeps the recorded setting out, and goes with no `tuned` preset.
     let overridden = args.step_scale.is_some() || args.cma != Default::default();
@@ -278,6 +285,7 @@ fn prepare(
         known_shape,
         sequence_shape,
         marker_placement,
+        offsets,
         preset_name,
         step_scale,
         cma,
@@ -285,6 +293,40 @@ fn prepare(
         config,
         dofs,
     })
+}
+
+/// `--offsets FILE`: an `lfit fit` result whose `summary.shape_pass` holds `marker_offsets` or
+/// `keypoint_offsets` (`--marker-placement solve` on a sequence of the same subject and sensor),
+/// or a JSON list of `[x, y, z]` offsets in metres (markers from their vertices, keypoints from
+/// their joints' centres, in the rest frame). Returns them with the kind a result names.
+pub fn read_offsets(path: &std::path::Path) -> Result<(Vec<[f64; 3]>, Option<&'static str>)> {
+    let what = || format!("--offsets {}", path.display());
+    let text = std::fs::read_to_string(path).with_context(what)?;
+    let doc: Value =
+        serde_json::from_str(&text).with_context(|| format!("{}: not JSON", what()))?;
+    let (list, kind) = if doc.is_array() {
+        (&doc, None)
+    } else {
+        let pass = &doc["summary"]["shape_pass"];
+        match (pass.get("marker_offsets"), pass.get("keypoint_offsets")) {
+            (Some(m), _) => (m, Some("marker")),
+            (None, Some(k)) => (k, Some("keypoint")),
+            (None, None) => bail!(
+                "{}: neither a list of [x, y, z] offsets nor an lfit fit result with summary.shape_pass.marker_offsets or keypoint_offsets (a --marker-placement solve of a sequence)",
+                what()
+            ),
+        }
+    };
+    let offsets: Vec<[f64; 3]> = serde_json::from_value(list.clone()).with_context(|| {
+        format!(
+            "{}: the offsets are not a list of [x, y, z] numbers",
+            what()
+        )
+    })?;
+    if offsets.is_empty() {
+        bail!("{}: no offsets", what());
+    }
+    Ok((offsets, kind))
 }
 
 /// `lfit fit`: fits every selected frame, writes the result JSON atomically and returns a summary.
@@ -351,6 +393,7 @@ fn fit_prepared(
         known_shape,
         sequence_shape,
         marker_placement,
+        offsets,
         preset_name,
         step_scale,
         cma,
@@ -361,6 +404,35 @@ fn fit_prepared(
     let (strategy, sequence_shape, preset_name, step_scale, cma) =
         (*strategy, *sequence_shape, *preset_name, *step_scale, *cma);
     let fitter = fitter.as_ref();
+    // `--offsets`: the dataset's sensor with its points where an earlier fit put them.
+    let placed;
+    let dataset = match offsets {
+        Some((offsets, kind)) => {
+            let modality = dataset.sensor.modality();
+            let expected = match modality {
+                lfit_model::observe::Modality::Markers => "marker",
+                _ => "keypoint",
+            };
+            if let Some(kind) = kind
+                && *kind != expected
+            {
+                bail!(
+                    "--offsets: the file holds {kind} offsets, the data's modality is {modality}"
+                );
+            }
+            let sensor = dataset
+                .sensor
+                .placed(offsets.clone())
+                .context("--offsets")?;
+            sensor.validate(&template).context("--offsets")?;
+            placed = Dataset {
+                sensor,
+                ..dataset.clone()
+            };
+            &placed
+        }
+        None => dataset,
+    };
     let neural = args.method.is_neural();
     let frames = parse_frames(args.frames.as_deref(), dataset.len())?;
     let scenario = dataset.meta.config.scenario;
@@ -528,6 +600,10 @@ fn fit_prepared(
         "summary": summary,
         "frames": rows,
     });
+    if let Some((o, _)) = offsets {
+        // Where the points sat: the file, and the offsets it gave.
+        out["offsets"] = json!({ "file": args.offsets, "values": o });
+    }
     if neural {
         out["checkpoint"] = json!(args.checkpoint);
         out["device"] = json!(if args.runtime == "burn" {

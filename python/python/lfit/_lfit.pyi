@@ -299,6 +299,7 @@ def fit(
     neural_pick: str = "last",
     sequence_shape: str = "per-frame",
     marker_placement: str = "model",
+    offsets: Optional[_Path] = None,
     dofs: Optional[str] = None,
     device: str = "flex",
     runtime: str = "burn",
