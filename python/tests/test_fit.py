@@ -208,3 +208,16 @@ def test_solved_marker_placement_equals_the_cli(makehuman, cli, tmp_path):
         lfit.fit(makehuman, data, method="lm", budget=20, sequence_shape="joint", marker_placement="nearby")
     with pytest.raises(lfit.LfitError, match="runs in the β pass of --sequence-shape joint"):
         lfit.fit(makehuman, data, method="lm", budget=20, marker_placement="solve")
+    # offsets=: the solve's placement reused per frame, as `lfit fit --offsets` does.
+    reused = tmp_path / "reused.json"
+    cli("fit", "--data", data, "--model", model, "--method", "lm", "--budget", 100,
+        "--offsets", out, "--seed", 3, "--out", reused)
+    theirs = json.loads(reused.read_text())
+    ours = lfit.fit(makehuman, data, method="lm", budget=100, offsets=out, seed=3)
+    np.testing.assert_array_equal(ours.poses, [r["pose"] for r in theirs["frames"]])
+    plain = lfit.fit(makehuman, data, method="lm", budget=100, seed=3)
+    assert ours.summary["mean_energy"] < plain.summary["mean_energy"]
+    bad = tmp_path / "bad.json"
+    bad.write_text("[[0, 0, 0]]")
+    with pytest.raises(lfit.LfitError, match="--offsets: .*marker offsets"):
+        lfit.fit(makehuman, data, method="lm", budget=20, offsets=bad)
