@@ -118,8 +118,8 @@ enum Command {
         #[arg(long, value_name = "MM", default_value_t = 0.0)]
         marker_slip_mm: f64,
         /// keypoints2d: each subject's keypoints sit off its joints' centres, as a 2D detector's
-        /// do: per joint a normal offset of this σ per axis (mm) in the joint's rest frame,
-        /// carried by the joint; one set per subject (per frame in local/global, once per
+        /// do: per joint a normal offset of this σ per axis (mm) in the rest frame, carried by
+        /// the segment that ends at the joint; one set per subject (per frame in local/global, once per
         /// sequence); the dataset keeps the joint centres, so fits meet that mismatch. In
         /// [0, 100] (default 0: none).
         #[arg(long, value_name = "MM", default_value_t = 0.0)]

@@ -144,7 +144,7 @@ pub struct SynthConfig {
     /// keypoints2d: each subject's keypoints are observed off its joints' centres, as a 2D
     /// detector's are (a COCO hip or shoulder is a point on the body that annotators clicked,
     /// not the skeleton's joint centre): per joint and subject a normal offset of this σ per
-    /// axis, in metres, in the joint's rest frame, carried by the joint
+    /// axis, in metres, in the rest frame, carried by the segment that ends at the joint
     /// ([`lfit_model::observe::KeypointSetup::offsets`]). The dataset keeps the joint centres,
     /// so fits see the mismatch a detector's keypoints have. One draw per subject: per frame in
     /// the local and global scenarios, once for a sequence. 0 by default (and then absent from
