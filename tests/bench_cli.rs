@@ -6,7 +6,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use support::{assert_one_line_error, lfit, lfit_json, path_str};
+use support::{assert_one_line_error, lfit, lfit_json, path_str, synth_to};
 
 fn config(dir: &Path, name: &str, body: &str) -> std::path::PathBuf {
     let p = dir.join(name);
@@ -560,24 +560,22 @@ fn bench_solves_the_marker_placement_like_lfit_fit() {
     let d = tmp.path();
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/makehuman-cmu_mb.npz");
     let data = d.join("slip.npz");
-    lfit_json(&[
-        "-q",
-        "synth",
-        "--modality",
-        "markers",
-        "--scenario",
-        "sequence",
-        "--frames",
-        "5",
-        "--seed",
-        "4",
-        "--marker-slip-mm",
-        "15",
-        "--template",
-        path_str(&model),
-        "--out",
-        path_str(&data),
-    ]);
+    synth_to(
+        &data,
+        &model,
+        &[
+            "--modality",
+            "markers",
+            "--scenario",
+            "sequence",
+            "--frames",
+            "5",
+            "--seed",
+            "4",
+            "--marker-slip-mm",
+            "15",
+        ],
+    );
     let body = |placement: &str| {
         format!(
             "name = \"placed\"\nmethods = [\"lm\"]\nbudgets = [60]\nseed = 5\ndata = \"{}\"\ntemplate = \"{}\"\nsequence_shape = \"joint\"\nmarker_placement = \"{placement}\"\n",

@@ -7,7 +7,7 @@ mod support;
 use std::path::{Path, PathBuf};
 
 use serde_json::Value;
-use support::{assert_one_line_error, lfit, lfit_json, path_str};
+use support::{assert_one_line_error, lfit, lfit_json, path_str, synth_to};
 
 const MODEL: &str = "models/makehuman-cmu_mb.npz";
 const CHECKPOINT: &str = "checkpoints/markers-makehuman";
@@ -43,10 +43,8 @@ fn synth_modality(
     extra: &[&str],
 ) -> PathBuf {
     let data = dir.join(name);
-    let (frames, seed, model) = (frames.to_string(), seed.to_string(), root(MODEL));
+    let (frames, seed) = (frames.to_string(), seed.to_string());
     let mut args = vec![
-        "-q",
-        "synth",
         "--modality",
         modality,
         "--scenario",
@@ -55,13 +53,9 @@ fn synth_modality(
         &frames,
         "--seed",
         &seed,
-        "--template",
-        path_str(&model),
-        "--out",
-        path_str(&data),
     ];
     args.extend(extra);
-    lfit_json(&args);
+    synth_to(&data, &root(MODEL), &args);
     data
 }
 

@@ -24,6 +24,15 @@ pub fn lfit_json(args: &[&str]) -> serde_json::Value {
     serde_json::from_slice(&out.stdout).expect("stdout is JSON")
 }
 
+/// `lfit -q synth --template MODEL ARGS --out OUT`: a dataset of the model file `model` written
+/// to `out`, asserting success.
+pub fn synth_to(out: &Path, model: &Path, args: &[&str]) {
+    let mut all = vec!["-q", "synth", "--template", path_str(model)];
+    all.extend(args);
+    all.extend(["--out", path_str(out)]);
+    lfit_json(&all);
+}
+
 /// Asserts the failure contract: non-zero exit, exactly one line on stderr that mentions
 /// `needle`, no panic.
 pub fn assert_one_line_error(out: &Output, needle: &str) {

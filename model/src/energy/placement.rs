@@ -171,18 +171,19 @@ pub fn keypoint_offsets(
     };
     let nj = first.template().rig.num_joints();
     // What a keypoint's residuals need of each frame, the poses held: its joint's centre, its
-    // carrier's world rotation, and per camera the observation (visible ones only) and its noise
-    // scale.
-    struct Seen {
+    // carrier's world rotation, and per camera that sees it the camera and its rotation's
+    // transpose, the observation, its noise scale and the frame's robust loss.
+    struct Seen<'a> {
         centre: DVec3,
         rotation: DMat3,
-        camera: usize,
-        frame: usize,
+        camera: &'a crate::camera::Camera,
+        camera_t: DMat3,
         y: [f64; 2],
         sigma: f64,
+        robust: super::Robust,
     }
     let mut seen: Vec<Vec<Seen>> = (0..nj).map(|_| Vec::new()).collect();
-    for (f, (energy, pose)) in energies.iter().zip(poses).enumerate() {
+    for (energy, pose) in energies.iter().zip(poses) {
         let (Sensor::Keypoints2d(s), Target::Sparse { values, visible }) =
             (energy.sensor(), energy.target())
         else {
@@ -198,20 +199,22 @@ pub fn keypoint_offsets(
         energy.check_length(pose)?;
         let kin = Kinematics::build(energy.template(), pose, false);
         let view = energy.view(&kin);
-        for c in 0..s.cameras.len() {
+        for (c, camera) in s.cameras.iter().enumerate() {
             for (j, list) in seen.iter_mut().enumerate() {
                 let g = c * nj + j;
                 let i = 2 * g;
                 if !visible[i] {
                     continue;
                 }
+                let rotation = view.joint_rotation(KeypointSetup::carrier(energy.template(), j));
                 list.push(Seen {
                     centre: view.joint(j),
-                    rotation: view.joint_rotation(KeypointSetup::carrier(energy.template(), j)),
-                    camera: c,
-                    frame: f,
+                    rotation,
+                    camera,
+                    camera_t: camera.rot().transpose(),
                     y: [values[i], values[i + 1]],
                     sigma: energy.groups[g].sigma,
+                    robust: energy.config().robust,
                 });
             }
         }
@@ -225,18 +228,12 @@ pub fn keypoint_offsets(
                 // Σ w JᵀJ/σ² + I/σ_d² and −(Σ w Jᵀr/σ² + d/σ_d²), J = ∂π/∂X · W.
                 let (mut a, mut b) = (DMat3::IDENTITY * prior, -d * prior);
                 for o in list {
-                    let energy = &energies[o.frame];
-                    let Sensor::Keypoints2d(s) = energy.sensor() else {
-                        unreachable!("checked above")
-                    };
-                    let cam = &s.cameras[o.camera];
-                    let (uv, dq) = project(cam, o.centre + o.rotation * d);
+                    let (uv, dq) = project(o.camera, o.centre + o.rotation * d);
                     let r = DVec3::new(uv[0] - o.y[0], uv[1] - o.y[1], 0.0);
                     let scaled = (r / o.sigma).length();
-                    let w = 0.5 * energy.config().robust.eval(scaled).1 / (o.sigma * o.sigma);
-                    let rot_t = cam.rot().transpose();
+                    let w = 0.5 * o.robust.eval(scaled).1 / (o.sigma * o.sigma);
                     for (row, res) in dq.iter().zip([r.x, r.y]) {
-                        let jrow = o.rotation.transpose() * (rot_t * *row);
+                        let jrow = o.rotation.transpose() * (o.camera_t * *row);
                         a += outer(jrow, jrow) * w;
                         b -= jrow * (res * w);
                     }

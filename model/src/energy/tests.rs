@@ -1499,35 +1499,21 @@ mod least_squares_form {
     /// Jacobian (factored and dense), gradient and normal equations agree as for any sensor.
     #[test]
     fn markers_off_their_vertices_have_exact_derivatives() {
-        use rand::{Rng, SeedableRng};
+        use rand::SeedableRng;
         let t = makehuman_body();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2512);
         let (e, x) = makehuman_energy(&t, Modality::Markers, &mut rng);
         let Sensor::Markers(setup) = e.sensor().clone() else {
             unreachable!()
         };
-        let offsets: Vec<DVec3> = (0..setup.vertices.len())
-            .map(|_| DVec3::from_array([0; 3].map(|_| rng.random_range(-0.03..0.03))))
-            .collect();
-        let moved = e.with_offsets(&offsets).unwrap();
-        let active = check(&moved, &x, "markers with offsets");
-        assert!(active.contains(&"data"));
+        let count = setup.vertices.len();
+        let (offsets, moved) = randomly_offset(&e, &x, count, 0.03, &mut rng, "markers");
         // The dense rows the observation model writes itself equal the factored ones.
-        let kin = Kinematics::build(&t, &x, true);
-        let mut pj = PointJacobians::new(&t, &kin, &moved.skin, &x);
-        let mut jac = PoseJacobian {
-            inner: &mut pj,
-            kin: &kin,
-        };
-        let model = moved.observation_model();
-        let dim = t.layout().dim();
-        let mut dense = vec![1.0; 3 * setup.vertices.len() * dim];
-        model.jacobian(&moved.view(&kin), &mut jac, &mut dense);
-        let (mut points, mut rows) = (Vec::new(), Vec::new());
-        assert!(model.point_factors(&moved.view(&kin), &mut jac, &mut points, &mut rows));
+        let (dense, points, _) = dense_and_factored(&t, &moved, &x, 3 * count);
         assert_eq!(dense, points);
         // Each marker moves by its offset carried by its vertex's skinning, and an offset of
         // zero is the vertex itself, bit for bit.
+        let kin = Kinematics::build(&t, &x, true);
         let view = moved.view(&kin);
         let plain = e.sensor().predict_sparse(&t, &x).values;
         let off = moved.sensor().predict_sparse(&t, &x).values;
@@ -1539,12 +1525,65 @@ mod least_squares_form {
                 "marker {k}"
             );
         }
-        let zero = e.with_offsets(&vec![DVec3::ZERO; offsets.len()]).unwrap();
-        assert_eq!(zero.sensor().predict_sparse(&t, &x).values, plain);
+        zero_offsets_are_the_sensor(&t, &e, &x, count);
+    }
+
+    /// `e` with each of its `count` points at a random offset within ±`reach` metres: the
+    /// offsets and the moved energy, whose value, gradient and Jacobian [`check`] holds against
+    /// finite differences with the data term active.
+    fn randomly_offset(
+        e: &Energy,
+        x: &[f64],
+        count: usize,
+        reach: f64,
+        rng: &mut rand_chacha::ChaCha8Rng,
+        what: &str,
+    ) -> (Vec<DVec3>, Energy) {
+        use rand::Rng;
+        let offsets: Vec<DVec3> = (0..count)
+            .map(|_| DVec3::from_array([0; 3].map(|_| rng.random_range(-reach..reach))))
+            .collect();
+        let moved = e.with_offsets(&offsets).unwrap();
+        let active = check(&moved, x, &format!("{what} with offsets"));
+        assert!(active.contains(&"data"));
+        (offsets, moved)
+    }
+
+    /// The `rows` dense Jacobian rows `e`'s observation model writes itself at `x`, and its
+    /// factored form (each point's rows, and per row the point and its combination).
+    fn dense_and_factored(
+        t: &crate::Template,
+        e: &Energy,
+        x: &[f64],
+        rows: usize,
+    ) -> (Vec<f64>, Vec<f64>, Vec<(usize, [f64; 3])>) {
+        let kin = Kinematics::build(t, x, true);
+        let mut pj = PointJacobians::new(t, &kin, &e.skin, x);
+        let mut jac = PoseJacobian {
+            inner: &mut pj,
+            kin: &kin,
+        };
+        let model = e.observation_model();
+        let mut dense = vec![1.0; rows * t.layout().dim()];
+        model.jacobian(&e.view(&kin), &mut jac, &mut dense);
+        let (mut points, mut factors) = (Vec::new(), Vec::new());
+        assert!(model.point_factors(&e.view(&kin), &mut jac, &mut points, &mut factors));
+        (dense, points, factors)
+    }
+
+    /// `e`'s points at offsets of zero are `e`'s sensor, bit for bit: its prediction, normal
+    /// equations and value at `x`.
+    fn zero_offsets_are_the_sensor(t: &crate::Template, e: &Energy, x: &[f64], count: usize) {
+        let zero = e.with_offsets(&vec![DVec3::ZERO; count]).unwrap();
         assert_eq!(
-            zero.least_squares(&x, true).unwrap(),
-            e.least_squares(&x, true).unwrap()
+            zero.sensor().predict_sparse(t, x).values,
+            e.sensor().predict_sparse(t, x).values
         );
+        assert_eq!(
+            zero.least_squares(x, true).unwrap(),
+            e.least_squares(x, true).unwrap()
+        );
+        assert_eq!(zero.evaluate(x).total, e.evaluate(x).total);
     }
 
     /// Keypoints off their joints' centres (a detector's keypoints): value, gradient and
@@ -1553,33 +1592,18 @@ mod least_squares_form {
     /// of zero the plain sensor bit for bit.
     #[test]
     fn keypoints_off_their_joints_have_exact_derivatives() {
-        use rand::{Rng, SeedableRng};
+        use rand::SeedableRng;
         let t = makehuman_body();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2513);
         let (e, x) = makehuman_energy(&t, Modality::Keypoints2d, &mut rng);
         let nj = t.rig.num_joints();
-        let offsets: Vec<DVec3> = (0..nj)
-            .map(|_| DVec3::from_array([0; 3].map(|_| rng.random_range(-0.05..0.05))))
-            .collect();
-        let moved = e.with_offsets(&offsets).unwrap();
-        let active = check(&moved, &x, "keypoints with offsets");
-        assert!(active.contains(&"data"));
-        let kin = Kinematics::build(&t, &x, true);
-        let mut pj = PointJacobians::new(&t, &kin, &moved.skin, &x);
-        let mut jac = PoseJacobian {
-            inner: &mut pj,
-            kin: &kin,
-        };
-        let model = moved.observation_model();
+        let (offsets, moved) = randomly_offset(&e, &x, nj, 0.05, &mut rng, "keypoints");
         let dim = t.layout().dim();
         let Sensor::Keypoints2d(setup) = moved.sensor().clone() else {
             unreachable!()
         };
         let rows = 2 * setup.cameras.len() * nj;
-        let mut dense = vec![1.0; rows * dim];
-        model.jacobian(&moved.view(&kin), &mut jac, &mut dense);
-        let (mut points, mut factors) = (Vec::new(), Vec::new());
-        assert!(model.point_factors(&moved.view(&kin), &mut jac, &mut points, &mut factors));
+        let (dense, points, factors) = dense_and_factored(&t, &moved, &x, rows);
         let mut expanded = vec![0.0; rows * dim];
         crate::observe::builtin::expand_point_factors(&points, &factors, dim, &mut expanded);
         assert_eq!(dense, expanded);
@@ -1606,6 +1630,7 @@ mod least_squares_form {
         }
         // Each keypoint is its joint's centre plus its parent's rotation of its offset (the
         // root's own): at the rest pose the offset itself (the camera sees that point).
+        let kin = Kinematics::build(&t, &x, true);
         let view = moved.view(&kin);
         for j in 0..nj {
             let carrier = t.rig.joints[j].parent.unwrap_or(j);
@@ -1620,16 +1645,7 @@ mod least_squares_form {
             let moved_by = setup.keypoint(&rest_view, j) - rest_view.joint(j);
             assert!(moved_by.distance(offsets[j]) < 1e-12, "joint {j} at rest");
         }
-        let zero = e.with_offsets(&vec![DVec3::ZERO; nj]).unwrap();
-        assert_eq!(
-            zero.sensor().predict_sparse(&t, &x).values,
-            e.sensor().predict_sparse(&t, &x).values
-        );
-        assert_eq!(
-            zero.least_squares(&x, true).unwrap(),
-            e.least_squares(&x, true).unwrap()
-        );
-        assert_eq!(zero.evaluate(&x).total, e.evaluate(&x).total);
+        zero_offsets_are_the_sensor(&t, &e, &x, nj);
     }
 
     #[test]
