@@ -30,6 +30,9 @@ fn bench(c: &mut Criterion) {
         .num_threads(1)
         .build()
         .expect("pool");
+    // One thread: each measurement runs inside this pool (entered once per measurement, not
+    // per batch of 32 systems: a batch handed to the pool's thread and waited for costs a
+    // wake-up of the order of a whole evaluation, which is the harness's, not the energy's).
     let ps = params(&template, 32);
     for modality in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd] {
         let sensor = Sensor::default_for(modality, &template);
@@ -59,11 +62,11 @@ fn bench(c: &mut Criterion) {
         group.throughput(Throughput::Elements(ps.len() as u64));
         for (label, e) in &forms {
             group.bench_function(format!("value{label}"), |b| {
-                b.iter(|| one.install(|| ps.iter().map(|p| e.evaluate(p).total).sum::<f64>()))
+                one.install(|| b.iter(|| ps.iter().map(|p| e.evaluate(p).total).sum::<f64>()))
             });
             group.bench_function(format!("value_and_gradient{label}"), |b| {
-                b.iter(|| {
-                    one.install(|| {
+                one.install(|| {
+                    b.iter(|| {
                         ps.iter()
                             .map(|p| e.evaluate_with_gradient(p).1[0])
                             .sum::<f64>()
@@ -71,8 +74,8 @@ fn bench(c: &mut Criterion) {
                 })
             });
             group.bench_function(format!("residuals{label}"), |b| {
-                b.iter(|| {
-                    one.install(|| {
+                one.install(|| {
+                    b.iter(|| {
                         ps.iter()
                             .map(|p| e.least_squares(p, false).expect("residuals").energy)
                             .sum::<f64>()
@@ -80,8 +83,8 @@ fn bench(c: &mut Criterion) {
                 })
             });
             group.bench_function(format!("jacobian{label}"), |b| {
-                b.iter(|| {
-                    one.install(|| {
+                one.install(|| {
+                    b.iter(|| {
                         ps.iter()
                             .map(|p| e.least_squares(p, true).expect("jacobian").energy)
                             .sum::<f64>()
@@ -90,8 +93,8 @@ fn bench(c: &mut Criterion) {
             });
             // As LM asks: factored data rows where the sensor has them, prior rows as entries.
             group.bench_function(format!("jacobian_factored{label}"), |b| {
-                b.iter(|| {
-                    one.install(|| {
+                one.install(|| {
+                    b.iter(|| {
                         ps.iter()
                             .map(|p| {
                                 e.least_squares_with(

@@ -18,8 +18,8 @@
 
 use glam::{DMat3, DVec3};
 
-use super::kinematics::{Kinematics, SkinTable, left_jacobian, skew};
-use crate::body::rotation::exp_map;
+use super::kinematics::{Kinematics, SkinTable, skew};
+use crate::body::rotation::exp_map_and_left_jacobian;
 use crate::pose::rot_offset;
 use crate::template::Template;
 
@@ -86,7 +86,7 @@ impl<'a> PointJacobians<'a> {
                 .map(|b| {
                     let o = rot_offset(b);
                     let r = DVec3::new(pose[o], pose[o + 1], pose[o + 2]);
-                    let (jl, rot) = (left_jacobian(r), exp_map(r));
+                    let (rot, jl) = exp_map_and_left_jacobian(r);
                     [0, 1, 2].map(|kk| skew(jl.col(kk)) * rot)
                 })
                 .collect();

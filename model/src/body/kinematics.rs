@@ -27,10 +27,10 @@ use std::sync::Arc;
 
 use glam::{DAffine3, DMat3, DVec3};
 
-use crate::body::rotation::exp_map;
+use crate::body::rotation::exp_map_and_left_jacobian;
 use crate::morph::Morph;
 use crate::pose::rot_offset;
-use crate::skinning::joint_transforms;
+use crate::skinning::joint_transforms_with;
 use crate::template::Template;
 
 /// `[v]×`, the matrix of `x ↦ v × x`.
@@ -40,20 +40,6 @@ pub(crate) fn skew(v: DVec3) -> DMat3 {
         DVec3::new(-v.z, 0.0, v.x),
         DVec3::new(v.y, -v.x, 0.0),
     )
-}
-
-/// Left Jacobian of SO(3) at `r`: `exp([r + δ]×) ≈ exp([Jl(r) δ]×) exp([r]×)`.
-/// `Jl = I + (1 − cos θ)/θ² [r]× + (θ − sin θ)/θ³ [r]×²`, with Taylor series near θ = 0.
-pub(crate) fn left_jacobian(r: DVec3) -> DMat3 {
-    let t2 = r.length_squared();
-    let (a, b) = if t2 < 1e-8 {
-        (0.5 - t2 / 24.0, 1.0 / 6.0 - t2 / 120.0)
-    } else {
-        let t = t2.sqrt();
-        ((1.0 - t.cos()) / t2, (t - t.sin()) / (t2 * t))
-    };
-    let k = skew(r);
-    DMat3::IDENTITY + k * a + (k * k) * b
 }
 
 /// The torque `τ` with `tr(Gᵀ [ω]× R) = ω · τ`: the derivative of `⟨G, R⟩` for a rotation `R`
@@ -77,32 +63,103 @@ pub(crate) struct Kinematics {
     pub rest_joints: Vec<DVec3>,
     /// The morph, coefficients `[β; ψ]` and pose feature when the rest geometry moves.
     pub morph: Option<(Arc<Morph>, Vec<f64>, Vec<f64>)>,
+    /// Rest positions of a [`VertexSet`] shaped once for this evaluation
+    /// ([`Kinematics::shape_vertices`]), in the set's order.
+    shaped: Option<(Arc<VertexSet>, Vec<DVec3>)>,
+}
+
+/// A fixed set of mesh vertices (what an observation model reads: marker vertices, hand tips)
+/// whose rest positions one evaluation reads more than once — the prediction, then the Jacobian
+/// or the gradient — found by vertex in an open-addressing table of at least twice the count.
+#[derive(Debug, Default)]
+pub(crate) struct VertexSet {
+    vertices: Vec<u32>,
+    /// `u32::MAX`: empty.
+    keys: Vec<u32>,
+    slots: Vec<u32>,
+    shift: u32,
+}
+
+impl VertexSet {
+    pub fn new(vertices: &[u32]) -> Self {
+        let mut unique = vertices.to_vec();
+        unique.sort_unstable();
+        unique.dedup();
+        if unique.is_empty() {
+            return Self::default();
+        }
+        let size = (2 * unique.len()).next_power_of_two().max(8);
+        let shift = 32 - size.trailing_zeros();
+        let (mut keys, mut slots) = (vec![u32::MAX; size], vec![0; size]);
+        for (k, &v) in unique.iter().enumerate() {
+            let mut i = Self::home(v, shift);
+            while keys[i] != u32::MAX {
+                i = (i + 1) & (size - 1);
+            }
+            keys[i] = v;
+            slots[i] = k as u32;
+        }
+        Self {
+            vertices: unique,
+            keys,
+            slots,
+            shift,
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.vertices.is_empty()
+    }
+
+    /// Distinct vertices in the set.
+    #[cfg(test)]
+    pub fn len(&self) -> usize {
+        self.vertices.len()
+    }
+
+    /// Fibonacci hashing: the top bits of `v` times 2³²/φ.
+    #[inline]
+    fn home(v: u32, shift: u32) -> usize {
+        (v.wrapping_mul(0x9E37_79B9) >> shift) as usize
+    }
+
+    /// Vertex `v`'s position in the set.
+    #[inline]
+    pub fn slot(&self, v: u32) -> Option<usize> {
+        if self.keys.is_empty() {
+            return None;
+        }
+        let mask = self.keys.len() - 1;
+        let mut i = Self::home(v, self.shift);
+        loop {
+            match self.keys[i] {
+                k if k == v => return Some(self.slots[i] as usize),
+                u32::MAX => return None,
+                _ => i = (i + 1) & mask,
+            }
+        }
+    }
 }
 
 impl Kinematics {
     /// The posed skeleton; `factors` (needed only for gradients) is left empty unless
     /// `with_factors`.
     pub fn build(template: &Template, pose: &[f64], with_factors: bool) -> Self {
-        let posed = joint_transforms(template, pose);
+        // The left Jacobians come from the sine and cosine of each joint's exp map.
+        let mut left = Vec::new();
+        let posed = joint_transforms_with(template, pose, with_factors.then_some(&mut left));
         let joints = posed.joints;
         let transforms = posed.transforms;
-        let factors = if with_factors {
-            template
-                .rig
-                .joints
-                .iter()
-                .enumerate()
-                .map(|(j, joint)| {
-                    let o = rot_offset(j);
-                    let parent_rot = joint
-                        .parent
-                        .map_or(DMat3::IDENTITY, |p| transforms[p].matrix3);
-                    parent_rot * left_jacobian(DVec3::new(pose[o], pose[o + 1], pose[o + 2]))
-                })
-                .collect()
-        } else {
-            Vec::new()
-        };
+        let factors = left
+            .iter()
+            .zip(&template.rig.joints)
+            .map(|(jl, joint)| {
+                let parent_rot = joint
+                    .parent
+                    .map_or(DMat3::IDENTITY, |p| transforms[p].matrix3);
+                parent_rot * *jl
+            })
+            .collect();
         let morph = (!template.morph.is_rigid())
             .then(|| (template.morph.clone(), posed.coeffs, posed.pose_feature));
         Self {
@@ -111,15 +168,40 @@ impl Kinematics {
             factors,
             rest_joints: posed.rest_joints,
             morph,
+            shaped: None,
         }
     }
 
-    /// Rest position of vertex `v`: the table's (rigid model) or `T(β, ψ) + P (R(θ) − I)`.
+    /// Shapes the rest positions of `set` (`table`: the β = ψ = 0 rest vertices, as
+    /// [`Kinematics::rest`] takes) once: [`Kinematics::rest`] then reads them. Nothing on a rigid
+    /// model (its rest vertices are the table's).
+    pub fn shape_vertices(&mut self, table: &[DVec3], set: &Arc<VertexSet>) {
+        if let Some((m, c, f)) = &self.morph
+            && !set.is_empty()
+        {
+            let values = set
+                .vertices
+                .iter()
+                .map(|&v| m.rest_vertex(v as usize, table[v as usize], c, f))
+                .collect();
+            self.shaped = Some((set.clone(), values));
+        }
+    }
+
+    /// Rest position of vertex `v`: the table's (rigid model) or `T(β, ψ) + P (R(θ) − I)`
+    /// (shaped here, or read from [`Kinematics::shape_vertices`]'s when `v` is in its set).
     #[inline]
     pub fn rest(&self, table: &[DVec3], v: usize) -> DVec3 {
         match &self.morph {
             None => table[v],
-            Some((m, c, f)) => m.rest_vertex(v, table[v], c, f),
+            Some((m, c, f)) => {
+                if let Some((set, values)) = &self.shaped
+                    && let Some(k) = set.slot(v as u32)
+                {
+                    return values[k];
+                }
+                m.rest_vertex(v, table[v], c, f)
+            }
         }
     }
 
@@ -337,8 +419,8 @@ impl Adjoint {
                 );
                 let o = rot_offset(j);
                 let r = DVec3::new(pose[o], pose[o + 1], pose[o + 2]);
-                let tau = rotation_torque(exp_map(r), gm);
-                let g = left_jacobian(r).transpose() * tau;
+                let (rot, jl) = exp_map_and_left_jacobian(r);
+                let g = jl.transpose() * rotation_torque(rot, gm);
                 for a in 0..3 {
                     grad[o + a] += g[a];
                 }
@@ -383,14 +465,35 @@ mod tests {
     use crate::body::rotation::exp_map;
 
     #[test]
+    fn a_vertex_set_finds_its_members_and_nothing_else() {
+        let members: Vec<u32> = (0..40).map(|k| k * 337 % 13_380).chain([5, 5, 0]).collect();
+        let set = VertexSet::new(&members);
+        let mut distinct = members.clone();
+        distinct.sort_unstable();
+        distinct.dedup();
+        assert_eq!(set.len(), distinct.len());
+        for (k, &v) in distinct.iter().enumerate() {
+            assert_eq!(set.slot(v), Some(k), "vertex {v}");
+        }
+        for v in (0..13_380).filter(|v| !distinct.contains(v)) {
+            assert_eq!(set.slot(v), None, "vertex {v}");
+        }
+        assert_eq!(VertexSet::new(&[]).slot(0), None);
+    }
+
+    #[test]
     fn left_jacobian_matches_finite_differences_of_exp() {
         // exp([r + h e_i]×) exp([r]×)ᵀ ≈ exp([h Jl e_i]×): compare the skew part.
+        // Past π the half angle's cosine turns negative, past 2π its sine (read along `r`).
         for r in [
             DVec3::new(0.3, -0.7, 0.2),
             DVec3::new(1e-6, 0.0, -2e-6),
             DVec3::new(0.0, 2.5, 0.1),
+            DVec3::new(-3.1, 1.9, 0.4),
+            DVec3::new(0.5, 6.9, -1.2),
         ] {
-            let jl = left_jacobian(r);
+            let (rot, jl) = exp_map_and_left_jacobian(r);
+            assert_eq!(rot, exp_map(r), "the rotation is exp_map's, bit for bit");
             for i in 0..3 {
                 let h = 1e-6;
                 let mut e = DVec3::ZERO;

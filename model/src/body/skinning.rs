@@ -8,7 +8,7 @@
 //! ```
 //! Joint transforms are computed in f64; the vertex loops run in f32 SIMD (`Vec3A`).
 
-use super::rotation::exp_map;
+use super::rotation::{exp_map, exp_map_and_left_jacobian};
 use glam::{Affine3A, DAffine3, DMat3, DQuat, DVec3, Mat3A, Vec3, Vec3A};
 use rayon::prelude::*;
 
@@ -65,6 +65,16 @@ impl Posed {
 /// [`Template::layout`]: translation, rotations, then β and ψ (missing trailing coefficients
 /// count as zero; the callers that read user input check lengths).
 pub fn joint_transforms(template: &Template, params: &[f64]) -> Posed {
+    joint_transforms_with(template, params, None)
+}
+
+/// [`joint_transforms`], pushing each joint's left Jacobian `Jl(r_j)` onto `left_jacobians` when
+/// given (from the same sine and cosine as its rotation: [`exp_map_and_left_jacobian`]).
+pub(crate) fn joint_transforms_with(
+    template: &Template,
+    params: &[f64],
+    mut left_jacobians: Option<&mut Vec<DMat3>>,
+) -> Posed {
     let rig = &template.rig;
     let nj = rig.joints.len();
     let morph = &template.morph;
@@ -96,7 +106,15 @@ pub fn joint_transforms(template: &Template, params: &[f64]) -> Posed {
     let t = DVec3::new(params[0], params[1], params[2]);
     for (j, joint) in rig.joints.iter().enumerate() {
         let o = rot_offset(j);
-        let local = exp_map(DVec3::new(params[o], params[o + 1], params[o + 2]));
+        let r = DVec3::new(params[o], params[o + 1], params[o + 2]);
+        let local = match left_jacobians.as_deref_mut() {
+            Some(out) => {
+                let (local, jl) = exp_map_and_left_jacobian(r);
+                out.push(jl);
+                local
+            }
+            None => exp_map(r),
+        };
         let c = rest_joints[j];
         let (w, anchor) = match joint.parent {
             None => (local, c + t),

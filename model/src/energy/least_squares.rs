@@ -883,7 +883,10 @@ impl Energy {
     ) -> LeastSquares {
         let m = self.residual_count();
         let dim = self.dim();
-        let kin = Kinematics::build(&self.template, params, with_jacobian);
+        let mut kin = Kinematics::build(&self.template, params, with_jacobian);
+        if with_jacobian {
+            kin.shape_vertices(&self.skin.rest, &self.observed);
+        }
         let mut pj =
             with_jacobian.then(|| PointJacobians::new(&self.template, &kin, &self.skin, params));
         let mut residuals = vec![0.0; m];

@@ -41,7 +41,7 @@ pub use prior::AnglePrior;
 
 use self::capsules::Capsules;
 pub(crate) use self::prior::{AngleLimits, Penetration};
-use crate::body::kinematics::{Adjoint, Kinematics, SkinTable};
+use crate::body::kinematics::{Adjoint, Kinematics, SkinTable, VertexSet};
 use crate::camera::Camera;
 use crate::error::{ModelError, Result};
 use crate::observe::{
@@ -419,6 +419,9 @@ pub struct Energy {
     render: Option<SilhouetteSetup>,
     /// ES direction tensors per grid node (`scan` only), shared by clones.
     axes: Option<Arc<Vec<[f32; 6]>>>,
+    /// The vertices the sensor reads ([`ObservationModel::vertices_read`]), shaped once per
+    /// evaluation with derivatives.
+    observed: Arc<VertexSet>,
     evaluations: AtomicU64,
     gradient_evaluations: AtomicU64,
 }
@@ -440,6 +443,7 @@ impl Clone for Energy {
             silhouettes: self.silhouettes.clone(),
             render: self.render.clone(),
             axes: self.axes.clone(),
+            observed: self.observed.clone(),
             evaluations: AtomicU64::new(0),
             gradient_evaluations: AtomicU64::new(0),
         }
@@ -552,6 +556,7 @@ impl Energy {
             Target::Sparse { .. } | Target::Silhouettes { .. } => None,
         };
         let parts = TemplateParts::of(&template, config.penetration_stride);
+        let observed = Arc::new(VertexSet::new(&sensor.observation_model().vertices_read()));
         let mut energy = Self {
             limits: parts.limits.clone(),
             skin: parts.skin.clone(),
@@ -566,6 +571,7 @@ impl Energy {
             silhouettes,
             render,
             axes,
+            observed,
             evaluations: AtomicU64::new(0),
             gradient_evaluations: AtomicU64::new(0),
         };
@@ -621,6 +627,7 @@ impl Energy {
         check_groups(&groups, model.dim(&self.template), model.name())?;
         check_sparse_target(&sensor, &self.template, &values, &visible)?;
         let mut energy = self.clone();
+        energy.observed = Arc::new(VertexSet::new(&model.vertices_read()));
         energy.sensor = sensor;
         energy.groups = groups;
         energy.target = Target::Sparse { values, visible };
@@ -775,7 +782,10 @@ impl Energy {
     }
 
     fn compute(&self, pose: &[f64], want_grad: bool) -> (Evaluation, Option<Vec<f64>>) {
-        let kin = Kinematics::build(&self.template, pose, want_grad);
+        let mut kin = Kinematics::build(&self.template, pose, want_grad);
+        if want_grad {
+            kin.shape_vertices(&self.skin.rest, &self.observed);
+        }
         let nj = self.template.rig.num_joints();
         let mut adj = want_grad.then(|| Adjoint::new(nj, kin.morph.is_some()));
         let mut grad_direct = vec![0.0; if want_grad { pose.len() } else { 0 }];
@@ -921,13 +931,18 @@ impl Energy {
             Vec::new()
         };
         let mut sum = 0.0;
+        // 1 / (σ² n), retaken when σ changes (groups of one kind share theirs).
+        let mut scale = (f64::NAN, 0.0);
         for g in &seen {
             let r = (g.start..g.start + g.len).map(|i| (pred[i] - values[i]) / g.sigma);
             let s = r.map(|x| x * x).sum::<f64>().sqrt();
             let (rho, dr) = self.config.robust.eval(s);
             sum += rho;
             if !dpred.is_empty() {
-                let f = dr / (g.sigma * g.sigma * n);
+                if scale.0 != g.sigma {
+                    scale = (g.sigma, 1.0 / (g.sigma * g.sigma * n));
+                }
+                let f = dr * scale.1;
                 for i in g.start..g.start + g.len {
                     dpred[i] = f * (pred[i] - values[i]);
                 }

@@ -815,6 +815,46 @@ mod least_squares_form {
         (e, x)
     }
 
+    /// The sensor's vertices shaped once per evaluation ([`Kinematics::shape_vertices`]) give
+    /// the value, gradient, residuals and Jacobian of shaping each where it is read, bit for bit
+    /// (markers: 39 vertices; hmd: the two hand tips; keypoints2d reads none).
+    #[test]
+    fn vertices_shaped_once_are_those_shaped_where_read() {
+        use rand::SeedableRng;
+        let t = makehuman_body();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(117);
+        for (modality, count) in [
+            (Modality::Markers, 39),
+            (Modality::Hmd, 2),
+            (Modality::Keypoints2d, 0),
+        ] {
+            let (e, x) = makehuman_energy(&t, modality, &mut rng);
+            let set = &e.observed;
+            assert_eq!(set.len(), count, "{modality}");
+            for v in e.observation_model().vertices_read() {
+                assert!(set.slot(v).is_some(), "{modality}: vertex {v}");
+            }
+            let mut unshaped = e.clone();
+            unshaped.observed = Arc::new(VertexSet::default());
+            let (a, b) = (
+                e.evaluate_with_gradient(&x),
+                unshaped.evaluate_with_gradient(&x),
+            );
+            assert_eq!(a.0.total.to_bits(), b.0.total.to_bits(), "{modality}");
+            assert_eq!(a.1, b.1, "{modality}: gradient");
+            let (a, b) = (
+                e.least_squares_with(&x, true, RobustForm::Folded, JacobianRows::Factored)
+                    .unwrap(),
+                unshaped
+                    .least_squares_with(&x, true, RobustForm::Folded, JacobianRows::Factored)
+                    .unwrap(),
+            );
+            assert_eq!(a.residuals, b.residuals, "{modality}: residuals");
+            assert_eq!(a.jacobian, b.jacobian, "{modality}: dense rows");
+            assert_eq!(a.points, b.points, "{modality}: point factors");
+        }
+    }
+
     /// The Jacobian in [`JacobianRows::Factored`] form (what LM asks for) on every sparse
     /// sensor of the MakeHuman body: the prior rows as single entries, the same normal
     /// equations bit for bit over several column sets, the same gradient, and expanded, the

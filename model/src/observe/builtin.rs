@@ -42,6 +42,20 @@ pub(crate) fn project_camera(cam: &Camera, q: DVec3) -> ([f64; 2], [DVec3; 2]) {
     ([u, v], [du, dv])
 }
 
+/// [`project_camera`]'s derivative rows alone, applied: `∂(u, v)/∂q` transposed times
+/// `(gu, gv)`, the camera-frame gradient of a point whose pixel has gradient `(gu, gv)`.
+#[inline]
+pub(crate) fn project_camera_adjoint(cam: &Camera, q: DVec3, gu: f64, gv: f64) -> DVec3 {
+    let (z, dz) = if q.z > DEPTH_FLOOR {
+        (q.z, 1.0)
+    } else {
+        (DEPTH_FLOOR, 0.0)
+    };
+    let iz = 1.0 / z;
+    let (fu, fv) = (cam.fx * iz * gu, cam.fy * iz * gv);
+    DVec3::new(fu, fv, -dz * (fu * q.x + fv * q.y) * iz)
+}
+
 /// `out = Σ_a a[a] · rows[a]` for a 3-row, `d`-wide row-major block.
 #[inline]
 pub(crate) fn combine_rows(out: &mut [f64], a: DVec3, rows: &[f64], d: usize) {
@@ -172,6 +186,10 @@ impl ObservationModel for MarkerSetup {
         true
     }
 
+    fn vertices_read(&self) -> Vec<u32> {
+        self.vertices.clone()
+    }
+
     fn backprop(&self, _: &PosedView<'_>, dpred: &[f64], grad: &mut PoseGradient<'_, '_>) {
         for (k, &v) in self.vertices.iter().enumerate() {
             let g = DVec3::new(dpred[3 * k], dpred[3 * k + 1], dpred[3 * k + 2]);
@@ -291,8 +309,8 @@ impl ObservationModel for KeypointSetup {
                 if gu == 0.0 && gv == 0.0 {
                     continue;
                 }
-                let (_, dq) = project(cam, self.keypoint(posed, j));
-                *gj += rot_t * (dq[0] * gu + dq[1] * gv);
+                let q = cam.to_camera(self.keypoint(posed, j));
+                *gj += rot_t * project_camera_adjoint(cam, q, gu, gv);
             }
         }
         for (j, gj) in g.into_iter().enumerate() {
@@ -417,6 +435,10 @@ impl ObservationModel for HmdSetup {
             let o = hmd_layout::tip(k);
             jac.vertex(tip as usize, &mut out[o * d..(o + 3) * d]);
         }
+    }
+
+    fn vertices_read(&self) -> Vec<u32> {
+        self.hand_tips.to_vec()
     }
 
     fn backprop(&self, posed: &PosedView<'_>, dpred: &[f64], grad: &mut PoseGradient<'_, '_>) {

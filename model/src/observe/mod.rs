@@ -342,6 +342,15 @@ pub trait ObservationModel: fmt::Debug + Send + Sync {
         false
     }
 
+    /// The mesh vertices whose rest positions this model reads ([`PosedView::skinned_offset`],
+    /// [`PoseJacobian::offset_vertex`], [`PoseGradient::offset_vertex`] and their `vertex`
+    /// forms). An evaluation with derivatives reads each twice (prediction, then Jacobian or
+    /// gradient): the energy shapes these once per evaluation instead. Only a saving: a vertex
+    /// not listed is shaped where it is read; the default lists none.
+    fn vertices_read(&self) -> Vec<u32> {
+        Vec::new()
+    }
+
     /// Adds `(∂prediction/∂θ)ᵀ dpred` to `grad`. The default goes through [`Self::jacobian`];
     /// the built-in models override it with cheaper reverse-mode sums.
     fn backprop(&self, posed: &PosedView<'_>, dpred: &[f64], grad: &mut PoseGradient<'_, '_>) {
@@ -807,6 +816,27 @@ mod tests {
         let msg = "lidar".parse::<Modality>().unwrap_err().to_string();
         for m in Modality::ALL {
             assert!(msg.contains(m.name()), "{msg}");
+        }
+    }
+
+    /// The projection's adjoint (the keypoints' gradient) is the transpose of its derivative
+    /// rows (their Jacobian), in front of the camera and below the depth floor.
+    #[test]
+    fn the_projection_adjoint_is_its_rows_transposed() {
+        use builtin::{project_camera, project_camera_adjoint};
+        let cam = Camera::look_at(DVec3::new(0.3, 1.2, 3.0), DVec3::Y, 610.0, 640, 480);
+        for (q, gu, gv) in [
+            (DVec3::new(0.2, -0.4, 2.5), 0.7, -1.3),
+            (DVec3::new(-1.1, 0.3, 0.4), -2.0, 0.25),
+            (DVec3::new(0.5, 0.5, -0.3), 1.5, 0.5),
+        ] {
+            let (_, dq) = project_camera(&cam, q);
+            let want = dq[0] * gu + dq[1] * gv;
+            let got = project_camera_adjoint(&cam, q, gu, gv);
+            assert!(
+                (got - want).length() <= 1e-12 * want.length(),
+                "{q}: {got} vs {want}"
+            );
         }
     }
 
