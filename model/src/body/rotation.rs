@@ -21,9 +21,10 @@ pub(crate) fn exp_map_and_left_jacobian(r: DVec3) -> (DMat3, DMat3) {
         (0.5 - t2 / 24.0, 1.0 / 6.0 - t2 / 120.0)
     } else {
         let t = t2.sqrt();
-        let s = DVec3::new(q.x, q.y, q.z).dot(r) / t;
-        let inv = 1.0 / t2;
-        (2.0 * s * s * inv, (t - 2.0 * s * q.w) * inv / t)
+        let it = 1.0 / t;
+        let s = DVec3::new(q.x, q.y, q.z).dot(r) * it;
+        let inv = it * it;
+        (2.0 * s * s * inv, (t - 2.0 * s * q.w) * inv * it)
     };
     // [r]×² = r rᵀ − θ² I: Jl = (1 − bθ²) I + a [r]× + b r rᵀ, entry by entry.
     let d = 1.0 - b * t2;

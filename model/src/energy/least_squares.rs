@@ -980,6 +980,8 @@ impl Energy {
                 for (k, &uk) in u.iter().enumerate() {
                     residuals[row + g.start + k] = c0 * phi * uk;
                 }
+                // The Jacobian's 1/σ, one division per group.
+                let inv_sigma = 1.0 / g.sigma;
                 if dense_data {
                     // J̃ = c0 (φ Ju + (φ'/s) u (uᵀ Ju)), Ju = Jpred / σ.
                     let block = &mut jacobian[rows];
@@ -987,16 +989,16 @@ impl Energy {
                         v.fill(0.0);
                         for (k, &uk) in u.iter().enumerate() {
                             for (vi, j) in v.iter_mut().zip(&block[k * dim..(k + 1) * dim]) {
-                                *vi += uk * j / g.sigma;
+                                *vi += uk * j * inv_sigma;
                             }
                         }
                         for (k, &uk) in u.iter().enumerate() {
                             for (d, vi) in block[k * dim..(k + 1) * dim].iter_mut().zip(&v) {
-                                *d = c0 * (phi * *d / g.sigma + dphi * uk * vi);
+                                *d = c0 * (phi * *d * inv_sigma + dphi * uk * vi);
                             }
                         }
                     } else {
-                        let f = c0 * phi / g.sigma;
+                        let f = c0 * phi * inv_sigma;
                         block.iter_mut().for_each(|d| *d *= f);
                     }
                 }
@@ -1007,12 +1009,12 @@ impl Energy {
                         let mut va = [0.0; 3];
                         for (r, &uk) in rows.iter().zip(&u) {
                             for x in 0..3 {
-                                va[x] += uk * r.1[x] / g.sigma;
+                                va[x] += uk * r.1[x] * inv_sigma;
                             }
                         }
                         for (r, &uk) in rows.iter_mut().zip(&u) {
                             for x in 0..3 {
-                                r.1[x] = c0 * (phi * r.1[x] / g.sigma + dphi * uk * va[x]);
+                                r.1[x] = c0 * (phi * r.1[x] * inv_sigma + dphi * uk * va[x]);
                             }
                         }
                     }
