@@ -73,7 +73,7 @@ pub(crate) struct Kinematics {
 /// or the gradient — found by vertex in an open-addressing table of at least twice the count.
 #[derive(Debug, Default)]
 pub(crate) struct VertexSet {
-    vertices: Vec<u32>,
+    pub vertices: Vec<u32>,
     /// `u32::MAX`: empty.
     keys: Vec<u32>,
     slots: Vec<u32>,
@@ -150,16 +150,13 @@ impl Kinematics {
         let posed = joint_transforms_with(template, pose, with_factors.then_some(&mut left));
         let joints = posed.joints;
         let transforms = posed.transforms;
-        let factors = left
-            .iter()
-            .zip(&template.rig.joints)
-            .map(|(jl, joint)| {
-                let parent_rot = joint
-                    .parent
-                    .map_or(DMat3::IDENTITY, |p| transforms[p].matrix3);
-                parent_rot * *jl
-            })
-            .collect();
+        // W_parent(j) Jl(r_j) in place (the root's parent rotation is the identity).
+        let mut factors = left;
+        for (f, joint) in factors.iter_mut().zip(&template.rig.joints) {
+            if let Some(p) = joint.parent {
+                *f = transforms[p].matrix3 * *f;
+            }
+        }
         let morph = (!template.morph.is_rigid())
             .then(|| (template.morph.clone(), posed.coeffs, posed.pose_feature));
         Self {
@@ -273,12 +270,13 @@ pub(crate) struct Adjoint {
 }
 
 impl Adjoint {
-    pub fn new(joints: usize, morphable: bool) -> Self {
+    /// `vertices`: how many rest-vertex gradients to make room for (the sensor's vertices).
+    pub fn new(joints: usize, morphable: bool, vertices: usize) -> Self {
         Self {
             force: vec![DVec3::ZERO; joints],
             moment: vec![DVec3::ZERO; joints],
             joint_rest: vec![DVec3::ZERO; joints],
-            rest: morphable.then(Vec::new),
+            rest: morphable.then(|| Vec::with_capacity(vertices)),
         }
     }
 

@@ -100,7 +100,6 @@ pub(crate) fn joint_transforms_with(
     } else {
         Vec::new()
     };
-    let mut world_rot: Vec<DMat3> = Vec::with_capacity(nj);
     let mut transforms: Vec<DAffine3> = Vec::with_capacity(nj);
     let mut joints: Vec<DVec3> = Vec::with_capacity(nj);
     let t = DVec3::new(params[0], params[1], params[2]);
@@ -118,9 +117,11 @@ pub(crate) fn joint_transforms_with(
         let c = rest_joints[j];
         let (w, anchor) = match joint.parent {
             None => (local, c + t),
-            Some(p) => (world_rot[p] * local, transforms[p].transform_point3(c)),
+            Some(p) => (
+                transforms[p].matrix3 * local,
+                transforms[p].transform_point3(c),
+            ),
         };
-        world_rot.push(w);
         transforms.push(DAffine3 {
             matrix3: w,
             translation: anchor - w * c,

@@ -787,7 +787,8 @@ impl Energy {
             kin.shape_vertices(&self.skin.rest, &self.observed);
         }
         let nj = self.template.rig.num_joints();
-        let mut adj = want_grad.then(|| Adjoint::new(nj, kin.morph.is_some()));
+        let mut adj =
+            want_grad.then(|| Adjoint::new(nj, kin.morph.is_some(), self.observed.vertices.len()));
         let mut grad_direct = vec![0.0; if want_grad { pose.len() } else { 0 }];
         let w = self.config.weights;
         let mut terms = Vec::with_capacity(7);
@@ -919,11 +920,12 @@ impl Energy {
             // A data term of the model's own (no gradient: see `gradient_unsupported`).
             return value;
         }
-        let seen: Vec<&ResidualGroup> = self.groups.iter().filter(|g| visible[g.start]).collect();
-        if seen.is_empty() {
+        let seen = || self.groups.iter().filter(|g| visible[g.start]);
+        let count = seen().count();
+        if count == 0 {
             return 0.0;
         }
-        let n = seen.len() as f64;
+        let n = count as f64;
         // ∂data/∂prediction, entry by entry.
         let mut dpred = if grad.is_some() {
             vec![0.0; pred.len()]
@@ -933,7 +935,7 @@ impl Energy {
         let mut sum = 0.0;
         // 1 / (σ² n), retaken when σ changes (groups of one kind share theirs).
         let mut scale = (f64::NAN, 0.0);
-        for g in &seen {
+        for g in seen() {
             let r = (g.start..g.start + g.len).map(|i| (pred[i] - values[i]) / g.sigma);
             let s = r.map(|x| x * x).sum::<f64>().sqrt();
             let (rho, dr) = self.config.robust.eval(s);
