@@ -64,6 +64,9 @@ pub struct SynthArgs {
     /// keypoints2d: σ of each subject's keypoint offsets from the joint centres in millimetres
     /// (`--keypoint-bias-mm`, [`SynthConfig::keypoint_bias`]); 0: the joint centres.
     pub keypoint_bias_mm: f64,
+    /// keypoints2d with a bias: the offsets of the synthetic detector of this seed, shared by
+    /// every subject (`--keypoint-detector`, [`SynthConfig::keypoint_detector`]).
+    pub keypoint_detector: Option<u64>,
     pub out: PathBuf,
 }
 
@@ -201,6 +204,7 @@ pub fn synthesize_dataset(
     config.uniform_share = files.uniform_share;
     config.marker_slip = args.marker_slip_mm / 1000.0;
     config.keypoint_bias = args.keypoint_bias_mm / 1000.0;
+    config.keypoint_detector = args.keypoint_detector;
     config.validate()?;
     let dataset = synthesize_until(&config, template, &sensor, progress, cancel)?;
     let mut summary = json!({
@@ -230,6 +234,9 @@ pub fn synthesize_dataset(
     }
     if config.keypoint_bias > 0.0 {
         summary["keypoint_bias_mm"] = json!(args.keypoint_bias_mm);
+    }
+    if let Some(seed) = config.keypoint_detector {
+        summary["keypoint_detector"] = json!(seed);
     }
     if config.uniform_share > 0.0 {
         summary["frames_uniform"] = json!(

@@ -124,6 +124,11 @@ enum Command {
         /// [0, 100] (default 0: none).
         #[arg(long, value_name = "MM", default_value_t = 0.0)]
         keypoint_bias_mm: f64,
+        /// keypoints2d with --keypoint-bias-mm: the offsets are those of the synthetic 2D
+        /// detector of this seed, the same for every subject of every dataset made with it (as
+        /// a detector's are); `lfit calibrate` recovers them from frames of known pose.
+        #[arg(long, value_name = "SEED")]
+        keypoint_detector: Option<u64>,
         /// keypoints2d: the number of cameras, on the default ring's circle (4 m around the
         /// origin, 1.3 m high, evenly spaced from the front, 640×480, fx = 550); default: the
         /// default rig's 6.
@@ -276,6 +281,31 @@ enum Command {
         /// Model: a model file (.npz, SMPL-family layout) or a template directory (template.obj +
         /// rig.json), if the dataset was made with neither the procedural template nor a shipped
         /// model (models/<id>.npz, found by the dataset's model id).
+        #[arg(long = "model", value_name = "MODEL", visible_alias = "template")]
+        template: Option<PathBuf>,
+    },
+    /// Solve where a sensor's points sit — a 2D detector's keypoints off the joint centres, a
+    /// marker set off the model's vertices — from frames whose poses are known (a calibration
+    /// recording: the dataset's ground truth, or --poses, e.g. the fit of motion capture filmed
+    /// alongside); writes the offsets for `lfit fit --offsets`.
+    Calibrate {
+        /// The calibration recording: a markers or keypoints2d dataset (.npz).
+        #[arg(long)]
+        data: PathBuf,
+        /// The poses its frames were recorded at: the result JSON of `lfit fit` (any modality;
+        /// its frames name the dataset's), or {"pose"} / {"poses"}. Default: the dataset's
+        /// ground truth.
+        #[arg(long)]
+        poses: Option<PathBuf>,
+        /// σ of the offsets' Gaussian prior, mm (default: 20 for markers, 30 for keypoints, as
+        /// --marker-placement solve).
+        #[arg(long, value_name = "MM")]
+        prior_mm: Option<f64>,
+        /// Output JSON (written atomically).
+        #[arg(long)]
+        out: PathBuf,
+        /// Model: a model file (.npz) or a template directory, if the dataset was made with
+        /// neither the procedural template nor a shipped model (models/<id>.npz).
         #[arg(long = "model", value_name = "MODEL", visible_alias = "template")]
         template: Option<PathBuf>,
     },
@@ -685,6 +715,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             uniform_share,
             marker_slip_mm,
             keypoint_bias_mm,
+            keypoint_detector,
             cameras,
             template,
         } => {
@@ -700,6 +731,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 motions: library_motions,
                 marker_slip_mm,
                 keypoint_bias_mm,
+                keypoint_detector,
                 out,
             };
             let files = lfit::data::MotionFilesArgs {
@@ -902,6 +934,19 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             bar.finish_and_clear();
             result
         }
+        Command::Calibrate {
+            data,
+            poses,
+            prior_mm,
+            out,
+            template,
+        } => lfit::cli::calibrate::calibrate(&lfit::cli::calibrate::CalibrateArgs {
+            data,
+            poses,
+            template,
+            prior_mm,
+            out,
+        }),
         Command::Optimize {
             function,
             dim,

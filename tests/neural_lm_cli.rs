@@ -1099,3 +1099,140 @@ fn solved_keypoint_placement_explains_biased_keypoints() {
         energy(&model)
     );
 }
+
+/// `lfit calibrate` (a detector's keypoint offsets solved once at known poses) recovers the
+/// synthetic detector's offsets from a calibration recording, and `lfit fit --offsets` with them
+/// explains other subjects' keypoints from the same detector better than the joint centres; bad
+/// inputs are refused with one line and nothing written.
+#[test]
+fn a_calibrated_detector_serves_other_subjects() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let detector = ["--keypoint-bias-mm", "20", "--keypoint-detector", "5"];
+    let with_noise = |noise: &'static str| {
+        let mut a = vec!["--noise", noise];
+        a.extend(detector);
+        a
+    };
+    let cal = synth_modality(
+        tmp.path(),
+        "cal.npz",
+        "keypoints2d",
+        "local",
+        12,
+        101,
+        &with_noise("0"),
+    );
+    let cal_json = tmp.path().join("cal.json");
+    let model = root(MODEL);
+    let calibrate = |extra: &[&str], out: &Path| {
+        let mut args = vec![
+            "-q",
+            "calibrate",
+            "--model",
+            path_str(&model),
+            "--out",
+            path_str(out),
+        ];
+        args.extend(extra);
+        lfit(&args)
+    };
+    let o = calibrate(&["--data", path_str(&cal)], &cal_json);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let doc: Value = serde_json::from_slice(&std::fs::read(&cal_json).expect("cal")).expect("json");
+    let c = &doc["calibration"];
+    assert_eq!(num(&c["frames"]), 12.0);
+    assert!(
+        num(&c["data_term_after"]) < 1e-3 * num(&c["data_term_before"]),
+        "noise-free keypoints at their true poses: {c}"
+    );
+    // The detector's own offsets, pulled a little towards the joint centres by the prior (30 mm);
+    // with a prior 1 m wide, within 0.1 mm.
+    let truth = lfit_synth::detector_offsets(5, 0.02, 31);
+    let norm = |v: [f64; 3]| (0..3).map(|a| v[a] * v[a]).sum::<f64>().sqrt();
+    let offsets = |doc: &Value| -> Vec<[f64; 3]> {
+        let solved: Vec<[f64; 3]> =
+            serde_json::from_value(doc["keypoint_offsets"].clone()).expect("offsets");
+        assert_eq!(solved.len(), truth.len());
+        solved
+    };
+    for (j, (s, t)) in offsets(&doc).iter().zip(&truth).enumerate() {
+        let d = norm([s[0] - t[0], s[1] - t[1], s[2] - t[2]]);
+        assert!(d < 0.05 * norm(*t) && norm(*s) < norm(*t), "joint {j}: {s:?} vs {t:?}");
+    }
+    let wide_json = tmp.path().join("wide.json");
+    let o = calibrate(&["--data", path_str(&cal), "--prior-mm", "1000"], &wide_json);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let wide: Value =
+        serde_json::from_slice(&std::fs::read(&wide_json).expect("wide")).expect("json");
+    assert_eq!(num(&wide["calibration"]["prior_mm"]), 1000.0);
+    for (j, (s, t)) in offsets(&wide).iter().zip(&truth).enumerate() {
+        let d = norm([s[0] - t[0], s[1] - t[1], s[2] - t[2]]);
+        assert!(d < 1e-4, "joint {j}, wide prior: {s:?} vs {t:?}");
+    }
+    // Other subjects and poses, the same detector, default noise: LM per frame with the
+    // calibration against the joint centres.
+    let eval = synth_modality(
+        tmp.path(),
+        "eval.npz",
+        "keypoints2d",
+        "local",
+        8,
+        202,
+        &with_noise("1"),
+    );
+    let fit = |name: &str, extra: &[&str]| {
+        let out = tmp.path().join(name);
+        let o = lm50(&eval, &out, extra);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let r: Value = serde_json::from_slice(&std::fs::read(&out).expect("fit")).expect("json");
+        (
+            num(&r["summary"]["mean_energy"]),
+            num(&r["summary"]["mean_v2v_mm"]),
+        )
+    };
+    let (bare, calibrated) = (
+        fit("bare.json", &[]),
+        fit("calibrated.json", &["--offsets", path_str(&cal_json)]),
+    );
+    assert!(
+        calibrated.0 < 0.8 * bare.0 && calibrated.1 < 0.6 * bare.1,
+        "(energy, V2V) with the calibration {calibrated:?}, joint centres {bare:?}"
+    );
+    // Refusals, nothing written.
+    let hmd = synth_modality(tmp.path(), "hmd.npz", "hmd", "local", 2, 3, &[]);
+    let never = tmp.path().join("never.json");
+    for (extra, needle) in [
+        (vec!["--data", path_str(&hmd)], "markers or 2D keypoints"),
+        (
+            vec!["--data", path_str(&cal), "--prior-mm=-1"],
+            "--prior-mm",
+        ),
+        (
+            vec!["--data", path_str(&cal), "--prior-mm", "0"],
+            "--prior-mm",
+        ),
+        (
+            vec!["--data", path_str(&cal), "--poses", path_str(&never)],
+            "cannot read",
+        ),
+        (vec!["--data", "no-such.npz"], "no-such.npz"),
+    ] {
+        assert_one_line_error(&calibrate(&extra, &never), needle);
+        assert!(!never.exists(), "{extra:?} wrote its output");
+    }
+    // Poses of frames the recording does not have.
+    let late = tmp.path().join("late.json");
+    std::fs::write(
+        &late,
+        serde_json::json!({"frames": [{"frame": 40, "pose": vec![0.0; 96]}]}).to_string(),
+    )
+    .expect("write");
+    assert_one_line_error(
+        &calibrate(
+            &["--data", path_str(&cal), "--poses", path_str(&late)],
+            &never,
+        ),
+        "out of range",
+    );
+    assert!(!never.exists());
+}

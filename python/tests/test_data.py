@@ -96,6 +96,14 @@ def test_synth_keypoint_bias_equals_the_cli_and_moves_only_the_observations(cli,
             lfit.synth("keypoints2d", MH, frames=3, keypoint_bias_mm=bad, out=tmp_path / "bad.npz")
     with pytest.raises(lfit.LfitError, match="keypoint_bias.*markers"):
         lfit.synth("markers", MH, frames=3, keypoint_bias_mm=10.0, out=tmp_path / "bad.npz")
+    # A synthetic detector's offsets (every subject alike): the CLI's dataset, byte for byte.
+    det_cli = tmp_path / "det-cli.npz"
+    cli("synth", "--modality", "keypoints2d", "--model", MH, "--frames", 4, "--seed", 8, "--noise", 0, "--keypoint-bias-mm", 20, "--keypoint-detector", 3, "--out", det_cli)
+    det = lfit.synth("keypoints2d", MH, frames=4, seed=8, noise=0.0, keypoint_bias_mm=20.0, keypoint_detector=3, out=tmp_path / "det.npz")
+    assert (tmp_path / "det.npz").read_bytes() == det_cli.read_bytes()
+    assert det.summary["keypoint_detector"] == 3 and det.meta["config"]["keypoint_detector"] == 3
+    with pytest.raises(lfit.LfitError, match="keypoint_detector"):
+        lfit.synth("keypoints2d", MH, frames=3, keypoint_detector=3, out=tmp_path / "bad.npz")
     assert not (tmp_path / "bad.npz").exists()
 
 

@@ -307,12 +307,17 @@ pub fn read_offsets(path: &std::path::Path) -> Result<(Vec<[f64; 3]>, Option<&'s
     let (list, kind) = if doc.is_array() {
         (&doc, None)
     } else {
-        let pass = &doc["summary"]["shape_pass"];
+        // An `lfit calibrate` file names them at the top; a fit result in its shape pass.
+        let pass = if doc.get("calibration").is_some() {
+            &doc
+        } else {
+            &doc["summary"]["shape_pass"]
+        };
         match (pass.get("marker_offsets"), pass.get("keypoint_offsets")) {
             (Some(m), _) => (m, Some("marker")),
             (None, Some(k)) => (k, Some("keypoint")),
             (None, None) => bail!(
-                "{}: neither a list of [x, y, z] offsets nor an lfit fit result with summary.shape_pass.marker_offsets or keypoint_offsets (a --marker-placement solve of a sequence)",
+                "{}: neither a list of [x, y, z] offsets, an lfit calibrate file, nor an lfit fit result with summary.shape_pass.marker_offsets or keypoint_offsets (a --marker-placement solve of a sequence)",
                 what()
             ),
         }

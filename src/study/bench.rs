@@ -752,6 +752,7 @@ pub fn run(
                     motions: None,
                     marker_slip_mm: 0.0,
                     keypoint_bias_mm: 0.0,
+                    keypoint_detector: None,
                     out: path.clone(),
                 };
                 let files = crate::data::MotionFilesArgs {

@@ -151,6 +151,13 @@ pub struct SynthConfig {
     /// the metadata, so other datasets keep their bytes); at most [`MAX_MARKER_SLIP`].
     #[serde(default, skip_serializing_if = "is_zero")]
     pub keypoint_bias: f64,
+    /// keypoints2d with a [`SynthConfig::keypoint_bias`]: the offsets are a detector's, not a
+    /// subject's — drawn once from this seed and shared by every subject of every dataset made
+    /// with the same detector seed and bias (a 2D detector puts its hip where its training
+    /// annotations put hips, whoever is filmed). `None` (the default, absent from the
+    /// metadata): one draw per subject from the dataset's seed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub keypoint_detector: Option<u64>,
 }
 
 /// The largest [`SynthConfig::marker_slip`] and [`SynthConfig::keypoint_bias`] accepted, metres.
@@ -305,6 +312,7 @@ impl SynthConfig {
             uniform_share: 0.0,
             marker_slip: 0.0,
             keypoint_bias: 0.0,
+            keypoint_detector: None,
         }
     }
 
@@ -391,6 +399,13 @@ impl SynthConfig {
                 "keypoint_bias",
                 format!("{} m", self.keypoint_bias),
                 &reason,
+            );
+        }
+        if let (Some(seed), true) = (self.keypoint_detector, self.keypoint_bias <= 0.0) {
+            return setting(
+                "keypoint_detector",
+                seed.to_string(),
+                "a detector's offsets are drawn with keypoint_bias's σ: give a keypoint bias above 0",
             );
         }
         for f in &self.motion_files {

@@ -39,6 +39,28 @@ const SHAPE_STREAM: u64 = 3 << 32;
 const SLIP_STREAM: u64 = 9 << 32;
 /// Streams of the keypoint biases ([`SynthConfig::keypoint_bias`]), one per subject.
 const BIAS_STREAM: u64 = 11 << 32;
+/// The stream of a detector's keypoint offsets ([`SynthConfig::keypoint_detector`]).
+const DETECTOR_STREAM: u64 = 12 << 32;
+
+/// The keypoint offsets of the synthetic 2D detector `seed` ([`SynthConfig::keypoint_detector`])
+/// on a skeleton of `joints` joints: per joint a normal draw of `sigma` (metres) per axis in
+/// the rest frame, the same for every subject and dataset. What `lfit synth
+/// --keypoint-detector` observes through, and what `lfit calibrate` should recover.
+pub fn detector_offsets(seed: u64, sigma: f64, joints: usize) -> Vec<[f64; 3]> {
+    normal_offsets(&mut stream(seed, DETECTOR_STREAM), sigma, joints)
+}
+
+/// `joints` offsets of `sigma` per axis.
+fn normal_offsets(rng: &mut ChaCha8Rng, sigma: f64, joints: usize) -> Vec<[f64; 3]> {
+    (0..joints)
+        .map(|_| {
+            [0; 3].map(|_| {
+                let x: f64 = StandardNormal.sample(rng);
+                x * sigma
+            })
+        })
+        .collect()
+}
 /// Streams of the motion-file augmentation draws (apart from the pose streams, so a
 /// configuration without augmentation gives the poses it gave before).
 const AUGMENT_STREAM: u64 = 5 << 32;
@@ -237,6 +259,8 @@ struct KeypointBias {
     sigma: f64,
     seed: u64,
     joints: usize,
+    /// A detector's offsets, shared by every subject ([`SynthConfig::keypoint_detector`]).
+    detector: Option<Vec<[f64; 3]>>,
 }
 
 impl KeypointBias {
@@ -245,25 +269,29 @@ impl KeypointBias {
         let Sensor::Keypoints2d(setup) = sensor else {
             return None;
         };
+        let joints = template.rig.num_joints();
         (config.keypoint_bias > 0.0).then(|| Self {
             setup: setup.clone(),
             sigma: config.keypoint_bias,
             seed: config.seed,
-            joints: template.rig.num_joints(),
+            joints,
+            detector: config
+                .keypoint_detector
+                .map(|seed| detector_offsets(seed, config.keypoint_bias, joints)),
         })
     }
 
-    /// The keypoints2d sensor of subject `subject`: every keypoint at its drawn offset.
+    /// The keypoints2d sensor of subject `subject`: every keypoint at its drawn offset (the
+    /// detector's, when there is one).
     fn sensor(&self, subject: u64) -> Sensor {
-        let mut rng = stream(self.seed, BIAS_STREAM + subject);
-        let offsets = (0..self.joints)
-            .map(|_| {
-                [0; 3].map(|_| {
-                    let x: f64 = StandardNormal.sample(&mut rng);
-                    x * self.sigma
-                })
-            })
-            .collect();
+        let offsets = match &self.detector {
+            Some(d) => d.clone(),
+            None => normal_offsets(
+                &mut stream(self.seed, BIAS_STREAM + subject),
+                self.sigma,
+                self.joints,
+            ),
+        };
         Sensor::Keypoints2d(self.setup.placed(offsets))
     }
 }
@@ -1258,6 +1286,63 @@ mod tests {
         m.keypoint_bias = 0.01;
         let e = m.validate().unwrap_err().to_string();
         assert!(e.contains("keypoint_bias") && e.contains("markers"), "{e}");
+    }
+
+    #[test]
+    fn a_detector_offsets_every_subject_alike() {
+        let t = default_template();
+        let sensor = Sensor::default_for(Modality::Keypoints2d, &t);
+        let sigma = 0.02;
+        let config = |seed: u64, detector: Option<u64>| {
+            let mut c = SynthConfig::new(Modality::Keypoints2d, Scenario::Local, 4, seed);
+            c.noise = NoiseConfig::none();
+            c.keypoint_bias = sigma;
+            c.keypoint_detector = detector;
+            c
+        };
+        let offsets = |c: &SynthConfig, subject: u64| match KeypointBias::new(c, &t, &sensor)
+            .unwrap()
+            .sensor(subject)
+        {
+            Sensor::Keypoints2d(k) => k.offsets,
+            _ => panic!("keypoints2d sensor"),
+        };
+        let nj = t.rig.num_joints();
+        let detector = detector_offsets(7, sigma, nj);
+        assert_eq!(detector.len(), nj);
+        // Every subject of every dataset seed: the detector's offsets.
+        for seed in [5, 6] {
+            for subject in [0, 1, 3] {
+                assert_eq!(offsets(&config(seed, Some(7)), subject), detector);
+            }
+        }
+        assert_ne!(detector_offsets(8, sigma, nj), detector);
+        assert_ne!(offsets(&config(5, None), 1), offsets(&config(5, None), 2));
+        // The frames are observed through it; the metadata names it only when set.
+        let c = config(5, Some(7));
+        let data = synthesize(&c, &t, &sensor, &|_| {}).unwrap();
+        let Observations::Sparse { values, .. } = &data.observations else {
+            panic!("sparse")
+        };
+        let placed = sensor.placed(detector.clone()).unwrap();
+        for (obs, gt) in values.iter().zip(&data.gt_poses) {
+            assert_eq!(obs, &placed.predict_sparse(&t, gt).values);
+        }
+        assert!(
+            serde_json::to_string(&c)
+                .unwrap()
+                .contains("keypoint_detector")
+        );
+        assert!(
+            !serde_json::to_string(&config(5, None))
+                .unwrap()
+                .contains("keypoint_detector")
+        );
+        // A detector without a bias is refused.
+        let mut bare = config(5, Some(7));
+        bare.keypoint_bias = 0.0;
+        let e = bare.validate().unwrap_err().to_string();
+        assert!(e.contains("keypoint_detector"), "{e}");
     }
 
     #[test]

@@ -232,6 +232,7 @@ def synth(
     uniform_share: float = 0.0,
     marker_slip_mm: float = 0.0,
     keypoint_bias_mm: float = 0.0,
+    keypoint_detector: Optional[int] = None,
     cameras: Optional[int] = None,
     out: Optional[_Path] = None,
 ) -> Dataset:
