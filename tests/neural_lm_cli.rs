@@ -1157,10 +1157,16 @@ fn a_calibrated_detector_serves_other_subjects() {
     };
     for (j, (s, t)) in offsets(&doc).iter().zip(&truth).enumerate() {
         let d = norm([s[0] - t[0], s[1] - t[1], s[2] - t[2]]);
-        assert!(d < 0.05 * norm(*t) && norm(*s) < norm(*t), "joint {j}: {s:?} vs {t:?}");
+        assert!(
+            d < 0.05 * norm(*t) && norm(*s) < norm(*t),
+            "joint {j}: {s:?} vs {t:?}"
+        );
     }
     let wide_json = tmp.path().join("wide.json");
-    let o = calibrate(&["--data", path_str(&cal), "--prior-mm", "1000"], &wide_json);
+    let o = calibrate(
+        &["--data", path_str(&cal), "--prior-mm", "1000"],
+        &wide_json,
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let wide: Value =
         serde_json::from_slice(&std::fs::read(&wide_json).expect("wide")).expect("json");
