@@ -3,6 +3,7 @@
 //! every one is the command's own code with the file reading and writing left to the caller,
 //! and the command calls it too.
 
+pub use crate::cli::calibrate::calibrate_dataset;
 pub use crate::cli::commands::model_info;
 pub use crate::cli::data_import::{ImportArgs as DataImportArgs, import_dataset};
 pub use crate::cli::fit::{FitArgs, FrameProblem, fit_dataset, parse_frames, read_energy_config};

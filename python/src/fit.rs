@@ -384,3 +384,42 @@ pub fn fit(
     };
     Ok(FitResult::new(document, dims))
 }
+
+/// Solves where the markers or 2D keypoints of `data` sit, at poses that are known, as `lfit
+/// calibrate` does (a detector's keypoint offsets, a marker set's placement; for `fit(...,
+/// offsets=)`). `model`: the dataset's model (default: the one it names). `data`: a `Dataset` or
+/// its path. `poses`: the result JSON of `lfit fit` (or a `{"pose"}`/`{"poses"}` file) of the
+/// poses its frames were recorded at, e.g. a fit of the motion capture filmed alongside;
+/// default: the dataset's ground truth. `prior_mm`: σ of the offsets' prior (default 20 mm for
+/// markers, 30 for keypoints). Returns `{"calibration": {...}, "keypoint_offsets" |
+/// "marker_offsets": [[x, y, z], ...]}`, written to `out` too when given.
+#[pyfunction]
+#[pyo3(signature = (model, data, *, poses=None, prior_mm=None, out=None))]
+pub fn calibrate<'py>(
+    py: Python<'py>,
+    model: Option<&Bound<'py, PyAny>>,
+    data: &Bound<'py, PyAny>,
+    poses: Option<PathBuf>,
+    prior_mm: Option<f64>,
+    out: Option<PathBuf>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let template = optional_model(model)?;
+    let (dataset, path) = dataset_arg(data)?;
+    let doc = without_gil(py, |_| {
+        let template = match template {
+            Some(t) => {
+                lfit::api::check_model(&dataset, &t)?;
+                t
+            }
+            None => lfit::api::template_for(&dataset, None)?,
+        };
+        let name = path.map_or_else(|| "the dataset".into(), |p| p.display().to_string());
+        let doc =
+            lfit::api::calibrate_dataset(&dataset, &name, template, poses.as_deref(), prior_mm)?;
+        if let Some(out) = &out {
+            lfit::model::template::write_atomic(out, &serde_json::to_vec_pretty(&doc)?)?;
+        }
+        Ok(doc)
+    })?;
+    json_to_py(py, &doc)
+}

@@ -27,5 +27,6 @@ fn _lfit(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(dataset::import_keypoints, m)?)?;
     m.add_function(wrap_pyfunction!(dataset::import_bvh, m)?)?;
     m.add_function(wrap_pyfunction!(fit::fit, m)?)?;
+    m.add_function(wrap_pyfunction!(fit::calibrate, m)?)?;
     Ok(())
 }

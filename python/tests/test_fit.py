@@ -221,3 +221,31 @@ def test_solved_marker_placement_equals_the_cli(makehuman, cli, tmp_path):
     bad.write_text("[[0, 0, 0]]")
     with pytest.raises(lfit.LfitError, match="--offsets: .*marker offsets"):
         lfit.fit(makehuman, data, method="lm", budget=20, offsets=bad)
+
+
+def test_calibrate_equals_the_cli_on_slipped_markers(makehuman, cli, tmp_path):
+    """calibrate(): a marker set's placement at the sequence's true poses, the CLI's document;
+    it explains the slipped markers and serves fit(offsets=); refused with the CLI's line."""
+    model = ROOT / "models" / "makehuman-cmu_mb.npz"
+    data = tmp_path / "slip.npz"
+    cli("synth", "--modality", "markers", "--scenario", "sequence", "--model", model,
+        "--frames", 6, "--seed", 14, "--noise", 0, "--marker-slip-mm", 15, "--out", data)
+    theirs_path = tmp_path / "cli-cal.json"
+    cli("calibrate", "--data", data, "--model", model, "--out", theirs_path)
+    theirs = json.loads(theirs_path.read_text())
+    ours_path = tmp_path / "py-cal.json"
+    ours = lfit.calibrate(makehuman, data, out=ours_path)
+    assert ours["marker_offsets"] == theirs["marker_offsets"] and len(ours["marker_offsets"]) == 39
+    assert json.loads(ours_path.read_text())["marker_offsets"] == theirs["marker_offsets"]
+    cal = ours["calibration"]
+    assert cal["poses"] == "ground truth" and cal["frames"] == 6 and cal["prior_mm"] == 20.0
+    assert cal["data_term_after"] < 0.05 * cal["data_term_before"], cal
+    placed = lfit.fit(makehuman, data, method="lm", budget=100, offsets=ours_path, seed=3)
+    plain = lfit.fit(makehuman, data, method="lm", budget=100, seed=3)
+    assert placed.summary["mean_energy"] < 0.5 * plain.summary["mean_energy"]
+    with pytest.raises(lfit.LfitError, match="--prior-mm"):
+        lfit.calibrate(makehuman, data, prior_mm=0.0, out=tmp_path / "never.json")
+    hmd = lfit.synth("hmd", makehuman, frames=2, seed=1)
+    with pytest.raises(lfit.LfitError, match="markers or 2D keypoints"):
+        lfit.calibrate(makehuman, hmd, out=tmp_path / "never.json")
+    assert not (tmp_path / "never.json").exists()

@@ -11,13 +11,14 @@
 //! [`lfit_model::energy::marker_offsets`]), as SMPLify-style fits learn a regressor for a
 //! detector's joints once on data with known bodies instead of per sequence.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
 use glam::DVec3;
 use lfit_model::energy::{Energy, EnergyConfig};
 use lfit_model::observe::Modality;
-use lfit_model::template::write_atomic;
+use lfit_model::template::{Template, write_atomic};
 use lfit_synth::Dataset;
 use serde_json::{Value, json};
 
@@ -46,37 +47,56 @@ pub struct CalibrateArgs {
 pub fn calibrate(args: &CalibrateArgs) -> Result<Value> {
     let dataset =
         Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()))?;
+    let template = crate::cli::fit::template_for(&dataset, args.template.as_deref())?;
+    let doc = calibrate_dataset(
+        &dataset,
+        &args.data.display().to_string(),
+        template,
+        args.poses.as_deref(),
+        args.prior_mm,
+    )?;
+    write_atomic(&args.out, &serde_json::to_vec_pretty(&doc)?)?;
+    Ok(json!({ "out": args.out, "calibration": doc["calibration"] }))
+}
+
+/// The document `lfit calibrate` writes, for `dataset` (named `name` in it) of model
+/// `template`: its sensor's offsets solved at the poses of `poses` (a fit result or pose file;
+/// `None`: the dataset's ground truth) under a prior of `prior_mm` (`None`: the placement
+/// solve's). Nothing written.
+pub fn calibrate_dataset(
+    dataset: &Dataset,
+    name: &str,
+    template: Arc<Template>,
+    poses: Option<&Path>,
+    prior_mm: Option<f64>,
+) -> Result<Value> {
     let modality = dataset.modality();
     let (key, default_prior) = match modality {
         Modality::Markers => ("marker_offsets", MARKER_OFFSET_PRIOR_M),
         Modality::Keypoints2d => ("keypoint_offsets", KEYPOINT_OFFSET_PRIOR_M),
         other => bail!(
-            "lfit calibrate solves where markers or 2D keypoints sit; {} is a {other} dataset",
-            args.data.display()
+            "lfit calibrate solves where markers or 2D keypoints sit; {name} is a {other} dataset"
         ),
     };
-    let prior = match args.prior_mm {
+    let prior = match prior_mm {
         None => default_prior,
         Some(mm) if mm.is_finite() && mm > 0.0 => mm / 1000.0,
         Some(mm) => bail!("--prior-mm {mm}: the prior's σ must be a positive number of mm"),
     };
-    let template = crate::cli::fit::template_for(&dataset, args.template.as_deref())?;
-    let (frames, source): (Vec<(usize, Vec<f64>)>, String) = match &args.poses {
+    let (frames, source): (Vec<(usize, Vec<f64>)>, String) = match poses {
         Some(path) => {
             let fitted = read_fitted_poses(path, &template)?;
             if let Some(&(frame, _)) = fitted.frames.iter().find(|(f, _)| *f >= dataset.len()) {
                 bail!(
-                    "{}: frame {frame} is out of range: the dataset {} has {} frames",
+                    "{}: frame {frame} is out of range: the dataset {name} has {} frames",
                     path.display(),
-                    args.data.display(),
                     dataset.len()
                 );
             }
             (fitted.frames, path.display().to_string())
         }
         None if dataset.gt_poses.is_empty() => bail!(
-            "{} has no ground-truth poses (imported observations): give the poses its frames were recorded at with --poses (e.g. the lfit fit result of the motion capture filmed alongside)",
-            args.data.display()
+            "{name} has no ground-truth poses (imported observations): give the poses its frames were recorded at with --poses (e.g. the lfit fit result of the motion capture filmed alongside)"
         ),
         None => (
             dataset.gt_poses.iter().cloned().enumerate().collect(),
@@ -86,7 +106,7 @@ pub fn calibrate(args: &CalibrateArgs) -> Result<Value> {
     let config = EnergyConfig::default();
     let energies: Vec<Energy> = frames
         .iter()
-        .map(|&(f, _)| energy_for_frame(&dataset, template.clone(), f, config.clone()))
+        .map(|&(f, _)| energy_for_frame(dataset, template.clone(), f, config.clone()))
         .collect::<Result<_>>()?;
     let poses: Vec<Vec<f64>> = frames.iter().map(|(_, p)| p.clone()).collect();
     let solved = match modality {
@@ -114,7 +134,7 @@ pub fn calibrate(args: &CalibrateArgs) -> Result<Value> {
         * (solved.iter().map(|d| d.length_squared()).sum::<f64>() / solved.len().max(1) as f64)
             .sqrt();
     let calibration = json!({
-        "data": args.data,
+        "data": name,
         "modality": modality.name(),
         "template": template.id,
         "frames": frames.len(),
@@ -124,7 +144,5 @@ pub fn calibrate(args: &CalibrateArgs) -> Result<Value> {
         "data_term_after": after,
         "offset_rms_mm": rms_mm,
     });
-    let doc = json!({ "calibration": calibration, key: offsets });
-    write_atomic(&args.out, &serde_json::to_vec_pretty(&doc)?)?;
-    Ok(json!({ "out": args.out, "calibration": calibration }))
+    Ok(json!({ "calibration": calibration, key: offsets }))
 }

@@ -278,6 +278,18 @@ def import_bvh(
 ) -> Motion:
     """``lfit motion import --bvh``."""
 
+def calibrate(
+    model: Optional[_ModelArg],
+    data: _DataArg,
+    *,
+    poses: Optional[_Path] = None,
+    prior_mm: Optional[float] = None,
+    out: Optional[_Path] = None,
+) -> Dict[str, Any]:
+    """``lfit calibrate``: the markers' or keypoints' offsets at known poses (the dataset's ground
+    truth, or ``poses``: a fit result), as the document ``fit(..., offsets=)`` reads; written to
+    ``out`` too when given."""
+
 def fit(
     model: Optional[_ModelArg],
     data: _DataArg,
