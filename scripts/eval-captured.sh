@@ -25,12 +25,6 @@ eval_setup eval-captured "$OUT"
 FRAMES="${EVAL_FRAMES:-454}"
 PROC_FRAMES="${PROC_FRAMES:-500}"
 rows=()
-run() { # name data method extra...
-    local name="$1" data="$2" method="$3"
-    shift 3
-    "$LFIT" -q fit --data "$data" --template "$MODEL" --method "$method" --out "$OUT/$name.json" "$@" >/dev/null
-    rows+=("$name")
-}
 for m in ${MODALITIES:-markers keypoints2d hmd}; do
     ck="checkpoints/$m-makehuman$SUFFIX"
     eval_need_dir eval-captured "$ck"
@@ -40,47 +34,47 @@ for m in ${MODALITIES:-markers keypoints2d hmd}; do
     data="$OUT/procedural-$m.npz"
     "$LFIT" -q synth --modality "$m" --scenario local --frames "$PROC_FRAMES" --seed "$SEED" \
         --template "$MODEL" --out "$data" >/dev/null
-    run "$m-procedural-neural" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}"
-    run "$m-procedural-lm" "$data" lm --budget 4000 "${known[@]}"
-    run "$m-procedural-neural+lm" "$data" neural+lm --checkpoint "$ck" --neural-start given --budget 4000 "${known[@]}"
+    eval_run "$m-procedural-neural" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}"
+    eval_run "$m-procedural-lm" "$data" lm --budget 4000 "${known[@]}"
+    eval_run "$m-procedural-neural+lm" "$data" neural+lm --checkpoint "$ck" --neural-start given --budget 4000 "${known[@]}"
     for scenario in local sequence; do
         data="$OUT/clip-$scenario-$m.npz"
         "$LFIT" -q synth --modality "$m" --scenario "$scenario" --frames "$FRAMES" --seed "$SEED" \
             --template "$MODEL" --motions "$OUT/clip-motion.npz" --out "$data" >/dev/null
-        run "$m-$scenario-lm" "$data" lm --budget 4000 "${known[@]}"
+        eval_run "$m-$scenario-lm" "$data" lm --budget 4000 "${known[@]}"
         if [ "$scenario" = local ]; then
-            run "$m-$scenario-neural" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}"
-            run "$m-$scenario-neural-best" "$data" neural --checkpoint "$ck" --neural-start best --budget 12 "${known[@]}"
-            run "$m-$scenario-neural+lm" "$data" neural+lm --checkpoint "$ck" --neural-start given --budget 4000 "${known[@]}"
-            run "$m-$scenario-neural+lm-all" "$data" neural+lm --checkpoint "$ck" --neural-start given --budget 4000 \
+            eval_run "$m-$scenario-neural" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}"
+            eval_run "$m-$scenario-neural-best" "$data" neural --checkpoint "$ck" --neural-start best --budget 12 "${known[@]}"
+            eval_run "$m-$scenario-neural+lm" "$data" neural+lm --checkpoint "$ck" --neural-start given --budget 4000 "${known[@]}"
+            eval_run "$m-$scenario-neural+lm-all" "$data" neural+lm --checkpoint "$ck" --neural-start given --budget 4000 \
                 --dofs all "${known[@]}"
-            run "$m-$scenario-lm-observed" "$data" lm --budget 4000 --dofs observed "${known[@]}"
+            eval_run "$m-$scenario-lm-observed" "$data" lm --budget 4000 --dofs observed "${known[@]}"
         else
-            run "$m-$scenario-neural-previous" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}"
-            run "$m-$scenario-neural-best" "$data" neural --checkpoint "$ck" --neural-start best --budget 12 "${known[@]}"
+            eval_run "$m-$scenario-neural-previous" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}"
+            eval_run "$m-$scenario-neural-best" "$data" neural --checkpoint "$ck" --neural-start best --budget 12 "${known[@]}"
             if [ "$m" != hmd ]; then
-                run "$m-$scenario-neural-best-first-pass" "$data" neural --checkpoint "$ck" --neural-start best \
+                eval_run "$m-$scenario-neural-best-first-pass" "$data" neural --checkpoint "$ck" --neural-start best \
                     --budget 12 --sequence-shape first-pass
-                run "$m-$scenario-neural+lm-best-first-pass" "$data" neural+lm --checkpoint "$ck" \
+                eval_run "$m-$scenario-neural+lm-best-first-pass" "$data" neural+lm --checkpoint "$ck" \
                     --neural-start best --budget 4000 --sequence-shape first-pass
             fi
-            run "$m-$scenario-neural+lm-best" "$data" neural+lm --checkpoint "$ck" --neural-start best \
+            eval_run "$m-$scenario-neural+lm-best" "$data" neural+lm --checkpoint "$ck" --neural-start best \
                 --budget 4000 "${known[@]}"
             # The best measured sequence policies (round 14): a fit from the previous result and
             # one from Φ(D) per frame, the lower-energy kept, then LM (markers, keypoints2d); each
             # frame from Φ(D), then LM (hmd, whose legs the trackers do not see).
             if [ "$m" != hmd ]; then
-                run "$m-$scenario-neural+lm-both" "$data" neural+lm --checkpoint "$ck" --neural-start both \
+                eval_run "$m-$scenario-neural+lm-both" "$data" neural+lm --checkpoint "$ck" --neural-start both \
                     --budget 4000
                 # One β for the sequence (round 15): the sequence fitted once, β solved jointly
                 # over 64 of its frames, the sequence fitted again with it; every method alike.
-                run "$m-$scenario-lm-joint64" "$data" lm --budget 4000 --sequence-shape joint:64
-                run "$m-$scenario-neural-both-joint64" "$data" neural --checkpoint "$ck" \
+                eval_run "$m-$scenario-lm-joint64" "$data" lm --budget 4000 --sequence-shape joint:64
+                eval_run "$m-$scenario-neural-both-joint64" "$data" neural --checkpoint "$ck" \
                     --neural-start both --budget 24 --sequence-shape joint:64
-                run "$m-$scenario-neural+lm-both-joint64" "$data" neural+lm --checkpoint "$ck" \
+                eval_run "$m-$scenario-neural+lm-both-joint64" "$data" neural+lm --checkpoint "$ck" \
                     --neural-start both --budget 4000 --sequence-shape joint:64
             else
-                run "$m-$scenario-neural+lm-phi" "$data" neural+lm --checkpoint "$ck" --neural-start phi \
+                eval_run "$m-$scenario-neural+lm-phi" "$data" neural+lm --checkpoint "$ck" --neural-start phi \
                     --budget 4000 "${known[@]}"
             fi
         fi

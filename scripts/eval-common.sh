@@ -1,10 +1,11 @@
-# Shared by scripts/eval-captured.sh, eval-c3d.sh and eval-rigs.sh (sourced, not run): the lfit
+# Shared by the scripts/eval-*.sh scripts (sourced, not run): the lfit
 # binary, the MakeHuman model, the MocapBank evaluation clip retargeted onto it, and the Markdown
 # tables the scripts print.
 #
 #   source scripts/eval-common.sh
 #   eval_setup NAME OUT          # LFIT, MODEL; OUT created; OUT/clip-motion.npz written
 #   eval_need_dir NAME DIR       # exits with a one-line error unless DIR is a directory
+#   eval_run NAME DATA METHOD ARG...  # lfit fit of DATA into OUT/NAME.json; NAME appended to rows
 #   eval_table fits OUT ROW...   # V2V, MPJPE, β RMS, shape V2V, energy, evaluations, time per frame
 #   eval_table c3d OUT ROW...    # share within 5 mm marker RMS, mean/median RMS, evaluations, time
 #
@@ -24,6 +25,13 @@ eval_setup() {
     clip="$(./scripts/fetch-mocapbank.sh)"
     "$LFIT" -q motion import --bvh "$clip" --map configs/maps/mocapbank_to_makehuman_cmu_mb.json \
         --model "$MODEL" --out "$out/clip-motion.npz" >/dev/null
+}
+
+eval_run() {
+    local name="$1" data="$2" method="$3"
+    shift 3
+    "$LFIT" -q fit --data "$data" --template "$MODEL" --method "$method" --out "$OUT/$name.json" "$@" >/dev/null
+    rows+=("$name")
 }
 
 eval_need_dir() {

@@ -45,12 +45,6 @@ for bias in ${BIASES:-10 20}; do
     "$LFIT" -q calibrate --data "$cal" --poses "$OUT/cal-mocap-lm.json" --model "$MODEL" \
         --out "$OUT/cal-$bias-mocap.json" >/dev/null
     rows=()
-    run() { # name data method extra...
-        local name="$1" data="$2" method="$3"
-        shift 3
-        "$LFIT" -q fit --data "$data" --template "$MODEL" --method "$method" --out "$OUT/$name.json" "$@" >/dev/null
-        rows+=("$name")
-    }
     for scenario in local sequence; do
         data="$OUT/clip-$scenario-$bias.npz"
         "$LFIT" -q synth --modality keypoints2d --scenario "$scenario" --frames "$FRAMES" --seed "$SEED" \
@@ -60,13 +54,13 @@ for bias in ${BIASES:-10 20}; do
             [ "$offsets" = none ] || flags=(--offsets "$OUT/cal-$bias-$offsets.json")
             p="bias$bias-$scenario-$offsets"
             if [ "$scenario" = local ]; then
-                run "$p-lm" "$data" lm --budget 4000 "${flags[@]}"
-                run "$p-neural" "$data" neural --checkpoint "$CK" --neural-start given --budget 10 "${flags[@]}"
-                run "$p-neural+lm" "$data" neural+lm --checkpoint "$CK" --neural-start given --budget 4000 \
+                eval_run "$p-lm" "$data" lm --budget 4000 "${flags[@]}"
+                eval_run "$p-neural" "$data" neural --checkpoint "$CK" --neural-start given --budget 10 "${flags[@]}"
+                eval_run "$p-neural+lm" "$data" neural+lm --checkpoint "$CK" --neural-start given --budget 4000 \
                     "${flags[@]}"
             else
-                run "$p-lm-joint64" "$data" lm --budget 4000 --sequence-shape joint:64 "${flags[@]}"
-                run "$p-neural+lm-both-joint64" "$data" neural+lm --checkpoint "$CK" --neural-start both \
+                eval_run "$p-lm-joint64" "$data" lm --budget 4000 --sequence-shape joint:64 "${flags[@]}"
+                eval_run "$p-neural+lm-both-joint64" "$data" neural+lm --checkpoint "$CK" --neural-start both \
                     --budget 4000 --sequence-shape joint:64 "${flags[@]}"
             fi
         done

@@ -40,31 +40,25 @@ eval_need_dir eval-marker-slip "$CK"
 FRAMES="${EVAL_FRAMES:-454}"
 for slip in ${SLIPS:-0 10 20}; do
     rows=()
-    run() { # name data method extra...
-        local name="$1" data="$2" method="$3"
-        shift 3
-        "$LFIT" -q fit --data "$data" --template "$MODEL" --method "$method" --out "$OUT/$name.json" "$@" >/dev/null
-        rows+=("$name")
-    }
     for scenario in local sequence; do
         data="$OUT/clip-$scenario-slip$slip.npz"
         "$LFIT" -q synth --modality "$MODALITY" --scenario "$scenario" --frames "$FRAMES" --seed "$SEED" \
             --template "$MODEL" --motions "$OUT/clip-motion.npz" "$MOVE" "$slip" --out "$data" >/dev/null
         p="slip$slip-$scenario"
         if [ "$scenario" = local ]; then
-            run "$p-lm" "$data" lm --budget 4000
-            run "$p-neural" "$data" neural --checkpoint "$CK" --neural-start given --budget 10
-            run "$p-neural+lm" "$data" neural+lm --checkpoint "$CK" --neural-start given --budget 4000
+            eval_run "$p-lm" "$data" lm --budget 4000
+            eval_run "$p-neural" "$data" neural --checkpoint "$CK" --neural-start given --budget 10
+            eval_run "$p-neural+lm" "$data" neural+lm --checkpoint "$CK" --neural-start given --budget 4000
         else
             for shape in per-frame joint:64 joint:64+solve; do
                 s="${shape/:/}"
                 # joint:64+solve: the joint β pass with each point's offset solved.
                 flags=(--sequence-shape "${shape%+solve}")
                 [ "$shape" = "${shape%+solve}" ] || flags+=(--marker-placement solve)
-                run "$p-lm-$s" "$data" lm --budget 4000 "${flags[@]}"
-                run "$p-neural-both-$s" "$data" neural --checkpoint "$CK" --neural-start both --budget 24 \
+                eval_run "$p-lm-$s" "$data" lm --budget 4000 "${flags[@]}"
+                eval_run "$p-neural-both-$s" "$data" neural --checkpoint "$CK" --neural-start both --budget 24 \
                     "${flags[@]}"
-                run "$p-neural+lm-both-$s" "$data" neural+lm --checkpoint "$CK" --neural-start both \
+                eval_run "$p-neural+lm-both-$s" "$data" neural+lm --checkpoint "$CK" --neural-start both \
                     --budget 4000 "${flags[@]}"
             done
         fi
