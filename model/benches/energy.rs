@@ -4,7 +4,8 @@
 //! in its capsule form (the default), in the vertex form of papers/000 eq. (8) it replaced
 //! (`_vertex_ep`, the reference in the same run) and without EP (`_without_ep`); and the damped
 //! Cholesky solve (what one Levenberg–Marquardt iteration and one Gauss-Newton step of the neural
-//! fitter pay). 32 random parameter vectors
+//! fitter pay); and the face's dense landmarks (value, value + gradient, residuals + Jacobian on
+//! models/makehuman-face.npz). 32 random parameter vectors
 //! (±0.3 rad, translation ±0.3 m, β ~ N(0, 0.5²)) as in the mesh bench.
 //!
 //! Run with `cargo bench -p lfit-model --bench energy` (Burn-free: builds in minutes).
@@ -240,6 +241,48 @@ fn bench(c: &mut Criterion) {
         }
         group.finish();
     }
+    // The face (models/makehuman-face.npz): its dense 2D landmarks, each shaped by identity β and
+    // expression ψ, one camera.
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/makehuman-face.npz");
+    let face = Arc::new(lfit_model::modelfile::load(&path).expect("models/makehuman-face.npz"));
+    let fs = params(&face, 32);
+    let sensor = Sensor::default_for(Modality::Landmarks2d, &face);
+    let pred = sensor.predict_sparse(&face, &fs[0]);
+    let target = Target::Sparse {
+        values: pred.values,
+        visible: pred.visible,
+    };
+    let e = Energy::new(
+        face.clone(),
+        sensor,
+        target,
+        EnergyConfig::default().for_gradient(),
+    )
+    .expect("face energy");
+    let mut group = c.benchmark_group("cost_model/face/landmarks2d");
+    group.throughput(Throughput::Elements(fs.len() as u64));
+    group.bench_function("value", |b| {
+        one.install(|| b.iter(|| fs.iter().map(|p| e.evaluate(p).total).sum::<f64>()))
+    });
+    group.bench_function("value_and_gradient", |b| {
+        one.install(|| {
+            b.iter(|| {
+                fs.iter()
+                    .map(|p| e.evaluate_with_gradient(p).1[0])
+                    .sum::<f64>()
+            })
+        })
+    });
+    group.bench_function("jacobian", |b| {
+        one.install(|| {
+            b.iter(|| {
+                fs.iter()
+                    .map(|p| e.least_squares(p, true).expect("jacobian").energy)
+                    .sum::<f64>()
+            })
+        })
+    });
+    group.finish();
 }
 
 criterion_group! {

@@ -817,7 +817,8 @@ mod least_squares_form {
 
     /// The sensor's vertices shaped once per evaluation ([`Kinematics::shape_vertices`]) give
     /// the value, gradient, residuals and Jacobian of shaping each where it is read, bit for bit
-    /// (markers: 39 vertices; hmd: the two hand tips; keypoints2d reads none).
+    /// (markers: 39 vertices; hmd: the two hand tips; keypoints2d reads none; the face's
+    /// landmarks).
     #[test]
     fn vertices_shaped_once_are_those_shaped_where_read() {
         use rand::SeedableRng;
@@ -853,6 +854,33 @@ mod least_squares_form {
             assert_eq!(a.jacobian, b.jacobian, "{modality}: dense rows");
             assert_eq!(a.points, b.points, "{modality}: point factors");
         }
+        // The face's dense landmarks (identity β and expression ψ shape every landmark).
+        let face = Arc::new(
+            crate::modelfile::load(
+                &std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                    .join("../models/makehuman-face.npz"),
+            )
+            .unwrap(),
+        );
+        let (e, x) = makehuman_energy(&face, Modality::Landmarks2d, &mut rng);
+        assert!(
+            e.observed.len() > 50,
+            "{} landmark vertices",
+            e.observed.len()
+        );
+        let mut unshaped = e.clone();
+        unshaped.observed = Arc::new(VertexSet::default());
+        let (a, b) = (
+            e.evaluate_with_gradient(&x),
+            unshaped.evaluate_with_gradient(&x),
+        );
+        assert_eq!(a.0.total.to_bits(), b.0.total.to_bits(), "face");
+        assert_eq!(a.1, b.1, "face: gradient");
+        let (a, b) = (
+            e.least_squares(&x, true).unwrap(),
+            unshaped.least_squares(&x, true).unwrap(),
+        );
+        assert_eq!((a.residuals, a.jacobian), (b.residuals, b.jacobian), "face");
     }
 
     /// The Jacobian in [`JacobianRows::Factored`] form (what LM asks for) on every sparse

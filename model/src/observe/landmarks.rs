@@ -4,7 +4,7 @@
 use glam::DVec3;
 use rand::RngCore;
 
-use super::builtin::{DEPTH_FLOOR, combine_rows, project};
+use super::builtin::{DEPTH_FLOOR, combine_rows, project, project_camera_adjoint};
 use super::{
     LandmarkSetup, ObservationModel, PoseGradient, PoseJacobian, PosedView, ResidualGroup,
     check_vertices, uniform_groups,
@@ -149,6 +149,10 @@ impl ObservationModel for LandmarkSetup {
         }
     }
 
+    fn vertices_read(&self) -> Vec<u32> {
+        self.vertices.clone()
+    }
+
     fn backprop(&self, posed: &PosedView<'_>, dpred: &[f64], grad: &mut PoseGradient<'_, '_>) {
         let rot_t = self.camera.rot().transpose();
         for (k, &v) in self.vertices.iter().enumerate() {
@@ -156,8 +160,11 @@ impl ObservationModel for LandmarkSetup {
             if gu == 0.0 && gv == 0.0 {
                 continue;
             }
-            let (_, dq) = project(&self.camera, posed.vertex(v as usize));
-            grad.vertex(v as usize, rot_t * (dq[0] * gu + dq[1] * gv));
+            let q = self.camera.to_camera(posed.vertex(v as usize));
+            grad.vertex(
+                v as usize,
+                rot_t * project_camera_adjoint(&self.camera, q, gu, gv),
+            );
         }
     }
 
