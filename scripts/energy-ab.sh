@@ -16,6 +16,9 @@ FILTER="${FILTER:-cost_model/makehuman/(markers|keypoints2d|hmd)/(value|value_an
 mkdir -p "$O"; O="$(cd "$O" && pwd)"
 rm -rf "$O/base-tree"; git worktree prune
 git worktree add --detach -f "$O/base-tree" "$BASE_REV" >/dev/null
+# The base bench reads the models from its own tree: the worktree goes when the script ends.
+ROOT="$PWD"
+trap 'git -C "$ROOT" worktree remove --force "$O/base-tree" 2>/dev/null || true' EXIT
 cp model/benches/energy.rs "$O/base-tree/model/benches/energy.rs"
 bench_bin() { # tree target-dir -> path of the bench binary
     (cd "$1" && CARGO_TARGET_DIR="$2" cargo bench -p lfit-model --bench energy --no-run --message-format=json 2>/dev/null) |
