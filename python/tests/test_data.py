@@ -56,12 +56,18 @@ def test_synth_new_library_kinds_and_uniform_share_equal_the_cli(cli, tmp_path):
     assert not (tmp_path / "bad.npz").exists()
 
 
-def test_synth_marker_slip_equals_the_cli_and_moves_only_the_observations(cli, tmp_path):
-    cli_out = tmp_path / "cli.npz"
-    cli("synth", "--modality", "markers", "--model", MH, "--frames", 6, "--seed", 8, "--noise", 0, "--marker-slip-mm", 15, "--out", cli_out)
-    py_out = tmp_path / "py.npz"
-    d = lfit.synth("markers", MH, frames=6, seed=8, noise=0.0, marker_slip_mm=15.0, out=py_out)
+def noise_free_synth_as_the_cli(cli, tmp_path, name, modality, frames, flags, **kwargs):
+    """lfit.synth(modality, frames=frames, seed=8, noise=0, **kwargs), asserting its file equals
+    `lfit synth` with the same settings and `flags`, byte for byte."""
+    cli_out, py_out = tmp_path / f"{name}-cli.npz", tmp_path / f"{name}-py.npz"
+    cli("synth", "--modality", modality, "--model", MH, "--frames", frames, "--seed", 8, "--noise", 0, *flags, "--out", cli_out)
+    d = lfit.synth(modality, MH, frames=frames, seed=8, noise=0.0, out=py_out, **kwargs)
     assert py_out.read_bytes() == cli_out.read_bytes()
+    return d
+
+
+def test_synth_marker_slip_equals_the_cli_and_moves_only_the_observations(cli, tmp_path):
+    d = noise_free_synth_as_the_cli(cli, tmp_path, "slip", "markers", 6, ("--marker-slip-mm", 15), marker_slip_mm=15.0)
     assert d.summary["marker_slip_mm"] == 15.0 and d.meta["config"]["marker_slip"] == 0.015
     plain = lfit.synth("markers", MH, frames=6, seed=8, noise=0.0)
     # The same poses and the model's marker set; markers observed off their vertices by centimetres.
@@ -78,11 +84,7 @@ def test_synth_marker_slip_equals_the_cli_and_moves_only_the_observations(cli, t
 
 
 def test_synth_keypoint_bias_equals_the_cli_and_moves_only_the_observations(cli, tmp_path):
-    cli_out = tmp_path / "cli.npz"
-    cli("synth", "--modality", "keypoints2d", "--model", MH, "--frames", 5, "--seed", 8, "--noise", 0, "--keypoint-bias-mm", 30, "--out", cli_out)
-    py_out = tmp_path / "py.npz"
-    d = lfit.synth("keypoints2d", MH, frames=5, seed=8, noise=0.0, keypoint_bias_mm=30.0, out=py_out)
-    assert py_out.read_bytes() == cli_out.read_bytes()
+    d = noise_free_synth_as_the_cli(cli, tmp_path, "bias", "keypoints2d", 5, ("--keypoint-bias-mm", 30), keypoint_bias_mm=30.0)
     assert d.summary["keypoint_bias_mm"] == 30.0 and d.meta["config"]["keypoint_bias"] == 0.03
     plain = lfit.synth("keypoints2d", MH, frames=5, seed=8, noise=0.0)
     # The same poses and cameras, the keypoints seen pixels off the joint centres.
@@ -97,10 +99,7 @@ def test_synth_keypoint_bias_equals_the_cli_and_moves_only_the_observations(cli,
     with pytest.raises(lfit.LfitError, match="keypoint_bias.*markers"):
         lfit.synth("markers", MH, frames=3, keypoint_bias_mm=10.0, out=tmp_path / "bad.npz")
     # A synthetic detector's offsets (every subject alike): the CLI's dataset, byte for byte.
-    det_cli = tmp_path / "det-cli.npz"
-    cli("synth", "--modality", "keypoints2d", "--model", MH, "--frames", 4, "--seed", 8, "--noise", 0, "--keypoint-bias-mm", 20, "--keypoint-detector", 3, "--out", det_cli)
-    det = lfit.synth("keypoints2d", MH, frames=4, seed=8, noise=0.0, keypoint_bias_mm=20.0, keypoint_detector=3, out=tmp_path / "det.npz")
-    assert (tmp_path / "det.npz").read_bytes() == det_cli.read_bytes()
+    det = noise_free_synth_as_the_cli(cli, tmp_path, "det", "keypoints2d", 4, ("--keypoint-bias-mm", 20, "--keypoint-detector", 3), keypoint_bias_mm=20.0, keypoint_detector=3)
     assert det.summary["keypoint_detector"] == 3 and det.meta["config"]["keypoint_detector"] == 3
     with pytest.raises(lfit.LfitError, match="keypoint_detector"):
         lfit.synth("keypoints2d", MH, frames=3, keypoint_detector=3, out=tmp_path / "bad.npz")

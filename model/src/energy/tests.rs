@@ -2264,6 +2264,30 @@ fn one_subject_frames(
         .unzip()
 }
 
+/// The recovery tests' closing checks: with the `solved` offsets the noise-free `energies` are
+/// explained at their `poses` (data term under 1e-6, above 1 with the sensor's own points), and
+/// `shrunk` (a strong prior's) stays within a fifth of each `truth`.
+fn assert_offsets_explain(
+    energies: &[Energy],
+    poses: &[Vec<f64>],
+    solved: &[DVec3],
+    shrunk: &[DVec3],
+    truth: &[DVec3],
+) {
+    for (e, p) in energies.iter().zip(poses) {
+        let at = e.with_offsets(solved).unwrap().evaluate(p);
+        assert!(
+            at.term("data").unwrap() < 1e-6,
+            "{}",
+            at.term("data").unwrap()
+        );
+        assert!(e.evaluate(p).term("data").unwrap() > 1.0);
+    }
+    for (s, d) in shrunk.iter().zip(truth) {
+        assert!(s.length() < 0.2 * d.length() + 1e-6, "{s} vs {d}");
+    }
+}
+
 /// [`marker_offsets`] at the poses that made the observations recovers the offsets the markers
 /// were observed with (noise-free, a weak prior), shrinks them towards the marker set under a
 /// strong one, and refuses what it cannot use.
@@ -2286,21 +2310,10 @@ fn marker_offsets_recover_where_the_markers_sat() {
     for (k, (s, d)) in solved.iter().zip(&truth).enumerate() {
         assert!(s.distance(*d) < 1e-5, "marker {k}: {s} vs {d}");
     }
-    // From the solved offsets the frames are explained: the data term vanishes.
-    for (e, p) in energies.iter().zip(&poses) {
-        let at = e.with_offsets(&solved).unwrap().evaluate(p);
-        assert!(
-            at.term("data").unwrap() < 1e-6,
-            "{}",
-            at.term("data").unwrap()
-        );
-        assert!(e.evaluate(p).term("data").unwrap() > 1.0);
-    }
-    // A strong prior keeps them near the marker set.
+    // From the solved offsets the frames are explained; a strong prior keeps them near the
+    // marker set.
     let shrunk = marker_offsets(&energies, &poses, 1e-4).unwrap();
-    for (s, d) in shrunk.iter().zip(&truth) {
-        assert!(s.length() < 0.2 * d.length() + 1e-6, "{s} vs {d}");
-    }
+    assert_offsets_explain(&energies, &poses, &solved, &shrunk, &truth);
     assert!(marker_offsets(&energies, &poses, 0.0).is_err());
     assert!(marker_offsets(&energies, &poses[1..], 1.0).is_err());
     assert!(
@@ -2351,19 +2364,8 @@ fn keypoint_offsets_recover_where_the_keypoints_sat() {
                 "{cameras} cameras, joint {j}: {s} vs {d}"
             );
         }
-        for (e, p) in energies.iter().zip(&poses) {
-            let at = e.with_offsets(&solved).unwrap().evaluate(p);
-            assert!(
-                at.term("data").unwrap() < 1e-6,
-                "{}",
-                at.term("data").unwrap()
-            );
-            assert!(e.evaluate(p).term("data").unwrap() > 1.0);
-        }
         let shrunk = keypoint_offsets(&energies, &poses, 1e-4).unwrap();
-        for (s, d) in shrunk.iter().zip(&truth) {
-            assert!(s.length() < 0.2 * d.length() + 1e-6, "{s} vs {d}");
-        }
+        assert_offsets_explain(&energies, &poses, &solved, &shrunk, &truth);
         if cameras == 2 {
             assert!(keypoint_offsets(&energies, &poses, f64::NAN).is_err());
             assert!(keypoint_offsets(&energies, &poses[1..], 1.0).is_err());
