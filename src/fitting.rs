@@ -67,6 +67,17 @@ pub const MARKER_OFFSET_PRIOR_M: f64 = 0.02;
 /// [`MarkerPlacement::Solved`] (metres).
 pub const KEYPOINT_OFFSET_PRIOR_M: f64 = 0.03;
 
+/// What a sensor's point offsets are called (`"marker"` / `"keypoint"`: the `marker_offsets` /
+/// `keypoint_offsets` of a shape pass or calibration file) and the prior scale (metres) the
+/// placement solve and `lfit calibrate` give them; `None` for a sensor without point offsets.
+pub fn point_offsets_of(modality: Modality) -> Option<(&'static str, f64)> {
+    match modality {
+        Modality::Markers => Some(("marker", MARKER_OFFSET_PRIOR_M)),
+        Modality::Keypoints2d => Some(("keypoint", KEYPOINT_OFFSET_PRIOR_M)),
+        _ => None,
+    }
+}
+
 impl MarkerPlacement {
     pub fn name(self) -> &'static str {
         match self {
@@ -711,18 +722,12 @@ fn joint_shape_pass(
             let mut iterations = first.iterations;
             let mut last = (beta, first);
             let mut offsets = Vec::new();
+            let (_, prior) = point_offsets_of(modality).with_context(|| {
+                format!("--marker-placement solve: {modality} has no points to place")
+            })?;
             for _ in 0..MARKER_PLACEMENT_ROUNDS {
-                offsets = match modality {
-                    Modality::Markers => {
-                        lfit_model::energy::marker_offsets(&placed, &poses, MARKER_OFFSET_PRIOR_M)
-                    }
-                    _ => lfit_model::energy::keypoint_offsets(
-                        &placed,
-                        &poses,
-                        KEYPOINT_OFFSET_PRIOR_M,
-                    ),
-                }
-                .context("--marker-placement solve")?;
+                offsets = lfit_model::energy::point_offsets(&placed, &poses, prior)
+                    .context("--marker-placement solve")?;
                 placed = placed
                     .iter()
                     .map(|e| e.with_offsets(&offsets))

@@ -17,13 +17,12 @@ use std::sync::Arc;
 use anyhow::{Context, Result, bail};
 use glam::DVec3;
 use lfit_model::energy::{Energy, EnergyConfig};
-use lfit_model::observe::Modality;
 use lfit_model::template::{Template, write_atomic};
 use lfit_synth::Dataset;
 use serde_json::{Value, json};
 
 use crate::cli::export::read_fitted_poses;
-use crate::fitting::{KEYPOINT_OFFSET_PRIOR_M, MARKER_OFFSET_PRIOR_M, energy_for_frame};
+use crate::fitting::{energy_for_frame, point_offsets_of};
 
 /// Arguments of `lfit calibrate`.
 #[derive(Debug, Clone)]
@@ -71,12 +70,10 @@ pub fn calibrate_dataset(
     prior_mm: Option<f64>,
 ) -> Result<Value> {
     let modality = dataset.modality();
-    let (key, default_prior) = match modality {
-        Modality::Markers => ("marker_offsets", MARKER_OFFSET_PRIOR_M),
-        Modality::Keypoints2d => ("keypoint_offsets", KEYPOINT_OFFSET_PRIOR_M),
-        other => bail!(
-            "lfit calibrate solves where markers or 2D keypoints sit; {name} is a {other} dataset"
-        ),
+    let Some((kind, default_prior)) = point_offsets_of(modality) else {
+        bail!(
+            "lfit calibrate solves where markers or 2D keypoints sit; {name} is a {modality} dataset"
+        );
     };
     let prior = match prior_mm {
         None => default_prior,
@@ -109,11 +106,8 @@ pub fn calibrate_dataset(
         .map(|&(f, _)| energy_for_frame(dataset, template.clone(), f, config.clone()))
         .collect::<Result<_>>()?;
     let poses: Vec<Vec<f64>> = frames.iter().map(|(_, p)| p.clone()).collect();
-    let solved = match modality {
-        Modality::Markers => lfit_model::energy::marker_offsets(&energies, &poses, prior),
-        _ => lfit_model::energy::keypoint_offsets(&energies, &poses, prior),
-    }
-    .context("lfit calibrate")?;
+    let solved =
+        lfit_model::energy::point_offsets(&energies, &poses, prior).context("lfit calibrate")?;
     // The data term at the known poses, the dataset's own sensor against the calibrated one.
     let data_term = |placed: &[Energy]| -> f64 {
         placed
@@ -144,5 +138,5 @@ pub fn calibrate_dataset(
         "data_term_after": after,
         "offset_rms_mm": rms_mm,
     });
-    Ok(json!({ "calibration": calibration, key: offsets }))
+    Ok(json!({ "calibration": calibration, format!("{kind}_offsets"): offsets }))
 }

@@ -414,12 +414,9 @@ fn fit_prepared(
     let dataset = match offsets {
         Some((offsets, kind)) => {
             let modality = dataset.sensor.modality();
-            let expected = match modality {
-                lfit_model::observe::Modality::Markers => "marker",
-                _ => "keypoint",
-            };
+            let expected = crate::fitting::point_offsets_of(modality).map(|(k, _)| k);
             if let Some(kind) = kind
-                && *kind != expected
+                && Some(*kind) != expected
             {
                 bail!(
                     "--offsets: the file holds {kind} offsets, the data's modality is {modality}"

@@ -36,7 +36,7 @@ pub use least_squares::{
     DampedFactor, JacobianRows, LeastSquares, PointFactors, RobustForm, damped_step, damped_system,
     envelope_cholesky, envelope_cholesky_solve, envelope_solve, envelope_work, marquardt_scaling,
 };
-pub use placement::{KEYPOINT_OFFSET_STEPS, keypoint_offsets, marker_offsets};
+pub use placement::{KEYPOINT_OFFSET_STEPS, keypoint_offsets, marker_offsets, point_offsets};
 pub use prior::AnglePrior;
 
 use self::capsules::Capsules;

@@ -48,6 +48,21 @@ impl Energy {
     }
 }
 
+/// The offsets of the frames' sensor points at the poses held, with a prior of scale
+/// `prior_sigma` (metres): [`marker_offsets`] for markers energies, [`keypoint_offsets`] for
+/// keypoints2d ones (by the first frame's sensor); an error for any other sensor.
+pub fn point_offsets(
+    energies: &[Energy],
+    poses: &[Vec<f64>],
+    prior_sigma: f64,
+) -> Result<Vec<DVec3>> {
+    match energies.first().map(Energy::sensor) {
+        Some(Sensor::Keypoints2d(_)) => keypoint_offsets(energies, poses, prior_sigma),
+        // Markers, no frames, or another sensor: marker_offsets says why it cannot.
+        _ => marker_offsets(energies, poses, prior_sigma),
+    }
+}
+
 /// Each marker's rest-frame offset from its vertex that best explains the frames `energies[f]`
 /// at the poses `poses[f]` (all of one subject: one markers sensor, the same marker set), with a
 /// Gaussian prior of scale `prior_sigma` (metres) at the model's marker set (module docs). The
