@@ -4,22 +4,28 @@
 #
 #   source scripts/eval-common.sh
 #   eval_setup NAME OUT          # LFIT, MODEL; OUT created; OUT/clip-motion.npz written
+#   eval_binary NAME             # LFIT alone (eval_setup without the clip)
 #   eval_need_dir NAME DIR       # exits with a one-line error unless DIR is a directory
 #   eval_run NAME DATA METHOD ARG...  # lfit fit of DATA into OUT/NAME.json; NAME appended to rows
 #   eval_table fits OUT ROW...   # V2V, MPJPE, β RMS, shape V2V, energy, evaluations, time per frame
 #   eval_table c3d OUT ROW...    # share within 5 mm marker RMS, mean/median RMS, evaluations, time
+#   eval_table real OUT ROW...   # the same, and mean marker error, β RMS, β entries on the box
 #
 # LFIT (default: the release build under CARGO_TARGET_DIR or ~/.cache/lfit-target) is the binary.
 
 MODEL=models/makehuman-cmu_mb.npz
 
-eval_setup() {
-    local name="$1" out="$2"
+eval_binary() {
     LFIT="${LFIT:-${CARGO_TARGET_DIR:-$HOME/.cache/lfit-target}/release/lfit}"
     if [ ! -x "$LFIT" ]; then
-        echo "$name: no lfit binary at $LFIT (cargo build --release --workspace)" >&2
+        echo "$1: no lfit binary at $LFIT (cargo build --release --workspace)" >&2
         exit 1
     fi
+}
+
+eval_setup() {
+    local name="$1" out="$2"
+    eval_binary "$name"
     mkdir -p "$out"
     local clip
     clip="$(./scripts/fetch-mocapbank.sh)"
@@ -48,9 +54,12 @@ kind, out, names = sys.argv[1], sys.argv[2], sys.argv[3:]
 if kind == "fits":
     print("| run | frames | V2V (mm) | MPJPE (mm) | β RMS | shape V2V (mm) | energy | evaluations | time / frame (ms) |")
     print("|---|---|---|---|---|---|---|---|---|")
-else:
+elif kind == "c3d":
     print("| source, method | frames | within 5 mm RMS | mean RMS (mm) | median RMS (mm) | evaluations | time / frame (ms) |")
     print("|---|---|---|---|---|---|---|")
+else:
+    print("| placement, method | frames | marker error (mm) | within 5 mm RMS | mean RMS (mm) | β RMS | β entries on ±3 | evaluations | time / frame (ms) |")
+    print("|---|---|---|---|---|---|---|---|---|")
 for n in names:
     r = json.load(open(f"{out}/{n}.json"))
     s, fr = r["summary"], r["frames"]
@@ -66,7 +75,15 @@ for n in names:
     else:
         rms = [f["observation_rms_mm"] for f in fr]
         ok = sum(1 for x in rms if x <= 5.0)
-        print(f"| {n} | {len(fr)} | {ok}/{len(fr)} ({100 * ok / len(fr):.0f} %) | "
-              f"{statistics.mean(rms):.1f} | {statistics.median(rms):.1f} | {ev:.0f} | {ms:.1f} |")
+        cells = f"{ok}/{len(fr)} ({100 * ok / len(fr):.0f} %) | {statistics.mean(rms):.1f}"
+        if kind == "c3d":
+            print(f"| {n} | {len(fr)} | {cells} | {statistics.median(rms):.1f} | {ev:.0f} | {ms:.1f} |")
+        else:
+            # No ground truth: β against the prior's mean, and how many entries sit on its box.
+            beta = [f["shape"] for f in fr]
+            brms = statistics.mean((sum(b * b for b in x) / len(x)) ** 0.5 for x in beta)
+            bound = statistics.mean(sum(1 for b in x if abs(b) >= 2.999) for x in beta)
+            print(f"| {n} | {len(fr)} | {s['mean_observation_error_mm']:.1f} | {cells} | {brms:.3f} | "
+                  f"{bound:.1f} | {ev:.0f} | {ms:.2f} |")
 PY
 }

@@ -12,6 +12,7 @@ pub mod api;
 pub mod cli;
 pub mod data;
 pub mod fitting;
+pub mod holdout;
 pub mod method;
 pub mod render;
 pub mod shipped;

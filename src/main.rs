@@ -473,6 +473,13 @@ struct FitCmd {
     /// scenario; a placement solve starts from them.
     #[arg(long, value_name = "FILE")]
     offsets: Option<PathBuf>,
+    /// Leave observations out of the fit and score it on them (the data has no ground truth
+    /// to score against, and the distance to the observations it fitted rewards following them):
+    /// comma-separated marker names, or for 2D keypoints camera:K (counted from 0) and joint
+    /// names. Each frame gets holdout_error_mm (px), the summary mean_holdout_error_mm (px); a
+    /// capture's frames start from the rigid alignment of what is left.
+    #[arg(long, value_name = "ITEMS")]
+    holdout: Option<String>,
     /// Which free entries the fit moves: all, or observed (only the rotation entries the
     /// observations determine to within 2°, from the data term's information at the start; the
     /// others keep the start's values; observed:DEG another threshold). Default: observed for
@@ -784,6 +791,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 marker_placement: c.marker_placement,
                 offsets: c.offsets,
                 dofs: c.dofs,
+                holdout: c.holdout,
             };
             let bar = progress_bar(0, cli.quiet, "fit");
             let result = fit::fit(&args, &|done, total| {

@@ -68,6 +68,15 @@ impl FitResult {
             |u| column(&rows, &format!("observation_error_{u}")),
         );
         columns.push(("observation_error", obs));
+        // `holdout`: the error on what the fit left out, in the sensor's unit.
+        let held = ["mm", "px"]
+            .into_iter()
+            .find(|u| rows.iter().any(|r| r.get(format!("holdout_error_{u}")).is_some()))
+            .map_or_else(
+                || vec![f64::NAN; rows.len()],
+                |u| column(&rows, &format!("holdout_error_{u}")),
+            );
+        columns.push(("holdout_error", held));
         Self {
             frames,
             params,
@@ -182,6 +191,14 @@ impl FitResult {
         self.col(py, "observation_error")
     }
 
+    /// With `holdout`: mean distance of the fit to the seen observations it was not given
+    /// (markers: mm, keypoints: px), NaN for frames where none of them was seen and without
+    /// `holdout`.
+    #[getter]
+    fn holdout_error<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<f64>> {
+        self.col(py, "holdout_error")
+    }
+
     /// `mm`, `px`, or None (with ground truth).
     #[getter]
     fn observation_unit(&self) -> Option<String> {
@@ -291,11 +308,13 @@ fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
 /// `sequence_shape`: `"per-frame"` (default), `"first-pass"`, `"joint"` or `"joint:N"` (`lfit
 /// fit --sequence-shape`). `marker_placement`: `"model"` (default) or `"solve"` (`lfit fit
 /// --marker-placement`). `offsets`: a file of where the markers or keypoints sit (`lfit fit
-/// --offsets`). `energy`: a dict or JSON file of the energy configuration.
+/// --offsets`). `holdout`: markers (names) or 2D keypoints (`"camera:K"`, joint names) left out
+/// of the fit and scored on (`lfit fit --holdout`; a comma-separated string or a list).
+/// `energy`: a dict or JSON file of the energy configuration.
 /// `progress(done, total)` is called after each frame. Runs with the GIL released; Ctrl-C stops
 /// it between frames (`KeyboardInterrupt`).
 #[pyfunction]
-#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", sequence_shape="per-frame", marker_placement="model", offsets=None, dofs=None, device="flex", runtime="burn", ort_threads=None, progress=None))]
+#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", sequence_shape="per-frame", marker_placement="model", offsets=None, holdout=None, dofs=None, device="flex", runtime="burn", ort_threads=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn fit(
     py: Python<'_>,
@@ -320,6 +339,7 @@ pub fn fit(
     sequence_shape: &str,
     marker_placement: &str,
     offsets: Option<PathBuf>,
+    holdout: Option<&Bound<'_, PyAny>>,
     dofs: Option<String>,
     device: &str,
     runtime: &str,
@@ -359,6 +379,7 @@ pub fn fit(
         marker_placement: marker_placement.to_string(),
         offsets,
         dofs,
+        holdout: holdout.map(holdout_arg).transpose()?,
     };
     let document = without_gil(py, |interrupted| {
         let report = |done: usize, total: usize| -> anyhow::Result<()> {
@@ -422,4 +443,15 @@ pub fn calibrate<'py>(
         Ok(doc)
     })?;
     json_to_py(py, &doc)
+}
+
+/// `holdout`: a comma-separated string or a sequence of strings.
+fn holdout_arg(value: &Bound<'_, PyAny>) -> PyResult<String> {
+    if let Ok(s) = value.extract::<String>() {
+        return Ok(s);
+    }
+    let items: Vec<String> = value
+        .extract()
+        .map_err(|_| bad("holdout must be a string or a list of strings"))?;
+    Ok(items.join(","))
 }

@@ -42,6 +42,29 @@ def test_fit_equals_the_cli(makehuman, markers_file, cli, tmp_path, method, budg
     assert doc["energy_config"] == theirs["energy_config"] and doc["data"] == str(markers_file)
 
 
+def test_holdout_equals_the_cli(makehuman, markers_file, cli, tmp_path):
+    out = tmp_path / "cli.json"
+    cli("fit", "--data", markers_file, "--model", ROOT / "models" / "makehuman-cmu_mb.npz",
+        "--method", "lm", "--budget", 100, "--frames", "0..4", "--holdout", "LFHD,RKNE,LWRA",
+        "--out", out)
+    theirs = json.loads(out.read_text())
+    # A list or the CLI's comma-separated string: the same fit.
+    for items in (["LFHD", "RKNE", "LWRA"], "LFHD,RKNE,LWRA"):
+        ours = lfit.fit(makehuman, markers_file, method="lm", budget=100, frames="0..4", holdout=items)
+        rows = theirs["frames"]
+        np.testing.assert_array_equal(ours.poses, [r["pose"] for r in rows])
+        np.testing.assert_array_equal(ours.holdout_error, [r["holdout_error_mm"] for r in rows])
+        assert ours.summary["mean_holdout_error_mm"] == theirs["summary"]["mean_holdout_error_mm"]
+        assert ours.document()["holdout"] == ["LFHD", "RKNE", "LWRA"]
+    # Without it: NaN.
+    plain = lfit.fit(makehuman, markers_file, method="lm", budget=20, frames="0..2")
+    assert np.isnan(plain.holdout_error).all()
+    with pytest.raises(ValueError, match="'NOPE' is not a marker of the data"):
+        lfit.fit(makehuman, markers_file, method="lm", budget=20, holdout="NOPE")
+    with pytest.raises(ValueError, match="holdout must be a string or a list of strings"):
+        lfit.fit(makehuman, markers_file, method="lm", budget=20, holdout=3)
+
+
 def test_in_memory_dataset_and_frame_list(makehuman):
     data = lfit.synth("keypoints2d", makehuman, frames=5, seed=2)
     seen = []

@@ -154,6 +154,9 @@ pub struct FitArgs {
     /// `--dofs`: `all`, `observed` or `observed:DEG` ([`lfit_fitters::Dofs`]); `None`: the
     /// method's default ([`crate::method::MethodKind::default_dofs`]).
     pub dofs: Option<String>,
+    /// `--holdout`: markers (by name) or 2D keypoints (`camera:K`, joint names) left out of the
+    /// fit and scored against it ([`crate::holdout::Holdout`]).
+    pub holdout: Option<String>,
 }
 
 /// What `lfit fit` settles before it touches the frames: the parsed settings, the fitter (a
@@ -435,6 +438,21 @@ fn fit_prepared(
         }
         None => dataset,
     };
+    // `--holdout`: the fit sees the data without what is held out; the data as it was scores it.
+    let scored = dataset;
+    let holdout = args
+        .holdout
+        .as_deref()
+        .map(|spec| crate::holdout::Holdout::parse(spec, scored, &template))
+        .transpose()?;
+    let hidden;
+    let dataset = match &holdout {
+        Some(h) => {
+            hidden = h.hide(scored, &template)?;
+            &hidden
+        }
+        None => scored,
+    };
     let neural = args.method.is_neural();
     let frames = parse_frames(args.frames.as_deref(), dataset.len())?;
     let scenario = dataset.meta.config.scenario;
@@ -445,6 +463,8 @@ fn fit_prepared(
     // Without ground truth (imported observations): how far the fit lies from the observations.
     let (mut sum_obs, mut obs_frames, mut obs_unit) = (0.0, 0usize, "");
     let mut observed: Vec<(usize, usize, Vec<f64>)> = Vec::new();
+    // With `--holdout`, every fitted frame (row, frame, pose), scored after the pass.
+    let mut fitted_poses: Vec<(usize, usize, Vec<f64>)> = Vec::new();
     // Frames go through the network `--batch` at a time (the plan keeps sequences one by one).
     let plan = crate::fitting::Plan {
         dataset: &dataset,
@@ -488,6 +508,9 @@ fn fit_prepared(
             });
             if let Value::Object(fields) = &mut row {
                 fields.extend(params_json(&template, pose));
+            }
+            if holdout.is_some() {
+                fitted_poses.push((rows.len(), frame, pose.clone()));
             }
             if let Some(gt) = dataset.ground_truth(frame) {
                 let truth = TruthMesh::new(&template, gt);
@@ -556,6 +579,23 @@ fn fit_prepared(
             obs_unit = u;
         }
     }
+    // The held-out observations against each fit (with the markers or keypoints where a
+    // solved placement put them).
+    let (mut sum_held, mut held_frames, mut held_unit) = (0.0, 0usize, "");
+    if let Some(h) = &holdout {
+        for (k, frame, pose) in &fitted_poses {
+            if let Some(e) = h.score(scored, &sensor, &template, *frame, pose) {
+                let (u, row) = (e.unit, &mut rows[*k]);
+                row[format!("holdout_error_{u}")] = json!(e.mean);
+                row[format!("holdout_rms_{u}")] = json!(e.rms);
+                row[format!("holdout_max_{u}")] = json!(e.max);
+                row["holdout_seen"] = json!(e.count);
+                sum_held += e.mean;
+                held_frames += 1;
+                held_unit = u;
+            }
+        }
+    }
     let n = frames.len().max(1) as f64;
     let mut summary = json!({
         "frames": frames.len(),
@@ -578,6 +618,10 @@ fn fit_prepared(
             summary[format!("mean_observation_error_{obs_unit}")] =
                 json!(sum_obs / obs_frames as f64);
         }
+    }
+    if held_frames > 0 {
+        summary[format!("mean_holdout_error_{held_unit}")] = json!(sum_held / held_frames as f64);
+        summary["holdout_frames"] = json!(held_frames);
     }
     if let Some(pass) = &report.shape_pass {
         summary["shape_pass"] = json!(pass);
@@ -602,6 +646,9 @@ fn fit_prepared(
         "summary": summary,
         "frames": rows,
     });
+    if let Some(h) = &holdout {
+        out["holdout"] = json!(h.items);
+    }
     if let Some((o, _)) = offsets {
         // Where the points sat: the file, and the offsets it gave.
         out["offsets"] = json!({ "file": args.offsets, "values": o });

@@ -241,35 +241,7 @@ pub fn import_c3d(
         vertices: markers.iter().map(|m| m.vertex).collect(),
         offsets: Vec::new(),
     });
-    let rest = sensor
-        .predict_sparse(template, &vec![0.0; template.layout().dim()])
-        .values;
-    let rest_points: Vec<DVec3> = rest
-        .chunks_exact(3)
-        .map(|c| DVec3::new(c[0], c[1], c[2]))
-        .collect();
-    let mut starts = Vec::with_capacity(values.len());
-    let mut rigid_frames = 0;
-    for (v, b) in values.iter().zip(&visible) {
-        let (a, o): (Vec<DVec3>, Vec<DVec3>) = (0..m)
-            .filter(|&k| b[3 * k])
-            .map(|k| {
-                (
-                    rest_points[k],
-                    DVec3::new(v[3 * k], v[3 * k + 1], v[3 * k + 2]),
-                )
-            })
-            .unzip();
-        let start = match rigid_fit(&a, &o) {
-            Some((q, s)) => {
-                rigid_frames += 1;
-                Some(rigid_start(template, q, s))
-            }
-            None => None,
-        };
-        starts.push(start);
-    }
-    let starts = fill_starts(starts, template);
+    let (starts, rigid_frames) = marker_starts(template, &sensor, &values, &visible);
     let mapped: Vec<String> = pairs
         .iter()
         .map(|&(ci, mi)| format!("{}→{}", c3d.labels[ci], marker_names[mi]))
@@ -421,49 +393,8 @@ pub fn import_keypoints(
             "no mapped keypoint has a confidence above {min_confidence} in any frame"
         ));
     }
-    let rest = template.joint_rest();
-    let mut starts = Vec::with_capacity(n);
-    let (mut rigid, mut ray) = (0, 0);
-    for f in 0..n {
-        let seen = |c: usize, j: usize| visible[f][2 * (c * nj + j)];
-        let uv = |c: usize, j: usize| {
-            let i = 2 * (c * nj + j);
-            [values[f][i], values[f][i + 1]]
-        };
-        let (mut a, mut o) = (Vec::new(), Vec::new());
-        for &(j, _) in &pairs {
-            let views: Vec<(usize, [f64; 2])> = (0..k)
-                .filter(|&c| seen(c, j))
-                .map(|c| (c, uv(c, j)))
-                .collect();
-            if views.len() >= 2
-                && let Some(x) = triangulate(&cameras, &views)
-            {
-                a.push(rest[j]);
-                o.push(x);
-            }
-        }
-        let start = if let Some((q, s)) = rigid_fit(&a, &o) {
-            rigid += 1;
-            Some(rigid_start(template, q, s))
-        } else {
-            // One camera: the camera that sees most mapped joints.
-            let best = (0..k)
-                .map(|c| (pairs.iter().filter(|&&(j, _)| seen(c, j)).count(), c))
-                .max()
-                .filter(|&(count, _)| count >= 2);
-            best.and_then(|(_, c)| {
-                let js: Vec<usize> = pairs.iter().map(|p| p.0).filter(|&j| seen(c, j)).collect();
-                let pts: Vec<[f64; 2]> = js.iter().map(|&j| uv(c, j)).collect();
-                let rest_pts: Vec<DVec3> = js.iter().map(|&j| rest[j]).collect();
-                let s = place_on_ray(&cameras[c], &pts, &rest_pts)?;
-                ray += 1;
-                Some(rigid_start(template, DQuat::IDENTITY, s))
-            })
-        };
-        starts.push(start);
-    }
-    let starts = fill_starts(starts, template);
+    let joints: Vec<usize> = pairs.iter().map(|p| p.0).collect();
+    let (starts, rigid, ray) = keypoint_starts(template, &cameras, &joints, &values, &visible);
     let joint_names: Vec<String> = rig.joints.iter().map(|j| j.name.clone()).collect();
     let mapped: Vec<String> = pairs
         .iter()
@@ -501,6 +432,108 @@ pub fn import_keypoints(
         template, sensor, scenario, fps, sources, starts, values, visible,
     )?;
     Ok(Imported { dataset, report })
+}
+
+/// The start poses of captured markers (`lfit data import --c3d`): per frame the rest pose moved
+/// rigidly onto the seen markers (Horn's method against the rest model's markers as `sensor`
+/// places them), a frame with fewer than three seen where the previous one started; and how many
+/// frames had their own. Also what `lfit fit --holdout` starts from, on the markers it leaves.
+pub fn marker_starts(
+    template: &Template,
+    sensor: &Sensor,
+    values: &[Vec<f64>],
+    visible: &[Vec<bool>],
+) -> (Vec<Vec<f64>>, usize) {
+    let rest = sensor
+        .predict_sparse(template, &vec![0.0; template.layout().dim()])
+        .values;
+    let rest_points: Vec<DVec3> = rest
+        .chunks_exact(3)
+        .map(|c| DVec3::new(c[0], c[1], c[2]))
+        .collect();
+    let m = rest_points.len();
+    let mut starts = Vec::with_capacity(values.len());
+    let mut rigid_frames = 0;
+    for (v, b) in values.iter().zip(visible) {
+        let (a, o): (Vec<DVec3>, Vec<DVec3>) = (0..m)
+            .filter(|&k| b[3 * k])
+            .map(|k| {
+                (
+                    rest_points[k],
+                    DVec3::new(v[3 * k], v[3 * k + 1], v[3 * k + 2]),
+                )
+            })
+            .unzip();
+        let start = match rigid_fit(&a, &o) {
+            Some((q, s)) => {
+                rigid_frames += 1;
+                Some(rigid_start(template, q, s))
+            }
+            None => None,
+        };
+        starts.push(start);
+    }
+    (fill_starts(starts, template), rigid_frames)
+}
+
+/// The start poses of captured 2D keypoints (`lfit data import --keypoints`) seen by `cameras`
+/// at the model joints `joints` (in this order): per frame the rest pose moved rigidly onto the
+/// joints triangulated from two or more cameras, or, with fewer than three such, placed along
+/// the ray of the camera that sees most of them at the depth that matches their spread; a frame
+/// with neither where the previous one started. Also how many frames took each way (rigid,
+/// ray). What `lfit fit --holdout` starts from, on the cameras and keypoints it leaves.
+pub fn keypoint_starts(
+    template: &Template,
+    cameras: &[Camera],
+    joints: &[usize],
+    values: &[Vec<f64>],
+    visible: &[Vec<bool>],
+) -> (Vec<Vec<f64>>, usize, usize) {
+    let nj = template.rig.num_joints();
+    let k = cameras.len();
+    let rest = template.joint_rest();
+    let mut starts = Vec::with_capacity(values.len());
+    let (mut rigid, mut ray) = (0, 0);
+    for (v, b) in values.iter().zip(visible) {
+        let seen = |c: usize, j: usize| b[2 * (c * nj + j)];
+        let uv = |c: usize, j: usize| {
+            let i = 2 * (c * nj + j);
+            [v[i], v[i + 1]]
+        };
+        let (mut a, mut o) = (Vec::new(), Vec::new());
+        for &j in joints {
+            let views: Vec<(usize, [f64; 2])> = (0..k)
+                .filter(|&c| seen(c, j))
+                .map(|c| (c, uv(c, j)))
+                .collect();
+            if views.len() >= 2
+                && let Some(x) = triangulate(cameras, &views)
+            {
+                a.push(rest[j]);
+                o.push(x);
+            }
+        }
+        let start = if let Some((q, s)) = rigid_fit(&a, &o) {
+            rigid += 1;
+            Some(rigid_start(template, q, s))
+        } else {
+            // One camera: the camera that sees most of the joints.
+            let best = (0..k)
+                .map(|c| (joints.iter().filter(|&&j| seen(c, j)).count(), c))
+                .max()
+                .filter(|&(count, _)| count >= 2);
+            best.and_then(|(_, c)| {
+                let js: Vec<usize> = joints.iter().copied().filter(|&j| seen(c, j)).collect();
+                let pts: Vec<[f64; 2]> = js.iter().map(|&j| uv(c, j)).collect();
+                let rest_pts: Vec<DVec3> = js.iter().map(|&j| rest[j]).collect();
+                let s = place_on_ray(&cameras[c], &pts, &rest_pts)?;
+                ray += 1;
+                Some(rigid_start(template, DQuat::IDENTITY, s))
+            })
+        };
+        starts.push(start);
+    }
+    (fill_starts(starts, template), rigid, ray)
 }
 
 /// Frames without an estimate start where the previous one did (the first such frames, where the
@@ -721,6 +754,20 @@ pub fn observation_errors(
     frame: usize,
     pose: &[f64],
 ) -> Option<ObservationErrors> {
+    observation_errors_of(dataset, sensor, template, frame, pose, &|_| true)
+}
+
+/// [`observation_errors`] over the seen markers or keypoints `scored` picks (by index: marker
+/// `k`; keypoint `c · joints + j` of camera `c`): `lfit fit --holdout`'s error on what it held
+/// out of the fit.
+pub fn observation_errors_of(
+    dataset: &Dataset,
+    sensor: &Sensor,
+    template: &Template,
+    frame: usize,
+    pose: &[f64],
+    scored: &dyn Fn(usize) -> bool,
+) -> Option<ObservationErrors> {
     let (len, factor, unit) = match dataset.modality() {
         Modality::Markers => (3, 1000.0, "mm"),
         Modality::Keypoints2d => (2, 1.0, "px"),
@@ -735,7 +782,7 @@ pub fn observation_errors(
         return None;
     }
     let d: Vec<f64> = (0..obs.len() / len)
-        .filter(|g| seen[g * len])
+        .filter(|&g| seen[g * len] && scored(g))
         .map(|g| {
             (0..len)
                 .map(|a| (pred[g * len + a] - obs[g * len + a]).powi(2))

@@ -1,0 +1,127 @@
+#!/usr/bin/env bash
+# Real markers: a Plug-in Gait capture from a motion-capture lab (a C3D lfit did not write), fitted
+# on the MakeHuman body by LM, the shipped markers network and neural+lm, with the markers where
+# the model's marker set puts them, with their placement solved over the trial (MoSh's latent
+# markers: `--sequence-shape joint:64 --marker-placement solve`) and, given a static trial of the
+# same subject, with the placement solved on that trial and reused (`--offsets`), with and
+# without that trial's β (`--known-shape`: a lab's static calibration gives both). There is no ground truth: the first table reports the marker error each fit
+# leaves, β against the prior's mean and how many β entries sit on the ±3 box; the second the
+# error on markers each fit was not given (`--holdout`, FOLDS folds of the marker set, default 5),
+# which measures what a fit predicts rather than how closely it follows what it saw. Prints two
+# Markdown tables; every import and result is under OUT.
+#
+#   scripts/eval-real-c3d.sh MOVEMENT.c3d [STATIC.c3d] [OUT]
+#
+# Measured on pyCGM's sample trials (MIT; github.com/cadop/pyCGM at 1750a62,
+# SampleData/Test_Files/Movement_trial.c3d and Static_trial.c3d; not committed: their capture's
+# terms are not stated beyond the repository's licence): docs/results/captured-motion.md, round 20.
+# UP (default z: Vicon's lab frame) and LABEL_MAP (a `lfit data import --label-map` file; default:
+# labels equal to the model's Plug-in Gait names) describe the capture; LFIT (default: the release
+# build) is the binary. The same files give the same numbers, but for the times.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if [ $# -lt 1 ] || [ $# -gt 3 ]; then
+    echo "usage: scripts/eval-real-c3d.sh MOVEMENT.c3d [STATIC.c3d] [OUT]" >&2
+    exit 2
+fi
+MOVE="$1"
+STATIC=""
+OUT=target/eval-real-c3d
+if [ $# -ge 2 ]; then
+    case "$2" in
+        *.c3d | *.C3D) STATIC="$2"; OUT="${3:-$OUT}" ;;
+        *) OUT="$2" ;;
+    esac
+fi
+for f in "$MOVE" ${STATIC:+"$STATIC"}; do
+    if [ ! -f "$f" ]; then
+        echo "eval-real-c3d: no C3D file $f" >&2
+        exit 1
+    fi
+done
+source scripts/eval-common.sh
+eval_binary eval-real-c3d
+CK=checkpoints/markers-makehuman
+eval_need_dir eval-real-c3d "$CK"
+mkdir -p "$OUT"
+import=(--model "$MODEL" --up "${UP:-z}")
+[ -n "${LABEL_MAP:-}" ] && import+=(--label-map "$LABEL_MAP")
+"$LFIT" -q data import --c3d "$MOVE" "${import[@]}" --out "$OUT/movement.npz" >/dev/null
+rows=()
+# Each method's `lfit fit` arguments; sequences from the better of the previous result and Φ(D).
+method() {
+    case "$1" in
+        lm) echo lm --budget 4000 ;;
+        neural) echo neural --checkpoint "$CK" --neural-start both --budget 24 ;;
+        neural+lm) echo neural+lm --checkpoint "$CK" --neural-start both --budget 4000 ;;
+    esac
+}
+solve=(--sequence-shape joint:64 --marker-placement solve)
+for m in lm neural neural+lm; do
+    read -ra args <<< "$(method $m)"
+    eval_run "model-$m" "$OUT/movement.npz" "${args[@]}"
+    eval_run "solved-$m" "$OUT/movement.npz" "${args[@]}" "${solve[@]}"
+done
+if [ -n "$STATIC" ]; then
+    "$LFIT" -q data import --c3d "$STATIC" "${import[@]}" --out "$OUT/static.npz" >/dev/null
+    # The static trial's placement (LM, one β over its frames), then each method with it.
+    read -ra args <<< "$(method lm)"
+    "$LFIT" -q fit --data "$OUT/static.npz" --template "$MODEL" --method "${args[@]}" "${solve[@]}" \
+        --out "$OUT/static-placement.json" >/dev/null
+    # And the static trial's β with it, as a lab's static calibration gives both.
+    beta="$(python3 -c 'import json, sys; print(",".join(map(str, json.load(open(sys.argv[1]))["summary"]["shape_pass"]["beta"])))' "$OUT/static-placement.json")"
+    for m in lm neural neural+lm; do
+        read -ra args <<< "$(method $m)"
+        eval_run "static-$m" "$OUT/movement.npz" "${args[@]}" --offsets "$OUT/static-placement.json"
+        eval_run "static+beta-$m" "$OUT/movement.npz" "${args[@]}" --offsets "$OUT/static-placement.json" \
+            --known-shape "$beta"
+    done
+fi
+eval_table real "$OUT" "${rows[@]}"
+# Held-out markers (`lfit fit --holdout`): the marker set in FOLDS folds (marker k in fold
+# k mod FOLDS), each fold left out of one fit and scored on it; the mean over every held-out
+# marker of every frame. With the markers where the model puts them, and with the static
+# trial's placement (every marker's, the held-out ones' too).
+folds="${FOLDS:-5}"
+mapfile -t names < <("$LFIT" model info --model "$MODEL" | python3 -c '
+import json, sys
+for m in json.load(sys.stdin)["markers"]:
+    print(m["name"])')
+placements=(model)
+[ -n "$STATIC" ] && placements+=(static static+beta)
+cv=()
+for p in "${placements[@]}"; do
+    extra=()
+    [ "$p" != model ] && extra=(--offsets "$OUT/static-placement.json")
+    [ "$p" = static+beta ] && extra+=(--known-shape "$beta")
+    for m in lm neural neural+lm; do
+        read -ra args <<< "$(method $m)"
+        for ((k = 0; k < folds; k++)); do
+            held=()
+            for ((i = k; i < ${#names[@]}; i += folds)); do held+=("${names[$i]}"); done
+            "$LFIT" -q fit --data "$OUT/movement.npz" --template "$MODEL" --method "${args[@]}" \
+                "${extra[@]}" --holdout "$(IFS=,; echo "${held[*]}")" \
+                --out "$OUT/holdout-$p-$m-$k.json" >/dev/null
+        done
+        cv+=("$p-$m")
+    done
+done
+python3 - "$OUT" "$folds" "${cv[@]}" <<'PY'
+import json, sys
+out, folds, names = sys.argv[1], int(sys.argv[2]), sys.argv[3:]
+print()
+print("| placement, method | held-out marker error (mm) | fitted marker error (mm) | time / frame (ms) |")
+print("|---|---|---|---|")
+for n in names:
+    held = fitted = seen = 0.0
+    times = []
+    for k in range(folds):
+        r = json.load(open(f"{out}/holdout-{n}-{k}.json"))
+        for f in r["frames"]:
+            c = f.get("holdout_seen", 0)
+            held += c * f.get("holdout_error_mm", 0.0)
+            seen += c
+        fitted += r["summary"]["mean_observation_error_mm"]
+        times.append(1000 * r["summary"]["mean_time_s"])
+    print(f"| {n} | {held / seen:.1f} | {fitted / folds:.1f} | {sum(times) / folds:.2f} |")
+PY
