@@ -37,8 +37,8 @@ fn synth(dir: &Path, modality: &str, more: &[&str]) -> (PathBuf, Dataset) {
     (out.clone(), Dataset::load(&out).expect("dataset"))
 }
 
-/// `lfit fit --method lm` of `data` into `out` with more arguments; the result document.
-fn fit(data: &Path, out: &Path, more: &[&str]) -> Value {
+/// `lfit -q fit --method lm` of `data` into `out` with `budget` and more arguments.
+fn fit_args<'a>(data: &'a Path, out: &'a Path, budget: &'a str, more: &[&'a str]) -> Vec<&'a str> {
     let mut a = vec![
         "-q",
         "fit",
@@ -47,12 +47,17 @@ fn fit(data: &Path, out: &Path, more: &[&str]) -> Value {
         "--method",
         "lm",
         "--budget",
-        "300",
+        budget,
         "--out",
         path_str(out),
     ];
     a.extend(more);
-    lfit_json(&a);
+    a
+}
+
+/// [`fit_args`] with 300 evaluations, run; the result document.
+fn fit(data: &Path, out: &Path, more: &[&str]) -> Value {
+    lfit_json(&fit_args(data, out, "300", more));
     serde_json::from_slice(&std::fs::read(out).expect("result")).expect("JSON")
 }
 
@@ -287,20 +292,7 @@ fn bad_holdout_items_are_one_line_errors_that_write_nothing() {
         (&keypoints, "Elbow", "is neither camera:K nor a joint"),
         (&hmd, "LFHD", "the data's modality is hmd"),
     ] {
-        let o = lfit(&[
-            "-q",
-            "fit",
-            "--data",
-            path_str(data),
-            "--method",
-            "lm",
-            "--budget",
-            "20",
-            "--holdout",
-            items,
-            "--out",
-            path_str(&out),
-        ]);
+        let o = lfit(&fit_args(data, &out, "20", &["--holdout", items]));
         assert_one_line_error(&o, needle);
         assert!(!out.exists(), "{items}: nothing is written");
     }

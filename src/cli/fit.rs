@@ -104,6 +104,21 @@ pub fn read_energy_config(path: Option<&Path>, gradient: bool) -> Result<EnergyC
     Ok(config)
 }
 
+/// A frame's distances to observations into its row: `{prefix}_error_{unit}` (mean),
+/// `{prefix}_rms_{unit}`, `{prefix}_max_{unit}` and `seen` (how many).
+fn errors_json(
+    row: &mut Value,
+    prefix: &str,
+    seen: &str,
+    e: &lfit_synth::capture::import::ObservationErrors,
+) {
+    let u = e.unit;
+    row[format!("{prefix}_error_{u}")] = json!(e.mean);
+    row[format!("{prefix}_rms_{u}")] = json!(e.rms);
+    row[format!("{prefix}_max_{u}")] = json!(e.max);
+    row[seen] = json!(e.count);
+}
+
 fn terms_json(terms: &[(&'static str, f64)]) -> Value {
     Value::Object(
         terms
@@ -569,14 +584,10 @@ fn fit_prepared(
         if let Some(e) = lfit_synth::capture::import::observation_errors(
             &dataset, &sensor, &template, frame, &pose,
         ) {
-            let (u, row) = (e.unit, &mut rows[k]);
-            row[format!("observation_error_{u}")] = json!(e.mean);
-            row[format!("observation_rms_{u}")] = json!(e.rms);
-            row[format!("observation_max_{u}")] = json!(e.max);
-            row["observations_seen"] = json!(e.count);
+            errors_json(&mut rows[k], "observation", "observations_seen", &e);
             sum_obs += e.mean;
             obs_frames += 1;
-            obs_unit = u;
+            obs_unit = e.unit;
         }
     }
     // The held-out observations against each fit (with the markers or keypoints where a
@@ -585,14 +596,10 @@ fn fit_prepared(
     if let Some(h) = &holdout {
         for (k, frame, pose) in &fitted_poses {
             if let Some(e) = h.score(scored, &sensor, &template, *frame, pose) {
-                let (u, row) = (e.unit, &mut rows[*k]);
-                row[format!("holdout_error_{u}")] = json!(e.mean);
-                row[format!("holdout_rms_{u}")] = json!(e.rms);
-                row[format!("holdout_max_{u}")] = json!(e.max);
-                row["holdout_seen"] = json!(e.count);
+                errors_json(&mut rows[*k], "holdout", "holdout_seen", &e);
                 sum_held += e.mean;
                 held_frames += 1;
-                held_unit = u;
+                held_unit = e.unit;
             }
         }
     }
