@@ -974,3 +974,88 @@ with warnings.catch_warnings():
     eprintln!("C3D of the c3d package (PyPI 0.6.0): max coordinate error {max_err:.3e} m");
     assert!(max_err <= 1e-6, "imported positions differ by {max_err} m");
 }
+
+/// A DEC file (VAX floats, as Vicon's 370 wrote) written by lfit's writer reads back, through
+/// `lfit data import`, to the observations of the same capture written for Intel, bit for bit;
+/// and the `c3d` package on PyPI (its own DEC conversion) reads the same coordinates from it.
+#[test]
+fn a_dec_c3d_imports_as_its_intel_copy_and_as_the_c3d_package_reads_it() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let (_, truth) = synth(d, "markers", 5, 19);
+    let map_file = d.join("labels.json");
+    let mut imported = Vec::new();
+    for (name, processor) in [("intel", Processor::Intel), ("dec", Processor::Dec)] {
+        for scale in [-0.1, 0.1] {
+            let (mut c3d, map) = c3d_of(&truth, scale);
+            c3d.processor = processor;
+            write_map(&map_file, &map);
+            let file = d.join(format!("{name}{scale}.c3d"));
+            std::fs::write(&file, c3d.to_bytes().expect("C3D bytes")).expect("write");
+            let bytes = std::fs::read(&file).expect("C3D");
+            let parameters = (usize::from(bytes[0]) - 1) * 512;
+            assert_eq!(bytes[parameters + 3], if name == "dec" { 85 } else { 84 });
+            let out = d.join(format!("{name}{scale}.npz"));
+            import_c3d(&file, &map_file, &out);
+            imported.push((file, Dataset::load(&out).expect("imported")));
+        }
+    }
+    // Intel floats = DEC floats, Intel integers = DEC integers.
+    assert_eq!(sparse(&imported[0].1), sparse(&imported[2].1));
+    assert_eq!(sparse(&imported[1].1), sparse(&imported[3].1));
+    assert_eq!(imported[2].1.meta.config.fps, 120.0);
+
+    let mut python = match support::python_with("numpy, c3d") {
+        Ok(p) => p,
+        Err(reason) => {
+            support::skip_unless_required(&reason, None);
+            return;
+        }
+    };
+    let script = r#"
+import json, sys, warnings
+import c3d
+with warnings.catch_warnings():
+    warnings.simplefilter('ignore')
+    r = c3d.Reader(open(sys.argv[1], 'rb'))
+    frames = [p[:, :4].tolist() for _, p, _ in r.read_frames()]
+print(json.dumps({"proc": r.proc_type, "rate": float(r.point_rate), "frames": frames}))
+"#;
+    // Its DEC file, and the Intel one (which the package refused while lfit wrote an
+    // ANALOG:RATE that contradicted the header).
+    let mut compared = 0;
+    for (k, proc) in [(2, "DEC"), (0, "INTEL")] {
+        let out = python
+            .args(["-c", script, path_str(&imported[k].0)])
+            .output()
+            .expect("python3");
+        assert!(
+            out.status.success(),
+            "the c3d package failed on the {proc} file: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let theirs: Value = serde_json::from_slice(&out.stdout).expect("JSON");
+        assert_eq!(theirs["proc"], proc);
+        assert_eq!(theirs["rate"], 120.0);
+        let ours = C3d::read(&imported[k].0).expect("our reader");
+        let frames = theirs["frames"].as_array().expect("frames");
+        assert_eq!(frames.len(), ours.frames.len());
+        for (row, mine) in frames.iter().zip(&ours.frames) {
+            for (point, m) in row.as_array().expect("points").iter().zip(mine) {
+                let p: Vec<f64> = serde_json::from_value(point.clone()).expect("point");
+                match m {
+                    // Their gap: a negative residual.
+                    None => assert!(p[3] < 0.0, "{p:?}"),
+                    Some(m) => {
+                        for a in 0..3 {
+                            assert_eq!(p[a], m.position[a], "{p:?} against {:?}", m.position);
+                        }
+                        compared += 1;
+                    }
+                }
+            }
+        }
+        python = support::python_with("numpy, c3d").expect("python");
+    }
+    assert!(compared > 100, "{compared} points compared");
+}

@@ -22,9 +22,9 @@
 //! The reader checks what it uses (keys, processor, pointers, `POINT:USED`/`SCALE`/`RATE`/
 //! `DATA_START`/`FRAMES` against the header, labels for every point, units, enough bytes for every
 //! frame, finite coordinates in valid samples) and refuses anything else with a one-line error.
-//! Intel (little-endian IEEE) and MIPS (big-endian IEEE) files are read; DEC files (VAX floats)
-//! are refused. The writer writes Intel or MIPS files with integer or float points and no analog
-//! data.
+//! Intel (little-endian IEEE), DEC (little-endian integers, VAX F-floating floats: what Vicon's
+//! 370 and other VAX-era systems wrote) and MIPS (big-endian IEEE) files are read; the writer
+//! writes all three, with integer or float points and no analog data.
 
 use std::path::Path;
 
@@ -90,10 +90,49 @@ fn fail<T>(msg: impl Into<String>) -> Result<T, ImportError> {
     Err(ImportError::Invalid(msg.into()))
 }
 
-/// Byte order of a file.
+/// Byte order and float format of a file.
 #[derive(Clone, Copy)]
 struct Order {
     big: bool,
+    /// VAX F-floating floats (DEC files).
+    dec: bool,
+}
+
+/// A VAX F-floating number from its four bytes as a DEC file stores them: two little-endian
+/// 16-bit words, the first holding the sign, the 8-bit exponent (excess 128) and the top 7
+/// fraction bits, the second the low 16; the value is `0.1f × 2^(e − 128)` with a hidden leading
+/// bit (the VAX Architecture Reference Manual, §1.3.5). The same bits in IEEE order read as IEEE
+/// single `1.f × 2^(e − 127)`, four times the value: the exponent less 2 is the IEEE number
+/// (exponents 1 and 2 fall below IEEE's normal range: divided by 4 there, to its precision). An
+/// exponent of 0 is zero (or, with the sign set, VAX's reserved operand: NaN here).
+fn dec_f32(b: [u8; 4]) -> f32 {
+    let high = u32::from(u16::from_le_bytes([b[0], b[1]]));
+    let low = u32::from(u16::from_le_bytes([b[2], b[3]]));
+    let bits = (high << 16) | low;
+    match (bits >> 23) & 0xff {
+        0 if bits & 0x8000_0000 == 0 => 0.0,
+        0 => f32::NAN,
+        1 | 2 => f32::from_bits(bits) / 4.0,
+        _ => f32::from_bits(bits - (2 << 23)),
+    }
+}
+
+/// [`dec_f32`]'s inverse for a finite `v`: exact where a VAX float holds it (2^-128 ≤ |v| <
+/// 2^127); smaller magnitudes are written as zero, larger ones as the largest VAX float.
+fn f32_dec(v: f32) -> [u8; 4] {
+    let bits = v.to_bits();
+    let vax = match (bits >> 23) & 0xff {
+        // Zero and IEEE's subnormals: four times them, where that is normal.
+        0 => {
+            let x = v * 4.0;
+            if x.is_normal() { x.to_bits() } else { 0 }
+        }
+        e if e >= 254 => (bits & 0x8000_0000) | 0x7fff_ffff,
+        _ => bits + (2 << 23),
+    };
+    let (h, l) = ((vax >> 16) as u16, vax as u16);
+    let (h, l) = (h.to_le_bytes(), l.to_le_bytes());
+    [h[0], h[1], l[0], l[1]]
 }
 
 impl Order {
@@ -110,7 +149,9 @@ impl Order {
     }
     fn f32(self, b: &[u8], at: usize) -> f32 {
         let x = [b[at], b[at + 1], b[at + 2], b[at + 3]];
-        if self.big {
+        if self.dec {
+            dec_f32(x)
+        } else if self.big {
             f32::from_be_bytes(x)
         } else {
             f32::from_le_bytes(x)
@@ -127,7 +168,9 @@ impl Order {
         self.put_u16(out, v as u16);
     }
     fn put_f32(self, out: &mut Vec<u8>, v: f32) {
-        out.extend(if self.big {
+        out.extend(if self.dec {
+            f32_dec(v)
+        } else if self.big {
             v.to_be_bytes()
         } else {
             v.to_le_bytes()
@@ -357,12 +400,8 @@ impl C3d {
         // Guide; 0x01 0x50 is typical, the `c3d` package on PyPI writes 0x00 0x00).
         let processor = match bytes[pstart + 3] {
             84 => Processor::Intel,
+            85 => Processor::Dec,
             86 => Processor::Mips,
-            85 => {
-                return fail(
-                    "DEC (VAX float) C3D files are not supported: convert to Intel (processor type 84)",
-                );
-            }
             other => {
                 return fail(format!(
                     "unknown processor type {other} (expected 84 Intel, 85 DEC or 86 MIPS)"
@@ -371,6 +410,7 @@ impl C3d {
         };
         let o = Order {
             big: processor == Processor::Mips,
+            dec: processor == Processor::Dec,
         };
         let pblocks = bytes[pstart + 2] as usize;
         if pblocks == 0 {
@@ -586,13 +626,12 @@ impl C3d {
         Ok(first)
     }
 
-    /// The file's bytes (Intel or MIPS; integer points when `scale > 0`, floats when `< 0`). No
-    /// analog data (`analog_per_frame` must be 0).
+    /// The file's bytes (Intel, DEC or MIPS; integer points when `scale > 0`, floats when `< 0`).
+    /// No analog data (`analog_per_frame` must be 0).
     pub fn to_bytes(&self) -> Result<Vec<u8>, ImportError> {
-        let o = match self.processor {
-            Processor::Intel => Order { big: false },
-            Processor::Mips => Order { big: true },
-            Processor::Dec => return fail("the writer does not write DEC files"),
+        let o = Order {
+            big: self.processor == Processor::Mips,
+            dec: self.processor == Processor::Dec,
         };
         let n = self.frames.len();
         let used = self.labels.len();
@@ -702,8 +741,10 @@ impl C3d {
             self.units.as_bytes().to_vec(),
         ));
         entries.push(group(-2, "ANALOG", "analog parameters"));
+        // No analog channels, so no ANALOG:RATE: readers take the header's samples per frame
+        // (0) times the point rate. (A rate equal to the point rate, written before, contradicts
+        // the header's 0 and the `c3d` package on PyPI refused the file.)
         entries.push(param(2, "USED", 2, &[], i16_data(0)));
-        entries.push(param(2, "RATE", 4, &[], f32_data(self.rate)));
         let section_len = 4 + entries.iter().map(Vec::len).sum::<usize>();
         let pblocks = section_len.div_ceil(BLOCK);
         if pblocks > 255 {
@@ -887,7 +928,7 @@ mod tests {
 
     #[test]
     fn float_round_trip_is_exact_to_f32() {
-        for proc in [Processor::Intel, Processor::Mips] {
+        for proc in [Processor::Intel, Processor::Dec, Processor::Mips] {
             let c = sample(-0.1, proc);
             let bytes = c.to_bytes().unwrap();
             assert_eq!(bytes.len() % BLOCK, 0);
@@ -901,11 +942,44 @@ mod tests {
         }
     }
 
+    /// VAX F-floating values of the VAX Architecture Reference Manual's layout, written out by
+    /// hand: 1.0 is `0.1b × 2^1` (exponent 129, fraction 0: word 0x4080), −1.0 the same with the
+    /// sign, 0.5 exponent 128 (0x4000), 3.0 `0.11b × 2^2` (0x4140), 0.1 0xCCCD 0x3ECC.
+    #[test]
+    fn dec_floats_read_and_write_as_the_vax_layout_says() {
+        for (bytes, v) in [
+            ([0x80, 0x40, 0x00, 0x00], 1.0f32),
+            ([0x80, 0xC0, 0x00, 0x00], -1.0),
+            ([0x00, 0x40, 0x00, 0x00], 0.5),
+            ([0x40, 0x41, 0x00, 0x00], 3.0),
+            ([0xCC, 0x3E, 0xCD, 0xCC], 0.1),
+            ([0x00, 0x00, 0x00, 0x00], 0.0),
+        ] {
+            assert_eq!(dec_f32(bytes), v, "{bytes:02x?}");
+            assert_eq!(f32_dec(v), bytes, "{v}");
+        }
+        // The reserved operand (sign set, exponent 0) is not a number.
+        assert!(dec_f32([0x00, 0x80, 0x00, 0x00]).is_nan());
+        // Every f32 a VAX float holds goes there and back exactly, from the smallest (2^-128,
+        // below IEEE's normal range) to the largest (just under 2^127).
+        for v in [1e-30f32, -2.5e-7, 1234.567, -9.87e20, 1.7e38, 2.938_736e-39] {
+            assert_eq!(dec_f32(f32_dec(v)), v, "{v}");
+        }
+        // Beyond it: the largest VAX float; below it, zero.
+        assert_eq!(dec_f32(f32_dec(3e38)), dec_f32([0xff, 0x7f, 0xff, 0xff]));
+        assert_eq!(f32_dec(1e-40), [0; 4]);
+    }
+
     #[test]
     fn integer_round_trip_within_half_a_scale_step() {
         let c = sample(0.1, Processor::Intel);
         let back = C3d::from_bytes(&c.to_bytes().unwrap()).unwrap();
         assert!(back.scale > 0.0);
+        assert_close(&c, &back, 0.0501);
+        // DEC: integers as Intel's, the scale and rate VAX floats.
+        let c = sample(0.1, Processor::Dec);
+        let back = C3d::from_bytes(&c.to_bytes().unwrap()).unwrap();
+        assert_eq!(back.processor, Processor::Dec);
         assert_close(&c, &back, 0.0501);
         // Gaps survive in integer files too.
         assert_eq!(back.frames[1][1], None);
@@ -980,8 +1054,6 @@ mod tests {
         );
 
         let mut b = good.clone();
-        b[BLOCK + 3] = 85;
-        assert!(err(&b).contains("DEC"));
         b[BLOCK + 3] = 99;
         assert!(err(&b).contains("processor type 99"));
 
