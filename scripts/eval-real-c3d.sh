@@ -16,8 +16,9 @@
 # SampleData/Test_Files/Movement_trial.c3d and Static_trial.c3d; not committed: their capture's
 # terms are not stated beyond the repository's licence): docs/results/captured-motion.md, round 20.
 # UP (default z: Vicon's lab frame) and LABEL_MAP (a `lfit data import --label-map` file; default:
-# labels equal to the model's Plug-in Gait names) describe the capture; LFIT (default: the release
-# build) is the binary. The same files give the same numbers, but for the times.
+# labels equal to the model's Plug-in Gait names) describe the capture; CHECKPOINT (default
+# checkpoints/markers-makehuman) is the markers network; LFIT (default: the release build) is the
+# binary. The same files give the same numbers, but for the times.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ $# -lt 1 ] || [ $# -gt 3 ]; then
@@ -41,7 +42,7 @@ for f in "$MOVE" ${STATIC:+"$STATIC"}; do
 done
 source scripts/eval-common.sh
 eval_binary eval-real-c3d
-CK=checkpoints/markers-makehuman
+CK="${CHECKPOINT:-checkpoints/markers-makehuman}"
 eval_need_dir eval-real-c3d "$CK"
 mkdir -p "$OUT"
 import=(--model "$MODEL" --up "${UP:-z}")
