@@ -355,6 +355,12 @@ fn parse_params(
                 "parameter section entry '{name}' points backwards (offset {offset})"
             ));
         }
+        // An entry read whole whose offset points past the section is its last: c3d.org's own
+        // SGI sample (Sample02's sgi_int.c3d and sgi_real.c3d) ends on POINT:LABELS with an
+        // offset of 16129 instead of 0.
+        if next as usize + 2 > end {
+            break;
+        }
         at = next as usize;
     }
     Ok(Params { groups, params })
@@ -968,6 +974,41 @@ mod tests {
         // Beyond it: the largest VAX float; below it, zero.
         assert_eq!(dec_f32(f32_dec(3e38)), dec_f32([0xff, 0x7f, 0xff, 0xff]));
         assert_eq!(f32_dec(1e-40), [0; 4]);
+    }
+
+    /// A last parameter entry whose offset points past the section instead of being 0 (c3d.org's
+    /// own SGI sample ends so) is the last one: the file reads as with the 0.
+    #[test]
+    fn a_last_entry_pointing_past_the_section_ends_it() {
+        for proc in [Processor::Intel, Processor::Mips] {
+            let c = sample(-0.1, proc);
+            let good = c.to_bytes().unwrap();
+            let o = Order {
+                big: proc == Processor::Mips,
+                dec: false,
+            };
+            // Walk the entries to the one whose offset is 0.
+            let start = (usize::from(good[0]) - 1) * BLOCK;
+            let mut at = start + 4;
+            let word = loop {
+                let word = at + 2 + (good[at] as i8).unsigned_abs() as usize;
+                let offset = o.i16(&good, word);
+                if offset == 0 {
+                    break word;
+                }
+                at = (word as i64 + i64::from(offset)) as usize;
+            };
+            let mut b = good.clone();
+            let past = if o.big {
+                16129u16.to_be_bytes()
+            } else {
+                16129u16.to_le_bytes()
+            };
+            b[word..word + 2].copy_from_slice(&past);
+            let back = C3d::from_bytes(&b).unwrap();
+            assert_eq!(back.labels, c.labels);
+            assert_eq!(back.frames, C3d::from_bytes(&good).unwrap().frames);
+        }
     }
 
     #[test]
