@@ -188,6 +188,7 @@ fn c3d_of(d: &Dataset, scale: f64) -> (C3d, Vec<(String, String)>) {
             first_frame: 1,
             analog_per_frame: 0,
             frames,
+            non_finite: 0,
         },
         map,
     )
@@ -451,7 +452,7 @@ fn bad_input_is_one_line_and_writes_nothing() {
     bad[3].1 = "NOSUCH".into();
     write_map(&bad_map, &bad);
     run_c3d(&good, &bad_map, "'NOSUCH' is not a marker");
-    // Truncated data, a cut header, wrong magic, a wrong parameter-section key, NaN.
+    // Truncated data, a cut header, wrong magic, a wrong parameter-section key.
     run_c3d(&good[..good.len() - 700], &map_file, "truncated");
     run_c3d(&good[..200], &map_file, "truncated");
     let mut b = good.clone();
@@ -476,10 +477,21 @@ fn bad_input_is_one_line_and_writes_nothing() {
         path_str(&imported),
     ]);
     assert!(imported.is_file());
+    // NaN coordinates in a sample are a gap (kineticstoolkit's files mark gaps so), counted.
     let mut b = good.clone();
     let start = (u16::from_le_bytes([b[16], b[17]]) as usize - 1) * 512;
     b[start..start + 4].copy_from_slice(&f32::NAN.to_le_bytes());
-    run_c3d(&b, &map_file, "not finite");
+    let nan_file = d.join("nan.c3d");
+    std::fs::write(&nan_file, &b).expect("write");
+    let nan_out = d.join("nan.npz");
+    let s = import_c3d(&nan_file, &map_file, &nan_out);
+    assert_eq!(s["import"]["non_finite_samples"], 1);
+    let nan = Dataset::load(&nan_out).expect("imported");
+    let (_, seen) = sparse(&nan);
+    assert!(
+        !seen[0][0] && seen[1][0],
+        "frame 0's first marker is a gap, frame 1's is not"
+    );
 
     // Keypoints: the wrong number of values, a missing camera, an unreadable camera file.
     let kp = d.join("kp.json");

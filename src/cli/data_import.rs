@@ -204,6 +204,7 @@ pub fn export_c3d(args: &ExportC3dArgs) -> Result<Value> {
         first_frame: 1,
         analog_per_frame: 0,
         frames,
+        non_finite: 0,
     };
     let bytes = c3d
         .to_bytes()

@@ -78,12 +78,15 @@ pub struct C3d {
     pub scale: f64,
     /// `POINT:RATE`, frames per second.
     pub rate: f64,
-    /// Number of the first frame (header word 4, from 1).
+    /// Number of the first frame (header word 4; from 1 in the format guide, 0 in some files).
     pub first_frame: u32,
     /// Analog samples per 3D frame (all channels; header word 3), skipped by the reader.
     pub analog_per_frame: usize,
-    /// Per frame, per point: the sample, or `None` for a gap (residual word < 0).
+    /// Per frame, per point: the sample, or `None` for a gap (residual word < 0, or coordinates
+    /// that are not finite).
     pub frames: Vec<Vec<Option<C3dPoint>>>,
+    /// Samples read as gaps because their coordinates were not finite (with a valid residual).
+    pub non_finite: usize,
 }
 
 fn fail<T>(msg: impl Into<String>) -> Result<T, ImportError> {
@@ -300,9 +303,11 @@ fn parse_params(
             ));
         }
         let raw = &b[at + 2..word];
-        if !raw.iter().all(|c| c.is_ascii_graphic()) {
+        // Printable: Qualisys names a parameter "Uncropped Measurement Length" (spaces); control
+        // characters mean the walk has left the entries.
+        if raw.iter().any(|&c| c < 0x20 || c == 0x7f) {
             return fail(format!(
-                "parameter section entry at byte {at} has a name that is not printable ASCII"
+                "parameter section entry at byte {at} has a name with control characters"
             ));
         }
         let name = String::from_utf8_lossy(raw).to_ascii_uppercase();
@@ -497,9 +502,11 @@ impl C3d {
                 pblock + pblocks - 1
             ));
         }
-        if last < first || first == 0 {
+        // Frames count from 1 in the format guide; some writers start at 0 (a recording
+        // kineticstoolkit ships).
+        if last < first {
             return fail(format!(
-                "the header's frames run from {first} to {last}: the first frame must be ≥ 1 and not after the last"
+                "the header's frames run from {first} to {last}: the first frame is after the last"
             ));
         }
         let n = (last - first + 1) as usize;
@@ -557,6 +564,7 @@ impl C3d {
             ));
         }
         let abs_scale = scale.abs();
+        let mut non_finite = 0;
         let mut frames = Vec::with_capacity(n);
         for f in 0..n {
             let base = start + f * frame_bytes;
@@ -584,11 +592,12 @@ impl C3d {
                     row.push(None);
                     continue;
                 }
+                // NaN coordinates are how several writers mark a gap (kineticstoolkit, and so
+                // the files it ships); a gap here too, counted.
                 if xyz.iter().any(|v| !v.is_finite()) {
-                    return fail(format!(
-                        "frame {} point '{label}': coordinates {xyz:?} are not finite",
-                        first as usize + f
-                    ));
+                    non_finite += 1;
+                    row.push(None);
+                    continue;
                 }
                 let bits = w as i64;
                 row.push(Some(C3dPoint {
@@ -608,6 +617,7 @@ impl C3d {
             first_frame: first,
             analog_per_frame: h_analog,
             frames,
+            non_finite,
         })
     }
 
@@ -901,6 +911,7 @@ mod tests {
             first_frame: 7,
             analog_per_frame: 0,
             frames,
+            non_finite: 0,
         }
     }
 
@@ -1107,11 +1118,36 @@ mod tests {
         b[2] = 4;
         assert!(err(&b).contains("POINT:USED"));
 
-        // NaN in a valid sample (frame 0, point 0, X).
+        // NaN in a valid sample (frame 0, point 0, X): a gap, counted.
         let mut b = good.clone();
         let at = (data_start - 1) * BLOCK;
         b[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
-        assert!(err(&b).contains("not finite"));
+        let nan = C3d::from_bytes(&b).unwrap();
+        assert_eq!(nan.frames[0][0], None);
+        assert_eq!(nan.non_finite, 1);
+        assert_eq!(nan.frames[1..], C3d::from_bytes(&good).unwrap().frames[1..]);
+        // Frames counted from 0 (some writers do): read, the same frames.
+        let mut b = good.clone();
+        let (first, last) = (
+            u16::from_le_bytes([b[6], b[7]]),
+            u16::from_le_bytes([b[8], b[9]]),
+        );
+        b[6..8].copy_from_slice(&0u16.to_le_bytes());
+        b[8..10].copy_from_slice(&(last - first).to_le_bytes());
+        let zero = C3d::from_bytes(&b).unwrap();
+        assert_eq!(zero.first_frame, 0);
+        assert_eq!(zero.frames, C3d::from_bytes(&good).unwrap().frames);
+        // A group named with a space (Qualisys names a parameter "Uncropped Measurement
+        // Length") reads; a control character in a name is refused.
+        let analog = good.windows(6).position(|w| w == b"ANALOG").unwrap();
+        let mut b = good.clone();
+        b[analog + 3] = b' ';
+        assert_eq!(
+            C3d::from_bytes(&b).unwrap().frames,
+            C3d::from_bytes(&good).unwrap().frames
+        );
+        b[analog + 3] = 0x01;
+        assert!(err(&b).contains("control characters"), "{}", err(&b));
         // ... but NaN in a gap is a gap (frame 0, point 2).
         let mut b = good.clone();
         let at = (data_start - 1) * BLOCK + 2 * 16;

@@ -174,6 +174,9 @@ pub fn import_c3d(
             template.id
         ));
     }
+    if c3d.labels.is_empty() {
+        return fail("the C3D file holds no 3D points (POINT:USED is 0)");
+    }
     let metres = c3d.metres_per_unit()?;
     let to_lfit = up.to_lfit();
     let marker_names: Vec<String> = markers.iter().map(|m| m.name.clone()).collect();
@@ -273,6 +276,9 @@ pub fn import_c3d(
         "unmapped_model_markers": unmapped,
         "ignored_c3d_labels": ignored,
         "gap_fraction": gaps as f64 / (n * pairs.len()).max(1) as f64,
+        // Samples of any point whose coordinates were not finite: gaps (NaN marks a gap in
+        // kineticstoolkit's files and others').
+        "non_finite_samples": c3d.non_finite,
         "rigid_starts": rigid_frames,
         "map": mapped,
     });
@@ -890,6 +896,7 @@ mod tests {
             first_frame: 1,
             analog_per_frame: 0,
             frames,
+            non_finite: 0,
         }
     }
 
@@ -934,6 +941,14 @@ mod tests {
         assert!(e.to_string().contains("'NOPE' is not a marker"), "{e}");
         let e = import_c3d(&c, "x", None, &t, Scenario::Local, Up::Y).unwrap_err();
         assert!(e.to_string().contains("--label-map"), "{e}");
+        // A file without points (kineticstoolkit's C3DRotationExample holds rotations only).
+        let empty = C3d {
+            labels: Vec::new(),
+            frames: c.frames.iter().map(|_| Vec::new()).collect(),
+            ..c.clone()
+        };
+        let e = import_c3d(&empty, "x", None, &t, Scenario::Local, Up::Y).unwrap_err();
+        assert!(e.to_string().contains("holds no 3D points"), "{e}");
     }
 
     /// `--up z`: the same C3D read as Z-up lands in lfit's Y-up frame by (x, y, z) → (x, z, −y),
