@@ -12,9 +12,15 @@
 #
 #   scripts/eval-real-c3d.sh MOVEMENT.c3d [STATIC.c3d] [OUT]
 #
+# Without a static trial, give the movement trial twice: the "static" rows then take the placement
+# and β solved over that trial with every marker, which tells them where the held-out markers sit
+# on the body (not where they are in any frame) — the same for every method (round 20's serve).
+#
 # Measured on pyCGM's sample trials (MIT; github.com/cadop/pyCGM at 1750a62,
 # SampleData/Test_Files/Movement_trial.c3d and Static_trial.c3d; not committed: their capture's
-# terms are not stated beyond the repository's licence): docs/results/captured-motion.md, round 20.
+# terms are not stated beyond the repository's licence) and kineticstoolkit's tennis serve
+# (Apache-2.0; data/kinematics_tennis_serve.c3d, labels "Derrick:<marker>" through LABEL_MAP):
+# docs/results/captured-motion.md, round 20.
 # UP (default z: Vicon's lab frame) and LABEL_MAP (a `lfit data import --label-map` file; default:
 # labels equal to the model's Plug-in Gait names) describe the capture; CHECKPOINT (default
 # checkpoints/markers-makehuman) is the markers network; LFIT (default: the release build) is the
