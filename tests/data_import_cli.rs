@@ -1071,3 +1071,100 @@ print(json.dumps({"proc": r.proc_type, "rate": float(r.point_rate), "frames": fr
     }
     assert!(compared > 100, "{compared} points compared");
 }
+
+/// A capture whose markers sit off the model's marker set (synthetic frames slipped by 40 mm, as
+/// C3D) fitted on the set gets the summary's `hint` to solve their placement; solved, or markers
+/// on the set, it does not.
+#[test]
+fn a_capture_with_markers_off_the_set_is_told_to_solve_their_placement() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    // The MakeHuman body: a placement solve needs shape parameters.
+    let model = format!("{}/models/makehuman-cmu_mb.npz", env!("CARGO_MANIFEST_DIR"));
+    let fit = |data: &Path, name: &str, more: &[&str]| -> Value {
+        let out = d.join(format!("{name}.json"));
+        let mut a = vec![
+            "-q",
+            "fit",
+            "--data",
+            path_str(data),
+            "--method",
+            "lm",
+            "--budget",
+            "200",
+            "--model",
+            &model,
+            "--out",
+            path_str(&out),
+        ];
+        a.extend(more);
+        lfit_json(&a)["summary"].clone()
+    };
+    let mut hints = Vec::new();
+    for (name, slip) in [("on", "0"), ("off", "40")] {
+        let data = d.join(format!("{name}.npz"));
+        lfit_json(&[
+            "-q",
+            "synth",
+            "--modality",
+            "markers",
+            "--scenario",
+            "sequence",
+            "--frames",
+            "10",
+            "--noise",
+            "0",
+            "--seed",
+            "5",
+            "--model",
+            &model,
+            "--marker-slip-mm",
+            slip,
+            "--out",
+            path_str(&data),
+        ]);
+        let c3d = d.join(format!("{name}.c3d"));
+        lfit_json(&[
+            "-q",
+            "data",
+            "export-c3d",
+            "--data",
+            path_str(&data),
+            "--out",
+            path_str(&c3d),
+        ]);
+        let imported = d.join(format!("{name}-imported.npz"));
+        lfit_json(&[
+            "-q",
+            "data",
+            "import",
+            "--c3d",
+            path_str(&c3d),
+            "--model",
+            &model,
+            "--out",
+            path_str(&imported),
+        ]);
+        let on_set = fit(&imported, name, &[]);
+        let solved = fit(
+            &imported,
+            &format!("{name}-solved"),
+            &[
+                "--sequence-shape",
+                "joint:64",
+                "--marker-placement",
+                "solve",
+            ],
+        );
+        assert!(solved.get("hint").is_none(), "{name}: {solved}");
+        hints.push((
+            on_set["mean_observation_error_mm"].as_f64().expect("error"),
+            on_set.get("hint").cloned(),
+        ));
+    }
+    let (on, off) = (&hints[0], &hints[1]);
+    assert!(on.0 < 10.0 && on.1.is_none(), "markers on the set: {on:?}");
+    assert!(off.0 > 10.0, "markers 40 mm off the set: {off:?}");
+    let hint = off.1.as_ref().and_then(Value::as_str).expect("a hint");
+    assert!(hint.contains("--marker-placement solve"), "{hint}");
+}

@@ -104,6 +104,37 @@ pub fn read_energy_config(path: Option<&Path>, gradient: bool) -> Result<EnergyC
     Ok(config)
 }
 
+/// Mean marker error (mm) of a capture's fit above which the markers are taken to sit off the
+/// model's marker set. Markers on the set fit to under 2 mm (a C3D of synthetic frames, noise
+/// free) and real markers, hand placed, leave 23–30 mm on it and 4–6 mm once their placement is
+/// solved (`docs/results/captured-motion.md`, round 20).
+pub const PLACEMENT_HINT_MM: f64 = 10.0;
+
+/// The summary's `hint` for a capture's markers fitted on the model's marker set with more than
+/// [`PLACEMENT_HINT_MM`] left on them: where they sit can be solved. `None` otherwise.
+fn placement_hint(
+    dataset: &Dataset,
+    placement: crate::fitting::MarkerPlacement,
+    offsets: bool,
+    mean_mm: f64,
+) -> Option<String> {
+    let markers = dataset.sensor.modality() == lfit_model::observe::Modality::Markers;
+    (markers
+        && !offsets
+        && placement == crate::fitting::MarkerPlacement::Model
+        && mean_mm > PLACEMENT_HINT_MM)
+        .then(|| {
+            let how = if dataset.meta.config.scenario == lfit_synth::Scenario::Sequence {
+                "--sequence-shape joint:64 --marker-placement solve (or --offsets from a static trial's solve)"
+            } else {
+                "--offsets from a sequence's --marker-placement solve"
+            };
+            format!(
+                "the fit leaves {mean_mm:.1} mm on the markers: markers placed by hand sit off the model's marker set, and {how} puts them where they are (a lab's captures: 23–30 → 4–6 mm)"
+            )
+        })
+}
+
 /// A frame's distances to observations into its row: `{prefix}_error_{unit}` (mean),
 /// `{prefix}_rms_{unit}`, `{prefix}_max_{unit}` and `seen` (how many).
 fn errors_json(
@@ -622,8 +653,12 @@ fn fit_prepared(
         // No V2V/MPJPE without ground truth: energies and distances to the observations.
         summary["ground_truth"] = json!(false);
         if obs_frames > 0 {
-            summary[format!("mean_observation_error_{obs_unit}")] =
-                json!(sum_obs / obs_frames as f64);
+            let mean = sum_obs / obs_frames as f64;
+            summary[format!("mean_observation_error_{obs_unit}")] = json!(mean);
+            if let Some(hint) = placement_hint(dataset, *marker_placement, offsets.is_some(), mean)
+            {
+                summary["hint"] = json!(hint);
+            }
         }
     }
     if held_frames > 0 {
