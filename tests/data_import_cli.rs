@@ -1083,22 +1083,9 @@ fn a_capture_with_markers_off_the_set_is_told_to_solve_their_placement() {
     let model = format!("{}/models/makehuman-cmu_mb.npz", env!("CARGO_MANIFEST_DIR"));
     let fit = |data: &Path, name: &str, more: &[&str]| -> Value {
         let out = d.join(format!("{name}.json"));
-        let mut a = vec![
-            "-q",
-            "fit",
-            "--data",
-            path_str(data),
-            "--method",
-            "lm",
-            "--budget",
-            "200",
-            "--model",
-            &model,
-            "--out",
-            path_str(&out),
-        ];
-        a.extend(more);
-        lfit_json(&a)["summary"].clone()
+        let mut with_model = vec!["--model", model.as_str()];
+        with_model.extend(more);
+        lfit_json(&support::lm_fit_args(data, &out, "200", &with_model))["summary"].clone()
     };
     let mut hints = Vec::new();
     for (name, slip) in [("on", "0"), ("off", "40")] {

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use lfit::synth::capture::c3d::C3d;
 use lfit::synth::{Dataset, Observations};
 use serde_json::{Value, json};
-use support::{assert_one_line_error, lfit, lfit_json, path_str};
+use support::{assert_one_line_error, lfit, lfit_json, lm_fit_args, path_str};
 
 /// `lfit synth` of noise-free frames of `modality` in the `local` scenario.
 fn synth(dir: &Path, modality: &str, more: &[&str]) -> (PathBuf, Dataset) {
@@ -37,27 +37,9 @@ fn synth(dir: &Path, modality: &str, more: &[&str]) -> (PathBuf, Dataset) {
     (out.clone(), Dataset::load(&out).expect("dataset"))
 }
 
-/// `lfit -q fit --method lm` of `data` into `out` with `budget` and more arguments.
-fn fit_args<'a>(data: &'a Path, out: &'a Path, budget: &'a str, more: &[&'a str]) -> Vec<&'a str> {
-    let mut a = vec![
-        "-q",
-        "fit",
-        "--data",
-        path_str(data),
-        "--method",
-        "lm",
-        "--budget",
-        budget,
-        "--out",
-        path_str(out),
-    ];
-    a.extend(more);
-    a
-}
-
-/// [`fit_args`] with 300 evaluations, run; the result document.
+/// [`lm_fit_args`] with 300 evaluations, run; the result document.
 fn fit(data: &Path, out: &Path, more: &[&str]) -> Value {
-    lfit_json(&fit_args(data, out, "300", more));
+    lfit_json(&lm_fit_args(data, out, "300", more));
     serde_json::from_slice(&std::fs::read(out).expect("result")).expect("JSON")
 }
 
@@ -292,7 +274,7 @@ fn bad_holdout_items_are_one_line_errors_that_write_nothing() {
         (&keypoints, "Elbow", "is neither camera:K nor a joint"),
         (&hmd, "LFHD", "the data's modality is hmd"),
     ] {
-        let o = lfit(&fit_args(data, &out, "20", &["--holdout", items]));
+        let o = lfit(&lm_fit_args(data, &out, "20", &["--holdout", items]));
         assert_one_line_error(&o, needle);
         assert!(!out.exists(), "{items}: nothing is written");
     }

@@ -106,6 +106,29 @@ pub fn python_with(modules: &str) -> Result<Command, String> {
     }
 }
 
+/// `lfit -q fit --data DATA --method lm --budget BUDGET --out OUT` and `more`.
+pub fn lm_fit_args<'a>(
+    data: &'a Path,
+    out: &'a Path,
+    budget: &'a str,
+    more: &[&'a str],
+) -> Vec<&'a str> {
+    let mut a = vec![
+        "-q",
+        "fit",
+        "--data",
+        path_str(data),
+        "--method",
+        "lm",
+        "--budget",
+        budget,
+        "--out",
+        path_str(out),
+    ];
+    a.extend(more);
+    a
+}
+
 pub fn path_str(p: &Path) -> &str {
     p.to_str().expect("utf-8 temp path")
 }
