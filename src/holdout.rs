@@ -134,10 +134,13 @@ impl Holdout {
                 _ => dataset.start_poses.clone(),
             }
         };
+        // Field by field: `..dataset.clone()` would copy the observations again to drop them.
         Ok(Dataset {
+            meta: dataset.meta.clone(),
+            sensor: dataset.sensor.clone(),
             start_poses,
+            gt_poses: dataset.gt_poses.clone(),
             observations: Observations::Sparse { values, visible },
-            ..dataset.clone()
         })
     }
 

@@ -196,17 +196,7 @@ fn c3d_of(d: &Dataset, scale: f64) -> (C3d, Vec<(String, String)>) {
 
 /// `lfit data import --c3d FILE --label-map MAP --out OUT`; its JSON summary.
 fn import_c3d(file: &Path, map: &Path, out: &Path) -> Value {
-    lfit_json(&[
-        "-q",
-        "data",
-        "import",
-        "--c3d",
-        path_str(file),
-        "--label-map",
-        path_str(map),
-        "--out",
-        path_str(out),
-    ])
+    support::import_c3d_with(file, out, &["--label-map", path_str(map)])
 }
 
 fn write_map(path: &Path, map: &[(String, String)]) {
@@ -1090,48 +1080,28 @@ fn a_capture_with_markers_off_the_set_is_told_to_solve_their_placement() {
     let mut hints = Vec::new();
     for (name, slip) in [("on", "0"), ("off", "40")] {
         let data = d.join(format!("{name}.npz"));
-        lfit_json(&[
-            "-q",
-            "synth",
-            "--modality",
-            "markers",
-            "--scenario",
-            "sequence",
-            "--frames",
-            "10",
-            "--noise",
-            "0",
-            "--seed",
-            "5",
-            "--model",
-            &model,
-            "--marker-slip-mm",
-            slip,
-            "--out",
-            path_str(&data),
-        ]);
+        support::synth_to(
+            &data,
+            Path::new(&model),
+            &[
+                "--modality",
+                "markers",
+                "--scenario",
+                "sequence",
+                "--frames",
+                "10",
+                "--noise",
+                "0",
+                "--seed",
+                "5",
+                "--marker-slip-mm",
+                slip,
+            ],
+        );
         let c3d = d.join(format!("{name}.c3d"));
-        lfit_json(&[
-            "-q",
-            "data",
-            "export-c3d",
-            "--data",
-            path_str(&data),
-            "--out",
-            path_str(&c3d),
-        ]);
+        support::export_c3d(&data, &c3d);
         let imported = d.join(format!("{name}-imported.npz"));
-        lfit_json(&[
-            "-q",
-            "data",
-            "import",
-            "--c3d",
-            path_str(&c3d),
-            "--model",
-            &model,
-            "--out",
-            path_str(&imported),
-        ]);
+        support::import_c3d_with(&c3d, &imported, &["--model", &model]);
         let on_set = fit(&imported, name, &[]);
         let solved = fit(
             &imported,

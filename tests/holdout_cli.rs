@@ -186,15 +186,7 @@ fn a_capture_with_markers_held_out_fits_as_its_import_without_them() {
     let d = tmp.path();
     let (data, _) = synth(d, "markers", &[]);
     let c3d = d.join("capture.c3d");
-    lfit_json(&[
-        "-q",
-        "data",
-        "export-c3d",
-        "--data",
-        path_str(&data),
-        "--out",
-        path_str(&c3d),
-    ]);
+    support::export_c3d(&data, &c3d);
     let file = C3d::read(&c3d).expect("C3D");
     let held = ["C7", "LWRA", "RTHI", "LTOE"];
     let import = |out: &Path, labels: Vec<&String>| {
@@ -202,17 +194,7 @@ fn a_capture_with_markers_held_out_fits_as_its_import_without_them() {
             labels.into_iter().map(|l| (l.clone(), json!(l))).collect();
         let map_file = d.join("map.json");
         std::fs::write(&map_file, Value::Object(map).to_string()).expect("map");
-        lfit_json(&[
-            "-q",
-            "data",
-            "import",
-            "--c3d",
-            path_str(&c3d),
-            "--label-map",
-            path_str(&map_file),
-            "--out",
-            path_str(out),
-        ]);
+        support::import_c3d_with(&c3d, out, &["--label-map", path_str(&map_file)]);
     };
     let all = d.join("all.npz");
     import(&all, file.labels.iter().collect());

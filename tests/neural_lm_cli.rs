@@ -940,26 +940,8 @@ fn solved_marker_placement_explains_slipped_markers() {
     // are measured with the markers where the fit put them.
     let c3d = tmp.path().join("slip.c3d");
     let imported = tmp.path().join("imported.npz");
-    lfit_json(&[
-        "-q",
-        "data",
-        "export-c3d",
-        "--data",
-        path_str(&seq),
-        "--out",
-        path_str(&c3d),
-    ]);
-    lfit_json(&[
-        "-q",
-        "data",
-        "import",
-        "--c3d",
-        path_str(&c3d),
-        "--model",
-        path_str(&root(MODEL)),
-        "--out",
-        path_str(&imported),
-    ]);
+    support::export_c3d(&seq, &c3d);
+    support::import_c3d_with(&c3d, &imported, &["--model", path_str(&root(MODEL))]);
     let observed = |placement: &str| -> f64 {
         let out = tmp.path().join(format!("imported-{placement}.json"));
         num(&lm50_placed(&imported, &out, placement, &[])["summary"]["mean_observation_error_mm"])

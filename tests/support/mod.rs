@@ -129,6 +129,29 @@ pub fn lm_fit_args<'a>(
     a
 }
 
+/// `lfit -q data export-c3d --data DATA --out OUT`: a markers dataset's observations as a C3D
+/// file, asserting success; the summary.
+pub fn export_c3d(data: &Path, out: &Path) -> serde_json::Value {
+    lfit_json(&[
+        "-q",
+        "data",
+        "export-c3d",
+        "--data",
+        path_str(data),
+        "--out",
+        path_str(out),
+    ])
+}
+
+/// `lfit -q data import --c3d C3D MORE --out OUT` (a label map, a model, ...), asserting
+/// success; the summary.
+pub fn import_c3d_with(c3d: &Path, out: &Path, more: &[&str]) -> serde_json::Value {
+    let mut a = vec!["-q", "data", "import", "--c3d", path_str(c3d)];
+    a.extend(more);
+    a.extend(["--out", path_str(out)]);
+    lfit_json(&a)
+}
+
 pub fn path_str(p: &Path) -> &str {
     p.to_str().expect("utf-8 temp path")
 }

@@ -281,11 +281,10 @@ fn parse_params(
     let b = &bytes[..end];
     let mut groups = Vec::new();
     let mut params = Vec::new();
+    // Every entry starts at least 2 bytes before the section's end: the first (the section has
+    // ≥ 1 block) and each next one (an offset past that ends the section, below).
     let mut at = start + 4;
     loop {
-        if at + 2 > end {
-            return fail("the parameter section ends without a last entry (offset 0)");
-        }
         let name_len = (b[at] as i8).unsigned_abs() as usize;
         if name_len == 0 {
             break;
