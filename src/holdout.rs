@@ -14,7 +14,7 @@ use lfit_model::observe::Sensor;
 use lfit_model::template::Template;
 use lfit_synth::Dataset;
 use lfit_synth::capture::import::{
-    ObservationErrors, keypoint_starts, marker_starts, observation_errors_of,
+    ObservationErrors, keypoint_starts, marker_starts, observation_distances_of,
 };
 use lfit_synth::dataset::Observations;
 
@@ -25,8 +25,8 @@ pub struct Holdout {
     /// What was asked for, one entry per item (`LTIB`, `camera:2`).
     pub items: Vec<String>,
     /// Per group of the sensor's observation vector (a marker's 3 values, a keypoint's 2 in one
-    /// camera): whether it is held out.
-    held: Vec<bool>,
+    /// camera): the item (index into `items`) that holds it out, `None` where it is fitted.
+    held: Vec<Option<usize>>,
     /// Values per group.
     group: usize,
 }
@@ -45,23 +45,23 @@ impl Holdout {
         }
         let (held, group) = match &dataset.sensor {
             Sensor::Markers(setup) => {
-                let mut held = vec![false; setup.names.len()];
-                for item in &items {
+                let mut held = vec![None; setup.names.len()];
+                for (i, item) in items.iter().enumerate() {
                     let Some(k) = setup.names.iter().position(|n| n == item) else {
                         bail!(
                             "--holdout: '{item}' is not a marker of the data (its markers: {})",
                             preview(&setup.names)
                         );
                     };
-                    mark(&mut held, k, item)?;
+                    mark(&mut held, k, i, item)?;
                 }
                 (held, 3)
             }
             Sensor::Keypoints2d(setup) => {
                 let nj = template.rig.num_joints();
                 let cameras = setup.cameras.len();
-                let mut held = vec![false; cameras * nj];
-                for item in &items {
+                let mut held = vec![None; cameras * nj];
+                for (i, item) in items.iter().enumerate() {
                     if let Some(c) = item.strip_prefix("camera:") {
                         let c: usize = c.parse().map_err(|_| {
                             anyhow::anyhow!("--holdout: '{item}': camera:K needs a camera index")
@@ -71,10 +71,10 @@ impl Holdout {
                                 "--holdout: '{item}': the data has {cameras} camera(s), counted from 0"
                             );
                         }
-                        if held[c * nj..(c + 1) * nj].iter().any(|&h| h) {
+                        if held[c * nj..(c + 1) * nj].iter().any(Option::is_some) {
                             bail!("--holdout: '{item}' overlaps an item named before");
                         }
-                        held[c * nj..(c + 1) * nj].fill(true);
+                        held[c * nj..(c + 1) * nj].fill(Some(i));
                     } else {
                         let Some(j) = template.rig.joint_index(item) else {
                             bail!(
@@ -83,7 +83,7 @@ impl Holdout {
                             );
                         };
                         for c in 0..cameras {
-                            mark(&mut held, c * nj + j, item)?;
+                            mark(&mut held, c * nj + j, i, item)?;
                         }
                     }
                 }
@@ -99,7 +99,7 @@ impl Holdout {
         };
         let left = visible
             .iter()
-            .any(|b| (0..held.len()).any(|g| !held[g] && b[g * group]));
+            .any(|b| (0..held.len()).any(|g| held[g].is_none() && b[g * group]));
         if !left {
             bail!("--holdout leaves nothing seen to fit in any frame");
         }
@@ -116,7 +116,7 @@ impl Holdout {
         let mut values = values.clone();
         let mut visible = visible.clone();
         for (v, b) in values.iter_mut().zip(visible.iter_mut()) {
-            for (g, _) in self.held.iter().enumerate().filter(|e| *e.1) {
+            for (g, _) in self.held.iter().enumerate().filter(|e| e.1.is_some()) {
                 let r = g * self.group..(g + 1) * self.group;
                 v[r.clone()].fill(0.0);
                 b[r].fill(false);
@@ -146,7 +146,8 @@ impl Holdout {
 
     /// The held-out observations of `frame` of `dataset` (the one before [`Holdout::hide`]) that
     /// were seen, against `pose` as `sensor` predicts them (with a fit's solved placement, when it
-    /// has one); `None` when none of them was seen in that frame.
+    /// has one): their errors, and each one's distance with the item (index into `items`) that
+    /// held it out; `None` when none of them was seen in that frame.
     pub fn score(
         &self,
         dataset: &Dataset,
@@ -154,18 +155,25 @@ impl Holdout {
         template: &Template,
         frame: usize,
         pose: &[f64],
-    ) -> Option<ObservationErrors> {
-        observation_errors_of(dataset, sensor, template, frame, pose, &|g| {
-            self.held.get(g).copied().unwrap_or(false)
-        })
+    ) -> Option<(ObservationErrors, Vec<(usize, f64)>)> {
+        let item = |g: usize| self.held.get(g).copied().flatten();
+        let (unit, d) = observation_distances_of(dataset, sensor, template, frame, pose, &|g| {
+            item(g).is_some()
+        })?;
+        let errors = ObservationErrors::of(unit, &d.iter().map(|e| e.1).collect::<Vec<_>>())?;
+        let by_item = d
+            .into_iter()
+            .filter_map(|(g, x)| Some((item(g)?, x)))
+            .collect();
+        Some((errors, by_item))
     }
 }
 
-fn mark(held: &mut [bool], g: usize, item: &str) -> Result<()> {
-    if held[g] {
+fn mark(held: &mut [Option<usize>], g: usize, i: usize, item: &str) -> Result<()> {
+    if held[g].is_some() {
         bail!("--holdout: '{item}' is named twice");
     }
-    held[g] = true;
+    held[g] = Some(i);
     Ok(())
 }
 

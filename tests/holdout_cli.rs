@@ -152,6 +152,36 @@ fn held_out_markers_are_left_out_of_the_fit_and_scored_on_it() {
         .as_f64()
         .expect("mean");
     assert!((mean - sum / frames.len() as f64).abs() < 1e-12);
+    // Each marker's own mean over the frames that saw it, in the order asked for, computed
+    // here from the sensor one marker at a time.
+    let by_item = with["summary"]["holdout_by_item"]
+        .as_array()
+        .expect("holdout_by_item");
+    assert_eq!(by_item.len(), items.len());
+    let Observations::Sparse { visible, .. } = &truth.observations else {
+        panic!("sparse");
+    };
+    for ((row, item), &g) in by_item.iter().zip(items).zip(&held) {
+        let seen: Vec<&Value> = frames
+            .iter()
+            .filter(|f| visible[f["frame"].as_u64().expect("frame") as usize][3 * g])
+            .collect();
+        let expect = seen
+            .iter()
+            .map(|f| {
+                let k = f["frame"].as_u64().expect("frame") as usize;
+                held_error(&truth, k, &params(f), &[g], 3, 1000.0)
+            })
+            .sum::<f64>()
+            / seen.len() as f64;
+        assert_eq!(row["item"], json!(item));
+        assert_eq!(row["seen"].as_u64(), Some(seen.len() as u64));
+        let got = row["mean_error_mm"].as_f64().expect("item mean");
+        assert!(
+            (got - expect).abs() <= 1e-9 * expect.max(1.0),
+            "{item}: {got} against {expect}"
+        );
+    }
     // Without --holdout, nothing of it.
     assert!(plain.get("holdout").is_none() && plain["frames"][0].get("holdout_error_mm").is_none());
 }
@@ -178,6 +208,26 @@ fn a_held_out_camera_is_left_out_and_scored_in_pixels() {
         );
     }
     assert!(with["summary"]["mean_holdout_error_px"].as_f64().is_some());
+    // The camera's item: every seen keypoint of it in every frame, one mean.
+    let Observations::Sparse { visible, .. } = &truth.observations else {
+        panic!("sparse");
+    };
+    let (mut sum, mut seen) = (0.0, 0usize);
+    for f in with["frames"].as_array().expect("frames") {
+        let k = f["frame"].as_u64().expect("frame") as usize;
+        for &g in held.iter().filter(|&&g| visible[k][2 * g]) {
+            sum += held_error(&truth, k, &params(f), &[g], 2, 1.0);
+            seen += 1;
+        }
+    }
+    let row = &with["summary"]["holdout_by_item"][0];
+    assert_eq!(row["item"], json!("camera:2"));
+    assert_eq!(row["seen"].as_u64(), Some(seen as u64));
+    let got = row["mean_error_px"].as_f64().expect("camera mean");
+    assert!(
+        (got - sum / seen as f64).abs() <= 1e-9 * got.max(1.0),
+        "{got}"
+    );
 }
 
 #[test]

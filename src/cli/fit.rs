@@ -624,13 +624,19 @@ fn fit_prepared(
     // The held-out observations against each fit (with the markers or keypoints where a
     // solved placement put them).
     let (mut sum_held, mut held_frames, mut held_unit) = (0.0, 0usize, "");
+    // Per item asked for: the sum of its held-out distances and how many were seen.
+    let mut by_item = vec![(0.0, 0usize); holdout.as_ref().map_or(0, |h| h.items.len())];
     if let Some(h) = &holdout {
         for (k, frame, pose) in &fitted_poses {
-            if let Some(e) = h.score(scored, &sensor, &template, *frame, pose) {
+            if let Some((e, items)) = h.score(scored, &sensor, &template, *frame, pose) {
                 errors_json(&mut rows[*k], "holdout", "holdout_seen", &e);
                 sum_held += e.mean;
                 held_frames += 1;
                 held_unit = e.unit;
+                for (i, d) in items {
+                    by_item[i].0 += d;
+                    by_item[i].1 += 1;
+                }
             }
         }
     }
@@ -664,6 +670,22 @@ fn fit_prepared(
     if held_frames > 0 {
         summary[format!("mean_holdout_error_{held_unit}")] = json!(sum_held / held_frames as f64);
         summary["holdout_frames"] = json!(held_frames);
+        // Where a fit predicts badly: each item's mean over every frame that saw it (a marker;
+        // a camera's keypoints; a joint's keypoints in every camera), in the order given.
+        let items = holdout.as_ref().map_or(&[][..], |h| &h.items[..]);
+        summary["holdout_by_item"] = Value::Array(
+            items
+                .iter()
+                .zip(&by_item)
+                .map(|(item, &(sum, seen))| {
+                    let mut o = json!({ "item": item, "seen": seen });
+                    if seen > 0 {
+                        o[format!("mean_error_{held_unit}")] = json!(sum / seen as f64);
+                    }
+                    o
+                })
+                .collect(),
+        );
     }
     if let Some(pass) = &report.shape_pass {
         summary["shape_pass"] = json!(pass);

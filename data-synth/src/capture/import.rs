@@ -760,20 +760,23 @@ pub fn observation_errors(
     frame: usize,
     pose: &[f64],
 ) -> Option<ObservationErrors> {
-    observation_errors_of(dataset, sensor, template, frame, pose, &|_| true)
+    let (unit, d) = observation_distances_of(dataset, sensor, template, frame, pose, &|_| true)?;
+    ObservationErrors::of(unit, &d.into_iter().map(|e| e.1).collect::<Vec<_>>())
 }
 
-/// [`observation_errors`] over the seen markers or keypoints `scored` picks (by index: marker
-/// `k`; keypoint `c · joints + j` of camera `c`): `lfit fit --holdout`'s error on what it held
-/// out of the fit.
-pub fn observation_errors_of(
+/// The distance of each seen marker or keypoint that `scored` picks (by index: marker `k`;
+/// keypoint `c · joints + j` of camera `c`) from `pose`'s prediction, with its index: (unit,
+/// [(index, distance)]), in index order: `lfit fit --holdout`'s errors on what it held out.
+/// `None` where [`observation_errors`] has none (another modality, the frame missing, a sensor
+/// of another length); the list may be empty.
+pub fn observation_distances_of(
     dataset: &Dataset,
     sensor: &Sensor,
     template: &Template,
     frame: usize,
     pose: &[f64],
     scored: &dyn Fn(usize) -> bool,
-) -> Option<ObservationErrors> {
+) -> Option<(&'static str, Vec<(usize, f64)>)> {
     let (len, factor, unit) = match dataset.modality() {
         Modality::Markers => (3, 1000.0, "mm"),
         Modality::Keypoints2d => (2, 1.0, "px"),
@@ -787,27 +790,34 @@ pub fn observation_errors_of(
     if pred.len() != obs.len() {
         return None;
     }
-    let d: Vec<f64> = (0..obs.len() / len)
+    let d = (0..obs.len() / len)
         .filter(|&g| seen[g * len] && scored(g))
         .map(|g| {
-            (0..len)
+            let d = (0..len)
                 .map(|a| (pred[g * len + a] - obs[g * len + a]).powi(2))
                 .sum::<f64>()
-                .sqrt()
-                * factor
+                .sqrt();
+            (g, d * factor)
         })
         .collect();
-    if d.is_empty() {
-        return None;
+    Some((unit, d))
+}
+
+impl ObservationErrors {
+    /// Mean, RMS and largest of `distances` (in `unit`); `None` when there are none.
+    pub fn of(unit: &'static str, distances: &[f64]) -> Option<Self> {
+        if distances.is_empty() {
+            return None;
+        }
+        let n = distances.len() as f64;
+        Some(Self {
+            unit,
+            mean: distances.iter().sum::<f64>() / n,
+            rms: (distances.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
+            max: distances.iter().copied().fold(0.0, f64::max),
+            count: distances.len(),
+        })
     }
-    let n = d.len() as f64;
-    Some(ObservationErrors {
-        unit,
-        mean: d.iter().sum::<f64>() / n,
-        rms: (d.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
-        max: d.iter().copied().fold(0.0, f64::max),
-        count: d.len(),
-    })
 }
 
 #[cfg(test)]
