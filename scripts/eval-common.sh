@@ -11,9 +11,38 @@
 #   eval_table c3d OUT ROW...    # share within 5 mm marker RMS, mean/median RMS, evaluations, time
 #   eval_table real OUT ROW...   # the same, and mean marker error, β RMS, β entries on the box
 #
+#   eval_marker_names            # the model's marker names, one per line
+#   eval_marker_method M CK      # `lfit fit` arguments of markers method M on a sequence
+#   PIG_HALF_A, PIG_HALF_B       # half the Plug-in Gait markers each (below)
+#
 # LFIT (default: the release build under CARGO_TARGET_DIR or ~/.cache/lfit-target) is the binary.
 
 MODEL=models/makehuman-cmu_mb.npz
+
+# Half the Plug-in Gait markers each (a sparse set, where a fitter's prior matters): the markers
+# come in pairs on most segments (LFHD/LBHD, C7/T10, CLAV/STRN, LWRA/LWRB, LASI/LPSI,
+# LKNE/LTHI, LANK/LTIB, LTOE/LHEE, ...); half A is the second of each pair with the back and
+# upper-arm markers, half B the rest. A fit that sees one half sees one marker or two per
+# segment and nothing of some hands' and feet's rotations.
+PIG_HALF_A=(LBHD RBHD T10 STRN RBAK LUPA RUPA LFRM RFRM LWRB RWRB LPSI RPSI LTHI RTHI LTIB RTIB LHEE RHEE)
+PIG_HALF_B=(LFHD RFHD C7 CLAV LSHO RSHO LELB RELB LWRA RWRA LFIN RFIN LASI RASI LKNE RKNE LANK RANK LTOE RTOE)
+
+# A markers method's `lfit fit` arguments on a sequence, from the better of the previous result
+# and Φ(D) per frame for the learned fitters: eval_marker_method lm|neural|neural+lm CHECKPOINT.
+eval_marker_method() {
+    case "$1" in
+        lm) echo lm --budget 4000 ;;
+        neural) echo neural --checkpoint "$2" --neural-start both --budget 24 ;;
+        neural+lm) echo neural+lm --checkpoint "$2" --neural-start both --budget 4000 ;;
+    esac
+}
+
+eval_marker_names() {
+    "$LFIT" model info --model "$MODEL" | python3 -c '
+import json, sys
+for m in json.load(sys.stdin)["markers"]:
+    print(m["name"])'
+}
 
 eval_binary() {
     LFIT="${LFIT:-${CARGO_TARGET_DIR:-$HOME/.cache/lfit-target}/release/lfit}"

@@ -62,30 +62,22 @@ import=(--model "$MODEL" --up "${UP:-z}")
 [ -n "${LABEL_MAP:-}" ] && import+=(--label-map "$LABEL_MAP")
 "$LFIT" -q data import --c3d "$MOVE" "${import[@]}" --out "$OUT/movement.npz" >/dev/null
 rows=()
-# Each method's `lfit fit` arguments; sequences from the better of the previous result and Φ(D).
-method() {
-    case "$1" in
-        lm) echo lm --budget 4000 ;;
-        neural) echo neural --checkpoint "$CK" --neural-start both --budget 24 ;;
-        neural+lm) echo neural+lm --checkpoint "$CK" --neural-start both --budget 4000 ;;
-    esac
-}
 solve=(--sequence-shape joint:64 --marker-placement solve)
 for m in lm neural neural+lm; do
-    read -ra args <<< "$(method $m)"
+    read -ra args <<< "$(eval_marker_method $m "$CK")"
     eval_run "model-$m" "$OUT/movement.npz" "${args[@]}"
     eval_run "solved-$m" "$OUT/movement.npz" "${args[@]}" "${solve[@]}"
 done
 if [ -n "$STATIC" ]; then
     "$LFIT" -q data import --c3d "$STATIC" "${import[@]}" --out "$OUT/static.npz" >/dev/null
     # The static trial's placement (LM, one β over its frames), then each method with it.
-    read -ra args <<< "$(method lm)"
+    read -ra args <<< "$(eval_marker_method lm "$CK")"
     "$LFIT" -q fit --data "$OUT/static.npz" --template "$MODEL" --method "${args[@]}" "${solve[@]}" \
         --out "$OUT/static-placement.json" >/dev/null
     # And the static trial's β with it, as a lab's static calibration gives both.
     beta="$(python3 -c 'import json, sys; print(",".join(map(str, json.load(open(sys.argv[1]))["summary"]["shape_pass"]["beta"])))' "$OUT/static-placement.json")"
     for m in lm neural neural+lm; do
-        read -ra args <<< "$(method $m)"
+        read -ra args <<< "$(eval_marker_method $m "$CK")"
         eval_run "static-$m" "$OUT/movement.npz" "${args[@]}" --offsets "$OUT/static-placement.json"
         eval_run "static+beta-$m" "$OUT/movement.npz" "${args[@]}" --offsets "$OUT/static-placement.json" \
             --known-shape "$beta"
@@ -97,10 +89,7 @@ eval_table real "$OUT" "${rows[@]}"
 # marker of every frame. With the markers where the model puts them, and with the static
 # trial's placement (every marker's, the held-out ones' too).
 folds="${FOLDS:-5}"
-mapfile -t names < <("$LFIT" model info --model "$MODEL" | python3 -c '
-import json, sys
-for m in json.load(sys.stdin)["markers"]:
-    print(m["name"])')
+mapfile -t names < <(eval_marker_names)
 placements=(model)
 [ -n "$STATIC" ] && placements+=(static static+beta)
 cv=()
@@ -109,7 +98,7 @@ for p in "${placements[@]}"; do
     [ "$p" != model ] && extra=(--offsets "$OUT/static-placement.json")
     [ "$p" = static+beta ] && extra+=(--known-shape "$beta")
     for m in lm neural neural+lm; do
-        read -ra args <<< "$(method $m)"
+        read -ra args <<< "$(eval_marker_method $m "$CK")"
         for ((k = 0; k < folds; k++)); do
             held=()
             for ((i = k; i < ${#names[@]}; i += folds)); do held+=("${names[$i]}"); done
@@ -139,16 +128,11 @@ for n in names:
         times.append(1000 * r["summary"]["mean_time_s"])
     print(f"| {n} | {held / seen:.1f} | {fitted / folds:.1f} | {sum(times) / folds:.2f} |")
 PY
-# Half the markers (a sparse set, where a fitter's prior matters): Plug-in Gait's markers come in
-# pairs on most segments (LFHD/LBHD, C7/T10, CLAV/STRN, LWRA/LWRB, LASI/LPSI, LKNE/LTHI,
-# LANK/LTIB, LTOE/LHEE, ...); half A is the second of each pair with the back and upper-arm
-# markers, half B the rest. Each half is held out of one fit and scored on it, so each fit sees
-# one marker or two per segment and none of some hands' and feet's rotations. Skipped (said so)
-# when the model's marker set does not name them all.
-half_a=(LBHD RBHD T10 STRN RBAK LUPA RUPA LFRM RFRM LWRB RWRB LPSI RPSI LTHI RTHI LTIB RTIB LHEE RHEE)
-half_b=(LFHD RFHD C7 CLAV LSHO RSHO LELB RELB LWRA RWRA LFIN RFIN LASI RASI LKNE RKNE LANK RANK LTOE RTOE)
+# Half the Plug-in Gait markers held out (PIG_HALF_A, PIG_HALF_B: eval-common.sh), each half
+# out of one fit and scored on it. Skipped (said so) when the model's marker set does not name
+# them all.
 missing=()
-for n in "${half_a[@]}" "${half_b[@]}"; do
+for n in "${PIG_HALF_A[@]}" "${PIG_HALF_B[@]}"; do
     printf '%s\n' "${names[@]}" | grep -qx -- "$n" || missing+=("$n")
 done
 if [ ${#missing[@]} -gt 0 ]; then
@@ -161,9 +145,9 @@ for p in "${placements[@]}"; do
     [ "$p" != model ] && extra=(--offsets "$OUT/static-placement.json")
     [ "$p" = static+beta ] && extra+=(--known-shape "$beta")
     for m in lm neural neural+lm; do
-        read -ra args <<< "$(method $m)"
+        read -ra args <<< "$(eval_marker_method $m "$CK")"
         for h in a b; do
-            if [ $h = a ]; then held=("${half_a[@]}"); else held=("${half_b[@]}"); fi
+            if [ $h = a ]; then held=("${PIG_HALF_A[@]}"); else held=("${PIG_HALF_B[@]}"); fi
             "$LFIT" -q fit --data "$OUT/movement.npz" --template "$MODEL" --method "${args[@]}" \
                 "${extra[@]}" --holdout "$(IFS=,; echo "${held[*]}")" \
                 --out "$OUT/half-$p-$m-$h.json" >/dev/null
