@@ -13,19 +13,44 @@
 #
 #   eval_marker_names            # the model's marker names, one per line
 #   eval_marker_method M CK      # `lfit fit` arguments of markers method M on a sequence
-#   PIG_HALF_A, PIG_HALF_B       # half the Plug-in Gait markers each (below)
+#   eval_pig_random_half K       # one marker of each Plug-in Gait pair (the K-th draw, reproducible)
+#   PIG_PAIRS, PIG_HALF_A, PIG_HALF_B  # the Plug-in Gait markers by pairs, and two halves (below)
 #
 # LFIT (default: the release build under CARGO_TARGET_DIR or ~/.cache/lfit-target) is the binary.
 
 MODEL=models/makehuman-cmu_mb.npz
 
-# Half the Plug-in Gait markers each (a sparse set, where a fitter's prior matters): the markers
-# come in pairs on most segments (LFHD/LBHD, C7/T10, CLAV/STRN, LWRA/LWRB, LASI/LPSI,
-# LKNE/LTHI, LANK/LTIB, LTOE/LHEE, ...); half A is the second of each pair with the back and
-# upper-arm markers, half B the rest. A fit that sees one half sees one marker or two per
-# segment and nothing of some hands' and feet's rotations.
-PIG_HALF_A=(LBHD RBHD T10 STRN RBAK LUPA RUPA LFRM RFRM LWRB RWRB LPSI RPSI LTHI RTHI LTIB RTIB LHEE RHEE)
-PIG_HALF_B=(LFHD RFHD C7 CLAV LSHO RSHO LELB RELB LWRA RWRA LFIN RFIN LASI RASI LKNE RKNE LANK RANK LTOE RTOE)
+# The Plug-in Gait markers in pairs on one segment each (first/second; an empty side: a marker
+# without a partner), the sparse sets of eval-real-c3d.sh and eval-holdout-clip.sh: a fit that
+# sees one marker of each pair sees every segment but some hands' and feet's rotations. Half A
+# is the second of each pair (the back and upper-arm markers, RBAK), half B the first (the
+# fingers).
+PIG_PAIRS=(LFHD/LBHD RFHD/RBHD C7/T10 CLAV/STRN LSHO/LUPA RSHO/RUPA LELB/LFRM RELB/RFRM
+    LWRA/LWRB RWRA/RWRB LFIN/ RFIN/ /RBAK LASI/LPSI RASI/RPSI LKNE/LTHI RKNE/RTHI LANK/LTIB
+    RANK/RTIB LTOE/LHEE RTOE/RHEE)
+PIG_HALF_A=()
+PIG_HALF_B=()
+for pair in "${PIG_PAIRS[@]}"; do
+    [ -n "${pair#*/}" ] && PIG_HALF_A+=("${pair#*/}")
+    [ -n "${pair%/*}" ] && PIG_HALF_B+=("${pair%/*}")
+done
+unset pair
+
+# Random half K of the Plug-in Gait pairs, comma-separated: of each pair the side a SHA-256 of
+# "K:pair" picks (the same half for the same K on every machine).
+eval_pig_random_half() {
+    python3 - "$1" "${PIG_PAIRS[@]}" <<'PY'
+import hashlib, sys
+k, pairs = sys.argv[1], sys.argv[2:]
+held = []
+for p in pairs:
+    side = hashlib.sha256(f"{k}:{p}".encode()).digest()[0] & 1
+    name = p.split("/")[side]
+    if name:
+        held.append(name)
+print(",".join(held))
+PY
+}
 
 # A markers method's `lfit fit` arguments on a sequence, from the better of the previous result
 # and Φ(D) per frame for the learned fitters: eval_marker_method lm|neural|neural+lm CHECKPOINT.

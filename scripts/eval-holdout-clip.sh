@@ -4,15 +4,17 @@
 # (default noise, markers on the model's own vertices — where a lab's static calibration would
 # put them — and β given by default, as that calibration gives it), fitted by LM, the markers
 # network and neural+lm with the markers held out as eval-real-c3d.sh holds them out: five folds
-# (marker k in fold k mod 5) and the two Plug-in Gait halves (PIG_HALF_A, PIG_HALF_B:
-# eval-common.sh). Prints one Markdown table: per held-out set and method, the error on the
-# held-out markers and the V2V against the ground truth — if the first orders the methods as
-# the second does, it measures what a real capture cannot otherwise show. Every result is under
+# (marker k in fold k mod 5), the two Plug-in Gait halves (PIG_HALF_A, PIG_HALF_B:
+# eval-common.sh) and HALVES (default 10) random halves (eval_pig_random_half). Prints per
+# held-out set and method the error on the held-out markers and the V2V against the ground truth
+# — if the first orders the methods as the second does, it measures what a real capture cannot
+# otherwise show — and over the random halves how often each orders a learned fitter ahead of
+# LM, how often the two agree, and Wilcoxon signed-rank tests (scipy). Every result is under
 # OUT.
 #
 #   scripts/eval-holdout-clip.sh [OUT]
 #
-# CHECKPOINT (default checkpoints/markers-makehuman), SEED (0), FRAMES (454, the whole clip),
+# CHECKPOINT (default checkpoints/markers-makehuman), SEED (0), FRAMES (454, the whole clip), HALVES,
 # SHAPE (`truth`: β given, the default; `free`: each frame's β fitted). LFIT (default: the release
 # build) is the binary. The same seed gives the same numbers, but for the times.
 set -euo pipefail
@@ -30,6 +32,10 @@ case "${SHAPE:-truth}" in
         exit 2
         ;;
 esac
+if ! [[ "${HALVES:-10}" =~ ^[0-9]+$ ]]; then
+    echo "eval-holdout-clip: HALVES must be a whole number, not '${HALVES}'" >&2
+    exit 2
+fi
 source scripts/eval-common.sh
 CK="${CHECKPOINT:-checkpoints/markers-makehuman}"
 eval_binary eval-holdout-clip
@@ -46,6 +52,10 @@ for ((k = 0; k < 5; k++)); do
     sets+=("fold$k=$(IFS=,; echo "${held[*]}")")
 done
 sets+=("halfA=$(IFS=,; echo "${PIG_HALF_A[*]}")" "halfB=$(IFS=,; echo "${PIG_HALF_B[*]}")")
+halves_n="${HALVES:-10}"
+for ((k = 1; k <= halves_n; k++)); do
+    sets+=("random$k=$(eval_pig_random_half "$k")")
+done
 for m in lm neural neural+lm; do
     read -ra args <<< "$(eval_marker_method $m "$CK")"
     for s in "${sets[@]}"; do
@@ -53,24 +63,51 @@ for m in lm neural neural+lm; do
             --holdout "${s#*=}" --out "$OUT/${s%%=*}-$m.json" >/dev/null
     done
 done
-python3 - "$OUT" <<'PY'
+PYTHONPATH="$(./scripts/fetch-scipy.sh)" python3 - "$OUT" "$halves_n" <<'PY'
 import json, sys
-out = sys.argv[1]
+from scipy.stats import wilcoxon
+out, n = sys.argv[1], int(sys.argv[2])
+methods = ["lm", "neural", "neural+lm"]
+
+def scores(run, m):
+    """Held-out marker error (over every held-out marker of every frame), V2V, time per frame."""
+    held = seen = v2v = time = 0.0
+    frames = json.load(open(f"{out}/{run}-{m}.json"))["frames"]
+    for f in frames:
+        c = f.get("holdout_seen", 0)
+        held += c * f.get("holdout_error_mm", 0.0)
+        seen += c
+        v2v += f["v2v_mm"]
+        time += f["time_s"]
+    return held, seen, v2v / len(frames), 1000 * time / len(frames)
+
 print("| held out, method | held-out marker error (mm) | V2V (mm) | time / frame (ms) |")
 print("|---|---|---|---|")
 groups = [("five folds", [f"fold{k}" for k in range(5)]), ("half A", ["halfA"]),
-          ("half B", ["halfB"]), ("halves A and B", ["halfA", "halfB"])]
+          ("half B", ["halfB"]), (f"{n} random halves", [f"random{k}" for k in range(1, n + 1)])]
 for label, runs in groups:
-    for m in ["lm", "neural", "neural+lm"]:
-        held = seen = v2v = time = frames = 0.0
-        for r in runs:
-            doc = json.load(open(f"{out}/{r}-{m}.json"))
-            for f in doc["frames"]:
-                c = f.get("holdout_seen", 0)
-                held += c * f.get("holdout_error_mm", 0.0)
-                seen += c
-                v2v += f["v2v_mm"]
-                time += f["time_s"]
-                frames += 1
-        print(f"| {label}, {m} | {held / seen:.1f} | {v2v / frames:.1f} | {1000 * time / frames:.2f} |")
+    if not runs:
+        continue
+    for m in methods:
+        s = [scores(r, m) for r in runs]
+        held = sum(x[0] for x in s) / sum(x[1] for x in s)
+        v2v = sum(x[2] for x in s) / len(s)
+        time = sum(x[3] for x in s) / len(s)
+        print(f"| {label}, {m} | {held:.1f} | {v2v:.1f} | {time:.2f} |")
+if n > 1:
+    # Per random half, does the held-out error order a learned fitter and LM as V2V does?
+    print()
+    print(f"| over the {n} random halves | better than LM, held out | better than LM, V2V | the two agree | Wilcoxon p, held out | Wilcoxon p, V2V |")
+    print("|---|---|---|---|---|---|")
+    base = [scores(f"random{k}", "lm") for k in range(1, n + 1)]
+    for m in methods[1:]:
+        s = [scores(f"random{k}", m) for k in range(1, n + 1)]
+        h = [x[0] / x[1] for x in s]
+        hb = [x[0] / x[1] for x in base]
+        v, vb = [x[2] for x in s], [x[2] for x in base]
+        wins_h = sum(a < b for a, b in zip(h, hb))
+        wins_v = sum(a < b for a, b in zip(v, vb))
+        agree = sum((a < b) == (c < d) for a, b, c, d in zip(h, hb, v, vb))
+        print(f"| {m} | {wins_h}/{n} | {wins_v}/{n} | {agree}/{n} | "
+              f"{wilcoxon(h, hb).pvalue:.3f} | {wilcoxon(v, vb).pvalue:.3f} |")
 PY

@@ -8,8 +8,9 @@
 # leaves, β against the prior's mean and how many β entries sit on the ±3 box; the second the
 # error on markers each fit was not given (`--holdout`, FOLDS folds of the marker set, default 5),
 # which measures what a fit predicts rather than how closely it follows what it saw; the third
-# the same with half the Plug-in Gait markers held out (a sparse set). Prints three Markdown
-# tables; every import and result is under OUT.
+# the same with half the Plug-in Gait markers held out (a sparse set: one marker of each pair);
+# the fourth HALVES random such halves, with a paired test against LM. Prints four Markdown tables; every import and
+# result is under OUT.
 #
 #   scripts/eval-real-c3d.sh MOVEMENT.c3d [STATIC.c3d] [OUT]
 #
@@ -51,6 +52,10 @@ done
 # lists left and right markers alternately, and RBAK shifts the parity): at least 3.
 if ! [[ "${FOLDS:-5}" =~ ^[0-9]+$ ]] || [ "${FOLDS:-5}" -lt 3 ]; then
     echo "eval-real-c3d: FOLDS must be a whole number of at least 3, not '${FOLDS}'" >&2
+    exit 2
+fi
+if ! [[ "${HALVES:-10}" =~ ^[0-9]+$ ]]; then
+    echo "eval-real-c3d: HALVES must be a whole number, not '${HALVES}'" >&2
     exit 2
 fi
 source scripts/eval-common.sh
@@ -129,14 +134,19 @@ for n in names:
     print(f"| {n} | {held / seen:.1f} | {fitted / folds:.1f} | {sum(times) / folds:.2f} |")
 PY
 # Half the Plug-in Gait markers held out (PIG_HALF_A, PIG_HALF_B: eval-common.sh), each half
-# out of one fit and scored on it. Skipped (said so) when the model's marker set does not name
-# them all.
+# out of one fit and scored on it; then HALVES (default 10) random halves, one marker of each
+# pair (eval_pig_random_half 1..HALVES), by every method with the static trial's placement and β
+# (without a static trial: the model's marker set), and a two-sided Wilcoxon signed-rank test
+# of each learned fitter against LM over them (scipy, through scripts/fetch-scipy.sh). The
+# halves are draws of one capture's markers, not of subjects: a small p says that a difference
+# holds whichever markers a fit sees, not that it holds for other people. Both skipped (said so)
+# when the model's marker set does not name every Plug-in Gait marker.
 missing=()
 for n in "${PIG_HALF_A[@]}" "${PIG_HALF_B[@]}"; do
     printf '%s\n' "${names[@]}" | grep -qx -- "$n" || missing+=("$n")
 done
 if [ ${#missing[@]} -gt 0 ]; then
-    echo "eval-real-c3d: half-marker table skipped: the model's marker set lacks ${missing[*]}" >&2
+    echo "eval-real-c3d: half-marker tables skipped: the model's marker set lacks ${missing[*]}" >&2
     exit 0
 fi
 halves=()
@@ -170,4 +180,38 @@ for n in names:
     worst = ", ".join(f'{o["item"]} {o["mean_error_mm"]:.0f}' for o in worst)
     time = sum(1000 * s["mean_time_s"] for s in runs) / 2
     print(f"| {n} | {held[0]:.1f} | {held[1]:.1f} | {sum(held) / 2:.1f} | {fitted:.1f} | {worst} | {time:.2f} |")
+PY
+halves_n="${HALVES:-10}"
+[ "$halves_n" -gt 0 ] || exit 0
+extra=()
+setting=model
+if [ -n "$STATIC" ]; then
+    extra=(--offsets "$OUT/static-placement.json" --known-shape "$beta")
+    setting=static+beta
+fi
+for ((k = 1; k <= halves_n; k++)); do
+    held="$(eval_pig_random_half "$k")"
+    for m in lm neural neural+lm; do
+        read -ra args <<< "$(eval_marker_method $m "$CK")"
+        "$LFIT" -q fit --data "$OUT/movement.npz" --template "$MODEL" --method "${args[@]}" \
+            "${extra[@]}" --holdout "$held" --out "$OUT/random-half-$k-$m.json" >/dev/null
+    done
+done
+PYTHONPATH="$(./scripts/fetch-scipy.sh)" python3 - "$OUT" "$halves_n" "$setting" <<'PY'
+import json, sys
+from scipy.stats import wilcoxon
+out, n, setting = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+err = {m: [json.load(open(f"{out}/random-half-{k}-{m}.json"))["summary"]["mean_holdout_error_mm"]
+           for k in range(1, n + 1)] for m in ["lm", "neural", "neural+lm"]}
+print()
+print(f"| {setting}, method | {n} random halves held out: mean (mm) | per half (mm) | better than LM | Wilcoxon p against LM |")
+print("|---|---|---|---|---|")
+for m, e in err.items():
+    per = " ".join(f"{x:.1f}" for x in e)
+    if m == "lm":
+        print(f"| {m} | {sum(e) / n:.1f} | {per} | — | — |")
+        continue
+    wins = sum(1 for a, b in zip(e, err["lm"]) if a < b)
+    p = wilcoxon(e, err["lm"]).pvalue if n > 1 and e != err["lm"] else float("nan")
+    print(f"| {m} | {sum(e) / n:.1f} | {per} | {wins}/{n} | {p:.3f} |")
 PY
