@@ -77,8 +77,8 @@ pub struct ImportArgs {
     /// C3D file of 3D marker trajectories (markers modality).
     #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map"])]
     pub c3d: Option<PathBuf>,
-    /// JSON object {"C3D label": "model marker", ...}; default: C3D labels equal to the model's
-    /// marker names.
+    /// JSON object {"C3D label": "model marker", ...} ("#K": the file's point K, counted from 0,
+    /// for a label the file repeats); default: C3D labels equal to the model's marker names.
     #[arg(long, requires = "c3d")]
     pub label_map: Option<PathBuf>,
     /// Up axis of the C3D's lab frame: y, or z (points converted by (x, y, z) -> (x, z, -y), as

@@ -633,9 +633,9 @@ impl C3d {
             .enumerate()
             .filter(|(_, l)| l.trim() == label);
         let first = hits.next().map(|(i, _)| i);
-        if hits.next().is_some() {
+        if let (Some(a), Some((b, _))) = (first, hits.next()) {
             return fail(format!(
-                "label '{label}' appears more than once in POINT:LABELS"
+                "label '{label}' appears more than once in POINT:LABELS (points #{a} and #{b}, counted from 0): map each by its index in a label map (\"#{a}\": \"MARKER\")"
             ));
         }
         Ok(first)

@@ -155,8 +155,35 @@ fn imported_dataset(
     })
 }
 
-/// Imports the points of a C3D file as a `markers` dataset of `template`. `map`: C3D label →
-/// model marker (default: every model marker whose name is a C3D label). `up`: the lab frame's
+/// The C3D point a label map's key names: `#K` is point K of POINT:LABELS, counted from 0 (how a
+/// label the file repeats is mapped); any other key is a label the file holds once.
+fn point_of(c3d: &C3d, key: &str) -> Result<usize, ImportError> {
+    if let Some(k) = key.strip_prefix('#') {
+        let Ok(k) = k.trim().parse::<usize>() else {
+            return fail(format!(
+                "label map: '{key}': #K needs a point index (counted from 0)"
+            ));
+        };
+        if k >= c3d.labels.len() {
+            return fail(format!(
+                "label map: '{key}': the file has {} points (counted from 0)",
+                c3d.labels.len()
+            ));
+        }
+        return Ok(k);
+    }
+    match c3d.label_index(key)? {
+        Some(ci) => Ok(ci),
+        None => fail(format!(
+            "label map: C3D label '{key}' is not in the file (its labels: {})",
+            list(&c3d.labels, 12)
+        )),
+    }
+}
+
+/// Imports the points of a C3D file as a `markers` dataset of `template`. `map`: C3D label (or
+/// `#K`, the file's point K counted from 0) → model marker (default: every model marker whose
+/// name is a C3D label). `up`: the lab frame's
 /// up axis; a Z-up file's points are turned into lfit's Y-up frame by `(x, y, z) → (x, z, −y)`
 /// (as `lfit motion import --up z`), so that the fitted body stands in renders and exports.
 pub fn import_c3d(
@@ -181,16 +208,11 @@ pub fn import_c3d(
     let to_lfit = up.to_lfit();
     let marker_names: Vec<String> = markers.iter().map(|m| m.name.clone()).collect();
     // (C3D point index, model marker index)
-    let mut pairs = Vec::new();
+    let mut pairs: Vec<(usize, usize)> = Vec::new();
     match map {
         Some(map) => {
             for (label, marker) in map {
-                let Some(ci) = c3d.label_index(label)? else {
-                    return fail(format!(
-                        "label map: C3D label '{label}' is not in the file (its labels: {})",
-                        list(&c3d.labels, 12)
-                    ));
-                };
+                let ci = point_of(c3d, label)?;
                 let Some(mi) = marker_names.iter().position(|m| m == marker) else {
                     return fail(format!(
                         "label map: '{marker}' is not a marker of model '{}' (its markers: {})",
@@ -198,6 +220,13 @@ pub fn import_c3d(
                         list(&marker_names, 12)
                     ));
                 };
+                if let Some(&(_, other)) = pairs.iter().find(|p| p.0 == ci) {
+                    return fail(format!(
+                        "label map: point #{ci} ('{}') is mapped twice (to '{}' and '{marker}')",
+                        c3d.labels[ci].trim(),
+                        marker_names[other]
+                    ));
+                }
                 pairs.push((ci, mi));
             }
         }
@@ -1000,6 +1029,48 @@ mod tests {
             }
         }
         assert!(seen > 0);
+    }
+
+    #[test]
+    fn a_label_the_file_repeats_is_mapped_by_its_point_index() {
+        let t = template();
+        let mut pose = vec![0.0; t.layout().dim()];
+        pose[4] = 0.4;
+        let mut c = c3d_of(&t, &pose);
+        // Points 3 and 5 carry one label (as kineticstoolkit's duplicate_labels.c3d does).
+        c.labels[5] = c.labels[3].clone();
+        let c = C3d::from_bytes(&c.to_bytes().unwrap()).unwrap();
+        let mut map = s1_label_map(&t);
+        let e = import_c3d(&c, "x", Some(&map), &t, Scenario::Sequence, Up::Y).unwrap_err();
+        assert!(
+            e.to_string().contains("points #3 and #5") && e.to_string().contains("\"#3\""),
+            "{e}"
+        );
+        // By index, each of the two goes to its own marker: the import is the file's points.
+        map[3].0 = "#3".into();
+        map[5].0 = "# 5".into();
+        let imp = import_c3d(&c, "x", Some(&map), &t, Scenario::Sequence, Up::Y).unwrap();
+        let Observations::Sparse { values, .. } = &imp.dataset.observations else {
+            panic!()
+        };
+        let truth = imp.dataset.sensor.predict_sparse(&t, &pose).values;
+        for k in [3, 5] {
+            for a in 0..3 {
+                assert!((values[0][3 * k + a] - truth[3 * k + a]).abs() < 2e-7);
+            }
+        }
+        assert_ne!(values[0][9..12], values[0][15..18]);
+        // An index past the points, one that is not a number, a point mapped twice.
+        for (key, want) in [
+            ("#39", "the file has 39 points"),
+            ("#x", "#K needs a point index"),
+            ("#4", "point #4 ('S1:"),
+        ] {
+            let mut bad = map.clone();
+            bad[0].0 = key.into();
+            let e = import_c3d(&c, "x", Some(&bad), &t, Scenario::Local, Up::Y).unwrap_err();
+            assert!(e.to_string().contains(want), "{key}: {e}");
+        }
     }
 
     #[test]
