@@ -97,19 +97,24 @@ folds="${FOLDS:-5}"
 mapfile -t names < <(eval_marker_names)
 placements=(model)
 [ -n "$STATIC" ] && placements+=(static static+beta)
+# One held-out fit of the movement trial into OUT/NAME.json:
+#   held_fit NAME PLACEMENT METHOD MARKER...   (PLACEMENT: model, static or static+beta)
+held_fit() {
+    local name="$1" placement="$2" method="$3" extra=() args
+    shift 3
+    [ "$placement" != model ] && extra=(--offsets "$OUT/static-placement.json")
+    [ "$placement" = static+beta ] && extra+=(--known-shape "$beta")
+    read -ra args <<< "$(eval_marker_method "$method" "$CK")"
+    "$LFIT" -q fit --data "$OUT/movement.npz" --template "$MODEL" --method "${args[@]}" \
+        "${extra[@]}" --holdout "$(IFS=,; echo "$*")" --out "$OUT/$name.json" >/dev/null
+}
 cv=()
 for p in "${placements[@]}"; do
-    extra=()
-    [ "$p" != model ] && extra=(--offsets "$OUT/static-placement.json")
-    [ "$p" = static+beta ] && extra+=(--known-shape "$beta")
     for m in lm neural neural+lm; do
-        read -ra args <<< "$(eval_marker_method $m "$CK")"
         for ((k = 0; k < folds; k++)); do
             held=()
             for ((i = k; i < ${#names[@]}; i += folds)); do held+=("${names[$i]}"); done
-            "$LFIT" -q fit --data "$OUT/movement.npz" --template "$MODEL" --method "${args[@]}" \
-                "${extra[@]}" --holdout "$(IFS=,; echo "${held[*]}")" \
-                --out "$OUT/holdout-$p-$m-$k.json" >/dev/null
+            held_fit "holdout-$p-$m-$k" "$p" "$m" "${held[@]}"
         done
         cv+=("$p-$m")
     done
@@ -151,17 +156,9 @@ if [ ${#missing[@]} -gt 0 ]; then
 fi
 halves=()
 for p in "${placements[@]}"; do
-    extra=()
-    [ "$p" != model ] && extra=(--offsets "$OUT/static-placement.json")
-    [ "$p" = static+beta ] && extra+=(--known-shape "$beta")
     for m in lm neural neural+lm; do
-        read -ra args <<< "$(eval_marker_method $m "$CK")"
-        for h in a b; do
-            if [ $h = a ]; then held=("${PIG_HALF_A[@]}"); else held=("${PIG_HALF_B[@]}"); fi
-            "$LFIT" -q fit --data "$OUT/movement.npz" --template "$MODEL" --method "${args[@]}" \
-                "${extra[@]}" --holdout "$(IFS=,; echo "${held[*]}")" \
-                --out "$OUT/half-$p-$m-$h.json" >/dev/null
-        done
+        held_fit "half-$p-$m-a" "$p" "$m" "${PIG_HALF_A[@]}"
+        held_fit "half-$p-$m-b" "$p" "$m" "${PIG_HALF_B[@]}"
         halves+=("$p-$m")
     done
 done
@@ -183,18 +180,11 @@ for n in names:
 PY
 halves_n="${HALVES:-10}"
 [ "$halves_n" -gt 0 ] || exit 0
-extra=()
-setting=model
-if [ -n "$STATIC" ]; then
-    extra=(--offsets "$OUT/static-placement.json" --known-shape "$beta")
-    setting=static+beta
-fi
+setting="${placements[-1]}"
 for ((k = 1; k <= halves_n; k++)); do
     held="$(eval_pig_random_half "$k")"
     for m in lm neural neural+lm; do
-        read -ra args <<< "$(eval_marker_method $m "$CK")"
-        "$LFIT" -q fit --data "$OUT/movement.npz" --template "$MODEL" --method "${args[@]}" \
-            "${extra[@]}" --holdout "$held" --out "$OUT/random-half-$k-$m.json" >/dev/null
+        held_fit "random-half-$k-$m" "$setting" "$m" "$held"
     done
 done
 PYTHONPATH="$(./scripts/fetch-scipy.sh)" python3 - "$OUT" "$halves_n" "$setting" <<'PY'
