@@ -274,9 +274,18 @@ pub fn import_c3d(
         offsets: Vec::new(),
     });
     let (starts, rigid_frames) = marker_starts(template, &sensor, &values, &visible);
+    // A point's label in the summary; a label the file repeats with the point's index.
+    let shown = |ci: usize| {
+        let label = c3d.labels[ci].trim();
+        if c3d.labels.iter().filter(|l| l.trim() == label).count() > 1 {
+            format!("{label} (#{ci})")
+        } else {
+            label.to_string()
+        }
+    };
     let mapped: Vec<String> = pairs
         .iter()
-        .map(|&(ci, mi)| format!("{}→{}", c3d.labels[ci], marker_names[mi]))
+        .map(|&(ci, mi)| format!("{}→{}", shown(ci), marker_names[mi]))
         .collect();
     let unmapped: Vec<String> = (0..m)
         .filter(|mi| !pairs.iter().any(|p| p.1 == *mi))
@@ -284,7 +293,7 @@ pub fn import_c3d(
         .collect();
     let ignored: Vec<String> = (0..c3d.labels.len())
         .filter(|ci| !pairs.iter().any(|p| p.0 == *ci))
-        .map(|ci| c3d.labels[ci].clone())
+        .map(shown)
         .collect();
     let n = values.len();
     let sources = (0..n)
@@ -1060,6 +1069,13 @@ mod tests {
             }
         }
         assert_ne!(values[0][9..12], values[0][15..18]);
+        // The summary tells the two apart by index.
+        let mapped = imp.report["map"].to_string();
+        assert!(
+            mapped.contains(&format!("{} (#3)→{}", c.labels[3], t.rig.markers[3].name))
+                && mapped.contains(&format!("{} (#5)→{}", c.labels[5], t.rig.markers[5].name)),
+            "{mapped}"
+        );
         // An index past the points, one that is not a number, a point mapped twice.
         for (key, want) in [
             ("#39", "the file has 39 points"),
