@@ -318,7 +318,8 @@ fn data_import(
 
 /// Imports 3D markers from a C3D file as `lfit data import --c3d` does: a `markers` dataset
 /// without ground truth for `model` (default: the procedural body). `label_map`: a JSON file
-/// `{"C3D label": "model marker"}` (default: labels equal to marker names); `up`: `y` or `z`.
+/// `{"C3D label": "model marker"}` (a key `"#K"`: the file's point K, counted from 0, for a label
+/// the file repeats; default: labels equal to marker names); `up`: `y` or `z`.
 #[pyfunction]
 #[pyo3(signature = (path, model=None, *, label_map=None, up="y", scenario="sequence", out=None))]
 pub fn import_c3d(
