@@ -183,9 +183,9 @@ fn point_of(c3d: &C3d, key: &str) -> Result<usize, ImportError> {
 
 /// Imports the points of a C3D file as a `markers` dataset of `template`. `map`: C3D label (or
 /// `#K`, the file's point K counted from 0) → model marker (default: every model marker whose
-/// name is a C3D label). `up`: the lab frame's
-/// up axis; a Z-up file's points are turned into lfit's Y-up frame by `(x, y, z) → (x, z, −y)`
-/// (as `lfit motion import --up z`), so that the fitted body stands in renders and exports.
+/// name is a C3D label). `up`: the lab frame's up axis; a Z-up file's points are turned into
+/// lfit's Y-up frame by `(x, y, z) → (x, z, −y)` (as `lfit motion import --up z`), so that the
+/// fitted body stands in renders and exports.
 pub fn import_c3d(
     c3d: &C3d,
     source: &str,
