@@ -12,6 +12,7 @@
 #   eval_table real OUT ROW...   # the same, and mean marker error, β RMS, β entries on the box
 #
 #   eval_marker_names            # the model's marker names, one per line
+#   eval_methods NAME            # the markers methods to run (METHODS) into `methods`, checked
 #   eval_marker_method M CK      # `lfit fit` arguments of markers method M on a sequence
 #   eval_pig_random_half K       # one marker of each Plug-in Gait pair (the K-th draw, reproducible)
 #   PIG_PAIRS, PIG_HALF_A, PIG_HALF_B  # the Plug-in Gait markers by pairs, and two halves (below)
@@ -54,12 +55,43 @@ PY
 
 # A markers method's `lfit fit` arguments on a sequence, from the better of the previous result
 # and Φ(D) per frame for the learned fitters: eval_marker_method lm|neural|neural+lm CHECKPOINT.
+# lm+prior and neural+lm+prior are LM and neural+lm with POSE_PRIOR's energy (an `lfit motion
+# prior` file; a path without spaces).
 eval_marker_method() {
     case "$1" in
         lm) echo lm --budget 4000 ;;
         neural) echo neural --checkpoint "$2" --neural-start both --budget 24 ;;
         neural+lm) echo neural+lm --checkpoint "$2" --neural-start both --budget 4000 ;;
+        lm+prior) echo lm --budget 4000 --energy "$POSE_PRIOR" ;;
+        neural+lm+prior)
+            echo neural+lm --checkpoint "$2" --neural-start both --budget 4000 --energy "$POSE_PRIOR" ;;
     esac
+}
+
+# METHODS (default "lm neural neural+lm"; LM first: the tests compare against it) into the
+# array `methods`: eval_methods SCRIPT-NAME.
+eval_methods() {
+    read -ra methods <<< "${METHODS:-lm neural neural+lm}"
+    if [ "${methods[0]:-}" != lm ]; then
+        echo "$1: METHODS must start with lm (the others are compared with it), not '${METHODS}'" >&2
+        exit 2
+    fi
+    local m
+    for m in "${methods[@]}"; do
+        case "$m" in
+            lm | neural | neural+lm) ;;
+            lm+prior | neural+lm+prior)
+                if [ -z "${POSE_PRIOR:-}" ] || [ ! -f "$POSE_PRIOR" ] || [[ "$POSE_PRIOR" == *" "* ]]; then
+                    echo "$1: $m needs POSE_PRIOR, an energy file of \`lfit motion prior\` (a path without spaces), not '${POSE_PRIOR:-}'" >&2
+                    exit 2
+                fi
+                ;;
+            *)
+                echo "$1: unknown method '$m' in METHODS (lm, neural, neural+lm, lm+prior, neural+lm+prior)" >&2
+                exit 2
+                ;;
+        esac
+    done
 }
 
 eval_marker_names() {

@@ -15,8 +15,8 @@
 #   scripts/eval-holdout-clip.sh [OUT]
 #
 # CHECKPOINT (default checkpoints/markers-makehuman), SEED (0), FRAMES (454, the whole clip), HALVES,
-# SHAPE (`truth`: β given, the default; `free`: each frame's β fitted). LFIT (default: the release
-# build) is the binary. The same seed gives the same numbers, but for the times.
+# SHAPE (`truth`: β given, the default; `free`: each frame's β fitted), METHODS (as in
+# eval-real-c3d.sh). LFIT (default: the release build) is the binary. The same seed gives the same numbers, but for the times.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ $# -gt 1 ]; then
@@ -39,6 +39,7 @@ fi
 source scripts/eval-common.sh
 CK="${CHECKPOINT:-checkpoints/markers-makehuman}"
 eval_binary eval-holdout-clip
+eval_methods eval-holdout-clip
 eval_need_dir eval-holdout-clip "$CK"
 eval_setup eval-holdout-clip "$OUT"
 data="$OUT/clip-sequence.npz"
@@ -56,18 +57,18 @@ halves_n="${HALVES:-10}"
 for ((k = 1; k <= halves_n; k++)); do
     sets+=("random$k=$(eval_pig_random_half "$k")")
 done
-for m in lm neural neural+lm; do
+for m in "${methods[@]}"; do
     read -ra args <<< "$(eval_marker_method $m "$CK")"
     for s in "${sets[@]}"; do
         "$LFIT" -q fit --data "$data" --template "$MODEL" --method "${args[@]}" "${shape[@]}" \
             --holdout "${s#*=}" --out "$OUT/${s%%=*}-$m.json" >/dev/null
     done
 done
-PYTHONPATH="$(./scripts/fetch-scipy.sh)" python3 - "$OUT" "$halves_n" <<'PY'
+PYTHONPATH="$(./scripts/fetch-scipy.sh)" python3 - "$OUT" "$halves_n" "${methods[@]}" <<'PY'
 import json, sys
 from scipy.stats import wilcoxon
 out, n = sys.argv[1], int(sys.argv[2])
-methods = ["lm", "neural", "neural+lm"]
+methods = sys.argv[3:]
 
 def scores(run, m):
     """Held-out marker error (over every held-out marker of every frame), V2V, time per frame."""

@@ -25,8 +25,9 @@
 # docs/results/captured-motion.md, round 20.
 # UP (default z: Vicon's lab frame) and LABEL_MAP (a `lfit data import --label-map` file; default:
 # labels equal to the model's Plug-in Gait names) describe the capture; CHECKPOINT (default
-# checkpoints/markers-makehuman) is the markers network; LFIT (default: the release build) is the
-# binary. The same files give the same numbers, but for the times.
+# checkpoints/markers-makehuman) is the markers network; METHODS (default "lm neural neural+lm";
+# also lm+prior and neural+lm+prior, with POSE_PRIOR: eval-common.sh) the methods; LFIT (default:
+# the release build) is the binary. The same files give the same numbers, but for the times.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ $# -lt 1 ] || [ $# -gt 3 ]; then
@@ -60,6 +61,7 @@ if ! [[ "${HALVES:-10}" =~ ^[0-9]+$ ]]; then
 fi
 source scripts/eval-common.sh
 eval_binary eval-real-c3d
+eval_methods eval-real-c3d
 CK="${CHECKPOINT:-checkpoints/markers-makehuman}"
 eval_need_dir eval-real-c3d "$CK"
 mkdir -p "$OUT"
@@ -68,7 +70,7 @@ import=(--model "$MODEL" --up "${UP:-z}")
 "$LFIT" -q data import --c3d "$MOVE" "${import[@]}" --out "$OUT/movement.npz" >/dev/null
 rows=()
 solve=(--sequence-shape joint:64 --marker-placement solve)
-for m in lm neural neural+lm; do
+for m in "${methods[@]}"; do
     read -ra args <<< "$(eval_marker_method $m "$CK")"
     eval_run "model-$m" "$OUT/movement.npz" "${args[@]}"
     eval_run "solved-$m" "$OUT/movement.npz" "${args[@]}" "${solve[@]}"
@@ -81,7 +83,7 @@ if [ -n "$STATIC" ]; then
         --out "$OUT/static-placement.json" >/dev/null
     # And the static trial's β with it, as a lab's static calibration gives both.
     beta="$(python3 -c 'import json, sys; print(",".join(map(str, json.load(open(sys.argv[1]))["summary"]["shape_pass"]["beta"])))' "$OUT/static-placement.json")"
-    for m in lm neural neural+lm; do
+    for m in "${methods[@]}"; do
         read -ra args <<< "$(eval_marker_method $m "$CK")"
         eval_run "static-$m" "$OUT/movement.npz" "${args[@]}" --offsets "$OUT/static-placement.json"
         eval_run "static+beta-$m" "$OUT/movement.npz" "${args[@]}" --offsets "$OUT/static-placement.json" \
@@ -110,7 +112,7 @@ held_fit() {
 }
 cv=()
 for p in "${placements[@]}"; do
-    for m in lm neural neural+lm; do
+    for m in "${methods[@]}"; do
         for ((k = 0; k < folds; k++)); do
             held=()
             for ((i = k; i < ${#names[@]}; i += folds)); do held+=("${names[$i]}"); done
@@ -156,7 +158,7 @@ if [ ${#missing[@]} -gt 0 ]; then
 fi
 halves=()
 for p in "${placements[@]}"; do
-    for m in lm neural neural+lm; do
+    for m in "${methods[@]}"; do
         held_fit "half-$p-$m-a" "$p" "$m" "${PIG_HALF_A[@]}"
         held_fit "half-$p-$m-b" "$p" "$m" "${PIG_HALF_B[@]}"
         halves+=("$p-$m")
@@ -183,16 +185,16 @@ halves_n="${HALVES:-10}"
 setting="${placements[-1]}"
 for ((k = 1; k <= halves_n; k++)); do
     held="$(eval_pig_random_half "$k")"
-    for m in lm neural neural+lm; do
+    for m in "${methods[@]}"; do
         held_fit "random-half-$k-$m" "$setting" "$m" "$held"
     done
 done
-PYTHONPATH="$(./scripts/fetch-scipy.sh)" python3 - "$OUT" "$halves_n" "$setting" <<'PY'
+PYTHONPATH="$(./scripts/fetch-scipy.sh)" python3 - "$OUT" "$halves_n" "$setting" "${methods[@]}" <<'PY'
 import json, sys
 from scipy.stats import wilcoxon
 out, n, setting = sys.argv[1], int(sys.argv[2]), sys.argv[3]
 err = {m: [json.load(open(f"{out}/random-half-{k}-{m}.json"))["summary"]["mean_holdout_error_mm"]
-           for k in range(1, n + 1)] for m in ["lm", "neural", "neural+lm"]}
+           for k in range(1, n + 1)] for m in sys.argv[4:]}
 print()
 print(f"| {setting}, method | {n} random halves held out: mean (mm) | per half (mm) | better than LM | Wilcoxon p against LM |")
 print("|---|---|---|---|---|")

@@ -1112,6 +1112,7 @@ fn motion_help_works() {
         &["motion", "import", "--help"],
         &["motion", "export", "--help"],
         &["motion", "coverage", "--help"],
+        &["motion", "prior", "--help"],
     ] {
         let run = lfit(args);
         assert!(run.status.success(), "{args:?}");
@@ -1933,4 +1934,239 @@ fn the_mocapbank_clip_drives_the_makehuman_cmu_mb_model_and_feeds_synth() {
         "lfit synth --motions: 60 sequence frames of the clip on makehuman-cmu_mb, {} clamped into the joint limits",
         synth["frames_clamped"]
     );
+}
+
+/// `lfit motion prior`: the energy configuration it writes carries the mean of the motions'
+/// non-root rotations (every N-th frame), fits with `lfit fit --energy` (weight 0: the fit
+/// without a prior, bit for bit; a strong weight: fitted rotations nearer the prior's mean than
+/// without), and every bad input is a one-line error that writes nothing — a prior for another
+/// skeleton included.
+#[test]
+fn a_pose_prior_fitted_to_motions_is_an_energy_for_lfit_fit() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = model_file(dir.path());
+    let s = skeleton(&model);
+    let t = Template::load(&model).unwrap();
+    let write = |poses: Vec<Vec<f64>>, name: &str| {
+        let p = dir.path().join(name);
+        MotionClip {
+            poses,
+            fps: 30.0,
+            source: "test".into(),
+            model: t.signature(),
+        }
+        .write(&p)
+        .unwrap();
+        p
+    };
+    let a_poses = random_poses(&s, 41, 5);
+    let b_poses = random_poses(&s, 30, 6);
+    let (a, b) = (
+        write(a_poses.clone(), "a.npz"),
+        write(b_poses.clone(), "b.npz"),
+    );
+    let energy = dir.path().join("prior.json");
+    let args = |out: &Path, more: &[&str]| -> Vec<String> {
+        let mut v: Vec<String> = [
+            "-q",
+            "motion",
+            "prior",
+            "--motions",
+            path_str(&a),
+            path_str(&b),
+            "--model",
+            path_str(&model),
+            "--stride",
+            "2",
+            "--out",
+            path_str(out),
+        ]
+        .map(String::from)
+        .to_vec();
+        v.extend(more.iter().map(|s| s.to_string()));
+        v
+    };
+    let run = |out: &Path, more: &[&str]| {
+        let v = args(out, more);
+        lfit(&v.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    let summary = lfit_json(
+        &args(&energy, &[])
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>(),
+    );
+    let kept: Vec<&Vec<f64>> = a_poses
+        .iter()
+        .step_by(2)
+        .chain(b_poses.iter().step_by(2))
+        .collect();
+    let nj = s.names.len();
+    assert_eq!(summary["frames"], kept.len());
+    assert_eq!(summary["entries"], 3 * (nj - 1));
+    let config: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&energy).unwrap()).unwrap();
+    let prior = &config["pose_prior"];
+    assert_eq!(prior["joints"].as_array().unwrap().len(), nj - 1);
+    for (i, m) in prior["mean"].as_array().unwrap().iter().enumerate() {
+        let want = kept.iter().map(|p| p[6 + i]).sum::<f64>() / kept.len() as f64;
+        assert!((m.as_f64().unwrap() - want).abs() < 1e-12, "mean {i}");
+    }
+    assert_eq!(config["angle_prior"], "hinge", "the gradient variant");
+    // Fitted with it.
+    let data = dir.path().join("data.npz");
+    support::synth_to(
+        &data,
+        &model,
+        &[
+            "--modality",
+            "markers",
+            "--scenario",
+            "local",
+            "--frames",
+            "3",
+            "--seed",
+            "9",
+        ],
+    );
+    let fit = |energy: Option<&Path>, name: &str| {
+        let out = dir.path().join(name);
+        let mut more = vec![];
+        if let Some(e) = energy {
+            more.extend(["--energy", path_str(e)]);
+        }
+        lfit_json(&support::lm_fit_args(&data, &out, "200", &more));
+        let doc: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+        doc["frames"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|f| {
+                let terms = f["terms"].clone();
+                let pose: Vec<f64> = serde_json::from_value(f["pose"].clone()).unwrap();
+                (pose, terms)
+            })
+            .collect::<Vec<_>>()
+    };
+    let plain = fit(None, "plain.json");
+    let zero = dir.path().join("zero.json");
+    lfit_json(
+        &args(&zero, &["--weight", "0"])
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>(),
+    );
+    let off = fit(Some(&zero), "off.json");
+    let strong = dir.path().join("strong.json");
+    lfit_json(
+        &args(&strong, &["--weight", "30"])
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>(),
+    );
+    let on = fit(Some(&strong), "on.json");
+    let mean: Vec<f64> = serde_json::from_value(prior["mean"].clone()).unwrap();
+    let gap = |p: &[f64]| -> f64 {
+        p[6..]
+            .iter()
+            .zip(&mean)
+            .map(|(x, m)| (x - m) * (x - m))
+            .sum::<f64>()
+    };
+    for k in 0..3 {
+        assert_eq!(
+            off[k].0, plain[k].0,
+            "frame {k}: weight 0 is the fit without a prior"
+        );
+        assert!(
+            on[k].1.get("pose-prior").is_some(),
+            "frame {k}: {}",
+            on[k].1
+        );
+        assert!(plain[k].1.get("pose-prior").is_none());
+        assert!(
+            gap(&on[k].0) < gap(&plain[k].0),
+            "frame {k}: {} vs {}",
+            gap(&on[k].0),
+            gap(&plain[k].0)
+        );
+    }
+    // Bad inputs: nothing written.
+    let never = dir.path().join("never.json");
+    for (more, needle) in [
+        (vec!["--stride", "0"], "--stride 0"),
+        (vec!["--epsilon-deg", "0"], "--epsilon-deg"),
+        (vec!["--epsilon-deg", "nan"], "--epsilon-deg"),
+        (vec!["--weight=-1"], "weights.pose_prior"),
+        (
+            vec!["--energy", "/nonexistent/e.json"],
+            "/nonexistent/e.json",
+        ),
+    ] {
+        assert_one_line_error(&run(&never, &more), needle);
+        assert!(!never.exists(), "{more:?}");
+    }
+    let missing = lfit(&[
+        "motion",
+        "prior",
+        "--motions",
+        "/nonexistent/m.npz",
+        "--model",
+        path_str(&model),
+        "--out",
+        path_str(&never),
+    ]);
+    assert_one_line_error(&missing, "/nonexistent/m.npz");
+    let one = write(a_poses[..1].to_vec(), "one.npz");
+    let single = lfit(&[
+        "motion",
+        "prior",
+        "--motions",
+        path_str(&one),
+        "--model",
+        path_str(&model),
+        "--out",
+        path_str(&never),
+    ]);
+    assert_one_line_error(&single, "at least two poses");
+    let other_model =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/makehuman-cmu_mb.npz");
+    let wrong = lfit(&[
+        "motion",
+        "prior",
+        "--motions",
+        path_str(&a),
+        "--model",
+        path_str(&other_model),
+        "--out",
+        path_str(&never),
+    ]);
+    assert_one_line_error(&wrong, "motion");
+    assert!(!never.exists());
+    // A prior of this model in the energy of another model's data.
+    let other_data = dir.path().join("other.npz");
+    support::synth_to(
+        &other_data,
+        &other_model,
+        &[
+            "--modality",
+            "markers",
+            "--scenario",
+            "local",
+            "--frames",
+            "1",
+            "--seed",
+            "9",
+        ],
+    );
+    let out = dir.path().join("never-fit.json");
+    let refused = lfit(&support::lm_fit_args(
+        &other_data,
+        &out,
+        "50",
+        &["--energy", path_str(&energy)],
+    ));
+    assert_one_line_error(&refused, "another skeleton");
+    assert!(!out.exists());
 }

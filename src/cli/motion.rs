@@ -2,7 +2,8 @@
 //! through a joint-name map and AMASS-layout `.npz` motions become lfit motion files
 //! ([`lfit_synth::motion::file::MotionClip`]); motion files and fitted sequences become BVH.
 //! `lfit motion coverage` measures how well training motions cover an evaluation motion
-//! ([`lfit_synth::motion::coverage`]). Every input is read and checked before anything is written;
+//! ([`lfit_synth::motion::coverage`]). `lfit motion prior` fits a Gaussian pose prior to motion
+//! files ([`lfit_model::energy::PosePrior`]) and writes it as an energy configuration. Every input is read and checked before anything is written;
 //! outputs are written atomically.
 
 use std::path::{Path, PathBuf};
@@ -35,6 +36,13 @@ pub enum MotionCommand {
     /// (the root orientation, i.e. the heading, is reported separately). Prints a JSON summary
     /// with the worst joint axes.
     Coverage(CoverageArgs),
+    /// Fit a Gaussian pose prior to motion files (SMPLify's pose prior with one component): the
+    /// mean and covariance (plus ε² I) of every non-root joint's axis-angle rotation over their
+    /// frames. Writes an energy configuration with the prior (the gradient variant's defaults,
+    /// or --energy's) for --energy of `lfit fit` and the other commands: the energy then adds
+    /// `weights.pose_prior` × the squared Mahalanobis distance of the pose's rotations. Prints a
+    /// JSON summary.
+    Prior(PriorArgs),
 }
 
 /// Settings of `lfit motion import`.
@@ -136,12 +144,41 @@ pub struct CoverageArgs {
     pub joints: Vec<String>,
 }
 
+/// Settings of `lfit motion prior`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct PriorArgs {
+    /// Motion files (written by `lfit motion import`) for the model: the poses the prior is
+    /// fitted to. Keep evaluation clips out of them.
+    #[arg(long, num_args = 1.., value_name = "FILE", required = true)]
+    pub motions: Vec<PathBuf>,
+    /// Model the motions are made for (a model file or template directory); default: the
+    /// procedural template.
+    #[arg(long, visible_alias = "template")]
+    pub model: Option<PathBuf>,
+    /// Keep every N-th frame of each motion (frames 0, N, 2N, ...).
+    #[arg(long, default_value_t = 1, value_name = "N")]
+    pub stride: usize,
+    /// ε in degrees: the covariance is Σ + ε² I (an axis the motions never move is held to ε).
+    #[arg(long = "epsilon-deg", default_value_t = 3.0, value_name = "DEG")]
+    pub epsilon_deg: f64,
+    /// Weight of the prior in the energy (`weights.pose_prior`).
+    #[arg(long, default_value_t = lfit_model::energy::DEFAULT_POSE_PRIOR_WEIGHT)]
+    pub weight: f64,
+    /// Energy configuration to add the prior to; default: the gradient variant's defaults.
+    #[arg(long)]
+    pub energy: Option<PathBuf>,
+    /// Output energy configuration (.json), written atomically.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
 /// Runs a `lfit motion` subcommand.
 pub fn run(command: &MotionCommand) -> Result<Value> {
     match command {
         MotionCommand::Import(a) => import(a),
         MotionCommand::Export(a) => export(a),
         MotionCommand::Coverage(a) => coverage(a),
+        MotionCommand::Prior(a) => prior(a),
     }
 }
 
@@ -449,5 +486,62 @@ pub fn coverage(args: &CoverageArgs) -> Result<Value> {
         "root": c.axes.iter().filter(|a| a.joint == 0).map(row).collect::<Vec<_>>(),
         "percentiles": [1, 99],
         "tolerance_rad": args.tolerance,
+    }))
+}
+
+/// `lfit motion prior`.
+pub fn prior(args: &PriorArgs) -> Result<Value> {
+    if args.stride == 0 {
+        bail!("--stride 0: keep every N-th frame needs N of at least 1");
+    }
+    if !(args.epsilon_deg.is_finite() && args.epsilon_deg > 0.0) {
+        bail!(
+            "--epsilon-deg {} is not a positive number of degrees",
+            args.epsilon_deg
+        );
+    }
+    let mut config = crate::cli::fit::read_energy_config(args.energy.as_deref(), true)?;
+    config.weights.pose_prior = args.weight;
+    config
+        .validate()
+        .with_context(|| format!("--weight {}", args.weight))?;
+    let template = load(args.model.as_deref())?;
+    let mut poses = Vec::new();
+    for path in &args.motions {
+        let clip = MotionClip::read(path)?;
+        clip.check_model(&template)
+            .with_context(|| format!("motion {}", path.display()))?;
+        poses.extend(clip.poses.into_iter().step_by(args.stride));
+    }
+    let names: Vec<String> = args.motions.iter().map(|p| file_name(p)).collect();
+    let source = format!(
+        "lfit motion prior: {} frames (every {} of {}), ε {}°",
+        poses.len(),
+        args.stride,
+        names.join(", "),
+        args.epsilon_deg
+    );
+    let prior = lfit_model::energy::PosePrior::fit(
+        &template,
+        &poses,
+        args.epsilon_deg.to_radians(),
+        source,
+    )?;
+    // The squared Mahalanobis distance over the frames it was fitted to: n on average without ε.
+    let distances: Vec<f64> = poses.iter().map(|p| prior.mahalanobis(p)).collect();
+    let mean_distance = distances.iter().sum::<f64>() / distances.len() as f64;
+    let entries = prior.len();
+    config.pose_prior = Some(std::sync::Arc::new(prior));
+    let text = serde_json::to_string_pretty(&config)?;
+    write_atomic(&args.out, text.as_bytes())?;
+    Ok(json!({
+        "model": template.id,
+        "motions": names,
+        "frames": poses.len(),
+        "entries": entries,
+        "epsilon_deg": args.epsilon_deg,
+        "weight": args.weight,
+        "mean_squared_mahalanobis": mean_distance,
+        "out": args.out.display().to_string(),
     }))
 }

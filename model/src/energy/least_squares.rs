@@ -736,6 +736,7 @@ impl Energy {
         };
         let pose_end = self.limits.lower.len();
         data + self.penetration_rows()
+            + self.pose_prior_len()
             + pose_end.saturating_sub(rot_offset(1))
             + self.pose_prior_rows().len()
             + self.template.morph.coefficients()
@@ -747,6 +748,12 @@ impl Energy {
             PenetrationForm::Vertices => self.penetration.tests.len(),
             PenetrationForm::Capsules => self.capsules.rows(),
         }
+    }
+
+    /// Rows of the Gaussian pose prior ([`crate::energy::PosePrior`]): one per rotation entry it
+    /// covers when the configuration carries one. Dense (written beside EP's, before EA's).
+    fn pose_prior_len(&self) -> usize {
+        self.config.pose_prior.as_ref().map_or(0, |p| p.len())
     }
 
     /// Parameters of the rotation prior's residual rows (papers/002 eq. 9's `w_θ‖θ‖²`): every
@@ -897,7 +904,7 @@ impl Energy {
         let factored = dense_rows == JacobianRows::Factored;
         let dense_to = match (&self.target, factored) {
             (Target::Sparse { values, .. }, true) if with_jacobian => {
-                values.len() + self.penetration_rows()
+                values.len() + self.penetration_rows() + self.pose_prior_len()
             }
             _ => m,
         };
@@ -1055,6 +1062,24 @@ impl Energy {
         }
         blocks.push(("EP", row..row + tests));
         row += tests;
+
+        // The Gaussian pose prior's rows (dense: W is lower triangular over the rotations).
+        if let Some(prior) = &self.config.pose_prior {
+            let n = prior.len();
+            let c0 = w.pose_prior.sqrt();
+            prior.residuals(params, c0, &mut residuals[row..row + n]);
+            if with_jacobian {
+                let first = prior.entries().start;
+                for a in 0..n {
+                    let at = (row + a) * dim - off + first;
+                    for (d, v) in jacobian[at..].iter_mut().zip(prior.jacobian_row(a)) {
+                        *d = c0 * v;
+                    }
+                }
+            }
+            blocks.push(("pose-prior", row..row + n));
+            row += n;
+        }
 
         // EA rows (hinge).
         let (lower, upper) = (&self.limits.lower, &self.limits.upper);

@@ -22,6 +22,7 @@
 mod capsules;
 mod least_squares;
 mod placement;
+mod pose_prior;
 mod prior;
 
 use std::sync::Arc;
@@ -37,6 +38,7 @@ pub use least_squares::{
     envelope_cholesky, envelope_cholesky_solve, envelope_solve, envelope_work, marquardt_scaling,
 };
 pub use placement::{KEYPOINT_OFFSET_STEPS, keypoint_offsets, marker_offsets, point_offsets};
+pub use pose_prior::{DEFAULT_PRIOR_EPSILON, PosePrior};
 pub use prior::AnglePrior;
 
 use self::capsules::Capsules;
@@ -75,6 +77,10 @@ pub struct Weights {
     /// then not part of the energy's terms or residuals, so other energies are unchanged).
     #[serde(skip_serializing_if = "is_zero")]
     pub pose: f64,
+    /// Weight of the Gaussian pose prior fitted to captured poses ([`PosePrior`]; a term only
+    /// when the configuration carries one). Default [`DEFAULT_POSE_PRIOR_WEIGHT`].
+    #[serde(skip_serializing_if = "is_default_pose_prior_weight")]
+    pub pose_prior: f64,
 }
 
 fn is_zero(w: &f64) -> bool {
@@ -88,6 +94,14 @@ fn is_zero(w: &f64) -> bool {
 pub const DEFAULT_SHAPE_WEIGHT: f64 = 0.01;
 /// Default weight of the expression prior (same reasoning as [`DEFAULT_SHAPE_WEIGHT`]).
 pub const DEFAULT_EXPRESSION_WEIGHT: f64 = 0.01;
+
+/// Default weight of the Gaussian pose prior: see the measurement in
+/// docs/results/captured-motion.md (round 22).
+pub const DEFAULT_POSE_PRIOR_WEIGHT: f64 = 0.01;
+
+fn is_default_pose_prior_weight(w: &f64) -> bool {
+    *w == DEFAULT_POSE_PRIOR_WEIGHT
+}
 
 fn is_default_shape_weight(w: &f64) -> bool {
     *w == DEFAULT_SHAPE_WEIGHT
@@ -109,6 +123,7 @@ impl Default for Weights {
             shape: DEFAULT_SHAPE_WEIGHT,
             expression: DEFAULT_EXPRESSION_WEIGHT,
             pose: 0.0,
+            pose_prior: DEFAULT_POSE_PRIOR_WEIGHT,
         }
     }
 }
@@ -206,6 +221,10 @@ pub struct EnergyConfig {
     pub penetration_stride: usize,
     /// How EP tests for self-penetration. Default [`PenetrationForm::Capsules`].
     pub penetration: PenetrationForm,
+    /// A Gaussian prior over the joint rotations fitted to captured poses (`lfit motion prior`),
+    /// weighted by `weights.pose_prior`. Default none (and then not written).
+    #[serde(skip_serializing_if = "Option::is_none", with = "pose_prior::shared")]
+    pub pose_prior: Option<Arc<PosePrior>>,
 }
 
 /// The form of the self-penetration prior EP.
@@ -234,6 +253,7 @@ impl Default for EnergyConfig {
             silhouette_width: 128,
             penetration_stride: 16,
             penetration: PenetrationForm::default(),
+            pose_prior: None,
         }
     }
 }
@@ -264,6 +284,7 @@ impl EnergyConfig {
             ("weights.shape", w.shape),
             ("weights.expression", w.expression),
             ("weights.pose", w.pose),
+            ("weights.pose_prior", w.pose_prior),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(ModelError::Setting {
@@ -461,6 +482,9 @@ impl Energy {
         config: EnergyConfig,
     ) -> Result<Self> {
         config.validate()?;
+        if let Some(prior) = &config.pose_prior {
+            prior.check(&template)?;
+        }
         sensor.validate(&template)?;
         let dim = sensor.residual_dim(&template);
         let mut silhouettes = None;
@@ -859,6 +883,14 @@ impl Energy {
         );
         terms.push(("EA", ea));
         total += w.ea * ea;
+        if let Some(prior) = &self.config.pose_prior {
+            let value = prior.evaluate(
+                pose,
+                want_grad.then_some((grad_direct.as_mut_slice(), w.pose_prior)),
+            );
+            terms.push(("pose-prior", value));
+            total += w.pose_prior * value;
+        }
         // Gaussian priors of the shape and expression coefficients (unit variance in the model's
         // units: PCA standard deviations for a PCA space), only on models that have them.
         let layout_shape = self.template.morph.shape;

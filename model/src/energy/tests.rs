@@ -81,6 +81,7 @@ fn isolate(term: &str) -> EnergyConfig {
         shape: 0.0,
         expression: 0.0,
         pose: 0.0,
+        pose_prior: 0.0,
     };
     match term {
         "data" => c.weights.data = 1.0,
@@ -793,6 +794,16 @@ mod least_squares_form {
         modality: Modality,
         rng: &mut rand_chacha::ChaCha8Rng,
     ) -> (Energy, Vec<f64>) {
+        makehuman_energy_with(t, modality, rng, EnergyConfig::default().for_gradient())
+    }
+
+    /// [`makehuman_energy`] with the given configuration.
+    fn makehuman_energy_with(
+        t: &Arc<crate::Template>,
+        modality: Modality,
+        rng: &mut rand_chacha::ChaCha8Rng,
+        config: EnergyConfig,
+    ) -> (Energy, Vec<f64>) {
         use rand::Rng;
         let dim = t.layout().dim();
         let sensor = Sensor::default_for(modality, t);
@@ -805,7 +816,7 @@ mod least_squares_form {
                 values: pred.values,
                 visible: pred.visible,
             },
-            EnergyConfig::default().for_gradient(),
+            config,
         )
         .unwrap();
         let x: Vec<f64> = truth
@@ -1823,6 +1834,193 @@ mod least_squares_form {
         assert_eq!(ok.evaluations(), 0, "refused requests are not counted");
         ok.least_squares(&gt_pose(), true).unwrap();
         assert_eq!((ok.evaluations(), ok.gradient_evaluations()), (1, 1));
+    }
+
+    /// Correlated poses of the MakeHuman body (a shared latent along a random direction plus
+    /// independent noise), as full parameter vectors.
+    fn correlated_poses(
+        t: &crate::Template,
+        count: usize,
+        rng: &mut rand_chacha::ChaCha8Rng,
+    ) -> Vec<Vec<f64>> {
+        use rand::Rng;
+        let dim = t.layout().dim();
+        let along: Vec<f64> = (0..dim).map(|_| rng.random_range(-0.4..0.4)).collect();
+        (0..count)
+            .map(|_| {
+                let z = rng.random_range(-1.0..1.0);
+                along
+                    .iter()
+                    .map(|a| z * a + rng.random_range(-0.2..0.2))
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// The Gaussian pose prior: its term is the squared Mahalanobis distance of the non-root
+    /// rotations to the poses it was fitted to (against an independent inverse of their
+    /// covariance plus ε²I), it does not touch the translation, the root orientation or β; its
+    /// value, gradient and Jacobian are exact and its rows dense in the factored form too, with
+    /// the dense form's normal equations.
+    #[test]
+    fn the_pose_prior_is_the_mahalanobis_distance_with_exact_derivatives() {
+        use rand::SeedableRng;
+        let t = makehuman_body();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2212);
+        let poses = correlated_poses(&t, 300, &mut rng);
+        let prior = Arc::new(PosePrior::fit(&t, &poses, DEFAULT_PRIOR_EPSILON, "test").unwrap());
+        let n = 3 * (t.rig.num_joints() - 1);
+        assert_eq!((prior.len(), prior.entries().start), (n, rot_offset(1)));
+        // Independently: the covariance matrix and its inverse.
+        let first = rot_offset(1);
+        let mean: Vec<f64> = (0..n)
+            .map(|i| poses.iter().map(|p| p[first + i]).sum::<f64>() / poses.len() as f64)
+            .collect();
+        let cov = nalgebra::DMatrix::from_fn(n, n, |a, b| {
+            poses
+                .iter()
+                .map(|p| (p[first + a] - mean[a]) * (p[first + b] - mean[b]))
+                .sum::<f64>()
+                / (poses.len() - 1) as f64
+                + if a == b {
+                    DEFAULT_PRIOR_EPSILON * DEFAULT_PRIOR_EPSILON
+                } else {
+                    0.0
+                }
+        });
+        let inverse = cov.try_inverse().unwrap();
+        let mut only = isolate("data");
+        only.weights.data = 0.0;
+        only.weights.pose_prior = 0.3;
+        only.pose_prior = Some(prior.clone());
+        let (e, x) = makehuman_energy_with(&t, Modality::Markers, &mut rng, only);
+        let d = nalgebra::DVector::from_fn(n, |a, _| x[first + a] - mean[a]);
+        let want = (d.transpose() * &inverse * &d)[(0, 0)];
+        let (ev, g) = e.evaluate_with_gradient(&x);
+        let got = ev.term("pose-prior").unwrap();
+        assert!((got - want).abs() <= 1e-9 * want, "{got} vs {want}");
+        assert!((ev.total - 0.3 * want).abs() <= 1e-9 * want);
+        // ∇ = 2 w Σ⁻¹ d on the rotations it covers, 0 elsewhere.
+        let grad = &inverse * &d * 0.6;
+        for (i, gi) in g.iter().enumerate() {
+            let expect = if prior.entries().contains(&i) {
+                grad[i - first]
+            } else {
+                0.0
+            };
+            assert!(
+                (gi - expect).abs() <= 1e-9 * grad.amax(),
+                "entry {i}: {gi} vs {expect}"
+            );
+        }
+        // With every other term: derivatives exact, the prior's rows active.
+        let mut full = EnergyConfig::default().for_gradient();
+        full.pose_prior = Some(prior);
+        let (e, x) = makehuman_energy_with(&t, Modality::Markers, &mut rng, full);
+        let active = check(&e, &x, "markers with the pose prior");
+        assert!(
+            active.contains(&"pose-prior") && active.contains(&"data"),
+            "{active:?}"
+        );
+        let ls = e.least_squares(&x, true).unwrap();
+        let lf = e
+            .least_squares_with(&x, true, RobustForm::Folded, JacobianRows::Factored)
+            .unwrap();
+        let ea = lf.blocks.iter().find(|b| b.0 == "EA").unwrap().1.start;
+        let rows = lf
+            .blocks
+            .iter()
+            .find(|b| b.0 == "pose-prior")
+            .unwrap()
+            .1
+            .clone();
+        assert_eq!((rows.len(), rows.end, lf.dense_to), (n, ea, ea));
+        for dofs in column_sets(t.layout().dim()) {
+            let (a, b) = (lf.normal_equations(&dofs), ls.normal_equations(&dofs));
+            let scale = b.0.amax();
+            assert!(
+                (&a.0 - &b.0).amax() <= 1e-12 * scale,
+                "{} columns: JᵀJ",
+                dofs.len()
+            );
+            for (u, v) in a.1.iter().zip(&b.1) {
+                assert!(
+                    (u - v).abs() <= 1e-12 * scale,
+                    "{} columns: Jᵀr",
+                    dofs.len()
+                );
+            }
+        }
+    }
+
+    /// A pose prior is refused, with its cause, on another skeleton, with the wrong sizes or a
+    /// non-finite number; fitting one needs two finite poses of the model's length and ε > 0; it
+    /// is written in the energy configuration and read back to the same energy, and a
+    /// configuration without one is written as before.
+    #[test]
+    fn a_pose_prior_that_does_not_fit_is_refused() {
+        use rand::SeedableRng;
+        let t = makehuman_body();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2213);
+        let poses = correlated_poses(&t, 20, &mut rng);
+        let prior = PosePrior::fit(&t, &poses, DEFAULT_PRIOR_EPSILON, "test").unwrap();
+        let build = |t: Arc<crate::Template>, prior: PosePrior| {
+            let sensor = Sensor::default_for(Modality::Markers, &t);
+            let target = sensor.predict_sparse(&t, &vec![0.0; t.layout().dim()]);
+            let mut c = EnergyConfig::default().for_gradient();
+            c.pose_prior = Some(Arc::new(prior));
+            Energy::new(
+                t.clone(),
+                sensor,
+                Target::Sparse {
+                    values: target.values,
+                    visible: target.visible,
+                },
+                c,
+            )
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+        };
+        build(t.clone(), prior.clone()).unwrap();
+        let other = build(template(), prior.clone()).unwrap_err();
+        assert!(other.contains("another skeleton"), "{other}");
+        let mut short = prior.clone();
+        short.mean.pop();
+        let err = build(t.clone(), short).unwrap_err();
+        assert!(err.contains("pose prior") && err.contains("means"), "{err}");
+        let mut nan = prior.clone();
+        nan.whitening[7] = f64::NAN;
+        assert!(build(t.clone(), nan).unwrap_err().contains("non-finite"));
+        for (poses, eps, why) in [
+            (&poses[..1], DEFAULT_PRIOR_EPSILON, "at least two poses"),
+            (&poses[..], 0.0, "epsilon"),
+            (&poses[..], f64::NAN, "epsilon"),
+        ] {
+            let err = PosePrior::fit(&t, poses, eps, "test")
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(why), "{err}");
+        }
+        let mut bad = poses.clone();
+        bad[3][rot_offset(2)] = f64::INFINITY;
+        assert!(PosePrior::fit(&t, &bad, 0.1, "test").is_err());
+        bad[3].pop();
+        let err = PosePrior::fit(&t, &bad, 0.1, "test")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("pose 3"), "{err}");
+        // Written and read back.
+        let plain = EnergyConfig::default().for_gradient();
+        assert!(
+            !serde_json::to_string(&plain)
+                .unwrap()
+                .contains("pose_prior")
+        );
+        let mut with = plain.clone();
+        with.pose_prior = Some(Arc::new(prior));
+        let text = serde_json::to_string(&with).unwrap();
+        let back: EnergyConfig = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, with);
     }
 }
 
