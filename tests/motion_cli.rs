@@ -2169,4 +2169,45 @@ fn a_pose_prior_fitted_to_motions_is_an_energy_for_lfit_fit() {
     ));
     assert_one_line_error(&refused, "another skeleton");
     assert!(!out.exists());
+    // A dataset's ground-truth poses as the frames (with or without motions); another model's
+    // dataset refused.
+    let from_data = dir.path().join("from-data.json");
+    let d = lfit_json(&[
+        "-q",
+        "motion",
+        "prior",
+        "--data",
+        path_str(&data),
+        "--model",
+        path_str(&model),
+        "--out",
+        path_str(&from_data),
+    ]);
+    assert_eq!(d["frames"], 3);
+    let both = lfit_json(&[
+        "-q",
+        "motion",
+        "prior",
+        "--motions",
+        path_str(&a),
+        "--data",
+        path_str(&data),
+        "--model",
+        path_str(&model),
+        "--out",
+        path_str(&from_data),
+    ]);
+    assert_eq!(both["frames"], 41 + 3);
+    let foreign = lfit(&[
+        "motion",
+        "prior",
+        "--data",
+        path_str(&other_data),
+        "--model",
+        path_str(&model),
+        "--out",
+        path_str(&never),
+    ]);
+    assert_one_line_error(&foreign, "was made for model");
+    assert!(!never.exists());
 }

@@ -65,6 +65,25 @@ def test_holdout_equals_the_cli(makehuman, markers_file, cli, tmp_path):
         lfit.fit(makehuman, markers_file, method="lm", budget=20, holdout=3)
 
 
+def test_a_pose_prior_energy_fits_as_the_cli(makehuman, markers_file, cli, tmp_path):
+    """`lfit motion prior`'s energy file given to `fit(energy=)`: the CLI's fit, the prior's term
+    reported; as a dict (the file's JSON) the same."""
+    model = ROOT / "models" / "makehuman-cmu_mb.npz"
+    prior = tmp_path / "prior.json"
+    motions = sorted((ROOT / "data" / "motions" / "cmu" / "train").glob("00[12]_0*.npz"))
+    cli("motion", "prior", "--motions", *motions, "--model", model, "--stride", 4, "--out", prior)
+    out = tmp_path / "cli.json"
+    cli("fit", "--data", markers_file, "--model", model, "--method", "lm", "--budget", 100,
+        "--frames", "0..3", "--energy", prior, "--out", out)
+    rows = json.loads(out.read_text())["frames"]
+    assert all("pose-prior" in r["terms"] for r in rows)
+    for energy in (str(prior), json.loads(prior.read_text())):
+        ours = lfit.fit(makehuman, markers_file, method="lm", budget=100, frames="0..3", energy=energy)
+        np.testing.assert_array_equal(ours.poses, [r["pose"] for r in rows])
+    plain = lfit.fit(makehuman, markers_file, method="lm", budget=100, frames="0..3")
+    assert not np.array_equal(plain.poses, ours.poses)
+
+
 def test_in_memory_dataset_and_frame_list(makehuman):
     data = lfit.synth("keypoints2d", makehuman, frames=5, seed=2)
     seen = []

@@ -149,13 +149,17 @@ pub struct CoverageArgs {
 pub struct PriorArgs {
     /// Motion files (written by `lfit motion import`) for the model: the poses the prior is
     /// fitted to. Keep evaluation clips out of them.
-    #[arg(long, num_args = 1.., value_name = "FILE", required = true)]
+    #[arg(long, num_args = 1.., value_name = "FILE", required_unless_present = "data")]
     pub motions: Vec<PathBuf>,
+    /// Datasets (`lfit synth` output for the same model) whose ground-truth poses join the
+    /// motions' frames, e.g. frames of the procedural library.
+    #[arg(long, num_args = 1.., value_name = "FILE")]
+    pub data: Vec<PathBuf>,
     /// Model the motions are made for (a model file or template directory); default: the
     /// procedural template.
     #[arg(long, visible_alias = "template")]
     pub model: Option<PathBuf>,
-    /// Keep every N-th frame of each motion (frames 0, N, 2N, ...).
+    /// Keep every N-th frame of each motion and dataset (frames 0, N, 2N, ...).
     #[arg(long, default_value_t = 1, value_name = "N")]
     pub stride: usize,
     /// ε in degrees: the covariance is Σ + ε² I (an axis the motions never move is held to ε).
@@ -513,7 +517,34 @@ pub fn prior(args: &PriorArgs) -> Result<Value> {
             .with_context(|| format!("motion {}", path.display()))?;
         poses.extend(clip.poses.into_iter().step_by(args.stride));
     }
-    let names: Vec<String> = args.motions.iter().map(|p| file_name(p)).collect();
+    let pose_dim = template.layout().pose_dim();
+    for path in &args.data {
+        let d = lfit_synth::Dataset::load(path)
+            .with_context(|| format!("dataset {}", path.display()))?;
+        if d.meta.template_id != template.id || d.meta.pose_dim != pose_dim {
+            bail!(
+                "dataset {} was made for model '{}' ({} pose entries), not for model '{}' ({} pose entries)",
+                path.display(),
+                d.meta.template_id,
+                d.meta.pose_dim,
+                template.id,
+                pose_dim
+            );
+        }
+        if d.gt_poses.is_empty() {
+            bail!(
+                "dataset {} has no ground-truth poses (imported observations): nothing to fit",
+                path.display()
+            );
+        }
+        poses.extend(d.gt_poses.into_iter().step_by(args.stride));
+    }
+    let names: Vec<String> = args
+        .motions
+        .iter()
+        .chain(&args.data)
+        .map(|p| file_name(p))
+        .collect();
     let source = format!(
         "lfit motion prior: {} frames (every {} of {}), ε {}°",
         poses.len(),
@@ -536,7 +567,7 @@ pub fn prior(args: &PriorArgs) -> Result<Value> {
     write_atomic(&args.out, text.as_bytes())?;
     Ok(json!({
         "model": template.id,
-        "motions": names,
+        "files": names,
         "frames": poses.len(),
         "entries": entries,
         "epsilon_deg": args.epsilon_deg,

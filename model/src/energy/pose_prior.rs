@@ -54,10 +54,10 @@ impl PosePrior {
         rot_offset(1)..rot_offset(1) + self.len()
     }
 
-    /// Fits `μ` and `W` to poses (full parameter vectors in `template`'s layout): the sample
-    /// mean and covariance (divided by `T − 1`) of the non-root rotation entries, plus `ε² I`.
-    /// Fails on fewer than two poses, a pose of the wrong length or with a non-finite entry, or
-    /// `ε ≤ 0`.
+    /// Fits `μ` and `W` to poses (full parameter vectors in `template`'s layout, or their pose
+    /// part: translation and rotations): the sample mean and covariance (divided by `T − 1`) of
+    /// the non-root rotation entries, plus `ε² I`. Fails on fewer than two poses, a pose of
+    /// another length or with a non-finite entry, or `ε ≤ 0`.
     pub fn fit(
         template: &Template,
         poses: &[Vec<f64>],
@@ -77,15 +77,16 @@ impl PosePrior {
                 poses.len()
             )));
         }
-        let dim = template.layout().dim();
+        let layout = template.layout();
+        let (dim, pose_dim) = (layout.dim(), layout.pose_dim());
         let joints = Self::joints_of(template);
         let range = rot_offset(1)..rot_offset(1) + 3 * joints.len();
         let n = range.len();
         for (k, p) in poses.iter().enumerate() {
-            if p.len() != dim {
+            if p.len() != dim && p.len() != pose_dim {
                 return Err(ModelError::Shape {
                     what: format!("pose {k}"),
-                    expected: dim.to_string(),
+                    expected: format!("{dim} (or {pose_dim} without shape)"),
                     got: p.len().to_string(),
                 });
             }
