@@ -1966,36 +1966,22 @@ fn a_pose_prior_fitted_to_motions_is_an_energy_for_lfit_fit() {
         write(b_poses.clone(), "b.npz"),
     );
     let energy = dir.path().join("prior.json");
-    let args = |out: &Path, more: &[&str]| -> Vec<String> {
-        let mut v: Vec<String> = [
-            "-q",
-            "motion",
-            "prior",
+    let (a_str, b_str, model_str) = (path_str(&a), path_str(&b), path_str(&model));
+    // The two motions, every 2nd frame, and `more`.
+    let inputs = |more: &[&'static str]| -> Vec<&str> {
+        let mut v = vec![
             "--motions",
-            path_str(&a),
-            path_str(&b),
+            a_str,
+            b_str,
             "--model",
-            path_str(&model),
+            model_str,
             "--stride",
             "2",
-            "--out",
-            path_str(out),
-        ]
-        .map(String::from)
-        .to_vec();
-        v.extend(more.iter().map(|s| s.to_string()));
+        ];
+        v.extend(more);
         v
     };
-    let run = |out: &Path, more: &[&str]| {
-        let v = args(out, more);
-        lfit(&v.iter().map(String::as_str).collect::<Vec<_>>())
-    };
-    let summary = lfit_json(
-        &args(&energy, &[])
-            .iter()
-            .map(String::as_str)
-            .collect::<Vec<_>>(),
-    );
+    let summary = lfit_json(&prior_args(&inputs(&[]), &energy));
     let kept: Vec<&Vec<f64>> = a_poses
         .iter()
         .step_by(2)
@@ -2015,23 +2001,22 @@ fn a_pose_prior_fitted_to_motions_is_an_energy_for_lfit_fit() {
     assert_eq!(config["angle_prior"], "hinge", "the gradient variant");
     // Fitted with it.
     let data = dir.path().join("data.npz");
-    support::synth_to(
-        &data,
-        &model,
-        &[
+    let markers = |frames| {
+        vec![
             "--modality",
             "markers",
             "--scenario",
             "local",
             "--frames",
-            "3",
+            frames,
             "--seed",
             "9",
-        ],
-    );
+        ]
+    };
+    support::synth_to(&data, &model, &markers("3"));
     let fit = |energy: Option<&Path>, name: &str| {
         let out = dir.path().join(name);
-        let mut more = vec![];
+        let mut more = vec!["--model", model_str];
         if let Some(e) = energy {
             more.extend(["--energy", path_str(e)]);
         }
@@ -2051,20 +2036,10 @@ fn a_pose_prior_fitted_to_motions_is_an_energy_for_lfit_fit() {
     };
     let plain = fit(None, "plain.json");
     let zero = dir.path().join("zero.json");
-    lfit_json(
-        &args(&zero, &["--weight", "0"])
-            .iter()
-            .map(String::as_str)
-            .collect::<Vec<_>>(),
-    );
+    lfit_json(&prior_args(&inputs(&["--weight", "0"]), &zero));
     let off = fit(Some(&zero), "off.json");
     let strong = dir.path().join("strong.json");
-    lfit_json(
-        &args(&strong, &["--weight", "30"])
-            .iter()
-            .map(String::as_str)
-            .collect::<Vec<_>>(),
-    );
+    lfit_json(&prior_args(&inputs(&["--weight", "30"]), &strong));
     let on = fit(Some(&strong), "on.json");
     let mean: Vec<f64> = serde_json::from_value(prior["mean"].clone()).unwrap();
     let gap = |p: &[f64]| -> f64 {
@@ -2092,122 +2067,85 @@ fn a_pose_prior_fitted_to_motions_is_an_energy_for_lfit_fit() {
             gap(&plain[k].0)
         );
     }
+    // A dataset's ground-truth poses as the frames (with or without motions).
+    let from_data = dir.path().join("from-data.json");
+    let d = lfit_json(&prior_args(
+        &["--data", path_str(&data), "--model", model_str],
+        &from_data,
+    ));
+    assert_eq!(d["frames"], 3);
+    let both = lfit_json(&prior_args(
+        &[
+            "--motions",
+            a_str,
+            "--data",
+            path_str(&data),
+            "--model",
+            model_str,
+        ],
+        &from_data,
+    ));
+    assert_eq!(both["frames"], 41 + 3);
     // Bad inputs: nothing written.
     let never = dir.path().join("never.json");
-    for (more, needle) in [
-        (vec!["--stride", "0"], "--stride 0"),
-        (vec!["--epsilon-deg", "0"], "--epsilon-deg"),
-        (vec!["--epsilon-deg", "nan"], "--epsilon-deg"),
-        (vec!["--weight=-1"], "weights.pose_prior"),
-        (
-            vec!["--energy", "/nonexistent/e.json"],
-            "/nonexistent/e.json",
-        ),
-    ] {
-        assert_one_line_error(&run(&never, &more), needle);
-        assert!(!never.exists(), "{more:?}");
-    }
-    let missing = lfit(&[
-        "motion",
-        "prior",
-        "--motions",
-        "/nonexistent/m.npz",
-        "--model",
-        path_str(&model),
-        "--out",
-        path_str(&never),
-    ]);
-    assert_one_line_error(&missing, "/nonexistent/m.npz");
     let one = write(a_poses[..1].to_vec(), "one.npz");
-    let single = lfit(&[
-        "motion",
-        "prior",
-        "--motions",
-        path_str(&one),
-        "--model",
-        path_str(&model),
-        "--out",
-        path_str(&never),
-    ]);
-    assert_one_line_error(&single, "at least two poses");
     let other_model =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/makehuman-cmu_mb.npz");
-    let wrong = lfit(&[
-        "motion",
-        "prior",
-        "--motions",
-        path_str(&a),
-        "--model",
-        path_str(&other_model),
-        "--out",
-        path_str(&never),
-    ]);
-    assert_one_line_error(&wrong, "motion");
-    assert!(!never.exists());
-    // A prior of this model in the energy of another model's data.
     let other_data = dir.path().join("other.npz");
-    support::synth_to(
-        &other_data,
-        &other_model,
-        &[
-            "--modality",
-            "markers",
-            "--scenario",
-            "local",
-            "--frames",
-            "1",
-            "--seed",
-            "9",
-        ],
-    );
+    support::synth_to(&other_data, &other_model, &markers("1"));
+    for (args, needle) in [
+        (
+            vec!["--motions", a_str, "--model", model_str, "--stride", "0"],
+            "--stride 0",
+        ),
+        (inputs(&["--epsilon-deg", "0"]), "--epsilon-deg"),
+        (inputs(&["--epsilon-deg", "nan"]), "--epsilon-deg"),
+        (inputs(&["--weight=-1"]), "weights.pose_prior"),
+        (
+            inputs(&["--energy", "/nonexistent/e.json"]),
+            "/nonexistent/e.json",
+        ),
+        (
+            vec!["--motions", "/nonexistent/m.npz", "--model", model_str],
+            "/nonexistent/m.npz",
+        ),
+        (
+            vec!["--motions", path_str(&one), "--model", model_str],
+            "at least two poses",
+        ),
+        (
+            vec!["--motions", a_str, "--model", path_str(&other_model)],
+            "motion",
+        ),
+        (
+            vec!["--data", path_str(&other_data), "--model", model_str],
+            "was made for model",
+        ),
+    ] {
+        assert_one_line_error(&lfit(&prior_args(&args, &never)), needle);
+        assert!(!never.exists(), "{args:?}");
+    }
+    // A prior of this model in the energy of another model's data.
     let out = dir.path().join("never-fit.json");
     let refused = lfit(&support::lm_fit_args(
         &other_data,
         &out,
         "50",
-        &["--energy", path_str(&energy)],
+        &[
+            "--model",
+            path_str(&other_model),
+            "--energy",
+            path_str(&energy),
+        ],
     ));
     assert_one_line_error(&refused, "another skeleton");
     assert!(!out.exists());
-    // A dataset's ground-truth poses as the frames (with or without motions); another model's
-    // dataset refused.
-    let from_data = dir.path().join("from-data.json");
-    let d = lfit_json(&[
-        "-q",
-        "motion",
-        "prior",
-        "--data",
-        path_str(&data),
-        "--model",
-        path_str(&model),
-        "--out",
-        path_str(&from_data),
-    ]);
-    assert_eq!(d["frames"], 3);
-    let both = lfit_json(&[
-        "-q",
-        "motion",
-        "prior",
-        "--motions",
-        path_str(&a),
-        "--data",
-        path_str(&data),
-        "--model",
-        path_str(&model),
-        "--out",
-        path_str(&from_data),
-    ]);
-    assert_eq!(both["frames"], 41 + 3);
-    let foreign = lfit(&[
-        "motion",
-        "prior",
-        "--data",
-        path_str(&other_data),
-        "--model",
-        path_str(&model),
-        "--out",
-        path_str(&never),
-    ]);
-    assert_one_line_error(&foreign, "was made for model");
-    assert!(!never.exists());
+}
+
+/// `lfit -q motion prior INPUTS --out OUT` (INPUTS: the files, the model and the flags).
+fn prior_args<'a>(inputs: &[&'a str], out: &'a Path) -> Vec<&'a str> {
+    let mut a = vec!["-q", "motion", "prior"];
+    a.extend(inputs);
+    a.extend(["--out", path_str(out)]);
+    a
 }
