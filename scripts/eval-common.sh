@@ -55,14 +55,16 @@ PY
 
 # A markers method's `lfit fit` arguments on a sequence, from the better of the previous result
 # and Φ(D) per frame for the learned fitters: eval_marker_method lm|neural|neural+lm CHECKPOINT.
-# lm+prior and neural+lm+prior are LM and neural+lm with POSE_PRIOR's energy (an `lfit motion
-# prior` file; a path without spaces).
+# lm+prior, neural+prior and neural+lm+prior are LM, the network and neural+lm with POSE_PRIOR's
+# energy (an `lfit motion prior` file; a path without spaces; a network trained on that energy
+# needs it).
 eval_marker_method() {
     case "$1" in
         lm) echo lm --budget 4000 ;;
         neural) echo neural --checkpoint "$2" --neural-start both --budget 24 ;;
         neural+lm) echo neural+lm --checkpoint "$2" --neural-start both --budget 4000 ;;
         lm+prior) echo lm --budget 4000 --energy "$POSE_PRIOR" ;;
+        neural+prior) echo neural --checkpoint "$2" --neural-start both --budget 24 --energy "$POSE_PRIOR" ;;
         neural+lm+prior)
             echo neural+lm --checkpoint "$2" --neural-start both --budget 4000 --energy "$POSE_PRIOR" ;;
     esac
@@ -80,14 +82,14 @@ eval_methods() {
     for m in "${methods[@]}"; do
         case "$m" in
             lm | neural | neural+lm) ;;
-            lm+prior | neural+lm+prior)
+            lm+prior | neural+prior | neural+lm+prior)
                 if [ -z "${POSE_PRIOR:-}" ] || [ ! -f "$POSE_PRIOR" ] || [[ "$POSE_PRIOR" == *" "* ]]; then
                     echo "$1: $m needs POSE_PRIOR, an energy file of \`lfit motion prior\` (a path without spaces), not '${POSE_PRIOR:-}'" >&2
                     exit 2
                 fi
                 ;;
             *)
-                echo "$1: unknown method '$m' in METHODS (lm, neural, neural+lm, lm+prior, neural+lm+prior)" >&2
+                echo "$1: unknown method '$m' in METHODS (lm, neural, neural+lm, lm+prior, neural+prior, neural+lm+prior)" >&2
                 exit 2
                 ;;
         esac

@@ -26,8 +26,8 @@
 # UP (default z: Vicon's lab frame) and LABEL_MAP (a `lfit data import --label-map` file; default:
 # labels equal to the model's Plug-in Gait names) describe the capture; CHECKPOINT (default
 # checkpoints/markers-makehuman) is the markers network; METHODS (default "lm neural neural+lm";
-# also lm+prior and neural+lm+prior, with POSE_PRIOR: eval-common.sh) the methods; LFIT (default:
-# the release build) is the binary. The same files give the same numbers, but for the times.
+# also lm+prior, neural+prior and neural+lm+prior, with POSE_PRIOR: eval-common.sh) the methods;
+# LFIT (default: the release build) is the binary. The same files give the same numbers, but for the times.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ $# -lt 1 ] || [ $# -gt 3 ]; then
