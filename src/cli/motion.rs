@@ -397,26 +397,12 @@ pub fn coverage(args: &CoverageArgs) -> Result<Value> {
     );
     let mut data_poses: Vec<Vec<Vec<f64>>> = Vec::with_capacity(args.train_data.len());
     for path in &args.train_data {
-        let d = lfit_synth::Dataset::load(path)
-            .with_context(|| format!("dataset {}", path.display()))?;
-        if d.meta.template_id != model_id || d.meta.pose_dim != 3 + 3 * layout.num_joints() {
-            bail!(
-                "dataset {} was made for model '{}' ({} pose entries), not for model '{}' ({} joints: {} pose entries)",
-                path.display(),
-                d.meta.template_id,
-                d.meta.pose_dim,
-                model_id,
-                layout.num_joints(),
-                3 + 3 * layout.num_joints()
-            );
-        }
-        if d.gt_poses.is_empty() {
-            bail!(
-                "dataset {} has no ground-truth poses (imported observations): nothing to count",
-                path.display()
-            );
-        }
-        data_poses.push(d.gt_poses);
+        data_poses.push(ground_truth_poses(
+            path,
+            &model_id,
+            layout.pose_dim(),
+            "count",
+        )?);
     }
     for (path, clip) in args.train.iter().zip(&train).chain([(&args.eval, &eval)]) {
         if clip.model.layout != layout {
@@ -493,6 +479,35 @@ pub fn coverage(args: &CoverageArgs) -> Result<Value> {
     }))
 }
 
+/// The ground-truth poses of an `lfit synth` dataset made for model `model_id` (`pose_dim`
+/// translation and rotation entries); `purpose` ends the error for a dataset without them.
+fn ground_truth_poses(
+    path: &Path,
+    model_id: &str,
+    pose_dim: usize,
+    purpose: &str,
+) -> Result<Vec<Vec<f64>>> {
+    let d =
+        lfit_synth::Dataset::load(path).with_context(|| format!("dataset {}", path.display()))?;
+    if d.meta.template_id != model_id || d.meta.pose_dim != pose_dim {
+        bail!(
+            "dataset {} was made for model '{}' ({} pose entries), not for model '{}' ({} pose entries)",
+            path.display(),
+            d.meta.template_id,
+            d.meta.pose_dim,
+            model_id,
+            pose_dim
+        );
+    }
+    if d.gt_poses.is_empty() {
+        bail!(
+            "dataset {} has no ground-truth poses (imported observations): nothing to {purpose}",
+            path.display()
+        );
+    }
+    Ok(d.gt_poses)
+}
+
 /// `lfit motion prior`.
 pub fn prior(args: &PriorArgs) -> Result<Value> {
     if args.stride == 0 {
@@ -519,25 +534,8 @@ pub fn prior(args: &PriorArgs) -> Result<Value> {
     }
     let pose_dim = template.layout().pose_dim();
     for path in &args.data {
-        let d = lfit_synth::Dataset::load(path)
-            .with_context(|| format!("dataset {}", path.display()))?;
-        if d.meta.template_id != template.id || d.meta.pose_dim != pose_dim {
-            bail!(
-                "dataset {} was made for model '{}' ({} pose entries), not for model '{}' ({} pose entries)",
-                path.display(),
-                d.meta.template_id,
-                d.meta.pose_dim,
-                template.id,
-                pose_dim
-            );
-        }
-        if d.gt_poses.is_empty() {
-            bail!(
-                "dataset {} has no ground-truth poses (imported observations): nothing to fit",
-                path.display()
-            );
-        }
-        poses.extend(d.gt_poses.into_iter().step_by(args.stride));
+        let gt = ground_truth_poses(path, &template.id, pose_dim, "fit")?;
+        poses.extend(gt.into_iter().step_by(args.stride));
     }
     let names: Vec<String> = args
         .motions
