@@ -60,13 +60,10 @@ PY
 # needs it).
 eval_marker_method() {
     case "$1" in
+        *+prior) echo "$(eval_marker_method "${1%+prior}" "$2") --energy $POSE_PRIOR" ;;
         lm) echo lm --budget 4000 ;;
         neural) echo neural --checkpoint "$2" --neural-start both --budget 24 ;;
         neural+lm) echo neural+lm --checkpoint "$2" --neural-start both --budget 4000 ;;
-        lm+prior) echo lm --budget 4000 --energy "$POSE_PRIOR" ;;
-        neural+prior) echo neural --checkpoint "$2" --neural-start both --budget 24 --energy "$POSE_PRIOR" ;;
-        neural+lm+prior)
-            echo neural+lm --checkpoint "$2" --neural-start both --budget 4000 --energy "$POSE_PRIOR" ;;
     esac
 }
 

@@ -738,7 +738,7 @@ impl Energy {
         data + self.penetration_rows()
             + self.pose_prior_len()
             + pose_end.saturating_sub(rot_offset(1))
-            + self.pose_prior_rows().len()
+            + self.rotation_prior_rows().len()
             + self.template.morph.coefficients()
     }
 
@@ -758,7 +758,7 @@ impl Energy {
 
     /// Parameters of the rotation prior's residual rows (papers/002 eq. 9's `w_θ‖θ‖²`): every
     /// rotation entry when its weight is positive, none otherwise.
-    fn pose_prior_rows(&self) -> std::ops::Range<usize> {
+    fn rotation_prior_rows(&self) -> std::ops::Range<usize> {
         if self.config.weights.pose > 0.0 {
             3..3 + 3 * self.template.rig.num_joints()
         } else {
@@ -1102,7 +1102,7 @@ impl Energy {
         let morph = &self.template.morph;
         let base = 3 + 3 * self.template.rig.num_joints();
         for (name, weight, range) in [
-            ("pose", w.pose, self.pose_prior_rows()),
+            ("pose", w.pose, self.rotation_prior_rows()),
             ("shape", w.shape, base..base + morph.shape),
             (
                 "expression",

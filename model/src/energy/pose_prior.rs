@@ -158,8 +158,10 @@ impl PosePrior {
     /// Fails unless the prior fits `template` (the same non-root joints in the same order) and
     /// its numbers are finite with a whitening of `n × n`.
     pub fn check(&self, template: &Template) -> Result<()> {
-        let joints = Self::joints_of(template);
-        if self.joints != joints {
+        let model = &template.rig.joints[1..];
+        // Every frame's energy checks its prior: the names are compared without copying them.
+        if !self.joints.iter().eq(model.iter().map(|j| &j.name)) {
+            let joints = Self::joints_of(template);
             let first = self
                 .joints
                 .iter()
@@ -175,7 +177,7 @@ impl PosePrior {
                 joints.get(first).map_or("none", String::as_str),
             )));
         }
-        let n = 3 * joints.len();
+        let n = 3 * model.len();
         if self.mean.len() != n || self.whitening.len() != n * n {
             return Err(ModelError::Shape {
                 what: "pose prior".into(),
