@@ -2086,6 +2086,63 @@ fn a_pose_prior_fitted_to_motions_is_an_energy_for_lfit_fit() {
         &from_data,
     ));
     assert_eq!(both["frames"], 41 + 3);
+    // A mixture (EM): written as its components, the same bytes from the same seed, a term of
+    // the fit.
+    let mixture = |name: &str| {
+        let out = dir.path().join(name);
+        let s = lfit_json(&prior_args(
+            &inputs(&["--components", "2", "--seed", "3"]),
+            &out,
+        ));
+        (s, std::fs::read(&out).unwrap(), out)
+    };
+    let (m, bytes, mix) = mixture("mix.json");
+    assert_eq!(
+        (m["components"].as_u64(), m["em_converged"].as_bool()),
+        (Some(2), Some(true))
+    );
+    assert_eq!(mixture("mix-again.json").1, bytes, "same seed, same prior");
+    let doc: serde_json::Value = serde_json::from_slice(&bytes).unwrap();
+    let comps = doc["pose_prior"]["components"].as_array().unwrap();
+    let total: f64 = comps.iter().map(|c| c["weight"].as_f64().unwrap()).sum();
+    assert!(comps.len() == 2 && (total - 1.0).abs() < 1e-12 && doc["pose_prior"]["mean"].is_null());
+    // Held-out motions scored, not fitted: the same prior, a lower likelihood than its own frames.
+    let scored = lfit_json(&prior_args(
+        &[
+            "--motions",
+            a_str,
+            "--model",
+            model_str,
+            "--held-out",
+            b_str,
+        ],
+        &dir.path().join("scored.json"),
+    ));
+    let ll = |v: &serde_json::Value| v["mean_log_likelihood"].as_f64().unwrap();
+    assert_eq!(
+        (
+            scored["frames"].as_u64(),
+            scored["held_out"]["frames"].as_u64()
+        ),
+        (Some(41), Some(30))
+    );
+    assert!(ll(&scored["held_out"]) < ll(&scored), "{scored}");
+    // The default weight follows --modality; --weight overrides it.
+    for (more, want) in [
+        (vec![], 0.01),
+        (vec!["--modality", "keypoints2d"], 0.001),
+        (vec!["--modality", "hmd"], 0.01),
+        (vec!["--modality", "keypoints2d", "--weight", "0.5"], 0.5),
+    ] {
+        let out = dir.path().join("weighted.json");
+        let s = lfit_json(&prior_args(&inputs(&more), &out));
+        let doc: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+        let w = doc["weights"]["pose_prior"].as_f64().unwrap_or(0.01);
+        assert_eq!((w, s["weight"].as_f64().unwrap()), (want, want), "{more:?}");
+    }
+    let with_mix = fit(Some(&mix), "mixed.json");
+    assert!(with_mix.iter().all(|f| f.1.get("pose-prior").is_some()));
     // Bad inputs: nothing written.
     let never = dir.path().join("never.json");
     let one = write(a_poses[..1].to_vec(), "one.npz");
@@ -2099,6 +2156,13 @@ fn a_pose_prior_fitted_to_motions_is_an_energy_for_lfit_fit() {
             "--stride 0",
         ),
         (inputs(&["--epsilon-deg", "0"]), "--epsilon-deg"),
+        (inputs(&["--components", "0"]), "--components 0"),
+        (inputs(&["--modality", "sonar"]), "--modality sonar"),
+        (
+            inputs(&["--held-out", "/nonexistent/h.npz"]),
+            "/nonexistent/h.npz",
+        ),
+        (inputs(&["--components", "19"]), "two per component"),
         (inputs(&["--epsilon-deg", "nan"]), "--epsilon-deg"),
         (inputs(&["--weight=-1"]), "weights.pose_prior"),
         (
@@ -2111,7 +2175,7 @@ fn a_pose_prior_fitted_to_motions_is_an_energy_for_lfit_fit() {
         ),
         (
             vec!["--motions", path_str(&one), "--model", model_str],
-            "at least two poses",
+            "at least 2 poses",
         ),
         (
             vec!["--motions", a_str, "--model", path_str(&other_model)],

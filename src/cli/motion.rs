@@ -36,12 +36,13 @@ pub enum MotionCommand {
     /// (the root orientation, i.e. the heading, is reported separately). Prints a JSON summary
     /// with the worst joint axes.
     Coverage(CoverageArgs),
-    /// Fit a Gaussian pose prior to motion files (SMPLify's pose prior with one component): the
-    /// mean and covariance (plus ε² I) of every non-root joint's axis-angle rotation over their
-    /// frames. Writes an energy configuration with the prior (the gradient variant's defaults,
-    /// or --energy's) for --energy of `lfit fit` and the other commands: the energy then adds
-    /// `weights.pose_prior` × the squared Mahalanobis distance of the pose's rotations. Prints a
-    /// JSON summary.
+    /// Fit a pose prior to motion files: a Gaussian (the mean and covariance, plus ε² I, of every
+    /// non-root joint's axis-angle rotation over their frames) or, with --components K, SMPLify's
+    /// mixture of K Gaussians fitted by EM. Writes an energy configuration with the prior (the
+    /// gradient variant's defaults, or --energy's) for --energy of `lfit fit` and the other
+    /// commands: the energy then adds `weights.pose_prior` × the squared Mahalanobis distance of
+    /// the pose's rotations (to the nearest component by its likelihood, plus that component's
+    /// constant). Prints a JSON summary.
     Prior(PriorArgs),
 }
 
@@ -165,9 +166,24 @@ pub struct PriorArgs {
     /// ε in degrees: the covariance is Σ + ε² I (an axis the motions never move is held to ε).
     #[arg(long = "epsilon-deg", default_value_t = 3.0, value_name = "DEG")]
     pub epsilon_deg: f64,
-    /// Weight of the prior in the energy (`weights.pose_prior`).
-    #[arg(long, default_value_t = lfit_model::energy::DEFAULT_POSE_PRIOR_WEIGHT)]
-    pub weight: f64,
+    /// Weight of the prior in the energy (`weights.pose_prior`); default: --modality's (markers
+    /// 0.01, keypoints2d 0.001; every other modality markers').
+    #[arg(long)]
+    pub weight: Option<f64>,
+    /// The sensor the energy is for, which sets the default --weight (markers, keypoints2d, hmd,
+    /// ...); default markers.
+    #[arg(long, default_value = "markers")]
+    pub modality: String,
+    /// Gaussians in the prior: 1 (default) or a mixture fitted by EM (SMPLify uses 8).
+    #[arg(long, default_value_t = 1, value_name = "K")]
+    pub components: usize,
+    /// Seed of the mixture's k-means++ start (same seed and frames, same prior).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Motion files kept out of the fit (e.g. a validation subject): the summary reports the
+    /// prior's mean log-likelihood and term on their frames (every frame), to compare priors.
+    #[arg(long, num_args = 1.., value_name = "FILE")]
+    pub held_out: Vec<PathBuf>,
     /// Energy configuration to add the prior to; default: the gradient variant's defaults.
     #[arg(long)]
     pub energy: Option<PathBuf>,
@@ -519,11 +535,18 @@ pub fn prior(args: &PriorArgs) -> Result<Value> {
             args.epsilon_deg
         );
     }
+    let modality: lfit_model::observe::Modality = args
+        .modality
+        .parse()
+        .with_context(|| format!("--modality {}", args.modality))?;
+    let weight = args
+        .weight
+        .unwrap_or_else(|| lfit_model::energy::default_pose_prior_weight(modality));
     let mut config = crate::cli::fit::read_energy_config(args.energy.as_deref(), true)?;
-    config.weights.pose_prior = args.weight;
+    config.weights.pose_prior = weight;
     config
         .validate()
-        .with_context(|| format!("--weight {}", args.weight))?;
+        .with_context(|| format!("--weight {weight}"))?;
     let template = load(args.model.as_deref())?;
     let mut poses = Vec::new();
     for path in &args.motions {
@@ -531,6 +554,13 @@ pub fn prior(args: &PriorArgs) -> Result<Value> {
         clip.check_model(&template)
             .with_context(|| format!("motion {}", path.display()))?;
         poses.extend(clip.poses.into_iter().step_by(args.stride));
+    }
+    let mut held_out = Vec::new();
+    for path in &args.held_out {
+        let clip = MotionClip::read(path)?;
+        clip.check_model(&template)
+            .with_context(|| format!("--held-out {}", path.display()))?;
+        held_out.extend(clip.poses);
     }
     let pose_dim = template.layout().pose_dim();
     for path in &args.data {
@@ -543,23 +573,42 @@ pub fn prior(args: &PriorArgs) -> Result<Value> {
         .chain(&args.data)
         .map(|p| file_name(p))
         .collect();
+    let mixture = if args.components > 1 {
+        format!(", {} components (seed {})", args.components, args.seed)
+    } else {
+        String::new()
+    };
     let source = format!(
-        "lfit motion prior: {} frames (every {} of {}), ε {}°",
+        "lfit motion prior: {} frames (every {} of {}), ε {}°{mixture}",
         poses.len(),
         args.stride,
         names.join(", "),
         args.epsilon_deg
     );
-    let prior = lfit_model::energy::PosePrior::fit(
+    let (prior, em) = lfit_model::energy::PosePrior::fit_mixture(
         &template,
         &poses,
+        args.components,
         args.epsilon_deg.to_radians(),
+        args.seed,
         source,
-    )?;
-    // The squared Mahalanobis distance over the frames it was fitted to: n on average without ε.
-    let distances: Vec<f64> = poses.iter().map(|p| prior.mahalanobis(p)).collect();
-    let mean_distance = distances.iter().sum::<f64>() / distances.len() as f64;
+    )
+    .with_context(|| format!("--components {}", args.components))?;
+    // The squared Mahalanobis distance (to the active component) over the frames it was fitted
+    // to: n on average for one Gaussian without ε.
+    let scores = |poses: &[Vec<f64>]| {
+        let t = poses.len() as f64;
+        json!({
+            "frames": poses.len(),
+            "mean_log_likelihood": prior.log_likelihood(poses),
+            "mean_squared_mahalanobis": poses.iter().map(|p| prior.mahalanobis(p).1).sum::<f64>() / t,
+            "mean_term": poses.iter().map(|p| prior.value(p)).sum::<f64>() / t,
+        })
+    };
+    let fitted = scores(&poses);
+    let held = (!held_out.is_empty()).then(|| scores(&held_out));
     let entries = prior.len();
+    let components = prior.components().len();
     config.pose_prior = Some(std::sync::Arc::new(prior));
     let text = serde_json::to_string_pretty(&config)?;
     write_atomic(&args.out, text.as_bytes())?;
@@ -569,8 +618,16 @@ pub fn prior(args: &PriorArgs) -> Result<Value> {
         "frames": poses.len(),
         "entries": entries,
         "epsilon_deg": args.epsilon_deg,
-        "weight": args.weight,
-        "mean_squared_mahalanobis": mean_distance,
+        "weight": weight,
+        "modality": modality.name(),
+        "components": components,
+        "em_iterations": em.iterations,
+        "em_converged": em.converged,
+        "components_dropped": em.dropped,
+        "mean_log_likelihood": fitted["mean_log_likelihood"],
+        "mean_squared_mahalanobis": fitted["mean_squared_mahalanobis"],
+        "mean_term": fitted["mean_term"],
+        "held_out": held,
         "out": args.out.display().to_string(),
     }))
 }

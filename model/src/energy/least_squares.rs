@@ -750,10 +750,10 @@ impl Energy {
         }
     }
 
-    /// Rows of the Gaussian pose prior ([`crate::energy::PosePrior`]): one per rotation entry it
-    /// covers when the configuration carries one. Dense (written beside EP's, before EA's).
+    /// Rows of the pose prior ([`crate::energy::PosePrior::rows`]) when the configuration
+    /// carries one. Dense (written beside EP's, before EA's).
     fn pose_prior_len(&self) -> usize {
-        self.config.pose_prior.as_ref().map_or(0, |p| p.len())
+        self.config.pose_prior.as_ref().map_or(0, |p| p.rows())
     }
 
     /// Parameters of the rotation prior's residual rows (papers/002 eq. 9's `w_θ‖θ‖²`): every
@@ -1064,21 +1064,22 @@ impl Energy {
         row += tests;
 
         // The Gaussian pose prior's rows (dense: W is lower triangular over the rotations).
+        // A mixture's last row is the active component's constant (no Jacobian).
         if let Some(prior) = &self.config.pose_prior {
-            let n = prior.len();
+            let (n, rows) = (prior.len(), prior.rows());
             let c0 = w.pose_prior.sqrt();
-            prior.residuals(params, c0, &mut residuals[row..row + n]);
+            let k = prior.residuals(params, c0, &mut residuals[row..row + rows]);
             if with_jacobian {
                 let first = prior.entries().start;
                 for a in 0..n {
                     let at = (row + a) * dim - off + first;
-                    for (d, v) in jacobian[at..].iter_mut().zip(prior.jacobian_row(a)) {
+                    for (d, v) in jacobian[at..].iter_mut().zip(prior.jacobian_row(k, a)) {
                         *d = c0 * v;
                     }
                 }
             }
-            blocks.push(("pose-prior", row..row + n));
-            row += n;
+            blocks.push(("pose-prior", row..row + rows));
+            row += rows;
         }
 
         // EA rows (hinge).

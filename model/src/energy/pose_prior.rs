@@ -1,18 +1,30 @@
-//! A Gaussian prior over the body's joint rotations, fitted to captured poses.
+//! A Gaussian — or a mixture of Gaussians — over the body's joint rotations, fitted to captured
+//! poses.
 //!
 //! EA (papers/000 eq. 7) is zero inside the joint limits: inside them the energy prefers no pose
 //! over another, and a joint the observations leave open (a foot whose markers are missing, a
 //! twist no marker sees) goes wherever the data's noise puts it. SMPLify (Bogo et al. 2016, eq. 4)
-//! adds a mixture of Gaussians over the joint rotations fitted to CMU motion capture; this is its
-//! one-component form, `E_pose-prior = ‖W (θ_b − μ)‖²` over the axis-angle entries `θ_b` of every
+//! adds a mixture of Gaussians over the joint rotations fitted to CMU motion capture, over every
 //! joint but the root (a person faces any direction: the root orientation and translation stay
-//! free, as in SMPLify), with `Σ = L Lᵀ` the poses' covariance and `W = L⁻¹` (so `WᵀW = Σ⁻¹` and
-//! the term is the squared Mahalanobis distance, `n` on average over the poses it was fitted to).
-//! The residuals `W (θ_b − μ)` are linear: their Jacobian is `W`, dense over the rotation entries.
+//! free). Each component `k` is stored as weight `w_k`, mean `μ_k` and whitening `W_k = L_k⁻¹`
+//! (`L_k L_kᵀ = Σ_k + ε² I`, so `W_kᵀW_k = (Σ_k + ε² I)⁻¹`). The term is SMPLify's max-mixture
+//! approximation of the negative log-likelihood (times two, up to a constant):
 //!
-//! Fitted by [`PosePrior::fit`] (what `lfit motion prior` runs on motion files); applied when an
-//! [`super::EnergyConfig`] carries one, weighted by `weights.pose_prior`.
+//! `E_pose-prior = min_k ( ‖W_k (θ_b − μ_k)‖² + c_k )`, `c_k = −2 log w_k − 2 log det W_k − min_j(…)`
+//!
+//! so that `min_k c_k = 0`. With one component it is the squared Mahalanobis distance (`n` on
+//! average over the poses it was fitted to). Its residuals are those of the component that
+//! attains the minimum: `W_k (θ_b − μ_k)`, linear with Jacobian `W_k` (dense over the rotation
+//! entries), plus — for a mixture — one constant row `√c_k`. The energy is continuous where the
+//! active component changes; its derivatives are those of the active component.
+//!
+//! Fitted by [`PosePrior::fit`] (one Gaussian) or [`PosePrior::fit_mixture`] (EM, SMPLify's 8
+//! components) — what `lfit motion prior` runs on motion files; applied when an
+//! [`super::EnergyConfig`] carries one, weighted by `weights.pose_prior`. Its numbers are checked
+//! once, where it is built or read; [`PosePrior::check`] (every energy) compares the skeleton.
 
+use rand::{Rng, SeedableRng};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
@@ -24,29 +36,266 @@ use crate::template::Template;
 /// and no axis is held tighter than that.
 pub const DEFAULT_PRIOR_EPSILON: f64 = 3.0 * std::f64::consts::PI / 180.0;
 
-/// A Gaussian over the non-root joint rotations (see the module documentation).
+/// SMPLify's number of mixture components (Bogo et al. 2016, §3.2: 8 Gaussians fitted to CMU).
+pub const SMPLIFY_COMPONENTS: usize = 8;
+
+/// Most EM iterations of [`PosePrior::fit_mixture`].
+pub const MIXTURE_MAX_ITERATIONS: usize = 300;
+
+/// EM stops when the mean log-likelihood per pose changes by less than this (scikit-learn's
+/// `GaussianMixture` default tolerance, 1e-3, on the same quantity).
+pub const MIXTURE_TOLERANCE: f64 = 1e-3;
+
+/// One Gaussian of a [`PosePrior`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct PriorComponent {
+    weight: f64,
+    mean: Vec<f64>,
+    whitening: Vec<f64>,
+    /// `c_k` (module documentation): `≥ 0`, zero for the most probable component's centre.
+    penalty: f64,
+}
+
+impl PriorComponent {
+    /// Mixture weight `w_k` (the weights sum to 1).
+    pub fn weight(&self) -> f64 {
+        self.weight
+    }
+
+    /// `μ_k`: three axis-angle entries per joint.
+    pub fn mean(&self) -> &[f64] {
+        &self.mean
+    }
+
+    /// `W_k = L_k⁻¹`, `n × n` row by row (lower triangular).
+    pub fn whitening(&self) -> &[f64] {
+        &self.whitening
+    }
+
+    /// `c_k`, the component's constant in the term (0 for a single Gaussian).
+    pub fn penalty(&self) -> f64 {
+        self.penalty
+    }
+
+    /// `W_k (θ_b − μ_k)` into `out` (length n).
+    fn whiten(&self, theta: &[f64], out: &mut [f64]) {
+        let n = self.mean.len();
+        for (a, o) in out.iter_mut().enumerate().take(n) {
+            *o = self.whitening[a * n..a * n + a + 1]
+                .iter()
+                .zip(theta)
+                .zip(&self.mean)
+                .map(|((w, x), m)| w * (x - m))
+                .sum::<f64>();
+        }
+    }
+}
+
+/// A prior over the non-root joint rotations (see the module documentation). Built by
+/// [`PosePrior::fit`], [`PosePrior::fit_mixture`], [`PosePrior::new`] or read from JSON, each of
+/// which checks its numbers.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(try_from = "PriorFile", into = "PriorFile")]
 pub struct PosePrior {
-    /// What it was fitted to (motion files, frame count, ε): for the record.
-    pub source: String,
-    /// The joints it covers, in the model's order (every joint but the root): a model with
-    /// other joints is refused.
-    pub joints: Vec<String>,
-    /// `μ`: three axis-angle entries per joint.
-    pub mean: Vec<f64>,
-    /// `W = L⁻¹`, `n × n` row by row (lower triangular), `n = 3 × joints`.
-    pub whitening: Vec<f64>,
+    source: String,
+    joints: Vec<String>,
+    components: Vec<PriorComponent>,
+}
+
+/// How [`PosePrior::fit_mixture`]'s EM ended.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MixtureFit {
+    /// EM iterations run.
+    pub iterations: usize,
+    /// Whether the mean log-likelihood settled within [`MIXTURE_TOLERANCE`].
+    pub converged: bool,
+    /// Mean log-likelihood per pose of the poses under the fitted mixture (nats).
+    pub log_likelihood: f64,
+    /// Components asked for that ended with less than one pose's responsibility and were
+    /// dropped.
+    pub dropped: usize,
+}
+
+/// The JSON form: one Gaussian as `mean` and `whitening` (the form of the first release), a
+/// mixture as `components`.
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PriorFile {
+    source: String,
+    joints: Vec<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    mean: Option<Vec<f64>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    whitening: Option<Vec<f64>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    components: Option<Vec<ComponentFile>>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ComponentFile {
+    weight: f64,
+    mean: Vec<f64>,
+    whitening: Vec<f64>,
+}
+
+impl TryFrom<PriorFile> for PosePrior {
+    type Error = ModelError;
+
+    fn try_from(f: PriorFile) -> Result<Self> {
+        let components = match (f.mean, f.whitening, f.components) {
+            (Some(mean), Some(whitening), None) => vec![(1.0, mean, whitening)],
+            (None, None, Some(c)) => c
+                .into_iter()
+                .map(|c| (c.weight, c.mean, c.whitening))
+                .collect(),
+            _ => {
+                return Err(ModelError::Config(
+                    "a pose prior holds either `mean` and `whitening` (one Gaussian) or `components` (a mixture)".into(),
+                ));
+            }
+        };
+        PosePrior::new(f.source, f.joints, components)
+    }
+}
+
+impl From<PosePrior> for PriorFile {
+    fn from(p: PosePrior) -> Self {
+        let (source, joints) = (p.source, p.joints);
+        match <[PriorComponent; 1]>::try_from(p.components) {
+            Ok([c]) => Self {
+                source,
+                joints,
+                mean: Some(c.mean),
+                whitening: Some(c.whitening),
+                components: None,
+            },
+            Err(components) => Self {
+                source,
+                joints,
+                mean: None,
+                whitening: None,
+                components: Some(
+                    components
+                        .into_iter()
+                        .map(|c| ComponentFile {
+                            weight: c.weight,
+                            mean: c.mean,
+                            whitening: c.whitening,
+                        })
+                        .collect(),
+                ),
+            },
+        }
+    }
 }
 
 impl PosePrior {
+    /// A prior over `joints` (every joint of the model but the root, in its order) from its
+    /// components `(w_k, μ_k, W_k)`: `n = 3 × joints` means and an `n × n` lower-triangular
+    /// whitening with a positive diagonal each, every number finite, weights positive and summing
+    /// to 1 (within 1e-6; then normalised).
+    pub fn new(
+        source: impl Into<String>,
+        joints: Vec<String>,
+        components: Vec<(f64, Vec<f64>, Vec<f64>)>,
+    ) -> Result<Self> {
+        let n = 3 * joints.len();
+        if n == 0 || components.is_empty() {
+            return Err(ModelError::Config(format!(
+                "a pose prior needs at least one joint and one component, got {} and {}",
+                joints.len(),
+                components.len()
+            )));
+        }
+        let total: f64 = components.iter().map(|c| c.0).sum();
+        let mut log_terms = Vec::with_capacity(components.len());
+        for (k, (weight, mean, whitening)) in components.iter().enumerate() {
+            if mean.len() != n || whitening.len() != n * n {
+                return Err(ModelError::Shape {
+                    what: format!("pose prior component {k}"),
+                    expected: format!("{n} means and a {n} × {n} whitening"),
+                    got: format!(
+                        "{} means and {} whitening entries",
+                        mean.len(),
+                        whitening.len()
+                    ),
+                });
+            }
+            if !(weight.is_finite() && *weight > 0.0)
+                || mean.iter().chain(whitening).any(|v| !v.is_finite())
+            {
+                return Err(ModelError::Config(format!(
+                    "the pose prior's component {k} holds a non-finite number or a weight that is not positive"
+                )));
+            }
+            if (0..n).any(|a| whitening[a * n + a] <= 0.0)
+                || (0..n).any(|a| {
+                    whitening[a * n + a + 1..(a + 1) * n]
+                        .iter()
+                        .any(|&v| v != 0.0)
+                })
+            {
+                return Err(ModelError::Config(format!(
+                    "the pose prior's component {k} has a whitening that is not lower triangular with a positive diagonal"
+                )));
+            }
+            // −2 log w_k − 2 log det W_k (W_k triangular: its determinant is its diagonal's product).
+            let log_det: f64 = (0..n).map(|a| whitening[a * n + a].ln()).sum();
+            log_terms.push(-2.0 * (weight / total).ln() - 2.0 * log_det);
+        }
+        if (total - 1.0).abs() > 1e-6 {
+            return Err(ModelError::Config(format!(
+                "the pose prior's component weights sum to {total}, not 1"
+            )));
+        }
+        let least = log_terms.iter().copied().fold(f64::INFINITY, f64::min);
+        let single = components.len() == 1;
+        let components = components
+            .into_iter()
+            .zip(log_terms)
+            .map(|((weight, mean, whitening), c)| PriorComponent {
+                weight: weight / total,
+                mean,
+                whitening,
+                penalty: if single { 0.0 } else { c - least },
+            })
+            .collect();
+        Ok(Self {
+            source: source.into(),
+            joints,
+            components,
+        })
+    }
+
+    /// What it was fitted to (motion files, frame count, ε, components): for the record.
+    pub fn source(&self) -> &str {
+        &self.source
+    }
+
+    /// The joints it covers, in the model's order (every joint but the root).
+    pub fn joints(&self) -> &[String] {
+        &self.joints
+    }
+
+    /// Its Gaussians (one for [`PosePrior::fit`]).
+    pub fn components(&self) -> &[PriorComponent] {
+        &self.components
+    }
+
     /// Number of rotation entries it covers.
     pub fn len(&self) -> usize {
-        self.mean.len()
+        3 * self.joints.len()
     }
 
     pub fn is_empty(&self) -> bool {
-        self.mean.is_empty()
+        self.joints.is_empty()
+    }
+
+    /// Rows of its least-squares form: one per rotation entry, and for a mixture one more (the
+    /// active component's constant `√c_k`).
+    pub fn rows(&self) -> usize {
+        self.len() + usize::from(self.components.len() > 1)
     }
 
     /// The parameter entries it covers: every rotation entry after the root's.
@@ -54,7 +303,7 @@ impl PosePrior {
         rot_offset(1)..rot_offset(1) + self.len()
     }
 
-    /// Fits `μ` and `W` to poses (full parameter vectors in `template`'s layout, or their pose
+    /// Fits one Gaussian to poses (full parameter vectors in `template`'s layout, or their pose
     /// part: translation and rotations): the sample mean and covariance (divided by `T − 1`) of
     /// the non-root rotation entries, plus `ε² I`. Fails on fewer than two poses, a pose of
     /// another length or with a non-finite entry, or `ε ≤ 0`.
@@ -64,6 +313,139 @@ impl PosePrior {
         epsilon: f64,
         source: impl Into<String>,
     ) -> Result<Self> {
+        let (joints, x) = Self::rotations(template, poses, epsilon, 2)?;
+        let n = 3 * joints.len();
+        let t = x.len() as f64;
+        let mut mean = vec![0.0; n];
+        for p in &x {
+            for (m, v) in mean.iter_mut().zip(p) {
+                *m += v;
+            }
+        }
+        mean.iter_mut().for_each(|m| *m /= t);
+        let mut cov = vec![0.0; n * n];
+        let mut d = vec![0.0; n];
+        for p in &x {
+            for ((di, v), m) in d.iter_mut().zip(p).zip(&mean) {
+                *di = v - m;
+            }
+            for a in 0..n {
+                for b in 0..=a {
+                    cov[a * n + b] += d[a] * d[b];
+                }
+            }
+        }
+        cov.iter_mut().for_each(|c| *c /= t - 1.0);
+        let whitening = whitening_of(&cov, n, epsilon)?;
+        Self::new(source, joints, vec![(1.0, mean, whitening)])
+    }
+
+    /// Fits a mixture of `components` Gaussians to poses (as [`PosePrior::fit`]) by
+    /// expectation–maximisation: k-means++ seeding and ten Lloyd iterations from `seed`, then EM
+    /// with full covariances, each plus `ε² I` (maximum likelihood: divided by the component's
+    /// share of the poses), until the mean log-likelihood per pose changes by less than
+    /// [`MIXTURE_TOLERANCE`] or after [`MIXTURE_MAX_ITERATIONS`]. A component left with less than
+    /// one pose's responsibility is dropped. One component is [`PosePrior::fit`]. The same poses
+    /// and seed give the same prior whatever the thread count. Fails as `fit` does, and on fewer
+    /// than two poses per component.
+    pub fn fit_mixture(
+        template: &Template,
+        poses: &[Vec<f64>],
+        components: usize,
+        epsilon: f64,
+        seed: u64,
+        source: impl Into<String>,
+    ) -> Result<(Self, MixtureFit)> {
+        if components == 0 {
+            return Err(ModelError::Setting {
+                name: "components",
+                value: "0".into(),
+                reason: "a mixture needs at least one component".into(),
+            });
+        }
+        if components == 1 {
+            let prior = Self::fit(template, poses, epsilon, source)?;
+            let log_likelihood = prior.log_likelihood(poses);
+            return Ok((
+                prior,
+                MixtureFit {
+                    iterations: 0,
+                    converged: true,
+                    log_likelihood,
+                    dropped: 0,
+                },
+            ));
+        }
+        let (joints, x) = Self::rotations(template, poses, epsilon, 2 * components)?;
+        let n = 3 * joints.len();
+        let mut resp = kmeans_responsibilities(&x, components, seed);
+        let mut k = components;
+        let mut previous = f64::NEG_INFINITY;
+        let mut fit = MixtureFit {
+            iterations: 0,
+            converged: false,
+            log_likelihood: f64::NEG_INFINITY,
+            dropped: 0,
+        };
+        let mut model;
+        loop {
+            model = m_step(&x, &resp, k, n, epsilon)?;
+            if model.len() < k {
+                fit.dropped += k - model.len();
+                k = model.len();
+            }
+            let (r, ll) = e_step(&x, &model, n);
+            resp = r;
+            fit.iterations += 1;
+            fit.log_likelihood = ll;
+            if (ll - previous).abs() < MIXTURE_TOLERANCE {
+                fit.converged = true;
+                break;
+            }
+            if fit.iterations >= MIXTURE_MAX_ITERATIONS {
+                break;
+            }
+            previous = ll;
+        }
+        let components = model
+            .into_iter()
+            .map(|g| {
+                let w = invert_lower(&g.l, n)?;
+                Ok((g.weight, g.mean, w))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok((Self::new(source, joints, components)?, fit))
+    }
+
+    /// The mean log-likelihood per pose of `poses` under the prior as a density (the mixture's,
+    /// not its max approximation).
+    pub fn log_likelihood(&self, poses: &[Vec<f64>]) -> f64 {
+        let n = self.len();
+        let half_log_2pi = 0.5 * (2.0 * std::f64::consts::PI).ln();
+        let mut r = vec![0.0; n];
+        let mut logs = vec![0.0; self.components.len()];
+        let mut total = 0.0;
+        for p in poses {
+            let theta = &p[self.entries()];
+            for (c, l) in self.components.iter().zip(&mut logs) {
+                c.whiten(theta, &mut r);
+                let log_det: f64 = (0..n).map(|a| c.whitening[a * n + a].ln()).sum();
+                *l = c.weight.ln() + log_det
+                    - 0.5 * r.iter().map(|v| v * v).sum::<f64>()
+                    - n as f64 * half_log_2pi;
+            }
+            total += log_sum_exp(&logs);
+        }
+        total / poses.len() as f64
+    }
+
+    /// The rotation entries of `poses` after checking them (and ε); at least `least` poses.
+    fn rotations(
+        template: &Template,
+        poses: &[Vec<f64>],
+        epsilon: f64,
+        least: usize,
+    ) -> Result<(Vec<String>, Vec<Vec<f64>>)> {
         if !(epsilon.is_finite() && epsilon > 0.0) {
             return Err(ModelError::Setting {
                 name: "epsilon",
@@ -71,9 +453,14 @@ impl PosePrior {
                 reason: "must be a positive number of radians".into(),
             });
         }
-        if poses.len() < 2 {
+        if poses.len() < least {
             return Err(ModelError::Config(format!(
-                "a pose prior needs at least two poses, got {}",
+                "a pose prior needs at least {least} poses{}, got {}",
+                if least > 2 {
+                    " (two per component)"
+                } else {
+                    ""
+                },
                 poses.len()
             )));
         }
@@ -81,7 +468,7 @@ impl PosePrior {
         let (dim, pose_dim) = (layout.dim(), layout.pose_dim());
         let joints = Self::joints_of(template);
         let range = rot_offset(1)..rot_offset(1) + 3 * joints.len();
-        let n = range.len();
+        let mut x = Vec::with_capacity(poses.len());
         for (k, p) in poses.iter().enumerate() {
             if p.len() != dim && p.len() != pose_dim {
                 return Err(ModelError::Shape {
@@ -96,56 +483,9 @@ impl PosePrior {
                     value: p[i],
                 });
             }
+            x.push(p[range.clone()].to_vec());
         }
-        let t = poses.len() as f64;
-        let mut mean = vec![0.0; n];
-        for p in poses {
-            for (m, x) in mean.iter_mut().zip(&p[range.clone()]) {
-                *m += x;
-            }
-        }
-        mean.iter_mut().for_each(|m| *m /= t);
-        let mut cov = nalgebra::DMatrix::<f64>::zeros(n, n);
-        let mut d = vec![0.0; n];
-        for p in poses {
-            for ((di, x), m) in d.iter_mut().zip(&p[range.clone()]).zip(&mean) {
-                *di = x - m;
-            }
-            for a in 0..n {
-                for b in 0..=a {
-                    cov[(a, b)] += d[a] * d[b];
-                }
-            }
-        }
-        for a in 0..n {
-            for b in 0..=a {
-                let v = cov[(a, b)] / (t - 1.0);
-                cov[(a, b)] = v;
-                cov[(b, a)] = v;
-            }
-            cov[(a, a)] += epsilon * epsilon;
-        }
-        // Σ + ε²I is positive definite: its Cholesky factor exists.
-        let l = nalgebra::Cholesky::new(cov)
-            .ok_or_else(|| {
-                ModelError::Config("the poses' covariance is not positive definite".into())
-            })?
-            .l();
-        let w = l
-            .solve_lower_triangular(&nalgebra::DMatrix::identity(n, n))
-            .ok_or_else(|| ModelError::Config("the covariance's factor is singular".into()))?;
-        let whitening = (0..n)
-            .flat_map(|a| (0..n).map(move |b| (a, b)))
-            .map(|(a, b)| if b <= a { w[(a, b)] } else { 0.0 })
-            .collect();
-        let prior = Self {
-            source: source.into(),
-            joints,
-            mean,
-            whitening,
-        };
-        prior.check(template)?;
-        Ok(prior)
+        Ok((joints, x))
     }
 
     fn joints_of(template: &Template) -> Vec<String> {
@@ -155,8 +495,8 @@ impl PosePrior {
             .collect()
     }
 
-    /// Fails unless the prior fits `template` (the same non-root joints in the same order) and
-    /// its numbers are finite with a whitening of `n × n`.
+    /// Fails unless the prior fits `template`: the same non-root joints in the same order (its
+    /// sizes follow from them and its numbers were checked when it was built).
     pub fn check(&self, template: &Template) -> Result<()> {
         let model = &template.rig.joints[1..];
         // Every frame's energy checks its prior: the names are compared without copying them.
@@ -177,74 +517,276 @@ impl PosePrior {
                 joints.get(first).map_or("none", String::as_str),
             )));
         }
-        let n = 3 * model.len();
-        if self.mean.len() != n || self.whitening.len() != n * n {
-            return Err(ModelError::Shape {
-                what: "pose prior".into(),
-                expected: format!("{n} means and a {n} × {n} whitening"),
-                got: format!(
-                    "{} means and {} whitening entries",
-                    self.mean.len(),
-                    self.whitening.len()
-                ),
-            });
-        }
-        if self
-            .mean
-            .iter()
-            .chain(&self.whitening)
-            .any(|v| !v.is_finite())
-        {
-            return Err(ModelError::Config(
-                "the pose prior holds a non-finite number".into(),
-            ));
-        }
         Ok(())
     }
 
-    /// The residuals `W (θ_b − μ)` scaled by `c0` (lower-triangular: row `a` reads entries ≤ a).
-    pub(crate) fn residuals(&self, params: &[f64], c0: f64, out: &mut [f64]) {
-        let n = self.len();
+    /// The active component at `params` (the first attaining `min_k ‖W_k (θ_b − μ_k)‖² + c_k`),
+    /// with its whitened residual left in `r` and its squared norm.
+    fn active(&self, params: &[f64], r: &mut [f64]) -> (usize, f64) {
         let theta = &params[self.entries()];
-        for (a, o) in out.iter_mut().enumerate().take(n) {
-            let row = &self.whitening[a * n..a * n + a + 1];
-            *o = c0
-                * row
-                    .iter()
-                    .zip(theta)
-                    .zip(&self.mean)
-                    .map(|((w, x), m)| w * (x - m))
-                    .sum::<f64>();
-        }
+        let [only] = self.components.as_slice() else {
+            let mut scratch = vec![0.0; r.len()];
+            let mut best = (0, f64::INFINITY, f64::INFINITY);
+            for (k, c) in self.components.iter().enumerate() {
+                c.whiten(theta, &mut scratch);
+                let d = scratch.iter().map(|v| v * v).sum::<f64>();
+                if d + c.penalty < best.1 {
+                    best = (k, d + c.penalty, d);
+                    r.copy_from_slice(&scratch);
+                }
+            }
+            return (best.0, best.2);
+        };
+        only.whiten(theta, r);
+        (0, r.iter().map(|v| v * v).sum())
     }
 
-    /// Row `a` of the Jacobian of [`PosePrior::residuals`] over the rotation entries it covers:
-    /// `c0 W[a, ..]`, nonzero up to entry `a`.
-    pub(crate) fn jacobian_row(&self, a: usize) -> &[f64] {
+    /// The residuals of the active component scaled by `c0` into `out` ([`PosePrior::rows`]
+    /// long); returns the component.
+    pub(crate) fn residuals(&self, params: &[f64], c0: f64, out: &mut [f64]) -> usize {
         let n = self.len();
-        &self.whitening[a * n..a * n + a + 1]
+        let (k, _) = self.active(params, &mut out[..n]);
+        out[..n].iter_mut().for_each(|v| *v *= c0);
+        if self.components.len() > 1 {
+            out[n] = c0 * self.components[k].penalty.sqrt();
+        }
+        k
     }
 
-    /// `‖W (θ_b − μ)‖²` of a full parameter vector: the squared Mahalanobis distance of its
-    /// rotations (what the energy's term is, unweighted).
-    pub fn mahalanobis(&self, params: &[f64]) -> f64 {
+    /// Row `a` of the Jacobian of [`PosePrior::residuals`] over the rotation entries it covers
+    /// when component `k` is active: `W_k[a, ..]`, nonzero up to entry `a` (the constant row has
+    /// none).
+    pub(crate) fn jacobian_row(&self, k: usize, a: usize) -> &[f64] {
+        let n = self.len();
+        &self.components[k].whitening[a * n..a * n + a + 1]
+    }
+
+    /// The term's value at a full parameter vector, unweighted: `min_k ‖W_k (θ_b − μ_k)‖² + c_k`
+    /// (for one Gaussian the squared Mahalanobis distance of the rotations).
+    pub fn value(&self, params: &[f64]) -> f64 {
         self.evaluate(params, None)
     }
 
-    /// `‖W (θ_b − μ)‖²` and, when asked, adds `2 weight Wᵀ W (θ_b − μ)` to `grad`.
+    /// The squared Mahalanobis distance `‖W_k (θ_b − μ_k)‖²` to the active component, and which
+    /// component that is.
+    pub fn mahalanobis(&self, params: &[f64]) -> (usize, f64) {
+        let mut r = vec![0.0; self.len()];
+        self.active(params, &mut r)
+    }
+
+    /// The term's value and, when asked, adds `2 weight W_kᵀ W_k (θ_b − μ_k)` (the active
+    /// component's) to `grad`.
     pub(crate) fn evaluate(&self, params: &[f64], grad: Option<(&mut [f64], f64)>) -> f64 {
         let mut r = vec![0.0; self.len()];
-        self.residuals(params, 1.0, &mut r);
+        let (k, d) = self.active(params, &mut r);
         if let Some((grad, weight)) = grad {
             let first = self.entries().start;
             for (a, ra) in r.iter().enumerate() {
-                for (b, w) in self.jacobian_row(a).iter().enumerate() {
+                for (b, w) in self.jacobian_row(k, a).iter().enumerate() {
                     grad[first + b] += 2.0 * weight * w * ra;
                 }
             }
         }
-        r.iter().map(|x| x * x).sum()
+        d + self.components[k].penalty
     }
+}
+
+/// `log Σ exp(v)`, stable.
+fn log_sum_exp(v: &[f64]) -> f64 {
+    let m = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if m == f64::NEG_INFINITY {
+        return m;
+    }
+    m + v.iter().map(|x| (x - m).exp()).sum::<f64>().ln()
+}
+
+/// `W = L⁻¹` for `L Lᵀ = cov + ε² I` (`cov` row by row, its lower triangle read).
+fn whitening_of(cov: &[f64], n: usize, epsilon: f64) -> Result<Vec<f64>> {
+    let l = cholesky(cov, n, epsilon)?;
+    invert_lower(&l, n)
+}
+
+/// The Cholesky factor of `cov + ε² I` (lower triangle of `cov` read), row by row.
+fn cholesky(cov: &[f64], n: usize, epsilon: f64) -> Result<Vec<f64>> {
+    let m = nalgebra::DMatrix::from_fn(n, n, |a, b| {
+        let (i, j) = if b <= a { (a, b) } else { (b, a) };
+        cov[i * n + j] + if a == b { epsilon * epsilon } else { 0.0 }
+    });
+    // Σ + ε²I is positive definite: its Cholesky factor exists.
+    let l = nalgebra::Cholesky::new(m)
+        .ok_or_else(|| ModelError::Config("the poses' covariance is not positive definite".into()))?
+        .l();
+    Ok((0..n)
+        .flat_map(|a| (0..n).map(move |b| (a, b)))
+        .map(|(a, b)| if b <= a { l[(a, b)] } else { 0.0 })
+        .collect())
+}
+
+/// `L⁻¹` of a lower-triangular `L` (row by row), lower triangular.
+fn invert_lower(l: &[f64], n: usize) -> Result<Vec<f64>> {
+    let m = nalgebra::DMatrix::from_fn(n, n, |a, b| l[a * n + b]);
+    let w = m
+        .solve_lower_triangular(&nalgebra::DMatrix::identity(n, n))
+        .ok_or_else(|| ModelError::Config("the covariance's factor is singular".into()))?;
+    Ok((0..n)
+        .flat_map(|a| (0..n).map(move |b| (a, b)))
+        .map(|(a, b)| if b <= a { w[(a, b)] } else { 0.0 })
+        .collect())
+}
+
+/// One Gaussian of EM: weight, mean and the Cholesky factor of its covariance (+ ε² I).
+struct Gaussian {
+    weight: f64,
+    mean: Vec<f64>,
+    l: Vec<f64>,
+    /// `log w − Σ log L_aa − (n/2) log 2π`.
+    log_norm: f64,
+}
+
+/// Hard responsibilities from k-means++ seeding and ten Lloyd iterations (T × K, row by row).
+fn kmeans_responsibilities(x: &[Vec<f64>], k: usize, seed: u64) -> Vec<f64> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let dist = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(u, v)| (u - v) * (u - v)).sum::<f64>();
+    let mut centres = vec![x[rng.random_range(0..x.len())].clone()];
+    let mut d2: Vec<f64> = x.iter().map(|p| dist(p, &centres[0])).collect();
+    while centres.len() < k {
+        let total: f64 = d2.iter().sum();
+        let pick = if total > 0.0 {
+            let u = rng.random::<f64>() * total;
+            let mut acc = 0.0;
+            d2.iter()
+                .position(|d| {
+                    acc += d;
+                    acc >= u
+                })
+                .unwrap_or(x.len() - 1)
+        } else {
+            rng.random_range(0..x.len())
+        };
+        centres.push(x[pick].clone());
+        let c = centres.last().unwrap();
+        for (d, p) in d2.iter_mut().zip(x) {
+            *d = d.min(dist(p, c));
+        }
+    }
+    let mut assign = vec![0; x.len()];
+    for _ in 0..10 {
+        assign = x
+            .par_iter()
+            .map(|p| {
+                (0..k)
+                    .map(|j| (j, dist(p, &centres[j])))
+                    .fold((0, f64::INFINITY), |b, c| if c.1 < b.1 { c } else { b })
+                    .0
+            })
+            .collect();
+        for (j, c) in centres.iter_mut().enumerate() {
+            let members: Vec<&Vec<f64>> = x
+                .iter()
+                .zip(&assign)
+                .filter(|(_, a)| **a == j)
+                .map(|(p, _)| p)
+                .collect();
+            if members.is_empty() {
+                continue;
+            }
+            c.iter_mut().enumerate().for_each(|(i, v)| {
+                *v = members.iter().map(|p| p[i]).sum::<f64>() / members.len() as f64;
+            });
+        }
+    }
+    let mut resp = vec![0.0; x.len() * k];
+    for (t, a) in assign.iter().enumerate() {
+        resp[t * k + a] = 1.0;
+    }
+    resp
+}
+
+/// EM's M step: each component's weight, mean and covariance (+ ε² I) from the
+/// responsibilities; components with less than one pose's responsibility are left out.
+fn m_step(x: &[Vec<f64>], resp: &[f64], k: usize, n: usize, epsilon: f64) -> Result<Vec<Gaussian>> {
+    let t = x.len();
+    let half_log_2pi = 0.5 * (2.0 * std::f64::consts::PI).ln();
+    let fitted: Vec<Option<Result<Gaussian>>> = (0..k)
+        .into_par_iter()
+        .map(|j| {
+            let share: f64 = (0..t).map(|s| resp[s * k + j]).sum();
+            if share < 1.0 {
+                return None;
+            }
+            let mut mean = vec![0.0; n];
+            for (s, p) in x.iter().enumerate() {
+                let r = resp[s * k + j];
+                if r > 0.0 {
+                    mean.iter_mut().zip(p).for_each(|(m, v)| *m += r * v);
+                }
+            }
+            mean.iter_mut().for_each(|m| *m /= share);
+            let mut cov = vec![0.0; n * n];
+            let mut d = vec![0.0; n];
+            for (s, p) in x.iter().enumerate() {
+                let r = resp[s * k + j];
+                // Responsibilities below 1e-12 add nothing a covariance of ε = 3° would notice.
+                if r < 1e-12 {
+                    continue;
+                }
+                d.iter_mut()
+                    .zip(p)
+                    .zip(&mean)
+                    .for_each(|((di, v), m)| *di = v - m);
+                for a in 0..n {
+                    let ra = r * d[a];
+                    for (c, db) in cov[a * n..a * n + a + 1].iter_mut().zip(&d) {
+                        *c += ra * db;
+                    }
+                }
+            }
+            cov.iter_mut().for_each(|c| *c /= share);
+            Some(cholesky(&cov, n, epsilon).map(|l| {
+                let log_diag: f64 = (0..n).map(|a| l[a * n + a].ln()).sum();
+                let weight = share / t as f64;
+                Gaussian {
+                    weight,
+                    mean,
+                    l,
+                    log_norm: weight.ln() - log_diag - n as f64 * half_log_2pi,
+                }
+            }))
+        })
+        .collect();
+    fitted.into_iter().flatten().collect()
+}
+
+/// EM's E step: the responsibilities (T × K, row by row) and the mean log-likelihood per pose.
+fn e_step(x: &[Vec<f64>], model: &[Gaussian], n: usize) -> (Vec<f64>, f64) {
+    let k = model.len();
+    let rows: Vec<(Vec<f64>, f64)> = x
+        .par_iter()
+        .map(|p| {
+            let mut z = vec![0.0; n];
+            let logs: Vec<f64> = model
+                .iter()
+                .map(|g| {
+                    // z = L⁻¹ (x − μ) by forward substitution.
+                    for a in 0..n {
+                        let row = &g.l[a * n..a * n + a];
+                        let s: f64 = row.iter().zip(&z).map(|(l, v)| l * v).sum();
+                        z[a] = (p[a] - g.mean[a] - s) / g.l[a * n + a];
+                    }
+                    g.log_norm - 0.5 * z.iter().map(|v| v * v).sum::<f64>()
+                })
+                .collect();
+            let lse = log_sum_exp(&logs);
+            (logs.iter().map(|l| (l - lse).exp()).collect(), lse)
+        })
+        .collect();
+    let mut resp = Vec::with_capacity(x.len() * k);
+    let mut total = 0.0;
+    for (r, l) in rows {
+        resp.extend(r);
+        total += l;
+    }
+    (resp, total / x.len() as f64)
 }
 
 /// Serde for `Option<Arc<PosePrior>>` (the energy configuration is cloned per frame; the prior

@@ -1953,6 +1953,172 @@ mod least_squares_form {
         }
     }
 
+    /// A mixture prior fitted by EM: on poses drawn around two centres it finds both (weights
+    /// near ½, each mean near a centre's), beats one Gaussian's likelihood, is the same whatever
+    /// the thread count, and its term is SMPLify's max-mixture `min_k (dᵀ Σ_k⁻¹ d − 2 log w_k +
+    /// log det Σ_k) − min_j(…)` against an independent inverse and determinant of each
+    /// component's covariance; its value, gradient and Jacobian are exact (one constant row
+    /// more than a Gaussian's), it is written as `components` and read back, and one component
+    /// is [`PosePrior::fit`].
+    #[test]
+    fn a_pose_prior_mixture_fitted_by_em_is_the_max_mixture_with_exact_derivatives() {
+        use rand::{Rng, SeedableRng};
+        let t = makehuman_body();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2214);
+        let first = rot_offset(1);
+        let n = 3 * (t.rig.num_joints() - 1);
+        let dim = t.layout().dim();
+        let centre: Vec<f64> = (0..dim).map(|_| rng.random_range(-0.5..0.5)).collect();
+        let mut poses = Vec::new();
+        for (sign, count) in [(1.0, 160), (-1.0, 240)] {
+            for p in correlated_poses(&t, count, &mut rng) {
+                poses.push(
+                    p.iter()
+                        .zip(&centre)
+                        .map(|(v, c)| 0.3 * v + sign * c)
+                        .collect::<Vec<f64>>(),
+                );
+            }
+        }
+        let fit = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| PosePrior::fit_mixture(&t, &poses, 2, DEFAULT_PRIOR_EPSILON, 7, "test"))
+                .unwrap()
+        };
+        let (prior, em) = fit(2);
+        assert_eq!(fit(1).0, prior, "the thread count changed the prior");
+        let prior = Arc::new(prior);
+        assert!(
+            em.converged && em.dropped == 0 && em.iterations >= 2,
+            "{em:?}"
+        );
+        let single = PosePrior::fit(&t, &poses, DEFAULT_PRIOR_EPSILON, "test").unwrap();
+        assert!(
+            em.log_likelihood > single.log_likelihood(&poses) + 1.0,
+            "{em:?}"
+        );
+        assert!((em.log_likelihood - prior.log_likelihood(&poses)).abs() < 1e-6);
+        let (one, one_em) =
+            PosePrior::fit_mixture(&t, &poses, 1, DEFAULT_PRIOR_EPSILON, 7, "test").unwrap();
+        assert_eq!((one, one_em.iterations), (single, 0));
+        // Both centres found, with their shares.
+        let cs = prior.components();
+        assert_eq!(cs.len(), 2);
+        let mut weights: Vec<f64> = cs.iter().map(|c| c.weight()).collect();
+        weights.sort_by(f64::total_cmp);
+        assert!(
+            (weights[0] - 0.4).abs() < 0.01 && (weights[1] - 0.6).abs() < 0.01,
+            "{weights:?}"
+        );
+        for sign in [1.0, -1.0] {
+            let near = cs.iter().any(|c| {
+                c.mean()
+                    .iter()
+                    .enumerate()
+                    .all(|(a, m)| (m - sign * centre[first + a]).abs() < 0.1)
+            });
+            assert!(near, "no component near the centre of sign {sign}");
+        }
+        // The term against each component's covariance, inverted and factorised independently.
+        let covs: Vec<(nalgebra::DMatrix<f64>, f64)> = cs
+            .iter()
+            .map(|c| {
+                let w = nalgebra::DMatrix::from_row_slice(n, n, c.whitening());
+                let cov = (w.transpose() * &w).try_inverse().unwrap();
+                let log_det = cov
+                    .clone()
+                    .cholesky()
+                    .unwrap()
+                    .l()
+                    .diagonal()
+                    .map(f64::ln)
+                    .sum()
+                    * 2.0;
+                (cov.try_inverse().unwrap(), -2.0 * c.weight().ln() + log_det)
+            })
+            .collect();
+        let least = covs.iter().map(|c| c.1).fold(f64::INFINITY, f64::min);
+        let mut only = isolate("data");
+        only.weights.data = 0.0;
+        only.weights.pose_prior = 0.3;
+        only.pose_prior = Some(prior.clone());
+        let mut seen = [false; 2];
+        for (k, p) in [&poses[0], &poses[399], &poses[5]].into_iter().enumerate() {
+            let mut x = vec![0.0; dim];
+            x[..p.len()].copy_from_slice(p);
+            let sensor = Sensor::default_for(Modality::Markers, &t);
+            let target = sensor.predict_sparse(&t, &x);
+            let e = Energy::new(
+                t.clone(),
+                sensor,
+                Target::Sparse {
+                    values: target.values,
+                    visible: target.visible,
+                },
+                only.clone(),
+            )
+            .unwrap();
+            let terms: Vec<f64> = covs
+                .iter()
+                .zip(cs)
+                .map(|((inv, c), comp)| {
+                    let d = nalgebra::DVector::from_fn(n, |a, _| x[first + a] - comp.mean()[a]);
+                    (d.transpose() * inv * &d)[(0, 0)] + c - least
+                })
+                .collect();
+            let want = terms.iter().copied().fold(f64::INFINITY, f64::min);
+            let active = terms.iter().position(|v| *v == want).unwrap();
+            seen[active] = true;
+            let got = e.evaluate(&x).term("pose-prior").unwrap();
+            assert!(
+                (got - want).abs() <= 1e-8 * want.max(1.0),
+                "pose {k}: {got} vs {want}"
+            );
+            assert_eq!(prior.mahalanobis(&x).0, active);
+            let ls = e.least_squares(&x, true).unwrap();
+            let rows = ls
+                .blocks
+                .iter()
+                .find(|b| b.0 == "pose-prior")
+                .unwrap()
+                .1
+                .clone();
+            assert_eq!(rows.len(), n + 1);
+            let last = ls.residuals[rows.end - 1];
+            assert!((last * last - 0.3 * cs[active].penalty()).abs() <= 1e-12 * want.max(1.0));
+            assert!(ls.row(rows.end - 1).iter().all(|v| *v == 0.0));
+        }
+        assert_eq!(
+            seen,
+            [true, true],
+            "both components active on their own poses"
+        );
+        // With every other term: derivatives exact at random poses.
+        let mut full = EnergyConfig::default().for_gradient();
+        full.pose_prior = Some(prior.clone());
+        let (e, x) = makehuman_energy_with(&t, Modality::Markers, &mut rng, full.clone());
+        let active = check(&e, &x, "markers with a mixture pose prior");
+        assert!(active.contains(&"pose-prior"), "{active:?}");
+        // Written as components, read back.
+        let text = serde_json::to_string(&full).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert!(v["pose_prior"]["components"].is_array() && v["pose_prior"]["mean"].is_null());
+        let back: EnergyConfig = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, full);
+        // Refused: no components, too few poses for them.
+        let err = PosePrior::fit_mixture(&t, &poses, 0, DEFAULT_PRIOR_EPSILON, 7, "test")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("components"), "{err}");
+        let err = PosePrior::fit_mixture(&t, &poses[..5], 3, DEFAULT_PRIOR_EPSILON, 7, "test")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("at least 6 poses"), "{err}");
+    }
+
     /// A pose prior is refused, with its cause, on another skeleton, with the wrong sizes or a
     /// non-finite number; fitting one needs two finite poses of the model's length and ε > 0; it
     /// is written in the energy configuration and read back to the same energy, and a
@@ -1984,15 +2150,42 @@ mod least_squares_form {
         build(t.clone(), prior.clone()).unwrap();
         let other = build(template(), prior.clone()).unwrap_err();
         assert!(other.contains("another skeleton"), "{other}");
-        let mut short = prior.clone();
-        short.mean.pop();
-        let err = build(t.clone(), short).unwrap_err();
+        // Its numbers are checked where it is read.
+        let json = serde_json::to_value(&prior).unwrap();
+        let read = |edit: &dyn Fn(&mut serde_json::Value)| {
+            let mut v = json.clone();
+            edit(&mut v);
+            serde_json::from_value::<PosePrior>(v).map_err(|e| e.to_string())
+        };
+        assert_eq!(read(&|_| {}).unwrap(), prior);
+        let err = read(&|v| {
+            v["mean"].as_array_mut().unwrap().pop();
+        })
+        .unwrap_err();
         assert!(err.contains("pose prior") && err.contains("means"), "{err}");
-        let mut nan = prior.clone();
-        nan.whitening[7] = f64::NAN;
-        assert!(build(t.clone(), nan).unwrap_err().contains("non-finite"));
+        let n = prior.len();
+        let c = &prior.components()[0];
+        let mut nan = c.whitening().to_vec();
+        nan[7 * n] = f64::NAN;
+        let err = PosePrior::new(
+            "t",
+            prior.joints().to_vec(),
+            vec![(1.0, c.mean().to_vec(), nan)],
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("non-finite"), "{err}");
+        let err = read(&|v| v["whitening"][n - 1] = serde_json::json!(0.5)).unwrap_err();
+        assert!(err.contains("lower triangular"), "{err}");
+        let err = read(&|v| v["whitening"][0] = serde_json::json!(-1.0)).unwrap_err();
+        assert!(err.contains("positive diagonal"), "{err}");
+        let err = read(&|v| {
+            v["components"] = serde_json::json!([]);
+        })
+        .unwrap_err();
+        assert!(err.contains("either"), "{err}");
         for (poses, eps, why) in [
-            (&poses[..1], DEFAULT_PRIOR_EPSILON, "at least two poses"),
+            (&poses[..1], DEFAULT_PRIOR_EPSILON, "at least 2 poses"),
             (&poses[..], 0.0, "epsilon"),
             (&poses[..], f64::NAN, "epsilon"),
         ] {
