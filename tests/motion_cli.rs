@@ -2131,7 +2131,7 @@ fn a_pose_prior_fitted_to_motions_is_an_energy_for_lfit_fit() {
     for (more, want) in [
         (vec![], 0.01),
         (vec!["--modality", "keypoints2d"], 0.001),
-        (vec!["--modality", "hmd"], 0.01),
+        (vec!["--modality", "hmd", "--weight", "0.01"], 0.01),
         (vec!["--modality", "keypoints2d", "--weight", "0.5"], 0.5),
     ] {
         let out = dir.path().join("weighted.json");
@@ -2158,6 +2158,7 @@ fn a_pose_prior_fitted_to_motions_is_an_energy_for_lfit_fit() {
         (inputs(&["--epsilon-deg", "0"]), "--epsilon-deg"),
         (inputs(&["--components", "0"]), "--components 0"),
         (inputs(&["--modality", "sonar"]), "--modality sonar"),
+        (inputs(&["--modality", "hmd"]), "give --weight"),
         (
             inputs(&["--held-out", "/nonexistent/h.npz"]),
             "/nonexistent/h.npz",

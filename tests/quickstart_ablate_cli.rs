@@ -56,6 +56,26 @@ fn quickstart_compares_every_method_on_every_sparse_modality() {
                 assert!(c.parse::<f64>().is_ok_and(f64::is_finite), "{row}");
             }
         }
+        // LM with the pose prior of the CMU training clips, at the modality's default weight
+        // (none for hmd: no weight helped there).
+        let w = if m == "keypoints2d" { "0.001" } else { "0.01" };
+        let want = format!("| {m} (3 frames) | lm + pose prior (CMU train, weight {w}) @60 |");
+        let prior = out_dir.join(format!("pose-prior-{m}.json"));
+        if m == "hmd" {
+            assert!(!table.contains("| hmd (3 frames) | lm + pose prior") && !prior.exists());
+        } else {
+            assert!(
+                table.lines().any(|l| l.starts_with(&want)),
+                "{want}:\n{table}"
+            );
+            let energy: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(&prior).expect("prior"))
+                    .expect("json");
+            assert!(energy["pose_prior"]["mean"].is_array(), "{m}");
+            let csv =
+                std::fs::read_to_string(out_dir.join(format!("{m}-prior/runs.csv"))).expect("csv");
+            assert_eq!(csv.lines().count(), 1 + 3);
+        }
         let dir = out_dir.join(m);
         let md = std::fs::read_to_string(dir.join("report.md")).expect("report");
         assert!(md.contains("papers/002 Table 2"), "{md}");
@@ -131,10 +151,12 @@ fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
             "lm @40",
             "cma @40",
             "pso @40",
+            "lm + pose prior (CMU train, weight W) @40",
         ] {
+            let w = if m == "keypoints2d" { "0.001" } else { "0.01" };
             let want = format!(
                 "| {m}, captured clip (4 frames) | {} |",
-                method.replace("MOD", m)
+                method.replace("MOD", m).replace(" W)", &format!(" {w})"))
             );
             assert!(
                 table.lines().any(|l| l.starts_with(&want)),

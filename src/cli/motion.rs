@@ -145,6 +145,9 @@ pub struct CoverageArgs {
     pub joints: Vec<String>,
 }
 
+/// `lfit motion prior`'s default ε in degrees ([`lfit_model::energy::DEFAULT_PRIOR_EPSILON`]).
+pub const DEFAULT_EPSILON_DEG: f64 = 3.0;
+
 /// Settings of `lfit motion prior`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct PriorArgs {
@@ -164,14 +167,14 @@ pub struct PriorArgs {
     #[arg(long, default_value_t = 1, value_name = "N")]
     pub stride: usize,
     /// ε in degrees: the covariance is Σ + ε² I (an axis the motions never move is held to ε).
-    #[arg(long = "epsilon-deg", default_value_t = 3.0, value_name = "DEG")]
+    #[arg(long = "epsilon-deg", default_value_t = DEFAULT_EPSILON_DEG, value_name = "DEG")]
     pub epsilon_deg: f64,
     /// Weight of the prior in the energy (`weights.pose_prior`); default: --modality's (markers
-    /// 0.01, keypoints2d 0.001; every other modality markers').
+    /// 0.01, keypoints2d 0.001; required for any other modality).
     #[arg(long)]
     pub weight: Option<f64>,
-    /// The sensor the energy is for, which sets the default --weight (markers, keypoints2d, hmd,
-    /// ...); default markers.
+    /// The sensor the energy is for, which sets the default --weight (markers, keypoints2d; other
+    /// modalities need --weight); default markers.
     #[arg(long, default_value = "markers")]
     pub modality: String,
     /// Gaussians in the prior: 1 (default) or a mixture fitted by EM (SMPLify uses 8).
@@ -539,9 +542,14 @@ pub fn prior(args: &PriorArgs) -> Result<Value> {
         .modality
         .parse()
         .with_context(|| format!("--modality {}", args.modality))?;
-    let weight = args
+    let Some(weight) = args
         .weight
-        .unwrap_or_else(|| lfit_model::energy::default_pose_prior_weight(modality));
+        .or_else(|| lfit_model::energy::default_pose_prior_weight(modality))
+    else {
+        bail!(
+            "--modality {modality}: no default weight (measured only for markers and keypoints2d; on hmd the prior made LM worse): give --weight"
+        );
+    };
     let mut config = crate::cli::fit::read_energy_config(args.energy.as_deref(), true)?;
     config.weights.pose_prior = weight;
     config
