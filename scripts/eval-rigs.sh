@@ -9,7 +9,8 @@
 #   scripts/eval-rigs.sh CHECKPOINT [OUT]
 #
 # CHECKPOINT: a pooled keypoints2d checkpoint (network.views = "pooled"). OUT defaults to
-# target/eval-rigs. LFIT (default: the release build) is the binary.
+# target/eval-rigs. LFIT (default: the release build) is the binary. POSE_PRIOR (an energy file
+# of `lfit motion prior --modality keypoints2d`) adds the rows of LM with that prior.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ $# -lt 1 ] || [ $# -gt 2 ]; then
@@ -22,6 +23,10 @@ FRAMES="${EVAL_FRAMES:-200}"
 SEED=9103745171752751104
 source scripts/eval-common.sh
 eval_need_dir eval-rigs "$CK"
+if [ -n "${POSE_PRIOR:-}" ] && [ ! -f "$POSE_PRIOR" ]; then
+    echo "eval-rigs: POSE_PRIOR $POSE_PRIOR is not a file" >&2
+    exit 1
+fi
 eval_setup eval-rigs "$OUT"
 rows=()
 for cams in 1 3; do
@@ -31,6 +36,11 @@ for cams in 1 3; do
     "$LFIT" -q fit --data "$data" --template "$MODEL" --method lm --budget 4000 \
         --out "$OUT/$cams-cam-lm.json" >/dev/null
     rows+=("$cams-cam-lm")
+    if [ -n "${POSE_PRIOR:-}" ]; then
+        "$LFIT" -q fit --data "$data" --template "$MODEL" --method lm --budget 4000 \
+            --energy "$POSE_PRIOR" --out "$OUT/$cams-cam-lm+prior.json" >/dev/null
+        rows+=("$cams-cam-lm+prior")
+    fi
     for start in given phi; do
         "$LFIT" -q fit --data "$data" --template "$MODEL" --method neural --checkpoint "$CK" \
             --neural-start "$start" --budget 10 --out "$OUT/$cams-cam-neural-$start.json" >/dev/null

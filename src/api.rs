@@ -7,7 +7,9 @@ pub use crate::cli::calibrate::calibrate_dataset;
 pub use crate::cli::commands::model_info;
 pub use crate::cli::data_import::{ImportArgs as DataImportArgs, import_dataset};
 pub use crate::cli::fit::{FitArgs, FrameProblem, fit_dataset, parse_frames, read_energy_config};
-pub use crate::cli::motion::{ImportArgs as MotionImportArgs, import_clip};
+pub use crate::cli::motion::{
+    ImportArgs as MotionImportArgs, PriorArgs as MotionPriorArgs, import_clip, prior_energy,
+};
 pub use crate::data::params_from_json;
 pub use crate::data::{MotionFilesArgs, SynthArgs, load_model, synthesize_dataset};
 pub use crate::fitting::{check_model, template_for};

@@ -163,7 +163,9 @@ enum Command {
     },
     /// The main job, from nothing: synthesise a small held-out set per sparse modality (markers,
     /// keypoints2d, hmd), fit it with the shipped neural fitter, L-BFGS, Levenberg–Marquardt, CMA-ES and PSO on the
-    /// same energy, print the comparison table and write reports and plots under --out.
+    /// same energy, and with LM on that energy plus a pose prior fitted to the CMU training clips
+    /// (markers and keypoints2d), print the comparison table and write reports and plots under
+    /// --out.
     Quickstart {
         #[arg(long, default_value = "out/quickstart")]
         out: PathBuf,
@@ -823,7 +825,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             println!("{}", result?);
             if !cli.quiet {
                 eprintln!(
-                    "Reports, plots and pictures: {0}/<part>/report.md, {0}/<part>/plots/ and {0}/<part>/pictures/ (parts: markers, keypoints2d, hmd and, with --clip, markers-clip, keypoints2d-clip); summary: {0}/comparison.md",
+                    "Reports, plots and pictures: {0}/<part>/report.md, {0}/<part>/plots/ and {0}/<part>/pictures/ (parts: markers, keypoints2d, hmd and, with --clip, markers-clip, keypoints2d-clip; LM with the pose prior: markers-prior, keypoints2d-prior, markers-clip-prior, keypoints2d-clip-prior, priors {0}/pose-prior-<modality>.json); summary: {0}/comparison.md",
                     out.display()
                 );
             }

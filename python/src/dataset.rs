@@ -476,3 +476,77 @@ pub fn import_bvh(
     }
     Ok(Motion { clip, summary })
 }
+
+/// Fits a pose prior as `lfit motion prior` does and returns `(energy, summary)`: the energy
+/// configuration carrying it (a dict for `fit(energy=...)`) and the summary (frames, the prior's
+/// scores on them and on `held_out`). `motions`: motion files and/or `Motion`s (`import_bvh`);
+/// `data`: `lfit synth` datasets whose ground-truth poses join them; `stride`: every N-th frame;
+/// `epsilon_deg`: ε of `Σ + ε² I`; `weight`: default `modality`'s (markers 0.01, keypoints2d
+/// 0.001; required otherwise); `components`: Gaussians (a mixture by EM from `seed` above 1);
+/// `held_out`: motion files scored, not fitted; `energy`: the base energy file (default: the
+/// gradient variant); `out`: also written there (atomically).
+#[pyfunction]
+#[pyo3(signature = (motions, model=None, *, data=None, stride=1, epsilon_deg=3.0, weight=None, modality="markers", components=1, seed=0, held_out=None, energy=None, out=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn motion_prior<'py>(
+    py: Python<'py>,
+    motions: &Bound<'py, PyAny>,
+    model: Option<&Bound<'py, PyAny>>,
+    data: Option<Vec<PathBuf>>,
+    stride: usize,
+    epsilon_deg: f64,
+    weight: Option<f64>,
+    modality: &str,
+    components: usize,
+    seed: u64,
+    held_out: Option<Vec<PathBuf>>,
+    energy: Option<PathBuf>,
+    out: Option<PathBuf>,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let template = match optional_model(model)? {
+        Some(t) => t,
+        None => Arc::new(without_gil(py, |_| lfit::api::load_model(None, "default"))?),
+    };
+    let mut paths = Vec::new();
+    let mut held: Vec<Py<Motion>> = Vec::new();
+    for item in motions
+        .try_iter()
+        .map_err(|_| bad("motions must be a list of motion files or Motion objects"))?
+    {
+        let item = item?;
+        if let Ok(m) = item.cast::<Motion>() {
+            held.push(m.clone().unbind());
+        } else {
+            paths.push(item.extract::<PathBuf>().map_err(|_| {
+                bad("motions must be a list of motion files or Motion objects")
+            })?);
+        }
+    }
+    let args = lfit::api::MotionPriorArgs {
+        motions: paths,
+        data: data.unwrap_or_default(),
+        model: None,
+        stride,
+        epsilon_deg,
+        weight,
+        modality: modality.to_string(),
+        components,
+        seed,
+        held_out: held_out.unwrap_or_default(),
+        energy,
+        out: out.clone().unwrap_or_default(),
+    };
+    let clips: Vec<(String, &lfit::synth::motion::file::MotionClip)> = held
+        .iter()
+        .enumerate()
+        .map(|(k, m)| (format!("Motion {k} ({})", m.get().clip.source), &m.get().clip))
+        .collect();
+    let (config, summary) = without_gil(py, |_| {
+        let (config, summary) = lfit::api::prior_energy(&args, &template, &clips)?;
+        if let Some(out) = &out {
+            lfit::model::template::write_atomic(out, &serde_json::to_vec_pretty(&config)?)?;
+        }
+        Ok((serde_json::to_value(&config)?, summary))
+    })?;
+    Ok((json_to_py(py, &config)?, json_to_py(py, &summary)?))
+}

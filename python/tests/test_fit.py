@@ -84,6 +84,33 @@ def test_a_pose_prior_energy_fits_as_the_cli(makehuman, markers_file, cli, tmp_p
     assert not np.array_equal(plain.poses, ours.poses)
 
 
+def test_motion_prior_is_the_cli_s_energy(makehuman, cli, tmp_path):
+    """`lfit.motion_prior` gives the CLI's energy configuration (the same file bytes with `out=`),
+    a summary with its scores, a mixture with `components=`, and one-line errors."""
+    model = ROOT / "models" / "makehuman-cmu_mb.npz"
+    motions = sorted((ROOT / "data" / "motions" / "cmu" / "train").glob("00[12]_0*.npz"))
+    held = sorted((ROOT / "data" / "motions" / "cmu" / "validation").glob("*.npz"))[:1]
+    prior = tmp_path / "cli.json"
+    cli("motion", "prior", "--motions", *motions, "--model", model, "--stride", 4,
+        "--modality", "keypoints2d", "--held-out", *held, "--out", prior)
+    out = tmp_path / "py.json"
+    energy, summary = lfit.motion_prior(motions, makehuman, stride=4, modality="keypoints2d",
+                                        held_out=held, out=out)
+    assert out.read_bytes() == prior.read_bytes()
+    assert energy == json.loads(prior.read_text())
+    assert energy["weights"]["pose_prior"] == 0.001 and summary["components"] == 1
+    assert summary["held_out"]["frames"] > 0
+    assert summary["held_out"]["mean_log_likelihood"] < summary["mean_log_likelihood"]
+    mix, s2 = lfit.motion_prior(motions, makehuman, stride=4, components=2, seed=1)
+    assert len(mix["pose_prior"]["components"]) == 2 and s2["em_converged"]
+    for kwargs, why in [({"modality": "hmd"}, "give --weight"), ({"stride": 0}, "stride"),
+                        ({"components": 0}, "components")]:
+        with pytest.raises(lfit.LfitError, match=why):
+            lfit.motion_prior(motions, makehuman, **kwargs)
+    with pytest.raises(lfit.LfitError, match="motions must be"):
+        lfit.motion_prior([42], makehuman)
+
+
 def test_in_memory_dataset_and_frame_list(makehuman):
     data = lfit.synth("keypoints2d", makehuman, frames=5, seed=2)
     seen = []

@@ -365,7 +365,8 @@ pub struct QuickstartClip {
 /// `lfit quickstart`: the README's main job. Synthesises a small held-out set per sparse
 /// modality on the study's model (the `learned-vs-classical` preset: the MakeHuman body), fits
 /// it with the shipped neural fitter, L-BFGS, Levenberg–Marquardt, CMA-ES and PSO on the same
-/// energy (at `frames` frames and one `budget`), writes each part's report and plots under
+/// energy (at `frames` frames and one `budget`), and with LM plus a pose prior
+/// ([`with_prior_parts`]), writes each part's report and plots under
 /// `out/<modality>/` and `out/comparison.md`, and returns the comparison table (Markdown): the
 /// rows of each report's papers/002 Table 2. With `clip`, the markers and keypoints2d studies are
 /// repeated on every frame of a captured motion (a sequence, each frame warm-started from the

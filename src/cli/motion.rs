@@ -527,8 +527,26 @@ fn ground_truth_poses(
     Ok(d.gt_poses)
 }
 
-/// `lfit motion prior`.
+/// `lfit motion prior`: [`prior_energy`] on the model and files of `args`, written to `--out`.
 pub fn prior(args: &PriorArgs) -> Result<Value> {
+    let template = load(args.model.as_deref())?;
+    let (config, mut summary) = prior_energy(args, &template, &[])?;
+    let text = serde_json::to_string_pretty(&config)?;
+    write_atomic(&args.out, text.as_bytes())?;
+    summary["out"] = json!(args.out.display().to_string());
+    Ok(summary)
+}
+
+/// The energy configuration of `lfit motion prior` (the prior fitted to `args`' motion files,
+/// the `clips` given already read — named for the record — and `args`' datasets, every N-th
+/// frame, on `template`; `args.model` and `args.out` are not read) and its summary (frames, the
+/// prior's scores on them and on `args.held_out`). Every input is read and checked before the
+/// fit.
+pub fn prior_energy(
+    args: &PriorArgs,
+    template: &Template,
+    clips: &[(String, &MotionClip)],
+) -> Result<(lfit_model::energy::EnergyConfig, Value)> {
     if args.stride == 0 {
         bail!("--stride 0: keep every N-th frame needs N of at least 1");
     }
@@ -555,18 +573,22 @@ pub fn prior(args: &PriorArgs) -> Result<Value> {
     config
         .validate()
         .with_context(|| format!("--weight {weight}"))?;
-    let template = load(args.model.as_deref())?;
     let mut poses = Vec::new();
     for path in &args.motions {
         let clip = MotionClip::read(path)?;
-        clip.check_model(&template)
+        clip.check_model(template)
             .with_context(|| format!("motion {}", path.display()))?;
         poses.extend(clip.poses.into_iter().step_by(args.stride));
+    }
+    for (name, clip) in clips {
+        clip.check_model(template)
+            .with_context(|| format!("motion {name}"))?;
+        poses.extend(clip.poses.iter().step_by(args.stride).cloned());
     }
     let mut held_out = Vec::new();
     for path in &args.held_out {
         let clip = MotionClip::read(path)?;
-        clip.check_model(&template)
+        clip.check_model(template)
             .with_context(|| format!("--held-out {}", path.display()))?;
         held_out.extend(clip.poses);
     }
@@ -578,8 +600,9 @@ pub fn prior(args: &PriorArgs) -> Result<Value> {
     let names: Vec<String> = args
         .motions
         .iter()
-        .chain(&args.data)
         .map(|p| file_name(p))
+        .chain(clips.iter().map(|c| c.0.clone()))
+        .chain(args.data.iter().map(|p| file_name(p)))
         .collect();
     let mixture = if args.components > 1 {
         format!(", {} components (seed {})", args.components, args.seed)
@@ -594,7 +617,7 @@ pub fn prior(args: &PriorArgs) -> Result<Value> {
         args.epsilon_deg
     );
     let (prior, em) = lfit_model::energy::PosePrior::fit_mixture(
-        &template,
+        template,
         &poses,
         args.components,
         args.epsilon_deg.to_radians(),
@@ -618,9 +641,7 @@ pub fn prior(args: &PriorArgs) -> Result<Value> {
     let entries = prior.len();
     let components = prior.components().len();
     config.pose_prior = Some(std::sync::Arc::new(prior));
-    let text = serde_json::to_string_pretty(&config)?;
-    write_atomic(&args.out, text.as_bytes())?;
-    Ok(json!({
+    let summary = json!({
         "model": template.id,
         "files": names,
         "frames": poses.len(),
@@ -636,6 +657,6 @@ pub fn prior(args: &PriorArgs) -> Result<Value> {
         "mean_squared_mahalanobis": fitted["mean_squared_mahalanobis"],
         "mean_term": fitted["mean_term"],
         "held_out": held,
-        "out": args.out.display().to_string(),
-    }))
+    });
+    Ok((config, summary))
 }

@@ -278,6 +278,26 @@ def import_bvh(
 ) -> Motion:
     """``lfit motion import --bvh``."""
 
+def motion_prior(
+    motions: Sequence[Union[_Path, Motion]],
+    model: Optional[_ModelArg] = None,
+    *,
+    data: Optional[Sequence[_Path]] = None,
+    stride: int = 1,
+    epsilon_deg: float = 3.0,
+    weight: Optional[float] = None,
+    modality: str = "markers",
+    components: int = 1,
+    seed: int = 0,
+    held_out: Optional[Sequence[_Path]] = None,
+    energy: Optional[_Path] = None,
+    out: Optional[_Path] = None,
+) -> Tuple[Dict[str, Any], Dict[str, Any]]:
+    """``lfit motion prior``: ``(energy, summary)``, the energy configuration carrying a pose prior
+    fitted to ``motions`` (files or ``Motion``s) for ``fit(energy=...)``, and the summary; written
+    to ``out`` too when given. ``weight`` defaults to ``modality``'s (markers 0.01, keypoints2d
+    0.001; required otherwise); ``components`` above 1 fits SMPLify's mixture by EM."""
+
 def calibrate(
     model: Optional[_ModelArg],
     data: _DataArg,
