@@ -27,6 +27,7 @@ from ._lfit import (
     import_c3d,
     import_keypoints,
     load_dataset,
+    motion_prior,
     synth,
 )
 
@@ -45,5 +46,6 @@ __all__ = [
     "import_c3d",
     "import_keypoints",
     "load_dataset",
+    "motion_prior",
     "synth",
 ]
