@@ -72,9 +72,16 @@ fn quickstart_compares_every_method_on_every_sparse_modality() {
                 serde_json::from_str(&std::fs::read_to_string(&prior).expect("prior"))
                     .expect("json");
             assert!(energy["pose_prior"]["mean"].is_array(), "{m}");
+            let nlm = format!(
+                "| {m} (3 frames) | neural+lm (checkpoints/{m}-makehuman, then LM) + pose prior (CMU train, weight {w}) @60 |"
+            );
+            assert!(
+                table.lines().any(|l| l.starts_with(&nlm)),
+                "{nlm}:\n{table}"
+            );
             let csv =
                 std::fs::read_to_string(out_dir.join(format!("{m}-prior/runs.csv"))).expect("csv");
-            assert_eq!(csv.lines().count(), 1 + 3);
+            assert_eq!(csv.lines().count(), 1 + 2 * 3);
         }
         let dir = out_dir.join(m);
         let md = std::fs::read_to_string(dir.join("report.md")).expect("report");
@@ -152,6 +159,7 @@ fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
             "cma @40",
             "pso @40",
             "lm + pose prior (CMU train, weight W) @40",
+            "neural+lm (checkpoints/MOD-makehuman, then LM) + pose prior (CMU train, weight W) @40",
         ] {
             let w = if m == "keypoints2d" { "0.001" } else { "0.01" };
             let want = format!(

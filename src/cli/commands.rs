@@ -481,7 +481,12 @@ pub fn quickstart(
                 let w = config
                     .energy_config()
                     .map_or(f64::NAN, |(e, _)| e.weights.pose_prior);
-                format!("{method} + pose prior (CMU train, weight {w}) @{budget}")
+                let base = if method == crate::method::MethodKind::NeuralLm.name() {
+                    format!("neural+lm (checkpoints/{ck}, then LM)")
+                } else {
+                    method.to_string()
+                };
+                format!("{base} + pose prior (CMU train, weight {w}) @{budget}")
             } else if method == crate::method::MethodKind::NeuralLm.name() {
                 format!("neural+lm (checkpoints/{ck}, then LM) @{budget}")
             } else if method == neural {
@@ -522,7 +527,7 @@ pub fn quickstart(
             |f| f.to_string_lossy().into_owned(),
         );
     let text = format!(
-        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": LM on the same energy plus a Gaussian pose prior fitted to lfit's CMU training clips (`lfit motion prior`; SMPLify's classical baseline), whose final energy includes the prior's term.\n\n{table}"
+        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": on the same energy plus a Gaussian pose prior fitted to lfit's CMU training clips (`lfit motion prior`; LM with it is SMPLify's classical baseline), whose final energy includes the prior's term.\n\n{table}"
     );
     write_atomic(&out.join("comparison.md"), text.as_bytes())?;
     Ok(text)
@@ -534,8 +539,8 @@ const PRIOR_PART: &str = "-prior";
 /// The CMU training clips lfit ships (never an evaluation clip): the quickstart's pose prior.
 const PRIOR_MOTIONS: &str = "data/motions/cmu/train";
 
-/// After each markers and keypoints2d part, its twin with LM alone on the part's energy plus a
-/// Gaussian pose prior (`lfit motion prior` on [`PRIOR_MOTIONS`] at the modality's default
+/// After each markers and keypoints2d part, its twin with LM (and `neural+lm` where the part has
+/// it) on the part's energy plus a Gaussian pose prior (`lfit motion prior` on [`PRIOR_MOTIONS`] at the modality's default
 /// weight, written to `out/pose-prior-<modality>.json`) — the classical baseline as SMPLify and
 /// MoSh run it (none for hmd: no weight helped there). Left out, with a note, where the clips are
 /// not found (an installed copy without `data/`).
@@ -597,7 +602,17 @@ fn with_prior_parts(
         };
         let mut twin = config.clone();
         twin.name = format!("{}{PRIOR_PART}", config.name);
+        // LM, and `neural+lm` where the part has a network: the learned start with the prior in
+        // its LM stage (the network reads the energy as in `lfit fit --energy`).
         twin.methods = vec![crate::method::MethodKind::Lm.name().parse()?];
+        if config
+            .methods
+            .iter()
+            .any(|m| m.kind == crate::method::MethodKind::NeuralLm)
+        {
+            twin.methods
+                .push(crate::method::MethodKind::NeuralLm.name().parse()?);
+        }
         twin.energy = Some(energy.display().to_string());
         twin.validate()?;
         all.push((part.clone(), config));
