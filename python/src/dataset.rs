@@ -508,14 +508,14 @@ pub fn motion_prior<'py>(
         None => Arc::new(without_gil(py, |_| lfit::api::load_model(None, "default"))?),
     };
     let mut paths = Vec::new();
-    let mut held: Vec<Py<Motion>> = Vec::new();
+    let mut objects: Vec<Py<Motion>> = Vec::new();
     for item in motions
         .try_iter()
         .map_err(|_| bad("motions must be a list of motion files or Motion objects"))?
     {
         let item = item?;
         if let Ok(m) = item.cast::<Motion>() {
-            held.push(m.clone().unbind());
+            objects.push(m.clone().unbind());
         } else {
             paths.push(item.extract::<PathBuf>().map_err(|_| {
                 bad("motions must be a list of motion files or Motion objects")
@@ -536,7 +536,7 @@ pub fn motion_prior<'py>(
         energy,
         out: out.clone().unwrap_or_default(),
     };
-    let clips: Vec<(String, &lfit::synth::motion::file::MotionClip)> = held
+    let clips: Vec<(String, &lfit::synth::motion::file::MotionClip)> = objects
         .iter()
         .enumerate()
         .map(|(k, m)| (format!("Motion {k} ({})", m.get().clip.source), &m.get().clip))

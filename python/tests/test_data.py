@@ -203,6 +203,12 @@ def test_bvh_import_equals_the_cli(cli, tmp_path):
     py_out = tmp_path / "py.npz"
     motion.save(py_out)
     assert py_out.read_bytes() == cli_out.read_bytes()
+    # A pose prior from the Motion object is the one from its file (only the names differ).
+    from_object, _ = lfit.motion_prior([motion], MH)
+    from_file, _ = lfit.motion_prior([py_out], MH)
+    for key in ("mean", "whitening"):
+        assert from_object["pose_prior"][key] == from_file["pose_prior"][key]
+    assert "Motion 0" in from_object["pose_prior"]["source"]
     # The motion drives synthesis as a file does.
     d = lfit.synth("markers", MH, frames=3, seed=1, motions=[py_out])
     assert all(":" in f for f in d.meta["frame_motions"])

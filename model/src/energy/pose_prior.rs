@@ -424,15 +424,21 @@ impl PosePrior {
         let half_log_2pi = 0.5 * (2.0 * std::f64::consts::PI).ln();
         let mut r = vec![0.0; n];
         let mut logs = vec![0.0; self.components.len()];
+        // log w_k + log det W_k − (n/2) log 2π per component.
+        let norms: Vec<f64> = self
+            .components
+            .iter()
+            .map(|c| {
+                let log_det: f64 = (0..n).map(|a| c.whitening[a * n + a].ln()).sum();
+                c.weight.ln() + log_det - n as f64 * half_log_2pi
+            })
+            .collect();
         let mut total = 0.0;
         for p in poses {
             let theta = &p[self.entries()];
-            for (c, l) in self.components.iter().zip(&mut logs) {
+            for ((c, l), norm) in self.components.iter().zip(&mut logs).zip(&norms) {
                 c.whiten(theta, &mut r);
-                let log_det: f64 = (0..n).map(|a| c.whitening[a * n + a].ln()).sum();
-                *l = c.weight.ln() + log_det
-                    - 0.5 * r.iter().map(|v| v * v).sum::<f64>()
-                    - n as f64 * half_log_2pi;
+                *l = norm - 0.5 * r.iter().map(|v| v * v).sum::<f64>();
             }
             total += log_sum_exp(&logs);
         }
@@ -707,7 +713,7 @@ fn kmeans_responsibilities(x: &[Vec<f64>], k: usize, seed: u64) -> Vec<f64> {
 fn m_step(x: &[Vec<f64>], resp: &[f64], k: usize, n: usize, epsilon: f64) -> Result<Vec<Gaussian>> {
     let t = x.len();
     let half_log_2pi = 0.5 * (2.0 * std::f64::consts::PI).ln();
-    let fitted: Vec<Option<Result<Gaussian>>> = (0..k)
+    let fitted: Vec<Option<Result<(f64, Vec<f64>, Vec<f64>)>>> = (0..k)
         .into_par_iter()
         .map(|j| {
             let share: f64 = (0..t).map(|s| resp[s * k + j]).sum();
@@ -742,19 +748,26 @@ fn m_step(x: &[Vec<f64>], resp: &[f64], k: usize, n: usize, epsilon: f64) -> Res
                 }
             }
             cov.iter_mut().for_each(|c| *c /= share);
-            Some(cholesky(&cov, n, epsilon).map(|l| {
-                let log_diag: f64 = (0..n).map(|a| l[a * n + a].ln()).sum();
-                let weight = share / t as f64;
-                Gaussian {
-                    weight,
-                    mean,
-                    l,
-                    log_norm: weight.ln() - log_diag - n as f64 * half_log_2pi,
-                }
-            }))
+            Some(cholesky(&cov, n, epsilon).map(|l| (share, mean, l)))
         })
         .collect();
-    fitted.into_iter().flatten().collect()
+    let kept = fitted.into_iter().flatten().collect::<Result<Vec<_>>>()?;
+    // The weights of the components kept: their shares of the poses they hold (a dropped
+    // component's share is the kept ones' no more).
+    let total: f64 = kept.iter().map(|c| c.0).sum();
+    Ok(kept
+        .into_iter()
+        .map(|(share, mean, l)| {
+            let log_diag: f64 = (0..n).map(|a| l[a * n + a].ln()).sum();
+            let weight = share / total;
+            Gaussian {
+                weight,
+                mean,
+                l,
+                log_norm: weight.ln() - log_diag - n as f64 * half_log_2pi,
+            }
+        })
+        .collect())
 }
 
 /// EM's E step: the responsibilities (T × K, row by row) and the mean log-likelihood per pose.
@@ -806,5 +819,41 @@ pub(crate) mod shared {
         d: D,
     ) -> Result<Option<Arc<PosePrior>>, D::Error> {
         Ok(Option::<PosePrior>::deserialize(d)?.map(Arc::new))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// EM's M step leaves out a component holding less than one pose and gives the others
+    /// weights that sum to 1 (their shares of the poses they hold), so that the mixture is built.
+    #[test]
+    fn a_component_with_less_than_one_pose_is_dropped_and_the_weights_still_sum_to_one() {
+        let n = 3;
+        let x: Vec<Vec<f64>> = (0..10)
+            .map(|i| vec![0.1 * i as f64, 0.2 * (i % 3) as f64, -0.05 * i as f64])
+            .collect();
+        // Three components: the third holds half a pose.
+        let mut resp = vec![0.0; 10 * 3];
+        for (t, row) in resp.chunks_mut(3).enumerate() {
+            match t {
+                0 => row.copy_from_slice(&[0.0, 0.5, 0.5]),
+                t if t < 5 => row[0] = 1.0,
+                _ => row[1] = 1.0,
+            }
+        }
+        let model = m_step(&x, &resp, 3, n, 0.05).unwrap();
+        assert_eq!(model.len(), 2);
+        let total: f64 = model.iter().map(|g| g.weight).sum();
+        assert!((total - 1.0).abs() < 1e-15, "{total}");
+        assert!((model[0].weight - 4.0 / 9.5).abs() < 1e-15);
+        let components = model
+            .into_iter()
+            .map(|g| Ok((g.weight, g.mean, invert_lower(&g.l, n)?)))
+            .collect::<Result<Vec<_>>>()
+            .unwrap();
+        let joints = vec!["a".to_string()];
+        PosePrior::new("test", joints, components).unwrap();
     }
 }
