@@ -365,8 +365,8 @@ pub struct QuickstartClip {
 /// `lfit quickstart`: the README's main job. Synthesises a small held-out set per sparse
 /// modality on the study's model (the `learned-vs-classical` preset: the MakeHuman body), fits
 /// it with the shipped neural fitter, L-BFGS, Levenberg–Marquardt, CMA-ES and PSO on the same
-/// energy (at `frames` frames and one `budget`), and with LM plus a pose prior
-/// ([`with_prior_parts`]), writes each part's report and plots under
+/// energy (at `frames` frames and one `budget`), and with LM and `neural+lm` on that energy plus
+/// a pose prior ([`with_prior_parts`]), writes each part's report and plots under
 /// `out/<modality>/` and `out/comparison.md`, and returns the comparison table (Markdown): the
 /// rows of each report's papers/002 Table 2. With `clip`, the markers and keypoints2d studies are
 /// repeated on every frame of a captured motion (a sequence, each frame warm-started from the
@@ -533,17 +533,18 @@ pub fn quickstart(
     Ok(text)
 }
 
-/// Suffix of the quickstart's LM + pose prior parts.
+/// Suffix of the quickstart's parts with the pose prior.
 const PRIOR_PART: &str = "-prior";
 
 /// The CMU training clips lfit ships (never an evaluation clip): the quickstart's pose prior.
 const PRIOR_MOTIONS: &str = "data/motions/cmu/train";
 
 /// After each markers and keypoints2d part, its twin with LM (and `neural+lm` where the part has
-/// it) on the part's energy plus a Gaussian pose prior (`lfit motion prior` on [`PRIOR_MOTIONS`] at the modality's default
-/// weight, written to `out/pose-prior-<modality>.json`) — the classical baseline as SMPLify and
-/// MoSh run it (none for hmd: no weight helped there). Left out, with a note, where the clips are
-/// not found (an installed copy without `data/`).
+/// it) on the gradient variant of the energy (the parts') plus a Gaussian pose prior (`lfit
+/// motion prior` on [`PRIOR_MOTIONS`] at the modality's default weight, written to
+/// `out/pose-prior-<modality>.json`) — the classical baseline as SMPLify and MoSh run it (none
+/// for hmd: no weight helped there). Left out, with a note, where the clips are not found (an
+/// installed copy without `data/`).
 fn with_prior_parts(
     parts: Vec<(String, crate::study::bench::BenchConfig)>,
     out: &Path,
