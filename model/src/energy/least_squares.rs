@@ -63,6 +63,20 @@ pub struct LeastSquares {
     /// The data rows in factored form, where the observation model has one
     /// ([`crate::observe::ObservationModel::point_factors`]) and the Jacobian was asked for.
     pub points: Option<PointFactors>,
+    /// Rows whose `JᵀJ` does not depend on the parameters (the pose prior's: its Jacobian is a
+    /// component's `c0 W`), with that block precomputed: [`LeastSquares::normal_equations`] adds
+    /// it instead of the rows' products. The rows stay in `jacobian` for every other reader.
+    pub constant_gram: Option<ConstantGram>,
+}
+
+/// Rows `rows` of a [`LeastSquares`] Jacobian, nonzero only on the `n` columns from `first`,
+/// whose `JᵀJ` there is `scale · gram` (`n × n`, row-major, symmetric).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConstantGram {
+    pub rows: Range<usize>,
+    pub first: usize,
+    pub gram: std::sync::Arc<Vec<f64>>,
+    pub scale: f64,
 }
 
 /// Data rows `i < rows.len()` of a [`LeastSquares`] Jacobian as `aᵢᵀ ∂X_p/∂θ`: the Jacobian of
@@ -377,7 +391,9 @@ impl LeastSquares {
     /// Consecutive rows with the same nonzero columns (the x, y, z rows of one marker, the u, v
     /// rows of one keypoint) are applied together, up to three at a time: one scattered update of
     /// `JᵀJ` per pair of columns instead of one per row. Every entry still sums the rows in
-    /// order, so the result is bit for bit [`LeastSquares::normal_equations_by_row`]'s.
+    /// order, so the result is bit for bit [`LeastSquares::normal_equations_by_row`]'s — but for
+    /// the [`LeastSquares::constant_gram`] rows (a pose prior's), whose precomputed block is
+    /// added instead of their products (equal to rounding).
     pub fn normal_equations(&self, dofs: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
         let n = dofs.len();
         let position = self.positions(dofs);
@@ -401,12 +417,13 @@ impl LeastSquares {
             }
             _ => 0,
         };
+        let constant = self.constant_gram.as_ref().map_or(0..0, |c| c.rows.clone());
         for (i, &r) in self.residuals[..self.dense_to]
             .iter()
             .enumerate()
             .skip(factored)
         {
-            if self.zero_rows.get(i).copied().unwrap_or(false) {
+            if self.zero_rows.get(i).copied().unwrap_or(false) || constant.contains(&i) {
                 continue;
             }
             // A row with the open group's nonzero columns (as many free nonzeros, none of the
@@ -448,6 +465,29 @@ impl LeastSquares {
             rows += 1;
         }
         accumulate(&mut upper, &mut g, n, &group, &values, &residuals[..rows]);
+        // The constant block: its precomputed JᵀJ, and Jᵀr from its rows.
+        if let Some(c) = &self.constant_gram {
+            let m = c.gram.len().isqrt();
+            let at: Vec<usize> = (c.first..c.first + m).map(|col| position[col]).collect();
+            for (a, &pa) in at.iter().enumerate() {
+                if pa == usize::MAX {
+                    continue;
+                }
+                for (b, &pb) in at.iter().enumerate() {
+                    if pb != usize::MAX && pa <= pb {
+                        upper[pa * n + pb] += c.scale * c.gram[a * m + b];
+                    }
+                }
+            }
+            for i in c.rows.clone() {
+                let r = self.residuals[i];
+                for (&v, &pa) in self.row(i)[c.first..c.first + m].iter().zip(&at) {
+                    if v != 0.0 && pa != usize::MAX {
+                        g[pa] += v * r;
+                    }
+                }
+            }
+        }
         // Rows with one entry, as their dense rows would add it.
         for (k, (&(c, v), &r)) in self
             .singles
@@ -1065,11 +1105,18 @@ impl Energy {
 
         // The Gaussian pose prior's rows (dense: W is lower triangular over the rotations).
         // A mixture's last row is the active component's constant (no Jacobian).
+        let mut constant_gram = None;
         if let Some(prior) = &self.config.pose_prior {
             let (n, rows) = (prior.len(), prior.rows());
             let c0 = w.pose_prior.sqrt();
             let k = prior.residuals(params, c0, &mut residuals[row..row + rows]);
             if with_jacobian {
+                constant_gram = Some(ConstantGram {
+                    rows: row..row + rows,
+                    first: prior.entries().start,
+                    gram: prior.components()[k].gram(),
+                    scale: w.pose_prior,
+                });
                 let first = prior.entries().start;
                 for a in 0..n {
                     let at = (row + a) * dim - off + first;
@@ -1167,6 +1214,7 @@ impl Energy {
             energy,
             observation_residual,
             points,
+            constant_gram,
         }
     }
 }

@@ -54,6 +54,9 @@ pub struct PriorComponent {
     whitening: Vec<f64>,
     /// `c_k` (module documentation): `≥ 0`, zero for the most probable component's centre.
     penalty: f64,
+    /// `W_kᵀ W_k` (`n × n`, row-major): the `JᵀJ` of the component's rows, which does not
+    /// depend on the pose (LM's normal equations add it instead of the rows' products).
+    gram: std::sync::Arc<Vec<f64>>,
 }
 
 impl PriorComponent {
@@ -75,6 +78,11 @@ impl PriorComponent {
     /// `c_k`, the component's constant in the term (0 for a single Gaussian).
     pub fn penalty(&self) -> f64 {
         self.penalty
+    }
+
+    /// `W_kᵀ W_k` (`n × n`, row-major, symmetric): `(Σ_k + ε² I)⁻¹`.
+    pub fn gram(&self) -> std::sync::Arc<Vec<f64>> {
+        self.gram.clone()
     }
 
     /// `W_k (θ_b − μ_k)` into `out` (length n).
@@ -256,6 +264,7 @@ impl PosePrior {
             .zip(log_terms)
             .map(|((weight, mean, whitening), c)| PriorComponent {
                 weight: weight / total,
+                gram: std::sync::Arc::new(gram_of(&whitening, n)),
                 mean,
                 whitening,
                 penalty: if single { 0.0 } else { c - least },
@@ -595,6 +604,25 @@ impl PosePrior {
         }
         d + self.components[k].penalty
     }
+}
+
+/// `WᵀW` of a lower-triangular `n × n` `W` (row by row): entry `(a, b)` sums rows `c ≥ max(a, b)`.
+fn gram_of(w: &[f64], n: usize) -> Vec<f64> {
+    let mut g = vec![0.0; n * n];
+    for c in 0..n {
+        let row = &w[c * n..c * n + c + 1];
+        for (a, &wa) in row.iter().enumerate() {
+            for (b, &wb) in row.iter().enumerate().skip(a) {
+                g[a * n + b] += wa * wb;
+            }
+        }
+    }
+    for a in 0..n {
+        for b in a + 1..n {
+            g[b * n + a] = g[a * n + b];
+        }
+    }
+    g
 }
 
 /// `log Σ exp(v)`, stable.
