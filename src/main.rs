@@ -825,7 +825,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             println!("{}", result?);
             if !cli.quiet {
                 eprintln!(
-                    "Reports, plots and pictures: {0}/<part>/report.md, {0}/<part>/plots/ and {0}/<part>/pictures/ (parts: markers, keypoints2d, hmd and, with --clip, markers-clip, keypoints2d-clip; LM with the pose prior: markers-prior, keypoints2d-prior, markers-clip-prior, keypoints2d-clip-prior, priors {0}/pose-prior-<modality>.json); summary: {0}/comparison.md",
+                    "Reports, plots and pictures: {0}/<part>/report.md, {0}/<part>/plots/ and {0}/<part>/pictures/ (parts: markers, keypoints2d, hmd and, with --clip, markers-clip, keypoints2d-clip; with the shipped pose prior configs/pose-prior-cmu-<modality>.json: markers-prior, keypoints2d-prior, markers-clip-prior, keypoints2d-clip-prior); summary: {0}/comparison.md",
                     out.display()
                 );
             }

@@ -2214,3 +2214,34 @@ fn prior_args<'a>(inputs: &[&'a str], out: &'a Path) -> Vec<&'a str> {
     a.extend(["--out", path_str(out)]);
     a
 }
+
+/// The pose priors lfit ships (`configs/pose-prior-cmu-<modality>.json`, what `lfit fit
+/// --energy` and the quickstart's prior rows read) are what `lfit motion prior` writes from the
+/// committed CMU training clips at each modality's default weight, byte for byte: a change of the
+/// clips, the fit or the energy's defaults that is not carried into them fails here.
+#[test]
+fn the_shipped_pose_priors_are_what_lfit_motion_prior_writes() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut motions: Vec<std::path::PathBuf> =
+        std::fs::read_dir(root.join("data/motions/cmu/train"))
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|x| x == "npz"))
+            .collect();
+    motions.sort();
+    let model = root.join("models/makehuman-cmu_mb.npz");
+    let dir = tempfile::tempdir().unwrap();
+    for modality in ["markers", "keypoints2d"] {
+        let out = dir.path().join(format!("{modality}.json"));
+        let mut args = vec!["--motions"];
+        args.extend(motions.iter().map(|p| path_str(p)));
+        args.extend(["--model", path_str(&model), "--modality", modality]);
+        lfit_json(&prior_args(&args, &out));
+        let shipped = root.join(format!("configs/pose-prior-cmu-{modality}.json"));
+        assert!(
+            std::fs::read(&out).unwrap() == std::fs::read(&shipped).unwrap(),
+            "{} is not what `lfit motion prior --modality {modality}` writes from data/motions/cmu/train: regenerate it",
+            shipped.display()
+        );
+    }
+}

@@ -444,7 +444,7 @@ pub fn quickstart(
         }
         parts.extend(extra);
     }
-    let parts = with_prior_parts(parts, out)?;
+    let parts = with_prior_parts(parts)?;
     let mut table = String::from(
         "| data | method | V2V (mm) | MPJPE (mm) | PA-MPJPE (mm) | shape RMS | final energy | evaluations | time / frame (ms) |\n|---|---|---|---|---|---|---|---|---|\n",
     );
@@ -527,7 +527,7 @@ pub fn quickstart(
             |f| f.to_string_lossy().into_owned(),
         );
     let text = format!(
-        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": on the same energy plus a Gaussian pose prior fitted to lfit's CMU training clips (`lfit motion prior`; LM with it is SMPLify's classical baseline), whose final energy includes the prior's term.\n\n{table}"
+        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": on the same energy plus the Gaussian pose prior of lfit's CMU training clips (configs/pose-prior-cmu-<modality>.json, `lfit motion prior`; LM with it is SMPLify's classical baseline), whose final energy includes the prior's term.\n\n{table}"
     );
     write_atomic(&out.join("comparison.md"), text.as_bytes())?;
     Ok(text)
@@ -536,33 +536,19 @@ pub fn quickstart(
 /// Suffix of the quickstart's parts with the pose prior.
 const PRIOR_PART: &str = "-prior";
 
-/// The CMU training clips lfit ships (never an evaluation clip): the quickstart's pose prior.
-const PRIOR_MOTIONS: &str = "data/motions/cmu/train";
+/// The pose priors lfit ships: `lfit motion prior` on the CMU training clips
+/// (`data/motions/cmu/train`, never an evaluation clip) at each modality's default weight
+/// (`configs/pose-prior-cmu-<modality>.json`; `tests/motion_cli.rs` rebuilds them byte for byte).
+pub const SHIPPED_POSE_PRIOR: &str = "configs/pose-prior-cmu-{modality}.json";
 
 /// After each markers and keypoints2d part, its twin with LM (and `neural+lm` where the part has
-/// it) on the gradient variant of the energy (the parts') plus a Gaussian pose prior (`lfit
-/// motion prior` on [`PRIOR_MOTIONS`] at the modality's default weight, written to
-/// `out/pose-prior-<modality>.json`) — the classical baseline as SMPLify and MoSh run it (none
-/// for hmd: no weight helped there). Left out, with a note, where the clips are not found (an
-/// installed copy without `data/`).
+/// it) on the gradient variant of the energy (the parts') plus the shipped Gaussian pose prior
+/// of the CMU training clips ([`SHIPPED_POSE_PRIOR`]) — the classical baseline as SMPLify and
+/// MoSh run it (none for hmd: no weight helped there). Left out, with a note, where the file is
+/// not found.
 fn with_prior_parts(
     parts: Vec<(String, crate::study::bench::BenchConfig)>,
-    out: &Path,
 ) -> Result<Vec<(String, crate::study::bench::BenchConfig)>> {
-    let Ok(dir) = crate::shipped::locate(Path::new(PRIOR_MOTIONS)) else {
-        eprintln!(
-            "quickstart: {PRIOR_MOTIONS} not found (run from the lfit checkout): the LM + pose prior rows are left out"
-        );
-        return Ok(parts);
-    };
-    let mut motions: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .with_context(|| format!("cannot read {}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|x| x == "npz"))
-        .collect();
-    motions.sort();
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let mut priors = std::collections::BTreeMap::new();
     let mut all = Vec::with_capacity(2 * parts.len());
     for (part, config) in parts {
         let modality = config
@@ -574,32 +560,14 @@ fn with_prior_parts(
             .parse()
             .ok()
             .and_then(lfit_model::energy::default_pose_prior_weight);
-        if tuned.is_none() {
+        let file = SHIPPED_POSE_PRIOR.replace("{modality}", &modality);
+        let found = tuned.map(|_| crate::shipped::locate(Path::new(&file)));
+        let Some(Ok(energy)) = found else {
+            if let Some(Err(e)) = found {
+                eprintln!("quickstart: {e}: the {modality} pose-prior rows are left out");
+            }
             all.push((part, config));
             continue;
-        }
-        let energy = match priors.get(&modality) {
-            Some(e) => Clone::clone(e),
-            None => {
-                let e = out.join(format!("pose-prior-{modality}.json"));
-                crate::cli::motion::prior(&crate::cli::motion::PriorArgs {
-                    motions: motions.clone(),
-                    data: Vec::new(),
-                    model: config.template.clone(),
-                    stride: 1,
-                    epsilon_deg: crate::cli::motion::DEFAULT_EPSILON_DEG,
-                    weight: None,
-                    modality: modality.clone(),
-                    components: 1,
-                    seed: 0,
-                    held_out: Vec::new(),
-                    energy: None,
-                    out: e.clone(),
-                })
-                .with_context(|| format!("the pose prior of {PRIOR_MOTIONS}"))?;
-                priors.insert(modality, e.clone());
-                e
-            }
         };
         let mut twin = config.clone();
         twin.name = format!("{}{PRIOR_PART}", config.name);

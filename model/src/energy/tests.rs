@@ -1937,9 +1937,15 @@ mod least_squares_form {
         assert_eq!((rows.len(), rows.end, lf.dense_to), (n, ea, ea));
         // The prior's JᵀJ is added as its precomputed Gram block (W is constant): the
         // row-by-row reference sums its rows' products.
-        assert_eq!(lf.constant_gram.as_ref().map(|c| c.rows.clone()), Some(rows));
+        assert_eq!(
+            lf.constant_gram.as_ref().map(|c| c.rows.clone()),
+            Some(rows)
+        );
         for dofs in column_sets(t.layout().dim()) {
-            let (a, b) = (lf.normal_equations(&dofs), ls.normal_equations_by_row(&dofs));
+            let (a, b) = (
+                lf.normal_equations(&dofs),
+                ls.normal_equations_by_row(&dofs),
+            );
             let scale = b.0.amax();
             assert!(
                 (&a.0 - &b.0).amax() <= 1e-12 * scale,
