@@ -459,7 +459,11 @@ pub fn quickstart(
             .map(|r| r.frame)
             .collect::<std::collections::BTreeSet<_>>()
             .len();
-        let prior = part.ends_with(PRIOR_PART);
+        // The prior's weight, read once per part (the rows' labels name it).
+        let prior_weight = part
+            .ends_with(PRIOR_PART)
+            .then(|| config.energy_config().map(|(e, _)| e.weights.pose_prior))
+            .transpose()?;
         let base = part.strip_suffix(PRIOR_PART).unwrap_or(part);
         let data = match base.strip_suffix("-clip") {
             Some(m) => format!("{m}, captured clip ({frames_done} frames)"),
@@ -477,26 +481,22 @@ pub fn quickstart(
                 .as_deref()
                 .and_then(Path::file_name)
                 .map_or_else(String::new, |f| f.to_string_lossy().into_owned());
-            let label = if prior {
-                let w = config
-                    .energy_config()
-                    .map_or(f64::NAN, |(e, _)| e.weights.pose_prior);
-                let base = if method == crate::method::MethodKind::NeuralLm.name() {
-                    format!("neural+lm (checkpoints/{ck}, then LM)")
-                } else {
-                    method.to_string()
-                };
-                format!("{base} + pose prior (CMU train, weight {w}) @{budget}")
-            } else if method == crate::method::MethodKind::NeuralLm.name() {
-                format!("neural+lm (checkpoints/{ck}, then LM) @{budget}")
-            } else if method == neural {
+            let label = if method == neural {
                 let n = runs
                     .iter()
                     .find(|r| r.method == neural)
                     .map_or(0, |r| r.iterations);
                 format!("neural (checkpoints/{ck}, N = {n})")
             } else {
-                format!("{method} @{budget}")
+                let name = if method == crate::method::MethodKind::NeuralLm.name() {
+                    format!("neural+lm (checkpoints/{ck}, then LM)")
+                } else {
+                    method.to_string()
+                };
+                match prior_weight {
+                    Some(w) => format!("{name} + pose prior (CMU train, weight {w}) @{budget}"),
+                    None => format!("{name} @{budget}"),
+                }
             };
             let f = |key: &str| row[key].as_f64().unwrap_or(f64::NAN);
             let shape = if config.known_shape {

@@ -627,13 +627,20 @@ pub fn prior_energy(
     .with_context(|| format!("--components {}", args.components))?;
     // The squared Mahalanobis distance (to the active component) over the frames it was fitted
     // to: n on average for one Gaussian without ε.
+    // The term is that distance plus the active component's constant: one search per pose.
     let scores = |poses: &[Vec<f64>]| {
         let t = poses.len() as f64;
+        let (mut distance, mut term) = (0.0, 0.0);
+        for p in poses {
+            let (k, d) = prior.mahalanobis(p);
+            distance += d;
+            term += d + prior.components()[k].penalty();
+        }
         json!({
             "frames": poses.len(),
             "mean_log_likelihood": prior.log_likelihood(poses),
-            "mean_squared_mahalanobis": poses.iter().map(|p| prior.mahalanobis(p).1).sum::<f64>() / t,
-            "mean_term": poses.iter().map(|p| prior.value(p)).sum::<f64>() / t,
+            "mean_squared_mahalanobis": distance / t,
+            "mean_term": term / t,
         })
     };
     let fitted = scores(&poses);
