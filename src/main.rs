@@ -453,6 +453,11 @@ struct FitCmd {
     /// energy among θ0 … θN, one more evaluation: a step that made the fit worse is not kept).
     #[arg(long, default_value = "last")]
     neural_pick: String,
+    /// The neural fitter's first K iterations only (an early exit, 1 to the N the checkpoint
+    /// was trained for; each of those iterates was trained on): fewer evaluations and less
+    /// time, a less refined result; with neural+lm, LM takes over sooner. Default: all N.
+    #[arg(long, value_name = "K")]
+    neural_iterations: Option<usize>,
     /// How a sequence estimates the subject's shape β: per-frame (free in every frame's fit),
     /// first-pass (the median β of up to 32 frames fitted on their own, then fixed), joint (the
     /// sequence fitted once; one β solved with every frame's pose over up to 512 frames'
@@ -784,6 +789,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 checkpoint: c.checkpoint,
                 neural_start: c.neural_start,
                 neural_pick: c.neural_pick,
+                neural_iterations: c.neural_iterations,
                 device: c.device,
                 batch: c.batch,
                 runtime: c.runtime,

@@ -295,14 +295,16 @@ pub fn dofs_for(
 pub const NO_NEURAL: &str = "this build of lfit has no neural fitter: rebuild with the cargo feature `neural` (the Python wheel: maturin build --features neural)";
 
 /// The fitter of a neural method from the command line's words: `start` (`given`, `phi`,
-/// `best`), `pick` (`last`, `lowest`), `runtime` (`burn`, `ort`, `native`), the Burn `device`
+/// `best`), `pick` (`last`, `lowest`), `iterations` (an early exit), `runtime` (`burn`, `ort`, `native`), the Burn `device`
 /// and ONNX Runtime's threads.
 #[cfg(feature = "neural")]
+#[allow(clippy::too_many_arguments)]
 pub fn load_neural_named(
     kind: MethodKind,
     checkpoint: &std::path::Path,
     start: &str,
     pick: &str,
+    iterations: Option<usize>,
     runtime: &str,
     device: &str,
     ort_threads: Option<usize>,
@@ -314,6 +316,7 @@ pub fn load_neural_named(
             checkpoint,
             start: start.parse().map_err(anyhow::Error::msg)?,
             pick: pick.parse().map_err(anyhow::Error::msg)?,
+            iterations,
             runtime: runtime.parse().map_err(anyhow::Error::msg)?,
             device,
             ort_threads,
@@ -324,11 +327,13 @@ pub fn load_neural_named(
 
 /// Without the `neural` feature: the one-line error [`NO_NEURAL`].
 #[cfg(not(feature = "neural"))]
+#[allow(clippy::too_many_arguments)]
 pub fn load_neural_named(
     _kind: MethodKind,
     _checkpoint: &std::path::Path,
     _start: &str,
     _pick: &str,
+    _iterations: Option<usize>,
     _runtime: &str,
     _device: &str,
     _ort_threads: Option<usize>,
@@ -346,6 +351,8 @@ pub struct NeuralOptions<'a> {
     pub start: lfit_infer::Start,
     /// Which iterate a fit returns (`--neural-pick`).
     pub pick: lfit_infer::Pick,
+    /// The network's first K iterations only (`--neural-iterations`); `None`: all N.
+    pub iterations: Option<usize>,
     pub runtime: lfit_infer::Runtime,
     /// Burn device name (`ndarray`, `flex`, `wgpu`); Burn only.
     pub device: &'a str,
@@ -390,6 +397,10 @@ pub fn load_neural(kind: MethodKind, options: &NeuralOptions<'_>) -> Result<Box<
         )?,
     };
     let fitter = fitter.with_pick(options.pick);
+    let fitter = match options.iterations {
+        Some(k) => fitter.with_iterations(k)?,
+        None => fitter,
+    };
     Ok(match kind {
         MethodKind::NeuralLm => Box::new(lfit_infer::NeuralThenLm::new(fitter, options.dofs)?),
         _ => {

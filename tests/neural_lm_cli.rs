@@ -353,6 +353,120 @@ fn lowest_pick_returns_the_lowest_energy_iterate() {
     }
 }
 
+/// `--neural-iterations K` stops the network after its first K iterations: each frame's
+/// iterates are the full fit's first K + 1 (Burn and the native forward alike), at 2K
+/// evaluations, the method's name and the result saying so; `neural+lm` then runs LM from θK
+/// within the budget; K outside 1..=N, a budget short of 2K, and the flag on a classical method
+/// are refused with one line and nothing written.
+#[test]
+fn an_early_exit_runs_the_first_iterations_of_the_full_fit() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let data = synth(tmp.path(), "local.npz", "local", 8, 0x5EED_0012);
+    for runtime in ["burn", "native"] {
+        let run = |name: &str, extra: &[&str]| {
+            let mut args = vec!["--neural-start", "given", "--runtime", runtime];
+            args.extend(extra);
+            fit(
+                &data,
+                &tmp.path().join(format!("{runtime}-{name}.json")),
+                &args,
+            )
+        };
+        let full = run("full", &["--method", "neural", "--budget", "10"]);
+        let early = run(
+            "early",
+            &[
+                "--method",
+                "neural",
+                "--budget",
+                "4",
+                "--neural-iterations",
+                "2",
+            ],
+        );
+        let suffix = if runtime == "native" { "-native" } else { "" };
+        assert_eq!(early["method"], format!("neural-given-n2{suffix}"));
+        assert_eq!(full["method"], format!("neural-given{suffix}"));
+        assert_eq!(early["neural_iterations"], 2);
+        assert!(full.get("neural_iterations").is_none(), "no key by default");
+        for (a, b) in frames(&full).iter().zip(frames(&early)) {
+            assert_eq!(
+                (a["iterations"].clone(), b["iterations"].clone()),
+                (5.into(), 2.into())
+            );
+            assert_eq!(
+                (a["evaluations"].clone(), b["evaluations"].clone()),
+                (10.into(), 4.into())
+            );
+            let per = |r: &Value| -> Vec<f64> {
+                r["v2v_mm_per_iteration"]
+                    .as_array()
+                    .expect("per iteration")
+                    .iter()
+                    .map(num)
+                    .collect()
+            };
+            let (pa, pb) = (per(a), per(b));
+            assert_eq!(pa.len(), 6);
+            assert_eq!(
+                pb,
+                pa[..3].to_vec(),
+                "{runtime}: θ0 … θ2 are the full fit's"
+            );
+            assert_eq!(num(&b["v2v_mm"]), pa[2]);
+        }
+        let mean = |r: &Value| num(&r["summary"]["mean_v2v_mm"]);
+        assert!(
+            mean(&full) < mean(&early),
+            "{runtime}: the later iterations still refine"
+        );
+        let refined = run(
+            "nlm",
+            &[
+                "--method",
+                "neural+lm",
+                "--budget",
+                "60",
+                "--neural-iterations",
+                "2",
+            ],
+        );
+        assert_eq!(
+            refined["method"],
+            format!("neural-given-n2{suffix}+lm-observed")
+        );
+        for (a, b) in frames(&early).iter().zip(frames(&refined)) {
+            assert!(num(&b["energy"]) <= num(&a["energy"]));
+            let evaluations = num(&b["evaluations"]);
+            assert!(evaluations > 4.0 && evaluations <= 60.0, "{evaluations}");
+        }
+    }
+    for (extra, want) in [
+        (
+            ["--neural-iterations", "0", "--budget", "10"],
+            "0 iterations asked of a network trained for 5: choose 1 to 5",
+        ),
+        (
+            ["--neural-iterations", "6", "--budget", "20"],
+            "6 iterations asked of a network trained for 5: choose 1 to 5",
+        ),
+        (
+            ["--neural-iterations", "2", "--budget", "3"],
+            "budget 3 is below the 4 evaluations of 2 iterations",
+        ),
+    ] {
+        let mut args = vec!["--neural-start", "given"];
+        args.extend(extra);
+        refused(&data, tmp.path(), "neural", &args, want);
+    }
+    let no = tmp.path().join("lm.json");
+    assert_one_line_error(
+        &lm50(&data, &no, &["--neural-iterations", "2"]),
+        "--neural-iterations is only for --method neural or neural+lm",
+    );
+    assert!(!no.exists());
+}
+
 /// `neural+lm` spends the network's evaluations, then LM's from the network's result: its
 /// energy is never above the network's alone, its evaluations add up and stay within the budget,
 /// and its iterates are the network's followed by the final pose. By default (`--dofs observed`)

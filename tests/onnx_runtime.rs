@@ -287,6 +287,79 @@ fn every_step_of_every_shipped_checkpoint_matches_burn_within_1e_4() {
     }
 }
 
+/// An early exit (`NeuralFitter::with_iterations`, `lfit fit --neural-iterations`) runs the
+/// first K iterations of the full fit on every engine: Burn, the native forward and ONNX
+/// Runtime return the full fit's θ0 … θK, at 2K evaluations; K outside 1..=N is refused.
+#[test]
+fn an_early_exit_returns_the_full_fits_first_iterates_on_every_engine() {
+    let dir = shipped("markers");
+    let frames = frames_for(Modality::Markers, 6, 0x0078_0100);
+    let mut engines = vec![
+        (
+            "burn",
+            NeuralFitter::load(&dir, &ndarray_device(), Start::Given).expect("burn"),
+        ),
+        (
+            "native",
+            NeuralFitter::load_native(&dir, Start::Given).expect("native"),
+        ),
+    ];
+    if ort_ready() {
+        engines.push((
+            "ort",
+            NeuralFitter::load_ort(&dir, Start::Given, SessionOptions::default()).expect("ort"),
+        ));
+    }
+    let requests: Vec<FitRequest<'_>> = frames
+        .energies
+        .iter()
+        .zip(&frames.dataset.start_poses)
+        .map(|(energy, start)| FitRequest {
+            energy,
+            start: start.clone(),
+            mask: DofMask::local43(),
+            bounds: Bounds::local(start),
+            budget: 10,
+            seed: 0,
+        })
+        .collect();
+    for bad in [0, 6] {
+        let e = early_exit_error(&dir, bad);
+        assert!(
+            e.contains(&format!(
+                "{bad} iterations asked of a network trained for 5: choose 1 to 5"
+            )),
+            "{e}"
+        );
+    }
+    for (name, full) in engines {
+        let n = full.iterations();
+        assert_eq!(n, 5);
+        let whole = full.fit_batch(&requests).expect("full fit");
+        let early = full.with_iterations(2).expect("early exit");
+        assert_eq!(early.iterations(), 2);
+        assert_eq!(early.evaluations_per_fit(), 4);
+        let part = early.fit_batch(&requests).expect("early fit");
+        for (a, b) in whole.iter().zip(&part) {
+            assert_eq!(a.iterates.len(), 6);
+            assert_eq!(b.iterates, a.iterates[..3].to_vec(), "{name}");
+            assert_eq!(b.pose, a.iterates[2], "{name}");
+            assert_eq!((b.evaluations, b.iterations), (4, 2), "{name}");
+        }
+    }
+}
+
+/// The error of `with_iterations(k)` on the markers checkpoint.
+fn early_exit_error(dir: &Path, k: usize) -> String {
+    match NeuralFitter::load_native(dir, Start::Given)
+        .expect("native")
+        .with_iterations(k)
+    {
+        Ok(_) => panic!("{k} iterations accepted"),
+        Err(e) => e.to_string(),
+    }
+}
+
 #[test]
 fn full_fits_natively_and_with_onnx_runtime_end_within_1_mm_v2v_of_burn_per_shipped_checkpoint() {
     let with_ort = ort_ready();

@@ -20,7 +20,7 @@ use lfit_fitters::{FitError, FitRequest, FitResult, Fitter};
 use lfit_model::pose::{Bounds, FLOOR_SPREAD, LOCAL_TRANSLATION};
 use lfit_model::{Energy, ModelError};
 use lfit_nn::checkpoint::{self, Checkpoint, CheckpointMeta};
-use lfit_nn::{Constraints, Dropout, FeatureStats, NeuralNet, unroll};
+use lfit_nn::{Constraints, Dropout, FeatureStats, NeuralNet, unroll_for};
 
 /// Where θ0 comes from at inference.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -129,6 +129,9 @@ pub struct NeuralFitter {
     pub start: Start,
     /// Which iterate a fit returns ([`Pick::Last`] unless [`NeuralFitter::with_pick`]).
     pub pick: Pick,
+    /// Iterations a fit runs: the N the checkpoint was trained for, or fewer
+    /// ([`NeuralFitter::with_iterations`]).
+    iterations: usize,
     /// Models (with modality and residual length) already checked against the checkpoint: the
     /// check hashes the whole model (13,380 vertices and 16 shape directions take milliseconds),
     /// so it runs once per model, not once per call. A `Weak` keeps the model's allocation, so
@@ -168,6 +171,7 @@ impl NeuralFitter {
             meta, stats, net, ..
         } = checkpoint;
         Self {
+            iterations: meta.network.iterations,
             meta,
             stats,
             engine: Engine::Burn {
@@ -190,6 +194,7 @@ impl NeuralFitter {
         let host = lfit_nn::HostNet::new(&net, stats.clone())
             .map_err(|e| ModelError::Config(format!("{}: {e}", dir.display())))?;
         Ok(Self {
+            iterations: meta.network.iterations,
             meta,
             stats,
             engine: Engine::Native(Box::new(host)),
@@ -219,6 +224,7 @@ impl NeuralFitter {
             ));
         };
         Ok(Self {
+            iterations: network.meta.network.iterations,
             meta: network.meta.clone(),
             stats: network.stats.clone(),
             engine: Engine::Ort(Box::new(Mutex::new(network))),
@@ -239,7 +245,18 @@ impl NeuralFitter {
 
     /// Iterations N of one fit.
     pub fn iterations(&self) -> usize {
-        self.meta.network.iterations
+        self.iterations
+    }
+
+    /// The same fitter stopping after its first `iterations` iterations (`lfit fit
+    /// --neural-iterations`): 1 to the N it was trained for, an error naming the range
+    /// otherwise. Fewer iterations, fewer evaluations: the early iterates are those of the full
+    /// fit, each trained on (papers/002's loss reads every iterate).
+    pub fn with_iterations(mut self, iterations: usize) -> Result<Self, ModelError> {
+        lfit_nn::check_iterations(&self.meta.network, iterations)
+            .map_err(|e| ModelError::Config(format!("{}: {e}", self.dir.display())))?;
+        self.iterations = iterations;
+        Ok(self)
     }
 
     /// Checks that the checkpoint fits an energy (modality, residual size, template, and the
@@ -301,8 +318,7 @@ impl NeuralFitter {
     /// [`Start::Both`] the iterations twice and each fit's last iterate's energy (which the
     /// pick reads too).
     pub fn evaluations_per_fit(&self) -> usize {
-        let iterations =
-            self.meta.network.evaluations_per_iteration() * self.meta.network.iterations;
+        let iterations = self.meta.network.evaluations_per_iteration() * self.iterations;
         if self.start == Start::Both {
             return 2 * (iterations + 1);
         }
@@ -319,7 +335,7 @@ impl NeuralFitter {
         constraints: &Constraints,
     ) -> Result<Vec<Vec<Vec<f64>>>, FitError> {
         match &self.engine {
-            Engine::Burn { net, device } => Ok(unroll(
+            Engine::Burn { net, device } => Ok(unroll_for(
                 net,
                 &self.stats,
                 energies,
@@ -327,6 +343,7 @@ impl NeuralFitter {
                 Some(constraints),
                 device,
                 &mut Dropout::off(),
+                self.iterations,
             )
             .map_err(neural)?
             .host),
@@ -336,13 +353,23 @@ impl NeuralFitter {
                         "the ONNX Runtime session was poisoned by an earlier failure".into(),
                     )
                 })?;
-                lfit_nn::unroll_rows(&mut *network, energies, starts, Some(constraints))
-                    .map_err(neural)
+                lfit_nn::unroll_rows_for(
+                    &mut *network,
+                    energies,
+                    starts,
+                    Some(constraints),
+                    self.iterations,
+                )
+                .map_err(neural)
             }
-            Engine::Native(host) => {
-                lfit_nn::unroll_rows(&mut host.as_ref(), energies, starts, Some(constraints))
-                    .map_err(neural)
-            }
+            Engine::Native(host) => lfit_nn::unroll_rows_for(
+                &mut host.as_ref(),
+                energies,
+                starts,
+                Some(constraints),
+                self.iterations,
+            )
+            .map_err(neural),
         }
     }
 
@@ -353,7 +380,7 @@ impl NeuralFitter {
         if requests.is_empty() {
             return Ok(Vec::new());
         }
-        let n = self.meta.network.iterations;
+        let n = self.iterations;
         // `check` remembers the models it has checked: the signature hash runs once per model.
         for r in requests {
             self.check(r.energy).map_err(neural)?;
@@ -452,7 +479,7 @@ impl NeuralFitter {
 
     /// [`NeuralFitter::fit_batch`] on requests it has checked.
     fn fit_checked(&self, requests: &[FitRequest<'_>]) -> Result<Vec<FitResult>, FitError> {
-        let n = self.meta.network.iterations;
+        let n = self.iterations;
         let per_iteration = self.meta.network.evaluations_per_iteration();
         let timer = Instant::now();
         let e0: Vec<(u64, u64)> = requests
@@ -632,10 +659,14 @@ impl Fitter for NeuralFitter {
             Start::Best => "neural-best",
             Start::Both => "neural-both",
         };
-        let base = match self.pick {
+        let mut base = match self.pick {
             Pick::Last => start.to_string(),
             Pick::Lowest => format!("{start}-lowest"),
         };
+        // An early exit says how many iterations it ran.
+        if self.iterations != self.meta.network.iterations {
+            base = format!("{base}-n{}", self.iterations);
+        }
         match self.engine {
             Engine::Burn { .. } => base.into(),
             Engine::Ort(_) => format!("{base}-ort"),

@@ -305,6 +305,7 @@ fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
 /// built with the `neural` feature). `budget`: energy evaluations per frame. `frames`: a
 /// `--frames` string or a sequence of indices. `known_shape`: `"truth"` or β. `dofs`: `"all"`,
 /// `"observed"` or `"observed:DEG"` (`lfit fit --dofs`; default the method's own).
+/// `neural_iterations`: the network's first K iterations only (`lfit fit --neural-iterations`).
 /// `sequence_shape`: `"per-frame"` (default), `"first-pass"`, `"joint"` or `"joint:N"` (`lfit
 /// fit --sequence-shape`). `marker_placement`: `"model"` (default) or `"solve"` (`lfit fit
 /// --marker-placement`). `offsets`: a file of where the markers or keypoints sit (`lfit fit
@@ -314,7 +315,7 @@ fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
 /// `progress(done, total)` is called after each frame. Runs with the GIL released; Ctrl-C stops
 /// it between frames (`KeyboardInterrupt`).
 #[pyfunction]
-#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", sequence_shape="per-frame", marker_placement="model", offsets=None, holdout=None, dofs=None, device="flex", runtime="burn", ort_threads=None, progress=None))]
+#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", neural_iterations=None, sequence_shape="per-frame", marker_placement="model", offsets=None, holdout=None, dofs=None, device="flex", runtime="burn", ort_threads=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn fit(
     py: Python<'_>,
@@ -336,6 +337,7 @@ pub fn fit(
     batch: usize,
     neural_start: &str,
     neural_pick: &str,
+    neural_iterations: Option<usize>,
     sequence_shape: &str,
     marker_placement: &str,
     offsets: Option<PathBuf>,
@@ -370,6 +372,7 @@ pub fn fit(
         checkpoint,
         neural_start: neural_start.to_string(),
         neural_pick: neural_pick.to_string(),
+        neural_iterations,
         device: device.to_string(),
         batch,
         runtime: runtime.to_string(),

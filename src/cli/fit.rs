@@ -182,6 +182,9 @@ pub struct FitArgs {
     pub neural_start: String,
     /// `last` or `lowest` ([`lfit_infer::Pick`] by name).
     pub neural_pick: String,
+    /// `--neural-iterations K`: the network's first K iterations only (an early exit); `None`:
+    /// the N it was trained for.
+    pub neural_iterations: Option<usize>,
     pub device: String,
     pub batch: usize,
     /// `burn` or `ort`, and ONNX Runtime's intra-op threads.
@@ -298,6 +301,7 @@ fn prepare(
             dir,
             &args.neural_start,
             &args.neural_pick,
+            args.neural_iterations,
             &args.runtime,
             &args.device,
             args.ort_threads,
@@ -309,6 +313,9 @@ fn prepare(
         }
         if args.runtime != "burn" || args.ort_threads.is_some() {
             bail!("--runtime and --ort-threads are only for --method neural or neural+lm");
+        }
+        if args.neural_iterations.is_some() {
+            bail!("--neural-iterations is only for --method neural or neural+lm");
         }
         dofs = crate::method::dofs_for(args.method, args.dofs.as_deref(), modality)?;
         crate::method::build_classic(
@@ -729,6 +736,9 @@ fn fit_prepared(
         // Only when not the default, so that earlier results keep their keys.
         if args.neural_pick != "last" {
             out["neural_pick"] = json!(args.neural_pick);
+        }
+        if let Some(k) = args.neural_iterations {
+            out["neural_iterations"] = json!(k);
         }
     }
     // Which entries moved, where not all of them (the method's name says it too).

@@ -105,6 +105,9 @@ pub struct BenchConfig {
     /// --neural-pick`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub neural_pick: Option<String>,
+    /// A neural method's first K iterations only (`lfit fit --neural-iterations`); absent: all N.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub neural_iterations: Option<usize>,
     /// What runs a neural method's network: `burn` (default, on flex), `native` (lfit's own f32
     /// forward, the fastest at batch 1) or `ort` (ONNX Runtime); as `lfit fit --runtime`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -791,6 +794,7 @@ pub fn run(
                 dir,
                 config.neural_start.as_deref().unwrap_or("given"),
                 config.neural_pick.as_deref().unwrap_or("last"),
+                config.neural_iterations,
                 config.runtime.as_deref().unwrap_or("burn"),
                 "flex",
                 None,

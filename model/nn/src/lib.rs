@@ -25,8 +25,8 @@ pub use host::HostNet;
 pub use layers::Dropout;
 pub use net::{NeuralNet, State, StepSizes};
 pub use unroll::{
-    Constraints, RowNetwork, RowState, StepOut, Unrolled, direction, initial_poses,
-    initial_poses_rows, unroll, unroll_rows,
+    Constraints, RowNetwork, RowState, StepOut, Unrolled, check_iterations, direction,
+    initial_poses, initial_poses_rows, unroll, unroll_for, unroll_rows, unroll_rows_for,
 };
 
 #[cfg(test)]

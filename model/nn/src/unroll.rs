@@ -54,6 +54,18 @@ fn to_host(t: &Tensor<2>, dim: usize) -> Result<Vec<Vec<f64>>> {
         .collect())
 }
 
+/// Checks an early exit ([`unroll_for`]): between 1 and the N iterations the network was
+/// trained for (each of its first N iterates was trained on; beyond N none was).
+pub fn check_iterations(config: &NetConfig, iterations: usize) -> Result<()> {
+    if iterations == 0 || iterations > config.iterations {
+        return Err(ModelError::Config(format!(
+            "{iterations} iterations asked of a network trained for {}: choose 1 to {}",
+            config.iterations, config.iterations
+        )));
+    }
+    Ok(())
+}
+
 /// Checks a batch against the network: at least one frame, one start entry per frame, every
 /// frame of the network's modality, and for a pooled network every frame a `keypoints2d` rig of
 /// its keypoints.
@@ -367,7 +379,35 @@ pub fn unroll(
     device: &Device,
     dropout: &mut Dropout<'_>,
 ) -> Result<Unrolled> {
+    let n = net.config.iterations;
+    unroll_for(
+        net,
+        stats,
+        energies,
+        starts,
+        constraints,
+        device,
+        dropout,
+        n,
+    )
+}
+
+/// [`unroll`] stopped after its first `iterations` iterations (1 ≤ `iterations` ≤ the N the
+/// network was built for): the early exit of `lfit fit --neural-iterations`. Each iterate is
+/// the one the full unroll computes (the same weights, inputs and state up to it).
+#[allow(clippy::too_many_arguments)]
+pub fn unroll_for(
+    net: &NeuralNet,
+    stats: &FeatureStats,
+    energies: &[&Energy],
+    starts: &[Option<Vec<f64>>],
+    constraints: Option<&Constraints>,
+    device: &Device,
+    dropout: &mut Dropout<'_>,
+    iterations: usize,
+) -> Result<Unrolled> {
     let c = &net.config;
+    check_iterations(c, iterations)?;
     check_batch(c, energies, starts)?;
     let batch = energies.len();
 
@@ -413,7 +453,7 @@ pub fn unroll(
 
     let mut host = vec![to_host(&theta, dim)?];
     let mut poses = vec![theta.clone()];
-    for n in 0..c.iterations {
+    for n in 0..iterations {
         let current = host.last().cloned().unwrap_or_default();
         // R(θ) and g(θ) on the CPU (detached inputs).
         let evals = evaluate(
@@ -447,7 +487,7 @@ pub fn unroll(
     Ok(Unrolled {
         poses,
         host,
-        residual_evaluations: (c.evaluations_per_iteration() * c.iterations) as u64,
+        residual_evaluations: (c.evaluations_per_iteration() * iterations) as u64,
     })
 }
 
@@ -545,7 +585,20 @@ pub fn unroll_rows<N: RowNetwork>(
     starts: &[Option<Vec<f64>>],
     constraints: Option<&Constraints>,
 ) -> std::result::Result<Vec<Vec<Vec<f64>>>, N::Error> {
+    let n = net.config().iterations;
+    unroll_rows_for(net, energies, starts, constraints, n)
+}
+
+/// [`unroll_rows`] stopped after its first `iterations` iterations, as [`unroll_for`].
+pub fn unroll_rows_for<N: RowNetwork>(
+    net: &mut N,
+    energies: &[&Energy],
+    starts: &[Option<Vec<f64>>],
+    constraints: Option<&Constraints>,
+    iterations: usize,
+) -> std::result::Result<Vec<Vec<Vec<f64>>>, N::Error> {
     let c = net.config().clone();
+    check_iterations(&c, iterations)?;
     check_batch(&c, energies, starts)?;
     let batch = energies.len();
     let obs_norm = observation_rows(&c, net.stats(), energies)?;
@@ -571,7 +624,7 @@ pub fn unroll_rows<N: RowNetwork>(
     };
     constrain(&mut theta);
     let mut host = vec![rows_to_poses(&theta, dim)];
-    for n in 0..c.iterations {
+    for n in 0..iterations {
         let current = host.last().cloned().unwrap_or_default();
         let evals = evaluate(
             &c,

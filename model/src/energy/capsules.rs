@@ -39,6 +39,10 @@ struct Capsule {
     joint: usize,
     ends: [DVec3; 2],
     radius: f64,
+    /// The axis midpoint (an offset like `ends`) and half the axis length: the capsule's
+    /// bounding ball, which a rigid joint transform moves without changing its size.
+    mid: DVec3,
+    half_length: f64,
 }
 
 /// The capsules of a template's segments and the pairs EP tests.
@@ -47,6 +51,9 @@ pub(crate) struct Capsules {
     capsules: Vec<Capsule>,
     /// Indices into `capsules` (`a < b`); the pair's term is in capsule `a`'s residual row.
     pub(crate) pairs: Vec<(u16, u16)>,
+    /// Per pair: the squared distance of the two bounding balls' centres from which the pair
+    /// cannot touch, `(h_a + h_b + r_a + r_b)²`, and `1 / (r_a + r_b)²`.
+    reach: Vec<(f64, f64)>,
     /// `κ`: EP = κ Σ (1 − q)²₊.
     pub(crate) scale: f64,
 }
@@ -88,10 +95,13 @@ impl Capsules {
                 let radius = 0.5 * (axes[1].0 + axes[2].0);
                 let half = (axes[0].0 - radius).max(0.0) * axes[0].1;
                 let offset = e.centre - e.joint_rest;
+                let ends = [offset + half, offset - half];
                 Capsule {
                     joint: e.joint,
-                    ends: [offset + half, offset - half],
+                    ends,
                     radius,
+                    mid: 0.5 * (ends[0] + ends[1]),
+                    half_length: 0.5 * (ends[1] - ends[0]).length(),
                 }
             })
             .collect();
@@ -113,9 +123,19 @@ impl Capsules {
                 }
             }
         }
+        let reach = pairs
+            .iter()
+            .map(|&(a, b)| {
+                let (ca, cb) = (&capsules[a as usize], &capsules[b as usize]);
+                let r = ca.radius + cb.radius;
+                let reach = ca.half_length + cb.half_length + r;
+                (reach * reach, 1.0 / (r * r))
+            })
+            .collect();
         let mut out = Self {
             capsules,
             pairs,
+            reach,
             scale: 1.0,
         };
         out.scale = out.calibrate(template, penetration);
@@ -154,39 +174,28 @@ impl Capsules {
         }
     }
 
-    /// The posed axis ends of every capsule.
-    fn posed(&self, kin: &Kinematics) -> Vec<[DVec3; 2]> {
-        self.capsules
-            .iter()
-            .map(|c| {
-                let a = &kin.transforms[c.joint];
-                let rest = kin.rest_joints[c.joint];
-                c.ends.map(|o| a.transform_point3(rest + o))
-            })
-            .collect()
-    }
-
-    /// The overlapping pairs.
+    /// The overlapping pairs. The bounding balls (each capsule's posed axis midpoint, and the
+    /// pair's reach precomputed: the joint transforms are rigid) rule out most pairs; the axis
+    /// ends are posed only for the capsules of the pairs left.
     fn contacts(&self, kin: &Kinematics) -> Vec<Contact> {
-        let posed = self.posed(kin);
-        // Bounding balls, once per capsule: the axis midpoint and half length.
-        let balls: Vec<(DVec3, f64)> = posed
-            .iter()
-            .map(|e| (0.5 * (e[0] + e[1]), 0.5 * (e[1] - e[0]).length()))
-            .collect();
+        let place = |c: &Capsule, o: DVec3| {
+            kin.transforms[c.joint].transform_point3(kin.rest_joints[c.joint] + o)
+        };
+        let mids: Vec<DVec3> = self.capsules.iter().map(|c| place(c, c.mid)).collect();
+        let mut posed: Vec<Option<[DVec3; 2]>> = vec![None; self.capsules.len()];
+        let mut ends = |k: usize| {
+            *posed[k].get_or_insert_with(|| {
+                let c = &self.capsules[k];
+                c.ends.map(|o| place(c, o))
+            })
+        };
         let mut out = Vec::new();
-        for &(a, b) in &self.pairs {
+        for (&(a, b), &(reach2, inv_r2)) in self.pairs.iter().zip(&self.reach) {
             let (a, b) = (a as usize, b as usize);
-            let r = self.capsules[a].radius + self.capsules[b].radius;
-            // Bounding balls first: the axis midpoints, half lengths plus radii.
-            let ((ma, ha), (mb, hb)) = (balls[a], balls[b]);
-            let reach = ha + hb + r;
-            if ma.distance_squared(mb) >= reach * reach {
+            if mids[a].distance_squared(mids[b]) >= reach2 {
                 continue;
             }
-            let (ea, eb) = (posed[a], posed[b]);
-            let (pa, pb) = closest_points(ea, eb);
-            let inv_r2 = 1.0 / (r * r);
+            let (pa, pb) = closest_points(ends(a), ends(b));
             let q = pa.distance_squared(pb) * inv_r2;
             if q < 1.0 {
                 out.push(Contact {
@@ -200,6 +209,44 @@ impl Capsules {
             }
         }
         out
+    }
+
+    /// Every pair's contact, without the bounding balls (for tests of [`Capsules::contacts`]):
+    /// `(a, b, p_a, p_b, 1 − q)` of the pairs that overlap.
+    #[cfg(test)]
+    pub(super) fn contacts_of_every_pair(
+        &self,
+        kin: &Kinematics,
+    ) -> Vec<(usize, usize, DVec3, DVec3, f64)> {
+        let ends = |c: &Capsule| {
+            let t = &kin.transforms[c.joint];
+            c.ends
+                .map(|o| t.transform_point3(kin.rest_joints[c.joint] + o))
+        };
+        let mut out = Vec::new();
+        for &(a, b) in &self.pairs {
+            let (a, b) = (a as usize, b as usize);
+            let (ca, cb) = (&self.capsules[a], &self.capsules[b]);
+            let r = ca.radius + cb.radius;
+            let (pa, pb) = closest_points(ends(ca), ends(cb));
+            let q = pa.distance_squared(pb) * (1.0 / (r * r));
+            if q < 1.0 {
+                out.push((a, b, pa, pb, 1.0 - q));
+            }
+        }
+        out
+    }
+
+    /// [`Capsules::contacts`] as tuples, for tests.
+    #[cfg(test)]
+    pub(super) fn contacts_found(
+        &self,
+        kin: &Kinematics,
+    ) -> Vec<(usize, usize, DVec3, DVec3, f64)> {
+        self.contacts(kin)
+            .into_iter()
+            .map(|c| (c.a, c.b, c.pa, c.pb, c.depth))
+            .collect()
     }
 
     /// EP, accumulating its gradient (times the given scale) into the adjoint when given.

@@ -2520,6 +2520,39 @@ fn capsules_see_the_penetrations_the_vertex_form_sees() {
     }
 }
 
+/// The bounding balls of `Capsules::contacts` (the pair's reach precomputed from the rest
+/// capsules, the midpoints posed) rule out only pairs that do not touch: over poses from near
+/// rest to limbs through the torso, with shapes, the contacts found are every pair's contacts,
+/// bit for bit, on both bodies — and poses with contacts are among them.
+#[test]
+fn capsule_bounding_balls_rule_out_only_pairs_that_do_not_touch() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4433);
+    for (name, t) in [("default", template()), ("makehuman", makehuman_body())] {
+        let penetration = super::prior::Penetration::new(&t, 16);
+        let caps = capsules::Capsules::new(&t, &penetration);
+        let dim = t.layout().dim();
+        let mut touching = 0;
+        for case in 0..400 {
+            let amplitude = [0.05, 0.5, 1.2, 2.5][case % 4];
+            let mut p: Vec<f64> = (0..dim)
+                .map(|_| rng.random_range(-amplitude..amplitude))
+                .collect();
+            for b in p.iter_mut().skip(t.layout().pose_dim()) {
+                *b = rng.random_range(-2.0..2.0);
+            }
+            let kin = crate::body::kinematics::Kinematics::build(&t, &p, false);
+            let every = caps.contacts_of_every_pair(&kin);
+            assert_eq!(caps.contacts_found(&kin), every, "{name}, pose {case}");
+            touching += usize::from(!every.is_empty());
+        }
+        assert!(
+            touching >= 100,
+            "{name}: {touching} of 400 poses with contacts"
+        );
+    }
+}
+
 #[test]
 fn capsule_closest_points_are_those_of_a_dense_search() {
     use rand::{Rng, SeedableRng};
