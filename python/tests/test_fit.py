@@ -218,6 +218,12 @@ def test_neural_fit_and_a_checkpoint_of_another_model(makehuman, markers_file, c
     # the CLI's fits, never above the fit from Φ(D) alone on these single frames.
     both = as_cli(22, "neural_start", "both")
     assert all(a <= b * (1 + 1e-9) for a, b in zip(both.energies, burn.energies))
+    # neural_iterations=2 (an early exit: the network's first 2 iterations, 4 evaluations): the
+    # CLI's fits, not the full fit's.
+    early = as_cli(4, "neural_iterations", 2)
+    assert not np.allclose(early.energies, burn.energies)
+    with pytest.raises(lfit.LfitError, match="6 iterations asked of a network trained for 5: choose 1 to 5"):
+        lfit.fit(makehuman, markers_file, method="neural", budget=12, checkpoint=ck, neural_iterations=6)
     with pytest.raises(lfit.LfitError, match="unknown neural start 'all' \\(expected phi, given, best or both\\)"):
         lfit.fit(makehuman, markers_file, method="neural", budget=22, checkpoint=ck, neural_start="all")
     with pytest.raises(lfit.LfitError, match="unknown neural pick 'first'"):
