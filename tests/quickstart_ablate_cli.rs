@@ -79,6 +79,19 @@ fn quickstart_compares_every_method_on_every_sparse_modality() {
                 std::fs::read_to_string(out_dir.join(format!("{m}-prior/runs.csv"))).expect("csv");
             assert_eq!(csv.lines().count(), 1 + 2 * 3);
         }
+        // The network stopped after its first 3 iterations: its own part, one run per frame at
+        // 6 evaluations.
+        let early =
+            format!("| {m} (3 frames) | neural (checkpoints/{m}-makehuman, first 3 iterations) |");
+        let row = table.lines().find(|l| l.starts_with(&early));
+        let Some(row) = row else {
+            panic!("{early}:\n{table}")
+        };
+        let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+        assert_eq!(cells[8], "6", "{row}");
+        let csv =
+            std::fs::read_to_string(out_dir.join(format!("{m}-early/runs.csv"))).expect("csv");
+        assert_eq!(csv.lines().count(), 1 + 3);
         let dir = out_dir.join(m);
         let md = std::fs::read_to_string(dir.join("report.md")).expect("report");
         assert!(md.contains("papers/002 Table 2"), "{md}");
@@ -150,6 +163,7 @@ fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
     for m in ["markers", "keypoints2d"] {
         for method in [
             "neural (checkpoints/MOD-makehuman, N = 5)",
+            "neural (checkpoints/MOD-makehuman, first 3 iterations)",
             "lbfgs @40",
             "lm @40",
             "cma @40",

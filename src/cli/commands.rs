@@ -365,8 +365,9 @@ pub struct QuickstartClip {
 /// `lfit quickstart`: the README's main job. Synthesises a small held-out set per sparse
 /// modality on the study's model (the `learned-vs-classical` preset: the MakeHuman body), fits
 /// it with the shipped neural fitter, L-BFGS, Levenberg–Marquardt, CMA-ES and PSO on the same
-/// energy (at `frames` frames and one `budget`), and with LM and `neural+lm` on that energy plus
-/// a pose prior ([`with_prior_parts`]), writes each part's report and plots under
+/// energy (at `frames` frames and one `budget`), with the network stopped after its first
+/// [`QUICKSTART_EARLY_EXIT`] iterations ([`with_early_exit_parts`]) and with LM and `neural+lm`
+/// on that energy plus a pose prior ([`with_prior_parts`]), writes each part's report and plots under
 /// `out/<modality>/` and `out/comparison.md`, and returns the comparison table (Markdown): the
 /// rows of each report's papers/002 Table 2. With `clip`, the markers and keypoints2d studies are
 /// repeated on every frame of a captured motion (a sequence, each frame warm-started from the
@@ -444,7 +445,7 @@ pub fn quickstart(
         }
         parts.extend(extra);
     }
-    let parts = with_prior_parts(parts)?;
+    let parts = with_early_exit_parts(with_prior_parts(parts)?)?;
     let mut table = String::from(
         "| data | method | V2V (mm) | MPJPE (mm) | PA-MPJPE (mm) | shape RMS | final energy | evaluations | time / frame (ms) |\n|---|---|---|---|---|---|---|---|---|\n",
     );
@@ -464,7 +465,10 @@ pub fn quickstart(
             .ends_with(PRIOR_PART)
             .then(|| config.energy_config().map(|(e, _)| e.weights.pose_prior))
             .transpose()?;
-        let base = part.strip_suffix(PRIOR_PART).unwrap_or(part);
+        let base = part
+            .strip_suffix(PRIOR_PART)
+            .or_else(|| part.strip_suffix(EARLY_PART))
+            .unwrap_or(part);
         let data = match base.strip_suffix("-clip") {
             Some(m) => format!("{m}, captured clip ({frames_done} frames)"),
             None => format!("{base} ({frames_done} frames)"),
@@ -486,7 +490,10 @@ pub fn quickstart(
                     .iter()
                     .find(|r| r.method == neural)
                     .map_or(0, |r| r.iterations);
-                format!("neural (checkpoints/{ck}, N = {n})")
+                match config.neural_iterations {
+                    Some(k) => format!("neural (checkpoints/{ck}, first {k} iterations)"),
+                    None => format!("neural (checkpoints/{ck}, N = {n})"),
+                }
             } else {
                 let name = if method == crate::method::MethodKind::NeuralLm.name() {
                     format!("neural+lm (checkpoints/{ck}, then LM)")
@@ -527,10 +534,48 @@ pub fn quickstart(
             |f| f.to_string_lossy().into_owned(),
         );
     let text = format!(
-        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": on the same energy plus the Gaussian pose prior of lfit's CMU training clips (configs/pose-prior-cmu-<modality>.json, `lfit motion prior`; LM with it is SMPLify's classical baseline), whose final energy includes the prior's term.\n\n{table}"
+        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": on the same energy plus the Gaussian pose prior of lfit's CMU training clips (configs/pose-prior-cmu-<modality>.json, `lfit motion prior`; LM with it is SMPLify's classical baseline), whose final energy includes the prior's term. \"first {QUICKSTART_EARLY_EXIT} iterations\": the same network stopped early (`lfit fit --neural-iterations {QUICKSTART_EARLY_EXIT}`).\n\n{table}"
     );
     write_atomic(&out.join("comparison.md"), text.as_bytes())?;
     Ok(text)
+}
+
+/// Suffix of the quickstart's parts with the network stopped early.
+const EARLY_PART: &str = "-early";
+
+/// Iterations of the quickstart's early-exit rows (`lfit fit --neural-iterations`): the first 3
+/// of the shipped networks' 5, ahead of LM on every set of `docs/results/captured-motion.md`
+/// round 24 at 0.4–0.7× its time.
+pub const QUICKSTART_EARLY_EXIT: usize = 3;
+
+/// After each part with the neural fitter, its twin with the network stopped after its first
+/// [`QUICKSTART_EARLY_EXIT`] iterations (the same frames, data and runtime): the faster
+/// operating point of the same checkpoint.
+fn with_early_exit_parts(
+    parts: Vec<(String, crate::study::bench::BenchConfig)>,
+) -> Result<Vec<(String, crate::study::bench::BenchConfig)>> {
+    let mut all = Vec::with_capacity(2 * parts.len());
+    for (part, config) in parts {
+        let neural = crate::method::MethodKind::Neural;
+        let twin = config
+            .methods
+            .iter()
+            .any(|m| m.kind == neural)
+            .then(|| -> Result<_> {
+                let mut twin = config.clone();
+                twin.name = format!("{}{EARLY_PART}", config.name);
+                twin.methods = vec![neural.name().parse()?];
+                twin.neural_iterations = Some(QUICKSTART_EARLY_EXIT);
+                twin.validate()?;
+                Ok(twin)
+            })
+            .transpose()?;
+        all.push((part.clone(), config));
+        if let Some(twin) = twin {
+            all.push((format!("{part}{EARLY_PART}"), twin));
+        }
+    }
+    Ok(all)
 }
 
 /// Suffix of the quickstart's parts with the pose prior.
