@@ -458,6 +458,12 @@ struct FitCmd {
     /// time, a less refined result; with neural+lm, LM takes over sooner. Default: all N.
     #[arg(long, value_name = "K")]
     neural_iterations: Option<usize>,
+    /// Stop a frame's network once an iteration (the second or later) lowered the energy by
+    /// less than TOL of it, e.g. 0.1 — a relative decrease, as LM's function tolerance; at most
+    /// --neural-iterations (default all N). One frame per network pass (--batch 1); not with
+    /// --neural-start both or --neural-pick lowest. Default: no energy rule (papers/002).
+    #[arg(long, value_name = "TOL")]
+    neural_tolerance: Option<f64>,
     /// How a sequence estimates the subject's shape β: per-frame (free in every frame's fit),
     /// first-pass (the median β of up to 32 frames fitted on their own, then fixed), joint (the
     /// sequence fitted once; one β solved with every frame's pose over up to 512 frames'
@@ -790,6 +796,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 neural_start: c.neural_start,
                 neural_pick: c.neural_pick,
                 neural_iterations: c.neural_iterations,
+                neural_tolerance: c.neural_tolerance,
                 device: c.device,
                 batch: c.batch,
                 runtime: c.runtime,

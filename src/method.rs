@@ -295,7 +295,7 @@ pub fn dofs_for(
 pub const NO_NEURAL: &str = "this build of lfit has no neural fitter: rebuild with the cargo feature `neural` (the Python wheel: maturin build --features neural)";
 
 /// The fitter of a neural method from the command line's words: `start` (`given`, `phi`,
-/// `best`), `pick` (`last`, `lowest`), `iterations` (an early exit), `runtime` (`burn`, `ort`, `native`), the Burn `device`
+/// `best`), `pick` (`last`, `lowest`), `iterations` and `tolerance` (an early exit), `runtime` (`burn`, `ort`, `native`), the Burn `device`
 /// and ONNX Runtime's threads.
 #[cfg(feature = "neural")]
 #[allow(clippy::too_many_arguments)]
@@ -305,6 +305,7 @@ pub fn load_neural_named(
     start: &str,
     pick: &str,
     iterations: Option<usize>,
+    tolerance: Option<f64>,
     runtime: &str,
     device: &str,
     ort_threads: Option<usize>,
@@ -317,6 +318,7 @@ pub fn load_neural_named(
             start: start.parse().map_err(anyhow::Error::msg)?,
             pick: pick.parse().map_err(anyhow::Error::msg)?,
             iterations,
+            tolerance,
             runtime: runtime.parse().map_err(anyhow::Error::msg)?,
             device,
             ort_threads,
@@ -334,6 +336,7 @@ pub fn load_neural_named(
     _start: &str,
     _pick: &str,
     _iterations: Option<usize>,
+    _tolerance: Option<f64>,
     _runtime: &str,
     _device: &str,
     _ort_threads: Option<usize>,
@@ -353,6 +356,8 @@ pub struct NeuralOptions<'a> {
     pub pick: lfit_infer::Pick,
     /// The network's first K iterations only (`--neural-iterations`); `None`: all N.
     pub iterations: Option<usize>,
+    /// The energy rule that stops a frame's network early (`--neural-tolerance`).
+    pub tolerance: Option<f64>,
     pub runtime: lfit_infer::Runtime,
     /// Burn device name (`ndarray`, `flex`, `wgpu`); Burn only.
     pub device: &'a str,
@@ -399,6 +404,10 @@ pub fn load_neural(kind: MethodKind, options: &NeuralOptions<'_>) -> Result<Box<
     let fitter = fitter.with_pick(options.pick);
     let fitter = match options.iterations {
         Some(k) => fitter.with_iterations(k)?,
+        None => fitter,
+    };
+    let fitter = match options.tolerance {
+        Some(t) => fitter.with_tolerance(t)?,
         None => fitter,
     };
     Ok(match kind {

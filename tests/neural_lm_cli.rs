@@ -357,7 +357,8 @@ fn lowest_pick_returns_the_lowest_energy_iterate() {
 /// iterates are the full fit's first K + 1 (Burn and the native forward alike), at 2K
 /// evaluations, the method's name and the result saying so; `neural+lm` then runs LM from θK
 /// within the budget; K outside 1..=N, a budget short of 2K, and the flag on a classical method
-/// are refused with one line and nothing written.
+/// are refused with one line and nothing written. `--neural-tolerance` stops each frame on its
+/// energy, and refuses what it cannot serve.
 #[test]
 fn an_early_exit_runs_the_first_iterations_of_the_full_fit() {
     let tmp = tempfile::tempdir().expect("tmp");
@@ -459,12 +460,78 @@ fn an_early_exit_runs_the_first_iterations_of_the_full_fit() {
         args.extend(extra);
         refused(&data, tmp.path(), "neural", &args, want);
     }
-    let no = tmp.path().join("lm.json");
-    assert_one_line_error(
-        &lm50(&data, &no, &["--neural-iterations", "2"]),
-        "--neural-iterations is only for --method neural or neural+lm",
+    // The energy rule: each frame stops at the first θk (k ≥ 2) whose step lowered the energy
+    // by less than the tolerance of it, at 2k + 1 evaluations (10 when it runs all 5).
+    let tol = fit(
+        &data,
+        &tmp.path().join("tol.json"),
+        &[
+            "--method",
+            "neural",
+            "--budget",
+            "10",
+            "--neural-start",
+            "given",
+            "--neural-tolerance",
+            "0.2",
+        ],
     );
-    assert!(!no.exists());
+    assert_eq!(tol["method"], "neural-given-tol0.2");
+    assert_eq!(tol["neural_tolerance"], 0.2);
+    let mut stopped = 0;
+    for f in frames(&tol) {
+        let k = num(&f["iterations"]) as u64;
+        assert!((2..=5).contains(&k), "{k}");
+        let want = if k < 5 { 2 * k + 1 } else { 10 };
+        assert_eq!(f["evaluations"], want);
+        stopped += usize::from(k < 5);
+    }
+    assert!(stopped > 0, "no frame stopped early");
+    for (extra, want) in [
+        (
+            vec!["--neural-tolerance", "0", "--budget", "10"],
+            "neural tolerance 0: a relative energy decrease between 0 and 1 (exclusive)",
+        ),
+        (
+            vec![
+                "--neural-tolerance",
+                "0.1",
+                "--budget",
+                "10",
+                "--batch",
+                "4",
+            ],
+            "fit one frame per network pass (--batch 1), not 4",
+        ),
+        (
+            vec![
+                "--neural-tolerance",
+                "0.1",
+                "--budget",
+                "11",
+                "--neural-pick",
+                "lowest",
+            ],
+            "not with --neural-start both or --neural-pick lowest",
+        ),
+    ] {
+        let mut args = vec!["--neural-start", "given"];
+        args.extend(extra);
+        refused(&data, tmp.path(), "neural", &args, want);
+    }
+    for flag in ["--neural-iterations", "--neural-tolerance"] {
+        let no = tmp.path().join("lm.json");
+        let value = if flag == "--neural-tolerance" {
+            "0.1"
+        } else {
+            "2"
+        };
+        assert_one_line_error(
+            &lm50(&data, &no, &[flag, value]),
+            "--neural-iterations and --neural-tolerance are only for --method neural or neural+lm",
+        );
+        assert!(!no.exists());
+    }
 }
 
 /// `neural+lm` spends the network's evaluations, then LM's from the network's result: its

@@ -349,6 +349,113 @@ fn an_early_exit_returns_the_full_fits_first_iterates_on_every_engine() {
     }
 }
 
+/// The energy rule (`NeuralFitter::with_tolerance`, `lfit fit --neural-tolerance`) stops each
+/// frame at the first θk (k ≥ 2) whose iteration lowered the energy by less than the tolerance
+/// of it, on every engine: the iterates are the full fit's first k + 1, the iterations before
+/// it did not stall, it costs 2k + 1 evaluations (10 when it runs all 5); bad tolerances, a
+/// batch of two and the start and pick choices it cannot serve are refused.
+#[test]
+fn an_energy_tolerance_stops_each_frame_where_its_step_stalls_on_every_engine() {
+    const TOL: f64 = 0.2;
+    let dir = shipped("markers");
+    let frames = frames_for(Modality::Markers, 12, 0x0078_0200);
+    let load = |engine: &str, start: Start| match engine {
+        "burn" => NeuralFitter::load(&dir, &ndarray_device(), start).expect("burn"),
+        "native" => NeuralFitter::load_native(&dir, start).expect("native"),
+        _ => NeuralFitter::load_ort(&dir, start, SessionOptions::default()).expect("ort"),
+    };
+    let mut engines = vec!["burn", "native"];
+    if ort_ready() {
+        engines.push("ort");
+    }
+    let requests: Vec<FitRequest<'_>> = frames
+        .energies
+        .iter()
+        .zip(&frames.dataset.start_poses)
+        .map(|(energy, start)| FitRequest {
+            energy,
+            start: start.clone(),
+            mask: DofMask::local43(),
+            bounds: Bounds::local(start),
+            budget: 10,
+            seed: 0,
+        })
+        .collect();
+    for name in engines {
+        // One frame per pass, as the tolerance runs (Burn's batched products round apart).
+        let full = load(name, Start::Given);
+        let whole: Vec<_> = requests
+            .iter()
+            .map(|r| {
+                full.fit_batch(std::slice::from_ref(r))
+                    .expect("full fit")
+                    .pop()
+                    .expect("one")
+            })
+            .collect();
+        let tol = load(name, Start::Given)
+            .with_tolerance(TOL)
+            .expect("tolerance");
+        let (mut stopped, mut ran) = (0, 0);
+        for (a, r) in whole.iter().zip(&requests) {
+            let b = tol
+                .fit_batch(std::slice::from_ref(r))
+                .expect("fit")
+                .pop()
+                .expect("one");
+            let k = b.iterations as usize;
+            assert!((2..=5).contains(&k), "{name}: {k} iterations");
+            assert_eq!(b.iterates, a.iterates[..=k].to_vec(), "{name}");
+            assert_eq!(b.pose, a.iterates[k], "{name}");
+            let e: Vec<f64> = a.trace.iter().map(|t| t.1).collect();
+            let decrease = |j: usize| (e[j - 1] - e[j]) / e[j - 1];
+            for j in 2..k {
+                assert!(
+                    decrease(j) >= TOL - 1e-9,
+                    "{name}: θ{j} stalled ({})",
+                    decrease(j)
+                );
+            }
+            if k < 5 {
+                assert!(
+                    decrease(k) < TOL + 1e-9,
+                    "{name}: stopped at θ{k} ({})",
+                    decrease(k)
+                );
+                assert_eq!(b.evaluations, 2 * k as u64 + 1, "{name}");
+                stopped += 1;
+            } else {
+                assert_eq!(b.evaluations, 10, "{name}");
+                ran += 1;
+            }
+        }
+        eprintln!("{name}: tolerance {TOL} stopped {stopped} of 12 frames early, {ran} ran all 5");
+        assert!(
+            stopped > 0,
+            "{name}: no frame stopped: the rule was not exercised"
+        );
+        let e = tol.fit_batch(&requests[..2]).expect_err("a batch of two");
+        assert!(e.to_string().contains("(--batch 1), not 2"), "{e}");
+    }
+    for bad in [0.0, 1.0, f64::NAN, -0.1] {
+        let e = load("native", Start::Given)
+            .with_tolerance(bad)
+            .expect_err("bad tolerance");
+        assert!(
+            e.to_string()
+                .contains("a relative energy decrease between 0 and 1"),
+            "{e}"
+        );
+    }
+    let e = load("native", Start::Both)
+        .with_tolerance(TOL)
+        .expect_err("both starts");
+    assert!(
+        e.to_string().contains("not with --neural-start both"),
+        "{e}"
+    );
+}
+
 /// The error of `with_iterations(k)` on the markers checkpoint.
 fn early_exit_error(dir: &Path, k: usize) -> String {
     match NeuralFitter::load_native(dir, Start::Given)

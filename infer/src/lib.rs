@@ -132,6 +132,8 @@ pub struct NeuralFitter {
     /// Iterations a fit runs: the N the checkpoint was trained for, or fewer
     /// ([`NeuralFitter::with_iterations`]).
     iterations: usize,
+    /// The energy rule that may stop a fit before them ([`NeuralFitter::with_tolerance`]).
+    tolerance: Option<f64>,
     /// Models (with modality and residual length) already checked against the checkpoint: the
     /// check hashes the whole model (13,380 vertices and 16 shape directions take milliseconds),
     /// so it runs once per model, not once per call. A `Weak` keeps the model's allocation, so
@@ -181,6 +183,7 @@ impl NeuralFitter {
             dir: dir.to_path_buf(),
             start,
             pick: Pick::Last,
+            tolerance: None,
             verified: Mutex::new(Vec::new()),
         }
     }
@@ -201,6 +204,7 @@ impl NeuralFitter {
             dir: dir.to_path_buf(),
             start,
             pick: Pick::Last,
+            tolerance: None,
             verified: Mutex::new(Vec::new()),
         })
     }
@@ -231,6 +235,7 @@ impl NeuralFitter {
             dir: dir.to_path_buf(),
             start,
             pick: Pick::Last,
+            tolerance: None,
             verified: Mutex::new(Vec::new()),
         })
     }
@@ -257,6 +262,34 @@ impl NeuralFitter {
             .map_err(|e| ModelError::Config(format!("{}: {e}", self.dir.display())))?;
         self.iterations = iterations;
         Ok(self)
+    }
+
+    /// The same fitter stopping a frame's fit at θk (k ≥ 2) once the iteration that made it
+    /// lowered the energy by less than `tolerance` of it (`lfit fit --neural-tolerance`;
+    /// [`lfit_nn::Exit`]): at most its iterations, and 2k + 1 evaluations when it stops at θk
+    /// (θk's own evaluation decides). Between 0 and 1; one frame per network pass, the last
+    /// iterate returned from one start ([`Start::Both`] and [`Pick::Lowest`] are refused).
+    pub fn with_tolerance(mut self, tolerance: f64) -> Result<Self, ModelError> {
+        let exit = lfit_nn::Exit {
+            iterations: self.iterations,
+            tolerance: Some(tolerance),
+        };
+        exit.check(&self.meta.network, 1)?;
+        if self.start == Start::Both || self.pick == Pick::Lowest {
+            return Err(ModelError::Config(
+                "the neural tolerance stops one fit on its last iterate: not with --neural-start both or --neural-pick lowest".into(),
+            ));
+        }
+        self.tolerance = Some(tolerance);
+        Ok(self)
+    }
+
+    /// When the loop stops.
+    fn exit(&self) -> lfit_nn::Exit {
+        lfit_nn::Exit {
+            iterations: self.iterations,
+            tolerance: self.tolerance,
+        }
     }
 
     /// Checks that the checkpoint fits an energy (modality, residual size, template, and the
@@ -343,7 +376,7 @@ impl NeuralFitter {
                 Some(constraints),
                 device,
                 &mut Dropout::off(),
-                self.iterations,
+                self.exit(),
             )
             .map_err(neural)?
             .host),
@@ -358,7 +391,7 @@ impl NeuralFitter {
                     energies,
                     starts,
                     Some(constraints),
-                    self.iterations,
+                    self.exit(),
                 )
                 .map_err(neural)
             }
@@ -367,7 +400,7 @@ impl NeuralFitter {
                 energies,
                 starts,
                 Some(constraints),
-                self.iterations,
+                self.exit(),
             )
             .map_err(neural),
         }
@@ -381,6 +414,11 @@ impl NeuralFitter {
             return Ok(Vec::new());
         }
         let n = self.iterations;
+        if self.tolerance.is_some() && (self.start == Start::Both || self.pick == Pick::Lowest) {
+            return Err(FitError::Neural(
+                "the neural tolerance stops one fit on its last iterate: not with --neural-start both or --neural-pick lowest".into(),
+            ));
+        }
         // `check` remembers the models it has checked: the signature hash runs once per model.
         for r in requests {
             self.check(r.energy).map_err(neural)?;
@@ -479,7 +517,6 @@ impl NeuralFitter {
 
     /// [`NeuralFitter::fit_batch`] on requests it has checked.
     fn fit_checked(&self, requests: &[FitRequest<'_>]) -> Result<Vec<FitResult>, FitError> {
-        let n = self.iterations;
         let per_iteration = self.meta.network.evaluations_per_iteration();
         let timer = Instant::now();
         let e0: Vec<(u64, u64)> = requests
@@ -540,6 +577,10 @@ impl NeuralFitter {
                 r.bounds.clamp(p);
             }
         }
+        // Iterations run: all of them, or with the energy rule (one frame, one fit) those before
+        // it stopped; then θn was evaluated by the loop too (counted there).
+        let n = runs[0].len() - 1;
+        let stopped = self.tolerance.is_some() && n < self.iterations;
         let residual_evaluations = (per_iteration * n) as u64;
         let time_s = timer.elapsed().as_secs_f64() / requests.len() as f64;
         let name = self.name();
@@ -604,10 +645,13 @@ impl NeuralFitter {
                         })
                         .collect()
                 } else {
+                    // The start's and the pick's evaluations, then 2 per iteration (and θn's own
+                    // where the energy rule stopped there).
+                    let extra = self.evaluations_per_fit() - per_iteration * self.iterations;
                     (0..=n)
                         .map(|k| {
                             (
-                                (self.evaluations_per_fit() - per_iteration * (n - k)) as u64,
+                                (extra + per_iteration * k + usize::from(stopped && k == n)) as u64,
                                 energies[0][k],
                             )
                         })
@@ -666,6 +710,9 @@ impl Fitter for NeuralFitter {
         // An early exit says how many iterations it ran.
         if self.iterations != self.meta.network.iterations {
             base = format!("{base}-n{}", self.iterations);
+        }
+        if let Some(t) = self.tolerance {
+            base = format!("{base}-tol{t}");
         }
         match self.engine {
             Engine::Burn { .. } => base.into(),

@@ -306,6 +306,8 @@ fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
 /// `--frames` string or a sequence of indices. `known_shape`: `"truth"` or β. `dofs`: `"all"`,
 /// `"observed"` or `"observed:DEG"` (`lfit fit --dofs`; default the method's own).
 /// `neural_iterations`: the network's first K iterations only (`lfit fit --neural-iterations`).
+/// `neural_tolerance`: stop a frame's network once an iteration lowered the energy by less than
+/// that fraction (`lfit fit --neural-tolerance`).
 /// `sequence_shape`: `"per-frame"` (default), `"first-pass"`, `"joint"` or `"joint:N"` (`lfit
 /// fit --sequence-shape`). `marker_placement`: `"model"` (default) or `"solve"` (`lfit fit
 /// --marker-placement`). `offsets`: a file of where the markers or keypoints sit (`lfit fit
@@ -315,7 +317,7 @@ fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
 /// `progress(done, total)` is called after each frame. Runs with the GIL released; Ctrl-C stops
 /// it between frames (`KeyboardInterrupt`).
 #[pyfunction]
-#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", neural_iterations=None, sequence_shape="per-frame", marker_placement="model", offsets=None, holdout=None, dofs=None, device="flex", runtime="burn", ort_threads=None, progress=None))]
+#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", neural_iterations=None, neural_tolerance=None, sequence_shape="per-frame", marker_placement="model", offsets=None, holdout=None, dofs=None, device="flex", runtime="burn", ort_threads=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn fit(
     py: Python<'_>,
@@ -338,6 +340,7 @@ pub fn fit(
     neural_start: &str,
     neural_pick: &str,
     neural_iterations: Option<usize>,
+    neural_tolerance: Option<f64>,
     sequence_shape: &str,
     marker_placement: &str,
     offsets: Option<PathBuf>,
@@ -373,6 +376,7 @@ pub fn fit(
         neural_start: neural_start.to_string(),
         neural_pick: neural_pick.to_string(),
         neural_iterations,
+        neural_tolerance,
         device: device.to_string(),
         batch,
         runtime: runtime.to_string(),

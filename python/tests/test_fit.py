@@ -222,6 +222,10 @@ def test_neural_fit_and_a_checkpoint_of_another_model(makehuman, markers_file, c
     # CLI's fits, not the full fit's.
     early = as_cli(4, "neural_iterations", 2)
     assert not np.allclose(early.energies, burn.energies)
+    # neural_tolerance=0.2 (each frame stops where its step lowers the energy by < 20 %): the CLI's.
+    as_cli(10, "neural_tolerance", 0.2)
+    with pytest.raises(lfit.LfitError, match="neural tolerance 1.5: a relative energy decrease between 0 and 1"):
+        lfit.fit(makehuman, markers_file, method="neural", budget=10, checkpoint=ck, neural_tolerance=1.5)
     with pytest.raises(lfit.LfitError, match="6 iterations asked of a network trained for 5: choose 1 to 5"):
         lfit.fit(makehuman, markers_file, method="neural", budget=12, checkpoint=ck, neural_iterations=6)
     with pytest.raises(lfit.LfitError, match="unknown neural start 'all' \\(expected phi, given, best or both\\)"):

@@ -185,6 +185,8 @@ pub struct FitArgs {
     /// `--neural-iterations K`: the network's first K iterations only (an early exit); `None`:
     /// the N it was trained for.
     pub neural_iterations: Option<usize>,
+    /// `--neural-tolerance TOL`: the energy rule that stops a frame's network early.
+    pub neural_tolerance: Option<f64>,
     pub device: String,
     pub batch: usize,
     /// `burn` or `ort`, and ONNX Runtime's intra-op threads.
@@ -302,6 +304,7 @@ fn prepare(
             &args.neural_start,
             &args.neural_pick,
             args.neural_iterations,
+            args.neural_tolerance,
             &args.runtime,
             &args.device,
             args.ort_threads,
@@ -314,8 +317,10 @@ fn prepare(
         if args.runtime != "burn" || args.ort_threads.is_some() {
             bail!("--runtime and --ort-threads are only for --method neural or neural+lm");
         }
-        if args.neural_iterations.is_some() {
-            bail!("--neural-iterations is only for --method neural or neural+lm");
+        if args.neural_iterations.is_some() || args.neural_tolerance.is_some() {
+            bail!(
+                "--neural-iterations and --neural-tolerance are only for --method neural or neural+lm"
+            );
         }
         dofs = crate::method::dofs_for(args.method, args.dofs.as_deref(), modality)?;
         crate::method::build_classic(
@@ -739,6 +744,9 @@ fn fit_prepared(
         }
         if let Some(k) = args.neural_iterations {
             out["neural_iterations"] = json!(k);
+        }
+        if let Some(t) = args.neural_tolerance {
+            out["neural_tolerance"] = json!(t);
         }
     }
     // Which entries moved, where not all of them (the method's name says it too).

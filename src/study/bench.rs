@@ -108,6 +108,9 @@ pub struct BenchConfig {
     /// A neural method's first K iterations only (`lfit fit --neural-iterations`); absent: all N.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub neural_iterations: Option<usize>,
+    /// A neural method's energy rule (`lfit fit --neural-tolerance`); absent: none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub neural_tolerance: Option<f64>,
     /// What runs a neural method's network: `burn` (default, on flex), `native` (lfit's own f32
     /// forward, the fastest at batch 1) or `ort` (ONNX Runtime); as `lfit fit --runtime`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -795,6 +798,7 @@ pub fn run(
                 config.neural_start.as_deref().unwrap_or("given"),
                 config.neural_pick.as_deref().unwrap_or("last"),
                 config.neural_iterations,
+                config.neural_tolerance,
                 config.runtime.as_deref().unwrap_or("burn"),
                 "flex",
                 None,

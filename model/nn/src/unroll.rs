@@ -66,6 +66,55 @@ pub fn check_iterations(config: &NetConfig, iterations: usize) -> Result<()> {
     Ok(())
 }
 
+/// When the learned loop stops ([`unroll_for`], [`unroll_rows_for`]; `lfit fit
+/// --neural-iterations`, `--neural-tolerance`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Exit {
+    /// At most this many iterations (1 to the N the network was trained for).
+    pub iterations: usize,
+    /// The energy rule: the loop stops at θk, k ≥ 2, once the iteration that made it lowered
+    /// the energy by less than this fraction, `E(θk−1) − E(θk) < tolerance · E(θk−1)` (a
+    /// relative decrease, as a classical optimizer's function tolerance; θk's energy comes with
+    /// its Gauss-Newton direction, which is then not used). `None`: every iteration runs. One
+    /// frame per batch: the frames of a batch would stop apart.
+    pub tolerance: Option<f64>,
+}
+
+impl Exit {
+    /// Every one of `iterations`, no energy rule.
+    pub fn after(iterations: usize) -> Self {
+        Self {
+            iterations,
+            tolerance: None,
+        }
+    }
+
+    /// Checks the exit against the network ([`check_iterations`]) and the batch: a tolerance
+    /// is finite, in (0, 1), and for one frame at a time.
+    pub fn check(&self, config: &NetConfig, batch: usize) -> Result<()> {
+        check_iterations(config, self.iterations)?;
+        if let Some(t) = self.tolerance {
+            if !(t > 0.0 && t < 1.0) {
+                return Err(ModelError::Config(format!(
+                    "neural tolerance {t}: a relative energy decrease between 0 and 1 (exclusive)"
+                )));
+            }
+            if batch > 1 {
+                return Err(ModelError::Config(format!(
+                    "the neural tolerance stops each frame on its own energy: fit one frame per network pass (--batch 1), not {batch}"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether the loop stops at θn, given E(θn−1) (`previous`) and E(θn) (`energy`).
+    fn stops(&self, n: usize, previous: f64, energy: f64) -> bool {
+        self.tolerance
+            .is_some_and(|t| n >= 2 && previous - energy < t * previous)
+    }
+}
+
 /// Checks a batch against the network: at least one frame, one start entry per frame, every
 /// frame of the network's modality, and for a pooled network every frame a `keypoints2d` rig of
 /// its keypoints.
@@ -205,16 +254,20 @@ fn residual_and_direction(
     pose: &[f64],
     free: Option<&[bool]>,
     with_residual: bool,
-) -> Result<(Vec<f64>, Vec<f64>)> {
-    let (r, mut g) = match config.direction {
-        Direction::Gradient => (
-            if with_residual {
-                energy.residual(pose)
-            } else {
-                Vec::new()
-            },
-            energy.evaluate_with_gradient(pose).1.to_vec(),
-        ),
+) -> Result<(Vec<f64>, Vec<f64>, f64)> {
+    let (r, mut g, value) = match config.direction {
+        Direction::Gradient => {
+            let (e, g) = energy.evaluate_with_gradient(pose);
+            (
+                if with_residual {
+                    energy.residual(pose)
+                } else {
+                    Vec::new()
+                },
+                g,
+                e.total,
+            )
+        }
         Direction::GaussNewton => {
             // The normal equations read the data rows in factored form where there is one.
             let ls = energy.least_squares_with(
@@ -238,6 +291,7 @@ fn residual_and_direction(
                 )
                 .unwrap_or_else(|| vec![0.0; pose.len()]);
             let cap = config.gn_max_step;
+            let value = ls.value();
             (
                 if with_residual {
                     ls.observation_residual
@@ -245,6 +299,7 @@ fn residual_and_direction(
                     Vec::new()
                 },
                 h.iter().map(|v| -v.clamp(-cap, cap)).collect(),
+                value,
             )
         }
     };
@@ -253,7 +308,7 @@ fn residual_and_direction(
             *x = 0.0;
         }
     }
-    Ok((r, g))
+    Ok((r, g, value))
 }
 
 /// R(θ) and the update direction g(θ) ([`direction`]) of every frame at its current pose, on
@@ -264,7 +319,17 @@ pub fn evaluate(
     current: &[Vec<f64>],
     free: Option<&[Vec<bool>]>,
 ) -> Result<Vec<(Vec<f64>, Vec<f64>)>> {
-    energies
+    Ok(evaluate_with_energy(config, energies, current, free)?.0)
+}
+
+/// [`evaluate`] and every frame's energy at its current pose (from the same evaluation).
+pub fn evaluate_with_energy(
+    config: &NetConfig,
+    energies: &[&Energy],
+    current: &[Vec<f64>],
+    free: Option<&[Vec<bool>]>,
+) -> Result<(Vec<(Vec<f64>, Vec<f64>)>, Vec<f64>)> {
+    let all: Vec<(Vec<f64>, Vec<f64>, f64)> = energies
         .par_iter()
         .zip(current.par_iter())
         .enumerate()
@@ -272,7 +337,8 @@ pub fn evaluate(
             let f = free.and_then(|f| f.get(i)).map(Vec::as_slice);
             residual_and_direction(config, e, p, f, true)
         })
-        .collect()
+        .collect::<Result<_>>()?;
+    Ok(all.into_iter().map(|(r, g, e)| ((r, g), e)).unzip())
 }
 
 /// The normalised core inputs `[R(θ), g, θ, D]` (R as the residual features of
@@ -388,12 +454,13 @@ pub fn unroll(
         constraints,
         device,
         dropout,
-        n,
+        Exit::after(n),
     )
 }
 
-/// [`unroll`] stopped after its first `iterations` iterations (1 ≤ `iterations` ≤ the N the
-/// network was built for): the early exit of `lfit fit --neural-iterations`. Each iterate is
+/// [`unroll`] stopped by `exit`: after its first `exit.iterations` iterations (1 to the N the
+/// network was built for; `lfit fit --neural-iterations`) or, with a tolerance, once an
+/// iteration lowers the energy by less than that fraction (`--neural-tolerance`). Each iterate is
 /// the one the full unroll computes (the same weights, inputs and state up to it).
 #[allow(clippy::too_many_arguments)]
 pub fn unroll_for(
@@ -404,10 +471,10 @@ pub fn unroll_for(
     constraints: Option<&Constraints>,
     device: &Device,
     dropout: &mut Dropout<'_>,
-    iterations: usize,
+    exit: Exit,
 ) -> Result<Unrolled> {
     let c = &net.config;
-    check_iterations(c, iterations)?;
+    exit.check(c, energies.len())?;
     check_batch(c, energies, starts)?;
     let batch = energies.len();
 
@@ -453,15 +520,20 @@ pub fn unroll_for(
 
     let mut host = vec![to_host(&theta, dim)?];
     let mut poses = vec![theta.clone()];
-    for n in 0..iterations {
+    let mut previous = f64::INFINITY;
+    for n in 0..exit.iterations {
         let current = host.last().cloned().unwrap_or_default();
-        // R(θ) and g(θ) on the CPU (detached inputs).
-        let evals = evaluate(
+        // R(θ) and g(θ) on the CPU (detached inputs), and E(θ) for the energy rule.
+        let (evals, values) = evaluate_with_energy(
             c,
             energies,
             &current,
             constraints.map(|k| k.free.as_slice()),
         )?;
+        if exit.stops(n, previous, values[0]) {
+            break;
+        }
+        previous = values[0];
         let core_in = core_rows(c, stats, energies, &evals, &current, &obs_norm)?;
         let mut delta = net.propose(n, rows_tensor(&core_in, batch, device), &mut state, dropout);
         let mut grad = poses_to_tensor(
@@ -484,10 +556,11 @@ pub fn unroll_for(
         host.push(to_host(&theta, dim)?);
         poses.push(theta.clone());
     }
+    let residual_evaluations = (c.evaluations_per_iteration() * (host.len() - 1)) as u64;
     Ok(Unrolled {
         poses,
         host,
-        residual_evaluations: (c.evaluations_per_iteration() * iterations) as u64,
+        residual_evaluations,
     })
 }
 
@@ -586,19 +659,19 @@ pub fn unroll_rows<N: RowNetwork>(
     constraints: Option<&Constraints>,
 ) -> std::result::Result<Vec<Vec<Vec<f64>>>, N::Error> {
     let n = net.config().iterations;
-    unroll_rows_for(net, energies, starts, constraints, n)
+    unroll_rows_for(net, energies, starts, constraints, Exit::after(n))
 }
 
-/// [`unroll_rows`] stopped after its first `iterations` iterations, as [`unroll_for`].
+/// [`unroll_rows`] stopped by `exit`, as [`unroll_for`].
 pub fn unroll_rows_for<N: RowNetwork>(
     net: &mut N,
     energies: &[&Energy],
     starts: &[Option<Vec<f64>>],
     constraints: Option<&Constraints>,
-    iterations: usize,
+    exit: Exit,
 ) -> std::result::Result<Vec<Vec<Vec<f64>>>, N::Error> {
     let c = net.config().clone();
-    check_iterations(&c, iterations)?;
+    exit.check(&c, energies.len())?;
     check_batch(&c, energies, starts)?;
     let batch = energies.len();
     let obs_norm = observation_rows(&c, net.stats(), energies)?;
@@ -624,14 +697,19 @@ pub fn unroll_rows_for<N: RowNetwork>(
     };
     constrain(&mut theta);
     let mut host = vec![rows_to_poses(&theta, dim)];
-    for n in 0..iterations {
+    let mut previous = f64::INFINITY;
+    for n in 0..exit.iterations {
         let current = host.last().cloned().unwrap_or_default();
-        let evals = evaluate(
+        let (evals, values) = evaluate_with_energy(
             &c,
             energies,
             &current,
             constraints.map(|k| k.free.as_slice()),
         )?;
+        if exit.stops(n, previous, values[0]) {
+            break;
+        }
+        previous = values[0];
         let core_in = core_rows(&c, net.stats(), energies, &evals, &current, &obs_norm)?;
         let mut delta = net.propose(n, &core_in, batch, &mut state)?;
         let mut grad: Vec<f32> = evals
