@@ -61,6 +61,24 @@ fn shipped(m: &str) -> PathBuf {
         .join(m)
 }
 
+/// One request per frame of `frames`: its start, the local scenario's mask and box around the
+/// start, a budget of 10 (the shipped networks' 2N).
+fn local_requests(frames: &Frames) -> Vec<FitRequest<'_>> {
+    frames
+        .energies
+        .iter()
+        .zip(&frames.dataset.start_poses)
+        .map(|(energy, start)| FitRequest {
+            energy,
+            start: start.clone(),
+            mask: DofMask::local43(),
+            bounds: Bounds::local(start),
+            budget: 10,
+            seed: 0,
+        })
+        .collect()
+}
+
 fn frames_for(modality: Modality, n: usize, seed: u64) -> Frames {
     let template = Arc::new(default_template());
     let sensor = Sensor::default_for(modality, &template);
@@ -310,19 +328,7 @@ fn an_early_exit_returns_the_full_fits_first_iterates_on_every_engine() {
             NeuralFitter::load_ort(&dir, Start::Given, SessionOptions::default()).expect("ort"),
         ));
     }
-    let requests: Vec<FitRequest<'_>> = frames
-        .energies
-        .iter()
-        .zip(&frames.dataset.start_poses)
-        .map(|(energy, start)| FitRequest {
-            energy,
-            start: start.clone(),
-            mask: DofMask::local43(),
-            bounds: Bounds::local(start),
-            budget: 10,
-            seed: 0,
-        })
-        .collect();
+    let requests = local_requests(&frames);
     for bad in [0, 6] {
         let e = early_exit_error(&dir, bad);
         assert!(
@@ -368,19 +374,7 @@ fn an_energy_tolerance_stops_each_frame_where_its_step_stalls_on_every_engine() 
     if ort_ready() {
         engines.push("ort");
     }
-    let requests: Vec<FitRequest<'_>> = frames
-        .energies
-        .iter()
-        .zip(&frames.dataset.start_poses)
-        .map(|(energy, start)| FitRequest {
-            energy,
-            start: start.clone(),
-            mask: DofMask::local43(),
-            bounds: Bounds::local(start),
-            budget: 10,
-            seed: 0,
-        })
-        .collect();
+    let requests = local_requests(&frames);
     for name in engines {
         // One frame per pass, as the tolerance runs (Burn's batched products round apart).
         let full = load(name, Start::Given);
@@ -482,19 +476,7 @@ fn full_fits_natively_and_with_onnx_runtime_end_within_1_mm_v2v_of_burn_per_ship
                 NeuralFitter::load_ort(&dir, Start::Given, SessionOptions::default()).expect("ort");
             others.push(("ort", ort));
         }
-        let requests: Vec<FitRequest<'_>> = frames
-            .energies
-            .iter()
-            .zip(&frames.dataset.start_poses)
-            .map(|(energy, start)| FitRequest {
-                energy,
-                start: start.clone(),
-                mask: DofMask::local43(),
-                bounds: Bounds::local(start),
-                budget: 10,
-                seed: 0,
-            })
-            .collect();
+        let requests = local_requests(&frames);
         let a = burn.fit_batch(&requests).expect("burn fit");
         for (runtime, other) in &others {
             let b = other.fit_batch(&requests).expect("other fit");

@@ -147,6 +147,9 @@ type Verified = (
     usize,
 );
 
+/// Why [`NeuralFitter::with_tolerance`] refuses two starts or the lowest-energy pick.
+const TOLERANCE_ONE_FIT: &str = "the neural tolerance stops one fit on its last iterate: not with --neural-start both or --neural-pick lowest";
+
 fn neural(e: impl std::fmt::Display) -> FitError {
     FitError::Neural(e.to_string())
 }
@@ -276,9 +279,7 @@ impl NeuralFitter {
         };
         exit.check(&self.meta.network, 1)?;
         if self.start == Start::Both || self.pick == Pick::Lowest {
-            return Err(ModelError::Config(
-                "the neural tolerance stops one fit on its last iterate: not with --neural-start both or --neural-pick lowest".into(),
-            ));
+            return Err(ModelError::Config(TOLERANCE_ONE_FIT.into()));
         }
         self.tolerance = Some(tolerance);
         Ok(self)
@@ -415,9 +416,7 @@ impl NeuralFitter {
         }
         let n = self.iterations;
         if self.tolerance.is_some() && (self.start == Start::Both || self.pick == Pick::Lowest) {
-            return Err(FitError::Neural(
-                "the neural tolerance stops one fit on its last iterate: not with --neural-start both or --neural-pick lowest".into(),
-            ));
+            return Err(FitError::Neural(TOLERANCE_ONE_FIT.into()));
         }
         // `check` remembers the models it has checked: the signature hash runs once per model.
         for r in requests {
