@@ -460,8 +460,9 @@ struct FitCmd {
     neural_iterations: Option<usize>,
     /// Stop a frame's network once an iteration (the second or later) lowered the energy by
     /// less than TOL of it, e.g. 0.1 — a relative decrease, as LM's function tolerance; at most
-    /// --neural-iterations (default all N). One frame per network pass (--batch 1); not with
-    /// --neural-start both or --neural-pick lowest. Default: no energy rule (papers/002).
+    /// --neural-iterations (default all N). In a batch each frame stops on its own (its θ
+    /// held, its energy no longer evaluated). Not with --neural-start both or --neural-pick
+    /// lowest. Default: no energy rule (papers/002).
     #[arg(long, value_name = "TOL")]
     neural_tolerance: Option<f64>,
     /// How a sequence estimates the subject's shape β: per-frame (free in every frame's fit),

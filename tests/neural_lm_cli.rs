@@ -497,17 +497,6 @@ fn an_early_exit_runs_the_first_iterations_of_the_full_fit() {
                 "--neural-tolerance",
                 "0.1",
                 "--budget",
-                "10",
-                "--batch",
-                "4",
-            ],
-            "fit one frame per network pass (--batch 1), not 4",
-        ),
-        (
-            vec![
-                "--neural-tolerance",
-                "0.1",
-                "--budget",
                 "11",
                 "--neural-pick",
                 "lowest",

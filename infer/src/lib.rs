@@ -270,14 +270,15 @@ impl NeuralFitter {
     /// The same fitter stopping a frame's fit at θk (k ≥ 2) once the iteration that made it
     /// lowered the energy by less than `tolerance` of it (`lfit fit --neural-tolerance`;
     /// [`lfit_nn::Exit`]): at most its iterations, and 2k + 1 evaluations when it stops at θk
-    /// (θk's own evaluation decides). Between 0 and 1; one frame per network pass, the last
-    /// iterate returned from one start ([`Start::Both`] and [`Pick::Lowest`] are refused).
+    /// (θk's own evaluation decides). Between 0 and 1; in a batch each frame stops on its own;
+    /// the last iterate returned from one start ([`Start::Both`] and [`Pick::Lowest`] are
+    /// refused).
     pub fn with_tolerance(mut self, tolerance: f64) -> Result<Self, ModelError> {
         let exit = lfit_nn::Exit {
             iterations: self.iterations,
             tolerance: Some(tolerance),
         };
-        exit.check(&self.meta.network, 1)?;
+        exit.check(&self.meta.network)?;
         if self.start == Start::Both || self.pick == Pick::Lowest {
             return Err(ModelError::Config(TOLERANCE_ONE_FIT.into()));
         }
@@ -361,26 +362,30 @@ impl NeuralFitter {
         iterations + choose + pick
     }
 
-    /// θ0 … θN of every frame, `[N + 1][B]`, from the engine.
+    /// θ0 … θN of every frame, `[N + 1][B]`, from the engine, and the iterations each frame ran
+    /// (fewer than N where the energy rule stopped it; its θ held after that).
+    #[allow(clippy::type_complexity)]
     fn run(
         &self,
         energies: &[&Energy],
         starts: &[Option<Vec<f64>>],
         constraints: &Constraints,
-    ) -> Result<Vec<Vec<Vec<f64>>>, FitError> {
+    ) -> Result<(Vec<Vec<Vec<f64>>>, Vec<usize>), FitError> {
         match &self.engine {
-            Engine::Burn { net, device } => Ok(unroll_for(
-                net,
-                &self.stats,
-                energies,
-                starts,
-                Some(constraints),
-                device,
-                &mut Dropout::off(),
-                self.exit(),
-            )
-            .map_err(neural)?
-            .host),
+            Engine::Burn { net, device } => {
+                let unrolled = unroll_for(
+                    net,
+                    &self.stats,
+                    energies,
+                    starts,
+                    Some(constraints),
+                    device,
+                    &mut Dropout::off(),
+                    self.exit(),
+                )
+                .map_err(neural)?;
+                Ok((unrolled.host, unrolled.iterations))
+            }
             Engine::Ort(network) => {
                 let mut network = network.lock().map_err(|_| {
                     FitError::Neural(
@@ -565,9 +570,13 @@ impl NeuralFitter {
                 .collect::<Vec<Bounds>>(),
         };
         // One fit, or with Start::Both the fit from the given start and the fit from Φ(D).
-        let mut runs = vec![self.run(&energies, &starts, &constraints)?];
+        let (first, ran) = self.run(&energies, &starts, &constraints)?;
+        let mut runs = vec![first];
         if self.start == Start::Both {
-            runs.push(self.run(&energies, &vec![None; requests.len()], &constraints)?);
+            runs.push(
+                self.run(&energies, &vec![None; requests.len()], &constraints)?
+                    .0,
+            );
         }
         // The loop clamps in f32; clamp again in f64 so that every iterate is exactly inside
         // the request's bounds (the two differ by at most an f32 rounding).
@@ -576,17 +585,17 @@ impl NeuralFitter {
                 r.bounds.clamp(p);
             }
         }
-        // Iterations run: all of them, or with the energy rule (one frame, one fit) those before
-        // it stopped; then θn was evaluated by the loop too (counted there).
-        let n = runs[0].len() - 1;
-        let stopped = self.tolerance.is_some() && n < self.iterations;
-        let residual_evaluations = (per_iteration * n) as u64;
         let time_s = timer.elapsed().as_secs_f64() / requests.len() as f64;
         let name = self.name();
         Ok(requests
             .iter()
             .enumerate()
             .map(|(i, r)| {
+                // The frame's iterations: all of them, or with the energy rule (one fit) those
+                // before it stopped; θn was then evaluated by the loop too (counted there).
+                let n = ran[i];
+                let stopped = self.tolerance.is_some() && n < self.iterations;
+                let residual_evaluations = (per_iteration * n) as u64;
                 // Energy of every iterate of every fit, once: for the trace and the picks.
                 // θ0 … θN−1 were evaluated by the loop (reporting only here: `inspect` is not
                 // counted); θN is new to the fit, so a choice made by it ([`Pick::Lowest`], the
@@ -666,7 +675,7 @@ impl NeuralFitter {
                     iterations: n as u64,
                     time_s,
                     trace,
-                    iterates: host.iter().map(|h| h[i].clone()).collect(),
+                    iterates: host[..=n].iter().map(|h| h[i].clone()).collect(),
                 }
             })
             .collect())

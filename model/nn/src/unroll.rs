@@ -31,6 +31,9 @@ pub struct Unrolled {
     /// Per frame, the observation-model evaluations made for residuals (2 per iteration); the
     /// energy counts its own gradient evaluations.
     pub residual_evaluations: u64,
+    /// Per frame, the iterations it ran: all of them, or fewer where [`Exit::tolerance`]
+    /// stopped it (its θ held in `host` and `poses` after that).
+    pub iterations: Vec<usize>,
 }
 
 fn rows_tensor(rows: &[f32], batch: usize, device: &Device) -> Tensor<2> {
@@ -75,8 +78,9 @@ pub struct Exit {
     /// The energy rule: the loop stops at θk, k ≥ 2, once the iteration that made it lowered
     /// the energy by less than this fraction, `E(θk−1) − E(θk) < tolerance · E(θk−1)` (a
     /// relative decrease, as a classical optimizer's function tolerance; θk's energy comes with
-    /// its Gauss-Newton direction, which is then not used). `None`: every iteration runs. One
-    /// frame per batch: the frames of a batch would stop apart.
+    /// its Gauss-Newton direction, which is then not used). `None`: every iteration runs. In a
+    /// batch each frame stops on its own: a stopped frame's θ is held, its energy no longer
+    /// evaluated, and the loop ends when every frame has stopped.
     pub tolerance: Option<f64>,
 }
 
@@ -89,21 +93,15 @@ impl Exit {
         }
     }
 
-    /// Checks the exit against the network ([`check_iterations`]) and the batch: a tolerance
-    /// is finite, in (0, 1), and for one frame at a time.
-    pub fn check(&self, config: &NetConfig, batch: usize) -> Result<()> {
+    /// Checks the exit against the network ([`check_iterations`]): a tolerance is in (0, 1).
+    pub fn check(&self, config: &NetConfig) -> Result<()> {
         check_iterations(config, self.iterations)?;
-        if let Some(t) = self.tolerance {
-            if !(t > 0.0 && t < 1.0) {
-                return Err(ModelError::Config(format!(
-                    "neural tolerance {t}: a relative energy decrease between 0 and 1 (exclusive)"
-                )));
-            }
-            if batch > 1 {
-                return Err(ModelError::Config(format!(
-                    "the neural tolerance stops each frame on its own energy: fit one frame per network pass (--batch 1), not {batch}"
-                )));
-            }
+        if let Some(t) = self.tolerance
+            && !(t > 0.0 && t < 1.0)
+        {
+            return Err(ModelError::Config(format!(
+                "neural tolerance {t}: a relative energy decrease between 0 and 1 (exclusive)"
+            )));
         }
         Ok(())
     }
@@ -112,6 +110,60 @@ impl Exit {
     fn stops(&self, n: usize, previous: f64, energy: f64) -> bool {
         self.tolerance
             .is_some_and(|t| n >= 2 && previous - energy < t * previous)
+    }
+}
+
+/// The frames of a batch under [`Exit`]: which still run, each one's last energy and
+/// evaluation, and the iterations each ran.
+struct Running {
+    active: Vec<bool>,
+    previous: Vec<f64>,
+    evals: Vec<(Vec<f64>, Vec<f64>)>,
+    iterations: Vec<usize>,
+}
+
+impl Running {
+    fn new(batch: usize) -> Self {
+        Self {
+            active: vec![true; batch],
+            previous: vec![f64::INFINITY; batch],
+            evals: vec![(Vec::new(), Vec::new()); batch],
+            iterations: vec![0; batch],
+        }
+    }
+
+    /// Iteration `n`: R(θ), g(θ) and E(θ) of the frames still running (a stopped frame's are
+    /// not evaluated again: its last ones stay in `evals`, read by nothing that moves it), then
+    /// the energy rule; false once no frame runs.
+    fn evaluate(
+        &mut self,
+        config: &NetConfig,
+        exit: &Exit,
+        n: usize,
+        energies: &[&Energy],
+        current: &[Vec<f64>],
+        free: Option<&[Vec<bool>]>,
+    ) -> Result<bool> {
+        let run: Vec<usize> = (0..energies.len()).filter(|&i| self.active[i]).collect();
+        let (evals, values) = if run.len() == energies.len() {
+            evaluate_with_energy(config, energies, current, free)?
+        } else {
+            let pick = |v: &[Vec<f64>]| run.iter().map(|&i| v[i].clone()).collect::<Vec<_>>();
+            let e: Vec<&Energy> = run.iter().map(|&i| energies[i]).collect();
+            let f: Option<Vec<Vec<bool>>> =
+                free.map(|f| run.iter().map(|&i| f[i].clone()).collect());
+            evaluate_with_energy(config, &e, &pick(current), f.as_deref())?
+        };
+        for ((&i, eval), value) in run.iter().zip(evals).zip(values) {
+            if exit.stops(n, self.previous[i], value) {
+                self.active[i] = false;
+            } else {
+                self.previous[i] = value;
+                self.evals[i] = eval;
+                self.iterations[i] = n + 1;
+            }
+        }
+        Ok(self.active.iter().any(|&a| a))
     }
 }
 
@@ -474,7 +526,7 @@ pub fn unroll_for(
     exit: Exit,
 ) -> Result<Unrolled> {
     let c = &net.config;
-    exit.check(c, energies.len())?;
+    exit.check(c)?;
     check_batch(c, energies, starts)?;
     let batch = energies.len();
 
@@ -520,20 +572,15 @@ pub fn unroll_for(
 
     let mut host = vec![to_host(&theta, dim)?];
     let mut poses = vec![theta.clone()];
-    let mut previous = f64::INFINITY;
+    let mut running = Running::new(batch);
     for n in 0..exit.iterations {
         let current = host.last().cloned().unwrap_or_default();
         // R(θ) and g(θ) on the CPU (detached inputs), and E(θ) for the energy rule.
-        let (evals, values) = evaluate_with_energy(
-            c,
-            energies,
-            &current,
-            constraints.map(|k| k.free.as_slice()),
-        )?;
-        if exit.stops(n, previous, values[0]) {
+        let free_rows = constraints.map(|k| k.free.as_slice());
+        if !running.evaluate(c, &exit, n, energies, &current, free_rows)? {
             break;
         }
-        previous = values[0];
+        let evals = &running.evals;
         let core_in = core_rows(c, stats, energies, &evals, &current, &obs_norm)?;
         let mut delta = net.propose(n, rows_tensor(&core_in, batch, device), &mut state, dropout);
         let mut grad = poses_to_tensor(
@@ -551,7 +598,16 @@ pub fn unroll_for(
         } else {
             net.step_sizes(n, Tensor::zeros([batch, 1], device), &mut state, dropout)
         };
-        let step = net.update(delta, grad, &sizes);
+        let mut step = net.update(delta, grad, &sizes);
+        // A stopped frame's θ is held.
+        if running.active.iter().any(|&a| !a) {
+            let hold: Vec<f32> = running
+                .active
+                .iter()
+                .flat_map(|&a| std::iter::repeat_n(if a { 1.0 } else { 0.0 }, dim))
+                .collect();
+            step = step * rows_tensor(&hold, batch, device);
+        }
         theta = constrain(theta + step);
         host.push(to_host(&theta, dim)?);
         poses.push(theta.clone());
@@ -561,6 +617,7 @@ pub fn unroll_for(
         poses,
         host,
         residual_evaluations,
+        iterations: running.iterations,
     })
 }
 
@@ -659,19 +716,21 @@ pub fn unroll_rows<N: RowNetwork>(
     constraints: Option<&Constraints>,
 ) -> std::result::Result<Vec<Vec<Vec<f64>>>, N::Error> {
     let n = net.config().iterations;
-    unroll_rows_for(net, energies, starts, constraints, Exit::after(n))
+    Ok(unroll_rows_for(net, energies, starts, constraints, Exit::after(n))?.0)
 }
 
-/// [`unroll_rows`] stopped by `exit`, as [`unroll_for`].
+/// [`unroll_rows`] stopped by `exit`, as [`unroll_for`]; also the iterations each frame ran
+/// ([`Unrolled::iterations`]).
+#[allow(clippy::type_complexity)]
 pub fn unroll_rows_for<N: RowNetwork>(
     net: &mut N,
     energies: &[&Energy],
     starts: &[Option<Vec<f64>>],
     constraints: Option<&Constraints>,
     exit: Exit,
-) -> std::result::Result<Vec<Vec<Vec<f64>>>, N::Error> {
+) -> std::result::Result<(Vec<Vec<Vec<f64>>>, Vec<usize>), N::Error> {
     let c = net.config().clone();
-    exit.check(&c, energies.len())?;
+    exit.check(&c)?;
     check_batch(&c, energies, starts)?;
     let batch = energies.len();
     let obs_norm = observation_rows(&c, net.stats(), energies)?;
@@ -697,19 +756,14 @@ pub fn unroll_rows_for<N: RowNetwork>(
     };
     constrain(&mut theta);
     let mut host = vec![rows_to_poses(&theta, dim)];
-    let mut previous = f64::INFINITY;
+    let mut running = Running::new(batch);
     for n in 0..exit.iterations {
         let current = host.last().cloned().unwrap_or_default();
-        let (evals, values) = evaluate_with_energy(
-            &c,
-            energies,
-            &current,
-            constraints.map(|k| k.free.as_slice()),
-        )?;
-        if exit.stops(n, previous, values[0]) {
+        let free_rows = constraints.map(|k| k.free.as_slice());
+        if !running.evaluate(&c, &exit, n, energies, &current, free_rows)? {
             break;
         }
-        previous = values[0];
+        let evals = &running.evals;
         let core_in = core_rows(&c, net.stats(), energies, &evals, &current, &obs_norm)?;
         let mut delta = net.propose(n, &core_in, batch, &mut state)?;
         let mut grad: Vec<f32> = evals
@@ -736,13 +790,22 @@ pub fn unroll_rows_for<N: RowNetwork>(
         } else {
             delta
         };
-        for (t, u) in theta.iter_mut().zip(&update) {
-            *t += u;
+        // A stopped frame's θ is held.
+        for ((t, u), a) in theta
+            .chunks_mut(dim)
+            .zip(update.chunks(dim))
+            .zip(&running.active)
+        {
+            if *a {
+                for (t, u) in t.iter_mut().zip(u) {
+                    *t += u;
+                }
+            }
         }
         constrain(&mut theta);
         host.push(rows_to_poses(&theta, dim));
     }
-    Ok(host)
+    Ok((host, running.iterations))
 }
 
 impl<T: RowNetwork + ?Sized> RowNetwork for &mut T {
