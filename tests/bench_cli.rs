@@ -254,6 +254,28 @@ fn bad_bench_configs_fail_before_any_work() {
             format!("methods = [\"lm\"]\ndofs = \"some\"\n{base}"),
             "unknown dofs 'some'",
         ),
+        (
+            format!("methods = [\"lm\"]\nneural_iterations = 3\n{base}"),
+            "neural_iterations and neural_tolerance are for the neural methods",
+        ),
+        (
+            format!("methods = [\"lm\"]\nneural_tolerance = 1.5\n{base}"),
+            "neural_iterations and neural_tolerance are for the neural methods",
+        ),
+        (
+            format!(
+                "methods = [\"neural\"]\ncheckpoint = \"{}/checkpoints/markers\"\nneural_tolerance = 1.5\n{base}",
+                env!("CARGO_MANIFEST_DIR")
+            ),
+            "neural_tolerance 1.5: a relative energy decrease between 0 and 1",
+        ),
+        (
+            format!(
+                "methods = [\"neural\"]\ncheckpoint = \"{}/checkpoints/markers\"\nneural_iterations = 0\n{base}",
+                env!("CARGO_MANIFEST_DIR")
+            ),
+            "neural_iterations must be at least 1",
+        ),
         ("methods = [".to_string(), "malformed bench config"),
     ] {
         let c = config(d, "c.toml", &body);

@@ -255,6 +255,21 @@ impl BenchConfig {
                 }
             }
         }
+        if (self.neural_iterations.is_some() || self.neural_tolerance.is_some())
+            && !self.methods.iter().any(|m| m.kind.is_neural())
+        {
+            bail!(
+                "neural_iterations and neural_tolerance are for the neural methods (neural, neural+lm): none is listed"
+            );
+        }
+        if self.neural_iterations == Some(0) {
+            bail!("neural_iterations must be at least 1");
+        }
+        if let Some(t) = self.neural_tolerance
+            && !(t > 0.0 && t < 1.0)
+        {
+            bail!("neural_tolerance {t}: a relative energy decrease between 0 and 1 (exclusive)");
+        }
         self.sequence_shape()?;
         self.marker_placement()?;
         if !(self.alpha > 0.0 && self.alpha < 1.0) {
