@@ -8,6 +8,7 @@ use lfit_model::template::{Template, write_atomic, write_obj};
 use serde_json::{Value, json};
 
 use crate::data::read_params_file;
+use crate::study::bench::BenchConfig;
 
 pub use crate::data::{SynthArgs, load_model, shape_of_template_id, synth, visible_fraction};
 
@@ -551,28 +552,38 @@ pub const QUICKSTART_EARLY_EXIT: usize = 3;
 /// After each part with the neural fitter, its twin with the network stopped after its first
 /// [`QUICKSTART_EARLY_EXIT`] iterations (the same frames, data and runtime): the faster
 /// operating point of the same checkpoint.
-fn with_early_exit_parts(
-    parts: Vec<(String, crate::study::bench::BenchConfig)>,
-) -> Result<Vec<(String, crate::study::bench::BenchConfig)>> {
+fn with_early_exit_parts(parts: Vec<(String, BenchConfig)>) -> Result<Vec<(String, BenchConfig)>> {
+    let neural = crate::method::MethodKind::Neural;
+    with_twins(parts, EARLY_PART, |config| {
+        if !config.methods.iter().any(|m| m.kind == neural) {
+            return Ok(None);
+        }
+        let mut twin = config.clone();
+        twin.methods = vec![neural.name().parse()?];
+        twin.neural_iterations = Some(QUICKSTART_EARLY_EXIT);
+        Ok(Some(twin))
+    })
+}
+
+/// Each part followed by its twin where `twin` makes one: named with `suffix` (the part and
+/// its study alike) and validated.
+fn with_twins(
+    parts: Vec<(String, BenchConfig)>,
+    suffix: &str,
+    twin: impl Fn(&BenchConfig) -> Result<Option<BenchConfig>>,
+) -> Result<Vec<(String, BenchConfig)>> {
     let mut all = Vec::with_capacity(2 * parts.len());
     for (part, config) in parts {
-        let neural = crate::method::MethodKind::Neural;
-        let twin = config
-            .methods
-            .iter()
-            .any(|m| m.kind == neural)
-            .then(|| -> Result<_> {
-                let mut twin = config.clone();
-                twin.name = format!("{}{EARLY_PART}", config.name);
-                twin.methods = vec![neural.name().parse()?];
-                twin.neural_iterations = Some(QUICKSTART_EARLY_EXIT);
-                twin.validate()?;
-                Ok(twin)
+        let made = twin(&config)?
+            .map(|mut made| -> Result<_> {
+                made.name = format!("{}{suffix}", config.name);
+                made.validate()?;
+                Ok(made)
             })
             .transpose()?;
         all.push((part.clone(), config));
-        if let Some(twin) = twin {
-            all.push((format!("{part}{EARLY_PART}"), twin));
+        if let Some(made) = made {
+            all.push((format!("{part}{suffix}"), made));
         }
     }
     Ok(all)
@@ -591,11 +602,8 @@ pub const SHIPPED_POSE_PRIOR: &str = "configs/pose-prior-cmu-{modality}.json";
 /// of the CMU training clips ([`SHIPPED_POSE_PRIOR`]) — the classical baseline as SMPLify and
 /// MoSh run it (none for hmd: no weight helped there). Left out, with a note, where the file is
 /// not found.
-fn with_prior_parts(
-    parts: Vec<(String, crate::study::bench::BenchConfig)>,
-) -> Result<Vec<(String, crate::study::bench::BenchConfig)>> {
-    let mut all = Vec::with_capacity(2 * parts.len());
-    for (part, config) in parts {
+fn with_prior_parts(parts: Vec<(String, BenchConfig)>) -> Result<Vec<(String, BenchConfig)>> {
+    with_twins(parts, PRIOR_PART, |config| {
         let modality = config
             .synth
             .as_ref()
@@ -611,11 +619,9 @@ fn with_prior_parts(
             if let Some(Err(e)) = found {
                 eprintln!("quickstart: {e}: the {modality} pose-prior rows are left out");
             }
-            all.push((part, config));
-            continue;
+            return Ok(None);
         };
         let mut twin = config.clone();
-        twin.name = format!("{}{PRIOR_PART}", config.name);
         // LM, and `neural+lm` where the part has a network: the learned start with the prior in
         // its LM stage (the network reads the energy as in `lfit fit --energy`).
         twin.methods = vec![crate::method::MethodKind::Lm.name().parse()?];
@@ -628,11 +634,8 @@ fn with_prior_parts(
                 .push(crate::method::MethodKind::NeuralLm.name().parse()?);
         }
         twin.energy = Some(energy.display().to_string());
-        twin.validate()?;
-        all.push((part.clone(), config));
-        all.push((format!("{part}{PRIOR_PART}"), twin));
-    }
-    Ok(all)
+        Ok(Some(twin))
+    })
 }
 
 /// `lfit model info`: what a model holds, as JSON — its joints (parent, body part, mirror,
