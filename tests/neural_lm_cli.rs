@@ -461,7 +461,9 @@ fn an_early_exit_runs_the_first_iterations_of_the_full_fit() {
         refused(&data, tmp.path(), "neural", &args, want);
     }
     // The energy rule: each frame stops at the first θk (k ≥ 2) whose step lowered the energy
-    // by less than the tolerance of it, at 2k + 1 evaluations (10 when it runs all 5).
+    // by less than the tolerance of it, at 2k + 1 evaluations (10 when it runs all 5) and k
+    // Gauss-Newton directions: where the rule can stop, θk's energy comes from its residuals
+    // alone and the Jacobian, normal equations and solve only if the loop goes on.
     let tol = fit(
         &data,
         &tmp.path().join("tol.json"),
@@ -484,6 +486,7 @@ fn an_early_exit_runs_the_first_iterations_of_the_full_fit() {
         assert!((2..=5).contains(&k), "{k}");
         let want = if k < 5 { 2 * k + 1 } else { 10 };
         assert_eq!(f["evaluations"], want);
+        assert_eq!(f["gradient_evaluations"], k);
         stopped += usize::from(k < 5);
     }
     assert!(stopped > 0, "no frame stopped early");

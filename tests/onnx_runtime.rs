@@ -423,6 +423,16 @@ fn an_energy_tolerance_stops_each_frame_where_its_step_stalls_on_every_engine() 
                 assert_eq!(b.evaluations, 10, "{name}");
                 ran += 1;
             }
+            // One direction per iteration run; this network steps along the gradient, whose
+            // evaluation gives θk's energy and gradient together, so a stop at θk has made
+            // k + 1 (with Gauss-Newton's direction θk's energy comes from its residuals alone:
+            // `tests/neural_lm_cli.rs`).
+            let grads = if k < 5 { k as u64 + 1 } else { 5 };
+            assert_eq!(
+                (b.gradient_evaluations, a.gradient_evaluations),
+                (grads, 5),
+                "{name}"
+            );
         }
         eprintln!("{name}: tolerance {TOL} stopped {stopped} of 12 frames early, {ran} ran all 5");
         assert!(
@@ -440,8 +450,12 @@ fn an_energy_tolerance_stops_each_frame_where_its_step_stalls_on_every_engine() 
                 .pop()
                 .expect("one");
             assert_eq!(
-                (b.iterations, b.evaluations),
-                (alone.iterations, alone.evaluations),
+                (b.iterations, b.evaluations, b.gradient_evaluations),
+                (
+                    alone.iterations,
+                    alone.evaluations,
+                    alone.gradient_evaluations
+                ),
                 "{name}"
             );
             assert_eq!(b.iterates.len(), alone.iterates.len(), "{name}");

@@ -1054,3 +1054,76 @@ fn the_host_forward_refuses_weights_of_another_shape() {
         .to_string();
     assert!(err.contains("Φ.l1"), "{err}");
 }
+
+/// The energy rule reads θk's energy from its residuals alone where it can stop the loop
+/// (`Running::evaluate`), and from the Gauss-Newton evaluation elsewhere: the two must be the
+/// same number, or a frame would stop where the full evaluation would have gone on. Markers,
+/// keypoints2d and hmd, away from their targets (joint limits and EP rows active), with and
+/// without a robust loss; the value counts one evaluation and no gradient, the Jacobian at the
+/// same point (`jacobian_with`) one gradient and no evaluation.
+#[test]
+fn residuals_alone_give_the_energy_the_gauss_newton_evaluation_gives() {
+    use crate::unroll::gauss_newton_value;
+    use lfit_model::energy::{JacobianRows, RobustForm};
+    let template = Arc::new(default_template());
+    let mut checked = 0;
+    for (m, modality) in [Modality::Markers, Modality::Keypoints2d, Modality::Hmd]
+        .into_iter()
+        .enumerate()
+    {
+        let sensor = Sensor::default_for(modality, &template);
+        for robust in [false, true] {
+            for k in 0..6u64 {
+                let truth = random_pose(100 * m as u64 + k);
+                let pred = sensor.predict_sparse(&template, &truth);
+                let mut config = EnergyConfig::default().for_gradient();
+                if robust {
+                    config.robust = lfit_model::energy::Robust::Cauchy { c: 1.0 };
+                }
+                let e = Energy::new(
+                    template.clone(),
+                    sensor.clone(),
+                    Target::Sparse {
+                        values: pred.values,
+                        visible: pred.visible,
+                    },
+                    config,
+                )
+                .expect("energy");
+                // Far from the target: large residuals, limbs past their limits.
+                let mut pose = random_pose(7 + 100 * m as u64 + k);
+                for v in pose.iter_mut().skip(6) {
+                    *v *= 8.0;
+                }
+                let (ev, gv) = (e.evaluations(), e.gradient_evaluations());
+                let value = gauss_newton_value(&e, &pose).expect("value");
+                assert_eq!(
+                    (e.evaluations() - ev, e.gradient_evaluations() - gv),
+                    (1, 0)
+                );
+                let full = e
+                    .least_squares_with(&pose, true, RobustForm::Folded, JacobianRows::Factored)
+                    .expect("least squares")
+                    .value();
+                assert!(value > 0.0);
+                assert_eq!(
+                    value.to_bits(),
+                    full.to_bits(),
+                    "{modality:?} robust {robust} pose {k}: {value} against {full}"
+                );
+                let (ev, gv) = (e.evaluations(), e.gradient_evaluations());
+                let again = e
+                    .jacobian_with(&pose, RobustForm::Folded, JacobianRows::Factored)
+                    .expect("jacobian")
+                    .value();
+                assert_eq!(again.to_bits(), full.to_bits());
+                assert_eq!(
+                    (e.evaluations() - ev, e.gradient_evaluations() - gv),
+                    (0, 1)
+                );
+                checked += 1;
+            }
+        }
+    }
+    assert_eq!(checked, 36);
+}

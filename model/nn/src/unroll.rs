@@ -135,6 +135,14 @@ impl Running {
     /// Iteration `n`: R(θ), g(θ) and E(θ) of the frames still running (a stopped frame's are
     /// not evaluated again: its last ones stay in `evals`, read by nothing that moves it), then
     /// the energy rule; false once no frame runs.
+    ///
+    /// Where the rule can stop a frame (a tolerance, n ≥ 2) and the direction is Gauss-Newton's,
+    /// each running frame's energy comes first, from its residuals alone (one evaluation, the
+    /// same value the Gauss-Newton evaluation gives: `residuals_alone_give_the_energy_the_
+    /// gauss_newton_evaluation_gives`), and the Jacobian, normal equations and solve only for
+    /// the frames that go on — a gradient evaluation at a point already evaluated, as LM's
+    /// accepted trial points. A frame that stops then costs no direction it would not use: the
+    /// same iterates and evaluations, one gradient evaluation fewer.
     fn evaluate(
         &mut self,
         config: &NetConfig,
@@ -144,18 +152,38 @@ impl Running {
         current: &[Vec<f64>],
         free: Option<&[Vec<bool>]>,
     ) -> Result<bool> {
-        let run: Vec<usize> = (0..energies.len()).filter(|&i| self.active[i]).collect();
-        let (evals, values) = if run.len() == energies.len() {
-            evaluate_with_energy(config, energies, current, free)?
+        let mut run: Vec<usize> = (0..energies.len()).filter(|&i| self.active[i]).collect();
+        let value_first =
+            exit.tolerance.is_some() && n >= 2 && config.direction == Direction::GaussNewton;
+        if value_first {
+            let values: Vec<f64> = run
+                .par_iter()
+                .map(|&i| Ok(gauss_newton_value(energies[i], &current[i])?))
+                .collect::<Result<_>>()?;
+            for (&i, value) in run.iter().zip(values) {
+                if exit.stops(n, self.previous[i], value) {
+                    self.active[i] = false;
+                } else {
+                    self.previous[i] = value;
+                }
+            }
+            run.retain(|&i| self.active[i]);
+            if run.is_empty() {
+                return Ok(false);
+            }
+        }
+        let all = run.len() == energies.len();
+        let (evals, values) = if all {
+            evaluate_counted(config, energies, current, free, !value_first)?
         } else {
             let pick = |v: &[Vec<f64>]| run.iter().map(|&i| v[i].clone()).collect::<Vec<_>>();
             let e: Vec<&Energy> = run.iter().map(|&i| energies[i]).collect();
             let f: Option<Vec<Vec<bool>>> =
                 free.map(|f| run.iter().map(|&i| f[i].clone()).collect());
-            evaluate_with_energy(config, &e, &pick(current), f.as_deref())?
+            evaluate_counted(config, &e, &pick(current), f.as_deref(), !value_first)?
         };
         for ((&i, eval), value) in run.iter().zip(evals).zip(values) {
-            if exit.stops(n, self.previous[i], value) {
+            if !value_first && exit.stops(n, self.previous[i], value) {
                 self.active[i] = false;
             } else {
                 self.previous[i] = value;
@@ -165,6 +193,20 @@ impl Running {
         }
         Ok(self.active.iter().any(|&a| a))
     }
+}
+
+/// E(θ) as the Gauss-Newton direction's evaluation gives it (the sum of squares of its
+/// residuals: robust loss folded, the data rows factored), from the residuals alone; counts one
+/// evaluation.
+pub fn gauss_newton_value(energy: &Energy, pose: &[f64]) -> Result<f64> {
+    Ok(energy
+        .least_squares_with(
+            pose,
+            false,
+            lfit_model::energy::RobustForm::Folded,
+            lfit_model::energy::JacobianRows::Factored,
+        )?
+        .value())
 }
 
 /// Checks a batch against the network: at least one frame, one start entry per frame, every
@@ -307,6 +349,20 @@ fn residual_and_direction(
     free: Option<&[bool]>,
     with_residual: bool,
 ) -> Result<(Vec<f64>, Vec<f64>, f64)> {
+    residual_and_direction_counted(config, energy, pose, free, with_residual, true)
+}
+
+/// [`residual_and_direction`]; with `counted` false the Gauss-Newton evaluation is of a point
+/// whose residuals were just evaluated and counted ([`gauss_newton_value`]): it counts one
+/// gradient evaluation and no new evaluation ([`Energy::jacobian_with`]).
+fn residual_and_direction_counted(
+    config: &NetConfig,
+    energy: &Energy,
+    pose: &[f64],
+    free: Option<&[bool]>,
+    with_residual: bool,
+    counted: bool,
+) -> Result<(Vec<f64>, Vec<f64>, f64)> {
     let (r, mut g, value) = match config.direction {
         Direction::Gradient => {
             let (e, g) = energy.evaluate_with_gradient(pose);
@@ -322,12 +378,15 @@ fn residual_and_direction(
         }
         Direction::GaussNewton => {
             // The normal equations read the data rows in factored form where there is one.
-            let ls = energy.least_squares_with(
-                pose,
-                true,
+            let (form, rows) = (
                 lfit_model::energy::RobustForm::Folded,
                 lfit_model::energy::JacobianRows::Factored,
-            )?;
+            );
+            let ls = if counted {
+                energy.least_squares_with(pose, true, form, rows)?
+            } else {
+                energy.jacobian_with(pose, form, rows)?
+            };
             let dofs: Vec<usize> = match free {
                 Some(f) => (0..pose.len())
                     .filter(|&i| f.get(i).copied().unwrap_or(false))
@@ -381,13 +440,25 @@ pub fn evaluate_with_energy(
     current: &[Vec<f64>],
     free: Option<&[Vec<bool>]>,
 ) -> Result<(Vec<(Vec<f64>, Vec<f64>)>, Vec<f64>)> {
+    evaluate_counted(config, energies, current, free, true)
+}
+
+/// [`evaluate_with_energy`]; `counted` as [`residual_and_direction_counted`].
+#[allow(clippy::type_complexity)]
+fn evaluate_counted(
+    config: &NetConfig,
+    energies: &[&Energy],
+    current: &[Vec<f64>],
+    free: Option<&[Vec<bool>]>,
+    counted: bool,
+) -> Result<(Vec<(Vec<f64>, Vec<f64>)>, Vec<f64>)> {
     let all: Vec<(Vec<f64>, Vec<f64>, f64)> = energies
         .par_iter()
         .zip(current.par_iter())
         .enumerate()
         .map(|(i, (e, p))| {
             let f = free.and_then(|f| f.get(i)).map(Vec::as_slice);
-            residual_and_direction(config, e, p, f, true)
+            residual_and_direction_counted(config, e, p, f, true, counted)
         })
         .collect::<Result<_>>()?;
     Ok(all.into_iter().map(|(r, g, e)| ((r, g), e)).unzip())
