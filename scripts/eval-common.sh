@@ -57,13 +57,22 @@ PY
 # and Φ(D) per frame for the learned fitters: eval_marker_method lm|neural|neural+lm CHECKPOINT.
 # lm+prior, neural+prior and neural+lm+prior are LM, the network and neural+lm with POSE_PRIOR's
 # energy (an `lfit motion prior` file; a path without spaces; a network trained on that energy
-# needs it).
+# needs it). neural-nK and neural+lm-nK (K = 1 … 9) stop the network after its first K
+# iterations (`--neural-iterations K`, both starts still fitted); neural-best fits once per
+# frame, from the better start by energy (`--neural-start best`); neural-tolT stops each frame's
+# network by the energy rule (`--neural-tolerance T`) from that start (the rule serves one fit
+# per frame).
 eval_marker_method() {
     case "$1" in
         *+prior) echo "$(eval_marker_method "${1%+prior}" "$2") --energy $POSE_PRIOR" ;;
         lm) echo lm --budget 4000 ;;
         neural) echo neural --checkpoint "$2" --neural-start both --budget 24 ;;
         neural+lm) echo neural+lm --checkpoint "$2" --neural-start both --budget 4000 ;;
+        neural-n[1-9] | neural+lm-n[1-9])
+            echo "$(eval_marker_method "${1%-n*}" "$2") --neural-iterations ${1##*-n}" ;;
+        neural-best) echo neural --checkpoint "$2" --neural-start best --budget 24 ;;
+        neural-tol*)
+            echo neural --checkpoint "$2" --neural-start best --neural-tolerance "${1#neural-tol}" --budget 24 ;;
     esac
 }
 
@@ -78,7 +87,8 @@ eval_methods() {
     local m
     for m in "${methods[@]}"; do
         case "$m" in
-            lm | neural | neural+lm) ;;
+            lm | neural | neural+lm | neural-n[1-9] | neural+lm-n[1-9] | neural-best) ;;
+            neural-tol0.[0-9]*) ;;
             lm+prior | neural+prior | neural+lm+prior)
                 if [ -z "${POSE_PRIOR:-}" ] || [ ! -f "$POSE_PRIOR" ] || [[ "$POSE_PRIOR" == *" "* ]]; then
                     echo "$1: $m needs POSE_PRIOR, an energy file of \`lfit motion prior\` (a path without spaces), not '${POSE_PRIOR:-}'" >&2
@@ -86,7 +96,7 @@ eval_methods() {
                 fi
                 ;;
             *)
-                echo "$1: unknown method '$m' in METHODS (lm, neural, neural+lm, lm+prior, neural+prior, neural+lm+prior)" >&2
+                echo "$1: unknown method '$m' in METHODS (lm, neural, neural+lm, lm+prior, neural+prior, neural+lm+prior, neural-nK, neural+lm-nK, neural-best, neural-tolT)" >&2
                 exit 2
                 ;;
         esac
