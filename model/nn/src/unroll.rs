@@ -702,6 +702,27 @@ pub struct RowState {
 }
 
 impl RowState {
+    /// The state of the rows `keep` (positions in this state's batch of `batch` rows, in
+    /// order), every layer's rows copied as they are.
+    pub fn select(&self, keep: &[usize], batch: usize) -> Self {
+        let rows = |layers: &[Vec<f32>]| -> Vec<Vec<f32>> {
+            layers
+                .iter()
+                .map(|v| {
+                    let width = v.len() / batch.max(1);
+                    keep.iter()
+                        .flat_map(|&r| v[r * width..(r + 1) * width].iter().copied())
+                        .collect()
+                })
+                .collect()
+        };
+        Self {
+            core: rows(&self.core),
+            lambda: rows(&self.lambda),
+            gamma: rows(&self.gamma),
+        }
+    }
+
     /// `core` (Φh(D)) and zeros for the λ/γ cores, as [`NeuralNet::initial`].
     pub fn zeros(config: &NetConfig, batch: usize, core: Vec<Vec<f32>>) -> Self {
         let zeros = |on: bool| {
@@ -828,49 +849,64 @@ pub fn unroll_rows_for<N: RowNetwork>(
     constrain(&mut theta);
     let mut host = vec![rows_to_poses(&theta, dim)];
     let mut running = Running::new(batch);
+    // The frames whose rows the network still runs, in batch order; `state` holds theirs only.
+    // A frame the energy rule stopped leaves the network's passes: its θ is held and its state
+    // never read again. The native forward computes every row alone, so its results do not
+    // depend on which rows share a pass.
+    let mut alive: Vec<usize> = (0..batch).collect();
     for n in 0..exit.iterations {
         let current = host.last().cloned().unwrap_or_default();
         let free_rows = constraints.map(|k| k.free.as_slice());
         if !running.evaluate(&c, &exit, n, energies, &current, free_rows)? {
             break;
         }
-        let evals = &running.evals;
-        let core_in = core_rows(&c, net.stats(), energies, &evals, &current, &obs_norm)?;
-        let mut delta = net.propose(n, &core_in, batch, &mut state)?;
+        if running.active.iter().filter(|&&a| a).count() < alive.len() {
+            let keep: Vec<usize> = (0..alive.len())
+                .filter(|&p| running.active[alive[p]])
+                .collect();
+            state = state.select(&keep, alive.len());
+            alive = keep.iter().map(|&p| alive[p]).collect();
+        }
+        let rows = alive.len();
+        let pick = |i: usize| alive[i];
+        let e: Vec<&Energy> = alive.iter().map(|&i| energies[i]).collect();
+        let evals: Vec<(Vec<f64>, Vec<f64>)> =
+            alive.iter().map(|&i| running.evals[i].clone()).collect();
+        let cur: Vec<Vec<f64>> = alive.iter().map(|&i| current[i].clone()).collect();
+        let obs: Vec<Vec<f32>> = alive.iter().map(|&i| obs_norm[i].clone()).collect();
+        let core_in = core_rows(&c, net.stats(), &e, &evals, &cur, &obs)?;
+        let mut delta = net.propose(n, &core_in, rows, &mut state)?;
         let mut grad: Vec<f32> = evals
             .iter()
             .flat_map(|(_, g)| g.iter().map(|&v| v as f32))
             .collect();
         if let Some((free, _, _)) = &limits {
-            for ((d, g), f) in delta.iter_mut().zip(grad.iter_mut()).zip(free) {
-                *d *= f;
-                *g *= f;
+            for (r, (d, g)) in delta.chunks_mut(dim).zip(grad.chunks_mut(dim)).enumerate() {
+                let f = &free[pick(r) * dim..(pick(r) + 1) * dim];
+                for ((d, g), f) in d.iter_mut().zip(g.iter_mut()).zip(f) {
+                    *d *= f;
+                    *g *= f;
+                }
             }
         }
         let update = if c.has_step_network() {
             let step_in = step_rows(
                 &c,
                 net.stats(),
-                energies,
-                &current,
+                &e,
+                &cur,
                 &evals,
                 &rows_to_poses(&delta, dim),
             )?;
-            net.step(n, &step_in, &delta, &grad, batch, &mut state)?
+            net.step(n, &step_in, &delta, &grad, rows, &mut state)?
                 .update
         } else {
             delta
         };
-        // A stopped frame's θ is held.
-        for ((t, u), a) in theta
-            .chunks_mut(dim)
-            .zip(update.chunks(dim))
-            .zip(&running.active)
-        {
-            if *a {
-                for (t, u) in t.iter_mut().zip(u) {
-                    *t += u;
-                }
+        for (r, u) in update.chunks(dim).enumerate() {
+            let i = pick(r);
+            for (t, u) in theta[i * dim..(i + 1) * dim].iter_mut().zip(u) {
+                *t += u;
             }
         }
         constrain(&mut theta);
