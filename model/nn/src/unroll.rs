@@ -77,10 +77,12 @@ pub struct Exit {
     pub iterations: usize,
     /// The energy rule: the loop stops at θk, k ≥ 2, once the iteration that made it lowered
     /// the energy by less than this fraction, `E(θk−1) − E(θk) < tolerance · E(θk−1)` (a
-    /// relative decrease, as a classical optimizer's function tolerance; θk's energy comes with
-    /// its Gauss-Newton direction, which is then not used). `None`: every iteration runs. In a
+    /// relative decrease, as a classical optimizer's function tolerance; with the Gauss-Newton
+    /// direction θk's energy comes from its residuals alone, and the direction is computed only
+    /// if the frame goes on). `None`: every iteration runs. In a
     /// batch each frame stops on its own: a stopped frame's θ is held, its energy no longer
-    /// evaluated, and the loop ends when every frame has stopped.
+    /// evaluated (through a host network, [`unroll_rows_for`], its rows leave the network's
+    /// passes too), and the loop ends when every frame has stopped.
     pub tolerance: Option<f64>,
 }
 
@@ -869,12 +871,35 @@ pub fn unroll_rows_for<N: RowNetwork>(
         }
         let rows = alive.len();
         let pick = |i: usize| alive[i];
-        let e: Vec<&Energy> = alive.iter().map(|&i| energies[i]).collect();
-        let evals: Vec<(Vec<f64>, Vec<f64>)> =
-            alive.iter().map(|&i| running.evals[i].clone()).collect();
-        let cur: Vec<Vec<f64>> = alive.iter().map(|&i| current[i].clone()).collect();
-        let obs: Vec<Vec<f32>> = alive.iter().map(|&i| obs_norm[i].clone()).collect();
-        let core_in = core_rows(&c, net.stats(), &e, &evals, &cur, &obs)?;
+        // The running frames' energies, evaluations, poses and observation rows (the batch's
+        // own while every frame runs).
+        let picked;
+        let (e, evals, cur, obs): (
+            &[&Energy],
+            &[(Vec<f64>, Vec<f64>)],
+            &[Vec<f64>],
+            &[Vec<f32>],
+        ) = if rows == batch {
+            (energies, &running.evals, &current, &obs_norm)
+        } else {
+            picked = (
+                alive.iter().map(|&i| energies[i]).collect::<Vec<_>>(),
+                alive
+                    .iter()
+                    .map(|&i| running.evals[i].clone())
+                    .collect::<Vec<_>>(),
+                alive
+                    .iter()
+                    .map(|&i| current[i].clone())
+                    .collect::<Vec<_>>(),
+                alive
+                    .iter()
+                    .map(|&i| obs_norm[i].clone())
+                    .collect::<Vec<_>>(),
+            );
+            (&picked.0, &picked.1, &picked.2, &picked.3)
+        };
+        let core_in = core_rows(&c, net.stats(), e, evals, cur, obs)?;
         let mut delta = net.propose(n, &core_in, rows, &mut state)?;
         let mut grad: Vec<f32> = evals
             .iter()
@@ -890,14 +915,7 @@ pub fn unroll_rows_for<N: RowNetwork>(
             }
         }
         let update = if c.has_step_network() {
-            let step_in = step_rows(
-                &c,
-                net.stats(),
-                &e,
-                &cur,
-                &evals,
-                &rows_to_poses(&delta, dim),
-            )?;
+            let step_in = step_rows(&c, net.stats(), e, cur, evals, &rows_to_poses(&delta, dim))?;
             net.step(n, &step_in, &delta, &grad, rows, &mut state)?
                 .update
         } else {
