@@ -13,7 +13,7 @@
 use burn::module::Module;
 use burn::nn::Linear;
 use burn::tensor::activation::{sigmoid, softplus};
-use burn::tensor::{Device, Tensor};
+use burn::tensor::{Device, Int, Tensor};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -89,6 +89,23 @@ pub struct State {
     pub core: Vec<Tensor<2>>,
     pub lambda: Vec<Tensor<2>>,
     pub gamma: Vec<Tensor<2>>,
+}
+
+impl State {
+    /// The state of the batch rows `rows` (in order), every layer's.
+    pub fn select(&self, rows: &Tensor<1, Int>) -> Self {
+        let pick = |layers: &[Tensor<2>]| -> Vec<Tensor<2>> {
+            layers
+                .iter()
+                .map(|t| t.clone().select(0, rows.clone()))
+                .collect()
+        };
+        Self {
+            core: pick(&self.core),
+            lambda: pick(&self.lambda),
+            gamma: pick(&self.gamma),
+        }
+    }
 }
 
 /// Step sizes of one iteration, `[B, k]` each (`None` where the rule does not use one).

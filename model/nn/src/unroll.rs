@@ -2,7 +2,7 @@
 //! device, the energy (residuals R and exact gradients g, detached) on the CPU with rayon. Both
 //! training (autodiff device, dropout) and inference use this one loop.
 
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::{Device, Int, Tensor, TensorData};
 use rayon::prelude::*;
 
 use crate::config::{Direction, NetConfig, Views};
@@ -34,6 +34,13 @@ pub struct Unrolled {
     /// Per frame, the iterations it ran: all of them, or fewer where [`Exit::tolerance`]
     /// stopped it (its θ held in `host` and `poses` after that).
     pub iterations: Vec<usize>,
+}
+
+/// The batch rows `rows` as an index tensor.
+fn index_tensor(rows: &[usize], device: &Device) -> Tensor<1, Int> {
+    let v: Vec<i64> = rows.iter().map(|&r| r as i64).collect();
+    let len = v.len();
+    Tensor::<1, Int>::from_data(TensorData::new(v, [len]), device)
 }
 
 fn rows_tensor(rows: &[f32], batch: usize, device: &Device) -> Tensor<2> {
@@ -81,8 +88,8 @@ pub struct Exit {
     /// direction θk's energy comes from its residuals alone, and the direction is computed only
     /// if the frame goes on). `None`: every iteration runs. In a
     /// batch each frame stops on its own: a stopped frame's θ is held, its energy no longer
-    /// evaluated (through a host network, [`unroll_rows_for`], its rows leave the network's
-    /// passes too), and the loop ends when every frame has stopped.
+    /// evaluated, its rows out of the network's passes, and the loop ends when every frame
+    /// has stopped.
     pub tolerance: Option<f64>,
 }
 
@@ -646,6 +653,10 @@ pub fn unroll_for(
     let mut host = vec![to_host(&theta, dim)?];
     let mut poses = vec![theta.clone()];
     let mut running = Running::new(batch);
+    // The frames the network still runs, in batch order; `state` holds theirs only (as
+    // `unroll_rows_for`): a frame the energy rule stopped leaves the network's passes and its θ
+    // is held. Without a tolerance (training) every frame runs every pass.
+    let mut alive: Vec<usize> = (0..batch).collect();
     for n in 0..exit.iterations {
         let current = host.last().cloned().unwrap_or_default();
         // R(θ) and g(θ) on the CPU (detached inputs), and E(θ) for the energy rule.
@@ -653,33 +664,73 @@ pub fn unroll_for(
         if !running.evaluate(c, &exit, n, energies, &current, free_rows)? {
             break;
         }
-        let evals = &running.evals;
-        let core_in = core_rows(c, stats, energies, &evals, &current, &obs_norm)?;
-        let mut delta = net.propose(n, rows_tensor(&core_in, batch, device), &mut state, dropout);
+        let shrinks = running.active.iter().filter(|&&a| a).count() < alive.len();
+        if shrinks {
+            let keep: Vec<usize> = (0..alive.len())
+                .filter(|&p| running.active[alive[p]])
+                .collect();
+            state = state.select(&index_tensor(&keep, device));
+            alive = keep.iter().map(|&p| alive[p]).collect();
+        }
+        let rows = alive.len();
+        let picked;
+        let (e, evals, cur, obs): (
+            &[&Energy],
+            &[(Vec<f64>, Vec<f64>)],
+            &[Vec<f64>],
+            &[Vec<f32>],
+        ) = if rows == batch {
+            (energies, &running.evals, &current, &obs_norm)
+        } else {
+            picked = (
+                alive.iter().map(|&i| energies[i]).collect::<Vec<_>>(),
+                alive
+                    .iter()
+                    .map(|&i| running.evals[i].clone())
+                    .collect::<Vec<_>>(),
+                alive
+                    .iter()
+                    .map(|&i| current[i].clone())
+                    .collect::<Vec<_>>(),
+                alive
+                    .iter()
+                    .map(|&i| obs_norm[i].clone())
+                    .collect::<Vec<_>>(),
+            );
+            (&picked.0, &picked.1, &picked.2, &picked.3)
+        };
+        // The running frames' rows of the batch (None: all of them).
+        let index = (rows < batch).then(|| index_tensor(&alive, device));
+        let core_in = core_rows(c, stats, e, evals, cur, obs)?;
+        let mut delta = net.propose(n, rows_tensor(&core_in, rows, device), &mut state, dropout);
         let mut grad = poses_to_tensor(
             &evals.iter().map(|(_, g)| g.as_slice()).collect::<Vec<_>>(),
             device,
         );
         if let Some(f) = &free {
+            let f = match &index {
+                Some(i) => f.clone().select(0, i.clone()),
+                None => f.clone(),
+            };
             delta = delta * f.clone();
-            grad = grad * f.clone();
+            grad = grad * f;
         }
 
         let sizes = if c.has_step_network() {
-            let step_in = step_rows(c, stats, energies, &current, &evals, &to_host(&delta, dim)?)?;
-            net.step_sizes(n, rows_tensor(&step_in, batch, device), &mut state, dropout)
+            let step_in = step_rows(c, stats, e, cur, evals, &to_host(&delta, dim)?)?;
+            net.step_sizes(n, rows_tensor(&step_in, rows, device), &mut state, dropout)
         } else {
-            net.step_sizes(n, Tensor::zeros([batch, 1], device), &mut state, dropout)
+            net.step_sizes(n, Tensor::zeros([rows, 1], device), &mut state, dropout)
         };
         let mut step = net.update(delta, grad, &sizes);
-        // A stopped frame's θ is held.
-        if running.active.iter().any(|&a| !a) {
-            let hold: Vec<f32> = running
-                .active
-                .iter()
-                .flat_map(|&a| std::iter::repeat_n(if a { 1.0 } else { 0.0 }, dim))
-                .collect();
-            step = step * rows_tensor(&hold, batch, device);
+        // A stopped frame's θ is held: the running rows' steps into a batch of zeros.
+        if let Some(i) = index {
+            step = Tensor::zeros([batch, dim], device).select_assign(
+                0,
+                i,
+                step,
+                burn::tensor::IndexingUpdateOp::Add,
+            );
         }
         theta = constrain(theta + step);
         host.push(to_host(&theta, dim)?);
