@@ -129,7 +129,20 @@ struct Running {
     previous: Vec<f64>,
     evals: Vec<(Vec<f64>, Vec<f64>)>,
     iterations: Vec<usize>,
+    /// The frames whose rows the network still runs, in batch order (the loops keep the
+    /// recurrent state of these rows only): a frame the energy rule stopped leaves the
+    /// network's passes and its θ is held. Without a tolerance (training) every frame runs
+    /// every pass.
+    alive: Vec<usize>,
 }
+
+/// The running frames' energies, evaluations (R, g), poses and observation rows.
+type Picked<'a> = (
+    Vec<&'a Energy>,
+    Vec<(Vec<f64>, Vec<f64>)>,
+    Vec<Vec<f64>>,
+    Vec<Vec<f32>>,
+);
 
 impl Running {
     fn new(batch: usize) -> Self {
@@ -138,7 +151,43 @@ impl Running {
             previous: vec![f64::INFINITY; batch],
             evals: vec![(Vec::new(), Vec::new()); batch],
             iterations: vec![0; batch],
+            alive: (0..batch).collect(),
         }
+    }
+
+    /// Drops the frames that stopped from [`Running::alive`]; when any stopped, the positions
+    /// of those kept among the rows alive before, and how many rows that was (for the
+    /// recurrent state's rows).
+    fn shrink(&mut self) -> Option<(Vec<usize>, usize)> {
+        let before = self.alive.len();
+        let keep: Vec<usize> = (0..before)
+            .filter(|&p| self.active[self.alive[p]])
+            .collect();
+        if keep.len() == before {
+            return None;
+        }
+        self.alive = keep.iter().map(|&p| self.alive[p]).collect();
+        Some((keep, before))
+    }
+
+    /// The running frames' energies, evaluations, poses and observation rows; `None` while
+    /// every frame of the batch runs (the batch's own are then those).
+    fn picked<'a>(
+        &self,
+        energies: &[&'a Energy],
+        current: &[Vec<f64>],
+        obs: &[Vec<f32>],
+    ) -> Option<Picked<'a>> {
+        if self.alive.len() == energies.len() {
+            return None;
+        }
+        let a = &self.alive;
+        Some((
+            a.iter().map(|&i| energies[i]).collect(),
+            a.iter().map(|&i| self.evals[i].clone()).collect(),
+            a.iter().map(|&i| current[i].clone()).collect(),
+            a.iter().map(|&i| obs[i].clone()).collect(),
+        ))
     }
 
     /// Iteration `n`: R(θ), g(θ) and E(θ) of the frames still running (a stopped frame's are
@@ -653,10 +702,6 @@ pub fn unroll_for(
     let mut host = vec![to_host(&theta, dim)?];
     let mut poses = vec![theta.clone()];
     let mut running = Running::new(batch);
-    // The frames the network still runs, in batch order; `state` holds theirs only (as
-    // `unroll_rows_for`): a frame the energy rule stopped leaves the network's passes and its θ
-    // is held. Without a tolerance (training) every frame runs every pass.
-    let mut alive: Vec<usize> = (0..batch).collect();
     for n in 0..exit.iterations {
         let current = host.last().cloned().unwrap_or_default();
         // R(θ) and g(θ) on the CPU (detached inputs), and E(θ) for the energy rule.
@@ -664,43 +709,18 @@ pub fn unroll_for(
         if !running.evaluate(c, &exit, n, energies, &current, free_rows)? {
             break;
         }
-        let shrinks = running.active.iter().filter(|&&a| a).count() < alive.len();
-        if shrinks {
-            let keep: Vec<usize> = (0..alive.len())
-                .filter(|&p| running.active[alive[p]])
-                .collect();
+        if let Some((keep, _)) = running.shrink() {
             state = state.select(&index_tensor(&keep, device));
-            alive = keep.iter().map(|&p| alive[p]).collect();
         }
+        let alive = &running.alive;
         let rows = alive.len();
-        let picked;
-        let (e, evals, cur, obs): (
-            &[&Energy],
-            &[(Vec<f64>, Vec<f64>)],
-            &[Vec<f64>],
-            &[Vec<f32>],
-        ) = if rows == batch {
-            (energies, &running.evals, &current, &obs_norm)
-        } else {
-            picked = (
-                alive.iter().map(|&i| energies[i]).collect::<Vec<_>>(),
-                alive
-                    .iter()
-                    .map(|&i| running.evals[i].clone())
-                    .collect::<Vec<_>>(),
-                alive
-                    .iter()
-                    .map(|&i| current[i].clone())
-                    .collect::<Vec<_>>(),
-                alive
-                    .iter()
-                    .map(|&i| obs_norm[i].clone())
-                    .collect::<Vec<_>>(),
-            );
-            (&picked.0, &picked.1, &picked.2, &picked.3)
+        let picked = running.picked(energies, &current, &obs_norm);
+        let (e, evals, cur, obs) = match &picked {
+            Some(p) => (&p.0[..], &p.1[..], &p.2[..], &p.3[..]),
+            None => (energies, &running.evals[..], &current[..], &obs_norm[..]),
         };
         // The running frames' rows of the batch (None: all of them).
-        let index = (rows < batch).then(|| index_tensor(&alive, device));
+        let index = (rows < batch).then(|| index_tensor(alive, device));
         let core_in = core_rows(c, stats, e, evals, cur, obs)?;
         let mut delta = net.propose(n, rows_tensor(&core_in, rows, device), &mut state, dropout);
         let mut grad = poses_to_tensor(
@@ -902,53 +922,23 @@ pub fn unroll_rows_for<N: RowNetwork>(
     constrain(&mut theta);
     let mut host = vec![rows_to_poses(&theta, dim)];
     let mut running = Running::new(batch);
-    // The frames whose rows the network still runs, in batch order; `state` holds theirs only.
-    // A frame the energy rule stopped leaves the network's passes: its θ is held and its state
-    // never read again. The native forward computes every row alone, so its results do not
-    // depend on which rows share a pass.
-    let mut alive: Vec<usize> = (0..batch).collect();
     for n in 0..exit.iterations {
         let current = host.last().cloned().unwrap_or_default();
         let free_rows = constraints.map(|k| k.free.as_slice());
         if !running.evaluate(&c, &exit, n, energies, &current, free_rows)? {
             break;
         }
-        if running.active.iter().filter(|&&a| a).count() < alive.len() {
-            let keep: Vec<usize> = (0..alive.len())
-                .filter(|&p| running.active[alive[p]])
-                .collect();
-            state = state.select(&keep, alive.len());
-            alive = keep.iter().map(|&p| alive[p]).collect();
+        // The native forward computes every row alone, so its results do not depend on which
+        // rows share a pass.
+        if let Some((keep, before)) = running.shrink() {
+            state = state.select(&keep, before);
         }
-        let rows = alive.len();
-        let pick = |i: usize| alive[i];
-        // The running frames' energies, evaluations, poses and observation rows (the batch's
-        // own while every frame runs).
-        let picked;
-        let (e, evals, cur, obs): (
-            &[&Energy],
-            &[(Vec<f64>, Vec<f64>)],
-            &[Vec<f64>],
-            &[Vec<f32>],
-        ) = if rows == batch {
-            (energies, &running.evals, &current, &obs_norm)
-        } else {
-            picked = (
-                alive.iter().map(|&i| energies[i]).collect::<Vec<_>>(),
-                alive
-                    .iter()
-                    .map(|&i| running.evals[i].clone())
-                    .collect::<Vec<_>>(),
-                alive
-                    .iter()
-                    .map(|&i| current[i].clone())
-                    .collect::<Vec<_>>(),
-                alive
-                    .iter()
-                    .map(|&i| obs_norm[i].clone())
-                    .collect::<Vec<_>>(),
-            );
-            (&picked.0, &picked.1, &picked.2, &picked.3)
+        let alive = &running.alive;
+        let (rows, pick) = (alive.len(), |r: usize| alive[r]);
+        let picked = running.picked(energies, &current, &obs_norm);
+        let (e, evals, cur, obs) = match &picked {
+            Some(p) => (&p.0[..], &p.1[..], &p.2[..], &p.3[..]),
+            None => (energies, &running.evals[..], &current[..], &obs_norm[..]),
         };
         let core_in = core_rows(&c, net.stats(), e, evals, cur, obs)?;
         let mut delta = net.propose(n, &core_in, rows, &mut state)?;
