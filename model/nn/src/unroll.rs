@@ -216,7 +216,7 @@ impl Running {
         if value_first {
             let values: Vec<f64> = run
                 .par_iter()
-                .map(|&i| Ok(gauss_newton_value(energies[i], &current[i])?))
+                .map(|&i| gauss_newton_value(energies[i], &current[i]))
                 .collect::<Result<_>>()?;
             for (&i, value) in run.iter().zip(values) {
                 if exit.stops(n, self.previous[i], value) {
