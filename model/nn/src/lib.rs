@@ -26,8 +26,7 @@ pub use layers::Dropout;
 pub use net::{NeuralNet, State, StepSizes};
 pub use unroll::{
     Constraints, Exit, RowNetwork, RowState, StepOut, Unrolled, check_iterations, direction,
-    evaluate_with_energy, initial_poses, initial_poses_rows, unroll, unroll_for, unroll_rows,
-    unroll_rows_for,
+    initial_poses, initial_poses_rows, unroll, unroll_for, unroll_rows, unroll_rows_for,
 };
 
 #[cfg(test)]

@@ -28,11 +28,10 @@ pub struct Unrolled {
     pub poses: Vec<Tensor<2>>,
     /// The same parameter vectors on the host, `[N + 1][B]`.
     pub host: Vec<Vec<Vec<f64>>>,
-    /// Per frame, the observation-model evaluations made for residuals (2 per iteration); the
-    /// energy counts its own gradient evaluations.
-    pub residual_evaluations: u64,
     /// Per frame, the iterations it ran: all of them, or fewer where [`Exit::tolerance`]
-    /// stopped it (its θ held in `host` and `poses` after that).
+    /// stopped it (its θ held in `host` and `poses` after that). Its residual evaluations
+    /// follow: [`NetConfig::evaluations_per_iteration`] per iteration (the energy counts its
+    /// own evaluations and gradient evaluations).
     pub iterations: Vec<usize>,
 }
 
@@ -393,27 +392,17 @@ pub fn direction(
     pose: &[f64],
     free: Option<&[bool]>,
 ) -> Result<Vec<f64>> {
-    Ok(residual_and_direction(config, energy, pose, free, false)?.1)
+    Ok(residual_and_direction(config, energy, pose, free, false, true)?.1)
 }
 
-/// R(θ) (when `with_residual`, else empty) and [`direction`] at `pose`. The Gauss-Newton
-/// direction's least-squares evaluation gives R(θ) from its own prediction
-/// ([`lfit_model::energy::LeastSquares::observation_residual`]), so it costs no second residual pass;
-/// the gradient direction computes it apart.
+/// R(θ) (when `with_residual`, else empty), [`direction`] and E(θ) at `pose`. The
+/// Gauss-Newton direction's least-squares evaluation gives R(θ) from its own prediction
+/// ([`lfit_model::energy::LeastSquares::observation_residual`]), so it costs no second residual
+/// pass; the gradient direction computes it apart. With `counted` false the Gauss-Newton
+/// evaluation is of a point whose residuals were just evaluated and counted
+/// ([`gauss_newton_value`]): it counts one gradient evaluation and no new evaluation
+/// ([`Energy::jacobian_with`]).
 fn residual_and_direction(
-    config: &NetConfig,
-    energy: &Energy,
-    pose: &[f64],
-    free: Option<&[bool]>,
-    with_residual: bool,
-) -> Result<(Vec<f64>, Vec<f64>, f64)> {
-    residual_and_direction_counted(config, energy, pose, free, with_residual, true)
-}
-
-/// [`residual_and_direction`]; with `counted` false the Gauss-Newton evaluation is of a point
-/// whose residuals were just evaluated and counted ([`gauss_newton_value`]): it counts one
-/// gradient evaluation and no new evaluation ([`Energy::jacobian_with`]).
-fn residual_and_direction_counted(
     config: &NetConfig,
     energy: &Energy,
     pose: &[f64],
@@ -488,20 +477,11 @@ pub fn evaluate(
     current: &[Vec<f64>],
     free: Option<&[Vec<bool>]>,
 ) -> Result<Vec<(Vec<f64>, Vec<f64>)>> {
-    Ok(evaluate_with_energy(config, energies, current, free)?.0)
+    Ok(evaluate_counted(config, energies, current, free, true)?.0)
 }
 
-/// [`evaluate`] and every frame's energy at its current pose (from the same evaluation).
-pub fn evaluate_with_energy(
-    config: &NetConfig,
-    energies: &[&Energy],
-    current: &[Vec<f64>],
-    free: Option<&[Vec<bool>]>,
-) -> Result<(Vec<(Vec<f64>, Vec<f64>)>, Vec<f64>)> {
-    evaluate_counted(config, energies, current, free, true)
-}
-
-/// [`evaluate_with_energy`]; `counted` as [`residual_and_direction_counted`].
+/// [`evaluate`] and every frame's energy at its current pose (from the same evaluation);
+/// `counted` as [`residual_and_direction`].
 #[allow(clippy::type_complexity)]
 fn evaluate_counted(
     config: &NetConfig,
@@ -516,7 +496,7 @@ fn evaluate_counted(
         .enumerate()
         .map(|(i, (e, p))| {
             let f = free.and_then(|f| f.get(i)).map(Vec::as_slice);
-            residual_and_direction_counted(config, e, p, f, true, counted)
+            residual_and_direction(config, e, p, f, true, counted)
         })
         .collect::<Result<_>>()?;
     Ok(all.into_iter().map(|(r, g, e)| ((r, g), e)).unzip())
@@ -756,11 +736,9 @@ pub fn unroll_for(
         host.push(to_host(&theta, dim)?);
         poses.push(theta.clone());
     }
-    let residual_evaluations = (c.evaluations_per_iteration() * (host.len() - 1)) as u64;
     Ok(Unrolled {
         poses,
         host,
-        residual_evaluations,
         iterations: running.iterations,
     })
 }
