@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use burn::tensor::{Tensor, TensorData};
-use lfit::fitters::FitRequest;
+use lfit::fitters::{FitRequest, Fitter};
 use lfit::infer::onnx::export::export;
 use lfit::infer::onnx::proto::{ModelProto, StringStringEntryProto};
 use lfit::infer::onnx::runtime::{OrtNetwork, SessionOptions, library_path};
@@ -381,23 +381,14 @@ fn an_energy_tolerance_stops_each_frame_where_its_step_stalls_on_every_engine() 
         let full = load(name, Start::Given);
         let whole: Vec<_> = requests
             .iter()
-            .map(|r| {
-                full.fit_batch(std::slice::from_ref(r))
-                    .expect("full fit")
-                    .pop()
-                    .expect("one")
-            })
+            .map(|r| full.fit(r).expect("full fit"))
             .collect();
         let tol = load(name, Start::Given)
             .with_tolerance(TOL)
             .expect("tolerance");
         let (mut stopped, mut ran) = (0, 0);
         for (a, r) in whole.iter().zip(&requests) {
-            let b = tol
-                .fit_batch(std::slice::from_ref(r))
-                .expect("fit")
-                .pop()
-                .expect("one");
+            let b = tol.fit(r).expect("fit");
             let k = b.iterations as usize;
             assert!((2..=5).contains(&k), "{name}: {k} iterations");
             assert_eq!(b.iterates, a.iterates[..=k].to_vec(), "{name}");
@@ -444,11 +435,7 @@ fn an_energy_tolerance_stops_each_frame_where_its_step_stalls_on_every_engine() 
         // on the batch; Burn's and ONNX Runtime's batched products round apart).
         let batched = tol.fit_batch(&requests).expect("batch");
         for (b, r) in batched.iter().zip(&requests) {
-            let alone = tol
-                .fit_batch(std::slice::from_ref(r))
-                .expect("fit")
-                .pop()
-                .expect("one");
+            let alone = tol.fit(r).expect("fit");
             assert_eq!(
                 (b.iterations, b.evaluations, b.gradient_evaluations),
                 (
