@@ -22,7 +22,9 @@
 # SampleData/Test_Files/Movement_trial.c3d and Static_trial.c3d; not committed: their capture's
 # terms are not stated beyond the repository's licence) and kineticstoolkit's tennis serve
 # (Apache-2.0; data/kinematics_tennis_serve.c3d, labels "Derrick:<marker>" through LABEL_MAP):
-# docs/results/captured-motion.md, round 20.
+# docs/results/captured-motion.md, round 20; and kineticstoolkit_extensions' gait and static
+# trials (Apache-2.0; kineticstoolkit_extensions/anthropometry/data/{gait,static}.c3d at 1c72fc2,
+# Plug-in Gait labels as they are): round 26.
 # UP (default z: Vicon's lab frame) and LABEL_MAP (a `lfit data import --label-map` file; default:
 # labels equal to the model's Plug-in Gait names) describe the capture; CHECKPOINT (default
 # checkpoints/markers-makehuman) is the markers network; METHODS (default "lm neural neural+lm";
@@ -87,7 +89,7 @@ if [ -n "$STATIC" ]; then
         read -ra args <<< "$(eval_marker_method $m "$CK")"
         eval_run "static-$m" "$OUT/movement.npz" "${args[@]}" --offsets "$OUT/static-placement.json"
         eval_run "static+beta-$m" "$OUT/movement.npz" "${args[@]}" --offsets "$OUT/static-placement.json" \
-            --known-shape "$beta"
+            --known-shape="$beta"
     done
 fi
 eval_table real "$OUT" "${rows[@]}"
@@ -105,7 +107,7 @@ held_fit() {
     local name="$1" placement="$2" method="$3" extra=() args
     shift 3
     [ "$placement" != model ] && extra=(--offsets "$OUT/static-placement.json")
-    [ "$placement" = static+beta ] && extra+=(--known-shape "$beta")
+    [ "$placement" = static+beta ] && extra+=(--known-shape="$beta")
     read -ra args <<< "$(eval_marker_method "$method" "$CK")"
     "$LFIT" -q fit --data "$OUT/movement.npz" --template "$MODEL" --method "${args[@]}" \
         "${extra[@]}" --holdout "$(IFS=,; echo "$*")" --out "$OUT/$name.json" >/dev/null

@@ -504,7 +504,8 @@ struct FitCmd {
     /// The subject's shape β is known, not estimated (papers/002 §3.2, HMD): `truth` (each
     /// frame's ground-truth β) or comma-separated β values; the shape entries are then frozen
     /// for every method. Required by checkpoints trained with the shape known.
-    #[arg(long)]
+    // A β list may start with a minus sign (`-0.5,1.2,…`): a value, not a flag.
+    #[arg(long, allow_hyphen_values = true)]
     known_shape: Option<String>,
     /// Tensor backend of the neural fitter: ndarray, flex or wgpu.
     #[arg(long, default_value = "flex")]

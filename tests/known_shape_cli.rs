@@ -135,8 +135,8 @@ fn a_known_shape_is_frozen_for_every_method_and_required_by_a_known_shape_networ
         let d = f["shape_v2v_mm"].as_f64().expect("shape_v2v_mm");
         assert!(d > 0.0 && d.is_finite(), "{d}");
     }
-    // One β for every frame.
-    let given = "0.5,-0.25,0,0,0,0,0,1";
+    // One β for every frame; a first entry below zero is a value, not a flag.
+    let given = "-0.5,0.25,0,0,0,0,0,1";
     let (o, out) = fit("lm", Some(given), "lm-given.json");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let want: Vec<f64> = given.split(',').map(|v| v.parse().unwrap()).collect();
