@@ -77,6 +77,20 @@ if [ -z "${LFIT_MOCAPBANK_BVH:-}" ]; then
     fi
 fi
 
+# A build directory shared by two checkouts on one machine (this clone and another) holds test
+# binaries that cargo takes as fresh for both — it fingerprints a workspace member by its path
+# inside the workspace and by mtimes — with the other checkout's paths compiled in
+# (env!("CARGO_MANIFEST_DIR")), so they would read that checkout's files. When the directory was
+# last used from another checkout, lfit's own crates are rebuilt (their roots touched); the
+# dependencies stay shared.
+stamp="$CARGO_TARGET_DIR/.lfit-checkout"
+if [ "$(cat "$stamp" 2>/dev/null)" != "$PWD" ]; then
+    touch src/lib.rs src/main.rs model/src/lib.rs model/nn/src/lib.rs data-synth/src/lib.rs \
+        fitters/src/lib.rs train/src/lib.rs infer/src/lib.rs python/src/lib.rs
+    mkdir -p "$CARGO_TARGET_DIR"
+    printf '%s\n' "$PWD" > "$stamp"
+fi
+
 # Every library, binary, integration test and example of the workspace; the criterion benches are
 # not built or run here (`cargo bench --workspace` does: they measure, they do not test).
 cargo test --workspace --lib --bins --tests --examples "$@"
