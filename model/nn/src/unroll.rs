@@ -2,6 +2,8 @@
 //! device, the energy (residuals R and exact gradients g, detached) on the CPU with rayon. Both
 //! training (autodiff device, dropout) and inference use this one loop.
 
+use std::borrow::Cow;
+
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use rayon::prelude::*;
 
@@ -135,13 +137,14 @@ struct Running {
     alive: Vec<usize>,
 }
 
-/// The running frames' energies, evaluations (R, g), poses and observation rows.
-type Picked<'a> = (
-    Vec<&'a Energy>,
-    Vec<(Vec<f64>, Vec<f64>)>,
-    Vec<Vec<f64>>,
-    Vec<Vec<f32>>,
-);
+/// The running frames' energies, evaluations (R, g), poses and observation rows: the batch's
+/// own while every frame runs, copies of the running frames' once some stopped.
+struct Picked<'a, 'e> {
+    energies: Cow<'a, [&'e Energy]>,
+    evals: Cow<'a, [(Vec<f64>, Vec<f64>)]>,
+    current: Cow<'a, [Vec<f64>]>,
+    obs: Cow<'a, [Vec<f32>]>,
+}
 
 impl Running {
     fn new(batch: usize) -> Self {
@@ -169,24 +172,29 @@ impl Running {
         Some((keep, before))
     }
 
-    /// The running frames' energies, evaluations, poses and observation rows; `None` while
-    /// every frame of the batch runs (the batch's own are then those).
-    fn picked<'a>(
-        &self,
-        energies: &[&'a Energy],
-        current: &[Vec<f64>],
-        obs: &[Vec<f32>],
-    ) -> Option<Picked<'a>> {
+    /// The running frames' energies, evaluations, poses and observation rows (borrowed while
+    /// every frame of the batch runs).
+    fn picked<'a, 'e>(
+        &'a self,
+        energies: &'a [&'e Energy],
+        current: &'a [Vec<f64>],
+        obs: &'a [Vec<f32>],
+    ) -> Picked<'a, 'e> {
         if self.alive.len() == energies.len() {
-            return None;
+            return Picked {
+                energies: Cow::Borrowed(energies),
+                evals: Cow::Borrowed(&self.evals),
+                current: Cow::Borrowed(current),
+                obs: Cow::Borrowed(obs),
+            };
         }
         let a = &self.alive;
-        Some((
-            a.iter().map(|&i| energies[i]).collect(),
-            a.iter().map(|&i| self.evals[i].clone()).collect(),
-            a.iter().map(|&i| current[i].clone()).collect(),
-            a.iter().map(|&i| obs[i].clone()).collect(),
-        ))
+        Picked {
+            energies: a.iter().map(|&i| energies[i]).collect(),
+            evals: a.iter().map(|&i| self.evals[i].clone()).collect(),
+            current: a.iter().map(|&i| current[i].clone()).collect(),
+            obs: a.iter().map(|&i| obs[i].clone()).collect(),
+        }
     }
 
     /// Iteration `n`: R(θ), g(θ) and E(θ) of the frames still running (a stopped frame's are
@@ -695,10 +703,12 @@ pub fn unroll_for(
         let alive = &running.alive;
         let rows = alive.len();
         let picked = running.picked(energies, &current, &obs_norm);
-        let (e, evals, cur, obs) = match &picked {
-            Some(p) => (&p.0[..], &p.1[..], &p.2[..], &p.3[..]),
-            None => (energies, &running.evals[..], &current[..], &obs_norm[..]),
-        };
+        let (e, evals, cur, obs) = (
+            &picked.energies[..],
+            &picked.evals[..],
+            &picked.current[..],
+            &picked.obs[..],
+        );
         // The running frames' rows of the batch (None: all of them).
         let index = (rows < batch).then(|| index_tensor(alive, device));
         let core_in = core_rows(c, stats, e, evals, cur, obs)?;
@@ -914,10 +924,12 @@ pub fn unroll_rows_for<N: RowNetwork>(
         let alive = &running.alive;
         let (rows, pick) = (alive.len(), |r: usize| alive[r]);
         let picked = running.picked(energies, &current, &obs_norm);
-        let (e, evals, cur, obs) = match &picked {
-            Some(p) => (&p.0[..], &p.1[..], &p.2[..], &p.3[..]),
-            None => (energies, &running.evals[..], &current[..], &obs_norm[..]),
-        };
+        let (e, evals, cur, obs) = (
+            &picked.energies[..],
+            &picked.evals[..],
+            &picked.current[..],
+            &picked.obs[..],
+        );
         let core_in = core_rows(&c, net.stats(), e, evals, cur, obs)?;
         let mut delta = net.propose(n, &core_in, rows, &mut state)?;
         let mut grad: Vec<f32> = evals
