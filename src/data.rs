@@ -56,6 +56,9 @@ pub struct SynthArgs {
     pub seed: u64,
     pub fps: f64,
     pub noise: f64,
+    /// Each subject's noise is `noise` times a factor drawn in `[1 − noise_spread, 1]`
+    /// (`--noise-spread`, [`SynthConfig::noise_spread`]); 0: every subject with `noise`.
+    pub noise_spread: f64,
     /// Comma-separated procedural motions (`--library-motions`; default: all).
     pub motions: Option<String>,
     /// markers: σ of each subject's marker slip in millimetres (`--marker-slip-mm`,
@@ -202,6 +205,7 @@ pub fn synthesize_dataset(
     config.with_library = files.with_library;
     config.motion_augment = files.augment;
     config.uniform_share = files.uniform_share;
+    config.noise_spread = args.noise_spread;
     config.marker_slip = args.marker_slip_mm / 1000.0;
     config.keypoint_bias = args.keypoint_bias_mm / 1000.0;
     config.keypoint_detector = args.keypoint_detector;
@@ -228,6 +232,9 @@ pub fn synthesize_dataset(
         summary["frames_clamped"] =
             json!(names.iter().filter(|m| m.ends_with("(clamped)")).count());
         summary["fps"] = json!(dataset.meta.config.fps);
+    }
+    if config.noise_spread > 0.0 {
+        summary["noise_spread"] = json!(args.noise_spread);
     }
     if config.marker_slip > 0.0 {
         summary["marker_slip_mm"] = json!(args.marker_slip_mm);

@@ -70,6 +70,11 @@ enum Command {
         /// Noise and occlusion scale: 0 = noise-free, 1 = the defaults of lfit_synth::NoiseConfig.
         #[arg(long, default_value_t = 1.0)]
         noise: f64,
+        /// Each subject's noise is --noise times its own factor drawn uniformly in
+        /// [1 − F, 1] (per frame in local/global, once per sequence), so one set holds quiet and
+        /// noisy sensors. In [0, 1] (default 0: every subject with --noise).
+        #[arg(long, value_name = "F", default_value_t = 0.0)]
+        noise_spread: f64,
         /// Frame rate of sequences, Hz.
         #[arg(long, default_value_t = 30.0)]
         fps: f64,
@@ -727,6 +732,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             out,
             source,
             noise,
+            noise_spread,
             fps,
             motions,
             with_library,
@@ -750,6 +756,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 seed,
                 fps,
                 noise,
+                noise_spread,
                 motions: library_motions,
                 marker_slip_mm,
                 keypoint_bias_mm,

@@ -14,7 +14,7 @@ pub use dataset::config::{
     MAX_MARKER_SLIP, MotionFile, PoseSource, Scenario, SynthConfig, keypoint_bias_problem,
     marker_slip_problem,
 };
-pub use dataset::synth::{detector_offsets, synthesize, synthesize_until};
+pub use dataset::synth::{detector_offsets, frame_noise, synthesize, synthesize_until};
 pub use dataset::{Dataset, Meta, Observations};
 pub use error::SynthError;
 pub use motion::augment::MotionAugment;

@@ -247,7 +247,7 @@ fn model_or_default(
 /// Synthesises a dataset as `lfit synth` does (same settings, same seed → same data); writes it
 /// to `out` too when given. Ctrl-C stops it (`KeyboardInterrupt`, nothing written).
 #[pyfunction]
-#[pyo3(signature = (modality, model=None, *, scenario="local", frames=100, seed=0, source="motion", noise=1.0, fps=30.0, library_motions=None, motions=None, with_library=false, mirror=false, heading=false, jitter_deg=0.0, uniform_share=0.0, marker_slip_mm=0.0, keypoint_bias_mm=0.0, keypoint_detector=None, cameras=None, out=None))]
+#[pyo3(signature = (modality, model=None, *, scenario="local", frames=100, seed=0, source="motion", noise=1.0, noise_spread=0.0, fps=30.0, library_motions=None, motions=None, with_library=false, mirror=false, heading=false, jitter_deg=0.0, uniform_share=0.0, marker_slip_mm=0.0, keypoint_bias_mm=0.0, keypoint_detector=None, cameras=None, out=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn synth(
     py: Python<'_>,
@@ -258,6 +258,7 @@ pub fn synth(
     seed: u64,
     source: &str,
     noise: f64,
+    noise_spread: f64,
     fps: f64,
     library_motions: Option<Vec<String>>,
     motions: Option<Vec<PathBuf>>,
@@ -281,6 +282,7 @@ pub fn synth(
         seed,
         fps,
         noise,
+        noise_spread,
         motions: library_motions.map(|m| m.join(",")),
         marker_slip_mm,
         keypoint_bias_mm,

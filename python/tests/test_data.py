@@ -83,6 +83,29 @@ def test_synth_marker_slip_equals_the_cli_and_moves_only_the_observations(cli, t
     assert not (tmp_path / "bad.npz").exists()
 
 
+def test_synth_noise_spread_equals_the_cli_and_quiets_some_subjects(cli, tmp_path):
+    cli_out, py_out = tmp_path / "spread-cli.npz", tmp_path / "spread-py.npz"
+    cli("synth", "--modality", "markers", "--model", MH, "--frames", 30, "--seed", 8, "--noise-spread", 0.8, "--out", cli_out)
+    d = lfit.synth("markers", MH, frames=30, seed=8, noise_spread=0.8, out=py_out)
+    assert py_out.read_bytes() == cli_out.read_bytes()
+    assert d.summary["noise_spread"] == 0.8 and d.meta["config"]["noise_spread"] == 0.8
+    full = lfit.synth("markers", MH, frames=30, seed=8)
+    assert "noise_spread" not in full.meta["config"] and "noise_spread" not in full.summary
+    clean = lfit.synth("markers", MH, frames=30, seed=8, noise=0.0)
+    # The same poses; per frame the median marker deviation is the full noise's or below it.
+    np.testing.assert_array_equal(d.gt_params, full.gt_params)
+    def median_dev(x):
+        dev = np.abs(x.observations - clean.observations)
+        return np.array([np.median(r[r > 0]) for r in dev])
+    spread, alone = median_dev(d), median_dev(full)
+    assert (spread < 0.5 * np.median(alone)).sum() >= 5, spread / np.median(alone)
+    assert np.median(spread) < np.median(alone)
+    for bad in (1.5, -0.1):
+        with pytest.raises(lfit.LfitError, match="noise_spread"):
+            lfit.synth("markers", MH, frames=3, noise_spread=bad, out=tmp_path / "bad.npz")
+    assert not (tmp_path / "bad.npz").exists()
+
+
 def test_synth_keypoint_bias_equals_the_cli_and_moves_only_the_observations(cli, tmp_path):
     d = noise_free_synth_as_the_cli(cli, tmp_path, "bias", "keypoints2d", 5, ("--keypoint-bias-mm", 30), keypoint_bias_mm=30.0)
     assert d.summary["keypoint_bias_mm"] == 30.0 and d.meta["config"]["keypoint_bias"] == 0.03

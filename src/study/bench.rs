@@ -770,6 +770,7 @@ pub fn run(
                     seed: s.seed,
                     fps: 30.0,
                     noise: s.noise,
+                    noise_spread: 0.0,
                     motions: None,
                     marker_slip_mm: 0.0,
                     keypoint_bias_mm: 0.0,

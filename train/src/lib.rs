@@ -101,6 +101,13 @@ pub struct TrainConfig {
     /// Observation noise and occlusion of the synthesised training data (multiplier of the
     /// default noise model; 0 = clean).
     pub noise: f64,
+    /// Every synthesised set (training batches, validation, statistics, the sequence windows of
+    /// `"starts"`) observes each subject with `noise` times a factor drawn uniformly in
+    /// `[1 − noise_spread, 1]` ([`SynthConfig::noise_spread`]), so the network meets quiet and
+    /// noisy sensors and can read which from the residuals. 0 (the default): every subject
+    /// with `noise`.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub noise_spread: f64,
     /// Imported motion files (`lfit motion import`, paths relative to the working directory)
     /// that every synthesised set (training batches, validation, statistics) draws its target
     /// poses from instead of the procedural library, as `lfit synth --motions` does.
@@ -200,6 +207,7 @@ impl Default for TrainConfig {
             stats_frames: 256,
             seed: 0,
             noise: 1.0,
+            noise_spread: 0.0,
             motions: Vec::new(),
             with_library: false,
             motion_augment: MotionAugment::default(),
@@ -333,6 +341,13 @@ impl TrainConfig {
         }
         if !(self.noise.is_finite() && self.noise >= 0.0) {
             return bad("noise", self.noise.to_string(), "must be ≥ 0");
+        }
+        if !(0.0..=1.0).contains(&self.noise_spread) {
+            return bad(
+                "noise_spread",
+                self.noise_spread.to_string(),
+                "must be in [0, 1] (a share of `noise`)",
+            );
         }
         if let Some(mix) = &self.starts {
             mix.validate(self.source)?;
@@ -505,6 +520,8 @@ pub struct Motions {
     pub uniform_share: f64,
     /// The markers' slip σ in metres ([`SynthConfig::marker_slip`]).
     pub marker_slip: f64,
+    /// The spread of the subjects' noise ([`SynthConfig::noise_spread`]).
+    pub noise_spread: f64,
 }
 
 impl Motions {
@@ -522,12 +539,13 @@ impl Motions {
             source: config.source,
             uniform_share: config.uniform_poses,
             marker_slip: config.marker_slip_mm / 1000.0,
+            noise_spread: config.noise_spread,
         })
     }
 
     /// Sets `config`'s motion files, library mix, augmentation, library kinds, (but for a
-    /// sequence, which follows one motion) share of uniform poses and the markers' slip to these
-    /// (the pose source is the caller's).
+    /// sequence, which follows one motion) share of uniform poses, the markers' slip and the
+    /// noise's spread to these (the pose source and the noise are the caller's).
     pub fn apply_to(&self, config: &mut SynthConfig) {
         config.motion_files = self.files.clone();
         config.with_library = self.with_library;
@@ -539,6 +557,7 @@ impl Motions {
             config.uniform_share = self.uniform_share;
         }
         config.marker_slip = self.marker_slip;
+        config.noise_spread = self.noise_spread;
     }
 }
 
@@ -637,7 +656,7 @@ pub fn augment_frames(
 ) -> Result<Frames> {
     if config.network.views == Views::Pooled {
         let ranges = config.rigs.clone().unwrap_or_default();
-        random_rigs(&mut frames, base, &ranges, seeds::rigs(seed), config.noise)?;
+        random_rigs(&mut frames, base, &ranges, seeds::rigs(seed))?;
     }
     if config.marker_dropout > 0.0 {
         drop_markers(
@@ -665,8 +684,10 @@ pub fn training_frames(
 
 /// Gives every frame its own random `keypoints2d` rig drawn from `ranges` around the frame's
 /// subject (aimed at its root joint), and its observations in that rig: the clean projection
-/// of the ground truth corrupted by the noise model scaled by `noise` (0: clean). Frame `i`
-/// draws from stream `i` of `seed`, so the same seed gives the same rigs and observations.
+/// of the ground truth corrupted by the noise the set's frame was synthesised with
+/// ([`lfit_synth::frame_noise`]: the set's noise, times its subject's factor under a
+/// `noise_spread`). Frame `i` draws from stream `i` of `seed`, so the same seed gives the same
+/// rigs and observations.
 /// `frames.energies` carry the new rigs; `frames.dataset` keeps the poses (its `observations`
 /// and `sensor` remain those of the synthesised rig).
 pub fn random_rigs(
@@ -674,14 +695,9 @@ pub fn random_rigs(
     base: &Energy,
     ranges: &RigRanges,
     seed: u64,
-    noise: f64,
 ) -> Result<()> {
     ranges.validate()?;
-    let noise = if noise == 0.0 {
-        lfit_model::noise::NoiseConfig::none()
-    } else {
-        lfit_model::noise::NoiseConfig::scaled(noise)?
-    };
+    let synthesised = frames.dataset.meta.config.clone();
     let template = base.template();
     let root = template
         .rig
@@ -700,6 +716,7 @@ pub fn random_rigs(
             let sensor = Sensor::Keypoints2d(KeypointSetup::new(ranges.sample(&mut rng, at)));
             let pred = sensor.predict_sparse(template, gt);
             let (mut values, mut visible) = (pred.values, pred.visible);
+            let noise = lfit_synth::frame_noise(&synthesised, i);
             sensor
                 .observation_model()
                 .corrupt(&mut values, &mut visible, &noise, &mut rng);

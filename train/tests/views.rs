@@ -240,3 +240,103 @@ fn settings_that_do_not_fit_are_one_line_errors() {
     let c = TrainConfig::load(&root.join("configs/keypoints2d-pooled.json")).expect("pooled");
     assert_eq!(c.rigs, Some(lfit_model::camera::RigRanges::default()));
 }
+
+/// `"noise_spread"` reaches the frames through [`Motions`] and the random rigs of a pooled
+/// network observe each frame with the noise it was synthesised with: each subject's own factor
+/// of the set's noise (`lfit_synth::frame_noise`), not the set's noise for all.
+#[test]
+fn a_noise_spread_gives_each_frame_its_own_noise_in_random_rigs() {
+    let config = TrainConfig {
+        noise_spread: 0.9,
+        ..pooled()
+    };
+    config.validate().expect("a pooled config with a noise spread");
+    let t = template();
+    let sensor = Sensor::default_for(Modality::Keypoints2d, &t);
+    let base = base_energy(&t, &sensor).expect("energy");
+    let motions = Motions::load(&config, &t).expect("motions");
+    let frames = training_frames(&config, &t, &sensor, &base, 40, 11, &motions).expect("frames");
+    let synthesised = &frames.dataset.meta.config;
+    assert_eq!(synthesised.noise_spread, 0.9);
+    let pixel = lfit_model::noise::NoiseConfig::default().pixel_sigma;
+    let mut factors = Vec::new();
+    for (i, (e, gt)) in frames
+        .energies
+        .iter()
+        .zip(&frames.dataset.gt_poses)
+        .enumerate()
+    {
+        let sigma = lfit_synth::frame_noise(synthesised, i).pixel_sigma;
+        let clean = e.sensor().predict_sparse(&t, gt).values;
+        let (values, visible) = target(e);
+        let mut dev: Vec<f64> = values
+            .iter()
+            .zip(&clean)
+            .zip(visible)
+            .filter(|(_, seen)| **seen)
+            .map(|((o, c), _)| (o - c).abs())
+            .collect();
+        if dev.len() < 20 {
+            continue;
+        }
+        dev.sort_by(f64::total_cmp);
+        let ratio = dev[dev.len() / 2] / (0.6745 * sigma);
+        assert!((0.5..1.7).contains(&ratio), "frame {i}: σ {sigma} px, {ratio}");
+        factors.push(sigma / pixel);
+    }
+    assert!(factors.len() >= 30, "{} frames with 20 keypoints", factors.len());
+    let lo = factors.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = factors.iter().copied().fold(0.0, f64::max);
+    assert!(lo < 0.4 && hi > 0.8, "factors {lo}..{hi}");
+    // A sequence window gets the spread too.
+    let mut window = lfit_synth::SynthConfig::new(
+        Modality::Keypoints2d,
+        lfit_synth::Scenario::Sequence,
+        4,
+        1,
+    );
+    motions.apply_to(&mut window);
+    assert_eq!(window.noise_spread, 0.9);
+    for bad in [-0.5, 2.0, f64::NAN] {
+        let e = TrainConfig {
+            noise_spread: bad,
+            ..pooled()
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("noise_spread"), "{e}");
+    }
+}
+
+/// Every training config in `configs/` (a JSON object with `"modality"` and `"steps"`) reads and
+/// validates with today's fields, and the motion files it names are in the repository, so any
+/// recipe a results page cites can be trained from a clean checkout.
+#[test]
+fn every_training_config_in_the_repository_loads() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let mut checked = Vec::new();
+    let mut entries: Vec<_> = std::fs::read_dir(root.join("configs"))
+        .expect("configs/")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| p.extension().is_some_and(|x| x == "json"))
+        .collect();
+    entries.sort();
+    for path in entries {
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).expect("read")).expect("JSON");
+        if json.get("modality").is_none() || json.get("steps").is_none() {
+            continue;
+        }
+        let config = TrainConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+        for m in &config.motions {
+            assert!(root.join(m).is_file(), "{}: no motion file {}", path.display(), m.display());
+        }
+        checked.push(path.file_name().unwrap().to_string_lossy().into_owned());
+    }
+    assert!(
+        checked.iter().any(|n| n == "markers-captured-floor-u10-chain.json")
+            && checked.len() >= 20,
+        "{checked:?}"
+    );
+}

@@ -108,6 +108,14 @@ pub struct SynthConfig {
     /// Frame rate of sequences, Hz.
     pub fps: f64,
     pub noise: NoiseConfig,
+    /// Each subject's noise is [`SynthConfig::noise`] times a factor drawn uniformly in
+    /// `[1 − spread, 1]` ([`NoiseConfig::times`]: σs, outlier and dropout rates), so one set
+    /// holds quiet and noisy sensors and a network trained on it can read the regime from the
+    /// residuals. One draw per subject: per frame in the local and global scenarios, once for a
+    /// sequence. 0 by default (and then absent from the metadata, so other datasets keep their
+    /// bytes); within [0, 1].
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub noise_spread: f64,
     /// Procedural motions drawn from (the papers' library, [`MotionKind::CLASSIC`], by default).
     pub motions: Vec<MotionKind>,
     /// Imported motion files (`lfit motion import`) that `source = motion` draws its frames
@@ -305,6 +313,7 @@ impl SynthConfig {
             seed,
             fps: 30.0,
             noise: NoiseConfig::default(),
+            noise_spread: 0.0,
             motions: MotionKind::CLASSIC.to_vec(),
             motion_files: Vec::new(),
             with_library: false,
@@ -389,6 +398,13 @@ impl SynthConfig {
                 "uniform_share",
                 self.uniform_share.to_string(),
                 "a sequence follows one motion: uniform poses are for single frames",
+            );
+        }
+        if !(0.0..=1.0).contains(&self.noise_spread) {
+            return setting(
+                "noise_spread",
+                self.noise_spread.to_string(),
+                "is a share of the noise in [0, 1]",
             );
         }
         if let Some(reason) = marker_slip_problem(self.marker_slip, self.modality) {

@@ -41,6 +41,22 @@ const SLIP_STREAM: u64 = 9 << 32;
 const BIAS_STREAM: u64 = 11 << 32;
 /// The stream of a detector's keypoint offsets ([`SynthConfig::keypoint_detector`]).
 const DETECTOR_STREAM: u64 = 12 << 32;
+/// Streams of the subjects' noise factors ([`SynthConfig::noise_spread`]), one per subject.
+const NOISE_STREAM: u64 = 13 << 32;
+
+/// The noise frame `frame` of a dataset made with `config` is observed with:
+/// [`SynthConfig::noise`], times its subject's factor in `[1 − noise_spread, 1]` when the spread
+/// is above 0 (drawn from the subject's own stream, apart from every other draw, so a set
+/// without a spread keeps its bytes). Whoever observes a set's frames again (a training run's
+/// random camera rigs) calls this with the set's config to give them the same noise.
+pub fn frame_noise(config: &SynthConfig, frame: usize) -> NoiseConfig {
+    if config.noise_spread <= 0.0 {
+        return config.noise.clone();
+    }
+    let subject = subject_of(config.scenario, frame);
+    let u: f64 = stream(config.seed, NOISE_STREAM + subject).random();
+    config.noise.times(1.0 - config.noise_spread * u)
+}
 
 /// The keypoint offsets of the synthetic 2D detector `seed` ([`SynthConfig::keypoint_detector`])
 /// on a skeleton of `joints` joints: per joint a normal draw of `sigma` (metres) per axis in
@@ -124,7 +140,8 @@ pub fn synthesize_until(
                 (None, None) => None,
             };
             let observed = own.as_ref().unwrap_or(sensor);
-            let obs = observe_frame(template, observed, &targets[i], &config.noise, &mut rng);
+            let noise = frame_noise(config, i);
+            let obs = observe_frame(template, observed, &targets[i], &noise, &mut rng);
             progress(done.fetch_add(1, Ordering::Relaxed) + 1);
             Ok(obs)
         })
@@ -1343,6 +1360,76 @@ mod tests {
         bare.keypoint_bias = 0.0;
         let e = bare.validate().unwrap_err().to_string();
         assert!(e.contains("keypoint_detector"), "{e}");
+    }
+
+    /// Under a noise spread every subject gets its own factor in `[1 − spread, 1]` (a sequence
+    /// one for all its frames) and its observations carry that much noise; without one every
+    /// frame has the set's noise and the metadata does not name the spread.
+    #[test]
+    fn a_noise_spread_gives_each_subject_its_own_noise() {
+        let t = default_template();
+        let sensor = Sensor::default_for(Modality::Markers, &t);
+        let sigma = NoiseConfig::default().point_sigma;
+        let mut c = SynthConfig::new(Modality::Markers, Scenario::Local, 60, 5);
+        c.noise_spread = 0.8;
+        let data = synthesize(&c, &t, &sensor, &|_| {}).unwrap();
+        let Observations::Sparse { values, visible } = &data.observations else {
+            panic!("sparse")
+        };
+        let mut factors = Vec::new();
+        for (i, gt) in data.gt_poses.iter().enumerate() {
+            let noise = frame_noise(&c, i);
+            let f = noise.point_sigma / sigma;
+            assert!((0.2 - 1e-12..=1.0).contains(&f), "frame {i}: factor {f}");
+            // Every magnitude and rate by the same factor.
+            let d = NoiseConfig::default();
+            for (x, y) in [
+                (noise.pixel_sigma, d.pixel_sigma),
+                (noise.outlier_rate, d.outlier_rate),
+                (noise.drop_rate, d.drop_rate),
+            ] {
+                assert!((x - f * y).abs() <= 1e-12 * y, "frame {i}: {x} against {f} × {y}");
+            }
+            let clean = sensor.predict_sparse(&t, gt).values;
+            let mut dev: Vec<f64> = values[i]
+                .iter()
+                .zip(&clean)
+                .zip(&visible[i])
+                .filter(|(_, seen)| **seen)
+                .map(|((o, c), _)| (o - c).abs())
+                .collect();
+            dev.sort_by(f64::total_cmp);
+            // The median |N(0, σ²)| is 0.6745 σ.
+            let ratio = dev[dev.len() / 2] / (0.6745 * noise.point_sigma);
+            assert!((0.5..1.6).contains(&ratio), "frame {i}: factor {f}, {ratio}");
+            factors.push(f);
+        }
+        let (lo, hi) = factors
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |(a, b), &f| (a.min(f), b.max(f)));
+        assert!(lo < 0.4 && hi > 0.8, "factors {lo}..{hi}");
+        assert!(serde_json::to_string(&c).unwrap().contains("noise_spread"));
+        // The same config gives the same factors (its own stream per subject).
+        assert_eq!(frame_noise(&c, 7), frame_noise(&c.clone(), 7));
+        // A sequence: one subject, one factor.
+        let mut q = SynthConfig::new(Modality::Markers, Scenario::Sequence, 6, 5);
+        q.noise_spread = 0.8;
+        let first = frame_noise(&q, 0);
+        assert!((1..6).all(|i| frame_noise(&q, i) == first));
+        // No spread: the set's noise for every frame, and the metadata does not name it.
+        let plain = SynthConfig::new(Modality::Markers, Scenario::Local, 3, 5);
+        assert!((0..3).all(|i| frame_noise(&plain, i) == plain.noise));
+        assert!(
+            !serde_json::to_string(&plain)
+                .unwrap()
+                .contains("noise_spread")
+        );
+        for bad in [-0.1, 1.5, f64::NAN] {
+            let mut b = plain.clone();
+            b.noise_spread = bad;
+            let e = b.validate().unwrap_err().to_string();
+            assert!(e.contains("noise_spread"), "{e}");
+        }
     }
 
     #[test]

@@ -76,19 +76,25 @@ impl NoiseConfig {
                 reason: "must be a finite number ≥ 0".into(),
             });
         }
-        let d = Self::default();
-        Ok(Self {
-            point_sigma: d.point_sigma * s,
-            pixel_sigma: d.pixel_sigma * s,
-            rotation_sigma_deg: d.rotation_sigma_deg * s,
-            position_sigma: d.position_sigma * s,
-            outlier_rate: (d.outlier_rate * s).min(1.0),
-            outlier_scale_m: d.outlier_scale_m,
-            outlier_scale_px: d.outlier_scale_px,
-            drop_rate: (d.drop_rate * s).min(1.0),
-            scan_holes: (d.scan_holes as f64 * s).round() as usize,
-            scan_hole_radius: d.scan_hole_radius,
-        })
+        Ok(Self::default().times(s))
+    }
+
+    /// These settings with every magnitude and rate (σs, outlier and dropout rates, the number
+    /// of scan holes, rounded) multiplied by `s` ≥ 0; rates stay at most 1, the outliers' size
+    /// and the holes' radius are kept. `scaled(s)` is `default().times(s)`.
+    pub fn times(&self, s: f64) -> Self {
+        Self {
+            point_sigma: self.point_sigma * s,
+            pixel_sigma: self.pixel_sigma * s,
+            rotation_sigma_deg: self.rotation_sigma_deg * s,
+            position_sigma: self.position_sigma * s,
+            outlier_rate: (self.outlier_rate * s).min(1.0),
+            outlier_scale_m: self.outlier_scale_m,
+            outlier_scale_px: self.outlier_scale_px,
+            drop_rate: (self.drop_rate * s).min(1.0),
+            scan_holes: (self.scan_holes as f64 * s).round() as usize,
+            scan_hole_radius: self.scan_hole_radius,
+        }
     }
 }
 

@@ -222,6 +222,7 @@ def synth(
     seed: int = 0,
     source: str = "motion",
     noise: float = 1.0,
+    noise_spread: float = 0.0,
     fps: float = 30.0,
     library_motions: Optional[Sequence[str]] = None,
     motions: Optional[Sequence[_Path]] = None,
