@@ -150,9 +150,13 @@ PY
 # halves are draws of one capture's markers, not of subjects: a small p says that a difference
 # holds whichever markers a fit sees, not that it holds for other people. Both skipped (said so)
 # when the model's marker set does not name every Plug-in Gait marker.
+# (A lookup table, not `printf … | grep -q`: under pipefail grep's early exit can fail the
+# printf with SIGPIPE on a loaded machine and report a marker the model has as missing.)
+declare -A has=()
+for n in "${names[@]}"; do has["$n"]=1; done
 missing=()
 for n in "${PIG_HALF_A[@]}" "${PIG_HALF_B[@]}"; do
-    printf '%s\n' "${names[@]}" | grep -qx -- "$n" || missing+=("$n")
+    [ -n "${has[$n]:-}" ] || missing+=("$n")
 done
 if [ ${#missing[@]} -gt 0 ]; then
     echo "eval-real-c3d: half-marker tables skipped: the model's marker set lacks ${missing[*]}" >&2

