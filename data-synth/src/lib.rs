@@ -12,7 +12,7 @@ pub mod npz;
 
 pub use dataset::config::{
     MAX_MARKER_SLIP, MotionFile, PoseSource, Scenario, SynthConfig, keypoint_bias_problem,
-    marker_slip_problem,
+    marker_slip_problem, noise_spread_problem,
 };
 pub use dataset::synth::{detector_offsets, frame_noise, synthesize, synthesize_until};
 pub use dataset::{Dataset, Meta, Observations};

@@ -342,12 +342,8 @@ impl TrainConfig {
         if !(self.noise.is_finite() && self.noise >= 0.0) {
             return bad("noise", self.noise.to_string(), "must be ≥ 0");
         }
-        if !(0.0..=1.0).contains(&self.noise_spread) {
-            return bad(
-                "noise_spread",
-                self.noise_spread.to_string(),
-                "must be in [0, 1] (a share of `noise`)",
-            );
+        if let Some(reason) = lfit_synth::noise_spread_problem(self.noise_spread) {
+            return bad("noise_spread", self.noise_spread.to_string(), &reason);
         }
         if let Some(mix) = &self.starts {
             mix.validate(self.source)?;
@@ -600,11 +596,7 @@ pub fn synth_frames_with(
     let mut config = SynthConfig::new(sensor.modality(), scenario, frames, seed);
     motions.apply_to(&mut config);
     config.source = motions.source;
-    config.noise = if noise == 0.0 {
-        NoiseConfig::none()
-    } else {
-        NoiseConfig::scaled(noise)?
-    };
+    config.noise = noise_model(noise)?;
     let dataset = synthesize(&config, template, sensor, &|_| {})?;
     let Observations::Sparse { values, visible } = &dataset.observations else {
         return Err(TrainError::Setting {
@@ -619,6 +611,16 @@ pub fn synth_frames_with(
         .map(|(v, s)| base.with_target(v.clone(), s.clone()))
         .collect::<Result<Vec<_>, _>>()?;
     Ok(Frames { dataset, energies })
+}
+
+/// The noise model of a run's synthesised sets for its `"noise"` multiplier: none at 0 (a
+/// noise-free set's metadata then names no outlier sizes either), the defaults scaled otherwise.
+pub(crate) fn noise_model(noise: f64) -> Result<NoiseConfig> {
+    Ok(if noise == 0.0 {
+        NoiseConfig::none()
+    } else {
+        NoiseConfig::scaled(noise)?
+    })
 }
 
 /// The gradient-variant energy of a modality on `template`, with an empty (invisible) target;

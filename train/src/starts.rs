@@ -17,7 +17,7 @@ use glam::DVec3;
 use lfit_model::observe::Sensor;
 use lfit_model::{Block, Energy, Template};
 use lfit_nn::{Constraints, Dropout, FeatureStats, NeuralNet, unroll};
-use lfit_synth::{NoiseConfig, Observations, PoseSource, Scenario, SynthConfig, synthesize};
+use lfit_synth::{Observations, PoseSource, Scenario, SynthConfig, synthesize};
 use rand::Rng;
 use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
@@ -274,11 +274,7 @@ pub fn previous_frames(
     if count == 0 {
         return Ok((Vec::new(), Vec::new(), Vec::new()));
     }
-    let noise = if noise == 0.0 {
-        NoiseConfig::none()
-    } else {
-        NoiseConfig::scaled(noise)?
-    };
+    let noise = crate::noise_model(noise)?;
     // One window per sample, each from its own seed.
     let windows: Vec<(Vec<Energy>, Vec<Vec<f64>>, Vec<f64>)> = (0..count)
         .into_par_iter()

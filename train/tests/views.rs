@@ -250,7 +250,9 @@ fn a_noise_spread_gives_each_frame_its_own_noise_in_random_rigs() {
         noise_spread: 0.9,
         ..pooled()
     };
-    config.validate().expect("a pooled config with a noise spread");
+    config
+        .validate()
+        .expect("a pooled config with a noise spread");
     let t = template();
     let sensor = Sensor::default_for(Modality::Keypoints2d, &t);
     let base = base_energy(&t, &sensor).expect("energy");
@@ -281,20 +283,23 @@ fn a_noise_spread_gives_each_frame_its_own_noise_in_random_rigs() {
         }
         dev.sort_by(f64::total_cmp);
         let ratio = dev[dev.len() / 2] / (0.6745 * sigma);
-        assert!((0.5..1.7).contains(&ratio), "frame {i}: σ {sigma} px, {ratio}");
+        assert!(
+            (0.5..1.7).contains(&ratio),
+            "frame {i}: σ {sigma} px, {ratio}"
+        );
         factors.push(sigma / pixel);
     }
-    assert!(factors.len() >= 30, "{} frames with 20 keypoints", factors.len());
+    assert!(
+        factors.len() >= 30,
+        "{} frames with 20 keypoints",
+        factors.len()
+    );
     let lo = factors.iter().copied().fold(f64::INFINITY, f64::min);
     let hi = factors.iter().copied().fold(0.0, f64::max);
     assert!(lo < 0.4 && hi > 0.8, "factors {lo}..{hi}");
     // A sequence window gets the spread too.
-    let mut window = lfit_synth::SynthConfig::new(
-        Modality::Keypoints2d,
-        lfit_synth::Scenario::Sequence,
-        4,
-        1,
-    );
+    let mut window =
+        lfit_synth::SynthConfig::new(Modality::Keypoints2d, lfit_synth::Scenario::Sequence, 4, 1);
     motions.apply_to(&mut window);
     assert_eq!(window.noise_spread, 0.9);
     for bad in [-0.5, 2.0, f64::NAN] {
@@ -330,12 +335,19 @@ fn every_training_config_in_the_repository_loads() {
         }
         let config = TrainConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
         for m in &config.motions {
-            assert!(root.join(m).is_file(), "{}: no motion file {}", path.display(), m.display());
+            assert!(
+                root.join(m).is_file(),
+                "{}: no motion file {}",
+                path.display(),
+                m.display()
+            );
         }
         checked.push(path.file_name().unwrap().to_string_lossy().into_owned());
     }
     assert!(
-        checked.iter().any(|n| n == "markers-captured-floor-u10-chain.json")
+        checked
+            .iter()
+            .any(|n| n == "markers-captured-floor-u10-chain.json")
             && checked.len() >= 20,
         "{checked:?}"
     );

@@ -171,6 +171,13 @@ pub struct SynthConfig {
 /// The largest [`SynthConfig::marker_slip`] and [`SynthConfig::keypoint_bias`] accepted, metres.
 pub const MAX_MARKER_SLIP: f64 = 0.1;
 
+/// Why `spread` is not a [`SynthConfig::noise_spread`], or `None` when it is: a share of the
+/// noise within [0, 1]. The check of `SynthConfig::noise_spread` and of a training config's
+/// `noise_spread`.
+pub fn noise_spread_problem(spread: f64) -> Option<String> {
+    (!(0.0..=1.0).contains(&spread)).then(|| "is a share of the noise in [0, 1]".to_string())
+}
+
 /// Why `slip` (metres) is not a marker slip of `modality` data, or `None` when it is: a standard
 /// deviation within [0, [`MAX_MARKER_SLIP`]], above 0 only for markers. The check of
 /// `SynthConfig::marker_slip` and of a training config's `marker_slip_mm`.
@@ -400,12 +407,8 @@ impl SynthConfig {
                 "a sequence follows one motion: uniform poses are for single frames",
             );
         }
-        if !(0.0..=1.0).contains(&self.noise_spread) {
-            return setting(
-                "noise_spread",
-                self.noise_spread.to_string(),
-                "is a share of the noise in [0, 1]",
-            );
+        if let Some(reason) = noise_spread_problem(self.noise_spread) {
+            return setting("noise_spread", self.noise_spread.to_string(), &reason);
         }
         if let Some(reason) = marker_slip_problem(self.marker_slip, self.modality) {
             return setting("marker_slip", format!("{} m", self.marker_slip), &reason);

@@ -1388,7 +1388,10 @@ mod tests {
                 (noise.outlier_rate, d.outlier_rate),
                 (noise.drop_rate, d.drop_rate),
             ] {
-                assert!((x - f * y).abs() <= 1e-12 * y, "frame {i}: {x} against {f} × {y}");
+                assert!(
+                    (x - f * y).abs() <= 1e-12 * y,
+                    "frame {i}: {x} against {f} × {y}"
+                );
             }
             let clean = sensor.predict_sparse(&t, gt).values;
             let mut dev: Vec<f64> = values[i]
@@ -1401,7 +1404,10 @@ mod tests {
             dev.sort_by(f64::total_cmp);
             // The median |N(0, σ²)| is 0.6745 σ.
             let ratio = dev[dev.len() / 2] / (0.6745 * noise.point_sigma);
-            assert!((0.5..1.6).contains(&ratio), "frame {i}: factor {f}, {ratio}");
+            assert!(
+                (0.5..1.6).contains(&ratio),
+                "frame {i}: factor {f}, {ratio}"
+            );
             factors.push(f);
         }
         let (lo, hi) = factors
