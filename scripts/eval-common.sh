@@ -62,7 +62,9 @@ PY
 # frame, from the better start by energy (`--neural-start best`); neural-tolT stops each frame's
 # network by the energy rule (`--neural-tolerance T`) from that start (the rule serves one fit
 # per frame). neural+lm-all is neural+lm whose LM stage moves every entry (`--dofs all`; its
-# default keeps the entries the markers do not determine and β at the network's values).
+# default keeps the entries the markers do not determine and β at the network's values);
+# neural+lm-anchored moves every entry with the rotations pulled toward the network's values
+# (`--dofs anchored`).
 eval_marker_method() {
     case "$1" in
         *+prior) echo "$(eval_marker_method "${1%+prior}" "$2") --energy $POSE_PRIOR" ;;
@@ -70,6 +72,7 @@ eval_marker_method() {
         neural) echo neural --checkpoint "$2" --neural-start both --budget 24 ;;
         neural+lm) echo neural+lm --checkpoint "$2" --neural-start both --budget 4000 ;;
         neural+lm-all) echo "$(eval_marker_method neural+lm "$2") --dofs all" ;;
+        neural+lm-anchored) echo "$(eval_marker_method neural+lm "$2") --dofs anchored" ;;
         neural-n[1-9] | neural+lm-n[1-9])
             echo "$(eval_marker_method "${1%-n*}" "$2") --neural-iterations ${1##*-n}" ;;
         neural-best) echo neural --checkpoint "$2" --neural-start best --budget 24 ;;
@@ -89,7 +92,7 @@ eval_methods() {
     local m
     for m in "${methods[@]}"; do
         case "$m" in
-            lm | neural | neural+lm | neural+lm-all | neural-n[1-9] | neural+lm-n[1-9] | neural-best) ;;
+            lm | neural | neural+lm | neural+lm-all | neural+lm-anchored | neural-n[1-9] | neural+lm-n[1-9] | neural-best) ;;
             neural-tol0.[0-9]*) ;;
             lm+prior | neural+prior | neural+lm+prior)
                 if [ -z "${POSE_PRIOR:-}" ] || [ ! -f "$POSE_PRIOR" ] || [[ "$POSE_PRIOR" == *" "* ]]; then
@@ -98,7 +101,7 @@ eval_methods() {
                 fi
                 ;;
             *)
-                echo "$1: unknown method '$m' in METHODS (lm, neural, neural+lm, neural+lm-all, lm+prior, neural+prior, neural+lm+prior, neural-nK, neural+lm-nK, neural-best, neural-tolT)" >&2
+                echo "$1: unknown method '$m' in METHODS (lm, neural, neural+lm, neural+lm-all, neural+lm-anchored, lm+prior, neural+prior, neural+lm+prior, neural-nK, neural+lm-nK, neural-best, neural-tolT)" >&2
                 exit 2
                 ;;
         esac

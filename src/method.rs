@@ -134,18 +134,18 @@ impl MethodKind {
     }
 
     /// Which entries the method moves unless told (`--dofs`): `neural+lm`'s LM stage on the sparse
-    /// body sensors (markers, keypoints2d, hmd) only the observed ones (`lfit_fitters::observed`:
-    /// on the captured clip's markers it ends at 8.4 mm V2V where LM over every entry ends at
-    /// 11.7, the network alone at 9.5); every other method, and `neural+lm` on dense face
-    /// landmarks (which determine every entry: 40 face frames 21.5 mm with `all` against 27.8
-    /// with `observed`) or a custom sensor, every free entry (the classical methods' published
-    /// figures and the scipy parity are over all entries).
+    /// body sensors (markers, keypoints2d, hmd) every entry with the rotations anchored at the
+    /// network's result (`lfit_fitters::AnchoredDofs`, the standard deviation chosen per sensor
+    /// on the validation subject: [`lfit_fitters::anchor_std_deg`]; on the validation subject's
+    /// markers 10.4 mm V2V against 11.5 for the earlier default `observed` and 12.3 for `all`,
+    /// on real markers the first learned row level with LM with every marker and ahead of it on
+    /// sparse ones: docs/results/captured-motion.md, round 28); every other method, and
+    /// `neural+lm` on dense face landmarks (which determine every entry: 40 face frames 21.5 mm
+    /// with `all` against 27.8 with `observed`) or a custom sensor, every free entry (the
+    /// classical methods' published figures and the scipy parity are over all entries).
     pub fn default_dofs(self, modality: lfit_model::observe::Modality) -> lfit_fitters::Dofs {
-        use lfit_model::observe::Modality;
-        match (self, modality) {
-            (MethodKind::NeuralLm, Modality::Markers | Modality::Keypoints2d | Modality::Hmd) => {
-                lfit_fitters::Dofs::OBSERVED
-            }
+        match (self, lfit_fitters::anchor_std_deg(modality)) {
+            (MethodKind::NeuralLm, Some(std_deg)) => lfit_fitters::Dofs::Anchored { std_deg },
             _ => lfit_fitters::Dofs::All,
         }
     }

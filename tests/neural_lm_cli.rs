@@ -434,7 +434,7 @@ fn an_early_exit_runs_the_first_iterations_of_the_full_fit() {
         );
         assert_eq!(
             refined["method"],
-            format!("neural-given-n2{suffix}+lm-observed")
+            format!("neural-given-n2{suffix}+lm-anchored")
         );
         for (a, b) in frames(&early).iter().zip(frames(&refined)) {
             assert!(num(&b["energy"]) <= num(&a["energy"]));
@@ -528,10 +528,12 @@ fn an_early_exit_runs_the_first_iterations_of_the_full_fit() {
 
 /// `neural+lm` spends the network's evaluations, then LM's from the network's result: its
 /// energy is never above the network's alone, its evaluations add up and stay within the budget,
-/// and its iterates are the network's followed by the final pose. By default (`--dofs observed`)
-/// LM keeps the network's β and the rotations the markers do not determine (the thumbs) and
-/// spends one evaluation on the data's information; with `--dofs all` it moves every entry, the
-/// thumbs included, and ends further from the truth.
+/// and its iterates are the network's followed by the final pose. By default (`--dofs
+/// anchored` on markers) LM moves every entry with the rotations pulled toward the network's
+/// values: less far from them than with `--dofs all`, the energy reported without the pull.
+/// With `--dofs observed` LM keeps the network's β and the rotations the markers do not
+/// determine (the thumbs) and spends one evaluation on the data's information; with `--dofs
+/// all` it moves every entry, the thumbs included, and ends further from the truth.
 #[test]
 fn neural_then_lm_refines_the_network_within_one_budget() {
     let tmp = tempfile::tempdir().expect("tmp");
@@ -542,20 +544,55 @@ fn neural_then_lm_refines_the_network_within_one_budget() {
         &tmp.path().join("nn.json"),
         &[&["--method", "neural"][..], &common[..]].concat(),
     );
+    let anchored = fit(
+        &data,
+        &tmp.path().join("anchored.json"),
+        &[&["--method", "neural+lm"][..], &common[..]].concat(),
+    );
     let both = fit(
         &data,
         &tmp.path().join("both.json"),
-        &[&["--method", "neural+lm"][..], &common[..]].concat(),
+        &[
+            &["--method", "neural+lm", "--dofs", "observed"][..],
+            &common[..],
+        ]
+        .concat(),
     );
     let all = fit(
         &data,
         &tmp.path().join("all.json"),
         &[&["--method", "neural+lm", "--dofs", "all"][..], &common[..]].concat(),
     );
+    assert_eq!(anchored["method"], "neural-given+lm-anchored");
+    assert_eq!(anchored["dofs"], "anchored");
     assert_eq!(both["method"], "neural-given+lm-observed");
     assert_eq!(both["dofs"], "observed");
     assert_eq!(all["method"], "neural-given+lm");
     assert!(all.get("dofs").is_none());
+    // Anchored: every entry moves, less far from the network's values than with `all`; the
+    // energy reported is the energy (never above the network's), not the anchored objective.
+    let away = |r: &Value| -> f64 {
+        frames(r)
+            .iter()
+            .zip(frames(&nn))
+            .map(|(f, n)| {
+                (3..f["pose"].as_array().expect("pose").len())
+                    .map(|i| (num(&f["pose"][i]) - num(&n["pose"][i])).abs())
+                    .sum::<f64>()
+            })
+            .sum()
+    };
+    assert!(
+        away(&anchored) > 0.0 && away(&anchored) < away(&all),
+        "anchored moved {} from the network, all {}",
+        away(&anchored),
+        away(&all)
+    );
+    for (a, n) in frames(&anchored).iter().zip(frames(&nn)) {
+        assert!(num(&a["energy"]) <= num(&n["energy"]));
+        let evals = a["evaluations"].as_u64().expect("evaluations");
+        assert!(evals > 10 && evals <= 300, "evaluations {evals}");
+    }
     let thumbs = thumb_entries();
     let (mut lower, mut thumbs_moved) = (0, 0);
     for ((a, b), c) in frames(&nn).iter().zip(frames(&both)).zip(frames(&all)) {
@@ -611,12 +648,15 @@ fn neural_then_lm_refines_the_network_within_one_budget() {
         v2v(&all)
     );
     // A budget the network alone uses up is refused, and nothing is written; with --dofs
-    // observed (the default) the data information costs one more, so 11 is refused too.
-    for (budget, want) in [
-        ("10", "leaves LM nothing"),
-        ("11", "needs at least 12 (with --dofs observed"),
+    // observed the data information costs one more, so 11 is refused too.
+    for (extra, want) in [
+        (&["--budget", "10"][..], "leaves LM nothing"),
+        (
+            &["--budget", "11", "--dofs", "observed"][..],
+            "needs at least 12 (with --dofs observed",
+        ),
     ] {
-        refused(&data, tmp.path(), "neural+lm", &["--budget", budget], want);
+        refused(&data, tmp.path(), "neural+lm", extra, want);
     }
     let out_path = tmp.path().join("no.json");
     let out = lfit(&[
@@ -873,6 +913,15 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
         assert!((2..=200).contains(&evals), "evaluations {evals}");
     }
     assert!(moved >= 3, "the hips moved in only {moved} of 4 frames");
+    // Anchored by name: every entry free, the rotations pulled toward the start.
+    let anchored = fitted("anchored.json", "anchored:3");
+    assert_eq!(anchored["method"], "lm-anchored-3deg");
+    assert_eq!(anchored["dofs"], "anchored:3");
+    for f in frames(&anchored) {
+        assert!(num(&f["energy"]) <= num(&f["start_energy"]));
+        let evals = f["evaluations"].as_u64().expect("evaluations");
+        assert!((1..=200).contains(&evals), "evaluations {evals}");
+    }
     // Another threshold by name: its fitter's name and the result say it.
     let loose = fitted("obs30.json", "observed:30");
     assert_eq!(loose["method"], "lm-observed-30deg");
@@ -930,7 +979,7 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
     for (extra, want) in [
         (
             &["--dofs", "some", "--budget", "200"][..],
-            "unknown dofs 'some' (expected all, observed or observed:DEG)",
+            "unknown dofs 'some' (expected all, observed, observed:DEG, anchored or anchored:DEG)",
         ),
         (
             &["--dofs", "observed", "--budget", "1"][..],
@@ -939,6 +988,10 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
         (
             &["--dofs", "observed:0", "--budget", "200"][..],
             "positive number of degrees",
+        ),
+        (
+            &["--dofs", "anchored:-2", "--budget", "200"][..],
+            "the standard deviation after anchored: must be a positive number of degrees",
         ),
     ] {
         let path = tmp.path().join("no.json");
@@ -955,7 +1008,7 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
     );
 }
 
-/// `neural+lm`'s default `--dofs` follows the sensor: `observed` on the sparse body sensors
+/// `neural+lm`'s default `--dofs` follows the sensor: `anchored` on the sparse body sensors
 /// (above), `all` on dense face landmarks, which determine every entry (the face network's β is
 /// not the better estimate there); `--dofs observed` still asks for it by name.
 #[test]

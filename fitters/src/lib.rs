@@ -16,7 +16,10 @@ pub use error::FitError;
 pub use fitter::{FitRequest, FitResult, Fitter, Strategy, split_budget};
 pub use lbfgs::LbfgsFitter;
 pub use least_squares::{LeastSquaresFitter, LeastSquaresMethod};
-pub use observed::{Dofs, ObservedDofs};
+pub use observed::{
+    ANCHOR_STD_DEG, AnchoredDofs, Dofs, HMD_ANCHOR_STD_DEG, KEYPOINTS2D_ANCHOR_STD_DEG,
+    ObservedDofs, anchor_std_deg,
+};
 pub use optim::{Method, Preset};
 pub use zeroth::ZerothOrderFitter;
 

@@ -285,3 +285,103 @@ fn lm_runs_with_its_scaling_floor() {
     let lm = build_fitter("lm", Preset::Nevergrad, Strategy::Holistic).unwrap();
     assert_eq!(lm.fit(&request).unwrap().pose, results[1].pose);
 }
+
+/// `Dofs::Anchored` (`--dofs anchored`): LM minimises the energy plus a Gaussian pull of the free
+/// rotations toward the start. Its result reports the energy itself (the anchor subtracted) and
+/// its terms without the anchor; the request's energy counts the anchored copy's evaluations
+/// within the budget; a tight anchor keeps the rotations at the start where the translation still
+/// moves, a loose one is LM's fit, and one in between lands between the two.
+#[test]
+fn anchored_dofs_pull_toward_the_start_and_report_the_energy() {
+    use lfit_fitters::Dofs;
+    let s = start();
+    let mask = DofMask::local43();
+    let fit = |dofs: Dofs| {
+        let energy = markers_energy(EnergyConfig::default().for_gradient());
+        let lm = build_fitter("lm", Preset::Nevergrad, Strategy::Holistic).unwrap();
+        let fitter = dofs.wrap(lm);
+        let request = FitRequest {
+            energy: &energy,
+            start: s.to_vec(),
+            mask: mask.clone(),
+            bounds: Bounds::local(&s),
+            budget: 80,
+            seed: 3,
+        };
+        let r = fitter.fit(&request).unwrap();
+        assert_eq!(
+            r.method,
+            format!(
+                "lm{}",
+                match dofs {
+                    Dofs::All => String::new(),
+                    d => format!("-{}", d.suffix()),
+                }
+            )
+        );
+        assert!(
+            r.evaluations <= 80,
+            "{}: {} evaluations",
+            r.method,
+            r.evaluations
+        );
+        assert_eq!(energy.evaluations(), r.evaluations, "{}", r.method);
+        assert_eq!(
+            energy.gradient_evaluations(),
+            r.gradient_evaluations,
+            "{}",
+            r.method
+        );
+        let at = energy.inspect(&r.pose);
+        assert!(
+            (r.energy - at.total).abs() <= 1e-9 * at.total.max(1e-12),
+            "{}: reported {} against the energy's {}",
+            r.method,
+            r.energy,
+            at.total
+        );
+        assert!(r.terms.iter().all(|(n, _)| *n != "anchor"), "{:?}", r.terms);
+        assert!(r.energy <= energy.inspect(&s).total);
+        r
+    };
+    let rot = |p: &[f64]| -> f64 {
+        mask.free
+            .iter()
+            .filter(|&&i| i >= 3)
+            .map(|&i| (p[i] - s[i]).abs())
+            .fold(0.0, f64::max)
+    };
+    let free = fit(Dofs::All);
+    let tight = fit(Dofs::Anchored { std_deg: 1e-4 });
+    let loose = fit(Dofs::Anchored { std_deg: 1e6 });
+    let mid = fit(Dofs::Anchored { std_deg: 2.0 });
+    assert!(
+        rot(&free.pose) > 0.05,
+        "LM moved the rotations by {}",
+        rot(&free.pose)
+    );
+    assert!(
+        rot(&tight.pose) < 1e-3,
+        "a tight anchor let them move {}",
+        rot(&tight.pose)
+    );
+    assert!(
+        (0..3).any(|i| (tight.pose[i] - s[i]).abs() > 1e-3),
+        "the translation is not anchored"
+    );
+    let gap = free
+        .pose
+        .iter()
+        .zip(&loose.pose)
+        .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    assert!(gap < 1e-4, "a loose anchor is LM: {gap}");
+    assert!(
+        mid.energy > free.energy && mid.energy < tight.energy,
+        "{} {} {}",
+        free.energy,
+        mid.energy,
+        tight.energy
+    );
+    let (r_mid, r_free) = (rot(&mid.pose), rot(&free.pose));
+    assert!(r_mid < r_free && r_mid > 1e-3, "{r_mid} against {r_free}");
+}

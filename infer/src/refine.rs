@@ -4,11 +4,15 @@
 //! start for classical refinement; LM is lfit's most accurate classical solver on the sparse
 //! modalities, `docs/results/learned-vs-classical.md`).
 //!
-//! With [`Dofs::OBSERVED`] (the CLI's default for `neural+lm` on the sparse body sensors) LM
-//! moves only the rotation entries the observations determine ([`lfit_fitters::observed`]) and
-//! keeps the network's β: what the sensor leaves open (fingers, thumbs, a limb's twist under 2D
-//! keypoints; the subject's shape from one frame) stays the network's estimate, which is learned
-//! from human motion, where LM would set it from the noise of the few rows that touch it.
+//! With [`Dofs::Anchored`] (the CLI's default for `neural+lm` on the sparse body sensors) LM
+//! moves every entry on the energy plus a Gaussian pull of the rotations toward the network's
+//! result ([`lfit_fitters::AnchoredDofs`]): what the sensor leaves open (fingers, thumbs, a
+//! limb's twist under 2D keypoints, an arm whose markers are missing) stays near the network's
+//! estimate, which is learned from human motion, where LM would set it from the noise of the few
+//! rows that touch it; what the data determine moves as LM moves it. With [`Dofs::OBSERVED`]
+//! LM moves only the rotation entries the observations determine ([`lfit_fitters::observed`])
+//! and keeps the network's β (the hard form, the default before round 28 of
+//! docs/results/captured-motion.md).
 
 use lfit_fitters::optim::Preset;
 use lfit_fitters::{Dofs, FitError, FitRequest, FitResult, Fitter, Strategy};
@@ -48,7 +52,7 @@ impl NeuralThenLm {
     /// [`Dofs::Observed`], one for LM).
     fn lm_minimum(&self) -> usize {
         match self.dofs {
-            Dofs::All => 1,
+            Dofs::All | Dofs::Anchored { .. } => 1,
             Dofs::Observed { .. } => 2,
         }
     }
@@ -69,7 +73,9 @@ impl Fitter for NeuralThenLm {
         let neural = self.neural.name();
         match self.dofs {
             Dofs::All => format!("{neural}+lm"),
-            d @ Dofs::Observed { .. } => format!("{neural}+lm-{}", d.suffix()),
+            d @ (Dofs::Observed { .. } | Dofs::Anchored { .. }) => {
+                format!("{neural}+lm-{}", d.suffix())
+            }
         }
     }
 
@@ -87,7 +93,7 @@ impl Fitter for NeuralThenLm {
         let least = network + self.lm_minimum();
         if let Some(r) = requests.iter().find(|r| r.budget < least) {
             let what = match self.dofs {
-                Dofs::All => "",
+                Dofs::All | Dofs::Anchored { .. } => "",
                 Dofs::Observed { .. } => {
                     " (with --dofs observed: one for the data's information, one for LM)"
                 }

@@ -123,8 +123,8 @@ pub struct BenchConfig {
     /// `sequence_shape = "joint[:N]"`; [`crate::fitting::MarkerPlacement`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub marker_placement: Option<String>,
-    /// Which free entries each fit moves: `all`, `observed` or `observed:DEG` (`lfit fit
-    /// --dofs`); default each method's own (`observed` for `neural+lm`'s LM stage on markers,
+    /// Which free entries each fit moves: `all`, `observed`, `observed:DEG`, `anchored` or
+    /// `anchored:DEG` (`lfit fit --dofs`); default each method's own (`observed` for `neural+lm`'s LM stage on markers,
     /// keypoints2d and hmd, `all` otherwise). `neural` always moves its checkpoint's entries.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dofs: Option<String>,
@@ -620,7 +620,7 @@ struct Inputs<'a> {
     template: &'a lfit_model::Template,
     energy: &'a EnergyConfig,
     /// The fitters' names, one per entry: they say what a method does where a build changed it
-    /// under the same config (`neural+lm`'s LM stage on the observed entries: `…+lm-observed`).
+    /// under the same config (`neural+lm`'s LM stage anchored at the network: `…+lm-anchored`).
     fitters: &'a [String],
 }
 

@@ -780,6 +780,7 @@ impl Energy {
             + pose_end.saturating_sub(rot_offset(1))
             + self.rotation_prior_rows().len()
             + self.template.morph.coefficients()
+            + self.anchor.as_ref().map_or(0, |a| a.rows().len())
     }
 
     /// EP's rows: one per tested vertex (vertex form) or per tested pair of capsules.
@@ -1173,6 +1174,21 @@ impl Energy {
                 row += 1;
             }
             blocks.push((name, start..row));
+        }
+        // The anchor's rows (Energy::with_anchor), last: one entry each.
+        if let Some(anchor) = &self.anchor {
+            let start = row;
+            for &(i, c, a) in anchor.rows() {
+                let c0 = a.sqrt();
+                residuals[row] = c0 * (params[i] - c);
+                if with_jacobian && row >= dense_to {
+                    singles.push((i, c0));
+                } else if with_jacobian {
+                    jacobian[row * dim + i - off] = c0;
+                }
+                row += 1;
+            }
+            blocks.push(("anchor", start..row));
         }
         debug_assert_eq!(row, m);
         // Zero rows: penetration and joint-limit rows are zero exactly when their residual is

@@ -465,8 +465,34 @@ pub struct Energy {
     /// The vertices the sensor reads ([`ObservationModel::vertices_read`]), shaped once per
     /// evaluation with derivatives.
     observed: Arc<VertexSet>,
+    /// A pull of some entries toward given values ([`Energy::with_anchor`]); none by default.
+    anchor: Option<Arc<Anchor>>,
     evaluations: AtomicU64,
     gradient_evaluations: AtomicU64,
+}
+
+/// The `anchor` term of [`Energy::with_anchor`]: `Σ_k a_k (θ_{i_k} − c_k)²` over some parameter
+/// entries — a Gaussian centred on a given pose (another fit's result, the previous frame's),
+/// written like the other priors as one residual row `√a_k (θ_{i_k} − c_k)` per entry.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Anchor {
+    /// `(entry, centre, weight a)` per row, in entry order.
+    rows: Vec<(usize, f64, f64)>,
+}
+
+impl Anchor {
+    /// `(entry, centre, weight)` per row of the term.
+    pub fn rows(&self) -> &[(usize, f64, f64)] {
+        &self.rows
+    }
+
+    /// The term's value at `pose`.
+    pub fn value(&self, pose: &[f64]) -> f64 {
+        self.rows
+            .iter()
+            .map(|&(i, c, a)| a * (pose[i] - c) * (pose[i] - c))
+            .sum()
+    }
 }
 
 impl Clone for Energy {
@@ -487,6 +513,7 @@ impl Clone for Energy {
             render: self.render.clone(),
             axes: self.axes.clone(),
             observed: self.observed.clone(),
+            anchor: self.anchor.clone(),
             evaluations: AtomicU64::new(0),
             gradient_evaluations: AtomicU64::new(0),
         }
@@ -618,6 +645,7 @@ impl Energy {
             render,
             axes,
             observed,
+            anchor: None,
             evaluations: AtomicU64::new(0),
             gradient_evaluations: AtomicU64::new(0),
         };
@@ -691,6 +719,66 @@ impl Energy {
             Some((sensor, moved)) => self.with_sensor(sensor, moved, visible.clone()).map(Some),
             None => Ok(None),
         }
+    }
+
+    /// The same energy plus the `anchor` term ([`Anchor`]): each of `entries` pulled toward its
+    /// value in `centre` by a Gaussian of standard deviation `std` (radians for rotation
+    /// entries, the model's units for shape), expressed in the data term's units — the data
+    /// term is the mean over the visible groups of `s² = ‖r‖²/σ²`, so the weight is
+    /// `a = λ_data / (n · std²)` with `n` the visible groups (at least 1), and the anchor
+    /// counts as a Gaussian prior of that standard deviation in the posterior the data term's
+    /// likelihood makes. Entries must be rotation, shape or expression entries (the root
+    /// translation stays free: [`Energy::translated`] moves it). Replaces an earlier anchor.
+    /// Fails on a `centre` of the wrong length, a non-finite centre at an anchored entry, an
+    /// entry out of range or of the translation, or a `std` that is not finite and positive.
+    pub fn with_anchor(&self, centre: &[f64], entries: &[usize], std: f64) -> Result<Self> {
+        self.check_length(centre)?;
+        if !(std.is_finite() && std > 0.0) {
+            return Err(ModelError::Target(format!(
+                "anchor standard deviation {std}: must be finite and positive"
+            )));
+        }
+        let dim = self.dim();
+        let seen = match &self.target {
+            Target::Sparse { visible, .. } => {
+                self.groups.iter().filter(|g| visible[g.start]).count()
+            }
+            Target::Scan { .. } | Target::Silhouettes { .. } => 1,
+        };
+        let a = self.config.weights.data / (seen.max(1) as f64 * std * std);
+        let mut rows = Vec::with_capacity(entries.len());
+        for &i in entries {
+            if i < 3 || i >= dim {
+                return Err(ModelError::Target(format!(
+                    "anchor entry {i}: not a rotation, shape or expression entry (3..{dim})"
+                )));
+            }
+            if !centre[i].is_finite() {
+                return Err(ModelError::Target(format!(
+                    "anchor centre entry {i} is not finite ({})",
+                    centre[i]
+                )));
+            }
+            rows.push((i, centre[i], a));
+        }
+        rows.sort_by_key(|r| r.0);
+        rows.dedup_by_key(|r| r.0);
+        let mut energy = self.clone();
+        energy.anchor = Some(Arc::new(Anchor { rows }));
+        Ok(energy)
+    }
+
+    /// The anchor term, when [`Energy::with_anchor`] gave one.
+    pub fn anchor(&self) -> Option<&Anchor> {
+        self.anchor.as_deref()
+    }
+
+    /// Counts evaluations made on a derived copy of this energy ([`Energy::with_anchor`]: a
+    /// copy has counters of its own) so that this energy's counters cover a whole fit.
+    pub fn add_counts(&self, evaluations: u64, gradient_evaluations: u64) {
+        self.evaluations.fetch_add(evaluations, Ordering::Relaxed);
+        self.gradient_evaluations
+            .fetch_add(gradient_evaluations, Ordering::Relaxed);
     }
 
     pub fn template(&self) -> &Arc<Template> {
@@ -944,6 +1032,16 @@ impl Energy {
                     if let Some(&b) = pose.get(i) {
                         grad_direct[i] += 2.0 * weight * b;
                     }
+                }
+            }
+        }
+        if let Some(anchor) = &self.anchor {
+            let value = anchor.value(pose);
+            terms.push(("anchor", value));
+            total += value;
+            if want_grad {
+                for &(i, c, a) in &anchor.rows {
+                    grad_direct[i] += 2.0 * a * (pose[i] - c);
                 }
             }
         }

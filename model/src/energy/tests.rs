@@ -826,6 +826,82 @@ mod least_squares_form {
         (e, x)
     }
 
+    /// [`Energy::with_anchor`]: the `anchor` term `Σ a (θ_i − c_i)²` with `a = λ_data / (n σ²)`
+    /// (n visible groups) in the value, the gradient and as one least-squares row per entry —
+    /// checked with the rest of the energy against finite differences, dense and factored rows
+    /// giving the same normal equations — and bad anchors refused with the cause.
+    #[test]
+    fn an_anchor_is_a_gaussian_around_its_centre_in_every_form() {
+        use rand::SeedableRng;
+        let t = makehuman_body();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(118);
+        let (e, x) = makehuman_energy(&t, Modality::Markers, &mut rng);
+        let dim = t.layout().dim();
+        let rotations = t.layout().range(crate::layout::Block::Rotations);
+        let shape = t.layout().range(crate::layout::Block::Shape);
+        let centre: Vec<f64> = (0..dim).map(|i| 0.5 * x[i] + 0.01 * i as f64).collect();
+        let entries: Vec<usize> = rotations.clone().step_by(2).chain(shape.clone()).collect();
+        let std = 0.1;
+        let anchored = e.with_anchor(&centre, &entries, std).unwrap();
+        assert!(e.anchor().is_none() && anchored.anchor().is_some());
+        let Target::Sparse { visible, .. } = e.target() else {
+            unreachable!()
+        };
+        let seen = e.groups.iter().filter(|g| visible[g.start]).count();
+        assert!(seen > 30, "{seen} visible markers");
+        let a = 1.0 / (seen as f64 * std * std);
+        let want: f64 = entries
+            .iter()
+            .map(|&i| a * (x[i] - centre[i]).powi(2))
+            .sum();
+        let (plain, with) = (e.evaluate(&x), anchored.evaluate(&x));
+        assert!((with.term("anchor").unwrap() - want).abs() <= 1e-12 * want);
+        assert!((with.total - plain.total - want).abs() <= 1e-12 * with.total);
+        assert!(plain.term("anchor").is_none());
+        assert_eq!(
+            anchored.residual_count(),
+            e.residual_count() + entries.len()
+        );
+        let active = check(&anchored, &x, "anchored markers");
+        assert!(active.contains(&"anchor"), "{active:?}");
+        // The factored rows (LM's) hold the anchor as single entries: the same system.
+        let ls = anchored.least_squares(&x, true).unwrap();
+        let lf = anchored
+            .least_squares_with(&x, true, RobustForm::Folded, JacobianRows::Factored)
+            .unwrap();
+        for dofs in column_sets(dim) {
+            assert_eq!(lf.normal_equations(&dofs), ls.normal_equations(&dofs));
+        }
+        // At its centre the anchor is zero; a second anchor replaces the first.
+        assert_eq!(anchored.evaluate(&centre).term("anchor"), Some(0.0));
+        let again = anchored.with_anchor(&x, &entries, std).unwrap();
+        assert_eq!(again.evaluate(&x).term("anchor"), Some(0.0));
+        for (centre, entries, std, why) in [
+            (&centre[..5], &entries[..], std, "expected 112"),
+            (&centre[..], &[0usize][..], std, "anchor entry 0"),
+            (&centre[..], &[dim][..], std, "anchor entry 112"),
+            (
+                &centre[..],
+                &entries[..],
+                0.0,
+                "must be finite and positive",
+            ),
+            (
+                &centre[..],
+                &entries[..],
+                f64::NAN,
+                "must be finite and positive",
+            ),
+        ] {
+            let err = e.with_anchor(centre, entries, std).unwrap_err().to_string();
+            assert!(err.contains(why), "{why}: {err}");
+        }
+        let mut bad = centre.clone();
+        bad[entries[3]] = f64::NAN;
+        let err = e.with_anchor(&bad, &entries, std).unwrap_err().to_string();
+        assert!(err.contains("is not finite"), "{err}");
+    }
+
     /// The sensor's vertices shaped once per evaluation ([`Kinematics::shape_vertices`]) give
     /// the value, gradient, residuals and Jacobian of shaping each where it is read, bit for bit
     /// (markers: 39 vertices; hmd: the two hand tips; keypoints2d reads none; the face's
