@@ -3,8 +3,10 @@
 # evaluation clip, never training data) retargeted onto the MakeHuman body, fitted frame by frame
 # (local scenario: a start near the target) and as a sequence (each frame from the previous
 # result), by the neural fitter (with each start policy and sequence shape policy), LM and
-# neural+lm (LM on the entries the sensor determines, the default; on single frames also LM that
-# way, `-lm-observed`, and neural+lm with LM on every entry, `-neural+lm-all`), on markers and keypoints2d (pose and β) and hmd (β given). Prints one Markdown table
+# neural+lm (LM pulled toward the network's result, `--dofs anchored`, the default; on single
+# frames also neural+lm on the entries the sensor determines, `-neural+lm-observed`, LM that way,
+# `-lm-observed`, and neural+lm with LM on every entry, `-neural+lm-all`), on markers and
+# keypoints2d (pose and β) and hmd (β given). Prints one Markdown table
 # (mean V2V, MPJPE, β RMS, time per frame, evaluations) and writes every result under OUT. First
 # per modality: 500 procedural held-out frames (PROC_FRAMES), neural and LM, for comparison with
 # what the fitter was trained on. MODALITIES (default "markers keypoints2d hmd") picks modalities.
@@ -46,6 +48,8 @@ for m in ${MODALITIES:-markers keypoints2d hmd}; do
             eval_run "$m-$scenario-neural" "$data" neural --checkpoint "$ck" --neural-start given --budget 10 "${known[@]}"
             eval_run "$m-$scenario-neural-best" "$data" neural --checkpoint "$ck" --neural-start best --budget 12 "${known[@]}"
             eval_run "$m-$scenario-neural+lm" "$data" neural+lm --checkpoint "$ck" --neural-start given --budget 4000 "${known[@]}"
+            eval_run "$m-$scenario-neural+lm-observed" "$data" neural+lm --checkpoint "$ck" --neural-start given \
+                --budget 4000 --dofs observed "${known[@]}"
             eval_run "$m-$scenario-neural+lm-all" "$data" neural+lm --checkpoint "$ck" --neural-start given --budget 4000 \
                 --dofs all "${known[@]}"
             eval_run "$m-$scenario-lm-observed" "$data" lm --budget 4000 --dofs observed "${known[@]}"
