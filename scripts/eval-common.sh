@@ -66,7 +66,7 @@ PY
 # neural+lm-anchored moves every entry with the rotations pulled toward the network's values
 # (`--dofs anchored`, neural+lm's default on markers); lm-anchored is LM pulled the same way
 # toward its start (in a sequence the previous frame's result: the control for what the
-# network adds as the anchor's centre).
+# network adds as the anchor's centre); lm-anchored:DEG with another σ.
 eval_marker_method() {
     case "$1" in
         *+prior) echo "$(eval_marker_method "${1%+prior}" "$2") --energy $POSE_PRIOR" ;;
@@ -75,7 +75,7 @@ eval_marker_method() {
         neural+lm) echo neural+lm --checkpoint "$2" --neural-start both --budget 4000 ;;
         neural+lm-all) echo "$(eval_marker_method neural+lm "$2") --dofs all" ;;
         neural+lm-anchored) echo "$(eval_marker_method neural+lm "$2") --dofs anchored" ;;
-        lm-anchored) echo "$(eval_marker_method lm "$2") --dofs anchored" ;;
+        lm-anchored | lm-anchored:*) echo "$(eval_marker_method lm "$2") --dofs anchored${1#lm-anchored}" ;;
         neural-n[1-9] | neural+lm-n[1-9])
             echo "$(eval_marker_method "${1%-n*}" "$2") --neural-iterations ${1##*-n}" ;;
         neural-best) echo neural --checkpoint "$2" --neural-start best --budget 24 ;;
@@ -95,7 +95,7 @@ eval_methods() {
     local m
     for m in "${methods[@]}"; do
         case "$m" in
-            lm | lm-anchored | neural | neural+lm | neural+lm-all | neural+lm-anchored | neural-n[1-9] | neural+lm-n[1-9] | neural-best) ;;
+            lm | lm-anchored | lm-anchored:[0-9]* | neural | neural+lm | neural+lm-all | neural+lm-anchored | neural-n[1-9] | neural+lm-n[1-9] | neural-best) ;;
             neural-tol0.[0-9]*) ;;
             lm+prior | neural+prior | neural+lm+prior)
                 if [ -z "${POSE_PRIOR:-}" ] || [ ! -f "$POSE_PRIOR" ] || [[ "$POSE_PRIOR" == *" "* ]]; then
@@ -104,7 +104,7 @@ eval_methods() {
                 fi
                 ;;
             *)
-                echo "$1: unknown method '$m' in METHODS (lm, lm-anchored, neural, neural+lm, neural+lm-all, neural+lm-anchored, lm+prior, neural+prior, neural+lm+prior, neural-nK, neural+lm-nK, neural-best, neural-tolT)" >&2
+                echo "$1: unknown method '$m' in METHODS (lm, lm-anchored[:DEG], neural, neural+lm, neural+lm-all, neural+lm-anchored, lm+prior, neural+prior, neural+lm+prior, neural-nK, neural+lm-nK, neural-best, neural-tolT)" >&2
                 exit 2
                 ;;
         esac
