@@ -138,11 +138,12 @@ impl MethodKind {
     /// network's result (`lfit_fitters::AnchoredDofs`, the standard deviation chosen per sensor
     /// on the validation subject: [`lfit_fitters::anchor_std_deg`]; on the validation subject's
     /// markers 10.4 mm V2V against 11.5 for the earlier default `observed` and 12.3 for `all`,
-    /// on real markers the first learned row level with LM with every marker and ahead of it on
-    /// sparse ones: docs/results/captured-motion.md, round 28); every other method, and
-    /// `neural+lm` on dense face landmarks (which determine every entry: 40 face frames 21.5 mm
-    /// with `all` against 27.8 with `observed`) or a custom sensor, every free entry (the
-    /// classical methods' published figures and the scipy parity are over all entries).
+    /// on real markers level with LM with every marker on two of three captures and ahead of it
+    /// on the harder half of the markers of each: docs/results/captured-motion.md, round 28);
+    /// every other method, and `neural+lm` on dense face landmarks (which determine every
+    /// entry: 40 face frames 21.5 mm with `all` against 27.8 with `observed`) or a custom sensor,
+    /// every free entry (the classical methods' published figures and the scipy parity are over
+    /// all entries).
     pub fn default_dofs(self, modality: lfit_model::observe::Modality) -> lfit_fitters::Dofs {
         match (self, lfit_fitters::anchor_std_deg(modality)) {
             (MethodKind::NeuralLm, Some(std_deg)) => lfit_fitters::Dofs::Anchored { std_deg },
