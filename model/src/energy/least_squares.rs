@@ -1147,7 +1147,22 @@ impl Energy {
         blocks.push(("EA", row..row + ea_rows));
         row += ea_rows;
 
-        // Shape and expression priors.
+        // The diagonal rows `c0 (θ_i − centre)`, one entry each: the Gaussian priors of the
+        // rotations, shape and expression (centre 0), then the anchor (Energy::with_anchor).
+        let mut diagonal =
+            |name: &'static str, rows: &mut dyn Iterator<Item = (usize, f64, f64)>| {
+                let start = row;
+                for (i, centre, c0) in rows {
+                    residuals[row] = c0 * (params[i] - centre);
+                    if with_jacobian && row >= dense_to {
+                        singles.push((i, c0));
+                    } else if with_jacobian {
+                        jacobian[row * dim + i - off] = c0;
+                    }
+                    row += 1;
+                }
+                blocks.push((name, start..row));
+            };
         let morph = &self.template.morph;
         let base = 3 + 3 * self.template.rig.num_joints();
         for (name, weight, range) in [
@@ -1163,32 +1178,13 @@ impl Energy {
                 continue;
             }
             let c0 = weight.sqrt();
-            let start = row;
-            for i in range {
-                residuals[row] = c0 * params[i];
-                if with_jacobian && row >= dense_to {
-                    singles.push((i, c0));
-                } else if with_jacobian {
-                    jacobian[row * dim + i - off] = c0;
-                }
-                row += 1;
-            }
-            blocks.push((name, start..row));
+            diagonal(name, &mut range.map(|i| (i, 0.0, c0)));
         }
-        // The anchor's rows (Energy::with_anchor), last: one entry each.
         if let Some(anchor) = &self.anchor {
-            let start = row;
-            for &(i, c, a) in anchor.rows() {
-                let c0 = a.sqrt();
-                residuals[row] = c0 * (params[i] - c);
-                if with_jacobian && row >= dense_to {
-                    singles.push((i, c0));
-                } else if with_jacobian {
-                    jacobian[row * dim + i - off] = c0;
-                }
-                row += 1;
-            }
-            blocks.push(("anchor", start..row));
+            diagonal(
+                "anchor",
+                &mut anchor.rows().iter().map(|&(i, c, a)| (i, c, a.sqrt())),
+            );
         }
         debug_assert_eq!(row, m);
         // Zero rows: penetration and joint-limit rows are zero exactly when their residual is
