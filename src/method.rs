@@ -134,9 +134,11 @@ impl MethodKind {
     }
 
     /// Which entries the method moves unless told (`--dofs`): `neural+lm`'s LM stage on the sparse
-    /// body sensors (markers, keypoints2d, hmd) every entry with the rotations anchored at the
-    /// network's result (`lfit_fitters::AnchoredDofs`, the standard deviation chosen per sensor
-    /// on the validation subject: [`lfit_fitters::anchor_std_deg`]; on the validation subject's
+    /// body sensors (markers, keypoints2d, hmd) every entry with the rotations and the root
+    /// translation anchored at the network's result (`lfit_fitters::AnchoredDofs`, the rotations'
+    /// standard deviation chosen per sensor on the validation subject:
+    /// [`lfit_fitters::anchor_std_deg`], the translation's [`lfit_fitters::ANCHOR_TRANSLATION_STD_MM`]
+    /// on its one-camera keypoints2d; on the validation subject's
     /// markers 10.4 mm V2V against 11.5 for the earlier default `observed` and 12.3 for `all`,
     /// on real markers level with LM with every marker on two of three captures and ahead of it
     /// on the harder half of the markers of each: docs/results/captured-motion.md, round 28);
@@ -146,7 +148,7 @@ impl MethodKind {
     /// all entries).
     pub fn default_dofs(self, modality: lfit_model::observe::Modality) -> lfit_fitters::Dofs {
         match (self, lfit_fitters::anchor_std_deg(modality)) {
-            (MethodKind::NeuralLm, Some(std_deg)) => lfit_fitters::Dofs::Anchored { std_deg },
+            (MethodKind::NeuralLm, Some(std_deg)) => lfit_fitters::Dofs::anchored(std_deg),
             _ => lfit_fitters::Dofs::All,
         }
     }

@@ -922,6 +922,32 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
         let evals = f["evaluations"].as_u64().expect("evaluations");
         assert!((1..=200).contains(&evals), "evaluations {evals}");
     }
+    // The translation's standard deviation by name (millimetres): 0.001 mm holds the root
+    // translation at the start, where the default 30 mm lets the data move it.
+    let held = fitted("held.json", "anchored:3,0.001");
+    assert_eq!(held["method"], "lm-anchored-3deg-0.001mm");
+    assert_eq!(held["dofs"], "anchored:3,0.001");
+    let shift = |r: &Value| {
+        frames(r)
+            .iter()
+            .map(|f| {
+                let k = f["frame"].as_u64().expect("frame") as usize;
+                (0..3)
+                    .map(|i| (num(&f["pose"][i]) - dataset.start_poses[k][i]).abs())
+                    .fold(0.0f64, f64::max)
+            })
+            .fold(0.0f64, f64::max)
+    };
+    assert!(
+        shift(&held) < 1e-5,
+        "held translation moved {} m",
+        shift(&held)
+    );
+    assert!(
+        shift(&anchored) > 1e-4,
+        "the default translation anchor moved it only {} m",
+        shift(&anchored)
+    );
     // Another threshold by name: its fitter's name and the result say it.
     let loose = fitted("obs30.json", "observed:30");
     assert_eq!(loose["method"], "lm-observed-30deg");
@@ -979,7 +1005,7 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
     for (extra, want) in [
         (
             &["--dofs", "some", "--budget", "200"][..],
-            "unknown dofs 'some' (expected all, observed, observed:DEG, anchored or anchored:DEG)",
+            "unknown dofs 'some' (expected all, observed, observed:DEG, anchored, anchored:DEG or anchored:DEG,MM)",
         ),
         (
             &["--dofs", "observed", "--budget", "1"][..],
@@ -992,6 +1018,10 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
         (
             &["--dofs", "anchored:-2", "--budget", "200"][..],
             "the standard deviation after anchored: must be a positive number of degrees",
+        ),
+        (
+            &["--dofs", "anchored:5,0", "--budget", "200"][..],
+            "the translation's standard deviation after anchored:DEG, must be a positive number of millimetres",
         ),
     ] {
         let path = tmp.path().join("no.json");

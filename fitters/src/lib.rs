@@ -17,8 +17,8 @@ pub use fitter::{FitRequest, FitResult, Fitter, Strategy, split_budget};
 pub use lbfgs::LbfgsFitter;
 pub use least_squares::{LeastSquaresFitter, LeastSquaresMethod};
 pub use observed::{
-    ANCHOR_STD_DEG, AnchoredDofs, Dofs, HMD_ANCHOR_STD_DEG, KEYPOINTS2D_ANCHOR_STD_DEG,
-    ObservedDofs, anchor_std_deg,
+    ANCHOR_STD_DEG, ANCHOR_TRANSLATION_STD_MM, AnchoredDofs, Dofs, HMD_ANCHOR_STD_DEG,
+    KEYPOINTS2D_ANCHOR_STD_DEG, ObservedDofs, anchor_std_deg,
 };
 pub use optim::{Method, Preset};
 pub use zeroth::ZerothOrderFitter;

@@ -287,10 +287,12 @@ fn lm_runs_with_its_scaling_floor() {
 }
 
 /// `Dofs::Anchored` (`--dofs anchored`): LM minimises the energy plus a Gaussian pull of the free
-/// rotations toward the start. Its result reports the energy itself (the anchor subtracted) and
-/// its terms without the anchor; the request's energy counts the anchored copy's evaluations
-/// within the budget; a tight anchor keeps the rotations at the start where the translation still
-/// moves, a loose one is LM's fit, and one in between lands between the two.
+/// rotations and root translation toward the start, each with its own standard deviation. Its
+/// result reports the energy itself (the anchor subtracted) and its terms without the anchor; the
+/// request's energy counts the anchored copy's evaluations within the budget; a tight rotation
+/// anchor keeps the rotations at the start where a loose translation anchor lets the translation
+/// move, tight on both keeps the translation too, loose on both is LM's fit, and one in between
+/// lands between the two.
 #[test]
 fn anchored_dofs_pull_toward_the_start_and_report_the_energy() {
     use lfit_fitters::Dofs;
@@ -352,9 +354,14 @@ fn anchored_dofs_pull_toward_the_start_and_report_the_energy() {
             .fold(0.0, f64::max)
     };
     let free = fit(Dofs::All);
-    let tight = fit(Dofs::Anchored { std_deg: 1e-4 });
-    let loose = fit(Dofs::Anchored { std_deg: 1e6 });
-    let mid = fit(Dofs::Anchored { std_deg: 2.0 });
+    let anchored = |std_deg, translation_std_mm| Dofs::Anchored {
+        std_deg,
+        translation_std_mm,
+    };
+    let tight = fit(anchored(1e-4, 1e9));
+    let held = fit(anchored(1e-4, 1e-4));
+    let loose = fit(anchored(1e6, 1e9));
+    let mid = fit(Dofs::anchored(2.0));
     assert!(
         rot(&free.pose) > 0.05,
         "LM moved the rotations by {}",
@@ -367,8 +374,11 @@ fn anchored_dofs_pull_toward_the_start_and_report_the_energy() {
     );
     assert!(
         (0..3).any(|i| (tight.pose[i] - s[i]).abs() > 1e-3),
-        "the translation is not anchored"
+        "a loose translation anchor holds the translation"
     );
+    let moved = (0..3).fold(0.0f64, |m, i| m.max((held.pose[i] - s[i]).abs()));
+    assert!(moved < 1e-5, "a tight one let it move {moved} m");
+    assert!(rot(&held.pose) < 1e-3);
     let gap = free
         .pose
         .iter()

@@ -5,9 +5,10 @@
 //! modalities, `docs/results/learned-vs-classical.md`).
 //!
 //! With [`Dofs::Anchored`] (the CLI's default for `neural+lm` on the sparse body sensors) LM
-//! moves every entry on the energy plus a Gaussian pull of the rotations toward the network's
-//! result ([`lfit_fitters::AnchoredDofs`]): what the sensor leaves open (fingers, thumbs, a
-//! limb's twist under 2D keypoints, an arm whose markers are missing) stays near the network's
+//! moves every entry on the energy plus a Gaussian pull of the rotations and the root translation
+//! toward the network's result ([`lfit_fitters::AnchoredDofs`]): what the sensor leaves open
+//! (fingers, thumbs, a limb's twist under 2D keypoints, an arm whose markers are missing, the
+//! depth along a single camera's axis) stays near the network's
 //! estimate, which is learned from human motion, where LM would set it from the noise of the few
 //! rows that touch it; what the data determine moves as LM moves it. With [`Dofs::OBSERVED`]
 //! LM moves only the rotation entries the observations determine ([`lfit_fitters::observed`])

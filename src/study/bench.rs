@@ -123,9 +123,10 @@ pub struct BenchConfig {
     /// `sequence_shape = "joint[:N]"`; [`crate::fitting::MarkerPlacement`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub marker_placement: Option<String>,
-    /// Which free entries each fit moves: `all`, `observed`, `observed:DEG`, `anchored` or
-    /// `anchored:DEG` (`lfit fit --dofs`); default each method's own (`observed` for `neural+lm`'s LM stage on markers,
-    /// keypoints2d and hmd, `all` otherwise). `neural` always moves its checkpoint's entries.
+    /// Which free entries each fit moves: `all`, `observed`, `observed:DEG`, `anchored`,
+    /// `anchored:DEG` or `anchored:DEG,MM` (`lfit fit --dofs`); default each method's own
+    /// (anchored for `neural+lm`'s LM stage on markers, keypoints2d and hmd:
+    /// [`crate::method::MethodKind::default_dofs`]; `all` otherwise). `neural` always moves its checkpoint's entries.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dofs: Option<String>,
     #[serde(default)]

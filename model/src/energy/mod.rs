@@ -715,29 +715,34 @@ impl Energy {
         let Target::Sparse { values, visible } = &self.target else {
             return Ok(None);
         };
-        match self.sensor.translated(values, offset) {
-            Some((sensor, moved)) => self.with_sensor(sensor, moved, visible.clone()).map(Some),
-            None => Ok(None),
+        let Some((sensor, moved)) = self.sensor.translated(values, offset) else {
+            return Ok(None);
+        };
+        let mut energy = self.with_sensor(sensor, moved, visible.clone())?;
+        if let Some(anchor) = &self.anchor {
+            let shift = [offset.x, offset.y, offset.z];
+            let rows = anchor
+                .rows
+                .iter()
+                .map(|&(i, c, a)| (i, if i < 3 { c + shift[i] } else { c }, a))
+                .collect();
+            energy.anchor = Some(Arc::new(Anchor { rows }));
         }
+        Ok(Some(energy))
     }
 
-    /// The same energy plus the `anchor` term ([`Anchor`]): each of `entries` pulled toward its
-    /// value in `centre` by a Gaussian of standard deviation `std` (radians for rotation
-    /// entries, the model's units for shape), expressed in the data term's units — the data
-    /// term is the mean over the visible groups of `s² = ‖r‖²/σ²`, so the weight is
-    /// `a = λ_data / (n · std²)` with `n` the visible groups (at least 1), and the anchor
-    /// counts as a Gaussian prior of that standard deviation in the posterior the data term's
-    /// likelihood makes. Entries must be rotation, shape or expression entries (the root
-    /// translation stays free: [`Energy::translated`] moves it). Replaces an earlier anchor.
-    /// Fails on a `centre` of the wrong length, a non-finite centre at an anchored entry, an
-    /// entry out of range or of the translation, or a `std` that is not finite and positive.
-    pub fn with_anchor(&self, centre: &[f64], entries: &[usize], std: f64) -> Result<Self> {
+    /// The same energy plus the `anchor` term ([`Anchor`]): each entry of `entries` (`(entry,
+    /// std)`) pulled toward its value in `centre` by a Gaussian of standard deviation `std`
+    /// (metres for the root translation, radians for rotations, the model's units for shape and
+    /// expression), expressed in the data term's units — the data term is the mean over the
+    /// visible groups of `s² = ‖r‖²/σ²`, so the weight is `a = λ_data / (n · std²)` with `n` the
+    /// visible groups (at least 1), and the anchor counts as a Gaussian prior of that standard
+    /// deviation in the posterior the data term's likelihood makes. Replaces an earlier anchor;
+    /// [`Energy::translated`] moves the translation entries' centres with the sensor. Fails on a
+    /// `centre` of the wrong length, a non-finite centre at an anchored entry, an entry out of
+    /// range, or a `std` that is not finite and positive.
+    pub fn with_anchor(&self, centre: &[f64], entries: &[(usize, f64)]) -> Result<Self> {
         self.check_length(centre)?;
-        if !(std.is_finite() && std > 0.0) {
-            return Err(ModelError::Target(format!(
-                "anchor standard deviation {std}: must be finite and positive"
-            )));
-        }
         let dim = self.dim();
         let seen = match &self.target {
             Target::Sparse { visible, .. } => {
@@ -745,12 +750,17 @@ impl Energy {
             }
             Target::Scan { .. } | Target::Silhouettes { .. } => 1,
         };
-        let a = self.config.weights.data / (seen.max(1) as f64 * std * std);
+        let per_std = self.config.weights.data / seen.max(1) as f64;
         let mut rows = Vec::with_capacity(entries.len());
-        for &i in entries {
-            if i < 3 || i >= dim {
+        for &(i, std) in entries {
+            if i >= dim {
                 return Err(ModelError::Target(format!(
-                    "anchor entry {i}: not a rotation, shape or expression entry (3..{dim})"
+                    "anchor entry {i}: out of range (the parameter vector has {dim})"
+                )));
+            }
+            if !(std.is_finite() && std > 0.0) {
+                return Err(ModelError::Target(format!(
+                    "anchor standard deviation {std} at entry {i}: must be finite and positive"
                 )));
             }
             if !centre[i].is_finite() {
@@ -759,7 +769,7 @@ impl Energy {
                     centre[i]
                 )));
             }
-            rows.push((i, centre[i], a));
+            rows.push((i, centre[i], per_std / (std * std)));
         }
         rows.sort_by_key(|r| r.0);
         rows.dedup_by_key(|r| r.0);

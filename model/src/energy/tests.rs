@@ -826,8 +826,9 @@ mod least_squares_form {
         (e, x)
     }
 
-    /// [`Energy::with_anchor`]: the `anchor` term `Σ a (θ_i − c_i)²` with `a = λ_data / (n σ²)`
-    /// (n visible groups) in the value, the gradient and as one least-squares row per entry —
+    /// [`Energy::with_anchor`]: the `anchor` term `Σ a_i (θ_i − c_i)²` with `a_i = λ_data / (n
+    /// σ_i²)` (n visible groups) in the value, the gradient and as one least-squares row per
+    /// entry — translation, rotation and shape entries with standard deviations of their own,
     /// checked with the rest of the energy against finite differences, dense and factored rows
     /// giving the same normal equations — and bad anchors refused with the cause.
     #[test]
@@ -840,24 +841,39 @@ mod least_squares_form {
         let rotations = t.layout().range(crate::layout::Block::Rotations);
         let shape = t.layout().range(crate::layout::Block::Shape);
         let centre: Vec<f64> = (0..dim).map(|i| 0.5 * x[i] + 0.01 * i as f64).collect();
-        let entries: Vec<usize> = rotations.clone().step_by(2).chain(shape.clone()).collect();
-        let std = 0.1;
-        let anchored = e.with_anchor(&centre, &entries, std).unwrap();
+        let std = |i: usize| match i {
+            0..3 => 0.05,
+            i if shape.contains(&i) => 0.3,
+            _ => 0.1,
+        };
+        let entries: Vec<(usize, f64)> = [0, 2]
+            .into_iter()
+            .chain(rotations.clone().step_by(2))
+            .chain(shape.clone())
+            .map(|i| (i, std(i)))
+            .collect();
+        let anchored = e.with_anchor(&centre, &entries).unwrap();
         assert!(e.anchor().is_none() && anchored.anchor().is_some());
         let Target::Sparse { visible, .. } = e.target() else {
             unreachable!()
         };
         let seen = e.groups.iter().filter(|g| visible[g.start]).count();
         assert!(seen > 30, "{seen} visible markers");
-        let a = 1.0 / (seen as f64 * std * std);
         let want: f64 = entries
             .iter()
-            .map(|&i| a * (x[i] - centre[i]).powi(2))
+            .map(|&(i, s)| (x[i] - centre[i]).powi(2) / (seen as f64 * s * s))
             .sum();
         let (plain, with) = (e.evaluate(&x), anchored.evaluate(&x));
         assert!((with.term("anchor").unwrap() - want).abs() <= 1e-12 * want);
         assert!((with.total - plain.total - want).abs() <= 1e-12 * with.total);
         assert!(plain.term("anchor").is_none());
+        // Each entry's own standard deviation: the translation's rows weigh (0.1/0.05)² = 4
+        // times a rotation's, the shape's (0.1/0.3)².
+        let rows = anchored.anchor().unwrap().rows();
+        let weight = |i: usize| rows.iter().find(|r| r.0 == i).unwrap().2;
+        let rot = weight(rotations.start);
+        assert!((weight(0) / rot - 4.0).abs() < 1e-12);
+        assert!((weight(shape.start) / rot - 1.0 / 9.0).abs() < 1e-12);
         assert_eq!(
             anchored.residual_count(),
             e.residual_count() + entries.len()
@@ -874,31 +890,26 @@ mod least_squares_form {
         }
         // At its centre the anchor is zero; a second anchor replaces the first.
         assert_eq!(anchored.evaluate(&centre).term("anchor"), Some(0.0));
-        let again = anchored.with_anchor(&x, &entries, std).unwrap();
+        let again = anchored.with_anchor(&x, &entries).unwrap();
         assert_eq!(again.evaluate(&x).term("anchor"), Some(0.0));
-        for (centre, entries, std, why) in [
-            (&centre[..5], &entries[..], std, "expected 112"),
-            (&centre[..], &[0usize][..], std, "anchor entry 0"),
-            (&centre[..], &[dim][..], std, "anchor entry 112"),
+        let nan = [(entries[3].0, f64::NAN)];
+        let zero = [(entries[3].0, 0.0)];
+        for (centre, entries, why) in [
+            (&centre[..5], &entries[..], "expected 112"),
             (
                 &centre[..],
-                &entries[..],
-                0.0,
-                "must be finite and positive",
+                &[(dim, 0.1)][..],
+                "anchor entry 112: out of range",
             ),
-            (
-                &centre[..],
-                &entries[..],
-                f64::NAN,
-                "must be finite and positive",
-            ),
+            (&centre[..], &zero[..], "must be finite and positive"),
+            (&centre[..], &nan[..], "must be finite and positive"),
         ] {
-            let err = e.with_anchor(centre, entries, std).unwrap_err().to_string();
+            let err = e.with_anchor(centre, entries).unwrap_err().to_string();
             assert!(err.contains(why), "{why}: {err}");
         }
         let mut bad = centre.clone();
-        bad[entries[3]] = f64::NAN;
-        let err = e.with_anchor(&bad, &entries, std).unwrap_err().to_string();
+        bad[entries[3].0] = f64::NAN;
+        let err = e.with_anchor(&bad, &entries).unwrap_err().to_string();
         assert!(err.contains("is not finite"), "{err}");
     }
 
@@ -2690,6 +2701,10 @@ fn a_translated_frame_has_the_energy_of_the_frame() {
             visible: pred.visible,
         };
         let e = Energy::new(t.clone(), sensor, target, EnergyConfig::default()).unwrap();
+        // An anchor on the translation (and a rotation) moves with the frame.
+        let e = e
+            .with_anchor(&truth, &[(0, 0.05), (1, 0.05), (2, 0.05), (5, 0.1)])
+            .unwrap();
         let moved = e.translated(offset).unwrap().expect("a translated form");
         let mut shifted = pose.clone();
         shifted[0] += offset.x;
