@@ -11,7 +11,7 @@ pub use crate::cli::motion::{
     ImportArgs as MotionImportArgs, PriorArgs as MotionPriorArgs, import_clip, prior_energy,
 };
 pub use crate::data::params_from_json;
-pub use crate::data::{MotionFilesArgs, SynthArgs, load_model, synthesize_dataset};
+pub use crate::data::{MotionFilesArgs, Rig, SynthArgs, load_model, synthesize_dataset};
 pub use crate::fitting::{check_model, template_for};
 pub use crate::method::{MethodKind, NO_NEURAL};
 

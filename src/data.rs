@@ -124,47 +124,70 @@ pub fn synth_with_motions(
     template: &Template,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Value> {
-    synth_with_cameras(args, files, None, template, progress)
+    synth_with_cameras(args, files, &Rig::Default, template, progress)
 }
 
-/// The sensor of `lfit synth`: the modality's default, or for `keypoints2d` with `cameras`
-/// (`--cameras N`) N cameras on the default ring's circle ([`lfit_model::camera::default_ring`]:
-/// 4 m around the origin, 1.3 m high, evenly spaced starting in front, 640×480, fx = 550).
-pub fn synth_sensor(
-    modality: Modality,
-    cameras: Option<usize>,
-    template: &Template,
-) -> Result<Sensor> {
-    match (cameras, modality) {
-        (None, _) => Ok(Sensor::default_for(modality, template)),
-        (Some(0), _) => anyhow::bail!("--cameras must be at least 1"),
-        (Some(n), Modality::Keypoints2d) if n <= lfit_model::camera::RigRanges::MAX_CAMERAS => {
-            Ok(Sensor::Keypoints2d(
-                lfit_model::observe::KeypointSetup::new(lfit_model::camera::default_ring(n)),
-            ))
-        }
-        (Some(n), Modality::Keypoints2d) => anyhow::bail!(
-            "--cameras {n} is more than {}",
-            lfit_model::camera::RigRanges::MAX_CAMERAS
-        ),
-        (Some(_), m) => {
-            anyhow::bail!("--cameras sets the keypoints2d rig; {m} takes its default setup")
+/// The cameras `lfit synth` observes keypoints2d with.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub enum Rig {
+    /// The modality's default setup (keypoints2d: the default ring's six cameras).
+    #[default]
+    Default,
+    /// `--cameras N`: N cameras on the default ring's circle ([`lfit_model::camera::default_ring`]:
+    /// 4 m around the origin, 1.3 m high, evenly spaced starting in front, 640×480, fx = 550).
+    Ring(usize),
+    /// `--camera FILE`: the calibrated cameras of a camera file, as `lfit data import --camera`
+    /// reads them (a user's own rig: its placements, image sizes and focal lengths).
+    Cameras(Vec<lfit_model::camera::Camera>),
+}
+
+impl Rig {
+    /// From `--cameras N` and `--camera FILE` (at most one of them).
+    pub fn from_args(cameras: Option<usize>, camera_file: Option<&Path>) -> Result<Rig> {
+        match (cameras, camera_file) {
+            (Some(_), Some(_)) => bail!("give --cameras N or --camera FILE, not both"),
+            (Some(n), None) => Ok(Rig::Ring(n)),
+            (None, Some(path)) => Ok(Rig::Cameras(lfit_synth::capture::keypoints::read_cameras(
+                path,
+            )?)),
+            (None, None) => Ok(Rig::Default),
         }
     }
 }
 
-/// [`synth_with_motions`] with `cameras` (`--cameras N`, see [`synth_sensor`]).
+/// The sensor of `lfit synth`: the modality's default, or for `keypoints2d` the cameras of
+/// `rig` ([`Rig`]); refused for another modality.
+pub fn synth_sensor(modality: Modality, rig: &Rig, template: &Template) -> Result<Sensor> {
+    let cameras = match rig {
+        Rig::Default => return Ok(Sensor::default_for(modality, template)),
+        Rig::Ring(0) => bail!("--cameras must be at least 1"),
+        Rig::Ring(n) if *n > lfit_model::camera::RigRanges::MAX_CAMERAS => bail!(
+            "--cameras {n} is more than {}",
+            lfit_model::camera::RigRanges::MAX_CAMERAS
+        ),
+        Rig::Ring(n) => lfit_model::camera::default_ring(*n),
+        Rig::Cameras(cameras) => cameras.clone(),
+    };
+    if modality != Modality::Keypoints2d {
+        bail!("--cameras and --camera set the keypoints2d rig; {modality} takes its default setup");
+    }
+    Ok(Sensor::Keypoints2d(
+        lfit_model::observe::KeypointSetup::new(cameras),
+    ))
+}
+
+/// [`synth_with_motions`] with the cameras of `rig` (`--cameras N`, `--camera FILE`; see
+/// [`synth_sensor`]).
 pub fn synth_with_cameras(
     args: &SynthArgs,
     files: &MotionFilesArgs,
-    cameras: Option<usize>,
+    rig: &Rig,
     template: &Template,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Value> {
     let start = Instant::now();
     let never = std::sync::atomic::AtomicBool::new(false);
-    let (dataset, mut summary) =
-        synthesize_dataset(args, files, cameras, template, progress, &never)?;
+    let (dataset, mut summary) = synthesize_dataset(args, files, rig, template, progress, &never)?;
     dataset.save(&args.out)?;
     let bytes = std::fs::metadata(&args.out).map(|m| m.len()).unwrap_or(0);
     summary["out"] = json!(args.out);
@@ -179,13 +202,13 @@ pub fn synth_with_cameras(
 pub fn synthesize_dataset(
     args: &SynthArgs,
     files: &MotionFilesArgs,
-    cameras: Option<usize>,
+    rig: &Rig,
     template: &Template,
     progress: &(dyn Fn(usize) + Sync),
     cancel: &std::sync::atomic::AtomicBool,
 ) -> Result<(Dataset, Value)> {
     let modality: Modality = args.modality.parse()?;
-    let sensor = synth_sensor(modality, cameras, template)?;
+    let sensor = synth_sensor(modality, rig, template)?;
     let scenario: Scenario = args.scenario.parse()?;
     let mut config = SynthConfig::new(modality, scenario, args.frames, args.seed);
     config.source = args.source.parse::<PoseSource>()?;

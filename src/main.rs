@@ -137,8 +137,14 @@ enum Command {
         /// keypoints2d: the number of cameras, on the default ring's circle (4 m around the
         /// origin, 1.3 m high, evenly spaced from the front, 640×480, fx = 550); default: the
         /// default rig's 6.
-        #[arg(long, value_name = "N")]
+        #[arg(long, value_name = "N", conflicts_with = "camera")]
         cameras: Option<usize>,
+        /// keypoints2d: the cameras of a camera file, as `lfit data import --camera` reads it
+        /// ({"cameras": [{"fx", "fy", "cx", "cy", "width", "height", "rotation": 3×3
+        /// camera-from-world, "translation": [3] metres}, ...]}, OpenCV axes): your own rig's
+        /// placements, image sizes and focal lengths.
+        #[arg(long, value_name = "FILE")]
+        camera: Option<PathBuf>,
         #[command(flatten)]
         template: TemplateArg,
     },
@@ -750,8 +756,10 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             keypoint_bias_mm,
             keypoint_detector,
             cameras,
+            camera,
             template,
         } => {
+            let rig = lfit::data::Rig::from_args(cameras, camera.as_deref())?;
             let template = commands::load_model(template.template.as_deref(), &template.shape)?;
             let args = SynthArgs {
                 modality,
@@ -780,10 +788,9 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             };
             // Settings are checked before the progress bar appears.
             let bar = progress_bar(frames, cli.quiet, "synth");
-            let result =
-                lfit::data::synth_with_cameras(&args, &files, cameras, &template, &|done| {
-                    bar.set_position(done as u64)
-                });
+            let result = lfit::data::synth_with_cameras(&args, &files, &rig, &template, &|done| {
+                bar.set_position(done as u64)
+            });
             bar.finish_and_clear();
             result
         }

@@ -1,6 +1,7 @@
-//! Camera-agnostic keypoints2d networks end to end: `lfit synth --cameras N`, a tiny training
-//! run of a pooled network (random rigs), fits of 1- and 3-camera datasets with its checkpoint,
-//! and the shipped fixed-rig checkpoint's one-line refusal of the same datasets.
+//! Camera-agnostic keypoints2d networks end to end: `lfit synth --cameras N` and `--camera
+//! FILE`, a tiny training run of a pooled network (random rigs), fits of 1- and 3-camera datasets
+//! with its checkpoint, and the shipped fixed-rig checkpoint's one-line refusal of the same
+//! datasets.
 
 mod support;
 
@@ -139,7 +140,7 @@ fn a_pooled_checkpoint_fits_1_and_3_cameras_where_the_fixed_rig_one_refuses() {
             "--out",
             path_str(&d.join("x.npz")),
         ]),
-        "--cameras sets the keypoints2d rig",
+        "set the keypoints2d rig",
     );
     // A pooled markers network is refused before training.
     let bad = d.join("bad.json");
@@ -159,4 +160,103 @@ fn a_pooled_checkpoint_fits_1_and_3_cameras_where_the_fixed_rig_one_refuses() {
         ]),
         "pools keypoints2d cameras",
     );
+}
+
+fn synth_with(out: &Path, modality: &str, rig: &[&str]) -> std::process::Output {
+    let mut args = vec![
+        "-q",
+        "synth",
+        "--modality",
+        modality,
+        "--frames",
+        "4",
+        "--seed",
+        "3",
+        "--out",
+        path_str(out),
+    ];
+    args.extend_from_slice(rig);
+    lfit(&args)
+}
+
+/// `lfit synth --camera FILE`: the keypoints2d of a user's own rig (`lfit data import`'s camera
+/// file). The default ring's cameras written as a file give `--cameras N`'s data exactly; the
+/// repository's example rigs (`configs/rigs/`) are read camera for camera; bad files and
+/// flags are refused in one line with nothing written.
+#[test]
+fn synth_observes_keypoints_with_the_cameras_of_a_camera_file() {
+    use lfit::synth::Dataset;
+    use lfit::synth::capture::keypoints::{cameras_json, read_cameras};
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let ring = d.join("ring3.json");
+    std::fs::write(&ring, cameras_json(&lfit::model::camera::default_ring(3))).expect("write");
+    let (by_count, by_file) = (d.join("count.npz"), d.join("file.npz"));
+    for (out, rig) in [
+        (&by_count, vec!["--cameras", "3"]),
+        (&by_file, vec!["--camera", path_str(&ring)]),
+    ] {
+        let o = synth_with(out, "keypoints2d", &rig);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let (a, b) = (
+        Dataset::load(&by_count).expect("count"),
+        Dataset::load(&by_file).expect("file"),
+    );
+    assert_eq!(a.sensor.cameras(), b.sensor.cameras());
+    let sparse = |d: &Dataset| match &d.observations {
+        lfit::synth::Observations::Sparse { values, visible } => (values.clone(), visible.clone()),
+        _ => panic!("keypoints2d data are sparse"),
+    };
+    assert_eq!(sparse(&a), sparse(&b));
+    assert_eq!(a.gt_poses, b.gt_poses);
+
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    for (name, count) in [("phone-1", 1), ("tripods-2", 2), ("studio-3", 3)] {
+        let file = root.join(format!("configs/rigs/{name}.json"));
+        let out = d.join(format!("{name}.npz"));
+        let o = synth_with(&out, "keypoints2d", &["--camera", path_str(&file)]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let data = Dataset::load(&out).expect("dataset");
+        let want = read_cameras(&file).expect("cameras");
+        assert_eq!(want.len(), count);
+        assert_eq!(data.sensor.cameras(), &want[..], "{name}");
+        // The subject is in view: most keypoints of every frame are seen.
+        let lfit::synth::Observations::Sparse { visible, .. } = &data.observations else {
+            panic!("{name}: keypoints2d data are sparse");
+        };
+        let flags: Vec<bool> = visible.iter().flatten().copied().collect();
+        let seen = flags.iter().filter(|&&v| v).count() as f64 / flags.len() as f64;
+        assert!(seen > 0.5, "{name}: {seen} of the keypoints seen");
+    }
+
+    let x = d.join("x.npz");
+    let missing = d.join("missing.json");
+    let bad = d.join("bad.json");
+    std::fs::write(&bad, r#"{"cameras": []}"#).expect("write");
+    for (modality, rig, want) in [
+        (
+            "keypoints2d",
+            vec!["--camera", path_str(&missing)],
+            "missing.json",
+        ),
+        (
+            "keypoints2d",
+            vec!["--camera", path_str(&bad)],
+            "no cameras",
+        ),
+        (
+            "keypoints2d",
+            vec!["--cameras", "2", "--camera", path_str(&ring)],
+            "cannot be used with",
+        ),
+        (
+            "markers",
+            vec!["--camera", path_str(&ring)],
+            "set the keypoints2d rig",
+        ),
+    ] {
+        assert_one_line_error(&synth_with(&x, modality, &rig), want);
+        assert!(!x.exists());
+    }
 }

@@ -170,11 +170,16 @@ fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
             "pso @40",
             "lm + pose prior (CMU train, weight W) @40",
             "neural+lm (checkpoints/MOD-makehuman, then LM) + pose prior (CMU train, weight W) @40",
+            "lm anchored at the previous frame (--dofs anchored:D) @40",
         ] {
             let w = if m == "keypoints2d" { "0.001" } else { "0.01" };
+            let d = if m == "keypoints2d" { "8" } else { "5" };
             let want = format!(
                 "| {m}, captured clip (4 frames) | {} |",
-                method.replace("MOD", m).replace(" W)", &format!(" {w})"))
+                method
+                    .replace("MOD", m)
+                    .replace(" W)", &format!(" {w})"))
+                    .replace(":D)", &format!(":{d})"))
             );
             assert!(
                 table.lines().any(|l| l.starts_with(&want)),
@@ -216,6 +221,39 @@ fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
             assert!(rms.windows(2).all(|w| w[0] == w[1]), "{m} {name}: {rms:?}");
         }
     }
+    // The temporally anchored LM: one part per clip, LM alone, its fitter the anchored one; its
+    // sequence is not LM's (the pull changes the fits).
+    for (m, d) in [("markers", "5"), ("keypoints2d", "8")] {
+        let dir = out_dir.join(format!("{m}-clip-anchored"));
+        let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("csv");
+        assert_eq!(csv.lines().count(), 1 + 4, "{m}");
+        let config = std::fs::read_to_string(dir.join("bench.json")).expect("bench.json");
+        assert!(config.contains(&format!("anchored:{d}")), "{config}");
+        let energy = |csv: &str| -> Vec<String> {
+            let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
+            let (mc, ec) = (
+                header.iter().position(|h| *h == "method").expect("method"),
+                header.iter().position(|h| *h == "energy").expect("energy"),
+            );
+            csv.lines()
+                .skip(1)
+                .map(|l| l.split(',').collect::<Vec<_>>())
+                .filter(|c| c[mc] == "lm")
+                .map(|c| c[ec].to_string())
+                .collect()
+        };
+        let plain =
+            std::fs::read_to_string(out_dir.join(format!("{m}-clip/runs.csv"))).expect("csv");
+        assert_eq!(energy(&csv).len(), 4);
+        assert_ne!(
+            energy(&csv),
+            energy(&plain),
+            "{m}: the anchor changed nothing"
+        );
+    }
+    assert!(!out_dir.join("markers-clip-prior-anchored").exists());
+    assert!(!out_dir.join("markers-clip-early-anchored").exists());
+    assert!(!out_dir.join("markers-anchored").exists());
     assert!(!table.contains("hmd, captured clip"));
     // A clip that is not there: one line, before any fit.
     let out = lfit(&[

@@ -18,7 +18,7 @@ pub use lbfgs::LbfgsFitter;
 pub use least_squares::{LeastSquaresFitter, LeastSquaresMethod};
 pub use observed::{
     ANCHOR_STD_DEG, ANCHOR_TRANSLATION_STD_MM, AnchoredDofs, Dofs, HMD_ANCHOR_STD_DEG,
-    KEYPOINTS2D_ANCHOR_STD_DEG, ObservedDofs, anchor_std_deg,
+    KEYPOINTS2D_ANCHOR_STD_DEG, ObservedDofs, anchor_std_deg, sequence_anchor_std_deg,
 };
 pub use optim::{Method, Preset};
 pub use zeroth::ZerothOrderFitter;

@@ -247,7 +247,7 @@ fn model_or_default(
 /// Synthesises a dataset as `lfit synth` does (same settings, same seed → same data); writes it
 /// to `out` too when given. Ctrl-C stops it (`KeyboardInterrupt`, nothing written).
 #[pyfunction]
-#[pyo3(signature = (modality, model=None, *, scenario="local", frames=100, seed=0, source="motion", noise=1.0, noise_spread=0.0, fps=30.0, library_motions=None, motions=None, with_library=false, mirror=false, heading=false, jitter_deg=0.0, uniform_share=0.0, marker_slip_mm=0.0, keypoint_bias_mm=0.0, keypoint_detector=None, cameras=None, out=None))]
+#[pyo3(signature = (modality, model=None, *, scenario="local", frames=100, seed=0, source="motion", noise=1.0, noise_spread=0.0, fps=30.0, library_motions=None, motions=None, with_library=false, mirror=false, heading=false, jitter_deg=0.0, uniform_share=0.0, marker_slip_mm=0.0, keypoint_bias_mm=0.0, keypoint_detector=None, cameras=None, camera_file=None, out=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn synth(
     py: Python<'_>,
@@ -271,6 +271,7 @@ pub fn synth(
     keypoint_bias_mm: f64,
     keypoint_detector: Option<u64>,
     cameras: Option<usize>,
+    camera_file: Option<PathBuf>,
     out: Option<PathBuf>,
 ) -> PyResult<Dataset> {
     let template = model_or_default(model)?;
@@ -299,8 +300,9 @@ pub fn synth(
         },
         uniform_share,
     };
+    let rig = lfit::api::Rig::from_args(cameras, camera_file.as_deref()).py_err()?;
     let (data, summary) = cancellable(py, |cancel| {
-        lfit::api::synthesize_dataset(&args, &files, cameras, &template, &|_| {}, cancel)
+        lfit::api::synthesize_dataset(&args, &files, &rig, &template, &|_| {}, cancel)
     })?;
     finish(py, data, summary, out)
 }

@@ -446,7 +446,7 @@ pub fn quickstart(
         }
         parts.extend(extra);
     }
-    let parts = with_early_exit_parts(with_prior_parts(parts)?)?;
+    let parts = with_anchored_parts(with_early_exit_parts(with_prior_parts(parts)?)?)?;
     let mut table = String::from(
         "| data | method | V2V (mm) | MPJPE (mm) | PA-MPJPE (mm) | shape RMS | final energy | evaluations | time / frame (ms) |\n|---|---|---|---|---|---|---|---|---|\n",
     );
@@ -469,7 +469,12 @@ pub fn quickstart(
         let base = part
             .strip_suffix(PRIOR_PART)
             .or_else(|| part.strip_suffix(EARLY_PART))
+            .or_else(|| part.strip_suffix(ANCHORED_PART))
             .unwrap_or(part);
+        let anchored = part
+            .ends_with(ANCHORED_PART)
+            .then(|| config.dofs.clone())
+            .flatten();
         let data = match base.strip_suffix("-clip") {
             Some(m) => format!("{m}, captured clip ({frames_done} frames)"),
             None => format!("{base} ({frames_done} frames)"),
@@ -498,6 +503,8 @@ pub fn quickstart(
             } else {
                 let name = if method == crate::method::MethodKind::NeuralLm.name() {
                     format!("neural+lm (checkpoints/{ck}, then LM)")
+                } else if let Some(dofs) = &anchored {
+                    format!("{method} anchored at the previous frame (--dofs {dofs})")
                 } else {
                     method.to_string()
                 };
@@ -535,7 +542,7 @@ pub fn quickstart(
             |f| f.to_string_lossy().into_owned(),
         );
     let text = format!(
-        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": on the same energy plus the Gaussian pose prior of lfit's CMU training clips (configs/pose-prior-cmu-<modality>.json, `lfit motion prior`; LM with it is SMPLify's classical baseline), whose final energy includes the prior's term. \"first {QUICKSTART_EARLY_EXIT} iterations\": the same network stopped early (`lfit fit --neural-iterations {QUICKSTART_EARLY_EXIT}`).\n\n{table}"
+        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": on the same energy plus the Gaussian pose prior of lfit's CMU training clips (configs/pose-prior-cmu-<modality>.json, `lfit motion prior`; LM with it is SMPLify's classical baseline), whose final energy includes the prior's term. \"first {QUICKSTART_EARLY_EXIT} iterations\": the same network stopped early (`lfit fit --neural-iterations {QUICKSTART_EARLY_EXIT}`). \"anchored at the previous frame\" (captured clip): LM on the energy plus a Gaussian pull toward its own previous frame's result (`lfit fit --dofs anchored:DEG`; σ chosen on the validation subject's sequences), the classical temporal prior a learned fitter has to beat in a sequence.\n\n{table}"
     );
     write_atomic(&out.join("comparison.md"), text.as_bytes())?;
     Ok(text)
@@ -587,6 +594,38 @@ fn with_twins(
         }
     }
     Ok(all)
+}
+
+/// Suffix of the quickstart's parts with LM anchored at its previous frame.
+const ANCHORED_PART: &str = "-anchored";
+
+/// After each sequence part (the captured clip's), its twin with LM pulled toward its own
+/// previous frame's result (`dofs = "anchored:DEG"`, σ of
+/// [`lfit_fitters::sequence_anchor_std_deg`]): the classical temporal prior, the baseline a
+/// learned fitter's sequence has to beat (docs/results/captured-motion.md, round 28). Parts of
+/// a modality without a chosen σ (hmd) get none, and so do the twins of the pose prior and of
+/// the early exit.
+fn with_anchored_parts(parts: Vec<(String, BenchConfig)>) -> Result<Vec<(String, BenchConfig)>> {
+    with_twins(parts, ANCHORED_PART, |config| {
+        if config.name.ends_with(PRIOR_PART) || config.name.ends_with(EARLY_PART) {
+            return Ok(None);
+        }
+        let Some(synth) = config.synth.as_ref().filter(|s| s.scenario == "sequence") else {
+            return Ok(None);
+        };
+        let Some(std_deg) = synth
+            .modality
+            .parse()
+            .ok()
+            .and_then(lfit_fitters::sequence_anchor_std_deg)
+        else {
+            return Ok(None);
+        };
+        let mut twin = config.clone();
+        twin.methods = vec![crate::method::MethodKind::Lm.name().parse()?];
+        twin.dofs = Some(lfit_fitters::Dofs::anchored(std_deg).name());
+        Ok(Some(twin))
+    })
 }
 
 /// Suffix of the quickstart's parts with the pose prior.

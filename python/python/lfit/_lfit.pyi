@@ -235,6 +235,7 @@ def synth(
     keypoint_bias_mm: float = 0.0,
     keypoint_detector: Optional[int] = None,
     cameras: Optional[int] = None,
+    camera_file: Optional[_Path] = None,
     out: Optional[_Path] = None,
 ) -> Dataset:
     """``lfit synth``: same settings and seed, same data; written to ``out`` too when given.
