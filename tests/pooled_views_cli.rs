@@ -19,20 +19,9 @@ fn tiny_pooled_config(dir: &Path) -> PathBuf {
 }
 
 fn synth(out: &Path, cameras: &str) -> serde_json::Value {
-    lfit_json(&[
-        "-q",
-        "synth",
-        "--modality",
-        "keypoints2d",
-        "--cameras",
-        cameras,
-        "--frames",
-        "4",
-        "--seed",
-        "3",
-        "--out",
-        path_str(out),
-    ])
+    let o = synth_with(out, "keypoints2d", &["--cameras", cameras]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_slice(&o.stdout).expect("stdout is JSON")
 }
 
 fn fit_args<'a>(data: &'a Path, checkpoint: &'a Path, out: &'a Path) -> Vec<&'a str> {
@@ -162,6 +151,7 @@ fn a_pooled_checkpoint_fits_1_and_3_cameras_where_the_fixed_rig_one_refuses() {
     );
 }
 
+/// `lfit -q synth --modality MODALITY` (4 frames, seed 3) with the rig flags `rig`.
 fn synth_with(out: &Path, modality: &str, rig: &[&str]) -> std::process::Output {
     let mut args = vec![
         "-q",

@@ -83,6 +83,23 @@ def test_synth_marker_slip_equals_the_cli_and_moves_only_the_observations(cli, t
     assert not (tmp_path / "bad.npz").exists()
 
 
+def test_synth_camera_file_equals_the_cli(cli, tmp_path):
+    rig = ROOT / "configs" / "rigs" / "tripods-2.json"
+    d = noise_free_synth_as_the_cli(cli, tmp_path, "rig", "keypoints2d", 4, ("--camera", rig), camera_file=rig)
+    cams = json.loads(rig.read_text())["cameras"]
+    assert len(d.sensor["cameras"]) == 2
+    for got, want in zip(d.sensor["cameras"], cams):
+        assert got["fx"] == want["fx"] and got["width"] == want["width"]
+    assert d.observations.shape == (4, 2 * 2 * 31)
+    with pytest.raises(lfit.LfitError, match="not both"):
+        lfit.synth("keypoints2d", MH, frames=3, cameras=2, camera_file=rig, out=tmp_path / "bad.npz")
+    with pytest.raises(lfit.LfitError, match="missing.json"):
+        lfit.synth("keypoints2d", MH, frames=3, camera_file=tmp_path / "missing.json", out=tmp_path / "bad.npz")
+    with pytest.raises(lfit.LfitError, match="keypoints2d rig"):
+        lfit.synth("markers", MH, frames=3, camera_file=rig, out=tmp_path / "bad.npz")
+    assert not (tmp_path / "bad.npz").exists()
+
+
 def test_synth_noise_spread_equals_the_cli_and_quiets_some_subjects(cli, tmp_path):
     cli_out, py_out = tmp_path / "spread-cli.npz", tmp_path / "spread-py.npz"
     cli("synth", "--modality", "markers", "--model", MH, "--frames", 30, "--seed", 8, "--noise-spread", 0.8, "--out", cli_out)
