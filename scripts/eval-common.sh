@@ -7,7 +7,7 @@
 #   eval_binary NAME             # LFIT alone (eval_setup without the clip)
 #   eval_need_dir NAME DIR       # exits with a one-line error unless DIR is a directory
 #   eval_run NAME DATA METHOD ARG...  # lfit fit of DATA into OUT/NAME.json; NAME appended to rows
-#   eval_table fits OUT ROW...   # V2V, MPJPE, β RMS, shape V2V, energy, evaluations, time per frame
+#   eval_table fits OUT ROW...   # V2V, MPJPE, PA-MPJPE, β RMS, shape V2V, energy, evaluations, time per frame
 #   eval_table c3d OUT ROW...    # share within 5 mm marker RMS, mean/median RMS, evaluations, time
 #   eval_table real OUT ROW...   # the same, and mean marker error, β RMS, β entries on the box
 #
@@ -155,8 +155,8 @@ eval_table() {
 import json, statistics, sys
 kind, out, names = sys.argv[1], sys.argv[2], sys.argv[3:]
 if kind == "fits":
-    print("| run | frames | V2V (mm) | MPJPE (mm) | β RMS | shape V2V (mm) | energy | evaluations | time / frame (ms) |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| run | frames | V2V (mm) | MPJPE (mm) | PA-MPJPE (mm) | β RMS | shape V2V (mm) | energy | evaluations | time / frame (ms) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
 elif kind == "c3d":
     print("| source, method | frames | within 5 mm RMS | mean RMS (mm) | median RMS (mm) | evaluations | time / frame (ms) |")
     print("|---|---|---|---|---|---|---|")
@@ -173,7 +173,10 @@ for n in names:
         given = beta is None or "hmd" in n
         beta = "given" if given else f"{beta:.3f}"
         surface = "given" if given or surface is None else f"{surface:.1f}"
-        print(f"| {n} | {len(fr)} | {s['mean_v2v_mm']:.1f} | {s['mean_mpjpe_mm']:.1f} | {beta} | {surface} | "
+        # PA-MPJPE: older result files lack it.
+        pa = s.get("mean_pa_mpjpe_mm")
+        pa = "–" if pa is None else f"{pa:.1f}"
+        print(f"| {n} | {len(fr)} | {s['mean_v2v_mm']:.1f} | {s['mean_mpjpe_mm']:.1f} | {pa} | {beta} | {surface} | "
               f"{s['mean_energy']:.4f} | {ev:.0f} | {ms:.2f} |")
     else:
         rms = [f["observation_rms_mm"] for f in fr]

@@ -5,7 +5,7 @@
 # subject, 1.3 m high, 640x480, fx = 550) or by the rigs of RIGS; training draws its rigs at
 # random, so no training rig is one of these; local scenario, default noise; fitted by the network (from the given start and from
 # Φ(D)), by `neural+lm` (from the given start, its default `--dofs`) and by LM. Prints one
-# Markdown table (V2V, MPJPE, β RMS, evaluations, time per frame).
+# Markdown table (V2V, MPJPE, PA-MPJPE — the monocular figure —, β RMS, evaluations, time per frame).
 #
 #   scripts/eval-rigs.sh CHECKPOINT [OUT]
 #

@@ -106,7 +106,11 @@ fn fit_both(dir: &Path, data: &Path, ck: &str, unit: &str) -> [[f64; 4]; 2] {
         let key = format!("observation_error_{unit}");
         let frames = r["frames"].as_array().expect("frames");
         for f in frames {
-            assert!(f.get("v2v_mm").is_none() && f.get("mpjpe_mm").is_none());
+            assert!(
+                f.get("v2v_mm").is_none()
+                    && f.get("mpjpe_mm").is_none()
+                    && f.get("pa_mpjpe_mm").is_none()
+            );
             let e = f["energy"].as_f64().expect("energy");
             let s = f["start_energy"].as_f64().expect("start energy");
             let o = f[&key].as_f64().expect("observation error");

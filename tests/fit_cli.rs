@@ -63,6 +63,16 @@ fn fit_writes_the_result_contract_and_never_ends_above_the_start() {
         assert_eq!(r["budget"], budget);
         let frames = r["frames"].as_array().unwrap();
         assert_eq!(frames.len(), 2);
+        let mean_pa = frames
+            .iter()
+            .map(|f| f["pa_mpjpe_mm"].as_f64().unwrap())
+            .sum::<f64>()
+            / 2.0;
+        let summary_pa = r["summary"]["mean_pa_mpjpe_mm"].as_f64().unwrap();
+        assert!(
+            (summary_pa - mean_pa).abs() <= 1e-9 * mean_pa,
+            "{summary_pa} against {mean_pa}"
+        );
         for f in frames {
             for key in [
                 "frame",
@@ -71,11 +81,21 @@ fn fit_writes_the_result_contract_and_never_ends_above_the_start() {
                 "terms",
                 "v2v_mm",
                 "mpjpe_mm",
+                "pa_mpjpe_mm",
                 "evaluations",
                 "time_s",
             ] {
                 assert!(f.get(key).is_some(), "{method}: missing {key}");
             }
+            // PA-MPJPE: the joints aligned by a similarity first, never far above MPJPE.
+            let (pa, mpjpe) = (
+                f["pa_mpjpe_mm"].as_f64().unwrap(),
+                f["mpjpe_mm"].as_f64().unwrap(),
+            );
+            assert!(
+                pa > 0.0 && pa <= mpjpe * 1.05,
+                "{method}: {pa} against {mpjpe}"
+            );
             assert_eq!(f["pose"].as_array().unwrap().len(), 57);
             let evals = f["evaluations"].as_u64().unwrap();
             if method == "cma" {

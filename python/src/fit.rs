@@ -12,7 +12,7 @@ use crate::energy::energy_config;
 use crate::model::optional_model;
 
 /// The result of `lfit.fit`: one row per fitted frame. Arrays are float64 unless said; errors
-/// that need ground truth (`v2v_mm`, `mpjpe_mm`) are NaN without it, and the distance to the
+/// that need ground truth (`v2v_mm`, `mpjpe_mm`, `pa_mpjpe_mm`) are NaN without it, and the distance to the
 /// observations (`observation_error`, unit `observation_unit`) is NaN with it.
 #[pyclass(module = "lfit", name = "FitResult", frozen)]
 pub struct FitResult {
@@ -62,6 +62,7 @@ impl FitResult {
             ("evaluations", column(&rows, "evaluations")),
             ("v2v_mm", column(&rows, "v2v_mm")),
             ("mpjpe_mm", column(&rows, "mpjpe_mm")),
+            ("pa_mpjpe_mm", column(&rows, "pa_mpjpe_mm")),
         ];
         let obs = unit.map_or_else(
             || vec![f64::NAN; rows.len()],
@@ -182,6 +183,13 @@ impl FitResult {
     #[getter]
     fn mpjpe_mm<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<f64>> {
         self.col(py, "mpjpe_mm")
+    }
+
+    /// Mean joint error after a similarity alignment of the joints (rotation, scale,
+    /// translation), mm: the monocular figure (NaN without ground truth).
+    #[getter]
+    fn pa_mpjpe_mm<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<f64>> {
+        self.col(py, "pa_mpjpe_mm")
     }
 
     /// Without ground truth: mean distance of the fit to the seen observations (markers: mm,

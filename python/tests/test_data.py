@@ -191,7 +191,7 @@ def test_c3d_import_equals_the_cli(cli, tmp_path):
     # Fitting it reports the distance to the markers instead of V2V.
     r = lfit.fit(MH, d, method="lm", budget=60, frames="0..2")
     assert r.observation_unit == "mm" and np.isfinite(r.observation_error).all()
-    assert np.isnan(r.v2v_mm).all()
+    assert np.isnan(r.v2v_mm).all() and np.isnan(r.pa_mpjpe_mm).all()
 
 
 def test_c3d_import_errors(cli, tmp_path):

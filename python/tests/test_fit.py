@@ -34,6 +34,8 @@ def test_fit_equals_the_cli(makehuman, markers_file, cli, tmp_path, method, budg
     np.testing.assert_array_equal(ours.poses, [r["pose"] for r in rows])
     np.testing.assert_array_equal(ours.shapes, [r["shape"] for r in rows])
     np.testing.assert_array_equal(ours.v2v_mm, [r["v2v_mm"] for r in rows])
+    np.testing.assert_array_equal(ours.pa_mpjpe_mm, [r["pa_mpjpe_mm"] for r in rows])
+    assert (ours.pa_mpjpe_mm > 0).all() and (ours.pa_mpjpe_mm <= 1.05 * ours.mpjpe_mm).all()
     np.testing.assert_array_equal(ours.evaluations, [r["evaluations"] for r in rows])
     assert ours.params.shape == (4, makehuman.dim)
     assert ours.summary["frames"] == 4 and ours.method == theirs["method"]

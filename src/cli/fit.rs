@@ -8,7 +8,7 @@ use anyhow::{Context, Result, bail};
 use lfit_fitters::optim::{self, Method, Preset};
 use lfit_fitters::{Fitter, Strategy};
 use lfit_model::energy::{Energy, EnergyConfig};
-use lfit_model::metrics::{TruthMesh, mpjpe_mm};
+use lfit_model::metrics::{TruthMesh, mpjpe_mm, pa_mpjpe_mm};
 use lfit_model::pose::DofMask;
 use lfit_model::template::{Template, write_atomic};
 use lfit_synth::Dataset;
@@ -518,6 +518,7 @@ fn fit_prepared(
     let mut sum_coeff = 0.0;
     let mut sum_shape_v2v = 0.0;
     let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
+    let mut sum_pa_mpjpe = 0.0;
     // Without ground truth (imported observations): how far the fit lies from the observations.
     let (mut sum_obs, mut obs_frames, mut obs_unit) = (0.0, 0usize, "");
     let mut observed: Vec<(usize, usize, Vec<f64>)> = Vec::new();
@@ -574,10 +575,15 @@ fn fit_prepared(
                 let truth = TruthMesh::new(&template, gt);
                 let v2v = truth.v2v_mm(&template, pose);
                 let mpjpe = mpjpe_mm(&template, pose, gt);
+                // After a similarity alignment of the joints (the monocular figure: a single
+                // view leaves scale and depth open).
+                let pa_mpjpe = pa_mpjpe_mm(&template, pose, gt);
                 sum_v2v += v2v;
                 sum_mpjpe += mpjpe;
+                sum_pa_mpjpe += pa_mpjpe;
                 row["v2v_mm"] = json!(v2v);
                 row["mpjpe_mm"] = json!(mpjpe);
+                row["pa_mpjpe_mm"] = json!(pa_mpjpe);
                 if let Some(c) = coefficient_rms(&template, pose, gt) {
                     row["shape_rms"] = json!(c);
                     sum_coeff += c;
@@ -661,6 +667,7 @@ fn fit_prepared(
     if dataset.has_ground_truth() {
         summary["mean_v2v_mm"] = json!(sum_v2v / n);
         summary["mean_mpjpe_mm"] = json!(sum_mpjpe / n);
+        summary["mean_pa_mpjpe_mm"] = json!(sum_pa_mpjpe / n);
         if template.morph.coefficients() > 0 {
             summary["mean_shape_rms"] = json!(sum_coeff / n);
         }
