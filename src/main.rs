@@ -858,9 +858,20 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             // The table is the result: stdout, also with -q.
             println!("{}", result?);
             if !cli.quiet {
+                // The parts this run wrote (a folder with a report each).
+                let mut parts: Vec<String> = std::fs::read_dir(&out)
+                    .map(|d| {
+                        d.filter_map(|e| e.ok())
+                            .filter(|e| e.path().join("report.md").is_file())
+                            .map(|e| e.file_name().to_string_lossy().into_owned())
+                            .collect()
+                    })
+                    .unwrap_or_default();
+                parts.sort();
                 eprintln!(
-                    "Reports, plots and pictures: {0}/<part>/report.md, {0}/<part>/plots/ and {0}/<part>/pictures/ (parts: markers, keypoints2d, hmd and, with --clip, markers-clip, keypoints2d-clip; with the shipped pose prior configs/pose-prior-cmu-<modality>.json: markers-prior, keypoints2d-prior, markers-clip-prior, keypoints2d-clip-prior); summary: {0}/comparison.md",
-                    out.display()
+                    "Reports, plots and pictures: {0}/<part>/report.md, {0}/<part>/plots/ and {0}/<part>/pictures/ (parts: {1}); summary: {0}/comparison.md",
+                    out.display(),
+                    parts.join(", ")
                 );
             }
             Ok(serde_json::Value::Null)

@@ -113,6 +113,30 @@ fn quickstart_compares_every_method_on_every_sparse_modality() {
             );
         }
     }
+    // The keypoints2d frames seen by one phone camera (configs/rigs/phone-1.json): every method,
+    // the prior and early-exit twins, one camera in the data.
+    for method in [
+        "neural (checkpoints/keypoints2d-makehuman, N = 5)",
+        "neural+lm (checkpoints/keypoints2d-makehuman, then LM) @60",
+        "lm @60",
+        "cma @60",
+        "lm + pose prior (CMU train, weight 0.001) @60",
+        "neural (checkpoints/keypoints2d-makehuman, first 3 iterations)",
+    ] {
+        let want = format!("| keypoints2d, one phone camera (3 frames) | {method} |");
+        assert!(
+            table.lines().any(|l| l.starts_with(&want)),
+            "{want}:\n{table}"
+        );
+    }
+    let phone = lfit::synth::Dataset::load(&out_dir.join("keypoints2d-phone/data.npz"))
+        .expect("phone data");
+    let rig = lfit::synth::capture::keypoints::read_cameras(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/rigs/phone-1.json"),
+    )
+    .expect("rig");
+    assert_eq!(phone.sensor.cameras(), &rig[..]);
+    assert!(!out_dir.join("markers-phone").exists() && !out_dir.join("hmd-phone").exists());
     assert_eq!(
         std::fs::read_to_string(out_dir.join("comparison.md"))
             .expect("comparison")

@@ -368,7 +368,8 @@ pub struct QuickstartClip {
 /// it with the shipped neural fitter, L-BFGS, Levenberg–Marquardt, CMA-ES and PSO on the same
 /// energy (at `frames` frames and one `budget`), with the network stopped after its first
 /// [`QUICKSTART_EARLY_EXIT`] iterations ([`with_early_exit_parts`]) and with LM and `neural+lm`
-/// on that energy plus a pose prior ([`with_prior_parts`]), writes each part's report and plots under
+/// on that energy plus a pose prior ([`with_prior_parts`]), the keypoints2d frames once more seen
+/// by one phone camera ([`with_phone_parts`]), writes each part's report and plots under
 /// `out/<modality>/` and `out/comparison.md`, and returns the comparison table (Markdown): the
 /// rows of each report's papers/002 Table 2. With `clip`, the markers and keypoints2d studies are
 /// repeated on every frame of a captured motion (a sequence, each frame warm-started from the
@@ -446,6 +447,7 @@ pub fn quickstart(
         }
         parts.extend(extra);
     }
+    let parts = with_phone_parts(parts)?;
     let parts = with_anchored_parts(with_early_exit_parts(with_prior_parts(parts)?)?)?;
     let mut table = String::from(
         "| data | method | V2V (mm) | MPJPE (mm) | PA-MPJPE (mm) | shape RMS | final energy | evaluations | time / frame (ms) |\n|---|---|---|---|---|---|---|---|---|\n",
@@ -475,9 +477,10 @@ pub fn quickstart(
             .ends_with(ANCHORED_PART)
             .then(|| config.dofs.clone())
             .flatten();
-        let data = match base.strip_suffix("-clip") {
-            Some(m) => format!("{m}, captured clip ({frames_done} frames)"),
-            None => format!("{base} ({frames_done} frames)"),
+        let data = match (base.strip_suffix("-clip"), base.strip_suffix(PHONE_PART)) {
+            (Some(m), _) => format!("{m}, captured clip ({frames_done} frames)"),
+            (None, Some(m)) => format!("{m}, one phone camera ({frames_done} frames)"),
+            (None, None) => format!("{base} ({frames_done} frames)"),
         };
         for row in summary["table"]
             .as_array()
@@ -594,6 +597,34 @@ fn with_twins(
         }
     }
     Ok(all)
+}
+
+/// Suffix of the quickstart's keypoints2d part seen by one phone camera.
+const PHONE_PART: &str = "-phone";
+
+/// The phone of the quickstart's one-camera part: portrait full HD, 65° wide, 2.8 m away
+/// (`configs/rigs/`; a rig no training run drew).
+pub const QUICKSTART_PHONE_RIG: &str = "configs/rigs/phone-1.json";
+
+/// After the keypoints2d part on single frames, its twin seen by one phone camera
+/// ([`QUICKSTART_PHONE_RIG`], `[synth] camera`) instead of the default ring's six: the same
+/// frames and methods on the sensor most users have (the camera-agnostic network fits any
+/// rig; `docs/results/captured-motion.md` round 29).
+fn with_phone_parts(parts: Vec<(String, BenchConfig)>) -> Result<Vec<(String, BenchConfig)>> {
+    with_twins(parts, PHONE_PART, |config| {
+        let Some(synth) = config
+            .synth
+            .as_ref()
+            .filter(|s| s.modality == "keypoints2d" && s.scenario == "local")
+        else {
+            return Ok(None);
+        };
+        let mut twin = config.clone();
+        let mut synth = synth.clone();
+        synth.camera = Some(crate::shipped::locate(Path::new(QUICKSTART_PHONE_RIG))?);
+        twin.synth = Some(synth);
+        Ok(Some(twin))
+    })
 }
 
 /// Suffix of the quickstart's parts with LM anchored at its previous frame.

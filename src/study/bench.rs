@@ -45,6 +45,10 @@ pub struct SynthSpec {
     /// protocol).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub source: Option<String>,
+    /// keypoints2d: the cameras of a camera file (`lfit synth --camera`; a relative path is
+    /// also looked up where the shipped data are, e.g. `configs/rigs/phone-1.json`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<PathBuf>,
 }
 
 fn default_scenario() -> String {
@@ -223,6 +227,17 @@ impl BenchConfig {
             (None, None) => bail!("give data = \"FILE.npz\" or a [synth] section"),
             (None, Some(s)) if s.frames == 0 => bail!("synth.frames must be at least 1"),
             _ => {}
+        }
+        if let Some(s) = &self.synth
+            && let Some(c) = &s.camera
+        {
+            if s.modality != "keypoints2d" {
+                bail!(
+                    "synth.camera sets the keypoints2d rig; {} takes its default setup",
+                    s.modality
+                );
+            }
+            crate::shipped::locate(c).context("synth.camera")?;
         }
         if self.known_shape {
             // `-`: the neural fitter, which has no strategy.
@@ -782,7 +797,10 @@ pub fn run(
                     files: s.motions.clone(),
                     ..Default::default()
                 };
-                crate::data::synth_with_motions(&args, &files, &template, &|_| {})?;
+                let camera = s.camera.as_deref().map(crate::shipped::locate_or_given);
+                let rig =
+                    crate::data::Rig::from_args(None, camera.as_deref()).context("synth.camera")?;
+                crate::data::synth_with_cameras(&args, &files, &rig, &template, &|_| {})?;
             }
             path
         }
