@@ -1248,4 +1248,34 @@ mod tests {
         std::fs::write(&csv, "method,frame\nlm,1\n").expect("csv");
         assert!(read_runs(&csv).is_err());
     }
+
+    /// `[synth] camera`: a keypoints2d rig from a camera file, looked up like the shipped data;
+    /// refused for another modality and when the file is nowhere, before any work.
+    #[test]
+    fn a_synth_camera_file_is_for_keypoints2d_and_must_exist() {
+        let config = |modality: &str, camera: &str| -> BenchConfig {
+            toml::from_str(&format!(
+                "name = \"c\"\nmethods = [\"lm\"]\nbudgets = [10]\n[synth]\nmodality = \"{modality}\"\nframes = 2\ncamera = \"{camera}\"\n"
+            ))
+            .expect("toml")
+        };
+        // The unit tests run in the package root, where configs/rigs/ is.
+        config("keypoints2d", "configs/rigs/phone-1.json")
+            .validate()
+            .expect("a shipped rig");
+        let err = config("markers", "configs/rigs/phone-1.json")
+            .validate()
+            .unwrap_err();
+        assert!(
+            format!("{err:#}").contains("synth.camera sets the keypoints2d rig"),
+            "{err:#}"
+        );
+        let err = config("keypoints2d", "configs/rigs/none.json")
+            .validate()
+            .unwrap_err();
+        assert!(
+            format!("{err:#}").contains("synth.camera") && format!("{err:#}").contains("none.json"),
+            "{err:#}"
+        );
+    }
 }
