@@ -61,10 +61,9 @@ PY
 # iterations (`--neural-iterations K`, both starts still fitted); neural-best fits once per
 # frame, from the better start by energy (`--neural-start best`); neural-tolT stops each frame's
 # network by the energy rule (`--neural-tolerance T`) from that start (the rule serves one fit
-# per frame). neural+lm-all is neural+lm whose LM stage moves every entry (`--dofs all`; its
-# default keeps the entries the markers do not determine and β at the network's values);
-# neural+lm-anchored moves every entry with the rotations pulled toward the network's values
-# (`--dofs anchored`, neural+lm's default on markers); lm-anchored is LM pulled the same way
+# per frame). neural+lm-all is neural+lm whose LM stage moves every entry freely (`--dofs all`);
+# neural+lm-anchored moves every entry with the rotations and the root translation pulled
+# toward the network's values (`--dofs anchored`, neural+lm's default on markers, named); lm-anchored is LM pulled the same way
 # toward its start (in a sequence the previous frame's result: the control for what the
 # network adds as the anchor's centre); lm-anchored:DEG with another σ.
 eval_marker_method() {

@@ -68,7 +68,7 @@ impl Dofs {
     }
 
     /// `fitter` moving these entries: itself for `All`, wrapped in [`ObservedDofs`] for
-    /// `Observed`.
+    /// `Observed` and in [`AnchoredDofs`] for `Anchored`.
     pub fn wrap(self, fitter: Box<dyn Fitter>) -> Box<dyn Fitter> {
         match self {
             Dofs::All => fitter,
@@ -387,7 +387,8 @@ impl std::fmt::Debug for AnchoredDofs {
 }
 
 impl Fitter for AnchoredDofs {
-    /// `<inner>-anchored`, or `<inner>-anchored-<DEG>deg` at another standard deviation.
+    /// `<inner>-anchored`, or `<inner>-anchored-<DEG>deg` (`-<DEG>deg-<MM>mm`) at other
+    /// standard deviations ([`Dofs::suffix`]).
     fn name(&self) -> String {
         format!(
             "{}-{}",

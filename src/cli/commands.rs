@@ -612,17 +612,16 @@ pub const QUICKSTART_PHONE_RIG: &str = "configs/rigs/phone-1.json";
 /// rig; `docs/results/captured-motion.md` round 29).
 fn with_phone_parts(parts: Vec<(String, BenchConfig)>) -> Result<Vec<(String, BenchConfig)>> {
     with_twins(parts, PHONE_PART, |config| {
-        let Some(synth) = config
+        let mut twin = config.clone();
+        let Some(synth) = twin
             .synth
-            .as_ref()
+            .as_mut()
             .filter(|s| s.modality == "keypoints2d" && s.scenario == "local")
         else {
             return Ok(None);
         };
-        let mut twin = config.clone();
-        let mut synth = synth.clone();
-        synth.camera = Some(crate::shipped::locate(Path::new(QUICKSTART_PHONE_RIG))?);
-        twin.synth = Some(synth);
+        // Located by the bench like any `[synth] camera` (and checked by `validate`).
+        synth.camera = Some(QUICKSTART_PHONE_RIG.into());
         Ok(Some(twin))
     })
 }

@@ -885,7 +885,7 @@ impl Energy {
         // The data rows do not depend on the prior's form (the EA rows are written as hinges).
         let ls = self.compute_least_squares(params, true, RobustForm::Folded, JacobianRows::Dense);
         let mut info = vec![0.0; dim];
-        let seen = self.groups.iter().filter(|g| visible[g.start]).count();
+        let seen = self.visible_groups(visible);
         let w = self.config.weights.data;
         if seen == 0 || w <= 0.0 {
             return Ok(info);
@@ -991,7 +991,7 @@ impl Energy {
                     model.jacobian(&view, &mut jac, &mut jacobian[..p * dim]);
                 }
             }
-            let seen = self.groups.iter().filter(|g| visible[g.start]).count();
+            let seen = self.visible_groups(visible);
             let c0 = if seen > 0 {
                 (w.data / seen as f64).sqrt()
             } else {

@@ -745,9 +745,7 @@ impl Energy {
         self.check_length(centre)?;
         let dim = self.dim();
         let seen = match &self.target {
-            Target::Sparse { visible, .. } => {
-                self.groups.iter().filter(|g| visible[g.start]).count()
-            }
+            Target::Sparse { visible, .. } => self.visible_groups(visible),
             Target::Scan { .. } | Target::Silhouettes { .. } => 1,
         };
         let per_std = self.config.weights.data / seen.max(1) as f64;
@@ -776,6 +774,12 @@ impl Energy {
         let mut energy = self.clone();
         energy.anchor = Some(Arc::new(Anchor { rows }));
         Ok(energy)
+    }
+
+    /// How many of the sensor's groups `visible` (a sparse target's flags) sees: the count the
+    /// data term's mean runs over.
+    fn visible_groups(&self, visible: &[bool]) -> usize {
+        self.groups.iter().filter(|g| visible[g.start]).count()
     }
 
     /// The anchor term, when [`Energy::with_anchor`] gave one.
@@ -1083,7 +1087,7 @@ impl Energy {
             return value;
         }
         let seen = || self.groups.iter().filter(|g| visible[g.start]);
-        let count = seen().count();
+        let count = self.visible_groups(visible);
         if count == 0 {
             return 0.0;
         }
