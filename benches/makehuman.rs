@@ -148,6 +148,7 @@ fn neural(c: &mut Criterion) {
                 bounds: Bounds::global_for(template),
                 budget: 10,
                 seed: 1,
+                motion: None,
             })
             .collect();
         let mut group = c.benchmark_group(format!("neural_speed/{name}"));

@@ -78,6 +78,7 @@ fn requests<'a>(
             bounds: Bounds::local(start),
             budget,
             seed: 1,
+            motion: None,
         })
         .collect()
 }

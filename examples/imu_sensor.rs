@@ -166,6 +166,7 @@ pub fn run(
             start,
             budget: 100,
             seed: i as u64,
+            motion: None,
         };
         let fit = lm.fit(&request)?;
         start_v2v += v2v_mm(&template, &data.start_poses[i], &data.gt_poses[i]) / frames as f64;

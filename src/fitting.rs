@@ -480,11 +480,14 @@ fn fit_pass(
     let mask = plan.mask_with(known)?;
     let chunk = plan.frames_per_call();
     let mut previous: Option<(usize, Vec<f64>)> = None;
+    // How fast the chain's fits have moved (the temporal anchor widens by it).
+    let mut motion = lfit_fitters::SequenceMotion::default();
     for group in frames.chunks(chunk) {
         let energies = group
             .iter()
             .map(|&f| energy(f))
             .collect::<Result<Vec<_>>>()?;
+        let mut warm_from: Vec<Option<Vec<f64>>> = Vec::with_capacity(group.len());
         let requests: Vec<FitRequest<'_>> = group
             .iter()
             .zip(&energies)
@@ -495,7 +498,11 @@ fn fit_pass(
                     }
                     _ => (dataset.start_poses[frame].clone(), false),
                 };
-                request(
+                if !warm {
+                    motion.reset();
+                }
+                warm_from.push(warm.then(|| start.clone()));
+                let mut r = request(
                     plan,
                     known,
                     &mask,
@@ -503,7 +510,9 @@ fn fit_pass(
                     (start, warm),
                     energy,
                     seed(frame),
-                )
+                );
+                r.motion = if warm { motion.rms() } else { None };
+                r
             })
             .collect();
         let start_energies: Vec<f64> = requests
@@ -511,9 +520,16 @@ fn fit_pass(
             .map(|r| r.energy.inspect(&r.start).total)
             .collect();
         let results = fit_group(fitter, &requests, group)?;
-        for (((&frame, result), request), start_energy) in
-            group.iter().zip(results).zip(&requests).zip(start_energies)
+        for ((((&frame, result), request), start_energy), before) in group
+            .iter()
+            .zip(results)
+            .zip(&requests)
+            .zip(start_energies)
+            .zip(warm_from)
         {
+            if let Some(before) = before {
+                motion.update(&before, &result.pose);
+            }
             previous = Some((frame, result.pose.clone()));
             sink(FrameFit {
                 frame,
@@ -563,6 +579,7 @@ fn request<'e>(
         mask: mask.clone(),
         budget: plan.budget,
         seed,
+        motion: None,
     }
 }
 
@@ -1226,6 +1243,105 @@ mod tests {
         assert!(want.iter().all(|&v| v > 0.0), "{want:?}");
         for (g, w) in got.iter().zip(&want) {
             assert_eq!(g.to_bits(), w.to_bits(), "{got:?} vs {want:?}");
+        }
+    }
+
+    /// The sequence driver hands each warm frame the motion of the fits before it
+    /// ([`FitRequest::motion`], `lfit_fitters::SequenceMotion`): none for the first frame (no
+    /// previous fit) and the second (one fit, no change yet), then the root of the exponential
+    /// average of the squared changes between consecutive fits; a frame fitted on its own (the
+    /// local scenario) never gets one.
+    #[test]
+    fn a_sequence_hands_each_frame_the_motion_of_the_fits_before_it() {
+        use std::sync::Mutex;
+        /// Moves entry 4 by `step × (frame + 1)` from the start and records each request's motion.
+        struct Recorder {
+            step: f64,
+            seen: Mutex<Vec<Option<Vec<f64>>>>,
+        }
+        impl Fitter for Recorder {
+            fn name(&self) -> String {
+                "recorder".into()
+            }
+            fn fit(&self, r: &FitRequest<'_>) -> Result<FitResult, lfit_fitters::FitError> {
+                let mut seen = self.seen.lock().unwrap();
+                let n = seen.len();
+                seen.push(r.motion.clone());
+                let mut pose = r.start.clone();
+                pose[4] += self.step * (n + 1) as f64;
+                Ok(FitResult {
+                    method: self.name(),
+                    energy: r.energy.inspect(&pose).total,
+                    pose,
+                    terms: Vec::new(),
+                    evaluations: 0,
+                    gradient_evaluations: 0,
+                    iterations: 0,
+                    time_s: 0.0,
+                    trace: Vec::new(),
+                    iterates: Vec::new(),
+                })
+            }
+        }
+        let (t, _) = lfit_model::body::morphable_default_template().unwrap();
+        let t = Arc::new(t);
+        let sensor = Sensor::default_for(Modality::Markers, &t);
+        for scenario in [Scenario::Sequence, Scenario::Local] {
+            let d = synthesize(
+                &SynthConfig::new(Modality::Markers, scenario, 5, 3),
+                &t,
+                &sensor,
+                &|_| {},
+            )
+            .unwrap();
+            let plan = Plan {
+                dataset: &d,
+                template: &t,
+                budget: 10,
+                batch: 1,
+                known_shape: None,
+                sequence_shape: SequenceShape::PerFrame,
+                marker_placement: MarkerPlacement::Model,
+            };
+            let recorder = Recorder {
+                step: 0.01,
+                seen: Mutex::new(Vec::new()),
+            };
+            let frames: Vec<usize> = (0..d.len()).collect();
+            fit_frames(
+                &recorder,
+                &plan,
+                &frames,
+                &|f| energy_for_frame(&d, t.clone(), f, EnergyConfig::default().for_gradient()),
+                &|f| f as u64,
+                &mut |_| Ok(()),
+            )
+            .unwrap();
+            let seen = recorder.seen.into_inner().unwrap();
+            assert_eq!(seen.len(), 5);
+            if scenario == Scenario::Local {
+                assert!(seen.iter().all(Option::is_none), "{scenario:?}: {seen:?}");
+                continue;
+            }
+            assert!(seen[0].is_none() && seen[1].is_none(), "{seen:?}");
+            // Fit k moved entry 4 by 0.01 (k + 1) from fit k − 1: changes 0.02, 0.03, 0.04.
+            let w = lfit_fitters::SEQUENCE_MOTION_WEIGHT;
+            let mut mean_square = 0.02f64 * 0.02;
+            for (k, change) in [(2usize, 0.03f64), (3, 0.04)] {
+                let m = seen[k]
+                    .as_ref()
+                    .expect("a warm frame with a change before it");
+                assert_eq!(m.len(), t.layout().dim());
+                assert!(
+                    (m[4] - mean_square.sqrt()).abs() < 1e-12,
+                    "frame {k}: {} against {}",
+                    m[4],
+                    mean_square.sqrt()
+                );
+                assert!(m.iter().enumerate().all(|(i, v)| i == 4 || *v == 0.0));
+                mean_square = (1.0 - w) * mean_square + w * change * change;
+            }
+            assert!(seen[4].is_some());
         }
     }
 

@@ -75,6 +75,7 @@ fn local_requests(frames: &Frames) -> Vec<FitRequest<'_>> {
             bounds: Bounds::local(start),
             budget: 10,
             seed: 0,
+            motion: None,
         })
         .collect()
 }

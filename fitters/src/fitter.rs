@@ -34,6 +34,12 @@ pub struct FitRequest<'a> {
     /// Most energy evaluations (exact for the zeroth-order methods).
     pub budget: usize,
     pub seed: u64,
+    /// In a sequence whose frame starts from the previous frame's fit: how fast the fits before
+    /// it moved, per entry (the root-mean-square change per frame, an exponential average:
+    /// [`crate::observed::SequenceMotion`]); `None` for a frame fitted on its own or the first
+    /// frames of a chain. The temporal anchor ([`crate::AnchoredDofs`]) widens its pull by it;
+    /// every other fitter ignores it.
+    pub motion: Option<Vec<f64>>,
 }
 
 /// What a fit returns (SPEC §6).

@@ -17,8 +17,9 @@ pub use fitter::{FitRequest, FitResult, Fitter, Strategy, split_budget};
 pub use lbfgs::LbfgsFitter;
 pub use least_squares::{LeastSquaresFitter, LeastSquaresMethod};
 pub use observed::{
-    ANCHOR_STD_DEG, ANCHOR_TRANSLATION_STD_MM, AnchoredDofs, Dofs, HMD_ANCHOR_STD_DEG,
-    KEYPOINTS2D_ANCHOR_STD_DEG, ObservedDofs, anchor_std_deg, sequence_anchor_std_deg,
+    ANCHOR_MOTION_CAP, ANCHOR_MOTION_GAIN, ANCHOR_STD_DEG, ANCHOR_TRANSLATION_STD_MM, AnchoredDofs,
+    Dofs, HMD_ANCHOR_STD_DEG, KEYPOINTS2D_ANCHOR_STD_DEG, ObservedDofs, SEQUENCE_MOTION_WEIGHT,
+    SequenceMotion, anchor_std_deg, sequence_anchor_std_deg, widened_std,
 };
 pub use optim::{Method, Preset};
 pub use zeroth::ZerothOrderFitter;

@@ -77,6 +77,7 @@ fn every_method_and_strategy_spends_exactly_its_budget_inside_the_bounds() {
                     bounds: bounds.clone(),
                     budget,
                     seed: 7,
+                    motion: None,
                 };
                 let r = fitter
                     .fit(&request)
@@ -155,6 +156,7 @@ fn same_seed_same_fit_different_seed_different_fit() {
                 bounds: Bounds::local(&start()),
                 budget: 300,
                 seed,
+                motion: None,
             };
             fitter.fit(&request).unwrap()
         };
@@ -176,6 +178,7 @@ fn cma_lbfgs_lm_and_gn_recover_the_truth_from_a_nearby_start() {
         bounds: Bounds::local(&start()),
         budget: 4000,
         seed: 3,
+        motion: None,
     };
     let r = fitter.fit(&request).unwrap();
     let mut pose = [0.0; POSE_DIM];
@@ -193,6 +196,7 @@ fn cma_lbfgs_lm_and_gn_recover_the_truth_from_a_nearby_start() {
         bounds: Bounds::local(&start()),
         budget: 300,
         seed: 3,
+        motion: None,
     };
     let r = fitter.fit(&request).unwrap();
     pose.copy_from_slice(&r.pose);
@@ -218,6 +222,7 @@ fn cma_lbfgs_lm_and_gn_recover_the_truth_from_a_nearby_start() {
             bounds: Bounds::local(&start()),
             budget: 60,
             seed: 3,
+            motion: None,
         };
         let r = fitter.fit(&request).unwrap();
         pose.copy_from_slice(&r.pose);
@@ -260,6 +265,7 @@ fn lm_runs_with_its_scaling_floor() {
         bounds: Bounds::local(&start()),
         budget: 60,
         seed: 3,
+        motion: None,
     };
     let mut results = Vec::new();
     for floor in [0.0, 3e-3, 0.1] {
@@ -309,6 +315,7 @@ fn anchored_dofs_pull_toward_the_start_and_report_the_energy() {
             bounds: Bounds::local(&s),
             budget: 80,
             seed: 3,
+            motion: None,
         };
         let r = fitter.fit(&request).unwrap();
         assert_eq!(
@@ -394,4 +401,118 @@ fn anchored_dofs_pull_toward_the_start_and_report_the_energy() {
     );
     let (r_mid, r_free) = (rot(&mid.pose), rot(&free.pose));
     assert!(r_mid < r_free && r_mid > 1e-3, "{r_mid} against {r_free}");
+}
+
+/// The sequence's motion (`FitRequest::motion`) widens the temporal anchor per entry by
+/// `lfit_fitters::widened_std`: no motion is the plain anchor (bit for bit), a motion far above
+/// the anchor's σ stops at the cap (the anchor at `ANCHOR_MOTION_CAP` times its σ, rotations and
+/// translation), a moderate one lands between, and a motion of the wrong length or with a NaN is
+/// refused naming it. Fitters that are not anchored ignore it.
+#[test]
+fn the_sequences_motion_widens_the_anchor_up_to_its_cap() {
+    use lfit_fitters::{ANCHOR_MOTION_CAP, Dofs, widened_std};
+    let s = start();
+    let mask = DofMask::local43();
+    let energy = markers_energy(EnergyConfig::default().for_gradient());
+    let dim = s.len();
+    let fit = |dofs: Dofs, motion: Option<Vec<f64>>| {
+        let energy = markers_energy(EnergyConfig::default().for_gradient());
+        let lm = build_fitter("lm", Preset::Nevergrad, Strategy::Holistic).unwrap();
+        let request = FitRequest {
+            energy: &energy,
+            start: s.to_vec(),
+            mask: mask.clone(),
+            bounds: Bounds::local(&s),
+            budget: 80,
+            seed: 3,
+            motion,
+        };
+        dofs.wrap(lm).fit(&request)
+    };
+    let anchored = |std_deg, translation_std_mm| Dofs::Anchored {
+        std_deg,
+        translation_std_mm,
+    };
+    let plain = fit(anchored(2.0, 10.0), None).unwrap();
+    let still = fit(anchored(2.0, 10.0), Some(vec![0.0; dim])).unwrap();
+    assert_eq!(plain.pose, still.pose, "no motion is the plain anchor");
+    let fast = fit(anchored(2.0, 10.0), Some(vec![10.0; dim])).unwrap();
+    let capped = fit(
+        anchored(ANCHOR_MOTION_CAP * 2.0, ANCHOR_MOTION_CAP * 10.0),
+        None,
+    )
+    .unwrap();
+    let gap = fast
+        .pose
+        .iter()
+        .zip(&capped.pose)
+        .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    assert!(gap < 1e-9, "a fast motion is the capped anchor: {gap}");
+    // A moderate motion: the anchor's σ widened by it, as a plain anchor of that σ.
+    let m = 0.5f64.to_radians();
+    let moderate = fit(anchored(2.0, 10.0), Some(vec![m; dim])).unwrap();
+    let sigma = widened_std(2.0f64.to_radians(), m);
+    assert!(sigma > 2.0f64.to_radians() && sigma < ANCHOR_MOTION_CAP * 2.0f64.to_radians());
+    let moved = |p: &[f64]| -> f64 {
+        mask.free
+            .iter()
+            .filter(|&&i| i >= 3)
+            .map(|&i| (p[i] - s[i]).abs())
+            .fold(0.0, f64::max)
+    };
+    let (a, b, c) = (moved(&plain.pose), moved(&moderate.pose), moved(&fast.pose));
+    assert!(
+        a < b && b < c,
+        "the pull loosens with the motion: {a} {b} {c}"
+    );
+    for bad in [vec![0.0; dim - 1], {
+        let mut v = vec![0.0; dim];
+        v[5] = f64::NAN;
+        v
+    }] {
+        let e = fit(anchored(2.0, 10.0), Some(bad)).unwrap_err().to_string();
+        assert!(e.contains("motion"), "{e}");
+    }
+    // LM itself ignores the motion.
+    let lm = build_fitter("lm", Preset::Nevergrad, Strategy::Holistic).unwrap();
+    let with = |motion| {
+        lm.fit(&FitRequest {
+            energy: &energy,
+            start: s.to_vec(),
+            mask: mask.clone(),
+            bounds: Bounds::local(&s),
+            budget: 80,
+            seed: 3,
+            motion,
+        })
+        .unwrap()
+        .pose
+    };
+    assert_eq!(with(None), with(Some(vec![1.0; dim])));
+}
+
+/// `SequenceMotion` against its definition: the first change is its own mean square, later
+/// ones enter with weight `SEQUENCE_MOTION_WEIGHT`; a non-finite change counts as none; a
+/// change of another length restarts it; `reset` forgets it.
+#[test]
+fn the_sequence_motion_is_an_exponential_average_of_squared_changes() {
+    use lfit_fitters::{SEQUENCE_MOTION_WEIGHT as W, SequenceMotion};
+    let mut m = SequenceMotion::default();
+    assert_eq!(m.rms(), None);
+    m.update(&[0.0, 1.0, 2.0], &[0.3, 1.0, f64::NAN]);
+    assert_eq!(m.rms(), Some(vec![0.3, 0.0, 0.0]));
+    m.update(&[0.3, 1.0, 0.0], &[0.3, 0.6, 0.1]);
+    let want = [
+        ((1.0 - W) * 0.09f64).sqrt(),
+        (W * 0.16f64).sqrt(),
+        (W * 0.01f64).sqrt(),
+    ];
+    let got = m.rms().unwrap();
+    for (g, w) in got.iter().zip(want) {
+        assert!((g - w).abs() < 1e-12, "{got:?} against {want:?}");
+    }
+    m.update(&[0.0, 0.0], &[0.5, 0.0]);
+    assert_eq!(m.rms(), Some(vec![0.5, 0.0]));
+    m.reset();
+    assert_eq!(m.rms(), None);
 }

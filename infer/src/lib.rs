@@ -867,6 +867,7 @@ mod tests {
             mask: mask.clone(),
             budget: 100,
             seed: 1,
+            motion: None,
         };
         let mut far_start = start.clone();
         far_start[0] += offset.x;

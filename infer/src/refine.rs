@@ -114,6 +114,7 @@ impl Fitter for NeuralThenLm {
                 bounds: r.bounds.clone(),
                 budget: r.budget - nn.evaluations as usize,
                 seed: r.seed,
+                motion: None,
             };
             let lm = self.lm.0.fit(&refine)?;
             // LM keeps the best point it saw, which includes its start: never above the network.

@@ -252,6 +252,7 @@ fn evaluate(
             bounds: Bounds::global(),
             budget: usize::MAX,
             seed: i as u64,
+            motion: None,
         })
         .collect();
     let mut poses: Vec<Pose> = Vec::with_capacity(n);
