@@ -247,7 +247,7 @@ fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
     }
     // The temporally anchored LM: one part per clip, LM alone, its fitter the anchored one; its
     // sequence is not LM's (the pull changes the fits).
-    for (m, d) in [("markers", "5"), ("keypoints2d", "8")] {
+    for (m, d) in [("markers", "4"), ("keypoints2d", "5")] {
         let dir = out_dir.join(format!("{m}-clip-anchored"));
         let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("csv");
         assert_eq!(csv.lines().count(), 1 + 4, "{m}");

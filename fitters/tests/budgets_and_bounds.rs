@@ -405,8 +405,8 @@ fn anchored_dofs_pull_toward_the_start_and_report_the_energy() {
 
 /// The sequence's motion (`FitRequest::motion`) widens the temporal anchor per entry by
 /// `lfit_fitters::widened_std`: no motion is the plain anchor (bit for bit), a motion far above
-/// the anchor's σ stops at the cap (the anchor at `ANCHOR_MOTION_CAP` times its σ, rotations and
-/// translation), a moderate one lands between, and a motion of the wrong length or with a NaN is
+/// the anchor's σ stops at the cap (the rotations' anchor at `ANCHOR_MOTION_CAP` times its σ;
+/// the translation's is not widened), a moderate one lands between, and a motion of the wrong length or with a NaN is
 /// refused naming it. Fitters that are not anchored ignore it.
 #[test]
 fn the_sequences_motion_widens_the_anchor_up_to_its_cap() {
@@ -437,11 +437,7 @@ fn the_sequences_motion_widens_the_anchor_up_to_its_cap() {
     let still = fit(anchored(2.0, 10.0), Some(vec![0.0; dim])).unwrap();
     assert_eq!(plain.pose, still.pose, "no motion is the plain anchor");
     let fast = fit(anchored(2.0, 10.0), Some(vec![10.0; dim])).unwrap();
-    let capped = fit(
-        anchored(ANCHOR_MOTION_CAP * 2.0, ANCHOR_MOTION_CAP * 10.0),
-        None,
-    )
-    .unwrap();
+    let capped = fit(anchored(ANCHOR_MOTION_CAP * 2.0, 10.0), None).unwrap();
     let gap = fast
         .pose
         .iter()
