@@ -510,9 +510,11 @@ struct FitCmd {
     /// others keep the start's values, and β too for neural+lm; observed:DEG another threshold),
     /// or anchored (every entry, the rotations pulled toward the start's values by a Gaussian of
     /// 15° and the root translation by one of 30 mm, in the data term's units: the data move an
-    /// entry as far as they determine it; for neural+lm the start is the network's result;
-    /// anchored:DEG another rotation standard deviation, anchored:DEG,MM both; the energy
-    /// reported is the energy, without the pull). Default: anchored for neural+lm's LM
+    /// entry as far as they determine it; for neural+lm the start is the network's result; in
+    /// a sequence, where the start is the previous frame's result, the rotations' pull widens
+    /// with how fast the fits before moved, up to 3×: LM's temporal prior, anchored:4 on
+    /// markers, anchored:5 on keypoints2d; anchored:DEG another rotation standard deviation,
+    /// anchored:DEG,MM both; the energy reported is the energy, without the pull). Default: anchored for neural+lm's LM
     /// stage on markers, anchored:10 on keypoints2d, anchored:1 on hmd; all for every other
     /// method and sensor; not for --method neural.
     #[arg(long)]

@@ -632,7 +632,7 @@ const ANCHORED_PART: &str = "-anchored";
 /// After each sequence part (the captured clip's), its twin with LM pulled toward its own
 /// previous frame's result (`dofs = "anchored:DEG"`, σ of
 /// [`lfit_fitters::sequence_anchor_std_deg`]): the classical temporal prior, the baseline a
-/// learned fitter's sequence has to beat (docs/results/captured-motion.md, round 28). Parts of
+/// learned fitter's sequence has to beat (docs/results/captured-motion.md, rounds 28 and 30). Parts of
 /// a modality without a chosen σ (hmd) get none, and so do the twins of the pose prior and of
 /// the early exit.
 fn with_anchored_parts(parts: Vec<(String, BenchConfig)>) -> Result<Vec<(String, BenchConfig)>> {
