@@ -292,6 +292,24 @@ fn lm_runs_with_its_scaling_floor() {
     assert_eq!(lm.fit(&request).unwrap().pose, results[1].pose);
 }
 
+/// The anchored tests' request: 80 evaluations from `s` in its local box, seed 3.
+fn anchored_request<'a>(
+    energy: &'a Energy,
+    s: &[f64],
+    mask: &DofMask,
+    motion: Option<Vec<f64>>,
+) -> FitRequest<'a> {
+    FitRequest {
+        energy,
+        start: s.to_vec(),
+        mask: mask.clone(),
+        bounds: Bounds::local(s),
+        budget: 80,
+        seed: 3,
+        motion,
+    }
+}
+
 /// `Dofs::Anchored` (`--dofs anchored`): LM minimises the energy plus a Gaussian pull of the free
 /// rotations and root translation toward the start, each with its own standard deviation. Its
 /// result reports the energy itself (the anchor subtracted) and its terms without the anchor; the
@@ -308,16 +326,9 @@ fn anchored_dofs_pull_toward_the_start_and_report_the_energy() {
         let energy = markers_energy(EnergyConfig::default().for_gradient());
         let lm = build_fitter("lm", Preset::Nevergrad, Strategy::Holistic).unwrap();
         let fitter = dofs.wrap(lm);
-        let request = FitRequest {
-            energy: &energy,
-            start: s.to_vec(),
-            mask: mask.clone(),
-            bounds: Bounds::local(&s),
-            budget: 80,
-            seed: 3,
-            motion: None,
-        };
-        let r = fitter.fit(&request).unwrap();
+        let r = fitter
+            .fit(&anchored_request(&energy, &s, &mask, None))
+            .unwrap();
         assert_eq!(
             r.method,
             format!(
@@ -418,16 +429,8 @@ fn the_sequences_motion_widens_the_anchor_up_to_its_cap() {
     let fit = |dofs: Dofs, motion: Option<Vec<f64>>| {
         let energy = markers_energy(EnergyConfig::default().for_gradient());
         let lm = build_fitter("lm", Preset::Nevergrad, Strategy::Holistic).unwrap();
-        let request = FitRequest {
-            energy: &energy,
-            start: s.to_vec(),
-            mask: mask.clone(),
-            bounds: Bounds::local(&s),
-            budget: 80,
-            seed: 3,
-            motion,
-        };
-        dofs.wrap(lm).fit(&request)
+        dofs.wrap(lm)
+            .fit(&anchored_request(&energy, &s, &mask, motion))
     };
     let anchored = |std_deg, translation_std_mm| Dofs::Anchored {
         std_deg,
@@ -472,17 +475,9 @@ fn the_sequences_motion_widens_the_anchor_up_to_its_cap() {
     // LM itself ignores the motion.
     let lm = build_fitter("lm", Preset::Nevergrad, Strategy::Holistic).unwrap();
     let with = |motion| {
-        lm.fit(&FitRequest {
-            energy: &energy,
-            start: s.to_vec(),
-            mask: mask.clone(),
-            bounds: Bounds::local(&s),
-            budget: 80,
-            seed: 3,
-            motion,
-        })
-        .unwrap()
-        .pose
+        lm.fit(&anchored_request(&energy, &s, &mask, motion))
+            .unwrap()
+            .pose
     };
     assert_eq!(with(None), with(Some(vec![1.0; dim])));
 }
