@@ -197,7 +197,7 @@ fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
             "lm anchored at the previous frame (--dofs anchored:D) @40",
         ] {
             let w = if m == "keypoints2d" { "0.001" } else { "0.01" };
-            let d = if m == "keypoints2d" { "8" } else { "5" };
+            let d = if m == "keypoints2d" { "5" } else { "4" };
             let want = format!(
                 "| {m}, captured clip (4 frames) | {} |",
                 method

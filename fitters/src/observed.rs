@@ -361,9 +361,9 @@ pub fn anchor_std_deg(modality: lfit_model::observe::Modality) -> Option<f64> {
 /// most 0.1 mm). Chosen with [`SEQUENCE_MOTION_WEIGHT`] and the
 /// cap on the validation subject's sequences at 30, 15 and 10 frames per second (CMU subject 6,
 /// four 100-frame sequences each; LM, V2V mm): markers with σ = 3°, gain 1 / 2 / 3 / 4 / 6
-/// (uncapped, weight 0.5) 9.37 / 8.75 / 8.52 / 8.51 / 8.94 at 30 fps, 11.34 / 10.20 / 9.74 /
-/// 9.65 / 9.95 at 15, 14.56 / 13.06 / 12.56 / 12.15 / 12.10 at 10; docs/results/captured-motion.md,
-/// round 30.
+/// (uncapped, weight 0.5) 8.72 / 8.52 / **8.49** / 8.54 / 9.18 at 30 fps, 10.50 / 9.80 /
+/// **9.51** / 9.56 / 10.07 at 15, 13.34 / 12.40 / 12.15 / **11.98** / 12.27 at 10 (3 and 4
+/// within 0.02 on the mean); docs/results/captured-motion.md, round 30.
 pub const ANCHOR_MOTION_GAIN: f64 = 3.0;
 
 /// The most the motion widens the temporal anchor, as a multiple of its standard deviation
