@@ -487,7 +487,8 @@ fn fit_pass(
             .iter()
             .map(|&f| energy(f))
             .collect::<Result<Vec<_>>>()?;
-        let mut warm_from: Vec<Option<Vec<f64>>> = Vec::with_capacity(group.len());
+        // Which requests start from the previous frame's fit (their start is that fit).
+        let mut warm_starts: Vec<bool> = Vec::with_capacity(group.len());
         let requests: Vec<FitRequest<'_>> = group
             .iter()
             .zip(&energies)
@@ -501,7 +502,7 @@ fn fit_pass(
                 if !warm {
                     motion.reset();
                 }
-                warm_from.push(warm.then(|| start.clone()));
+                warm_starts.push(warm);
                 let mut r = request(
                     plan,
                     known,
@@ -520,15 +521,15 @@ fn fit_pass(
             .map(|r| r.energy.inspect(&r.start).total)
             .collect();
         let results = fit_group(fitter, &requests, group)?;
-        for ((((&frame, result), request), start_energy), before) in group
+        for ((((&frame, result), request), start_energy), warm) in group
             .iter()
             .zip(results)
             .zip(&requests)
             .zip(start_energies)
-            .zip(warm_from)
+            .zip(warm_starts)
         {
-            if let Some(before) = before {
-                motion.update(&before, &result.pose);
+            if warm {
+                motion.update(&request.start, &result.pose);
             }
             previous = Some((frame, result.pose.clone()));
             sink(FrameFit {
