@@ -188,6 +188,7 @@ pub fn run(
         out: out.to_path_buf(),
         device_name: "ndarray".into(),
         resume: false,
+        init: None,
         command: "imu_sensor example".into(),
     };
     let device = lfit::nn::tensor::ndarray_device();

@@ -163,6 +163,10 @@ enum Command {
         /// Continue the run in --out from its last checkpoint.
         #[arg(long)]
         resume: bool,
+        /// Fine-tune: start from this checkpoint's weights and input statistics (a new run of
+        /// the config's steps, fresh optimiser; the config's "network" must be the checkpoint's).
+        #[arg(long, conflicts_with = "resume")]
+        init: Option<PathBuf>,
         /// Override the config's steps.
         #[arg(long)]
         steps: Option<usize>,
@@ -915,6 +919,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             out,
             device,
             resume,
+            init,
             steps,
             seed,
             template,
@@ -926,6 +931,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 &out,
                 &device,
                 resume,
+                init.as_deref(),
                 steps,
                 seed,
                 &template,

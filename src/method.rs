@@ -277,8 +277,9 @@ pub fn build_classic(kind: MethodKind, options: ClassicOptions) -> Result<Box<dy
 }
 
 /// `--dofs` by name, or the method's default for the data's modality
-/// ([`MethodKind::default_dofs`]; `modality` is asked only then); refused for `neural` (the
-/// network moves the entries of its checkpoint's mask).
+/// ([`MethodKind::default_dofs`]; `modality` is asked only then); `observed` refused for
+/// `neural` (the network moves the entries of its checkpoint's mask; `anchored` adds a pull
+/// toward the start to the energy it fits).
 pub fn dofs_for(
     kind: MethodKind,
     name: Option<&str>,
@@ -287,10 +288,10 @@ pub fn dofs_for(
     match name {
         None if kind == MethodKind::NeuralLm => Ok(kind.default_dofs(modality()?)),
         None => Ok(lfit_fitters::Dofs::All),
-        Some(_) if kind == MethodKind::Neural => bail!(
-            "--dofs is for classical methods and neural+lm's LM stage: --method neural moves the entries of its checkpoint's DOF mask"
-        ),
-        Some(n) => n.parse().map_err(anyhow::Error::msg),
+        Some(n) => {
+            let dofs: lfit_fitters::Dofs = n.parse().map_err(anyhow::Error::msg)?;
+            Ok(dofs)
+        }
     }
 }
 
@@ -415,12 +416,9 @@ pub fn load_neural(kind: MethodKind, options: &NeuralOptions<'_>) -> Result<Box<
     };
     Ok(match kind {
         MethodKind::NeuralLm => Box::new(lfit_infer::NeuralThenLm::new(fitter, options.dofs)?),
-        _ => {
-            if options.dofs != lfit_fitters::Dofs::All {
-                bail!("--dofs is for classical methods and neural+lm's LM stage, not {kind}");
-            }
-            Box::new(fitter)
-        }
+        // The network fits the energy with the pull toward its start (in a sequence, the previous
+        // frame's fit), or moves only the entries the data determine, as a classical fitter.
+        _ => options.dofs.wrap(Box::new(fitter)),
     })
 }
 

@@ -758,6 +758,84 @@ fn first_pass_gives_a_sequence_one_shape() {
     assert!(!out_path.exists());
 }
 
+/// `--method neural --dofs anchored:DEG`: the network fits each frame on the energy plus the pull
+/// toward its start (in a sequence, the previous frame's fit; the networks fine-tuned with
+/// `"starts": {"anchor_deg": …}`): a pull too weak to matter gives the plain network's poses,
+/// a 4° one other poses, and the reported energy is the plain energy at the pose (the anchor
+/// subtracted), as for LM; `--dofs observed` stays refused for the network (above).
+#[test]
+fn the_network_fits_a_sequence_on_the_anchored_energy() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let seq = synth(tmp.path(), "seq.npz", "sequence", 5, 0x5EED_0031);
+    let run = |name: &str, dofs: &str| {
+        fit(
+            &seq,
+            &tmp.path().join(name),
+            &[
+                "--method",
+                "neural",
+                "--budget",
+                "10",
+                "--neural-start",
+                "given",
+                "--dofs",
+                dofs,
+            ],
+        )
+    };
+    let plain = run("plain.json", "all");
+    let weak = run("weak.json", "anchored:1000000,100000000");
+    let four = run("four.json", "anchored:4");
+    assert_eq!(four["method"], "neural-given-anchored-4deg");
+    let poses = |r: &Value| -> Vec<Vec<f64>> {
+        frames(r)
+            .iter()
+            .map(|f| {
+                f["pose"]
+                    .as_array()
+                    .expect("pose")
+                    .iter()
+                    .map(num)
+                    .collect()
+            })
+            .collect()
+    };
+    let gap = |a: &Value, b: &Value| {
+        poses(a)
+            .iter()
+            .zip(poses(b))
+            .flat_map(|(p, q)| {
+                p.iter()
+                    .zip(q)
+                    .map(|(x, y)| (x - y).abs())
+                    .collect::<Vec<_>>()
+            })
+            .fold(0.0_f64, f64::max)
+    };
+    assert_eq!(frames(&four).len(), 5);
+    assert!(gap(&plain, &weak) < 1e-4, "{}", gap(&plain, &weak));
+    assert!(gap(&plain, &four) > 1e-3, "{}", gap(&plain, &four));
+    // The energy reported is the plain energy at the anchored fit's pose.
+    let model =
+        std::sync::Arc::new(lfit::data::load_model(Some(&root(MODEL)), "fixed").expect("model"));
+    let dataset = lfit::synth::Dataset::load(&seq).expect("dataset");
+    for (k, (f, pose)) in frames(&four).iter().zip(poses(&four)).enumerate() {
+        let energy = lfit::fitting::energy_for_frame(
+            &dataset,
+            model.clone(),
+            k,
+            lfit::model::energy::EnergyConfig::default().for_gradient(),
+        )
+        .expect("energy");
+        let want = energy.inspect(&pose).total;
+        assert!(
+            (num(&f["energy"]) - want).abs() <= 1e-9 * want.max(1.0),
+            "frame {k}: {} against {want}",
+            f["energy"]
+        );
+    }
+}
+
 /// The network's fit of `seq` (12 evaluations a frame, the better start) with the joint β
 /// `policy`, asserted to have solved one β for the whole sequence: the summed energy no higher
 /// than before the solve, at least one iteration, β inside the shape box and in every frame.
@@ -1005,7 +1083,7 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
     for (extra, want) in [
         (
             &["--dofs", "some", "--budget", "200"][..],
-            "unknown dofs 'some' (expected all, observed, observed:DEG, anchored, anchored:DEG or anchored:DEG,MM)",
+            "unknown dofs 'some' (expected all, observed, observed:DEG, anchored, anchored:DEG, anchored:DEG,MM or observed[:DEG]+anchored[:DEG[,MM]])",
         ),
         (
             &["--dofs", "observed", "--budget", "1"][..],
@@ -1034,7 +1112,7 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
         tmp.path(),
         "neural",
         &["--budget", "10", "--dofs", "observed"],
-        "--dofs is for classical methods and neural+lm's LM stage",
+        "--dofs observed is for classical methods and neural+lm's LM stage",
     );
 }
 

@@ -18,8 +18,9 @@ pub use lbfgs::LbfgsFitter;
 pub use least_squares::{LeastSquaresFitter, LeastSquaresMethod};
 pub use observed::{
     ANCHOR_MOTION_CAP, ANCHOR_MOTION_GAIN, ANCHOR_STD_DEG, ANCHOR_TRANSLATION_STD_MM, AnchoredDofs,
-    Dofs, HMD_ANCHOR_STD_DEG, KEYPOINTS2D_ANCHOR_STD_DEG, ObservedDofs, SEQUENCE_MOTION_WEIGHT,
-    SequenceMotion, anchor_std_deg, sequence_anchor_std_deg, widened_std,
+    Dofs, HMD_ANCHOR_STD_DEG, KEYPOINTS2D_ANCHOR_STD_DEG, OBSERVED_MAX_STD_DEG, ObservedDofs,
+    SEQUENCE_MOTION_WEIGHT, SequenceMotion, anchor_std_deg, anchored_energy,
+    sequence_anchor_std_deg, widened_std,
 };
 pub use optim::{Method, Preset};
 pub use zeroth::ZerothOrderFitter;

@@ -44,6 +44,17 @@ pub enum Dofs {
         std_deg: f64,
         translation_std_mm: f64,
     },
+    /// Both: the entries `Observed` at `max_std_deg` keeps moving, each pulled toward the start
+    /// as `Anchored` pulls (`observed:DEG+anchored:DEG[,MM]`, [`ObservedDofs`] around
+    /// [`AnchoredDofs`]). For a fitter that moves entries the energy says nothing of (the
+    /// network's own update: the thumbs and fingers of a markers set drift 8–30° over a
+    /// sequence where the anchor alone holds LM's within 0.2°), the hard mask holds those and the
+    /// soft pull the rest; `docs/results/captured-motion.md`, round 31.
+    ObservedAnchored {
+        max_std_deg: f64,
+        std_deg: f64,
+        translation_std_mm: f64,
+    },
 }
 
 impl Dofs {
@@ -77,12 +88,42 @@ impl Dofs {
                 std_deg,
                 translation_std_mm,
             } => Box::new(AnchoredDofs::new(fitter, std_deg, translation_std_mm)),
+            Dofs::ObservedAnchored {
+                max_std_deg,
+                std_deg,
+                translation_std_mm,
+            } => Box::new(ObservedDofs::new(
+                Box::new(AnchoredDofs::new(fitter, std_deg, translation_std_mm)),
+                max_std_deg,
+            )),
+        }
+    }
+
+    /// The two halves of `ObservedAnchored` (`Observed`, `Anchored`); `None` for the others.
+    fn halves(self) -> Option<(Dofs, Dofs)> {
+        match self {
+            Dofs::ObservedAnchored {
+                max_std_deg,
+                std_deg,
+                translation_std_mm,
+            } => Some((
+                Dofs::Observed { max_std_deg },
+                Dofs::Anchored {
+                    std_deg,
+                    translation_std_mm,
+                },
+            )),
+            _ => None,
         }
     }
 
     /// What a fitter's name gets for it: `observed`, `observed-<DEG>deg`, `anchored`,
     /// `anchored-<DEG>deg` or `anchored-<DEG>deg-<MM>mm` (`all`: empty).
     pub fn suffix(self) -> String {
+        // The anchor is the inner wrapper: its suffix comes first in the fitter's name.
+        if let Some((observed, anchored)) = self.halves() {
+            return format!("{}-{}", anchored.suffix(), observed.suffix());
+        }
         match (self, self.name().split_once(':')) {
             (Dofs::All, _) => String::new(),
             (_, Some((name, value))) => match value.split_once(',') {
@@ -116,6 +157,19 @@ impl Dofs {
                 std_deg,
                 translation_std_mm,
             } => format!("anchored:{std_deg},{translation_std_mm}"),
+            Dofs::ObservedAnchored {
+                max_std_deg,
+                std_deg,
+                translation_std_mm,
+            } => format!(
+                "{}+{}",
+                Dofs::Observed { max_std_deg }.name(),
+                Dofs::Anchored {
+                    std_deg,
+                    translation_std_mm
+                }
+                .name()
+            ),
         }
     }
 }
@@ -127,6 +181,25 @@ impl std::str::FromStr for Dofs {
             "all" => Ok(Dofs::All),
             "observed" => Ok(Dofs::OBSERVED),
             "anchored" => Ok(Dofs::ANCHORED),
+            _ if s.contains('+') => {
+                let (a, b) = s.split_once('+').unwrap_or((s, ""));
+                match (a.parse::<Dofs>()?, b.parse::<Dofs>()?) {
+                    (
+                        Dofs::Observed { max_std_deg },
+                        Dofs::Anchored {
+                            std_deg,
+                            translation_std_mm,
+                        },
+                    ) => Ok(Dofs::ObservedAnchored {
+                        max_std_deg,
+                        std_deg,
+                        translation_std_mm,
+                    }),
+                    _ => Err(format!(
+                        "dofs '{s}': only observed[:DEG]+anchored[:DEG[,MM]] combines two"
+                    )),
+                }
+            }
             _ => {
                 let (kind, value) = s.split_once(':').unwrap_or((s, ""));
                 let positive =
@@ -163,7 +236,7 @@ impl std::str::FromStr for Dofs {
                         })
                     }
                     _ => Err(format!(
-                        "unknown dofs '{s}' (expected all, observed, observed:DEG, anchored, anchored:DEG or anchored:DEG,MM)"
+                        "unknown dofs '{s}' (expected all, observed, observed:DEG, anchored, anchored:DEG, anchored:DEG,MM or observed[:DEG]+anchored[:DEG[,MM]])"
                     )),
                 }
             }
@@ -452,6 +525,53 @@ pub fn sequence_anchor_std_deg(modality: lfit_model::observe::Modality) -> Optio
     }
 }
 
+/// The energy of [`AnchoredDofs`]: `energy` plus a Gaussian pull of the `free` rotation entries
+/// toward `centre` by `std_deg` degrees (each widened by the sequence's `motion`,
+/// [`widened_std`], where given) and of the free root translation entries by
+/// `translation_std_mm` millimetres; shape and expression entries stay free. The one place the
+/// temporal anchor is built: `--dofs anchored` and the training of networks that fit on it
+/// (`"starts": {"anchor_deg": …}`). A motion of the wrong length or with a negative or
+/// non-finite entry is refused.
+pub fn anchored_energy(
+    energy: &Energy,
+    centre: &[f64],
+    free: &[usize],
+    std_deg: f64,
+    translation_std_mm: f64,
+    motion: Option<&[f64]>,
+) -> Result<Energy, String> {
+    let layout = energy.template().layout();
+    let rotations = layout.range(Block::Rotations);
+    let translation = layout.range(Block::Translation);
+    if let Some(m) = motion {
+        if m.len() != centre.len() || m.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
+            return Err(format!(
+                "the sequence's motion must hold {} finite non-negative entries",
+                centre.len()
+            ));
+        }
+    }
+    let widen = |i: usize, std: f64| match motion {
+        Some(m) => widened_std(std, m[i]),
+        None => std,
+    };
+    let entries: Vec<(usize, f64)> = free
+        .iter()
+        .filter_map(|&i| {
+            if rotations.contains(&i) {
+                Some((i, widen(i, std_deg.to_radians())))
+            } else if translation.contains(&i) {
+                Some((i, translation_std_mm / 1000.0))
+            } else {
+                None
+            }
+        })
+        .collect();
+    energy
+        .with_anchor(centre, &entries)
+        .map_err(|e| e.to_string())
+}
+
 impl AnchoredDofs {
     /// `inner` with the free rotations anchored at the start by `std_deg` degrees and the free
     /// translation entries by `translation_std_mm` millimetres.
@@ -489,39 +609,15 @@ impl Fitter for AnchoredDofs {
         let clock = Instant::now();
         let mut centre = request.start.clone();
         request.bounds.clamp(&mut centre);
-        let layout = request.energy.template().layout();
-        let rotations = layout.range(Block::Rotations);
-        let translation = layout.range(Block::Translation);
-        if let Some(m) = &request.motion {
-            if m.len() != centre.len() || m.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
-                return Err(FitError::LeastSquares(format!(
-                    "--dofs anchored: the sequence's motion must hold {} finite non-negative entries",
-                    centre.len()
-                )));
-            }
-        }
-        let widen = |i: usize, std: f64| match &request.motion {
-            Some(m) => widened_std(std, m[i]),
-            None => std,
-        };
-        let entries: Vec<(usize, f64)> = request
-            .mask
-            .free
-            .iter()
-            .filter_map(|&i| {
-                if rotations.contains(&i) {
-                    Some((i, widen(i, self.std_deg.to_radians())))
-                } else if translation.contains(&i) {
-                    Some((i, self.translation_std_mm / 1000.0))
-                } else {
-                    None
-                }
-            })
-            .collect();
-        let anchored = request
-            .energy
-            .with_anchor(&centre, &entries)
-            .map_err(|e| FitError::LeastSquares(format!("--dofs anchored: {e}")))?;
+        let anchored = anchored_energy(
+            request.energy,
+            &centre,
+            &request.mask.free,
+            self.std_deg,
+            self.translation_std_mm,
+            request.motion.as_deref(),
+        )
+        .map_err(|e| FitError::LeastSquares(format!("--dofs anchored: {e}")))?;
         let inner = FitRequest {
             energy: &anchored,
             start: request.start.clone(),
@@ -577,6 +673,28 @@ mod tests {
         assert_eq!(loose.name(), "anchored:2.5");
         assert_eq!(both.name(), "anchored:2.5,100");
         assert_eq!(moved.name(), "anchored:15,5");
+        let combined = Dofs::ObservedAnchored {
+            max_std_deg: 30.0,
+            std_deg: 4.0,
+            translation_std_mm: ANCHOR_TRANSLATION_STD_MM,
+        };
+        assert_eq!("observed:30+anchored:4".parse::<Dofs>().unwrap(), combined);
+        assert_eq!(combined.name(), "observed:30+anchored:4");
+        assert_eq!(combined.suffix(), "anchored-4deg-observed-30deg");
+        let defaults = "observed+anchored".parse::<Dofs>().unwrap();
+        assert_eq!(defaults.name().parse::<Dofs>().unwrap(), defaults);
+        assert_eq!(defaults.suffix(), "anchored-observed");
+        for (bad, want) in [
+            ("anchored:4+observed", "only observed[:DEG]+anchored"),
+            ("all+anchored", "only observed[:DEG]+anchored"),
+            ("observed+observed", "only observed[:DEG]+anchored"),
+            ("observed+anchored:0", "standard deviation after anchored:"),
+            ("observed:x+anchored", "threshold after observed:"),
+            ("observed+", "unknown dofs"),
+        ] {
+            let e = bad.parse::<Dofs>().unwrap_err();
+            assert!(e.contains(want), "{bad}: {e}");
+        }
         assert_eq!(
             [Dofs::ANCHORED, loose, both].map(Dofs::suffix),
             ["anchored", "anchored-2.5deg", "anchored-2.5deg-100mm"]
@@ -617,7 +735,7 @@ mod tests {
         );
         let e = "some".parse::<Dofs>().unwrap_err();
         assert!(
-            e.contains("all, observed, observed:DEG, anchored, anchored:DEG or anchored:DEG,MM"),
+            e.contains("all, observed, observed:DEG, anchored, anchored:DEG, anchored:DEG,MM or observed[:DEG]+anchored[:DEG[,MM]]"),
             "{e}"
         );
         for bad in [

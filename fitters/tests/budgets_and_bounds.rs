@@ -316,7 +316,8 @@ fn anchored_request<'a>(
 /// request's energy counts the anchored copy's evaluations within the budget; a tight rotation
 /// anchor keeps the rotations at the start where a loose translation anchor lets the translation
 /// move, tight on both keeps the translation too, loose on both is LM's fit, and one in between
-/// lands between the two.
+/// lands between the two. Both with `observed` (`observed+anchored:DEG`): the entries it holds
+/// stay at the start, the others are pulled toward it.
 #[test]
 fn anchored_dofs_pull_toward_the_start_and_report_the_energy() {
     use lfit_fitters::Dofs;
@@ -412,6 +413,35 @@ fn anchored_dofs_pull_toward_the_start_and_report_the_energy() {
     );
     let (r_mid, r_free) = (rot(&mid.pose), rot(&free.pose));
     assert!(r_mid < r_free && r_mid > 1e-3, "{r_mid} against {r_free}");
+    // Both (`observed+anchored:2`): what `observed` holds stays at the start, the rest is
+    // pulled toward it.
+    let observed = fit(Dofs::OBSERVED);
+    let both = fit(Dofs::ObservedAnchored {
+        max_std_deg: lfit_fitters::OBSERVED_MAX_STD_DEG,
+        std_deg: 2.0,
+        translation_std_mm: 1e9,
+    });
+    let held: Vec<usize> = mask
+        .free
+        .iter()
+        .copied()
+        .filter(|&i| i >= 3 && observed.pose[i] == s[i])
+        .collect();
+    assert!(!held.is_empty(), "observed holds some rotations");
+    assert!(held.iter().all(|&i| both.pose[i] == s[i]), "{held:?}");
+    let moved = |p: &[f64]| -> f64 {
+        mask.free
+            .iter()
+            .filter(|&&i| i >= 3)
+            .map(|&i| (p[i] - s[i]).powi(2))
+            .sum()
+    };
+    assert!(
+        moved(&both.pose) < moved(&observed.pose) && moved(&both.pose) > 0.0,
+        "{} against {}",
+        moved(&both.pose),
+        moved(&observed.pose)
+    );
 }
 
 /// The sequence's motion (`FitRequest::motion`) widens the temporal anchor per entry by

@@ -54,14 +54,17 @@ impl NeuralThenLm {
     fn lm_minimum(&self) -> usize {
         match self.dofs {
             Dofs::All | Dofs::Anchored { .. } => 1,
-            Dofs::Observed { .. } => 2,
+            Dofs::Observed { .. } | Dofs::ObservedAnchored { .. } => 2,
         }
     }
 
     /// LM's mask: the request's, without β with [`Dofs::Observed`] (the network's β is kept).
     fn lm_mask(&self, request: &FitRequest<'_>) -> DofMask {
         let mut mask = request.mask.clone();
-        if matches!(self.dofs, Dofs::Observed { .. }) {
+        if matches!(
+            self.dofs,
+            Dofs::Observed { .. } | Dofs::ObservedAnchored { .. }
+        ) {
             let shape = request.energy.template().layout().range(Block::Shape);
             mask.free.retain(|i| !shape.contains(i));
         }
@@ -74,7 +77,7 @@ impl Fitter for NeuralThenLm {
         let neural = self.neural.name();
         match self.dofs {
             Dofs::All => format!("{neural}+lm"),
-            d @ (Dofs::Observed { .. } | Dofs::Anchored { .. }) => {
+            d @ (Dofs::Observed { .. } | Dofs::Anchored { .. } | Dofs::ObservedAnchored { .. }) => {
                 format!("{neural}+lm-{}", d.suffix())
             }
         }
@@ -95,7 +98,7 @@ impl Fitter for NeuralThenLm {
         if let Some(r) = requests.iter().find(|r| r.budget < least) {
             let what = match self.dofs {
                 Dofs::All | Dofs::Anchored { .. } => "",
-                Dofs::Observed { .. } => {
+                Dofs::Observed { .. } | Dofs::ObservedAnchored { .. } => {
                     " (with --dofs observed: one for the data's information, one for LM)"
                 }
             };

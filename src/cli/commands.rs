@@ -205,6 +205,7 @@ pub fn train(
     out: &Path,
     device: &str,
     resume: bool,
+    init: Option<&Path>,
     steps: Option<usize>,
     seed: Option<u64>,
     template: &Template,
@@ -225,6 +226,10 @@ pub fn train(
         out: out.to_path_buf(),
         device_name: device.to_string(),
         resume,
+        init: init
+            .map(crate::shipped::locate)
+            .transpose()
+            .map_err(|e| anyhow::anyhow!("--init: checkpoint {e}"))?,
         command,
     };
     let summary = lfit_train::train(&config, template, &dev, &options, report)?;

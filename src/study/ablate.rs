@@ -361,6 +361,7 @@ pub fn run(args: &AblateArgs, progress: &(dyn Fn(&str) + Sync)) -> Result<Value>
                 out: dir.clone(),
                 device_name: args.device.clone(),
                 resume: dir.join("config.json").exists(),
+                init: None,
                 command: std::env::args().collect::<Vec<_>>().join(" "),
             };
             lfit_train::train(config, template.clone(), &device, &options, &|_| {})

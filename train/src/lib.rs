@@ -64,6 +64,8 @@ pub enum TrainError {
         last_good: usize,
         dir: PathBuf,
     },
+    #[error("cannot start from the checkpoint {dir}: {reason}")]
+    Init { dir: PathBuf, reason: String },
     #[error("cannot resume from {dir}: {reason}")]
     Resume { dir: PathBuf, reason: String },
 }
@@ -1133,6 +1135,11 @@ pub struct RunOptions {
     pub out: PathBuf,
     pub device_name: String,
     pub resume: bool,
+    /// Start from this checkpoint's weights and feature statistics instead of a fresh network
+    /// (fine-tuning: a new run of `steps` steps with a fresh optimiser, in `out`). The
+    /// checkpoint must have the run's network, modality, residual size and model; refused with
+    /// `resume`.
+    pub init: Option<PathBuf>,
     /// The command line, recorded in the metrics card.
     pub command: String,
 }
@@ -1172,6 +1179,27 @@ pub fn train_with_sensor(
     report: &(dyn Fn(Event) + Sync),
 ) -> Result<Summary> {
     config.validate()?;
+    if let Some(dir) = &options.init {
+        if options.resume {
+            return Err(TrainError::Init {
+                dir: dir.clone(),
+                reason:
+                    "a fine-tuning run starts from a checkpoint; --resume continues one (not both)"
+                        .into(),
+            });
+        }
+        let same = match (dir.canonicalize(), options.out.canonicalize()) {
+            (Ok(a), Ok(b)) => a == b,
+            _ => false,
+        };
+        if same {
+            return Err(TrainError::Init {
+                dir: dir.clone(),
+                reason: "--out is the checkpoint itself (write the fine-tuned run elsewhere)"
+                    .into(),
+            });
+        }
+    }
     if sensor.modality() != config.modality {
         return Err(TrainError::Setting {
             name: "modality",
@@ -1273,6 +1301,20 @@ pub fn train_with_sensor(
                 reason: format!("optimizer state: {e}"),
             })?;
         (ck.net.train(), ck.stats, state.step, state.elapsed_s)
+    } else if let Some(dir) = &options.init {
+        let bad = |reason: String| TrainError::Init {
+            dir: dir.clone(),
+            reason,
+        };
+        let ck = checkpoint::load(dir, &ad).map_err(|e| bad(e.to_string()))?;
+        ck.check_compatible(dir, config.modality, net_config.residual_dim, &template)
+            .map_err(|e| bad(e.to_string()))?;
+        if ck.meta.network != net_config {
+            return Err(bad(
+                "its network differs from the config's (\"network\" must be the checkpoint's config.json network)".into(),
+            ));
+        }
+        (ck.net.train(), ck.stats, 0, 0.0)
     } else {
         let stats_frames = synth_frames_with(
             &template,
@@ -1434,6 +1476,7 @@ pub fn train_with_sensor(
                 mix.chain,
                 seeds::batch(config.seed, step) ^ 0xC4A1_0000_0000_0000,
                 config.noise,
+                (mix.anchor_deg, &mix.fps),
                 &motions,
                 &|f, s| augment_frames(config, &base, f, s),
                 device,

@@ -49,6 +49,20 @@ pub struct StartMix {
     pub previous: f64,
     /// Frames the network runs before the trained frame in `previous`.
     pub chain: usize,
+    /// The temporal anchor of the `previous` windows, degrees: every frame of a window that
+    /// starts from the frame before (the truth of the frame before or the network's result on
+    /// it) is fitted on the energy plus a Gaussian pull toward that start — its rotations by this
+    /// σ widened by the window's motion so far, its root translation by
+    /// [`lfit_fitters::ANCHOR_TRANSLATION_STD_MM`] — as `lfit fit --method neural --dofs
+    /// anchored:DEG` fits a sequence's frames ([`lfit_fitters::anchored_energy`]). Absent (the
+    /// default): the plain energy, as before.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub anchor_deg: Option<f64>,
+    /// Frame rates of the `previous` windows, frames per second: each window is synthesised at
+    /// one of them (drawn by its seed), so the network meets the larger frame-to-frame changes
+    /// of slower captures. Absent or empty (the default): the synthesiser's 30.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub fps: Vec<f64>,
 }
 
 impl Default for StartMix {
@@ -64,6 +78,8 @@ impl Default for StartMix {
             rest: 0.1,
             previous: 0.15,
             chain: 2,
+            anchor_deg: None,
+            fps: Vec::new(),
         }
     }
 }
@@ -122,6 +138,26 @@ impl StartMix {
             return bad(
                 "chain 0".into(),
                 "previous-frame starts need at least one frame before",
+            );
+        }
+        if let Some(a) = self.anchor_deg {
+            if !(a.is_finite() && a > 0.0) {
+                return bad(
+                    format!("anchor_deg {a}"),
+                    "the temporal anchor's standard deviation must be finite and positive (degrees)",
+                );
+            }
+            if self.previous <= 0.0 {
+                return bad(
+                    format!("anchor_deg {a}"),
+                    "the temporal anchor applies to previous-frame starts: set \"previous\" above 0",
+                );
+            }
+        }
+        if self.fps.iter().any(|f| !(f.is_finite() && *f > 0.0)) {
+            return bad(
+                format!("fps {:?}", self.fps),
+                "the windows' frame rates must be finite and positive",
             );
         }
         if self.previous > 0.0 && source == PoseSource::Face {
@@ -266,6 +302,7 @@ pub fn previous_frames(
     chain: usize,
     seed: u64,
     noise: f64,
+    (anchor_deg, fps): (Option<f64>, &[f64]),
     motions: &Motions,
     augment: &(dyn Fn(Frames, u64) -> Result<Frames> + Sync),
     device: &Device,
@@ -288,6 +325,9 @@ pub fn previous_frames(
             );
             motions.apply_to(&mut c);
             c.noise = noise.clone();
+            if !fps.is_empty() {
+                c.fps = fps[(window_seed % fps.len() as u64) as usize];
+            }
             let d = synthesize(&c, template, sensor, &|_| {})?;
             let Observations::Sparse { values, visible } = &d.observations else {
                 return Err(TrainError::Setting {
@@ -316,8 +356,44 @@ pub fn previous_frames(
         .iter()
         .map(|(_, _, before)| rng.random_bool(0.5).then(|| before.clone()))
         .collect();
+    // With a temporal anchor, each window's frames that start from the frame before are fitted
+    // on the anchored energy, widened by the window's motion as the sequence driver does.
+    let mut motion = vec![lfit_fitters::SequenceMotion::default(); windows.len()];
+    let anchored =
+        |k: usize, starts: &[Option<Vec<f64>>], motion: &[lfit_fitters::SequenceMotion]| {
+            windows
+                .iter()
+                .zip(starts)
+                .zip(motion)
+                .map(|((w, start), m)| match (anchor_deg, start) {
+                    (Some(deg), Some(centre)) => {
+                        let free: Vec<usize> = (0..centre.len()).collect();
+                        lfit_fitters::anchored_energy(
+                            &w.0[k],
+                            centre,
+                            &free,
+                            deg,
+                            lfit_fitters::ANCHOR_TRANSLATION_STD_MM,
+                            m.rms().as_deref(),
+                        )
+                        .map(Some)
+                        .map_err(|e| TrainError::Setting {
+                            name: "starts",
+                            value: format!("anchor_deg {deg}"),
+                            reason: e,
+                        })
+                    }
+                    _ => Ok(None),
+                })
+                .collect::<Result<Vec<Option<Energy>>>>()
+        };
     for k in 0..chain {
-        let energies: Vec<&Energy> = windows.iter().map(|w| &w.0[k]).collect();
+        let own = anchored(k, &starts, &motion)?;
+        let energies: Vec<&Energy> = windows
+            .iter()
+            .zip(&own)
+            .map(|(w, a)| a.as_ref().unwrap_or(&w.0[k]))
+            .collect();
         let truths: Vec<Vec<f64>> = windows.iter().map(|w| w.1[k].clone()).collect();
         let constraints: Option<Constraints> = net
             .config
@@ -333,12 +409,19 @@ pub fn previous_frames(
             &mut Dropout::off(),
         )?;
         let last = out.host.last().cloned().unwrap_or_default();
+        for ((m, start), result) in motion.iter_mut().zip(&starts).zip(&last) {
+            if let Some(start) = start {
+                m.update(start, result);
+            }
+        }
         starts = last.into_iter().map(Some).collect();
     }
+    let own = anchored(chain, &starts, &motion)?;
     let mut energies = Vec::with_capacity(count);
     let mut truths = Vec::with_capacity(count);
-    for (mut e, mut t, _) in windows {
-        energies.push(e.swap_remove(chain));
+    for ((mut e, mut t, _), a) in windows.into_iter().zip(own) {
+        let last = e.swap_remove(chain);
+        energies.push(a.unwrap_or(last));
         truths.push(t.swap_remove(chain));
     }
     Ok((energies, truths, starts))

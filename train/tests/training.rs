@@ -40,6 +40,7 @@ fn options(out: &std::path::Path, resume: bool) -> RunOptions {
         out: out.to_path_buf(),
         device_name: "ndarray".into(),
         resume,
+        init: None,
         command: "test".into(),
     }
 }
@@ -260,6 +261,14 @@ fn bad_configs_are_one_line_errors() {
             "face protocol has no sequences",
         ),
         (r#"{"starts": {"bogus": 1}}"#, "unknown field"),
+        // The temporal anchor of the previous-frame windows: a positive σ, and windows to use it.
+        (r#"{"starts": {"anchor_deg": 0}}"#, "finite and positive"),
+        (r#"{"starts": {"anchor_deg": -4}}"#, "finite and positive"),
+        (
+            r#"{"starts": {"anchor_deg": 4, "previous": 0}}"#,
+            "set \"previous\" above 0",
+        ),
+        (r#"{"starts": {"fps": [30, 0]}}"#, "frame rates"),
         // Data-parallel shards: at least one, each with two rows for BatchNorm.
         (r#"{"shards": 0}"#, "shards"),
         (r#"{"batch": 8, "shards": 5}"#, "shards"),
@@ -528,4 +537,103 @@ fn data_parallel_shards_sum_to_the_whole_batch_gradient() {
     assert_ne!(l1, l2);
     let text = serde_json::to_string(&phi).expect("json");
     assert!(!text.contains("shards"), "{text}");
+}
+
+/// `RunOptions::init` (`lfit train --init`): the run starts from the checkpoint's weights and
+/// statistics (its first validation is the checkpoint's last, on the same seed's frames), then
+/// trains on; a checkpoint of another network, `--init` with `--resume`, and `--out` the
+/// checkpoint itself are refused with one line, the checkpoint untouched.
+#[test]
+fn fine_tuning_starts_from_the_checkpoint() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let device = ndarray_device();
+    let base = tmp.path().join("base");
+    let config = small(4);
+    let trained = train(
+        &config,
+        template(),
+        &device,
+        &options(&base, false),
+        &|_| {},
+    )
+    .expect("base");
+    let before = weights_of(&base);
+    let tuned = tmp.path().join("tuned");
+    let init = |out: &std::path::Path, resume: bool| RunOptions {
+        init: Some(base.clone()),
+        ..options(out, resume)
+    };
+    let summary =
+        train(&config, template(), &device, &init(&tuned, false), &|_| {}).expect("fine-tune");
+    assert_eq!(summary.first_validation, trained.final_validation);
+    assert_eq!(summary.steps, 4);
+    assert_ne!(weights_of(&tuned), before, "it trains on");
+    // A fresh run of the same config starts elsewhere.
+    let fresh = train(
+        &config,
+        template(),
+        &device,
+        &options(&tmp.path().join("fresh"), false),
+        &|_| {},
+    )
+    .expect("fresh");
+    assert_ne!(fresh.first_validation, trained.final_validation);
+
+    let mut other = small(4);
+    other.network.hidden = 32;
+    for (config, out, resume, want) in [
+        (&other, tmp.path().join("o"), false, "network differs"),
+        (&config, tmp.path().join("r"), true, "not both"),
+        (&config, base.clone(), false, "the checkpoint itself"),
+    ] {
+        let e = train(config, template(), &device, &init(&out, resume), &|_| {}).expect_err(want);
+        assert!(matches!(e, TrainError::Init { .. }), "{e}");
+        assert!(e.to_string().contains(want), "{e}");
+        assert_eq!(e.to_string().lines().count(), 1);
+    }
+    assert_eq!(weights_of(&base), before, "the checkpoint is untouched");
+    let e = train(
+        &config,
+        template(),
+        &device,
+        &RunOptions {
+            init: Some(tmp.path().join("missing")),
+            ..options(&tmp.path().join("m"), false)
+        },
+        &|_| {},
+    )
+    .expect_err("missing");
+    assert!(e.to_string().contains("missing"), "{e}");
+}
+
+/// `"starts": {"anchor_deg": …}`: the previous-frame windows are fitted on the energy with the
+/// temporal anchor, so the run trains on other directions than without it (same seed), and
+/// stays deterministic; `"fps"` synthesises the windows at another frame rate.
+#[test]
+fn the_temporal_anchor_changes_what_the_previous_frame_share_trains_on() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let mut config = small(3);
+    config.val_every = 3;
+    config.checkpoint_every = 3;
+    config.starts = Some(lfit_train::StartMix {
+        previous: 0.5,
+        ..lfit_train::StartMix::default()
+    });
+    let plain = losses_of_run(&config, &tmp.path().join("plain"));
+    if let Some(mix) = config.starts.as_mut() {
+        mix.anchor_deg = Some(4.0);
+    }
+    let a = losses_of_run(&config, &tmp.path().join("a"));
+    let b = losses_of_run(&config, &tmp.path().join("b"));
+    assert_eq!(a, b, "same seed, same losses");
+    assert!(a.iter().all(|l| l.is_finite()), "{a:?}");
+    assert_ne!(a, plain, "the anchor changes the windows' energies");
+    // Windows at another frame rate: other frames, other losses.
+    if let Some(mix) = config.starts.as_mut() {
+        mix.fps = vec![10.0];
+    }
+    let slow = losses_of_run(&config, &tmp.path().join("slow"));
+    assert_ne!(slow, a, "the windows' frame rate changes their frames");
+    let text = serde_json::to_string(&config).expect("json");
+    assert!(text.contains("\"anchor_deg\":4.0"), "{text}");
 }
