@@ -65,7 +65,10 @@ PY
 # neural+lm-anchored moves every entry with the rotations and the root translation pulled
 # toward the network's values (`--dofs anchored`, neural+lm's default on markers, named); lm-anchored is LM pulled the same way
 # toward its start (in a sequence the previous frame's result: the control for what the
-# network adds as the anchor's centre); lm-anchored:DEG with another σ.
+# network adds as the anchor's centre); lm-anchored:DEG with another σ. neural-sequence is the
+# network fine-tuned on the temporal anchor (CHECKPOINT=checkpoints/markers-makehuman-sequence)
+# from the previous frame's result, pulled toward it and holding what the markers leave open
+# (`--dofs observed:30+anchored:4`, lfit_fitters::sequence_network_dofs).
 eval_marker_method() {
     case "$1" in
         *+prior) echo "$(eval_marker_method "${1%+prior}" "$2") --energy $POSE_PRIOR" ;;
@@ -78,6 +81,7 @@ eval_marker_method() {
         neural-n[1-9] | neural+lm-n[1-9])
             echo "$(eval_marker_method "${1%-n*}" "$2") --neural-iterations ${1##*-n}" ;;
         neural-best) echo neural --checkpoint "$2" --neural-start best --budget 24 ;;
+        neural-sequence) echo neural --checkpoint "$2" --neural-start given --budget 24 --dofs observed:30+anchored:4 ;;
         neural-tol*)
             echo neural --checkpoint "$2" --neural-start best --neural-tolerance "${1#neural-tol}" --budget 24 ;;
     esac
@@ -94,7 +98,7 @@ eval_methods() {
     local m
     for m in "${methods[@]}"; do
         case "$m" in
-            lm | lm-anchored | lm-anchored:[0-9]* | neural | neural+lm | neural+lm-all | neural+lm-anchored | neural-n[1-9] | neural+lm-n[1-9] | neural-best) ;;
+            lm | lm-anchored | lm-anchored:[0-9]* | neural | neural+lm | neural+lm-all | neural+lm-anchored | neural-n[1-9] | neural+lm-n[1-9] | neural-best | neural-sequence) ;;
             neural-tol0.[0-9]*) ;;
             lm+prior | neural+prior | neural+lm+prior)
                 if [ -z "${POSE_PRIOR:-}" ] || [ ! -f "$POSE_PRIOR" ] || [[ "$POSE_PRIOR" == *" "* ]]; then
@@ -103,7 +107,7 @@ eval_methods() {
                 fi
                 ;;
             *)
-                echo "$1: unknown method '$m' in METHODS (lm, lm-anchored[:DEG], neural, neural+lm, neural+lm-all, neural+lm-anchored, lm+prior, neural+prior, neural+lm+prior, neural-nK, neural+lm-nK, neural-best, neural-tolT)" >&2
+                echo "$1: unknown method '$m' in METHODS (lm, lm-anchored[:DEG], neural, neural+lm, neural+lm-all, neural+lm-anchored, lm+prior, neural+prior, neural+lm+prior, neural-nK, neural+lm-nK, neural-best, neural-tolT, neural-sequence)" >&2
                 exit 2
                 ;;
         esac

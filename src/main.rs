@@ -518,9 +518,12 @@ struct FitCmd {
     /// a sequence, where the start is the previous frame's result, the rotations' pull widens
     /// with how fast the fits before moved, up to 3×: LM's temporal prior, anchored:4 on
     /// markers, anchored:5 on keypoints2d; anchored:DEG another rotation standard deviation,
-    /// anchored:DEG,MM both; the energy reported is the energy, without the pull). Default: anchored for neural+lm's LM
-    /// stage on markers, anchored:10 on keypoints2d, anchored:1 on hmd; all for every other
-    /// method and sensor; not for --method neural.
+    /// anchored:DEG,MM both; the energy reported is the energy, without the pull), or
+    /// observed[:DEG]+anchored[:DEG[,MM]] (both: what observed holds stays, the rest is pulled).
+    /// With --method neural the network fits that energy and mask (the *-makehuman-sequence
+    /// checkpoints in a sequence: observed:30+anchored:4 on markers, :5 on keypoints2d).
+    /// Default: anchored for neural+lm's LM stage on markers, anchored:10 on keypoints2d,
+    /// anchored:1 on hmd; all for every other method and sensor.
     #[arg(long)]
     dofs: Option<String>,
     /// The subject's shape β is known, not estimated (papers/002 §3.2, HMD): `truth` (each

@@ -195,6 +195,7 @@ fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
             "lm + pose prior (CMU train, weight W) @40",
             "neural+lm (checkpoints/MOD-makehuman, then LM) + pose prior (CMU train, weight W) @40",
             "lm anchored at the previous frame (--dofs anchored:D) @40",
+            "neural (checkpoints/MOD-makehuman-sequence, N = 5) anchored at the previous frame (--dofs observed:30+anchored:D)",
         ] {
             let w = if m == "keypoints2d" { "0.001" } else { "0.01" };
             let d = if m == "keypoints2d" { "5" } else { "4" };
@@ -275,6 +276,21 @@ fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
             "{m}: the anchor changed nothing"
         );
     }
+    // The network fine-tuned on the anchor: one part per clip, the network alone from the
+    // previous frame's fit on the anchored energy with what the data leave held.
+    for (m, d) in [("markers", "4"), ("keypoints2d", "5")] {
+        let dir = out_dir.join(format!("{m}-clip-anchored-sequence-net"));
+        let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("csv");
+        assert_eq!(csv.lines().count(), 1 + 4, "{m}");
+        let config = std::fs::read_to_string(dir.join("bench.json")).expect("bench.json");
+        assert!(
+            config.contains(&format!("observed:30+anchored:{d}"))
+                && config.contains(&format!("{m}-makehuman-sequence")),
+            "{config}"
+        );
+    }
+    assert!(!out_dir.join("markers-sequence-net").exists());
+    assert!(!out_dir.join("markers-clip-sequence-net").exists());
     assert!(!out_dir.join("markers-clip-prior-anchored").exists());
     assert!(!out_dir.join("markers-clip-early-anchored").exists());
     assert!(!out_dir.join("markers-anchored").exists());

@@ -1,6 +1,7 @@
 //! Every checkpoint shipped in `checkpoints/`: one per sparse modality on the default template and
 //! on the committed MakeHuman body (its `hmd` fitter given β, papers/002 §3.2), the shape-estimating
-//! `markers-morphable` and the MakeHuman `face`; each at most 10 MB, with config, weights,
+//! `markers-morphable`, the MakeHuman `face` and the two MakeHuman networks fine-tuned for
+//! sequences (`*-makehuman-sequence`); each at most 10 MB, with config, weights,
 //! statistics and a metrics card, loading on its model and fitting held-out frames to the V2V
 //! that checkpoints/README.md documents (within a stated margin).
 
@@ -33,7 +34,7 @@ const MAKEHUMAN: &[&str] = &["--model", "models/makehuman-cmu_mb.npz"];
 /// other CPUs and BLAS-free kernels, not a weaker checkpoint.
 const MARGIN: f64 = 1.10;
 
-const CHECKPOINTS: [Shipped; 8] = [
+const CHECKPOINTS: [Shipped; 10] = [
     Shipped {
         name: "markers",
         modality: "markers",
@@ -82,6 +83,24 @@ const CHECKPOINTS: [Shipped; 8] = [
         synth: &[],
         fit: &[],
         documented: (121.256, 12.241),
+    },
+    // The two fine-tuned on the temporal anchor (checkpoints/README.md): on single frames as
+    // the networks they were tuned from.
+    Shipped {
+        name: "markers-makehuman-sequence",
+        modality: "markers",
+        model: MAKEHUMAN,
+        synth: &[],
+        fit: &[],
+        documented: (121.256, 7.313),
+    },
+    Shipped {
+        name: "keypoints2d-makehuman-sequence",
+        modality: "keypoints2d",
+        model: MAKEHUMAN,
+        synth: &[],
+        fit: &[],
+        documented: (121.256, 11.855),
     },
     Shipped {
         name: "hmd-makehuman",

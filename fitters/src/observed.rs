@@ -572,6 +572,29 @@ pub fn anchored_energy(
         .map_err(|e| e.to_string())
 }
 
+/// The largest data standard deviation, degrees, of a rotation the sequence networks move
+/// ([`sequence_network_dofs`]): the thumbs and fingers a markers set barely sees, and what
+/// keypoints leave as open, stay at the previous frame's values. Chosen on the validation
+/// subject's markers sequences at 30, 15 and 10 fps (CMU subject 6, seeds 11–14, the markers
+/// sequence network with `anchored:4`; V2V mm): 20° 9.12 / 12.71 / 17.66, **30°** 9.12 /
+/// 12.60 / 17.47, 45° 9.27 / 12.66 / 17.53 (docs/results/captured-motion.md, round 31).
+pub const SEQUENCE_NETWORK_OBSERVED_DEG: f64 = 30.0;
+
+/// What a network fine-tuned on the temporal anchor (`checkpoints/<modality>-makehuman-sequence`,
+/// `"starts": {"anchor_deg": σ}`) fits a sequence's frames with: the anchor of LM's sequences
+/// ([`sequence_anchor_std_deg`], the σ it was trained with) and the rotations the data leave
+/// beyond [`SEQUENCE_NETWORK_OBSERVED_DEG`] held — the network's own update moves entries the
+/// energy says nothing of, and over 300 frames the markers network's thumbs and fingers drifted
+/// 8–30° with the anchor alone (V2V 13.17 mm against 11.82 with both). `None` where no
+/// sequence σ was chosen.
+pub fn sequence_network_dofs(modality: lfit_model::observe::Modality) -> Option<Dofs> {
+    sequence_anchor_std_deg(modality).map(|std_deg| Dofs::ObservedAnchored {
+        max_std_deg: SEQUENCE_NETWORK_OBSERVED_DEG,
+        std_deg,
+        translation_std_mm: ANCHOR_TRANSLATION_STD_MM,
+    })
+}
+
 impl AnchoredDofs {
     /// `inner` with the free rotations anchored at the start by `std_deg` degrees and the free
     /// translation entries by `translation_std_mm` millimetres.

@@ -312,8 +312,9 @@ fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
 /// `lbfgs`, `cma`, `pso`, `de`, ... or `neural`/`neural+lm` (with `checkpoint`; needs a wheel
 /// built with the `neural` feature). `budget`: energy evaluations per frame. `frames`: a
 /// `--frames` string or a sequence of indices. `known_shape`: `"truth"` or β. `dofs`: `"all"`,
-/// `"observed"`, `"observed:DEG"`, `"anchored"`, `"anchored:DEG"` or `"anchored:DEG,MM"` (`lfit fit --dofs`;
-/// default the method's own).
+/// `"observed"`, `"observed:DEG"`, `"anchored"`, `"anchored:DEG"`, `"anchored:DEG,MM"` or
+/// `"observed[:DEG]+anchored[:DEG[,MM]]"` (`lfit fit --dofs`, the network's too; default the
+/// method's own).
 /// `neural_iterations`: the network's first K iterations only (`lfit fit --neural-iterations`).
 /// `neural_tolerance`: stop a frame's network once an iteration lowered the energy by less than
 /// that fraction (`lfit fit --neural-tolerance`).

@@ -193,6 +193,19 @@ def test_neural_fit_and_a_checkpoint_of_another_model(makehuman, markers_file, c
     assert not np.allclose(everything.poses, ours.poses)
     with pytest.raises(lfit.LfitError, match="unknown dofs 'most'"):
         lfit.fit(makehuman, markers_file, method="neural+lm", budget=40, checkpoint=ck, dofs="most")
+    # The network on the anchored energy with what the markers leave held (the sequence
+    # networks' dofs): the CLI's fits, other than the plain network's.
+    seq = ROOT / "checkpoints" / "markers-makehuman-sequence"
+    out = tmp_path / "seq.json"
+    cli("fit", "--data", markers_file, "--model", ROOT / "models" / "makehuman-cmu_mb.npz", "--method", "neural",
+        "--checkpoint", seq, "--neural-start", "given", "--budget", 12, "--dofs", "observed:30+anchored:4",
+        "--out", out)
+    theirs = json.loads(out.read_text())["frames"]
+    held = lfit.fit(makehuman, markers_file, method="neural", budget=12, checkpoint=seq, neural_start="given",
+                    dofs="observed:30+anchored:4")
+    np.testing.assert_allclose(held.energies, [r["energy"] for r in theirs], rtol=1e-9)
+    plain = lfit.fit(makehuman, markers_file, method="neural", budget=12, checkpoint=seq, neural_start="given")
+    assert not np.allclose(held.poses, plain.poses)
     # runtime="native" (lfit's own f32 forward): the CLI's native fits, and within f32 rounding of
     # Burn's (the network outputs agree to ~1e-6, tests/onnx_runtime.rs).
     out = tmp_path / "native.json"

@@ -453,7 +453,9 @@ pub fn quickstart(
         parts.extend(extra);
     }
     let parts = with_phone_parts(parts)?;
-    let parts = with_anchored_parts(with_early_exit_parts(with_prior_parts(parts)?)?)?;
+    let parts = with_sequence_network_parts(with_anchored_parts(with_early_exit_parts(
+        with_prior_parts(parts)?,
+    )?)?)?;
     let mut table = String::from(
         "| data | method | V2V (mm) | MPJPE (mm) | PA-MPJPE (mm) | shape RMS | final energy | evaluations | time / frame (ms) |\n|---|---|---|---|---|---|---|---|---|\n",
     );
@@ -477,6 +479,10 @@ pub fn quickstart(
             .strip_suffix(PRIOR_PART)
             .or_else(|| part.strip_suffix(EARLY_PART))
             .or_else(|| part.strip_suffix(ANCHORED_PART))
+            .or_else(|| {
+                part.strip_suffix(SEQUENCE_NETWORK_PART)
+                    .map(|p| p.strip_suffix(ANCHORED_PART).unwrap_or(p))
+            })
             .unwrap_or(part);
         let anchored = part
             .ends_with(ANCHORED_PART)
@@ -504,9 +510,12 @@ pub fn quickstart(
                     .iter()
                     .find(|r| r.method == neural)
                     .map_or(0, |r| r.iterations);
-                match config.neural_iterations {
-                    Some(k) => format!("neural (checkpoints/{ck}, first {k} iterations)"),
-                    None => format!("neural (checkpoints/{ck}, N = {n})"),
+                match (config.neural_iterations, &config.dofs) {
+                    (Some(k), _) => format!("neural (checkpoints/{ck}, first {k} iterations)"),
+                    (None, Some(dofs)) => format!(
+                        "neural (checkpoints/{ck}, N = {n}) anchored at the previous frame (--dofs {dofs})"
+                    ),
+                    (None, None) => format!("neural (checkpoints/{ck}, N = {n})"),
                 }
             } else {
                 let name = if method == crate::method::MethodKind::NeuralLm.name() {
@@ -550,7 +559,7 @@ pub fn quickstart(
             |f| f.to_string_lossy().into_owned(),
         );
     let text = format!(
-        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": on the same energy plus the Gaussian pose prior of lfit's CMU training clips (configs/pose-prior-cmu-<modality>.json, `lfit motion prior`; LM with it is SMPLify's classical baseline), whose final energy includes the prior's term. \"first {QUICKSTART_EARLY_EXIT} iterations\": the same network stopped early (`lfit fit --neural-iterations {QUICKSTART_EARLY_EXIT}`). \"anchored at the previous frame\" (captured clip): LM on the energy plus a Gaussian pull toward its own previous frame's result (`lfit fit --dofs anchored:DEG`; σ chosen on the validation subject's sequences, widened where the sequence moves fast), the classical temporal prior a learned fitter has to beat in a sequence.\n\n{table}"
+        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": on the same energy plus the Gaussian pose prior of lfit's CMU training clips (configs/pose-prior-cmu-<modality>.json, `lfit motion prior`; LM with it is SMPLify's classical baseline), whose final energy includes the prior's term. \"first {QUICKSTART_EARLY_EXIT} iterations\": the same network stopped early (`lfit fit --neural-iterations {QUICKSTART_EARLY_EXIT}`). \"anchored at the previous frame\" (captured clip): LM on the energy plus a Gaussian pull toward its own previous frame's result (`lfit fit --dofs anchored:DEG`; σ chosen on the validation subject's sequences, widened where the sequence moves fast), the classical temporal prior a learned fitter has to beat in a sequence. \"neural (checkpoints/<modality>-makehuman-sequence) anchored at the previous frame\": the network fine-tuned on that anchor (`lfit train --init`, `\"starts\": {{\"anchor_deg\": DEG}}`), from its previous frame's fit on the energy plus the same pull, the rotations the data leave beyond 30° held (`lfit fit --method neural --dofs observed:30+anchored:DEG`).\n\n{table}"
     );
     write_atomic(&out.join("comparison.md"), text.as_bytes())?;
     Ok(text)
@@ -659,6 +668,44 @@ fn with_anchored_parts(parts: Vec<(String, BenchConfig)>) -> Result<Vec<(String,
         let mut twin = config.clone();
         twin.methods = vec![crate::method::MethodKind::Lm.name().parse()?];
         twin.dofs = Some(lfit_fitters::Dofs::anchored(std_deg).name());
+        Ok(Some(twin))
+    })
+}
+
+/// Suffix of the quickstart's parts with the network fine-tuned for sequences.
+const SEQUENCE_NETWORK_PART: &str = "-sequence-net";
+
+/// After each LM-anchored twin ([`with_anchored_parts`]), a twin with the network fine-tuned on
+/// the temporal anchor (`checkpoints/<modality>-makehuman-sequence`,
+/// [`lfit_fitters::sequence_network_dofs`]: the previous frame's pull and the entries the data
+/// leave held): the learned fitter's own temporal row (docs/results/captured-motion.md, round
+/// 31). Left out where the checkpoint is not found.
+fn with_sequence_network_parts(
+    parts: Vec<(String, BenchConfig)>,
+) -> Result<Vec<(String, BenchConfig)>> {
+    with_twins(parts, SEQUENCE_NETWORK_PART, |config| {
+        if !config.name.ends_with(ANCHORED_PART) {
+            return Ok(None);
+        }
+        let Some(synth) = config.synth.as_ref() else {
+            return Ok(None);
+        };
+        let Some(dofs) = synth
+            .modality
+            .parse()
+            .ok()
+            .and_then(lfit_fitters::sequence_network_dofs)
+        else {
+            return Ok(None);
+        };
+        let name = format!("checkpoints/{}-makehuman-sequence", synth.modality);
+        let Ok(checkpoint) = crate::shipped::locate(Path::new(&name)) else {
+            return Ok(None);
+        };
+        let mut twin = config.clone();
+        twin.methods = vec![crate::method::MethodKind::Neural.name().parse()?];
+        twin.checkpoint = Some(checkpoint);
+        twin.dofs = Some(dofs.name());
         Ok(Some(twin))
     })
 }

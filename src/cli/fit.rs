@@ -202,7 +202,7 @@ pub struct FitArgs {
     /// `--offsets`: where the markers or keypoints sit, from an earlier fit of the same subject
     /// and sensor ([`read_offsets`]); `None`: the dataset's sensor as it is.
     pub offsets: Option<PathBuf>,
-    /// `--dofs`: `all`, `observed`, `observed:DEG`, `anchored`, `anchored:DEG` or `anchored:DEG,MM` ([`lfit_fitters::Dofs`]); `None`: the
+    /// `--dofs`: `all`, `observed`, `observed:DEG`, `anchored`, `anchored:DEG`, `anchored:DEG,MM` or `observed[:DEG]+anchored[:DEG[,MM]]` ([`lfit_fitters::Dofs`]); `None`: the
     /// method's default ([`crate::method::MethodKind::default_dofs`]).
     pub dofs: Option<String>,
     /// `--holdout`: markers (by name) or 2D keypoints (`camera:K`, joint names) left out of the

@@ -128,9 +128,10 @@ pub struct BenchConfig {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub marker_placement: Option<String>,
     /// Which free entries each fit moves: `all`, `observed`, `observed:DEG`, `anchored`,
-    /// `anchored:DEG` or `anchored:DEG,MM` (`lfit fit --dofs`); default each method's own
-    /// (anchored for `neural+lm`'s LM stage on markers, keypoints2d and hmd:
-    /// [`crate::method::MethodKind::default_dofs`]; `all` otherwise). `neural` always moves its checkpoint's entries.
+    /// `anchored:DEG`, `anchored:DEG,MM` or `observed[:DEG]+anchored[:DEG[,MM]]` (`lfit fit
+    /// --dofs`, every method's, the network's too); default each method's own (anchored for
+    /// `neural+lm`'s LM stage on markers, keypoints2d and hmd:
+    /// [`crate::method::MethodKind::default_dofs`]; `all` otherwise).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dofs: Option<String>,
     #[serde(default)]
@@ -357,15 +358,13 @@ impl BenchConfig {
             .map_err(|_| lfit_fitters::FitError::UnknownPreset(p.to_string()).into())
     }
 
-    /// `dofs` for one method on data of `modality` (not applied to `neural`: its checkpoint's
-    /// entries).
+    /// `dofs` for one method on data of `modality` (`lfit fit --dofs`; the network too).
     fn dofs_for(
         &self,
         kind: MethodKind,
         modality: lfit_model::observe::Modality,
     ) -> Result<lfit_fitters::Dofs> {
-        let name = self.dofs.as_deref().filter(|_| kind != MethodKind::Neural);
-        crate::method::dofs_for(kind, name, &mut || Ok(modality)).context("dofs")
+        crate::method::dofs_for(kind, self.dofs.as_deref(), &mut || Ok(modality)).context("dofs")
     }
 
     /// The sequence shape policy (`sequence_shape`, default per-frame).
