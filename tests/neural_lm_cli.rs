@@ -762,7 +762,7 @@ fn first_pass_gives_a_sequence_one_shape() {
 /// toward its start (in a sequence, the previous frame's fit; the networks fine-tuned with
 /// `"starts": {"anchor_deg": …}`): a pull too weak to matter gives the plain network's poses,
 /// a 4° one other poses, and the reported energy is the plain energy at the pose (the anchor
-/// subtracted), as for LM; `--dofs observed` stays refused for the network (above).
+/// subtracted), as for LM.
 #[test]
 fn the_network_fits_a_sequence_on_the_anchored_energy() {
     let tmp = tempfile::tempdir().expect("tmp");
@@ -819,7 +819,9 @@ fn the_network_fits_a_sequence_on_the_anchored_energy() {
     let model =
         std::sync::Arc::new(lfit::data::load_model(Some(&root(MODEL)), "fixed").expect("model"));
     let dataset = lfit::synth::Dataset::load(&seq).expect("dataset");
-    for (k, (f, pose)) in frames(&four).iter().zip(poses(&four)).enumerate() {
+    for (k, (f, mut pose)) in frames(&four).iter().zip(poses(&four)).enumerate() {
+        // The result's pose is θ without β; the energy reads both.
+        pose.extend(f["shape"].as_array().expect("shape").iter().map(num));
         let energy = lfit::fitting::energy_for_frame(
             &dataset,
             model.clone(),
@@ -932,8 +934,9 @@ fn joint_over_n_frames_solves_beta_over_spread_frames() {
 
 /// `--dofs observed` for a classical method: LM from the dataset's start keeps the thumbs (which
 /// no marker determines) at the start's values and moves the rest, and counts the one evaluation
-/// the data information costs; bad `--dofs` values and `--dofs` with `--method neural` are
-/// refused with one line and nothing written.
+/// the data information costs; bad `--dofs` values, and `--dofs observed` for the network with
+/// no evaluation left for that information (budget 10, its 5 iterations' 10), are refused with
+/// one line and nothing written.
 #[test]
 fn observed_dofs_keep_what_the_markers_do_not_see() {
     let tmp = tempfile::tempdir().expect("tmp");
@@ -1112,7 +1115,7 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
         tmp.path(),
         "neural",
         &["--budget", "10", "--dofs", "observed"],
-        "--dofs observed is for classical methods and neural+lm's LM stage",
+        "budget 9 is below the 10 evaluations of 5 iterations",
     );
 }
 
