@@ -277,9 +277,9 @@ pub fn build_classic(kind: MethodKind, options: ClassicOptions) -> Result<Box<dy
 }
 
 /// `--dofs` by name, or the method's default for the data's modality
-/// ([`MethodKind::default_dofs`]; `modality` is asked only then); `observed` refused for
-/// `neural` (the network moves the entries of its checkpoint's mask; `anchored` adds a pull
-/// toward the start to the energy it fits).
+/// ([`MethodKind::default_dofs`]; `modality` is asked only then). Every method takes one, the
+/// network too (`anchored` adds the pull toward the start to the energy it fits, `observed`
+/// holds what the data leave open).
 pub fn dofs_for(
     kind: MethodKind,
     name: Option<&str>,
@@ -288,10 +288,7 @@ pub fn dofs_for(
     match name {
         None if kind == MethodKind::NeuralLm => Ok(kind.default_dofs(modality()?)),
         None => Ok(lfit_fitters::Dofs::All),
-        Some(n) => {
-            let dofs: lfit_fitters::Dofs = n.parse().map_err(anyhow::Error::msg)?;
-            Ok(dofs)
-        }
+        Some(n) => n.parse().map_err(anyhow::Error::msg),
     }
 }
 

@@ -679,7 +679,7 @@ const SEQUENCE_NETWORK_PART: &str = "-sequence-net";
 /// the temporal anchor (`checkpoints/<modality>-makehuman-sequence`,
 /// [`lfit_fitters::sequence_network_dofs`]: the previous frame's pull and the entries the data
 /// leave held): the learned fitter's own temporal row (docs/results/captured-motion.md, round
-/// 31). Left out where the checkpoint is not found.
+/// 31). A shipped checkpoint that is not found is an error naming it.
 fn with_sequence_network_parts(
     parts: Vec<(String, BenchConfig)>,
 ) -> Result<Vec<(String, BenchConfig)>> {
@@ -699,9 +699,8 @@ fn with_sequence_network_parts(
             return Ok(None);
         };
         let name = format!("checkpoints/{}-makehuman-sequence", synth.modality);
-        let Ok(checkpoint) = crate::shipped::locate(Path::new(&name)) else {
-            return Ok(None);
-        };
+        let checkpoint = crate::shipped::locate(Path::new(&name))
+            .with_context(|| format!("the main job's sequence network {name}"))?;
         let mut twin = config.clone();
         twin.methods = vec![crate::method::MethodKind::Neural.name().parse()?];
         twin.checkpoint = Some(checkpoint);
