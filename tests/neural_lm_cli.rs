@@ -1115,7 +1115,7 @@ fn observed_dofs_keep_what_the_markers_do_not_see() {
         tmp.path(),
         "neural",
         &["--budget", "10", "--dofs", "observed"],
-        "budget 9 is below the 10 evaluations of 5 iterations",
+        "budget 9 is below the 10 evaluations of 5 iterations (--dofs observed spent 1 of the budget's 10 on the data's information)",
     );
 }
 

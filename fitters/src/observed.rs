@@ -354,7 +354,14 @@ impl Fitter for ObservedDofs {
             seed: request.seed,
             motion: request.motion.clone(),
         };
-        let mut result = self.inner.fit(&inner)?;
+        // A network needs a fixed count of evaluations: say where the one spent here went.
+        let mut result = self.inner.fit(&inner).map_err(|e| match e {
+            FitError::Neural(m) => FitError::Neural(format!(
+                "{m} (--dofs observed spent {spent} of the budget's {} on the data's information)",
+                request.budget
+            )),
+            e => e,
+        })?;
         result.method = self.name();
         result.evaluations += spent;
         result.gradient_evaluations += spent_gradients;
