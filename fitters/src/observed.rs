@@ -92,36 +92,42 @@ impl Dofs {
                 max_std_deg,
                 std_deg,
                 translation_std_mm,
-            } => Box::new(ObservedDofs::new(
-                Box::new(AnchoredDofs::new(fitter, std_deg, translation_std_mm)),
-                max_std_deg,
-            )),
+            } => {
+                let (observed, anchored) = Dofs::halves(max_std_deg, std_deg, translation_std_mm);
+                observed.wrap(anchored.wrap(fitter))
+            }
         }
     }
 
-    /// The two halves of `ObservedAnchored` (`Observed`, `Anchored`); `None` for the others.
-    fn halves(self) -> Option<(Dofs, Dofs)> {
-        match self {
-            Dofs::ObservedAnchored {
-                max_std_deg,
+    /// The two halves of an `ObservedAnchored` of these fields (`Observed`, `Anchored`), which
+    /// its wrapper, name and suffix are made of.
+    fn halves(max_std_deg: f64, std_deg: f64, translation_std_mm: f64) -> (Dofs, Dofs) {
+        (
+            Dofs::Observed { max_std_deg },
+            Dofs::Anchored {
                 std_deg,
                 translation_std_mm,
-            } => Some((
-                Dofs::Observed { max_std_deg },
-                Dofs::Anchored {
-                    std_deg,
-                    translation_std_mm,
-                },
-            )),
-            _ => None,
-        }
+            },
+        )
+    }
+
+    /// Whether the fit holds the entries the data leave open (`Observed`, `ObservedAnchored`):
+    /// one evaluation of the budget goes to the data's information first.
+    pub fn holds_unobserved(self) -> bool {
+        matches!(self, Dofs::Observed { .. } | Dofs::ObservedAnchored { .. })
     }
 
     /// What a fitter's name gets for it: `observed`, `observed-<DEG>deg`, `anchored`,
     /// `anchored-<DEG>deg` or `anchored-<DEG>deg-<MM>mm` (`all`: empty).
     pub fn suffix(self) -> String {
         // The anchor is the inner wrapper: its suffix comes first in the fitter's name.
-        if let Some((observed, anchored)) = self.halves() {
+        if let Dofs::ObservedAnchored {
+            max_std_deg,
+            std_deg,
+            translation_std_mm,
+        } = self
+        {
+            let (observed, anchored) = Dofs::halves(max_std_deg, std_deg, translation_std_mm);
             return format!("{}-{}", anchored.suffix(), observed.suffix());
         }
         match (self, self.name().split_once(':')) {
@@ -161,15 +167,10 @@ impl Dofs {
                 max_std_deg,
                 std_deg,
                 translation_std_mm,
-            } => format!(
-                "{}+{}",
-                Dofs::Observed { max_std_deg }.name(),
-                Dofs::Anchored {
-                    std_deg,
-                    translation_std_mm
-                }
-                .name()
-            ),
+            } => {
+                let (observed, anchored) = Dofs::halves(max_std_deg, std_deg, translation_std_mm);
+                format!("{}+{}", observed.name(), anchored.name())
+            }
         }
     }
 }

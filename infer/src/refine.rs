@@ -50,21 +50,16 @@ impl NeuralThenLm {
     }
 
     /// Evaluations the network leaves LM at the least (one for the data information with
-    /// [`Dofs::Observed`], one for LM).
+    /// [`Dofs::holds_unobserved`], one for LM).
     fn lm_minimum(&self) -> usize {
-        match self.dofs {
-            Dofs::All | Dofs::Anchored { .. } => 1,
-            Dofs::Observed { .. } | Dofs::ObservedAnchored { .. } => 2,
-        }
+        if self.dofs.holds_unobserved() { 2 } else { 1 }
     }
 
-    /// LM's mask: the request's, without β with [`Dofs::Observed`] (the network's β is kept).
+    /// LM's mask: the request's, without β where [`Dofs::holds_unobserved`] (the network's β is
+    /// kept).
     fn lm_mask(&self, request: &FitRequest<'_>) -> DofMask {
         let mut mask = request.mask.clone();
-        if matches!(
-            self.dofs,
-            Dofs::Observed { .. } | Dofs::ObservedAnchored { .. }
-        ) {
+        if self.dofs.holds_unobserved() {
             let shape = request.energy.template().layout().range(Block::Shape);
             mask.free.retain(|i| !shape.contains(i));
         }
@@ -77,9 +72,7 @@ impl Fitter for NeuralThenLm {
         let neural = self.neural.name();
         match self.dofs {
             Dofs::All => format!("{neural}+lm"),
-            d @ (Dofs::Observed { .. } | Dofs::Anchored { .. } | Dofs::ObservedAnchored { .. }) => {
-                format!("{neural}+lm-{}", d.suffix())
-            }
+            d => format!("{neural}+lm-{}", d.suffix()),
         }
     }
 
@@ -96,11 +89,10 @@ impl Fitter for NeuralThenLm {
         let network = self.neural.evaluations_per_fit();
         let least = network + self.lm_minimum();
         if let Some(r) = requests.iter().find(|r| r.budget < least) {
-            let what = match self.dofs {
-                Dofs::All | Dofs::Anchored { .. } => "",
-                Dofs::Observed { .. } | Dofs::ObservedAnchored { .. } => {
-                    " (with --dofs observed: one for the data's information, one for LM)"
-                }
+            let what = if self.dofs.holds_unobserved() {
+                " (with --dofs observed: one for the data's information, one for LM)"
+            } else {
+                ""
             };
             return Err(FitError::Neural(format!(
                 "budget {} leaves LM nothing after the network's {network} evaluations (neural+lm needs at least {least}{what})",
