@@ -246,14 +246,29 @@ pub enum KnownShape {
     Truth,
     /// One β for every frame (a subject measured beforehand).
     Given(Vec<f64>),
+    /// The subject's height in metres: the most likely β of that stature
+    /// ([`lfit_model::stature::shape_for_height`]), made a [`KnownShape::Given`] by
+    /// [`KnownShape::resolve`] once the model is known.
+    Height(f64),
 }
 
 impl std::str::FromStr for KnownShape {
     type Err = anyhow::Error;
-    /// `truth`, or the comma-separated β values.
+    /// `truth`, `height:M` (metres), or the comma-separated β values.
     fn from_str(s: &str) -> Result<Self> {
         if s == "truth" {
             return Ok(Self::Truth);
+        }
+        if let Some(h) = s.strip_prefix("height:") {
+            return h
+                .trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite() && *x > 0.0)
+                .map(Self::Height)
+                .with_context(|| {
+                    format!("--known-shape height:{h}: the subject's height must be a positive number of metres")
+                });
         }
         let values = s
             .split(',')
@@ -262,7 +277,7 @@ impl std::str::FromStr for KnownShape {
                     .parse::<f64>()
                     .ok()
                     .filter(|x| x.is_finite())
-                    .with_context(|| format!("--known-shape: '{v}' is not a finite number (expected 'truth' or comma-separated β values)"))
+                    .with_context(|| format!("--known-shape: '{v}' is not a finite number (expected 'truth', 'height:M' or comma-separated β values)"))
             })
             .collect::<Result<Vec<f64>>>()?;
         Ok(Self::Given(values))
@@ -276,6 +291,18 @@ impl KnownShape {
             bail!("strategy shape-first fits the shape first: it needs the shape free");
         }
         Ok(())
+    }
+
+    /// This shape on `template`: a [`KnownShape::Height`] becomes the β of that height
+    /// ([`lfit_model::stature::shape_for_height`]); the others are returned as they are.
+    pub fn resolve(&self, template: &Template) -> Result<Self> {
+        match self {
+            Self::Height(h) => Ok(Self::Given(
+                lfit_model::stature::shape_for_height(template, *h)
+                    .with_context(|| format!("--known-shape height:{h}"))?,
+            )),
+            other => Ok(other.clone()),
+        }
     }
 
     /// Checks the shape against the dataset and model before any fit runs.
@@ -296,6 +323,10 @@ impl KnownShape {
                 v.len(),
                 template.id
             ),
+            Self::Height(h) => bail!(
+                "--known-shape height:{h}: not resolved to β on model '{}' (KnownShape::resolve)",
+                template.id
+            ),
             _ => Ok(()),
         }
     }
@@ -305,6 +336,8 @@ impl KnownShape {
         match self {
             Self::Truth => &dataset.gt_poses[frame][template.layout().range(Block::Shape)],
             Self::Given(v) => v,
+            // Refused by `check`, which every plan's mask runs before a fit.
+            Self::Height(_) => &[],
         }
     }
 }

@@ -527,8 +527,10 @@ struct FitCmd {
     #[arg(long)]
     dofs: Option<String>,
     /// The subject's shape β is known, not estimated (papers/002 §3.2, HMD): `truth` (each
-    /// frame's ground-truth β) or comma-separated β values; the shape entries are then frozen
-    /// for every method. Required by checkpoints trained with the shape known.
+    /// frame's ground-truth β), `height:M` (the subject's height in metres: the most likely β
+    /// of that stature under the shape prior — with one camera, where size and depth trade
+    /// off, the measure that fixes the depth) or comma-separated β values; the shape entries
+    /// are then frozen for every method. Required by checkpoints trained with the shape known.
     // A β list may start with a minus sign (`-0.5,1.2,…`): a value, not a flag.
     #[arg(long, allow_hyphen_values = true)]
     known_shape: Option<String>,

@@ -318,3 +318,134 @@ fn a_known_shape_is_frozen_for_every_method_and_required_by_a_known_shape_networ
     let o = bench(true);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
+
+/// A β estimated per frame that runs to its box is reported: the summary's
+/// `shape_at_bound_frames` counts the frames whose β has an entry at ±3 (checked here against
+/// the rows), `shape_hint` and one warning line on stderr say how to fix β. One phone camera
+/// (`configs/rigs/phone-1.json`) seeing 30 frames of the MakeHuman body's keypoints2d: LM with
+/// the temporal anchor lets size and depth trade off until the box stops β (8 frames at this
+/// seed); two cameras (`tripods-2.json`) pin the size (none); with β given nothing is counted.
+#[test]
+fn a_shape_run_to_its_box_is_counted_and_hinted() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let model = root.join("models/makehuman-cmu_mb.npz");
+    let motion = root.join("data/motions/cmu/validation/006_01.npz");
+    let tmp = tempfile::tempdir().expect("tmp");
+    let fit = |rig: &str, extra: &[&str]| {
+        let data = tmp.path().join(format!("{rig}.npz"));
+        if !data.exists() {
+            support::synth_to(
+                &data,
+                &model,
+                &[
+                    "--modality",
+                    "keypoints2d",
+                    "--scenario",
+                    "sequence",
+                    "--frames",
+                    "30",
+                    "--fps",
+                    "30",
+                    "--seed",
+                    "11",
+                    "--motions",
+                    path_str(&motion),
+                    "--camera",
+                    path_str(&root.join(format!("configs/rigs/{rig}.json"))),
+                ],
+            );
+        }
+        let out = tmp.path().join("fit.json");
+        let mut more = vec!["--template", path_str(&model), "--dofs", "anchored:5"];
+        more.extend(extra);
+        let args = support::lm_fit_args(&data, &out, "4000", &more);
+        let run = lfit(&args);
+        assert!(
+            run.status.success(),
+            "{rig}: {}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        (
+            read(&out),
+            String::from_utf8_lossy(&run.stderr).into_owned(),
+        )
+    };
+    let (phone, stderr) = fit("phone-1", &[]);
+    let at_box = shapes(&phone)
+        .iter()
+        .filter(|b| b.iter().any(|v| v.abs() >= 3.0 - 1e-9))
+        .count();
+    let summary = &phone["summary"];
+    assert!(at_box > 0, "{summary}");
+    assert_eq!(summary["shape_at_bound_frames"], at_box, "{summary}");
+    let hint = summary["shape_hint"].as_str().expect("a hint");
+    assert!(
+        hint.contains(&format!("in {at_box} of 30 frames"))
+            && hint.contains("--known-shape height:M")
+            && hint.contains("--sequence-shape first-pass"),
+        "{hint}"
+    );
+    let warnings: Vec<&str> = stderr
+        .lines()
+        .filter(|l| l.starts_with("warning:"))
+        .collect();
+    assert_eq!(warnings, [format!("warning: {hint}")], "{stderr}");
+
+    let (two, stderr) = fit("tripods-2", &[]);
+    assert_eq!(
+        two["summary"]["shape_at_bound_frames"], 0,
+        "{}",
+        two["summary"]
+    );
+    assert!(two["summary"].get("shape_hint").is_none() && !stderr.contains("warning:"));
+
+    let (given, stderr) = fit("phone-1", &["--known-shape", "truth"]);
+    let summary = &given["summary"];
+    assert!(
+        summary.get("shape_at_bound_frames").is_none() && summary.get("shape_hint").is_none(),
+        "{summary}"
+    );
+    assert!(!stderr.contains("warning:"), "{stderr}");
+
+    // The subject's height instead of β (`--known-shape height:M`): the β of least norm that
+    // tall, given to every frame and written to the result; it fixes the depth one camera
+    // leaves open as β itself does, far closer than the per-frame β run to its box.
+    let template = lfit::model::modelfile::load(&model).expect("model");
+    let truth = lfit::synth::Dataset::load(&tmp.path().join("phone-1.npz")).expect("data");
+    let shape = template.layout().range(lfit::model::layout::Block::Shape);
+    let (height, ..) = lfit::model::stature::rest_height(&template, &truth.gt_poses[0][shape]);
+    let (tall, stderr) = fit("phone-1", &["--known-shape", &format!("height:{height}")]);
+    let beta: Vec<f64> = tall["known_shape"]["beta"]
+        .as_array()
+        .expect("the β used")
+        .iter()
+        .map(|v| v.as_f64().expect("number"))
+        .collect();
+    assert_eq!(
+        beta,
+        lfit::model::stature::shape_for_height(&template, height).expect("β")
+    );
+    assert_eq!(tall["known_shape"]["height_m"], height);
+    assert!(shapes(&tall).iter().all(|b| *b == beta));
+    assert!((lfit::model::stature::rest_height(&template, &beta).0 - height).abs() < 1e-9);
+    let v2v = |r: &serde_json::Value| r["summary"]["mean_v2v_mm"].as_f64().expect("v2v");
+    assert!(
+        v2v(&tall) < 0.5 * v2v(&phone) && v2v(&tall) < 2.0 * v2v(&given),
+        "height {} mm, per-frame β {} mm, β given {} mm",
+        v2v(&tall),
+        v2v(&phone),
+        v2v(&given)
+    );
+    assert!(!stderr.contains("warning:"), "{stderr}");
+    for (bad, want) in [
+        ("height:0", "positive number of metres"),
+        ("height:tall", "positive number of metres"),
+        ("height:2.6", "out of reach"),
+    ] {
+        let (data, bad_out) = (tmp.path().join("phone-1.npz"), tmp.path().join("bad.json"));
+        let more = ["--template", path_str(&model), "--known-shape", bad];
+        let out = lfit(&support::lm_fit_args(&data, &bad_out, "10", &more));
+        assert_one_line_error(&out, want);
+        assert!(!tmp.path().join("bad.json").exists());
+    }
+}

@@ -16,7 +16,7 @@ pub mod metrics;
 pub mod observe;
 
 // The paths the modules had before they moved into their folders (issue 28), kept for every crate.
-pub use body::{info, layout, morph, pose, rig, skeleton, skinning, template};
+pub use body::{info, layout, morph, pose, rig, skeleton, skinning, stature, template};
 pub use formats::{makehuman, makehuman_face, makehuman_import, makehuman_rom, modelfile};
 pub use observe::{camera, noise, scan};
 

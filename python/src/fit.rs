@@ -281,7 +281,7 @@ fn frames_arg(frames: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
     ))
 }
 
-/// `known_shape`: None, `"truth"`, or the subject's β as numbers.
+/// `known_shape`: None, `"truth"`, `"height:M"`, or the subject's β as numbers.
 fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
     let Some(k) = k.filter(|k| !k.is_none()) else {
         return Ok(None);
@@ -311,7 +311,8 @@ fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
 /// dataset names). `data`: a `Dataset` or the path of one. `method`: `lm`, `lm-triggs`, `gn`,
 /// `lbfgs`, `cma`, `pso`, `de`, ... or `neural`/`neural+lm` (with `checkpoint`; needs a wheel
 /// built with the `neural` feature). `budget`: energy evaluations per frame. `frames`: a
-/// `--frames` string or a sequence of indices. `known_shape`: `"truth"` or β. `dofs`: `"all"`,
+/// `--frames` string or a sequence of indices. `known_shape`: `"truth"`, `"height:M"` (the
+/// subject's height in metres: the most likely β that tall) or β. `dofs`: `"all"`,
 /// `"observed"`, `"observed:DEG"`, `"anchored"`, `"anchored:DEG"`, `"anchored:DEG,MM"` or
 /// `"observed[:DEG]+anchored[:DEG[,MM]]"` (`lfit fit --dofs`, the network's too; default the
 /// method's own).

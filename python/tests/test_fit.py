@@ -149,6 +149,7 @@ def test_errors_are_the_cli_lines(cli, markers_file, tmp_path):
         ((None, markers_file), {"method": "lm", "budget": 10, "frames": "3..99"}, ["--data", markers_file, "--method", "lm", "--budget", 10, "--frames", "3..99"]),
         ((None, markers_file), {"method": "lm", "budget": 10, "strategy": "sideways"}, ["--data", markers_file, "--method", "lm", "--budget", 10, "--strategy", "sideways"]),
         ((None, markers_file), {"method": "lm", "budget": 10, "known_shape": "0.5,x"}, ["--data", markers_file, "--method", "lm", "--budget", 10, "--known-shape", "0.5,x"]),
+        ((None, markers_file), {"method": "lm", "budget": 10, "known_shape": "height:2.6"}, ["--data", markers_file, "--method", "lm", "--budget", 10, "--known-shape", "height:2.6"]),
     ]
     for args, kwargs, flags in cases:
         with pytest.raises(lfit.LfitError) as e:
@@ -258,6 +259,21 @@ def test_neural_fit_and_a_checkpoint_of_another_model(makehuman, markers_file, c
     p = cli("fit", "--data", other, "--method", "neural", "--budget", 10, "--checkpoint", ck, "--out", never, check=False)
     assert p.returncode == 1 and p.stderr.strip() == f"error: {one_line(e)}", (p.stderr, str(e.value))
     assert not never.exists()
+
+
+def test_a_height_gives_the_cli_s_shape(makehuman, markers_file, cli, tmp_path):
+    """known_shape="height:M": every frame gets the CLI's β of that height, frozen."""
+    out = tmp_path / "cli.json"
+    cli("fit", "--data", markers_file, "--model", ROOT / "models" / "makehuman-cmu_mb.npz",
+        "--method", "lm", "--budget", 60, "--frames", "0..3", "--known-shape", "height:1.72",
+        "--out", out)
+    theirs = json.loads(out.read_text())
+    ours = lfit.fit(makehuman, markers_file, method="lm", budget=60, frames="0..3",
+                    known_shape="height:1.72")
+    beta = theirs["known_shape"]["beta"]
+    assert theirs["known_shape"]["height_m"] == 1.72 and np.abs(beta).max() > 0
+    np.testing.assert_array_equal(ours.shapes, [beta] * 3)
+    np.testing.assert_array_equal(ours.poses, [r["pose"] for r in theirs["frames"]])
 
 
 def test_one_shape_per_sequence_equals_the_cli(makehuman, cli, tmp_path):

@@ -135,6 +135,35 @@ fn placement_hint(
         })
 }
 
+/// Whether a fit's β left the subject's size to its box: an entry of the shape block at
+/// ±[`lfit_model::pose::SHAPE_BOUND`]. Where the observations leave the body's size open (one
+/// camera trades size against depth) a per-frame β runs along that valley until the box stops it:
+/// on a one-camera keypoints2d sequence (`configs/rigs/phone-1.json`, CMU subject 6, 100 frames)
+/// LM with `--dofs anchored:5` ended 75 frames there at 401 mm V2V, against none of the frames
+/// of the two- and three-camera rigs (`docs/results/captured-motion.md`, round 32).
+fn shape_at_bound(template: &Template, pose: &[f64]) -> bool {
+    let shape = template.layout().range(lfit_model::layout::Block::Shape);
+    pose[shape]
+        .iter()
+        .any(|b| b.abs() >= lfit_model::pose::SHAPE_BOUND * (1.0 - 1e-9))
+}
+
+/// The summary's `shape_hint` where `at_bound` of `frames` fitted frames ended with β at its box
+/// ([`shape_at_bound`]): the fit's size is the box's, not the subject's. `None` when none did.
+fn shape_hint(at_bound: usize, frames: usize, sequence: bool) -> Option<String> {
+    (at_bound > 0).then(|| {
+        let fix = if sequence {
+            "give β or the subject's height (--known-shape height:M), or fix one β over the sequence (--sequence-shape first-pass)"
+        } else {
+            "give β or the subject's height (--known-shape height:M)"
+        };
+        format!(
+            "β reached the ±{} bound of its box in {at_bound} of {frames} frames: the observations leave the body's size open (one camera trades size against depth), and those fits take the box's size, not the subject's; {fix}",
+            lfit_model::pose::SHAPE_BOUND
+        )
+    })
+}
+
 /// A frame's distances to observations into its row: `{prefix}_error_{unit}` (mean),
 /// `{prefix}_rms_{unit}`, `{prefix}_max_{unit}` and `seen` (how many).
 fn errors_json(
@@ -192,7 +221,8 @@ pub struct FitArgs {
     /// `burn` or `ort`, and ONNX Runtime's intra-op threads.
     pub runtime: String,
     pub ort_threads: Option<usize>,
-    /// `--known-shape`: `truth` or comma-separated β values ([`crate::fitting::KnownShape`]).
+    /// `--known-shape`: `truth`, `height:M` or comma-separated β values
+    /// ([`crate::fitting::KnownShape`]).
     pub known_shape: Option<String>,
     /// `--sequence-shape`: `per-frame`, `first-pass`, `joint` or `joint:N`
     /// ([`crate::fitting::SequenceShape`]).
@@ -469,6 +499,15 @@ fn fit_prepared(
     } = prepared;
     let (strategy, sequence_shape, preset_name, step_scale, cma) =
         (*strategy, *sequence_shape, *preset_name, *step_scale, *cma);
+    // `--known-shape height:M` becomes the β of that height on this model.
+    let height = match known_shape {
+        Some(crate::fitting::KnownShape::Height(h)) => Some(*h),
+        _ => None,
+    };
+    let known_shape = known_shape
+        .as_ref()
+        .map(|k| k.resolve(&template))
+        .transpose()?;
     let fitter = fitter.as_ref();
     // `--offsets`: the dataset's sensor with its points where an earlier fit put them.
     let placed;
@@ -517,6 +556,8 @@ fn fit_prepared(
     let mut rows = Vec::with_capacity(frames.len());
     let mut sum_coeff = 0.0;
     let mut sum_shape_v2v = 0.0;
+    // Frames whose estimated β ended at its box (none counted where β is given).
+    let mut shape_at_bound_frames = 0usize;
     let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
     let mut sum_pa_mpjpe = 0.0;
     // Without ground truth (imported observations): how far the fit lies from the observations.
@@ -570,6 +611,9 @@ fn fit_prepared(
             }
             if holdout.is_some() {
                 fitted_poses.push((rows.len(), frame, pose.clone()));
+            }
+            if known_shape.is_none() && shape_at_bound(&template, pose) {
+                shape_at_bound_frames += 1;
             }
             if let Some(gt) = dataset.ground_truth(frame) {
                 let truth = TruthMesh::new(&template, gt);
@@ -709,6 +753,14 @@ fn fit_prepared(
     if let Some(pass) = &report.shape_pass {
         summary["shape_pass"] = json!(pass);
     }
+    if known_shape.is_none() && template.layout().shape > 0 {
+        summary["shape_at_bound_frames"] = json!(shape_at_bound_frames);
+        let sequence = scenario == lfit_synth::Scenario::Sequence;
+        if let Some(hint) = shape_hint(shape_at_bound_frames, frames.len(), sequence) {
+            eprintln!("warning: {hint}");
+            summary["shape_hint"] = json!(hint);
+        }
+    }
     let mut out = json!({
         "method": fitter.name(),
         "budget": args.budget,
@@ -731,6 +783,10 @@ fn fit_prepared(
     });
     if let Some(h) = &holdout {
         out["holdout"] = json!(h.items);
+    }
+    if let (Some(h), Some(crate::fitting::KnownShape::Given(beta))) = (height, &known_shape) {
+        // The β every frame was given, from the subject's height.
+        out["known_shape"] = json!({ "height_m": h, "beta": beta });
     }
     if let Some((o, _)) = offsets {
         // Where the points sat: the file, and the offsets it gave.

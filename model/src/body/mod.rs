@@ -15,6 +15,7 @@ pub mod rig;
 pub mod rotation;
 pub mod skeleton;
 pub mod skinning;
+pub mod stature;
 pub mod template;
 
 pub use info::ModelInfo;
