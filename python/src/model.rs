@@ -263,6 +263,38 @@ impl Model {
         }
     }
 
+    /// The β of least norm whose rest mesh is `height` metres tall, sole to crown — the shape
+    /// prior's most likely body of that stature (`lfit fit --known-shape height:M`,
+    /// `lfit_model::stature::shape_for_height`): `(B,)` float64. A height out of the shape
+    /// box's reach, or not a positive number: `LfitError`.
+    fn shape_for_height<'py>(&self, py: Python<'py>, height: f64) -> PyResult<Bound<'py, PyAny>> {
+        let beta = lfit::model::stature::shape_for_height(&self.template, height)
+            .map_err(|e| bad(format!("height: {e}")))?;
+        let n = beta.len();
+        array_nd(py, beta, &[n])
+    }
+
+    /// The rest mesh's height in metres (its vertical extent, sole to crown) at shape `shape`
+    /// (`(≤B,)`, zero-padded; default the mean shape): `lfit_model::stature::rest_height`.
+    #[pyo3(signature = (shape=None))]
+    fn rest_height(&self, shape: Option<&Bound<'_, PyAny>>) -> PyResult<f64> {
+        let b = self.template.layout().shape;
+        let beta = match shape {
+            Some(s) => {
+                let f = floats(s, "shape")?.finite("shape")?;
+                if f.shape.len() != 1 || f.data.len() > b {
+                    return Err(bad(format!(
+                        "shape has shape {}, expected (≤{b},)",
+                        crate::convert::shape_text(&f.shape)
+                    )));
+                }
+                f.data
+            }
+            None => Vec::new(),
+        };
+        Ok(lfit::model::stature::rest_height(&self.template, &beta).0)
+    }
+
     fn __repr__(&self) -> String {
         let l = self.template.layout();
         format!(

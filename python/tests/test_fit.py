@@ -274,6 +274,17 @@ def test_a_height_gives_the_cli_s_shape(makehuman, markers_file, cli, tmp_path):
     assert theirs["known_shape"]["height_m"] == 1.72 and np.abs(beta).max() > 0
     np.testing.assert_array_equal(ours.shapes, [beta] * 3)
     np.testing.assert_array_equal(ours.poses, [r["pose"] for r in theirs["frames"]])
+    # The model's own: the same β, that tall; the mean shape's height; bad heights refused.
+    np.testing.assert_array_equal(makehuman.shape_for_height(1.72), beta)
+    assert abs(makehuman.rest_height(beta) - 1.72) < 1e-9
+    assert abs(makehuman.rest_height() - 1.666) < 1e-3
+    assert makehuman.rest_height(np.zeros(3)) == makehuman.rest_height()
+    with pytest.raises(lfit.LfitError, match="out of reach"):
+        makehuman.shape_for_height(2.6)
+    with pytest.raises(lfit.LfitError, match="positive number of metres"):
+        makehuman.shape_for_height(-1.0)
+    with pytest.raises(lfit.LfitError, match=r"shape has shape \(17,\)"):
+        makehuman.rest_height(np.zeros(17))
 
 
 def test_one_shape_per_sequence_equals_the_cli(makehuman, cli, tmp_path):

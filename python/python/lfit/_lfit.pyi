@@ -69,6 +69,12 @@ class Model:
         """Posed ``(vertices, joints)``: ``(V, 3), (J, 3)`` for ``params`` ``(P,)``, or
         ``(N, V, 3), (N, J, 3)`` for ``(N, P)``; P is ``dim`` or ``pose_dim`` (then ``shape``
         and ``expression`` may be given, zero-padded)."""
+    def shape_for_height(self, height: float) -> _F64:
+        """The β ``(B,)`` of least norm whose rest mesh is ``height`` metres tall, sole to
+        crown: the shape prior's most likely body of that stature (``lfit fit --known-shape
+        height:M``)."""
+    def rest_height(self, shape: Optional[_Array] = None) -> float:
+        """The rest mesh's height in metres at ``shape`` ``(≤B,)`` (default the mean shape)."""
 
 class Dataset:
     """Frames of observations with start poses and, when synthetic, the ground truth."""
