@@ -269,7 +269,7 @@ impl Model {
     /// box's reach, or not a positive number: `LfitError`.
     fn shape_for_height<'py>(&self, py: Python<'py>, height: f64) -> PyResult<Bound<'py, PyAny>> {
         let beta = lfit::model::stature::shape_for_height(&self.template, height)
-            .map_err(|e| bad(format!("height: {e}")))?;
+            .map_err(|e| bad(e.to_string()))?;
         let n = beta.len();
         array_nd(py, beta, &[n])
     }
