@@ -239,25 +239,32 @@ pub struct FitReport {
     pub shape_pass: Option<ShapePass>,
 }
 
-/// Where a known shape β comes from (`lfit fit --known-shape`, bench `known_shape`).
+/// Where a known shape β comes from (`lfit fit --known-shape`, bench `known_shape`), once the
+/// model is known ([`KnownShapeArg::resolve`]).
 #[derive(Debug, Clone, PartialEq)]
 pub enum KnownShape {
     /// Each frame's ground-truth β (synthetic data; papers/002 §3.2 uses the truth).
     Truth,
-    /// One β for every frame (a subject measured beforehand).
+    /// One β for every frame (a subject measured beforehand, or the β of a height).
     Given(Vec<f64>),
+}
+
+/// `--known-shape` as given: a [`KnownShape`], or the subject's height, which needs the model
+/// to become one.
+#[derive(Debug, Clone, PartialEq)]
+pub enum KnownShapeArg {
+    Shape(KnownShape),
     /// The subject's height in metres: the most likely β of that stature
-    /// ([`lfit_model::stature::shape_for_height`]), made a [`KnownShape::Given`] by
-    /// [`KnownShape::resolve`] once the model is known.
+    /// ([`lfit_model::stature::shape_for_height`]).
     Height(f64),
 }
 
-impl std::str::FromStr for KnownShape {
+impl std::str::FromStr for KnownShapeArg {
     type Err = anyhow::Error;
     /// `truth`, `height:M` (metres), or the comma-separated β values.
     fn from_str(s: &str) -> Result<Self> {
         if s == "truth" {
-            return Ok(Self::Truth);
+            return Ok(Self::Shape(KnownShape::Truth));
         }
         if let Some(h) = s.strip_prefix("height:") {
             return h
@@ -280,7 +287,21 @@ impl std::str::FromStr for KnownShape {
                     .with_context(|| format!("--known-shape: '{v}' is not a finite number (expected 'truth', 'height:M' or comma-separated β values)"))
             })
             .collect::<Result<Vec<f64>>>()?;
-        Ok(Self::Given(values))
+        Ok(Self::Shape(KnownShape::Given(values)))
+    }
+}
+
+impl KnownShapeArg {
+    /// The shape on `template`: a height becomes the β of that height
+    /// ([`lfit_model::stature::shape_for_height`]).
+    pub fn resolve(&self, template: &Template) -> Result<KnownShape> {
+        match self {
+            Self::Shape(k) => Ok(k.clone()),
+            Self::Height(h) => Ok(KnownShape::Given(
+                lfit_model::stature::shape_for_height(template, *h)
+                    .with_context(|| format!("--known-shape height:{h}"))?,
+            )),
+        }
     }
 }
 
@@ -291,18 +312,6 @@ impl KnownShape {
             bail!("strategy shape-first fits the shape first: it needs the shape free");
         }
         Ok(())
-    }
-
-    /// This shape on `template`: a [`KnownShape::Height`] becomes the β of that height
-    /// ([`lfit_model::stature::shape_for_height`]); the others are returned as they are.
-    pub fn resolve(&self, template: &Template) -> Result<Self> {
-        match self {
-            Self::Height(h) => Ok(Self::Given(
-                lfit_model::stature::shape_for_height(template, *h)
-                    .with_context(|| format!("--known-shape height:{h}"))?,
-            )),
-            other => Ok(other.clone()),
-        }
     }
 
     /// Checks the shape against the dataset and model before any fit runs.
@@ -323,10 +332,6 @@ impl KnownShape {
                 v.len(),
                 template.id
             ),
-            Self::Height(h) => bail!(
-                "--known-shape height:{h}: not resolved to β on model '{}' (KnownShape::resolve)",
-                template.id
-            ),
             _ => Ok(()),
         }
     }
@@ -336,8 +341,6 @@ impl KnownShape {
         match self {
             Self::Truth => &dataset.gt_poses[frame][template.layout().range(Block::Shape)],
             Self::Given(v) => v,
-            // Refused by `check`, which every plan's mask runs before a fit.
-            Self::Height(_) => &[],
         }
     }
 }

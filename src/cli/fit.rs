@@ -222,7 +222,7 @@ pub struct FitArgs {
     pub runtime: String,
     pub ort_threads: Option<usize>,
     /// `--known-shape`: `truth`, `height:M` or comma-separated β values
-    /// ([`crate::fitting::KnownShape`]).
+    /// ([`crate::fitting::KnownShapeArg`]).
     pub known_shape: Option<String>,
     /// `--sequence-shape`: `per-frame`, `first-pass`, `joint` or `joint:N`
     /// ([`crate::fitting::SequenceShape`]).
@@ -244,7 +244,7 @@ pub struct FitArgs {
 /// neural checkpoint loaded) and the energy configuration.
 struct Prepared {
     strategy: Strategy,
-    known_shape: Option<crate::fitting::KnownShape>,
+    known_shape: Option<crate::fitting::KnownShapeArg>,
     sequence_shape: crate::fitting::SequenceShape,
     marker_placement: crate::fitting::MarkerPlacement,
     /// `--offsets`, read: the offsets and what they place (`"marker"` or `"keypoint"`, `None`
@@ -272,7 +272,7 @@ fn prepare(
         bail!("--budget must be at least 1 evaluation");
     }
     let strategy: Strategy = args.strategy.parse()?;
-    let known_shape: Option<crate::fitting::KnownShape> =
+    let known_shape: Option<crate::fitting::KnownShapeArg> =
         args.known_shape.as_deref().map(str::parse).transpose()?;
     if known_shape.is_some() {
         crate::fitting::KnownShape::check_strategy(strategy).context("--known-shape")?;
@@ -501,7 +501,7 @@ fn fit_prepared(
         (*strategy, *sequence_shape, *preset_name, *step_scale, *cma);
     // `--known-shape height:M` becomes the β of that height on this model.
     let height = match known_shape {
-        Some(crate::fitting::KnownShape::Height(h)) => Some(*h),
+        Some(crate::fitting::KnownShapeArg::Height(h)) => Some(*h),
         _ => None,
     };
     let known_shape = known_shape
