@@ -54,7 +54,6 @@ pub fn shape_for_height(template: &Template, height_m: f64) -> Result<Vec<f64>> 
             "height {height_m}: must be a positive number of metres"
         )));
     }
-    let (mean, ..) = rest_height(template, &[]);
     let mut beta = vec![0.0; b];
     let mut pair = None;
     for _ in 0..32 {
@@ -90,6 +89,7 @@ pub fn shape_for_height(template: &Template, height_m: f64) -> Result<Vec<f64>> 
     let (reached, ..) = rest_height(template, &beta);
     let bound = SHAPE_BOUND;
     if beta.iter().any(|x| x.abs() > bound) || (reached - height_m).abs() > 1e-6 {
+        let (mean, ..) = rest_height(template, &[]);
         return Err(ModelError::Config(format!(
             "height {height_m} m is out of reach of model '{}' within its shape box (±{bound}; its mean shape is {mean:.3} m tall)",
             template.id
