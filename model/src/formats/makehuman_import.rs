@@ -1567,8 +1567,7 @@ pub fn import(opts: &ImportOptions) -> Result<(Template, ImportReport)> {
     }
     let morph = Morph::new(mean.clone(), bcount, 0, dirs, None, Some(regressor));
     let template = template.with_morph(morph, info)?;
-    let ys = mean.iter().map(|v| v.y);
-    let mean_height_m = ys.clone().fold(f64::MIN, f64::max) - ys.fold(f64::MAX, f64::min);
+    let (mean_height_m, ..) = crate::stature::rest_height(&template, &[]);
     let report = ImportReport {
         rig: opts.rig.clone(),
         vertices: nb,
