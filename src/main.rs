@@ -534,6 +534,12 @@ struct FitCmd {
     // A β list may start with a minus sign (`-0.5,1.2,…`): a value, not a flag.
     #[arg(long, allow_hyphen_values = true)]
     known_shape: Option<String>,
+    /// The subject's height as a soft measurement, `M` or `M:STD` in metres (default STD
+    /// 0.01: a measured stature; a self-reported one wants 0.03): one more row of the energy,
+    /// `(h(β) − M)/STD` weighted like one observed marker or keypoint, h the rest mesh's
+    /// height sole to crown; β stays estimated. Not with --known-shape.
+    #[arg(long)]
+    height_prior: Option<String>,
     /// Tensor backend of the neural fitter: ndarray, flex or wgpu.
     #[arg(long, default_value = "flex")]
     device: String,
@@ -834,6 +840,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 runtime: c.runtime,
                 ort_threads: c.ort_threads,
                 known_shape: c.known_shape,
+                height_prior: c.height_prior,
                 sequence_shape: c.sequence_shape,
                 marker_placement: c.marker_placement,
                 offsets: c.offsets,

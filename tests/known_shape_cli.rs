@@ -448,4 +448,77 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
         assert_one_line_error(&out, want);
         assert!(!tmp.path().join("bad.json").exists());
     }
+
+    // The height as a soft measurement (`--height-prior M[:STD]`): β stays estimated in each
+    // frame, its rest height held near M (every row's `rest_height_m` measured again from its
+    // β), and the size one camera leaves open closes as with the height given; a wider STD
+    // holds it less tightly.
+    let heights = |r: &serde_json::Value| -> Vec<f64> {
+        let got: Vec<f64> = r["frames"]
+            .as_array()
+            .expect("frames")
+            .iter()
+            .map(|f| f["rest_height_m"].as_f64().expect("rest_height_m"))
+            .collect();
+        for (h, b) in got.iter().zip(shapes(r)) {
+            assert_eq!(*h, lfit::model::stature::rest_height(&template, &b).0);
+        }
+        got
+    };
+    let off = |hs: &[f64]| hs.iter().map(|h| (h - height).abs()).sum::<f64>() / hs.len() as f64;
+    let (soft, stderr) = fit("phone-1", &["--height-prior", &height.to_string()]);
+    assert_eq!(soft["height_prior"]["height_m"], height);
+    assert_eq!(soft["height_prior"]["std_m"], 0.01);
+    let held = heights(&soft);
+    let mean = soft["summary"]["mean_rest_height_m"]
+        .as_f64()
+        .expect("mean");
+    assert!((mean - held.iter().sum::<f64>() / 30.0).abs() < 1e-12);
+    assert!(off(&held) < 0.02, "rest heights {held:?} against {height}");
+    let betas = shapes(&soft);
+    assert!(
+        betas.iter().any(|b| *b != betas[0]),
+        "β estimated per frame"
+    );
+    assert!(
+        v2v(&soft) < 0.5 * v2v(&phone),
+        "height prior {} mm, per-frame β {} mm",
+        v2v(&soft),
+        v2v(&phone)
+    );
+    let bound = |r: &serde_json::Value| r["summary"]["shape_at_bound_frames"].as_u64();
+    assert!(bound(&soft) < bound(&phone), "{}", soft["summary"]);
+    assert!(
+        !stderr.contains("warning:") || bound(&soft) > Some(0),
+        "{stderr}"
+    );
+    let (loose, _) = fit("phone-1", &["--height-prior", &format!("{height}:0.05")]);
+    assert_eq!(loose["height_prior"]["std_m"], 0.05);
+    assert!(
+        off(&heights(&loose)) > off(&held),
+        "σ 5 cm holds less than 1 cm"
+    );
+    for (bad, want) in [
+        ("tall", "--height-prior 'tall'"),
+        ("1.7:0", "positive numbers of metres"),
+        ("0", "positive numbers of metres"),
+    ] {
+        let (data, bad_out) = (tmp.path().join("phone-1.npz"), tmp.path().join("bad.json"));
+        let more = ["--template", path_str(&model), "--height-prior", bad];
+        let out = lfit(&support::lm_fit_args(&data, &bad_out, "10", &more));
+        assert_one_line_error(&out, want);
+        assert!(!bad_out.exists());
+    }
+    let (data, bad_out) = (tmp.path().join("phone-1.npz"), tmp.path().join("bad.json"));
+    let more = [
+        "--template",
+        path_str(&model),
+        "--height-prior",
+        "1.7",
+        "--known-shape",
+        "truth",
+    ];
+    let out = lfit(&support::lm_fit_args(&data, &bad_out, "10", &more));
+    assert_one_line_error(&out, "use one");
+    assert!(!bad_out.exists());
 }

@@ -305,6 +305,26 @@ fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
     ))
 }
 
+/// `height_prior`: None, the subject's height in metres, `"M"` / `"M:STD"` (`lfit fit
+/// --height-prior`) or a pair `(M, STD)`.
+fn height_prior_arg(h: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
+    let Some(h) = h.filter(|h| !h.is_none()) else {
+        return Ok(None);
+    };
+    if let Ok(s) = h.extract::<String>() {
+        return Ok(Some(s));
+    }
+    if let Ok(m) = h.extract::<f64>() {
+        return Ok(Some(m.to_string()));
+    }
+    if let Ok((m, std)) = h.extract::<(f64, f64)>() {
+        return Ok(Some(format!("{m}:{std}")));
+    }
+    Err(bad(
+        "height_prior: expected metres (a number), 'M:STD' or a pair (M, STD)",
+    ))
+}
+
 /// Fits the frames of `data` as `lfit fit` does, with the same settings and the same result.
 ///
 /// `model`: the dataset's model (a `Model`, path or name; default: the procedural body the
@@ -312,7 +332,9 @@ fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
 /// `lbfgs`, `cma`, `pso`, `de`, ... or `neural`/`neural+lm` (with `checkpoint`; needs a wheel
 /// built with the `neural` feature). `budget`: energy evaluations per frame. `frames`: a
 /// `--frames` string or a sequence of indices. `known_shape`: `"truth"`, `"height:M"` (the
-/// subject's height in metres: the most likely β that tall) or β. `dofs`: `"all"`,
+/// subject's height in metres: the most likely β that tall) or β. `height_prior`: the
+/// subject's height as a soft measurement with β estimated — metres, `"M:STD"` or `(M, STD)`
+/// (`lfit fit --height-prior`; not with `known_shape`). `dofs`: `"all"`,
 /// `"observed"`, `"observed:DEG"`, `"anchored"`, `"anchored:DEG"`, `"anchored:DEG,MM"` or
 /// `"observed[:DEG]+anchored[:DEG[,MM]]"` (`lfit fit --dofs`, the network's too; default the
 /// method's own).
@@ -328,7 +350,7 @@ fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
 /// `progress(done, total)` is called after each frame. Runs with the GIL released; Ctrl-C stops
 /// it between frames (`KeyboardInterrupt`).
 #[pyfunction]
-#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", neural_iterations=None, neural_tolerance=None, sequence_shape="per-frame", marker_placement="model", offsets=None, holdout=None, dofs=None, device="flex", runtime="burn", ort_threads=None, progress=None))]
+#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, height_prior=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", neural_iterations=None, neural_tolerance=None, sequence_shape="per-frame", marker_placement="model", offsets=None, holdout=None, dofs=None, device="flex", runtime="burn", ort_threads=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn fit(
     py: Python<'_>,
@@ -338,6 +360,7 @@ pub fn fit(
     budget: usize,
     checkpoint: Option<PathBuf>,
     known_shape: Option<&Bound<'_, PyAny>>,
+    height_prior: Option<&Bound<'_, PyAny>>,
     frames: Option<&Bound<'_, PyAny>>,
     seed: u64,
     strategy: &str,
@@ -393,6 +416,7 @@ pub fn fit(
         runtime: runtime.to_string(),
         ort_threads,
         known_shape: known_shape_arg(known_shape)?,
+        height_prior: height_prior_arg(height_prior)?,
         sequence_shape: sequence_shape.to_string(),
         marker_placement: marker_placement.to_string(),
         offsets,

@@ -287,6 +287,42 @@ def test_a_height_gives_the_cli_s_shape(makehuman, markers_file, cli, tmp_path):
         makehuman.rest_height(np.zeros(17))
 
 
+def test_a_height_prior_is_the_cli_s(makehuman, markers_file, cli, tmp_path):
+    """height_prior=: the CLI's --height-prior fits bit for bit in each of its forms; β stays
+    estimated and its rest height moves toward the prior's; bad forms are the CLI's errors."""
+    model = ROOT / "models" / "makehuman-cmu_mb.npz"
+    out = tmp_path / "cli.json"
+    cli("fit", "--data", markers_file, "--model", model, "--method", "lm", "--budget", 60,
+        "--frames", "0..3", "--height-prior", "1.85:0.02", "--out", out)
+    theirs = json.loads(out.read_text())
+    assert theirs["height_prior"] == {"height_m": 1.85, "std_m": 0.02}
+    for form in [(1.85, 0.02), "1.85:0.02"]:
+        ours = lfit.fit(makehuman, markers_file, method="lm", budget=60, frames="0..3",
+                        height_prior=form)
+        np.testing.assert_array_equal(ours.poses, [r["pose"] for r in theirs["frames"]])
+        np.testing.assert_array_equal(ours.shapes, [r["shape"] for r in theirs["frames"]])
+    assert [makehuman.rest_height(b) for b in ours.shapes] == \
+        [r["rest_height_m"] for r in theirs["frames"]]
+    free = lfit.fit(makehuman, markers_file, method="lm", budget=60, frames="0..3")
+    assert not (ours.shapes == ours.shapes[0]).all(), "β per frame"
+    for b, f in zip(ours.shapes, free.shapes):
+        assert abs(makehuman.rest_height(b) - 1.85) < abs(makehuman.rest_height(f) - 1.85)
+    # A bare number: the default standard deviation (0.01 m), the CLI's "1.85".
+    bare = lfit.fit(makehuman, markers_file, method="lm", budget=60, frames="0..3",
+                    height_prior=1.85)
+    cli("fit", "--data", markers_file, "--model", model, "--method", "lm", "--budget", 60,
+        "--frames", "0..3", "--height-prior", "1.85", "--out", out)
+    np.testing.assert_array_equal(bare.poses, [r["pose"] for r in json.loads(out.read_text())["frames"]])
+    with pytest.raises(lfit.LfitError, match="--height-prior 'tall'"):
+        lfit.fit(makehuman, markers_file, method="lm", budget=5, frames="0", height_prior="tall")
+    with pytest.raises(lfit.LfitError, match="height_prior: expected metres"):
+        lfit.fit(makehuman, markers_file, method="lm", budget=5, frames="0",
+                 height_prior=(1.7, 0.01, 3))
+    with pytest.raises(lfit.LfitError, match="use one"):
+        lfit.fit(makehuman, markers_file, method="lm", budget=5, frames="0",
+                 height_prior=1.7, known_shape="height:1.7")
+
+
 def test_one_shape_per_sequence_equals_the_cli(makehuman, cli, tmp_path):
     """sequence_shape="joint": one β for the whole sequence (solved with every frame's pose),
     the CLI's bit for bit; the policy names are the CLI's."""

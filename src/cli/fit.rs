@@ -224,6 +224,8 @@ pub struct FitArgs {
     /// `--known-shape`: `truth`, `height:M` or comma-separated β values
     /// ([`crate::fitting::KnownShapeArg`]).
     pub known_shape: Option<String>,
+    /// `--height-prior`: `M` or `M:STD` in metres ([`crate::fitting::HeightPriorArg`]).
+    pub height_prior: Option<String>,
     /// `--sequence-shape`: `per-frame`, `first-pass`, `joint` or `joint:N`
     /// ([`crate::fitting::SequenceShape`]).
     pub sequence_shape: String,
@@ -245,6 +247,7 @@ pub struct FitArgs {
 struct Prepared {
     strategy: Strategy,
     known_shape: Option<crate::fitting::KnownShapeArg>,
+    height_prior: Option<crate::fitting::HeightPriorArg>,
     sequence_shape: crate::fitting::SequenceShape,
     marker_placement: crate::fitting::MarkerPlacement,
     /// `--offsets`, read: the offsets and what they place (`"marker"` or `"keypoint"`, `None`
@@ -276,6 +279,13 @@ fn prepare(
         args.known_shape.as_deref().map(str::parse).transpose()?;
     if known_shape.is_some() {
         crate::fitting::KnownShape::check_strategy(strategy).context("--known-shape")?;
+    }
+    let height_prior: Option<crate::fitting::HeightPriorArg> =
+        args.height_prior.as_deref().map(str::parse).transpose()?;
+    if height_prior.is_some() && known_shape.is_some() {
+        bail!(
+            "--height-prior informs an estimated β, --known-shape gives β: use one (--known-shape height:M fixes the most likely β of a height)"
+        );
     }
     let sequence_shape: crate::fitting::SequenceShape =
         args.sequence_shape.parse().context("--sequence-shape")?;
@@ -374,6 +384,7 @@ fn prepare(
     Ok(Prepared {
         strategy,
         known_shape,
+        height_prior,
         sequence_shape,
         marker_placement,
         offsets,
@@ -487,6 +498,7 @@ fn fit_prepared(
     let Prepared {
         strategy,
         known_shape,
+        height_prior,
         sequence_shape,
         marker_placement,
         offsets,
@@ -508,6 +520,11 @@ fn fit_prepared(
         .as_ref()
         .map(|k| k.resolve(&template))
         .transpose()?;
+    // `--height-prior`: the stature as one more measurement in every frame's energy.
+    let height_prior = height_prior
+        .map(|h| lfit_model::energy::HeightPrior::new(&template, h.height_m, h.std_m))
+        .transpose()
+        .context("--height-prior")?;
     let fitter = fitter.as_ref();
     // `--offsets`: the dataset's sensor with its points where an earlier fit put them.
     let placed;
@@ -556,6 +573,8 @@ fn fit_prepared(
     let mut rows = Vec::with_capacity(frames.len());
     let mut sum_coeff = 0.0;
     let mut sum_shape_v2v = 0.0;
+    // With `--height-prior`: the fitted β's rest heights.
+    let mut sum_rest_height = 0.0;
     // Frames whose estimated β ended at its box (none counted where β is given).
     let mut shape_at_bound_frames = 0usize;
     let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
@@ -583,12 +602,19 @@ fn fit_prepared(
     }
     plan.check_marker_placement()?;
     let mask = plan.mask()?;
+    let frame_energy = |frame: usize| -> Result<lfit_model::energy::Energy> {
+        let e = energy_for_frame(dataset, template.clone(), frame, config.clone())?;
+        Ok(match &height_prior {
+            Some(p) => e.with_height_prior(p)?,
+            None => e,
+        })
+    };
     let mut done = 0;
     let report = crate::fitting::fit_frames(
         fitter,
         &plan,
         &frames,
-        &|frame| energy_for_frame(&dataset, template.clone(), frame, config.clone()),
+        &frame_energy,
         &|frame| frame_seed(args.seed, frame),
         &mut |fitted| {
             let (frame, result) = (fitted.frame, fitted.result);
@@ -614,6 +640,13 @@ fn fit_prepared(
             }
             if known_shape.is_none() && shape_at_bound(&template, pose) {
                 shape_at_bound_frames += 1;
+            }
+            if height_prior.is_some() {
+                // How tall the fitted β is, beside the prior's height.
+                let beta = &pose[template.layout().range(lfit_model::layout::Block::Shape)];
+                let (h, ..) = lfit_model::stature::rest_height(&template, beta);
+                row["rest_height_m"] = json!(h);
+                sum_rest_height += h;
             }
             if let Some(gt) = dataset.ground_truth(frame) {
                 let truth = TruthMesh::new(&template, gt);
@@ -650,8 +683,7 @@ fn fit_prepared(
                 // where it put them (a solved placement is known once the β pass is done).
                 observed.push((rows.len(), frame, pose.clone()));
                 if !result.iterates.is_empty() {
-                    let energy =
-                        energy_for_frame(&dataset, template.clone(), frame, config.clone())?;
+                    let energy = frame_energy(frame)?;
                     let per: Vec<f64> = result
                         .iterates
                         .iter()
@@ -708,6 +740,9 @@ fn fit_prepared(
         "mean_energy": sum_e / n,
         "mean_time_s": sum_t / n,
     });
+    if height_prior.is_some() {
+        summary["mean_rest_height_m"] = json!(sum_rest_height / n);
+    }
     if dataset.has_ground_truth() {
         summary["mean_v2v_mm"] = json!(sum_v2v / n);
         summary["mean_mpjpe_mm"] = json!(sum_mpjpe / n);
@@ -787,6 +822,9 @@ fn fit_prepared(
     if let (Some(h), Some(crate::fitting::KnownShape::Given(beta))) = (height, &known_shape) {
         // The β every frame was given, from the subject's height.
         out["known_shape"] = json!({ "height_m": h, "beta": beta });
+    }
+    if let Some(p) = &height_prior {
+        out["height_prior"] = json!({ "height_m": p.height_m(), "std_m": p.std_m() });
     }
     if let Some((o, _)) = offsets {
         // Where the points sat: the file, and the offsets it gave.

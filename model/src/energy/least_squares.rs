@@ -8,6 +8,8 @@
 //! - `EP`: in the capsule form one row per capsule, `√(λ_P κ) ‖((1 − q_ab)₊)_b‖` over the pairs
 //!   it opens; in the vertex form one row per tested vertex, `√(λ_P/N) ‖((1 − q_e)₊)_e‖` over the ellipsoids it is
 //!   tested against (papers/000 eq. 8; the norm keeps one row per vertex, not per pair).
+//! - `height` ([`Energy::with_height_prior`]): one row, `√(λ_data/n) (h(β) − H)/σ`, dense over
+//!   the shape entries.
 //! - `EA`: one row per non-root rotation entry, `√λ_A` times its excess over the limits (the
 //!   [`AnglePrior::Hinge`] form; the binary form of eq. 7 is not a sum of squares).
 //! - `shape`, `expression`: `√λ β_k`, `√λ ψ_k`.
@@ -781,6 +783,12 @@ impl Energy {
             + self.rotation_prior_rows().len()
             + self.template.morph.coefficients()
             + self.anchor.as_ref().map_or(0, |a| a.rows().len())
+            + self.height_rows()
+    }
+
+    /// The height prior's row ([`Energy::with_height_prior`]): one or none.
+    fn height_rows(&self) -> usize {
+        usize::from(self.height.is_some())
     }
 
     /// EP's rows: one per tested vertex (vertex form) or per tested pair of capsules.
@@ -945,7 +953,7 @@ impl Energy {
         let factored = dense_rows == JacobianRows::Factored;
         let dense_to = match (&self.target, factored) {
             (Target::Sparse { values, .. }, true) if with_jacobian => {
-                values.len() + self.penetration_rows() + self.pose_prior_len()
+                values.len() + self.penetration_rows() + self.pose_prior_len() + self.height_rows()
             }
             _ => m,
         };
@@ -1128,6 +1136,19 @@ impl Energy {
             }
             blocks.push(("pose-prior", row..row + rows));
             row += rows;
+        }
+
+        // The height prior's row (dense over the shape entries).
+        if let Some(prior) = &self.height {
+            let (h, g) = prior.measure(&self.template, params, with_jacobian);
+            let c0 = self.height_weight(prior).sqrt();
+            residuals[row] = c0 * (h - prior.height_m);
+            let at = (row * dim + 3 + 3 * self.template.rig.num_joints()).wrapping_sub(off);
+            for (i, gi) in g.iter().enumerate() {
+                jacobian[at + i] = c0 * gi;
+            }
+            blocks.push(("height", row..row + 1));
+            row += 1;
         }
 
         // EA rows (hinge).

@@ -467,6 +467,8 @@ pub struct Energy {
     observed: Arc<VertexSet>,
     /// A pull of some entries toward given values ([`Energy::with_anchor`]); none by default.
     anchor: Option<Arc<Anchor>>,
+    /// A prior on the subject's stature ([`Energy::with_height_prior`]); none by default.
+    height: Option<Arc<HeightPrior>>,
     evaluations: AtomicU64,
     gradient_evaluations: AtomicU64,
 }
@@ -495,6 +497,76 @@ impl Anchor {
     }
 }
 
+/// The `height` term of [`Energy::with_height_prior`]: the subject's stature as one more
+/// measurement, `((h(β) − H) / σ)²` with `h(β)` the rest mesh's height at the frame's shape
+/// ([`crate::stature::rest_height`], sole to crown — what `--known-shape height:M` matches
+/// exactly), weighted like one visible group of the data term (`λ_data / n`, `n` the visible
+/// groups, at least 1): a Gaussian of standard deviation `σ` on the height in the posterior the
+/// data term's likelihood makes. β stays free: the height fixes one direction of it, the
+/// observations the others.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HeightPrior {
+    height_m: f64,
+    std_m: f64,
+    /// The template it was made for (`id`, vertex count), checked where it is used.
+    template: (String, usize),
+    vertices: Arc<crate::stature::StatureVertices>,
+}
+
+impl HeightPrior {
+    /// A prior of `height_m` metres with standard deviation `std_m` on `template`'s rest height.
+    /// One-line errors where the model has no shape coefficients or either number is not finite
+    /// and positive.
+    pub fn new(template: &Template, height_m: f64, std_m: f64) -> Result<Self> {
+        if template.morph.shape == 0 {
+            return Err(ModelError::Config(format!(
+                "a height prior needs a model with shape coefficients: '{}' has none",
+                template.id
+            )));
+        }
+        if !(height_m.is_finite() && height_m > 0.0) {
+            return Err(ModelError::Config(format!(
+                "height prior {height_m}: must be a positive number of metres"
+            )));
+        }
+        if !(std_m.is_finite() && std_m > 0.0) {
+            return Err(ModelError::Config(format!(
+                "height prior standard deviation {std_m}: must be a positive number of metres"
+            )));
+        }
+        Ok(Self {
+            height_m,
+            std_m,
+            template: (template.id.clone(), template.vertices.len()),
+            vertices: Arc::new(crate::stature::StatureVertices::of(template)),
+        })
+    }
+
+    /// The prior's height (metres).
+    pub fn height_m(&self) -> f64 {
+        self.height_m
+    }
+
+    /// Its standard deviation (metres).
+    pub fn std_m(&self) -> f64 {
+        self.std_m
+    }
+
+    /// The rest height at the shape entries of `pose` and the gradient of it with respect to
+    /// those entries (`with_gradient`; empty otherwise).
+    fn measure(&self, template: &Template, pose: &[f64], with_gradient: bool) -> (f64, Vec<f64>) {
+        let base = 3 + 3 * template.rig.num_joints();
+        let beta = pose.get(base..base + template.morph.shape).unwrap_or(&[]);
+        let (h, top, sole) = self.vertices.height(template, beta);
+        let g = if with_gradient {
+            crate::stature::height_gradient(template, top, sole)
+        } else {
+            Vec::new()
+        };
+        (h, g)
+    }
+}
+
 impl Clone for Energy {
     /// A copy with fresh (zero) counters.
     fn clone(&self) -> Self {
@@ -514,6 +586,7 @@ impl Clone for Energy {
             axes: self.axes.clone(),
             observed: self.observed.clone(),
             anchor: self.anchor.clone(),
+            height: self.height.clone(),
             evaluations: AtomicU64::new(0),
             gradient_evaluations: AtomicU64::new(0),
         }
@@ -646,6 +719,7 @@ impl Energy {
             axes,
             observed,
             anchor: None,
+            height: None,
             evaluations: AtomicU64::new(0),
             gradient_evaluations: AtomicU64::new(0),
         };
@@ -774,6 +848,38 @@ impl Energy {
         let mut energy = self.clone();
         energy.anchor = Some(Arc::new(Anchor { rows }));
         Ok(energy)
+    }
+
+    /// The same energy plus the `height` term ([`HeightPrior`]); replaces an earlier one. Fails
+    /// on a prior made for another model.
+    pub fn with_height_prior(&self, prior: &HeightPrior) -> Result<Self> {
+        if prior.template != (self.template.id.clone(), self.template.vertices.len()) {
+            return Err(ModelError::Config(format!(
+                "a height prior made for model '{}' ({} vertices) cannot serve '{}' ({} vertices)",
+                prior.template.0,
+                prior.template.1,
+                self.template.id,
+                self.template.vertices.len()
+            )));
+        }
+        let mut energy = self.clone();
+        energy.height = Some(Arc::new(prior.clone()));
+        Ok(energy)
+    }
+
+    /// The height term, when [`Energy::with_height_prior`] gave one.
+    pub fn height_prior(&self) -> Option<&HeightPrior> {
+        self.height.as_deref()
+    }
+
+    /// The height term's weight `a` (its value is `a (h − H)²`): one visible group of the data
+    /// term at standard deviation σ.
+    fn height_weight(&self, prior: &HeightPrior) -> f64 {
+        let seen = match &self.target {
+            Target::Sparse { visible, .. } => self.visible_groups(visible),
+            Target::Scan { .. } | Target::Silhouettes { .. } => 1,
+        };
+        self.config.weights.data / seen.max(1) as f64 / (prior.std_m * prior.std_m)
     }
 
     /// How many of the sensor's groups `visible` (a sparse target's flags) sees: the count the
@@ -1056,6 +1162,17 @@ impl Energy {
             if want_grad {
                 for &(i, c, a) in &anchor.rows {
                     grad_direct[i] += 2.0 * a * (pose[i] - c);
+                }
+            }
+        }
+        if let Some(prior) = &self.height {
+            let (h, g) = prior.measure(&self.template, pose, want_grad);
+            let (a, d) = (self.height_weight(prior), h - prior.height_m);
+            terms.push(("height", a * d * d));
+            total += a * d * d;
+            for (i, gi) in g.iter().enumerate() {
+                if let Some(x) = grad_direct.get_mut(base + i) {
+                    *x += 2.0 * a * d * gi;
                 }
             }
         }

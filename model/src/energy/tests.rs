@@ -913,6 +913,86 @@ mod least_squares_form {
         assert!(err.contains("is not finite"), "{err}");
     }
 
+    /// [`Energy::with_height_prior`]: the `height` term `a (h(β) − H)²` with `a = λ_data / (n
+    /// σ²)` (n visible groups) and `h` the rest height ([`crate::stature::rest_height`]) in the
+    /// value, the gradient and as one least-squares row over the shape entries — checked with
+    /// the rest of the energy against finite differences, dense and factored rows giving the
+    /// same normal equations —, zero at the prior's height, carried by copies with another
+    /// target; bad priors refused with the cause.
+    #[test]
+    fn a_height_prior_is_one_measurement_of_the_rest_height_in_every_form() {
+        use rand::SeedableRng;
+        let t = makehuman_body();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(119);
+        let (e, x) = makehuman_energy(&t, Modality::Markers, &mut rng);
+        let dim = t.layout().dim();
+        let shape = t.layout().range(crate::layout::Block::Shape);
+        let (h, ..) = crate::stature::rest_height(&t, &x[shape.clone()]);
+        let prior = HeightPrior::new(&t, h + 0.05, 0.02).unwrap();
+        assert_eq!((prior.height_m(), prior.std_m()), (h + 0.05, 0.02));
+        let with = e.with_height_prior(&prior).unwrap();
+        assert!(e.height_prior().is_none() && with.height_prior().is_some());
+        let Target::Sparse { visible, values } = e.target() else {
+            unreachable!()
+        };
+        let seen = e.groups.iter().filter(|g| visible[g.start]).count();
+        assert!(seen > 30, "{seen} visible markers");
+        let want = e.config().weights.data * (0.05f64 / 0.02).powi(2) / seen as f64;
+        let (plain, got) = (e.evaluate(&x), with.evaluate(&x));
+        assert!((got.term("height").unwrap() - want).abs() <= 1e-9 * want);
+        assert!((got.total - plain.total - want).abs() <= 1e-9 * got.total);
+        assert!(plain.term("height").is_none());
+        assert_eq!(with.residual_count(), e.residual_count() + 1);
+        let active = check(&with, &x, "markers with a height prior");
+        assert!(active.contains(&"height"), "{active:?}");
+        let ls = with.least_squares(&x, true).unwrap();
+        let lf = with
+            .least_squares_with(&x, true, RobustForm::Folded, JacobianRows::Factored)
+            .unwrap();
+        for dofs in column_sets(dim) {
+            assert_eq!(lf.normal_equations(&dofs), ls.normal_equations(&dofs));
+        }
+        // The row reads the shape entries only.
+        let (_, rows) = ls.blocks.iter().find(|(n, _)| *n == "height").unwrap();
+        let row = ls.row(rows.start);
+        assert!((0..dim).all(|c| shape.contains(&c) || row[c] == 0.0));
+        assert!(shape.clone().any(|c| row[c] != 0.0));
+        // At the prior's height the term is zero; with half the markers unseen it weighs twice.
+        let exact = HeightPrior::new(&t, h, 0.02).unwrap();
+        let zero = e.with_height_prior(&exact).unwrap();
+        assert!(zero.evaluate(&x).term("height").unwrap() < 1e-20);
+        let mut half = visible.clone();
+        for g in e.groups.iter().skip(1).step_by(2) {
+            half[g.start..g.start + g.len]
+                .iter_mut()
+                .for_each(|v| *v = false);
+        }
+        let fewer = with.with_target(values.clone(), half.clone()).unwrap();
+        let seen_half = e.groups.iter().filter(|g| half[g.start]).count();
+        let want_half = want * seen as f64 / seen_half as f64;
+        let got_half = fewer.evaluate(&x).term("height").unwrap();
+        assert!(
+            (got_half - want_half).abs() <= 1e-9 * want_half,
+            "{got_half} vs {want_half}"
+        );
+        for (height, std, why) in [
+            (f64::NAN, 0.02, "positive number of metres"),
+            (-1.7, 0.02, "positive number of metres"),
+            (1.7, 0.0, "standard deviation 0: must be a positive"),
+            (1.7, f64::INFINITY, "standard deviation inf"),
+        ] {
+            let err = HeightPrior::new(&t, height, std).unwrap_err().to_string();
+            assert!(err.contains(why), "{why}: {err}");
+        }
+        let rigid = crate::body::procedural::default_template();
+        let err = HeightPrior::new(&rigid, 1.7, 0.02).unwrap_err().to_string();
+        assert!(err.contains("has none"), "{err}");
+        let (other, _) = crate::body::procedural::morphable_default_template().unwrap();
+        let foreign = HeightPrior::new(&other, 1.7, 0.02).unwrap();
+        let err = e.with_height_prior(&foreign).unwrap_err().to_string();
+        assert!(err.contains("cannot serve"), "{err}");
+    }
+
     /// The sensor's vertices shaped once per evaluation ([`Kinematics::shape_vertices`]) give
     /// the value, gradient, residuals and Jacobian of shaping each where it is read, bit for bit
     /// (markers: 39 vertices; hmd: the two hand tips; keypoints2d reads none; the face's

@@ -328,6 +328,7 @@ def fit(
     *,
     checkpoint: Optional[_Path] = None,
     known_shape: Optional[Union[str, _Array]] = None,
+    height_prior: Optional[Union[float, str, Tuple[float, float]]] = None,
     frames: Optional[Union[str, Sequence[int]]] = None,
     seed: int = 0,
     strategy: str = "holistic",
