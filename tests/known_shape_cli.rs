@@ -498,6 +498,16 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
         off(&heights(&loose)) > off(&held),
         "σ 5 cm holds less than 1 cm"
     );
+    // A prior too wide to hold the size: the hint says so and asks for a tighter one or β.
+    let (wide, stderr) = fit("phone-1", &["--height-prior", &format!("{height}:1")]);
+    assert!(bound(&wide) > Some(0), "{}", wide["summary"]);
+    let hint = wide["summary"]["shape_hint"].as_str().expect("a hint");
+    assert!(
+        hint.contains("the height prior did not hold it")
+            && hint.contains("a smaller --height-prior STD")
+            && stderr.contains(hint),
+        "{hint}"
+    );
     for (bad, want) in [
         ("tall", "--height-prior 'tall'"),
         ("1.7:0", "positive numbers of metres"),

@@ -47,7 +47,9 @@ pub fn energy_config(obj: Option<&Bound<'_, PyAny>>) -> PyResult<Option<EnergyCo
 /// `Energy(model, observations=..., sensor=..., visible=None, scenario="global", start=None)` —
 /// `sensor` is a modality name (its default setup for the model) or a dict as
 /// `Dataset.sensor` gives. `config`: a dict or JSON file of the energy configuration; default
-/// the one `lfit fit` uses for gradient methods and LM.
+/// the one `lfit fit` uses for gradient methods and LM. `height_prior`: the subject's height
+/// as a soft measurement in the energy (`lfit fit --height-prior`): metres, `"M:STD"` or
+/// `(M, STD)`.
 #[pyclass(module = "lfit", name = "Energy", frozen)]
 pub struct Energy {
     problem: FrameProblem,
@@ -69,7 +71,7 @@ fn x_of(problem: &FrameProblem, x: &Bound<'_, PyAny>) -> PyResult<Vec<f64>> {
 #[pymethods]
 impl Energy {
     #[new]
-    #[pyo3(signature = (model=None, data=None, frame=0, *, observations=None, visible=None, sensor=None, scenario="global", start=None, config=None))]
+    #[pyo3(signature = (model=None, data=None, frame=0, *, observations=None, visible=None, sensor=None, scenario="global", start=None, config=None, height_prior=None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         model: Option<&Bound<'_, PyAny>>,
@@ -81,7 +83,13 @@ impl Energy {
         scenario: &str,
         start: Option<&Bound<'_, PyAny>>,
         config: Option<&Bound<'_, PyAny>>,
+        height_prior: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
+        let height_prior: Option<lfit::api::HeightPriorArg> =
+            crate::fit::height_prior_arg(height_prior)?
+                .map(|h| h.parse())
+                .transpose()
+                .py_err()?;
         let config =
             energy_config(config)?.unwrap_or_else(|| EnergyConfig::default().for_gradient());
         let data = data.filter(|d| !d.is_none());
@@ -167,6 +175,10 @@ impl Energy {
                 .map_err(|e| crate::convert::err(e.into()))?;
                 FrameProblem::around(energy, scenario, start)
             }
+        };
+        let problem = match height_prior {
+            Some(h) => problem.with_height_prior(h).py_err()?,
+            None => problem,
         };
         Ok(Self { problem })
     }

@@ -307,7 +307,7 @@ fn known_shape_arg(k: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
 
 /// `height_prior`: None, the subject's height in metres, `"M"` / `"M:STD"` (`lfit fit
 /// --height-prior`) or a pair `(M, STD)`.
-fn height_prior_arg(h: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
+pub(crate) fn height_prior_arg(h: Option<&Bound<'_, PyAny>>) -> PyResult<Option<String>> {
     let Some(h) = h.filter(|h| !h.is_none()) else {
         return Ok(None);
     };

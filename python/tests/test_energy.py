@@ -43,6 +43,35 @@ def test_residuals_jacobian_gradient_agree(makehuman, markers):
     assert "total" in e.terms(x)
 
 
+def test_a_height_prior_is_one_more_row(makehuman, markers):
+    """height_prior=: the `lfit fit --height-prior` row, ((h(β) − M)/STD)² over the visible
+    markers' count, in the value, the residuals and the Jacobian; bad forms refused."""
+    plain = lfit.Energy(makehuman, markers, 1)
+    e = lfit.Energy(makehuman, markers, 1, height_prior=(1.85, 0.02))
+    x = e.x0 + 0.01
+    assert e.residual_count == plain.residual_count + 1
+    seen = int(np.asarray(markers.visibility[1]).reshape(-1, 3)[:, 0].sum())
+    start, end = makehuman.layout["blocks"]["shape"]
+    h = makehuman.rest_height(e.full(x)[start:end])
+    want = ((h - 1.85) / 0.02) ** 2 / seen
+    assert e.terms(x)["height"] == pytest.approx(want, rel=1e-9)
+    assert e.value(x) == pytest.approx(plain.value(x) + want, rel=1e-9)
+    r, j = e.residuals_and_jacobian(x)
+    value, grad = e.value_and_grad(x)
+    np.testing.assert_allclose(grad, 2 * j.T @ r, rtol=1e-6, atol=1e-8)
+    h6 = 1e-6
+    fd = np.stack([(e.residuals(x + h6 * np.eye(e.dim)[k]) - e.residuals(x - h6 * np.eye(e.dim)[k])) / (2 * h6) for k in range(e.dim)], axis=1)
+    np.testing.assert_allclose(j, fd, rtol=1e-4, atol=1e-5)
+    # The same energy from the CLI's forms of the prior.
+    for form in ["1.85:0.02", (1.85, 0.02)]:
+        assert lfit.Energy(makehuman, markers, 1, height_prior=form).value(x) == e.value(x)
+    with pytest.raises(lfit.LfitError, match="--height-prior 'tall'"):
+        lfit.Energy(makehuman, markers, 1, height_prior="tall")
+    with pytest.raises(lfit.LfitError, match="a height prior needs a model with shape coefficients"):
+        rigid = lfit.Model.load("default")
+        lfit.Energy(rigid, lfit.synth("markers", rigid, frames=1, seed=1), 0, height_prior=1.7)
+
+
 def test_observations_and_sensor_give_the_dataset_frames_energy(makehuman, markers):
     frame = 2
     from_data = lfit.Energy(makehuman, markers, frame)

@@ -150,12 +150,23 @@ fn shape_at_bound(template: &Template, pose: &[f64]) -> bool {
 
 /// The summary's `shape_hint` where `at_bound` of `frames` fitted frames ended with β at its box
 /// ([`shape_at_bound`]): the fit's size is the box's, not the subject's. `None` when none did.
-fn shape_hint(at_bound: usize, frames: usize, sequence: bool) -> Option<String> {
+/// With `height_prior` (the fit had `--height-prior`) the advice is a tighter one or β.
+fn shape_hint(
+    at_bound: usize,
+    frames: usize,
+    sequence: bool,
+    height_prior: bool,
+) -> Option<String> {
     (at_bound > 0).then(|| {
-        let fix = if sequence {
-            "give β or the subject's height (--known-shape height:M), or fix one β over the sequence (--sequence-shape first-pass)"
+        let give = if height_prior {
+            "the height prior did not hold it: give β or the height as β (--known-shape height:M), or a smaller --height-prior STD"
         } else {
-            "give β or the subject's height (--known-shape height:M)"
+            "give β or the subject's height (--known-shape height:M, or --height-prior M with β estimated)"
+        };
+        let fix = if sequence {
+            format!("{give}, or fix one β over the sequence (--sequence-shape first-pass)")
+        } else {
+            give.to_string()
         };
         format!(
             "β reached the ±{} bound of its box in {at_bound} of {frames} frames: the observations leave the body's size open (one camera trades size against depth), and those fits take the box's size, not the subject's; {fix}",
@@ -791,7 +802,12 @@ fn fit_prepared(
     if known_shape.is_none() && template.layout().shape > 0 {
         summary["shape_at_bound_frames"] = json!(shape_at_bound_frames);
         let sequence = scenario == lfit_synth::Scenario::Sequence;
-        if let Some(hint) = shape_hint(shape_at_bound_frames, frames.len(), sequence) {
+        if let Some(hint) = shape_hint(
+            shape_at_bound_frames,
+            frames.len(),
+            sequence,
+            height_prior.is_some(),
+        ) {
             eprintln!("warning: {hint}");
             summary["shape_hint"] = json!(hint);
         }
@@ -881,6 +897,19 @@ pub struct FrameProblem {
 }
 
 impl FrameProblem {
+    /// The same problem with the subject's height as a soft measurement in its energy
+    /// (`lfit fit --height-prior`, [`lfit_model::energy::HeightPrior`]).
+    pub fn with_height_prior(mut self, prior: crate::fitting::HeightPriorArg) -> Result<Self> {
+        let p = lfit_model::energy::HeightPrior::new(
+            self.energy.template(),
+            prior.height_m,
+            prior.std_m,
+        )
+        .context("--height-prior")?;
+        self.energy = self.energy.with_height_prior(&p)?;
+        Ok(self)
+    }
+
     /// Frame `frame` of `dataset` with `config`: the dataset's start pose, the scenario's free
     /// entries and box around it.
     pub fn from_dataset(

@@ -145,6 +145,7 @@ class Energy:
         scenario: str = "global",
         start: Optional[_Array] = None,
         config: Optional[Union[Dict[str, Any], _Path]] = None,
+        height_prior: Optional[Union[float, str, Tuple[float, float]]] = None,
     ) -> None: ...
     @property
     def dim(self) -> int: ...
