@@ -305,13 +305,23 @@ impl KnownShapeArg {
     }
 }
 
-/// `--height-prior M[:STD]` (Python `height_prior=`): the subject's stature as a soft
-/// measurement beside the observations ([`lfit_model::energy::HeightPrior`]), β otherwise
-/// estimated — where `--known-shape height:M` fixes the most likely β of that height.
+/// `--height-prior M[:STD]` or `truth[:STD]` (Python `height_prior=`, bench `height_prior`):
+/// the subject's stature as a soft measurement beside the observations
+/// ([`lfit_model::energy::HeightPrior`]), β otherwise estimated — where `--known-shape
+/// height:M` fixes the most likely β of that height.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct HeightPriorArg {
-    pub height_m: f64,
+    pub height: HeightOf,
     pub std_m: f64,
+}
+
+/// Whose height [`HeightPriorArg`] gives.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum HeightOf {
+    /// One subject's, in metres.
+    Metres(f64),
+    /// Each frame's ground truth's rest height (synthetic data; a subject per frame).
+    Truth,
 }
 
 /// The height prior's standard deviation when `--height-prior` gives none (metres): a
@@ -323,7 +333,7 @@ pub const HEIGHT_PRIOR_STD_M: f64 = 0.01;
 
 impl std::str::FromStr for HeightPriorArg {
     type Err = anyhow::Error;
-    /// `M` or `M:STD`, both in metres.
+    /// `M`, `M:STD`, `truth` or `truth:STD` (metres).
     fn from_str(s: &str) -> Result<Self> {
         let (h, std) = match s.split_once(':') {
             Some((h, std)) => (h, Some(std)),
@@ -335,14 +345,76 @@ impl std::str::FromStr for HeightPriorArg {
                 .ok()
                 .filter(|x| x.is_finite() && *x > 0.0)
         };
-        let height_m = number(h);
+        let height = if h.trim() == "truth" {
+            Some(HeightOf::Truth)
+        } else {
+            number(h).map(HeightOf::Metres)
+        };
         let std_m = std.map_or(Some(HEIGHT_PRIOR_STD_M), number);
-        match (height_m, std_m) {
-            (Some(height_m), Some(std_m)) => Ok(Self { height_m, std_m }),
+        match (height, std_m) {
+            (Some(height), Some(std_m)) => Ok(Self { height, std_m }),
             _ => bail!(
-                "--height-prior '{s}': expected the subject's height and optionally its standard deviation, positive numbers of metres (M or M:STD, e.g. 1.72 or 1.72:0.03)"
+                "--height-prior '{s}': expected the subject's height and optionally its standard deviation, positive numbers of metres (M or M:STD, e.g. 1.72 or 1.72:0.03; truth[:STD] for each frame's ground truth)"
             ),
         }
+    }
+}
+
+impl HeightPriorArg {
+    /// The result file's `height_prior`: `{"height_m": M | "truth", "std_m": STD}`.
+    pub fn json(&self) -> serde_json::Value {
+        let height = match self.height {
+            HeightOf::Metres(m) => serde_json::json!(m),
+            HeightOf::Truth => serde_json::json!("truth"),
+        };
+        serde_json::json!({ "height_m": height, "std_m": self.std_m })
+    }
+}
+
+/// A [`HeightPriorArg`] on one model: the prior's vertices measured once, each frame's energy
+/// given its prior ([`FrameHeights::apply`]).
+#[derive(Debug, Clone)]
+pub struct FrameHeights {
+    base: lfit_model::energy::HeightPrior,
+    truth: bool,
+}
+
+impl FrameHeights {
+    /// `arg` on `template`; `truth` needs data with ground truth (`has_truth`). One-line errors
+    /// for a model without shape coefficients and `truth` without ground truth.
+    pub fn new(arg: HeightPriorArg, template: &Template, has_truth: bool) -> Result<Self> {
+        let (height, truth) = match arg.height {
+            HeightOf::Metres(m) => (m, false),
+            HeightOf::Truth if !has_truth => bail!(
+                "--height-prior truth: the data have no ground truth (imported observations); give the subject's height in metres"
+            ),
+            // Each frame's height replaces it (`apply`).
+            HeightOf::Truth => (lfit_model::stature::rest_height(template, &[]).0, true),
+        };
+        let base = lfit_model::energy::HeightPrior::new(template, height, arg.std_m)
+            .context("--height-prior")?;
+        Ok(Self { base, truth })
+    }
+
+    /// `energy` with the prior of a frame whose ground-truth parameters are `truth` (read only
+    /// for `truth`).
+    pub fn apply(&self, energy: Energy, truth: Option<&[f64]>) -> Result<Energy> {
+        let prior = if self.truth {
+            let template = energy.template();
+            let shape = template.layout().range(Block::Shape);
+            let beta = truth
+                .and_then(|t| t.get(shape))
+                .context("--height-prior truth: a frame without ground truth")?;
+            self.base.at(self.base.rest_height(template, beta))?
+        } else {
+            self.base.clone()
+        };
+        Ok(energy.with_height_prior(&prior)?)
+    }
+
+    /// The rest height of shape `beta` ([`lfit_model::energy::HeightPrior::rest_height`]).
+    pub fn rest_height(&self, template: &Template, beta: &[f64]) -> f64 {
+        self.base.rest_height(template, beta)
     }
 }
 

@@ -94,6 +94,8 @@ impl Energy {
             energy_config(config)?.unwrap_or_else(|| EnergyConfig::default().for_gradient());
         let data = data.filter(|d| !d.is_none());
         let observations = observations.filter(|o| !o.is_none());
+        // A dataset frame's ground truth (`height_prior="truth"` reads its β).
+        let mut truth: Option<Vec<f64>> = None;
         let problem = match (data, observations) {
             (Some(_), Some(_)) => {
                 return Err(bad(
@@ -112,6 +114,7 @@ impl Energy {
                     ));
                 }
                 let (dataset, _) = dataset_arg(d)?;
+                truth = dataset.ground_truth(frame).map(<[f64]>::to_vec);
                 let template = match optional_model(model)? {
                     Some(t) => {
                         lfit::api::check_model(&dataset, &t).py_err()?;
@@ -177,7 +180,7 @@ impl Energy {
             }
         };
         let problem = match height_prior {
-            Some(h) => problem.with_height_prior(h).py_err()?,
+            Some(h) => problem.with_height_prior(h, truth.as_deref()).py_err()?,
             None => problem,
         };
         Ok(Self { problem })

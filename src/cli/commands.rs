@@ -453,8 +453,8 @@ pub fn quickstart(
         parts.extend(extra);
     }
     let parts = with_phone_parts(parts)?;
-    let parts = with_sequence_network_parts(with_anchored_parts(with_early_exit_parts(
-        with_prior_parts(parts)?,
+    let parts = with_height_parts(with_sequence_network_parts(with_anchored_parts(
+        with_early_exit_parts(with_prior_parts(parts)?)?,
     )?)?)?;
     let mut table = String::from(
         "| data | method | V2V (mm) | MPJPE (mm) | PA-MPJPE (mm) | shape RMS | final energy | evaluations | time / frame (ms) |\n|---|---|---|---|---|---|---|---|---|\n",
@@ -479,6 +479,7 @@ pub fn quickstart(
             .strip_suffix(PRIOR_PART)
             .or_else(|| part.strip_suffix(EARLY_PART))
             .or_else(|| part.strip_suffix(ANCHORED_PART))
+            .or_else(|| part.strip_suffix(HEIGHT_PART))
             .or_else(|| {
                 part.strip_suffix(SEQUENCE_NETWORK_PART)
                     .map(|p| p.strip_suffix(ANCHORED_PART).unwrap_or(p))
@@ -530,6 +531,10 @@ pub fn quickstart(
                     None => format!("{name} @{budget}"),
                 }
             };
+            let label = match &config.height_prior {
+                Some(h) => format!("{label}, the subject's height as a prior (--height-prior {h})"),
+                None => label,
+            };
             let f = |key: &str| row[key].as_f64().unwrap_or(f64::NAN);
             let shape = if config.known_shape {
                 "given".to_string()
@@ -559,8 +564,9 @@ pub fn quickstart(
             |f| f.to_string_lossy().into_owned(),
         );
     let text = format!(
-        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": on the same energy plus the Gaussian pose prior of lfit's CMU training clips (configs/pose-prior-cmu-<modality>.json, `lfit motion prior`; LM with it is SMPLify's classical baseline), whose final energy includes the prior's term. \"first {QUICKSTART_EARLY_EXIT} iterations\": the same network stopped early (`lfit fit --neural-iterations {QUICKSTART_EARLY_EXIT}`). \"anchored at the previous frame\" (captured clip): LM on the energy plus a Gaussian pull toward its own previous frame's result (`lfit fit --dofs anchored:DEG`; σ chosen on the validation subject's sequences, widened where the sequence moves fast), the classical temporal prior a learned fitter has to beat in a sequence. \"neural (checkpoints/<modality>-makehuman-sequence) anchored at the previous frame\": the network fine-tuned on that anchor (`lfit train --init`, `\"starts\": {{\"anchor_deg\": DEG}}`), from its previous frame's fit on the energy plus the same pull, the rotations the data leave beyond {observed}° held (`lfit fit --method neural --dofs observed:{observed}+anchored:DEG`).\n\n{table}",
-        observed = lfit_fitters::SEQUENCE_NETWORK_OBSERVED_DEG
+        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": on the same energy plus the Gaussian pose prior of lfit's CMU training clips (configs/pose-prior-cmu-<modality>.json, `lfit motion prior`; LM with it is SMPLify's classical baseline), whose final energy includes the prior's term. \"first {QUICKSTART_EARLY_EXIT} iterations\": the same network stopped early (`lfit fit --neural-iterations {QUICKSTART_EARLY_EXIT}`). \"anchored at the previous frame\" (captured clip): LM on the energy plus a Gaussian pull toward its own previous frame's result (`lfit fit --dofs anchored:DEG`; σ chosen on the validation subject's sequences, widened where the sequence moves fast), the classical temporal prior a learned fitter has to beat in a sequence. \"neural (checkpoints/<modality>-makehuman-sequence) anchored at the previous frame\": the network fine-tuned on that anchor (`lfit train --init`, `\"starts\": {{\"anchor_deg\": DEG}}`), from its previous frame's fit on the energy plus the same pull, the rotations the data leave beyond {observed}° held (`lfit fit --method neural --dofs observed:{observed}+anchored:DEG`). \"the subject's height as a prior\" (one phone camera): the same frames with each subject's true rest height as one more measurement in the energy (`lfit fit --height-prior truth`, standard deviation {std} m), β still estimated — one view trades the body's size against its depth, and a height is what a user of one camera can give.\n\n{table}",
+        observed = lfit_fitters::SEQUENCE_NETWORK_OBSERVED_DEG,
+        std = crate::fitting::HEIGHT_PRIOR_STD_M
     );
     write_atomic(&out.join("comparison.md"), text.as_bytes())?;
     Ok(text)
@@ -637,6 +643,34 @@ fn with_phone_parts(parts: Vec<(String, BenchConfig)>) -> Result<Vec<(String, Be
         };
         // Located by the bench like any `[synth] camera` (and checked by `validate`).
         synth.camera = Some(QUICKSTART_PHONE_RIG.into());
+        Ok(Some(twin))
+    })
+}
+
+/// Suffix of the quickstart's phone part with the subject's height as a prior.
+const HEIGHT_PART: &str = "-height";
+
+/// The quickstart's height prior (`lfit fit --height-prior`): each frame's true rest height,
+/// at the default standard deviation — the phone frames are 50 subjects, each of a random β.
+pub const QUICKSTART_HEIGHT_PRIOR: &str = "truth";
+
+/// After the phone part, its twin with the subject's height as a soft measurement
+/// ([`QUICKSTART_HEIGHT_PRIOR`]) for the network, `neural+lm` and LM: one camera leaves the
+/// body's size to trade against its depth, and a height is what a user of one camera can give
+/// (`docs/results/captured-motion.md`, round 33).
+fn with_height_parts(parts: Vec<(String, BenchConfig)>) -> Result<Vec<(String, BenchConfig)>> {
+    with_twins(parts, HEIGHT_PART, |config| {
+        if !config.name.ends_with(PHONE_PART) {
+            return Ok(None);
+        }
+        let mut twin = config.clone();
+        let keep = [
+            crate::method::MethodKind::Neural,
+            crate::method::MethodKind::NeuralLm,
+            crate::method::MethodKind::Lm,
+        ];
+        twin.methods.retain(|m| keep.contains(&m.kind));
+        twin.height_prior = Some(QUICKSTART_HEIGHT_PRIOR.into());
         Ok(Some(twin))
     })
 }

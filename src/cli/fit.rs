@@ -532,10 +532,9 @@ fn fit_prepared(
         .map(|k| k.resolve(&template))
         .transpose()?;
     // `--height-prior`: the stature as one more measurement in every frame's energy.
-    let height_prior = height_prior
-        .map(|h| lfit_model::energy::HeightPrior::new(&template, h.height_m, h.std_m))
-        .transpose()
-        .context("--height-prior")?;
+    let heights = height_prior
+        .map(|h| crate::fitting::FrameHeights::new(h, &template, dataset.has_ground_truth()))
+        .transpose()?;
     let fitter = fitter.as_ref();
     // `--offsets`: the dataset's sensor with its points where an earlier fit put them.
     let placed;
@@ -615,10 +614,10 @@ fn fit_prepared(
     let mask = plan.mask()?;
     let frame_energy = |frame: usize| -> Result<lfit_model::energy::Energy> {
         let e = energy_for_frame(dataset, template.clone(), frame, config.clone())?;
-        Ok(match &height_prior {
-            Some(p) => e.with_height_prior(p)?,
-            None => e,
-        })
+        match &heights {
+            Some(h) => h.apply(e, dataset.ground_truth(frame)),
+            None => Ok(e),
+        }
     };
     let mut done = 0;
     let report = crate::fitting::fit_frames(
@@ -839,8 +838,8 @@ fn fit_prepared(
         // The β every frame was given, from the subject's height.
         out["known_shape"] = json!({ "height_m": h, "beta": beta });
     }
-    if let Some(p) = &height_prior {
-        out["height_prior"] = json!({ "height_m": p.height_m(), "std_m": p.std_m() });
+    if let Some(h) = height_prior {
+        out["height_prior"] = h.json();
     }
     if let Some((o, _)) = offsets {
         // Where the points sat: the file, and the offsets it gave.
@@ -899,14 +898,15 @@ pub struct FrameProblem {
 impl FrameProblem {
     /// The same problem with the subject's height as a soft measurement in its energy
     /// (`lfit fit --height-prior`, [`lfit_model::energy::HeightPrior`]).
-    pub fn with_height_prior(mut self, prior: crate::fitting::HeightPriorArg) -> Result<Self> {
-        let p = lfit_model::energy::HeightPrior::new(
-            self.energy.template(),
-            prior.height_m,
-            prior.std_m,
-        )
-        .context("--height-prior")?;
-        self.energy = self.energy.with_height_prior(&p)?;
+    /// `truth`: the frame's ground-truth parameters, for `truth` (refused without them).
+    pub fn with_height_prior(
+        mut self,
+        prior: crate::fitting::HeightPriorArg,
+        truth: Option<&[f64]>,
+    ) -> Result<Self> {
+        let heights =
+            crate::fitting::FrameHeights::new(prior, self.energy.template(), truth.is_some())?;
+        self.energy = heights.apply(self.energy, truth)?;
         Ok(self)
     }
 

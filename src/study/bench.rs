@@ -86,6 +86,11 @@ pub struct BenchConfig {
     /// (papers/002 §3.2, HMD); required by a checkpoint trained with the shape known.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub known_shape: bool,
+    /// The subject's height as a soft measurement in every method's energy, `"M[:STD]"` or
+    /// `"truth[:STD]"` (each frame's ground truth) — `lfit fit --height-prior`
+    /// ([`crate::fitting::HeightPriorArg`]). Not with `known_shape`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub height_prior: Option<String>,
     /// `"METHOD"` or `"METHOD:STRATEGY"` ([`MethodSpec`]).
     pub methods: Vec<MethodSpec>,
     pub budgets: Vec<usize>,
@@ -239,6 +244,12 @@ impl BenchConfig {
                 );
             }
             crate::shipped::locate(c).context("synth.camera")?;
+        }
+        if let Some(h) = &self.height_prior {
+            h.parse::<crate::fitting::HeightPriorArg>()?;
+            if self.known_shape {
+                bail!("height_prior informs an estimated β, known_shape gives β: use one");
+            }
         }
         if self.known_shape {
             // `-`: the neural fitter, which has no strategy.
@@ -666,6 +677,10 @@ fn input_hashes(
     inputs.insert("model".into(), template.signature().hash.into());
     let mut h = lfit_model::Fnv1a::default();
     h.eat(&serde_json::to_vec(energy)?);
+    if let Some(p) = &config.height_prior {
+        // The height prior is a row of every frame's energy.
+        h.eat(p.as_bytes());
+    }
     inputs.insert("energy".into(), h.hex().into());
     if let Some(c) = &config.checkpoint
         && config.methods.iter().any(|m| m.kind.is_neural())
@@ -868,9 +883,22 @@ pub fn run(
         },
         !existing.is_empty(),
     )?;
+    let heights = config
+        .height_prior
+        .as_deref()
+        .map(|h| -> Result<_> {
+            crate::fitting::FrameHeights::new(h.parse()?, &template, dataset.has_ground_truth())
+        })
+        .transpose()?;
     let energies: Vec<Energy> = frames
         .iter()
-        .map(|&f| energy_for_frame(&dataset, template.clone(), f, energy_config.clone()))
+        .map(|&f| {
+            let e = energy_for_frame(&dataset, template.clone(), f, energy_config.clone())?;
+            match &heights {
+                Some(h) => h.apply(e, dataset.ground_truth(f)),
+                None => Ok(e),
+            }
+        })
         .collect::<Result<_>>()?;
 
     // A unit of work: one frame, or in a sequence the whole chain of frames, where each frame

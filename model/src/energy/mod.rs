@@ -542,6 +542,27 @@ impl HeightPrior {
         })
     }
 
+    /// The same prior (model, standard deviation, the vertices it reads) at another height: a
+    /// subject per frame without measuring the mesh again. Fails like [`HeightPrior::new`] on a
+    /// height that is not finite and positive.
+    pub fn at(&self, height_m: f64) -> Result<Self> {
+        if !(height_m.is_finite() && height_m > 0.0) {
+            return Err(ModelError::Config(format!(
+                "height prior {height_m}: must be a positive number of metres"
+            )));
+        }
+        Ok(Self {
+            height_m,
+            ..self.clone()
+        })
+    }
+
+    /// The rest height of shape `beta` on the prior's model ([`crate::stature::rest_height`],
+    /// from the vertices the prior reads).
+    pub fn rest_height(&self, template: &Template, beta: &[f64]) -> f64 {
+        self.vertices.height(template, beta).0
+    }
+
     /// The prior's height (metres).
     pub fn height_m(&self) -> f64 {
         self.height_m

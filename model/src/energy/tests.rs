@@ -984,6 +984,12 @@ mod least_squares_form {
             let err = HeightPrior::new(&t, height, std).unwrap_err().to_string();
             assert!(err.contains(why), "{why}: {err}");
         }
+        // Another height on the same vertices: the prior made anew at it.
+        let moved = prior.at(h - 0.03).unwrap();
+        let anew = HeightPrior::new(&t, h - 0.03, 0.02).unwrap();
+        assert_eq!(moved, anew);
+        assert_eq!(prior.rest_height(&t, &x[shape.clone()]), h);
+        assert!(prior.at(f64::NAN).is_err() && prior.at(0.0).is_err());
         let rigid = crate::body::procedural::default_template();
         let err = HeightPrior::new(&rigid, 1.7, 0.02).unwrap_err().to_string();
         assert!(err.contains("has none"), "{err}");
