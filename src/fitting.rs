@@ -220,17 +220,23 @@ pub struct JointSolve {
 
 /// `energy` with the gradient form of its terms ([`EnergyConfig::for_gradient`]: the hinge
 /// joint-angle prior, no silhouette term) and its shape prior's weight times `shape_share`, for
-/// [`joint_shape`]. The joint-angle prior depends on the pose alone: with the poses held, both
-/// forms move β alike.
+/// [`joint_shape`]; a height prior ([`Energy::with_height_prior`]: one measurement of the one
+/// subject, like the shape prior) kept with its weight times `shape_share` too. The joint-angle
+/// prior depends on the pose alone: with the poses held, both forms move β alike.
 fn least_squares_variant(energy: &Energy, shape_share: f64) -> Result<Energy> {
     let mut config = energy.config().clone().for_gradient();
     config.weights.shape *= shape_share;
-    Ok(Energy::new(
+    let variant = Energy::new(
         energy.template().clone(),
         energy.sensor().clone(),
         energy.target().clone(),
         config,
-    )?)
+    )?;
+    Ok(match energy.height_prior() {
+        // Its weight goes as 1/σ².
+        Some(p) => variant.with_height_prior(&p.with_std(p.std_m() / shape_share.sqrt())?)?,
+        None => variant,
+    })
 }
 
 /// What [`fit_frames`] did beyond the frames it handed to its sink.
@@ -957,8 +963,8 @@ pub type JointShape = (Vec<f64>, Vec<Vec<f64>>, JointSolve);
 /// one β for every frame, each frame's other `free` entries its own, each frame inside its own
 /// box (`bounds[k]`; β inside every frame's shape box).
 ///
-/// The sequence's energy is `Σ_k E_k(θ_k)` with the shape prior counted once, not once per
-/// frame: each frame's energy carries the prior `w‖β‖²` for a β seen by that frame alone, and
+/// The sequence's energy is `Σ_k E_k(θ_k)` with the shape prior (and a height prior) counted
+/// once, not once per frame: each frame's energy carries the prior `w‖β‖²` for a β seen by that frame alone, and
 /// summing N of them would weigh the one subject's prior N times against the data (the
 /// per-frame estimate's shrinkage towards the mean, however long the sequence), where the
 /// posterior of one β given N frames' independent observations has it once (each frame's prior
@@ -1369,6 +1375,69 @@ mod tests {
     use super::*;
     use lfit_model::observe::{Modality, Sensor};
     use lfit_synth::{SynthConfig, synthesize};
+
+    /// `--height-prior`'s forms ([`HeightPriorArg`]) and [`FrameHeights`]: metres or each
+    /// frame's truth (refused without ground truth), the prior in the frame's energy at the
+    /// truth's rest height; the joint β solve's variant keeps it at the shape prior's share.
+    #[test]
+    fn a_height_prior_reaches_each_frame_s_energy_and_the_joint_solve() {
+        for (text, want) in [
+            ("1.72", (HeightOf::Metres(1.72), HEIGHT_PRIOR_STD_M)),
+            ("1.72:0.03", (HeightOf::Metres(1.72), 0.03)),
+            ("truth", (HeightOf::Truth, HEIGHT_PRIOR_STD_M)),
+            ("truth:0.02", (HeightOf::Truth, 0.02)),
+        ] {
+            let arg: HeightPriorArg = text.parse().unwrap();
+            assert_eq!((arg.height, arg.std_m), want, "{text}");
+        }
+        for bad in [
+            "",
+            "tall",
+            "1.7:",
+            "1.7:-1",
+            "0",
+            "nan",
+            "truth:0",
+            "1.7:0.01:2",
+        ] {
+            let err = bad.parse::<HeightPriorArg>().unwrap_err().to_string();
+            assert!(err.starts_with(&format!("--height-prior '{bad}'")), "{err}");
+        }
+        let (t, _) = lfit_model::body::morphable_default_template().unwrap();
+        let t = Arc::new(t);
+        let config = SynthConfig::new(Modality::Markers, Scenario::Local, 3, 5);
+        let sensor = Sensor::default_for(Modality::Markers, &t);
+        let d = synthesize(&config, &t, &sensor, &|_| {}).unwrap();
+        let shape = t.layout().range(Block::Shape);
+        let truth: HeightPriorArg = "truth:0.02".parse().unwrap();
+        let err = FrameHeights::new(truth, &t, false).unwrap_err().to_string();
+        assert!(err.contains("no ground truth"), "{err}");
+        let heights = FrameHeights::new(truth, &t, true).unwrap();
+        for f in 0..d.len() {
+            let plain =
+                energy_for_frame(&d, t.clone(), f, EnergyConfig::default().for_gradient()).unwrap();
+            let e = heights.apply(plain.clone(), d.ground_truth(f)).unwrap();
+            let want = lfit_model::stature::rest_height(&t, &d.gt_poses[f][shape.clone()]).0;
+            let p = e.height_prior().unwrap();
+            assert_eq!((p.height_m(), p.std_m()), (want, 0.02));
+            assert_eq!(e.inspect(&d.gt_poses[f]).term("height"), Some(0.0));
+            assert!(heights.apply(plain, None).is_err());
+            // The joint solve's variant: the term at the share's weight.
+            let mut x = d.gt_poses[f].clone();
+            x[shape.start] += 0.5;
+            let full = least_squares_variant(&e, 1.0).unwrap();
+            let half = least_squares_variant(&e, 0.25).unwrap();
+            let (a, b) = (
+                full.inspect(&x).term("height").unwrap(),
+                half.inspect(&x).term("height").unwrap(),
+            );
+            assert!(a > 0.0 && (b - 0.25 * a).abs() <= 1e-12 * a, "{a} {b}");
+        }
+        let metres = FrameHeights::new("1.7".parse().unwrap(), &t, false).unwrap();
+        let plain = energy_for_frame(&d, t.clone(), 0, EnergyConfig::default()).unwrap();
+        let e = metres.apply(plain, None).unwrap();
+        assert_eq!(e.height_prior().unwrap().height_m(), 1.7);
+    }
 
     /// [`iterate_v2v`] gives [`iterate_errors`]'s V2V bit for bit, the iterate equal to the
     /// result included.

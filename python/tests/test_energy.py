@@ -62,6 +62,10 @@ def test_a_height_prior_is_one_more_row(makehuman, markers):
     h6 = 1e-6
     fd = np.stack([(e.residuals(x + h6 * np.eye(e.dim)[k]) - e.residuals(x - h6 * np.eye(e.dim)[k])) / (2 * h6) for k in range(e.dim)], axis=1)
     np.testing.assert_allclose(j, fd, rtol=1e-4, atol=1e-5)
+    # Each frame's true height ("truth"): the frame's ground-truth β's rest height.
+    t = lfit.Energy(makehuman, markers, 1, height_prior="truth")
+    true_h = makehuman.rest_height(np.asarray(markers.gt_params[1])[start:end])
+    assert t.terms(x)["height"] == pytest.approx(((h - true_h) / 0.01) ** 2 / seen, rel=1e-9)
     # The same energy from the CLI's forms of the prior.
     for form in ["1.85:0.02", (1.85, 0.02)]:
         assert lfit.Energy(makehuman, markers, 1, height_prior=form).value(x) == e.value(x)

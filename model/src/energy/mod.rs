@@ -557,6 +557,19 @@ impl HeightPrior {
         })
     }
 
+    /// The same prior with another standard deviation (`std_m`, finite and positive).
+    pub fn with_std(&self, std_m: f64) -> Result<Self> {
+        if !(std_m.is_finite() && std_m > 0.0) {
+            return Err(ModelError::Config(format!(
+                "height prior standard deviation {std_m}: must be a positive number of metres"
+            )));
+        }
+        Ok(Self {
+            std_m,
+            ..self.clone()
+        })
+    }
+
     /// The rest height of shape `beta` on the prior's model ([`crate::stature::rest_height`],
     /// from the vertices the prior reads).
     pub fn rest_height(&self, template: &Template, beta: &[f64]) -> f64 {
