@@ -537,7 +537,8 @@ struct FitCmd {
     /// The subject's height as a soft measurement, `M` or `M:STD` in metres (default STD
     /// 0.01: a measured stature; a self-reported one wants 0.03): one more row of the energy,
     /// `(h(β) − M)/STD` weighted like one observed marker or keypoint, h the rest mesh's
-    /// height sole to crown; β stays estimated. Not with --known-shape.
+    /// height sole to crown; β stays estimated. `truth[:STD]`: each frame's ground-truth
+    /// height (synthetic data). Not with --known-shape.
     #[arg(long)]
     height_prior: Option<String>,
     /// Tensor backend of the neural fitter: ndarray, flex or wgpu.

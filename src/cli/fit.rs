@@ -235,7 +235,8 @@ pub struct FitArgs {
     /// `--known-shape`: `truth`, `height:M` or comma-separated β values
     /// ([`crate::fitting::KnownShapeArg`]).
     pub known_shape: Option<String>,
-    /// `--height-prior`: `M` or `M:STD` in metres ([`crate::fitting::HeightPriorArg`]).
+    /// `--height-prior`: `M`, `M:STD`, `truth` or `truth:STD` (metres;
+    /// [`crate::fitting::HeightPriorArg`]).
     pub height_prior: Option<String>,
     /// `--sequence-shape`: `per-frame`, `first-pass`, `joint` or `joint:N`
     /// ([`crate::fitting::SequenceShape`]).

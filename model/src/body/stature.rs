@@ -48,11 +48,7 @@ pub fn shape_for_height(template: &Template, height_m: f64) -> Result<Vec<f64>> 
             template.id
         )));
     }
-    if !(height_m.is_finite() && height_m > 0.0) {
-        return Err(ModelError::Config(format!(
-            "height {height_m}: must be a positive number of metres"
-        )));
-    }
+    positive_metres("height", height_m)?;
     let mut beta = vec![0.0; b];
     let mut pair = None;
     for _ in 0..32 {
@@ -90,6 +86,18 @@ pub fn shape_for_height(template: &Template, height_m: f64) -> Result<Vec<f64>> 
         )));
     }
     Ok(beta)
+}
+
+/// `value` where it is a finite positive number of metres; else the one-line error "`what`
+/// `value`: must be a positive number of metres".
+pub(crate) fn positive_metres(what: &str, value: f64) -> Result<f64> {
+    if value.is_finite() && value > 0.0 {
+        Ok(value)
+    } else {
+        Err(ModelError::Config(format!(
+            "{what} {value}: must be a positive number of metres"
+        )))
+    }
 }
 
 /// The vertices that can be the highest or the lowest of the rest mesh for some β in the shape

@@ -55,6 +55,7 @@ use crate::observe::{
 };
 use crate::scan::{Mask, VoxelGrid, iou, render_silhouette};
 use crate::skinning::vertex_normals;
+use crate::stature::positive_metres;
 use crate::template::Template;
 
 /// Term weights λ. Defaults: papers/000 §4.1 (λJ = 0.1, λD = 1, λS = 0.01, λP = 1, λA = 1); the
@@ -524,19 +525,9 @@ impl HeightPrior {
                 template.id
             )));
         }
-        if !(height_m.is_finite() && height_m > 0.0) {
-            return Err(ModelError::Config(format!(
-                "height prior {height_m}: must be a positive number of metres"
-            )));
-        }
-        if !(std_m.is_finite() && std_m > 0.0) {
-            return Err(ModelError::Config(format!(
-                "height prior standard deviation {std_m}: must be a positive number of metres"
-            )));
-        }
         Ok(Self {
-            height_m,
-            std_m,
+            height_m: positive_metres("height prior", height_m)?,
+            std_m: positive_metres("height prior standard deviation", std_m)?,
             template: (template.id.clone(), template.vertices.len()),
             vertices: Arc::new(crate::stature::StatureVertices::of(template)),
         })
@@ -546,26 +537,16 @@ impl HeightPrior {
     /// subject per frame without measuring the mesh again. Fails like [`HeightPrior::new`] on a
     /// height that is not finite and positive.
     pub fn at(&self, height_m: f64) -> Result<Self> {
-        if !(height_m.is_finite() && height_m > 0.0) {
-            return Err(ModelError::Config(format!(
-                "height prior {height_m}: must be a positive number of metres"
-            )));
-        }
         Ok(Self {
-            height_m,
+            height_m: positive_metres("height prior", height_m)?,
             ..self.clone()
         })
     }
 
     /// The same prior with another standard deviation (`std_m`, finite and positive).
     pub fn with_std(&self, std_m: f64) -> Result<Self> {
-        if !(std_m.is_finite() && std_m > 0.0) {
-            return Err(ModelError::Config(format!(
-                "height prior standard deviation {std_m}: must be a positive number of metres"
-            )));
-        }
         Ok(Self {
-            std_m,
+            std_m: positive_metres("height prior standard deviation", std_m)?,
             ..self.clone()
         })
     }
