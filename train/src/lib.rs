@@ -169,6 +169,11 @@ pub struct TrainConfig {
     /// `network.start` decides alone (Φ(D), the scenario's start, or either by a fair coin).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub starts: Option<StartMix>,
+    /// The subject's height as a prior in a share of the synthesised frames' energies
+    /// (`lfit fit --height-prior`; [`HeightPriorTraining`]), so the network learns to read the
+    /// row. Absent: none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub height_prior: Option<HeightPriorTraining>,
     /// Data-parallel shards of each batch (1, the default: the whole batch in one autodiff
     /// graph). With K > 1, row `i` goes to shard `i mod K` and the K shards run forward and
     /// backward on K threads at once, their gradients summed (weighted by rows: the gradient of
@@ -221,9 +226,23 @@ impl Default for TrainConfig {
             marker_dropout: 0.0,
             marker_slip_mm: 0.0,
             starts: None,
+            height_prior: None,
             shards: 1,
         }
     }
+}
+
+/// `"height_prior"` of a training config: each synthesised frame (training batches, validation,
+/// statistics, the sequence windows of `"starts"`) gets, with probability `rate`, the height
+/// prior of `lfit fit --height-prior` in its energy: a standard deviation σ drawn log-uniformly
+/// from `std_m` and a height of the subject's true rest height plus σ times a standard normal
+/// draw — a height as wrong as the prior says it may be.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeightPriorTraining {
+    pub rate: f64,
+    /// The range of σ (metres), `[low, high]`.
+    pub std_m: [f64; 2],
 }
 
 impl TrainConfig {
@@ -456,6 +475,23 @@ impl TrainConfig {
         {
             return bad("marker_slip_mm", self.marker_slip_mm.to_string(), reason);
         }
+        if let Some(h) = &self.height_prior {
+            let [low, high] = h.std_m;
+            if !(h.rate.is_finite() && (0.0..=1.0).contains(&h.rate)) {
+                return bad(
+                    "height_prior.rate",
+                    h.rate.to_string(),
+                    "must be in [0, 1]".into(),
+                );
+            }
+            if !(low.is_finite() && high.is_finite() && low > 0.0 && low <= high) {
+                return bad(
+                    "height_prior.std_m",
+                    format!("[{low}, {high}]"),
+                    "must be metres with 0 < low ≤ high".into(),
+                );
+            }
+        }
         Ok(())
     }
 
@@ -479,6 +515,10 @@ pub mod seeds {
     /// Seed of the marker dropout of a set synthesised with dataset seed `frames`.
     pub fn marker_dropout(frames: u64) -> u64 {
         frames ^ 0xD209_0000_0000_0002
+    }
+    /// Seed of the height priors of a set synthesised with dataset seed `frames`.
+    pub fn height_prior(frames: u64) -> u64 {
+        frames ^ 0x4E16_0000_0000_0003
     }
     /// Dataset seed of training batch `step`.
     pub fn batch(seed: u64, step: usize) -> u64 {
@@ -669,7 +709,63 @@ pub fn augment_frames(
             seeds::marker_dropout(seed),
         )?;
     }
+    if let Some(h) = &config.height_prior {
+        add_height_priors(&mut frames, h, seeds::height_prior(seed))?;
+    }
     Ok(frames)
+}
+
+/// The height prior's vertices on `template`, measured once per model in a process
+/// ([`lfit_model::stature::StatureVertices`]: ~30 whole-mesh scans) and reused by every set.
+fn stature_prior(template: &Template) -> Result<lfit_model::energy::HeightPrior> {
+    static CACHE: std::sync::Mutex<Vec<(String, usize, lfit_model::energy::HeightPrior)>> =
+        std::sync::Mutex::new(Vec::new());
+    let key = (template.id.clone(), template.vertices.len());
+    let mut cache = CACHE
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    if let Some((.., p)) = cache.iter().find(|(id, n, _)| (id, n) == (&key.0, &key.1)) {
+        return Ok(p.clone());
+    }
+    let (mean, ..) = lfit_model::stature::rest_height(template, &[]);
+    let p = lfit_model::energy::HeightPrior::new(template, mean, 1.0)?;
+    cache.push((key.0, key.1, p.clone()));
+    Ok(p)
+}
+
+/// Gives frames of `frames` a height prior ([`HeightPriorTraining`]): frame `i` draws from
+/// stream `i` of `seed` whether it gets one, its σ and its height's error.
+pub fn add_height_priors(
+    frames: &mut Frames,
+    setting: &HeightPriorTraining,
+    seed: u64,
+) -> Result<()> {
+    let Some(first) = frames.energies.first() else {
+        return Ok(());
+    };
+    let template = first.template().clone();
+    let base = stature_prior(&template)?;
+    let shape = template.layout().range(Block::Shape);
+    let [low, high] = setting.std_m;
+    frames.energies = frames
+        .energies
+        .par_iter()
+        .zip(&frames.dataset.gt_poses)
+        .enumerate()
+        .map(|(i, (e, gt))| {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            rng.set_stream(i as u64);
+            if !rng.random_bool(setting.rate) {
+                return Ok(e.clone());
+            }
+            let std = (low.ln() + (high.ln() - low.ln()) * rng.random::<f64>()).exp();
+            let z: f64 = rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut rng);
+            let truth = base.rest_height(&template, &gt[shape.clone()]);
+            let prior = base.at((truth + std * z).max(0.1 * truth))?.with_std(std)?;
+            e.with_height_prior(&prior)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(())
 }
 
 /// [`synth_frames_with`] then [`augment_frames`]: the frames a training run with `config` sees.
@@ -1677,6 +1773,77 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(e.contains("marker_slip_mm") && e.contains("hmd"), "{e}");
+    }
+
+    /// `"height_prior"` gives about its share of the frames the height row, each σ in its
+    /// range and each height off the subject's true rest height by σ times a standard normal
+    /// draw (the standardised errors' mean near 0 and spread near 1); the same seed the same
+    /// priors; rate 0 none, 1 all; bad settings refused by name.
+    #[test]
+    fn a_height_prior_reaches_its_share_of_the_frames() {
+        let (t, _) = lfit_model::body::morphable_default_template().expect("template");
+        let template = Arc::new(t);
+        let sensor = Sensor::default_for(Modality::Markers, &template);
+        let base = base_energy(&template, &sensor).expect("energy");
+        let with = |rate: f64| TrainConfig {
+            height_prior: Some(HeightPriorTraining {
+                rate,
+                std_m: [0.01, 0.04],
+            }),
+            ..TrainConfig::default()
+        };
+        with(0.5).validate().expect("a height prior");
+        let frames = |config: &TrainConfig| {
+            let f = synth_frames_with(&template, &sensor, &base, 200, 5, 0.0, &Motions::default())
+                .expect("frames");
+            augment_frames(config, &base, f, 5).expect("augmented")
+        };
+        let shape = template.layout().range(Block::Shape);
+        let half = frames(&with(0.5));
+        let mut z = Vec::new();
+        for (e, gt) in half.energies.iter().zip(&half.dataset.gt_poses) {
+            let Some(p) = e.height_prior() else { continue };
+            assert!((0.01..=0.04).contains(&p.std_m()), "{}", p.std_m());
+            let truth = lfit_model::stature::rest_height(&template, &gt[shape.clone()]).0;
+            z.push((p.height_m() - truth) / p.std_m());
+        }
+        assert!((70..=130).contains(&z.len()), "{} of 200 frames", z.len());
+        let mean = z.iter().sum::<f64>() / z.len() as f64;
+        let sd = (z.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / z.len() as f64).sqrt();
+        assert!(
+            mean.abs() < 0.3 && (0.7..1.3).contains(&sd),
+            "mean {mean}, sd {sd}"
+        );
+        let again = frames(&with(0.5));
+        let heights = |f: &Frames| -> Vec<Option<(f64, f64)>> {
+            f.energies
+                .iter()
+                .map(|e| e.height_prior().map(|p| (p.height_m(), p.std_m())))
+                .collect()
+        };
+        assert_eq!(heights(&half), heights(&again));
+        assert!(
+            frames(&with(0.0))
+                .energies
+                .iter()
+                .all(|e| e.height_prior().is_none())
+        );
+        assert!(
+            frames(&with(1.0))
+                .energies
+                .iter()
+                .all(|e| e.height_prior().is_some())
+        );
+        for (rate, std_m) in [(1.5, [0.01, 0.04]), (0.5, [0.05, 0.01]), (0.5, [0.0, 0.01])] {
+            let e = TrainConfig {
+                height_prior: Some(HeightPriorTraining { rate, std_m }),
+                ..TrainConfig::default()
+            }
+            .validate()
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("height_prior"), "{e}");
+        }
     }
 
     /// `"uniform_poses"` reaches the single frames (about that share named `uniform`, their
