@@ -246,7 +246,8 @@ impl BenchConfig {
             crate::shipped::locate(c).context("synth.camera")?;
         }
         if let Some(h) = &self.height_prior {
-            h.parse::<crate::fitting::HeightPriorArg>()?;
+            h.parse::<crate::fitting::HeightPriorArg>()
+                .context("height_prior")?;
             if self.known_shape {
                 bail!("height_prior informs an estimated β, known_shape gives β: use one");
             }
@@ -1274,6 +1275,30 @@ mod tests {
         assert!(Run::from_csv(&bad.join(",")).is_none());
         std::fs::write(&csv, "method,frame\nlm,1\n").expect("csv");
         assert!(read_runs(&csv).is_err());
+    }
+
+    /// `height_prior`: the forms of `lfit fit --height-prior`, read back from the TOML; a bad
+    /// one and one beside `known_shape` refused before any work, naming the key.
+    #[test]
+    fn a_bench_height_prior_is_checked_before_any_work() {
+        let config = |extra: &str| -> BenchConfig {
+            toml::from_str(&format!(
+                "name = \"h\"\nmethods = [\"lm\"]\nbudgets = [10]\n{extra}\n[synth]\nmodality = \"markers\"\nframes = 2\n"
+            ))
+            .expect("toml")
+        };
+        for good in ["1.72", "1.72:0.03", "truth", "truth:0.02"] {
+            let c = config(&format!("height_prior = \"{good}\""));
+            assert_eq!(c.height_prior.as_deref(), Some(good));
+            c.validate().expect(good);
+        }
+        assert_eq!(config("").height_prior, None);
+        let err = config("height_prior = \"tall\"").validate().unwrap_err();
+        assert!(format!("{err:#}").starts_with("height_prior: "), "{err:#}");
+        let err = config("height_prior = \"1.7\"\nknown_shape = true")
+            .validate()
+            .unwrap_err();
+        assert!(format!("{err:#}").contains("use one"), "{err:#}");
     }
 
     /// `[synth] camera`: a keypoints2d rig from a camera file, looked up like the shipped data;
