@@ -652,10 +652,10 @@ fn fit_prepared(
             if known_shape.is_none() && shape_at_bound(&template, pose) {
                 shape_at_bound_frames += 1;
             }
-            if height_prior.is_some() {
+            if let Some(heights) = &heights {
                 // How tall the fitted β is, beside the prior's height.
                 let beta = &pose[template.layout().range(lfit_model::layout::Block::Shape)];
-                let (h, ..) = lfit_model::stature::rest_height(&template, beta);
+                let h = heights.rest_height(&template, beta);
                 row["rest_height_m"] = json!(h);
                 sum_rest_height += h;
             }

@@ -833,11 +833,7 @@ impl Energy {
     pub fn with_anchor(&self, centre: &[f64], entries: &[(usize, f64)]) -> Result<Self> {
         self.check_length(centre)?;
         let dim = self.dim();
-        let seen = match &self.target {
-            Target::Sparse { visible, .. } => self.visible_groups(visible),
-            Target::Scan { .. } | Target::Silhouettes { .. } => 1,
-        };
-        let per_std = self.config.weights.data / seen.max(1) as f64;
+        let per_std = self.group_weight();
         let mut rows = Vec::with_capacity(entries.len());
         for &(i, std) in entries {
             if i >= dim {
@@ -890,11 +886,18 @@ impl Energy {
     /// The height term's weight `a` (its value is `a (h − H)²`): one visible group of the data
     /// term at standard deviation σ.
     fn height_weight(&self, prior: &HeightPrior) -> f64 {
+        self.group_weight() / (prior.std_m * prior.std_m)
+    }
+
+    /// The weight of one visible group in the data term, `λ_data / n` (`n` the visible groups,
+    /// at least 1; 1 for a dense target): what a prior of unit standard deviation weighs as one
+    /// more measurement (the anchor's and the height prior's rows).
+    fn group_weight(&self) -> f64 {
         let seen = match &self.target {
             Target::Sparse { visible, .. } => self.visible_groups(visible),
             Target::Scan { .. } | Target::Silhouettes { .. } => 1,
         };
-        self.config.weights.data / seen.max(1) as f64 / (prior.std_m * prior.std_m)
+        self.config.weights.data / seen.max(1) as f64
     }
 
     /// How many of the sensor's groups `visible` (a sparse target's flags) sees: the count the
