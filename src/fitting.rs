@@ -667,7 +667,9 @@ fn fit_pass(
                     energy,
                     seed(frame),
                 );
-                r.motion = if warm { motion.rms() } else { None };
+                // A chained frame always carries a motion (zero before the chain's first
+                // change): the temporal anchor's translation default reads it.
+                r.motion = warm.then(|| motion.rms().unwrap_or_else(|| vec![0.0; r.start.len()]));
                 r
             })
             .collect();
@@ -1467,7 +1469,7 @@ mod tests {
 
     /// The sequence driver hands each warm frame the motion of the fits before it
     /// ([`FitRequest::motion`], `lfit_fitters::SequenceMotion`): none for the first frame (no
-    /// previous fit) and the second (one fit, no change yet), then the root of the exponential
+    /// previous fit), zeros for the second (one fit, no change yet), then the root of the exponential
     /// average of the squared changes between consecutive fits; a frame fitted on its own (the
     /// local scenario) never gets one.
     #[test]
@@ -1542,7 +1544,9 @@ mod tests {
                 assert!(seen.iter().all(Option::is_none), "{scenario:?}: {seen:?}");
                 continue;
             }
-            assert!(seen[0].is_none() && seen[1].is_none(), "{seen:?}");
+            // The second frame is chained but nothing has moved yet: a zero motion.
+            assert!(seen[0].is_none(), "{seen:?}");
+            assert_eq!(seen[1], Some(vec![0.0; t.layout().dim()]), "{seen:?}");
             // Fit k moved entry 4 by 0.01 (k + 1) from fit k − 1: changes 0.02, 0.03, 0.04.
             let w = lfit_fitters::SEQUENCE_MOTION_WEIGHT;
             let mut mean_square = 0.02f64 * 0.02;

@@ -138,7 +138,8 @@ impl MethodKind {
     /// translation anchored at the network's result (`lfit_fitters::AnchoredDofs`, the rotations'
     /// standard deviation chosen per sensor on the validation subject:
     /// [`lfit_fitters::anchor_std_deg`], the translation's [`lfit_fitters::ANCHOR_TRANSLATION_STD_MM`]
-    /// on its one-camera keypoints2d; on the validation subject's
+    /// on its one-camera keypoints2d — the network's result is an estimate, not the previous
+    /// frame's fit, in a sequence too; on the validation subject's
     /// markers 10.4 mm V2V against 11.5 for the earlier default `observed` and 12.3 for `all`,
     /// on real markers level with LM with every marker on two of three captures and ahead of it
     /// on the harder half of the markers of each: docs/results/captured-motion.md, round 28);

@@ -36,9 +36,10 @@ pub struct FitRequest<'a> {
     pub seed: u64,
     /// In a sequence whose frame starts from the previous frame's fit: how fast the fits before
     /// it moved, per entry (the root-mean-square change per frame, an exponential average:
-    /// [`crate::observed::SequenceMotion`]); `None` for a frame fitted on its own or the first
-    /// frames of a chain. The temporal anchor ([`crate::AnchoredDofs`]) widens its pull by it;
-    /// every other fitter ignores it.
+    /// [`crate::observed::SequenceMotion`]; zeros at the chain's second frame, before any
+    /// change); `None` for a frame fitted on its own or the first of a chain. The temporal
+    /// anchor ([`crate::AnchoredDofs`]) widens its pull by it and, given no translation σ, takes
+    /// the sequence's ([`crate::anchor_translation_std_mm`]); every other fitter ignores it.
     pub motion: Option<Vec<f64>>,
 }
 

@@ -37,12 +37,15 @@ pub enum Dofs {
     /// Every free entry, the free rotation entries pulled toward the start's values by a
     /// Gaussian of `std_deg` degrees and the free root translation entries by one of
     /// `translation_std_mm` millimetres ([`AnchoredDofs`]): the soft form of `Observed`, where
-    /// the data decide how far each entry moves. `anchored` is [`ANCHOR_STD_DEG`] and
-    /// [`ANCHOR_TRANSLATION_STD_MM`], `anchored:DEG` another rotation standard deviation,
-    /// `anchored:DEG,MM` both.
+    /// the data decide how far each entry moves. `anchored` is [`ANCHOR_STD_DEG`] and the
+    /// translation's default for where the start comes from (`None`:
+    /// [`anchor_translation_std_mm`] — [`ANCHOR_TRANSLATION_STD_MM`] at an estimate,
+    /// [`SEQUENCE_ANCHOR_TRANSLATION_STD_MM`] at the previous frame's fit in a sequence),
+    /// `anchored:DEG` another rotation standard deviation, `anchored:DEG,MM` both (`MM` wherever
+    /// the start comes from).
     Anchored {
         std_deg: f64,
-        translation_std_mm: f64,
+        translation_std_mm: Option<f64>,
     },
     /// Both: the entries `Observed` at `max_std_deg` keeps moving, each pulled toward the start
     /// as `Anchored` pulls (`observed:DEG+anchored:DEG[,MM]`, [`ObservedDofs`] around
@@ -53,7 +56,7 @@ pub enum Dofs {
     ObservedAnchored {
         max_std_deg: f64,
         std_deg: f64,
-        translation_std_mm: f64,
+        translation_std_mm: Option<f64>,
     },
 }
 
@@ -66,15 +69,15 @@ impl Dofs {
     /// `Anchored` at [`ANCHOR_STD_DEG`].
     pub const ANCHORED: Dofs = Dofs::Anchored {
         std_deg: ANCHOR_STD_DEG,
-        translation_std_mm: ANCHOR_TRANSLATION_STD_MM,
+        translation_std_mm: None,
     };
 
-    /// `Anchored` at `std_deg` degrees and the default translation standard deviation
-    /// ([`ANCHOR_TRANSLATION_STD_MM`]).
+    /// `Anchored` at `std_deg` degrees and the translation's default for where the start comes
+    /// from ([`anchor_translation_std_mm`]).
     pub fn anchored(std_deg: f64) -> Dofs {
         Dofs::Anchored {
             std_deg,
-            translation_std_mm: ANCHOR_TRANSLATION_STD_MM,
+            translation_std_mm: None,
         }
     }
 
@@ -101,7 +104,7 @@ impl Dofs {
 
     /// The two halves of an `ObservedAnchored` of these fields (`Observed`, `Anchored`), which
     /// its wrapper, name and suffix are made of.
-    fn halves(max_std_deg: f64, std_deg: f64, translation_std_mm: f64) -> (Dofs, Dofs) {
+    fn halves(max_std_deg: f64, std_deg: f64, translation_std_mm: Option<f64>) -> (Dofs, Dofs) {
         (
             Dofs::Observed { max_std_deg },
             Dofs::Anchored {
@@ -151,8 +154,8 @@ impl Dofs {
             Dofs::Observed { max_std_deg } => format!("observed:{max_std_deg}"),
             Dofs::Anchored {
                 std_deg,
-                translation_std_mm,
-            } if translation_std_mm == ANCHOR_TRANSLATION_STD_MM => {
+                translation_std_mm: None,
+            } => {
                 if std_deg == ANCHOR_STD_DEG {
                     "anchored".into()
                 } else {
@@ -161,8 +164,8 @@ impl Dofs {
             }
             Dofs::Anchored {
                 std_deg,
-                translation_std_mm,
-            } => format!("anchored:{std_deg},{translation_std_mm}"),
+                translation_std_mm: Some(mm),
+            } => format!("anchored:{std_deg},{mm}"),
             Dofs::ObservedAnchored {
                 max_std_deg,
                 std_deg,
@@ -223,8 +226,8 @@ impl std::str::FromStr for Dofs {
                             ));
                         };
                         let translation_std_mm = match mm.map(positive) {
-                            None => ANCHOR_TRANSLATION_STD_MM,
-                            Some(Some(mm)) => mm,
+                            None => None,
+                            Some(Some(mm)) => Some(mm),
                             Some(None) => {
                                 return Err(format!(
                                     "dofs '{s}': the translation's standard deviation after anchored:DEG, must be a positive number of millimetres"
@@ -390,7 +393,8 @@ impl Fitter for ObservedDofs {
 pub struct AnchoredDofs {
     inner: Box<dyn Fitter>,
     std_deg: f64,
-    translation_std_mm: f64,
+    /// `None`: [`anchor_translation_std_mm`] by where each request's start comes from.
+    translation_std_mm: Option<f64>,
 }
 
 /// The anchor's standard deviation, degrees, of `--dofs anchored` and of `neural+lm`'s default
@@ -419,6 +423,33 @@ pub const HMD_ANCHOR_STD_DEG: f64 = 1.0;
 /// keypoints2d on three cameras and on the default rig, and hmd, 30 mm changes V2V by at most
 /// 0.07 mm (docs/results/captured-motion.md, round 29).
 pub const ANCHOR_TRANSLATION_STD_MM: f64 = 30.0;
+
+/// The temporal anchor's standard deviation of the root translation, millimetres: the pull
+/// toward the previous frame's fit in a sequence ([`anchor_translation_std_mm`]). A person
+/// moves between two frames: walking at 1.4 m/s is 47 mm a frame at 30 fps and 140 at 10, and
+/// [`ANCHOR_TRANSLATION_STD_MM`]'s 30 mm — chosen for a pull toward an estimate — held a subject
+/// who walks toward one camera hundreds of millimetres behind (LM anchored, the subject's
+/// height as a prior, six phone-rig sequences of the validation subject: 123.9 mm V2V at 30 mm,
+/// 75.5 at 60, 66.8 at 100, 65.4 at 200, **65.5** at 300, 65.7 with no pull; at 10 fps 169.1,
+/// 83.2 at 100, 76.0 at 200, **75.6** at 300, 75.9). The tightest σ level with no pull on one
+/// camera at 10 and 30 fps: it still bounds a frame the data leave open. It moved the
+/// validation subject's markers and six-camera keypoints2d sequences at 30, 15 and 10 fps, the
+/// two- and three-camera rigs and the captured clip's sequences by at most 0.16 mm, none by
+/// more than 0.01 mm for the worse (docs/results/captured-motion.md, round 34).
+pub const SEQUENCE_ANCHOR_TRANSLATION_STD_MM: f64 = 300.0;
+
+/// The root translation's standard deviation of an anchor given without one (`anchored`,
+/// `anchored:DEG`): [`SEQUENCE_ANCHOR_TRANSLATION_STD_MM`] where the start is the previous
+/// frame's fit in a sequence (`chained`: the request carries the sequence's motion,
+/// [`FitRequest::motion`]), [`ANCHOR_TRANSLATION_STD_MM`] where it is an estimate (a frame's
+/// own start, `neural+lm`'s network result).
+pub fn anchor_translation_std_mm(chained: bool) -> f64 {
+    if chained {
+        SEQUENCE_ANCHOR_TRANSLATION_STD_MM
+    } else {
+        ANCHOR_TRANSLATION_STD_MM
+    }
+}
 
 /// The anchor chosen for `neural+lm` on a modality (the constants above), where one was
 /// measured: markers, keypoints2d, hmd.
@@ -599,14 +630,15 @@ pub fn sequence_network_dofs(modality: lfit_model::observe::Modality) -> Option<
     sequence_anchor_std_deg(modality).map(|std_deg| Dofs::ObservedAnchored {
         max_std_deg: SEQUENCE_NETWORK_OBSERVED_DEG,
         std_deg,
-        translation_std_mm: ANCHOR_TRANSLATION_STD_MM,
+        translation_std_mm: None,
     })
 }
 
 impl AnchoredDofs {
     /// `inner` with the free rotations anchored at the start by `std_deg` degrees and the free
-    /// translation entries by `translation_std_mm` millimetres.
-    pub fn new(inner: Box<dyn Fitter>, std_deg: f64, translation_std_mm: f64) -> Self {
+    /// translation entries by `translation_std_mm` millimetres (`None`: the default for where
+    /// each request's start comes from, [`anchor_translation_std_mm`]).
+    pub fn new(inner: Box<dyn Fitter>, std_deg: f64, translation_std_mm: Option<f64>) -> Self {
         Self {
             inner,
             std_deg,
@@ -640,12 +672,15 @@ impl Fitter for AnchoredDofs {
         let clock = Instant::now();
         let mut centre = request.start.clone();
         request.bounds.clamp(&mut centre);
+        let translation_std_mm = self
+            .translation_std_mm
+            .unwrap_or_else(|| anchor_translation_std_mm(request.motion.is_some()));
         let anchored = anchored_energy(
             request.energy,
             &centre,
             &request.mask.free,
             self.std_deg,
-            self.translation_std_mm,
+            translation_std_mm,
             request.motion.as_deref(),
         )
         .map_err(|e| FitError::LeastSquares(format!("--dofs anchored: {e}")))?;
@@ -683,11 +718,11 @@ mod tests {
         let loose = Dofs::anchored(2.5);
         let both = Dofs::Anchored {
             std_deg: 2.5,
-            translation_std_mm: 100.0,
+            translation_std_mm: Some(100.0),
         };
         let moved = Dofs::Anchored {
             std_deg: ANCHOR_STD_DEG,
-            translation_std_mm: 5.0,
+            translation_std_mm: Some(5.0),
         };
         for d in [
             Dofs::All,
@@ -707,7 +742,7 @@ mod tests {
         let combined = Dofs::ObservedAnchored {
             max_std_deg: 30.0,
             std_deg: 4.0,
-            translation_std_mm: ANCHOR_TRANSLATION_STD_MM,
+            translation_std_mm: None,
         };
         assert_eq!("observed:30+anchored:4".parse::<Dofs>().unwrap(), combined);
         assert_eq!(combined.name(), "observed:30+anchored:4");
@@ -730,7 +765,18 @@ mod tests {
             [Dofs::ANCHORED, loose, both].map(Dofs::suffix),
             ["anchored", "anchored-2.5deg", "anchored-2.5deg-100mm"]
         );
-        assert_eq!("anchored:15,30".parse::<Dofs>().unwrap(), Dofs::ANCHORED);
+        // An explicit translation σ is kept wherever the start comes from, even at a default's
+        // value: `anchored` alone is the default by start.
+        let explicit = "anchored:15,30".parse::<Dofs>().unwrap();
+        assert_eq!(
+            explicit,
+            Dofs::Anchored {
+                std_deg: ANCHOR_STD_DEG,
+                translation_std_mm: Some(ANCHOR_TRANSLATION_STD_MM),
+            }
+        );
+        assert_ne!(explicit, Dofs::ANCHORED);
+        assert_eq!(explicit.name(), "anchored:15,30");
         for bad in [
             "anchored:",
             "anchored:0",

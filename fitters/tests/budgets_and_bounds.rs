@@ -375,7 +375,7 @@ fn anchored_dofs_pull_toward_the_start_and_report_the_energy() {
     let free = fit(Dofs::All);
     let anchored = |std_deg, translation_std_mm| Dofs::Anchored {
         std_deg,
-        translation_std_mm,
+        translation_std_mm: Some(translation_std_mm),
     };
     let tight = fit(anchored(1e-4, 1e9));
     let held = fit(anchored(1e-4, 1e-4));
@@ -419,7 +419,7 @@ fn anchored_dofs_pull_toward_the_start_and_report_the_energy() {
     let both = fit(Dofs::ObservedAnchored {
         max_std_deg: lfit_fitters::OBSERVED_MAX_STD_DEG,
         std_deg: 2.0,
-        translation_std_mm: 1e9,
+        translation_std_mm: Some(1e9),
     });
     let held: Vec<usize> = mask
         .free
@@ -464,11 +464,30 @@ fn the_sequences_motion_widens_the_anchor_up_to_its_cap() {
     };
     let anchored = |std_deg, translation_std_mm| Dofs::Anchored {
         std_deg,
-        translation_std_mm,
+        translation_std_mm: Some(translation_std_mm),
     };
     let plain = fit(anchored(2.0, 10.0), None).unwrap();
     let still = fit(anchored(2.0, 10.0), Some(vec![0.0; dim])).unwrap();
     assert_eq!(plain.pose, still.pose, "no motion is the plain anchor");
+    // Without `,MM` the translation's σ is the start's: an estimate's (no motion: a frame on its
+    // own, `neural+lm`'s network result) or the previous frame's fit in a sequence (a motion,
+    // zero at the chain's second frame), each what the explicit σ gives.
+    let by_start = |motion: Option<Vec<f64>>| fit(Dofs::anchored(2.0), motion).unwrap().pose;
+    for (motion, mm) in [
+        (None, lfit_fitters::ANCHOR_TRANSLATION_STD_MM),
+        (
+            Some(vec![0.0; dim]),
+            lfit_fitters::SEQUENCE_ANCHOR_TRANSLATION_STD_MM,
+        ),
+    ] {
+        let explicit = fit(anchored(2.0, mm), motion.clone()).unwrap().pose;
+        assert_eq!(by_start(motion), explicit, "{mm} mm");
+    }
+    assert_ne!(
+        by_start(None),
+        by_start(Some(vec![0.0; dim])),
+        "the two defaults pull the translation apart"
+    );
     let fast = fit(anchored(2.0, 10.0), Some(vec![10.0; dim])).unwrap();
     let capped = fit(anchored(ANCHOR_MOTION_CAP * 2.0, 10.0), None).unwrap();
     let gap = fast

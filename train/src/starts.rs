@@ -54,7 +54,9 @@ pub struct StartMix {
     /// it) is fitted on the energy plus a Gaussian pull toward that start — its rotations by this
     /// σ widened by the window's motion so far, its root translation by
     /// [`lfit_fitters::ANCHOR_TRANSLATION_STD_MM`] — as `lfit fit --method neural --dofs
-    /// anchored:DEG` fits a sequence's frames ([`lfit_fitters::anchored_energy`]). Absent (the
+    /// anchored:DEG,30` fits a sequence's frames ([`lfit_fitters::anchored_energy`]; the shipped
+    /// sequence networks were trained so, and fit with `anchored:DEG`'s sequence default of
+    /// [`lfit_fitters::SEQUENCE_ANCHOR_TRANSLATION_STD_MM`] since, round 34). Absent (the
     /// default): the plain energy, as before.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub anchor_deg: Option<f64>,
