@@ -323,15 +323,19 @@ fn a_known_shape_is_frozen_for_every_method_and_required_by_a_known_shape_networ
 /// `shape_at_bound_frames` counts the frames whose β has an entry at ±3 (checked here against
 /// the rows), `shape_hint` and one warning line on stderr say how to fix β. One phone camera
 /// (`configs/rigs/phone-1.json`) seeing 30 frames of the MakeHuman body's keypoints2d: LM with
-/// the temporal anchor lets size and depth trade off until the box stops β (8 frames at this
-/// seed); two cameras (`tripods-2.json`) pin the size (none); with β given nothing is counted.
+/// the temporal anchor holding the root by 30 mm (`anchored:5,30`, round 33's default) lets size
+/// and depth trade off until the box stops β (8 frames at this seed); the sequence's default pull
+/// (`anchored:5`: 300 mm) lets the depth follow the subject and ends far closer; two cameras
+/// (`tripods-2.json`) pin the size (none); with β given nothing is counted.
 #[test]
 fn a_shape_run_to_its_box_is_counted_and_hinted() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let model = root.join("models/makehuman-cmu_mb.npz");
     let motion = root.join("data/motions/cmu/validation/006_01.npz");
     let tmp = tempfile::tempdir().expect("tmp");
-    let fit = |rig: &str, extra: &[&str]| {
+    // The tight pull of the translation that lets β run to its box on one camera.
+    const TIGHT: &str = "anchored:5,30";
+    let fit = |rig: &str, dofs: &str, extra: &[&str]| {
         let data = tmp.path().join(format!("{rig}.npz"));
         if !data.exists() {
             support::synth_to(
@@ -356,7 +360,7 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
             );
         }
         let out = tmp.path().join("fit.json");
-        let mut more = vec!["--template", path_str(&model), "--dofs", "anchored:5"];
+        let mut more = vec!["--template", path_str(&model), "--dofs", dofs];
         more.extend(extra);
         let args = support::lm_fit_args(&data, &out, "4000", &more);
         let run = lfit(&args);
@@ -370,7 +374,7 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
             String::from_utf8_lossy(&run.stderr).into_owned(),
         )
     };
-    let (phone, stderr) = fit("phone-1", &[]);
+    let (phone, stderr) = fit("phone-1", TIGHT, &[]);
     let at_box = shapes(&phone)
         .iter()
         .filter(|b| b.iter().any(|v| v.abs() >= 3.0 - 1e-9))
@@ -390,8 +394,23 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
         .filter(|l| l.starts_with("warning:"))
         .collect();
     assert_eq!(warnings, [format!("warning: {hint}")], "{stderr}");
+    let v2v = |r: &serde_json::Value| r["summary"]["mean_v2v_mm"].as_f64().expect("v2v");
+    // The sequence's default pull on the translation lets the depth follow: under half the
+    // tight pull's V2V, no more frames at the box.
+    let (followed, _) = fit("phone-1", "anchored:5", &[]);
+    assert!(
+        v2v(&followed) < 0.5 * v2v(&phone),
+        "anchored:5 {} mm, anchored:5,30 {} mm",
+        v2v(&followed),
+        v2v(&phone)
+    );
+    assert!(
+        followed["summary"]["shape_at_bound_frames"].as_u64() <= Some(at_box as u64),
+        "{}",
+        followed["summary"]
+    );
 
-    let (two, stderr) = fit("tripods-2", &[]);
+    let (two, stderr) = fit("tripods-2", TIGHT, &[]);
     assert_eq!(
         two["summary"]["shape_at_bound_frames"], 0,
         "{}",
@@ -399,7 +418,7 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
     );
     assert!(two["summary"].get("shape_hint").is_none() && !stderr.contains("warning:"));
 
-    let (given, stderr) = fit("phone-1", &["--known-shape", "truth"]);
+    let (given, stderr) = fit("phone-1", TIGHT, &["--known-shape", "truth"]);
     let summary = &given["summary"];
     assert!(
         summary.get("shape_at_bound_frames").is_none() && summary.get("shape_hint").is_none(),
@@ -414,7 +433,7 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
     let truth = lfit::synth::Dataset::load(&tmp.path().join("phone-1.npz")).expect("data");
     let shape = template.layout().range(lfit::model::layout::Block::Shape);
     let (height, ..) = lfit::model::stature::rest_height(&template, &truth.gt_poses[0][shape]);
-    let (tall, stderr) = fit("phone-1", &["--known-shape", &format!("height:{height}")]);
+    let (tall, stderr) = fit("phone-1", TIGHT, &["--known-shape", &format!("height:{height}")]);
     let beta: Vec<f64> = tall["known_shape"]["beta"]
         .as_array()
         .expect("the β used")
@@ -428,7 +447,6 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
     assert_eq!(tall["known_shape"]["height_m"], height);
     assert!(shapes(&tall).iter().all(|b| *b == beta));
     assert!((lfit::model::stature::rest_height(&template, &beta).0 - height).abs() < 1e-9);
-    let v2v = |r: &serde_json::Value| r["summary"]["mean_v2v_mm"].as_f64().expect("v2v");
     assert!(
         v2v(&tall) < 0.5 * v2v(&phone) && v2v(&tall) < 2.0 * v2v(&given),
         "height {} mm, per-frame β {} mm, β given {} mm",
@@ -466,7 +484,7 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
         got
     };
     let off = |hs: &[f64]| hs.iter().map(|h| (h - height).abs()).sum::<f64>() / hs.len() as f64;
-    let (soft, stderr) = fit("phone-1", &["--height-prior", &height.to_string()]);
+    let (soft, stderr) = fit("phone-1", TIGHT, &["--height-prior", &height.to_string()]);
     assert_eq!(soft["height_prior"]["height_m"], height);
     assert_eq!(soft["height_prior"]["std_m"], 0.01);
     let held = heights(&soft);
@@ -492,14 +510,14 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
         !stderr.contains("warning:") || bound(&soft) > Some(0),
         "{stderr}"
     );
-    let (loose, _) = fit("phone-1", &["--height-prior", &format!("{height}:0.05")]);
+    let (loose, _) = fit("phone-1", TIGHT, &["--height-prior", &format!("{height}:0.05")]);
     assert_eq!(loose["height_prior"]["std_m"], 0.05);
     assert!(
         off(&heights(&loose)) > off(&held),
         "σ 5 cm holds less than 1 cm"
     );
     // A prior too wide to hold the size: the hint says so and asks for a tighter one or β.
-    let (wide, stderr) = fit("phone-1", &["--height-prior", &format!("{height}:1")]);
+    let (wide, stderr) = fit("phone-1", TIGHT, &["--height-prior", &format!("{height}:1")]);
     assert!(bound(&wide) > Some(0), "{}", wide["summary"]);
     let hint = wide["summary"]["shape_hint"].as_str().expect("a hint");
     assert!(

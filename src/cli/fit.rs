@@ -139,8 +139,9 @@ fn placement_hint(
 /// ±[`lfit_model::pose::SHAPE_BOUND`]. Where the observations leave the body's size open (one
 /// camera trades size against depth) a per-frame β runs along that valley until the box stops it:
 /// on a one-camera keypoints2d sequence (`configs/rigs/phone-1.json`, CMU subject 6, 100 frames)
-/// LM with `--dofs anchored:5` ended 75 frames there at 401 mm V2V, against none of the frames
-/// of the two- and three-camera rigs (`docs/results/captured-motion.md`, round 32).
+/// LM with `--dofs anchored:5,30` (the translation held by 30 mm, the default before round 34)
+/// ended 75 frames there at 401 mm V2V, against none of the frames of the two- and three-camera
+/// rigs (`docs/results/captured-motion.md`, rounds 32 and 34).
 fn shape_at_bound(template: &Template, pose: &[f64]) -> bool {
     let shape = template.layout().range(lfit_model::layout::Block::Shape);
     pose[shape]

@@ -1,0 +1,80 @@
+#!/usr/bin/env bash
+# Keypoints2d sequences seen by one phone camera (configs/rigs/phone-1.json, a rig no training run
+# drew): the held-out CMU subject 6 (data/motions/cmu/validation) on six synthetic subjects
+# (seeds SEEDS, default 11–16: one β each) at the frame rates FPS (default "30 10"), 100 frames,
+# each frame from the previous frame's fit. Fitted by LM with the temporal anchor (`--dofs
+# anchored:5[,MM]`) and by the keypoints2d sequence network (`--dofs observed:30+anchored:5[,MM]`)
+# with β per frame (`free`), each subject's true height as a soft measurement (`height`,
+# `--height-prior truth`) and β given (`known`, `--known-shape truth`), for each translation
+# standard deviation of MMS (default "default 30 300": `default` is `anchored:5` as shipped, a
+# number N is `anchored:5,N`). Prints one Markdown table: mean V2V (mm) over the subjects, and
+# PA-MPJPE in brackets, per row (docs/results/captured-motion.md, round 34).
+#
+#   scripts/eval-one-camera.sh [OUT]
+#
+# OUT defaults to target/eval-one-camera. LFIT (default: the release build) is the binary.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+OUT="${1:-target/eval-one-camera}"
+source scripts/eval-common.sh
+eval_binary eval-one-camera
+mkdir -p "$OUT"
+export RAYON_NUM_THREADS=1
+SEEDS="${SEEDS:-11 12 13 14 15 16}"
+FPS="${FPS:-30 10}"
+MMS="${MMS:-default 30 300}"
+SHAPES="${SHAPES:-free height known}"
+for f in $FPS; do
+    for s in $SEEDS; do
+        data="$OUT/phone-$f-$s.npz"
+        [ -f "$data" ] || "$LFIT" -q synth --modality keypoints2d --scenario sequence --frames 100 \
+            --fps "$f" --seed "$s" --template "$MODEL" --motions data/motions/cmu/validation/006_*.npz \
+            --camera configs/rigs/phone-1.json --out "$data" >/dev/null
+    done
+done
+shape_args() {
+    case "$1" in
+        free) ;;
+        height) echo "--height-prior truth" ;;
+        known) echo "--known-shape truth" ;;
+        *)
+            echo "eval-one-camera: unknown shape '$1' (free, height or known)" >&2
+            exit 1
+            ;;
+    esac
+}
+mean() { # JSON files...: "V2V (PA-MPJPE)" means
+    python3 - "$@" <<'PY'
+import json, sys
+s = [json.load(open(f))["summary"] for f in sys.argv[1:]]
+n = len(s)
+print(f"{sum(x['mean_v2v_mm'] for x in s) / n:.1f} ({sum(x['mean_pa_mpjpe_mm'] for x in s) / n:.1f})")
+PY
+}
+echo "| fps | β | translation σ | LM anchored | sequence network |"
+echo "|---|---|---|---|---|"
+for f in $FPS; do
+    for shape in $SHAPES; do
+        for mm in $MMS; do
+            anchor="anchored:5"
+            [ "$mm" != default ] && anchor="anchored:5,$mm"
+            lm=()
+            net=()
+            for s in $SEEDS; do
+                data="$OUT/phone-$f-$s.npz"
+                stem="$OUT/r-$f-$s-$shape-$mm"
+                # shellcheck disable=SC2046
+                "$LFIT" -q fit --data "$data" --template "$MODEL" --method lm --budget 4000 \
+                    --dofs "$anchor" $(shape_args "$shape") --out "$stem-lm.json" >/dev/null 2>"$stem.err" || { cat "$stem.err" >&2; exit 1; }
+                # shellcheck disable=SC2046
+                "$LFIT" -q fit --data "$data" --template "$MODEL" --method neural \
+                    --checkpoint checkpoints/keypoints2d-makehuman-sequence --neural-start given \
+                    --budget 12 --dofs "observed:30+$anchor" $(shape_args "$shape") \
+                    --out "$stem-net.json" >/dev/null 2>"$stem.err" || { cat "$stem.err" >&2; exit 1; }
+                lm+=("$stem-lm.json")
+                net+=("$stem-net.json")
+            done
+            echo "| $f | $shape | $mm | $(mean "${lm[@]}") | $(mean "${net[@]}") |"
+        done
+    done
+done
