@@ -7,8 +7,9 @@
 # with β per frame (`free`), each subject's true height as a soft measurement (`height`,
 # `--height-prior truth`) and β given (`known`, `--known-shape truth`), for each translation
 # standard deviation of MMS (default "default 30 300": `default` is `anchored:5` as shipped, a
-# number N is `anchored:5,N`). Prints one Markdown table: mean V2V (mm) over the subjects, and
-# PA-MPJPE in brackets, per row (docs/results/captured-motion.md, round 34).
+# number N is `anchored:5,N`). SEQUENCE_SHAPE (e.g. joint:64; default the per-frame β of `lfit
+# fit`) is passed as `--sequence-shape` to every fit. Prints one Markdown table: mean V2V (mm)
+# over the subjects, and PA-MPJPE in brackets, per row (docs/results/captured-motion.md, round 34).
 #
 #   scripts/eval-one-camera.sh [OUT]
 #
@@ -33,6 +34,7 @@ for f in $FPS; do
     done
 done
 shape_args() {
+    [ -n "${SEQUENCE_SHAPE:-}" ] && echo "--sequence-shape $SEQUENCE_SHAPE"
     case "$1" in
         free) ;;
         height) echo "--height-prior truth" ;;
@@ -62,7 +64,7 @@ for f in $FPS; do
             net=()
             for s in $SEEDS; do
                 data="$OUT/phone-$f-$s.npz"
-                stem="$OUT/r-$f-$s-$shape-$mm"
+                stem="$OUT/r-$f-$s-$shape-$mm${SEQUENCE_SHAPE:+-${SEQUENCE_SHAPE/:/}}"
                 # shellcheck disable=SC2046
                 "$LFIT" -q fit --data "$data" --template "$MODEL" --method lm --budget 4000 \
                     --dofs "$anchor" $(shape_args "$shape") --out "$stem-lm.json" >/dev/null 2>"$stem.err" || { cat "$stem.err" >&2; exit 1; }
