@@ -386,7 +386,7 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
     assert!(
         hint.contains(&format!("in {at_box} of 30 frames"))
             && hint.contains("--known-shape height:M")
-            && hint.contains("--sequence-shape first-pass"),
+            && hint.contains("--sequence-shape joint:64"),
         "{hint}"
     );
     let warnings: Vec<&str> = stderr
@@ -433,7 +433,11 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
     let truth = lfit::synth::Dataset::load(&tmp.path().join("phone-1.npz")).expect("data");
     let shape = template.layout().range(lfit::model::layout::Block::Shape);
     let (height, ..) = lfit::model::stature::rest_height(&template, &truth.gt_poses[0][shape]);
-    let (tall, stderr) = fit("phone-1", TIGHT, &["--known-shape", &format!("height:{height}")]);
+    let (tall, stderr) = fit(
+        "phone-1",
+        TIGHT,
+        &["--known-shape", &format!("height:{height}")],
+    );
     let beta: Vec<f64> = tall["known_shape"]["beta"]
         .as_array()
         .expect("the β used")
@@ -510,14 +514,22 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
         !stderr.contains("warning:") || bound(&soft) > Some(0),
         "{stderr}"
     );
-    let (loose, _) = fit("phone-1", TIGHT, &["--height-prior", &format!("{height}:0.05")]);
+    let (loose, _) = fit(
+        "phone-1",
+        TIGHT,
+        &["--height-prior", &format!("{height}:0.05")],
+    );
     assert_eq!(loose["height_prior"]["std_m"], 0.05);
     assert!(
         off(&heights(&loose)) > off(&held),
         "σ 5 cm holds less than 1 cm"
     );
     // A prior too wide to hold the size: the hint says so and asks for a tighter one or β.
-    let (wide, stderr) = fit("phone-1", TIGHT, &["--height-prior", &format!("{height}:1")]);
+    let (wide, stderr) = fit(
+        "phone-1",
+        TIGHT,
+        &["--height-prior", &format!("{height}:1")],
+    );
     assert!(bound(&wide) > Some(0), "{}", wide["summary"]);
     let hint = wide["summary"]["shape_hint"].as_str().expect("a hint");
     assert!(

@@ -151,7 +151,10 @@ fn shape_at_bound(template: &Template, pose: &[f64]) -> bool {
 
 /// The summary's `shape_hint` where `at_bound` of `frames` fitted frames ended with β at its box
 /// ([`shape_at_bound`]): the fit's size is the box's, not the subject's. `None` when none did.
-/// With `height_prior` (the fit had `--height-prior`) the advice is a tighter one or β.
+/// With `height_prior` (the fit had `--height-prior`) the advice is a tighter one or β. In a
+/// sequence it adds one β over the sequence, `joint:64`: its first pass is a chain, where
+/// `first-pass` fits frames alone from their starts (one camera's sequences from starts 300 mm
+/// off in depth: 55 mm against 240; docs/results/captured-motion.md, round 34).
 fn shape_hint(
     at_bound: usize,
     frames: usize,
@@ -165,7 +168,7 @@ fn shape_hint(
             "give β or the subject's height (--known-shape height:M, or --height-prior M with β estimated)"
         };
         let fix = if sequence {
-            format!("{give}, or fix one β over the sequence (--sequence-shape first-pass)")
+            format!("{give}, or fix one β over the sequence (--sequence-shape joint:64)")
         } else {
             give.to_string()
         };
