@@ -9,7 +9,10 @@
 # standard deviation of MMS (default "default 30 300": `default` is `anchored:5` as shipped, a
 # number N is `anchored:5,N`). SEQUENCE_SHAPE (e.g. joint:64; default the per-frame β of `lfit
 # fit`) is passed as `--sequence-shape` to every fit. Prints one Markdown table: mean V2V (mm)
-# over the subjects, and PA-MPJPE in brackets, per row (docs/results/captured-motion.md, round 34).
+# over the subjects, PA-MPJPE in brackets, and how rough the fitted root's track is — the
+# root-mean-square of its second difference between consecutive frames, mm per frame² (the
+# truth's: 4.8 at 30 fps, 15.8 at 10 — a fixed pull trades V2V against it; docs/results/captured-motion.md,
+# round 34).
 #
 #   scripts/eval-one-camera.sh [OUT]
 #
@@ -45,15 +48,26 @@ shape_args() {
             ;;
     esac
 }
-mean() { # JSON files...: "V2V (PA-MPJPE)" means
+mean() { # JSON files...: "V2V (PA-MPJPE) · root acceleration" means
     python3 - "$@" <<'PY'
-import json, sys
-s = [json.load(open(f))["summary"] for f in sys.argv[1:]]
-n = len(s)
-print(f"{sum(x['mean_v2v_mm'] for x in s) / n:.1f} ({sum(x['mean_pa_mpjpe_mm'] for x in s) / n:.1f})")
+import json, math, sys
+runs = [json.load(open(f)) for f in sys.argv[1:]]
+n = len(runs)
+v2v = sum(r["summary"]["mean_v2v_mm"] for r in runs) / n
+pa = sum(r["summary"]["mean_pa_mpjpe_mm"] for r in runs) / n
+def roughness(r):
+    # The root translation (the first three entries, metres) of consecutive frames.
+    p = [f["pose"][:3] for f in sorted(r["frames"], key=lambda f: f["frame"])]
+    acc = [
+        sum((1000.0 * (p[k + 1][a] - 2.0 * p[k][a] + p[k - 1][a])) ** 2 for a in range(3))
+        for k in range(1, len(p) - 1)
+    ]
+    return math.sqrt(sum(acc) / len(acc))
+rough = sum(roughness(r) for r in runs) / n
+print(f"{v2v:.1f} ({pa:.1f}) · {rough:.1f}")
 PY
 }
-echo "| fps | β | translation σ | LM anchored | sequence network |"
+echo "| fps | β | translation σ | LM anchored: V2V (PA-MPJPE) · root acceleration | sequence network: the same |"
 echo "|---|---|---|---|---|"
 for f in $FPS; do
     for shape in $SHAPES; do
