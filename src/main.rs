@@ -515,10 +515,12 @@ struct FitCmd {
     /// or anchored (every entry, the rotations pulled toward the start's values by a Gaussian of
     /// 15° and the root translation by one of 30 mm, in the data term's units: the data move an
     /// entry as far as they determine it; for neural+lm the start is the network's result; in
-    /// a sequence, where the start is the previous frame's result, the rotations' pull widens
+    /// a sequence, where the start is the previous frame's result, the translation's pull is
+    /// 300 mm (a person moves between frames) and the rotations' pull widens
     /// with how fast the fits before moved, up to 3×: LM's temporal prior, anchored:4 on
     /// markers, anchored:5 on keypoints2d; anchored:DEG another rotation standard deviation,
-    /// anchored:DEG,MM both; the energy reported is the energy, without the pull), or
+    /// anchored:DEG,MM both, MM wherever the start comes from; the energy reported is the
+    /// energy, without the pull), or
     /// observed[:DEG]+anchored[:DEG[,MM]] (both: what observed holds stays, the rest is pulled).
     /// With --method neural the network fits that energy and mask (the *-makehuman-sequence
     /// checkpoints in a sequence: observed:30+anchored:4 on markers, :5 on keypoints2d).
