@@ -9,10 +9,11 @@
 # standard deviation of MMS (default "default 30 300": `default` is `anchored:5` as shipped, a
 # number N is `anchored:5,N`). SEQUENCE_SHAPE (e.g. joint:64; default the per-frame β of `lfit
 # fit`) is passed as `--sequence-shape` to every fit. Prints one Markdown table: mean V2V (mm)
-# over the subjects, PA-MPJPE in brackets, and how rough the fitted root's track is — the
+# over the subjects, PA-MPJPE in brackets, how rough the fitted root's track is — the
 # root-mean-square of its second difference between consecutive frames, mm per frame² (the
-# truth's: 4.8 at 30 fps, 15.8 at 10 — a fixed pull trades V2V against it; docs/results/captured-motion.md,
-# round 34).
+# truth's: 4.8 at 30 fps, 15.8 at 10 — a fixed pull trades V2V against it) — and the summary's
+# acceleration error of the joints against the truth's (`mean_accel_error_mm`);
+# docs/results/captured-motion.md, round 34.
 #
 #   scripts/eval-one-camera.sh [OUT]
 #
@@ -64,10 +65,11 @@ def roughness(r):
     ]
     return math.sqrt(sum(acc) / len(acc))
 rough = sum(roughness(r) for r in runs) / n
-print(f"{v2v:.1f} ({pa:.1f}) · {rough:.1f}")
+accel = sum(r["summary"]["mean_accel_error_mm"] for r in runs) / n
+print(f"{v2v:.1f} ({pa:.1f}) · {rough:.1f} · {accel:.1f}")
 PY
 }
-echo "| fps | β | translation σ | LM anchored: V2V (PA-MPJPE) · root acceleration | sequence network: the same |"
+echo "| fps | β | translation σ | LM anchored: V2V (PA-MPJPE) · root acceleration · acceleration error | sequence network: the same |"
 echo "|---|---|---|---|---|"
 for f in $FPS; do
     for shape in $SHAPES; do

@@ -124,6 +124,11 @@ fn a_known_shape_is_frozen_for_every_method_and_required_by_a_known_shape_networ
             assert_eq!(f["shape_v2v_mm"], 0.0, "{method}");
         }
         assert_eq!(r["summary"]["mean_shape_v2v_mm"], 0.0, "{method}");
+        // Single frames (the local scenario): no acceleration error.
+        assert!(
+            r["summary"].get("mean_accel_error_mm").is_none(),
+            "{method}"
+        );
     }
     // Without --known-shape LM moves β (so the equality above is the flag's doing), and the
     // rest-pose surface with it.
@@ -408,6 +413,15 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
         followed["summary"]["shape_at_bound_frames"].as_u64() <= Some(at_box as u64),
         "{}",
         followed["summary"]
+    );
+    // The price: the looser pull lets one camera's depth jitter, which the sequence's
+    // acceleration error (mm per frame², against the truth's motion) shows — the tight pull's
+    // is under the default's.
+    let accel = |r: &serde_json::Value| r["summary"]["mean_accel_error_mm"].as_f64();
+    let (tight_accel, loose_accel) = (accel(&phone).expect("a"), accel(&followed).expect("a"));
+    assert!(
+        tight_accel > 0.0 && tight_accel < 0.8 * loose_accel,
+        "acceleration error {tight_accel} (30 mm) against {loose_accel} (default)"
     );
 
     let (two, stderr) = fit("tripods-2", TIGHT, &[]);

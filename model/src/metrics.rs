@@ -327,6 +327,46 @@ pub fn ground_penetration_mm(template: &Template, pose: &[f64]) -> f64 {
     }
 }
 
+/// The posed joint centres of `params` (the positions MPJPE compares), metres.
+pub fn joint_positions(template: &Template, params: &[f64]) -> Vec<DVec3> {
+    joint_transforms(template, params).joints
+}
+
+/// Acceleration error of a sequence, mm per frame²: the mean over every three consecutive
+/// frames and every joint of `‖(f₊ − 2f + f₋) − (g₊ − 2g + g₋)‖`, `f` the fitted and `g` the true
+/// joint positions (metres) — the temporal metric of video pose work (Kanazawa et al. 2019,
+/// "Learning 3D Human Dynamics from Video"; VIBE, Kocabas et al. 2020): a fit that jitters
+/// frame to frame has a large one even where its mean error is small; a constant or linearly
+/// drifting offset has none. `frames` holds each fitted frame's index with its fitted and true
+/// joints; a triple counts only where the three indices are consecutive (a gap in `--frames`
+/// breaks it). `None` where no triple does or the joint counts differ.
+pub fn accel_error_mm(frames: &[(usize, Vec<DVec3>, Vec<DVec3>)]) -> Option<f64> {
+    let mut sorted: Vec<&(usize, Vec<DVec3>, Vec<DVec3>)> = frames.iter().collect();
+    sorted.sort_by_key(|f| f.0);
+    let (mut sum, mut count) = (0.0, 0usize);
+    for w in sorted.windows(3) {
+        let [(a, fa, ga), (b, fb, gb), (c, fc, gc)] = [w[0], w[1], w[2]].map(|f| (f.0, &f.1, &f.2));
+        if b != a + 1 || c != b + 1 {
+            continue;
+        }
+        let n = fb.len();
+        if [fa.len(), fc.len(), ga.len(), gb.len(), gc.len()] != [n; 5] || n == 0 {
+            return None;
+        }
+        let mean: f64 = (0..n)
+            .map(|j| {
+                let fitted = fc[j] - 2.0 * fb[j] + fa[j];
+                let truth = gc[j] - 2.0 * gb[j] + ga[j];
+                (fitted - truth).length()
+            })
+            .sum::<f64>()
+            / n as f64;
+        sum += mean;
+        count += 1;
+    }
+    (count > 0).then(|| 1000.0 * sum / count as f64)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -566,5 +606,58 @@ mod tests {
         let mut lifted = rest;
         lifted[1] += 0.05;
         assert_eq!(ground_penetration_mm(&t, &lifted), 0.0);
+    }
+
+    /// The acceleration error against its definition: zero for the truth itself, for a constant
+    /// offset and for an offset drifting linearly; a spike of d at one frame counts d, 2d and d
+    /// in the three triples around it; gaps break triples, and mismatched joint counts are None.
+    #[test]
+    fn the_acceleration_error_sees_jitter_not_offsets() {
+        let truth: Vec<Vec<DVec3>> = (0..6)
+            .map(|k| {
+                let t = k as f64;
+                vec![
+                    DVec3::new(0.1 * t, 0.02 * t * t, 1.0),
+                    DVec3::new(-0.3, 0.5 * t, 0.0),
+                ]
+            })
+            .collect();
+        let seq = |fitted: &dyn Fn(usize, &Vec<DVec3>) -> Vec<DVec3>| -> Vec<(usize, Vec<DVec3>, Vec<DVec3>)> {
+            truth
+                .iter()
+                .enumerate()
+                .map(|(k, g)| (k, fitted(k, g), g.clone()))
+                .collect()
+        };
+        let same = seq(&|_, g| g.clone());
+        assert_eq!(accel_error_mm(&same), Some(0.0));
+        let drift = seq(&|k, g| {
+            g.iter()
+                .map(|p| *p + DVec3::new(0.05, -0.01, 0.2) * (1.0 + k as f64))
+                .collect()
+        });
+        assert!(accel_error_mm(&drift).unwrap() < 1e-9);
+        // A 6 mm spike along x at frame 2: triples (1,2,3), (0,1,2), (2,3,4) see 12, 6, 6 mm
+        // on every joint; the other one (3,4,5) none: (6 + 12 + 6 + 0) / 4 = 6 mm.
+        let spike = seq(&|k, g| {
+            g.iter()
+                .map(|p| {
+                    if k == 2 {
+                        *p + DVec3::new(0.006, 0.0, 0.0)
+                    } else {
+                        *p
+                    }
+                })
+                .collect()
+        });
+        assert!((accel_error_mm(&spike).unwrap() - 6.0).abs() < 1e-9);
+        // Frames out of order are sorted; a gap (frame 3 missing) leaves only (0,1,2): 6 mm.
+        let mut gappy: Vec<_> = spike.iter().filter(|f| f.0 != 3).cloned().collect();
+        gappy.reverse();
+        assert!((accel_error_mm(&gappy).unwrap() - 6.0).abs() < 1e-9);
+        assert_eq!(accel_error_mm(&spike[..2]), None);
+        let mut short = same.clone();
+        short[1].1.pop();
+        assert_eq!(accel_error_mm(&short), None);
     }
 }

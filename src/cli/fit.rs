@@ -594,6 +594,9 @@ fn fit_prepared(
     let mut shape_at_bound_frames = 0usize;
     let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
     let mut sum_pa_mpjpe = 0.0;
+    // In a sequence with ground truth: each frame's fitted and true joints, for the
+    // acceleration error.
+    let mut sequence_joints: Vec<(usize, Vec<glam::DVec3>, Vec<glam::DVec3>)> = Vec::new();
     // Without ground truth (imported observations): how far the fit lies from the observations.
     let (mut sum_obs, mut obs_frames, mut obs_unit) = (0.0, 0usize, "");
     let mut observed: Vec<(usize, usize, Vec<f64>)> = Vec::new();
@@ -676,6 +679,13 @@ fn fit_prepared(
                 row["v2v_mm"] = json!(v2v);
                 row["mpjpe_mm"] = json!(mpjpe);
                 row["pa_mpjpe_mm"] = json!(pa_mpjpe);
+                if scenario == lfit_synth::Scenario::Sequence {
+                    sequence_joints.push((
+                        frame,
+                        lfit_model::metrics::joint_positions(&template, pose),
+                        lfit_model::metrics::joint_positions(&template, gt),
+                    ));
+                }
                 if let Some(c) = coefficient_rms(&template, pose, gt) {
                     row["shape_rms"] = json!(c);
                     sum_coeff += c;
@@ -762,6 +772,10 @@ fn fit_prepared(
         summary["mean_v2v_mm"] = json!(sum_v2v / n);
         summary["mean_mpjpe_mm"] = json!(sum_mpjpe / n);
         summary["mean_pa_mpjpe_mm"] = json!(sum_pa_mpjpe / n);
+        // A sequence's jitter against the truth's motion (mm per frame²).
+        if let Some(a) = lfit_model::metrics::accel_error_mm(&sequence_joints) {
+            summary["mean_accel_error_mm"] = json!(a);
+        }
         if template.morph.coefficients() > 0 {
             summary["mean_shape_rms"] = json!(sum_coeff / n);
         }
