@@ -112,23 +112,41 @@ pub fn shape_v2v_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> Optio
 
 /// Mean distance between corresponding posed joint centres, in mm.
 pub fn mpjpe_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> f64 {
-    let a = joint_transforms(template, fitted).joints;
-    let b = joint_transforms(template, truth).joints;
-    let n = a.len().max(1) as f64;
-    1000.0 * a.iter().zip(&b).map(|(p, q)| p.distance(*q)).sum::<f64>() / n
+    joint_error_mm(
+        &joint_positions(template, fitted),
+        &joint_positions(template, truth),
+    )
 }
 
 /// MPJPE after Procrustes alignment (rotation, uniform scale, translation) of the fitted joints
 /// onto the true ones, in mm.
 pub fn pa_mpjpe_mm(template: &Template, fitted: &[f64], truth: &[f64]) -> f64 {
-    let a = joint_transforms(template, fitted).joints;
-    let b = joint_transforms(template, truth).joints;
-    let aligned = procrustes_align(&a, &b);
-    let n = a.len().max(1) as f64;
+    aligned_joint_error_mm(
+        &joint_positions(template, fitted),
+        &joint_positions(template, truth),
+    )
+}
+
+/// [`mpjpe_mm`] of joints already posed ([`joint_positions`], metres): the mean distance of
+/// corresponding joints, mm.
+pub fn joint_error_mm(fitted: &[DVec3], truth: &[DVec3]) -> f64 {
+    let n = fitted.len().max(1) as f64;
     1000.0
-        * aligned
+        * fitted
             .iter()
-            .zip(&b)
+            .zip(truth)
+            .map(|(p, q)| p.distance(*q))
+            .sum::<f64>()
+        / n
+}
+
+/// [`pa_mpjpe_mm`] of joints already posed: [`joint_error_mm`] after [`procrustes_align`].
+pub fn aligned_joint_error_mm(fitted: &[DVec3], truth: &[DVec3]) -> f64 {
+    let n = fitted.len().max(1) as f64;
+    1000.0
+        * procrustes_align(fitted, truth)
+            .iter()
+            .zip(truth)
             .map(|(p, q)| p.distance(*q))
             .sum::<f64>()
         / n

@@ -8,7 +8,7 @@ use anyhow::{Context, Result, bail};
 use lfit_fitters::optim::{self, Method, Preset};
 use lfit_fitters::{Fitter, Strategy};
 use lfit_model::energy::{Energy, EnergyConfig};
-use lfit_model::metrics::{TruthMesh, mpjpe_mm, pa_mpjpe_mm};
+use lfit_model::metrics::{TruthMesh, aligned_joint_error_mm, joint_error_mm, mpjpe_mm};
 use lfit_model::pose::DofMask;
 use lfit_model::template::{Template, write_atomic};
 use lfit_synth::Dataset;
@@ -669,10 +669,16 @@ fn fit_prepared(
             if let Some(gt) = dataset.ground_truth(frame) {
                 let truth = TruthMesh::new(&template, gt);
                 let v2v = truth.v2v_mm(&template, pose);
-                let mpjpe = mpjpe_mm(&template, pose, gt);
+                // The fitted and true joints, posed once for MPJPE, PA-MPJPE and a sequence's
+                // acceleration error.
+                let (joints, true_joints) = (
+                    lfit_model::metrics::joint_positions(&template, pose),
+                    lfit_model::metrics::joint_positions(&template, gt),
+                );
+                let mpjpe = joint_error_mm(&joints, &true_joints);
                 // After a similarity alignment of the joints (the monocular figure: a single
                 // view leaves scale and depth open).
-                let pa_mpjpe = pa_mpjpe_mm(&template, pose, gt);
+                let pa_mpjpe = aligned_joint_error_mm(&joints, &true_joints);
                 sum_v2v += v2v;
                 sum_mpjpe += mpjpe;
                 sum_pa_mpjpe += pa_mpjpe;
@@ -680,11 +686,7 @@ fn fit_prepared(
                 row["mpjpe_mm"] = json!(mpjpe);
                 row["pa_mpjpe_mm"] = json!(pa_mpjpe);
                 if scenario == lfit_synth::Scenario::Sequence {
-                    sequence_joints.push((
-                        frame,
-                        lfit_model::metrics::joint_positions(&template, pose),
-                        lfit_model::metrics::joint_positions(&template, gt),
-                    ));
+                    sequence_joints.push((frame, joints, true_joints));
                 }
                 if let Some(c) = coefficient_rms(&template, pose, gt) {
                     row["shape_rms"] = json!(c);
