@@ -389,17 +389,19 @@ impl FrameHeights {
     /// `arg` on `template`; `truth` needs data with ground truth (`has_truth`). One-line errors
     /// for a model without shape coefficients and `truth` without ground truth.
     pub fn new(arg: HeightPriorArg, template: &Template, has_truth: bool) -> Result<Self> {
-        let (height, truth) = match arg.height {
-            HeightOf::Metres(m) => (m, false),
+        use lfit_model::energy::HeightPrior;
+        let (base, truth) = match arg.height {
+            HeightOf::Metres(m) => (HeightPrior::new(template, m, arg.std_m), false),
             HeightOf::Truth if !has_truth => bail!(
                 "--height-prior truth: the data have no ground truth (imported observations); give the subject's height in metres"
             ),
-            // Each frame's height replaces it (`apply`).
-            HeightOf::Truth => (lfit_model::stature::rest_height(template, &[]).0, true),
+            // Each frame's height replaces the mean shape's (`apply`).
+            HeightOf::Truth => (HeightPrior::at_mean_shape(template, arg.std_m), true),
         };
-        let base = lfit_model::energy::HeightPrior::new(template, height, arg.std_m)
-            .context("--height-prior")?;
-        Ok(Self { base, truth })
+        Ok(Self {
+            base: base.context("--height-prior")?,
+            truth,
+        })
     }
 
     /// `energy` with the prior of a frame whose ground-truth parameters are `truth` (read only
@@ -1274,6 +1276,22 @@ pub fn check_model(dataset: &Dataset, template: &Template) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// [`energy_for_frame`] with the frame's height prior where `heights` gives one
+/// ([`FrameHeights::apply`], `--height-prior`): what `lfit fit` and the bench fit.
+pub fn energy_with_height_prior(
+    dataset: &Dataset,
+    template: Arc<Template>,
+    frame: usize,
+    config: EnergyConfig,
+    heights: Option<&FrameHeights>,
+) -> Result<Energy> {
+    let energy = energy_for_frame(dataset, template, frame, config)?;
+    match heights {
+        Some(h) => h.apply(energy, dataset.ground_truth(frame)),
+        None => Ok(energy),
+    }
 }
 
 /// The energy of frame `frame` of `dataset`.

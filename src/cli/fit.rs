@@ -621,11 +621,13 @@ fn fit_prepared(
     plan.check_marker_placement()?;
     let mask = plan.mask()?;
     let frame_energy = |frame: usize| -> Result<lfit_model::energy::Energy> {
-        let e = energy_for_frame(dataset, template.clone(), frame, config.clone())?;
-        match &heights {
-            Some(h) => h.apply(e, dataset.ground_truth(frame)),
-            None => Ok(e),
-        }
+        crate::fitting::energy_with_height_prior(
+            dataset,
+            template.clone(),
+            frame,
+            config.clone(),
+            heights.as_ref(),
+        )
     };
     let mut done = 0;
     let report = crate::fitting::fit_frames(

@@ -21,9 +21,8 @@ use lfit_synth::{Dataset, Scenario};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::cli::fit::{
-    energy_for_frame, frame_seed, iterate_v2v, parse_frames, read_energy_config, template_for,
-};
+use crate::cli::fit::{frame_seed, iterate_v2v, parse_frames, read_energy_config, template_for};
+use crate::fitting::energy_with_height_prior;
 
 /// Dataset to synthesise when the config names none.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -894,11 +893,13 @@ pub fn run(
     let energies: Vec<Energy> = frames
         .iter()
         .map(|&f| {
-            let e = energy_for_frame(&dataset, template.clone(), f, energy_config.clone())?;
-            match &heights {
-                Some(h) => h.apply(e, dataset.ground_truth(f)),
-                None => Ok(e),
-            }
+            energy_with_height_prior(
+                &dataset,
+                template.clone(),
+                f,
+                energy_config.clone(),
+                heights.as_ref(),
+            )
         })
         .collect::<Result<_>>()?;
 

@@ -727,8 +727,7 @@ fn stature_prior(template: &Template) -> Result<lfit_model::energy::HeightPrior>
     if let Some((.., p)) = cache.iter().find(|(id, n, _)| (id, n) == (&key.0, &key.1)) {
         return Ok(p.clone());
     }
-    let (mean, ..) = lfit_model::stature::rest_height(template, &[]);
-    let p = lfit_model::energy::HeightPrior::new(template, mean, 1.0)?;
+    let p = lfit_model::energy::HeightPrior::at_mean_shape(template, 1.0)?;
     cache.push((key.0, key.1, p.clone()));
     Ok(p)
 }

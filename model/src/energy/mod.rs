@@ -533,6 +533,14 @@ impl HeightPrior {
         })
     }
 
+    /// A prior at the rest height of `template`'s mean shape (β = 0), standard deviation
+    /// `std_m`: the base of priors whose height each frame gives ([`HeightPrior::at`]: a subject
+    /// per frame, the truth's height in training). Fails like [`HeightPrior::new`].
+    pub fn at_mean_shape(template: &Template, std_m: f64) -> Result<Self> {
+        let (mean, ..) = crate::stature::rest_height(template, &[]);
+        Self::new(template, mean, std_m)
+    }
+
     /// The same prior (model, standard deviation, the vertices it reads) at another height: a
     /// subject per frame without measuring the mesh again. Fails like [`HeightPrior::new`] on a
     /// height that is not finite and positive.
