@@ -29,6 +29,28 @@ SEEDS="${SEEDS:-11 12 13 14 15 16}"
 FPS="${FPS:-30 10}"
 MMS="${MMS:-default 30 300}"
 SHAPES="${SHAPES:-free height known}"
+# Every setting checked before any work: one line and a non-zero exit for a bad one.
+for shape in $SHAPES; do
+    case "$shape" in
+        free | height | known) ;;
+        *)
+            echo "eval-one-camera: unknown shape '$shape' in SHAPES (free, height or known)" >&2
+            exit 1
+            ;;
+    esac
+done
+for mm in $MMS; do
+    if [ "$mm" != default ] && ! [[ "$mm" =~ ^[0-9]+([.][0-9]+)?$ ]]; then
+        echo "eval-one-camera: MMS entry '$mm' is neither 'default' nor a number of millimetres" >&2
+        exit 1
+    fi
+done
+for f in $FPS $SEEDS; do
+    if ! [[ "$f" =~ ^[0-9]+$ ]]; then
+        echo "eval-one-camera: FPS and SEEDS take whole numbers, not '$f'" >&2
+        exit 1
+    fi
+done
 for f in $FPS; do
     for s in $SEEDS; do
         data="$OUT/phone-$f-$s.npz"
@@ -40,13 +62,9 @@ done
 shape_args() {
     [ -n "${SEQUENCE_SHAPE:-}" ] && echo "--sequence-shape $SEQUENCE_SHAPE"
     case "$1" in
-        free) ;;
         height) echo "--height-prior truth" ;;
         known) echo "--known-shape truth" ;;
-        *)
-            echo "eval-one-camera: unknown shape '$1' (free, height or known)" >&2
-            exit 1
-            ;;
+        *) ;; # free (SHAPES is checked above)
     esac
 }
 mean() { # JSON files...: "V2V (PA-MPJPE) · root acceleration" means
