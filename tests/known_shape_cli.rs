@@ -258,8 +258,14 @@ fn a_known_shape_is_frozen_for_every_method_and_required_by_a_known_shape_networ
         .expect("shape_rms");
     let rows: Vec<&str> = csv.lines().skip(1).collect();
     assert_eq!(rows.len(), 4);
+    // β given: the rest meshes agree too.
+    let mesh = header
+        .iter()
+        .position(|h| *h == "shape_v2v_mm")
+        .expect("shape_v2v_mm");
     for row in &rows {
         assert_eq!(row.split(',').nth(col), Some("0.00000"), "{row}");
+        assert_eq!(row.split(',').nth(mesh), Some("0.0000"), "{row}");
     }
     let native = std::fs::read_to_string(d.join("b-native/runs.csv")).expect("runs.csv");
     let v2v = header.iter().position(|h| *h == "v2v_mm").expect("v2v_mm");

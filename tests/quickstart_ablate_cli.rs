@@ -262,22 +262,29 @@ fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
         );
         let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("csv");
         assert_eq!(csv.lines().count(), 1 + 6 * 4);
-        // One subject, one β (`joint:64`): each method's β error is the same in every
-        // frame of the clip.
+        // One subject, one β (`joint:64`): each method's β error and rest-mesh shape error are
+        // the same in every frame of the clip, the shape error a positive number of mm (β is
+        // estimated).
         let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
         let col = |name: &str| header.iter().position(|h| *h == name).expect(name);
-        let (method, shape) = (col("method"), col("shape_rms"));
-        let mut by_method: std::collections::BTreeMap<String, Vec<String>> = Default::default();
+        let (method, shape, mesh) = (col("method"), col("shape_rms"), col("shape_v2v_mm"));
+        let mut by_method: std::collections::BTreeMap<String, Vec<(String, String)>> =
+            Default::default();
         for line in csv.lines().skip(1) {
             let cells: Vec<&str> = line.split(',').collect();
             by_method
                 .entry(cells[method].to_string())
                 .or_default()
-                .push(cells[shape].to_string());
+                .push((cells[shape].to_string(), cells[mesh].to_string()));
         }
         assert_eq!(by_method.len(), 6);
-        for (name, rms) in &by_method {
-            assert!(rms.windows(2).all(|w| w[0] == w[1]), "{m} {name}: {rms:?}");
+        for (name, rows) in &by_method {
+            assert!(
+                rows.windows(2).all(|w| w[0] == w[1]),
+                "{m} {name}: {rows:?}"
+            );
+            let mm: f64 = rows[0].1.parse().expect("shape_v2v_mm");
+            assert!(mm > 0.0 && mm < 200.0, "{m} {name}: {mm}");
         }
     }
     // The temporally anchored LM: one part per clip, LM alone, its fitter the anchored one; its

@@ -188,6 +188,7 @@ mod tests {
             trace: Vec::new(),
             v2v_per_iteration: Vec::new(),
             face: None,
+            shape_v2v_mm: f64::NAN,
         }
     }
 

@@ -469,9 +469,15 @@ pub struct Run {
     pub v2v_per_iteration: Vec<f64>,
     /// papers/002 Table 7's errors on a face model (with a face region and landmarks).
     pub face: Option<FaceErrors>,
+    /// The shape error in mm: the mean vertex distance of the fitted and the true shape's rest
+    /// meshes ([`lfit_model::metrics::shape_v2v_mm`], PVE-T); NaN on a model without shape
+    /// coefficients.
+    pub shape_v2v_mm: f64,
 }
 
-pub const CSV_HEADER: &str = "method,strategy,budget,rep,frame,seed,energy,start_energy,v2v_mm,mpjpe_mm,pa_mpjpe_mm,hausdorff_mm,shape_rms,evaluations,gradient_evaluations,iterations,time_s,trace,v2v_per_iteration,face";
+pub const CSV_HEADER: &str = "method,strategy,budget,rep,frame,seed,energy,start_energy,v2v_mm,mpjpe_mm,pa_mpjpe_mm,hausdorff_mm,shape_rms,evaluations,gradient_evaluations,iterations,time_s,trace,v2v_per_iteration,face,shape_v2v_mm";
+/// The header before the `shape_v2v_mm` column (files written before it still read, as NaN).
+const CSV_HEADER_V3: &str = "method,strategy,budget,rep,frame,seed,energy,start_energy,v2v_mm,mpjpe_mm,pa_mpjpe_mm,hausdorff_mm,shape_rms,evaluations,gradient_evaluations,iterations,time_s,trace,v2v_per_iteration,face";
 /// The header before the `face` column (files written before it still read, without face errors).
 const CSV_HEADER_V2: &str = "method,strategy,budget,rep,frame,seed,energy,start_energy,v2v_mm,mpjpe_mm,pa_mpjpe_mm,hausdorff_mm,shape_rms,evaluations,gradient_evaluations,iterations,time_s,trace,v2v_per_iteration";
 /// The header before the `shape_rms` column (files written before it still read, as NaN).
@@ -509,7 +515,7 @@ impl Run {
                 .join(";")
         });
         format!(
-            "{},{},{},{},{},{},{:e},{:e},{:.4},{:.4},{:.4},{:.4},{:.5},{},{},{},{:.6},{trace},{iters},{face}",
+            "{},{},{},{},{},{},{:e},{:e},{:.4},{:.4},{:.4},{:.4},{:.5},{},{},{},{:.6},{trace},{iters},{face},{:.4}",
             self.method,
             self.strategy,
             self.budget,
@@ -526,7 +532,8 @@ impl Run {
             self.evaluations,
             self.gradient_evaluations,
             self.iterations,
-            self.time_s
+            self.time_s,
+            self.shape_v2v_mm
         )
     }
 
@@ -540,7 +547,11 @@ impl Run {
         if f.len() == 19 {
             f.push("");
         }
-        if f.len() != 20 {
+        // A row without `shape_v2v_mm` (CSV_HEADER_V3): NaN.
+        if f.len() == 20 {
+            f.push("NaN");
+        }
+        if f.len() != 21 {
             return None;
         }
         let face = if f[19].is_empty() {
@@ -592,6 +603,7 @@ impl Run {
             trace,
             v2v_per_iteration: iters,
             face,
+            shape_v2v_mm: f[20].parse().ok()?,
         })
     }
 }
@@ -609,7 +621,7 @@ pub fn read_runs(path: &Path) -> Result<Vec<Run>> {
     let mut runs = Vec::new();
     for (i, line) in lines.iter().enumerate() {
         if i == 0 {
-            if *line != CSV_HEADER && *line != CSV_HEADER_V2 && *line != CSV_HEADER_V1 {
+            if ![CSV_HEADER, CSV_HEADER_V3, CSV_HEADER_V2, CSV_HEADER_V1].contains(line) {
                 bail!(
                     "{} is not an lfit bench runs.csv (unexpected header)",
                     path.display()
@@ -1056,6 +1068,8 @@ pub fn run(
                     v2v_per_iteration,
                     trace: result.trace,
                     face: face_errors_mm(&template, pose, gt),
+                    shape_v2v_mm: lfit_model::metrics::shape_v2v_mm(&template, pose, gt)
+                        .unwrap_or(f64::NAN),
                 };
                 let mut line = row.to_csv();
                 line.push('\n');
@@ -1208,7 +1222,8 @@ pub fn merge(
 mod tests {
     use super::*;
 
-    /// A row survives the CSV; a row written before the `shape_rms` column reads with NaN.
+    /// A row survives the CSV; a row written before the `shape_rms` or the `shape_v2v_mm`
+    /// column reads with NaN there, one written before `face` without face errors.
     #[test]
     fn runs_round_trip_and_rows_without_shape_rms_still_read() {
         let row = Run {
@@ -1232,6 +1247,7 @@ mod tests {
             trace: vec![(1, 3.0), (90, 0.5)],
             v2v_per_iteration: vec![20.0, 12.25],
             face: Some(FaceErrors::from_array([1.5, 2.25, 3.0, 0.5, 0.75, 1.0])),
+            shape_v2v_mm: 4.5,
         };
         let line = row.to_csv();
         assert_eq!(Run::from_csv(&line).as_ref(), Some(&row));
@@ -1240,17 +1256,31 @@ mod tests {
             CSV_HEADER.split(',').count(),
             "{line}"
         );
-        // The same row in the layout before `face` (the last column): no face errors.
-        let mut v2: Vec<&str> = line.split(',').collect();
+        // The same row in the layout before `shape_v2v_mm` (the last column): NaN.
+        let mut v3: Vec<&str> = line.split(',').collect();
+        v3.pop();
+        let read = Run::from_csv(&v3.join(",")).expect("v3 row");
+        assert!(read.shape_v2v_mm.is_nan());
+        assert_eq!(
+            Run {
+                shape_v2v_mm: row.shape_v2v_mm,
+                ..read
+            },
+            row
+        );
+        // And before `face`: no face errors.
+        let mut v2 = v3.clone();
         v2.pop();
         let read = Run::from_csv(&v2.join(",")).expect("v2 row");
         assert_eq!(
             Run {
                 face: None,
+                shape_v2v_mm: read.shape_v2v_mm,
                 ..row.clone()
             },
             read
         );
+        assert!(read.shape_v2v_mm.is_nan());
         // And before `shape_rms` (column 12).
         let mut old = v2.clone();
         old.remove(12);
@@ -1260,6 +1290,7 @@ mod tests {
             Run {
                 shape_rms: row.shape_rms,
                 face: row.face,
+                shape_v2v_mm: row.shape_v2v_mm,
                 ..read
             },
             row
@@ -1270,6 +1301,8 @@ mod tests {
         assert_eq!(read_runs(&csv).expect("v1 file").len(), 1);
         std::fs::write(&csv, format!("{CSV_HEADER_V2}\n{}\n", v2.join(","))).expect("csv");
         assert_eq!(read_runs(&csv).expect("v2 file").len(), 1);
+        std::fs::write(&csv, format!("{CSV_HEADER_V3}\n{}\n", v3.join(","))).expect("csv");
+        assert_eq!(read_runs(&csv).expect("v3 file").len(), 1);
         // A face column with five numbers is not a row.
         let mut bad: Vec<&str> = line.split(',').collect();
         bad[19] = "1;2;3;4;5";

@@ -947,6 +947,7 @@ mod tests {
                 Vec::new()
             },
             face: None,
+            shape_v2v_mm: f64::NAN,
         }
     }
 

@@ -154,13 +154,17 @@ pub fn report(
         md,
         "## Errors, evaluations and time per frame (papers/002 Table 2)\n"
     );
-    // A model with shape coefficients adds their RMS error (β estimated or given).
+    // A model with shape coefficients adds their RMS error (β estimated or given) and, where
+    // the rows carry it (runs.csv from this version on), the rest meshes' shape error (PVE-T).
     let shaped = runs.iter().any(|r| r.shape_rms.is_finite());
+    let shape_mesh = shaped && runs.iter().any(|r| r.shape_v2v_mm.is_finite());
     let _ = writeln!(
         md,
-        "| method | budget | V2V (mm) | MPJPE (mm) | PA-MPJPE (mm) | RMS Hausdorff (mm) |{} energy | evaluations | time / frame (ms) |\n|---|---|---|---|---|---|{}---|---|---|",
+        "| method | budget | V2V (mm) | MPJPE (mm) | PA-MPJPE (mm) | RMS Hausdorff (mm) |{}{} energy | evaluations | time / frame (ms) |\n|---|---|---|---|---|---|{}{}---|---|---|",
         if shaped { " shape RMS |" } else { "" },
-        if shaped { "---|" } else { "" }
+        if shape_mesh { " shape V2V (mm) |" } else { "" },
+        if shaped { "---|" } else { "" },
+        if shape_mesh { "---|" } else { "" }
     );
     for &b in &config.budgets {
         for l in &labels {
@@ -175,13 +179,18 @@ pub fn report(
             let mut row = json!({"method": l, "budget": b, "runs": rs.len(), "v2v_mm": m(|r| r.v2v_mm), "mpjpe_mm": m(|r| r.mpjpe_mm),
                 "pa_mpjpe_mm": m(|r| r.pa_mpjpe_mm), "hausdorff_mm": m(|r| r.hausdorff_mm), "energy": m(|r| r.energy),
                 "evaluations": m(|r| r.evaluations as f64), "time_ms": 1000.0 * m(|r| r.time_s)});
-            let shape = if shaped {
+            let mut shape = if shaped {
                 let v = m(|r| r.shape_rms);
                 row["shape_rms"] = json!(v);
                 format!(" {v:.3} |")
             } else {
                 String::new()
             };
+            if shape_mesh {
+                let v = m(|r| r.shape_v2v_mm);
+                row["shape_v2v_mm"] = json!(v);
+                shape.push_str(&format!(" {v:.1} |"));
+            }
             let _ = writeln!(
                 md,
                 "| {l} | {b} | {:.1} | {:.1} | {:.1} | {:.1} |{shape} {:.4} | {:.0} | {:.2} |",
