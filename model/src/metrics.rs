@@ -142,14 +142,7 @@ pub fn joint_error_mm(fitted: &[DVec3], truth: &[DVec3]) -> f64 {
 
 /// [`pa_mpjpe_mm`] of joints already posed: [`joint_error_mm`] after [`procrustes_align`].
 pub fn aligned_joint_error_mm(fitted: &[DVec3], truth: &[DVec3]) -> f64 {
-    let n = fitted.len().max(1) as f64;
-    1000.0
-        * procrustes_align(fitted, truth)
-            .iter()
-            .zip(truth)
-            .map(|(p, q)| p.distance(*q))
-            .sum::<f64>()
-        / n
+    joint_error_mm(&procrustes_align(fitted, truth), truth)
 }
 
 /// `p` mapped by the similarity `s R p + t` that minimises `Σ |s R p_i + t − q_i|²` (Umeyama).

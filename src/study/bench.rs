@@ -15,7 +15,9 @@ use lfit_fitters::{Fitter, Strategy};
 
 use crate::method::{MethodKind, MethodSpec};
 use lfit_model::energy::{Energy, EnergyConfig};
-use lfit_model::metrics::{FaceErrors, TruthMesh, face_errors_mm, mpjpe_mm, pa_mpjpe_mm};
+use lfit_model::metrics::{
+    FaceErrors, TruthMesh, aligned_joint_error_mm, face_errors_mm, joint_error_mm, joint_positions,
+};
 use lfit_model::template::write_atomic;
 use lfit_synth::{Dataset, Scenario};
 use rayon::prelude::*;
@@ -1046,6 +1048,11 @@ pub fn run(
                 let (v2v_mm, hausdorff_mm) = truth.v2v_and_hausdorff_mm(&template, pose);
                 let v2v_per_iteration =
                     iterate_v2v(&template, &result.iterates, &truth, pose, v2v_mm);
+                // The fitted and true joints, posed once for MPJPE and PA-MPJPE.
+                let (joints, true_joints) = (
+                    joint_positions(&template, pose),
+                    joint_positions(&template, gt),
+                );
                 let row = Run {
                     method: method.clone(),
                     strategy: strategy.clone(),
@@ -1056,8 +1063,8 @@ pub fn run(
                     energy: result.energy,
                     start_energy: fitted.start_energy,
                     v2v_mm,
-                    mpjpe_mm: mpjpe_mm(&template, pose, gt),
-                    pa_mpjpe_mm: pa_mpjpe_mm(&template, pose, gt),
+                    mpjpe_mm: joint_error_mm(&joints, &true_joints),
+                    pa_mpjpe_mm: aligned_joint_error_mm(&joints, &true_joints),
                     hausdorff_mm,
                     shape_rms: crate::cli::fit::coefficient_rms(&template, pose, gt)
                         .unwrap_or(f64::NAN),
