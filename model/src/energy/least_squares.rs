@@ -784,6 +784,12 @@ impl Energy {
             + self.template.morph.coefficients()
             + self.anchor.as_ref().map_or(0, |a| a.rows().len())
             + self.height_rows()
+            + self.floor_rows()
+    }
+
+    /// The floor's row ([`Energy::with_floor`]): one or none.
+    fn floor_rows(&self) -> usize {
+        usize::from(self.floor.is_some())
     }
 
     /// The height prior's row ([`Energy::with_height_prior`]): one or none.
@@ -953,7 +959,11 @@ impl Energy {
         let factored = dense_rows == JacobianRows::Factored;
         let dense_to = match (&self.target, factored) {
             (Target::Sparse { values, .. }, true) if with_jacobian => {
-                values.len() + self.penetration_rows() + self.pose_prior_len() + self.height_rows()
+                values.len()
+                    + self.penetration_rows()
+                    + self.pose_prior_len()
+                    + self.height_rows()
+                    + self.floor_rows()
             }
             _ => m,
         };
@@ -1151,6 +1161,20 @@ impl Energy {
             row += 1;
         }
 
+        // The floor's row (dense: the lowest sole's height row, written only off the floor's
+        // zero; Energy::with_floor).
+        if let Some(floor) = &self.floor {
+            let c0 = self.floor_weight(floor).sqrt();
+            let out = if with_jacobian {
+                &mut jacobian[row * dim - off..(row + 1) * dim - off]
+            } else {
+                &mut [][..]
+            };
+            residuals[row] = floor.residual(&kin, &self.skin, pj.as_mut(), c0, out);
+            blocks.push(("floor", row..row + 1));
+            row += 1;
+        }
+
         // EA rows (hinge).
         let (lower, upper) = (&self.limits.lower, &self.limits.upper);
         let first = rot_offset(1);
@@ -1216,7 +1240,7 @@ impl Energy {
             for (name, range) in &blocks {
                 for i in range.clone() {
                     zero_rows[i] = match *name {
-                        "EP" | "EA" => residuals[i] == 0.0,
+                        "EP" | "EA" | "floor" => residuals[i] == 0.0,
                         "data" => match &self.target {
                             Target::Sparse { visible, .. } => {
                                 !visible[i - range.start] || w.data == 0.0

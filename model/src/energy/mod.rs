@@ -20,6 +20,7 @@
 //! [`Energy::evaluate_batch`], which count evaluations and gradient evaluations.
 
 mod capsules;
+mod floor;
 mod least_squares;
 mod placement;
 mod pose_prior;
@@ -33,6 +34,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 pub use crate::observe::Scales;
+pub use floor::{FloorForm, FloorPrior, SOLE_BAND_M, SOLE_CELL_M, sole_vertices};
 pub use least_squares::{
     DampedFactor, JacobianRows, LeastSquares, PointFactors, RobustForm, damped_step, damped_system,
     envelope_cholesky, envelope_cholesky_solve, envelope_solve, envelope_work, marquardt_scaling,
@@ -470,6 +472,8 @@ pub struct Energy {
     anchor: Option<Arc<Anchor>>,
     /// A prior on the subject's stature ([`Energy::with_height_prior`]); none by default.
     height: Option<Arc<HeightPrior>>,
+    /// The ground plane ([`Energy::with_floor`]); none by default.
+    floor: Option<Arc<FloorPrior>>,
     evaluations: AtomicU64,
     gradient_evaluations: AtomicU64,
 }
@@ -610,6 +614,7 @@ impl Clone for Energy {
             observed: self.observed.clone(),
             anchor: self.anchor.clone(),
             height: self.height.clone(),
+            floor: self.floor.clone(),
             evaluations: AtomicU64::new(0),
             gradient_evaluations: AtomicU64::new(0),
         }
@@ -743,6 +748,7 @@ impl Energy {
             observed,
             anchor: None,
             height: None,
+            floor: None,
             evaluations: AtomicU64::new(0),
             gradient_evaluations: AtomicU64::new(0),
         };
@@ -825,6 +831,9 @@ impl Energy {
                 .collect();
             energy.anchor = Some(Arc::new(Anchor { rows }));
         }
+        if let Some(floor) = &self.floor {
+            energy.floor = Some(Arc::new(floor.at(floor.height_m() + offset.y)?));
+        }
         Ok(Some(energy))
     }
 
@@ -884,6 +893,35 @@ impl Energy {
         let mut energy = self.clone();
         energy.height = Some(Arc::new(prior.clone()));
         Ok(energy)
+    }
+
+    /// The same energy plus the `floor` term ([`FloorPrior`]); replaces an earlier one. Fails
+    /// on a floor made for another model.
+    pub fn with_floor(&self, floor: &FloorPrior) -> Result<Self> {
+        floor.made_for(&self.template)?;
+        let mut energy = self.clone();
+        energy.floor = Some(Arc::new(floor.clone()));
+        Ok(energy)
+    }
+
+    /// The floor term, when [`Energy::with_floor`] gave one.
+    pub fn floor(&self) -> Option<&FloorPrior> {
+        self.floor.as_deref()
+    }
+
+    /// The floor term's weight `a` (its value is `a d²`): one visible group of the data term at
+    /// standard deviation σ.
+    fn floor_weight(&self, floor: &FloorPrior) -> f64 {
+        self.group_weight() / (floor.std_m() * floor.std_m())
+    }
+
+    /// The height of the lowest sole of `floor`'s candidates at `pose` (metres, world `+y`):
+    /// where the fit put the feet against the floor. Fails on a pose of the wrong length.
+    pub fn lowest_sole(&self, floor: &FloorPrior, pose: &[f64]) -> Result<f64> {
+        self.check_length(pose)?;
+        floor.made_for(&self.template)?;
+        let kin = Kinematics::build(&self.template, pose, false);
+        Ok(floor.lowest_height(&kin, &self.skin))
     }
 
     /// The height term, when [`Energy::with_height_prior`] gave one.
@@ -1201,6 +1239,12 @@ impl Energy {
                     *x += 2.0 * a * d * gi;
                 }
             }
+        }
+        if let Some(floor) = &self.floor {
+            let a = self.floor_weight(floor);
+            let d = floor.evaluate(&kin, &self.skin, adj.as_mut().map(|g| (g, a)));
+            terms.push(("floor", a * d * d));
+            total += a * d * d;
         }
         let grad = adj.map(|a| {
             let mut g = a.finish(&self.template, &kin, pose);

@@ -999,6 +999,119 @@ mod least_squares_form {
         assert!(err.contains("cannot serve"), "{err}");
     }
 
+    /// [`Energy::with_floor`]: the `floor` term `a d²` (`a = λ_data / (n σ²)`, `d` the lowest
+    /// sole's height above the floor, clipped at zero above it for `above`) in the value, the
+    /// gradient and as one least-squares row (the lowest candidate's height row) — checked with
+    /// the rest of the energy against finite differences, dense and factored rows giving the
+    /// same normal equations —; zero and marked zero above the floor for `above`; the lowest
+    /// sole is the posed mesh's lowest vertex at the soles; bad floors refused with the cause.
+    #[test]
+    fn a_floor_is_one_measurement_of_the_lowest_sole_in_every_form() {
+        use rand::SeedableRng;
+        let t = makehuman_body();
+        let soles = crate::energy::sole_vertices(&t);
+        assert!((20..=400).contains(&soles.len()), "{} soles", soles.len());
+        let rest = t.rest_positions();
+        let bottom = rest.iter().map(|p| p.y).fold(f64::INFINITY, f64::min);
+        assert!(
+            soles
+                .iter()
+                .all(|&v| rest[v].y <= bottom + crate::energy::SOLE_BAND_M)
+        );
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(120);
+        let (e, mut x) = makehuman_energy(&t, Modality::Markers, &mut rng);
+        // Legs near their rest (the random pose folds them anywhere): the soles are the lowest.
+        let rotations = t.layout().range(crate::layout::Block::Rotations);
+        for v in &mut x[rotations] {
+            *v *= 0.3;
+        }
+        let dim = t.layout().dim();
+        let probe = FloorPrior::new(&t, 0.0, 0.02, FloorForm::Contact).unwrap();
+        let lowest = e.lowest_sole(&probe, &x).unwrap();
+        let posed = crate::skinning::pose_vertices(&t, &x, crate::skinning::SkinningMethod::Linear);
+        let mesh_min = posed
+            .iter()
+            .map(|p| f64::from(p.y))
+            .fold(f64::INFINITY, f64::min);
+        let sole_min = soles
+            .iter()
+            .map(|&v| f64::from(posed[v].y))
+            .fold(f64::INFINITY, f64::min);
+        assert!((lowest - sole_min).abs() < 1e-5, "{lowest} vs {sole_min}");
+        assert!(
+            lowest - mesh_min < 0.02,
+            "{lowest} vs the mesh's {mesh_min}"
+        );
+        let Target::Sparse { visible, .. } = e.target() else {
+            unreachable!()
+        };
+        let seen = e.groups.iter().filter(|g| visible[g.start]).count();
+        // The floor 40 mm above the lowest sole: both forms pull it up by d = −0.04.
+        for form in [FloorForm::Contact, FloorForm::Above] {
+            let floor = FloorPrior::new(&t, lowest + 0.04, 0.02, form).unwrap();
+            let with = e.with_floor(&floor).unwrap();
+            assert!(e.floor().is_none() && with.floor().is_some());
+            let want = e.config().weights.data * (0.04f64 / 0.02).powi(2) / seen as f64;
+            let (plain, got) = (e.evaluate(&x), with.evaluate(&x));
+            assert!((got.term("floor").unwrap() - want).abs() <= 1e-9 * want);
+            assert!((got.total - plain.total - want).abs() <= 1e-9 * got.total);
+            assert_eq!(with.residual_count(), e.residual_count() + 1);
+            let active = check(&with, &x, &format!("markers with a floor, {}", form.name()));
+            assert!(active.contains(&"floor"), "{active:?}");
+            let ls = with.least_squares(&x, true).unwrap();
+            let lf = with
+                .least_squares_with(&x, true, RobustForm::Folded, JacobianRows::Factored)
+                .unwrap();
+            for dofs in column_sets(dim) {
+                assert_eq!(lf.normal_equations(&dofs), ls.normal_equations(&dofs));
+            }
+            // The root's height moves the sole one for one.
+            let (_, rows) = ls.blocks.iter().find(|(n, _)| *n == "floor").unwrap();
+            let row = ls.row(rows.start);
+            let c0 = (want / 0.04f64.powi(2)).sqrt();
+            assert!((row[1] - c0).abs() <= 1e-9 * c0, "{} vs {c0}", row[1]);
+            assert!(row[0].abs() <= 1e-9 * c0 && row[2].abs() <= 1e-9 * c0);
+        }
+        // 40 mm below the sole: contact pulls it down, `above` is zero, its row marked zero.
+        let below = |form| {
+            e.with_floor(&FloorPrior::new(&t, lowest - 0.04, 0.02, form).unwrap())
+                .unwrap()
+        };
+        let contact = below(FloorForm::Contact);
+        assert!(contact.evaluate(&x).term("floor").unwrap() > 0.0);
+        check(&contact, &x, "markers, floor below, contact");
+        let above = below(FloorForm::Above);
+        assert_eq!(above.evaluate(&x).term("floor"), Some(0.0));
+        let active = check(&above, &x, "markers, floor below, above");
+        assert!(!active.contains(&"floor"), "{active:?}");
+        let ls = above.least_squares(&x, true).unwrap();
+        let (_, rows) = ls.blocks.iter().find(|(n, _)| *n == "floor").unwrap();
+        assert!(ls.zero_rows[rows.start] && ls.residuals[rows.start] == 0.0);
+        for (height, std, why) in [
+            (f64::NAN, 0.02, "floor height NaN"),
+            (0.0, 0.0, "floor standard deviation 0"),
+            (0.0, f64::INFINITY, "floor standard deviation inf"),
+        ] {
+            let err = FloorPrior::new(&t, height, std, FloorForm::Above)
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(why), "{why}: {err}");
+        }
+        assert!(probe.at(f64::INFINITY).is_err());
+        assert_eq!(probe.at(0.5).unwrap().height_m(), 0.5);
+        assert!(
+            "below"
+                .parse::<FloorForm>()
+                .unwrap_err()
+                .to_string()
+                .contains("above or contact")
+        );
+        let (other, _) = crate::body::procedural::morphable_default_template().unwrap();
+        let foreign = FloorPrior::new(&other, 0.0, 0.02, FloorForm::Above).unwrap();
+        let err = e.with_floor(&foreign).unwrap_err().to_string();
+        assert!(err.contains("cannot serve"), "{err}");
+    }
+
     /// The sensor's vertices shaped once per evaluation ([`Kinematics::shape_vertices`]) give
     /// the value, gradient, residuals and Jacobian of shaping each where it is read, bit for bit
     /// (markers: 39 vertices; hmd: the two hand tips; keypoints2d reads none; the face's
@@ -2791,6 +2904,10 @@ fn a_translated_frame_has_the_energy_of_the_frame() {
         let e = e
             .with_anchor(&truth, &[(0, 0.05), (1, 0.05), (2, 0.05), (5, 0.1)])
             .unwrap();
+        // So does a floor (in contact 30 mm above the lowest sole: active).
+        let floor = FloorPrior::new(&t, 0.0, 0.02, FloorForm::Contact).unwrap();
+        let sole = e.lowest_sole(&floor, &pose).unwrap();
+        let e = e.with_floor(&floor.at(sole + 0.03).unwrap()).unwrap();
         let moved = e.translated(offset).unwrap().expect("a translated form");
         let mut shifted = pose.clone();
         shifted[0] += offset.x;
