@@ -221,7 +221,8 @@ pub struct JointSolve {
 /// `energy` with the gradient form of its terms ([`EnergyConfig::for_gradient`]: the hinge
 /// joint-angle prior, no silhouette term) and its shape prior's weight times `shape_share`, for
 /// [`joint_shape`]; a height prior ([`Energy::with_height_prior`]: one measurement of the one
-/// subject, like the shape prior) kept with its weight times `shape_share` too. The joint-angle
+/// subject, like the shape prior) kept with its weight times `shape_share` too, a floor
+/// ([`Energy::with_floor`]) as it is. The joint-angle
 /// prior depends on the pose alone: with the poses held, both forms move β alike.
 fn least_squares_variant(energy: &Energy, shape_share: f64) -> Result<Energy> {
     let mut config = energy.config().clone().for_gradient();
@@ -232,9 +233,14 @@ fn least_squares_variant(energy: &Energy, shape_share: f64) -> Result<Energy> {
         energy.target().clone(),
         config,
     )?;
-    Ok(match energy.height_prior() {
+    let variant = match energy.height_prior() {
         // Its weight goes as 1/σ².
         Some(p) => variant.with_height_prior(&p.with_std(p.std_m() / shape_share.sqrt())?)?,
+        None => variant,
+    };
+    // The floor measures each frame's pose, as the data do: its weight stays.
+    Ok(match energy.floor() {
+        Some(f) => variant.with_floor(f)?,
         None => variant,
     })
 }
@@ -423,6 +429,124 @@ impl FrameHeights {
     /// The rest height of shape `beta` ([`lfit_model::energy::HeightPrior::rest_height`]).
     pub fn rest_height(&self, template: &Template, beta: &[f64]) -> f64 {
         self.base.rest_height(template, beta)
+    }
+}
+
+/// `--floor FORM:HEIGHT[,MM]` (bench `floor`): the ground the subject stands on, a horizontal
+/// plane at HEIGHT metres of the world's up axis (`+y`), as one more measurement of the lowest
+/// sole ([`lfit_model::energy::FloorPrior`]) — `above` keeps every sole above it (one-sided),
+/// `contact` puts the lowest sole on it; MM its standard deviation in millimetres (default
+/// [`FLOOR_STD_M`]). HEIGHT `truth` (synthetic data): the lowest sole of the ground truth over
+/// the fitted frames, the floor the subject stood on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FloorArg {
+    pub form: lfit_model::energy::FloorForm,
+    /// `None`: the ground truth's (`truth`).
+    pub height_m: Option<f64>,
+    pub std_m: f64,
+}
+
+/// The floor's standard deviation when `--floor` gives none (metres): a floor measured in the
+/// capture's frame (a calibration board laid on it, or three points on it) is known to a few
+/// millimetres, but the model's sole is not the subject's shoe (a sole 1–3 cm thick) nor is
+/// every frame's lowest sole on the floor; 20 mm, measured against 10 and 40 on validation
+/// motion (docs/results/captured-motion.md, round 36).
+pub const FLOOR_STD_M: f64 = 0.02;
+
+impl std::str::FromStr for FloorArg {
+    type Err = anyhow::Error;
+    /// `above:H`, `contact:H`, either with `,MM`; `H` metres or `truth`.
+    fn from_str(s: &str) -> Result<Self> {
+        let bad = || {
+            anyhow::anyhow!(
+                "--floor '{s}': expected FORM:HEIGHT[,MM] — FORM above or contact, HEIGHT the floor's height in metres on the world's up axis (or truth, for synthetic data), MM its standard deviation in millimetres (e.g. contact:0 or above:0.02,30)"
+            )
+        };
+        let (form, rest) = s.split_once(':').ok_or_else(bad)?;
+        let form: lfit_model::energy::FloorForm = form.trim().parse().map_err(|_| bad())?;
+        let (height, std) = match rest.split_once(',') {
+            Some((h, mm)) => (h, Some(mm)),
+            None => (rest, None),
+        };
+        let height_m = match height.trim() {
+            "truth" => None,
+            h => Some(
+                h.parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(bad)?,
+            ),
+        };
+        let std_m = match std {
+            Some(mm) => {
+                mm.trim()
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite() && *x > 0.0)
+                    .ok_or_else(bad)?
+                    / 1000.0
+            }
+            None => FLOOR_STD_M,
+        };
+        Ok(Self {
+            form,
+            height_m,
+            std_m,
+        })
+    }
+}
+
+impl FloorArg {
+    /// The result file's `floor`: `{"form", "height_m": H | "truth", "std_m", "at_m"}` (`at_m`
+    /// the height used).
+    pub fn json(&self, at_m: f64) -> serde_json::Value {
+        let height = match self.height_m {
+            Some(m) => serde_json::json!(m),
+            None => serde_json::json!("truth"),
+        };
+        serde_json::json!({
+            "form": self.form.name(),
+            "height_m": height,
+            "std_m": self.std_m,
+            "at_m": at_m,
+        })
+    }
+
+    /// The floor on `template` for `frames` of `dataset`: at the given height, or (`truth`) at
+    /// the ground truth's lowest sole over those frames. One-line errors for `truth` without
+    /// ground truth and for a model without soles.
+    pub fn resolve(
+        &self,
+        dataset: &Dataset,
+        template: &Arc<Template>,
+        frames: &[usize],
+        config: &EnergyConfig,
+    ) -> Result<lfit_model::energy::FloorPrior> {
+        use lfit_model::energy::FloorPrior;
+        let floor = FloorPrior::new(
+            template,
+            self.height_m.unwrap_or(0.0),
+            self.std_m,
+            self.form,
+        )
+        .context("--floor")?;
+        if self.height_m.is_some() {
+            return Ok(floor);
+        }
+        if !dataset.has_ground_truth() {
+            bail!(
+                "--floor truth: the data have no ground truth (imported observations); give the floor's height in metres"
+            );
+        }
+        let mut lowest = f64::INFINITY;
+        for &f in frames {
+            let energy = energy_for_frame(dataset, template.clone(), f, config.clone())?;
+            let truth = dataset
+                .ground_truth(f)
+                .context("--floor truth: a frame without ground truth")?;
+            lowest = lowest.min(energy.lowest_sole(&floor, truth)?);
+        }
+        Ok(floor.at(lowest)?)
     }
 }
 

@@ -543,6 +543,14 @@ struct FitCmd {
     /// height (synthetic data). Not with --known-shape.
     #[arg(long)]
     height_prior: Option<String>,
+    /// The floor the subject stands on, FORM:HEIGHT[,MM]: a horizontal plane HEIGHT metres up
+    /// the world's up axis (+y), one more row of the energy on the lowest of the model's sole
+    /// vertices weighted like one observed marker or keypoint at MM millimetres (default 20):
+    /// `above` keeps every sole above the floor, `contact` puts the lowest on it (standing and
+    /// walking; with one camera, where size and depth trade off, what fixes the depth). HEIGHT
+    /// `truth`: the ground truth's lowest sole over the fitted frames (synthetic data).
+    #[arg(long)]
+    floor: Option<String>,
     /// Tensor backend of the neural fitter: ndarray, flex or wgpu.
     #[arg(long, default_value = "flex")]
     device: String,
@@ -844,6 +852,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
                 ort_threads: c.ort_threads,
                 known_shape: c.known_shape,
                 height_prior: c.height_prior,
+                floor: c.floor,
                 sequence_shape: c.sequence_shape,
                 marker_placement: c.marker_placement,
                 offsets: c.offsets,

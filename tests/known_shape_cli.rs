@@ -582,3 +582,129 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
     assert_one_line_error(&out, "use one");
     assert!(!bad_out.exists());
 }
+
+/// `--floor FORM:HEIGHT[,MM]` on one phone camera (the validation subject, 30 frames): the
+/// floor at `truth` is the ground truth's lowest sole over the frames (measured here again from
+/// the posed mesh); `contact` holds every frame's lowest sole on it and fixes the depth one
+/// camera leaves open (V2V well under the fit without it); `above` keeps the soles off the
+/// floor's underside; a floor below every sole changes nothing; bad forms refused with one line
+/// and nothing written.
+#[test]
+fn a_floor_holds_the_soles_and_fixes_one_cameras_depth() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let model = root.join("models/makehuman-cmu_mb.npz");
+    let motion = root.join("data/motions/cmu/validation/006_01.npz");
+    let tmp = tempfile::tempdir().expect("tmp");
+    let data = tmp.path().join("phone.npz");
+    support::synth_to(
+        &data,
+        &model,
+        &[
+            "--modality",
+            "keypoints2d",
+            "--scenario",
+            "sequence",
+            "--frames",
+            "30",
+            "--fps",
+            "30",
+            "--seed",
+            "11",
+            "--motions",
+            path_str(&motion),
+            "--camera",
+            path_str(&root.join("configs/rigs/phone-1.json")),
+        ],
+    );
+    let fit = |extra: &[&str]| {
+        let out = tmp.path().join("fit.json");
+        let mut more = vec!["--template", path_str(&model), "--dofs", "anchored:5"];
+        more.extend(extra);
+        let run = lfit(&support::lm_fit_args(&data, &out, "4000", &more));
+        assert!(
+            run.status.success(),
+            "{extra:?}: {}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        read(&out)
+    };
+    let v2v = |r: &serde_json::Value| r["summary"]["mean_v2v_mm"].as_f64().expect("v2v");
+    let soles = |r: &serde_json::Value| -> Vec<f64> {
+        r["frames"]
+            .as_array()
+            .expect("frames")
+            .iter()
+            .map(|f| f["lowest_sole_m"].as_f64().expect("lowest_sole_m"))
+            .collect()
+    };
+    let template = lfit::model::modelfile::load(&model).expect("model");
+    let truth = lfit::synth::Dataset::load(&data).expect("data");
+    let candidates = lfit::model::energy::sole_vertices(&template);
+    let lowest_true = truth
+        .gt_poses
+        .iter()
+        .map(|gt| {
+            let posed = lfit::model::skinning::pose_vertices(
+                &template,
+                gt,
+                lfit::model::skinning::SkinningMethod::Linear,
+            );
+            candidates
+                .iter()
+                .map(|&v| f64::from(posed[v].y))
+                .fold(f64::INFINITY, f64::min)
+        })
+        .fold(f64::INFINITY, f64::min);
+
+    let plain = fit(&[]);
+    assert!(plain.get("floor").is_none() && plain["summary"].get("mean_lowest_sole_m").is_none());
+    let contact = fit(&["--floor", "contact:truth"]);
+    let floor = &contact["floor"];
+    assert_eq!(
+        (&floor["form"], &floor["height_m"], &floor["std_m"]),
+        (&"contact".into(), &"truth".into(), &0.02.into()),
+        "{floor}"
+    );
+    let at = floor["at_m"].as_f64().expect("at_m");
+    assert!((at - lowest_true).abs() < 1e-5, "{at} vs {lowest_true}");
+    let held = soles(&contact);
+    assert!(
+        held.iter().all(|h| (h - at).abs() < 0.02),
+        "{held:?} against {at}"
+    );
+    let mean = contact["summary"]["mean_lowest_sole_m"]
+        .as_f64()
+        .expect("mean");
+    assert!((mean - held.iter().sum::<f64>() / held.len() as f64).abs() < 1e-12);
+    assert!(
+        v2v(&contact) < 0.9 * v2v(&plain),
+        "contact {} mm, without {} mm",
+        v2v(&contact),
+        v2v(&plain)
+    );
+    // A floor under every sole: the term is zero, the fit the plain one.
+    let under = fit(&["--floor", "above:-1"]);
+    assert_eq!(v2v(&under), v2v(&plain));
+    let above = fit(&["--floor", "above:truth,5"]);
+    let (min_above, min_free) = (
+        soles(&above).into_iter().fold(f64::INFINITY, f64::min),
+        soles(&under).into_iter().fold(f64::INFINITY, f64::min),
+    );
+    assert!(
+        min_free < at - 0.005 && min_above > min_free && min_above > at - 0.005,
+        "lowest sole {min_above} (above the floor at {at}) vs {min_free} (free)"
+    );
+    for bad in [
+        "contact",
+        "down:0",
+        "contact:0,-5",
+        "contact:high",
+        "above:inf",
+    ] {
+        let bad_out = tmp.path().join("bad.json");
+        let more = ["--template", path_str(&model), "--floor", bad];
+        let out = lfit(&support::lm_fit_args(&data, &bad_out, "10", &more));
+        assert_one_line_error(&out, &format!("--floor '{bad}'"));
+        assert!(!bad_out.exists());
+    }
+}

@@ -334,7 +334,9 @@ pub(crate) fn height_prior_arg(h: Option<&Bound<'_, PyAny>>) -> PyResult<Option<
 /// `--frames` string or a sequence of indices. `known_shape`: `"truth"`, `"height:M"` (the
 /// subject's height in metres: the most likely β that tall) or β. `height_prior`: the
 /// subject's height as a soft measurement with β estimated — metres, `"M:STD"` or `(M, STD)`
-/// (`lfit fit --height-prior`; not with `known_shape`). `dofs`: `"all"`,
+/// (`lfit fit --height-prior`; not with `known_shape`). `floor`: the ground plane,
+/// `"FORM:HEIGHT[,MM]"` (`lfit fit --floor`: `above` or `contact`, metres up +y or `truth`).
+/// `dofs`: `"all"`,
 /// `"observed"`, `"observed:DEG"`, `"anchored"`, `"anchored:DEG"`, `"anchored:DEG,MM"` or
 /// `"observed[:DEG]+anchored[:DEG[,MM]]"` (`lfit fit --dofs`, the network's too; default the
 /// method's own).
@@ -350,7 +352,7 @@ pub(crate) fn height_prior_arg(h: Option<&Bound<'_, PyAny>>) -> PyResult<Option<
 /// `progress(done, total)` is called after each frame. Runs with the GIL released; Ctrl-C stops
 /// it between frames (`KeyboardInterrupt`).
 #[pyfunction]
-#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, height_prior=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", neural_iterations=None, neural_tolerance=None, sequence_shape="per-frame", marker_placement="model", offsets=None, holdout=None, dofs=None, device="flex", runtime="burn", ort_threads=None, progress=None))]
+#[pyo3(signature = (model, data, method="lm", budget=100, *, checkpoint=None, known_shape=None, height_prior=None, floor=None, frames=None, seed=0, strategy="holistic", preset=None, step_scale=None, cma_diagonal=false, cma_elitist=false, cma_popsize=None, energy=None, batch=1, neural_start="phi", neural_pick="last", neural_iterations=None, neural_tolerance=None, sequence_shape="per-frame", marker_placement="model", offsets=None, holdout=None, dofs=None, device="flex", runtime="burn", ort_threads=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn fit(
     py: Python<'_>,
@@ -361,6 +363,7 @@ pub fn fit(
     checkpoint: Option<PathBuf>,
     known_shape: Option<&Bound<'_, PyAny>>,
     height_prior: Option<&Bound<'_, PyAny>>,
+    floor: Option<String>,
     frames: Option<&Bound<'_, PyAny>>,
     seed: u64,
     strategy: &str,
@@ -417,6 +420,7 @@ pub fn fit(
         ort_threads,
         known_shape: known_shape_arg(known_shape)?,
         height_prior: height_prior_arg(height_prior)?,
+        floor,
         sequence_shape: sequence_shape.to_string(),
         marker_placement: marker_placement.to_string(),
         offsets,

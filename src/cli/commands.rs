@@ -453,8 +453,8 @@ pub fn quickstart(
         parts.extend(extra);
     }
     let parts = with_phone_parts(parts)?;
-    let parts = with_height_parts(with_sequence_network_parts(with_anchored_parts(
-        with_early_exit_parts(with_prior_parts(parts)?)?,
+    let parts = with_floor_parts(with_height_parts(with_sequence_network_parts(
+        with_anchored_parts(with_early_exit_parts(with_prior_parts(parts)?)?)?,
     )?)?)?;
     let mut table = String::from(
         "| data | method | V2V (mm) | MPJPE (mm) | PA-MPJPE (mm) | shape RMS | final energy | evaluations | time / frame (ms) |\n|---|---|---|---|---|---|---|---|---|\n",
@@ -480,6 +480,7 @@ pub fn quickstart(
             .or_else(|| part.strip_suffix(EARLY_PART))
             .or_else(|| part.strip_suffix(ANCHORED_PART))
             .or_else(|| part.strip_suffix(HEIGHT_PART))
+            .or_else(|| part.strip_suffix(FLOOR_PART))
             .or_else(|| {
                 part.strip_suffix(SEQUENCE_NETWORK_PART)
                     .map(|p| p.strip_suffix(ANCHORED_PART).unwrap_or(p))
@@ -535,6 +536,10 @@ pub fn quickstart(
                 Some(h) => format!("{label}, the subject's height as a prior (--height-prior {h})"),
                 None => label,
             };
+            let label = match &config.floor {
+                Some(f) => format!("{label}, the floor as a measurement (--floor {f})"),
+                None => label,
+            };
             let f = |key: &str| row[key].as_f64().unwrap_or(f64::NAN);
             let shape = if config.known_shape {
                 "given".to_string()
@@ -564,9 +569,11 @@ pub fn quickstart(
             |f| f.to_string_lossy().into_owned(),
         );
     let text = format!(
-        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": on the same energy plus the Gaussian pose prior of lfit's CMU training clips (configs/pose-prior-cmu-<modality>.json, `lfit motion prior`; LM with it is SMPLify's classical baseline), whose final energy includes the prior's term. \"first {QUICKSTART_EARLY_EXIT} iterations\": the same network stopped early (`lfit fit --neural-iterations {QUICKSTART_EARLY_EXIT}`). \"anchored at the previous frame\" (captured clip): LM on the energy plus a Gaussian pull toward its own previous frame's result (`lfit fit --dofs anchored:DEG`; σ chosen on the validation subject's sequences, widened where the sequence moves fast), the classical temporal prior a learned fitter has to beat in a sequence. \"neural (checkpoints/<modality>-makehuman-sequence) anchored at the previous frame\": the network fine-tuned on that anchor (`lfit train --init`, `\"starts\": {{\"anchor_deg\": DEG}}`), from its previous frame's fit on the energy plus the same pull, the rotations the data leave beyond {observed}° held (`lfit fit --method neural --dofs observed:{observed}+anchored:DEG`). \"the subject's height as a prior\" (one phone camera): the same frames with each subject's true rest height as one more measurement in the energy (`lfit fit --height-prior truth`, standard deviation {std} m), β still estimated — one view trades the body's size against its depth, and a height is what a user of one camera can give.\n\n{table}",
+        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": on the same energy plus the Gaussian pose prior of lfit's CMU training clips (configs/pose-prior-cmu-<modality>.json, `lfit motion prior`; LM with it is SMPLify's classical baseline), whose final energy includes the prior's term. \"first {QUICKSTART_EARLY_EXIT} iterations\": the same network stopped early (`lfit fit --neural-iterations {QUICKSTART_EARLY_EXIT}`). \"anchored at the previous frame\" (captured clip): LM on the energy plus a Gaussian pull toward its own previous frame's result (`lfit fit --dofs anchored:DEG`; σ chosen on the validation subject's sequences, widened where the sequence moves fast), the classical temporal prior a learned fitter has to beat in a sequence. \"neural (checkpoints/<modality>-makehuman-sequence) anchored at the previous frame\": the network fine-tuned on that anchor (`lfit train --init`, `\"starts\": {{\"anchor_deg\": DEG}}`), from its previous frame's fit on the energy plus the same pull, the rotations the data leave beyond {observed}° held (`lfit fit --method neural --dofs observed:{observed}+anchored:DEG`). \"the subject's height as a prior\" (one phone camera): the same frames with each subject's true rest height as one more measurement in the energy (`lfit fit --height-prior truth`, standard deviation {std} m), β still estimated — one view trades the body's size against its depth, and a height is what a user of one camera can give. \"the floor as a measurement\" (one phone camera): the same frames with the lowest of the model's sole vertices held on the floor the subjects stand on (`lfit fit --floor {floor}`: the truth's lowest sole over the frames, standard deviation {floor_std} m) — a foot on a known plane fixes where along its ray the camera sees it.\n\n{table}",
         observed = lfit_fitters::SEQUENCE_NETWORK_OBSERVED_DEG,
-        std = crate::fitting::HEIGHT_PRIOR_STD_M
+        std = crate::fitting::HEIGHT_PRIOR_STD_M,
+        floor = QUICKSTART_FLOOR,
+        floor_std = crate::fitting::FLOOR_STD_M
     );
     write_atomic(&out.join("comparison.md"), text.as_bytes())?;
     Ok(text)
@@ -671,6 +678,35 @@ fn with_height_parts(parts: Vec<(String, BenchConfig)>) -> Result<Vec<(String, B
         ];
         twin.methods.retain(|m| keep.contains(&m.kind));
         twin.height_prior = Some(QUICKSTART_HEIGHT_PRIOR.into());
+        Ok(Some(twin))
+    })
+}
+
+/// Suffix of the quickstart's phone part with the floor as a measurement.
+const FLOOR_PART: &str = "-floor";
+
+/// The quickstart's floor (`lfit fit --floor`): the lowest sole in contact with the ground the
+/// synthetic subjects stand on (the truth's lowest sole over the frames), at the default
+/// standard deviation.
+pub const QUICKSTART_FLOOR: &str = "contact:truth";
+
+/// After the phone part (before its height twin), its twin with the floor as one more
+/// measurement ([`QUICKSTART_FLOOR`]) for the network, `neural+lm` and LM: a foot on a known
+/// plane fixes where along its ray one camera sees it — what a user of one camera who knows
+/// where the floor is can give instead of a height (`docs/results/captured-motion.md`, round 36).
+fn with_floor_parts(parts: Vec<(String, BenchConfig)>) -> Result<Vec<(String, BenchConfig)>> {
+    with_twins(parts, FLOOR_PART, |config| {
+        if !config.name.ends_with(PHONE_PART) {
+            return Ok(None);
+        }
+        let mut twin = config.clone();
+        let keep = [
+            crate::method::MethodKind::Neural,
+            crate::method::MethodKind::NeuralLm,
+            crate::method::MethodKind::Lm,
+        ];
+        twin.methods.retain(|m| keep.contains(&m.kind));
+        twin.floor = Some(QUICKSTART_FLOOR.into());
         Ok(Some(twin))
     })
 }

@@ -242,6 +242,8 @@ pub struct FitArgs {
     /// `--height-prior`: `M`, `M:STD`, `truth` or `truth:STD` (metres;
     /// [`crate::fitting::HeightPriorArg`]).
     pub height_prior: Option<String>,
+    /// `--floor`: `FORM:HEIGHT[,MM]` ([`crate::fitting::FloorArg`]).
+    pub floor: Option<String>,
     /// `--sequence-shape`: `per-frame`, `first-pass`, `joint` or `joint:N`
     /// ([`crate::fitting::SequenceShape`]).
     pub sequence_shape: String,
@@ -264,6 +266,7 @@ struct Prepared {
     strategy: Strategy,
     known_shape: Option<crate::fitting::KnownShapeArg>,
     height_prior: Option<crate::fitting::HeightPriorArg>,
+    floor: Option<crate::fitting::FloorArg>,
     sequence_shape: crate::fitting::SequenceShape,
     marker_placement: crate::fitting::MarkerPlacement,
     /// `--offsets`, read: the offsets and what they place (`"marker"` or `"keypoint"`, `None`
@@ -303,6 +306,8 @@ fn prepare(
             "--height-prior informs an estimated β, --known-shape gives β: use one (--known-shape height:M fixes the most likely β of a height)"
         );
     }
+    let floor: Option<crate::fitting::FloorArg> =
+        args.floor.as_deref().map(str::parse).transpose()?;
     let sequence_shape: crate::fitting::SequenceShape =
         args.sequence_shape.parse().context("--sequence-shape")?;
     let marker_placement: crate::fitting::MarkerPlacement = args
@@ -401,6 +406,7 @@ fn prepare(
         strategy,
         known_shape,
         height_prior,
+        floor,
         sequence_shape,
         marker_placement,
         offsets,
@@ -515,6 +521,7 @@ fn fit_prepared(
         strategy,
         known_shape,
         height_prior,
+        floor,
         sequence_shape,
         marker_placement,
         offsets,
@@ -620,14 +627,23 @@ fn fit_prepared(
     }
     plan.check_marker_placement()?;
     let mask = plan.mask()?;
+    // `--floor`: the ground plane in every frame's energy (`truth`: measured on these frames).
+    let floor = floor
+        .map(|f| f.resolve(dataset, &template, &frames, config))
+        .transpose()?;
+    let mut sum_lowest_sole = 0.0;
     let frame_energy = |frame: usize| -> Result<lfit_model::energy::Energy> {
-        crate::fitting::energy_with_height_prior(
+        let energy = crate::fitting::energy_with_height_prior(
             dataset,
             template.clone(),
             frame,
             config.clone(),
             heights.as_ref(),
-        )
+        )?;
+        Ok(match &floor {
+            Some(f) => energy.with_floor(f)?,
+            None => energy,
+        })
     };
     let mut done = 0;
     let report = crate::fitting::fit_frames(
@@ -667,6 +683,12 @@ fn fit_prepared(
                 let h = heights.rest_height(&template, beta);
                 row["rest_height_m"] = json!(h);
                 sum_rest_height += h;
+            }
+            if let Some(f) = &floor {
+                // Where the fit put the lowest sole, beside the floor's height.
+                let h = frame_energy(frame)?.lowest_sole(f, pose)?;
+                row["lowest_sole_m"] = json!(h);
+                sum_lowest_sole += h;
             }
             if let Some(gt) = dataset.ground_truth(frame) {
                 let truth = TruthMesh::new(&template, gt);
@@ -772,6 +794,9 @@ fn fit_prepared(
     if height_prior.is_some() {
         summary["mean_rest_height_m"] = json!(sum_rest_height / n);
     }
+    if floor.is_some() {
+        summary["mean_lowest_sole_m"] = json!(sum_lowest_sole / n);
+    }
     if dataset.has_ground_truth() {
         summary["mean_v2v_mm"] = json!(sum_v2v / n);
         summary["mean_mpjpe_mm"] = json!(sum_mpjpe / n);
@@ -863,6 +888,9 @@ fn fit_prepared(
     }
     if let Some(h) = height_prior {
         out["height_prior"] = h.json();
+    }
+    if let (Some(arg), Some(f)) = (prepared.floor, &floor) {
+        out["floor"] = arg.json(f.height_m());
     }
     if let Some((o, _)) = offsets {
         // Where the points sat: the file, and the offsets it gave.

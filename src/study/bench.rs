@@ -92,6 +92,11 @@ pub struct BenchConfig {
     /// ([`crate::fitting::HeightPriorArg`]). Not with `known_shape`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub height_prior: Option<String>,
+    /// The floor the subject stands on in every method's energy, `"FORM:HEIGHT[,MM]"` —
+    /// `lfit fit --floor` ([`crate::fitting::FloorArg`]; `truth`: the ground truth's lowest
+    /// sole over the bench's frames).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub floor: Option<String>,
     /// `"METHOD"` or `"METHOD:STRATEGY"` ([`MethodSpec`]).
     pub methods: Vec<MethodSpec>,
     pub budgets: Vec<usize>,
@@ -245,6 +250,9 @@ impl BenchConfig {
                 );
             }
             crate::shipped::locate(c).context("synth.camera")?;
+        }
+        if let Some(f) = &self.floor {
+            f.parse::<crate::fitting::FloorArg>().context("floor")?;
         }
         if let Some(h) = &self.height_prior {
             h.parse::<crate::fitting::HeightPriorArg>()
@@ -695,6 +703,11 @@ fn input_hashes(
         // The height prior is a row of every frame's energy.
         h.eat(p.as_bytes());
     }
+    if let Some(f) = &config.floor {
+        // So is the floor.
+        h.eat(b"floor");
+        h.eat(f.as_bytes());
+    }
     inputs.insert("energy".into(), h.hex().into());
     if let Some(c) = &config.checkpoint
         && config.methods.iter().any(|m| m.kind.is_neural())
@@ -904,16 +917,32 @@ pub fn run(
             crate::fitting::FrameHeights::new(h.parse()?, &template, dataset.has_ground_truth())
         })
         .transpose()?;
+    let floor = config
+        .floor
+        .as_deref()
+        .map(|f| -> Result<_> {
+            f.parse::<crate::fitting::FloorArg>()?.resolve(
+                &dataset,
+                &template,
+                &frames,
+                &energy_config,
+            )
+        })
+        .transpose()?;
     let energies: Vec<Energy> = frames
         .iter()
         .map(|&f| {
-            energy_with_height_prior(
+            let energy = energy_with_height_prior(
                 &dataset,
                 template.clone(),
                 f,
                 energy_config.clone(),
                 heights.as_ref(),
-            )
+            )?;
+            Ok(match &floor {
+                Some(floor) => energy.with_floor(floor)?,
+                None => energy,
+            })
         })
         .collect::<Result<_>>()?;
 
@@ -1342,6 +1371,44 @@ mod tests {
             .validate()
             .unwrap_err();
         assert!(format!("{err:#}").contains("use one"), "{err:#}");
+    }
+
+    /// `floor`: the forms of `lfit fit --floor`, read back from the TOML; a bad one refused
+    /// before any work, naming the key.
+    #[test]
+    fn a_bench_floor_is_checked_before_any_work() {
+        let config = |extra: &str| -> BenchConfig {
+            toml::from_str(&format!(
+                "name = \"f\"\nmethods = [\"lm\"]\nbudgets = [10]\n{extra}\n[synth]\nmodality = \"markers\"\nframes = 2\n"
+            ))
+            .expect("toml")
+        };
+        for good in [
+            "contact:0",
+            "above:-0.05,30",
+            "contact:truth",
+            "above:truth,10",
+        ] {
+            let c = config(&format!("floor = \"{good}\""));
+            assert_eq!(c.floor.as_deref(), Some(good));
+            c.validate().expect(good);
+        }
+        assert_eq!(config("").floor, None);
+        for bad in [
+            "0.0",
+            "below:0",
+            "contact:low",
+            "contact:0,0",
+            "contact:nan",
+        ] {
+            let err = config(&format!("floor = \"{bad}\""))
+                .validate()
+                .unwrap_err();
+            assert!(
+                format!("{err:#}").starts_with("floor: --floor"),
+                "{bad}: {err:#}"
+            );
+        }
     }
 
     /// `[synth] camera`: a keypoints2d rig from a camera file, looked up like the shipped data;
