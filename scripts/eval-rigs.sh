@@ -16,7 +16,9 @@
 #
 # CHECKPOINT: a pooled keypoints2d checkpoint (network.views = "pooled"). OUT defaults to
 # target/eval-rigs. LFIT (default: the release build) is the binary. POSE_PRIOR (an energy file
-# of `lfit motion prior --modality keypoints2d`) adds the rows of LM with that prior.
+# of `lfit motion prior --modality keypoints2d`) adds the rows of LM with that prior. FLOOR (e.g.
+# contact:truth) gives every fit `--floor FLOOR`: the ground plane as a measurement
+# (docs/results/captured-motion.md, round 36).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ $# -lt 1 ] || [ $# -gt 2 ]; then
@@ -34,6 +36,8 @@ if [ -n "${POSE_PRIOR:-}" ] && [ ! -f "$POSE_PRIOR" ]; then
     exit 1
 fi
 eval_setup eval-rigs "$OUT"
+floor=()
+[ -n "${FLOOR:-}" ] && floor=(--floor "$FLOOR")
 rows=()
 for rig in ${RIGS:-1 3}; do
     if [[ "$rig" =~ ^[0-9]+$ ]]; then
@@ -51,21 +55,21 @@ for rig in ${RIGS:-1 3}; do
     "$LFIT" -q synth --modality keypoints2d "${rig_args[@]}" --scenario local --frames "$FRAMES" \
         --seed "$SEED" --template "$MODEL" --motions "$OUT/clip-motion.npz" --out "$data" >/dev/null
     "$LFIT" -q fit --data "$data" --template "$MODEL" --method lm --budget 4000 \
-        --out "$OUT/$tag-lm.json" >/dev/null
+        "${floor[@]}" --out "$OUT/$tag-lm.json" >/dev/null
     rows+=("$tag-lm")
     if [ -n "${POSE_PRIOR:-}" ]; then
         "$LFIT" -q fit --data "$data" --template "$MODEL" --method lm --budget 4000 \
-            --energy "$POSE_PRIOR" --out "$OUT/$tag-lm+prior.json" >/dev/null
+            --energy "$POSE_PRIOR" "${floor[@]}" --out "$OUT/$tag-lm+prior.json" >/dev/null
         rows+=("$tag-lm+prior")
     fi
     for start in given phi; do
         "$LFIT" -q fit --data "$data" --template "$MODEL" --method neural --checkpoint "$CK" \
-            --neural-start "$start" --budget 10 --out "$OUT/$tag-neural-$start.json" >/dev/null
+            --neural-start "$start" --budget 10 "${floor[@]}" --out "$OUT/$tag-neural-$start.json" >/dev/null
         rows+=("$tag-neural-$start")
     done
     # The network from the given start, then LM on its default (anchored at the network's result).
     "$LFIT" -q fit --data "$data" --template "$MODEL" --method neural+lm --checkpoint "$CK" \
-        --neural-start given --budget 4000 --out "$OUT/$tag-neural+lm-given.json" >/dev/null
+        --neural-start given --budget 4000 "${floor[@]}" --out "$OUT/$tag-neural+lm-given.json" >/dev/null
     rows+=("$tag-neural+lm-given")
 done
 eval_table fits "$OUT" "${rows[@]}"

@@ -436,8 +436,11 @@ impl FrameHeights {
 /// plane at HEIGHT metres of the world's up axis (`+y`), as one more measurement of the lowest
 /// sole ([`lfit_model::energy::FloorPrior`]) — `above` keeps every sole above it (one-sided),
 /// `contact` puts the lowest sole on it; MM its standard deviation in millimetres (default
-/// [`FLOOR_STD_M`]). HEIGHT `truth` (synthetic data): the lowest sole of the ground truth over
-/// the fitted frames, the floor the subject stood on.
+/// [`FLOOR_STD_M`]). HEIGHT `truth` (synthetic data): the median over the fitted frames of the
+/// ground truth's lowest sole — the level the soles rest at, robust to frames in flight and to
+/// retargeted feet that sink through the floor in some frames (a captured clip's lowest sole
+/// spans −193 to +62 mm over 200 frames, its median −6; docs/results/captured-motion.md,
+/// round 36).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FloorArg {
     pub form: lfit_model::energy::FloorForm,
@@ -513,8 +516,9 @@ impl FloorArg {
     }
 
     /// The floor on `template` for `frames` of `dataset`: at the given height, or (`truth`) at
-    /// the ground truth's lowest sole over those frames. One-line errors for `truth` without
-    /// ground truth and for a model without soles.
+    /// the median over those frames of the ground truth's lowest sole (the mean of the middle
+    /// two for an even count). One-line errors for `truth` without ground truth and for a model
+    /// without soles.
     pub fn resolve(
         &self,
         dataset: &Dataset,
@@ -538,15 +542,25 @@ impl FloorArg {
                 "--floor truth: the data have no ground truth (imported observations); give the floor's height in metres"
             );
         }
-        let mut lowest = f64::INFINITY;
+        let mut lowest = Vec::with_capacity(frames.len());
         for &f in frames {
             let energy = energy_for_frame(dataset, template.clone(), f, config.clone())?;
             let truth = dataset
                 .ground_truth(f)
                 .context("--floor truth: a frame without ground truth")?;
-            lowest = lowest.min(energy.lowest_sole(&floor, truth)?);
+            lowest.push(energy.lowest_sole(&floor, truth)?);
         }
-        Ok(floor.at(lowest)?)
+        lowest.sort_by(f64::total_cmp);
+        let n = lowest.len();
+        if n == 0 {
+            bail!("--floor truth: no frames to measure the floor on");
+        }
+        let median = if n % 2 == 1 {
+            lowest[n / 2]
+        } else {
+            0.5 * (lowest[n / 2 - 1] + lowest[n / 2])
+        };
+        Ok(floor.at(median)?)
     }
 }
 

@@ -548,7 +548,8 @@ struct FitCmd {
     /// vertices weighted like one observed marker or keypoint at MM millimetres (default 20):
     /// `above` keeps every sole above the floor, `contact` puts the lowest on it (standing and
     /// walking; with one camera, where size and depth trade off, what fixes the depth). HEIGHT
-    /// `truth`: the ground truth's lowest sole over the fitted frames (synthetic data).
+    /// `truth`: the median over the fitted frames of the ground truth's lowest sole (synthetic
+    /// data: where the soles rest, robust to frames in flight and to retargeted feet that sink).
     #[arg(long)]
     floor: Option<String>,
     /// Tensor backend of the neural fitter: ndarray, flex or wgpu.

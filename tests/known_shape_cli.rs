@@ -583,8 +583,9 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
     assert!(!bad_out.exists());
 }
 
-/// `--floor FORM:HEIGHT[,MM]` on one phone camera (the validation subject, 30 frames): the
-/// floor at `truth` is the ground truth's lowest sole over the frames (measured here again from
+/// `--floor FORM:HEIGHT[,MM]` on one phone camera (the validation subject, 30 frames; at seed 12
+/// LM anchored without a floor ends ~130 mm off, with it ~45): the
+/// floor at `truth` is the median over the frames of the ground truth's lowest sole (measured here again from
 /// the posed mesh); `contact` holds every frame's lowest sole on it and fixes the depth one
 /// camera leaves open (V2V well under the fit without it); `above` keeps the soles off the
 /// floor's underside; a floor below every sole changes nothing; bad forms refused with one line
@@ -609,7 +610,7 @@ fn a_floor_holds_the_soles_and_fixes_one_cameras_depth() {
             "--fps",
             "30",
             "--seed",
-            "11",
+            "12",
             "--motions",
             path_str(&motion),
             "--camera",
@@ -640,7 +641,7 @@ fn a_floor_holds_the_soles_and_fixes_one_cameras_depth() {
     let template = lfit::model::modelfile::load(&model).expect("model");
     let truth = lfit::synth::Dataset::load(&data).expect("data");
     let candidates = lfit::model::energy::sole_vertices(&template);
-    let lowest_true = truth
+    let mut lowest: Vec<f64> = truth
         .gt_poses
         .iter()
         .map(|gt| {
@@ -654,7 +655,10 @@ fn a_floor_holds_the_soles_and_fixes_one_cameras_depth() {
                 .map(|&v| f64::from(posed[v].y))
                 .fold(f64::INFINITY, f64::min)
         })
-        .fold(f64::INFINITY, f64::min);
+        .collect();
+    lowest.sort_by(f64::total_cmp);
+    // 30 frames: the mean of the middle two.
+    let lowest_true = 0.5 * (lowest[14] + lowest[15]);
 
     let plain = fit(&[]);
     assert!(plain.get("floor").is_none() && plain["summary"].get("mean_lowest_sole_m").is_none());
@@ -677,7 +681,7 @@ fn a_floor_holds_the_soles_and_fixes_one_cameras_depth() {
         .expect("mean");
     assert!((mean - held.iter().sum::<f64>() / held.len() as f64).abs() < 1e-12);
     assert!(
-        v2v(&contact) < 0.9 * v2v(&plain),
+        v2v(&contact) < 0.5 * v2v(&plain),
         "contact {} mm, without {} mm",
         v2v(&contact),
         v2v(&plain)

@@ -67,6 +67,26 @@ def test_holdout_equals_the_cli(makehuman, markers_file, cli, tmp_path):
         lfit.fit(makehuman, markers_file, method="lm", budget=20, holdout=3)
 
 
+def test_a_floor_fits_as_the_cli(makehuman, markers_file, cli, tmp_path):
+    """floor=: `lfit fit --floor`, the same poses and the floor the result file records; a bad
+    form is the CLI's one-line error."""
+    out = tmp_path / "cli.json"
+    cli("fit", "--data", markers_file, "--model", ROOT / "models" / "makehuman-cmu_mb.npz",
+        "--method", "lm", "--budget", 100, "--frames", "0..3", "--floor", "contact:truth,10",
+        "--out", out)
+    theirs = json.loads(out.read_text())
+    ours = lfit.fit(makehuman, markers_file, method="lm", budget=100, frames="0..3",
+                    floor="contact:truth,10")
+    np.testing.assert_array_equal(ours.poses, [r["pose"] for r in theirs["frames"]])
+    doc = ours.document()
+    assert doc["floor"] == theirs["floor"] and doc["floor"]["form"] == "contact"
+    assert ours.summary["mean_lowest_sole_m"] == theirs["summary"]["mean_lowest_sole_m"]
+    plain = lfit.fit(makehuman, markers_file, method="lm", budget=100, frames="0..3")
+    assert not np.array_equal(plain.poses, ours.poses) and "floor" not in plain.document()
+    with pytest.raises(ValueError, match="--floor 'under:0'"):
+        lfit.fit(makehuman, markers_file, method="lm", budget=20, floor="under:0")
+
+
 def test_a_pose_prior_energy_fits_as_the_cli(makehuman, markers_file, cli, tmp_path):
     """`lfit motion prior`'s energy file given to `fit(energy=)`: the CLI's fit, the prior's term
     reported; as a dict (the file's JSON) the same."""

@@ -165,7 +165,7 @@ fn shape_hint(
         let give = if height_prior {
             "the height prior did not hold it: give β or the height as β (--known-shape height:M), or a smaller --height-prior STD"
         } else {
-            "give β or the subject's height (--known-shape height:M, or --height-prior M with β estimated)"
+            "give β or the subject's height (--known-shape height:M, or --height-prior M with β estimated), or where the floor is (--floor contact:HEIGHT)"
         };
         let fix = if sequence {
             format!("{give}, or fix one β over the sequence (--sequence-shape joint:64)")
