@@ -445,7 +445,8 @@ impl Motion {
 
 /// Imports a BVH clip retargeted onto `model` as `lfit motion import --bvh` does. `map`: the
 /// joint-name map JSON (`configs/maps/`; default: identical names); `units`: `auto`, `cm` or
-/// `m`; `up`: `y` or `z`; `root`: `floor` or `keep`; `stride`: keep every N-th frame.
+/// `m`; `up`: `y` or `z`; `root`: `floor` or `rest` (`lfit motion import --root`); `stride`:
+/// keep every N-th frame.
 #[pyfunction]
 #[pyo3(signature = (path, model=None, *, map=None, units="auto", up="y", root="floor", stride=1, rest_pose=None, out=None))]
 #[allow(clippy::too_many_arguments)]
