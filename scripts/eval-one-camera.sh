@@ -8,7 +8,8 @@
 # `--height-prior truth`) and β given (`known`, `--known-shape truth`), for each translation
 # standard deviation of MMS (default "default 30 300": `default` is `anchored:5` as shipped, a
 # number N is `anchored:5,N`). SEQUENCE_SHAPE (e.g. joint:64; default the per-frame β of `lfit
-# fit`) is passed as `--sequence-shape` to every fit. Prints one Markdown table: mean V2V (mm)
+# fit`) is passed as `--sequence-shape` to every fit, FLOOR (e.g. contact:truth: the ground plane
+# at the median of the truth's lowest sole; round 36) as `--floor`. Prints one Markdown table: mean V2V (mm)
 # over the subjects, PA-MPJPE in brackets, how rough the fitted root's track is — the
 # root-mean-square of its second difference between consecutive frames, mm per frame² (the
 # truth's: 4.8 at 30 fps, 15.8 at 10 — a fixed pull trades V2V against it) — and the summary's
@@ -61,6 +62,7 @@ for f in $FPS; do
 done
 shape_args() {
     [ -n "${SEQUENCE_SHAPE:-}" ] && echo "--sequence-shape $SEQUENCE_SHAPE"
+    [ -n "${FLOOR:-}" ] && echo "--floor $FLOOR"
     case "$1" in
         height) echo "--height-prior truth" ;;
         known) echo "--known-shape truth" ;;
@@ -98,7 +100,7 @@ for f in $FPS; do
             net=()
             for s in $SEEDS; do
                 data="$OUT/phone-$f-$s.npz"
-                stem="$OUT/r-$f-$s-$shape-$mm${SEQUENCE_SHAPE:+-${SEQUENCE_SHAPE/:/}}"
+                stem="$OUT/r-$f-$s-$shape-$mm${SEQUENCE_SHAPE:+-${SEQUENCE_SHAPE/:/}}${FLOOR:+-floor-${FLOOR//[:,]/-}}"
                 # shellcheck disable=SC2046
                 "$LFIT" -q fit --data "$data" --template "$MODEL" --method lm --budget 4000 \
                     --dofs "$anchor" $(shape_args "$shape") --out "$stem-lm.json" >/dev/null 2>"$stem.err" || { cat "$stem.err" >&2; exit 1; }

@@ -12,7 +12,7 @@ pub use crate::cli::motion::{
 };
 pub use crate::data::params_from_json;
 pub use crate::data::{MotionFilesArgs, Rig, SynthArgs, load_model, synthesize_dataset};
-pub use crate::fitting::{HeightPriorArg, check_model, template_for};
+pub use crate::fitting::{FloorArg, HeightPriorArg, check_model, template_for};
 pub use crate::method::{MethodKind, NO_NEURAL};
 
 /// The one line an error prints (`lfit` prints it after `error: `): the error and its causes,

@@ -49,7 +49,8 @@ pub fn energy_config(obj: Option<&Bound<'_, PyAny>>) -> PyResult<Option<EnergyCo
 /// `Dataset.sensor` gives. `config`: a dict or JSON file of the energy configuration; default
 /// the one `lfit fit` uses for gradient methods and LM. `height_prior`: the subject's height
 /// as a soft measurement in the energy (`lfit fit --height-prior`): metres, `"M:STD"` or
-/// `(M, STD)`.
+/// `(M, STD)`. `floor`: the ground plane as a measurement (`lfit fit --floor`),
+/// `"FORM:HEIGHT[,MM]"` (`truth`: a dataset frame's own lowest true sole).
 #[pyclass(module = "lfit", name = "Energy", frozen)]
 pub struct Energy {
     problem: FrameProblem,
@@ -71,7 +72,7 @@ fn x_of(problem: &FrameProblem, x: &Bound<'_, PyAny>) -> PyResult<Vec<f64>> {
 #[pymethods]
 impl Energy {
     #[new]
-    #[pyo3(signature = (model=None, data=None, frame=0, *, observations=None, visible=None, sensor=None, scenario="global", start=None, config=None, height_prior=None))]
+    #[pyo3(signature = (model=None, data=None, frame=0, *, observations=None, visible=None, sensor=None, scenario="global", start=None, config=None, height_prior=None, floor=None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         model: Option<&Bound<'_, PyAny>>,
@@ -84,7 +85,9 @@ impl Energy {
         start: Option<&Bound<'_, PyAny>>,
         config: Option<&Bound<'_, PyAny>>,
         height_prior: Option<&Bound<'_, PyAny>>,
+        floor: Option<&str>,
     ) -> PyResult<Self> {
+        let floor: Option<lfit::api::FloorArg> = floor.map(str::parse).transpose().py_err()?;
         let height_prior: Option<lfit::api::HeightPriorArg> =
             crate::fit::height_prior_arg(height_prior)?
                 .map(|h| h.parse())
@@ -181,6 +184,10 @@ impl Energy {
         };
         let problem = match height_prior {
             Some(h) => problem.with_height_prior(h, truth.as_deref()).py_err()?,
+            None => problem,
+        };
+        let problem = match floor {
+            Some(f) => problem.with_floor(f, truth.as_deref()).py_err()?,
             None => problem,
         };
         Ok(Self { problem })

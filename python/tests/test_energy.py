@@ -76,6 +76,31 @@ def test_a_height_prior_is_one_more_row(makehuman, markers):
         lfit.Energy(rigid, lfit.synth("markers", rigid, frames=1, seed=1), 0, height_prior=1.7)
 
 
+def test_a_floor_is_one_more_row(makehuman, markers):
+    """floor=: the `lfit fit --floor` row on the lowest sole, in the value and the Jacobian;
+    a floor under every sole adds nothing (`above`), one over it pulls (`contact`); `truth` is
+    the frame's own lowest true sole; bad forms refused."""
+    plain = lfit.Energy(makehuman, markers, 1)
+    x = plain.x0 + 0.01
+    under = lfit.Energy(makehuman, markers, 1, floor="above:-5")
+    assert under.residual_count == plain.residual_count + 1
+    assert under.terms(x)["floor"] == 0.0 and under.value(x) == plain.value(x)
+    e = lfit.Energy(makehuman, markers, 1, floor="contact:0.5,10")
+    assert e.terms(x)["floor"] > 0.0
+    assert e.value(x) == pytest.approx(plain.value(x) + e.terms(x)["floor"], rel=1e-12)
+    r, j = e.residuals_and_jacobian(x)
+    value, grad = e.value_and_grad(x)
+    np.testing.assert_allclose(grad, 2 * j.T @ r, rtol=1e-6, atol=1e-8)
+    # At the truth the floor at its own lowest sole adds nothing.
+    truth = np.asarray(markers.gt_params[1])
+    t = lfit.Energy(makehuman, markers, 1, start=truth, floor="contact:truth")
+    np.testing.assert_array_equal(t.full(t.x0), truth)
+    assert t.terms(t.x0)["floor"] == pytest.approx(0.0, abs=1e-20)
+    assert lfit.Energy(makehuman, markers, 1, start=truth, floor="contact:0").terms(t.x0)["floor"] > 0.0
+    with pytest.raises(lfit.LfitError, match="--floor 'low'"):
+        lfit.Energy(makehuman, markers, 1, floor="low")
+
+
 def test_observations_and_sensor_give_the_dataset_frames_energy(makehuman, markers):
     frame = 2
     from_data = lfit.Energy(makehuman, markers, frame)

@@ -961,6 +961,35 @@ impl FrameProblem {
         Ok(self)
     }
 
+    /// The same problem with the floor as a measurement in its energy (`lfit fit --floor`,
+    /// [`lfit_model::energy::FloorPrior`]). `truth`: the frame's ground-truth parameters, for
+    /// `truth` (the floor at their lowest sole; refused without them).
+    pub fn with_floor(
+        mut self,
+        arg: crate::fitting::FloorArg,
+        truth: Option<&[f64]>,
+    ) -> Result<Self> {
+        let floor = lfit_model::energy::FloorPrior::new(
+            self.energy.template(),
+            arg.height_m.unwrap_or(0.0),
+            arg.std_m,
+            arg.form,
+        )
+        .context("--floor")?;
+        let floor = match arg.height_m {
+            Some(_) => floor,
+            None => {
+                let truth = truth.context(
+                    "--floor truth: the frame has no ground truth; give the floor's height in metres",
+                )?;
+                let at = self.energy.lowest_sole(&floor, truth)?;
+                floor.at(at)?
+            }
+        };
+        self.energy = self.energy.with_floor(&floor)?;
+        Ok(self)
+    }
+
     /// Frame `frame` of `dataset` with `config`: the dataset's start pose, the scenario's free
     /// entries and box around it.
     pub fn from_dataset(
