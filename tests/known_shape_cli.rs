@@ -397,8 +397,17 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
     assert!(
         hint.contains(&format!("in {at_box} of 30 frames"))
             && hint.contains("--known-shape height:M")
+            && hint.contains("--floor contact:HEIGHT")
             && hint.contains("--sequence-shape joint:64"),
         "{hint}"
+    );
+    // With a floor given (one under every sole: the same fit) the hint does not suggest it again.
+    let (floored, _) = fit("phone-1", TIGHT, &["--floor", "above:-1"]);
+    assert_eq!(floored["summary"]["shape_at_bound_frames"], at_box);
+    let again = floored["summary"]["shape_hint"].as_str().expect("a hint");
+    assert!(
+        !again.contains("--floor") && again.contains("--known-shape height:M"),
+        "{again}"
     );
     let warnings: Vec<&str> = stderr
         .lines()

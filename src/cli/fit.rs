@@ -151,7 +151,8 @@ fn shape_at_bound(template: &Template, pose: &[f64]) -> bool {
 
 /// The summary's `shape_hint` where `at_bound` of `frames` fitted frames ended with β at its box
 /// ([`shape_at_bound`]): the fit's size is the box's, not the subject's. `None` when none did.
-/// With `height_prior` (the fit had `--height-prior`) the advice is a tighter one or β. In a
+/// With `height_prior` (the fit had `--height-prior`) the advice is a tighter one or β; with
+/// `floor` (it had `--floor`) the floor is not suggested again. In a
 /// sequence it adds one β over the sequence, `joint:64`: its first pass is a chain, where
 /// `first-pass` fits frames alone from their starts (one camera's sequences from starts 300 mm
 /// off in depth: 55 mm against 240; docs/results/captured-motion.md, round 34).
@@ -160,12 +161,13 @@ fn shape_hint(
     frames: usize,
     sequence: bool,
     height_prior: bool,
+    floor: bool,
 ) -> Option<String> {
     (at_bound > 0).then(|| {
-        let give = if height_prior {
-            "the height prior did not hold it: give β or the height as β (--known-shape height:M), or a smaller --height-prior STD"
-        } else {
-            "give β or the subject's height (--known-shape height:M, or --height-prior M with β estimated), or where the floor is (--floor contact:HEIGHT)"
+        let give = match (height_prior, floor) {
+            (true, _) => "the height prior did not hold it: give β or the height as β (--known-shape height:M), or a smaller --height-prior STD",
+            (false, true) => "give β or the subject's height (--known-shape height:M, or --height-prior M with β estimated)",
+            (false, false) => "give β or the subject's height (--known-shape height:M, or --height-prior M with β estimated), or where the floor is (--floor contact:HEIGHT)",
         };
         let fix = if sequence {
             format!("{give}, or fix one β over the sequence (--sequence-shape joint:64)")
@@ -854,6 +856,7 @@ fn fit_prepared(
             frames.len(),
             sequence,
             height_prior.is_some(),
+            floor.is_some(),
         ) {
             eprintln!("warning: {hint}");
             summary["shape_hint"] = json!(hint);

@@ -13,10 +13,12 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
+use glam::DVec3;
 use lfit_fitters::FitRequest;
 use lfit_model::Template;
 use lfit_model::metrics::{
-    ground_penetration_mm, mpjpe_mm, pa_mpjpe_mm, part_vertices, v2v_mm, v2v_subset_mm,
+    aligned_joint_error_mm, ground_penetration_mm, joint_error_mm, joint_positions, part_vertices,
+    v2v_mm, v2v_subset_mm,
 };
 use lfit_model::observe::{Modality, Sensor};
 use lfit_model::pose::{Bounds, DofMask, POSE_DIM, Pose};
@@ -272,6 +274,15 @@ fn evaluate(
     let mean = |f: &dyn Fn(&Pose, &[f64]) -> f64| {
         poses.iter().zip(gt).map(|(p, g)| f(p, g)).sum::<f64>() / n.max(1) as f64
     };
+    // Each frame's fitted and true joints, posed once for MPJPE and PA-MPJPE.
+    let joints: Vec<_> = poses
+        .iter()
+        .zip(gt)
+        .map(|(p, g)| (joint_positions(template, p), joint_positions(template, g)))
+        .collect();
+    let mean_joints = |f: &dyn Fn(&[DVec3], &[DVec3]) -> f64| {
+        joints.iter().map(|(p, g)| f(p, g)).sum::<f64>() / n.max(1) as f64
+    };
     let card: Value = serde_json::from_slice(
         &std::fs::read(dir.join("metrics.json"))
             .with_context(|| format!("{}/metrics.json", dir.display()))?,
@@ -283,8 +294,8 @@ fn evaluate(
         head_v2v_mm: mean(&|p, g| v2v_subset_mm(template, p, g, &parts[0])),
         l_hand_v2v_mm: mean(&|p, g| v2v_subset_mm(template, p, g, &parts[1])),
         r_hand_v2v_mm: mean(&|p, g| v2v_subset_mm(template, p, g, &parts[2])),
-        mpjpe_mm: mean(&|p, g| mpjpe_mm(template, p, g)),
-        pa_mpjpe_mm: mean(&|p, g| pa_mpjpe_mm(template, p, g)),
+        mpjpe_mm: mean_joints(&joint_error_mm),
+        pa_mpjpe_mm: mean_joints(&aligned_joint_error_mm),
         ground_penetration_mm: mean(&|p, _| ground_penetration_mm(template, p)),
         parameters: card["parameters"].as_u64().unwrap_or(0) as usize,
         train_time_s: card["time_s"].as_f64().unwrap_or(f64::NAN),
