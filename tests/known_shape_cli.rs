@@ -330,6 +330,32 @@ fn a_known_shape_is_frozen_for_every_method_and_required_by_a_known_shape_networ
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
+/// Writes to `data` 30 frames at 30 fps of the held-out CMU subject 6's first clip on the
+/// MakeHuman body, keypoints2d seen by `configs/rigs/RIG.json`, drawn with `seed` (its β).
+fn validation_sequence(data: &std::path::Path, rig: &str, seed: &str) {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    support::synth_to(
+        data,
+        &root.join("models/makehuman-cmu_mb.npz"),
+        &[
+            "--modality",
+            "keypoints2d",
+            "--scenario",
+            "sequence",
+            "--frames",
+            "30",
+            "--fps",
+            "30",
+            "--seed",
+            seed,
+            "--motions",
+            path_str(&root.join("data/motions/cmu/validation/006_01.npz")),
+            "--camera",
+            path_str(&root.join(format!("configs/rigs/{rig}.json"))),
+        ],
+    );
+}
+
 /// A β estimated per frame that runs to its box is reported: the summary's
 /// `shape_at_bound_frames` counts the frames whose β has an entry at ±3 (checked here against
 /// the rows), `shape_hint` and one warning line on stderr say how to fix β. One phone camera
@@ -342,33 +368,13 @@ fn a_known_shape_is_frozen_for_every_method_and_required_by_a_known_shape_networ
 fn a_shape_run_to_its_box_is_counted_and_hinted() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let model = root.join("models/makehuman-cmu_mb.npz");
-    let motion = root.join("data/motions/cmu/validation/006_01.npz");
     let tmp = tempfile::tempdir().expect("tmp");
     // The tight pull of the translation that lets β run to its box on one camera.
     const TIGHT: &str = "anchored:5,30";
     let fit = |rig: &str, dofs: &str, extra: &[&str]| {
         let data = tmp.path().join(format!("{rig}.npz"));
         if !data.exists() {
-            support::synth_to(
-                &data,
-                &model,
-                &[
-                    "--modality",
-                    "keypoints2d",
-                    "--scenario",
-                    "sequence",
-                    "--frames",
-                    "30",
-                    "--fps",
-                    "30",
-                    "--seed",
-                    "11",
-                    "--motions",
-                    path_str(&motion),
-                    "--camera",
-                    path_str(&root.join(format!("configs/rigs/{rig}.json"))),
-                ],
-            );
+            validation_sequence(&data, rig, "11");
         }
         let out = tmp.path().join("fit.json");
         let mut more = vec!["--template", path_str(&model), "--dofs", dofs];
@@ -603,29 +609,9 @@ fn a_shape_run_to_its_box_is_counted_and_hinted() {
 fn a_floor_holds_the_soles_and_fixes_one_cameras_depth() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let model = root.join("models/makehuman-cmu_mb.npz");
-    let motion = root.join("data/motions/cmu/validation/006_01.npz");
     let tmp = tempfile::tempdir().expect("tmp");
     let data = tmp.path().join("phone.npz");
-    support::synth_to(
-        &data,
-        &model,
-        &[
-            "--modality",
-            "keypoints2d",
-            "--scenario",
-            "sequence",
-            "--frames",
-            "30",
-            "--fps",
-            "30",
-            "--seed",
-            "12",
-            "--motions",
-            path_str(&motion),
-            "--camera",
-            path_str(&root.join("configs/rigs/phone-1.json")),
-        ],
-    );
+    validation_sequence(&data, "phone-1", "12");
     let fit = |extra: &[&str]| {
         let out = tmp.path().join("fit.json");
         let mut more = vec!["--template", path_str(&model), "--dofs", "anchored:5"];

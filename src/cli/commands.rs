@@ -667,27 +667,36 @@ pub const QUICKSTART_HEIGHT_PRIOR: &str = "truth";
 /// (`docs/results/captured-motion.md`, round 33).
 fn with_height_parts(parts: Vec<(String, BenchConfig)>) -> Result<Vec<(String, BenchConfig)>> {
     with_twins(parts, HEIGHT_PART, |config| {
-        if !config.name.ends_with(PHONE_PART) {
-            return Ok(None);
-        }
-        let mut twin = config.clone();
-        let keep = [
-            crate::method::MethodKind::Neural,
-            crate::method::MethodKind::NeuralLm,
-            crate::method::MethodKind::Lm,
-        ];
-        twin.methods.retain(|m| keep.contains(&m.kind));
-        twin.height_prior = Some(QUICKSTART_HEIGHT_PRIOR.into());
-        Ok(Some(twin))
+        Ok(phone_twin(config, |twin| {
+            twin.height_prior = Some(QUICKSTART_HEIGHT_PRIOR.into());
+        }))
     })
+}
+
+/// The phone part's twin ([`PHONE_PART`]; `None` for any other part) for the network,
+/// `neural+lm` and LM, with `set` applied: what the user of one camera can add (the height, the
+/// floor) on the same frames.
+fn phone_twin(config: &BenchConfig, set: impl FnOnce(&mut BenchConfig)) -> Option<BenchConfig> {
+    if !config.name.ends_with(PHONE_PART) {
+        return None;
+    }
+    let mut twin = config.clone();
+    let keep = [
+        crate::method::MethodKind::Neural,
+        crate::method::MethodKind::NeuralLm,
+        crate::method::MethodKind::Lm,
+    ];
+    twin.methods.retain(|m| keep.contains(&m.kind));
+    set(&mut twin);
+    Some(twin)
 }
 
 /// Suffix of the quickstart's phone part with the floor as a measurement.
 const FLOOR_PART: &str = "-floor";
 
 /// The quickstart's floor (`lfit fit --floor`): the lowest sole in contact with the ground the
-/// synthetic subjects stand on (the median over the frames of the truth's lowest sole), at the default
-/// standard deviation.
+/// synthetic subjects stand on (the median over the frames of the truth's lowest sole), at the
+/// default standard deviation.
 pub const QUICKSTART_FLOOR: &str = "contact:truth";
 
 /// After the phone part (before its height twin), its twin with the floor as one more
@@ -696,18 +705,9 @@ pub const QUICKSTART_FLOOR: &str = "contact:truth";
 /// where the floor is can give instead of a height (`docs/results/captured-motion.md`, round 36).
 fn with_floor_parts(parts: Vec<(String, BenchConfig)>) -> Result<Vec<(String, BenchConfig)>> {
     with_twins(parts, FLOOR_PART, |config| {
-        if !config.name.ends_with(PHONE_PART) {
-            return Ok(None);
-        }
-        let mut twin = config.clone();
-        let keep = [
-            crate::method::MethodKind::Neural,
-            crate::method::MethodKind::NeuralLm,
-            crate::method::MethodKind::Lm,
-        ];
-        twin.methods.retain(|m| keep.contains(&m.kind));
-        twin.floor = Some(QUICKSTART_FLOOR.into());
-        Ok(Some(twin))
+        Ok(phone_twin(config, |twin| {
+            twin.floor = Some(QUICKSTART_FLOOR.into());
+        }))
     })
 }
 

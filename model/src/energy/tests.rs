@@ -826,6 +826,19 @@ mod least_squares_form {
         (e, x)
     }
 
+    /// The dense rows of `e` at `x` and its factored rows (LM's) give the same normal equations
+    /// on every column set; returns the dense system.
+    fn dense_is_factored(e: &Energy, x: &[f64]) -> LeastSquares {
+        let ls = e.least_squares(x, true).unwrap();
+        let lf = e
+            .least_squares_with(x, true, RobustForm::Folded, JacobianRows::Factored)
+            .unwrap();
+        for dofs in column_sets(e.dim()) {
+            assert_eq!(lf.normal_equations(&dofs), ls.normal_equations(&dofs));
+        }
+        ls
+    }
+
     /// [`Energy::with_anchor`]: the `anchor` term `Σ a_i (θ_i − c_i)²` with `a_i = λ_data / (n
     /// σ_i²)` (n visible groups) in the value, the gradient and as one least-squares row per
     /// entry — translation, rotation and shape entries with standard deviations of their own,
@@ -881,13 +894,7 @@ mod least_squares_form {
         let active = check(&anchored, &x, "anchored markers");
         assert!(active.contains(&"anchor"), "{active:?}");
         // The factored rows (LM's) hold the anchor as single entries: the same system.
-        let ls = anchored.least_squares(&x, true).unwrap();
-        let lf = anchored
-            .least_squares_with(&x, true, RobustForm::Folded, JacobianRows::Factored)
-            .unwrap();
-        for dofs in column_sets(dim) {
-            assert_eq!(lf.normal_equations(&dofs), ls.normal_equations(&dofs));
-        }
+        dense_is_factored(&anchored, &x);
         // At its centre the anchor is zero; a second anchor replaces the first.
         assert_eq!(anchored.evaluate(&centre).term("anchor"), Some(0.0));
         let again = anchored.with_anchor(&x, &entries).unwrap();
@@ -945,13 +952,7 @@ mod least_squares_form {
         assert_eq!(with.residual_count(), e.residual_count() + 1);
         let active = check(&with, &x, "markers with a height prior");
         assert!(active.contains(&"height"), "{active:?}");
-        let ls = with.least_squares(&x, true).unwrap();
-        let lf = with
-            .least_squares_with(&x, true, RobustForm::Folded, JacobianRows::Factored)
-            .unwrap();
-        for dofs in column_sets(dim) {
-            assert_eq!(lf.normal_equations(&dofs), ls.normal_equations(&dofs));
-        }
+        let ls = dense_is_factored(&with, &x);
         // The row reads the shape entries only.
         let (_, rows) = ls.blocks.iter().find(|(n, _)| *n == "height").unwrap();
         let row = ls.row(rows.start);
@@ -1025,7 +1026,6 @@ mod least_squares_form {
         for v in &mut x[rotations] {
             *v *= 0.3;
         }
-        let dim = t.layout().dim();
         let probe = FloorPrior::new(&t, 0.0, 0.02, FloorForm::Contact).unwrap();
         let lowest = e.lowest_sole(&probe, &x).unwrap();
         let posed = crate::skinning::pose_vertices(&t, &x, crate::skinning::SkinningMethod::Linear);
@@ -1058,13 +1058,7 @@ mod least_squares_form {
             assert_eq!(with.residual_count(), e.residual_count() + 1);
             let active = check(&with, &x, &format!("markers with a floor, {}", form.name()));
             assert!(active.contains(&"floor"), "{active:?}");
-            let ls = with.least_squares(&x, true).unwrap();
-            let lf = with
-                .least_squares_with(&x, true, RobustForm::Folded, JacobianRows::Factored)
-                .unwrap();
-            for dofs in column_sets(dim) {
-                assert_eq!(lf.normal_equations(&dofs), ls.normal_equations(&dofs));
-            }
+            let ls = dense_is_factored(&with, &x);
             // The root's height moves the sole one for one.
             let (_, rows) = ls.blocks.iter().find(|(n, _)| *n == "floor").unwrap();
             let row = ls.row(rows.start);
