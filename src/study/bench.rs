@@ -93,8 +93,8 @@ pub struct BenchConfig {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub height_prior: Option<String>,
     /// The floor the subject stands on in every method's energy, `"FORM:HEIGHT[,MM]"` —
-    /// `lfit fit --floor` ([`crate::fitting::FloorArg`]; `truth`: the ground truth's lowest
-    /// sole over the bench's frames).
+    /// `lfit fit --floor` ([`crate::fitting::FloorArg`]; `truth`: the median over the bench's
+    /// frames of the ground truth's lowest sole).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub floor: Option<String>,
     /// `"METHOD"` or `"METHOD:STRATEGY"` ([`MethodSpec`]).
