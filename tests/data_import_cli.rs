@@ -392,6 +392,49 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     }
     eprintln!("COCO import: {seen} keypoints, max pixel error {max_err:.3e} px");
     assert!(seen > 0 && max_err <= 1e-9);
+    // The same cameras calibrated in a Z-up world (a board on the floor), imported with
+    // `--up z`: turned back into lfit's Y-up world (the cameras within rounding), the same
+    // keypoints.
+    let to_z_up = lfit::synth::motion::retarget::Up::Z.to_lfit().transpose();
+    let z_up: Vec<_> = truth
+        .sensor
+        .cameras()
+        .iter()
+        .map(|c| c.in_rotated_world(to_z_up))
+        .collect();
+    let cams_z = d.join("cameras-z.json");
+    std::fs::write(&cams_z, cameras_json(&z_up)).expect("cameras");
+    let out_z = d.join("kp-z.npz");
+    let mut args_z = vec![
+        "-q".to_string(),
+        "data".into(),
+        "import".into(),
+        "--layout".into(),
+        "coco17".into(),
+        "--camera".into(),
+        path_str(&cams_z).into(),
+        "--up".into(),
+        "z".into(),
+        "--out".into(),
+        path_str(&out_z).into(),
+        "--keypoints".into(),
+    ];
+    args_z.extend(files.iter().map(|f| path_str(f).to_string()));
+    lfit_json(&args_z.iter().map(String::as_str).collect::<Vec<_>>());
+    let turned = Dataset::load(&out_z).expect("imported");
+    assert_eq!(sparse(&turned), sparse(&imported));
+    for (a, b) in turned.sensor.cameras().iter().zip(truth.sensor.cameras()) {
+        assert!((a.center() - b.center()).length() < 1e-12, "{a:?} vs {b:?}");
+        for (x, y) in a.rotation.iter().flatten().zip(b.rotation.iter().flatten()) {
+            assert!((x - y).abs() < 1e-12, "{a:?} vs {b:?}");
+        }
+    }
+    assert!(
+        z_up.iter()
+            .zip(truth.sensor.cameras())
+            .any(|(a, b)| (a.center() - b.center()).length() > 0.5),
+        "the Z-up file's cameras are elsewhere"
+    );
     let [lm, nn] = fit_both(d, &out, "keypoints2d", "px");
     assert!(
         lm[2] < 0.5,

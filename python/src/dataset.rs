@@ -354,9 +354,11 @@ pub fn import_c3d(
 
 /// Imports 2D keypoints (COCO keypoint files, or OpenPose frame files/folders; one path per
 /// camera) in calibrated cameras as `lfit data import --keypoints` does: a `keypoints2d`
-/// dataset without ground truth. `layout`: `coco17` or `body25`; `camera`: the camera JSON file.
+/// dataset without ground truth. `layout`: `coco17` or `body25`; `camera`: the camera JSON file;
+/// `up`: its world's up axis, `y` or `z` (`lfit data import --up`: a Z-up world is turned into
+/// lfit's Y-up one).
 #[pyfunction]
-#[pyo3(signature = (paths, layout, camera, model=None, *, keypoint_map=None, min_confidence=0.1, fps=30.0, scenario="sequence", out=None))]
+#[pyo3(signature = (paths, layout, camera, model=None, *, keypoint_map=None, min_confidence=0.1, fps=30.0, scenario="sequence", up="y", out=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn import_keypoints(
     py: Python<'_>,
@@ -368,6 +370,7 @@ pub fn import_keypoints(
     min_confidence: f64,
     fps: f64,
     scenario: &str,
+    up: &str,
     out: Option<PathBuf>,
 ) -> PyResult<Dataset> {
     if paths.is_empty() {
@@ -376,7 +379,7 @@ pub fn import_keypoints(
     let args = lfit::api::DataImportArgs {
         c3d: None,
         label_map: None,
-        up: "y".into(),
+        up: up.into(),
         keypoints: paths,
         layout: Some(layout),
         camera: Some(camera),

@@ -228,6 +228,15 @@ def test_keypoint_import_equals_the_cli(cli, tmp_path):
     assert d.modality == "keypoints2d" and len(d) == 4
     with pytest.raises(lfit.LfitError, match="unknown keypoint layout|layout"):
         lfit.import_keypoints([coco], "coco18", cams, MH)
+    # A Z-up camera file (`--up z`): the CLI's dataset, the same keypoints, other cameras.
+    cli_z = tmp_path / "cli-z.npz"
+    cli("data", "import", "--keypoints", coco, "--layout", "coco17", "--camera", cams, "--model", MH, "--up", "z", "--out", cli_z)
+    z = lfit.import_keypoints([coco], "coco17", cams, MH, up="z")
+    same_dataset(z, lfit.load_dataset(cli_z))
+    np.testing.assert_array_equal(z.observations, d.observations)
+    assert z.sensor != d.sensor
+    with pytest.raises(lfit.LfitError, match="unknown up axis 'x'"):
+        lfit.import_keypoints([coco], "coco17", cams, MH, up="x")
 
 
 def test_bvh_import_equals_the_cli(cli, tmp_path):

@@ -81,9 +81,11 @@ pub struct ImportArgs {
     /// for a label the file repeats); default: C3D labels equal to the model's marker names.
     #[arg(long, requires = "c3d")]
     pub label_map: Option<PathBuf>,
-    /// Up axis of the C3D's lab frame: y, or z (points converted by (x, y, z) -> (x, z, -y), as
-    /// `lfit motion import --up z`, so that the fitted body stands in renders and exports).
-    #[arg(long, default_value = "y", requires = "c3d")]
+    /// Up axis of the C3D's lab frame or of the camera file's world: y, or z (points converted
+    /// by (x, y, z) -> (x, z, -y), as `lfit motion import --up z`, and the cameras turned with
+    /// them, so that the fitted body stands in renders and exports and the floor is lfit's
+    /// `--floor` plane: a camera file calibrated on a board laid on the floor is z-up).
+    #[arg(long, default_value = "y")]
     pub up: String,
     /// Keypoint files (COCO keypoint JSON, or OpenPose per-frame JSON files or folders of them):
     /// one per camera in the camera file's order, or any number for a single camera.
@@ -247,12 +249,11 @@ pub fn import_dataset(
         })
     };
     let scenario: Scenario = args.scenario.parse()?;
+    let up: lfit_synth::motion::retarget::Up = args.up.parse().map_err(anyhow::Error::msg)?;
     let (imported, source) = match (&args.c3d, args.keypoints.is_empty()) {
         (Some(_), false) => bail!("give either --c3d or --keypoints, not both"),
         (None, true) => bail!("lfit data import needs --c3d FILE or --keypoints FILE..."),
         (Some(path), true) => {
-            let up: lfit_synth::motion::retarget::Up =
-                args.up.parse().map_err(anyhow::Error::msg)?;
             let map = args
                 .label_map
                 .as_deref()
@@ -285,7 +286,13 @@ pub fn import_dataset(
             if !(args.fps.is_finite() && args.fps > 0.0) {
                 bail!("--fps must be positive (got {})", args.fps);
             }
-            let cameras = read_cameras(camera)?;
+            let mut cameras = read_cameras(camera)?;
+            if up != lfit_synth::motion::retarget::Up::Y {
+                // The cameras turned with the world (y up: the file as it is, to the bit).
+                for c in &mut cameras {
+                    *c = c.in_rotated_world(up.to_lfit());
+                }
+            }
             let map = args
                 .keypoint_map
                 .as_deref()

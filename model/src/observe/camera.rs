@@ -51,6 +51,21 @@ impl Camera {
         }
     }
 
+    /// The same camera in a world turned by `r` (a rotation; world points `p ↦ r p`): it sees
+    /// `r p` where it saw `p`. How a camera file calibrated in a Z-up world (a board on the
+    /// floor) becomes lfit's Y-up one (`lfit data import --up z`).
+    pub fn in_rotated_world(&self, r: DMat3) -> Self {
+        let rot = self.rot() * r.transpose();
+        Self {
+            rotation: [
+                rot.row(0).to_array(),
+                rot.row(1).to_array(),
+                rot.row(2).to_array(),
+            ],
+            ..*self
+        }
+    }
+
     /// `camera_from_world` rotation.
     pub fn rot(&self) -> DMat3 {
         DMat3::from_cols_array_2d(&self.rotation).transpose()
@@ -250,6 +265,37 @@ impl RigRanges {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// [`Camera::in_rotated_world`]: the turned camera projects `r p` where the camera projected
+    /// `p`, its centre is `r c`, and turning back gives the camera again.
+    #[test]
+    fn a_camera_in_a_rotated_world_sees_the_rotated_points() {
+        let cam = Camera::look_at(
+            DVec3::new(1.5, 1.2, 3.0),
+            DVec3::new(0.0, 0.9, 0.0),
+            800.0,
+            1280,
+            720,
+        );
+        let r = DMat3::from_rotation_x(-std::f64::consts::FRAC_PI_2) * DMat3::from_rotation_y(0.3);
+        let turned = cam.in_rotated_world(r);
+        turned.validate(0).expect("a proper rotation");
+        assert!(turned.center().abs_diff_eq(r * cam.center(), 1e-12));
+        for p in [DVec3::new(0.1, 1.0, -0.2), DVec3::new(-0.4, 0.2, 0.5)] {
+            let (a, b) = (cam.project(p).unwrap(), turned.project(r * p).unwrap());
+            assert!(a.abs_diff_eq(b, 1e-9), "{a} vs {b}");
+        }
+        let back = turned.in_rotated_world(r.transpose());
+        for (x, y) in back
+            .rotation
+            .iter()
+            .flatten()
+            .zip(cam.rotation.iter().flatten())
+        {
+            assert!((x - y).abs() < 1e-12);
+        }
+        assert_eq!((back.fx, back.translation), (cam.fx, cam.translation));
+    }
 
     #[test]
     fn ring_cameras_see_the_target_at_the_centre() {
