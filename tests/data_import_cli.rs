@@ -346,21 +346,25 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     let cams = d.join("cameras.json");
     std::fs::write(&cams, cameras_json(truth.sensor.cameras())).expect("cameras");
     let out = d.join("kp.npz");
-    let mut args = vec![
-        "-q".to_string(),
-        "data".into(),
-        "import".into(),
-        "--layout".into(),
-        "coco17".into(),
-        "--camera".into(),
-        path_str(&cams).into(),
-        "--out".into(),
-        path_str(&out).into(),
-        "--keypoints".into(),
-    ];
-    args.extend(files.iter().map(|f| path_str(f).to_string()));
-    let argv: Vec<&str> = args.iter().map(String::as_str).collect();
-    let summary = lfit_json(&argv);
+    // `lfit data import` of the COCO files seen by the camera file `cams` into `out`.
+    let import = |cams: &Path, out: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "-q".to_string(),
+            "data".into(),
+            "import".into(),
+            "--layout".into(),
+            "coco17".into(),
+            "--camera".into(),
+            path_str(cams).into(),
+            "--out".into(),
+            path_str(out).into(),
+        ];
+        args.extend(extra.iter().map(|a| a.to_string()));
+        args.push("--keypoints".into());
+        args.extend(files.iter().map(|f| path_str(f).to_string()));
+        lfit_json(&args.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    let summary = import(&cams, &out, &[]);
     assert_eq!(summary["modality"], "keypoints2d");
     assert_eq!(summary["import"]["cameras"], 6);
     let imported = Dataset::load(&out).expect("imported");
@@ -405,22 +409,7 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     let cams_z = d.join("cameras-z.json");
     std::fs::write(&cams_z, cameras_json(&z_up)).expect("cameras");
     let out_z = d.join("kp-z.npz");
-    let mut args_z = vec![
-        "-q".to_string(),
-        "data".into(),
-        "import".into(),
-        "--layout".into(),
-        "coco17".into(),
-        "--camera".into(),
-        path_str(&cams_z).into(),
-        "--up".into(),
-        "z".into(),
-        "--out".into(),
-        path_str(&out_z).into(),
-        "--keypoints".into(),
-    ];
-    args_z.extend(files.iter().map(|f| path_str(f).to_string()));
-    lfit_json(&args_z.iter().map(String::as_str).collect::<Vec<_>>());
+    import(&cams_z, &out_z, &["--up", "z"]);
     let turned = Dataset::load(&out_z).expect("imported");
     assert_eq!(sparse(&turned), sparse(&imported));
     for (a, b) in turned.sensor.cameras().iter().zip(truth.sensor.cameras()) {
