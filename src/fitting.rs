@@ -515,6 +515,18 @@ impl FloorArg {
         })
     }
 
+    /// The floor on `template` at the given height (at 0 for `truth`, to be moved to the truth's
+    /// soles with [`lfit_model::energy::FloorPrior::at`]).
+    pub fn prior(&self, template: &Template) -> Result<lfit_model::energy::FloorPrior> {
+        Ok(lfit_model::energy::FloorPrior::new(
+            template,
+            self.height_m.unwrap_or(0.0),
+            self.std_m,
+            self.form,
+        )
+        .context("--floor")?)
+    }
+
     /// The floor on `template` for `frames` of `dataset`: at the given height, or (`truth`) at
     /// the median over those frames of the ground truth's lowest sole (the mean of the middle
     /// two for an even count). One-line errors for `truth` without ground truth and for a model
@@ -526,14 +538,7 @@ impl FloorArg {
         frames: &[usize],
         config: &EnergyConfig,
     ) -> Result<lfit_model::energy::FloorPrior> {
-        use lfit_model::energy::FloorPrior;
-        let floor = FloorPrior::new(
-            template,
-            self.height_m.unwrap_or(0.0),
-            self.std_m,
-            self.form,
-        )
-        .context("--floor")?;
+        let floor = self.prior(template)?;
         if self.height_m.is_some() {
             return Ok(floor);
         }
@@ -1417,19 +1422,25 @@ pub fn check_model(dataset: &Dataset, template: &Template) -> Result<()> {
 }
 
 /// [`energy_for_frame`] with the frame's height prior where `heights` gives one
-/// ([`FrameHeights::apply`], `--height-prior`): what `lfit fit` and the bench fit.
-pub fn energy_with_height_prior(
+/// ([`FrameHeights::apply`], `--height-prior`) and the floor where `floor` gives one
+/// ([`Energy::with_floor`], `--floor`): what `lfit fit` and the bench fit.
+pub fn energy_with_priors(
     dataset: &Dataset,
     template: Arc<Template>,
     frame: usize,
     config: EnergyConfig,
     heights: Option<&FrameHeights>,
+    floor: Option<&lfit_model::energy::FloorPrior>,
 ) -> Result<Energy> {
     let energy = energy_for_frame(dataset, template, frame, config)?;
-    match heights {
-        Some(h) => h.apply(energy, dataset.ground_truth(frame)),
-        None => Ok(energy),
-    }
+    let energy = match heights {
+        Some(h) => h.apply(energy, dataset.ground_truth(frame))?,
+        None => energy,
+    };
+    Ok(match floor {
+        Some(f) => energy.with_floor(f)?,
+        None => energy,
+    })
 }
 
 /// The energy of frame `frame` of `dataset`.

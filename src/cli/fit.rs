@@ -635,17 +635,14 @@ fn fit_prepared(
         .transpose()?;
     let mut sum_lowest_sole = 0.0;
     let frame_energy = |frame: usize| -> Result<lfit_model::energy::Energy> {
-        let energy = crate::fitting::energy_with_height_prior(
+        crate::fitting::energy_with_priors(
             dataset,
             template.clone(),
             frame,
             config.clone(),
             heights.as_ref(),
-        )?;
-        Ok(match &floor {
-            Some(f) => energy.with_floor(f)?,
-            None => energy,
-        })
+            floor.as_ref(),
+        )
     };
     let mut done = 0;
     let report = crate::fitting::fit_frames(
@@ -972,13 +969,7 @@ impl FrameProblem {
         arg: crate::fitting::FloorArg,
         truth: Option<&[f64]>,
     ) -> Result<Self> {
-        let floor = lfit_model::energy::FloorPrior::new(
-            self.energy.template(),
-            arg.height_m.unwrap_or(0.0),
-            arg.std_m,
-            arg.form,
-        )
-        .context("--floor")?;
+        let floor = arg.prior(self.energy.template())?;
         let floor = match arg.height_m {
             Some(_) => floor,
             None => {

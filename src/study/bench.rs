@@ -24,7 +24,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::cli::fit::{frame_seed, iterate_v2v, parse_frames, read_energy_config, template_for};
-use crate::fitting::energy_with_height_prior;
+use crate::fitting::energy_with_priors;
 
 /// Dataset to synthesise when the config names none.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -932,17 +932,14 @@ pub fn run(
     let energies: Vec<Energy> = frames
         .iter()
         .map(|&f| {
-            let energy = energy_with_height_prior(
+            energy_with_priors(
                 &dataset,
                 template.clone(),
                 f,
                 energy_config.clone(),
                 heights.as_ref(),
-            )?;
-            Ok(match &floor {
-                Some(floor) => energy.with_floor(floor)?,
-                None => energy,
-            })
+                floor.as_ref(),
+            )
         })
         .collect::<Result<_>>()?;
 

@@ -81,11 +81,7 @@ impl FloorPrior {
     /// `template`'s soles. One-line errors where the height is not finite or the standard
     /// deviation is not finite and positive.
     pub fn new(template: &Template, height_m: f64, std_m: f64, form: FloorForm) -> Result<Self> {
-        if !height_m.is_finite() {
-            return Err(ModelError::Config(format!(
-                "floor height {height_m}: must be a finite number of metres"
-            )));
-        }
+        let height_m = finite_height(height_m)?;
         if !(std_m.is_finite() && std_m > 0.0) {
             return Err(ModelError::Config(format!(
                 "floor standard deviation {std_m}: must be finite and positive (metres)"
@@ -109,13 +105,8 @@ impl FloorPrior {
 
     /// The same floor at another height (the candidates kept).
     pub fn at(&self, height_m: f64) -> Result<Self> {
-        if !height_m.is_finite() {
-            return Err(ModelError::Config(format!(
-                "floor height {height_m}: must be a finite number of metres"
-            )));
-        }
         Ok(Self {
-            height_m,
+            height_m: finite_height(height_m)?,
             ..self.clone()
         })
     }
@@ -221,6 +212,17 @@ impl FloorPrior {
             }
         }
         c0 * d
+    }
+}
+
+/// `height_m` if finite; the one-line error of a floor height otherwise.
+fn finite_height(height_m: f64) -> Result<f64> {
+    if height_m.is_finite() {
+        Ok(height_m)
+    } else {
+        Err(ModelError::Config(format!(
+            "floor height {height_m}: must be a finite number of metres"
+        )))
     }
 }
 
