@@ -424,6 +424,44 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
             .any(|(a, b)| (a.center() - b.center()).length() > 0.5),
         "the Z-up file's cameras are elsewhere"
     );
+    // The same cameras in a tilted world whose up is the direction u (a board on a wall, or
+    // gravity from a phone's IMU), imported with `--up ux,uy,uz`: turned onto lfit's +y, the
+    // cameras are the original ones turned about +y only — each at its height above the floor,
+    // seeing the floor's normal where it did — and the keypoints the same.
+    let tilt = glam::DMat3::from_axis_angle(glam::DVec3::new(1.0, 0.0, 0.5).normalize(), 0.45)
+        * glam::DMat3::from_rotation_y(0.7);
+    let u = tilt * glam::DVec3::Y;
+    let tilted: Vec<_> = truth
+        .sensor
+        .cameras()
+        .iter()
+        .map(|c| c.in_rotated_world(tilt))
+        .collect();
+    let cams_t = d.join("cameras-tilted.json");
+    std::fs::write(&cams_t, cameras_json(&tilted)).expect("cameras");
+    let out_t = d.join("kp-tilted.npz");
+    let up = format!("{},{},{}", u.x, u.y, u.z);
+    let summary_t = import(&cams_t, &out_t, &["--up", &up]);
+    assert_eq!(summary_t["modality"], "keypoints2d");
+    let turned = Dataset::load(&out_t).expect("imported");
+    assert_eq!(sparse(&turned), sparse(&imported));
+    let mut yawed = false;
+    for (a, b) in turned.sensor.cameras().iter().zip(truth.sensor.cameras()) {
+        let (ca, cb) = (a.center(), b.center());
+        assert!((ca.y - cb.y).abs() < 1e-9, "height {} vs {}", ca.y, cb.y);
+        let horizontal = |c: glam::DVec3| (c.x * c.x + c.z * c.z).sqrt();
+        assert!((horizontal(ca) - horizontal(cb)).abs() < 1e-9);
+        let up_in = |r: &[[f64; 3]; 3]| glam::DVec3::new(r[0][1], r[1][1], r[2][1]);
+        assert!(
+            (up_in(&a.rotation) - up_in(&b.rotation)).length() < 1e-9,
+            "{a:?} vs {b:?}"
+        );
+        yawed |= (ca - cb).length() > 0.1;
+    }
+    assert!(
+        yawed,
+        "the shortest rotation leaves a yaw: the cameras moved about +y"
+    );
     let [lm, nn] = fit_both(d, &out, "keypoints2d", "px");
     assert!(
         lm[2] < 0.5,

@@ -323,7 +323,8 @@ fn data_import(
 /// Imports 3D markers from a C3D file as `lfit data import --c3d` does: a `markers` dataset
 /// without ground truth for `model` (default: the procedural body). `label_map`: a JSON file
 /// `{"C3D label": "model marker"}` (a key `"#K"`: the file's point K, counted from 0, for a label
-/// the file repeats; default: labels equal to marker names); `up`: `y` or `z`.
+/// the file repeats; default: labels equal to marker names); `up`: `y`, `z` or `"x,y,z"` (the
+/// lab's up direction).
 #[pyfunction]
 #[pyo3(signature = (path, model=None, *, label_map=None, up="y", scenario="sequence", out=None))]
 pub fn import_c3d(
@@ -355,8 +356,8 @@ pub fn import_c3d(
 /// Imports 2D keypoints (COCO keypoint files, or OpenPose frame files/folders; one path per
 /// camera) in calibrated cameras as `lfit data import --keypoints` does: a `keypoints2d`
 /// dataset without ground truth. `layout`: `coco17` or `body25`; `camera`: the camera JSON file;
-/// `up`: its world's up axis, `y` or `z` (`lfit data import --up`: a Z-up world is turned into
-/// lfit's Y-up one).
+/// `up`: its world's up axis, `y`, `z` or `"x,y,z"` (`lfit data import --up`: a Z-up world, or
+/// one whose up is that direction, is turned into lfit's Y-up one).
 #[pyfunction]
 #[pyo3(signature = (paths, layout, camera, model=None, *, keypoint_map=None, min_confidence=0.1, fps=30.0, scenario="sequence", up="y", out=None))]
 #[allow(clippy::too_many_arguments)]
@@ -448,7 +449,7 @@ impl Motion {
 
 /// Imports a BVH clip retargeted onto `model` as `lfit motion import --bvh` does. `map`: the
 /// joint-name map JSON (`configs/maps/`; default: identical names); `units`: `auto`, `cm` or
-/// `m`; `up`: `y` or `z`; `root`: `floor` or `rest` (`lfit motion import --root`); `stride`:
+/// `m`; `up`: `y`, `z` or `"x,y,z"`; `root`: `floor` or `rest` (`lfit motion import --root`); `stride`:
 /// keep every N-th frame.
 #[pyfunction]
 #[pyo3(signature = (path, model=None, *, map=None, units="auto", up="y", root="floor", stride=1, rest_pose=None, out=None))]

@@ -237,6 +237,15 @@ def test_keypoint_import_equals_the_cli(cli, tmp_path):
     assert z.sensor != d.sensor
     with pytest.raises(lfit.LfitError, match="unknown up axis 'x'"):
         lfit.import_keypoints([coco], "coco17", cams, MH, up="x")
+    # The same axis as a direction is `z` to the bit; a tilted direction is the CLI's too.
+    same_dataset(lfit.import_keypoints([coco], "coco17", cams, MH, up="0,0,3"), z)
+    cli_t = tmp_path / "cli-t.npz"
+    cli("data", "import", "--keypoints", coco, "--layout", "coco17", "--camera", cams, "--model", MH, "--up", "0.3,0.9,-0.2", "--out", cli_t)
+    t = lfit.import_keypoints([coco], "coco17", cams, MH, up="0.3,0.9,-0.2")
+    same_dataset(t, lfit.load_dataset(cli_t))
+    assert t.sensor != d.sensor and t.sensor != z.sensor
+    with pytest.raises(lfit.LfitError, match="not all zero"):
+        lfit.import_keypoints([coco], "coco17", cams, MH, up="0,0,0")
 
 
 def test_bvh_import_equals_the_cli(cli, tmp_path):

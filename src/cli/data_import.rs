@@ -81,11 +81,14 @@ pub struct ImportArgs {
     /// for a label the file repeats); default: C3D labels equal to the model's marker names.
     #[arg(long, requires = "c3d")]
     pub label_map: Option<PathBuf>,
-    /// Up axis of the C3D's lab frame or of the camera file's world: y, or z (points converted
+    /// Up axis of the C3D's lab frame or of the camera file's world: y, z (points converted
     /// by (x, y, z) -> (x, z, -y), as `lfit motion import --up z`, and the cameras turned with
     /// them, so that the fitted body stands in renders and exports and the floor is lfit's
-    /// `--floor` plane: a camera file calibrated on a board laid on the floor is z-up).
-    #[arg(long, default_value = "y")]
+    /// `--floor` plane: a camera file calibrated on a board laid on the floor is z-up), or the
+    /// world's up direction as three numbers x,y,z (the floor plane's normal where the board
+    /// was not on the floor, −gravity from a phone's IMU in a camera's own axes): turned onto +y
+    /// by the shortest rotation, so a floor n·x = d becomes `--floor contact:d`.
+    #[arg(long, default_value = "y", allow_hyphen_values = true)]
     pub up: String,
     /// Keypoint files (COCO keypoint JSON, or OpenPose per-frame JSON files or folders of them):
     /// one per camera in the camera file's order, or any number for a single camera.

@@ -70,9 +70,10 @@ pub struct ImportArgs {
     /// Units of the BVH: cm, m, or auto (cm when the rest skeleton is taller than 3 units).
     #[arg(long, default_value = "auto")]
     pub units: String,
-    /// Up axis of the input: y, or z (converted by (x, y, z) -> (x, z, -y): a Z-up capture whose
-    /// subject faces -y then faces +z).
-    #[arg(long, default_value = "y")]
+    /// Up axis of the input: y, z (converted by (x, y, z) -> (x, z, -y): a Z-up capture whose
+    /// subject faces -y then faces +z), or any up direction as three numbers x,y,z (turned onto
+    /// +y by the shortest rotation).
+    #[arg(long, default_value = "y", allow_hyphen_values = true)]
     pub up: String,
     /// BVH root height: floor (the BVH's y = 0 is the ground; the anchor's height and steps are
     /// scaled by the model's over the BVH's leg length (bone lengths from the anchor to the lowest

@@ -16,7 +16,7 @@ use burn::optim::grad_clipping::GradientClippingConfig;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Bytes, Device};
 use lfit_model::camera::RigRanges;
-use lfit_model::energy::{Energy, EnergyConfig, Target};
+use lfit_model::energy::{Energy, EnergyConfig, FloorForm, FloorPrior, Target};
 use lfit_model::metrics::{mpjpe_mm, v2v_mm};
 use lfit_model::observe::{KeypointSetup, Modality, Sensor};
 use lfit_model::{Block, Bounds, Template};
@@ -174,6 +174,11 @@ pub struct TrainConfig {
     /// row. Absent: none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub height_prior: Option<HeightPriorTraining>,
+    /// A floor under the subject's soles in a share of the synthesised frames' energies
+    /// (`lfit fit --floor contact:…`; [`FloorTraining`]), so the network learns to read the
+    /// row. Absent: none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub floor: Option<FloorTraining>,
     /// Data-parallel shards of each batch (1, the default: the whole batch in one autodiff
     /// graph). With K > 1, row `i` goes to shard `i mod K` and the K shards run forward and
     /// backward on K threads at once, their gradients summed (weighted by rows: the gradient of
@@ -227,6 +232,7 @@ impl Default for TrainConfig {
             marker_slip_mm: 0.0,
             starts: None,
             height_prior: None,
+            floor: None,
             shards: 1,
         }
     }
@@ -243,6 +249,22 @@ pub struct HeightPriorTraining {
     pub rate: f64,
     /// The range of σ (metres), `[low, high]`.
     pub std_m: [f64; 2],
+}
+
+/// `"floor"` of a training config: each synthesised frame (training batches, validation,
+/// statistics, the sequence windows of `"starts"`) gets, with probability `rate`, the `contact`
+/// floor of `lfit fit --floor` in its energy: a standard deviation σ drawn log-uniformly from
+/// `std_m`, at the height of the frame's true lowest sole plus `offset_m` times a standard
+/// normal draw — at inference the floor is one level for a whole sequence (`truth`: the median
+/// of the truth's lowest soles), and a frame's soles rest a few centimetres above or below it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FloorTraining {
+    pub rate: f64,
+    /// The range of σ (metres), `[low, high]`.
+    pub std_m: [f64; 2],
+    /// The standard deviation of the floor's height about the frame's lowest sole (metres, ≥ 0).
+    pub offset_m: f64,
 }
 
 impl TrainConfig {
@@ -492,6 +514,26 @@ impl TrainConfig {
                 );
             }
         }
+        if let Some(f) = &self.floor {
+            let [low, high] = f.std_m;
+            if !(f.rate.is_finite() && (0.0..=1.0).contains(&f.rate)) {
+                return bad("floor.rate", f.rate.to_string(), "must be in [0, 1]".into());
+            }
+            if !(low.is_finite() && high.is_finite() && low > 0.0 && low <= high) {
+                return bad(
+                    "floor.std_m",
+                    format!("[{low}, {high}]"),
+                    "must be metres with 0 < low ≤ high".into(),
+                );
+            }
+            if !(f.offset_m.is_finite() && f.offset_m >= 0.0) {
+                return bad(
+                    "floor.offset_m",
+                    f.offset_m.to_string(),
+                    "must be metres ≥ 0".into(),
+                );
+            }
+        }
         Ok(())
     }
 
@@ -519,6 +561,10 @@ pub mod seeds {
     /// Seed of the height priors of a set synthesised with dataset seed `frames`.
     pub fn height_prior(frames: u64) -> u64 {
         frames ^ 0x4E16_0000_0000_0003
+    }
+    /// Seed of the floors of a set synthesised with dataset seed `frames`.
+    pub fn floor(frames: u64) -> u64 {
+        frames ^ 0xF100_0000_0000_0004
     }
     /// Dataset seed of training batch `step`.
     pub fn batch(seed: u64, step: usize) -> u64 {
@@ -712,6 +758,9 @@ pub fn augment_frames(
     if let Some(h) = &config.height_prior {
         add_height_priors(&mut frames, h, seeds::height_prior(seed))?;
     }
+    if let Some(f) = &config.floor {
+        add_floors(&mut frames, f, seeds::floor(seed))?;
+    }
     Ok(frames)
 }
 
@@ -762,6 +811,36 @@ pub fn add_height_priors(
             let truth = base.rest_height(&template, &gt[shape.clone()]);
             let prior = base.at((truth + std * z).max(0.1 * truth))?.with_std(std)?;
             e.with_height_prior(&prior)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(())
+}
+
+/// Gives frames of `frames` a `contact` floor ([`FloorTraining`]): frame `i` draws from stream
+/// `i` of `seed` whether it gets one, its σ and its height's offset from the frame's true
+/// lowest sole.
+pub fn add_floors(frames: &mut Frames, setting: &FloorTraining, seed: u64) -> Result<()> {
+    let Some(first) = frames.energies.first() else {
+        return Ok(());
+    };
+    let base = FloorPrior::new(first.template(), 0.0, setting.std_m[0], FloorForm::Contact)?;
+    let [low, high] = setting.std_m;
+    frames.energies = frames
+        .energies
+        .par_iter()
+        .zip(&frames.dataset.gt_poses)
+        .enumerate()
+        .map(|(i, (e, gt))| {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            rng.set_stream(i as u64);
+            if !rng.random_bool(setting.rate) {
+                return Ok(e.clone());
+            }
+            let std = (low.ln() + (high.ln() - low.ln()) * rng.random::<f64>()).exp();
+            let z: f64 = rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut rng);
+            let sole = e.lowest_sole(&base, gt)?;
+            let floor = base.at(sole + setting.offset_m * z)?.with_std(std)?;
+            e.with_floor(&floor)
         })
         .collect::<Result<Vec<_>, _>>()?;
     Ok(())
@@ -1842,6 +1921,129 @@ mod tests {
             .unwrap_err()
             .to_string();
             assert!(e.contains("height_prior"), "{e}");
+        }
+    }
+
+    /// Every training config the repository carries (`configs/*.json` with a `"network"`, and
+    /// each shipped checkpoint's `train.json`) loads: parsed with unknown fields refused and
+    /// validated, so a recipe the docs point to runs as written.
+    #[test]
+    fn every_committed_training_config_loads() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let mut paths: Vec<PathBuf> = std::fs::read_dir(root.join("configs"))
+            .expect("configs/")
+            .map(|e| e.expect("entry").path())
+            .filter(|p| p.extension().is_some_and(|x| x == "json"))
+            .collect();
+        for entry in std::fs::read_dir(root.join("checkpoints")).expect("checkpoints/") {
+            let train = entry.expect("entry").path().join("train.json");
+            if train.is_file() {
+                paths.push(train);
+            }
+        }
+        let mut loaded = 0;
+        for path in &paths {
+            let text = std::fs::read_to_string(path).expect("readable");
+            let value: serde_json::Value = serde_json::from_str(&text).expect("JSON");
+            if value.get("network").is_none() {
+                continue; // an energy, a rig or a pose prior
+            }
+            TrainConfig::load(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            loaded += 1;
+        }
+        assert!(loaded >= 30, "{loaded} training configs");
+    }
+
+    /// `"floor"` gives about its share of the frames a `contact` floor, each σ in its range and
+    /// its height the frame's true lowest sole (measured again here on the posed mesh) off by σ'
+    /// times a standard normal draw; the same seed the same floors; offset 0 puts the floor at the
+    /// lowest sole itself (the frame's row zero at the truth); rate 0 none, 1 all; bad settings
+    /// refused by name.
+    #[test]
+    fn a_floor_reaches_its_share_of_the_frames() {
+        let (t, _) = lfit_model::body::morphable_default_template().expect("template");
+        let template = Arc::new(t);
+        let sensor = Sensor::default_for(Modality::Markers, &template);
+        let base = base_energy(&template, &sensor).expect("energy");
+        let with = |rate: f64, offset_m: f64| TrainConfig {
+            floor: Some(FloorTraining {
+                rate,
+                std_m: [0.01, 0.04],
+                offset_m,
+            }),
+            ..TrainConfig::default()
+        };
+        with(0.5, 0.02).validate().expect("a floor");
+        let frames = |config: &TrainConfig| {
+            let f = synth_frames_with(&template, &sensor, &base, 200, 5, 0.0, &Motions::default())
+                .expect("frames");
+            augment_frames(config, &base, f, 5).expect("augmented")
+        };
+        // The lowest posed sole candidate, from the skinned mesh itself.
+        let lowest = |floor: &FloorPrior, gt: &[f64]| {
+            let mesh = lfit_model::skinning::pose_vertices(
+                &template,
+                gt,
+                lfit_model::skinning::SkinningMethod::Linear,
+            );
+            floor
+                .vertices()
+                .iter()
+                .map(|&v| f64::from(mesh[v].y))
+                .fold(f64::INFINITY, f64::min)
+        };
+        let half = frames(&with(0.5, 0.02));
+        let mut z = Vec::new();
+        for (e, gt) in half.energies.iter().zip(&half.dataset.gt_poses) {
+            let Some(f) = e.floor() else { continue };
+            assert_eq!(f.form(), FloorForm::Contact);
+            assert!((0.01..=0.04).contains(&f.std_m()), "{}", f.std_m());
+            z.push((f.height_m() - lowest(f, gt)) / 0.02);
+        }
+        assert!((70..=130).contains(&z.len()), "{} of 200 frames", z.len());
+        let mean = z.iter().sum::<f64>() / z.len() as f64;
+        let sd = (z.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / z.len() as f64).sqrt();
+        assert!(
+            mean.abs() < 0.3 && (0.7..1.3).contains(&sd),
+            "mean {mean}, sd {sd}"
+        );
+        let floors = |f: &Frames| -> Vec<Option<(f64, f64)>> {
+            f.energies
+                .iter()
+                .map(|e| e.floor().map(|p| (p.height_m(), p.std_m())))
+                .collect()
+        };
+        assert_eq!(floors(&half), floors(&frames(&with(0.5, 0.02))));
+        let exact = frames(&with(1.0, 0.0));
+        for (e, gt) in exact.energies.iter().zip(&exact.dataset.gt_poses) {
+            let f = e.floor().expect("every frame a floor");
+            assert!((f.height_m() - lowest(f, gt)).abs() < 1e-5);
+        }
+        assert!(
+            frames(&with(0.0, 0.02))
+                .energies
+                .iter()
+                .all(|e| e.floor().is_none())
+        );
+        for (rate, std_m, offset_m, field) in [
+            (1.5, [0.01, 0.04], 0.02, "floor.rate"),
+            (0.5, [0.05, 0.01], 0.02, "floor.std_m"),
+            (0.5, [0.0, 0.01], 0.02, "floor.std_m"),
+            (0.5, [0.01, 0.04], -0.01, "floor.offset_m"),
+            (0.5, [0.01, 0.04], f64::NAN, "floor.offset_m"),
+        ] {
+            let e = TrainConfig {
+                floor: Some(FloorTraining {
+                    rate,
+                    std_m,
+                    offset_m,
+                }),
+                ..TrainConfig::default()
+            }
+            .validate()
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains(field), "{e}");
         }
     }
 

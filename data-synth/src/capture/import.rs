@@ -304,10 +304,7 @@ pub fn import_c3d(
         "frames": n,
         "fps": c3d.rate,
         "units": c3d.units,
-        "up": match up {
-            Up::Y => "y",
-            Up::Z => "z",
-        },
+        "up": up.name(),
         "point_format": if c3d.scale < 0.0 { "float" } else { "integer" },
         "mapped_markers": pairs.len(),
         "model_markers": m,

@@ -250,31 +250,75 @@ impl std::str::FromStr for Units {
     }
 }
 
-/// The BVH's up axis.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// The up direction of a capture's world (a BVH's axes, a C3D's lab frame, a camera file's
+/// world), turned onto lfit's +y.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub enum Up {
     #[default]
     Y,
     Z,
+    /// Any other up direction, as a unit vector in the capture's axes (e.g. the floor plane's
+    /// normal of a calibration whose board was not on the floor, or −gravity from a phone's
+    /// IMU): turned onto +y by the shortest rotation, so heights above that floor become lfit's
+    /// `y` (the yaw about the new up is the one that rotation leaves).
+    Vector(DVec3),
 }
 
 impl std::str::FromStr for Up {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
         match s {
-            "y" | "Y" => Ok(Up::Y),
-            "z" | "Z" => Ok(Up::Z),
-            other => Err(format!("unknown up axis '{other}' (expected y or z)")),
+            "y" | "Y" => return Ok(Up::Y),
+            "z" | "Z" => return Ok(Up::Z),
+            _ => {}
         }
+        let bad = || {
+            format!(
+                "unknown up axis '{s}' (expected y, z or the up direction as three numbers x,y,z)"
+            )
+        };
+        let parts: Vec<&str> = s.split(',').collect();
+        if parts.len() != 3 {
+            return Err(bad());
+        }
+        let mut v = [0.0; 3];
+        for (x, part) in v.iter_mut().zip(&parts) {
+            *x = part.trim().parse::<f64>().map_err(|_| bad())?;
+        }
+        let v = DVec3::from_array(v);
+        if !v.is_finite() || v.length() < 1e-9 {
+            return Err(format!(
+                "up direction '{s}': needs three finite numbers, not all zero"
+            ));
+        }
+        let v = v.normalize();
+        // The axes named by a letter keep their exact rotations.
+        Ok(if v == DVec3::Y {
+            Up::Y
+        } else if v == DVec3::Z {
+            Up::Z
+        } else {
+            Up::Vector(v)
+        })
     }
 }
 
 impl Up {
-    /// The rotation taking the BVH's axes to lfit's (y up).
+    /// The rotation taking the capture's axes to lfit's (y up).
     pub fn to_lfit(self) -> DMat3 {
         match self {
             Up::Y => DMat3::IDENTITY,
             Up::Z => DMat3::from_rotation_x(-std::f64::consts::FRAC_PI_2),
+            Up::Vector(v) => DMat3::from_quat(DQuat::from_rotation_arc(v, DVec3::Y)),
+        }
+    }
+
+    /// The setting as written: `y`, `z` or the unit vector `x,y,z`.
+    pub fn name(self) -> String {
+        match self {
+            Up::Y => "y".into(),
+            Up::Z => "z".into(),
+            Up::Vector(v) => format!("{},{},{}", v.x, v.y, v.z),
         }
     }
 }
@@ -733,6 +777,54 @@ pub fn retarget(
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+
+    /// `--up`: the letters, the same axes given as vectors (the letters' exact rotations), any
+    /// other direction turned onto +y by a proper rotation, and one-line refusals.
+    #[test]
+    fn an_up_direction_is_turned_onto_y() {
+        assert_eq!("y".parse::<Up>(), Ok(Up::Y));
+        assert_eq!("Z".parse::<Up>(), Ok(Up::Z));
+        assert_eq!(" 0, 2.5 ,0".parse::<Up>(), Ok(Up::Y));
+        assert_eq!("0,0,1e-3".parse::<Up>(), Ok(Up::Z));
+        for (text, v) in [
+            ("1,1,0", DVec3::new(1.0, 1.0, 0.0)),
+            ("0.2,-0.9,0.4", DVec3::new(0.2, -0.9, 0.4)),
+            ("0,-1,0", DVec3::NEG_Y),
+            ("1,0,0", DVec3::X),
+        ] {
+            let up: Up = text.parse().expect(text);
+            let Up::Vector(u) = up else {
+                panic!("{text}: {up:?}")
+            };
+            assert!((u - v.normalize()).length() < 1e-15, "{text}: {u}");
+            let r = up.to_lfit();
+            assert!((r * v.normalize() - DVec3::Y).length() < 1e-12, "{text}");
+            assert!((r.determinant() - 1.0).abs() < 1e-12, "{text}");
+            assert!(
+                (r * r.transpose() - DMat3::IDENTITY)
+                    .to_cols_array()
+                    .iter()
+                    .all(|x| x.abs() < 1e-12),
+                "{text}"
+            );
+            let Ok(Up::Vector(again)) = up.name().parse::<Up>() else {
+                panic!("{text}: {} does not parse back", up.name())
+            };
+            assert!((again - u).length() < 1e-15, "{text}: {}", up.name());
+        }
+        assert!((Up::Z.to_lfit() * DVec3::Z - DVec3::Y).length() < 1e-15);
+        for (text, needle) in [
+            ("x", "unknown up axis 'x'"),
+            ("1,2", "unknown up axis '1,2'"),
+            ("a,b,c", "unknown up axis"),
+            ("0,0,0", "not all zero"),
+            ("nan,1,0", "finite"),
+            ("inf,0,0", "finite"),
+        ] {
+            let e = text.parse::<Up>().unwrap_err();
+            assert!(e.contains(needle), "{text}: {e}");
+        }
+    }
 
     #[test]
     fn map_formats_and_errors() {

@@ -82,11 +82,7 @@ impl FloorPrior {
     /// deviation is not finite and positive.
     pub fn new(template: &Template, height_m: f64, std_m: f64, form: FloorForm) -> Result<Self> {
         let height_m = finite_height(height_m)?;
-        if !(std_m.is_finite() && std_m > 0.0) {
-            return Err(ModelError::Config(format!(
-                "floor standard deviation {std_m}: must be finite and positive (metres)"
-            )));
-        }
+        check_std(std_m)?;
         let vertices = sole_vertices(template);
         if vertices.is_empty() {
             return Err(ModelError::Config(format!(
@@ -107,6 +103,15 @@ impl FloorPrior {
     pub fn at(&self, height_m: f64) -> Result<Self> {
         Ok(Self {
             height_m: finite_height(height_m)?,
+            ..self.clone()
+        })
+    }
+
+    /// The same floor with another standard deviation (finite and positive, metres).
+    pub fn with_std(&self, std_m: f64) -> Result<Self> {
+        check_std(std_m)?;
+        Ok(Self {
+            std_m,
             ..self.clone()
         })
     }
@@ -222,6 +227,16 @@ fn finite_height(height_m: f64) -> Result<f64> {
     } else {
         Err(ModelError::Config(format!(
             "floor height {height_m}: must be a finite number of metres"
+        )))
+    }
+}
+
+fn check_std(std_m: f64) -> Result<()> {
+    if std_m.is_finite() && std_m > 0.0 {
+        Ok(())
+    } else {
+        Err(ModelError::Config(format!(
+            "floor standard deviation {std_m}: must be finite and positive (metres)"
         )))
     }
 }
