@@ -2,7 +2,7 @@
 //!
 //! - `--c3d FILE [--label-map MAP.json]`: 3D markers from a C3D file (`lfit_synth::capture::c3d`), each
 //!   C3D label that the map names (`{"C3D label": "model marker", ...}`; without a map, labels
-//!   equal to a model marker's name) onto that marker of the model's `markers` modality; gaps and
+//!   equal to a model marker's name, bare or after one subject's `SUBJECT:` prefix) onto that marker of the model's `markers` modality; gaps and
 //!   markers no label maps to are invisible entries. Units from `POINT:UNITS` (mm, cm, m).
 //! - `--keypoints PATH... --layout coco17|body25 --camera CAMERAS.json [--keypoint-map MAP.json]`:
 //!   2D keypoints (COCO keypoint files or OpenPose frame files/folders, `lfit_synth::capture::keypoints`)
@@ -78,7 +78,8 @@ pub struct ImportArgs {
     #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map"])]
     pub c3d: Option<PathBuf>,
     /// JSON object {"C3D label": "model marker", ...} ("#K": the file's point K, counted from 0,
-    /// for a label the file repeats); default: C3D labels equal to the model's marker names.
+    /// for a label the file repeats); default: C3D labels equal to the model's marker names, bare
+    /// or after one subject's prefix (Vicon's SUBJECT:NAME; the summary's "subject").
     #[arg(long, requires = "c3d")]
     pub label_map: Option<PathBuf>,
     /// Up axis of the C3D's lab frame or of the camera file's world: y, z (points converted

@@ -20,7 +20,8 @@
 //!   `|POINT:SCALE|`.
 //!
 //! The reader checks what it uses (keys, processor, pointers, `POINT:USED`/`SCALE`/`RATE`/
-//! `DATA_START`/`FRAMES` against the header, labels for every point, units, enough bytes for every
+//! `DATA_START` (0: no pointer, the header's read)/`FRAMES` against the header, the data after
+//! the parameter entries (not necessarily after the block count the section claims), labels for every point, units, enough bytes for every
 //! frame, finite coordinates in valid samples) and refuses anything else with a one-line error.
 //! Intel (little-endian IEEE), DEC (little-endian integers, VAX F-floating floats: what Vicon's
 //! 370 and other VAX-era systems wrote) and MIPS (big-endian IEEE) files are read; the writer
@@ -250,6 +251,9 @@ impl Param {
 struct Params {
     groups: Vec<(u8, String)>,
     params: Vec<Param>,
+    /// The byte just past the last entry read: where the parameters end, whatever block count
+    /// the section's header claims.
+    end: usize,
 }
 
 impl Params {
@@ -284,9 +288,11 @@ fn parse_params(
     // Every entry starts at least 2 bytes before the section's end: the first (the section has
     // ≥ 1 block) and each next one (an offset past that ends the section, below).
     let mut at = start + 4;
+    let last;
     loop {
         let name_len = (b[at] as i8).unsigned_abs() as usize;
         if name_len == 0 {
+            last = at + 1;
             break;
         }
         let id = b[at + 1] as i8;
@@ -351,6 +357,7 @@ fn parse_params(
         let desc = b[p] as usize;
         need(p + 1, desc)?;
         if offset == 0 {
+            last = p + 1 + desc;
             break;
         }
         let next = word as i64 + i64::from(offset);
@@ -363,11 +370,16 @@ fn parse_params(
         // SGI sample (Sample02's sgi_int.c3d and sgi_real.c3d) ends on POINT:LABELS with an
         // offset of 16129 instead of 0.
         if next as usize + 2 > end {
+            last = p + 1 + desc;
             break;
         }
         at = next as usize;
     }
-    Ok(Params { groups, params })
+    Ok(Params {
+        groups,
+        params,
+        end: last,
+    })
 }
 
 impl C3d {
@@ -484,6 +496,9 @@ impl C3d {
             ));
         }
         let data_start = match int_param("DATA_START")? {
+            // Blocks count from 1: a 0 here is no pointer (OptiTrack Motive's exports write it;
+            // kineticstoolkit's walkingOptiTrack.c3d), and the header's is the one to read.
+            Some(0) | None => h_data_start,
             Some(d) => {
                 let d = (d as u16) as usize;
                 if d != h_data_start {
@@ -493,12 +508,14 @@ impl C3d {
                 }
                 d
             }
-            None => h_data_start,
         };
-        if data_start < pblock + pblocks {
+        // The data may start inside the block count the parameter section claims, after its
+        // last entry: OptiTrack Motive's DEC exports claim 8 blocks and hold their entries in one
+        // (kineticstoolkit's walkingOptiTrack.c3d, its data at block 4, POINT:DATA_START 0).
+        if data_start == 0 || (data_start - 1) * BLOCK < params.end {
             return fail(format!(
-                "the data section (block {data_start}) overlaps the parameter section (blocks {pblock}–{})",
-                pblock + pblocks - 1
+                "the data section (block {data_start}) overlaps the parameter section's entries (blocks {pblock}–{})",
+                params.end.div_ceil(BLOCK)
             ));
         }
         // Frames count from 1 in the format guide; some writers start at 0 (a recording
@@ -1170,6 +1187,37 @@ mod tests {
         let data = f + 6 + 2 + 2;
         b[data] = 9;
         assert!(err(&b).contains("POINT:FRAMES"));
+
+        // POINT:DATA_START 0 (no pointer: blocks count from 1) reads the header's block; any
+        // other value the header does not say is refused.
+        let d = find(&good, "DATA_START") + 10 + 2 + 2;
+        let mut b = good.clone();
+        b[d..d + 2].copy_from_slice(&0u16.to_le_bytes());
+        assert_eq!(
+            C3d::from_bytes(&b).unwrap(),
+            C3d::from_bytes(&good).unwrap()
+        );
+        b[d..d + 2].copy_from_slice(&(data_start as u16 + 1).to_le_bytes());
+        assert!(err(&b).contains("POINT:DATA_START"));
+
+        // A parameter section claiming more blocks than its entries fill, the data starting
+        // after the entries inside that count (OptiTrack Motive's exports), reads as it is; data
+        // pointed into the entries themselves is refused.
+        let pstart = (good[0] as usize - 1) * BLOCK;
+        let mut b = good.clone();
+        b[pstart + 2] += 1;
+        assert_eq!(
+            C3d::from_bytes(&b).unwrap(),
+            C3d::from_bytes(&good).unwrap()
+        );
+        let mut b = good.clone();
+        b[16..18].copy_from_slice(&(good[0] as u16).to_le_bytes());
+        b[d..d + 2].copy_from_slice(&0u16.to_le_bytes());
+        assert!(
+            err(&b).contains("overlaps the parameter section"),
+            "{}",
+            err(&b)
+        );
 
         // Parameter data type outside -1/1/2/4.
         let mut b = good.clone();

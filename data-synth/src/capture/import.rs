@@ -181,9 +181,69 @@ fn point_of(c3d: &C3d, key: &str) -> Result<usize, ImportError> {
     }
 }
 
+/// The fewest model markers a label prefix must name to be read as a subject's.
+const MIN_SUBJECT_MARKERS: usize = 3;
+
+/// The default label map: each model marker whose name is a C3D label, or the part of one after
+/// a subject's prefix (`SUBJECT:NAME`, as Vicon Nexus writes a labelled subject's markers; a
+/// prefix naming fewer than [`MIN_SUBJECT_MARKERS`] is not a subject's). Labels of one subject only: bare names, or one prefix; a file whose labels name the model's
+/// markers under several prefixes (or bare and prefixed) is refused, to be mapped with a label
+/// map. Returns the prefix read (`None` for bare names).
+fn default_pairs(
+    c3d: &C3d,
+    marker_names: &[String],
+    pairs: &mut Vec<(usize, usize)>,
+) -> Result<Option<String>, ImportError> {
+    // The bare names first: a file without prefixes maps as it always did.
+    for (mi, name) in marker_names.iter().enumerate() {
+        if let Some(ci) = c3d.label_index(name)? {
+            pairs.push((ci, mi));
+        }
+    }
+    // Each subject prefix under which a label names a model marker, and how many it names.
+    let mut prefixes: Vec<(String, usize)> = Vec::new();
+    for label in &c3d.labels {
+        let Some((prefix, name)) = label.trim().rsplit_once(':') else {
+            continue;
+        };
+        if marker_names.iter().any(|m| m == name) {
+            match prefixes.iter_mut().find(|p| p.0 == prefix) {
+                Some(p) => p.1 += 1,
+                None => prefixes.push((prefix.to_string(), 1)),
+            }
+        }
+    }
+    // A prefix under which fewer than three labels name model markers is a rigid body or a
+    // prop (OptiTrack's `BodyL:Marker1`), not a subject: a rigid start needs three markers.
+    prefixes.retain(|p| p.1 >= MIN_SUBJECT_MARKERS);
+    if prefixes.is_empty() {
+        return Ok(None);
+    }
+    if prefixes.len() > 1 || !pairs.is_empty() {
+        let mut groups: Vec<String> = prefixes
+            .iter()
+            .map(|(p, n)| format!("'{p}:' {n}"))
+            .collect();
+        if !pairs.is_empty() {
+            groups.insert(0, format!("bare {}", pairs.len()));
+        }
+        return fail(format!(
+            "the C3D labels name the model's markers for more than one subject ({}): give --label-map to choose one",
+            groups.join(", ")
+        ));
+    }
+    let prefix = &prefixes[0].0;
+    for (mi, name) in marker_names.iter().enumerate() {
+        if let Some(ci) = c3d.label_index(&format!("{prefix}:{name}"))? {
+            pairs.push((ci, mi));
+        }
+    }
+    Ok(Some(prefix.clone()))
+}
+
 /// Imports the points of a C3D file as a `markers` dataset of `template`. `map`: C3D label (or
 /// `#K`, the file's point K counted from 0) → model marker (default: every model marker whose
-/// name is a C3D label). `up`: the lab frame's up axis; a Z-up file's points are turned into
+/// name is a C3D label, or one subject's label after its `SUBJECT:` prefix, [`default_pairs`]). `up`: the lab frame's up axis; a Z-up file's points are turned into
 /// lfit's Y-up frame by `(x, y, z) → (x, z, −y)` (as `lfit motion import --up z`), so that the
 /// fitted body stands in renders and exports.
 pub fn import_c3d(
@@ -209,6 +269,8 @@ pub fn import_c3d(
     let marker_names: Vec<String> = markers.iter().map(|m| m.name.clone()).collect();
     // (C3D point index, model marker index)
     let mut pairs: Vec<(usize, usize)> = Vec::new();
+    // The subject prefix the default map read the labels under (Vicon's `SUBJECT:NAME`).
+    let mut subject: Option<String> = None;
     match map {
         Some(map) => {
             for (label, marker) in map {
@@ -231,14 +293,10 @@ pub fn import_c3d(
             }
         }
         None => {
-            for (mi, name) in marker_names.iter().enumerate() {
-                if let Some(ci) = c3d.label_index(name)? {
-                    pairs.push((ci, mi));
-                }
-            }
+            subject = default_pairs(c3d, &marker_names, &mut pairs)?;
             if pairs.is_empty() {
                 return fail(format!(
-                    "no C3D label is the name of a marker of model '{}': give --label-map (C3D labels: {})",
+                    "no C3D label is the name of a marker of model '{}', bare or after a subject's prefix (SUBJECT:NAME): give --label-map (C3D labels: {})",
                     template.id,
                     list(&c3d.labels, 12)
                 ));
@@ -299,7 +357,7 @@ pub fn import_c3d(
     let sources = (0..n)
         .map(|f| format!("c3d:{source}#{}", c3d.first_frame as usize + f))
         .collect();
-    let report = json!({
+    let mut report = json!({
         "format": "c3d",
         "frames": n,
         "fps": c3d.rate,
@@ -317,6 +375,9 @@ pub fn import_c3d(
         "rigid_starts": rigid_frames,
         "map": mapped,
     });
+    if let Some(subject) = &subject {
+        report["subject"] = json!(subject);
+    }
     let dataset = imported_dataset(
         template, sensor, scenario, c3d.rate, sources, starts, values, visible,
     )?;
@@ -984,8 +1045,76 @@ mod tests {
         bad[0].1 = "NOPE".into();
         let e = import_c3d(&c, "x", Some(&bad), &t, Scenario::Local, Up::Y).unwrap_err();
         assert!(e.to_string().contains("'NOPE' is not a marker"), "{e}");
-        let e = import_c3d(&c, "x", None, &t, Scenario::Local, Up::Y).unwrap_err();
-        assert!(e.to_string().contains("--label-map"), "{e}");
+        // Without a map the labels are read after their subject's prefix (Vicon's `S1:LFHD`):
+        // the dataset of the explicit map, and the summary names the subject.
+        let plain = import_c3d(&c, "x.c3d", None, &t, Scenario::Sequence, Up::Y).unwrap();
+        assert_eq!(plain.report["subject"], "S1");
+        assert_eq!(plain.report["map"], imp.report["map"]);
+        assert!(imp.report.get("subject").is_none());
+        let sparse = |d: &Dataset| match &d.observations {
+            Observations::Sparse { values, visible } => (values.clone(), visible.clone()),
+            _ => panic!("markers are sparse"),
+        };
+        assert_eq!(sparse(&plain.dataset), sparse(&imp.dataset));
+        assert_eq!(plain.dataset.start_poses, imp.dataset.start_poses);
+        // Bare labels map as they are (no subject); labels of two subjects, or bare and
+        // prefixed, are refused; labels naming no marker either way ask for a map.
+        let relabel = |f: &dyn Fn(usize, &str) -> String| C3d {
+            labels: c
+                .labels
+                .iter()
+                .enumerate()
+                .map(|(i, l)| f(i, l.strip_prefix("S1:").unwrap()))
+                .collect(),
+            ..c.clone()
+        };
+        let bare = import_c3d(
+            &relabel(&|_, n| n.to_string()),
+            "x.c3d",
+            None,
+            &t,
+            Scenario::Sequence,
+            Up::Y,
+        )
+        .unwrap();
+        assert!(bare.report.get("subject").is_none());
+        assert_eq!(sparse(&bare.dataset), sparse(&imp.dataset));
+        // A prefix naming fewer than three markers is a rigid body's, not a subject's: ignored.
+        let one = import_c3d(
+            &relabel(&|i, n| if i < 2 { format!("Body:{n}") } else { n.into() }),
+            "x.c3d",
+            None,
+            &t,
+            Scenario::Sequence,
+            Up::Y,
+        )
+        .unwrap();
+        assert!(one.report.get("subject").is_none());
+        assert_eq!(one.report["mapped_markers"], t.rig.markers.len() - 2);
+        for (labels, needle) in [
+            (
+                relabel(&|i, n| format!("{}:{n}", if i % 2 == 0 { "A" } else { "B" })),
+                "more than one subject ('A:'",
+            ),
+            (
+                relabel(&|i, n| if i < 3 { format!("S1:{n}") } else { n.into() }),
+                "more than one subject (bare 36, 'S1:' 3)",
+            ),
+            (relabel(&|i, _| format!("S1:M{i}")), "--label-map"),
+            (
+                relabel(&|i, n| {
+                    if i < 2 {
+                        format!("Body:{n}")
+                    } else {
+                        format!("S1:M{i}")
+                    }
+                }),
+                "--label-map",
+            ),
+        ] {
+            let e = import_c3d(&labels, "x", None, &t, Scenario::Local, Up::Y).unwrap_err();
+            assert!(e.to_string().contains(needle), "{e}");
+        }
         // A file without points (kineticstoolkit's C3DRotationExample holds rotations only).
         let empty = C3d {
             labels: Vec::new(),
