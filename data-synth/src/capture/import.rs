@@ -181,6 +181,52 @@ fn point_of(c3d: &C3d, key: &str) -> Result<usize, ImportError> {
     }
 }
 
+/// Keypoints in another unit or of another image than their camera's: each camera's seen
+/// keypoints all within [−1, 1] (normalised coordinates: OpenPose's `--keypoint_scale 3` or 4)
+/// or more than half of them over half an image outside its width × height (keypoints of
+/// another resolution, or of another camera of the file) are refused — lfit reads pixels of the
+/// camera file's image, and such keypoints would fit silently wrong.
+fn check_pixels(
+    cameras: &[Camera],
+    nj: usize,
+    values: &[Vec<f64>],
+    visible: &[Vec<bool>],
+) -> Result<(), ImportError> {
+    for (c, cam) in cameras.iter().enumerate() {
+        let (w, h) = (f64::from(cam.width), f64::from(cam.height));
+        let (mut seen, mut unit, mut far) = (0usize, 0usize, 0usize);
+        for (v, b) in values.iter().zip(visible) {
+            for j in 0..nj {
+                let i = 2 * (c * nj + j);
+                if !b[i] {
+                    continue;
+                }
+                let (x, y) = (v[i], v[i + 1]);
+                seen += 1;
+                if x.abs() <= 1.0 && y.abs() <= 1.0 {
+                    unit += 1;
+                }
+                if x < -0.5 * w || x > 1.5 * w || y < -0.5 * h || y > 1.5 * h {
+                    far += 1;
+                }
+            }
+        }
+        if seen > 0 && unit == seen && w.max(h) >= 16.0 {
+            return fail(format!(
+                "camera {c}: every keypoint lies within [-1, 1], in a {}×{} image: normalised coordinates (OpenPose --keypoint_scale 3 or 4)? lfit reads pixels (--keypoint_scale 0)",
+                cam.width, cam.height
+            ));
+        }
+        if 2 * far > seen {
+            return fail(format!(
+                "camera {c}: {far} of its {seen} keypoints lie more than half an image outside its {}×{} image: keypoints of another resolution, or of another camera (one keypoint file per camera, in the camera file's order)?",
+                cam.width, cam.height
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// The fewest model markers a label prefix must name to be read as a subject's.
 const MIN_SUBJECT_MARKERS: usize = 3;
 
@@ -495,6 +541,7 @@ pub fn import_keypoints(
             "no mapped keypoint has a confidence above {min_confidence} in any frame"
         ));
     }
+    check_pixels(&cameras, nj, &values, &visible)?;
     let joints: Vec<usize> = pairs.iter().map(|p| p.0).collect();
     let (starts, rigid, ray) = keypoint_starts(template, &cameras, &joints, &values, &visible);
     let joint_names: Vec<String> = rig.joints.iter().map(|j| j.name.clone()).collect();
@@ -1305,6 +1352,58 @@ mod tests {
         let s = &one.dataset.start_poses[0];
         assert!((DVec3::new(s[0], s[1], s[2]) - DVec3::new(0.1, 0.0, 0.2)).length() < 0.5);
         assert_eq!(one.report["single_view_starts"], 1);
+        // Keypoints in the unit square (normalised), or of an image twice the camera's.
+        let scaled = |k: f64| -> Vec<KeypointTrack> {
+            tracks
+                .iter()
+                .map(|t| KeypointTrack {
+                    frames: vec![
+                        t.frames[0]
+                            .iter()
+                            .map(|&[x, y, c]| [k * x, k * y, c])
+                            .collect(),
+                    ],
+                    image_sizes: vec![None],
+                    ..t.clone()
+                })
+                .collect()
+        };
+        let e = import_keypoints(
+            &scaled(1.0 / 640.0),
+            cams.clone(),
+            layout,
+            None,
+            0.1,
+            30.0,
+            &t,
+            Scenario::Local,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("normalised coordinates"), "{e}");
+        let e = import_keypoints(
+            &scaled(4.0),
+            cams.clone(),
+            layout,
+            None,
+            0.1,
+            30.0,
+            &t,
+            Scenario::Local,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("another resolution"), "{e}");
+        // Twice the pixels (a tall subject near the edge) still imports.
+        import_keypoints(
+            &scaled(1.2),
+            cams.clone(),
+            layout,
+            None,
+            0.1,
+            30.0,
+            &t,
+            Scenario::Local,
+        )
+        .unwrap();
         // Wrong sizes and counts.
         let mut small = cams.clone();
         small[2].width = 320;
