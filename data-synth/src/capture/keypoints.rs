@@ -321,7 +321,34 @@ fn coco_track(v: &Value, layout: KeypointLayout, name: &str) -> Result<KeypointT
     })
 }
 
-/// The JSON files of a directory, sorted by name (an OpenPose output folder).
+/// A file name's order among frame files: runs of digits compare as numbers (`frame_2` before
+/// `frame_10`, as the frames were written by tools that do not pad), equal numbers by their
+/// written length, the rest as text. Zero-padded names (OpenPose's) keep their plain order.
+fn natural_key(name: &str) -> Vec<(u8, usize, String, usize)> {
+    let mut key = Vec::new();
+    let mut chars = name.chars().peekable();
+    while let Some(&c) = chars.peek() {
+        let digit = c.is_ascii_digit();
+        let mut run = String::new();
+        while let Some(&d) = chars.peek() {
+            if d.is_ascii_digit() != digit {
+                break;
+            }
+            run.push(d);
+            chars.next();
+        }
+        if digit {
+            // A number by its digit count, then its digits: any length, no overflow.
+            let value = run.trim_start_matches('0').to_string();
+            key.push((0, value.len(), value, run.len()));
+        } else {
+            key.push((1, 0, run, 0));
+        }
+    }
+    key
+}
+
+/// The JSON files of a directory, in frame order (an OpenPose output folder): [`natural_key`].
 fn json_files(dir: &Path) -> Result<Vec<PathBuf>, ImportError> {
     let entries = std::fs::read_dir(dir).map_err(|source| ImportError::Read {
         path: dir.to_path_buf(),
@@ -331,7 +358,12 @@ fn json_files(dir: &Path) -> Result<Vec<PathBuf>, ImportError> {
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.extension().is_some_and(|x| x == "json"))
         .collect();
-    files.sort();
+    files.sort_by_cached_key(|p| {
+        let name = p
+            .file_name()
+            .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+        (natural_key(&name), p.clone())
+    });
     if files.is_empty() {
         return fail(format!(
             "{}: no .json files in this directory",
@@ -342,7 +374,8 @@ fn json_files(dir: &Path) -> Result<Vec<PathBuf>, ImportError> {
 }
 
 /// Reads keypoints of one camera from `paths`, in order: COCO files (each a run of frames),
-/// OpenPose frame files, or directories of OpenPose frame files (sorted by name). A track is
+/// OpenPose frame files, or directories of OpenPose frame files (in frame order: numbers in
+/// their names compared as numbers). A track is
 /// either all COCO or all OpenPose.
 pub fn read_track(paths: &[PathBuf], layout: KeypointLayout) -> Result<KeypointTrack, ImportError> {
     let mut files = Vec::new();
@@ -498,6 +531,46 @@ mod tests {
         assert_eq!(t.frames[0][3], [103.0, 0.0, 0.9]);
         assert_eq!(t.frames[1][0], [0.0; 3]);
         assert_eq!(t.crowded_frames, 1);
+    }
+
+    /// A folder's frame files in frame order: unpadded numbers as numbers (`f_2` before `f_10`),
+    /// padded ones as written, whatever order the directory lists them in.
+    #[test]
+    fn a_folder_of_frames_reads_in_frame_order() {
+        let d = tempfile::tempdir().unwrap();
+        for i in [10, 2, 1, 100, 9] {
+            let k = flat(25, |_| [i as f64, 0.0, 0.9]);
+            write(
+                d.path(),
+                &format!("clip_{i}_keypoints.json"),
+                &serde_json::json!({"people": [{"pose_keypoints_2d": k}]}).to_string(),
+            );
+        }
+        let t = read_track(&[d.path().to_path_buf()], KeypointLayout::Body25).unwrap();
+        let order: Vec<f64> = t.frames.iter().map(|f| f[0][0]).collect();
+        assert_eq!(order, [1.0, 2.0, 9.0, 10.0, 100.0]);
+        let mut names = vec![
+            "v_000000000010_keypoints.json",
+            "v_000000000002_keypoints.json",
+            "v_000000000000_keypoints.json",
+        ];
+        names.sort_by_key(|n| natural_key(n));
+        assert_eq!(
+            names,
+            [
+                "v_000000000000_keypoints.json",
+                "v_000000000002_keypoints.json",
+                "v_000000000010_keypoints.json"
+            ]
+        );
+        // Numbers longer than any integer type still order.
+        let (nines, one) = (
+            format!("f_{}.json", "9".repeat(60)),
+            format!("f_1{}.json", "0".repeat(60)),
+        );
+        let mut names = vec![one.as_str(), nines.as_str(), "f_7.json"];
+        names.sort_by_key(|n| natural_key(n));
+        assert_eq!(names, ["f_7.json", nines.as_str(), one.as_str()]);
     }
 
     #[test]
