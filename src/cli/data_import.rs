@@ -21,7 +21,9 @@ use anyhow::{Context, Result, bail};
 use lfit_synth::Scenario;
 use lfit_synth::capture::c3d::C3d;
 use lfit_synth::capture::import::{import_c3d, import_keypoints, read_name_map};
-use lfit_synth::capture::keypoints::{KeypointLayout, read_cameras, read_track};
+use lfit_synth::capture::keypoints::{
+    KeypointLayout, read_camera_file, read_track, undistort_track,
+};
 use serde_json::{Value, json};
 
 /// `lfit data ...`.
@@ -290,7 +292,7 @@ pub fn import_dataset(
             if !(args.fps.is_finite() && args.fps > 0.0) {
                 bail!("--fps must be positive (got {})", args.fps);
             }
-            let mut cameras = read_cameras(camera)?;
+            let (mut cameras, distortion) = read_camera_file(camera)?;
             if up != lfit_synth::motion::retarget::Up::Y {
                 // The cameras turned with the world (y up: the file as it is, to the bit).
                 for c in &mut cameras {
@@ -314,10 +316,17 @@ pub fn import_dataset(
                     cameras.len()
                 );
             };
-            let tracks = groups
+            let mut tracks = groups
                 .iter()
                 .map(|g| read_track(g, layout))
                 .collect::<Result<Vec<_>, _>>()?;
+            // Keypoints of a camera with lens distortion, as its pinhole camera sees them.
+            let undistorted = distortion.iter().filter(|d| d.is_some()).count();
+            for ((track, camera), d) in tracks.iter_mut().zip(&cameras).zip(&distortion) {
+                if let Some(d) = d {
+                    undistort_track(track, camera, d)?;
+                }
+            }
             let template = load()?;
             let imported = import_keypoints(
                 &tracks,
@@ -329,10 +338,11 @@ pub fn import_dataset(
                 &template,
                 scenario,
             )?;
-            (
-                imported,
-                json!({ "keypoints": args.keypoints, "camera": camera }),
-            )
+            let mut source = json!({ "keypoints": args.keypoints, "camera": camera });
+            if undistorted > 0 {
+                source["undistorted_cameras"] = json!(undistorted);
+            }
+            (imported, source)
         }
     };
     let dataset = imported.dataset;

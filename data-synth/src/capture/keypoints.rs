@@ -18,7 +18,11 @@
 //! The camera file is JSON, `{"cameras": [{"fx", "fy", "cx", "cy", "width", "height",
 //! "rotation": [[3], [3], [3]], "translation": [3]}, ...]}`: pinhole intrinsics in pixels and
 //! the camera-from-world rotation (row-major) and translation in metres, OpenCV axes (+z into the
-//! scene, +y down) — exactly the cameras a `keypoints2d` dataset stores. Unknown keys are refused.
+//! scene, +y down) — exactly the cameras a `keypoints2d` dataset stores. Each camera may instead
+//! use OpenCV's calibration keys (`K`, `R` or `rvec`, `t` or `tvec`, `resolution`; a `name` is
+//! allowed) and give its lens distortion, `dist`: OpenCV's `k1 k2 p1 p2 [k3 [k4 k5 k6]]`
+//! ([`Distortion`]; its keypoints are undistorted at import, [`undistort_track`]). One key per
+//! quantity; unknown keys are refused.
 
 use std::path::{Path, PathBuf};
 
@@ -432,17 +436,32 @@ pub fn read_track(paths: &[PathBuf], layout: KeypointLayout) -> Result<KeypointT
     Ok(track)
 }
 
+/// One camera of a camera file: lfit's own keys, or OpenCV's calibration output (`K`, `R` or
+/// `rvec`, `t` or `tvec`, `dist`), and the image size as `width`/`height` or `resolution`.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct CameraJson {
-    fx: f64,
-    fy: f64,
-    cx: f64,
-    cy: f64,
-    width: u32,
-    height: u32,
-    rotation: [[f64; 3]; 3],
-    translation: [f64; 3],
+    fx: Option<f64>,
+    fy: Option<f64>,
+    cx: Option<f64>,
+    cy: Option<f64>,
+    #[serde(rename = "K")]
+    k: Option<[[f64; 3]; 3]>,
+    width: Option<u32>,
+    height: Option<u32>,
+    resolution: Option<[u32; 2]>,
+    rotation: Option<[[f64; 3]; 3]>,
+    #[serde(rename = "R")]
+    r: Option<[[f64; 3]; 3]>,
+    rvec: Option<Value>,
+    translation: Option<Value>,
+    t: Option<Value>,
+    tvec: Option<Value>,
+    #[serde(alias = "distortion")]
+    dist: Option<Value>,
+    /// A label (OpenCV's and most calibration tools' files carry one); not read.
+    #[allow(dead_code)]
+    name: Option<Value>,
 }
 
 #[derive(Deserialize)]
@@ -451,36 +470,305 @@ struct CameraFile {
     cameras: Vec<CameraJson>,
 }
 
-/// Reads and checks a camera file (see the module documentation).
-pub fn read_cameras(path: &Path) -> Result<Vec<Camera>, ImportError> {
+/// Lens distortion of a camera, OpenCV's model (Brown–Conrady with its rational radial terms):
+/// on normalised coordinates `(x, y)`, `r² = x² + y²`,
+/// `x_d = x (1 + k1 r² + k2 r⁴ + k3 r⁶) / (1 + k4 r² + k5 r⁴ + k6 r⁶) + 2 p1 x y + p2 (r² + 2x²)`
+/// and `y_d` alike with `p1 (r² + 2y²) + 2 p2 x y`. A camera file's `dist` lists OpenCV's
+/// coefficients in its order, `k1 k2 p1 p2 [k3 [k4 k5 k6]]` (4, 5 or 8 numbers).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Distortion {
+    /// k1 … k6.
+    pub k: [f64; 6],
+    /// p1, p2.
+    pub p: [f64; 2],
+}
+
+impl Distortion {
+    /// From OpenCV's coefficient list (4, 5 or 8 finite numbers); `None` for all zeros.
+    pub fn from_opencv(c: &[f64]) -> Result<Option<Self>, ImportError> {
+        if ![4, 5, 8].contains(&c.len()) {
+            return fail(format!(
+                "{} distortion coefficients: expected OpenCV's k1 k2 p1 p2 [k3 [k4 k5 k6]] (4, 5 or 8; the thin-prism and tilt terms are not modelled)",
+                c.len()
+            ));
+        }
+        if c.iter().any(|v| !v.is_finite()) {
+            return fail("distortion coefficients must be finite");
+        }
+        let at = |i: usize| c.get(i).copied().unwrap_or(0.0);
+        let d = Self {
+            k: [at(0), at(1), at(4), at(5), at(6), at(7)],
+            p: [at(2), at(3)],
+        };
+        Ok((d.k.iter().chain(&d.p).any(|&v| v != 0.0)).then_some(d))
+    }
+
+    /// Distorted normalised coordinates of the undistorted `(x, y)`.
+    pub fn distort(&self, x: f64, y: f64) -> (f64, f64) {
+        let [k1, k2, k3, k4, k5, k6] = self.k;
+        let [p1, p2] = self.p;
+        let r2 = x * x + y * y;
+        let radial =
+            (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)));
+        (
+            x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
+        )
+    }
+
+    /// The undistorted normalised coordinates whose distortion is `(xd, yd)`: Newton's method
+    /// on the model above (its 2 × 2 Jacobian by central differences), from `(xd, yd)`, to
+    /// 1e-12; `None` where it does not converge or converges past where the radial map folds
+    /// over (a point the lens cannot have imaged there).
+    pub fn undistort(&self, xd: f64, yd: f64) -> Option<(f64, f64)> {
+        let (mut x, mut y) = (xd, yd);
+        for _ in 0..50 {
+            let (fx, fy) = self.distort(x, y);
+            let (rx, ry) = (fx - xd, fy - yd);
+            if rx.abs().max(ry.abs()) < 1e-12 {
+                return self.unfolded(x.hypot(y)).then_some((x, y));
+            }
+            let h = 1e-7;
+            let (ax, ay) = self.distort(x + h, y);
+            let (bx, by) = self.distort(x - h, y);
+            let (cx, cy) = self.distort(x, y + h);
+            let (dx, dy) = self.distort(x, y - h);
+            let (j11, j21) = ((ax - bx) / (2.0 * h), (ay - by) / (2.0 * h));
+            let (j12, j22) = ((cx - dx) / (2.0 * h), (cy - dy) / (2.0 * h));
+            let det = j11 * j22 - j12 * j21;
+            if !det.is_finite() || det.abs() < 1e-12 {
+                return None;
+            }
+            x -= (j22 * rx - j12 * ry) / det;
+            y -= (j11 * ry - j21 * rx) / det;
+        }
+        None
+    }
+
+    /// Whether the radial map `r ↦ r (1 + k1 r² + …) / (1 + k4 r² + …)` rises all the way from the
+    /// centre to radius `r` (checked at 256 radii): a point past where it folds over has a second
+    /// preimage, not the one the lens imaged.
+    fn unfolded(&self, r: f64) -> bool {
+        let [k1, k2, k3, k4, k5, k6] = self.k;
+        let g = |r: f64| {
+            let r2 = r * r;
+            r * (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+        };
+        let mut last = 0.0;
+        r == 0.0
+            || (1..=256).all(|i| {
+                let now = g(r * f64::from(i) / 256.0);
+                let rising = now > last;
+                last = now;
+                rising
+            })
+    }
+
+    /// The pixel `(u, v)` of `camera` as the pinhole camera without this distortion sees it.
+    pub fn undistort_pixel(&self, camera: &Camera, u: f64, v: f64) -> Option<(f64, f64)> {
+        let (x, y) = self.undistort((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy)?;
+        Some((camera.fx * x + camera.cx, camera.fy * y + camera.cy))
+    }
+}
+
+/// Three numbers given as `[x, y, z]` or as a column `[[x], [y], [z]]` (OpenCV's `tvec`).
+fn three(v: &Value, what: &str) -> Result<[f64; 3], ImportError> {
+    let flat: Vec<f64> = match v {
+        Value::Array(a) if a.len() == 3 && a.iter().all(Value::is_array) => a
+            .iter()
+            .map(|r| match r.as_array().map(Vec::as_slice) {
+                Some([x]) => x.as_f64(),
+                _ => None,
+            })
+            .collect::<Option<_>>()
+            .unwrap_or_default(),
+        Value::Array(a) => a
+            .iter()
+            .map(Value::as_f64)
+            .collect::<Option<_>>()
+            .unwrap_or_default(),
+        _ => Vec::new(),
+    };
+    flat.try_into().map_err(|_| {
+        ImportError::Invalid(format!(
+            "'{what}' must be 3 numbers, [x, y, z] or [[x], [y], [z]]"
+        ))
+    })
+}
+
+/// A camera file's distortion list, flat or as one row (`[[k1, k2, ...]]`).
+fn coefficients(v: &Value) -> Result<Vec<f64>, ImportError> {
+    let row = match v {
+        Value::Array(a) if a.len() == 1 && a[0].is_array() => &a[0],
+        other => other,
+    };
+    row.as_array()
+        .and_then(|a| a.iter().map(Value::as_f64).collect::<Option<Vec<f64>>>())
+        .ok_or_else(|| ImportError::Invalid("'dist' must be a list of numbers".into()))
+}
+
+/// Exactly one of the keys that give one quantity: its value and key.
+fn one_of<'a, T>(
+    what: &str,
+    given: &[(&'static str, &'a Option<T>)],
+) -> Result<(&'a T, &'static str), ImportError> {
+    let present: Vec<(&'static str, &'a T)> = given
+        .iter()
+        .filter_map(|&(k, v)| v.as_ref().map(|v| (k, v)))
+        .collect();
+    match present.as_slice() {
+        [(k, v)] => Ok((*v, *k)),
+        [] => fail(format!(
+            "no {what}: give {}",
+            given.iter().map(|g| g.0).collect::<Vec<_>>().join(" or ")
+        )),
+        _ => fail(format!(
+            "{what} given twice ({}): give one",
+            present.iter().map(|p| p.0).collect::<Vec<_>>().join(", ")
+        )),
+    }
+}
+
+/// A rotation vector (axis times angle, OpenCV's `rvec`) as a row-major matrix.
+fn rodrigues(r: [f64; 3]) -> [[f64; 3]; 3] {
+    let m = lfit_model::body::rotation::exp_map(glam::DVec3::from_array(r));
+    [
+        m.row(0).to_array(),
+        m.row(1).to_array(),
+        m.row(2).to_array(),
+    ]
+}
+
+impl CameraJson {
+    fn resolve(&self) -> Result<(Camera, Option<Distortion>), ImportError> {
+        let (fx, fy, cx, cy) = match (&self.k, (self.fx, self.fy, self.cx, self.cy)) {
+            (Some(_), (None, None, None, None)) => {
+                let k = self.k.unwrap_or_default();
+                if k[0][1].abs() > 1e-9 * k[0][0].abs() {
+                    return fail(format!("K has skew {} (K[0][1]): not modelled", k[0][1]));
+                }
+                if k[1][0] != 0.0 || k[2][0] != 0.0 || k[2][1] != 0.0 || k[2][2] != 1.0 {
+                    return fail("K must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]");
+                }
+                (k[0][0], k[1][1], k[0][2], k[1][2])
+            }
+            (None, (Some(fx), Some(fy), Some(cx), Some(cy))) => (fx, fy, cx, cy),
+            (Some(_), _) => return fail("intrinsics given twice (K and fx/fy/cx/cy): give one"),
+            (None, _) => return fail("no intrinsics: give fx, fy, cx and cy, or K"),
+        };
+        let (width, height) = match (self.width, self.height, self.resolution) {
+            (Some(w), Some(h), None) => (w, h),
+            (None, None, Some([w, h])) => (w, h),
+            (None, None, None) | (Some(_), None, None) | (None, Some(_), None) => {
+                return fail("no image size: give width and height, or resolution [w, h]");
+            }
+            _ => return fail("image size given twice (width/height and resolution): give one"),
+        };
+        let rvec = self
+            .rvec
+            .as_ref()
+            .map(|v| three(v, "rvec").map(rodrigues))
+            .transpose()?;
+        let (rotation, _) = one_of(
+            "rotation",
+            &[
+                ("rotation", &self.rotation),
+                ("R", &self.r),
+                ("rvec", &rvec),
+            ],
+        )?;
+        let rotation = *rotation;
+        let (t, key) = one_of(
+            "translation",
+            &[
+                ("translation", &self.translation),
+                ("t", &self.t),
+                ("tvec", &self.tvec),
+            ],
+        )?;
+        let translation = three(t, key)?;
+        let dist = match &self.dist {
+            Some(v) => Distortion::from_opencv(&coefficients(v)?)?,
+            None => None,
+        };
+        Ok((
+            Camera {
+                fx,
+                fy,
+                cx,
+                cy,
+                width,
+                height,
+                rotation,
+                translation,
+            },
+            dist,
+        ))
+    }
+}
+
+/// Reads and checks a camera file (see the module documentation): the cameras, and each one's
+/// lens distortion where the file gives one.
+pub fn read_camera_file(
+    path: &Path,
+) -> Result<(Vec<Camera>, Vec<Option<Distortion>>), ImportError> {
     let text = std::fs::read_to_string(path).map_err(|source| ImportError::Read {
         path: path.to_path_buf(),
         source,
     })?;
-    let file: CameraFile = serde_json::from_str(&text)
-        .map_err(|e| ImportError::Invalid(format!("camera file {}: {e}", path.display())))?;
+    let bad = |e: String| ImportError::Invalid(format!("camera file {}: {e}", path.display()));
+    let file: CameraFile = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
     if file.cameras.is_empty() {
         return fail(format!("camera file {}: no cameras", path.display()));
     }
-    let cams: Vec<Camera> = file
-        .cameras
-        .into_iter()
-        .map(|c| Camera {
-            fx: c.fx,
-            fy: c.fy,
-            cx: c.cx,
-            cy: c.cy,
-            width: c.width,
-            height: c.height,
-            rotation: c.rotation,
-            translation: c.translation,
-        })
-        .collect();
-    for (i, c) in cams.iter().enumerate() {
-        c.validate(i)
-            .map_err(|e| ImportError::Invalid(format!("camera file {}: {e}", path.display())))?;
+    let mut cams = Vec::with_capacity(file.cameras.len());
+    let mut dists = Vec::with_capacity(file.cameras.len());
+    for (i, c) in file.cameras.iter().enumerate() {
+        let (cam, dist) = c.resolve().map_err(|e| bad(format!("camera {i}: {e}")))?;
+        cam.validate(i).map_err(|e| bad(e.to_string()))?;
+        cams.push(cam);
+        dists.push(dist);
+    }
+    Ok((cams, dists))
+}
+
+/// Reads and checks a camera file of pinhole cameras (a rig to synthesise through, `lfit synth
+/// --camera`): one that gives a lens distortion is refused (synthesis does not model it).
+pub fn read_cameras(path: &Path) -> Result<Vec<Camera>, ImportError> {
+    let (cams, dists) = read_camera_file(path)?;
+    if let Some(i) = dists.iter().position(Option::is_some) {
+        return fail(format!(
+            "camera file {}: camera {i} has a lens distortion, which synthesis does not model (lfit data import undistorts keypoints with it)",
+            path.display()
+        ));
     }
     Ok(cams)
+}
+
+/// `track`'s keypoints as the pinhole `camera` without `distortion` sees them (each seen
+/// keypoint undistorted, [`Distortion::undistort_pixel`]); a keypoint where the model does not
+/// invert is an error naming its frame.
+pub fn undistort_track(
+    track: &mut KeypointTrack,
+    camera: &Camera,
+    distortion: &Distortion,
+) -> Result<(), ImportError> {
+    for (f, frame) in track.frames.iter_mut().enumerate() {
+        for p in frame.iter_mut() {
+            if p[2] <= 0.0 {
+                continue;
+            }
+            let Some((u, v)) = distortion.undistort_pixel(camera, p[0], p[1]) else {
+                return fail(format!(
+                    "{}: keypoint at ({}, {}) px is where the lens distortion does not invert (beyond its fold)",
+                    track.sources[f], p[0], p[1]
+                ));
+            };
+            p[0] = u;
+            p[1] = v;
+        }
+    }
+    Ok(())
 }
 
 /// The JSON text of a camera file for `cameras` (the format [`read_cameras`] reads).
@@ -661,6 +949,195 @@ mod tests {
                 .unwrap_err()
                 .to_string()
                 .contains("no cameras")
+        );
+    }
+
+    /// The same cameras written with OpenCV's keys (`K`, `rvec` or `R`, `tvec` as a column,
+    /// `resolution`, a `name`) read as lfit's own; a `dist` list gives each camera its
+    /// distortion (4, 5 or 8 coefficients, flat or as one row; all zeros none); every ambiguous,
+    /// missing or unmodelled entry is a one-line error naming the camera; `read_cameras` (a rig
+    /// to synthesise) refuses a distortion.
+    #[test]
+    fn a_camera_file_takes_opencv_keys_and_a_distortion() {
+        let d = tempfile::tempdir().unwrap();
+        let ring = default_ring(3);
+        let log = |c: &Camera| {
+            let q = glam::DQuat::from_mat3(&c.rot());
+            let (axis, angle) = q.to_axis_angle();
+            (axis * angle).to_array()
+        };
+        let opencv: Vec<Value> = ring
+            .iter()
+            .enumerate()
+            .map(|(i, c)| {
+                let mut cam = serde_json::json!({
+                    "name": format!("cam{i}"),
+                    "K": [[c.fx, 0.0, c.cx], [0.0, c.fy, c.cy], [0.0, 0.0, 1.0]],
+                    "resolution": [c.width, c.height],
+                    "tvec": [[c.translation[0]], [c.translation[1]], [c.translation[2]]],
+                });
+                if i == 1 {
+                    cam["R"] = serde_json::json!(c.rotation);
+                } else {
+                    cam["rvec"] = serde_json::json!(log(c));
+                }
+                cam
+            })
+            .collect();
+        let mut file = serde_json::json!({ "cameras": opencv });
+        file["cameras"][0]["dist"] = serde_json::json!([[-0.28, 0.07, 1e-4, -2e-4, -0.008]]);
+        file["cameras"][2]["distortion"] = serde_json::json!([0.0, 0.0, 0.0, 0.0]);
+        let p = write(d.path(), "opencv.json", &file.to_string());
+        let (cams, dists) = read_camera_file(&p).unwrap();
+        for (a, b) in cams.iter().zip(&ring) {
+            assert_eq!(
+                (a.fx, a.fy, a.cx, a.cy, a.width, a.height, a.translation),
+                (b.fx, b.fy, b.cx, b.cy, b.width, b.height, b.translation)
+            );
+            for (x, y) in a.rotation.iter().flatten().zip(b.rotation.iter().flatten()) {
+                assert!((x - y).abs() < 1e-12, "{a:?} vs {b:?}");
+            }
+        }
+        assert_eq!(
+            dists,
+            [
+                Some(Distortion {
+                    k: [-0.28, 0.07, -0.008, 0.0, 0.0, 0.0],
+                    p: [1e-4, -2e-4]
+                }),
+                None,
+                None
+            ]
+        );
+        let e = read_cameras(&p).unwrap_err().to_string();
+        assert!(e.contains("camera 0 has a lens distortion"), "{e}");
+        let one = |edit: &dyn Fn(&mut Value), needle: &str| {
+            let mut f = serde_json::json!({ "cameras": [file["cameras"][1].clone()] });
+            edit(&mut f["cameras"][0]);
+            let p = write(d.path(), "bad.json", &f.to_string());
+            let e = read_camera_file(&p).unwrap_err().to_string();
+            assert!(e.contains(needle), "{needle}: {e}");
+            assert!(!e.contains('\n'), "{e}");
+        };
+        one(
+            &|c| c["fx"] = serde_json::json!(500.0),
+            "intrinsics given twice",
+        );
+        one(
+            &|c| c.as_object_mut().unwrap().retain(|k, _| k != "K"),
+            "no intrinsics",
+        );
+        one(&|c| c["K"][0][1] = serde_json::json!(2.0), "skew");
+        one(&|c| c["K"][2][2] = serde_json::json!(2.0), "K must be");
+        one(
+            &|c| c["width"] = serde_json::json!(640),
+            "image size given twice",
+        );
+        one(
+            &|c| c.as_object_mut().unwrap().retain(|k, _| k != "resolution"),
+            "no image size",
+        );
+        one(
+            &|c| c["rvec"] = serde_json::json!([0.1, 0.2, 0.3]),
+            "rotation given twice (R, rvec)",
+        );
+        one(
+            &|c| c.as_object_mut().unwrap().retain(|k, _| k != "R"),
+            "no rotation: give rotation or R or rvec",
+        );
+        one(
+            &|c| c["t"] = serde_json::json!([0.0, 0.0, 1.0]),
+            "translation given twice (t, tvec)",
+        );
+        one(
+            &|c| c["tvec"] = serde_json::json!([1.0, 2.0]),
+            "'tvec' must be 3 numbers",
+        );
+        one(
+            &|c| c["dist"] = serde_json::json!([0.1, 0.0, 0.0, 0.0, 0.0, 0.0]),
+            "6 distortion coefficients",
+        );
+        one(
+            &|c| c["dist"] = serde_json::json!(["a"]),
+            "'dist' must be a list of numbers",
+        );
+        one(
+            &|c| c["focal"] = serde_json::json!(1.0),
+            "unknown field `focal`",
+        );
+        one(&|c| c["R"][0][0] = serde_json::json!(3.0), "rotation");
+    }
+
+    /// Undistortion inverts OpenCV's model to 1e-9 px over the image of a wide lens (a GoPro-like
+    /// barrel, and the 8-coefficient rational model), and the pixel form equals the normalised one.
+    #[test]
+    fn undistortion_inverts_the_lens_model() {
+        let cam = default_ring(1)[0];
+        let models = [
+            Distortion::from_opencv(&[-0.28, 0.07, 1e-4, -2e-4, -0.008])
+                .unwrap()
+                .unwrap(),
+            Distortion::from_opencv(&[0.5, -0.2, 3e-4, 1e-4, 0.01, 0.6, -0.1, 0.02])
+                .unwrap()
+                .unwrap(),
+        ];
+        assert_eq!(Distortion::from_opencv(&[0.0; 5]).unwrap(), None);
+        for d in models {
+            for i in 0..=10 {
+                for j in 0..=10 {
+                    let (u, v) = (
+                        f64::from(cam.width) * f64::from(i) / 10.0,
+                        f64::from(cam.height) * f64::from(j) / 10.0,
+                    );
+                    let (x, y) = ((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy);
+                    let (xd, yd) = d.distort(x, y);
+                    let (ud, vd) = (cam.fx * xd + cam.cx, cam.fy * yd + cam.cy);
+                    let Some((uu, vu)) = d.undistort_pixel(&cam, ud, vd) else {
+                        panic!("{d:?} at ({u}, {v}) r {}", x.hypot(y))
+                    };
+                    assert!(
+                        (uu - u).abs() < 1e-9 && (vu - v).abs() < 1e-9,
+                        "{d:?} at ({u}, {v}): ({uu}, {vu})"
+                    );
+                }
+            }
+            // The model bends: a distorted point is not where the pinhole puts it.
+            let (xd, _) = d.distort(0.4, 0.3);
+            assert!((xd - 0.4).abs() > 1e-3);
+        }
+        // A track: seen keypoints undistorted, unseen ones (confidence 0) left as they are.
+        let d = models[0];
+        let (xd, yd) = d.distort(0.2, -0.1);
+        let mut t = KeypointTrack {
+            format: "openpose",
+            frames: vec![vec![
+                [cam.fx * xd + cam.cx, cam.fy * yd + cam.cy, 0.8],
+                [7.0, 9.0, 0.0],
+            ]],
+            sources: vec!["f".into()],
+            image_sizes: vec![None],
+            crowded_frames: 0,
+        };
+        undistort_track(&mut t, &cam, &d).unwrap();
+        let p = t.frames[0][0];
+        assert!(
+            (p[0] - (cam.fx * 0.2 + cam.cx)).abs() < 1e-9
+                && (p[1] - (cam.fy * -0.1 + cam.cy)).abs() < 1e-9
+        );
+        assert_eq!(t.frames[0][1], [7.0, 9.0, 0.0]);
+        // Past the fold of a strong barrel (x (1 − r²) peaks at r = 1/√3, x_d ≈ 0.385) nothing
+        // maps there: a one-line error naming the keypoint's frame.
+        let fold = Distortion::from_opencv(&[-1.0, 0.0, 0.0, 0.0])
+            .unwrap()
+            .unwrap();
+        assert!(fold.undistort(0.5, 0.0).is_none());
+        t.frames[0][0] = [cam.fx * 0.5 + cam.cx, cam.cy, 0.9];
+        let e = undistort_track(&mut t, &cam, &fold)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("f: keypoint at") && e.contains("does not invert"),
+            "{e}"
         );
     }
 }
