@@ -246,6 +246,22 @@ def test_keypoint_import_equals_the_cli(cli, tmp_path):
     assert t.sensor != d.sensor and t.sensor != z.sensor
     with pytest.raises(lfit.LfitError, match="not all zero"):
         lfit.import_keypoints([coco], "coco17", cams, MH, up="0,0,0")
+    # OpenCV's keys and a lens distortion: the CLI's dataset, the keypoints undistorted.
+    ocv = dict(cam)
+    for k in ("fx", "fy", "cx", "cy", "width", "height", "rotation", "translation"):
+        del ocv[k]
+    ocv.update({"K": [[500.0, 0, 320.0], [0, 500.0, 240.0], [0, 0, 1]], "resolution": [640, 480],
+                "rvec": [0.0, 0.0, 0.0], "tvec": [[0.0], [-1.0], [4.0]], "dist": [-0.2, 0.05, 0.0, 0.0]})
+    cams_l = tmp_path / "cams-lens.json"
+    cams_l.write_text(json.dumps({"cameras": [ocv]}))
+    cli_l = tmp_path / "cli-l.npz"
+    cli("data", "import", "--keypoints", coco, "--layout", "coco17", "--camera", cams_l, "--model", MH, "--out", cli_l)
+    l = lfit.import_keypoints([coco], "coco17", cams_l, MH)
+    same_dataset(l, lfit.load_dataset(cli_l))
+    assert l.sensor == d.sensor
+    seen = np.asarray(d.visibility)
+    moved = np.abs(np.asarray(l.observations) - np.asarray(d.observations))[seen]
+    assert moved.max() > 1.0
 
 
 def test_bvh_import_equals_the_cli(cli, tmp_path):
