@@ -600,6 +600,23 @@ fn bad_model_files_are_one_line_errors_and_write_nothing() {
         )])
         .collect();
     refused(dir.path(), &dense_bad, pose.clone(), "J_regressor");
+    // SMPL's root parent 2³² − 1 in an int64 kintree_table (numpy widens SMPL's so) reads as
+    // the unsigned file does: the same model.
+    let wide: Vec<u8> = model
+        .kintree
+        .iter()
+        .flat_map(|&x| i64::from(x).to_le_bytes())
+        .collect();
+    let (as_u4, as_i8) = (dir.path().join("u4.npz"), dir.path().join("i8.npz"));
+    write_npz(&as_u4, &good);
+    write_npz(
+        &as_i8,
+        &replace(&good, "kintree_table", npy("<i8", false, &[2, J], &wide)),
+    );
+    let info = |p: &Path| lfit_json(&["model", "info", "--model", path_str(p)]);
+    let (a, b) = (info(&as_u4), info(&as_i8));
+    assert_eq!(a["joints"], b["joints"]);
+    assert!(a["joints"].as_array().is_some_and(|j| j.len() == J), "{a}");
     // A kintree cycle: joint 1's parent is joint 4, whose parent is joint 1.
     let mut k = model.kintree.clone();
     k[1] = 4;
@@ -658,7 +675,12 @@ fn bad_model_files_are_one_line_errors_and_write_nothing() {
     // A pickled file.
     let pkl = dir.path().join("model.pkl");
     std::fs::write(&pkl, b"\x80\x02}q\x00.").unwrap();
-    refused_file(dir.path(), &pkl, pose.clone(), ".pkl");
+    refused_file(
+        dir.path(),
+        &pkl,
+        pose.clone(),
+        "python -m lfit.convert_pkl MODEL.pkl",
+    );
     // Sensors the model cannot serve: markers on a model without any, hmd on a model whose joint
     // names map nothing to the papers/000 head and hands.
     let d = dir.path().join("d.npz");

@@ -25,7 +25,8 @@
 //! and for a face model `landmark_vertices` (P,) (the `landmarks2d` modality's vertices) and
 //! `face_region` (N,) (the vertices of the face errors).
 //!
-//! Pickled `.pkl` (chumpy) files are refused with a conversion hint; so are object arrays.
+//! Pickled `.pkl` (chumpy) files are refused with a conversion hint (`python -m lfit.convert_pkl`,
+//! the Python package's); so are object arrays.
 
 use std::collections::BTreeMap;
 use std::io::{Cursor, Read, Write};
@@ -44,10 +45,8 @@ use crate::template::{Template, write_atomic};
 pub use crate::rig::MAX_FILE_INFLUENCES;
 
 /// How to turn a pickled SMPL-family file into this layout.
-pub const PKL_HINT: &str = "pickled .pkl (chumpy) model files are not read; convert it once with Python: \
-`import pickle, numpy as np, scipy.sparse as sp; d = pickle.load(open('model.pkl', 'rb'), encoding='latin1'); \
-np.savez('model.npz', **{k: (v.toarray() if sp.issparse(v) else np.asarray(v)) for k, v in d.items() \
-if k in ('v_template', 'f', 'weights', 'kintree_table', 'J_regressor', 'shapedirs', 'posedirs')})`";
+pub const PKL_HINT: &str = "pickled .pkl model files are not read; convert it once with lfit's Python package: \
+`python -m lfit.convert_pkl MODEL.pkl MODEL.npz` (numpy and scipy; chumpy, which SMPL, MANO and FLAME pickles need, is not)";
 
 /// One array of the archive, its values widened.
 #[derive(Debug, Clone)]
@@ -455,7 +454,12 @@ fn parents(a: &Arrays<'_>) -> Result<Vec<Option<JointIndex>>> {
             ));
         }
     }
-    let raw: Vec<i64> = k[..j].to_vec();
+    // SMPL's "no parent", 2³² − 1, in whatever integer type the file holds it (an int64
+    // kintree_table, as numpy widens SMPL's, keeps the value; the unsigned types map it above).
+    let raw: Vec<i64> = k[..j]
+        .iter()
+        .map(|&p| if p == i64::from(u32::MAX) { -1 } else { p })
+        .collect();
     for (c, &p) in raw.iter().enumerate() {
         if p >= j as i64 || p < -1 {
             return Err(fail(
