@@ -4,7 +4,7 @@
 //!   C3D label that the map names (`{"C3D label": "model marker", ...}`; without a map, labels
 //!   equal to a model marker's name, bare or after one subject's `SUBJECT:` prefix) onto that marker of the model's `markers` modality; gaps and
 //!   markers no label maps to are invisible entries. Units from `POINT:UNITS` (mm, cm, m).
-//! - `--keypoints PATH... --layout coco17|body25 --camera CAMERAS.json [--keypoint-map MAP.json]`:
+//! - `--keypoints PATH... --layout coco17|body25|coco18|halpe26 --camera CAMERAS.json [--keypoint-map MAP.json]`:
 //!   2D keypoints (COCO keypoint files or OpenPose frame files/folders, `lfit_synth::capture::keypoints`)
 //!   in calibrated cameras as the `keypoints2d` modality; one path per camera in the camera
 //!   file's order (or, with one camera, any number of paths in frame order); a keypoint is seen
@@ -97,7 +97,7 @@ pub struct ImportArgs {
     /// one per camera in the camera file's order, or any number for a single camera.
     #[arg(long, num_args = 1..)]
     pub keypoints: Vec<PathBuf>,
-    /// Keypoint layout: coco17 or body25.
+    /// Keypoint layout: coco17, body25, coco18 (OpenPose's COCO model) or halpe26 (AlphaPose).
     #[arg(long)]
     pub layout: Option<String>,
     /// Camera file: {"cameras": [{"fx", "fy", "cx", "cy", "width", "height", "rotation": 3×3
@@ -283,7 +283,7 @@ pub fn import_dataset(
         }
         (None, false) => {
             let Some(layout) = &args.layout else {
-                bail!("--keypoints needs --layout coco17|body25");
+                bail!("--keypoints needs --layout coco17|body25|coco18|halpe26");
             };
             let layout: KeypointLayout = layout.parse()?;
             let Some(camera) = &args.camera else {

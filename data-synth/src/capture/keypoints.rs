@@ -11,6 +11,11 @@
 //!   the one with the highest `score` (else the largest summed `v`); one without any has no
 //!   visible keypoint. COCO's visibility flag v (0 unlabelled, 1 occluded, 2 visible) stands for
 //!   the confidence.
+//! - **COCO results** (a detector's output, mmpose's and Detectron2's): `[{"image_id",
+//!   "keypoints", "score"?}, ...]`; the image ids are frame numbers, every id from the lowest to
+//!   the highest one frame.
+//!
+//! Layouts: COCO-17, OpenPose's BODY_25 and COCO model (18), AlphaPose's Halpe-26.
 //!
 //! A keypoint counts as seen when its confidence exceeds the chosen threshold. Pixel coordinates
 //! are taken as they are, in the camera file's image frame (x right, y down).
@@ -44,6 +49,10 @@ pub enum KeypointLayout {
     Coco17,
     /// OpenPose's BODY_25.
     Body25,
+    /// OpenPose's COCO model (18 keypoints: COCO's 17 with a neck, in OpenPose's order).
+    Coco18,
+    /// AlphaPose's Halpe-26 (COCO's 17, then head, neck, hip and six foot keypoints).
+    Halpe26,
 }
 
 /// COCO-17 keypoint names, in order.
@@ -96,14 +105,68 @@ pub const BODY25: [&str; 25] = [
     "RHeel",
 ];
 
+/// OpenPose COCO-model keypoint names, in order (`--model_pose COCO`).
+pub const COCO18: [&str; 18] = [
+    "Nose",
+    "Neck",
+    "RShoulder",
+    "RElbow",
+    "RWrist",
+    "LShoulder",
+    "LElbow",
+    "LWrist",
+    "RHip",
+    "RKnee",
+    "RAnkle",
+    "LHip",
+    "LKnee",
+    "LAnkle",
+    "REye",
+    "LEye",
+    "REar",
+    "LEar",
+];
+
+/// Halpe-26 keypoint names, in order (AlphaPose's full-body model; Fang et al., Halpe-FullBody).
+pub const HALPE26: [&str; 26] = [
+    "Nose",
+    "LEye",
+    "REye",
+    "LEar",
+    "REar",
+    "LShoulder",
+    "RShoulder",
+    "LElbow",
+    "RElbow",
+    "LWrist",
+    "RWrist",
+    "LHip",
+    "RHip",
+    "LKnee",
+    "RKnee",
+    "LAnkle",
+    "RAnkle",
+    "Head",
+    "Neck",
+    "Hip",
+    "LBigToe",
+    "RBigToe",
+    "LSmallToe",
+    "RSmallToe",
+    "LHeel",
+    "RHeel",
+];
+
 impl std::str::FromStr for KeypointLayout {
     type Err = ImportError;
     fn from_str(s: &str) -> Result<Self, ImportError> {
         match s {
             "coco17" => Ok(Self::Coco17),
             "body25" => Ok(Self::Body25),
+            "coco18" => Ok(Self::Coco18),
+            "halpe26" => Ok(Self::Halpe26),
             other => fail(format!(
-                "unknown keypoint layout '{other}' (expected coco17 or body25)"
+                "unknown keypoint layout '{other}' (expected coco17, body25, coco18 or halpe26)"
             )),
         }
     }
@@ -114,6 +177,8 @@ impl KeypointLayout {
         match self {
             Self::Coco17 => "coco17",
             Self::Body25 => "body25",
+            Self::Coco18 => "coco18",
+            Self::Halpe26 => "halpe26",
         }
     }
 
@@ -122,6 +187,8 @@ impl KeypointLayout {
         match self {
             Self::Coco17 => &COCO17,
             Self::Body25 => &BODY25,
+            Self::Coco18 => &COCO18,
+            Self::Halpe26 => &HALPE26,
         }
     }
 
@@ -135,9 +202,10 @@ impl KeypointLayout {
 
     /// The default correspondence: papers/000 joint → keypoint name. Only keypoints that lie
     /// close to a joint centre of lfit's skeleton: hips, knees, ankles, shoulders, elbows,
-    /// wrists (the papers/000 hands); BODY_25 also gives the root (MidHip) and the head joint
-    /// (Neck: papers/000's head joint sits at the base of the neck). Face and foot keypoints are
-    /// left out (no joint centre there); `--keypoint-map` chooses others.
+    /// wrists (the papers/000 hands); BODY_25 and Halpe-26 also give the root (MidHip, Hip) and
+    /// the head joint (Neck: papers/000's head joint sits at the base of the neck), OpenPose's
+    /// COCO model the head joint. Face and foot keypoints are left out (no joint centre there);
+    /// `--keypoint-map` chooses others.
     pub fn default_map(self) -> Vec<(usize, &'static str)> {
         use skeleton::*;
         match self {
@@ -155,24 +223,37 @@ impl KeypointLayout {
                 (L_ELBOW, "left_elbow"),
                 (L_HAND, "left_wrist"),
             ],
-            Self::Body25 => vec![
-                (ROOT, "MidHip"),
-                (HEAD, "Neck"),
-                (R_HIP, "RHip"),
-                (R_KNEE, "RKnee"),
-                (R_ANKLE, "RAnkle"),
-                (L_HIP, "LHip"),
-                (L_KNEE, "LKnee"),
-                (L_ANKLE, "LAnkle"),
-                (R_SHOULDER, "RShoulder"),
-                (R_ELBOW, "RElbow"),
-                (R_HAND, "RWrist"),
-                (L_SHOULDER, "LShoulder"),
-                (L_ELBOW, "LElbow"),
-                (L_HAND, "LWrist"),
-            ],
+            Self::Body25 | Self::Coco18 | Self::Halpe26 => {
+                let mut map = match self {
+                    Self::Body25 => vec![(ROOT, "MidHip")],
+                    Self::Halpe26 => vec![(ROOT, "Hip")],
+                    _ => Vec::new(),
+                };
+                map.extend(Self::OPENPOSE_LIMBS);
+                map
+            }
         }
     }
+
+    /// The head joint and the limbs under OpenPose's (and Halpe's) keypoint names.
+    const OPENPOSE_LIMBS: [(usize, &'static str); 13] = {
+        use skeleton::*;
+        [
+            (HEAD, "Neck"),
+            (R_HIP, "RHip"),
+            (R_KNEE, "RKnee"),
+            (R_ANKLE, "RAnkle"),
+            (L_HIP, "LHip"),
+            (L_KNEE, "LKnee"),
+            (L_ANKLE, "LAnkle"),
+            (R_SHOULDER, "RShoulder"),
+            (R_ELBOW, "RElbow"),
+            (R_HAND, "RWrist"),
+            (L_SHOULDER, "LShoulder"),
+            (L_ELBOW, "LElbow"),
+            (L_HAND, "LWrist"),
+        ]
+    };
 }
 
 /// One camera's keypoints over time.
@@ -259,8 +340,70 @@ fn openpose_frame(
     ))
 }
 
-/// Reads a COCO keypoint file: one frame per image.
+/// Reads a COCO results file, a detector's output (`[{"image_id", "keypoints", "score"?, ...}]`,
+/// as mmpose and Detectron2 write it): its image ids are taken as frame numbers, every id from
+/// the lowest to the highest is a frame (one without a detection has no visible keypoint), and a
+/// frame keeps its best-scored detection.
+fn coco_results_track(
+    list: &[Value],
+    layout: KeypointLayout,
+    name: &str,
+) -> Result<KeypointTrack, ImportError> {
+    let mut detections = Vec::with_capacity(list.len());
+    for (a, d) in list.iter().enumerate() {
+        let Some(image) = d.get("image_id").and_then(Value::as_i64) else {
+            return fail(format!("{name}: [{a}].image_id is not an integer id"));
+        };
+        let Some(kp) = d.get("keypoints") else {
+            return fail(format!("{name}: [{a}] has no \"keypoints\""));
+        };
+        let t = triples(kp, layout, &format!("{name}: [{a}].keypoints"))?;
+        let rank = d
+            .get("score")
+            .and_then(Value::as_f64)
+            .unwrap_or_else(|| confidence_sum(&t));
+        detections.push((image, rank, t));
+    }
+    let (Some(lo), Some(hi)) = (
+        detections.iter().map(|d| d.0).min(),
+        detections.iter().map(|d| d.0).max(),
+    ) else {
+        return fail(format!("{name}: an empty COCO results list (no detection)"));
+    };
+    let span = (hi - lo) as u64 + 1;
+    if span > 1_000_000 || span > 10 * detections.len() as u64 + 1000 {
+        return fail(format!(
+            "{name}: image ids {lo}…{hi} span {span} frames for {} detections: not frame numbers (give a COCO file with \"images\" listing the frames)",
+            detections.len()
+        ));
+    }
+    let span = span as usize;
+    let mut best: Vec<Option<(f64, Vec<[f64; 3]>)>> = vec![None; span];
+    let mut count = vec![0usize; span];
+    for (image, rank, t) in detections {
+        let f = (image - lo) as usize;
+        count[f] += 1;
+        if best[f].as_ref().is_none_or(|(r, _)| rank > *r) {
+            best[f] = Some((rank, t));
+        }
+    }
+    Ok(KeypointTrack {
+        format: "coco",
+        frames: best
+            .into_iter()
+            .map(|b| b.map_or_else(|| vec![[0.0; 3]; layout.count()], |(_, t)| t))
+            .collect(),
+        sources: (lo..=hi).map(|id| format!("{name}#{id}")).collect(),
+        image_sizes: vec![None; span],
+        crowded_frames: count.iter().filter(|&&c| c > 1).count(),
+    })
+}
+
+/// Reads a COCO keypoint file: one frame per image (or a results list, [`coco_results_track`]).
 fn coco_track(v: &Value, layout: KeypointLayout, name: &str) -> Result<KeypointTrack, ImportError> {
+    if let Some(list) = v.as_array() {
+        return coco_results_track(list, layout, name);
+    }
     let Some(images) = v.get("images").and_then(Value::as_array) else {
         return fail(format!("{name}: \"images\" is not an array"));
     };
@@ -402,11 +545,11 @@ pub fn read_track(paths: &[PathBuf], layout: KeypointLayout) -> Result<KeypointT
         let name = f.display().to_string();
         let format = if v.get("people").is_some() {
             "openpose"
-        } else if v.get("annotations").is_some() {
+        } else if v.get("annotations").is_some() || v.is_array() {
             "coco"
         } else {
             return fail(format!(
-                "{name}: neither an OpenPose frame (\"people\") nor a COCO keypoint file (\"annotations\")"
+                "{name}: neither an OpenPose frame (\"people\") nor a COCO keypoint file (\"annotations\") or results list"
             ));
         };
         if !track.format.is_empty() && track.format != format {
@@ -859,6 +1002,98 @@ mod tests {
         let mut names = vec![one.as_str(), nines.as_str(), "f_7.json"];
         names.sort_by_key(|n| natural_key(n));
         assert_eq!(names, ["f_7.json", nines.as_str(), one.as_str()]);
+    }
+
+    /// Every layout's default map names keypoints of that layout, each joint once; OpenPose's
+    /// COCO model and Halpe-26 read by name (their counts, the root and the neck where they have
+    /// them); a frame of 18 people's keypoints reads as `coco18`, not as `body25`.
+    #[test]
+    fn every_layout_maps_its_own_keypoints() {
+        use lfit_model::skeleton::{HEAD, ROOT};
+        for (name, count, root) in [
+            ("coco17", 17, None),
+            ("body25", 25, Some("MidHip")),
+            ("coco18", 18, None),
+            ("halpe26", 26, Some("Hip")),
+        ] {
+            let layout: KeypointLayout = name.parse().unwrap();
+            assert_eq!((layout.name(), layout.count()), (name, count));
+            let map = layout.default_map();
+            for (joint, kp) in &map {
+                assert!(layout.index(kp).is_some(), "{name}: {kp}");
+                assert_eq!(map.iter().filter(|m| m.0 == *joint).count(), 1, "{name}");
+            }
+            assert_eq!(
+                map.iter().find(|m| m.0 == ROOT).map(|m| m.1),
+                root,
+                "{name}"
+            );
+            let neck = map.iter().find(|m| m.0 == HEAD).map(|m| m.1);
+            assert_eq!(neck, (name != "coco17").then_some("Neck"), "{name}");
+            assert_eq!(
+                map.len(),
+                12 + usize::from(neck.is_some()) + usize::from(root.is_some())
+            );
+        }
+        let e = "coco19".parse::<KeypointLayout>().unwrap_err().to_string();
+        assert!(e.contains("coco17, body25, coco18 or halpe26"), "{e}");
+        let d = tempfile::tempdir().unwrap();
+        let k = flat(18, |i| [i as f64, 1.0, 0.9]);
+        write(
+            d.path(),
+            "f.json",
+            &serde_json::json!({"people": [{"pose_keypoints_2d": k}]}).to_string(),
+        );
+        let t = read_track(&[d.path().to_path_buf()], KeypointLayout::Coco18).unwrap();
+        assert_eq!(
+            t.frames[0][KeypointLayout::Coco18.index("LWrist").unwrap()],
+            [7.0, 1.0, 0.9]
+        );
+        let e = read_track(&[d.path().to_path_buf()], KeypointLayout::Body25)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("54 values, expected 75"), "{e}");
+    }
+
+    /// A detector's COCO results list: its image ids are frames, every id between the lowest
+    /// and the highest a frame (none detected: nothing seen), the best-scored detection kept;
+    /// a list without ids, an empty one and ids that cannot be frame numbers are refused.
+    #[test]
+    fn a_coco_results_list_gives_a_frame_per_image_id() {
+        let d = tempfile::tempdir().unwrap();
+        let det = |id: i64, x: f64, score: f64| serde_json::json!({"image_id": id, "category_id": 1, "keypoints": flat(17, |_| [x, 2.0, 0.8]), "score": score});
+        let list = serde_json::json!([
+            det(5, 50.0, 0.4),
+            det(3, 30.0, 0.9),
+            det(5, 51.0, 0.7),
+            det(6, 60.0, 0.5)
+        ]);
+        let p = write(d.path(), "results.json", &list.to_string());
+        let t = read_track(&[p], KeypointLayout::Coco17).unwrap();
+        assert_eq!(t.format, "coco");
+        let xs: Vec<f64> = t.frames.iter().map(|f| f[0][0]).collect();
+        assert_eq!(xs, [30.0, 0.0, 51.0, 60.0]);
+        assert_eq!(t.frames[1][0], [0.0; 3]);
+        assert!(t.sources[1].ends_with("results.json#4"), "{}", t.sources[1]);
+        assert_eq!(t.crowded_frames, 1);
+        assert!(t.image_sizes.iter().all(Option::is_none));
+        for (text, needle) in [
+            (serde_json::json!([]).to_string(), "empty COCO results list"),
+            (
+                serde_json::json!([{"keypoints": flat(17, |_| [1.0, 1.0, 1.0])}]).to_string(),
+                "[0].image_id is not an integer id",
+            ),
+            (
+                serde_json::json!([det(1, 1.0, 0.5), det(9_000_000, 1.0, 0.5)]).to_string(),
+                "not frame numbers",
+            ),
+        ] {
+            let p = write(d.path(), "bad.json", &text);
+            let e = read_track(&[p], KeypointLayout::Coco17)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(needle), "{needle}: {e}");
+        }
     }
 
     #[test]
