@@ -1,14 +1,12 @@
 //! 2D keypoint files and camera files for `lfit data import`.
 //!
-//! Two documented keypoint formats are read, told apart by their content:
+//! Three documented keypoint formats are read, told apart by their content:
 //! - **OpenPose** (`--write_json`): one file per frame, `{"people": [{"pose_keypoints_2d": [x0,
 //!   y0, c0, x1, y1, c1, ...], ...}, ...]}` with `3K` numbers per person (K = 25 for BODY_25,
-//!   17 for a COCO-17 model). A frame with several people keeps the one with the largest summed
-//!   confidence; a frame with nobody has no visible keypoint.
+//!   17 for a COCO-17 model). A frame with nobody has no visible keypoint.
 //! - **COCO keypoints** (the `person_keypoints_*.json` layout): `{"images": [{"id", "width",
 //!   "height", ...}], "annotations": [{"image_id", "keypoints": [x, y, v, ...], "score"?}]}`, one
-//!   frame per entry of `images`, in their listed order. An image with several annotations keeps
-//!   the one with the highest `score` (else the largest summed `v`); one without any has no
+//!   frame per entry of `images`, in their listed order; an image without annotations has no
 //!   visible keypoint. COCO's visibility flag v (0 unlabelled, 1 occluded, 2 visible) stands for
 //!   the confidence.
 //! - **COCO results** (a detector's output, mmpose's and Detectron2's): `[{"image_id",
@@ -16,6 +14,10 @@
 //!   the highest one frame.
 //!
 //! Layouts: COCO-17, OpenPose's BODY_25 and COCO model (18), AlphaPose's Halpe-26.
+//!
+//! Where a frame holds several people, the first such frame keeps the best-ranked (a COCO
+//! `score`, else the summed confidence) and every later frame the person nearest the one kept
+//! before (the median distance over keypoints both saw): a sequence follows one subject.
 //!
 //! A keypoint counts as seen when its confidence exceeds the chosen threshold. Pixel coordinates
 //! are taken as they are, in the camera file's image frame (x right, y down).
@@ -308,16 +310,85 @@ fn confidence_sum(t: &[[f64; 3]]) -> f64 {
     t.iter().map(|p| p[2]).sum()
 }
 
-/// Reads one OpenPose frame file.
+/// The people of each frame, each with its rank (a COCO `score`, else its summed confidence),
+/// before one is chosen per frame ([`People::choose`]).
+struct People {
+    frames: Vec<Vec<(f64, Vec<[f64; 3]>)>>,
+    sources: Vec<String>,
+    image_sizes: Vec<Option<(u32, u32)>>,
+}
+
+impl People {
+    fn extend(&mut self, other: People) {
+        self.frames.extend(other.frames);
+        self.sources.extend(other.sources);
+        self.image_sizes.extend(other.image_sizes);
+    }
+
+    /// One person per frame: where a frame has several, the first such frame keeps the
+    /// best-ranked one, and every later one the person nearest the one kept in the frame before
+    /// (the median distance over keypoints both saw), so that a sequence follows one subject
+    /// where another scores higher for a while; nobody seen: no visible keypoint.
+    fn choose(self, format: &'static str, k: usize) -> KeypointTrack {
+        let mut frames = Vec::with_capacity(self.frames.len());
+        let mut last: Option<Vec<[f64; 3]>> = None;
+        let mut crowded = 0;
+        for people in self.frames {
+            crowded += usize::from(people.len() > 1);
+            let best = |people: &[(f64, Vec<[f64; 3]>)]| {
+                (1..people.len()).fold(0, |b, i| if people[i].0 > people[b].0 { i } else { b })
+            };
+            let pick = match (&last, people.len()) {
+                (_, 0) => None,
+                (_, 1) | (None, _) => Some(best(&people)),
+                (Some(prev), _) => {
+                    let distance = |t: &[[f64; 3]]| {
+                        let mut d: Vec<f64> = t
+                            .iter()
+                            .zip(prev)
+                            .filter(|(a, b)| a[2] > 0.0 && b[2] > 0.0)
+                            .map(|(a, b)| (a[0] - b[0]).hypot(a[1] - b[1]))
+                            .collect();
+                        d.sort_by(f64::total_cmp);
+                        d.get(d.len() / 2).copied()
+                    };
+                    let near = people
+                        .iter()
+                        .enumerate()
+                        .filter_map(|(i, p)| distance(&p.1).map(|d| (i, d)))
+                        .min_by(|a, b| a.1.total_cmp(&b.1));
+                    Some(near.map_or_else(|| best(&people), |n| n.0))
+                }
+            };
+            match pick {
+                Some(i) => {
+                    let t = people[i].1.clone();
+                    last = Some(t.clone());
+                    frames.push(t);
+                }
+                None => frames.push(vec![[0.0; 3]; k]),
+            }
+        }
+        KeypointTrack {
+            format,
+            frames,
+            sources: self.sources,
+            image_sizes: self.image_sizes,
+            crowded_frames: crowded,
+        }
+    }
+}
+
+/// Reads one OpenPose frame file: its people, ranked by summed confidence.
 fn openpose_frame(
     v: &Value,
     layout: KeypointLayout,
     name: &str,
-) -> Result<(Vec<[f64; 3]>, usize), ImportError> {
+) -> Result<Vec<(f64, Vec<[f64; 3]>)>, ImportError> {
     let Some(people) = v.get("people").and_then(Value::as_array) else {
         return fail(format!("{name}: \"people\" is not an array"));
     };
-    let mut best: Option<Vec<[f64; 3]>> = None;
+    let mut found = Vec::with_capacity(people.len());
     for (i, p) in people.iter().enumerate() {
         let Some(kp) = p.get("pose_keypoints_2d") else {
             return fail(format!("{name}: people[{i}] has no \"pose_keypoints_2d\""));
@@ -327,28 +398,20 @@ fn openpose_frame(
             layout,
             &format!("{name}: people[{i}].pose_keypoints_2d"),
         )?;
-        if best
-            .as_ref()
-            .is_none_or(|b| confidence_sum(&t) > confidence_sum(b))
-        {
-            best = Some(t);
-        }
+        found.push((confidence_sum(&t), t));
     }
-    Ok((
-        best.unwrap_or_else(|| vec![[0.0; 3]; layout.count()]),
-        people.len(),
-    ))
+    Ok(found)
 }
 
 /// Reads a COCO results file, a detector's output (`[{"image_id", "keypoints", "score"?, ...}]`,
 /// as mmpose and Detectron2 write it): its image ids are taken as frame numbers, every id from
-/// the lowest to the highest is a frame (one without a detection has no visible keypoint), and a
-/// frame keeps its best-scored detection.
+/// the lowest to the highest is a frame (one without a detection has no visible keypoint); one
+/// person is kept per frame by [`People::choose`].
 fn coco_results_track(
     list: &[Value],
     layout: KeypointLayout,
     name: &str,
-) -> Result<KeypointTrack, ImportError> {
+) -> Result<People, ImportError> {
     let mut detections = Vec::with_capacity(list.len());
     for (a, d) in list.iter().enumerate() {
         let Some(image) = d.get("image_id").and_then(Value::as_i64) else {
@@ -378,29 +441,19 @@ fn coco_results_track(
         ));
     }
     let span = span as usize;
-    let mut best: Vec<Option<(f64, Vec<[f64; 3]>)>> = vec![None; span];
-    let mut count = vec![0usize; span];
+    let mut frames = vec![Vec::new(); span];
     for (image, rank, t) in detections {
-        let f = (image - lo) as usize;
-        count[f] += 1;
-        if best[f].as_ref().is_none_or(|(r, _)| rank > *r) {
-            best[f] = Some((rank, t));
-        }
+        frames[(image - lo) as usize].push((rank, t));
     }
-    Ok(KeypointTrack {
-        format: "coco",
-        frames: best
-            .into_iter()
-            .map(|b| b.map_or_else(|| vec![[0.0; 3]; layout.count()], |(_, t)| t))
-            .collect(),
+    Ok(People {
+        frames,
         sources: (lo..=hi).map(|id| format!("{name}#{id}")).collect(),
         image_sizes: vec![None; span],
-        crowded_frames: count.iter().filter(|&&c| c > 1).count(),
     })
 }
 
 /// Reads a COCO keypoint file: one frame per image (or a results list, [`coco_results_track`]).
-fn coco_track(v: &Value, layout: KeypointLayout, name: &str) -> Result<KeypointTrack, ImportError> {
+fn coco_track(v: &Value, layout: KeypointLayout, name: &str) -> Result<People, ImportError> {
     if let Some(list) = v.as_array() {
         return coco_results_track(list, layout, name);
     }
@@ -431,8 +484,7 @@ fn coco_track(v: &Value, layout: KeypointLayout, name: &str) -> Result<KeypointT
             _ => None,
         });
     }
-    let mut best: Vec<Option<(f64, Vec<[f64; 3]>)>> = vec![None; ids.len()];
-    let mut count = vec![0usize; ids.len()];
+    let mut frames = vec![Vec::new(); ids.len()];
     for (a, ann) in annotations.iter().enumerate() {
         let image = id_of(
             ann.get("image_id").unwrap_or(&Value::Null),
@@ -451,20 +503,12 @@ fn coco_track(v: &Value, layout: KeypointLayout, name: &str) -> Result<KeypointT
             .get("score")
             .and_then(Value::as_f64)
             .unwrap_or_else(|| confidence_sum(&t));
-        count[frame] += 1;
-        if best[frame].as_ref().is_none_or(|(r, _)| rank > *r) {
-            best[frame] = Some((rank, t));
-        }
+        frames[frame].push((rank, t));
     }
-    Ok(KeypointTrack {
-        format: "coco",
-        frames: best
-            .into_iter()
-            .map(|b| b.map_or_else(|| vec![[0.0; 3]; layout.count()], |(_, t)| t))
-            .collect(),
+    Ok(People {
+        frames,
         sources: ids.iter().map(|id| format!("{name}#{id}")).collect(),
         image_sizes: sizes,
-        crowded_frames: count.iter().filter(|&&c| c > 1).count(),
     })
 }
 
@@ -533,13 +577,12 @@ pub fn read_track(paths: &[PathBuf], layout: KeypointLayout) -> Result<KeypointT
             files.push(p.clone());
         }
     }
-    let mut track = KeypointTrack {
-        format: "",
+    let mut people = People {
         frames: Vec::new(),
         sources: Vec::new(),
         image_sizes: Vec::new(),
-        crowded_frames: 0,
     };
+    let mut track_format = "";
     for f in &files {
         let v = read_json(f)?;
         let name = f.display().to_string();
@@ -552,31 +595,24 @@ pub fn read_track(paths: &[PathBuf], layout: KeypointLayout) -> Result<KeypointT
                 "{name}: neither an OpenPose frame (\"people\") nor a COCO keypoint file (\"annotations\") or results list"
             ));
         };
-        if !track.format.is_empty() && track.format != format {
+        if !track_format.is_empty() && track_format != format {
             return fail(format!(
-                "{name} is a {format} file but the files before it are {}",
-                track.format
+                "{name} is a {format} file but the files before it are {track_format}"
             ));
         }
-        track.format = format;
+        track_format = format;
         if format == "openpose" {
-            let (t, people) = openpose_frame(&v, layout, &name)?;
-            track.frames.push(t);
-            track.sources.push(name);
-            track.image_sizes.push(None);
-            track.crowded_frames += usize::from(people > 1);
+            people.frames.push(openpose_frame(&v, layout, &name)?);
+            people.sources.push(name);
+            people.image_sizes.push(None);
         } else {
-            let c = coco_track(&v, layout, &name)?;
-            track.frames.extend(c.frames);
-            track.sources.extend(c.sources);
-            track.image_sizes.extend(c.image_sizes);
-            track.crowded_frames += c.crowded_frames;
+            people.extend(coco_track(&v, layout, &name)?);
         }
     }
-    if track.frames.is_empty() {
+    if people.frames.is_empty() {
         return fail("the keypoint files hold no frame");
     }
-    Ok(track)
+    Ok(people.choose(track_format, layout.count()))
 }
 
 /// One camera of a camera file: lfit's own keys, or OpenCV's calibration output (`K`, `R` or
@@ -1056,7 +1092,7 @@ mod tests {
     }
 
     /// A detector's COCO results list: its image ids are frames, every id between the lowest
-    /// and the highest a frame (none detected: nothing seen), the best-scored detection kept;
+    /// and the highest a frame (none detected: nothing seen), one person followed;
     /// a list without ids, an empty one and ids that cannot be frame numbers are refused.
     #[test]
     fn a_coco_results_list_gives_a_frame_per_image_id() {
@@ -1065,14 +1101,15 @@ mod tests {
         let list = serde_json::json!([
             det(5, 50.0, 0.4),
             det(3, 30.0, 0.9),
-            det(5, 51.0, 0.7),
+            det(5, 90.0, 0.7),
             det(6, 60.0, 0.5)
         ]);
         let p = write(d.path(), "results.json", &list.to_string());
         let t = read_track(&[p], KeypointLayout::Coco17).unwrap();
         assert_eq!(t.format, "coco");
         let xs: Vec<f64> = t.frames.iter().map(|f| f[0][0]).collect();
-        assert_eq!(xs, [30.0, 0.0, 51.0, 60.0]);
+        // Frame 5's two detections: the one nearer the person of frame 3, not the higher score.
+        assert_eq!(xs, [30.0, 0.0, 50.0, 60.0]);
         assert_eq!(t.frames[1][0], [0.0; 3]);
         assert!(t.sources[1].ends_with("results.json#4"), "{}", t.sources[1]);
         assert_eq!(t.crowded_frames, 1);
@@ -1094,6 +1131,38 @@ mod tests {
                 .to_string();
             assert!(e.contains(needle), "{needle}: {e}");
         }
+    }
+
+    /// With two people in view a sequence follows the one it started with: the first crowded
+    /// frame keeps the more confident, later frames the person nearest the one kept before, even
+    /// where the other is more confident; a frame with one person keeps that one and the
+    /// sequence follows it from there.
+    #[test]
+    fn a_sequence_follows_one_person_through_crowded_frames() {
+        let d = tempfile::tempdir().unwrap();
+        let person = |x: f64, c: f64| flat(25, |i| [x + i as f64, 100.0 + i as f64, c]);
+        let frames = [
+            vec![person(100.0, 0.9), person(500.0, 0.5)],
+            vec![person(500.0, 0.95), person(104.0, 0.6)],
+            vec![person(108.0, 0.4), person(502.0, 0.9)],
+            vec![person(504.0, 0.8)],
+            vec![person(112.0, 0.9), person(506.0, 0.3)],
+        ];
+        for (f, people) in frames.iter().enumerate() {
+            let people: Vec<Value> = people
+                .iter()
+                .map(|k| serde_json::json!({"pose_keypoints_2d": k}))
+                .collect();
+            write(
+                d.path(),
+                &format!("v_{f:012}_keypoints.json"),
+                &serde_json::json!({ "people": people }).to_string(),
+            );
+        }
+        let t = read_track(&[d.path().to_path_buf()], KeypointLayout::Body25).unwrap();
+        let xs: Vec<f64> = t.frames.iter().map(|f| f[0][0]).collect();
+        assert_eq!(xs, [100.0, 104.0, 108.0, 504.0, 506.0]);
+        assert_eq!(t.crowded_frames, 4);
     }
 
     #[test]
