@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 
 use lfit::synth::capture::c3d::{C3d, C3dPoint, Processor};
 use lfit::synth::capture::keypoints::{COCO17, Distortion, KeypointLayout, cameras_json};
+use lfit::synth::capture::trc::to_trc;
 use lfit::synth::{Dataset, Observations};
 use serde_json::{Value, json};
 use support::{assert_one_line_error, lfit, lfit_json, path_str};
@@ -263,6 +264,50 @@ fn c3d_markers_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     }
     eprintln!("C3D (integer, 0.1 mm) import: max coordinate error {max_int:.3e} m");
     assert!(max_int <= 5.1e-5);
+
+    // The same points as an OpenSim TRC file (`--trc`): the C3D import's dataset to the bit; the
+    // summary says which format; `--label-map` without a marker file and both files refused.
+    let trc = d.join("capture.trc");
+    // (Written from the C3D as read: its float points are f32.)
+    let as_read = C3d::read(&file).expect("C3D");
+    std::fs::write(&trc, to_trc(&as_read, "capture.trc")).expect("write");
+    let out_trc = d.join("imported_trc.npz");
+    assert_eq!(summary["import"]["format"], "c3d");
+    let t = lfit_json(&[
+        "-q",
+        "data",
+        "import",
+        "--trc",
+        path_str(&trc),
+        "--label-map",
+        path_str(&map_file),
+        "--out",
+        path_str(&out_trc),
+    ]);
+    assert_eq!(t["import"]["format"], "trc");
+    assert!(t["import"].get("point_format").is_none());
+    assert_eq!(t["source"]["trc"], path_str(&trc));
+    assert_eq!(t["import"]["map"], summary["import"]["map"]);
+    let from_trc = Dataset::load(&out_trc).expect("imported");
+    assert_eq!(sparse(&from_trc), sparse(&imported));
+    assert_eq!(from_trc.start_poses, imported.start_poses);
+    for (extra, needle) in [
+        (
+            vec!["--trc", path_str(&trc), "--c3d", path_str(&file)],
+            "cannot be used with",
+        ),
+        (
+            vec!["--label-map", path_str(&map_file)],
+            "--label-map maps a marker file's labels",
+        ),
+    ] {
+        let never = d.join("never.npz");
+        let mut a = vec!["data", "import", "--out", path_str(&never)];
+        a.extend(extra);
+        let o = lfit(&a);
+        assert_one_line_error(&o, needle);
+        assert!(!never.exists());
+    }
 
     let [lm, nn] = fit_both(d, &out, "markers", "mm");
     // Noise-free markers: LM explains them to under a mm, from the first frame on (its start the
@@ -690,7 +735,7 @@ fn bad_input_is_one_line_and_writes_nothing() {
         "--keypoints",
         path_str(&kp),
         "--layout",
-        "coco18",
+        "coco19",
         "--camera",
         path_str(&cams),
         "--out",

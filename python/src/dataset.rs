@@ -1,6 +1,6 @@
 //! `lfit.Dataset` (frames of observations with their start poses and, for synthetic data, the
 //! ground truth) and `lfit.Motion` (an imported motion), with the functions that make them:
-//! `load_dataset`, `synth`, `import_c3d`, `import_keypoints`, `import_bvh`.
+//! `load_dataset`, `synth`, `import_c3d`, `import_trc`, `import_keypoints`, `import_bvh`.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -338,6 +338,38 @@ pub fn import_c3d(
 ) -> PyResult<Dataset> {
     let args = lfit::api::DataImportArgs {
         c3d: Some(path),
+        trc: None,
+        label_map,
+        up: up.to_string(),
+        keypoints: Vec::new(),
+        layout: None,
+        camera: None,
+        keypoint_map: None,
+        min_confidence: 0.1,
+        fps: 30.0,
+        scenario: scenario.to_string(),
+        model: None,
+        out: out.clone().unwrap_or_default(),
+    };
+    data_import(py, args, model, out)
+}
+
+/// Imports 3D markers from a TRC file (OpenSim's text format: OpenCap's, Motive's, Cortex's) as
+/// `lfit data import --trc` does; the arguments as [`import_c3d`]'s.
+#[pyfunction]
+#[pyo3(signature = (path, model=None, *, label_map=None, up="y", scenario="sequence", out=None))]
+pub fn import_trc(
+    py: Python<'_>,
+    path: PathBuf,
+    model: Option<&Bound<'_, PyAny>>,
+    label_map: Option<PathBuf>,
+    up: &str,
+    scenario: &str,
+    out: Option<PathBuf>,
+) -> PyResult<Dataset> {
+    let args = lfit::api::DataImportArgs {
+        c3d: None,
+        trc: Some(path),
         label_map,
         up: up.to_string(),
         keypoints: Vec::new(),
@@ -379,6 +411,7 @@ pub fn import_keypoints(
     }
     let args = lfit::api::DataImportArgs {
         c3d: None,
+        trc: None,
         label_map: None,
         up: up.into(),
         keypoints: paths,

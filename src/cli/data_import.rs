@@ -77,12 +77,16 @@ fn parse_translation(text: &str) -> Result<[f64; 3]> {
 #[derive(Debug, clap::Args)]
 pub struct ImportArgs {
     /// C3D file of 3D marker trajectories (markers modality).
-    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map"])]
+    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "trc"])]
     pub c3d: Option<PathBuf>,
+    /// TRC file of 3D marker trajectories (OpenSim's text format, as OpenCap, Motive and Cortex
+    /// write it; markers modality): read as a C3D's points, mapped and fitted alike.
+    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map"])]
+    pub trc: Option<PathBuf>,
     /// JSON object {"C3D label": "model marker", ...} ("#K": the file's point K, counted from 0,
     /// for a label the file repeats); default: C3D labels equal to the model's marker names, bare
     /// or after one subject's prefix (Vicon's SUBJECT:NAME; the summary's "subject").
-    #[arg(long, requires = "c3d")]
+    #[arg(long)]
     pub label_map: Option<PathBuf>,
     /// Up axis of the C3D's lab frame or of the camera file's world: y, z (points converted
     /// by (x, y, z) -> (x, z, -y), as `lfit motion import --up z`, and the cameras turned with
@@ -256,10 +260,21 @@ pub fn import_dataset(
     };
     let scenario: Scenario = args.scenario.parse()?;
     let up: lfit_synth::motion::retarget::Up = args.up.parse().map_err(anyhow::Error::msg)?;
-    let (imported, source) = match (&args.c3d, args.keypoints.is_empty()) {
-        (Some(_), false) => bail!("give either --c3d or --keypoints, not both"),
-        (None, true) => bail!("lfit data import needs --c3d FILE or --keypoints FILE..."),
-        (Some(path), true) => {
+    let markers = match (&args.c3d, &args.trc) {
+        (Some(_), Some(_)) => bail!("give either --c3d or --trc, not both"),
+        (Some(p), None) => Some((p, false)),
+        (None, Some(p)) => Some((p, true)),
+        (None, None) => None,
+    };
+    if markers.is_none() && args.label_map.is_some() {
+        bail!("--label-map maps a marker file's labels: give it with --c3d or --trc");
+    }
+    let (imported, source) = match (markers, args.keypoints.is_empty()) {
+        (Some(_), false) => bail!("give either --c3d/--trc or --keypoints, not both"),
+        (None, true) => {
+            bail!("lfit data import needs --c3d FILE, --trc FILE or --keypoints FILE...")
+        }
+        (Some((path, trc)), true) => {
             let map = args
                 .label_map
                 .as_deref()
@@ -272,14 +287,29 @@ pub fn import_dataset(
                 .transpose()
                 .context("label map")?;
             let template = load()?;
-            let c3d = C3d::read(path).with_context(|| format!("C3D file {}", path.display()))?;
+            let kind = if trc { "TRC" } else { "C3D" };
+            let c3d = if trc {
+                lfit_synth::capture::trc::read_trc(path)
+            } else {
+                C3d::read(path)
+            }
+            .with_context(|| format!("{kind} file {}", path.display()))?;
             let name = path.file_name().map_or_else(
                 || path.display().to_string(),
                 |n| n.to_string_lossy().into(),
             );
-            let imported = import_c3d(&c3d, &name, map.as_deref(), &template, scenario, up)
-                .with_context(|| format!("C3D file {}", path.display()))?;
-            (imported, json!({ "c3d": path }))
+            let mut imported = import_c3d(&c3d, &name, map.as_deref(), &template, scenario, up)
+                .with_context(|| format!("{kind} file {}", path.display()))?;
+            if trc {
+                // Text points: no C3D storage format to report.
+                imported.report["format"] = json!("trc");
+                if let Some(r) = imported.report.as_object_mut() {
+                    r.remove("point_format");
+                }
+                (imported, json!({ "trc": path }))
+            } else {
+                (imported, json!({ "c3d": path }))
+            }
         }
         (None, false) => {
             let Some(layout) = &args.layout else {

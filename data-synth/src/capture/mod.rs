@@ -1,6 +1,6 @@
-//! Captured observations into datasets (`lfit data import`): C3D marker files ([`c3d`]), 2D
-//! keypoint and camera files ([`keypoints`]), and their import onto a model with rigid start poses
-//! and observation errors ([`import`]).
+//! Captured observations into datasets (`lfit data import`): C3D marker files ([`c3d`]), TRC
+//! marker files ([`trc`], read as a C3D's points), 2D keypoint and camera files ([`keypoints`]),
+//! and their import onto a model with rigid start poses and observation errors ([`import`]).
 
 use std::path::PathBuf;
 
@@ -9,6 +9,7 @@ use crate::error::SynthError;
 pub mod c3d;
 pub mod import;
 pub mod keypoints;
+pub mod trc;
 
 /// Errors of the import: each a one-line cause.
 #[derive(Debug, thiserror::Error)]

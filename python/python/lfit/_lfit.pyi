@@ -261,6 +261,17 @@ def import_c3d(
 ) -> Dataset:
     """``lfit data import --c3d``."""
 
+def import_trc(
+    path: _Path,
+    model: Optional[_ModelArg] = None,
+    *,
+    label_map: Optional[_Path] = None,
+    up: str = "y",
+    scenario: str = "sequence",
+    out: Optional[_Path] = None,
+) -> Dataset:
+    """``lfit data import --trc``."""
+
 def import_keypoints(
     paths: Sequence[_Path],
     layout: str,
