@@ -320,6 +320,32 @@ fn data_import(
     finish(py, data, summary, out)
 }
 
+/// `lfit data import`'s arguments for a marker file (`--c3d` or `--trc`).
+fn marker_file_args(
+    c3d: Option<PathBuf>,
+    trc: Option<PathBuf>,
+    label_map: Option<PathBuf>,
+    up: &str,
+    scenario: &str,
+    out: &Option<PathBuf>,
+) -> lfit::api::DataImportArgs {
+    lfit::api::DataImportArgs {
+        c3d,
+        trc,
+        label_map,
+        up: up.to_string(),
+        keypoints: Vec::new(),
+        layout: None,
+        camera: None,
+        keypoint_map: None,
+        min_confidence: 0.1,
+        fps: 30.0,
+        scenario: scenario.to_string(),
+        model: None,
+        out: out.clone().unwrap_or_default(),
+    }
+}
+
 /// Imports 3D markers from a C3D file as `lfit data import --c3d` does: a `markers` dataset
 /// without ground truth for `model` (default: the procedural body). `label_map`: a JSON file
 /// `{"C3D label": "model marker"}` (a key `"#K"`: the file's point K, counted from 0, for a label
@@ -336,21 +362,7 @@ pub fn import_c3d(
     scenario: &str,
     out: Option<PathBuf>,
 ) -> PyResult<Dataset> {
-    let args = lfit::api::DataImportArgs {
-        c3d: Some(path),
-        trc: None,
-        label_map,
-        up: up.to_string(),
-        keypoints: Vec::new(),
-        layout: None,
-        camera: None,
-        keypoint_map: None,
-        min_confidence: 0.1,
-        fps: 30.0,
-        scenario: scenario.to_string(),
-        model: None,
-        out: out.clone().unwrap_or_default(),
-    };
+    let args = marker_file_args(Some(path), None, label_map, up, scenario, &out);
     data_import(py, args, model, out)
 }
 
@@ -367,21 +379,7 @@ pub fn import_trc(
     scenario: &str,
     out: Option<PathBuf>,
 ) -> PyResult<Dataset> {
-    let args = lfit::api::DataImportArgs {
-        c3d: None,
-        trc: Some(path),
-        label_map,
-        up: up.to_string(),
-        keypoints: Vec::new(),
-        layout: None,
-        camera: None,
-        keypoint_map: None,
-        min_confidence: 0.1,
-        fps: 30.0,
-        scenario: scenario.to_string(),
-        model: None,
-        out: out.clone().unwrap_or_default(),
-    };
+    let args = marker_file_args(None, Some(path), label_map, up, scenario, &out);
     data_import(py, args, model, out)
 }
 

@@ -794,26 +794,36 @@ pub fn add_height_priors(
     let template = first.template().clone();
     let base = stature_prior(&template)?;
     let shape = template.layout().range(Block::Shape);
-    let [low, high] = setting.std_m;
     frames.energies = frames
         .energies
         .par_iter()
         .zip(&frames.dataset.gt_poses)
         .enumerate()
         .map(|(i, (e, gt))| {
-            let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            rng.set_stream(i as u64);
-            if !rng.random_bool(setting.rate) {
+            let Some((std, z)) = row_draw(seed, i, setting.rate, setting.std_m) else {
                 return Ok(e.clone());
-            }
-            let std = (low.ln() + (high.ln() - low.ln()) * rng.random::<f64>()).exp();
-            let z: f64 = rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut rng);
+            };
             let truth = base.rest_height(&template, &gt[shape.clone()]);
             let prior = base.at((truth + std * z).max(0.1 * truth))?.with_std(std)?;
             e.with_height_prior(&prior)
         })
         .collect::<Result<Vec<_>, _>>()?;
     Ok(())
+}
+
+/// Frame `i`'s draw for a row of `"height_prior"` or `"floor"`, from stream `i` of `seed`:
+/// `None` where it gets none (probability `1 − rate`), else its σ (log-uniform in `std_m`) and a
+/// standard normal draw for its error.
+fn row_draw(seed: u64, i: usize, rate: f64, std_m: [f64; 2]) -> Option<(f64, f64)> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(i as u64);
+    if !rng.random_bool(rate) {
+        return None;
+    }
+    let [low, high] = std_m;
+    let std = (low.ln() + (high.ln() - low.ln()) * rng.random::<f64>()).exp();
+    let z: f64 = rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut rng);
+    Some((std, z))
 }
 
 /// Gives frames of `frames` a `contact` floor ([`FloorTraining`]): frame `i` draws from stream
@@ -824,20 +834,15 @@ pub fn add_floors(frames: &mut Frames, setting: &FloorTraining, seed: u64) -> Re
         return Ok(());
     };
     let base = FloorPrior::new(first.template(), 0.0, setting.std_m[0], FloorForm::Contact)?;
-    let [low, high] = setting.std_m;
     frames.energies = frames
         .energies
         .par_iter()
         .zip(&frames.dataset.gt_poses)
         .enumerate()
         .map(|(i, (e, gt))| {
-            let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            rng.set_stream(i as u64);
-            if !rng.random_bool(setting.rate) {
+            let Some((std, z)) = row_draw(seed, i, setting.rate, setting.std_m) else {
                 return Ok(e.clone());
-            }
-            let std = (low.ln() + (high.ln() - low.ln()) * rng.random::<f64>()).exp();
-            let z: f64 = rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut rng);
+            };
             let sole = e.lowest_sole(&base, gt)?;
             let floor = base.at(sole + setting.offset_m * z)?.with_std(std)?;
             e.with_floor(&floor)

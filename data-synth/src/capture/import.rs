@@ -1368,42 +1368,24 @@ mod tests {
                 })
                 .collect()
         };
-        let e = import_keypoints(
-            &scaled(1.0 / 640.0),
-            cams.clone(),
-            layout,
-            None,
-            0.1,
-            30.0,
-            &t,
-            Scenario::Local,
-        )
-        .unwrap_err();
+        let with_ring = |tracks: &[KeypointTrack]| {
+            import_keypoints(
+                tracks,
+                cams.clone(),
+                layout,
+                None,
+                0.1,
+                30.0,
+                &t,
+                Scenario::Local,
+            )
+        };
+        let e = with_ring(&scaled(1.0 / 640.0)).unwrap_err();
         assert!(e.to_string().contains("normalised coordinates"), "{e}");
-        let e = import_keypoints(
-            &scaled(4.0),
-            cams.clone(),
-            layout,
-            None,
-            0.1,
-            30.0,
-            &t,
-            Scenario::Local,
-        )
-        .unwrap_err();
+        let e = with_ring(&scaled(4.0)).unwrap_err();
         assert!(e.to_string().contains("another resolution"), "{e}");
-        // Twice the pixels (a tall subject near the edge) still imports.
-        import_keypoints(
-            &scaled(1.2),
-            cams.clone(),
-            layout,
-            None,
-            0.1,
-            30.0,
-            &t,
-            Scenario::Local,
-        )
-        .unwrap();
+        // A fifth more pixels (a tall subject near the edge) still imports.
+        with_ring(&scaled(1.2)).unwrap();
         // Wrong sizes and counts.
         let mut small = cams.clone();
         small[2].width = 320;
