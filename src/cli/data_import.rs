@@ -2,8 +2,10 @@
 //!
 //! - `--c3d FILE [--label-map MAP.json]`: 3D markers from a C3D file (`lfit_synth::capture::c3d`), each
 //!   C3D label that the map names (`{"C3D label": "model marker", ...}`; without a map, labels
-//!   equal to a model marker's name, bare or after one subject's `SUBJECT:` prefix) onto that marker of the model's `markers` modality; gaps and
-//!   markers no label maps to are invisible entries. Units from `POINT:UNITS` (mm, cm, m).
+//!   equal to a model marker's name, bare or after one subject's `SUBJECT:` prefix) onto that
+//!   marker of the model's `markers` modality; gaps and markers no label maps to are invisible
+//!   entries. Units from `POINT:UNITS` (mm, cm, m). `--trc FILE`: the same from OpenSim's TRC
+//!   text format (`lfit_synth::capture::trc`).
 //! - `--keypoints PATH... --layout coco17|body25|coco18|halpe26 --camera CAMERAS.json [--keypoint-map MAP.json]`:
 //!   2D keypoints (COCO keypoint files or OpenPose frame files/folders, `lfit_synth::capture::keypoints`)
 //!   in calibrated cameras as the `keypoints2d` modality; one path per camera in the camera
@@ -105,7 +107,9 @@ pub struct ImportArgs {
     #[arg(long)]
     pub layout: Option<String>,
     /// Camera file: {"cameras": [{"fx", "fy", "cx", "cy", "width", "height", "rotation": 3×3
-    /// camera-from-world, "translation": [3] metres}, ...]} (OpenCV axes).
+    /// camera-from-world, "translation": [3] metres}, ...]} (OpenCV axes), or per camera
+    /// OpenCV's keys: "K", "R" or "rvec", "t" or "tvec", "resolution"; "dist" (OpenCV's k1 k2
+    /// p1 p2 [k3 [k4 k5 k6]]) undistorts that camera's keypoints.
     #[arg(long)]
     pub camera: Option<PathBuf>,
     /// JSON object {"model joint": "keypoint name", ...} replacing the layout's default map.
