@@ -385,7 +385,8 @@ pub fn import_trc(
 
 /// Imports 2D keypoints (COCO keypoint files, or OpenPose frame files/folders; one path per
 /// camera) in calibrated cameras as `lfit data import --keypoints` does: a `keypoints2d`
-/// dataset without ground truth. `layout`: `coco17`, `body25`, `coco18` or `halpe26`; `camera`: the camera JSON file;
+/// dataset without ground truth. `layout`: `coco17`, `body25`, `coco18`, `halpe26` or
+/// `wholebody133`; `camera`: the camera JSON file;
 /// `up`: its world's up axis, `y`, `z` or `"x,y,z"` (`lfit data import --up`: a Z-up world, or
 /// one whose up is that direction, is turned into lfit's Y-up one).
 #[pyfunction]

@@ -6,7 +6,8 @@
 //!   marker of the model's `markers` modality; gaps and markers no label maps to are invisible
 //!   entries. Units from `POINT:UNITS` (mm, cm, m). `--trc FILE`: the same from OpenSim's TRC
 //!   text format (`lfit_synth::capture::trc`).
-//! - `--keypoints PATH... --layout coco17|body25|coco18|halpe26 --camera CAMERAS.json [--keypoint-map MAP.json]`:
+//! - `--keypoints PATH... --layout coco17|body25|coco18|halpe26|wholebody133 --camera CAMERAS.json
+//!   [--keypoint-map MAP.json]`:
 //!   2D keypoints (COCO keypoint files or OpenPose frame files/folders, `lfit_synth::capture::keypoints`)
 //!   in calibrated cameras as the `keypoints2d` modality; one path per camera in the camera
 //!   file's order (or, with one camera, any number of paths in frame order); a keypoint is seen
@@ -103,7 +104,8 @@ pub struct ImportArgs {
     /// one per camera in the camera file's order, or any number for a single camera.
     #[arg(long, num_args = 1..)]
     pub keypoints: Vec<PathBuf>,
-    /// Keypoint layout: coco17, body25, coco18 (OpenPose's COCO model) or halpe26 (AlphaPose).
+    /// Keypoint layout: coco17, body25, coco18 (OpenPose's COCO model), halpe26 (AlphaPose) or
+    /// wholebody133 (COCO-WholeBody: DWPose, RTMPose).
     #[arg(long)]
     pub layout: Option<String>,
     /// Camera file: {"cameras": [{"fx", "fy", "cx", "cy", "width", "height", "rotation": 3×3
@@ -317,7 +319,7 @@ pub fn import_dataset(
         }
         (None, false) => {
             let Some(layout) = &args.layout else {
-                bail!("--keypoints needs --layout coco17|body25|coco18|halpe26");
+                bail!("--keypoints needs --layout coco17|body25|coco18|halpe26|wholebody133");
             };
             let layout: KeypointLayout = layout.parse()?;
             let Some(camera) = &args.camera else {

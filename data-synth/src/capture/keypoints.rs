@@ -13,7 +13,8 @@
 //!   "keypoints", "score"?}, ...]`; the image ids are frame numbers, every id from the lowest to
 //!   the highest one frame.
 //!
-//! Layouts: COCO-17, OpenPose's BODY_25 and COCO model (18), AlphaPose's Halpe-26.
+//! Layouts: COCO-17, OpenPose's BODY_25 and COCO model (18), AlphaPose's Halpe-26,
+//! COCO-WholeBody's 133 (its body part mapped as COCO-17's).
 //!
 //! Where a frame holds several people, the first such frame keeps the best-ranked (a COCO
 //! `score`, else the summed confidence) and every later frame the person nearest the one kept
@@ -55,6 +56,8 @@ pub enum KeypointLayout {
     Coco18,
     /// AlphaPose's Halpe-26 (COCO's 17, then head, neck, hip and six foot keypoints).
     Halpe26,
+    /// COCO-WholeBody's 133 (COCO's 17 first, then feet, face and hands).
+    CocoWholeBody,
 }
 
 /// COCO-17 keypoint names, in order.
@@ -159,6 +162,144 @@ pub const HALPE26: [&str; 26] = [
     "RHeel",
 ];
 
+/// COCO-WholeBody keypoint names, in order (133: COCO's 17, six foot, 68 face and 2 × 21 hand
+/// keypoints; Jin et al. 2020 — DWPose's and RTMPose's whole-body output).
+pub const COCO_WHOLEBODY: [&str; 133] = [
+    "nose",
+    "left_eye",
+    "right_eye",
+    "left_ear",
+    "right_ear",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_hip",
+    "right_hip",
+    "left_knee",
+    "right_knee",
+    "left_ankle",
+    "right_ankle",
+    "left_big_toe",
+    "left_small_toe",
+    "left_heel",
+    "right_big_toe",
+    "right_small_toe",
+    "right_heel",
+    "face_0",
+    "face_1",
+    "face_2",
+    "face_3",
+    "face_4",
+    "face_5",
+    "face_6",
+    "face_7",
+    "face_8",
+    "face_9",
+    "face_10",
+    "face_11",
+    "face_12",
+    "face_13",
+    "face_14",
+    "face_15",
+    "face_16",
+    "face_17",
+    "face_18",
+    "face_19",
+    "face_20",
+    "face_21",
+    "face_22",
+    "face_23",
+    "face_24",
+    "face_25",
+    "face_26",
+    "face_27",
+    "face_28",
+    "face_29",
+    "face_30",
+    "face_31",
+    "face_32",
+    "face_33",
+    "face_34",
+    "face_35",
+    "face_36",
+    "face_37",
+    "face_38",
+    "face_39",
+    "face_40",
+    "face_41",
+    "face_42",
+    "face_43",
+    "face_44",
+    "face_45",
+    "face_46",
+    "face_47",
+    "face_48",
+    "face_49",
+    "face_50",
+    "face_51",
+    "face_52",
+    "face_53",
+    "face_54",
+    "face_55",
+    "face_56",
+    "face_57",
+    "face_58",
+    "face_59",
+    "face_60",
+    "face_61",
+    "face_62",
+    "face_63",
+    "face_64",
+    "face_65",
+    "face_66",
+    "face_67",
+    "left_hand_0",
+    "left_hand_1",
+    "left_hand_2",
+    "left_hand_3",
+    "left_hand_4",
+    "left_hand_5",
+    "left_hand_6",
+    "left_hand_7",
+    "left_hand_8",
+    "left_hand_9",
+    "left_hand_10",
+    "left_hand_11",
+    "left_hand_12",
+    "left_hand_13",
+    "left_hand_14",
+    "left_hand_15",
+    "left_hand_16",
+    "left_hand_17",
+    "left_hand_18",
+    "left_hand_19",
+    "left_hand_20",
+    "right_hand_0",
+    "right_hand_1",
+    "right_hand_2",
+    "right_hand_3",
+    "right_hand_4",
+    "right_hand_5",
+    "right_hand_6",
+    "right_hand_7",
+    "right_hand_8",
+    "right_hand_9",
+    "right_hand_10",
+    "right_hand_11",
+    "right_hand_12",
+    "right_hand_13",
+    "right_hand_14",
+    "right_hand_15",
+    "right_hand_16",
+    "right_hand_17",
+    "right_hand_18",
+    "right_hand_19",
+    "right_hand_20",
+];
+
 impl std::str::FromStr for KeypointLayout {
     type Err = ImportError;
     fn from_str(s: &str) -> Result<Self, ImportError> {
@@ -167,8 +308,9 @@ impl std::str::FromStr for KeypointLayout {
             "body25" => Ok(Self::Body25),
             "coco18" => Ok(Self::Coco18),
             "halpe26" => Ok(Self::Halpe26),
+            "wholebody133" => Ok(Self::CocoWholeBody),
             other => fail(format!(
-                "unknown keypoint layout '{other}' (expected coco17, body25, coco18 or halpe26)"
+                "unknown keypoint layout '{other}' (expected coco17, body25, coco18, halpe26 or wholebody133)"
             )),
         }
     }
@@ -181,6 +323,7 @@ impl KeypointLayout {
             Self::Body25 => "body25",
             Self::Coco18 => "coco18",
             Self::Halpe26 => "halpe26",
+            Self::CocoWholeBody => "wholebody133",
         }
     }
 
@@ -191,6 +334,7 @@ impl KeypointLayout {
             Self::Body25 => &BODY25,
             Self::Coco18 => &COCO18,
             Self::Halpe26 => &HALPE26,
+            Self::CocoWholeBody => &COCO_WHOLEBODY,
         }
     }
 
@@ -211,7 +355,7 @@ impl KeypointLayout {
     pub fn default_map(self) -> Vec<(usize, &'static str)> {
         use skeleton::*;
         match self {
-            Self::Coco17 => vec![
+            Self::Coco17 | Self::CocoWholeBody => vec![
                 (R_HIP, "right_hip"),
                 (R_KNEE, "right_knee"),
                 (R_ANKLE, "right_ankle"),
@@ -1051,6 +1195,7 @@ mod tests {
             ("body25", 25, Some("MidHip")),
             ("coco18", 18, None),
             ("halpe26", 26, Some("Hip")),
+            ("wholebody133", 133, None),
         ] {
             let layout: KeypointLayout = name.parse().unwrap();
             assert_eq!((layout.name(), layout.count()), (name, count));
@@ -1065,14 +1210,24 @@ mod tests {
                 "{name}"
             );
             let neck = map.iter().find(|m| m.0 == HEAD).map(|m| m.1);
-            assert_eq!(neck, (name != "coco17").then_some("Neck"), "{name}");
+            let necked = !matches!(name, "coco17" | "wholebody133");
+            assert_eq!(neck, necked.then_some("Neck"), "{name}");
             assert_eq!(
                 map.len(),
                 12 + usize::from(neck.is_some()) + usize::from(root.is_some())
             );
         }
         let e = "coco19".parse::<KeypointLayout>().unwrap_err().to_string();
-        assert!(e.contains("coco17, body25, coco18 or halpe26"), "{e}");
+        assert!(
+            e.contains("coco17, body25, coco18, halpe26 or wholebody133"),
+            "{e}"
+        );
+        // The whole-body layout's first 17 are COCO's, its default map COCO-17's.
+        assert_eq!(&COCO_WHOLEBODY[..17], &COCO17[..]);
+        assert_eq!(
+            KeypointLayout::CocoWholeBody.default_map(),
+            KeypointLayout::Coco17.default_map()
+        );
         let d = tempfile::tempdir().unwrap();
         let k = flat(18, |i| [i as f64, 1.0, 0.9]);
         write(
