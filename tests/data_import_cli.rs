@@ -444,18 +444,23 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     // The same cameras calibrated in a Z-up world (a board on the floor), imported with
     // `--up z`: turned back into lfit's Y-up world (the cameras within rounding), the same
     // keypoints.
+    // The truth's cameras written in a world turned by `r`, imported with `--up UP`: those
+    // cameras, the summary and the dataset.
+    let turned_import = |r: glam::DMat3, name: &str, up: &str| {
+        let cams: Vec<_> = truth
+            .sensor
+            .cameras()
+            .iter()
+            .map(|c| c.in_rotated_world(r))
+            .collect();
+        let file = d.join(format!("cameras-{name}.json"));
+        std::fs::write(&file, cameras_json(&cams)).expect("cameras");
+        let out = d.join(format!("kp-{name}.npz"));
+        let summary = import(&file, &out, &["--up", up]);
+        (cams, summary, Dataset::load(&out).expect("imported"))
+    };
     let to_z_up = lfit::synth::motion::retarget::Up::Z.to_lfit().transpose();
-    let z_up: Vec<_> = truth
-        .sensor
-        .cameras()
-        .iter()
-        .map(|c| c.in_rotated_world(to_z_up))
-        .collect();
-    let cams_z = d.join("cameras-z.json");
-    std::fs::write(&cams_z, cameras_json(&z_up)).expect("cameras");
-    let out_z = d.join("kp-z.npz");
-    import(&cams_z, &out_z, &["--up", "z"]);
-    let turned = Dataset::load(&out_z).expect("imported");
+    let (z_up, _, turned) = turned_import(to_z_up, "z", "z");
     assert_eq!(sparse(&turned), sparse(&imported));
     for (a, b) in turned.sensor.cameras().iter().zip(truth.sensor.cameras()) {
         assert!((a.center() - b.center()).length() < 1e-12, "{a:?} vs {b:?}");
@@ -476,19 +481,9 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     let tilt = glam::DMat3::from_axis_angle(glam::DVec3::new(1.0, 0.0, 0.5).normalize(), 0.45)
         * glam::DMat3::from_rotation_y(0.7);
     let u = tilt * glam::DVec3::Y;
-    let tilted: Vec<_> = truth
-        .sensor
-        .cameras()
-        .iter()
-        .map(|c| c.in_rotated_world(tilt))
-        .collect();
-    let cams_t = d.join("cameras-tilted.json");
-    std::fs::write(&cams_t, cameras_json(&tilted)).expect("cameras");
-    let out_t = d.join("kp-tilted.npz");
     let up = format!("{},{},{}", u.x, u.y, u.z);
-    let summary_t = import(&cams_t, &out_t, &["--up", &up]);
+    let (_, summary_t, turned) = turned_import(tilt, "tilted", &up);
     assert_eq!(summary_t["modality"], "keypoints2d");
-    let turned = Dataset::load(&out_t).expect("imported");
     assert_eq!(sparse(&turned), sparse(&imported));
     let mut yawed = false;
     for (a, b) in turned.sensor.cameras().iter().zip(truth.sensor.cameras()) {

@@ -794,18 +794,36 @@ pub fn add_height_priors(
     let template = first.template().clone();
     let base = stature_prior(&template)?;
     let shape = template.layout().range(Block::Shape);
+    add_rows(
+        frames,
+        seed,
+        setting.rate,
+        setting.std_m,
+        |e, gt, std, z| {
+            let truth = base.rest_height(&template, &gt[shape.clone()]);
+            let prior = base.at((truth + std * z).max(0.1 * truth))?.with_std(std)?;
+            e.with_height_prior(&prior)
+        },
+    )
+}
+
+/// Gives each frame of `frames` whose [`row_draw`] gets one the row `add` builds from its
+/// energy, its truth, its σ and its standard normal draw (`"height_prior"`, `"floor"`).
+fn add_rows(
+    frames: &mut Frames,
+    seed: u64,
+    rate: f64,
+    std_m: [f64; 2],
+    add: impl Fn(&Energy, &[f64], f64, f64) -> lfit_model::Result<Energy> + Sync,
+) -> Result<()> {
     frames.energies = frames
         .energies
         .par_iter()
         .zip(&frames.dataset.gt_poses)
         .enumerate()
-        .map(|(i, (e, gt))| {
-            let Some((std, z)) = row_draw(seed, i, setting.rate, setting.std_m) else {
-                return Ok(e.clone());
-            };
-            let truth = base.rest_height(&template, &gt[shape.clone()]);
-            let prior = base.at((truth + std * z).max(0.1 * truth))?.with_std(std)?;
-            e.with_height_prior(&prior)
+        .map(|(i, (e, gt))| match row_draw(seed, i, rate, std_m) {
+            Some((std, z)) => add(e, gt, std, z),
+            None => Ok(e.clone()),
         })
         .collect::<Result<Vec<_>, _>>()?;
     Ok(())
@@ -834,21 +852,16 @@ pub fn add_floors(frames: &mut Frames, setting: &FloorTraining, seed: u64) -> Re
         return Ok(());
     };
     let base = FloorPrior::new(first.template(), 0.0, setting.std_m[0], FloorForm::Contact)?;
-    frames.energies = frames
-        .energies
-        .par_iter()
-        .zip(&frames.dataset.gt_poses)
-        .enumerate()
-        .map(|(i, (e, gt))| {
-            let Some((std, z)) = row_draw(seed, i, setting.rate, setting.std_m) else {
-                return Ok(e.clone());
-            };
+    add_rows(
+        frames,
+        seed,
+        setting.rate,
+        setting.std_m,
+        |e, gt, std, z| {
             let sole = e.lowest_sole(&base, gt)?;
-            let floor = base.at(sole + setting.offset_m * z)?.with_std(std)?;
-            e.with_floor(&floor)
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    Ok(())
+            e.with_floor(&base.at(sole + setting.offset_m * z)?.with_std(std)?)
+        },
+    )
 }
 
 /// [`synth_frames_with`] then [`augment_frames`]: the frames a training run with `config` sees.

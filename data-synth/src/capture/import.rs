@@ -1094,7 +1094,8 @@ mod tests {
         assert!(e.to_string().contains("'NOPE' is not a marker"), "{e}");
         // Without a map the labels are read after their subject's prefix (Vicon's `S1:LFHD`):
         // the dataset of the explicit map, and the summary names the subject.
-        let plain = import_c3d(&c, "x.c3d", None, &t, Scenario::Sequence, Up::Y).unwrap();
+        let unmapped = |c: &C3d| import_c3d(c, "x.c3d", None, &t, Scenario::Sequence, Up::Y);
+        let plain = unmapped(&c).unwrap();
         assert_eq!(plain.report["subject"], "S1");
         assert_eq!(plain.report["map"], imp.report["map"]);
         assert!(imp.report.get("subject").is_none());
@@ -1115,26 +1116,13 @@ mod tests {
                 .collect(),
             ..c.clone()
         };
-        let bare = import_c3d(
-            &relabel(&|_, n| n.to_string()),
-            "x.c3d",
-            None,
-            &t,
-            Scenario::Sequence,
-            Up::Y,
-        )
-        .unwrap();
+        let bare = unmapped(&relabel(&|_, n| n.to_string())).unwrap();
         assert!(bare.report.get("subject").is_none());
         assert_eq!(sparse(&bare.dataset), sparse(&imp.dataset));
         // A prefix naming fewer than three markers is a rigid body's, not a subject's: ignored.
-        let one = import_c3d(
-            &relabel(&|i, n| if i < 2 { format!("Body:{n}") } else { n.into() }),
-            "x.c3d",
-            None,
-            &t,
-            Scenario::Sequence,
-            Up::Y,
-        )
+        let one = unmapped(&relabel(&|i, n| {
+            if i < 2 { format!("Body:{n}") } else { n.into() }
+        }))
         .unwrap();
         assert!(one.report.get("subject").is_none());
         assert_eq!(one.report["mapped_markers"], t.rig.markers.len() - 2);
@@ -1159,7 +1147,7 @@ mod tests {
                 "--label-map",
             ),
         ] {
-            let e = import_c3d(&labels, "x", None, &t, Scenario::Local, Up::Y).unwrap_err();
+            let e = unmapped(&labels).unwrap_err();
             assert!(e.to_string().contains(needle), "{e}");
         }
         // A file without points (kineticstoolkit's C3DRotationExample holds rotations only).

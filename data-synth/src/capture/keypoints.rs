@@ -164,24 +164,10 @@ pub const HALPE26: [&str; 26] = [
 
 /// COCO-WholeBody keypoint names, in order (133: COCO's 17, six foot, 68 face and 2 × 21 hand
 /// keypoints; Jin et al. 2020 — DWPose's and RTMPose's whole-body output).
-pub const COCO_WHOLEBODY: [&str; 133] = [
-    "nose",
-    "left_eye",
-    "right_eye",
-    "left_ear",
-    "right_ear",
-    "left_shoulder",
-    "right_shoulder",
-    "left_elbow",
-    "right_elbow",
-    "left_wrist",
-    "right_wrist",
-    "left_hip",
-    "right_hip",
-    "left_knee",
-    "right_knee",
-    "left_ankle",
-    "right_ankle",
+pub const COCO_WHOLEBODY: [&str; 133] = whole_body(&COCO17, &WHOLEBODY_EXTRA);
+
+/// COCO-WholeBody's keypoints after COCO's 17.
+const WHOLEBODY_EXTRA: [&str; 116] = [
     "left_big_toe",
     "left_small_toe",
     "left_heel",
@@ -299,6 +285,21 @@ pub const COCO_WHOLEBODY: [&str; 133] = [
     "right_hand_19",
     "right_hand_20",
 ];
+
+/// `body` then `extra`, as one array (a const concatenation).
+const fn whole_body(body: &[&'static str; 17], extra: &[&'static str; 116]) -> [&'static str; 133] {
+    let mut all = [""; 133];
+    let mut i = 0;
+    while i < 17 {
+        all[i] = body[i];
+        i += 1;
+    }
+    while i < 133 {
+        all[i] = extra[i - 17];
+        i += 1;
+    }
+    all
+}
 
 impl std::str::FromStr for KeypointLayout {
     type Err = ImportError;

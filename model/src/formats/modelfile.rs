@@ -142,25 +142,20 @@ fn parse_npy(path: &Path, name: &str, bytes: &[u8]) -> Result<Array> {
                 .map(i64::from)
                 .collect(),
         ),
-        // 2^32 − 1 and 2^64 − 1 are SMPL's "no parent"; they become −1.
+        // 2^64 − 1 (SMPL's "no parent" in a uint64 table) wraps to −1; 2^32 − 1 is read as it
+        // is, in every integer type, and taken as the root by `parents`.
         (npyz::TypeChar::Uint, 8) => Values::Int(
             npy.into_vec::<u64>()
                 .map_err(io)?
                 .into_iter()
-                .map(|v| {
-                    if v == u64::MAX || v == u64::from(u32::MAX) {
-                        -1
-                    } else {
-                        v as i64
-                    }
-                })
+                .map(|v| v as i64)
                 .collect(),
         ),
         (npyz::TypeChar::Uint, 4) => Values::Int(
             npy.into_vec::<u32>()
                 .map_err(io)?
                 .into_iter()
-                .map(|v| if v == u32::MAX { -1 } else { i64::from(v) })
+                .map(i64::from)
                 .collect(),
         ),
         (npyz::TypeChar::Uint, 2) => Values::Int(
@@ -454,8 +449,8 @@ fn parents(a: &Arrays<'_>) -> Result<Vec<Option<JointIndex>>> {
             ));
         }
     }
-    // SMPL's "no parent", 2³² − 1, in whatever integer type the file holds it (an int64
-    // kintree_table, as numpy widens SMPL's, keeps the value; the unsigned types map it above).
+    // SMPL's "no parent", 2³² − 1, in whatever integer type the file holds it (uint32, or an
+    // int64 kintree_table as numpy widens SMPL's): the one place it is read as the root.
     let raw: Vec<i64> = k[..j]
         .iter()
         .map(|&p| if p == i64::from(u32::MAX) { -1 } else { p })
