@@ -441,6 +441,86 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     }
     eprintln!("COCO import: {seen} keypoints, max pixel error {max_err:.3e} px");
     assert!(seen > 0 && max_err <= 1e-9);
+    // The six cameras inside a CMU Panoptic calibration file (translations in centimetres,
+    // `distCoef` all zeros, in reverse order among three VGA cameras the keypoints are not
+    // from), chosen with `--camera-names` in the keypoints' order: the same dataset.
+    let ring = lfit::model::camera::default_ring(3);
+    let panoptic = |c: &lfit::model::camera::Camera, name: String, kind: &str| {
+        json!({
+            "name": name, "type": kind, "panel": 0, "node": 0,
+            "resolution": [c.width, c.height],
+            "K": [[c.fx, 0.0, c.cx], [0.0, c.fy, c.cy], [0.0, 0.0, 1.0]],
+            "distCoef": [0.0, 0.0, 0.0, 0.0, 0.0],
+            "R": c.rotation, "t": c.translation.map(|x| [x * 100.0]),
+        })
+    };
+    let mut list = vec![panoptic(&ring[0], "01_01".into(), "vga")];
+    for (c, cam) in truth.sensor.cameras().iter().enumerate().rev() {
+        list.push(panoptic(cam, format!("00_{:02}", 3 * c), "hd"));
+    }
+    list.extend([1, 2].map(|k| panoptic(&ring[k], format!("0{k}_02"), "vga")));
+    let cams_p = d.join("calibration_171204_pose1.json");
+    std::fs::write(
+        &cams_p,
+        json!({ "calibDataSource": "171204_calib", "cameras": list }).to_string(),
+    )
+    .expect("cameras");
+    let chosen = "00_00,00_03,00_06,00_09,00_12,00_15";
+    let out_p = d.join("kp-panoptic.npz");
+    let summary_p = import(&cams_p, &out_p, &["--camera-names", chosen]);
+    assert_eq!(
+        summary_p["source"]["camera_names"],
+        json!(chosen.split(',').collect::<Vec<_>>()),
+        "{summary_p}"
+    );
+    let from_p = Dataset::load(&out_p).expect("imported");
+    assert_eq!(sparse(&from_p), sparse(&imported));
+    for (a, b) in from_p.sensor.cameras().iter().zip(truth.sensor.cameras()) {
+        assert_eq!((a.rotation, a.fx, a.cy), (b.rotation, b.fx, b.cy));
+        assert!((a.center() - b.center()).length() < 1e-12, "{a:?} vs {b:?}");
+    }
+    // Without a choice the nine cameras do not match two keypoint files; a name not in the
+    // file. Both refused in one line, the dataset already at --out untouched.
+    let kept = std::fs::read(&out_p).expect("written");
+    let no_pick = lfit(&[
+        "data",
+        "import",
+        "--layout",
+        "coco17",
+        "--camera",
+        path_str(&cams_p),
+        "--out",
+        path_str(&out_p),
+        "--keypoints",
+        path_str(&files[0]),
+        path_str(&files[1]),
+    ]);
+    assert_one_line_error(&no_pick, "2 keypoint paths for 9 cameras");
+    assert_one_line_error(&no_pick, "--camera-names");
+    let unknown = lfit(&[
+        "data",
+        "import",
+        "--layout",
+        "coco17",
+        "--camera",
+        path_str(&cams_p),
+        "--camera-names",
+        "00_03,00_04",
+        "--out",
+        path_str(&out_p),
+        "--keypoints",
+        path_str(&files[0]),
+        path_str(&files[1]),
+    ]);
+    assert_one_line_error(
+        &unknown,
+        "no camera named '00_04' in the camera file (its 9 names: 01_01, 00_15",
+    );
+    assert_eq!(
+        std::fs::read(&out_p).expect("kept"),
+        kept,
+        "a refused import left the earlier dataset as it was"
+    );
     // The same cameras calibrated in a Z-up world (a board on the floor), imported with
     // `--up z`: turned back into lfit's Y-up world (the cameras within rounding), the same
     // keypoints.

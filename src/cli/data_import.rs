@@ -10,8 +10,9 @@
 //!   [--keypoint-map MAP.json]`:
 //!   2D keypoints (COCO keypoint files or OpenPose frame files/folders, `lfit_synth::capture::keypoints`)
 //!   in calibrated cameras as the `keypoints2d` modality; one path per camera in the camera
-//!   file's order (or, with one camera, any number of paths in frame order); a keypoint is seen
-//!   when its confidence is above `--min-confidence`.
+//!   file's order, or in the order of `--camera-names` (cameras chosen by name or `#K`), or,
+//!   with one camera, any number of paths in frame order; a keypoint is seen when its
+//!   confidence is above `--min-confidence`.
 //!
 //! The dataset's start poses are the rest pose moved rigidly onto each frame's data
 //! (`lfit_synth::capture::import`); the scenario (default `sequence`: each frame starts from the previous
@@ -25,7 +26,7 @@ use lfit_synth::Scenario;
 use lfit_synth::capture::c3d::C3d;
 use lfit_synth::capture::import::{import_c3d, import_keypoints, read_name_map};
 use lfit_synth::capture::keypoints::{
-    KeypointLayout, read_camera_file, read_track, undistort_track,
+    CameraFileRig, KeypointLayout, read_camera_file, read_track, undistort_track,
 };
 use serde_json::{Value, json};
 
@@ -111,9 +112,16 @@ pub struct ImportArgs {
     /// Camera file: {"cameras": [{"fx", "fy", "cx", "cy", "width", "height", "rotation": 3×3
     /// camera-from-world, "translation": [3] metres}, ...]} (OpenCV axes), or per camera
     /// OpenCV's keys: "K", "R" or "rvec", "t" or "tvec", "resolution"; "dist" (OpenCV's k1 k2
-    /// p1 p2 [k3 [k4 k5 k6]]) undistorts that camera's keypoints.
+    /// p1 p2 [k3 [k4 k5 k6]]) undistorts that camera's keypoints; a CMU Panoptic calibration
+    /// file (calibration_<sequence>.json, centimetres) reads as it is; "units": "m"|"cm"|"mm"
+    /// gives any file's translation unit.
     #[arg(long)]
     pub camera: Option<PathBuf>,
+    /// The camera file's cameras the keypoints come from, in --keypoints order: each a camera's
+    /// "name" (CMU Panoptic's 00_03, ...) or #K, the file's camera K counted from 0; default:
+    /// all of them, in the file's order.
+    #[arg(long, value_delimiter = ',', value_name = "NAME,...")]
+    pub camera_names: Vec<String>,
     /// JSON object {"model joint": "keypoint name", ...} replacing the layout's default map.
     #[arg(long)]
     pub keypoint_map: Option<PathBuf>,
@@ -328,7 +336,17 @@ pub fn import_dataset(
             if !(args.fps.is_finite() && args.fps > 0.0) {
                 bail!("--fps must be positive (got {})", args.fps);
             }
-            let (mut cameras, distortion) = read_camera_file(camera)?;
+            let mut rig = read_camera_file(camera)?;
+            if !args.camera_names.is_empty() {
+                rig = rig
+                    .select(&args.camera_names)
+                    .with_context(|| format!("--camera-names, camera file {}", camera.display()))?;
+            }
+            let CameraFileRig {
+                mut cameras,
+                distortion,
+                names,
+            } = rig;
             if up != lfit_synth::motion::retarget::Up::Y {
                 // The cameras turned with the world (y up: the file as it is, to the bit).
                 for c in &mut cameras {
@@ -347,9 +365,14 @@ pub fn import_dataset(
                 vec![args.keypoints.clone()]
             } else {
                 bail!(
-                    "{} keypoint paths for {} cameras: give one file or folder per camera, in the camera file's order",
+                    "{} keypoint paths for {} cameras: give one file or folder per camera, in the {} order",
                     args.keypoints.len(),
-                    cameras.len()
+                    cameras.len(),
+                    if args.camera_names.is_empty() {
+                        "camera file's (or choose its cameras with --camera-names)"
+                    } else {
+                        "--camera-names"
+                    }
                 );
             };
             let mut tracks = groups
@@ -377,6 +400,9 @@ pub fn import_dataset(
             let mut source = json!({ "keypoints": args.keypoints, "camera": camera });
             if undistorted > 0 {
                 source["undistorted_cameras"] = json!(undistorted);
+            }
+            if !args.camera_names.is_empty() {
+                source["camera_names"] = json!(names);
             }
             (imported, source)
         }

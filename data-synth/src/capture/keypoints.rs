@@ -30,7 +30,12 @@
 //! use OpenCV's calibration keys (`K`, `R` or `rvec`, `t` or `tvec`, `resolution`; a `name` is
 //! allowed) and give its lens distortion, `dist`: OpenCV's `k1 k2 p1 p2 [k3 [k4 k5 k6]]`
 //! ([`Distortion`]; its keypoints are undistorted at import, [`undistort_track`]). One key per
-//! quantity; unknown keys are refused.
+//! quantity; unknown keys are refused. A CMU Panoptic calibration file
+//! (`calibration_<sequence>.json`: `calibDataSource`, and per camera `name`, `type`, `panel`,
+//! `node`, `K`, `distCoef`, `R`, `t`) reads as it is, its translations in centimetres; a
+//! top-level `"units": "m" | "cm" | "mm"` gives the translations' unit of any camera file
+//! (default metres, Panoptic's centimetres). [`CameraFileRig::select`] chooses cameras by name
+//! (a Panoptic file lists its 31 HD, 480 VGA and 10 Kinect cameras; keypoints come from a few).
 
 use std::path::{Path, PathBuf};
 
@@ -781,17 +786,116 @@ struct CameraJson {
     translation: Option<Value>,
     t: Option<Value>,
     tvec: Option<Value>,
-    #[serde(alias = "distortion")]
+    #[serde(alias = "distortion", alias = "distCoef")]
     dist: Option<Value>,
-    /// A label (OpenCV's and most calibration tools' files carry one); not read.
-    #[allow(dead_code)]
+    /// A label (OpenCV's, CMU Panoptic's and most calibration tools' files carry one): what
+    /// `--camera-names` chooses cameras by.
     name: Option<Value>,
+    /// CMU Panoptic's camera kind (`hd`, `vga`, `kinect-color`, ...), panel and node: not read
+    /// (its `name` is `PP_NN`, panel and node).
+    #[serde(rename = "type")]
+    #[allow(dead_code)]
+    kind: Option<Value>,
+    #[allow(dead_code)]
+    panel: Option<Value>,
+    #[allow(dead_code)]
+    node: Option<Value>,
 }
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct CameraFile {
     cameras: Vec<CameraJson>,
+    /// Unit of the translations: `m` (lfit's own files; the default), `cm` (CMU Panoptic's
+    /// default) or `mm`.
+    units: Option<String>,
+    /// The capture a CMU Panoptic calibration file (`calibration_<sequence>.json`) belongs to:
+    /// such a file's translations are in centimetres unless `units` says otherwise.
+    #[serde(rename = "calibDataSource")]
+    #[allow(dead_code)]
+    calib_data_source: Option<Value>,
+}
+
+/// The cameras of a camera file ([`read_camera_file`]): each one's pinhole camera, lens
+/// distortion where the file gives one, and name where it gives one.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraFileRig {
+    /// The pinhole cameras, translations in metres.
+    pub cameras: Vec<Camera>,
+    /// Each camera's lens distortion, `None` for a pinhole camera.
+    pub distortion: Vec<Option<Distortion>>,
+    /// Each camera's `name`, `None` where the file gives none.
+    pub names: Vec<Option<String>>,
+}
+
+impl CameraFileRig {
+    /// The cameras `chosen`, in that order: each entry a name the file gives exactly one camera,
+    /// or `#K` for its camera K (counted from 0). An unknown, ambiguous or repeated choice is a
+    /// one-line error.
+    pub fn select(&self, chosen: &[String]) -> Result<Self, ImportError> {
+        let mut picked: Vec<usize> = Vec::with_capacity(chosen.len());
+        for want in chosen {
+            let index = if let Some(k) = want.strip_prefix('#') {
+                match k.parse::<usize>() {
+                    Ok(k) if k < self.cameras.len() => k,
+                    _ => {
+                        return fail(format!(
+                            "camera '{want}': the camera file has cameras #0 to #{}",
+                            self.cameras.len() - 1
+                        ));
+                    }
+                }
+            } else {
+                let hits: Vec<usize> = (0..self.names.len())
+                    .filter(|&i| self.names[i].as_deref() == Some(want.as_str()))
+                    .collect();
+                match hits.as_slice() {
+                    [i] => *i,
+                    [] => {
+                        let named: Vec<&str> =
+                            self.names.iter().flatten().map(String::as_str).collect();
+                        let shown = named
+                            .iter()
+                            .take(12)
+                            .copied()
+                            .collect::<Vec<_>>()
+                            .join(", ");
+                        let more = if named.len() > 12 { ", ..." } else { "" };
+                        return fail(if named.is_empty() {
+                            format!(
+                                "no camera named '{want}': the camera file names none (choose by #K)"
+                            )
+                        } else {
+                            format!(
+                                "no camera named '{want}' in the camera file (its {} names: {shown}{more})",
+                                named.len()
+                            )
+                        });
+                    }
+                    [i, j, ..] => {
+                        return fail(format!(
+                            "cameras #{i} and #{j} are both named '{want}': choose by #K"
+                        ));
+                    }
+                }
+            };
+            if let Some(before) = picked.iter().position(|&p| p == index) {
+                return fail(format!(
+                    "camera '{want}' chosen twice (it is '{}' too)",
+                    chosen[before]
+                ));
+            }
+            picked.push(index);
+        }
+        if picked.is_empty() {
+            return fail("no camera chosen");
+        }
+        Ok(Self {
+            cameras: picked.iter().map(|&i| self.cameras[i].clone()).collect(),
+            distortion: picked.iter().map(|&i| self.distortion[i]).collect(),
+            names: picked.iter().map(|&i| self.names[i].clone()).collect(),
+        })
+    }
 }
 
 /// Lens distortion of a camera, OpenCV's model (Brown–Conrady with its rational radial terms):
@@ -964,7 +1068,17 @@ fn rodrigues(r: [f64; 3]) -> [[f64; 3]; 3] {
 }
 
 impl CameraJson {
-    fn resolve(&self) -> Result<(Camera, Option<Distortion>), ImportError> {
+    /// The camera, its distortion and name; `metres`: metres per unit of the translation.
+    fn resolve(
+        &self,
+        metres: f64,
+    ) -> Result<(Camera, Option<Distortion>, Option<String>), ImportError> {
+        let name = match &self.name {
+            None => None,
+            Some(Value::String(s)) => Some(s.clone()),
+            Some(Value::Number(n)) => Some(n.to_string()),
+            Some(_) => return fail("'name' must be a string"),
+        };
         let (fx, fy, cx, cy) = match (&self.k, (self.fx, self.fy, self.cx, self.cy)) {
             (Some(_), (None, None, None, None)) => {
                 let k = self.k.unwrap_or_default();
@@ -1010,7 +1124,7 @@ impl CameraJson {
                 ("tvec", &self.tvec),
             ],
         )?;
-        let translation = three(t, key)?;
+        let translation = three(t, key)?.map(|x| x * metres);
         let dist = match &self.dist {
             Some(v) => Distortion::from_opencv(&coefficients(v)?)?,
             None => None,
@@ -1027,15 +1141,14 @@ impl CameraJson {
                 translation,
             },
             dist,
+            name,
         ))
     }
 }
 
-/// Reads and checks a camera file (see the module documentation): the cameras, and each one's
-/// lens distortion where the file gives one.
-pub fn read_camera_file(
-    path: &Path,
-) -> Result<(Vec<Camera>, Vec<Option<Distortion>>), ImportError> {
+/// Reads and checks a camera file (see the module documentation): the cameras, each one's lens
+/// distortion and name where the file gives them.
+pub fn read_camera_file(path: &Path) -> Result<CameraFileRig, ImportError> {
     let text = std::fs::read_to_string(path).map_err(|source| ImportError::Read {
         path: path.to_path_buf(),
         source,
@@ -1045,28 +1158,44 @@ pub fn read_camera_file(
     if file.cameras.is_empty() {
         return fail(format!("camera file {}: no cameras", path.display()));
     }
-    let mut cams = Vec::with_capacity(file.cameras.len());
-    let mut dists = Vec::with_capacity(file.cameras.len());
+    let metres = match (file.units.as_deref(), &file.calib_data_source) {
+        (Some("m"), _) | (None, None) => 1.0,
+        (Some("cm"), _) | (None, Some(_)) => 0.01,
+        (Some("mm"), _) => 0.001,
+        (Some(other), _) => {
+            return Err(bad(format!(
+                "units '{other}': expected m, cm or mm (the translations' unit)"
+            )));
+        }
+    };
+    let mut rig = CameraFileRig {
+        cameras: Vec::with_capacity(file.cameras.len()),
+        distortion: Vec::with_capacity(file.cameras.len()),
+        names: Vec::with_capacity(file.cameras.len()),
+    };
     for (i, c) in file.cameras.iter().enumerate() {
-        let (cam, dist) = c.resolve().map_err(|e| bad(format!("camera {i}: {e}")))?;
+        let (cam, dist, name) = c
+            .resolve(metres)
+            .map_err(|e| bad(format!("camera {i}: {e}")))?;
         cam.validate(i).map_err(|e| bad(e.to_string()))?;
-        cams.push(cam);
-        dists.push(dist);
+        rig.cameras.push(cam);
+        rig.distortion.push(dist);
+        rig.names.push(name);
     }
-    Ok((cams, dists))
+    Ok(rig)
 }
 
 /// Reads and checks a camera file of pinhole cameras (a rig to synthesise through, `lfit synth
 /// --camera`): one that gives a lens distortion is refused (synthesis does not model it).
 pub fn read_cameras(path: &Path) -> Result<Vec<Camera>, ImportError> {
-    let (cams, dists) = read_camera_file(path)?;
-    if let Some(i) = dists.iter().position(Option::is_some) {
+    let rig = read_camera_file(path)?;
+    if let Some(i) = rig.distortion.iter().position(Option::is_some) {
         return fail(format!(
             "camera file {}: camera {i} has a lens distortion, which synthesis does not model (lfit data import undistorts keypoints with it)",
             path.display()
         ));
     }
-    Ok(cams)
+    Ok(rig.cameras)
 }
 
 /// `track`'s keypoints as the pinhole `camera` without `distortion` sees them (each seen
@@ -1448,7 +1577,11 @@ mod tests {
         file["cameras"][0]["dist"] = serde_json::json!([[-0.28, 0.07, 1e-4, -2e-4, -0.008]]);
         file["cameras"][2]["distortion"] = serde_json::json!([0.0, 0.0, 0.0, 0.0]);
         let p = write(d.path(), "opencv.json", &file.to_string());
-        let (cams, dists) = read_camera_file(&p).unwrap();
+        let CameraFileRig {
+            cameras: cams,
+            distortion: dists,
+            ..
+        } = read_camera_file(&p).unwrap();
         for (a, b) in cams.iter().zip(&ring) {
             assert_eq!(
                 (a.fx, a.fy, a.cx, a.cy, a.width, a.height, a.translation),
@@ -1526,6 +1659,149 @@ mod tests {
             "unknown field `focal`",
         );
         one(&|c| c["R"][0][0] = serde_json::json!(3.0), "rotation");
+    }
+
+    /// A CMU Panoptic calibration file (`calibDataSource`; per camera `name`, `type`, `panel`,
+    /// `node`, `K`, `distCoef`, `R`, `t` as a column in centimetres) reads as the same cameras in
+    /// metres; `units` overrides the unit of any file; cameras are chosen by name or `#K` in the
+    /// order asked, and an unknown, ambiguous or repeated choice is a one-line error.
+    #[test]
+    fn a_panoptic_calibration_reads_in_centimetres_and_cameras_are_chosen_by_name() {
+        let d = tempfile::tempdir().unwrap();
+        let ring = default_ring(5);
+        let kinds = ["hd", "hd", "vga", "vga", "kinect-color"];
+        let names = ["00_03", "00_12", "01_01", "07_19", "50_02"];
+        let list: Vec<Value> = ring
+            .iter()
+            .enumerate()
+            .map(|(i, c)| {
+                serde_json::json!({
+                    "name": names[i], "type": kinds[i], "panel": i, "node": i + 1,
+                    "resolution": [c.width, c.height],
+                    "K": [[c.fx, 0.0, c.cx], [0.0, c.fy, c.cy], [0.0, 0.0, 1.0]],
+                    "distCoef": [-0.22 + 0.01 * i as f64, 0.19, 1e-4, -3e-4, -0.03],
+                    "R": c.rotation,
+                    "t": c.translation.map(|x| [x * 100.0]),
+                })
+            })
+            .collect();
+        let file = serde_json::json!({ "calibDataSource": "160906_calib_norm", "cameras": list });
+        let p = write(
+            d.path(),
+            "calibration_160906_pizza1.json",
+            &file.to_string(),
+        );
+        let rig = read_camera_file(&p).unwrap();
+        assert_eq!(rig.names, names.map(|n| Some(n.to_string())));
+        for (a, b) in rig.cameras.iter().zip(&ring) {
+            assert_eq!(a.rotation, b.rotation);
+            assert_eq!((a.fx, a.cx, a.width), (b.fx, b.cx, b.width));
+            for (x, y) in a.translation.iter().zip(&b.translation) {
+                assert!((x - y).abs() < 1e-12, "{a:?} vs {b:?}");
+            }
+        }
+        assert_eq!(
+            rig.distortion[2],
+            Some(Distortion {
+                k: [-0.2, 0.19, -0.03, 0.0, 0.0, 0.0],
+                p: [1e-4, -3e-4]
+            })
+        );
+        // The same file declared in metres, millimetres: its numbers as that unit.
+        for (unit, scale) in [("m", 100.0), ("mm", 0.1)] {
+            let mut f = file.clone();
+            f["units"] = serde_json::json!(unit);
+            let p = write(d.path(), "units.json", &f.to_string());
+            let r = read_camera_file(&p).unwrap();
+            let t = r.cameras[1].translation;
+            for (x, y) in t.iter().zip(&ring[1].translation) {
+                assert!((x - y * scale).abs() < 1e-12, "{unit}: {t:?}");
+            }
+        }
+        // lfit's own file without `units` is in metres, with `units: cm` in centimetres.
+        let mut own: Value = serde_json::from_str(&cameras_json(&ring)).unwrap();
+        assert_eq!(
+            read_camera_file(&write(d.path(), "own.json", &own.to_string()))
+                .unwrap()
+                .cameras,
+            ring
+        );
+        own["units"] = serde_json::json!("cm");
+        let r = read_camera_file(&write(d.path(), "own-cm.json", &own.to_string())).unwrap();
+        assert!((r.cameras[3].translation[2] - ring[3].translation[2] / 100.0).abs() < 1e-15);
+        assert_eq!(r.names, vec![None; 5]);
+        // Choosing: by name and by index, in the order asked.
+        let chosen = rig
+            .select(&["07_19".into(), "#0".into(), "50_02".into()])
+            .unwrap();
+        assert_eq!(
+            chosen.names,
+            [
+                Some("07_19".to_string()),
+                Some("00_03".into()),
+                Some("50_02".into())
+            ]
+        );
+        assert_eq!(chosen.cameras[0], rig.cameras[3]);
+        assert_eq!(chosen.cameras[1], rig.cameras[0]);
+        assert_eq!(chosen.distortion[2], rig.distortion[4]);
+        let refused = |rig: &CameraFileRig, pick: &[&str], needle: &str| {
+            let pick: Vec<String> = pick.iter().map(|s| s.to_string()).collect();
+            let e = rig.select(&pick).unwrap_err().to_string();
+            assert!(e.contains(needle), "{needle}: {e}");
+            assert!(!e.contains('\n'), "{e}");
+        };
+        refused(
+            &rig,
+            &["00_04"],
+            "no camera named '00_04' in the camera file (its 5 names: 00_03, 00_12",
+        );
+        refused(&rig, &["#5"], "cameras #0 to #4");
+        refused(&rig, &["#x"], "cameras #0 to #4");
+        refused(
+            &rig,
+            &["00_12", "#1"],
+            "camera '#1' chosen twice (it is '00_12' too)",
+        );
+        refused(&rig, &[], "no camera chosen");
+        refused(&r, &["00_03"], "the camera file names none (choose by #K)");
+        let mut twice = rig.clone();
+        twice.names[4] = Some("00_03".into());
+        refused(
+            &twice,
+            &["00_03"],
+            "cameras #0 and #4 are both named '00_03': choose by #K",
+        );
+        assert_eq!(
+            twice.select(&["#4".into()]).unwrap().cameras,
+            [rig.cameras[4].clone()]
+        );
+        // Bad units and names, one line each.
+        for (edit, needle) in [
+            (
+                serde_json::json!({"units": "inch"}),
+                "units 'inch': expected m, cm or mm",
+            ),
+            (
+                serde_json::json!({"name": [1]}),
+                "camera 0: 'name' must be a string",
+            ),
+        ] {
+            let mut f = file.clone();
+            let (key, value) = edit.as_object().unwrap().iter().next().unwrap();
+            if key == "units" {
+                f[key] = value.clone();
+            } else {
+                f["cameras"][0][key] = value.clone();
+            }
+            let p = write(d.path(), "bad.json", &f.to_string());
+            let e = read_camera_file(&p).unwrap_err().to_string();
+            assert!(e.contains(needle), "{needle}: {e}");
+            assert!(!e.contains('\n'), "{e}");
+        }
+        // Synthesis refuses the file for its lenses.
+        let e = read_cameras(&p).unwrap_err().to_string();
+        assert!(e.contains("lens distortion"), "{e}");
     }
 
     /// Undistortion inverts OpenCV's model to 1e-9 px over the image of a wide lens (a GoPro-like

@@ -278,10 +278,12 @@ def import_keypoints(
     camera: _Path,
     model: Optional[_ModelArg] = None,
     *,
+    camera_names: Optional[Sequence[str]] = None,
     keypoint_map: Optional[_Path] = None,
     min_confidence: float = 0.1,
     fps: float = 30.0,
     scenario: str = "sequence",
+    up: str = "y",
     out: Optional[_Path] = None,
 ) -> Dataset:
     """``lfit data import --keypoints``."""
