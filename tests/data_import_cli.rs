@@ -521,6 +521,62 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
         kept,
         "a refused import left the earlier dataset as it was"
     );
+    // The six cameras as an anipose / Pose2Sim calibration.toml in millimetres (rotation
+    // vectors, size as floats, no distortion), imported with --camera-units mm: the same.
+    let mut toml = String::new();
+    for (c, cam) in truth.sensor.cameras().iter().enumerate() {
+        let (axis, angle) = glam::DQuat::from_mat3(&cam.rot()).to_axis_angle();
+        let r = (axis * angle).to_array();
+        let t = cam.translation.map(|x| x * 1000.0);
+        toml += &format!(
+            "[cam_{c:02}]\nname = \"cam_{c:02}\"\nsize = [ {:?}, {:?}]\nmatrix = [ [ {:?}, 0.0, {:?}], [ 0.0, {:?}, {:?}], [ 0.0, 0.0, 1.0]]\ndistortions = [ 0.0, 0.0, 0.0, 0.0]\nrotation = [ {:?}, {:?}, {:?}]\ntranslation = [ {:?}, {:?}, {:?}]\nfisheye = false\n\n",
+            f64::from(cam.width),
+            f64::from(cam.height),
+            cam.fx,
+            cam.cx,
+            cam.fy,
+            cam.cy,
+            r[0],
+            r[1],
+            r[2],
+            t[0],
+            t[1],
+            t[2]
+        );
+    }
+    let cams_t = d.join("calibration.toml");
+    std::fs::write(
+        &cams_t,
+        toml + "[metadata]\nadjusted = false\nerror = 0.0\n",
+    )
+    .expect("toml");
+    let out_t = d.join("kp-toml.npz");
+    let summary_t = import(&cams_t, &out_t, &["--camera-units", "mm"]);
+    assert_eq!(summary_t["source"]["camera_units"], "mm", "{summary_t}");
+    let from_t = Dataset::load(&out_t).expect("imported");
+    assert_eq!(sparse(&from_t), sparse(&imported));
+    for (a, b) in from_t.sensor.cameras().iter().zip(truth.sensor.cameras()) {
+        assert_eq!((a.fx, a.cy, a.width), (b.fx, b.cy, b.width));
+        assert!((a.center() - b.center()).length() < 1e-12, "{a:?} vs {b:?}");
+        for (x, y) in a.rotation.iter().flatten().zip(b.rotation.iter().flatten()) {
+            assert!((x - y).abs() < 1e-12, "{a:?} vs {b:?}");
+        }
+    }
+    let bad_unit = lfit(&[
+        "data",
+        "import",
+        "--layout",
+        "coco17",
+        "--camera",
+        path_str(&cams_t),
+        "--camera-units",
+        "inch",
+        "--out",
+        path_str(&out_t),
+        "--keypoints",
+        path_str(&files[0]),
+    ]);
+    assert_one_line_error(&bad_unit, "--camera-units inch: expected m, cm or mm");
     // The same cameras calibrated in a Z-up world (a board on the floor), imported with
     // `--up z`: turned back into lfit's Y-up world (the cameras within rounding), the same
     // keypoints.

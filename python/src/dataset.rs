@@ -338,6 +338,7 @@ fn marker_file_args(
         layout: None,
         camera: None,
         camera_names: Vec::new(),
+        camera_units: None,
         keypoint_map: None,
         min_confidence: 0.1,
         fps: 30.0,
@@ -386,14 +387,15 @@ pub fn import_trc(
 
 /// Imports 2D keypoints (COCO keypoint files, or OpenPose frame files/folders; one path per
 /// camera) in calibrated cameras as `lfit data import --keypoints` does: a `keypoints2d`
-/// dataset without ground truth. `layout`: `coco17`, `body25`, `coco18`, `halpe26` or
-/// `wholebody133`; `camera`: the camera JSON file (lfit's, OpenCV's keys, or a CMU Panoptic
+/// dataset without ground truth. `layout`: `coco17`, `body25`, `coco18`, `halpe26`,
+/// `wholebody133` or `blazepose33`; `camera`: the camera JSON file (lfit's, OpenCV's keys, or a CMU Panoptic
 /// calibration); `camera_names`: the file's cameras the paths come from, in their order (names,
-/// or `"#K"` for its camera K; default all, in the file's order);
+/// or `"#K"` for its camera K; default all, in the file's order); `camera_units`: `m`, `cm` or
+/// `mm`, the translations' unit where the file does not say it (an anipose `.toml`);
 /// `up`: its world's up axis, `y`, `z` or `"x,y,z"` (`lfit data import --up`: a Z-up world, or
 /// one whose up is that direction, is turned into lfit's Y-up one).
 #[pyfunction]
-#[pyo3(signature = (paths, layout, camera, model=None, *, camera_names=None, keypoint_map=None, min_confidence=0.1, fps=30.0, scenario="sequence", up="y", out=None))]
+#[pyo3(signature = (paths, layout, camera, model=None, *, camera_names=None, camera_units=None, keypoint_map=None, min_confidence=0.1, fps=30.0, scenario="sequence", up="y", out=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn import_keypoints(
     py: Python<'_>,
@@ -402,6 +404,7 @@ pub fn import_keypoints(
     camera: PathBuf,
     model: Option<&Bound<'_, PyAny>>,
     camera_names: Option<Vec<String>>,
+    camera_units: Option<String>,
     keypoint_map: Option<PathBuf>,
     min_confidence: f64,
     fps: f64,
@@ -421,6 +424,7 @@ pub fn import_keypoints(
         layout: Some(layout),
         camera: Some(camera),
         camera_names: camera_names.unwrap_or_default(),
+        camera_units,
         keypoint_map,
         min_confidence,
         fps,

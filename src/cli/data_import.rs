@@ -6,7 +6,7 @@
 //!   marker of the model's `markers` modality; gaps and markers no label maps to are invisible
 //!   entries. Units from `POINT:UNITS` (mm, cm, m). `--trc FILE`: the same from OpenSim's TRC
 //!   text format (`lfit_synth::capture::trc`).
-//! - `--keypoints PATH... --layout coco17|body25|coco18|halpe26|wholebody133 --camera CAMERAS.json
+//! - `--keypoints PATH... --layout coco17|body25|coco18|halpe26|wholebody133|blazepose33 --camera CAMERAS.json
 //!   [--keypoint-map MAP.json]`:
 //!   2D keypoints (COCO keypoint files or OpenPose frame files/folders, `lfit_synth::capture::keypoints`)
 //!   in calibrated cameras as the `keypoints2d` modality; one path per camera in the camera
@@ -26,7 +26,7 @@ use lfit_synth::Scenario;
 use lfit_synth::capture::c3d::C3d;
 use lfit_synth::capture::import::{import_c3d, import_keypoints, read_name_map};
 use lfit_synth::capture::keypoints::{
-    CameraFileRig, KeypointLayout, read_camera_file, read_track, undistort_track,
+    CameraFileRig, KeypointLayout, read_camera_file_in, read_track, undistort_track,
 };
 use serde_json::{Value, json};
 
@@ -105,8 +105,8 @@ pub struct ImportArgs {
     /// one per camera in the camera file's order, or any number for a single camera.
     #[arg(long, num_args = 1..)]
     pub keypoints: Vec<PathBuf>,
-    /// Keypoint layout: coco17, body25, coco18 (OpenPose's COCO model), halpe26 (AlphaPose) or
-    /// wholebody133 (COCO-WholeBody: DWPose, RTMPose).
+    /// Keypoint layout: coco17, body25, coco18 (OpenPose's COCO model), halpe26 (AlphaPose),
+    /// wholebody133 (COCO-WholeBody: DWPose, RTMPose) or blazepose33 (MediaPipe Pose).
     #[arg(long)]
     pub layout: Option<String>,
     /// Camera file: {"cameras": [{"fx", "fy", "cx", "cy", "width", "height", "rotation": 3×3
@@ -114,9 +114,15 @@ pub struct ImportArgs {
     /// OpenCV's keys: "K", "R" or "rvec", "t" or "tvec", "resolution"; "dist" (OpenCV's k1 k2
     /// p1 p2 [k3 [k4 k5 k6]]) undistorts that camera's keypoints; a CMU Panoptic calibration
     /// file (calibration_<sequence>.json, centimetres) reads as it is; "units": "m"|"cm"|"mm"
-    /// gives any file's translation unit.
+    /// gives any file's translation unit. A .toml file is an anipose / Pose2Sim calibration
+    /// ([cam_N] name, size, matrix, distortions, rotation, translation).
     #[arg(long)]
     pub camera: Option<PathBuf>,
+    /// Unit of the camera file's translations where the file does not say it: m, cm or mm
+    /// (default: metres; a Panoptic file's centimetres; an anipose calibration.toml is in its
+    /// board's unit, often mm).
+    #[arg(long, value_name = "m|cm|mm")]
+    pub camera_units: Option<String>,
     /// The camera file's cameras the keypoints come from, in --keypoints order: each a camera's
     /// "name" (CMU Panoptic's 00_03, ...) or #K, the file's camera K counted from 0; default:
     /// all of them, in the file's order.
@@ -327,7 +333,9 @@ pub fn import_dataset(
         }
         (None, false) => {
             let Some(layout) = &args.layout else {
-                bail!("--keypoints needs --layout coco17|body25|coco18|halpe26|wholebody133");
+                bail!(
+                    "--keypoints needs --layout coco17|body25|coco18|halpe26|wholebody133|blazepose33"
+                );
             };
             let layout: KeypointLayout = layout.parse()?;
             let Some(camera) = &args.camera else {
@@ -336,7 +344,12 @@ pub fn import_dataset(
             if !(args.fps.is_finite() && args.fps > 0.0) {
                 bail!("--fps must be positive (got {})", args.fps);
             }
-            let mut rig = read_camera_file(camera)?;
+            if let Some(u) = &args.camera_units
+                && !["m", "cm", "mm"].contains(&u.as_str())
+            {
+                bail!("--camera-units {u}: expected m, cm or mm");
+            }
+            let mut rig = read_camera_file_in(camera, args.camera_units.as_deref())?;
             if !args.camera_names.is_empty() {
                 rig = rig
                     .select(&args.camera_names)
@@ -403,6 +416,9 @@ pub fn import_dataset(
             }
             if !args.camera_names.is_empty() {
                 source["camera_names"] = json!(names);
+            }
+            if let Some(u) = &args.camera_units {
+                source["camera_units"] = json!(u);
             }
             (imported, source)
         }

@@ -14,7 +14,9 @@
 //!   the highest one frame.
 //!
 //! Layouts: COCO-17, OpenPose's BODY_25 and COCO model (18), AlphaPose's Halpe-26,
-//! COCO-WholeBody's 133 (its body part mapped as COCO-17's).
+//! COCO-WholeBody's 133 (its body part mapped as COCO-17's), MediaPipe's BlazePose 33 (its limb
+//! landmarks mapped as COCO-17's; MediaPipe's own output is normalised to [0, 1], which the
+//! import refuses: keypoints must be in pixels, as Pose2Sim writes them).
 //!
 //! Where a frame holds several people, the first such frame keeps the best-ranked (a COCO
 //! `score`, else the summed confidence) and every later frame the person nearest the one kept
@@ -63,6 +65,9 @@ pub enum KeypointLayout {
     Halpe26,
     /// COCO-WholeBody's 133 (COCO's 17 first, then feet, face and hands).
     CocoWholeBody,
+    /// MediaPipe Pose's 33 landmarks (BlazePose; Bazarevsky et al. 2020), as Pose2Sim writes
+    /// them in OpenPose's format.
+    BlazePose33,
 }
 
 /// COCO-17 keypoint names, in order.
@@ -291,6 +296,44 @@ const WHOLEBODY_EXTRA: [&str; 116] = [
     "right_hand_20",
 ];
 
+/// MediaPipe Pose (BlazePose) landmark names, in order (its 33 landmarks: face, arms with three
+/// finger landmarks per hand, legs with heel and foot index). Limb names as COCO-17's.
+pub const BLAZEPOSE33: [&str; 33] = [
+    "nose",
+    "left_eye_inner",
+    "left_eye",
+    "left_eye_outer",
+    "right_eye_inner",
+    "right_eye",
+    "right_eye_outer",
+    "left_ear",
+    "right_ear",
+    "mouth_left",
+    "mouth_right",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_pinky",
+    "right_pinky",
+    "left_index",
+    "right_index",
+    "left_thumb",
+    "right_thumb",
+    "left_hip",
+    "right_hip",
+    "left_knee",
+    "right_knee",
+    "left_ankle",
+    "right_ankle",
+    "left_heel",
+    "right_heel",
+    "left_foot_index",
+    "right_foot_index",
+];
+
 /// `body` then `extra`, as one array (a const concatenation).
 const fn whole_body(body: &[&'static str; 17], extra: &[&'static str; 116]) -> [&'static str; 133] {
     let mut all = [""; 133];
@@ -315,8 +358,9 @@ impl std::str::FromStr for KeypointLayout {
             "coco18" => Ok(Self::Coco18),
             "halpe26" => Ok(Self::Halpe26),
             "wholebody133" => Ok(Self::CocoWholeBody),
+            "blazepose33" => Ok(Self::BlazePose33),
             other => fail(format!(
-                "unknown keypoint layout '{other}' (expected coco17, body25, coco18, halpe26 or wholebody133)"
+                "unknown keypoint layout '{other}' (expected coco17, body25, coco18, halpe26, wholebody133 or blazepose33)"
             )),
         }
     }
@@ -330,6 +374,7 @@ impl KeypointLayout {
             Self::Coco18 => "coco18",
             Self::Halpe26 => "halpe26",
             Self::CocoWholeBody => "wholebody133",
+            Self::BlazePose33 => "blazepose33",
         }
     }
 
@@ -341,6 +386,7 @@ impl KeypointLayout {
             Self::Coco18 => &COCO18,
             Self::Halpe26 => &HALPE26,
             Self::CocoWholeBody => &COCO_WHOLEBODY,
+            Self::BlazePose33 => &BLAZEPOSE33,
         }
     }
 
@@ -361,7 +407,7 @@ impl KeypointLayout {
     pub fn default_map(self) -> Vec<(usize, &'static str)> {
         use skeleton::*;
         match self {
-            Self::Coco17 | Self::CocoWholeBody => vec![
+            Self::Coco17 | Self::CocoWholeBody | Self::BlazePose33 => vec![
                 (R_HIP, "right_hip"),
                 (R_KNEE, "right_knee"),
                 (R_ANKLE, "right_ankle"),
@@ -1146,17 +1192,125 @@ impl CameraJson {
     }
 }
 
+/// An anipose / Pose2Sim calibration (`calibration.toml`, `Calib*.toml`): one table per camera,
+/// in the file's order, with `name`, `size` ([width, height] px), `matrix` (K), `distortions`
+/// (OpenCV's coefficients), `rotation` (a rotation vector) and `translation` (camera from
+/// world, in the calibration board's unit), and `fisheye` (OpenCV's fisheye model: refused, not
+/// modelled); a `[metadata]` table is not read. Each camera as a camera file's JSON entry.
+fn toml_cameras(text: &str) -> Result<CameraFile, String> {
+    let table: toml::Table = toml::from_str(text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+        match line {
+            Some(l) => format!("malformed TOML at line {l}: {}", e.message().trim()),
+            None => format!("malformed TOML: {}", e.message().trim()),
+        }
+    })?;
+    let mut cameras = Vec::new();
+    for (key, section) in &table {
+        if key == "metadata" {
+            continue;
+        }
+        let Some(section) = section.as_table() else {
+            return Err(format!(
+                "'{key}' is not a camera table ([{key}] with name, size, matrix, distortions, rotation, translation)"
+            ));
+        };
+        let mut cam = serde_json::Map::new();
+        for (k, v) in section {
+            let v = serde_json::to_value(v).map_err(|e| format!("[{key}] {k}: {e}"))?;
+            let json_key = match k.as_str() {
+                "name" => "name",
+                "matrix" => "K",
+                "distortions" => "dist",
+                "rotation" => "rvec",
+                "translation" => "translation",
+                "size" => {
+                    let size = v
+                        .as_array()
+                        .filter(|a| a.len() == 2)
+                        .and_then(|a| {
+                            a.iter()
+                                .map(|x| {
+                                    x.as_f64()
+                                        .filter(|x| x.fract() == 0.0 && *x > 0.0 && *x < 1e6)
+                                })
+                                .collect::<Option<Vec<f64>>>()
+                        })
+                        .ok_or_else(|| {
+                            format!("[{key}] size must be [width, height] in whole pixels")
+                        })?;
+                    cam.insert(
+                        "resolution".into(),
+                        serde_json::json!([size[0] as u32, size[1] as u32]),
+                    );
+                    continue;
+                }
+                "fisheye" => match v.as_bool() {
+                    Some(false) => continue,
+                    Some(true) => {
+                        return Err(format!(
+                            "[{key}] is a fisheye camera (OpenCV's fisheye model), which lfit does not model"
+                        ));
+                    }
+                    None => return Err(format!("[{key}] fisheye must be true or false")),
+                },
+                other => {
+                    return Err(format!(
+                        "[{key}] has the unknown key '{other}' (expected name, size, matrix, distortions, rotation, translation, fisheye)"
+                    ));
+                }
+            };
+            cam.insert(json_key.into(), v);
+        }
+        cam.entry("name")
+            .or_insert_with(|| Value::String(key.clone()));
+        let cam: CameraJson =
+            serde_json::from_value(Value::Object(cam)).map_err(|e| format!("[{key}]: {e}"))?;
+        cameras.push(cam);
+    }
+    Ok(CameraFile {
+        cameras,
+        units: None,
+        calib_data_source: None,
+    })
+}
+
 /// Reads and checks a camera file (see the module documentation): the cameras, each one's lens
 /// distortion and name where the file gives them.
 pub fn read_camera_file(path: &Path) -> Result<CameraFileRig, ImportError> {
+    read_camera_file_in(path, None)
+}
+
+/// [`read_camera_file`] with the translations' unit given (`m`, `cm` or `mm`): for a file that
+/// does not say it (anipose's calibrations are in the board's unit, often millimetres); a file
+/// whose `units` says otherwise is refused.
+pub fn read_camera_file_in(path: &Path, units: Option<&str>) -> Result<CameraFileRig, ImportError> {
     let text = std::fs::read_to_string(path).map_err(|source| ImportError::Read {
         path: path.to_path_buf(),
         source,
     })?;
     let bad = |e: String| ImportError::Invalid(format!("camera file {}: {e}", path.display()));
-    let file: CameraFile = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+    let is_toml = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+    let mut file: CameraFile = if is_toml {
+        toml_cameras(&text).map_err(bad)?
+    } else {
+        serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?
+    };
     if file.cameras.is_empty() {
         return fail(format!("camera file {}: no cameras", path.display()));
+    }
+    match (units, file.units.as_deref()) {
+        (Some(given), Some(own)) if given != own => {
+            return Err(bad(format!(
+                "its units are '{own}', not the '{given}' asked for"
+            )));
+        }
+        (Some(given), _) => file.units = Some(given.to_string()),
+        (None, _) => {}
     }
     let metres = match (file.units.as_deref(), &file.calib_data_source) {
         (Some("m"), _) | (None, None) => 1.0,
@@ -1174,9 +1328,13 @@ pub fn read_camera_file(path: &Path) -> Result<CameraFileRig, ImportError> {
         names: Vec::with_capacity(file.cameras.len()),
     };
     for (i, c) in file.cameras.iter().enumerate() {
+        let label = match &c.name {
+            Some(Value::String(n)) => format!("camera {i} ({n})"),
+            _ => format!("camera {i}"),
+        };
         let (cam, dist, name) = c
             .resolve(metres)
-            .map_err(|e| bad(format!("camera {i}: {e}")))?;
+            .map_err(|e| bad(format!("{label}: {e}")))?;
         cam.validate(i).map_err(|e| bad(e.to_string()))?;
         rig.cameras.push(cam);
         rig.distortion.push(dist);
@@ -1326,6 +1484,7 @@ mod tests {
             ("coco18", 18, None),
             ("halpe26", 26, Some("Hip")),
             ("wholebody133", 133, None),
+            ("blazepose33", 33, None),
         ] {
             let layout: KeypointLayout = name.parse().unwrap();
             assert_eq!((layout.name(), layout.count()), (name, count));
@@ -1340,7 +1499,7 @@ mod tests {
                 "{name}"
             );
             let neck = map.iter().find(|m| m.0 == HEAD).map(|m| m.1);
-            let necked = !matches!(name, "coco17" | "wholebody133");
+            let necked = !matches!(name, "coco17" | "wholebody133" | "blazepose33");
             assert_eq!(neck, necked.then_some("Neck"), "{name}");
             assert_eq!(
                 map.len(),
@@ -1349,7 +1508,7 @@ mod tests {
         }
         let e = "coco19".parse::<KeypointLayout>().unwrap_err().to_string();
         assert!(
-            e.contains("coco17, body25, coco18, halpe26 or wholebody133"),
+            e.contains("coco17, body25, coco18, halpe26, wholebody133 or blazepose33"),
             "{e}"
         );
         // The whole-body layout's first 17 are COCO's, its default map COCO-17's.
@@ -1802,6 +1961,116 @@ mod tests {
         // Synthesis refuses the file for its lenses.
         let e = read_cameras(&p).unwrap_err().to_string();
         assert!(e.contains("lens distortion"), "{e}");
+    }
+
+    /// An anipose / Pose2Sim `calibration.toml` (one table per camera: name, size as floats,
+    /// matrix, four distortions, a rotation vector, translation; a `[metadata]` table) reads
+    /// as the same cameras in the file's order (not sorted by name); the translations' unit is
+    /// given where the file does not say it; a fisheye camera, an unknown key, a fractional size
+    /// and malformed TOML are one-line errors naming the table or the line.
+    #[test]
+    fn an_anipose_calibration_toml_reads_in_its_order_and_unit() {
+        let d = tempfile::tempdir().unwrap();
+        let ring = default_ring(3);
+        let names = ["cam_2", "cam_10", "cam_1"];
+        let log = |c: &Camera| {
+            let (axis, angle) = glam::DQuat::from_mat3(&c.rot()).to_axis_angle();
+            (axis * angle).to_array()
+        };
+        let f = |v: &[f64]| {
+            v.iter()
+                .map(|x| format!("{x:?}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let toml_of = |unit: f64, extra: &str| {
+            let mut text = String::new();
+            for (i, c) in ring.iter().enumerate() {
+                text += &format!(
+                    "[{n}]\nname = \"{n}\"\nsize = [ {w:?}, {h:?}]\nmatrix = [ [ {fx:?}, 0.0, {cx:?}], [ 0.0, {fy:?}, {cy:?}], [ 0.0, 0.0, 1.0]]\ndistortions = [ -0.05, 0.15, -0.0001, 0.0006]\nrotation = [ {r}]\ntranslation = [ {t}]\nfisheye = false\n{extra}\n",
+                    n = names[i],
+                    w = f64::from(c.width),
+                    h = f64::from(c.height),
+                    fx = c.fx,
+                    cx = c.cx,
+                    fy = c.fy,
+                    cy = c.cy,
+                    r = f(&log(c)),
+                    t = f(&c.translation.map(|x| x * unit)),
+                );
+            }
+            text + "[metadata]\nadjusted = false\nerror = 0.0\n"
+        };
+        let p = write(d.path(), "Calib_scene.toml", &toml_of(1.0, ""));
+        let rig = read_camera_file(&p).unwrap();
+        assert_eq!(rig.names, names.map(|n| Some(n.to_string())));
+        let close = |a: &[Camera], scale: f64| {
+            for (a, b) in a.iter().zip(&ring) {
+                assert_eq!(
+                    (a.fx, a.cy, a.width, a.height),
+                    (b.fx, b.cy, b.width, b.height)
+                );
+                for (x, y) in a.rotation.iter().flatten().zip(b.rotation.iter().flatten()) {
+                    assert!((x - y).abs() < 1e-12, "{a:?} vs {b:?}");
+                }
+                for (x, y) in a.translation.iter().zip(&b.translation) {
+                    assert!((x - y * scale).abs() < 1e-12, "{a:?} vs {b:?}");
+                }
+            }
+        };
+        close(&rig.cameras, 1.0);
+        assert_eq!(
+            rig.distortion[1],
+            Some(Distortion {
+                k: [-0.05, 0.15, 0.0, 0.0, 0.0, 0.0],
+                p: [-0.0001, 0.0006]
+            })
+        );
+        // In millimetres (anipose's board unit): read as metres unless told.
+        let p = write(d.path(), "calibration.toml", &toml_of(1000.0, ""));
+        close(&read_camera_file(&p).unwrap().cameras, 1000.0);
+        close(&read_camera_file_in(&p, Some("mm")).unwrap().cameras, 1.0);
+        // A JSON file that says its unit refuses another.
+        let mut own: Value = serde_json::from_str(&cameras_json(&ring)).unwrap();
+        own["units"] = serde_json::json!("m");
+        let pj = write(d.path(), "own.json", &own.to_string());
+        assert_eq!(read_camera_file_in(&pj, Some("m")).unwrap().cameras, ring);
+        let e = read_camera_file_in(&pj, Some("mm"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("its units are 'm', not the 'mm' asked for"),
+            "{e}"
+        );
+        for (text, needle) in [
+            (
+                toml_of(1.0, "").replacen("fisheye = false", "fisheye = true", 1),
+                "[cam_2] is a fisheye camera",
+            ),
+            (
+                toml_of(1.0, "board = 3"),
+                "[cam_2] has the unknown key 'board'",
+            ),
+            (
+                toml_of(1.0, "").replacen("size = [ 640.0", "size = [ 640.5", 1),
+                "[cam_2] size must be [width, height] in whole pixels",
+            ),
+            (
+                toml_of(1.0, "").replacen("rotation = [", "rotation = [ 0.1,", 1),
+                "camera 0 (cam_2): 'rvec' must be 3 numbers",
+            ),
+            (
+                toml_of(1.0, "").replacen("matrix = [ [", "matrix = [ [ [", 1),
+                "malformed TOML at line 4",
+            ),
+            ("cam_1 = 3\n".to_string(), "'cam_1' is not a camera table"),
+            ("[metadata]\nerror = 0.0\n".to_string(), "no cameras"),
+        ] {
+            let p = write(d.path(), "bad.toml", &text);
+            let e = read_camera_file(&p).unwrap_err().to_string();
+            assert!(e.contains(needle), "{needle}: {e}");
+            assert!(!e.contains('\n'), "{e}");
+        }
     }
 
     /// Undistortion inverts OpenCV's model to 1e-9 px over the image of a wide lens (a GoPro-like
