@@ -308,6 +308,22 @@ fn c3d_markers_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
         assert_one_line_error(&o, needle);
         assert!(!never.exists());
     }
+    // A TRC's errors speak of its labels, not of a C3D's.
+    let bad_map = d.join("bad-trc-map.json");
+    write_map(&bad_map, &[("NOSUCH".into(), map[0].1.clone())]);
+    let o = lfit(&[
+        "data",
+        "import",
+        "--trc",
+        path_str(&trc),
+        "--label-map",
+        path_str(&bad_map),
+        "--out",
+        path_str(&d.join("never.npz")),
+    ]);
+    assert_one_line_error(&o, "label map: label 'NOSUCH' is not in the file");
+    let text = String::from_utf8_lossy(&o.stderr);
+    assert!(text.contains("TRC file") && !text.contains("C3D"), "{text}");
 
     let [lm, nn] = fit_both(d, &out, "markers", "mm");
     // Noise-free markers: LM explains them to under a mm, from the first frame on (its start the

@@ -293,6 +293,25 @@ def test_keypoint_import_equals_the_cli(cli, tmp_path):
     seen = np.asarray(d.visibility)
     moved = np.abs(np.asarray(l.observations) - np.asarray(d.observations))[seen]
     assert moved.max() > 1.0
+    # The camera among others in an anipose / Pose2Sim calibration.toml in millimetres, chosen
+    # by name (`camera_names`, `camera_units`): the CLI's dataset, the first one's cameras.
+    toml = ""
+    for name, ty in (("side", 2.0), ("front", -1.0)):
+        toml += (f'[{name}]\nname = "{name}"\nsize = [ 640.0, 480.0]\n'
+                 "matrix = [ [ 500.0, 0.0, 320.0], [ 0.0, 500.0, 240.0], [ 0.0, 0.0, 1.0]]\n"
+                 "distortions = [ 0.0, 0.0, 0.0, 0.0]\nrotation = [ 0.0, 0.0, 0.0]\n"
+                 f"translation = [ 0.0, {ty * 1000}, 4000.0]\nfisheye = false\n\n")
+    cams_t = tmp_path / "calibration.toml"
+    cams_t.write_text(toml + "[metadata]\nadjusted = false\nerror = 0.0\n")
+    cli_t = tmp_path / "cli-toml.npz"
+    cli("data", "import", "--keypoints", coco, "--layout", "coco17", "--camera", cams_t, "--camera-names", "front",
+        "--camera-units", "mm", "--model", MH, "--out", cli_t)
+    t = lfit.import_keypoints([coco], "coco17", cams_t, MH, camera_names=["front"], camera_units="mm")
+    same_dataset(t, lfit.load_dataset(cli_t))
+    np.testing.assert_array_equal(t.observations, d.observations)
+    assert t.sensor["cameras"][0]["translation"] == pytest.approx(cam["translation"], abs=1e-12)
+    with pytest.raises(lfit.LfitError, match="no camera named 'back' in the camera file \\(its 2 names: side, front\\)"):
+        lfit.import_keypoints([coco], "coco17", cams_t, MH, camera_names=["back"])
 
 
 def test_bvh_import_equals_the_cli(cli, tmp_path):

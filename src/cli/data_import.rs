@@ -301,7 +301,7 @@ pub fn import_dataset(
                 .map(|p| {
                     read_name_map(
                         &crate::shipped::locate_or_given(p),
-                        ["C3D label", "model marker"],
+                        [if trc { "TRC label" } else { "C3D label" }, "model marker"],
                     )
                 })
                 .transpose()

@@ -175,7 +175,7 @@ fn point_of(c3d: &C3d, key: &str) -> Result<usize, ImportError> {
     match c3d.label_index(key)? {
         Some(ci) => Ok(ci),
         None => fail(format!(
-            "label map: C3D label '{key}' is not in the file (its labels: {})",
+            "label map: label '{key}' is not in the file (its labels: {})",
             list(&c3d.labels, 12)
         )),
     }
@@ -274,7 +274,7 @@ fn default_pairs(
             groups.insert(0, format!("bare {}", pairs.len()));
         }
         return fail(format!(
-            "the C3D labels name the model's markers for more than one subject ({}): give --label-map to choose one",
+            "the file's labels name the model's markers for more than one subject ({}): give --label-map to choose one",
             groups.join(", ")
         ));
     }
@@ -308,7 +308,7 @@ pub fn import_c3d(
         ));
     }
     if c3d.labels.is_empty() {
-        return fail("the C3D file holds no 3D points (POINT:USED is 0)");
+        return fail("the file holds no 3D points (a C3D's POINT:USED is 0)");
     }
     let metres = c3d.metres_per_unit()?;
     let to_lfit = up.to_lfit();
@@ -342,7 +342,7 @@ pub fn import_c3d(
             subject = default_pairs(c3d, &marker_names, &mut pairs)?;
             if pairs.is_empty() {
                 return fail(format!(
-                    "no C3D label is the name of a marker of model '{}', bare or after a subject's prefix (SUBJECT:NAME): give --label-map (C3D labels: {})",
+                    "no label of the file is the name of a marker of model '{}', bare or after a subject's prefix (SUBJECT:NAME): give --label-map (its labels: {})",
                     template.id,
                     list(&c3d.labels, 12)
                 ));
