@@ -578,6 +578,46 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
             assert!((x - y).abs() < 1e-12, "{a:?} vs {b:?}");
         }
     }
+    // The six cameras as an EasyMocap folder (intri.yml + extri.yml, OpenCV's YAML; sizes
+    // given): the same dataset, read from the folder.
+    let easy = d.join("easymocap");
+    std::fs::create_dir_all(&easy).expect("dir");
+    let cams6 = truth.sensor.cameras();
+    let names: String = (0..cams6.len())
+        .map(|c| format!("  - \"{c:02}\"\r\n"))
+        .collect();
+    let mat = |key: String, r: usize, c: usize, v: &[f64]| {
+        let v: Vec<String> = v.iter().map(|x| format!("{x:?}")).collect();
+        format!(
+            "{key}: !!opencv-matrix\r\n  rows: {r}\r\n  cols: {c}\r\n  dt: d\r\n  data: [{}]\r\n",
+            v.join(", ")
+        )
+    };
+    let (mut intri, mut extri) = (
+        format!("%YAML:1.0\r\n---\r\nnames:\r\n{names}"),
+        format!("%YAML:1.0\r\n---\r\nnames:\r\n{names}"),
+    );
+    for (c, cam) in cams6.iter().enumerate() {
+        let k = [cam.fx, 0.0, cam.cx, 0.0, cam.fy, cam.cy, 0.0, 0.0, 1.0];
+        intri += &mat(format!("K_{c:02}"), 3, 3, &k);
+        intri += &format!("W_{c:02}: {}\r\nH_{c:02}: {}\r\n", cam.width, cam.height);
+        let r: Vec<f64> = cam.rotation.iter().flatten().copied().collect();
+        extri += &mat(format!("Rot_{c:02}"), 3, 3, &r);
+        extri += &mat(format!("T_{c:02}"), 3, 1, &cam.translation);
+    }
+    std::fs::write(easy.join("intri.yml"), intri).expect("intri");
+    std::fs::write(easy.join("extri.yml"), extri).expect("extri");
+    let out_e = d.join("kp-easymocap.npz");
+    let summary_e = import(&easy, &out_e, &[]);
+    assert!(
+        summary_e["source"]
+            .get("image_size_from_principal_point")
+            .is_none(),
+        "{summary_e}"
+    );
+    let from_e = Dataset::load(&out_e).expect("imported");
+    assert_eq!(sparse(&from_e), sparse(&imported));
+    assert_eq!(from_e.sensor.cameras(), truth.sensor.cameras());
     let bad_unit = lfit(&[
         "data",
         "import",

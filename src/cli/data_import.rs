@@ -115,7 +115,8 @@ pub struct ImportArgs {
     /// p1 p2 [k3 [k4 k5 k6]]) undistorts that camera's keypoints; a CMU Panoptic calibration
     /// file (calibration_<sequence>.json, centimetres) reads as it is; "units": "m"|"cm"|"mm"
     /// gives any file's translation unit. A .toml file is an anipose / Pose2Sim calibration
-    /// ([cam_N] name, size, matrix, distortions, rotation, translation).
+    /// ([cam_N] name, size, matrix, distortions, rotation, translation); a folder (or its
+    /// intri.yml) is EasyMocap's intri.yml + extri.yml (ZJU-MoCap's layout).
     #[arg(long)]
     pub camera: Option<PathBuf>,
     /// Unit of the camera file's translations where the file does not say it: m, cm or mm
@@ -359,6 +360,7 @@ pub fn import_dataset(
                 mut cameras,
                 distortion,
                 names,
+                sizes_from_principal_point,
             } = rig;
             if up != lfit_synth::motion::retarget::Up::Y {
                 // The cameras turned with the world (y up: the file as it is, to the bit).
@@ -419,6 +421,9 @@ pub fn import_dataset(
             }
             if let Some(u) = &args.camera_units {
                 source["camera_units"] = json!(u);
+            }
+            if !sizes_from_principal_point.is_empty() {
+                source["image_size_from_principal_point"] = json!(sizes_from_principal_point);
             }
             (imported, source)
         }

@@ -38,6 +38,8 @@
 //! top-level `"units": "m" | "cm" | "mm"` gives the translations' unit of any camera file
 //! (default metres, Panoptic's centimetres). [`CameraFileRig::select`] chooses cameras by name
 //! (a Panoptic file lists its 31 HD, 480 VGA and 10 Kinect cameras; keypoints come from a few).
+//! A `.toml` file is an anipose / Pose2Sim calibration; a folder (or its `intri.yml` /
+//! `extri.yml`) EasyMocap's cameras ([`super::opencv_yaml`]).
 
 use std::path::{Path, PathBuf};
 
@@ -46,7 +48,7 @@ use lfit_model::skeleton;
 use serde::Deserialize;
 use serde_json::Value;
 
-use crate::capture::ImportError;
+use crate::capture::{ImportError, opencv_yaml};
 
 fn fail<T>(msg: impl Into<String>) -> Result<T, ImportError> {
     Err(ImportError::Invalid(msg.into()))
@@ -872,6 +874,9 @@ pub struct CameraFileRig {
     pub distortion: Vec<Option<Distortion>>,
     /// Each camera's `name`, `None` where the file gives none.
     pub names: Vec<Option<String>>,
+    /// The cameras whose image size the file does not give (an EasyMocap `intri.yml` without
+    /// `W_`/`H_`): taken as twice the principal point.
+    pub sizes_from_principal_point: Vec<String>,
 }
 
 impl CameraFileRig {
@@ -940,6 +945,12 @@ impl CameraFileRig {
             cameras: picked.iter().map(|&i| self.cameras[i].clone()).collect(),
             distortion: picked.iter().map(|&i| self.distortion[i]).collect(),
             names: picked.iter().map(|&i| self.names[i].clone()).collect(),
+            sizes_from_principal_point: self
+                .sizes_from_principal_point
+                .iter()
+                .filter(|n| picked.iter().any(|&i| self.names[i].as_ref() == Some(*n)))
+                .cloned()
+                .collect(),
         })
     }
 }
@@ -1287,18 +1298,35 @@ pub fn read_camera_file(path: &Path) -> Result<CameraFileRig, ImportError> {
 /// does not say it (anipose's calibrations are in the board's unit, often millimetres); a file
 /// whose `units` says otherwise is refused.
 pub fn read_camera_file_in(path: &Path, units: Option<&str>) -> Result<CameraFileRig, ImportError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ImportError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
     let bad = |e: String| ImportError::Invalid(format!("camera file {}: {e}", path.display()));
-    let is_toml = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
-    let mut file: CameraFile = if is_toml {
-        toml_cameras(&text).map_err(bad)?
+    let mut sizes_from_principal_point = Vec::new();
+    let mut file: CameraFile = if let Some(dir) = opencv_yaml::easymocap_dir(path) {
+        let (cameras, guessed) = opencv_yaml::easymocap_cameras(&dir).map_err(bad)?;
+        sizes_from_principal_point = guessed;
+        CameraFile {
+            cameras: cameras
+                .into_iter()
+                .enumerate()
+                .map(|(i, c)| {
+                    serde_json::from_value(c).map_err(|e| bad(format!("camera {i}: {e}")))
+                })
+                .collect::<Result<_, _>>()?,
+            units: None,
+            calib_data_source: None,
+        }
     } else {
-        serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?
+        let text = std::fs::read_to_string(path).map_err(|source| ImportError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let is_toml = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+        if is_toml {
+            toml_cameras(&text).map_err(bad)?
+        } else {
+            serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?
+        }
     };
     if file.cameras.is_empty() {
         return fail(format!("camera file {}: no cameras", path.display()));
@@ -1326,6 +1354,7 @@ pub fn read_camera_file_in(path: &Path, units: Option<&str>) -> Result<CameraFil
         cameras: Vec::with_capacity(file.cameras.len()),
         distortion: Vec::with_capacity(file.cameras.len()),
         names: Vec::with_capacity(file.cameras.len()),
+        sizes_from_principal_point,
     };
     for (i, c) in file.cameras.iter().enumerate() {
         let label = match &c.name {

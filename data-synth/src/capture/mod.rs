@@ -9,6 +9,7 @@ use crate::error::SynthError;
 pub mod c3d;
 pub mod import;
 pub mod keypoints;
+pub mod opencv_yaml;
 pub mod trc;
 
 /// Errors of the import: each a one-line cause.
