@@ -618,6 +618,38 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     let from_e = Dataset::load(&out_e).expect("imported");
     assert_eq!(sparse(&from_e), sparse(&imported));
     assert_eq!(from_e.sensor.cameras(), truth.sensor.cameras());
+    // The same TOML read as metres: a body a thousand times the model's, refused naming the
+    // unit; the right unit's body is the model's size within the subject's shape.
+    let size = summary_t["import"]["triangulated_size"]
+        .as_f64()
+        .expect("triangulated_size");
+    assert!((0.8..1.25).contains(&size), "{size}");
+    let as_metres = lfit(&[
+        "data",
+        "import",
+        "--layout",
+        "coco17",
+        "--camera",
+        path_str(&cams_t),
+        "--out",
+        path_str(&out_t),
+        "--keypoints",
+        path_str(&files[0]),
+        path_str(&files[1]),
+        path_str(&files[2]),
+        path_str(&files[3]),
+        path_str(&files[4]),
+        path_str(&files[5]),
+    ]);
+    assert_one_line_error(&as_metres, "--camera-units");
+    let text = String::from_utf8_lossy(&as_metres.stderr);
+    let times: f64 = text
+        .split("triangulate to a body ")
+        .nth(1)
+        .and_then(|t| t.split('×').next())
+        .and_then(|t| t.parse().ok())
+        .expect("the body's size in the error");
+    assert!((800.0..1250.0).contains(&times), "{text}");
     let bad_unit = lfit(&[
         "data",
         "import",

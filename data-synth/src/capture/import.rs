@@ -543,7 +543,17 @@ pub fn import_keypoints(
     }
     check_pixels(&cameras, nj, &values, &visible)?;
     let joints: Vec<usize> = pairs.iter().map(|p| p.0).collect();
-    let (starts, rigid, ray) = keypoint_starts(template, &cameras, &joints, &values, &visible);
+    let (starts, rigid, ray, size) =
+        keypoint_starts(template, &cameras, &joints, &values, &visible);
+    // A body triangulated many times the model's size: the cameras' translations are in another
+    // unit than metres (cm: 100×, mm: 1000×), or the keypoint files are not in their order.
+    if let Some(size) = size
+        && !(0.125..=8.0).contains(&size)
+    {
+        return fail(format!(
+            "the keypoints triangulate to a body {size:.3}× the model's size (median over {rigid} frames): are the camera translations in another unit (--camera-units m|cm|mm), or the keypoint files in another order than the cameras?"
+        ));
+    }
     let joint_names: Vec<String> = rig.joints.iter().map(|j| j.name.clone()).collect();
     let mapped: Vec<String> = pairs
         .iter()
@@ -574,6 +584,7 @@ pub fn import_keypoints(
         "seen_fraction": seen_fraction,
         "crowded_frames": tracks.iter().map(|t| t.crowded_frames).sum::<usize>(),
         "triangulated_starts": rigid,
+        "triangulated_size": size,
         "single_view_starts": ray,
     });
     let sensor = Sensor::Keypoints2d(KeypointSetup::new(cameras));
@@ -630,19 +641,28 @@ pub fn marker_starts(
 /// joints triangulated from two or more cameras, or, with fewer than three such, placed along
 /// the ray of the camera that sees most of them at the depth that matches their spread; a frame
 /// with neither where the previous one started. Also how many frames took each way (rigid,
-/// ray). What `lfit fit --holdout` starts from, on the cameras and keypoints it leaves.
+/// ray), and the triangulated joints' size against the rest joints' (the median over the rigid
+/// frames of their RMS distances from their centroids; `None` without such a frame): near 1 for
+/// a person, a hundred or a thousand times that for cameras whose translations are in cm or mm
+/// but read as metres. What `lfit fit --holdout` starts from, on the cameras and keypoints it
+/// leaves.
 pub fn keypoint_starts(
     template: &Template,
     cameras: &[Camera],
     joints: &[usize],
     values: &[Vec<f64>],
     visible: &[Vec<bool>],
-) -> (Vec<Vec<f64>>, usize, usize) {
+) -> (Vec<Vec<f64>>, usize, usize, Option<f64>) {
     let nj = template.rig.num_joints();
     let k = cameras.len();
     let rest = template.joint_rest();
     let mut starts = Vec::with_capacity(values.len());
     let (mut rigid, mut ray) = (0, 0);
+    let mut sizes: Vec<f64> = Vec::new();
+    let rms = |p: &[DVec3]| {
+        let c = p.iter().copied().sum::<DVec3>() / p.len() as f64;
+        (p.iter().map(|x| (*x - c).length_squared()).sum::<f64>() / p.len() as f64).sqrt()
+    };
     for (v, b) in values.iter().zip(visible) {
         let seen = |c: usize, j: usize| b[2 * (c * nj + j)];
         let uv = |c: usize, j: usize| {
@@ -664,6 +684,7 @@ pub fn keypoint_starts(
         }
         let start = if let Some((q, s)) = rigid_fit(&a, &o) {
             rigid += 1;
+            sizes.push(rms(&o) / rms(&a));
             Some(rigid_start(template, q, s))
         } else {
             // One camera: the camera that sees most of the joints.
@@ -682,7 +703,9 @@ pub fn keypoint_starts(
         };
         starts.push(start);
     }
-    (fill_starts(starts, template), rigid, ray)
+    sizes.sort_by(f64::total_cmp);
+    let size = (!sizes.is_empty()).then(|| sizes[sizes.len() / 2]);
+    (fill_starts(starts, template), rigid, ray, size)
 }
 
 /// Frames without an estimate start where the previous one did (the first such frames, where the
