@@ -1543,3 +1543,121 @@ fn a_capture_with_markers_off_the_set_is_told_to_solve_their_placement() {
     let hint = off.1.as_ref().and_then(Value::as_str).expect("a hint");
     assert!(hint.contains("--marker-placement solve"), "{hint}");
 }
+
+/// `lfit data cameras`: a CMU Panoptic file's chosen cameras (centimetres, lens distortion) in
+/// lfit's own JSON — read back as the same cameras, names and lenses; the summary places each
+/// camera (the ring's 1.3 m height, 4 m away, tilted down at the subject); `--pinhole` leaves
+/// the lenses out, and `lfit synth --camera` takes that file (and refuses the one with lenses).
+#[test]
+fn a_camera_file_converts_to_lfit_json_and_drives_synth() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let ring = lfit::model::camera::default_ring(4);
+    let list: Vec<Value> = ring
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            json!({
+                "name": format!("00_{i:02}"), "type": "hd", "panel": 0, "node": i,
+                "resolution": [c.width, c.height],
+                "K": [[c.fx, 0.0, c.cx], [0.0, c.fy, c.cy], [0.0, 0.0, 1.0]],
+                "distCoef": [-0.2 + 0.01 * i as f64, 0.05, 0.0, 0.0, 0.01],
+                "R": c.rotation, "t": c.translation.map(|x| [x * 100.0]),
+            })
+        })
+        .collect();
+    let panoptic = d.join("calibration_x.json");
+    std::fs::write(
+        &panoptic,
+        json!({ "calibDataSource": "x", "cameras": list }).to_string(),
+    )
+    .expect("write");
+    let rig = d.join("rig.json");
+    let s = lfit_json(&[
+        "data",
+        "cameras",
+        "--camera",
+        path_str(&panoptic),
+        "--camera-names",
+        "00_03,00_01",
+        "--out",
+        path_str(&rig),
+    ]);
+    assert_eq!(s["count"], 2, "{s}");
+    for (k, want) in [(0, &ring[3]), (1, &ring[1])] {
+        let cam = &s["cameras"][k];
+        let height = cam["height_m"].as_f64().expect("height");
+        let distance = cam["distance_m"].as_f64().expect("distance");
+        let tilt = cam["tilt_deg"].as_f64().expect("tilt");
+        assert!((height - want.center().y).abs() < 1e-9, "{cam}");
+        assert!(
+            (height - 1.3).abs() < 1e-9 && (distance - 4.0).abs() < 1e-9,
+            "{cam}"
+        );
+        assert!(
+            (-10.0..0.0).contains(&tilt),
+            "looks down at the subject: {cam}"
+        );
+    }
+    let back = lfit::synth::capture::keypoints::read_camera_file(&rig).expect("rig");
+    let chosen = lfit::synth::capture::keypoints::read_camera_file(&panoptic)
+        .expect("panoptic")
+        .select(&["00_03".into(), "00_01".into()])
+        .expect("chosen");
+    assert_eq!(back, chosen);
+    assert!(back.distortion.iter().all(Option::is_some));
+    // Synthesis refuses lenses; the --pinhole file is the same rig without them.
+    let out = d.join("syn.npz");
+    let synth_with = |rig: &Path| {
+        lfit(&[
+            "-q",
+            "synth",
+            "--modality",
+            "keypoints2d",
+            "--frames",
+            "2",
+            "--camera",
+            path_str(rig),
+            "--out",
+            path_str(&out),
+        ])
+    };
+    assert_one_line_error(&synth_with(&rig), "has a lens distortion");
+    let pinhole = d.join("rig-pinhole.json");
+    lfit_json(&[
+        "data",
+        "cameras",
+        "--camera",
+        path_str(&panoptic),
+        "--camera-names",
+        "00_03,00_01",
+        "--pinhole",
+        "--out",
+        path_str(&pinhole),
+    ]);
+    assert!(synth_with(&pinhole).status.success());
+    let syn = Dataset::load(&out).expect("synth");
+    assert_eq!(syn.sensor.cameras(), &chosen.cameras[..]);
+    // Bad flags: one line each, nothing written.
+    let never = d.join("never.json");
+    for (extra, needle) in [
+        (
+            vec!["--camera-units", "inch"],
+            "--camera-units inch: expected m, cm or mm",
+        ),
+        (vec!["--camera-names", "00_09"], "no camera named '00_09'"),
+        (vec!["--up", "q"], "up"),
+    ] {
+        let mut a = vec![
+            "data",
+            "cameras",
+            "--camera",
+            path_str(&panoptic),
+            "--out",
+            path_str(&never),
+        ];
+        a.extend(extra);
+        assert_one_line_error(&lfit(&a), needle);
+        assert!(!never.exists());
+    }
+}

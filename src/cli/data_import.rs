@@ -43,6 +43,38 @@ pub enum DataCommand {
     /// test `lfit data import` and the fitters on captures with a known ground truth, or to
     /// open synthetic markers in other motion-capture tools.
     ExportC3d(ExportC3dArgs),
+    /// Read a camera file as `lfit data import --camera` does (lfit's JSON, OpenCV's keys, a CMU
+    /// Panoptic calibration, an anipose / Pose2Sim calibration.toml, an EasyMocap folder), with
+    /// --camera-names, --camera-units and --up applied; print where each camera stands in lfit's
+    /// Y-up world in metres (its height above y = 0, its distance, its tilt) and write the
+    /// cameras in lfit's own JSON (--out): a rig for `lfit synth --camera` (--pinhole: without
+    /// the lens distortion, which synthesis does not model) or to check a calibration's unit
+    /// and up axis before importing keypoints.
+    Cameras(CamerasArgs),
+}
+
+/// Arguments of `lfit data cameras`.
+#[derive(Debug, clap::Args)]
+pub struct CamerasArgs {
+    /// Camera file (any form `lfit data import --camera` reads).
+    #[arg(long)]
+    pub camera: PathBuf,
+    /// The cameras to keep, in this order: names or #K (as `lfit data import --camera-names`).
+    #[arg(long, value_delimiter = ',', value_name = "NAME,...")]
+    pub camera_names: Vec<String>,
+    /// Unit of the translations where the file does not say it: m, cm or mm.
+    #[arg(long, value_name = "m|cm|mm")]
+    pub camera_units: Option<String>,
+    /// Up axis of the camera file's world (as `lfit data import --up`).
+    #[arg(long, default_value = "y", allow_hyphen_values = true)]
+    pub up: String,
+    /// Leave out the lens distortion in --out (a pinhole rig for `lfit synth --camera`).
+    #[arg(long)]
+    pub pinhole: bool,
+    /// Output camera file (lfit's JSON keys, metres, Y up; written atomically); default: only
+    /// the summary.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
 }
 
 /// Arguments of `lfit data export-c3d`.
@@ -154,6 +186,7 @@ pub fn run(command: &DataCommand) -> Result<Value> {
     match command {
         DataCommand::Import(args) => import(args),
         DataCommand::ExportC3d(args) => export_c3d(args),
+        DataCommand::Cameras(args) => cameras(args),
     }
 }
 
@@ -256,6 +289,81 @@ pub fn export_c3d(args: &ExportC3dArgs) -> Result<Value> {
     }))
 }
 
+/// The cameras of a camera file with `--camera-units`, `--camera-names` and `--up` applied: the
+/// chosen ones (default all) in that order, in lfit's Y-up world, translations in metres.
+fn load_cameras(
+    path: &Path,
+    units: Option<&str>,
+    names: &[String],
+    up: lfit_synth::motion::retarget::Up,
+) -> Result<CameraFileRig> {
+    if let Some(u) = units
+        && !["m", "cm", "mm"].contains(&u)
+    {
+        bail!("--camera-units {u}: expected m, cm or mm");
+    }
+    let mut rig = read_camera_file_in(path, units)?;
+    if !names.is_empty() {
+        rig = rig
+            .select(names)
+            .with_context(|| format!("--camera-names, camera file {}", path.display()))?;
+    }
+    if up != lfit_synth::motion::retarget::Up::Y {
+        // The cameras turned with the world (y up: the file as it is, to the bit).
+        for c in &mut rig.cameras {
+            *c = c.in_rotated_world(up.to_lfit());
+        }
+    }
+    Ok(rig)
+}
+
+/// `lfit data cameras`.
+pub fn cameras(args: &CamerasArgs) -> Result<Value> {
+    if let Some(out) = &args.out {
+        check_out(out)?;
+    }
+    let up: lfit_synth::motion::retarget::Up = args.up.parse().map_err(anyhow::Error::msg)?;
+    let rig = load_cameras(
+        &args.camera,
+        args.camera_units.as_deref(),
+        &args.camera_names,
+        up,
+    )?;
+    let list: Vec<Value> = rig
+        .cameras
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let centre = c.center();
+            // The optical axis (+z of the camera) in the world: its tilt above the horizon.
+            let axis = glam::DVec3::from_array(c.rotation[2]);
+            json!({
+                "name": rig.names[i],
+                "centre_m": centre.to_array(),
+                "height_m": centre.y,
+                "distance_m": centre.x.hypot(centre.z),
+                "tilt_deg": axis.y.clamp(-1.0, 1.0).asin().to_degrees(),
+                "fx": c.fx,
+                "image": [c.width, c.height],
+                "distortion": rig.distortion[i].map(|d| d.to_opencv()),
+            })
+        })
+        .collect();
+    if let Some(out) = &args.out {
+        let text = lfit_synth::capture::keypoints::camera_file_json(&rig, args.pinhole);
+        lfit_model::template::write_atomic(out, text.as_bytes())
+            .with_context(|| format!("camera file {}", out.display()))?;
+    }
+    Ok(json!({
+        "camera": args.camera,
+        "count": rig.cameras.len(),
+        "cameras": list,
+        "image_size_from_principal_point": rig.sizes_from_principal_point,
+        "out": args.out,
+        "pinhole": args.pinhole,
+    }))
+}
+
 /// `lfit data import`.
 pub fn import(args: &ImportArgs) -> Result<Value> {
     check_out(&args.out)?;
@@ -345,29 +453,12 @@ pub fn import_dataset(
             if !(args.fps.is_finite() && args.fps > 0.0) {
                 bail!("--fps must be positive (got {})", args.fps);
             }
-            if let Some(u) = &args.camera_units
-                && !["m", "cm", "mm"].contains(&u.as_str())
-            {
-                bail!("--camera-units {u}: expected m, cm or mm");
-            }
-            let mut rig = read_camera_file_in(camera, args.camera_units.as_deref())?;
-            if !args.camera_names.is_empty() {
-                rig = rig
-                    .select(&args.camera_names)
-                    .with_context(|| format!("--camera-names, camera file {}", camera.display()))?;
-            }
             let CameraFileRig {
-                mut cameras,
+                cameras,
                 distortion,
                 names,
                 sizes_from_principal_point,
-            } = rig;
-            if up != lfit_synth::motion::retarget::Up::Y {
-                // The cameras turned with the world (y up: the file as it is, to the bit).
-                for c in &mut cameras {
-                    *c = c.in_rotated_world(up.to_lfit());
-                }
-            }
+            } = load_cameras(camera, args.camera_units.as_deref(), &args.camera_names, up)?;
             let map = args
                 .keypoint_map
                 .as_deref()

@@ -988,6 +988,18 @@ impl Distortion {
         Ok((d.k.iter().chain(&d.p).any(|&v| v != 0.0)).then_some(d))
     }
 
+    /// OpenCV's coefficient list `k1 k2 p1 p2 k3` (5), or with `k4 k5 k6` (8) where the rational
+    /// terms are not zero: what [`Distortion::from_opencv`] reads back.
+    pub fn to_opencv(&self) -> Vec<f64> {
+        let [k1, k2, k3, k4, k5, k6] = self.k;
+        let [p1, p2] = self.p;
+        let mut c = vec![k1, k2, p1, p2, k3];
+        if [k4, k5, k6].iter().any(|&v| v != 0.0) {
+            c.extend([k4, k5, k6]);
+        }
+        c
+    }
+
     /// Distorted normalised coordinates of the undistorted `(x, y)`.
     pub fn distort(&self, x: f64, y: f64) -> (f64, f64) {
         let [k1, k2, k3, k4, k5, k6] = self.k;
@@ -1409,6 +1421,33 @@ pub fn undistort_track(
         }
     }
     Ok(())
+}
+
+/// The JSON text of a camera file in lfit's own keys for `rig` (metres): each camera's `name`
+/// where it has one and its `dist` (OpenCV's coefficients) unless `pinhole`. What
+/// [`read_camera_file`] reads back as `rig`.
+pub fn camera_file_json(rig: &CameraFileRig, pinhole: bool) -> String {
+    let list: Vec<Value> = rig
+        .cameras
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let mut cam = serde_json::json!({
+                "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
+                "width": c.width, "height": c.height,
+                "rotation": c.rotation, "translation": c.translation,
+            });
+            if let Some(n) = &rig.names[i] {
+                cam["name"] = serde_json::json!(n);
+            }
+            if let (Some(d), false) = (&rig.distortion[i], pinhole) {
+                cam["dist"] = serde_json::json!(d.to_opencv());
+            }
+            cam
+        })
+        .collect();
+    serde_json::to_string_pretty(&serde_json::json!({ "cameras": list }))
+        .expect("numbers and strings serialise")
 }
 
 /// The JSON text of a camera file for `cameras` (the format [`read_cameras`] reads).
