@@ -5,7 +5,10 @@
 
 pub use crate::cli::calibrate::calibrate_dataset;
 pub use crate::cli::commands::model_info;
-pub use crate::cli::data_import::{ImportArgs as DataImportArgs, import_dataset};
+pub use crate::cli::data_import::{
+    CamerasArgs as DataCamerasArgs, ImportArgs as DataImportArgs, cameras as data_cameras,
+    import_dataset,
+};
 pub use crate::cli::fit::{FitArgs, FrameProblem, fit_dataset, parse_frames, read_energy_config};
 pub use crate::cli::motion::{
     ImportArgs as MotionImportArgs, PriorArgs as MotionPriorArgs, import_clip, prior_energy,

@@ -435,6 +435,35 @@ pub fn import_keypoints(
     data_import(py, args, model, out)
 }
 
+/// Reads a camera file as `lfit data cameras` does (lfit's JSON, OpenCV's keys, a CMU Panoptic
+/// calibration, an anipose / Pose2Sim `.toml`, an EasyMocap folder): the cameras chosen by
+/// `camera_names` (names or `"#K"`; default all), translations in `camera_units` where the file
+/// does not say it, turned from `up`'s world into lfit's Y-up one; returns its summary (each
+/// camera's `centre_m`, `height_m`, `distance_m`, `tilt_deg`, `fx`, `image`, `distortion`) and
+/// writes the cameras in lfit's own JSON to `out` if given (`pinhole`: without the lenses).
+#[pyfunction]
+#[pyo3(signature = (camera, *, camera_names=None, camera_units=None, up="y", pinhole=false, out=None))]
+pub fn read_cameras<'py>(
+    py: Python<'py>,
+    camera: PathBuf,
+    camera_names: Option<Vec<String>>,
+    camera_units: Option<String>,
+    up: &str,
+    pinhole: bool,
+    out: Option<PathBuf>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let args = lfit::api::DataCamerasArgs {
+        camera,
+        camera_names: camera_names.unwrap_or_default(),
+        camera_units,
+        up: up.to_string(),
+        pinhole,
+        out,
+    };
+    let summary = without_gil(py, |_| lfit::api::data_cameras(&args))?;
+    json_to_py(py, &summary)
+}
+
 /// A motion in one model's parameter layout (`lfit motion import`): `params` `(T, P)`, `fps`,
 /// `source`, and the import's report (`summary`: bone-direction cosines, scale).
 #[pyclass(module = "lfit", name = "Motion", frozen)]

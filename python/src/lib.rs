@@ -26,6 +26,7 @@ fn _lfit(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(dataset::import_c3d, m)?)?;
     m.add_function(wrap_pyfunction!(dataset::import_trc, m)?)?;
     m.add_function(wrap_pyfunction!(dataset::import_keypoints, m)?)?;
+    m.add_function(wrap_pyfunction!(dataset::read_cameras, m)?)?;
     m.add_function(wrap_pyfunction!(dataset::import_bvh, m)?)?;
     m.add_function(wrap_pyfunction!(dataset::motion_prior, m)?)?;
     m.add_function(wrap_pyfunction!(fit::fit, m)?)?;

@@ -312,6 +312,17 @@ def test_keypoint_import_equals_the_cli(cli, tmp_path):
     assert t.sensor["cameras"][0]["translation"] == pytest.approx(cam["translation"], abs=1e-12)
     with pytest.raises(lfit.LfitError, match="no camera named 'back' in the camera file \\(its 2 names: side, front\\)"):
         lfit.import_keypoints([coco], "coco17", cams_t, MH, camera_names=["back"])
+    # `lfit.read_cameras` is `lfit data cameras`: the same summary, the same file written.
+    rig_py, rig_cli = tmp_path / "rig-py.json", tmp_path / "rig-cli.json"
+    summary = lfit.read_cameras(cams_t, camera_names=["front", "side"], camera_units="mm", out=rig_py)
+    cli_summary = cli("data", "cameras", "--camera", cams_t, "--camera-names", "front,side", "--camera-units", "mm",
+                      "--out", rig_cli)
+    assert summary["cameras"] == cli_summary["cameras"]
+    assert [c["name"] for c in summary["cameras"]] == ["front", "side"]
+    assert summary["cameras"][0]["height_m"] == pytest.approx(1.0) and summary["cameras"][1]["height_m"] == pytest.approx(-2.0)
+    assert rig_py.read_bytes() == rig_cli.read_bytes()
+    with pytest.raises(lfit.LfitError, match="--camera-units inch: expected m, cm or mm"):
+        lfit.read_cameras(cams_t, camera_units="inch")
 
 
 def test_bvh_import_equals_the_cli(cli, tmp_path):

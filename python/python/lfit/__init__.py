@@ -29,6 +29,7 @@ from ._lfit import (
     import_keypoints,
     load_dataset,
     motion_prior,
+    read_cameras,
     synth,
 )
 
@@ -49,5 +50,6 @@ __all__ = [
     "import_keypoints",
     "load_dataset",
     "motion_prior",
+    "read_cameras",
     "synth",
 ]

@@ -289,6 +289,17 @@ def import_keypoints(
 ) -> Dataset:
     """``lfit data import --keypoints``."""
 
+def read_cameras(
+    camera: _Path,
+    *,
+    camera_names: Optional[Sequence[str]] = None,
+    camera_units: Optional[str] = None,
+    up: str = "y",
+    pinhole: bool = False,
+    out: Optional[_Path] = None,
+) -> Dict[str, Any]:
+    """``lfit data cameras``: the summary (each camera's place); writes lfit's JSON to ``out``."""
+
 def import_bvh(
     path: _Path,
     model: Optional[_ModelArg] = None,
