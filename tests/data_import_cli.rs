@@ -498,36 +498,25 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     // Without a choice the nine cameras do not match two keypoint files; a name not in the
     // file. Both refused in one line, the dataset already at --out untouched.
     let kept = std::fs::read(&out_p).expect("written");
-    let no_pick = lfit(&[
-        "data",
-        "import",
-        "--layout",
-        "coco17",
-        "--camera",
-        path_str(&cams_p),
-        "--out",
-        path_str(&out_p),
-        "--keypoints",
-        path_str(&files[0]),
-        path_str(&files[1]),
-    ]);
+    // `lfit data import` of the first `n` COCO files with `cams` and `extra`, expected to fail.
+    let refused = |cams: &Path, extra: &[&str], n: usize, out: &Path| {
+        let mut a = vec![
+            "data",
+            "import",
+            "--layout",
+            "coco17",
+            "--camera",
+            path_str(cams),
+        ];
+        a.extend(extra);
+        a.extend(["--out", path_str(out), "--keypoints"]);
+        a.extend(files[..n].iter().map(|f| path_str(f)));
+        lfit(&a)
+    };
+    let no_pick = refused(&cams_p, &[], 2, &out_p);
     assert_one_line_error(&no_pick, "2 keypoint paths for 9 cameras");
     assert_one_line_error(&no_pick, "--camera-names");
-    let unknown = lfit(&[
-        "data",
-        "import",
-        "--layout",
-        "coco17",
-        "--camera",
-        path_str(&cams_p),
-        "--camera-names",
-        "00_03,00_04",
-        "--out",
-        path_str(&out_p),
-        "--keypoints",
-        path_str(&files[0]),
-        path_str(&files[1]),
-    ]);
+    let unknown = refused(&cams_p, &["--camera-names", "00_03,00_04"], 2, &out_p);
     assert_one_line_error(
         &unknown,
         "no camera named '00_04' in the camera file (its 9 names: 01_01, 00_15",
@@ -624,23 +613,7 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
         .as_f64()
         .expect("triangulated_size");
     assert!((0.8..1.25).contains(&size), "{size}");
-    let as_metres = lfit(&[
-        "data",
-        "import",
-        "--layout",
-        "coco17",
-        "--camera",
-        path_str(&cams_t),
-        "--out",
-        path_str(&out_t),
-        "--keypoints",
-        path_str(&files[0]),
-        path_str(&files[1]),
-        path_str(&files[2]),
-        path_str(&files[3]),
-        path_str(&files[4]),
-        path_str(&files[5]),
-    ]);
+    let as_metres = refused(&cams_t, &[], 6, &out_t);
     assert_one_line_error(&as_metres, "--camera-units");
     let text = String::from_utf8_lossy(&as_metres.stderr);
     let times: f64 = text
@@ -650,20 +623,7 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
         .and_then(|t| t.parse().ok())
         .expect("the body's size in the error");
     assert!((800.0..1250.0).contains(&times), "{text}");
-    let bad_unit = lfit(&[
-        "data",
-        "import",
-        "--layout",
-        "coco17",
-        "--camera",
-        path_str(&cams_t),
-        "--camera-units",
-        "inch",
-        "--out",
-        path_str(&out_t),
-        "--keypoints",
-        path_str(&files[0]),
-    ]);
+    let bad_unit = refused(&cams_t, &["--camera-units", "inch"], 1, &out_t);
     assert_one_line_error(&bad_unit, "--camera-units inch: expected m, cm or mm");
     // The same cameras calibrated in a Z-up world (a board on the floor), imported with
     // `--up z`: turned back into lfit's Y-up world (the cameras within rounding), the same
@@ -1623,6 +1583,7 @@ fn a_camera_file_converts_to_lfit_json_and_drives_synth() {
         ])
     };
     assert_one_line_error(&synth_with(&rig), "has a lens distortion");
+    assert_one_line_error(&synth_with(&rig), "lfit data cameras --camera");
     let pinhole = d.join("rig-pinhole.json");
     lfit_json(&[
         "data",

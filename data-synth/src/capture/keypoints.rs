@@ -1390,7 +1390,8 @@ pub fn read_cameras(path: &Path) -> Result<Vec<Camera>, ImportError> {
     let rig = read_camera_file(path)?;
     if let Some(i) = rig.distortion.iter().position(Option::is_some) {
         return fail(format!(
-            "camera file {}: camera {i} has a lens distortion, which synthesis does not model (lfit data import undistorts keypoints with it)",
+            "camera file {}: camera {i} has a lens distortion, which synthesis does not model (lfit data import undistorts keypoints with it): `lfit data cameras --camera {} --pinhole --out RIG.json` writes the rig without it",
+            path.display(),
             path.display()
         ));
     }

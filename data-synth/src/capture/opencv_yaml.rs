@@ -384,7 +384,55 @@ mod tests {
                 ]
             );
         }
-        let broken = |name: &str, text: String, needle: &str| {
+        // (file broken, its text, the error's words)
+        let broken = [
+            (
+                "intri",
+                intri.replace("K_01", "K_09"),
+                "intri.yml has no K_01 for camera '01'",
+            ),
+            (
+                "extri",
+                extri.replace("T_02", "T_x"),
+                "extri.yml has no T_02 for camera '02'",
+            ),
+            (
+                "extri",
+                extri.replace("Rot_02", "Rot_x"),
+                "extri.yml has no R_02 (or Rot_02)",
+            ),
+            (
+                "intri",
+                intri.replace("rows: 1", "rows: 2"),
+                "dist_01: 5 values for a 2×5 matrix",
+            ),
+            (
+                "intri",
+                intri.replace("H_01", "Hx_01"),
+                "gives one of W_01 and H_01",
+            ),
+            (
+                "intri",
+                intri.replacen("-2e-1", "nan", 1),
+                "not a finite number",
+            ),
+            (
+                "intri",
+                intri.replace("names:\r\n", ""),
+                "line 3: indented line before any key",
+            ),
+            (
+                "intri",
+                intri.replace("- \"01\"\r\n  - \"02\"", ""),
+                "no list of camera names",
+            ),
+            (
+                "extri",
+                extri.replace("!!opencv-matrix", "!!opencv-nd-matrix"),
+                "unsupported type !!opencv-nd-matrix",
+            ),
+        ];
+        for (name, text, needle) in broken {
             let e = tempfile::tempdir().unwrap();
             let (i, x) = if name == "intri" {
                 (text, extri.clone())
@@ -396,52 +444,7 @@ mod tests {
             let err = read_camera_file(e.path()).unwrap_err().to_string();
             assert!(err.contains(needle), "{needle}: {err}");
             assert!(!err.contains('\n'), "{err}");
-        };
-        broken(
-            "intri",
-            intri.replace("K_01", "K_09"),
-            "intri.yml has no K_01 for camera '01'",
-        );
-        broken(
-            "extri",
-            extri.replace("T_02", "T_x"),
-            "extri.yml has no T_02 for camera '02'",
-        );
-        broken(
-            "extri",
-            extri.replace("Rot_02", "Rot_x"),
-            "extri.yml has no R_02 (or Rot_02)",
-        );
-        broken(
-            "intri",
-            intri.replace("rows: 1", "rows: 2"),
-            "dist_01: 5 values for a 2×5 matrix",
-        );
-        broken(
-            "intri",
-            intri.replace("H_01", "Hx_01"),
-            "gives one of W_01 and H_01",
-        );
-        broken(
-            "intri",
-            intri.replacen("-2e-1", "nan", 1),
-            "not a finite number",
-        );
-        broken(
-            "intri",
-            intri.replace("names:\r\n", ""),
-            "line 3: indented line before any key",
-        );
-        broken(
-            "intri",
-            intri.replace("- \"01\"\r\n  - \"02\"", ""),
-            "no list of camera names",
-        );
-        broken(
-            "extri",
-            extri.replace("!!opencv-matrix", "!!opencv-nd-matrix"),
-            "unsupported type !!opencv-nd-matrix",
-        );
+        }
         let e = tempfile::tempdir().unwrap();
         let err = read_camera_file(e.path()).unwrap_err().to_string();
         assert!(err.contains("no intri.yml in"), "{err}");
