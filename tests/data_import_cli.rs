@@ -300,6 +300,14 @@ fn c3d_markers_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
             vec!["--label-map", path_str(&map_file)],
             "--label-map maps a marker file's labels",
         ),
+        (
+            vec!["--trc", path_str(&trc), "--camera-names", "a"],
+            "cannot be used with",
+        ),
+        (
+            vec!["--c3d", path_str(&file), "--camera-units", "mm"],
+            "cannot be used with",
+        ),
     ] {
         let never = d.join("never.npz");
         let mut a = vec!["data", "import", "--out", path_str(&never)];

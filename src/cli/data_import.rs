@@ -113,11 +113,11 @@ fn parse_translation(text: &str) -> Result<[f64; 3]> {
 #[derive(Debug, clap::Args)]
 pub struct ImportArgs {
     /// C3D file of 3D marker trajectories (markers modality).
-    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "trc"])]
+    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "trc", "camera_names", "camera_units"])]
     pub c3d: Option<PathBuf>,
     /// TRC file of 3D marker trajectories (OpenSim's text format, as OpenCap, Motive and Cortex
     /// write it; markers modality): read as a C3D's points, mapped and fitted alike.
-    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map"])]
+    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "camera_names", "camera_units"])]
     pub trc: Option<PathBuf>,
     /// JSON object {"C3D label": "model marker", ...} ("#K": the file's point K, counted from 0,
     /// for a label the file repeats); default: C3D labels equal to the model's marker names, bare
@@ -134,7 +134,8 @@ pub struct ImportArgs {
     #[arg(long, default_value = "y", allow_hyphen_values = true)]
     pub up: String,
     /// Keypoint files (COCO keypoint JSON, or OpenPose per-frame JSON files or folders of them):
-    /// one per camera in the camera file's order, or any number for a single camera.
+    /// one per camera in the camera file's order (or --camera-names' order), or any number for a
+    /// single camera.
     #[arg(long, num_args = 1..)]
     pub keypoints: Vec<PathBuf>,
     /// Keypoint layout: coco17, body25, coco18 (OpenPose's COCO model), halpe26 (AlphaPose),
