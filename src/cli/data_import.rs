@@ -359,7 +359,7 @@ pub fn cameras(args: &CamerasArgs) -> Result<Value> {
         "camera": args.camera,
         "count": rig.cameras.len(),
         "cameras": list,
-        "image_size_from_principal_point": rig.sizes_from_principal_point,
+        "image_size_from_principal_point": rig.size_guessed_names(),
         "out": args.out,
         "pinhole": args.pinhole,
     }))
@@ -454,12 +454,14 @@ pub fn import_dataset(
             if !(args.fps.is_finite() && args.fps > 0.0) {
                 bail!("--fps must be positive (got {})", args.fps);
             }
+            let rig = load_cameras(camera, args.camera_units.as_deref(), &args.camera_names, up)?;
+            let sizes_from_principal_point = rig.size_guessed_names();
             let CameraFileRig {
                 cameras,
                 distortion,
                 names,
-                sizes_from_principal_point,
-            } = load_cameras(camera, args.camera_units.as_deref(), &args.camera_names, up)?;
+                ..
+            } = rig;
             let map = args
                 .keypoint_map
                 .as_deref()

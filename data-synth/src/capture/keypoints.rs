@@ -874,12 +874,20 @@ pub struct CameraFileRig {
     pub distortion: Vec<Option<Distortion>>,
     /// Each camera's `name`, `None` where the file gives none.
     pub names: Vec<Option<String>>,
-    /// The cameras whose image size the file does not give (an EasyMocap `intri.yml` without
-    /// `W_`/`H_`): taken as twice the principal point.
-    pub sizes_from_principal_point: Vec<String>,
+    /// Per camera, whether the file leaves its image size out (an EasyMocap `intri.yml` without
+    /// `W_`/`H_`): then taken as twice the principal point.
+    pub sizes_from_principal_point: Vec<bool>,
 }
 
 impl CameraFileRig {
+    /// The cameras whose image size is twice their principal point, by name (`#K` unnamed).
+    pub fn size_guessed_names(&self) -> Vec<String> {
+        (0..self.cameras.len())
+            .filter(|&i| self.sizes_from_principal_point[i])
+            .map(|i| self.names[i].clone().unwrap_or_else(|| format!("#{i}")))
+            .collect()
+    }
+
     /// The cameras `chosen`, in that order: each entry a name the file gives exactly one camera,
     /// or `#K` for its camera K (counted from 0). An unknown, ambiguous or repeated choice is a
     /// one-line error.
@@ -945,11 +953,9 @@ impl CameraFileRig {
             cameras: picked.iter().map(|&i| self.cameras[i].clone()).collect(),
             distortion: picked.iter().map(|&i| self.distortion[i]).collect(),
             names: picked.iter().map(|&i| self.names[i].clone()).collect(),
-            sizes_from_principal_point: self
-                .sizes_from_principal_point
+            sizes_from_principal_point: picked
                 .iter()
-                .filter(|n| picked.iter().any(|&i| self.names[i].as_ref() == Some(*n)))
-                .cloned()
+                .map(|&i| self.sizes_from_principal_point[i])
                 .collect(),
         })
     }
@@ -1311,10 +1317,10 @@ pub fn read_camera_file(path: &Path) -> Result<CameraFileRig, ImportError> {
 /// whose `units` says otherwise is refused.
 pub fn read_camera_file_in(path: &Path, units: Option<&str>) -> Result<CameraFileRig, ImportError> {
     let bad = |e: String| ImportError::Invalid(format!("camera file {}: {e}", path.display()));
-    let mut sizes_from_principal_point = Vec::new();
+    let mut guessed = Vec::new();
     let mut file: CameraFile = if let Some(dir) = opencv_yaml::easymocap_dir(path) {
-        let (cameras, guessed) = opencv_yaml::easymocap_cameras(&dir).map_err(bad)?;
-        sizes_from_principal_point = guessed;
+        let (cameras, sizes) = opencv_yaml::easymocap_cameras(&dir).map_err(bad)?;
+        guessed = sizes;
         CameraFile {
             cameras: cameras
                 .into_iter()
@@ -1366,7 +1372,9 @@ pub fn read_camera_file_in(path: &Path, units: Option<&str>) -> Result<CameraFil
         cameras: Vec::with_capacity(file.cameras.len()),
         distortion: Vec::with_capacity(file.cameras.len()),
         names: Vec::with_capacity(file.cameras.len()),
-        sizes_from_principal_point,
+        sizes_from_principal_point: (0..file.cameras.len())
+            .map(|i| guessed.get(i).copied().unwrap_or(false))
+            .collect(),
     };
     for (i, c) in file.cameras.iter().enumerate() {
         let label = match &c.name {
@@ -1453,17 +1461,17 @@ pub fn camera_file_json(rig: &CameraFileRig, pinhole: bool) -> String {
 
 /// The JSON text of a camera file for `cameras` (the format [`read_cameras`] reads).
 pub fn cameras_json(cameras: &[Camera]) -> String {
-    let list: Vec<Value> = cameras
-        .iter()
-        .map(|c| {
-            serde_json::json!({
-                "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
-                "width": c.width, "height": c.height,
-                "rotation": c.rotation, "translation": c.translation,
-            })
-        })
-        .collect();
+    let list: Vec<Value> = cameras.iter().map(camera_entry).collect();
     serde_json::json!({ "cameras": list }).to_string()
+}
+
+/// One camera in lfit's own keys (metres, camera-from-world).
+fn camera_entry(c: &Camera) -> Value {
+    serde_json::json!({
+        "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
+        "width": c.width, "height": c.height,
+        "rotation": c.rotation, "translation": c.translation,
+    })
 }
 
 #[cfg(test)]

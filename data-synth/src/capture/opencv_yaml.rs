@@ -181,9 +181,9 @@ fn yml(dir: &Path, stem: &str) -> Result<PathBuf, String> {
 
 /// An EasyMocap camera folder's cameras, in `names` order, as camera-file JSON entries (`name`,
 /// `K`, `dist`, `rvec` (its `R_`; `Rot_` where there is none), `t` (its `T_`, metres), and
-/// `resolution` from `W_`/`H_`), and the names of those without `W_`/`H_`, whose image size is
+/// `resolution` from `W_`/`H_`), and per camera whether it lacks `W_`/`H_`, its image size then
 /// taken as twice the principal point (EasyMocap does not need it; ZJU-MoCap's files leave it out).
-pub fn easymocap_cameras(dir: &Path) -> Result<(Vec<Value>, Vec<String>), String> {
+pub fn easymocap_cameras(dir: &Path) -> Result<(Vec<Value>, Vec<bool>), String> {
     let intri = read_entries(&yml(dir, "intri")?)?;
     let extri = read_entries(&yml(dir, "extri")?)?;
     let get = |entries: &[(String, CvNode)], key: &str| {
@@ -226,7 +226,7 @@ pub fn easymocap_cameras(dir: &Path) -> Result<(Vec<Value>, Vec<String>), String
         }
     };
     let mut cameras = Vec::with_capacity(names.len());
-    let mut guessed = Vec::new();
+    let mut guessed = Vec::with_capacity(names.len());
     for n in &names {
         let k = mat(&intri, &format!("K_{n}"), &[(3, 3)])?
             .ok_or_else(|| format!("intri.yml has no K_{n} for camera '{n}'"))?;
@@ -251,9 +251,12 @@ pub fn easymocap_cameras(dir: &Path) -> Result<(Vec<Value>, Vec<String>), String
         let t = mat(&extri, &format!("T_{n}"), &[(3, 1), (1, 3)])?
             .ok_or_else(|| format!("extri.yml has no T_{n} for camera '{n}'"))?;
         let (w, h) = match (int(&format!("W_{n}"))?, int(&format!("H_{n}"))?) {
-            (Some(w), Some(h)) => (w, h),
+            (Some(w), Some(h)) => {
+                guessed.push(false);
+                (w, h)
+            }
             (None, None) => {
-                guessed.push(n.clone());
+                guessed.push(true);
                 let round = |c: f64| (2.0 * c).round().max(1.0) as u32;
                 (round(k[2]), round(k[5]))
             }
@@ -351,7 +354,8 @@ mod tests {
         ] {
             let rig = read_camera_file(&path).unwrap();
             assert_eq!(rig.names, [Some("01".to_string()), Some("02".into())]);
-            assert_eq!(rig.sizes_from_principal_point, ["02"]);
+            assert_eq!(rig.sizes_from_principal_point, [false, true]);
+            assert_eq!(rig.size_guessed_names(), ["02"]);
             for (got, want) in rig.cameras.iter().zip(&ring) {
                 assert_eq!((got.fx, got.cx, got.cy), (want.fx, want.cx, want.cy));
                 assert_eq!(got.translation, want.translation);
