@@ -34,7 +34,7 @@ use lfit::train::{
     training_frames,
 };
 use prost::Message;
-use support::{assert_one_line_error, lfit, lfit_json, path_str, skip_unless_required};
+use support::{assert_one_line_error, lfit, lfit_env, lfit_json, path_str, skip_unless_required};
 
 const MODALITIES: [&str; 3] = ["markers", "keypoints2d", "hmd"];
 const STEP_TOLERANCE: f32 = 1e-4;
@@ -1078,6 +1078,34 @@ fn fit_with_runtime_native_matches_runtime_burn() {
             n["v2v_mm"]
         );
     }
+    // The portable 4-wide forward (LFIT_NATIVE_SIMD=portable) fits every frame to the bit as
+    // the default, which takes AVX where the machine has it.
+    let out = tmp.path().join("portable.json");
+    let a = args("native", &out);
+    let a: Vec<&str> = a.iter().map(String::as_str).collect();
+    let ran = lfit_env(&a, &[("LFIT_NATIVE_SIMD", "portable")]);
+    assert!(
+        ran.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ran.stderr)
+    );
+    let portable: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&out).expect("result")).expect("json");
+    let frames = |v: &serde_json::Value| -> Vec<serde_json::Value> {
+        let f = v["frames"].as_array().expect("frames");
+        f.iter()
+            .map(|f| serde_json::json!([f["pose"], f["shape"], f["energy"], f["v2v_mm"]]))
+            .collect()
+    };
+    assert_eq!(frames(&portable).len(), 12);
+    assert_eq!(frames(&portable), frames(&native));
+    let out = tmp.path().join("bad-simd.json");
+    let a = args("native", &out);
+    let a: Vec<&str> = a.iter().map(String::as_str).collect();
+    let refused = lfit_env(&a, &[("LFIT_NATIVE_SIMD", "avx9")]);
+    assert_one_line_error(&refused, "LFIT_NATIVE_SIMD must be auto or portable");
+    assert!(!out.exists(), "a refused fit writes nothing");
+
     let out = tmp.path().join("refused.json");
     let mut a = args("native", &out);
     a.extend(["--ort-threads".into(), "2".into()]);

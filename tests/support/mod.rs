@@ -6,9 +6,15 @@ use std::process::{Command, Output};
 
 /// Runs `lfit` with `args` and returns its output.
 pub fn lfit(args: &[&str]) -> Output {
+    lfit_env(args, &[])
+}
+
+/// Runs `lfit` with `args` and the environment variables `env` set, and returns its output.
+pub fn lfit_env(args: &[&str], env: &[(&str, &str)]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_lfit"))
         .args(args)
         .env("RUST_BACKTRACE", "0")
+        .envs(env.iter().copied())
         .output()
         .expect("the lfit binary runs")
 }

@@ -46,15 +46,22 @@ pub fn layer_norm_epsilon() -> f64 {
 /// `y = x W + b` (`W` `[in, out]` as Burn stores it), the weights packed in blocks of [`LANES`]
 /// output columns: block `k` holds `W[i, 32k..32k + 32]` for every input `i` in turn (the last
 /// block zero-padded), so one block streams contiguously past its accumulators. The arithmetic is
-/// explicit 4-wide SIMD (`wide::f32x4`: SSE2 in the portable build, no `unsafe`): the compiler
+/// explicit SIMD: 4-wide `wide::f32x4` (SSE2, the portable build's), or 8-wide AVX where the
+/// machine has AVX2 (`pulp::x86::V3`, detected at run time; no `unsafe` in lfit). The compiler
 /// does not vectorise the 32 scalar accumulators reliably (measured: it kept them scalar here).
+/// Both paths compute every output as the same sequence of rounded multiplies and adds (no fused
+/// multiply-add), so they agree to the bit and a fit does not depend on the machine's vector
+/// width (`the_avx_path_computes_the_portable_paths_bits`).
 #[derive(Debug, Clone)]
 struct HostLinear {
     packed: Vec<f32>,
-    /// The bias of each block of [`LANES`] outputs, zero-padded.
-    bias: Vec<[f32x4; LANES / 4]>,
+    /// The bias, zero-padded to whole blocks of [`LANES`] outputs.
+    bias: Vec<f32>,
     d_in: usize,
     d_out: usize,
+    /// AVX2's token where the machine has it (the 8-wide path), else `None` (the 4-wide one).
+    #[cfg(target_arch = "x86_64")]
+    avx: Option<pulp::x86::V3>,
 }
 
 impl HostLinear {
@@ -80,20 +87,19 @@ impl HostLinear {
                 }
             }
         }
-        let bias = (0..blocks)
-            .map(|k| {
-                std::array::from_fn(|q| {
-                    f32x4::from(std::array::from_fn::<f32, 4, _>(|l| {
-                        b.get(k * LANES + 4 * q + l).copied().unwrap_or(0.0)
-                    }))
-                })
-            })
-            .collect();
+        let mut bias = b;
+        bias.resize(blocks * LANES, 0.0);
         Ok(Self {
             packed,
             bias,
             d_in,
             d_out,
+            #[cfg(target_arch = "x86_64")]
+            avx: if wide_simd()? {
+                pulp::x86::V3::try_new()
+            } else {
+                None
+            },
         })
     }
 
@@ -130,19 +136,32 @@ impl HostLinear {
         y
     }
 
-    /// [`HostLinear::forward`] of the rows of `x` into `y` (zeroed, `[rows, out]`).
+    /// [`HostLinear::forward`] of the rows of `x` into `y` (zeroed, `[rows, out]`), on the
+    /// widest path the machine has.
     fn forward_rows(&self, x: &[f32], y: &mut [f32]) {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(simd) = self.avx {
+            AvxRows::run(simd, self, x, y);
+            return;
+        }
+        self.forward_rows_portable(x, y);
+    }
+
+    /// The 4-wide path: for each block, each row with its 32 accumulators in eight SSE registers.
+    fn forward_rows_portable(&self, x: &[f32], y: &mut [f32]) {
         let (d_in, d_out) = (self.d_in, self.d_out);
         for (k, (block, bias)) in self
             .packed
             .chunks_exact(d_in * LANES)
-            .zip(&self.bias)
+            .zip(self.bias.as_chunks::<LANES>().0)
             .enumerate()
         {
             let j0 = k * LANES;
             let width = LANES.min(d_out - j0);
+            let bias: [f32x4; LANES / 4] =
+                std::array::from_fn(|q| f32x4::from(*bias[4 * q..].first_chunk::<4>().unwrap()));
             for (xb, yb) in x.chunks_exact(d_in).zip(y.chunks_exact_mut(d_out)) {
-                let mut acc = *bias;
+                let mut acc = bias;
                 for (&xi, lanes) in xb.iter().zip(block.as_chunks::<LANES>().0) {
                     let xv = f32x4::splat(xi);
                     for (a, w) in acc.iter_mut().zip(lanes.as_chunks::<4>().0) {
@@ -153,6 +172,137 @@ impl HostLinear {
                 yb[j0..j0 + width].copy_from_slice(&out[..width]);
             }
         }
+    }
+}
+
+/// The 8-wide path of [`HostLinear::forward_rows`], run inside AVX2's target features by
+/// `V3::vectorize`: for each block of 32 outputs, rows two at a time (eight accumulators, each
+/// weight load serving both rows; [`AvxRows`] with `pairs`), then a last odd row alone (four
+/// accumulators; a second `vectorize`, so that the compiler allocates its registers apart from
+/// the pairs' — in one function it kept the lone row's accumulators on the stack, slower than
+/// the 4-wide path). Every output is the bias plus `x_i W_ij` added in the order of `i`, as on
+/// the 4-wide path.
+#[cfg(target_arch = "x86_64")]
+struct AvxRows<'a> {
+    simd: pulp::x86::V3,
+    layer: &'a HostLinear,
+    x: &'a [f32],
+    y: &'a mut [f32],
+    pairs: bool,
+}
+
+#[cfg(target_arch = "x86_64")]
+type F32x8Block = [pulp::f32x8; LANES / 8];
+
+#[cfg(target_arch = "x86_64")]
+impl AvxRows<'_> {
+    /// Runs the rows of `x` (pairs, then the last one alone).
+    fn run(simd: pulp::x86::V3, layer: &HostLinear, x: &[f32], y: &mut [f32]) {
+        let (d_in, d_out) = (layer.d_in, layer.d_out);
+        let paired = x.len() / d_in / 2 * 2;
+        let (x_pairs, x_last) = x.split_at(paired * d_in);
+        let (y_pairs, y_last) = y.split_at_mut(paired * d_out);
+        if paired > 0 {
+            simd.vectorize(AvxRows {
+                simd,
+                layer,
+                x: x_pairs,
+                y: y_pairs,
+                pairs: true,
+            });
+        }
+        if !x_last.is_empty() {
+            simd.vectorize(AvxRows {
+                simd,
+                layer,
+                x: x_last,
+                y: y_last,
+                pairs: false,
+            });
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn load8(w: &[f32]) -> F32x8Block {
+    std::array::from_fn(|q| pulp::cast(*w[8 * q..].first_chunk::<8>().unwrap()))
+}
+
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn store8(acc: F32x8Block, out: &mut [f32]) {
+    let lanes: [[f32; 8]; LANES / 8] = acc.map(pulp::cast);
+    let width = out.len();
+    out.copy_from_slice(&lanes.as_flattened()[..width]);
+}
+
+#[cfg(target_arch = "x86_64")]
+impl pulp::NullaryFnOnce for AvxRows<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn call(self) {
+        let Self {
+            simd,
+            layer,
+            x,
+            y,
+            pairs,
+        } = self;
+        let (d_in, d_out) = (layer.d_in, layer.d_out);
+        for (k, (block, bias)) in layer
+            .packed
+            .chunks_exact(d_in * LANES)
+            .zip(layer.bias.as_chunks::<LANES>().0)
+            .enumerate()
+        {
+            let cols = k * LANES..(k * LANES + LANES).min(d_out);
+            let bias = load8(bias);
+            let weights = block.as_chunks::<LANES>().0;
+            if pairs {
+                for (x, y) in x.chunks_exact(2 * d_in).zip(y.chunks_exact_mut(2 * d_out)) {
+                    let (x0, x1) = x.split_at(d_in);
+                    let (mut acc0, mut acc1) = (bias, bias);
+                    for ((&a, &b), w) in x0.iter().zip(x1).zip(weights) {
+                        let (av, bv, w) = (simd.splat_f32x8(a), simd.splat_f32x8(b), load8(w));
+                        for ((s0, s1), w) in acc0.iter_mut().zip(acc1.iter_mut()).zip(w) {
+                            *s0 = simd.add_f32x8(*s0, simd.mul_f32x8(av, w));
+                            *s1 = simd.add_f32x8(*s1, simd.mul_f32x8(bv, w));
+                        }
+                    }
+                    let (y0, y1) = y.split_at_mut(d_out);
+                    store8(acc0, &mut y0[cols.clone()]);
+                    store8(acc1, &mut y1[cols.clone()]);
+                }
+            } else {
+                for (x0, y0) in x.chunks_exact(d_in).zip(y.chunks_exact_mut(d_out)) {
+                    let mut acc = bias;
+                    for (&a, w) in x0.iter().zip(weights) {
+                        let (av, w) = (simd.splat_f32x8(a), load8(w));
+                        for (s, w) in acc.iter_mut().zip(w) {
+                            *s = simd.add_f32x8(*s, simd.mul_f32x8(av, w));
+                        }
+                    }
+                    store8(acc, &mut y0[cols.clone()]);
+                }
+            }
+        }
+    }
+}
+
+/// Whether the forward may take the widest vector path the machine has: `LFIT_NATIVE_SIMD`
+/// unset or `auto` (the default) yes, `portable` no (the 4-wide SSE2 path everywhere, for A/B
+/// timing in one binary: the two compute the same bits); anything else is a one-line error.
+fn wide_simd() -> Result<bool> {
+    match std::env::var("LFIT_NATIVE_SIMD") {
+        Err(std::env::VarError::NotPresent) => Ok(true),
+        Ok(v) if v == "auto" => Ok(true),
+        Ok(v) if v == "portable" => Ok(false),
+        Ok(v) => Err(ModelError::Config(format!(
+            "LFIT_NATIVE_SIMD must be auto or portable, got {v:?}"
+        ))),
+        Err(e) => Err(ModelError::Config(format!("LFIT_NATIVE_SIMD: {e}"))),
     }
 }
 
@@ -733,6 +883,60 @@ impl RowNetwork for &HostNet {
 mod tests {
     use super::*;
     use burn::nn::LinearConfig;
+
+    /// The 8-wide AVX path gives every output of the 4-wide portable path to the bit: odd and
+    /// even batches (the pairs and the last row alone), a last block of 6 of 32 outputs, one
+    /// output, inputs of opposite signs and magnitudes (so the order of the adds matters).
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn the_avx_path_computes_the_portable_paths_bits() {
+        let device = crate::tensor::ndarray_device();
+        let mut layer = None;
+        for (d_in, d_out) in [(45, 70), (3, 1), (128, 64), (575, 384)] {
+            let linear = LinearConfig::new(d_in, d_out).init(&device);
+            let l = HostLinear::new(&linear).expect("layer");
+            if l.avx.is_none() {
+                let why = "this machine has no AVX2: the 8-wide path cannot run here";
+                assert!(std::env::var("CI").as_deref() != Ok("true"), "{why}");
+                eprintln!("skipped: {why}");
+                return;
+            }
+            for batch in [1usize, 2, 3, 8, 13] {
+                let x: Vec<f32> = (0..batch * d_in)
+                    .map(|i| {
+                        let v = ((i * 7919 % 1009) as f32 / 504.5 - 1.0) * 3.0;
+                        if i % 5 == 0 { v * 1e3 } else { v }
+                    })
+                    .collect();
+                let mut wide = vec![0.0f32; batch * d_out];
+                l.forward_rows(&x, &mut wide);
+                let mut portable = vec![0.0f32; batch * d_out];
+                l.forward_rows_portable(&x, &mut portable);
+                let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+                assert_eq!(
+                    bits(&wide),
+                    bits(&portable),
+                    "[{d_in}, {d_out}], batch {batch}"
+                );
+            }
+            layer = Some(l);
+        }
+        // A path with a fused multiply-add would round once per term and differ here.
+        let l = layer.expect("layer");
+        let x = vec![1.0 + f32::EPSILON; l.d_in];
+        let mut y = vec![0.0f32; l.d_out];
+        l.forward_rows(&x, &mut y);
+        let want: Vec<f32> = (0..l.d_out)
+            .map(|j| {
+                let mut acc = l.bias[j];
+                for i in 0..l.d_in {
+                    acc += x[i] * l.packed[(j / LANES) * l.d_in * LANES + i * LANES + j % LANES];
+                }
+                acc
+            })
+            .collect();
+        assert_eq!(y, want);
+    }
 
     /// A batch large enough to be split over threads gives every row exactly what that row gives
     /// alone, and both match `b + x W` summed in f64 (to f32 rounding).
