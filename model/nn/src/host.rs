@@ -383,49 +383,82 @@ impl HostGruCell {
     }
 
     /// papers/002 supp. eq. (12), as [`LnGruCell::forward`]: `x` `[B, in]`, `h` `[B, H]` → `h'`.
+    /// The gates row by row ([`for_rows`]: over rayon's threads in large batches).
     fn forward(&self, x: &[f32], h: &[f32], batch: usize) -> Vec<f32> {
         let hd = self.hidden;
         let wx = self.w.forward(x, batch);
         let uh = self.u_zr.forward(h, batch);
         let [ln_wz, ln_wr, ln_wh, ln_uz, ln_ur, ln_uh] = &self.ln;
-        let (mut a, mut b) = (vec![0.0f32; hd], vec![0.0f32; hd]);
-        let mut z = vec![0.0f32; batch * hd];
-        let mut rh = vec![0.0f32; batch * hd];
-        for i in 0..batch {
+        // z and r ⊙ h, side by side in one `[B, 2H]` buffer (a row's two halves).
+        let mut zrh = vec![0.0f32; batch * 2 * hd];
+        for_rows(&mut zrh, 2 * hd, |i, row, (a, b)| {
             let (wx, uh, h) = (
                 &wx[i * 3 * hd..(i + 1) * 3 * hd],
                 &uh[i * 2 * hd..(i + 1) * 2 * hd],
                 &h[i * hd..(i + 1) * hd],
             );
-            ln_wz.row(&wx[..hd], &mut a);
-            ln_uz.row(&uh[..hd], &mut b);
-            for ((zj, aj), bj) in z[i * hd..(i + 1) * hd].iter_mut().zip(&a).zip(&b) {
+            let (z, rh) = row.split_at_mut(hd);
+            ln_wz.row(&wx[..hd], a);
+            ln_uz.row(&uh[..hd], b);
+            for ((zj, aj), bj) in z.iter_mut().zip(a.iter()).zip(b.iter()) {
                 *zj = sigmoid(aj + bj);
             }
-            ln_wr.row(&wx[hd..2 * hd], &mut a);
-            ln_ur.row(&uh[hd..], &mut b);
-            for (((o, aj), bj), hj) in rh[i * hd..(i + 1) * hd].iter_mut().zip(&a).zip(&b).zip(h) {
+            ln_wr.row(&wx[hd..2 * hd], a);
+            ln_ur.row(&uh[hd..], b);
+            for (((o, aj), bj), hj) in rh.iter_mut().zip(a.iter()).zip(b.iter()).zip(h) {
                 *o = sigmoid(aj + bj) * hj;
             }
-        }
+        });
+        let rh: Vec<f32> = zrh
+            .chunks_exact(2 * hd)
+            .flat_map(|row| &row[hd..])
+            .copied()
+            .collect();
         let uhh = self.u_h.forward(&rh, batch);
         let mut out = vec![0.0f32; batch * hd];
-        for i in 0..batch {
+        for_rows(&mut out, hd, |i, out, (a, b)| {
             let r = i * hd..(i + 1) * hd;
-            ln_wh.row(&wx[i * 3 * hd + 2 * hd..(i + 1) * 3 * hd], &mut a);
-            ln_uh.row(&uhh[r.clone()], &mut b);
-            for ((((o, aj), bj), zj), hj) in out[r.clone()]
+            ln_wh.row(&wx[i * 3 * hd + 2 * hd..(i + 1) * 3 * hd], a);
+            ln_uh.row(&uhh[r.clone()], b);
+            let z = &zrh[i * 2 * hd..i * 2 * hd + hd];
+            for ((((o, aj), bj), zj), hj) in out
                 .iter_mut()
-                .zip(&a)
-                .zip(&b)
-                .zip(&z[r.clone()])
+                .zip(a.iter())
+                .zip(b.iter())
+                .zip(z)
                 .zip(&h[r.clone()])
             {
                 let cand = (aj + bj).tanh();
                 *o = (1.0 - zj) * hj + zj * cand;
             }
-        }
+        });
         out
+    }
+}
+
+/// Calls `f(i, row_i, scratch)` for each `width`-long row of `out`, with two scratch rows of
+/// `width` (reused within a thread). Batches of at least twice [`PARALLEL_ROWS`] rows run over
+/// rayon's threads in blocks of that many rows; each row is computed alone by the same code, so
+/// the result does not depend on the number of threads.
+fn for_rows<F>(out: &mut [f32], width: usize, f: F)
+where
+    F: Fn(usize, &mut [f32], (&mut [f32], &mut [f32])) + Sync,
+{
+    let scratch = || (vec![0.0f32; width], vec![0.0f32; width]);
+    let batch = out.len() / width.max(1);
+    if width == 0 {
+        return;
+    }
+    if batch >= 2 * PARALLEL_ROWS {
+        out.par_chunks_mut(width)
+            .enumerate()
+            .with_min_len(PARALLEL_ROWS)
+            .for_each_init(scratch, |(a, b), (i, row)| f(i, row, (a, b)));
+    } else {
+        let (mut a, mut b) = scratch();
+        for (i, row) in out.chunks_exact_mut(width).enumerate() {
+            f(i, row, (&mut a, &mut b));
+        }
     }
 }
 
@@ -830,14 +863,23 @@ impl RowNetwork for &HostNet {
             }
             None => (out, None),
         };
+        // Elementwise over `[B, k]`: over rayon's threads in large batches (the same value per
+        // element whichever thread computes it).
+        let map = |v: &[f32], f: &(dyn Fn(f32) -> f32 + Sync)| -> Vec<f32> {
+            if batch >= 2 * PARALLEL_ROWS {
+                v.par_iter().with_min_len(4096).map(|&x| f(x)).collect()
+            } else {
+                v.iter().map(|&x| f(x)).collect()
+            }
+        };
         let lambda: Vec<f32> = match c.update {
-            UpdateRule::Eq1 => a.iter().map(|v| v + 1.0).collect(),
-            _ => a.iter().map(|&v| sigmoid(v)).collect(),
+            UpdateRule::Eq1 => map(&a, &|v| v + 1.0),
+            _ => map(&a, &sigmoid),
         };
         let gamma: Vec<f32> = match b {
             Some(b) => {
                 let scale = (c.gamma_init / std::f64::consts::LN_2) as f32;
-                b.iter().map(|&v| softplus(v) * scale).collect()
+                map(&b, &|v| softplus(v) * scale)
             }
             None => vec![c.gamma_constant as f32; batch * kg],
         };
