@@ -465,6 +465,69 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     }
     eprintln!("COCO import: {seen} keypoints, max pixel error {max_err:.3e} px");
     assert!(seen > 0 && max_err <= 1e-9);
+    // The same keypoints written as fractions of the image (MediaPipe's x / W) and as OpenPose's
+    // --keypoint_scale 3 and 4, imported with --keypoint-scale: the pixel import's keypoints.
+    let scaled_import = |scale: &str, to: &dyn Fn(f64, f64) -> f64, extra: &[&str]| {
+        let dir = d.join(format!("scale-{scale}"));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let mut args: Vec<String> = ["-q", "data", "import", "--layout", "coco17", "--camera"]
+            .map(String::from)
+            .to_vec();
+        args.extend([path_str(&cams).to_string(), "--out".into()]);
+        args.push(path_str(&dir.join("kp.npz")).into());
+        args.extend(extra.iter().map(|a| a.to_string()));
+        args.push("--keypoints".into());
+        for (c, f) in files.iter().enumerate() {
+            let mut coco = read_json(f);
+            let cam = &truth.sensor.cameras()[c];
+            let (w, h) = (f64::from(cam.width), f64::from(cam.height));
+            for a in coco["annotations"].as_array_mut().expect("annotations") {
+                for p in a["keypoints"]
+                    .as_array_mut()
+                    .expect("keypoints")
+                    .chunks_exact_mut(3)
+                {
+                    if p[2].as_f64().expect("v") > 0.0 {
+                        p[0] = json!(to(p[0].as_f64().expect("x"), w));
+                        p[1] = json!(to(p[1].as_f64().expect("y"), h));
+                    }
+                }
+            }
+            let file = dir.join(format!("cam{c}.json"));
+            std::fs::write(&file, coco.to_string()).expect("coco");
+            args.push(path_str(&file).into());
+        }
+        lfit(&args.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    let forms: [(&str, &dyn Fn(f64, f64) -> f64); 3] = [
+        ("image", &|x, w| x / w),
+        ("openpose3", &|x, w| x / (w - 1.0)),
+        ("openpose4", &|x, w| 2.0 * x / (w - 1.0) - 1.0),
+    ];
+    for (scale, to) in forms {
+        let ran = scaled_import(scale, to, &["--keypoint-scale", scale]);
+        assert!(
+            ran.status.success(),
+            "{}",
+            String::from_utf8_lossy(&ran.stderr)
+        );
+        let summary: Value = serde_json::from_slice(&ran.stdout).expect("summary");
+        assert_eq!(summary["source"]["keypoint_scale"], scale);
+        let back = Dataset::load(&d.join(format!("scale-{scale}/kp.npz"))).expect("imported");
+        let ((bv, bb), (iv, ib)) = (sparse(&back), sparse(&imported));
+        assert_eq!(bb, ib);
+        for (b, i) in bv.iter().flatten().zip(iv.iter().flatten()) {
+            assert!((b - i).abs() < 1e-9, "{scale}: {b} vs {i} px");
+        }
+    }
+    // Read as pixels they are refused, naming the option; an unknown scale is one line.
+    let as_pixels = scaled_import("openpose4", &|x, w| 2.0 * x / (w - 1.0) - 1.0, &[]);
+    assert_one_line_error(&as_pixels, "--keypoint-scale image|openpose3|openpose4");
+    let bad = scaled_import("image", &|x, w| x / w, &["--keypoint-scale", "percent"]);
+    assert_one_line_error(
+        &bad,
+        "--keypoint-scale percent: expected pixels, image, openpose3 or openpose4",
+    );
     // The six cameras inside a CMU Panoptic calibration file (translations in centimetres,
     // `distCoef` all zeros, in reverse order among three VGA cameras the keypoints are not
     // from), chosen with `--camera-names` in the keypoints' order: the same dataset.

@@ -339,6 +339,7 @@ fn marker_file_args(
         camera: None,
         camera_names: Vec::new(),
         camera_units: None,
+        keypoint_scale: None,
         keypoint_map: None,
         min_confidence: 0.1,
         fps: 30.0,
@@ -392,10 +393,12 @@ pub fn import_trc(
 /// calibration); `camera_names`: the file's cameras the paths come from, in their order (names,
 /// or `"#K"` for its camera K; default all, in the file's order); `camera_units`: `m`, `cm` or
 /// `mm`, the translations' unit where the file does not say it (an anipose `.toml`);
+/// `keypoint_scale`: the files' unit, `pixels` (default), `image` (fractions of the image:
+/// MediaPipe's normalised landmarks), `openpose3` or `openpose4` (OpenPose's `--keypoint_scale`);
 /// `up`: its world's up axis, `y`, `z` or `"x,y,z"` (`lfit data import --up`: a Z-up world, or
 /// one whose up is that direction, is turned into lfit's Y-up one).
 #[pyfunction]
-#[pyo3(signature = (paths, layout, camera, model=None, *, camera_names=None, camera_units=None, keypoint_map=None, min_confidence=0.1, fps=30.0, scenario="sequence", up="y", out=None))]
+#[pyo3(signature = (paths, layout, camera, model=None, *, camera_names=None, camera_units=None, keypoint_scale=None, keypoint_map=None, min_confidence=0.1, fps=30.0, scenario="sequence", up="y", out=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn import_keypoints(
     py: Python<'_>,
@@ -405,6 +408,7 @@ pub fn import_keypoints(
     model: Option<&Bound<'_, PyAny>>,
     camera_names: Option<Vec<String>>,
     camera_units: Option<String>,
+    keypoint_scale: Option<String>,
     keypoint_map: Option<PathBuf>,
     min_confidence: f64,
     fps: f64,
@@ -425,6 +429,7 @@ pub fn import_keypoints(
         camera: Some(camera),
         camera_names: camera_names.unwrap_or_default(),
         camera_units,
+        keypoint_scale,
         keypoint_map,
         min_confidence,
         fps,

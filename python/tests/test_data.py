@@ -259,6 +259,24 @@ def test_keypoint_import_equals_the_cli(cli, tmp_path):
     assert d.modality == "keypoints2d" and len(d) == 4
     with pytest.raises(lfit.LfitError, match="unknown keypoint layout .coco19."):
         lfit.import_keypoints([coco], "coco19", cams, MH)
+    # The keypoints as fractions of the image (MediaPipe's normalised landmarks), read with
+    # `keypoint_scale="image"`: the CLI's dataset, the pixel import's keypoints.
+    norm = json.loads(coco.read_text())
+    for a in norm["annotations"]:
+        k = np.asarray(a["keypoints"]).reshape(-1, 3)
+        k[:, 0] /= 640.0
+        k[:, 1] /= 480.0
+        a["keypoints"] = k.ravel().tolist()
+    coco_n = tmp_path / "cam0-normalised.json"
+    coco_n.write_text(json.dumps(norm))
+    cli_n = tmp_path / "cli-n.npz"
+    cli("data", "import", "--keypoints", coco_n, "--layout", "coco17", "--camera", cams, "--model", MH,
+        "--keypoint-scale", "image", "--out", cli_n)
+    n = lfit.import_keypoints([coco_n], "coco17", cams, MH, keypoint_scale="image")
+    same_dataset(n, lfit.load_dataset(cli_n))
+    np.testing.assert_allclose(n.observations, d.observations, atol=1e-9)
+    with pytest.raises(lfit.LfitError, match="--keypoint-scale image.openpose3.openpose4"):
+        lfit.import_keypoints([coco_n], "coco17", cams, MH)
     # A Z-up camera file (`--up z`): the CLI's dataset, the same keypoints, other cameras.
     cli_z = tmp_path / "cli-z.npz"
     cli("data", "import", "--keypoints", coco, "--layout", "coco17", "--camera", cams, "--model", MH, "--up", "z", "--out", cli_z)

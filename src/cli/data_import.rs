@@ -7,7 +7,7 @@
 //!   entries. Units from `POINT:UNITS` (mm, cm, m). `--trc FILE`: the same from OpenSim's TRC
 //!   text format (`lfit_synth::capture::trc`).
 //! - `--keypoints PATH... --layout coco17|body25|coco18|halpe26|wholebody133|blazepose33 --camera CAMERAS.json
-//!   [--keypoint-map MAP.json]`:
+//!   [--keypoint-map MAP.json] [--keypoint-scale pixels|image|openpose3|openpose4]`:
 //!   2D keypoints (COCO keypoint files or OpenPose frame files/folders, `lfit_synth::capture::keypoints`)
 //!   in calibrated cameras as the `keypoints2d` modality; one path per camera in the camera
 //!   file's order, or in the order of `--camera-names` (cameras chosen by name or `#K`), or,
@@ -26,7 +26,8 @@ use lfit_synth::Scenario;
 use lfit_synth::capture::c3d::C3d;
 use lfit_synth::capture::import::{import_c3d, import_keypoints, read_name_map};
 use lfit_synth::capture::keypoints::{
-    CameraFileRig, KeypointLayout, read_camera_file_in, read_track, undistort_track,
+    CameraFileRig, KeypointLayout, KeypointScale, read_camera_file_in, read_track, scale_track,
+    undistort_track,
 };
 use serde_json::{Value, json};
 
@@ -113,11 +114,11 @@ fn parse_translation(text: &str) -> Result<[f64; 3]> {
 #[derive(Debug, clap::Args)]
 pub struct ImportArgs {
     /// C3D file of 3D marker trajectories (markers modality).
-    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "trc", "camera_names", "camera_units"])]
+    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "trc", "camera_names", "camera_units", "keypoint_scale"])]
     pub c3d: Option<PathBuf>,
     /// TRC file of 3D marker trajectories (OpenSim's text format, as OpenCap, Motive and Cortex
     /// write it; markers modality): read as a C3D's points, mapped and fitted alike.
-    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "camera_names", "camera_units"])]
+    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "camera_names", "camera_units", "keypoint_scale"])]
     pub trc: Option<PathBuf>,
     /// JSON object {"C3D label": "model marker", ...} ("#K": the file's point K, counted from 0,
     /// for a label the file repeats); default: C3D labels equal to the model's marker names, bare
@@ -162,6 +163,11 @@ pub struct ImportArgs {
     /// all of them, in the file's order.
     #[arg(long, value_delimiter = ',', value_name = "NAME,...")]
     pub camera_names: Vec<String>,
+    /// Unit of the keypoint files' x, y: pixels of the camera's image (default); image:
+    /// fractions of its width and height (MediaPipe's normalised landmarks, x·W); openpose3 /
+    /// openpose4: OpenPose's --keypoint_scale 3 ([0, 1], x·(W − 1)) / 4 ([−1, 1]).
+    #[arg(long, value_name = "pixels|image|openpose3|openpose4")]
+    pub keypoint_scale: Option<String>,
     /// JSON object {"model joint": "keypoint name", ...} replacing the layout's default map.
     #[arg(long)]
     pub keypoint_map: Option<PathBuf>,
@@ -484,10 +490,17 @@ pub fn import_dataset(
                     }
                 );
             };
+            let scale: KeypointScale = match &args.keypoint_scale {
+                Some(s) => s.parse()?,
+                None => KeypointScale::Pixels,
+            };
             let mut tracks = groups
                 .iter()
                 .map(|g| read_track(g, layout))
                 .collect::<Result<Vec<_>, _>>()?;
+            for (track, camera) in tracks.iter_mut().zip(&cameras) {
+                scale_track(track, camera, scale);
+            }
             // Keypoints of a camera with lens distortion, as its pinhole camera sees them.
             let undistorted = distortion.iter().filter(|d| d.is_some()).count();
             for ((track, camera), d) in tracks.iter_mut().zip(&cameras).zip(&distortion) {
@@ -515,6 +528,9 @@ pub fn import_dataset(
             }
             if let Some(u) = &args.camera_units {
                 source["camera_units"] = json!(u);
+            }
+            if scale != KeypointScale::Pixels {
+                source["keypoint_scale"] = json!(scale.name());
             }
             if !sizes_from_principal_point.is_empty() {
                 source["image_size_from_principal_point"] = json!(sizes_from_principal_point);

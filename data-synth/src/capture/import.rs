@@ -182,7 +182,7 @@ fn point_of(c3d: &C3d, key: &str) -> Result<usize, ImportError> {
 }
 
 /// Keypoints in another unit or of another image than their camera's: each camera's seen
-/// keypoints all within [−1, 1] (normalised coordinates: OpenPose's `--keypoint_scale 3` or 4)
+/// keypoints all within [−1, 1] (normalised coordinates read as pixels: `--keypoint-scale`)
 /// or more than half of them over half an image outside its width × height (keypoints of
 /// another resolution, or of another camera of the file) are refused — lfit reads pixels of the
 /// camera file's image, and such keypoints would fit silently wrong.
@@ -213,7 +213,7 @@ fn check_pixels(
         }
         if seen > 0 && unit == seen && w.max(h) >= 16.0 {
             return fail(format!(
-                "camera {c}: every keypoint lies within [-1, 1], in a {}×{} image: normalised coordinates (OpenPose --keypoint_scale 3 or 4)? lfit reads pixels (--keypoint_scale 0)",
+                "camera {c}: every keypoint lies within [-1, 1], in a {}×{} image: normalised coordinates (MediaPipe, OpenPose --keypoint_scale 3 or 4)? read them with --keypoint-scale image|openpose3|openpose4",
                 cam.width, cam.height
             ));
         }

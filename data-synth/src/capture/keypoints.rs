@@ -1406,6 +1406,83 @@ pub fn read_cameras(path: &Path) -> Result<Vec<Camera>, ImportError> {
     Ok(rig.cameras)
 }
 
+/// The unit of a keypoint file's `x, y`: lfit reads pixels of the camera's image; other tools
+/// write fractions of it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum KeypointScale {
+    /// Pixels of the camera's image (OpenPose's default `--keypoint_scale 0`, mmpose, AlphaPose,
+    /// Detectron2, Pose2Sim's files).
+    #[default]
+    Pixels,
+    /// Fractions of the image's width and height: `x·W`, `y·H` (MediaPipe's normalised
+    /// landmarks).
+    Image,
+    /// OpenPose `--keypoint_scale 3`: [0, 1] from the first pixel to the last, `x·(W − 1)`.
+    OpenPose3,
+    /// OpenPose `--keypoint_scale 4`: [−1, 1] from the first pixel to the last,
+    /// `(x + 1)/2·(W − 1)`.
+    OpenPose4,
+}
+
+impl KeypointScale {
+    /// The names `--keypoint-scale` takes.
+    pub const NAMES: &'static str = "pixels, image, openpose3 or openpose4";
+
+    pub fn name(self) -> &'static str {
+        match self {
+            KeypointScale::Pixels => "pixels",
+            KeypointScale::Image => "image",
+            KeypointScale::OpenPose3 => "openpose3",
+            KeypointScale::OpenPose4 => "openpose4",
+        }
+    }
+
+    /// `(x, y)` in this unit as pixels of a `width × height` image.
+    pub fn to_pixels(self, x: f64, y: f64, width: u32, height: u32) -> (f64, f64) {
+        let (w, h) = (f64::from(width), f64::from(height));
+        match self {
+            KeypointScale::Pixels => (x, y),
+            KeypointScale::Image => (x * w, y * h),
+            KeypointScale::OpenPose3 => (x * (w - 1.0), y * (h - 1.0)),
+            KeypointScale::OpenPose4 => ((x + 1.0) / 2.0 * (w - 1.0), (y + 1.0) / 2.0 * (h - 1.0)),
+        }
+    }
+}
+
+impl std::str::FromStr for KeypointScale {
+    type Err = ImportError;
+
+    fn from_str(s: &str) -> Result<Self, ImportError> {
+        [
+            KeypointScale::Pixels,
+            KeypointScale::Image,
+            KeypointScale::OpenPose3,
+            KeypointScale::OpenPose4,
+        ]
+        .into_iter()
+        .find(|k| k.name() == s)
+        .ok_or_else(|| {
+            ImportError::Invalid(format!(
+                "--keypoint-scale {s}: expected {}",
+                KeypointScale::NAMES
+            ))
+        })
+    }
+}
+
+/// `track`'s seen keypoints (confidence above 0) from `scale`'s unit into pixels of `camera`'s
+/// image, before anything reads them as pixels (undistortion, the import).
+pub fn scale_track(track: &mut KeypointTrack, camera: &Camera, scale: KeypointScale) {
+    if scale == KeypointScale::Pixels {
+        return;
+    }
+    for p in track.frames.iter_mut().flatten() {
+        if p[2] > 0.0 {
+            (p[0], p[1]) = scale.to_pixels(p[0], p[1], camera.width, camera.height);
+        }
+    }
+}
+
 /// `track`'s keypoints as the pinhole `camera` without `distortion` sees them (each seen
 /// keypoint undistorted, [`Distortion::undistort_pixel`]); a keypoint where the model does not
 /// invert is an error naming its frame.
@@ -2152,6 +2229,57 @@ mod tests {
 
     /// Undistortion inverts OpenCV's model to 1e-9 px over the image of a wide lens (a GoPro-like
     /// barrel, and the 8-coefficient rational model), and the pixel form equals the normalised one.
+    /// Each unit's corners of a 640 × 480 image land on the pixels its tool means, every name
+    /// parses back to its unit, and only seen keypoints are scaled.
+    #[test]
+    fn keypoint_scales_map_their_corners_to_pixels() {
+        let (w, h) = (640, 480);
+        let cases = [
+            (
+                KeypointScale::Pixels,
+                [(0.0, 0.0), (639.0, 479.0)],
+                [(0.0, 0.0), (639.0, 479.0)],
+            ),
+            (
+                KeypointScale::Image,
+                [(0.0, 0.0), (1.0, 1.0)],
+                [(0.0, 0.0), (640.0, 480.0)],
+            ),
+            (
+                KeypointScale::OpenPose3,
+                [(0.0, 0.0), (1.0, 1.0)],
+                [(0.0, 0.0), (639.0, 479.0)],
+            ),
+            (
+                KeypointScale::OpenPose4,
+                [(-1.0, -1.0), (1.0, 1.0)],
+                [(0.0, 0.0), (639.0, 479.0)],
+            ),
+        ];
+        for (scale, from, to) in cases {
+            for ((x, y), want) in from.into_iter().zip(to) {
+                assert_eq!(scale.to_pixels(x, y, w, h), want, "{scale:?}");
+            }
+            assert_eq!(scale.name().parse::<KeypointScale>().expect("name"), scale);
+        }
+        let e = "percent".parse::<KeypointScale>().unwrap_err().to_string();
+        assert!(
+            e.contains("expected pixels, image, openpose3 or openpose4"),
+            "{e}"
+        );
+        let camera = default_ring(1).remove(0);
+        assert_eq!((camera.width, camera.height), (w, h));
+        let mut track = KeypointTrack {
+            format: "openpose",
+            frames: vec![vec![[0.5, 0.5, 0.9], [0.5, 0.5, 0.0]]],
+            sources: vec!["f".into()],
+            image_sizes: vec![None],
+            crowded_frames: 0,
+        };
+        scale_track(&mut track, &camera, KeypointScale::Image);
+        assert_eq!(track.frames[0], vec![[320.0, 240.0, 0.9], [0.5, 0.5, 0.0]]);
+    }
+
     #[test]
     fn undistortion_inverts_the_lens_model() {
         let cam = default_ring(1)[0];

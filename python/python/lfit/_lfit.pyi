@@ -280,6 +280,7 @@ def import_keypoints(
     *,
     camera_names: Optional[Sequence[str]] = None,
     camera_units: Optional[str] = None,
+    keypoint_scale: Optional[str] = None,
     keypoint_map: Optional[_Path] = None,
     min_confidence: float = 0.1,
     fps: float = 30.0,
