@@ -12,6 +12,8 @@
 //!
 //! It runs through [`crate::unroll::unroll_rows`], the same host loop as ONNX Runtime.
 
+use std::ops::Range;
+
 use burn::nn::{BatchNorm, LayerNorm, LayerNormConfig, Linear};
 use burn::tensor::Tensor;
 use rayon::prelude::*;
@@ -147,29 +149,36 @@ impl HostLinear {
         self.forward_rows_portable(x, y);
     }
 
-    /// The 4-wide path: for each block, each row with its 32 accumulators in eight SSE registers.
-    fn forward_rows_portable(&self, x: &[f32], y: &mut [f32]) {
+    /// Each block of [`LANES`] outputs: its output columns, its packed weights (one row of
+    /// `LANES` per input) and its bias.
+    fn blocks(&self) -> impl Iterator<Item = (Range<usize>, &[[f32; LANES]], &[f32; LANES])> {
         let (d_in, d_out) = (self.d_in, self.d_out);
-        for (k, (block, bias)) in self
-            .packed
+        self.packed
             .chunks_exact(d_in * LANES)
             .zip(self.bias.as_chunks::<LANES>().0)
             .enumerate()
-        {
-            let j0 = k * LANES;
-            let width = LANES.min(d_out - j0);
+            .map(move |(k, (block, bias))| {
+                let cols = k * LANES..(k * LANES + LANES).min(d_out);
+                (cols, block.as_chunks::<LANES>().0, bias)
+            })
+    }
+
+    /// The 4-wide path: for each block, each row with its 32 accumulators in eight SSE registers.
+    fn forward_rows_portable(&self, x: &[f32], y: &mut [f32]) {
+        let (d_in, d_out) = (self.d_in, self.d_out);
+        for (cols, weights, bias) in self.blocks() {
             let bias: [f32x4; LANES / 4] =
                 std::array::from_fn(|q| f32x4::from(*bias[4 * q..].first_chunk::<4>().unwrap()));
             for (xb, yb) in x.chunks_exact(d_in).zip(y.chunks_exact_mut(d_out)) {
                 let mut acc = bias;
-                for (&xi, lanes) in xb.iter().zip(block.as_chunks::<LANES>().0) {
+                for (&xi, lanes) in xb.iter().zip(weights) {
                     let xv = f32x4::splat(xi);
                     for (a, w) in acc.iter_mut().zip(lanes.as_chunks::<4>().0) {
                         *a += xv * f32x4::from(*w);
                     }
                 }
                 let out: [f32; LANES] = std::array::from_fn(|l| acc[l / 4].to_array()[l % 4]);
-                yb[j0..j0 + width].copy_from_slice(&out[..width]);
+                yb[cols.clone()].copy_from_slice(&out[..cols.len()]);
             }
         }
     }
@@ -251,15 +260,8 @@ impl pulp::NullaryFnOnce for AvxRows<'_> {
             pairs,
         } = self;
         let (d_in, d_out) = (layer.d_in, layer.d_out);
-        for (k, (block, bias)) in layer
-            .packed
-            .chunks_exact(d_in * LANES)
-            .zip(layer.bias.as_chunks::<LANES>().0)
-            .enumerate()
-        {
-            let cols = k * LANES..(k * LANES + LANES).min(d_out);
+        for (cols, weights, bias) in layer.blocks() {
             let bias = load8(bias);
-            let weights = block.as_chunks::<LANES>().0;
             if pairs {
                 for (x, y) in x.chunks_exact(2 * d_in).zip(y.chunks_exact_mut(2 * d_out)) {
                     let (x0, x1) = x.split_at(d_in);
