@@ -415,24 +415,26 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     let cams = d.join("cameras.json");
     std::fs::write(&cams, cameras_json(truth.sensor.cameras())).expect("cameras");
     let out = d.join("kp.npz");
-    // `lfit data import` of the COCO files seen by the camera file `cams` into `out`.
-    let import = |cams: &Path, out: &Path, extra: &[&str]| {
-        let mut args = vec![
-            "-q".to_string(),
-            "data".into(),
-            "import".into(),
-            "--layout".into(),
-            "coco17".into(),
-            "--camera".into(),
-            path_str(cams).into(),
-            "--out".into(),
-            path_str(out).into(),
-        ];
-        args.extend(extra.iter().map(|a| a.to_string()));
-        args.push("--keypoints".into());
-        args.extend(files.iter().map(|f| path_str(f).to_string()));
-        lfit_json(&args.iter().map(String::as_str).collect::<Vec<_>>())
+    // `lfit data import` of the COCO files `kps` seen by the camera file `cams` into `out`.
+    let run = |cams: &Path, out: &Path, extra: &[&str], kps: &[PathBuf]| {
+        let mut args = vec!["-q", "data", "import", "--layout", "coco17", "--camera"];
+        args.extend([path_str(cams), "--out", path_str(out)]);
+        args.extend(extra);
+        args.push("--keypoints");
+        args.extend(kps.iter().map(|f| path_str(f)));
+        lfit(&args)
     };
+    // The same, expected to succeed: its summary; `import` of the six cameras' files.
+    let import_files = |cams: &Path, out: &Path, extra: &[&str], kps: &[PathBuf]| -> Value {
+        let o = run(cams, out, extra, kps);
+        assert!(
+            o.status.success(),
+            "lfit data import failed: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        serde_json::from_slice(&o.stdout).expect("stdout is JSON")
+    };
+    let import = |cams: &Path, out: &Path, extra: &[&str]| import_files(cams, out, extra, &files);
     let summary = import(&cams, &out, &[]);
     assert_eq!(summary["modality"], "keypoints2d");
     assert_eq!(summary["import"]["cameras"], 6);
@@ -470,13 +472,7 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     let scaled_import = |scale: &str, to: &dyn Fn(f64, f64) -> f64, extra: &[&str]| {
         let dir = d.join(format!("scale-{scale}"));
         std::fs::create_dir_all(&dir).expect("dir");
-        let mut args: Vec<String> = ["-q", "data", "import", "--layout", "coco17", "--camera"]
-            .map(String::from)
-            .to_vec();
-        args.extend([path_str(&cams).to_string(), "--out".into()]);
-        args.push(path_str(&dir.join("kp.npz")).into());
-        args.extend(extra.iter().map(|a| a.to_string()));
-        args.push("--keypoints".into());
+        let mut kps = Vec::new();
         for (c, f) in files.iter().enumerate() {
             let mut coco = read_json(f);
             let cam = &truth.sensor.cameras()[c];
@@ -495,9 +491,9 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
             }
             let file = dir.join(format!("cam{c}.json"));
             std::fs::write(&file, coco.to_string()).expect("coco");
-            args.push(path_str(&file).into());
+            kps.push(file);
         }
-        lfit(&args.iter().map(String::as_str).collect::<Vec<_>>())
+        run(&cams, &dir.join("kp.npz"), extra, &kps)
     };
     let forms: [(&str, &dyn Fn(f64, f64) -> f64); 3] = [
         ("image", &|x, w| x / w),
@@ -570,20 +566,8 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     // file. Both refused in one line, the dataset already at --out untouched.
     let kept = std::fs::read(&out_p).expect("written");
     // `lfit data import` of the first `n` COCO files with `cams` and `extra`, expected to fail.
-    let refused = |cams: &Path, extra: &[&str], n: usize, out: &Path| {
-        let mut a = vec![
-            "data",
-            "import",
-            "--layout",
-            "coco17",
-            "--camera",
-            path_str(cams),
-        ];
-        a.extend(extra);
-        a.extend(["--out", path_str(out), "--keypoints"]);
-        a.extend(files[..n].iter().map(|f| path_str(f)));
-        lfit(&a)
-    };
+    let refused =
+        |cams: &Path, extra: &[&str], n: usize, out: &Path| run(cams, out, extra, &files[..n]);
     let no_pick = refused(&cams_p, &[], 2, &out_p);
     assert_one_line_error(&no_pick, "2 keypoint paths for 9 cameras");
     assert_one_line_error(&no_pick, "--camera-names");
@@ -798,22 +782,7 @@ fn coco_keypoints_import_exactly_and_fit_with_lm_and_the_neural_fitter() {
     }
     let cams_l = d.join("cameras-lens.json");
     std::fs::write(&cams_l, with_lens.to_string()).expect("cameras");
-    let import_bent = |cams: &Path, out: &Path| {
-        let mut args = vec![
-            "-q",
-            "data",
-            "import",
-            "--layout",
-            "coco17",
-            "--camera",
-            path_str(cams),
-            "--out",
-            path_str(out),
-            "--keypoints",
-        ];
-        args.extend(bent_files.iter().map(|f| path_str(f)));
-        lfit_json(&args)
-    };
+    let import_bent = |cams: &Path, out: &Path| import_files(cams, out, &[], &bent_files);
     let out_l = d.join("kp-lens.npz");
     let summary_l = import_bent(&cams_l, &out_l);
     assert_eq!(summary_l["source"]["undistorted_cameras"], 6, "{summary_l}");
