@@ -26,8 +26,8 @@ use lfit_synth::Scenario;
 use lfit_synth::capture::c3d::C3d;
 use lfit_synth::capture::import::{import_c3d, import_keypoints, read_name_map};
 use lfit_synth::capture::keypoints::{
-    CameraFileRig, KeypointLayout, KeypointScale, read_camera_file_in, read_track, scale_track,
-    undistort_track,
+    CameraFileRig, KeypointLayout, KeypointScale, metres_per_unit, read_camera_file_in, read_track,
+    scale_track, undistort_track,
 };
 use serde_json::{Value, json};
 
@@ -305,7 +305,7 @@ fn load_cameras(
     up: lfit_synth::motion::retarget::Up,
 ) -> Result<CameraFileRig> {
     if let Some(u) = units
-        && !["m", "cm", "mm"].contains(&u)
+        && metres_per_unit(u).is_none()
     {
         bail!("--camera-units {u}: expected m, cm or mm");
     }

@@ -1312,6 +1312,16 @@ pub fn read_camera_file(path: &Path) -> Result<CameraFileRig, ImportError> {
     read_camera_file_in(path, None)
 }
 
+/// Metres per unit of a camera file's translations: `m`, `cm` or `mm` (else `None`).
+pub fn metres_per_unit(unit: &str) -> Option<f64> {
+    match unit {
+        "m" => Some(1.0),
+        "cm" => Some(0.01),
+        "mm" => Some(0.001),
+        _ => None,
+    }
+}
+
 /// [`read_camera_file`] with the translations' unit given (`m`, `cm` or `mm`): for a file that
 /// does not say it (anipose's calibrations are in the board's unit, often millimetres); a file
 /// whose `units` says otherwise is refused.
@@ -1359,14 +1369,14 @@ pub fn read_camera_file_in(path: &Path, units: Option<&str>) -> Result<CameraFil
         (None, _) => {}
     }
     let metres = match (file.units.as_deref(), &file.calib_data_source) {
-        (Some("m"), _) | (None, None) => 1.0,
-        (Some("cm"), _) | (None, Some(_)) => 0.01,
-        (Some("mm"), _) => 0.001,
-        (Some(other), _) => {
-            return Err(bad(format!(
-                "units '{other}': expected m, cm or mm (the translations' unit)"
-            )));
-        }
+        (None, None) => 1.0,
+        // A CMU Panoptic calibration, in centimetres.
+        (None, Some(_)) => 0.01,
+        (Some(unit), _) => metres_per_unit(unit).ok_or_else(|| {
+            bad(format!(
+                "units '{unit}': expected m, cm or mm (the translations' unit)"
+            ))
+        })?,
     };
     let mut rig = CameraFileRig {
         cameras: Vec::with_capacity(file.cameras.len()),
