@@ -141,6 +141,7 @@ impl Holdout {
             start_poses,
             gt_poses: dataset.gt_poses.clone(),
             observations: Observations::Sparse { values, visible },
+            reference: dataset.reference.clone(),
         })
     }
 

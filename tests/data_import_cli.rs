@@ -1662,3 +1662,185 @@ fn a_camera_file_converts_to_lfit_json_and_drives_synth() {
         assert!(!never.exists());
     }
 }
+
+/// Writes frame `f`'s Panoptic 3D skeleton file (`body3DScene_XXXXXXXX.json`, centimetres) into
+/// `folder`: `bodies` as (id, 19 × [x, y, z, confidence] in metres).
+fn panoptic_frame(folder: &Path, f: usize, bodies: &[(i64, Vec<[f64; 4]>)]) {
+    let bodies: Vec<Value> = bodies
+        .iter()
+        .map(|(id, joints)| {
+            let flat: Vec<f64> = joints
+                .iter()
+                .flat_map(|p| [100.0 * p[0], 100.0 * p[1], 100.0 * p[2], p[3]])
+                .collect();
+            json!({"id": id, "joints19": flat})
+        })
+        .collect();
+    std::fs::write(
+        folder.join(format!("body3DScene_{f:08}.json")),
+        json!({"version": 0.7, "univTime": 1000.0 + f as f64, "fpsType": "hd_29_97", "bodies": bodies}).to_string(),
+    )
+    .expect("panoptic frame");
+}
+
+/// A Panoptic-style reference of the truth's joints, in a y-down centimetre world as the
+/// studio's files are (the cameras turned with it), imports with `--up 0,-1,0` onto the model's
+/// joints and scores the LM fit of the same frames' keypoints; a reference moved 10 cm scores
+/// the same fit 10 cm worse by MPJPE and the same by PA-MPJPE. Frames with two bodies need
+/// `--reference-person`; a reference of another length is refused. Nothing is written on error.
+#[test]
+fn a_panoptic_reference_scores_the_fit_of_the_same_frames_keypoints() {
+    use lfit::synth::motion::retarget::Up;
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let frames = 6;
+    let (_, truth) = synth(d, "keypoints2d", frames, 51);
+    let template = lfit::data::load_model(None, "default").expect("model");
+    let nj = template.rig.num_joints();
+    let files = coco_files(d, &truth, nj);
+    let up: Up = "0,-1,0".parse().expect("up");
+    let to_file = up.to_lfit().transpose();
+    let cams: Vec<_> = truth
+        .sensor
+        .cameras()
+        .iter()
+        .map(|c| c.in_rotated_world(to_file))
+        .collect();
+    let cam_file = d.join("cameras.json");
+    std::fs::write(&cam_file, cameras_json(&cams)).expect("cameras");
+    let layout = KeypointLayout::Panoptic19;
+    let map = layout.default_map();
+    let joint_map = &template.info.joint_map;
+    // The truth's joints as Panoptic keypoints in the file's world, `shift` metres added there;
+    // frame 2's left wrist not found (confidence −1); a second body in frame 4.
+    let write_reference = |folder: &Path, count: usize, shift: [f64; 3]| {
+        std::fs::create_dir_all(folder).expect("dir");
+        for f in 0..count {
+            let joints = lfit::model::metrics::joint_positions(&template, &truth.gt_poses[f]);
+            let mut kp = vec![[0.5, -1.0, 0.2, 0.3]; layout.count()];
+            for &(p, name) in &map {
+                let j = joint_map[p].expect("mapped joint");
+                let q = to_file * joints[j] + glam::DVec3::from_array(shift);
+                let c = if f == 2 && name == "lWrist" {
+                    -1.0
+                } else {
+                    0.7
+                };
+                kp[layout.index(name).expect("keypoint")] = [q.x, q.y, q.z, c];
+            }
+            let mut bodies = vec![(3, kp.clone())];
+            if f == 4 {
+                let other = kp.iter().map(|p| [p[0] + 1.0, p[1], p[2], p[3]]).collect();
+                bodies.insert(0, (7, other));
+            }
+            panoptic_frame(folder, f, &bodies);
+        }
+    };
+    let reference = d.join("hdPose3d_stage1_coco19");
+    write_reference(&reference, frames, [0.0; 3]);
+    let import = |reference: &Path, out: &Path, extra: &[&str]| {
+        let mut a = vec![
+            "-q", "data", "import", "--layout", "coco17", "--up", "0,-1,0",
+        ];
+        a.extend(["--camera", path_str(&cam_file), "--out", path_str(out)]);
+        a.extend(["--reference", path_str(reference)]);
+        a.extend(extra);
+        a.push("--keypoints");
+        a.extend(files.iter().map(|f| path_str(f)));
+        lfit(&a)
+    };
+    // Frame 4 holds two bodies: the one to score is chosen by id.
+    let out = d.join("kp.npz");
+    let o = import(&reference, &out, &[]);
+    assert_one_line_error(&o, "--reference-person");
+    assert!(!out.exists());
+    let o = import(&reference, &out, &["--reference-person", "9"]);
+    assert_one_line_error(&o, "the files' ids: 3, 7");
+    assert!(!out.exists());
+    let o = import(&reference, &out, &["--reference-person", "3"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: Value = serde_json::from_slice(&o.stdout).expect("summary");
+    let r = &summary["import"]["reference"];
+    assert_eq!(r["format"], "panoptic");
+    assert_eq!(r["frames"], frames);
+    assert_eq!(r["person"], 3);
+    assert_eq!(r["mapped_joints"], map.len());
+    let seen = r["seen_fraction"].as_f64().expect("seen");
+    let expected = 1.0 - 1.0 / (frames * map.len()) as f64;
+    assert!((seen - expected).abs() < 1e-12, "{seen} vs {expected}");
+    // The rigid starts of noise-free keypoints lie within a body's size of the reference.
+    let start = r["start_distance_m"].as_f64().expect("start distance");
+    assert!(start < 0.5, "start {start} m from the reference");
+    // Stored in lfit's world: the truth's joints again, where seen.
+    let imported = Dataset::load(&out).expect("imported");
+    let stored = imported.reference.as_ref().expect("reference");
+    for f in 0..frames {
+        let joints = lfit::model::metrics::joint_positions(&template, &truth.gt_poses[f]);
+        let held = stored.seen(f);
+        assert_eq!(held.len(), map.len() - usize::from(f == 2), "frame {f}");
+        for (j, p) in held {
+            assert!(p.distance(joints[j]) < 1e-9, "frame {f} joint {j}");
+        }
+        // The truth scores zero against it.
+        let e = stored
+            .errors(&template, f, &truth.gt_poses[f])
+            .expect("errors");
+        assert!(e.mpjpe_mm < 1e-6 && e.pa_mpjpe_mm.expect("pa") < 1e-6);
+    }
+    // The LM fit of the keypoints, scored against the reference.
+    let fit = |data: &Path| -> Value {
+        let res = d.join("fit.json");
+        lfit_json(&[
+            "-q",
+            "fit",
+            "--data",
+            path_str(data),
+            "--method",
+            "lm",
+            "--budget",
+            "200",
+            "--out",
+            path_str(&res),
+        ]);
+        read_json(&res)
+    };
+    let s = fit(&out);
+    let m = s["summary"]["mean_reference_mpjpe_mm"]
+        .as_f64()
+        .expect("mpjpe");
+    let pa = s["summary"]["mean_reference_pa_mpjpe_mm"]
+        .as_f64()
+        .expect("pa-mpjpe");
+    eprintln!(
+        "Panoptic-style reference, LM on six noise-free cameras: MPJPE {m:.2} mm, PA {pa:.2} mm"
+    );
+    assert_eq!(s["summary"]["reference_frames"], frames);
+    // (PA-MPJPE's alignment minimises the squared distances, not their mean: it may end a
+    // little above MPJPE.)
+    assert!(m < 40.0 && pa < 40.0, "{m} {pa}");
+    let rows = s["frames"].as_array().expect("rows");
+    assert_eq!(rows[2]["reference_joints_seen"], map.len() - 1);
+    // The reference moved 10 cm along the file's x: the same fit, 10 cm off by MPJPE (within
+    // the fit's own error), equal by PA-MPJPE.
+    let moved = d.join("moved");
+    write_reference(&moved, frames, [0.1, 0.0, 0.0]);
+    let out2 = d.join("kp2.npz");
+    let o = import(&moved, &out2, &["--reference-person", "3"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s2 = fit(&out2);
+    let m2 = s2["summary"]["mean_reference_mpjpe_mm"]
+        .as_f64()
+        .expect("mpjpe");
+    let pa2 = s2["summary"]["mean_reference_pa_mpjpe_mm"]
+        .as_f64()
+        .expect("pa");
+    assert!((m2 - 100.0).abs() <= m + 1e-6, "{m2} vs 100 ± {m}");
+    assert!((pa2 - pa).abs() < 1e-6, "{pa2} vs {pa}");
+    // A reference of another length than the keypoints: refused, nothing written.
+    let short = d.join("short");
+    write_reference(&short, frames - 1, [0.0; 3]);
+    let out3 = d.join("kp3.npz");
+    let o = import(&short, &out3, &["--reference-person", "3"]);
+    assert_one_line_error(&o, "the reference has 5 frames, the keypoints 6");
+    assert!(!out3.exists());
+}

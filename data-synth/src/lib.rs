@@ -15,7 +15,7 @@ pub use dataset::config::{
     marker_slip_problem, noise_spread_problem,
 };
 pub use dataset::synth::{detector_offsets, frame_noise, synthesize, synthesize_until};
-pub use dataset::{Dataset, Meta, Observations};
+pub use dataset::{Dataset, JointReference, Meta, Observations, ReferenceErrors};
 pub use error::SynthError;
 pub use motion::augment::MotionAugment;
 pub use noise::NoiseConfig;

@@ -341,6 +341,8 @@ fn marker_file_args(
         camera_units: None,
         keypoint_scale: None,
         keypoint_map: None,
+        reference: Vec::new(),
+        reference_person: None,
         min_confidence: 0.1,
         fps: 30.0,
         scenario: scenario.to_string(),
@@ -389,16 +391,19 @@ pub fn import_trc(
 /// Imports 2D keypoints (COCO keypoint files, or OpenPose frame files/folders; one path per
 /// camera) in calibrated cameras as `lfit data import --keypoints` does: a `keypoints2d`
 /// dataset without ground truth. `layout`: `coco17`, `body25`, `coco18`, `halpe26`,
-/// `wholebody133` or `blazepose33`; `camera`: the camera JSON file (lfit's, OpenCV's keys, or a CMU Panoptic
+/// `wholebody133`, `blazepose33` or `panoptic19`; `camera`: the camera JSON file (lfit's, OpenCV's keys, or a CMU Panoptic
 /// calibration); `camera_names`: the file's cameras the paths come from, in their order (names,
 /// or `"#K"` for its camera K; default all, in the file's order); `camera_units`: `m`, `cm` or
 /// `mm`, the translations' unit where the file does not say it (an anipose `.toml`);
 /// `keypoint_scale`: the files' unit, `pixels` (default), `image` (fractions of the image:
 /// MediaPipe's normalised landmarks), `openpose3` or `openpose4` (OpenPose's `--keypoint_scale`);
 /// `up`: its world's up axis, `y`, `z` or `"x,y,z"` (`lfit data import --up`: a Z-up world, or
-/// one whose up is that direction, is turned into lfit's Y-up one).
+/// one whose up is that direction, is turned into lfit's Y-up one); `reference`: a captured 3D
+/// reference of the same frames' joints (CMU Panoptic `body3DScene_*.json` files or their
+/// folder, `lfit data import --reference`), turned with the cameras, which `fit` then scores
+/// against (MPJPE, PA-MPJPE); `reference_person`: its body's id where frames hold several.
 #[pyfunction]
-#[pyo3(signature = (paths, layout, camera, model=None, *, camera_names=None, camera_units=None, keypoint_scale=None, keypoint_map=None, min_confidence=0.1, fps=30.0, scenario="sequence", up="y", out=None))]
+#[pyo3(signature = (paths, layout, camera, model=None, *, camera_names=None, camera_units=None, keypoint_scale=None, keypoint_map=None, min_confidence=0.1, fps=30.0, scenario="sequence", up="y", reference=None, reference_person=None, out=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn import_keypoints(
     py: Python<'_>,
@@ -414,6 +419,8 @@ pub fn import_keypoints(
     fps: f64,
     scenario: &str,
     up: &str,
+    reference: Option<Vec<PathBuf>>,
+    reference_person: Option<i64>,
     out: Option<PathBuf>,
 ) -> PyResult<Dataset> {
     if paths.is_empty() {
@@ -431,6 +438,8 @@ pub fn import_keypoints(
         camera_units,
         keypoint_scale,
         keypoint_map,
+        reference: reference.unwrap_or_default(),
+        reference_person,
         min_confidence,
         fps,
         scenario: scenario.to_string(),

@@ -63,6 +63,8 @@ impl FitResult {
             ("v2v_mm", column(&rows, "v2v_mm")),
             ("mpjpe_mm", column(&rows, "mpjpe_mm")),
             ("pa_mpjpe_mm", column(&rows, "pa_mpjpe_mm")),
+            ("reference_mpjpe_mm", column(&rows, "reference_mpjpe_mm")),
+            ("reference_pa_mpjpe_mm", column(&rows, "reference_pa_mpjpe_mm")),
         ];
         let obs = unit.map_or_else(
             || vec![f64::NAN; rows.len()],
@@ -190,6 +192,20 @@ impl FitResult {
     #[getter]
     fn pa_mpjpe_mm<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<f64>> {
         self.col(py, "pa_mpjpe_mm")
+    }
+
+    /// With a captured joint reference (`import_keypoints(reference=...)`): mean joint error
+    /// against it, mm, over the joints it holds (NaN for frames without any, and without one).
+    #[getter]
+    fn reference_mpjpe_mm<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<f64>> {
+        self.col(py, "reference_mpjpe_mm")
+    }
+
+    /// The same after a similarity alignment, mm (NaN where the frame holds fewer than three
+    /// reference joints).
+    #[getter]
+    fn reference_pa_mpjpe_mm<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<f64>> {
+        self.col(py, "reference_pa_mpjpe_mm")
     }
 
     /// Without ground truth: mean distance of the fit to the seen observations (markers: mm,

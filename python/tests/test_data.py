@@ -236,11 +236,14 @@ def test_c3d_import_errors(cli, tmp_path):
     assert not out.exists()
 
 
-def test_keypoint_import_equals_the_cli(cli, tmp_path):
-    cam = {"fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480,
-           "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "translation": [0.0, -1.0, 4.0]}
+CAMERA = {"fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480,
+          "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "translation": [0.0, -1.0, 4.0]}
+
+
+def one_camera_coco(tmp_path):
+    """One camera (`CAMERA`) and four frames of COCO-17 keypoints at random in its image."""
     cams = tmp_path / "cams.json"
-    cams.write_text(json.dumps({"cameras": [cam]}))
+    cams.write_text(json.dumps({"cameras": [CAMERA]}))
     rng = np.random.default_rng(1)
     images = [{"id": i, "width": 640, "height": 480, "file_name": f"{i}.png"} for i in range(4)]
     annotations = []
@@ -252,6 +255,12 @@ def test_keypoint_import_equals_the_cli(cli, tmp_path):
         annotations.append({"id": i + 1, "image_id": i, "category_id": 1, "keypoints": kp.ravel().tolist()})
     coco = tmp_path / "cam0.json"
     coco.write_text(json.dumps({"images": images, "annotations": annotations, "categories": [{"id": 1}]}))
+    return cams, coco
+
+
+def test_keypoint_import_equals_the_cli(cli, tmp_path):
+    cam = CAMERA
+    cams, coco = one_camera_coco(tmp_path)
     cli_out = tmp_path / "cli.npz"
     cli("data", "import", "--keypoints", coco, "--layout", "coco17", "--camera", cams, "--model", MH, "--out", cli_out)
     d = lfit.import_keypoints([coco], "coco17", cams, MH)
@@ -381,3 +390,48 @@ def test_missing_dataset_is_one_line(tmp_path):
     with pytest.raises(lfit.LfitError) as e:
         lfit.load_dataset(tmp_path / "none.npz")
     assert one_line(e).startswith(f"dataset {tmp_path / 'none.npz'}")
+
+
+def test_a_panoptic_reference_scores_the_fit_as_the_cli_does(cli, tmp_path):
+    """`reference=`: Panoptic 3D skeleton files imported with the keypoints; `fit` scores each
+    frame against them, the CLI's figures to the bit."""
+    cams, coco = one_camera_coco(tmp_path)
+    folder = tmp_path / "hdPose3d_stage1_coco19"
+    folder.mkdir()
+    rng = np.random.default_rng(2)
+    for f in range(4):
+        joints = np.concatenate([rng.uniform(-20, 20, (19, 3)) + [0, 90, 0], np.full((19, 1), 0.6)], axis=1)
+        bodies = [{"id": 2, "joints19": joints.ravel().tolist()}]
+        if f == 3:
+            bodies.append({"id": 5, "joints19": joints.ravel().tolist()})
+        (folder / f"body3DScene_{f:08d}.json").write_text(json.dumps({"version": 0.7, "bodies": bodies}))
+    cli_out = tmp_path / "cli.npz"
+    summary = cli("data", "import", "--keypoints", coco, "--layout", "coco17", "--camera", cams,
+                  "--model", MH, "--reference", folder, "--reference-person", 2, "--out", cli_out)
+    d = lfit.import_keypoints([coco], "coco17", cams, MH, reference=[folder], reference_person=2)
+    same_dataset(d, lfit.load_dataset(cli_out))
+    assert d.summary["import"]["reference"] == summary["import"]["reference"]
+    assert summary["import"]["reference"]["person"] == 2
+    out = tmp_path / "fit.json"
+    cli("fit", "--data", cli_out, "--model", MH, "--method", "lm", "--budget", 40, "--out", out)
+    theirs = json.loads(out.read_text())
+    ours = lfit.fit(MH, d, method="lm", budget=40)
+    rows = theirs["frames"]
+    np.testing.assert_array_equal(ours.reference_mpjpe_mm, [r["reference_mpjpe_mm"] for r in rows])
+    np.testing.assert_array_equal(ours.reference_pa_mpjpe_mm, [r["reference_pa_mpjpe_mm"] for r in rows])
+    assert np.isfinite(ours.reference_mpjpe_mm).all() and (ours.reference_mpjpe_mm > 0).all()
+    assert ours.summary["mean_reference_mpjpe_mm"] == theirs["summary"]["mean_reference_mpjpe_mm"]
+    assert ours.summary["reference_frames"] == 4
+    # Without a reference: NaN.
+    plain = lfit.fit(MH, lfit.import_keypoints([coco], "coco17", cams, MH), method="lm", budget=10)
+    assert np.isnan(plain.reference_mpjpe_mm).all()
+    # Two bodies in a frame and no person chosen; a person without a reference: one line each.
+    bad = tmp_path / "bad.npz"
+    with pytest.raises(lfit.LfitError) as e:
+        lfit.import_keypoints([coco], "coco17", cams, MH, reference=[folder], out=bad)
+    p = cli("data", "import", "--keypoints", coco, "--layout", "coco17", "--camera", cams, "--model", MH,
+            "--reference", folder, "--out", bad, check=False)
+    assert p.stderr.strip() == f"error: {one_line(e)}" and "--reference-person" in p.stderr
+    assert not bad.exists()
+    with pytest.raises(lfit.LfitError, match="--reference-person chooses a body"):
+        lfit.import_keypoints([coco], "coco17", cams, MH, reference_person=2)

@@ -6,13 +6,15 @@
 //!   marker of the model's `markers` modality; gaps and markers no label maps to are invisible
 //!   entries. Units from `POINT:UNITS` (mm, cm, m). `--trc FILE`: the same from OpenSim's TRC
 //!   text format (`lfit_synth::capture::trc`).
-//! - `--keypoints PATH... --layout coco17|body25|coco18|halpe26|wholebody133|blazepose33 --camera CAMERAS.json
+//! - `--keypoints PATH... --layout coco17|body25|coco18|halpe26|wholebody133|blazepose33|panoptic19 --camera CAMERAS.json
 //!   [--keypoint-map MAP.json] [--keypoint-scale pixels|image|openpose3|openpose4]`:
 //!   2D keypoints (COCO keypoint files or OpenPose frame files/folders, `lfit_synth::capture::keypoints`)
 //!   in calibrated cameras as the `keypoints2d` modality; one path per camera in the camera
 //!   file's order, or in the order of `--camera-names` (cameras chosen by name or `#K`), or,
 //!   with one camera, any number of paths in frame order; a keypoint is seen when its
-//!   confidence is above `--min-confidence`.
+//!   confidence is above `--min-confidence`. `--reference PATH... [--reference-person ID]`: a
+//!   captured 3D reference of the same frames' joints (CMU Panoptic's 3D skeletons,
+//!   `lfit_synth::capture::reference`), stored with the dataset; `lfit fit` scores against it.
 //!
 //! The dataset's start poses are the rest pose moved rigidly onto each frame's data
 //! (`lfit_synth::capture::import`); the scenario (default `sequence`: each frame starts from the previous
@@ -29,6 +31,7 @@ use lfit_synth::capture::keypoints::{
     CameraFileRig, KeypointLayout, KeypointScale, metres_per_unit, read_camera_file_in, read_track,
     scale_track, undistort_track,
 };
+use lfit_synth::capture::reference::{attach_reference, read_panoptic_skeletons};
 use serde_json::{Value, json};
 
 /// `lfit data ...`.
@@ -114,11 +117,11 @@ fn parse_translation(text: &str) -> Result<[f64; 3]> {
 #[derive(Debug, clap::Args)]
 pub struct ImportArgs {
     /// C3D file of 3D marker trajectories (markers modality).
-    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "trc", "camera_names", "camera_units", "keypoint_scale"])]
+    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "trc", "camera_names", "camera_units", "keypoint_scale", "reference", "reference_person"])]
     pub c3d: Option<PathBuf>,
     /// TRC file of 3D marker trajectories (OpenSim's text format, as OpenCap, Motive and Cortex
     /// write it; markers modality): read as a C3D's points, mapped and fitted alike.
-    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "camera_names", "camera_units", "keypoint_scale"])]
+    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "camera_names", "camera_units", "keypoint_scale", "reference", "reference_person"])]
     pub trc: Option<PathBuf>,
     /// JSON object {"C3D label": "model marker", ...} ("#K": the file's point K, counted from 0,
     /// for a label the file repeats); default: C3D labels equal to the model's marker names, bare
@@ -140,7 +143,8 @@ pub struct ImportArgs {
     #[arg(long, num_args = 1..)]
     pub keypoints: Vec<PathBuf>,
     /// Keypoint layout: coco17, body25, coco18 (OpenPose's COCO model), halpe26 (AlphaPose),
-    /// wholebody133 (COCO-WholeBody: DWPose, RTMPose) or blazepose33 (MediaPipe Pose).
+    /// wholebody133 (COCO-WholeBody: DWPose, RTMPose), blazepose33 (MediaPipe Pose) or
+    /// panoptic19 (CMU Panoptic's coco19).
     #[arg(long)]
     pub layout: Option<String>,
     /// Camera file: {"cameras": [{"fx", "fy", "cx", "cy", "width", "height", "rotation": 3×3
@@ -171,7 +175,18 @@ pub struct ImportArgs {
     /// JSON object {"model joint": "keypoint name", ...} replacing the layout's default map.
     #[arg(long)]
     pub keypoint_map: Option<PathBuf>,
-    /// Keypoints with a confidence (COCO: visibility flag) at or below this are invisible.
+    /// A captured 3D reference of the same frames' joints, to score fits where no ground truth
+    /// exists (`lfit fit` reports MPJPE and PA-MPJPE against it): CMU Panoptic's 3D skeletons
+    /// (hdPose3d_stage1_coco19: body3DScene_*.json files or their folder, centimetres, in the
+    /// calibration's world), one per keypoint frame in order; turned with the cameras by --up
+    /// (Panoptic's world is y-down: --up 0,-1,0).
+    #[arg(long, num_args = 1..)]
+    pub reference: Vec<PathBuf>,
+    /// The reference body to keep, by its "id" (needed where a frame holds several).
+    #[arg(long, value_name = "ID", requires = "reference")]
+    pub reference_person: Option<i64>,
+    /// Keypoints with a confidence (COCO: visibility flag) at or below this are invisible (the
+    /// reference's joints too).
     #[arg(long, default_value_t = 0.1)]
     pub min_confidence: f64,
     /// Frame rate of keypoint files, Hz (C3D files carry theirs).
@@ -402,6 +417,12 @@ pub fn import_dataset(
         (None, Some(p)) => Some((p, true)),
         (None, None) => None,
     };
+    if args.reference_person.is_some() && args.reference.is_empty() {
+        bail!("--reference-person chooses a body of the --reference files: give --reference");
+    }
+    if markers.is_some() && !args.reference.is_empty() {
+        bail!("--reference scores the fits of 2D keypoints: give it with --keypoints");
+    }
     if markers.is_none() && args.label_map.is_some() {
         bail!("--label-map maps a marker file's labels: give it with --c3d or --trc");
     }
@@ -450,7 +471,7 @@ pub fn import_dataset(
         (None, false) => {
             let Some(layout) = &args.layout else {
                 bail!(
-                    "--keypoints needs --layout coco17|body25|coco18|halpe26|wholebody133|blazepose33"
+                    "--keypoints needs --layout coco17|body25|coco18|halpe26|wholebody133|blazepose33|panoptic19"
                 );
             };
             let layout: KeypointLayout = layout.parse()?;
@@ -508,8 +529,18 @@ pub fn import_dataset(
                     undistort_track(track, camera, d)?;
                 }
             }
+            // The reference is read before the model loads and the starts are solved: a bad file
+            // fails first.
+            let reference = if args.reference.is_empty() {
+                None
+            } else {
+                Some(
+                    read_panoptic_skeletons(&args.reference, args.reference_person)
+                        .context("--reference")?,
+                )
+            };
             let template = load()?;
-            let imported = import_keypoints(
+            let mut imported = import_keypoints(
                 &tracks,
                 cameras,
                 layout,
@@ -519,7 +550,21 @@ pub fn import_dataset(
                 &template,
                 scenario,
             )?;
+            if let Some(track) = &reference {
+                attach_reference(
+                    &mut imported,
+                    track,
+                    &args.reference[0],
+                    &template,
+                    up.to_lfit(),
+                    args.min_confidence,
+                )
+                .context("--reference")?;
+            }
             let mut source = json!({ "keypoints": args.keypoints, "camera": camera });
+            if reference.is_some() {
+                source["reference"] = json!(args.reference);
+            }
             if undistorted > 0 {
                 source["undistorted_cameras"] = json!(undistorted);
             }

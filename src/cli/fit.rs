@@ -603,6 +603,10 @@ fn fit_prepared(
     let mut shape_at_bound_frames = 0usize;
     let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
     let mut sum_pa_mpjpe = 0.0;
+    // With a captured joint reference (`lfit data import --reference`): MPJPE and PA-MPJPE
+    // against it, over the frames that hold some of it.
+    let (mut sum_ref, mut ref_frames) = (0.0, 0usize);
+    let (mut sum_ref_pa, mut ref_pa_frames) = (0.0, 0usize);
     // In a sequence with ground truth: each frame's fitted and true joints, for the
     // acceleration error.
     let mut sequence_joints: Vec<(usize, Vec<glam::DVec3>, Vec<glam::DVec3>)> = Vec::new();
@@ -688,6 +692,19 @@ fn fit_prepared(
                 let h = frame_energy(frame)?.lowest_sole(f, pose)?;
                 row["lowest_sole_m"] = json!(h);
                 sum_lowest_sole += h;
+            }
+            if let Some(reference) = &scored.reference
+                && let Some(e) = reference.errors(&template, frame, pose)
+            {
+                row["reference_mpjpe_mm"] = json!(e.mpjpe_mm);
+                row["reference_joints_seen"] = json!(e.seen);
+                sum_ref += e.mpjpe_mm;
+                ref_frames += 1;
+                if let Some(pa) = e.pa_mpjpe_mm {
+                    row["reference_pa_mpjpe_mm"] = json!(pa);
+                    sum_ref_pa += pa;
+                    ref_pa_frames += 1;
+                }
             }
             if let Some(gt) = dataset.ground_truth(frame) {
                 let truth = TruthMesh::new(&template, gt);
@@ -820,6 +837,18 @@ fn fit_prepared(
             {
                 summary["hint"] = json!(hint);
             }
+        }
+    }
+    if scored.reference.is_some() {
+        // Frames without any reference joint are left out of the means (and counted here);
+        // PA-MPJPE over the frames that hold three or more.
+        summary["reference_frames"] = json!(ref_frames);
+        if ref_frames > 0 {
+            summary["mean_reference_mpjpe_mm"] = json!(sum_ref / ref_frames as f64);
+        }
+        if ref_pa_frames > 0 {
+            summary["mean_reference_pa_mpjpe_mm"] = json!(sum_ref_pa / ref_pa_frames as f64);
+            summary["reference_pa_frames"] = json!(ref_pa_frames);
         }
     }
     if held_frames > 0 {

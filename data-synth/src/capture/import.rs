@@ -152,6 +152,7 @@ fn imported_dataset(
         start_poses: starts,
         gt_poses: Vec::new(),
         observations: Observations::Sparse { values, visible },
+        reference: None,
     })
 }
 
@@ -430,6 +431,54 @@ pub fn import_c3d(
     Ok(Imported { dataset, report })
 }
 
+/// `(model joint, keypoint index)` pairs of `layout` on `template`: `map` (model joint name →
+/// keypoint name) or, without one, the layout's default map through the model's joint map.
+pub fn layout_pairs(
+    layout: KeypointLayout,
+    map: Option<&[(String, String)]>,
+    template: &Template,
+) -> Result<Vec<(usize, usize)>, ImportError> {
+    let rig = &template.rig;
+    let mut pairs = Vec::new();
+    match map {
+        Some(map) => {
+            for (joint, kp) in map {
+                let Some(j) = rig.joint_index(joint) else {
+                    return fail(format!(
+                        "keypoint map: '{joint}' is not a joint of model '{}'",
+                        template.id
+                    ));
+                };
+                let Some(k) = layout.index(kp) else {
+                    return fail(format!(
+                        "keypoint map: '{kp}' is not a {} keypoint (its names: {})",
+                        layout.name(),
+                        layout.names().join(", ")
+                    ));
+                };
+                pairs.push((j, k));
+            }
+        }
+        None => {
+            for (p, kp) in layout.default_map() {
+                if let Some(Some(j)) = template.info.joint_map.get(p)
+                    && let Some(k) = layout.index(kp)
+                {
+                    pairs.push((*j, k));
+                }
+            }
+            if pairs.is_empty() {
+                return fail(format!(
+                    "model '{}' maps none of the papers/000 joints the {} layout gives: pass --keypoint-map",
+                    template.id,
+                    layout.name()
+                ));
+            }
+        }
+    }
+    Ok(pairs)
+}
+
 /// Imports per-camera keypoint tracks as a `keypoints2d` dataset of `template`. `map`: model
 /// joint name → keypoint name (default: [`KeypointLayout::default_map`] through the model's joint
 /// map); a keypoint is seen when its confidence is above `min_confidence`.
@@ -477,44 +526,7 @@ pub fn import_keypoints(
     }
     let rig = &template.rig;
     let nj = rig.num_joints();
-    // (model joint, keypoint index)
-    let mut pairs = Vec::new();
-    match map {
-        Some(map) => {
-            for (joint, kp) in map {
-                let Some(j) = rig.joint_index(joint) else {
-                    return fail(format!(
-                        "keypoint map: '{joint}' is not a joint of model '{}'",
-                        template.id
-                    ));
-                };
-                let Some(k) = layout.index(kp) else {
-                    return fail(format!(
-                        "keypoint map: '{kp}' is not a {} keypoint (its names: {})",
-                        layout.name(),
-                        layout.names().join(", ")
-                    ));
-                };
-                pairs.push((j, k));
-            }
-        }
-        None => {
-            for (p, kp) in layout.default_map() {
-                if let Some(Some(j)) = template.info.joint_map.get(p)
-                    && let Some(k) = layout.index(kp)
-                {
-                    pairs.push((*j, k));
-                }
-            }
-            if pairs.is_empty() {
-                return fail(format!(
-                    "model '{}' maps none of the papers/000 joints the {} layout gives: pass --keypoint-map",
-                    template.id,
-                    layout.name()
-                ));
-            }
-        }
-    }
+    let pairs = layout_pairs(layout, map, template)?;
     let k = cameras.len();
     let mut values = Vec::with_capacity(n);
     let mut visible = Vec::with_capacity(n);

@@ -70,6 +70,9 @@ pub enum KeypointLayout {
     /// MediaPipe Pose's 33 landmarks (BlazePose; Bazarevsky et al. 2020), as Pose2Sim writes
     /// them in OpenPose's format.
     BlazePose33,
+    /// CMU Panoptic's 19 ("coco19": its 3D skeletons, `hdPose3d_stage1_coco19`; Joo et al.
+    /// 2017), in the order and under the names of the Panoptic toolbox's README.
+    Panoptic19,
 }
 
 /// COCO-17 keypoint names, in order.
@@ -336,6 +339,30 @@ pub const BLAZEPOSE33: [&str; 33] = [
     "right_foot_index",
 ];
 
+/// CMU Panoptic's coco19 keypoint names, in order (the panoptic-toolbox README's list; not
+/// OpenPose's order, though its method builds on OpenPose). BodyCenter is the centre of the hips.
+pub const PANOPTIC19: [&str; 19] = [
+    "Neck",
+    "Nose",
+    "BodyCenter",
+    "lShoulder",
+    "lElbow",
+    "lWrist",
+    "lHip",
+    "lKnee",
+    "lAnkle",
+    "rShoulder",
+    "rElbow",
+    "rWrist",
+    "rHip",
+    "rKnee",
+    "rAnkle",
+    "lEye",
+    "lEar",
+    "rEye",
+    "rEar",
+];
+
 /// `body` then `extra`, as one array (a const concatenation).
 const fn whole_body(body: &[&'static str; 17], extra: &[&'static str; 116]) -> [&'static str; 133] {
     let mut all = [""; 133];
@@ -361,8 +388,9 @@ impl std::str::FromStr for KeypointLayout {
             "halpe26" => Ok(Self::Halpe26),
             "wholebody133" => Ok(Self::CocoWholeBody),
             "blazepose33" => Ok(Self::BlazePose33),
+            "panoptic19" => Ok(Self::Panoptic19),
             other => fail(format!(
-                "unknown keypoint layout '{other}' (expected coco17, body25, coco18, halpe26, wholebody133 or blazepose33)"
+                "unknown keypoint layout '{other}' (expected coco17, body25, coco18, halpe26, wholebody133, blazepose33 or panoptic19)"
             )),
         }
     }
@@ -377,6 +405,7 @@ impl KeypointLayout {
             Self::Halpe26 => "halpe26",
             Self::CocoWholeBody => "wholebody133",
             Self::BlazePose33 => "blazepose33",
+            Self::Panoptic19 => "panoptic19",
         }
     }
 
@@ -389,6 +418,7 @@ impl KeypointLayout {
             Self::Halpe26 => &HALPE26,
             Self::CocoWholeBody => &COCO_WHOLEBODY,
             Self::BlazePose33 => &BLAZEPOSE33,
+            Self::Panoptic19 => &PANOPTIC19,
         }
     }
 
@@ -402,9 +432,9 @@ impl KeypointLayout {
 
     /// The default correspondence: papers/000 joint → keypoint name. Only keypoints that lie
     /// close to a joint centre of lfit's skeleton: hips, knees, ankles, shoulders, elbows,
-    /// wrists (the papers/000 hands); BODY_25 and Halpe-26 also give the root (MidHip, Hip) and
-    /// the head joint (Neck: papers/000's head joint sits at the base of the neck), OpenPose's
-    /// COCO model the head joint. Face and foot keypoints are left out (no joint centre there);
+    /// wrists (the papers/000 hands); BODY_25, Halpe-26 and Panoptic's coco19 also give the root
+    /// (MidHip, Hip, BodyCenter) and the head joint (Neck: papers/000's head joint sits at the
+    /// base of the neck), OpenPose's COCO model the head joint. Face and foot keypoints are left out (no joint centre there);
     /// `--keypoint-map` chooses others.
     pub fn default_map(self) -> Vec<(usize, &'static str)> {
         use skeleton::*;
@@ -431,6 +461,25 @@ impl KeypointLayout {
                 };
                 map.extend(Self::OPENPOSE_LIMBS);
                 map
+            }
+            Self::Panoptic19 => {
+                use skeleton::*;
+                vec![
+                    (ROOT, "BodyCenter"),
+                    (HEAD, "Neck"),
+                    (R_HIP, "rHip"),
+                    (R_KNEE, "rKnee"),
+                    (R_ANKLE, "rAnkle"),
+                    (L_HIP, "lHip"),
+                    (L_KNEE, "lKnee"),
+                    (L_ANKLE, "lAnkle"),
+                    (R_SHOULDER, "rShoulder"),
+                    (R_ELBOW, "rElbow"),
+                    (R_HAND, "rWrist"),
+                    (L_SHOULDER, "lShoulder"),
+                    (L_ELBOW, "lElbow"),
+                    (L_HAND, "lWrist"),
+                ]
             }
         }
     }
@@ -1649,6 +1698,7 @@ mod tests {
             ("halpe26", 26, Some("Hip")),
             ("wholebody133", 133, None),
             ("blazepose33", 33, None),
+            ("panoptic19", 19, Some("BodyCenter")),
         ] {
             let layout: KeypointLayout = name.parse().unwrap();
             assert_eq!((layout.name(), layout.count()), (name, count));
@@ -1672,7 +1722,7 @@ mod tests {
         }
         let e = "coco19".parse::<KeypointLayout>().unwrap_err().to_string();
         assert!(
-            e.contains("coco17, body25, coco18, halpe26, wholebody133 or blazepose33"),
+            e.contains("coco17, body25, coco18, halpe26, wholebody133, blazepose33 or panoptic19"),
             "{e}"
         );
         // The whole-body layout's first 17 are COCO's, its default map COCO-17's.

@@ -1,6 +1,7 @@
 //! Captured observations into datasets (`lfit data import`): C3D marker files ([`c3d`]), TRC
 //! marker files ([`trc`], read as a C3D's points), 2D keypoint and camera files ([`keypoints`]),
-//! and their import onto a model with rigid start poses and observation errors ([`import`]).
+//! and their import onto a model with rigid start poses and observation errors ([`import`]);
+//! a captured 3D reference of the joints that scores fits of those keypoints ([`reference`]).
 
 use std::path::PathBuf;
 
@@ -10,6 +11,7 @@ pub mod c3d;
 pub mod import;
 pub mod keypoints;
 pub mod opencv_yaml;
+pub mod reference;
 pub mod trc;
 
 /// Errors of the import: each a one-line cause.

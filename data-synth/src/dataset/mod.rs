@@ -103,6 +103,65 @@ pub struct Dataset {
     /// `gt_expression`). Empty when the dataset has none (imported observations).
     pub gt_poses: Vec<Vec<f64>>,
     pub observations: Observations,
+    /// A captured 3D reference of the model's joints (imported observations only: a studio's
+    /// own reconstruction, `lfit data import --reference`), which `lfit fit` scores the fit
+    /// against where no ground truth exists; `None` without one.
+    pub reference: Option<JointReference>,
+}
+
+/// Per frame, a position (metres, the dataset's world) for each joint of the model's rig and
+/// whether the reference holds it (on disk `reference_joints` `[N, J, 3]` and
+/// `reference_visible` `[N, J]`; an entry not held is stored as 0).
+#[derive(Debug, Clone, PartialEq)]
+pub struct JointReference {
+    pub points: Vec<Vec<[f64; 3]>>,
+    pub visible: Vec<Vec<bool>>,
+}
+
+impl JointReference {
+    /// Frame `frame`'s held joints: `(joint index, position)` in joint order.
+    pub fn seen(&self, frame: usize) -> Vec<(usize, glam::DVec3)> {
+        self.points[frame]
+            .iter()
+            .zip(&self.visible[frame])
+            .enumerate()
+            .filter(|(_, (_, v))| **v)
+            .map(|(j, (p, _))| (j, glam::DVec3::from_array(*p)))
+            .collect()
+    }
+
+    /// A fit's errors against frame `frame`'s held joints: `pose`'s joints (the model's joint
+    /// centres, [`lfit_model::metrics::joint_positions`]) against the reference's, MPJPE and,
+    /// with three or more held, PA-MPJPE (after a similarity alignment). `None` when the frame
+    /// holds none.
+    pub fn errors(
+        &self,
+        template: &lfit_model::template::Template,
+        frame: usize,
+        pose: &[f64],
+    ) -> Option<ReferenceErrors> {
+        let held = self.seen(frame);
+        if held.is_empty() {
+            return None;
+        }
+        let joints = lfit_model::metrics::joint_positions(template, pose);
+        let fitted: Vec<glam::DVec3> = held.iter().map(|(j, _)| joints[*j]).collect();
+        let reference: Vec<glam::DVec3> = held.iter().map(|(_, p)| *p).collect();
+        Some(ReferenceErrors {
+            mpjpe_mm: lfit_model::metrics::joint_error_mm(&fitted, &reference),
+            pa_mpjpe_mm: (held.len() >= 3)
+                .then(|| lfit_model::metrics::aligned_joint_error_mm(&fitted, &reference)),
+            seen: held.len(),
+        })
+    }
+}
+
+/// [`JointReference::errors`]: millimetres, over the `seen` joints.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReferenceErrors {
+    pub mpjpe_mm: f64,
+    pub pa_mpjpe_mm: Option<f64>,
+    pub seen: usize,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -340,6 +399,24 @@ impl Dataset {
                 arrays.push(("silhouettes", mask_array(masks, n, k)));
             }
         }
+        if let Some(r) = &self.reference {
+            let j = r.points.first().map_or(0, Vec::len);
+            if r.points.len() != n
+                || r.visible.len() != n
+                || r.points.iter().any(|p| p.len() != j)
+                || r.visible.iter().any(|v| v.len() != j)
+            {
+                return Err(SynthError::Dataset(format!(
+                    "the joint reference is not one row of {j} joints per frame for {n} frames"
+                )));
+            }
+            let flat: Vec<f64> = r.points.iter().flatten().flatten().copied().collect();
+            arrays.push(("reference_joints", Array::f64(vec![n, j, 3], &flat)));
+            arrays.push((
+                "reference_visible",
+                Array::bool(vec![n, j], &r.visible.concat()),
+            ));
+        }
         Ok(arrays)
     }
 
@@ -535,12 +612,122 @@ impl Dataset {
                 meta.frame_motions.len()
             )));
         }
+        let has = |name: &str| arrays.iter().any(|(a, _)| a == name);
+        let reference = match (has("reference_joints"), has("reference_visible")) {
+            (false, false) => None,
+            (true, true) => {
+                let p = get("reference_joints")?;
+                if p.shape.len() != 3 || p.shape[0] != n || p.shape[2] != 3 {
+                    return Err(SynthError::Dataset(format!(
+                        "array 'reference_joints' has shape {:?}, expected [{n}, J, 3]",
+                        p.shape
+                    )));
+                }
+                let j = p.shape[1];
+                let flat = p.to_f64("reference_joints")?;
+                if let Some(i) = flat.iter().position(|x| !x.is_finite()) {
+                    return Err(SynthError::Dataset(format!(
+                        "reference_joints[{}][{}] is not finite",
+                        i / (3 * j).max(1),
+                        i % (3 * j).max(1) / 3
+                    )));
+                }
+                let v = get("reference_visible")?;
+                shape("reference_visible", v, &[n, j])?;
+                let points = flat
+                    .chunks_exact((3 * j).max(1))
+                    .take(n)
+                    .map(|row| row.chunks_exact(3).map(|q| [q[0], q[1], q[2]]).collect())
+                    .collect();
+                let visible = v
+                    .to_bool("reference_visible")?
+                    .chunks_exact(j.max(1))
+                    .take(n)
+                    .map(<[bool]>::to_vec)
+                    .collect();
+                Some(JointReference { points, visible })
+            }
+            _ => {
+                return Err(SynthError::Dataset(
+                    "a joint reference needs both 'reference_joints' and 'reference_visible'"
+                        .into(),
+                ));
+            }
+        };
         Ok(Self {
             meta,
             sensor,
             start_poses,
             gt_poses,
             observations,
+            reference,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dataset::synth::synthesize;
+    use crate::{Scenario, SynthConfig};
+    use lfit_model::default_template;
+
+    /// A joint reference saves and loads with its dataset, bit for bit; a file with one of its
+    /// two arrays is refused; a pose moved 10 cm scores 100 mm by MPJPE and 0 by PA-MPJPE.
+    #[test]
+    fn a_joint_reference_round_trips_and_scores_a_pose() {
+        let t = default_template();
+        let sensor = Sensor::default_for(Modality::Keypoints2d, &t);
+        let c = SynthConfig::new(Modality::Keypoints2d, Scenario::Local, 3, 5);
+        let mut data = synthesize(&c, &t, &sensor, &|_| {}).unwrap();
+        let nj = t.rig.num_joints();
+        let mut points = Vec::new();
+        let mut visible = Vec::new();
+        for f in 0..3 {
+            let joints = lfit_model::metrics::joint_positions(&t, &data.gt_poses[f]);
+            points.push(joints.iter().map(|p| p.to_array()).collect::<Vec<_>>());
+            // Frame 1 holds two joints (no PA-MPJPE), the others every joint but the first.
+            visible.push(
+                (0..nj)
+                    .map(|j| if f == 1 { j < 2 } else { j > 0 })
+                    .collect(),
+            );
+        }
+        data.reference = Some(JointReference { points, visible });
+        let bytes = npz_bytes(&data.to_arrays().unwrap()).unwrap();
+        let back = Dataset::from_npz(&bytes).unwrap();
+        assert_eq!(back.reference, data.reference);
+        let r = back.reference.as_ref().unwrap();
+        let e = r.errors(&t, 0, &data.gt_poses[0]).unwrap();
+        assert_eq!((e.seen, e.pa_mpjpe_mm.is_some()), (nj - 1, true));
+        assert!(e.mpjpe_mm < 1e-9);
+        let e = r.errors(&t, 1, &data.gt_poses[1]).unwrap();
+        assert_eq!((e.seen, e.pa_mpjpe_mm), (2, None));
+        // The root moved by (0.06, 0, −0.08) m.
+        let mut moved = data.gt_poses[2].clone();
+        let at = t
+            .layout()
+            .range(lfit_model::layout::Block::Translation)
+            .start;
+        moved[at] += 0.06;
+        moved[at + 2] -= 0.08;
+        let e = r.errors(&t, 2, &moved).unwrap();
+        assert!((e.mpjpe_mm - 100.0).abs() < 1e-6, "{}", e.mpjpe_mm);
+        assert!(e.pa_mpjpe_mm.unwrap() < 1e-6);
+        // One array without the other.
+        let arrays: Vec<_> = data
+            .to_arrays()
+            .unwrap()
+            .into_iter()
+            .filter(|(n, _)| *n != "reference_visible")
+            .collect();
+        let e = Dataset::from_npz(&npz_bytes(&arrays).unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("needs both"), "{e}");
+        // A reference of the wrong length is not written.
+        let mut bad = data.clone();
+        bad.reference.as_mut().unwrap().points.pop();
+        assert!(bad.to_arrays().is_err());
     }
 }

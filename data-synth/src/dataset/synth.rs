@@ -187,6 +187,7 @@ pub fn synthesize_until(
         start_poses: starts,
         gt_poses: targets,
         observations,
+        reference: None,
     })
 }
 

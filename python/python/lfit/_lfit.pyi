@@ -209,6 +209,10 @@ class FitResult:
     @property
     def pa_mpjpe_mm(self) -> _F64: ...
     @property
+    def reference_mpjpe_mm(self) -> _F64: ...
+    @property
+    def reference_pa_mpjpe_mm(self) -> _F64: ...
+    @property
     def observation_error(self) -> _F64: ...
     @property
     def observation_unit(self) -> Optional[str]: ...
@@ -286,6 +290,8 @@ def import_keypoints(
     fps: float = 30.0,
     scenario: str = "sequence",
     up: str = "y",
+    reference: Optional[Sequence[_Path]] = None,
+    reference_person: Optional[int] = None,
     out: Optional[_Path] = None,
 ) -> Dataset:
     """``lfit data import --keypoints``."""

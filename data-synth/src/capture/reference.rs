@@ -1,0 +1,375 @@
+//! A captured 3D reference of the joints (`lfit data import --reference`): what a capture
+//! studio's own reconstruction says each frame's joints were, so that a fit of the same frames'
+//! 2D keypoints can be scored in millimetres where no ground truth exists.
+//!
+//! Read: CMU Panoptic's 3D skeletons (`hdPose3d_stage1_coco19/body3DScene_XXXXXXXX.json`, one
+//! file per HD frame: `{"bodies": [{"id", "joints19": [x, y, z, confidence] × 19}]}`, in
+//! centimetres in the calibration's world; the layout and the unit as the panoptic-toolbox
+//! README documents them). The reference's keypoints are mapped onto the model's joints by the
+//! layout's default map ([`KeypointLayout::default_map`]), turned into lfit's Y-up world with
+//! the cameras ([`attach_reference`]) and stored with the dataset ([`JointReference`]).
+
+use std::path::{Path, PathBuf};
+
+use glam::{DMat3, DVec3};
+use lfit_model::template::Template;
+use serde_json::{Value, json};
+
+use super::ImportError;
+use super::import::{Imported, layout_pairs};
+use super::keypoints::KeypointLayout;
+use crate::dataset::JointReference;
+
+fn fail<T>(msg: impl Into<String>) -> Result<T, ImportError> {
+    Err(ImportError::Invalid(msg.into()))
+}
+
+/// A reference's keypoints over time, in the file's world.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReferenceTrack {
+    /// `panoptic`.
+    pub format: &'static str,
+    pub layout: KeypointLayout,
+    /// Per frame, per keypoint: `[x, y, z]` in metres and a confidence (all zero in a frame
+    /// without the chosen body).
+    pub frames: Vec<Vec<[f64; 4]>>,
+    /// Per frame, the file it came from.
+    pub sources: Vec<String>,
+    /// The body kept (its `id`), when one was chosen or every frame held at most one.
+    pub person: Option<i64>,
+    /// Frames that hold no body (or not the chosen one).
+    pub empty_frames: usize,
+}
+
+/// The JSON files of `paths` (each a file, or a folder whose `.json` files are taken in name
+/// order: Panoptic's zero-padded frame numbers).
+fn json_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>, ImportError> {
+    let mut files = Vec::new();
+    for path in paths {
+        if path.is_dir() {
+            let entries = std::fs::read_dir(path).map_err(|source| ImportError::Read {
+                path: path.clone(),
+                source,
+            })?;
+            let mut found: Vec<PathBuf> = entries
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "json"))
+                .collect();
+            if found.is_empty() {
+                return fail(format!(
+                    "{}: the folder holds no .json file",
+                    path.display()
+                ));
+            }
+            found.sort();
+            files.extend(found);
+        } else {
+            files.push(path.clone());
+        }
+    }
+    if files.is_empty() {
+        return fail("--reference needs a file or a folder of files");
+    }
+    Ok(files)
+}
+
+/// One body of a Panoptic frame: its id and its 19 keypoints (metres, confidence).
+fn panoptic_body(body: &Value, file: &str) -> Result<(i64, Vec<[f64; 4]>), ImportError> {
+    let id = body.get("id").and_then(Value::as_i64).unwrap_or(-1);
+    let Some(joints) = body.get("joints19").and_then(Value::as_array) else {
+        return fail(format!("{file}: body {id} has no \"joints19\" array"));
+    };
+    let count = KeypointLayout::Panoptic19.count();
+    if joints.len() != 4 * count {
+        return fail(format!(
+            "{file}: body {id}: \"joints19\" has {} values, expected {} (19 joints × x, y, z, confidence)",
+            joints.len(),
+            4 * count
+        ));
+    }
+    let mut out = Vec::with_capacity(count);
+    for (k, j) in joints.chunks_exact(4).enumerate() {
+        let mut p = [0.0; 4];
+        for (i, v) in j.iter().enumerate() {
+            match v.as_f64().filter(|x| x.is_finite()) {
+                // Centimetres, as the toolbox documents; the confidence as it is.
+                Some(x) => p[i] = if i < 3 { x * 0.01 } else { x },
+                None => {
+                    return fail(format!(
+                        "{file}: body {id}: keypoint {k} ({}) holds {v}, not a finite number",
+                        KeypointLayout::Panoptic19.names()[k]
+                    ));
+                }
+            }
+        }
+        out.push(p);
+    }
+    Ok((id, out))
+}
+
+/// Reads CMU Panoptic 3D skeleton files (`body3DScene_*.json`, or folders of them) as one frame
+/// each. `person`: the body `id` to keep; without it, every frame must hold at most one body.
+pub fn read_panoptic_skeletons(
+    paths: &[PathBuf],
+    person: Option<i64>,
+) -> Result<ReferenceTrack, ImportError> {
+    let files = json_files(paths)?;
+    let count = KeypointLayout::Panoptic19.count();
+    let mut frames = Vec::with_capacity(files.len());
+    let mut sources = Vec::with_capacity(files.len());
+    let mut ids_seen: Vec<i64> = Vec::new();
+    let mut single: Option<i64> = None;
+    let mut empty = 0;
+    for file in &files {
+        let name = file.display().to_string();
+        let text = std::fs::read_to_string(file).map_err(|source| ImportError::Read {
+            path: file.clone(),
+            source,
+        })?;
+        let doc: Value = serde_json::from_str(&text)
+            .map_err(|e| ImportError::Invalid(format!("{name}: not JSON ({e})")))?;
+        let Some(bodies) = doc.get("bodies").and_then(Value::as_array) else {
+            return fail(format!(
+                "{name}: no \"bodies\" array (not a Panoptic body3DScene file)"
+            ));
+        };
+        let bodies = bodies
+            .iter()
+            .map(|b| panoptic_body(b, &name))
+            .collect::<Result<Vec<_>, _>>()?;
+        for (id, _) in &bodies {
+            if !ids_seen.contains(id) {
+                ids_seen.push(*id);
+            }
+        }
+        let kept = match person {
+            Some(want) => bodies.into_iter().find(|(id, _)| *id == want),
+            None => {
+                if bodies.len() > 1 {
+                    let ids: Vec<String> = bodies.iter().map(|b| b.0.to_string()).collect();
+                    return fail(format!(
+                        "{name}: {} bodies (ids {}): choose one with --reference-person ID",
+                        bodies.len(),
+                        ids.join(", ")
+                    ));
+                }
+                bodies.into_iter().next()
+            }
+        };
+        match kept {
+            Some((id, points)) => {
+                single = Some(id);
+                frames.push(points);
+            }
+            None => {
+                empty += 1;
+                frames.push(vec![[0.0; 4]; count]);
+            }
+        }
+        sources.push(
+            file.file_name()
+                .map_or(name.clone(), |n| n.to_string_lossy().into()),
+        );
+    }
+    if let Some(want) = person
+        && !ids_seen.contains(&want)
+    {
+        ids_seen.sort_unstable();
+        let ids: Vec<String> = ids_seen.iter().map(i64::to_string).collect();
+        return fail(format!(
+            "--reference-person {want}: no body has that id (the files' ids: {})",
+            if ids.is_empty() {
+                "none".to_string()
+            } else {
+                ids.join(", ")
+            }
+        ));
+    }
+    if empty == frames.len() {
+        return fail("the reference files hold no body in any frame");
+    }
+    Ok(ReferenceTrack {
+        format: "panoptic",
+        layout: KeypointLayout::Panoptic19,
+        frames,
+        sources,
+        person: person.or(single),
+        empty_frames: empty,
+    })
+}
+
+/// Maps `track` onto the model's joints and stores it with `imported`'s dataset: each mapped
+/// keypoint seen with a confidence above `min_confidence` is the joint's reference, turned by
+/// `to_lfit` (the rotation the cameras were turned by: `--up`). One reference frame per
+/// imported frame, in order. Adds `"reference"` to the import's report: the mapping, how much
+/// of it was seen, and the median over frames of the mean distance from each frame's start pose
+/// to the reference (a world or unit that does not match the cameras' shows there in metres).
+pub fn attach_reference(
+    imported: &mut Imported,
+    track: &ReferenceTrack,
+    source: &Path,
+    template: &Template,
+    to_lfit: DMat3,
+    min_confidence: f64,
+) -> Result<(), ImportError> {
+    let n = imported.dataset.len();
+    if track.frames.len() != n {
+        return fail(format!(
+            "{}: the reference has {} frames, the keypoints {n}: give one reference frame per keypoint frame, in the same order",
+            source.display(),
+            track.frames.len()
+        ));
+    }
+    let pairs = layout_pairs(track.layout, None, template)?;
+    let nj = template.rig.num_joints();
+    let mut points = vec![vec![[0.0; 3]; nj]; n];
+    let mut visible = vec![vec![false; nj]; n];
+    for (f, frame) in track.frames.iter().enumerate() {
+        for &(j, k) in &pairs {
+            let p = frame[k];
+            if p[3] > min_confidence {
+                points[f][j] = (to_lfit * DVec3::new(p[0], p[1], p[2])).to_array();
+                visible[f][j] = true;
+            }
+        }
+    }
+    let seen: usize = visible.iter().flatten().filter(|&&v| v).count();
+    if seen == 0 {
+        return fail(format!(
+            "{}: no mapped reference keypoint has a confidence above {min_confidence}",
+            source.display()
+        ));
+    }
+    let reference = JointReference { points, visible };
+    // How far each frame's start lies from the reference: metres off in a matched world, the
+    // size of a unit or axis mistake otherwise.
+    let mut distances: Vec<f64> = (0..n)
+        .filter_map(|f| {
+            let held = reference.seen(f);
+            if held.is_empty() {
+                return None;
+            }
+            let joints =
+                lfit_model::metrics::joint_positions(template, &imported.dataset.start_poses[f]);
+            Some(
+                held.iter()
+                    .map(|(j, p)| joints[*j].distance(*p))
+                    .sum::<f64>()
+                    / held.len() as f64,
+            )
+        })
+        .collect();
+    distances.sort_by(f64::total_cmp);
+    let median = distances.get(distances.len() / 2).copied();
+    let names: Vec<&str> = track.layout.names().to_vec();
+    let map: Vec<String> = pairs
+        .iter()
+        .map(|&(j, k)| format!("{}→{}", names[k], template.rig.joints[j].name))
+        .collect();
+    imported.report["reference"] = json!({
+        "format": track.format,
+        "layout": track.layout.name(),
+        "frames": n,
+        "person": track.person,
+        "empty_frames": track.empty_frames,
+        "mapped_joints": pairs.len(),
+        "map": map,
+        "min_confidence": min_confidence,
+        "seen_fraction": seen as f64 / (n * pairs.len()).max(1) as f64,
+        "start_distance_m": median,
+    });
+    imported.dataset.reference = Some(reference);
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One body's `joints19`: keypoint k at (k, 2k, −k) cm with confidence 0.5.
+    fn body(id: i64) -> Value {
+        let flat: Vec<f64> = (0..19)
+            .flat_map(|k| [k as f64, 2.0 * k as f64, -(k as f64), 0.5])
+            .collect();
+        json!({"id": id, "joints19": flat})
+    }
+
+    fn write(dir: &Path, name: &str, doc: &Value) -> PathBuf {
+        let p = dir.join(name);
+        std::fs::write(&p, doc.to_string()).unwrap();
+        p
+    }
+
+    #[test]
+    fn panoptic_frames_read_in_name_order_in_metres_with_empty_frames() {
+        let d = tempfile::tempdir().unwrap();
+        // Written out of order; a file that is not JSON by extension is not a frame.
+        write(
+            d.path(),
+            "body3DScene_00000002.json",
+            &json!({"bodies": [body(4)]}),
+        );
+        write(
+            d.path(),
+            "body3DScene_00000000.json",
+            &json!({"bodies": [body(4)]}),
+        );
+        write(
+            d.path(),
+            "body3DScene_00000001.json",
+            &json!({"bodies": []}),
+        );
+        write(d.path(), "notes.txt", &json!("not a frame"));
+        let t = read_panoptic_skeletons(&[d.path().to_path_buf()], None).unwrap();
+        assert_eq!(t.sources[0], "body3DScene_00000000.json");
+        assert_eq!(t.sources[2], "body3DScene_00000002.json");
+        assert_eq!((t.frames.len(), t.empty_frames, t.person), (3, 1, Some(4)));
+        let wrist = KeypointLayout::Panoptic19.index("lWrist").unwrap();
+        assert_eq!(wrist, 5);
+        assert_eq!(t.frames[0][wrist], [0.05, 0.10, -0.05, 0.5]);
+        assert_eq!(t.frames[1][wrist], [0.0; 4]);
+    }
+
+    #[test]
+    fn several_bodies_need_a_person_and_bad_files_say_why() {
+        let d = tempfile::tempdir().unwrap();
+        let two = write(d.path(), "a.json", &json!({"bodies": [body(1), body(6)]}));
+        let err = |paths: &[PathBuf], person: Option<i64>| {
+            read_panoptic_skeletons(paths, person)
+                .unwrap_err()
+                .to_string()
+        };
+        let e = err(std::slice::from_ref(&two), None);
+        assert!(
+            e.contains("2 bodies (ids 1, 6)") && e.contains("--reference-person"),
+            "{e}"
+        );
+        let t = read_panoptic_skeletons(std::slice::from_ref(&two), Some(6)).unwrap();
+        assert_eq!((t.person, t.empty_frames), (Some(6), 0));
+        let e = err(std::slice::from_ref(&two), Some(2));
+        assert!(
+            e.contains("no body has that id (the files' ids: 1, 6)"),
+            "{e}"
+        );
+        let mut short = body(0);
+        short["joints19"].as_array_mut().unwrap().pop();
+        let p = write(d.path(), "short.json", &json!({"bodies": [short]}));
+        assert!(err(&[p], None).contains("\"joints19\" has 75 values, expected 76"));
+        let mut text = body(0);
+        text["joints19"][8] = json!("x");
+        let p = write(d.path(), "text.json", &json!({"bodies": [text]}));
+        let e = err(&[p], None);
+        assert!(e.contains("keypoint 2 (BodyCenter)"), "{e}");
+        let p = write(d.path(), "other.json", &json!({"people": []}));
+        assert!(err(&[p], None).contains("no \"bodies\" array"));
+        let p = d.path().join("broken.json");
+        std::fs::write(&p, "{\"bodies\": [").unwrap();
+        assert!(err(&[p], None).contains("not JSON"));
+        let p = write(d.path(), "none.json", &json!({"bodies": []}));
+        assert!(err(&[p], None).contains("no body in any frame"));
+        let e = err(&[d.path().join("missing.json")], None);
+        assert!(e.contains("cannot read"), "{e}");
+        let empty = tempfile::tempdir().unwrap();
+        assert!(err(&[empty.path().to_path_buf()], None).contains("holds no .json file"));
+    }
+}
