@@ -1836,6 +1836,77 @@ fn a_panoptic_reference_scores_the_fit_of_the_same_frames_keypoints() {
         .expect("pa");
     assert!((m2 - 100.0).abs() <= m + 1e-6, "{m2} vs 100 ± {m}");
     assert!((pa2 - pa).abs() < 1e-6, "{pa2} vs {pa}");
+    // The same joints as 3D keypoints in a TRC file (millimetres, the labels as Pose2Sim names
+    // COCO-17's points: RHip, LKnee, …), read in the import's layout: the limbs' joints held,
+    // where Panoptic's also gave the root and the head.
+    let coco = KeypointLayout::Coco17;
+    // Pose2Sim's names of the default map's keypoints, in its order.
+    let labels: Vec<String> = [
+        "RHip",
+        "RKnee",
+        "RAnkle",
+        "LHip",
+        "LKnee",
+        "LAnkle",
+        "RShoulder",
+        "RElbow",
+        "RWrist",
+        "LShoulder",
+        "LElbow",
+        "LWrist",
+    ]
+    .map(String::from)
+    .to_vec();
+    assert_eq!(labels.len(), coco.default_map().len());
+    let frames_pts = (0..frames)
+        .map(|f| {
+            let joints = lfit::model::metrics::joint_positions(&template, &truth.gt_poses[f]);
+            coco.default_map()
+                .iter()
+                .map(|&(p, _)| {
+                    let q = to_file * joints[joint_map[p].expect("mapped")];
+                    Some(C3dPoint {
+                        position: [1000.0 * q.x, 1000.0 * q.y, 1000.0 * q.z],
+                        residual: 0.0,
+                        cameras: 0,
+                    })
+                })
+                .collect()
+        })
+        .collect();
+    let trc_points = C3d {
+        processor: Processor::Intel,
+        labels,
+        units: "mm".into(),
+        scale: -1.0,
+        rate: 30.0,
+        first_frame: 1,
+        analog_per_frame: 0,
+        frames: frames_pts,
+        non_finite: 0,
+    };
+    let trc = d.join("pose2sim.trc");
+    std::fs::write(&trc, to_trc(&trc_points, "pose2sim.trc")).expect("trc");
+    let out4 = d.join("kp4.npz");
+    let o = import(&trc, &out4, &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: Value = serde_json::from_slice(&o.stdout).expect("summary");
+    assert_eq!(summary["import"]["reference"]["format"], "trc");
+    assert_eq!(summary["import"]["reference"]["mapped_joints"], 12);
+    let from_trc = Dataset::load(&out4)
+        .expect("imported")
+        .reference
+        .expect("reference");
+    for f in 0..frames {
+        let joints = lfit::model::metrics::joint_positions(&template, &truth.gt_poses[f]);
+        let held = from_trc.seen(f);
+        assert_eq!(held.len(), 12);
+        for (j, p) in held {
+            assert!(p.distance(joints[j]) < 1e-8, "frame {f} joint {j}");
+        }
+    }
+    let o = import(&trc, &out4, &["--reference-person", "3"]);
+    assert_one_line_error(&o, "holds one subject");
     // A reference of another length than the keypoints: refused, nothing written.
     let short = d.join("short");
     write_reference(&short, frames - 1, [0.0; 3]);

@@ -343,6 +343,7 @@ fn marker_file_args(
         keypoint_map: None,
         reference: Vec::new(),
         reference_person: None,
+        reference_layout: None,
         min_confidence: 0.1,
         fps: 30.0,
         scenario: scenario.to_string(),
@@ -401,9 +402,11 @@ pub fn import_trc(
 /// one whose up is that direction, is turned into lfit's Y-up one); `reference`: a captured 3D
 /// reference of the same frames' joints (CMU Panoptic `body3DScene_*.json` files or their
 /// folder, `lfit data import --reference`), turned with the cameras, which `fit` then scores
-/// against (MPJPE, PA-MPJPE); `reference_person`: its body's id where frames hold several.
+/// against (MPJPE, PA-MPJPE), or one TRC or C3D file of 3D keypoints whose labels name
+/// `reference_layout`'s points (default `layout`); `reference_person`: a Panoptic body's id
+/// where frames hold several.
 #[pyfunction]
-#[pyo3(signature = (paths, layout, camera, model=None, *, camera_names=None, camera_units=None, keypoint_scale=None, keypoint_map=None, min_confidence=0.1, fps=30.0, scenario="sequence", up="y", reference=None, reference_person=None, out=None))]
+#[pyo3(signature = (paths, layout, camera, model=None, *, camera_names=None, camera_units=None, keypoint_scale=None, keypoint_map=None, min_confidence=0.1, fps=30.0, scenario="sequence", up="y", reference=None, reference_person=None, reference_layout=None, out=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn import_keypoints(
     py: Python<'_>,
@@ -421,6 +424,7 @@ pub fn import_keypoints(
     up: &str,
     reference: Option<Vec<PathBuf>>,
     reference_person: Option<i64>,
+    reference_layout: Option<String>,
     out: Option<PathBuf>,
 ) -> PyResult<Dataset> {
     if paths.is_empty() {
@@ -440,6 +444,7 @@ pub fn import_keypoints(
         keypoint_map,
         reference: reference.unwrap_or_default(),
         reference_person,
+        reference_layout,
         min_confidence,
         fps,
         scenario: scenario.to_string(),

@@ -435,3 +435,22 @@ def test_a_panoptic_reference_scores_the_fit_as_the_cli_does(cli, tmp_path):
     assert not bad.exists()
     with pytest.raises(lfit.LfitError, match="--reference-person chooses a body"):
         lfit.import_keypoints([coco], "coco17", cams, MH, reference_person=2)
+    # A TRC of 3D keypoints under OpenPose's names (`reference_layout="body25"`), millimetres.
+    names = ["MidHip", "RHip", "RKnee", "LShoulder"]
+    rows = ["PathFileType\t4\t(X/Y/Z)\tk.trc",
+            "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
+            f"30\t30\t4\t{len(names)}\tmm\t30\t1\t4",
+            "Frame#\tTime\t" + "\t".join(f"{n}\t\t" for n in names),
+            "\t\t" + "\t".join(f"X{k}\tY{k}\tZ{k}" for k in range(1, len(names) + 1)), ""]
+    for f in range(4):
+        rows.append(f"{f + 1}\t{f / 30}\t" + "\t".join(f"{10 * k}\t{900 + f}\t{-5 * k}" for k in range(len(names))))
+    trc = tmp_path / "k.trc"
+    trc.write_text("\n".join(rows) + "\n")
+    cli_t = tmp_path / "cli-t.npz"
+    summary = cli("data", "import", "--keypoints", coco, "--layout", "coco17", "--camera", cams, "--model", MH,
+                  "--reference", trc, "--reference-layout", "body25", "--out", cli_t)
+    t = lfit.import_keypoints([coco], "coco17", cams, MH, reference=[trc], reference_layout="body25")
+    assert t.summary["import"]["reference"] == summary["import"]["reference"]
+    assert summary["import"]["reference"]["format"] == "trc" and summary["import"]["reference"]["mapped_joints"] == 4
+    # Read in the keypoints' own layout (coco17, which has no MidHip): the three limb points.
+    assert lfit.import_keypoints([coco], "coco17", cams, MH, reference=[trc]).summary["import"]["reference"]["mapped_joints"] == 3

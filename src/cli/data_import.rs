@@ -13,8 +13,9 @@
 //!   file's order, or in the order of `--camera-names` (cameras chosen by name or `#K`), or,
 //!   with one camera, any number of paths in frame order; a keypoint is seen when its
 //!   confidence is above `--min-confidence`. `--reference PATH... [--reference-person ID]`: a
-//!   captured 3D reference of the same frames' joints (CMU Panoptic's 3D skeletons,
-//!   `lfit_synth::capture::reference`), stored with the dataset; `lfit fit` scores against it.
+//!   captured 3D reference of the same frames' joints (CMU Panoptic's 3D skeletons, or a TRC/C3D
+//!   of 3D keypoints named as `--reference-layout`'s points; `lfit_synth::capture::reference`),
+//!   stored with the dataset; `lfit fit` scores against it.
 //!
 //! The dataset's start poses are the rest pose moved rigidly onto each frame's data
 //! (`lfit_synth::capture::import`); the scenario (default `sequence`: each frame starts from the previous
@@ -31,7 +32,7 @@ use lfit_synth::capture::keypoints::{
     CameraFileRig, KeypointLayout, KeypointScale, metres_per_unit, read_camera_file_in, read_track,
     scale_track, undistort_track,
 };
-use lfit_synth::capture::reference::{attach_reference, read_panoptic_skeletons};
+use lfit_synth::capture::reference::{attach_reference, read_reference};
 use serde_json::{Value, json};
 
 /// `lfit data ...`.
@@ -117,11 +118,11 @@ fn parse_translation(text: &str) -> Result<[f64; 3]> {
 #[derive(Debug, clap::Args)]
 pub struct ImportArgs {
     /// C3D file of 3D marker trajectories (markers modality).
-    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "trc", "camera_names", "camera_units", "keypoint_scale", "reference", "reference_person"])]
+    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "trc", "camera_names", "camera_units", "keypoint_scale", "reference", "reference_person", "reference_layout"])]
     pub c3d: Option<PathBuf>,
     /// TRC file of 3D marker trajectories (OpenSim's text format, as OpenCap, Motive and Cortex
     /// write it; markers modality): read as a C3D's points, mapped and fitted alike.
-    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "camera_names", "camera_units", "keypoint_scale", "reference", "reference_person"])]
+    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "camera_names", "camera_units", "keypoint_scale", "reference", "reference_person", "reference_layout"])]
     pub trc: Option<PathBuf>,
     /// JSON object {"C3D label": "model marker", ...} ("#K": the file's point K, counted from 0,
     /// for a label the file repeats); default: C3D labels equal to the model's marker names, bare
@@ -178,13 +179,18 @@ pub struct ImportArgs {
     /// A captured 3D reference of the same frames' joints, to score fits where no ground truth
     /// exists (`lfit fit` reports MPJPE and PA-MPJPE against it): CMU Panoptic's 3D skeletons
     /// (hdPose3d_stage1_coco19: body3DScene_*.json files or their folder, centimetres, in the
-    /// calibration's world), one per keypoint frame in order; turned with the cameras by --up
-    /// (Panoptic's world is y-down: --up 0,-1,0).
+    /// calibration's world), or one TRC or C3D file of 3D keypoints whose labels name the
+    /// layout's points (Pose2Sim's triangulation: RHip, right_hip and rHip alike); one frame
+    /// per keypoint frame in order; turned with the cameras by --up (Panoptic's world is
+    /// y-down: --up 0,-1,0).
     #[arg(long, num_args = 1..)]
     pub reference: Vec<PathBuf>,
-    /// The reference body to keep, by its "id" (needed where a frame holds several).
+    /// The reference body to keep, by its "id" (Panoptic's files, where a frame holds several).
     #[arg(long, value_name = "ID", requires = "reference")]
     pub reference_person: Option<i64>,
+    /// The layout a TRC or C3D reference's labels name (default: --layout).
+    #[arg(long, value_name = "LAYOUT", requires = "reference")]
+    pub reference_layout: Option<String>,
     /// Keypoints with a confidence (COCO: visibility flag) at or below this are invisible (the
     /// reference's joints too).
     #[arg(long, default_value_t = 0.1)]
@@ -420,6 +426,9 @@ pub fn import_dataset(
     if args.reference_person.is_some() && args.reference.is_empty() {
         bail!("--reference-person chooses a body of the --reference files: give --reference");
     }
+    if args.reference_layout.is_some() && args.reference.is_empty() {
+        bail!("--reference-layout names the --reference file's labels: give --reference");
+    }
     if markers.is_some() && !args.reference.is_empty() {
         bail!("--reference scores the fits of 2D keypoints: give it with --keypoints");
     }
@@ -534,9 +543,18 @@ pub fn import_dataset(
             let reference = if args.reference.is_empty() {
                 None
             } else {
+                let (reference_layout, given) = match &args.reference_layout {
+                    Some(l) => (l.parse::<KeypointLayout>()?, true),
+                    None => (layout, false),
+                };
                 Some(
-                    read_panoptic_skeletons(&args.reference, args.reference_person)
-                        .context("--reference")?,
+                    read_reference(
+                        &args.reference,
+                        reference_layout,
+                        given,
+                        args.reference_person,
+                    )
+                    .context("--reference")?,
                 )
             };
             let template = load()?;

@@ -5,9 +5,11 @@
 //! Read: CMU Panoptic's 3D skeletons (`hdPose3d_stage1_coco19/body3DScene_XXXXXXXX.json`, one
 //! file per HD frame: `{"bodies": [{"id", "joints19": [x, y, z, confidence] × 19}]}`, in
 //! centimetres in the calibration's world; the layout and the unit as the panoptic-toolbox
-//! README documents them). The reference's keypoints are mapped onto the model's joints by the
-//! layout's default map ([`KeypointLayout::default_map`]), turned into lfit's Y-up world with
-//! the cameras ([`attach_reference`]) and stored with the dataset ([`JointReference`]).
+//! README documents them), and 3D keypoints in a TRC or C3D file (Pose2Sim's triangulation,
+//! OpenCap's, any tool's) whose labels name a keypoint layout's points
+//! ([`read_point_reference`]). The reference's keypoints are mapped onto the model's joints by
+//! the layout's default map ([`KeypointLayout::default_map`]), turned into lfit's Y-up world
+//! with the cameras ([`attach_reference`]) and stored with the dataset ([`JointReference`]).
 
 use std::path::{Path, PathBuf};
 
@@ -16,6 +18,7 @@ use lfit_model::template::Template;
 use serde_json::{Value, json};
 
 use super::ImportError;
+use super::c3d::C3d;
 use super::import::{Imported, layout_pairs};
 use super::keypoints::KeypointLayout;
 use crate::dataset::JointReference;
@@ -27,7 +30,7 @@ fn fail<T>(msg: impl Into<String>) -> Result<T, ImportError> {
 /// A reference's keypoints over time, in the file's world.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReferenceTrack {
-    /// `panoptic`.
+    /// `panoptic`, `trc` or `c3d`.
     pub format: &'static str,
     pub layout: KeypointLayout,
     /// Per frame, per keypoint: `[x, y, z]` in metres and a confidence (all zero in a frame
@@ -198,6 +201,150 @@ pub fn read_panoptic_skeletons(
     })
 }
 
+/// A keypoint name as the tools spell it apart: lower case, `left`/`right` as `l`/`r`, without
+/// `_`, `-`, `.` or spaces — `right_hip` (COCO), `RHip` (OpenPose, Pose2Sim) and `rHip`
+/// (Panoptic) are all `rhip`.
+fn plain_name(name: &str) -> String {
+    let lower: String = name
+        .chars()
+        .filter(|c| !matches!(c, '_' | '-' | '.' | ' '))
+        .flat_map(char::to_lowercase)
+        .collect();
+    for (long, short) in [("left", "l"), ("right", "r")] {
+        if let Some(rest) = lower.strip_prefix(long) {
+            return format!("{short}{rest}");
+        }
+    }
+    lower
+}
+
+/// Reads 3D keypoints from a TRC or C3D file (by its extension) as a reference in `layout`:
+/// each point whose label is one of the layout's keypoint names (as [`plain_name`] compares
+/// them; a label after one `SUBJECT:` prefix too) is that keypoint, in the file's unit and
+/// world; a gap is a frame without it. No confidence: every sample is held (1).
+pub fn read_point_reference(
+    path: &Path,
+    layout: KeypointLayout,
+) -> Result<ReferenceTrack, ImportError> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_lowercase())
+        .unwrap_or_default();
+    let (points, format): (C3d, &'static str) = match ext.as_str() {
+        "trc" => (super::trc::read_trc(path)?, "trc"),
+        "c3d" => (C3d::read(path)?, "c3d"),
+        _ => {
+            return fail(format!(
+                "{}: a reference is Panoptic's .json files (or their folder), a .trc or a .c3d file",
+                path.display()
+            ));
+        }
+    };
+    let scale = points.metres_per_unit()?;
+    let names = layout.names();
+    // Keypoint k ← the file's point that names it (one per keypoint).
+    let mut column: Vec<Option<usize>> = vec![None; names.len()];
+    for (i, label) in points.labels.iter().enumerate() {
+        let bare = label.rsplit(':').next().unwrap_or(label);
+        let plain = plain_name(bare);
+        if let Some(k) = names.iter().position(|n| plain_name(n) == plain) {
+            if let Some(j) = column[k] {
+                return fail(format!(
+                    "{}: labels '{}' and '{label}' both name the {} keypoint {}",
+                    path.display(),
+                    points.labels[j],
+                    layout.name(),
+                    names[k]
+                ));
+            }
+            column[k] = Some(i);
+        }
+    }
+    if column.iter().all(Option::is_none) {
+        let labels: Vec<&str> = points.labels.iter().take(8).map(String::as_str).collect();
+        return fail(format!(
+            "{}: none of its labels ({}{}) names a {} keypoint ({}): choose the layout with --reference-layout",
+            path.display(),
+            labels.join(", "),
+            if points.labels.len() > 8 { ", …" } else { "" },
+            layout.name(),
+            names.iter().take(8).copied().collect::<Vec<_>>().join(", ")
+        ));
+    }
+    let frames: Vec<Vec<[f64; 4]>> = points
+        .frames
+        .iter()
+        .map(|row| {
+            column
+                .iter()
+                .map(|c| match c.and_then(|i| row[i]) {
+                    Some(p) => [
+                        p.position[0] * scale,
+                        p.position[1] * scale,
+                        p.position[2] * scale,
+                        1.0,
+                    ],
+                    None => [0.0; 4],
+                })
+                .collect()
+        })
+        .collect();
+    let empty_frames = frames
+        .iter()
+        .filter(|f| f.iter().all(|p| p[3] == 0.0))
+        .count();
+    let sources = (0..frames.len())
+        .map(|f| format!("{}#{f}", path.display()))
+        .collect();
+    Ok(ReferenceTrack {
+        format,
+        layout,
+        frames,
+        sources,
+        person: None,
+        empty_frames,
+    })
+}
+
+/// Reads the reference `paths` name: one `.trc` or `.c3d` file ([`read_point_reference`], in
+/// `layout`), else CMU Panoptic skeleton files or folders ([`read_panoptic_skeletons`], whose
+/// layout is `panoptic19`: another `layout` is refused). `person` chooses a Panoptic body; a
+/// point file holds one subject (refused with it).
+pub fn read_reference(
+    paths: &[PathBuf],
+    layout: KeypointLayout,
+    layout_given: bool,
+    person: Option<i64>,
+) -> Result<ReferenceTrack, ImportError> {
+    let point_file = |p: &PathBuf| {
+        p.is_file()
+            && p.extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("trc") || e.eq_ignore_ascii_case("c3d"))
+    };
+    match paths {
+        [one] if point_file(one) => {
+            if person.is_some() {
+                return fail(
+                    "--reference-person chooses a body of Panoptic's files; a TRC or C3D reference holds one subject",
+                );
+            }
+            read_point_reference(one, layout)
+        }
+        _ if paths.iter().any(point_file) => {
+            fail("give one TRC or C3D file as the reference (or Panoptic's .json files)")
+        }
+        _ => {
+            if layout_given && layout != KeypointLayout::Panoptic19 {
+                return fail(format!(
+                    "Panoptic's skeletons are in the panoptic19 layout, not {}",
+                    layout.name()
+                ));
+            }
+            read_panoptic_skeletons(paths, person)
+        }
+    }
+}
+
 /// Maps `track` onto the model's joints and stores it with `imported`'s dataset: each mapped
 /// keypoint seen with a confidence above `min_confidence` is the joint's reference, turned by
 /// `to_lfit` (the rotation the cameras were turned by: `--up`). One reference frame per
@@ -220,7 +367,11 @@ pub fn attach_reference(
             track.frames.len()
         ));
     }
-    let pairs = layout_pairs(track.layout, None, template)?;
+    // The layout's pairs whose keypoint the reference holds in some frame.
+    let pairs: Vec<(usize, usize)> = layout_pairs(track.layout, None, template)?
+        .into_iter()
+        .filter(|&(_, k)| track.frames.iter().any(|f| f[k][3] > min_confidence))
+        .collect();
     let nj = template.rig.num_joints();
     let mut points = vec![vec![[0.0; 3]; nj]; n];
     let mut visible = vec![vec![false; nj]; n];
@@ -298,6 +449,97 @@ mod tests {
         let p = dir.join(name);
         std::fs::write(&p, doc.to_string()).unwrap();
         p
+    }
+
+    #[test]
+    fn the_tools_spellings_of_a_keypoint_compare_equal() {
+        for (a, b) in [
+            ("right_hip", "RHip"),
+            ("rHip", "RHip"),
+            ("left_small_toe", "LSmallToe"),
+            ("Mid-Hip", "midhip"),
+        ] {
+            assert_eq!(plain_name(a), plain_name(b), "{a} {b}");
+        }
+        assert_ne!(plain_name("right_hip"), plain_name("LHip"));
+        assert_ne!(plain_name("MidHip"), plain_name("Hip"));
+    }
+
+    /// A TRC of keypoints named as Pose2Sim names them (and one after a subject's prefix), in
+    /// millimetres: the COCO-17 keypoints they name, in metres; a gap and an unnamed keypoint
+    /// not held; labels that name nothing, or one keypoint twice, refused.
+    #[test]
+    fn a_trc_reference_reads_its_labels_as_a_layouts_keypoints() {
+        use crate::capture::c3d::{C3dPoint, Processor};
+        let d = tempfile::tempdir().unwrap();
+        let point = |x: f64| {
+            Some(C3dPoint {
+                position: [x, 2.0 * x, -x],
+                residual: 0.0,
+                cameras: 0,
+            })
+        };
+        let file = |labels: &[&str], name: &str| {
+            let c3d = C3d {
+                processor: Processor::Intel,
+                labels: labels.iter().map(|l| l.to_string()).collect(),
+                units: "mm".into(),
+                scale: -1.0,
+                rate: 30.0,
+                first_frame: 1,
+                analog_per_frame: 0,
+                frames: vec![
+                    vec![point(100.0), point(200.0), point(300.0)],
+                    vec![point(110.0), None, point(310.0)],
+                ],
+                non_finite: 0,
+            };
+            let p = d.path().join(name);
+            std::fs::write(&p, crate::capture::trc::to_trc(&c3d, name)).unwrap();
+            p
+        };
+        let p = file(&["RHip", "S1:LKnee", "Extra"], "ok.trc");
+        let t = read_point_reference(&p, KeypointLayout::Coco17).unwrap();
+        assert_eq!((t.format, t.frames.len(), t.empty_frames), ("trc", 2, 0));
+        let at = |name| KeypointLayout::Coco17.index(name).unwrap();
+        assert_eq!(t.frames[0][at("right_hip")], [0.1, 0.2, -0.1, 1.0]);
+        assert_eq!(t.frames[1][at("left_knee")], [0.0; 4]);
+        assert_eq!(t.frames[0][at("left_knee")], [0.2, 0.4, -0.2, 1.0]);
+        assert_eq!(t.frames[0][at("nose")], [0.0; 4]);
+        let e = read_point_reference(
+            &file(&["RHip", "right_hip", "X"], "twice.trc"),
+            KeypointLayout::Coco17,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("'RHip' and 'right_hip' both name"), "{e}");
+        let e = read_point_reference(&file(&["A", "B", "C"], "none.trc"), KeypointLayout::Coco17)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("(A, B, C)") && e.contains("--reference-layout"),
+            "{e}"
+        );
+        // Through read_reference: no person for a point file, no other layout for Panoptic's.
+        let e = read_reference(&[p.clone()], KeypointLayout::Coco17, false, Some(1))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("holds one subject"), "{e}");
+        let t = read_reference(&[p.clone()], KeypointLayout::Body25, true, None).unwrap();
+        assert_eq!(
+            t.frames[0][KeypointLayout::Body25.index("RHip").unwrap()][3],
+            1.0
+        );
+        let json = write(d.path(), "f.json", &json!({"bodies": [body(0)]}));
+        let e = read_reference(&[json.clone()], KeypointLayout::Coco17, true, None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("panoptic19 layout, not coco17"), "{e}");
+        assert!(read_reference(&[json], KeypointLayout::Coco17, false, None).is_ok());
+        let e = read_reference(&[p.clone(), p], KeypointLayout::Coco17, false, None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("one TRC or C3D file"), "{e}");
     }
 
     #[test]

@@ -292,6 +292,7 @@ def import_keypoints(
     up: str = "y",
     reference: Optional[Sequence[_Path]] = None,
     reference_person: Optional[int] = None,
+    reference_layout: Optional[str] = None,
     out: Optional[_Path] = None,
 ) -> Dataset:
     """``lfit data import --keypoints``."""
