@@ -539,6 +539,9 @@ impl LeastSquares {
         }
         // The point's free nonzero columns: position, ∂X column, C ∂X column.
         let mut columns: Vec<(usize, [f64; 3], [f64; 3])> = Vec::with_capacity(dim);
+        let mut positions: Vec<usize> = Vec::with_capacity(dim);
+        let mut v: [Vec<f64>; 3] = std::array::from_fn(|_| Vec::with_capacity(dim));
+        let mut terms = vec![0.0; dim];
         for p in (0..count).filter(|&p| seen[p]) {
             let jp = &f.points[3 * p * dim..3 * (p + 1) * dim];
             let cp = &c[p];
@@ -559,12 +562,29 @@ impl LeastSquares {
             if !columns.is_sorted_by_key(|e| e.0) {
                 columns.sort_unstable_by_key(|e| e.0);
             }
+            // ∂X's rows apart (contiguous, so that the terms below vectorise), then per column
+            // k the terms of its row, `w_k · v_m` for m ≥ k, added to `JᵀJ` at their positions:
+            // each entry gets the same rounded term as one product at a time gave it.
+            let len = columns.len();
+            positions.clear();
+            positions.extend(columns.iter().map(|e| e.0));
+            for (x, vx) in v.iter_mut().enumerate() {
+                vx.clear();
+                vx.extend(columns.iter().map(|e| e.1[x]));
+            }
             let bp = b[p];
             for (k, &(qa, va, wa)) in columns.iter().enumerate() {
                 g[qa] += va[0] * bp[0] + va[1] * bp[1] + va[2] * bp[2];
+                let terms = &mut terms[..len - k];
+                for (t, ((v0, v1), v2)) in terms
+                    .iter_mut()
+                    .zip(v[0][k..].iter().zip(&v[1][k..]).zip(&v[2][k..]))
+                {
+                    *t = wa[0] * v0 + wa[1] * v1 + wa[2] * v2;
+                }
                 let row = &mut upper[qa * n..(qa + 1) * n];
-                for &(qb, vb, _) in &columns[k..] {
-                    row[qb] += wa[0] * vb[0] + wa[1] * vb[1] + wa[2] * vb[2];
+                for (&t, &qb) in terms.iter().zip(&positions[k..]) {
+                    row[qb] += t;
                 }
             }
         }
