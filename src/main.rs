@@ -695,6 +695,10 @@ fn part_progress(bar: &ProgressBar) -> impl Fn(&str, usize, usize) + Sync + '_ {
 }
 
 fn run(cli: Cli) -> Result<serde_json::Value> {
+    // The native forward's vector-path switch, checked before any command loads anything (a bad
+    // value is one line naming the variable, not a checkpoint's error).
+    #[cfg(feature = "neural")]
+    lfit::nn::host::wide_simd()?;
     if let Some(n) = cli.threads {
         if n == 0 {
             anyhow::bail!("--threads must be at least 1");

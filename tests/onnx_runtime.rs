@@ -1104,6 +1104,12 @@ fn fit_with_runtime_native_matches_runtime_burn() {
     let a: Vec<&str> = a.iter().map(String::as_str).collect();
     let refused = lfit_env(&a, &[("LFIT_NATIVE_SIMD", "avx9")]);
     assert_one_line_error(&refused, "LFIT_NATIVE_SIMD must be auto or portable");
+    // Named first, not behind the checkpoint's path.
+    assert!(
+        String::from_utf8_lossy(&refused.stderr).starts_with("error: LFIT_NATIVE_SIMD"),
+        "{}",
+        String::from_utf8_lossy(&refused.stderr)
+    );
     assert!(!out.exists(), "a refused fit writes nothing");
 
     let out = tmp.path().join("refused.json");

@@ -182,6 +182,34 @@ impl Dataset {
             .into_any())
     }
 
+    /// The captured joint reference (`import_keypoints(reference=...)`): each frame's position
+    /// of each model joint, `(N, J, 3)` metres in the dataset's world (0 where not held); None
+    /// without one.
+    #[getter]
+    fn reference_joints<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        let Some(r) = &self.inner.reference else {
+            return Ok(None);
+        };
+        let j = r.points.first().map_or(0, Vec::len);
+        let flat: Vec<f64> = r.points.iter().flatten().flatten().copied().collect();
+        array_nd(py, flat, &[r.points.len(), j, 3]).map(Some)
+    }
+
+    /// Which reference joints each frame holds, `(N, J)` bool; None without a reference.
+    #[getter]
+    fn reference_visible<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        let Some(r) = &self.inner.reference else {
+            return Ok(None);
+        };
+        let j = r.visible.first().map_or(0, Vec::len);
+        let flat: Vec<bool> = r.visible.iter().flatten().copied().collect();
+        Ok(Some(
+            numpy::PyArray1::from_vec(py, flat)
+                .reshape([r.visible.len(), j])?
+                .into_any(),
+        ))
+    }
+
     /// The sensor setup (cameras, markers, trackers) as a dict; `lfit.Energy(sensor=...)` takes
     /// it back.
     #[getter]

@@ -410,6 +410,13 @@ def test_a_panoptic_reference_scores_the_fit_as_the_cli_does(cli, tmp_path):
                   "--model", MH, "--reference", folder, "--reference-person", 2, "--out", cli_out)
     d = lfit.import_keypoints([coco], "coco17", cams, MH, reference=[folder], reference_person=2)
     same_dataset(d, lfit.load_dataset(cli_out))
+    # The reference as arrays: the file's BodyCenter (body 2, frame 0) is the root's, in metres.
+    loaded = lfit.load_dataset(cli_out)
+    np.testing.assert_array_equal(d.reference_joints, loaded.reference_joints)
+    np.testing.assert_array_equal(d.reference_visible, loaded.reference_visible)
+    frame0 = json.loads((folder / "body3DScene_00000000.json").read_text())["bodies"][0]["joints19"]
+    np.testing.assert_allclose(d.reference_joints[0, 0], np.asarray(frame0[8:11]) / 100.0, rtol=0, atol=1e-12)
+    assert d.reference_visible.shape == d.reference_joints.shape[:2] and d.reference_visible[:, 0].all()
     assert d.summary["import"]["reference"] == summary["import"]["reference"]
     assert summary["import"]["reference"]["person"] == 2
     out = tmp_path / "fit.json"
@@ -423,7 +430,9 @@ def test_a_panoptic_reference_scores_the_fit_as_the_cli_does(cli, tmp_path):
     assert ours.summary["mean_reference_mpjpe_mm"] == theirs["summary"]["mean_reference_mpjpe_mm"]
     assert ours.summary["reference_frames"] == 4
     # Without a reference: NaN.
-    plain = lfit.fit(MH, lfit.import_keypoints([coco], "coco17", cams, MH), method="lm", budget=10)
+    no_reference = lfit.import_keypoints([coco], "coco17", cams, MH)
+    assert no_reference.reference_joints is None and no_reference.reference_visible is None
+    plain = lfit.fit(MH, no_reference, method="lm", budget=10)
     assert np.isnan(plain.reference_mpjpe_mm).all()
     # Two bodies in a frame and no person chosen; a person without a reference: one line each.
     bad = tmp_path / "bad.npz"

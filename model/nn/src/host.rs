@@ -296,16 +296,23 @@ impl pulp::NullaryFnOnce for AvxRows<'_> {
 /// Whether the forward may take the widest vector path the machine has: `LFIT_NATIVE_SIMD`
 /// unset or `auto` (the default) yes, `portable` no (the 4-wide SSE2 path everywhere, for A/B
 /// timing in one binary: the two compute the same bits); anything else is a one-line error.
-fn wide_simd() -> Result<bool> {
-    match std::env::var("LFIT_NATIVE_SIMD") {
-        Err(std::env::VarError::NotPresent) => Ok(true),
-        Ok(v) if v == "auto" => Ok(true),
-        Ok(v) if v == "portable" => Ok(false),
-        Ok(v) => Err(ModelError::Config(format!(
-            "LFIT_NATIVE_SIMD must be auto or portable, got {v:?}"
-        ))),
-        Err(e) => Err(ModelError::Config(format!("LFIT_NATIVE_SIMD: {e}"))),
-    }
+/// Read once per process (every layer asks; the `lfit` command asks first, so that a bad value
+/// is refused before anything is loaded).
+pub fn wide_simd() -> Result<bool> {
+    static CHOICE: std::sync::OnceLock<std::result::Result<bool, String>> =
+        std::sync::OnceLock::new();
+    CHOICE
+        .get_or_init(|| match std::env::var("LFIT_NATIVE_SIMD") {
+            Err(std::env::VarError::NotPresent) => Ok(true),
+            Ok(v) if v == "auto" => Ok(true),
+            Ok(v) if v == "portable" => Ok(false),
+            Ok(v) => Err(format!(
+                "LFIT_NATIVE_SIMD must be auto or portable, got {v:?}"
+            )),
+            Err(e) => Err(format!("LFIT_NATIVE_SIMD: {e}")),
+        })
+        .clone()
+        .map_err(ModelError::Config)
 }
 
 /// Rows per parallel block of [`HostLinear::forward`]: a batch of at least twice this many is
