@@ -13,7 +13,7 @@ use lfit::synth::capture::keypoints::{COCO17, Distortion, KeypointLayout, camera
 use lfit::synth::capture::trc::to_trc;
 use lfit::synth::{Dataset, Observations};
 use serde_json::{Value, json};
-use support::{assert_one_line_error, lfit, lfit_json, path_str};
+use support::{assert_one_line_error, lfit, lfit_json, lm_fit_args, path_str};
 
 fn synth(dir: &Path, modality: &str, frames: usize, seed: u64) -> (PathBuf, Dataset) {
     synth_in(dir, modality, "sequence", frames, seed)
@@ -1790,18 +1790,7 @@ fn a_panoptic_reference_scores_the_fit_of_the_same_frames_keypoints() {
     // The LM fit of the keypoints, scored against the reference.
     let fit = |data: &Path| -> Value {
         let res = d.join("fit.json");
-        lfit_json(&[
-            "-q",
-            "fit",
-            "--data",
-            path_str(data),
-            "--method",
-            "lm",
-            "--budget",
-            "200",
-            "--out",
-            path_str(&res),
-        ]);
+        lfit_json(&lm_fit_args(data, &res, "200", &[]));
         read_json(&res)
     };
     let s = fit(&out);
@@ -1840,24 +1829,17 @@ fn a_panoptic_reference_scores_the_fit_of_the_same_frames_keypoints() {
     // COCO-17's points: RHip, LKnee, …), read in the import's layout: the limbs' joints held,
     // where Panoptic's also gave the root and the head.
     let coco = KeypointLayout::Coco17;
-    // Pose2Sim's names of the default map's keypoints, in its order.
-    let labels: Vec<String> = [
-        "RHip",
-        "RKnee",
-        "RAnkle",
-        "LHip",
-        "LKnee",
-        "LAnkle",
-        "RShoulder",
-        "RElbow",
-        "RWrist",
-        "LShoulder",
-        "LElbow",
-        "LWrist",
-    ]
-    .map(String::from)
-    .to_vec();
-    assert_eq!(labels.len(), coco.default_map().len());
+    // Pose2Sim names COCO-17's points as OpenPose does: BODY_25's name of each joint.
+    let body25 = KeypointLayout::Body25.default_map();
+    let labels: Vec<String> = coco
+        .default_map()
+        .iter()
+        .map(|(p, _)| {
+            let (_, name) = body25.iter().find(|m| m.0 == *p).expect("a BODY_25 name");
+            name.to_string()
+        })
+        .collect();
+    assert!(labels.iter().any(|l| l == "RHip"), "{labels:?}");
     let frames_pts = (0..frames)
         .map(|f| {
             let joints = lfit::model::metrics::joint_positions(&template, &truth.gt_poses[f]);
