@@ -38,7 +38,8 @@ pub struct ReferenceTrack {
     pub frames: Vec<Vec<[f64; 4]>>,
     /// Per frame, the file it came from.
     pub sources: Vec<String>,
-    /// The body kept (its `id`), when one was chosen or every frame held at most one.
+    /// The body kept (its `id`): the one chosen, or the one id of every frame's single body
+    /// (`None` when those ids differ — Panoptic may give one person several ids over time).
     pub person: Option<i64>,
     /// Frames that hold no body (or not the chosen one).
     pub empty_frames: usize,
@@ -121,7 +122,8 @@ pub fn read_panoptic_skeletons(
     let mut frames = Vec::with_capacity(files.len());
     let mut sources = Vec::with_capacity(files.len());
     let mut ids_seen: Vec<i64> = Vec::new();
-    let mut single: Option<i64> = None;
+    // The ids of the bodies kept, each once.
+    let mut kept_ids: Vec<i64> = Vec::new();
     let mut empty = 0;
     for file in &files {
         let name = file.display().to_string();
@@ -161,7 +163,9 @@ pub fn read_panoptic_skeletons(
         };
         match kept {
             Some((id, points)) => {
-                single = Some(id);
+                if !kept_ids.contains(&id) {
+                    kept_ids.push(id);
+                }
                 frames.push(points);
             }
             None => {
@@ -196,7 +200,10 @@ pub fn read_panoptic_skeletons(
         layout: KeypointLayout::Panoptic19,
         frames,
         sources,
-        person: person.or(single),
+        person: person.or(match kept_ids[..] {
+            [one] => Some(one),
+            _ => None,
+        }),
         empty_frames: empty,
     })
 }
@@ -588,6 +595,12 @@ mod tests {
         );
         let t = read_panoptic_skeletons(std::slice::from_ref(&two), Some(6)).unwrap();
         assert_eq!((t.person, t.empty_frames), (Some(6), 0));
+        // One body per frame under two ids (one person's track broken in two): no one id.
+        let a = write(d.path(), "id1.json", &json!({"bodies": [body(1)]}));
+        let b = write(d.path(), "id2.json", &json!({"bodies": [body(2)]}));
+        let t = read_panoptic_skeletons(&[a.clone(), b], None).unwrap();
+        assert_eq!((t.frames.len(), t.person), (2, None));
+        assert_eq!(read_panoptic_skeletons(&[a], None).unwrap().person, Some(1));
         let e = err(std::slice::from_ref(&two), Some(2));
         assert!(
             e.contains("no body has that id (the files' ids: 1, 6)"),
