@@ -1889,6 +1889,73 @@ fn a_panoptic_reference_scores_the_fit_of_the_same_frames_keypoints() {
     }
     let o = import(&trc, &out4, &["--reference-person", "3"]);
     assert_one_line_error(&o, "holds one subject");
+    // Points of another skeleton's names (J<papers/000 joint>), six of them named onto model
+    // joints by --reference-map: those six held, where they are.
+    let mut other = trc_points.clone();
+    other.labels = coco
+        .default_map()
+        .iter()
+        .map(|(p, _)| format!("J{p}"))
+        .collect();
+    let trc2 = d.join("other.trc");
+    std::fs::write(&trc2, to_trc(&other, "other.trc")).expect("trc");
+    let chosen: Vec<(usize, String)> = coco.default_map()[..6]
+        .iter()
+        .map(|(p, _)| (joint_map[*p].expect("mapped"), format!("J{p}")))
+        .collect();
+    let map_file = d.join("reference-map.json");
+    let map_json: serde_json::Map<String, Value> = chosen
+        .iter()
+        .map(|(j, l)| (template.rig.joints[*j].name.clone(), json!(l)))
+        .collect();
+    std::fs::write(&map_file, Value::Object(map_json).to_string()).expect("map");
+    let out5 = d.join("kp5.npz");
+    let o = import(&trc2, &out5, &["--reference-map", path_str(&map_file)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: Value = serde_json::from_slice(&o.stdout).expect("summary");
+    assert_eq!(summary["import"]["reference"]["mapped_joints"], 6);
+    assert_eq!(summary["import"]["reference"]["reference_map"], true);
+    let mapped = Dataset::load(&out5)
+        .expect("imported")
+        .reference
+        .expect("reference");
+    for f in 0..frames {
+        let joints = lfit::model::metrics::joint_positions(&template, &truth.gt_poses[f]);
+        let held = mapped.seen(f);
+        let mut expect: Vec<usize> = chosen.iter().map(|c| c.0).collect();
+        expect.sort_unstable();
+        assert_eq!(held.iter().map(|h| h.0).collect::<Vec<_>>(), expect);
+        for (j, p) in held {
+            assert!(p.distance(joints[j]) < 1e-8, "frame {f} joint {j}");
+        }
+    }
+    // Without the map these labels name nothing; a map naming a point the file lacks, or
+    // given with --reference-layout: one line.
+    let out6 = d.join("kp6.npz");
+    assert_one_line_error(&import(&trc2, &out6, &[]), "--reference-layout");
+    std::fs::write(&map_file, json!({"nope": "J0"}).to_string()).expect("map");
+    assert_one_line_error(
+        &import(&trc2, &out6, &["--reference-map", path_str(&map_file)]),
+        "is not a joint of model",
+    );
+    let root = template.rig.joints[0].name.clone();
+    std::fs::write(&map_file, json!({root: "Pelvis"}).to_string()).expect("map");
+    assert_one_line_error(
+        &import(&trc2, &out6, &["--reference-map", path_str(&map_file)]),
+        "'Pelvis' is not a point of the reference",
+    );
+    let o = import(
+        &trc2,
+        &out6,
+        &[
+            "--reference-map",
+            path_str(&map_file),
+            "--reference-layout",
+            "coco17",
+        ],
+    );
+    assert_one_line_error(&o, "--reference-layout");
+    assert!(!out6.exists());
     // A reference of another length than the keypoints: refused, nothing written.
     let short = d.join("short");
     write_reference(&short, frames - 1, [0.0; 3]);

@@ -372,6 +372,7 @@ fn marker_file_args(
         reference: Vec::new(),
         reference_person: None,
         reference_layout: None,
+        reference_map: None,
         min_confidence: 0.1,
         fps: 30.0,
         scenario: scenario.to_string(),
@@ -431,10 +432,11 @@ pub fn import_trc(
 /// reference of the same frames' joints (CMU Panoptic `body3DScene_*.json` files or their
 /// folder, `lfit data import --reference`), turned with the cameras, which `fit` then scores
 /// against (MPJPE, PA-MPJPE), or one TRC or C3D file of 3D keypoints whose labels name
-/// `reference_layout`'s points (default `layout`); `reference_person`: a Panoptic body's id
-/// where frames hold several.
+/// `reference_layout`'s points (default `layout`) or that `reference_map` (a JSON file
+/// `{"model joint": "reference point"}`) names; `reference_person`: a Panoptic body's id where
+/// frames hold several.
 #[pyfunction]
-#[pyo3(signature = (paths, layout, camera, model=None, *, camera_names=None, camera_units=None, keypoint_scale=None, keypoint_map=None, min_confidence=0.1, fps=30.0, scenario="sequence", up="y", reference=None, reference_person=None, reference_layout=None, out=None))]
+#[pyo3(signature = (paths, layout, camera, model=None, *, camera_names=None, camera_units=None, keypoint_scale=None, keypoint_map=None, min_confidence=0.1, fps=30.0, scenario="sequence", up="y", reference=None, reference_person=None, reference_layout=None, reference_map=None, out=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn import_keypoints(
     py: Python<'_>,
@@ -453,6 +455,7 @@ pub fn import_keypoints(
     reference: Option<Vec<PathBuf>>,
     reference_person: Option<i64>,
     reference_layout: Option<String>,
+    reference_map: Option<PathBuf>,
     out: Option<PathBuf>,
 ) -> PyResult<Dataset> {
     if paths.is_empty() {
@@ -473,6 +476,7 @@ pub fn import_keypoints(
         reference: reference.unwrap_or_default(),
         reference_person,
         reference_layout,
+        reference_map,
         min_confidence,
         fps,
         scenario: scenario.to_string(),

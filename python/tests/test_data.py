@@ -463,3 +463,14 @@ def test_a_panoptic_reference_scores_the_fit_as_the_cli_does(cli, tmp_path):
     assert summary["import"]["reference"]["format"] == "trc" and summary["import"]["reference"]["mapped_joints"] == 4
     # Read in the keypoints' own layout (coco17, which has no MidHip): the three limb points.
     assert lfit.import_keypoints([coco], "coco17", cams, MH, reference=[trc]).summary["import"]["reference"]["mapped_joints"] == 3
+    # `reference_map`: the file's labels named onto model joints (MidHip onto the hips).
+    ref_map = tmp_path / "reference-map.json"
+    ref_map.write_text(json.dumps({"Hips": "MidHip", "RightLeg": "RKnee"}))
+    cli_m = tmp_path / "cli-m.npz"
+    summary = cli("data", "import", "--keypoints", coco, "--layout", "coco17", "--camera", cams, "--model", MH,
+                  "--reference", trc, "--reference-map", ref_map, "--out", cli_m)
+    m = lfit.import_keypoints([coco], "coco17", cams, MH, reference=[trc], reference_map=ref_map)
+    assert m.summary["import"]["reference"] == summary["import"]["reference"]
+    assert summary["import"]["reference"]["mapped_joints"] == 2
+    np.testing.assert_array_equal(m.reference_joints, lfit.load_dataset(cli_m).reference_joints)
+    np.testing.assert_allclose(m.reference_joints[2, 0], [0.0, 0.902, 0.0], rtol=0, atol=1e-12)

@@ -118,11 +118,11 @@ fn parse_translation(text: &str) -> Result<[f64; 3]> {
 #[derive(Debug, clap::Args)]
 pub struct ImportArgs {
     /// C3D file of 3D marker trajectories (markers modality).
-    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "trc", "camera_names", "camera_units", "keypoint_scale", "reference", "reference_person", "reference_layout"])]
+    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "trc", "camera_names", "camera_units", "keypoint_scale", "reference", "reference_person", "reference_layout", "reference_map"])]
     pub c3d: Option<PathBuf>,
     /// TRC file of 3D marker trajectories (OpenSim's text format, as OpenCap, Motive and Cortex
     /// write it; markers modality): read as a C3D's points, mapped and fitted alike.
-    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "camera_names", "camera_units", "keypoint_scale", "reference", "reference_person", "reference_layout"])]
+    #[arg(long, conflicts_with_all = ["keypoints", "camera", "layout", "keypoint_map", "camera_names", "camera_units", "keypoint_scale", "reference", "reference_person", "reference_layout", "reference_map"])]
     pub trc: Option<PathBuf>,
     /// JSON object {"C3D label": "model marker", ...} ("#K": the file's point K, counted from 0,
     /// for a label the file repeats); default: C3D labels equal to the model's marker names, bare
@@ -189,8 +189,18 @@ pub struct ImportArgs {
     #[arg(long, value_name = "ID", requires = "reference")]
     pub reference_person: Option<i64>,
     /// The layout a TRC or C3D reference's labels name (default: --layout).
-    #[arg(long, value_name = "LAYOUT", requires = "reference")]
+    #[arg(
+        long,
+        value_name = "LAYOUT",
+        requires = "reference",
+        conflicts_with = "reference_map"
+    )]
     pub reference_layout: Option<String>,
+    /// JSON object {"model joint": "reference point", ...} replacing the layout's default map
+    /// of the reference (a TRC's or C3D's labels as they are, or Panoptic's point names): for a
+    /// reference on another skeleton (Human3.6M's Pelvis, Thorax, ...).
+    #[arg(long, value_name = "MAP.json", requires = "reference")]
+    pub reference_map: Option<PathBuf>,
     /// Keypoints with a confidence (COCO: visibility flag) at or below this are invisible (the
     /// reference's joints too).
     #[arg(long, default_value_t = 0.1)]
@@ -429,6 +439,9 @@ pub fn import_dataset(
     if args.reference_layout.is_some() && args.reference.is_empty() {
         bail!("--reference-layout names the --reference file's labels: give --reference");
     }
+    if args.reference_map.is_some() && args.reference.is_empty() {
+        bail!("--reference-map maps the --reference file's points: give --reference");
+    }
     if markers.is_some() && !args.reference.is_empty() {
         bail!("--reference scores the fits of 2D keypoints: give it with --keypoints");
     }
@@ -553,10 +566,17 @@ pub fn import_dataset(
                         reference_layout,
                         given,
                         args.reference_person,
+                        args.reference_map.is_some(),
                     )
                     .context("--reference")?,
                 )
             };
+            let reference_map = args
+                .reference_map
+                .as_deref()
+                .map(|p| read_name_map(p, ["model joint", "reference point"]))
+                .transpose()
+                .context("--reference-map")?;
             let template = load()?;
             let mut imported = import_keypoints(
                 &tracks,
@@ -576,6 +596,7 @@ pub fn import_dataset(
                     &template,
                     up.to_lfit(),
                     args.min_confidence,
+                    reference_map.as_deref(),
                 )
                 .context("--reference")?;
             }

@@ -32,7 +32,11 @@ fn fail<T>(msg: impl Into<String>) -> Result<T, ImportError> {
 pub struct ReferenceTrack {
     /// `panoptic`, `trc` or `c3d`.
     pub format: &'static str,
-    pub layout: KeypointLayout,
+    /// The layout its keypoints are (`None`: a point file read with a map, its labels as they
+    /// are).
+    pub layout: Option<KeypointLayout>,
+    /// The name of each keypoint, in the frames' order.
+    pub names: Vec<String>,
     /// Per frame, per keypoint: `[x, y, z]` in metres and a confidence (all zero in a frame
     /// without the chosen body).
     pub frames: Vec<Vec<[f64; 4]>>,
@@ -197,7 +201,12 @@ pub fn read_panoptic_skeletons(
     }
     Ok(ReferenceTrack {
         format: "panoptic",
-        layout: KeypointLayout::Panoptic19,
+        layout: Some(KeypointLayout::Panoptic19),
+        names: KeypointLayout::Panoptic19
+            .names()
+            .iter()
+            .map(|n| n.to_string())
+            .collect(),
         frames,
         sources,
         person: person.or(match kept_ids[..] {
@@ -228,10 +237,11 @@ fn plain_name(name: &str) -> String {
 /// Reads 3D keypoints from a TRC or C3D file (by its extension) as a reference in `layout`:
 /// each point whose label is one of the layout's keypoint names (as [`plain_name`] compares
 /// them; a label after one `SUBJECT:` prefix too) is that keypoint, in the file's unit and
-/// world; a gap is a frame without it. No confidence: every sample is held (1).
+/// world; a gap is a frame without it. No confidence: every sample is held (1). Without a
+/// layout every point is a keypoint under its label (after one prefix), for a map to name.
 pub fn read_point_reference(
     path: &Path,
-    layout: KeypointLayout,
+    layout: Option<KeypointLayout>,
 ) -> Result<ReferenceTrack, ImportError> {
     let ext = path
         .extension()
@@ -248,12 +258,19 @@ pub fn read_point_reference(
         }
     };
     let scale = points.metres_per_unit()?;
+    let bare = |label: &str| label.rsplit(':').next().unwrap_or(label).trim().to_string();
+    let Some(layout) = layout else {
+        let names: Vec<String> = points.labels.iter().map(|l| bare(l)).collect();
+        let column: Vec<Option<usize>> = (0..names.len()).map(Some).collect();
+        return Ok(point_track(
+            &points, format, None, names, &column, scale, path,
+        ));
+    };
     let names = layout.names();
     // Keypoint k ← the file's point that names it (one per keypoint).
     let mut column: Vec<Option<usize>> = vec![None; names.len()];
     for (i, label) in points.labels.iter().enumerate() {
-        let bare = label.rsplit(':').next().unwrap_or(label);
-        let plain = plain_name(bare);
+        let plain = plain_name(&bare(label));
         if let Some(k) = names.iter().position(|n| plain_name(n) == plain) {
             if let Some(j) = column[k] {
                 return fail(format!(
@@ -278,6 +295,28 @@ pub fn read_point_reference(
             names.iter().take(8).copied().collect::<Vec<_>>().join(", ")
         ));
     }
+    let names = names.iter().map(|n| n.to_string()).collect();
+    Ok(point_track(
+        &points,
+        format,
+        Some(layout),
+        names,
+        &column,
+        scale,
+        path,
+    ))
+}
+
+/// The track of a point file's `column`s (keypoint k ← point `column[k]`), in metres.
+fn point_track(
+    points: &C3d,
+    format: &'static str,
+    layout: Option<KeypointLayout>,
+    names: Vec<String>,
+    column: &[Option<usize>],
+    scale: f64,
+    path: &Path,
+) -> ReferenceTrack {
     let frames: Vec<Vec<[f64; 4]>> = points
         .frames
         .iter()
@@ -303,25 +342,28 @@ pub fn read_point_reference(
     let sources = (0..frames.len())
         .map(|f| format!("{}#{f}", path.display()))
         .collect();
-    Ok(ReferenceTrack {
+    ReferenceTrack {
         format,
         layout,
+        names,
         frames,
         sources,
         person: None,
         empty_frames,
-    })
+    }
 }
 
 /// Reads the reference `paths` name: one `.trc` or `.c3d` file ([`read_point_reference`], in
 /// `layout`), else CMU Panoptic skeleton files or folders ([`read_panoptic_skeletons`], whose
 /// layout is `panoptic19`: another `layout` is refused). `person` chooses a Panoptic body; a
-/// point file holds one subject (refused with it).
+/// point file holds one subject (refused with it). `mapped`: a map will name the keypoints
+/// ([`attach_reference`]), so a point file is read with every label (not with a given layout).
 pub fn read_reference(
     paths: &[PathBuf],
     layout: KeypointLayout,
     layout_given: bool,
     person: Option<i64>,
+    mapped: bool,
 ) -> Result<ReferenceTrack, ImportError> {
     let point_file = |p: &PathBuf| {
         p.is_file()
@@ -335,7 +377,12 @@ pub fn read_reference(
                     "--reference-person chooses a body of Panoptic's files; a TRC or C3D reference holds one subject",
                 );
             }
-            read_point_reference(one, layout)
+            if mapped && layout_given {
+                return fail(
+                    "--reference-map names the file's points: give it or --reference-layout, not both",
+                );
+            }
+            read_point_reference(one, (!mapped).then_some(layout))
         }
         _ if paths.iter().any(point_file) => {
             fail("give one TRC or C3D file as the reference (or Panoptic's .json files)")
@@ -352,6 +399,35 @@ pub fn read_reference(
     }
 }
 
+/// `(model joint, keypoint)` pairs of a reference map `{"model joint": "reference point"}`
+/// against the reference's keypoint `names` (compared as [`plain_name`] does).
+fn named_pairs(
+    map: &[(String, String)],
+    names: &[String],
+    template: &Template,
+) -> Result<Vec<(usize, usize)>, ImportError> {
+    map.iter()
+        .map(|(joint, point)| {
+            let Some(j) = template.rig.joint_index(joint) else {
+                return fail(format!(
+                    "reference map: '{joint}' is not a joint of model '{}'",
+                    template.id
+                ));
+            };
+            let plain = plain_name(point);
+            let Some(k) = names.iter().position(|n| plain_name(n) == plain) else {
+                let some: Vec<&str> = names.iter().take(12).map(String::as_str).collect();
+                return fail(format!(
+                    "reference map: '{point}' is not a point of the reference (its points: {}{})",
+                    some.join(", "),
+                    if names.len() > 12 { ", …" } else { "" }
+                ));
+            };
+            Ok((j, k))
+        })
+        .collect()
+}
+
 /// Maps `track` onto the model's joints and stores it with `imported`'s dataset: each mapped
 /// keypoint seen with a confidence above `min_confidence` is the joint's reference, turned by
 /// `to_lfit` (the rotation the cameras were turned by: `--up`). One reference frame per
@@ -365,6 +441,7 @@ pub fn attach_reference(
     template: &Template,
     to_lfit: DMat3,
     min_confidence: f64,
+    map: Option<&[(String, String)]>,
 ) -> Result<(), ImportError> {
     let n = imported.dataset.len();
     if track.frames.len() != n {
@@ -374,8 +451,14 @@ pub fn attach_reference(
             track.frames.len()
         ));
     }
-    // The layout's pairs whose keypoint the reference holds in some frame.
-    let pairs: Vec<(usize, usize)> = layout_pairs(track.layout, None, template)?
+    // The map's pairs, or the layout's default ones, whose keypoint the reference holds in
+    // some frame.
+    let pairs = match (map, track.layout) {
+        (Some(map), _) => named_pairs(map, &track.names, template)?,
+        (None, Some(layout)) => layout_pairs(layout, None, template)?,
+        (None, None) => return fail("a reference read without a layout needs --reference-map"),
+    };
+    let pairs: Vec<(usize, usize)> = pairs
         .into_iter()
         .filter(|&(_, k)| track.frames.iter().any(|f| f[k][3] > min_confidence))
         .collect();
@@ -419,14 +502,16 @@ pub fn attach_reference(
         .collect();
     distances.sort_by(f64::total_cmp);
     let median = distances.get(distances.len() / 2).copied();
-    let names: Vec<&str> = track.layout.names().to_vec();
+    let names = &track.names;
+    let map_given = map.is_some();
     let map: Vec<String> = pairs
         .iter()
         .map(|&(j, k)| format!("{}→{}", names[k], template.rig.joints[j].name))
         .collect();
     imported.report["reference"] = json!({
         "format": track.format,
-        "layout": track.layout.name(),
+        "layout": track.layout.map(KeypointLayout::name),
+        "reference_map": map_given,
         "frames": n,
         "person": track.person,
         "empty_frames": track.empty_frames,
@@ -506,7 +591,7 @@ mod tests {
             p
         };
         let p = file(&["RHip", "S1:LKnee", "Extra"], "ok.trc");
-        let t = read_point_reference(&p, KeypointLayout::Coco17).unwrap();
+        let t = read_point_reference(&p, Some(KeypointLayout::Coco17)).unwrap();
         assert_eq!((t.format, t.frames.len(), t.empty_frames), ("trc", 2, 0));
         let at = |name| KeypointLayout::Coco17.index(name).unwrap();
         assert_eq!(t.frames[0][at("right_hip")], [0.1, 0.2, -0.1, 1.0]);
@@ -515,38 +600,61 @@ mod tests {
         assert_eq!(t.frames[0][at("nose")], [0.0; 4]);
         let e = read_point_reference(
             &file(&["RHip", "right_hip", "X"], "twice.trc"),
-            KeypointLayout::Coco17,
+            Some(KeypointLayout::Coco17),
         )
         .unwrap_err()
         .to_string();
         assert!(e.contains("'RHip' and 'right_hip' both name"), "{e}");
-        let e = read_point_reference(&file(&["A", "B", "C"], "none.trc"), KeypointLayout::Coco17)
-            .unwrap_err()
-            .to_string();
+        let e = read_point_reference(
+            &file(&["A", "B", "C"], "none.trc"),
+            Some(KeypointLayout::Coco17),
+        )
+        .unwrap_err()
+        .to_string();
         assert!(
             e.contains("(A, B, C)") && e.contains("--reference-layout"),
             "{e}"
         );
         // Through read_reference: no person for a point file, no other layout for Panoptic's.
-        let e = read_reference(&[p.clone()], KeypointLayout::Coco17, false, Some(1))
+        let e = read_reference(&[p.clone()], KeypointLayout::Coco17, false, Some(1), false)
             .unwrap_err()
             .to_string();
         assert!(e.contains("holds one subject"), "{e}");
-        let t = read_reference(&[p.clone()], KeypointLayout::Body25, true, None).unwrap();
+        let t = read_reference(&[p.clone()], KeypointLayout::Body25, true, None, false).unwrap();
         assert_eq!(
             t.frames[0][KeypointLayout::Body25.index("RHip").unwrap()][3],
             1.0
         );
         let json = write(d.path(), "f.json", &json!({"bodies": [body(0)]}));
-        let e = read_reference(&[json.clone()], KeypointLayout::Coco17, true, None)
+        let e = read_reference(&[json.clone()], KeypointLayout::Coco17, true, None, false)
             .unwrap_err()
             .to_string();
         assert!(e.contains("panoptic19 layout, not coco17"), "{e}");
-        assert!(read_reference(&[json], KeypointLayout::Coco17, false, None).is_ok());
-        let e = read_reference(&[p.clone(), p], KeypointLayout::Coco17, false, None)
+        assert!(read_reference(&[json], KeypointLayout::Coco17, false, None, false).is_ok());
+        let e = read_reference(
+            &[p.clone(), p.clone()],
+            KeypointLayout::Coco17,
+            false,
+            None,
+            false,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("one TRC or C3D file"), "{e}");
+        // For a map: every label under its name (the prefix dropped), the layout not given.
+        let t = read_reference(&[p.clone()], KeypointLayout::Coco17, false, None, true).unwrap();
+        assert_eq!(
+            (t.layout, t.names.clone()),
+            (
+                None,
+                vec!["RHip".to_string(), "LKnee".into(), "Extra".into()]
+            )
+        );
+        assert_eq!(t.frames[0][2], [0.3, 0.6, -0.3, 1.0]);
+        let e = read_reference(&[p], KeypointLayout::Body25, true, None, true)
             .unwrap_err()
             .to_string();
-        assert!(e.contains("one TRC or C3D file"), "{e}");
+        assert!(e.contains("not both"), "{e}");
     }
 
     #[test]

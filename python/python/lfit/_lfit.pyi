@@ -297,6 +297,7 @@ def import_keypoints(
     reference: Optional[Sequence[_Path]] = None,
     reference_person: Optional[int] = None,
     reference_layout: Optional[str] = None,
+    reference_map: Optional[_Path] = None,
     out: Optional[_Path] = None,
 ) -> Dataset:
     """``lfit data import --keypoints``."""
