@@ -1825,6 +1825,18 @@ fn a_panoptic_reference_scores_the_fit_of_the_same_frames_keypoints() {
         .expect("pa");
     assert!((m2 - 100.0).abs() <= m + 1e-6, "{m2} vs 100 ± {m}");
     assert!((pa2 - pa).abs() < 1e-6, "{pa2} vs {pa}");
+    // A sequence: the acceleration error against the reference, which a constant offset
+    // leaves as it is.
+    let acc = s["summary"]["mean_reference_accel_error_mm"]
+        .as_f64()
+        .expect("accel");
+    let acc2 = s2["summary"]["mean_reference_accel_error_mm"]
+        .as_f64()
+        .expect("accel");
+    assert!(
+        acc.is_finite() && (acc - acc2).abs() < 1e-6,
+        "{acc} vs {acc2}"
+    );
     // The same joints as 3D keypoints in a TRC file (millimetres, the labels as Pose2Sim names
     // COCO-17's points: RHip, LKnee, …), read in the import's layout: the limbs' joints held,
     // where Panoptic's also gave the root and the head.

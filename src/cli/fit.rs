@@ -607,6 +607,8 @@ fn fit_prepared(
     // against it, over the frames that hold some of it.
     let (mut sum_ref, mut ref_frames) = (0.0, 0usize);
     let (mut sum_ref_pa, mut ref_pa_frames) = (0.0, 0usize);
+    // In a sequence: each fitted frame's joints, for the acceleration error against it.
+    let mut reference_joints: Vec<(usize, Vec<glam::DVec3>)> = Vec::new();
     // In a sequence with ground truth: each frame's fitted and true joints, for the
     // acceleration error.
     let mut sequence_joints: Vec<(usize, Vec<glam::DVec3>, Vec<glam::DVec3>)> = Vec::new();
@@ -693,8 +695,12 @@ fn fit_prepared(
                 row["lowest_sole_m"] = json!(h);
                 sum_lowest_sole += h;
             }
-            if let Some(reference) = &scored.reference
-                && let Some(e) = reference.errors(&template, frame, pose)
+            let posed = scored
+                .reference
+                .as_ref()
+                .map(|_| lfit_model::metrics::joint_positions(&template, pose));
+            if let (Some(reference), Some(joints)) = (&scored.reference, &posed)
+                && let Some(e) = reference.errors_of_joints(frame, joints)
             {
                 row["reference_mpjpe_mm"] = json!(e.mpjpe_mm);
                 row["reference_joints_seen"] = json!(e.seen);
@@ -705,6 +711,11 @@ fn fit_prepared(
                     sum_ref_pa += pa;
                     ref_pa_frames += 1;
                 }
+            }
+            if let Some(joints) = posed
+                && scenario == lfit_synth::Scenario::Sequence
+            {
+                reference_joints.push((frame, joints));
             }
             if let Some(gt) = dataset.ground_truth(frame) {
                 let truth = TruthMesh::new(&template, gt);
@@ -849,6 +860,14 @@ fn fit_prepared(
         if ref_pa_frames > 0 {
             summary["mean_reference_pa_mpjpe_mm"] = json!(sum_ref_pa / ref_pa_frames as f64);
             summary["reference_pa_frames"] = json!(ref_pa_frames);
+        }
+        // A sequence's jitter against the reference's motion (the joints it holds throughout).
+        if let Some(a) = scored
+            .reference
+            .as_ref()
+            .and_then(|r| r.accel_error_mm(&reference_joints))
+        {
+            summary["mean_reference_accel_error_mm"] = json!(a);
         }
     }
     if held_frames > 0 {

@@ -140,11 +140,19 @@ impl JointReference {
         frame: usize,
         pose: &[f64],
     ) -> Option<ReferenceErrors> {
+        self.errors_of_joints(frame, &lfit_model::metrics::joint_positions(template, pose))
+    }
+
+    /// [`JointReference::errors`] of a fit's posed `joints` (every joint of the model).
+    pub fn errors_of_joints(
+        &self,
+        frame: usize,
+        joints: &[glam::DVec3],
+    ) -> Option<ReferenceErrors> {
         let held = self.seen(frame);
         if held.is_empty() {
             return None;
         }
-        let joints = lfit_model::metrics::joint_positions(template, pose);
         let fitted: Vec<glam::DVec3> = held.iter().map(|(j, _)| joints[*j]).collect();
         let reference: Vec<glam::DVec3> = held.iter().map(|(_, p)| *p).collect();
         Some(ReferenceErrors {
@@ -153,6 +161,36 @@ impl JointReference {
                 .then(|| lfit_model::metrics::aligned_joint_error_mm(&fitted, &reference)),
             seen: held.len(),
         })
+    }
+}
+
+impl JointReference {
+    /// A fitted sequence's acceleration error against the reference, mm per frame²
+    /// ([`lfit_model::metrics::accel_error_mm`]) over the joints the reference holds in every
+    /// one of the `fitted` frames (each frame's index and posed joints); `None` where no joint
+    /// is held throughout or no three consecutive frames were fitted.
+    pub fn accel_error_mm(&self, fitted: &[(usize, Vec<glam::DVec3>)]) -> Option<f64> {
+        let nj = self.visible.first().map_or(0, Vec::len);
+        let common: Vec<usize> = (0..nj)
+            .filter(|&j| fitted.iter().all(|(f, _)| self.visible[*f][j]))
+            .collect();
+        if common.is_empty() {
+            return None;
+        }
+        let frames: Vec<(usize, Vec<glam::DVec3>, Vec<glam::DVec3>)> = fitted
+            .iter()
+            .map(|(f, joints)| {
+                (
+                    *f,
+                    common.iter().map(|&j| joints[j]).collect(),
+                    common
+                        .iter()
+                        .map(|&j| glam::DVec3::from_array(self.points[*f][j]))
+                        .collect(),
+                )
+            })
+            .collect();
+        lfit_model::metrics::accel_error_mm(&frames)
     }
 }
 
@@ -714,6 +752,23 @@ mod tests {
         let e = r.errors(&t, 2, &moved).unwrap();
         assert!((e.mpjpe_mm - 100.0).abs() < 1e-6, "{}", e.mpjpe_mm);
         assert!(e.pa_mpjpe_mm.unwrap() < 1e-6);
+        // The acceleration error: 0 for the truth, over the joints held in every frame.
+        let posed: Vec<(usize, Vec<glam::DVec3>)> = (0..3)
+            .map(|f| {
+                (
+                    f,
+                    lfit_model::metrics::joint_positions(&t, &data.gt_poses[f]),
+                )
+            })
+            .collect();
+        assert!(r.accel_error_mm(&posed[..]).is_some_and(|a| a < 1e-9));
+        // Frame 1 holds joints 0 and 1, the others all but 0: joint 1 throughout; frame 1's fit
+        // moved 3 mm along x: (0 − 2·3 + 0) mm on that joint.
+        let mut jittered = posed.clone();
+        jittered[1].1[1].x += 0.003;
+        let a = r.accel_error_mm(&jittered).unwrap();
+        assert!((a - 6.0).abs() < 1e-6, "{a}");
+        assert!(r.accel_error_mm(&jittered[..2]).is_none());
         // One array without the other.
         let arrays: Vec<_> = data
             .to_arrays()
