@@ -526,6 +526,7 @@ pub fn attach_reference(
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 
@@ -616,21 +617,49 @@ mod tests {
             "{e}"
         );
         // Through read_reference: no person for a point file, no other layout for Panoptic's.
-        let e = read_reference(&[p.clone()], KeypointLayout::Coco17, false, Some(1), false)
-            .unwrap_err()
-            .to_string();
+        let e = read_reference(
+            std::slice::from_ref(&p),
+            KeypointLayout::Coco17,
+            false,
+            Some(1),
+            false,
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("holds one subject"), "{e}");
-        let t = read_reference(&[p.clone()], KeypointLayout::Body25, true, None, false).unwrap();
+        let t = read_reference(
+            std::slice::from_ref(&p),
+            KeypointLayout::Body25,
+            true,
+            None,
+            false,
+        )
+        .unwrap();
         assert_eq!(
             t.frames[0][KeypointLayout::Body25.index("RHip").unwrap()][3],
             1.0
         );
         let json = write(d.path(), "f.json", &json!({"bodies": [body(0)]}));
-        let e = read_reference(&[json.clone()], KeypointLayout::Coco17, true, None, false)
-            .unwrap_err()
-            .to_string();
+        let e = read_reference(
+            std::slice::from_ref(&json),
+            KeypointLayout::Coco17,
+            true,
+            None,
+            false,
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("panoptic19 layout, not coco17"), "{e}");
-        assert!(read_reference(&[json], KeypointLayout::Coco17, false, None, false).is_ok());
+        assert!(
+            read_reference(
+                std::slice::from_ref(&json),
+                KeypointLayout::Coco17,
+                false,
+                None,
+                false
+            )
+            .is_ok()
+        );
         let e = read_reference(
             &[p.clone(), p.clone()],
             KeypointLayout::Coco17,
@@ -642,7 +671,14 @@ mod tests {
         .to_string();
         assert!(e.contains("one TRC or C3D file"), "{e}");
         // For a map: every label under its name (the prefix dropped), the layout not given.
-        let t = read_reference(&[p.clone()], KeypointLayout::Coco17, false, None, true).unwrap();
+        let t = read_reference(
+            std::slice::from_ref(&p),
+            KeypointLayout::Coco17,
+            false,
+            None,
+            true,
+        )
+        .unwrap();
         assert_eq!(
             (t.layout, t.names.clone()),
             (
