@@ -486,18 +486,9 @@ pub fn attach_reference(
     // size of a unit or axis mistake otherwise.
     let mut distances: Vec<f64> = (0..n)
         .filter_map(|f| {
-            let held = reference.seen(f);
-            if held.is_empty() {
-                return None;
-            }
-            let joints =
-                lfit_model::metrics::joint_positions(template, &imported.dataset.start_poses[f]);
-            Some(
-                held.iter()
-                    .map(|(j, p)| joints[*j].distance(*p))
-                    .sum::<f64>()
-                    / held.len() as f64,
-            )
+            reference
+                .errors(template, f, &imported.dataset.start_poses[f])
+                .map(|e| e.mpjpe_mm / 1000.0)
         })
         .collect();
     distances.sort_by(f64::total_cmp);
