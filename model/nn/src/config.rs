@@ -48,11 +48,26 @@ pub enum Direction {
     /// training motion (BA-Net, Tang & Tan 2019, and LS-Net, Clark et al. 2018, learn around
     /// the same step). One Jacobian per iteration instead of one gradient.
     GaussNewton,
+    /// The chord method over [`Direction::GaussNewton`]'s system (Kelley, *Iterative Methods
+    /// for Linear and Nonlinear Equations*, SIAM 1995, ch. 5): the damped system
+    /// `JᵀJ + μ D` is built and factorised at θ0 only, and every later iteration solves it
+    /// with the gradient at its iterate, `(J₀ᵀJ₀ + μ D₀) h = −∇E(θn)/2`. The first direction is
+    /// [`Direction::GaussNewton`]'s; each later one costs a gradient and two triangular solves
+    /// instead of a Jacobian, the normal equations and a factorisation (issue 26: the
+    /// Gauss-Newton directions were half the neural fitter's time per frame). A network trained
+    /// on one of the two directions does not carry to the other (cost-model.md).
+    /// `chord_factorisations` > 1 factorises again at each of the first iterates.
+    GaussNewtonChord,
 }
 
 impl Direction {
     pub fn is_gradient(&self) -> bool {
         *self == Direction::Gradient
+    }
+
+    /// Whether the direction solves the damped Gauss-Newton system (at each iterate or at θ0).
+    pub fn is_gauss_newton(&self) -> bool {
+        matches!(self, Direction::GaussNewton | Direction::GaussNewtonChord)
     }
 }
 
@@ -183,6 +198,14 @@ pub struct NetConfig {
     /// does not.
     #[serde(skip_serializing_if = "is_default_gn_max_step")]
     pub gn_max_step: f64,
+    /// [`Direction::GaussNewtonChord`]: the iterations that build and factorise the system at
+    /// their iterate (1: θ0 only); every later one solves the last of them.
+    #[serde(skip_serializing_if = "is_default_chord_factorisations")]
+    pub chord_factorisations: usize,
+}
+
+fn is_default_chord_factorisations(v: &usize) -> bool {
+    *v == 1
 }
 
 /// [`NetConfig::gn_max_step`] unless a config says otherwise: half a radian per rotation
@@ -230,6 +253,7 @@ impl Default for NetConfig {
             direction: Direction::Gradient,
             gn_damping: DEFAULT_GN_DAMPING,
             gn_max_step: DEFAULT_GN_MAX_STEP,
+            chord_factorisations: 1,
         }
     }
 }
@@ -376,6 +400,15 @@ impl NetConfig {
             if !(v.is_finite() && v > 0.0) {
                 return bad(name, format!("must be positive, got {v}"));
             }
+        }
+        if self.chord_factorisations == 0 || self.chord_factorisations > self.iterations {
+            return bad(
+                "chord_factorisations",
+                format!(
+                    "must be in 1..={} (the iterations), got {}",
+                    self.iterations, self.chord_factorisations
+                ),
+            );
         }
         if self.views == Views::Pooled
             && (self.modality != Modality::Keypoints2d || self.residual_dim % 2 != 0)

@@ -999,6 +999,272 @@ fn the_gauss_newton_direction_solves_the_damped_system_and_fits_where_the_gradie
     }
 }
 
+/// The chord direction: its first direction is the Gauss-Newton direction to the bit, and the
+/// system it keeps solves `(J₀ᵀJ₀ + μ D₀) h = −∇E(θ)/2` at a later point θ (checked against the
+/// system built densely from θ0's Jacobian and θ's gradient, independently of the envelope
+/// factorisation); at θ0 that is the Gauss-Newton step again (`∇E/2 = Jᵀr`), and at the later
+/// point it is not the Gauss-Newton step there.
+#[test]
+fn the_chord_direction_solves_the_first_points_system_with_the_later_points_gradient() {
+    use crate::unroll::direction;
+    let (template, energies, _) = marker_frames(2, 0xC40D);
+    let gn = NetConfig {
+        direction: Direction::GaussNewton,
+        gn_max_step: 1e9,
+        ..NetConfig::default()
+    };
+    let chord = NetConfig {
+        direction: Direction::GaussNewtonChord,
+        ..gn.clone()
+    };
+    let rank = template.elimination_rank();
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    for e in &energies {
+        let start = vec![0.0; POSE_DIM];
+        assert_eq!(
+            direction(&chord, e, &start, None).expect("chord"),
+            direction(&gn, e, &start, None).expect("gn"),
+            "the stateless chord direction is Gauss-Newton's"
+        );
+        let ls = e.least_squares(&start, true).expect("least squares");
+        let dofs: Vec<usize> = (6..POSE_DIM).collect();
+        let (h0, system) = ls
+            .damped_gauss_newton_chord(&dofs, gn.gn_damping, &rank)
+            .expect("factorised");
+        assert_eq!(
+            Some(h0.clone()),
+            ls.damped_gauss_newton(&dofs, gn.gn_damping, &rank)
+        );
+        let mut sorted = system.entries().to_vec();
+        sorted.sort_unstable();
+        assert_eq!(sorted, dofs, "the system spans the free entries");
+        // At θ0 with the energy's own gradient: the Gauss-Newton step within rounding.
+        let (_, g0) = e.evaluate_with_gradient(&start);
+        let again = system.step(&g0).expect("step");
+        let scale = h0.iter().fold(0.0f64, |s, v| s.max(v.abs()));
+        for (a, b) in again.iter().zip(&h0) {
+            assert!((a - b).abs() <= 1e-9 * scale, "{a} vs {b}");
+        }
+        // At a later point: θ0's system, θ's gradient.
+        let later: Vec<f64> = start
+            .iter()
+            .zip(&h0)
+            .map(|(s, h)| s + 0.5 * h + rng.random_range(-0.02..0.02))
+            .collect();
+        let (_, g) = e.evaluate_with_gradient(&later);
+        let h = system.step(&g).expect("step");
+        assert!(h[..6].iter().all(|&v| v == 0.0), "frozen entries move");
+        let (m, n) = (ls.residuals.len(), POSE_DIM);
+        let jtj = |a: usize, b: usize| -> f64 {
+            (0..m)
+                .map(|i| ls.jacobian[i * n + a] * ls.jacobian[i * n + b])
+                .sum()
+        };
+        let max_diag = dofs
+            .iter()
+            .map(|&c| jtj(c, c).clamp(1e-6, 1e32))
+            .fold(0.0, f64::max);
+        let scale = g.iter().fold(0.0f64, |s, v| s.max(v.abs()));
+        let mut worst = 0.0f64;
+        for &a in &dofs {
+            let lhs: f64 = dofs
+                .iter()
+                .map(|&b| {
+                    let mut v = jtj(a, b);
+                    if a == b {
+                        v += gn.gn_damping * jtj(a, a).clamp(1e-6, 1e32) + 1e-12 * max_diag;
+                    }
+                    v * h[b]
+                })
+                .sum();
+            worst = worst.max((lhs + 0.5 * g[a]).abs());
+        }
+        assert!(
+            worst <= 1e-8 * scale,
+            "system residual {worst:e} ({scale:e})"
+        );
+        let fresh = e
+            .least_squares(&later, true)
+            .expect("least squares")
+            .damped_gauss_newton(&dofs, gn.gn_damping, &rank)
+            .expect("gn");
+        let apart = h
+            .iter()
+            .zip(&fresh)
+            .fold(0.0f64, |s, (a, b)| s.max((a - b).abs()));
+        assert!(
+            apart > 1e-6,
+            "the chord step is the fresh Gauss-Newton step"
+        );
+        // A gradient of another length is refused, not read past.
+        assert!(system.step(&g[..10]).is_none());
+    }
+}
+
+/// In the fitting loop a chord network factorises each frame's system once: with a network
+/// whose update is the direction itself (Δθ = 0, γ = 1), every iterate after the first steps
+/// by the solve of θ0's system with the gradient at that iterate, and the loop counts one
+/// evaluation and one gradient evaluation per iteration, as the Gauss-Newton loop does.
+#[test]
+fn the_fitting_loop_keeps_each_frames_chord_system_from_its_first_iterate() {
+    use crate::unroll::{RowNetwork, RowState, StepOut, unroll_rows};
+    struct Direct {
+        config: NetConfig,
+        stats: FeatureStats,
+    }
+    impl RowNetwork for Direct {
+        type Error = lfit_model::ModelError;
+        fn config(&self) -> &NetConfig {
+            &self.config
+        }
+        fn stats(&self) -> &FeatureStats {
+            &self.stats
+        }
+        fn initial(
+            &mut self,
+            _obs: &[f32],
+            batch: usize,
+        ) -> std::result::Result<(Vec<f32>, RowState), Self::Error> {
+            Ok((
+                vec![0.0; batch * self.config.param_dim],
+                RowState::default(),
+            ))
+        }
+        fn propose(
+            &mut self,
+            _n: usize,
+            _core_in: &[f32],
+            batch: usize,
+            _state: &mut RowState,
+        ) -> std::result::Result<Vec<f32>, Self::Error> {
+            Ok(vec![0.0; batch * self.config.param_dim])
+        }
+        fn step(
+            &mut self,
+            _n: usize,
+            _step_in: &[f32],
+            _delta: &[f32],
+            grad: &[f32],
+            _batch: usize,
+            _state: &mut RowState,
+        ) -> std::result::Result<StepOut, Self::Error> {
+            Ok(StepOut {
+                update: grad.iter().map(|g| -g).collect(),
+                lambda: Vec::new(),
+                gamma: Vec::new(),
+            })
+        }
+    }
+    let (template, energies, dim) = marker_frames(2, 0xC40E);
+    let rank = template.elimination_rank();
+    let all: Vec<usize> = (0..POSE_DIM).collect();
+    let refs: Vec<&Energy> = energies.iter().collect();
+    let starts = vec![Some(vec![0.0; POSE_DIM]); refs.len()];
+    for factorisations in [1, 2] {
+        let config = NetConfig {
+            direction: Direction::GaussNewtonChord,
+            iterations: 4,
+            chord_factorisations: factorisations,
+            ..small_config(Modality::Markers, dim)
+        };
+        let mut net = Direct {
+            stats: unit_stats_for(&config),
+            config: config.clone(),
+        };
+        let before: Vec<(u64, u64)> = energies
+            .iter()
+            .map(|e| (e.evaluations(), e.gradient_evaluations()))
+            .collect();
+        let host = unroll_rows(&mut net, &refs, &starts, None).expect("unroll");
+        let cap = |h: Vec<f64>| -> Vec<f64> {
+            h.iter()
+                .map(|v| v.clamp(-config.gn_max_step, config.gn_max_step))
+                .collect()
+        };
+        for (i, e) in energies.iter().enumerate() {
+            assert_eq!(
+                (e.evaluations(), e.gradient_evaluations()),
+                (before[i].0 + 4, before[i].1 + 4)
+            );
+            let theta: Vec<&Vec<f64>> = host.iter().map(|step| &step[i]).collect();
+            // The system of the last iterate that factorised.
+            let system = e
+                .least_squares(theta[factorisations - 1], true)
+                .expect("least squares")
+                .damped_gauss_newton_chord(&all, config.gn_damping, &rank)
+                .expect("factorised")
+                .1;
+            let mut moved_apart = 0.0f64;
+            for k in 0..theta.len() - 1 {
+                let fresh = cap(e
+                    .least_squares(theta[k], true)
+                    .expect("least squares")
+                    .damped_gauss_newton(&all, config.gn_damping, &rank)
+                    .expect("gn"));
+                let want = if k < factorisations {
+                    fresh.clone()
+                } else {
+                    let (_, g) = e.evaluate_with_gradient(theta[k]);
+                    cap(system.step(&g).expect("step"))
+                };
+                let scale = want.iter().fold(1e-3f64, |s, v| s.max(v.abs()));
+                for (j, w) in want.iter().enumerate() {
+                    let got = theta[k + 1][j] - theta[k][j];
+                    // θ is carried in f32 between iterations, as in the Burn loop.
+                    assert!(
+                        (got - w).abs() <= 1e-5 * scale + 1e-6,
+                        "{factorisations} factorisations, frame {i}, iteration {k}, entry {j}: {got} vs {w}"
+                    );
+                    moved_apart = moved_apart.max((w - fresh[j]).abs());
+                }
+            }
+            assert!(
+                moved_apart > 1e-5,
+                "frame {i}: every step is the fresh Gauss-Newton step"
+            );
+        }
+    }
+}
+
+/// A chord network's config round-trips through JSON with its direction and factorisations;
+/// factorisations outside 1..=N are refused by name, and the default's is not written.
+#[test]
+fn the_chord_config_round_trips_and_bad_factorisations_are_refused() {
+    let chord = NetConfig {
+        residual_dim: 6,
+        direction: Direction::GaussNewtonChord,
+        chord_factorisations: 2,
+        ..NetConfig::default()
+    };
+    let text = serde_json::to_string(&chord).expect("json");
+    assert!(
+        text.contains("\"direction\":\"gauss-newton-chord\"")
+            && text.contains("\"chord_factorisations\":2"),
+        "{text}"
+    );
+    assert_eq!(
+        serde_json::from_str::<NetConfig>(&text).expect("read"),
+        chord
+    );
+    let one = serde_json::to_string(&NetConfig {
+        chord_factorisations: 1,
+        ..chord.clone()
+    })
+    .expect("json");
+    assert!(!one.contains("chord_factorisations"), "{one}");
+    assert!(chord.validate().is_ok());
+    for bad in [0, chord.iterations + 1] {
+        let err = NetConfig {
+            chord_factorisations: bad,
+            ..chord.clone()
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("chord_factorisations"), "{err}");
+    }
+}
+
 /// A Gauss-Newton network's config round-trips through JSON, a gradient network's config has
 /// no `direction` field (checkpoints written before the switch read as before), and a damping
 /// that is not positive is refused by name.

@@ -12,7 +12,7 @@ use crate::features::{FeatureStats, observation_features_for, pooled_cameras, re
 use crate::layers::Dropout;
 use crate::net::NeuralNet;
 use crate::tensor::{poses_to_tensor, tensor_to_rows};
-use lfit_model::energy::Energy;
+use lfit_model::energy::{ChordSystem, Energy};
 use lfit_model::error::{ModelError, Result};
 use lfit_model::pose::Bounds;
 
@@ -130,6 +130,8 @@ struct Running {
     previous: Vec<f64>,
     evals: Vec<(Vec<f64>, Vec<f64>)>,
     iterations: Vec<usize>,
+    /// Each frame's damped system of its first iterate, for [`Direction::GaussNewtonChord`].
+    chords: Vec<Option<ChordSystem>>,
     /// The frames whose rows the network still runs, in batch order (the loops keep the
     /// recurrent state of these rows only): a frame the energy rule stopped leaves the
     /// network's passes and its θ is held. Without a tolerance (training) every frame runs
@@ -153,6 +155,7 @@ impl Running {
             previous: vec![f64::INFINITY; batch],
             evals: vec![(Vec::new(), Vec::new()); batch],
             iterations: vec![0; batch],
+            chords: vec![None; batch],
             alive: (0..batch).collect(),
         }
     }
@@ -218,6 +221,7 @@ impl Running {
         free: Option<&[Vec<bool>]>,
     ) -> Result<bool> {
         let mut run: Vec<usize> = (0..energies.len()).filter(|&i| self.active[i]).collect();
+        // (The chord direction's later iterations read E(θ) from their gradient evaluation.)
         let value_first =
             exit.tolerance.is_some() && n >= 2 && config.direction == Direction::GaussNewton;
         if value_first {
@@ -238,15 +242,37 @@ impl Running {
             }
         }
         let all = run.len() == energies.len();
-        let (evals, values) = if all {
-            evaluate_counted(config, energies, current, free, !value_first)?
+        // The chord direction factorises again at each of its first `chord_factorisations`
+        // iterates, and solves the last system after them.
+        let chords: Vec<Option<&ChordSystem>> = run
+            .iter()
+            .map(|&i| {
+                self.chords[i]
+                    .as_ref()
+                    .filter(|_| n >= config.chord_factorisations)
+            })
+            .collect();
+        let (evals, values, systems) = if all {
+            evaluate_counted(config, energies, current, free, !value_first, &chords)?
         } else {
             let pick = |v: &[Vec<f64>]| run.iter().map(|&i| v[i].clone()).collect::<Vec<_>>();
             let e: Vec<&Energy> = run.iter().map(|&i| energies[i]).collect();
             let f: Option<Vec<Vec<bool>>> =
                 free.map(|f| run.iter().map(|&i| f[i].clone()).collect());
-            evaluate_counted(config, &e, &pick(current), f.as_deref(), !value_first)?
+            evaluate_counted(
+                config,
+                &e,
+                &pick(current),
+                f.as_deref(),
+                !value_first,
+                &chords,
+            )?
         };
+        for (&i, system) in run.iter().zip(systems) {
+            if system.is_some() {
+                self.chords[i] = system;
+            }
+        }
         for ((&i, eval), value) in run.iter().zip(evals).zip(values) {
             if !value_first && exit.stops(n, self.previous[i], value) {
                 self.active[i] = false;
@@ -394,13 +420,16 @@ pub fn constraint_rows(
 /// clipped to `±gn_max_step`; non-finite
 /// entries zeroed, frozen entries of the Gauss-Newton direction zero. Counts one evaluation and
 /// one gradient evaluation of `energy` either way.
+///
+/// Stateless: [`Direction::GaussNewtonChord`] gives its first iteration's direction here (the
+/// Gauss-Newton direction at `pose`); the loops keep each frame's system for the later ones.
 pub fn direction(
     config: &NetConfig,
     energy: &Energy,
     pose: &[f64],
     free: Option<&[bool]>,
 ) -> Result<Vec<f64>> {
-    Ok(residual_and_direction(config, energy, pose, free, false, true)?.1)
+    Ok(residual_and_direction(config, energy, pose, free, false, true, None)?.1)
 }
 
 /// R(θ) (when `with_residual`, else empty), [`direction`] and E(θ) at `pose`. The
@@ -410,6 +439,12 @@ pub fn direction(
 /// evaluation is of a point whose residuals were just evaluated and counted
 /// ([`gauss_newton_value`]): it counts one gradient evaluation and no new evaluation
 /// ([`Energy::jacobian_with`]).
+///
+/// [`Direction::GaussNewtonChord`]: with the frame's `chord` system (of its first iterate) the
+/// direction solves that system with the gradient at `pose` (one evaluation and one gradient
+/// evaluation, as the others; E(θ) from the same evaluation); without one it is the
+/// Gauss-Newton direction and the system it factorised is returned for the later iterations.
+#[allow(clippy::type_complexity)]
 fn residual_and_direction(
     config: &NetConfig,
     energy: &Energy,
@@ -417,21 +452,33 @@ fn residual_and_direction(
     free: Option<&[bool]>,
     with_residual: bool,
     counted: bool,
-) -> Result<(Vec<f64>, Vec<f64>, f64)> {
-    let (r, mut g, value) = match config.direction {
-        Direction::Gradient => {
+    chord: Option<&ChordSystem>,
+) -> Result<(Vec<f64>, Vec<f64>, f64, Option<ChordSystem>)> {
+    let mut system = None;
+    let residual = |with: bool| {
+        if with {
+            energy.residual(pose)
+        } else {
+            Vec::new()
+        }
+    };
+    let (r, mut g, value) = match (config.direction, chord) {
+        (Direction::Gradient, _) => {
             let (e, g) = energy.evaluate_with_gradient(pose);
+            (residual(with_residual), g, e.total)
+        }
+        (Direction::GaussNewtonChord, Some(chord)) => {
+            let (e, g) = energy.evaluate_with_gradient(pose);
+            // A system that cannot solve (only a non-finite gradient): no step.
+            let h = chord.step(&g).unwrap_or_else(|| vec![0.0; pose.len()]);
+            let cap = config.gn_max_step;
             (
-                if with_residual {
-                    energy.residual(pose)
-                } else {
-                    Vec::new()
-                },
-                g,
+                residual(with_residual),
+                h.iter().map(|v| -v.clamp(-cap, cap)).collect(),
                 e.total,
             )
         }
-        Direction::GaussNewton => {
+        (Direction::GaussNewton | Direction::GaussNewtonChord, _) => {
             // The normal equations read the data rows in factored form where there is one.
             let (form, rows) = (
                 lfit_model::energy::RobustForm::Folded,
@@ -449,13 +496,17 @@ fn residual_and_direction(
                 None => (0..pose.len()).collect(),
             };
             // Not positive definite (only with a degenerate Jacobian, the ridge aside): no step.
-            let h = ls
-                .damped_gauss_newton(
-                    &dofs,
-                    config.gn_damping,
-                    &energy.template().elimination_rank(),
-                )
-                .unwrap_or_else(|| vec![0.0; pose.len()]);
+            let rank = energy.template().elimination_rank();
+            let h = if config.direction == Direction::GaussNewtonChord {
+                ls.damped_gauss_newton_chord(&dofs, config.gn_damping, &rank)
+                    .map(|(h, s)| {
+                        system = Some(s);
+                        h
+                    })
+            } else {
+                ls.damped_gauss_newton(&dofs, config.gn_damping, &rank)
+            }
+            .unwrap_or_else(|| vec![0.0; pose.len()]);
             let cap = config.gn_max_step;
             let value = ls.value();
             (
@@ -474,7 +525,7 @@ fn residual_and_direction(
             *x = 0.0;
         }
     }
-    Ok((r, g, value))
+    Ok((r, g, value, system))
 }
 
 /// R(θ) and the update direction g(θ) ([`direction`]) of every frame at its current pose, on
@@ -485,11 +536,12 @@ pub fn evaluate(
     current: &[Vec<f64>],
     free: Option<&[Vec<bool>]>,
 ) -> Result<Vec<(Vec<f64>, Vec<f64>)>> {
-    Ok(evaluate_counted(config, energies, current, free, true)?.0)
+    Ok(evaluate_counted(config, energies, current, free, true, &[])?.0)
 }
 
 /// [`evaluate`] and every frame's energy at its current pose (from the same evaluation);
-/// `counted` as [`residual_and_direction`].
+/// `counted` as [`residual_and_direction`]; `chords[i]` frame `i`'s system of
+/// [`Direction::GaussNewtonChord`] (empty: none yet), and the systems factorised now.
 #[allow(clippy::type_complexity)]
 fn evaluate_counted(
     config: &NetConfig,
@@ -497,18 +549,33 @@ fn evaluate_counted(
     current: &[Vec<f64>],
     free: Option<&[Vec<bool>]>,
     counted: bool,
-) -> Result<(Vec<(Vec<f64>, Vec<f64>)>, Vec<f64>)> {
-    let all: Vec<(Vec<f64>, Vec<f64>, f64)> = energies
+    chords: &[Option<&ChordSystem>],
+) -> Result<Evaluated> {
+    let all: Vec<(Vec<f64>, Vec<f64>, f64, Option<ChordSystem>)> = energies
         .par_iter()
         .zip(current.par_iter())
         .enumerate()
         .map(|(i, (e, p))| {
             let f = free.and_then(|f| f.get(i)).map(Vec::as_slice);
-            residual_and_direction(config, e, p, f, true, counted)
+            let chord = chords.get(i).copied().flatten();
+            residual_and_direction(config, e, p, f, true, counted, chord)
         })
         .collect::<Result<_>>()?;
-    Ok(all.into_iter().map(|(r, g, e)| ((r, g), e)).unzip())
+    let (mut evals, mut values, mut systems) = (Vec::new(), Vec::new(), Vec::new());
+    for (r, g, e, s) in all {
+        evals.push((r, g));
+        values.push(e);
+        systems.push(s);
+    }
+    Ok((evals, values, systems))
 }
+
+/// Every frame's (R, g), E and new chord system ([`evaluate_counted`]).
+type Evaluated = (
+    Vec<(Vec<f64>, Vec<f64>)>,
+    Vec<f64>,
+    Vec<Option<ChordSystem>>,
+);
 
 /// The normalised core inputs `[R(θ), g, θ, D]` (R as the residual features of
 /// [`residual_features`]), `[B, core_inputs]` row-major; `evals` and `obs` are of `energies`.

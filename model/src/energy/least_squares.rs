@@ -163,6 +163,7 @@ pub fn damped_step(
 /// The damped system of [`damped_step`] on the entries `free` ([`damped_system`]), factorised
 /// once ([`envelope_cholesky`]) for every right-hand side a solve needs: `−g` ([`damped_step`]),
 /// the columns of Levenberg–Marquardt's box step, the sequence β solve's Schur complement.
+#[derive(Debug, Clone)]
 pub struct DampedFactor {
     factor: Vec<f64>,
     first: Vec<usize>,
@@ -189,6 +190,50 @@ impl DampedFactor {
     pub fn solve(&self, b: &mut [f64]) -> bool {
         envelope_solve(&self.factor, self.m, &self.first, b);
         b.iter().all(|v| v.is_finite())
+    }
+}
+
+/// The damped Gauss-Newton system of one point, factorised
+/// ([`LeastSquares::damped_gauss_newton_chord`]), for the steps of later points: the neural
+/// fitter's chord direction (`lfit_nn::Direction::GaussNewtonChord`), which pays the Jacobian,
+/// the normal equations and the factorisation once per frame and a gradient and two triangular
+/// solves at every later iterate.
+#[derive(Debug, Clone)]
+pub struct ChordSystem {
+    factor: DampedFactor,
+    /// The parameter entries of the factor's rows, in its (elimination) order.
+    entries: Vec<usize>,
+    dim: usize,
+}
+
+impl ChordSystem {
+    /// `h` with `(A₀ + μ D₀) h = −∇E/2` over the system's entries (`A₀ = JᵀJ`, `D₀` its
+    /// Marquardt scaling, both of the point the system was factorised at; `∇E/2 = Jᵀr` at the
+    /// point now), zero elsewhere; `None` for a gradient of another length or a step that is
+    /// not finite.
+    pub fn step(&self, gradient: &[f64]) -> Option<Vec<f64>> {
+        if gradient.len() != self.dim {
+            return None;
+        }
+        self.solve(|e| 0.5 * gradient[self.entries[e]])
+    }
+
+    /// The parameter entries the system spans, in its order.
+    pub fn entries(&self) -> &[usize] {
+        &self.entries
+    }
+
+    /// `h = −S⁻¹ g` for `g[e] = half_gradient(e)` over the factor's rows, as a full vector.
+    fn solve(&self, half_gradient: impl Fn(usize) -> f64) -> Option<Vec<f64>> {
+        let mut h: Vec<f64> = (0..self.entries.len()).map(|e| -half_gradient(e)).collect();
+        if !self.factor.solve(&mut h) {
+            return None;
+        }
+        let mut out = vec![0.0; self.dim];
+        for (&p, v) in self.entries.iter().zip(h) {
+            out[p] = v;
+        }
+        Some(out)
     }
 }
 
@@ -667,6 +712,21 @@ impl LeastSquares {
         damping: f64,
         rank: &[usize],
     ) -> Option<Vec<f64>> {
+        self.damped_gauss_newton_chord(dofs, damping, rank)
+            .map(|(h, _)| h)
+    }
+
+    /// [`LeastSquares::damped_gauss_newton`] and its factorised damped system, kept for the
+    /// steps of later points ([`ChordSystem::step`]: the chord method, which solves the system
+    /// of the first point with each later point's gradient; Kelley, *Iterative Methods for
+    /// Linear and Nonlinear Equations*, SIAM 1995, ch. 5). The step is
+    /// [`LeastSquares::damped_gauss_newton`]'s to the bit.
+    pub fn damped_gauss_newton_chord(
+        &self,
+        dofs: &[usize],
+        damping: f64,
+        rank: &[usize],
+    ) -> Option<(Vec<f64>, ChordSystem)> {
         if !self.has_jacobian() {
             return None;
         }
@@ -674,12 +734,14 @@ impl LeastSquares {
         let mut free: Vec<usize> = (0..dofs.len()).collect();
         free.sort_by_key(|&p| rank.get(dofs[p]).copied().unwrap_or(usize::MAX));
         let (diag, max_diag) = marquardt_scaling(&a, &free);
-        let h = damped_step(&a, &g, &free, &diag, damping, max_diag)?;
-        let mut out = vec![0.0; self.dim];
-        for (k, &p) in free.iter().enumerate() {
-            out[dofs[p]] = h[k];
-        }
-        Some(out)
+        let factor = DampedFactor::new(&a, &free, &diag, damping, max_diag)?;
+        let system = ChordSystem {
+            factor,
+            entries: free.iter().map(|&p| dofs[p]).collect(),
+            dim: self.dim,
+        };
+        let h = system.solve(|e| g[free[e]])?;
+        Some((h, system))
     }
 
     /// `∇E = 2 Jᵀ r` (empty without a Jacobian).
