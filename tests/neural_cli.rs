@@ -313,3 +313,74 @@ fn train_then_fit_with_the_checkpoint() {
     ]);
     assert_one_line_error(&out, "scan");
 }
+
+/// `lfit train --init` fine-tunes a checkpoint whose network is the config's; a Gauss-Newton
+/// network may change to the chord direction (the written checkpoint says so), anything else
+/// that differs is refused with a one-line error.
+#[test]
+fn init_fine_tunes_a_gauss_newton_network_for_the_chord_direction() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let d = tmp.path();
+    let config = |name: &str, network: &str| {
+        let p = d.join(format!("{name}.json"));
+        let text = format!(
+            r#"{{"modality": "markers", "network": {{"layers": 1, "init_width": 16, "iterations": 2, "start": "mixed", "dropout": 0.0, {network}}},
+                "steps": 4, "batch": 4, "val_frames": 4, "val_every": 4, "checkpoint_every": 4, "stats_frames": 8, "seed": 3}}"#
+        );
+        std::fs::write(&p, text).expect("config");
+        p
+    };
+    let train = |cfg: &std::path::Path, out: &std::path::Path, init: Option<&std::path::Path>| {
+        let mut args = vec![
+            "-q",
+            "train",
+            "--config",
+            path_str(cfg),
+            "--out",
+            path_str(out),
+            "--device",
+            "ndarray",
+        ];
+        if let Some(i) = init {
+            args.extend(["--init", path_str(i)]);
+        }
+        lfit(&args)
+    };
+    let gn = d.join("gn");
+    let out = train(
+        &config("gn", r#""hidden": 16, "direction": "gauss-newton""#),
+        &gn,
+        None,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let chord = d.join("chord");
+    let cfg = config(
+        "chord",
+        r#""hidden": 16, "direction": "gauss-newton-chord", "chord_factorisations": 2"#,
+    );
+    let out = train(&cfg, &chord, Some(&gn));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let written = std::fs::read_to_string(chord.join("config.json")).expect("config.json");
+    assert!(
+        written.contains("\"direction\": \"gauss-newton-chord\"")
+            && written.contains("\"chord_factorisations\": 2"),
+        "{written}"
+    );
+    // Another width, or the gradient direction, is another network.
+    for (name, network) in [
+        ("wide", r#""hidden": 24, "direction": "gauss-newton-chord""#),
+        ("gradient", r#""hidden": 16"#),
+    ] {
+        let out = train(&config(name, network), &d.join(name), Some(&gn));
+        assert_one_line_error(&out, "its network differs from the config's");
+        assert!(!d.join(name).join("weights.bpk").exists());
+    }
+}

@@ -1498,14 +1498,23 @@ pub fn train_with_sensor(
             dir: dir.clone(),
             reason,
         };
-        let ck = checkpoint::load(dir, &ad).map_err(|e| bad(e.to_string()))?;
+        let mut ck = checkpoint::load(dir, &ad).map_err(|e| bad(e.to_string()))?;
         ck.check_compatible(dir, config.modality, net_config.residual_dim, &template)
             .map_err(|e| bad(e.to_string()))?;
-        if ck.meta.network != net_config {
+        // A Gauss-Newton network may be fine-tuned for the chord direction (or back): the
+        // weights do not depend on it, and its first direction is the one the input statistics
+        // were measured on.
+        let mut theirs = ck.meta.network.clone();
+        if theirs.direction.is_gauss_newton() && net_config.direction.is_gauss_newton() {
+            theirs.direction = net_config.direction;
+            theirs.chord_factorisations = net_config.chord_factorisations;
+        }
+        if theirs != net_config {
             return Err(bad(
-                "its network differs from the config's (\"network\" must be the checkpoint's config.json network)".into(),
+                "its network differs from the config's (\"network\" must be the checkpoint's config.json network; a Gauss-Newton network may change to the chord direction)".into(),
             ));
         }
+        ck.net.config = net_config.clone();
         (ck.net.train(), ck.stats, 0, 0.0)
     } else {
         let stats_frames = synth_frames_with(
