@@ -130,7 +130,8 @@ struct Running {
     previous: Vec<f64>,
     evals: Vec<(Vec<f64>, Vec<f64>)>,
     iterations: Vec<usize>,
-    /// Each frame's damped system of its first iterate, for [`Direction::GaussNewtonChord`].
+    /// Each frame's damped system of the last iterate that factorised one (θ0, or the first
+    /// `chord_factorisations` iterates), for [`Direction::GaussNewtonChord`].
     chords: Vec<Option<ChordSystem>>,
     /// The frames whose rows the network still runs, in batch order (the loops keep the
     /// recurrent state of these rows only): a frame the energy rule stopped leaves the
