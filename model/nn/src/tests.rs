@@ -1259,7 +1259,7 @@ fn the_chord_config_round_trips_and_bad_factorisations_are_refused() {
             ..chord.clone()
         }
         .validate()
-        .unwrap_err()
+        .expect_err("factorisations outside 1..=N")
         .to_string();
         assert!(err.contains("chord_factorisations"), "{err}");
     }
