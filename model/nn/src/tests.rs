@@ -892,6 +892,44 @@ fn a_pooled_checkpoint_accepts_any_camera_count_and_a_fixed_one_only_its_rig() {
     assert!(text.contains("\"views\":\"pooled\""), "{text}");
 }
 
+/// The largest entry of `(JᵀJ + μ D + 1e-12 max(D) I) h + b(c)` over the columns `cols`: the
+/// damped system of LM and the Gauss-Newton directions (`D = diag(JᵀJ)` clamped to
+/// `[1e-6, 1e32]`), built densely from `ls`'s Jacobian rows, independently of the sparse normal
+/// equations and the envelope factorisation; `h` a full parameter vector.
+fn dense_damped_system_residual(
+    ls: &lfit_model::energy::LeastSquares,
+    cols: &[usize],
+    damping: f64,
+    h: &[f64],
+    b: impl Fn(usize) -> f64,
+) -> f64 {
+    let (m, n) = (ls.residuals.len(), h.len());
+    let jtj = |a: usize, b: usize| -> f64 {
+        (0..m)
+            .map(|i| ls.jacobian[i * n + a] * ls.jacobian[i * n + b])
+            .sum()
+    };
+    let max_diag = cols
+        .iter()
+        .map(|&c| jtj(c, c).clamp(1e-6, 1e32))
+        .fold(0.0, f64::max);
+    cols.iter()
+        .map(|&a| {
+            let lhs: f64 = cols
+                .iter()
+                .map(|&c| {
+                    let mut v = jtj(a, c);
+                    if a == c {
+                        v += damping * jtj(a, a).clamp(1e-6, 1e32) + 1e-12 * max_diag;
+                    }
+                    v * h[c]
+                })
+                .sum();
+            (lhs + b(a)).abs()
+        })
+        .fold(0.0, f64::max)
+}
+
 /// The Gauss-Newton direction solves LM's damped normal equations `(JᵀJ + μ D) h = −Jᵀr` (built
 /// here densely from the Jacobian, independently of the sparse normal equations), is zero on
 /// frozen entries, and stepping along it fits a frame far better in three steps than the
@@ -924,40 +962,16 @@ fn the_gauss_newton_direction_solves_the_damped_system_and_fits_where_the_gradie
             "frozen entries move: {:?}",
             &d[..6]
         );
-        let jt_r: Vec<f64> = cols
-            .iter()
-            .map(|&c| {
-                (0..m)
-                    .map(|i| ls.jacobian[i * n + c] * ls.residuals[i])
-                    .sum()
-            })
-            .collect();
-        let jtj = |a: usize, b: usize| -> f64 {
+        let jt_r = |c: usize| -> f64 {
             (0..m)
-                .map(|i| ls.jacobian[i * n + a] * ls.jacobian[i * n + b])
+                .map(|i| ls.jacobian[i * n + c] * ls.residuals[i])
                 .sum()
         };
-        let max_diag = cols
-            .iter()
-            .map(|&c| jtj(c, c).clamp(1e-6, 1e32))
-            .fold(0.0, f64::max);
-        let mut worst = 0.0f64;
-        let scale = jt_r.iter().fold(0.0f64, |s, v| s.max(v.abs()));
+        let scale = cols.iter().fold(0.0f64, |s, &c| s.max(jt_r(c).abs()));
         assert!(scale > 1e-6, "the frame is already fitted");
-        for (p, &a) in cols.iter().enumerate() {
-            // (JᵀJ + μ D + ridge) h = −Jᵀr with h = −d.
-            let lhs: f64 = cols
-                .iter()
-                .map(|&b| {
-                    let mut v = jtj(a, b);
-                    if a == b {
-                        v += 1e-2 * jtj(a, a).clamp(1e-6, 1e32) + 1e-12 * max_diag;
-                    }
-                    v * -d[b]
-                })
-                .sum();
-            worst = worst.max((lhs + jt_r[p]).abs());
-        }
+        // (JᵀJ + μ D + ridge) h = −Jᵀr with h = −d.
+        let h: Vec<f64> = d.iter().map(|v| -v).collect();
+        let worst = dense_damped_system_residual(&ls, &cols, gn.gn_damping, &h, jt_r);
         assert!(
             worst <= 1e-8 * scale,
             "system residual {worst:e} (scale {scale:e})"
@@ -1054,31 +1068,8 @@ fn the_chord_direction_solves_the_first_points_system_with_the_later_points_grad
         let (_, g) = e.evaluate_with_gradient(&later);
         let h = system.step(&g).expect("step");
         assert!(h[..6].iter().all(|&v| v == 0.0), "frozen entries move");
-        let (m, n) = (ls.residuals.len(), POSE_DIM);
-        let jtj = |a: usize, b: usize| -> f64 {
-            (0..m)
-                .map(|i| ls.jacobian[i * n + a] * ls.jacobian[i * n + b])
-                .sum()
-        };
-        let max_diag = dofs
-            .iter()
-            .map(|&c| jtj(c, c).clamp(1e-6, 1e32))
-            .fold(0.0, f64::max);
         let scale = g.iter().fold(0.0f64, |s, v| s.max(v.abs()));
-        let mut worst = 0.0f64;
-        for &a in &dofs {
-            let lhs: f64 = dofs
-                .iter()
-                .map(|&b| {
-                    let mut v = jtj(a, b);
-                    if a == b {
-                        v += gn.gn_damping * jtj(a, a).clamp(1e-6, 1e32) + 1e-12 * max_diag;
-                    }
-                    v * h[b]
-                })
-                .sum();
-            worst = worst.max((lhs + 0.5 * g[a]).abs());
-        }
+        let worst = dense_damped_system_residual(&ls, &dofs, gn.gn_damping, &h, |a| 0.5 * g[a]);
         assert!(
             worst <= 1e-8 * scale,
             "system residual {worst:e} ({scale:e})"

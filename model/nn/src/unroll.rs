@@ -456,28 +456,26 @@ fn residual_and_direction(
     chord: Option<&ChordSystem>,
 ) -> Result<(Vec<f64>, Vec<f64>, f64, Option<ChordSystem>)> {
     let mut system = None;
-    let residual = |with: bool| {
-        if with {
+    let residual = || {
+        if with_residual {
             energy.residual(pose)
         } else {
             Vec::new()
         }
     };
+    // A damped step `h` as the direction: `−h`, each entry clipped to `±gn_max_step`.
+    let cap = config.gn_max_step;
+    let negated = |h: Vec<f64>| -> Vec<f64> { h.iter().map(|v| -v.clamp(-cap, cap)).collect() };
     let (r, mut g, value) = match (config.direction, chord) {
         (Direction::Gradient, _) => {
             let (e, g) = energy.evaluate_with_gradient(pose);
-            (residual(with_residual), g, e.total)
+            (residual(), g, e.total)
         }
         (Direction::GaussNewtonChord, Some(chord)) => {
             let (e, g) = energy.evaluate_with_gradient(pose);
             // A system that cannot solve (only a non-finite gradient): no step.
             let h = chord.step(&g).unwrap_or_else(|| vec![0.0; pose.len()]);
-            let cap = config.gn_max_step;
-            (
-                residual(with_residual),
-                h.iter().map(|v| -v.clamp(-cap, cap)).collect(),
-                e.total,
-            )
+            (residual(), negated(h), e.total)
         }
         (Direction::GaussNewton | Direction::GaussNewtonChord, _) => {
             // The normal equations read the data rows in factored form where there is one.
@@ -497,18 +495,13 @@ fn residual_and_direction(
                 None => (0..pose.len()).collect(),
             };
             // Not positive definite (only with a degenerate Jacobian, the ridge aside): no step.
+            // The chord direction keeps the factorised system for the later iterations.
             let rank = energy.template().elimination_rank();
-            let h = if config.direction == Direction::GaussNewtonChord {
-                ls.damped_gauss_newton_chord(&dofs, config.gn_damping, &rank)
-                    .map(|(h, s)| {
-                        system = Some(s);
-                        h
-                    })
-            } else {
-                ls.damped_gauss_newton(&dofs, config.gn_damping, &rank)
-            }
-            .unwrap_or_else(|| vec![0.0; pose.len()]);
-            let cap = config.gn_max_step;
+            let (h, factorised) = ls
+                .damped_gauss_newton_chord(&dofs, config.gn_damping, &rank)
+                .unzip();
+            system = factorised.filter(|_| config.direction == Direction::GaussNewtonChord);
+            let h = h.unwrap_or_else(|| vec![0.0; pose.len()]);
             let value = ls.value();
             (
                 if with_residual {
@@ -516,7 +509,7 @@ fn residual_and_direction(
                 } else {
                     Vec::new()
                 },
-                h.iter().map(|v| -v.clamp(-cap, cap)).collect(),
+                negated(h),
                 value,
             )
         }
