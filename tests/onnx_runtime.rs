@@ -177,6 +177,7 @@ where
             } else {
                 Vec::new()
             },
+            constant: Vec::new(),
         };
         let delta = net.propose(n, rows(&core_in, batch), &mut state, &mut Dropout::off());
         let delta_ort = ort

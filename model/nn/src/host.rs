@@ -68,6 +68,12 @@ struct HostLinear {
 
 impl HostLinear {
     fn new(linear: &Linear) -> Result<Self> {
+        let (w, b, d_in, d_out) = Self::read(linear)?;
+        Self::pack(&w, d_out, 0..d_in, b)
+    }
+
+    /// The weights `[in, out]` row-major, the bias, `in` and `out` of a Burn Linear.
+    fn read(linear: &Linear) -> Result<(Vec<f32>, Vec<f32>, usize, usize)> {
         let [d_in, d_out] = linear.weight.val().dims();
         let w = values(linear.weight.val())?;
         let b = match &linear.bias {
@@ -77,6 +83,12 @@ impl HostLinear {
         if b.len() != d_out {
             return Err(shape("Linear bias", d_out, b.len()));
         }
+        Ok((w, b, d_in, d_out))
+    }
+
+    /// The layer `x W[rows] + bias` of the input rows `rows` of `w` (`[in, out]` row-major).
+    fn pack(w: &[f32], d_out: usize, rows: Range<usize>, bias: Vec<f32>) -> Result<Self> {
+        let d_in = rows.len();
         let blocks = d_out.div_ceil(LANES);
         let mut packed = vec![0.0f32; blocks * d_in * LANES];
         for (k, block) in packed.chunks_exact_mut(d_in * LANES).enumerate() {
@@ -84,12 +96,12 @@ impl HostLinear {
                 for (l, v) in lanes.iter_mut().enumerate() {
                     let j = k * LANES + l;
                     if j < d_out {
-                        *v = w[i * d_out + j];
+                        *v = w[(rows.start + i) * d_out + j];
                     }
                 }
             }
         }
-        let mut bias = b;
+        let mut bias = bias;
         bias.resize(blocks * LANES, 0.0);
         Ok(Self {
             packed,
@@ -103,6 +115,20 @@ impl HostLinear {
                 None
             },
         })
+    }
+
+    /// `linear` as two layers over its inputs `..at` and `at..`: the first without the bias,
+    /// the second with it. `b + x[at..] W[at..]` computed once serves as the start of
+    /// `x[..at] W[..at]` ([`HostLinear::forward_from`]) for any `x[..at]`.
+    fn split(linear: &Linear, at: usize) -> Result<(Self, Self)> {
+        let (w, b, d_in, d_out) = Self::read(linear)?;
+        if at > d_in {
+            return Err(shape("split Linear input", d_in, at));
+        }
+        Ok((
+            Self::pack(&w, d_out, 0..at, vec![0.0; d_out])?,
+            Self::pack(&w, d_out, at..d_in, b)?,
+        ))
     }
 
     /// A one-line error unless this layer is `[d_in, d_out]`.
@@ -125,28 +151,51 @@ impl HostLinear {
     /// over rayon's threads: every row is computed by the same loop whichever thread runs it, so the
     /// result does not depend on the number of threads.
     fn forward(&self, x: &[f32], batch: usize) -> Vec<f32> {
+        self.forward_with(x, self.d_in, batch, None)
+    }
+
+    /// `start + x[.., ..in] W`: `x` `[batch, stride]` of which each row's first `in` columns are
+    /// read, `start` `[batch, out]` in place of the bias (the first sum of every output).
+    fn forward_from(&self, x: &[f32], stride: usize, batch: usize, start: &[f32]) -> Vec<f32> {
+        self.forward_with(x, stride, batch, Some(start))
+    }
+
+    fn forward_with(
+        &self,
+        x: &[f32],
+        stride: usize,
+        batch: usize,
+        start: Option<&[f32]>,
+    ) -> Vec<f32> {
         let (d_in, d_out) = (self.d_in, self.d_out);
-        debug_assert_eq!(x.len(), batch * d_in);
+        debug_assert!(stride >= d_in);
+        debug_assert_eq!(x.len(), batch * stride);
+        debug_assert!(start.is_none_or(|s| s.len() == batch * d_out));
         let mut y = vec![0.0f32; batch * d_out];
         if batch >= 2 * PARALLEL_ROWS {
-            x.par_chunks(PARALLEL_ROWS * d_in)
-                .zip(y.par_chunks_mut(PARALLEL_ROWS * d_out))
-                .for_each(|(x, y)| self.forward_rows(x, y));
+            let rows = PARALLEL_ROWS;
+            x.par_chunks(rows * stride)
+                .zip(y.par_chunks_mut(rows * d_out))
+                .enumerate()
+                .for_each(|(k, (x, y))| {
+                    let start = start.map(|s| &s[k * rows * d_out..][..y.len()]);
+                    self.forward_rows(x, stride, start, y)
+                });
         } else {
-            self.forward_rows(x, &mut y);
+            self.forward_rows(x, stride, start, &mut y);
         }
         y
     }
 
-    /// [`HostLinear::forward`] of the rows of `x` into `y` (zeroed, `[rows, out]`), on the
+    /// [`HostLinear::forward_with`] of the rows of `x` into `y` (zeroed, `[rows, out]`), on the
     /// widest path the machine has.
-    fn forward_rows(&self, x: &[f32], y: &mut [f32]) {
+    fn forward_rows(&self, x: &[f32], stride: usize, start: Option<&[f32]>, y: &mut [f32]) {
         #[cfg(target_arch = "x86_64")]
         if let Some(simd) = self.avx {
-            AvxRows::run(simd, self, x, y);
+            AvxRows::run(simd, self, Rows { x, stride, start }, y);
             return;
         }
-        self.forward_rows_portable(x, y);
+        self.forward_rows_portable(Rows { x, stride, start }, y);
     }
 
     /// Each block of [`LANES`] outputs: its output columns, its packed weights (one row of
@@ -164,14 +213,20 @@ impl HostLinear {
     }
 
     /// The 4-wide path: for each block, each row with its 32 accumulators in eight SSE registers.
-    fn forward_rows_portable(&self, x: &[f32], y: &mut [f32]) {
+    fn forward_rows_portable(&self, rows: Rows<'_>, y: &mut [f32]) {
         let (d_in, d_out) = (self.d_in, self.d_out);
         for (cols, weights, bias) in self.blocks() {
-            let bias: [f32x4; LANES / 4] =
-                std::array::from_fn(|q| f32x4::from(*bias[4 * q..].first_chunk::<4>().unwrap()));
-            for (xb, yb) in x.chunks_exact(d_in).zip(y.chunks_exact_mut(d_out)) {
-                let mut acc = bias;
-                for (&xi, lanes) in xb.iter().zip(weights) {
+            for (r, (xb, yb)) in rows
+                .x
+                .chunks_exact(rows.stride)
+                .zip(y.chunks_exact_mut(d_out))
+                .enumerate()
+            {
+                let init = rows.first(r, d_out, &cols, bias);
+                let mut acc: [f32x4; LANES / 4] = std::array::from_fn(|q| {
+                    f32x4::from(*init[4 * q..].first_chunk::<4>().unwrap())
+                });
+                for (&xi, lanes) in xb[..d_in].iter().zip(weights) {
                     let xv = f32x4::splat(xi);
                     for (a, w) in acc.iter_mut().zip(lanes.as_chunks::<4>().0) {
                         *a += xv * f32x4::from(*w);
@@ -179,6 +234,38 @@ impl HostLinear {
                 }
                 let out: [f32; LANES] = std::array::from_fn(|l| acc[l / 4].to_array()[l % 4]);
                 yb[cols.clone()].copy_from_slice(&out[..cols.len()]);
+            }
+        }
+    }
+}
+
+/// The input rows of [`HostLinear::forward_rows`]: `x` `[rows, stride]` (each row's first `in`
+/// columns are the layer's input) and the first sum of every output, the bias or `start`
+/// `[rows, out]`.
+#[derive(Clone, Copy)]
+struct Rows<'a> {
+    x: &'a [f32],
+    stride: usize,
+    start: Option<&'a [f32]>,
+}
+
+impl Rows<'_> {
+    /// The first sums of row `r`'s outputs `cols` (a block; zero past the layer's outputs).
+    #[inline(always)]
+    fn first(
+        &self,
+        r: usize,
+        d_out: usize,
+        cols: &Range<usize>,
+        bias: &[f32; LANES],
+    ) -> [f32; LANES] {
+        match self.start {
+            None => *bias,
+            Some(s) => {
+                let mut init = [0.0f32; LANES];
+                init[..cols.len()]
+                    .copy_from_slice(&s[r * d_out + cols.start..r * d_out + cols.end]);
+                init
             }
         }
     }
@@ -195,7 +282,7 @@ impl HostLinear {
 struct AvxRows<'a> {
     simd: pulp::x86::V3,
     layer: &'a HostLinear,
-    x: &'a [f32],
+    rows: Rows<'a>,
     y: &'a mut [f32],
     pairs: bool,
 }
@@ -206,16 +293,27 @@ type F32x8Block = [pulp::f32x8; LANES / 8];
 #[cfg(target_arch = "x86_64")]
 impl AvxRows<'_> {
     /// Runs the rows of `x` (pairs, then the last one alone).
-    fn run(simd: pulp::x86::V3, layer: &HostLinear, x: &[f32], y: &mut [f32]) {
-        let (d_in, d_out) = (layer.d_in, layer.d_out);
-        let paired = x.len() / d_in / 2 * 2;
-        let (x_pairs, x_last) = x.split_at(paired * d_in);
+    fn run(simd: pulp::x86::V3, layer: &HostLinear, rows: Rows<'_>, y: &mut [f32]) {
+        let (stride, d_out) = (rows.stride, layer.d_out);
+        let paired = rows.x.len() / stride / 2 * 2;
+        let (x_pairs, x_last) = rows.x.split_at(paired * stride);
         let (y_pairs, y_last) = y.split_at_mut(paired * d_out);
+        let (s_pairs, s_last) = match rows.start {
+            Some(s) => {
+                let (a, b) = s.split_at(paired * d_out);
+                (Some(a), Some(b))
+            }
+            None => (None, None),
+        };
         if paired > 0 {
             simd.vectorize(AvxRows {
                 simd,
                 layer,
-                x: x_pairs,
+                rows: Rows {
+                    x: x_pairs,
+                    stride,
+                    start: s_pairs,
+                },
                 y: y_pairs,
                 pairs: true,
             });
@@ -224,7 +322,11 @@ impl AvxRows<'_> {
             simd.vectorize(AvxRows {
                 simd,
                 layer,
-                x: x_last,
+                rows: Rows {
+                    x: x_last,
+                    stride,
+                    start: s_last,
+                },
                 y: y_last,
                 pairs: false,
             });
@@ -255,18 +357,22 @@ impl pulp::NullaryFnOnce for AvxRows<'_> {
         let Self {
             simd,
             layer,
-            x,
+            rows,
             y,
             pairs,
         } = self;
-        let (d_in, d_out) = (layer.d_in, layer.d_out);
+        let (d_in, d_out, stride) = (layer.d_in, layer.d_out, rows.stride);
         for (cols, weights, bias) in layer.blocks() {
-            let bias = load8(bias);
             if pairs {
-                for (x, y) in x.chunks_exact(2 * d_in).zip(y.chunks_exact_mut(2 * d_out)) {
-                    let (x0, x1) = x.split_at(d_in);
-                    let (mut acc0, mut acc1) = (bias, bias);
-                    for ((&a, &b), w) in x0.iter().zip(x1).zip(weights) {
+                let pairs = rows
+                    .x
+                    .chunks_exact(2 * stride)
+                    .zip(y.chunks_exact_mut(2 * d_out));
+                for (p, (x, y)) in pairs.enumerate() {
+                    let (x0, x1) = x.split_at(stride);
+                    let mut acc0 = load8(&rows.first(2 * p, d_out, &cols, bias));
+                    let mut acc1 = load8(&rows.first(2 * p + 1, d_out, &cols, bias));
+                    for ((&a, &b), w) in x0[..d_in].iter().zip(&x1[..d_in]).zip(weights) {
                         let (av, bv, w) = (simd.splat_f32x8(a), simd.splat_f32x8(b), load8(w));
                         for ((s0, s1), w) in acc0.iter_mut().zip(acc1.iter_mut()).zip(w) {
                             *s0 = simd.add_f32x8(*s0, simd.mul_f32x8(av, w));
@@ -278,9 +384,10 @@ impl pulp::NullaryFnOnce for AvxRows<'_> {
                     store8(acc1, &mut y1[cols.clone()]);
                 }
             } else {
-                for (x0, y0) in x.chunks_exact(d_in).zip(y.chunks_exact_mut(d_out)) {
-                    let mut acc = bias;
-                    for (&a, w) in x0.iter().zip(weights) {
+                let single = rows.x.chunks_exact(stride).zip(y.chunks_exact_mut(d_out));
+                for (r, (x0, y0)) in single.enumerate() {
+                    let mut acc = load8(&rows.first(r, d_out, &cols, bias));
+                    for (&a, w) in x0[..d_in].iter().zip(weights) {
                         let (av, w) = (simd.splat_f32x8(a), load8(w));
                         for (s, w) in acc.iter_mut().zip(w) {
                             *s = simd.add_f32x8(*s, simd.mul_f32x8(av, w));
@@ -358,14 +465,100 @@ fn sigmoid(x: f32) -> f32 {
     1.0 / (1.0 + (-x).exp())
 }
 
+/// `tanh x` as `1 − 2 / (e^{2x} + 1)`: one `exp` (glibc's `tanhf` took three times as long, 7 %
+/// of a markers frame at batch 1), within 2.4·10⁻⁷ of `tanh` everywhere (absolute, one ulp of the
+/// 2 it subtracts from; relative near 0 it is looser, where the GRU's candidate is blended by z
+/// anyway); ±1 past |x| ≈ 44 (e^{2x} overflows to ∞ or underflows to 0, no NaN).
+fn tanh(x: f32) -> f32 {
+    1.0 - 2.0 / ((2.0 * x).exp() + 1.0)
+}
+
 /// `ln(1 + eˣ)`, stable for large |x|.
 fn softplus(x: f32) -> f32 {
     x.max(0.0) + (-x.abs()).exp().ln_1p()
 }
 
+/// The first layer of a core: `x W + b` over the core's whole input, or — for the core `f`,
+/// whose input ends with the observation features D — split at D: `b + D W_D` is the same at
+/// every iteration of a frame, so it is computed once per frame ([`HostCore::constant`], kept in
+/// [`RowState::constant`]) and each iteration adds only `[R, g, θ] W_[R,g,θ]` to it. The sums
+/// run in another order than the unsplit layer's (b, D, then R, g, θ): the same products, the
+/// f32 rounding of a different order.
+#[derive(Debug, Clone)]
+struct HostInput {
+    /// The layer over the inputs before D (without the bias), or over all of them (with it).
+    head: HostLinear,
+    /// `b + D W_D`'s layer, where the input is split.
+    obs: Option<HostLinear>,
+}
+
+impl HostInput {
+    fn new(linear: &Linear, split: Option<usize>) -> Result<Self> {
+        Ok(match split {
+            Some(at) => {
+                let (head, obs) = HostLinear::split(linear, at)?;
+                Self {
+                    head,
+                    obs: Some(obs),
+                }
+            }
+            None => Self {
+                head: HostLinear::new(linear)?,
+                obs: None,
+            },
+        })
+    }
+
+    fn d_in(&self) -> usize {
+        self.head.d_in + self.obs.as_ref().map_or(0, |o| o.d_in)
+    }
+
+    /// A one-line error unless this layer is `[d_in, d_out]`.
+    fn expect(&self, what: &str, d_in: usize, d_out: usize) -> Result<()> {
+        let d_out_ok = self.obs.as_ref().is_none_or(|o| o.d_out == self.head.d_out);
+        if self.d_in() == d_in && self.head.d_out == d_out && d_out_ok {
+            Ok(())
+        } else {
+            Err(ModelError::Shape {
+                what: format!("network layer {what}"),
+                expected: format!("[{d_in}, {d_out}]"),
+                got: format!("[{}, {}]", self.d_in(), self.head.d_out),
+            })
+        }
+    }
+
+    /// `b + D W_D` of the observation rows `obs` `[B, D]`; `None` where the layer is not split.
+    fn constant(&self, obs: &[f32], batch: usize) -> Option<Vec<f32>> {
+        self.obs.as_ref().map(|o| o.forward(obs, batch))
+    }
+
+    /// `x W + b` of `x` `[B, in]`; a split layer starts from `constant` (`b + D W_D` of these
+    /// rows), or computes it from `x`'s D columns where none is given.
+    fn forward(&self, x: &[f32], batch: usize, constant: Option<&[f32]>) -> Vec<f32> {
+        let Some(obs) = &self.obs else {
+            return self.head.forward(x, batch);
+        };
+        let d_in = self.d_in();
+        let computed;
+        let start = match constant {
+            Some(c) => c,
+            None => {
+                let d: Vec<f32> = x
+                    .chunks_exact(d_in)
+                    .flat_map(|row| &row[self.head.d_in..])
+                    .copied()
+                    .collect();
+                computed = obs.forward(&d, batch);
+                &computed
+            }
+        };
+        self.head.forward_from(x, d_in, batch, start)
+    }
+}
+
 #[derive(Debug, Clone)]
 struct HostGruCell {
-    w: HostLinear,
+    w: HostInput,
     u_zr: HostLinear,
     u_h: HostLinear,
     /// ln_wz, ln_wr, ln_wh, ln_uz, ln_ur, ln_uh.
@@ -374,9 +567,9 @@ struct HostGruCell {
 }
 
 impl HostGruCell {
-    fn new(cell: &LnGruCell) -> Result<Self> {
+    fn new(cell: &LnGruCell, split: Option<usize>) -> Result<Self> {
         Ok(Self {
-            w: HostLinear::new(&cell.w)?,
+            w: HostInput::new(&cell.w, split)?,
             u_zr: HostLinear::new(&cell.u_zr)?,
             u_h: HostLinear::new(&cell.u_h)?,
             ln: [
@@ -391,14 +584,16 @@ impl HostGruCell {
         })
     }
 
-    /// papers/002 supp. eq. (12), as [`LnGruCell::forward`]: `x` `[B, in]`, `h` `[B, H]` → `h'`.
-    /// The gates row by row ([`for_rows`]: over rayon's threads in large batches).
-    fn forward(&self, x: &[f32], h: &[f32], batch: usize) -> Vec<f32> {
+    /// papers/002 supp. eq. (12), as [`LnGruCell::forward`]: `x` `[B, in]`, `h` `[B, H]` → `h'`
+    /// (`constant`: see [`HostInput::forward`]). The gates row by row ([`for_rows`]: over
+    /// rayon's threads in large batches).
+    fn forward(&self, x: &[f32], h: &[f32], batch: usize, constant: Option<&[f32]>) -> Vec<f32> {
         let hd = self.hidden;
-        let wx = self.w.forward(x, batch);
+        let wx = self.w.forward(x, batch, constant);
         let uh = self.u_zr.forward(h, batch);
         let [ln_wz, ln_wr, ln_wh, ln_uz, ln_ur, ln_uh] = &self.ln;
-        // z and r ⊙ h, side by side in one `[B, 2H]` buffer (a row's two halves).
+        // r ⊙ h and z, side by side in one `[B, 2H]` buffer (a row's two halves): `u_h` reads
+        // r ⊙ h from it in place (stride 2H).
         let mut zrh = vec![0.0f32; batch * 2 * hd];
         for_rows(&mut zrh, 2 * hd, |i, row, (a, b)| {
             let (wx, uh, h) = (
@@ -406,7 +601,7 @@ impl HostGruCell {
                 &uh[i * 2 * hd..(i + 1) * 2 * hd],
                 &h[i * hd..(i + 1) * hd],
             );
-            let (z, rh) = row.split_at_mut(hd);
+            let (rh, z) = row.split_at_mut(hd);
             ln_wz.row(&wx[..hd], a);
             ln_uz.row(&uh[..hd], b);
             for ((zj, aj), bj) in z.iter_mut().zip(a.iter()).zip(b.iter()) {
@@ -418,18 +613,13 @@ impl HostGruCell {
                 *o = sigmoid(aj + bj) * hj;
             }
         });
-        let rh: Vec<f32> = zrh
-            .chunks_exact(2 * hd)
-            .flat_map(|row| &row[hd..])
-            .copied()
-            .collect();
-        let uhh = self.u_h.forward(&rh, batch);
+        let uhh = self.u_h.forward_with(&zrh, 2 * hd, batch, None);
         let mut out = vec![0.0f32; batch * hd];
         for_rows(&mut out, hd, |i, out, (a, b)| {
             let r = i * hd..(i + 1) * hd;
             ln_wh.row(&wx[i * 3 * hd + 2 * hd..(i + 1) * 3 * hd], a);
             ln_uh.row(&uhh[r.clone()], b);
-            let z = &zrh[i * 2 * hd..i * 2 * hd + hd];
+            let z = &zrh[i * 2 * hd + hd..(i + 1) * 2 * hd];
             for ((((o, aj), bj), zj), hj) in out
                 .iter_mut()
                 .zip(a.iter())
@@ -437,7 +627,7 @@ impl HostGruCell {
                 .zip(z)
                 .zip(&h[r.clone()])
             {
-                let cand = (aj + bj).tanh();
+                let cand = tanh(aj + bj);
                 *o = (1.0 - zj) * hj + zj * cand;
             }
         });
@@ -476,19 +666,24 @@ where
 enum HostCore {
     Gru(Vec<HostGruCell>),
     Mlp {
-        input: HostLinear,
+        input: HostInput,
         blocks: Vec<HostLinear>,
     },
 }
 
 impl HostCore {
-    fn new(core: &Core) -> Result<Self> {
+    /// `split`: where the input's observation features begin (the core `f`), see [`HostInput`].
+    fn new(core: &Core, split: Option<usize>) -> Result<Self> {
         match (&core.gru, &core.mlp) {
             (Some(GruStack { cells }), _) => Ok(HostCore::Gru(
-                cells.iter().map(HostGruCell::new).collect::<Result<_>>()?,
+                cells
+                    .iter()
+                    .enumerate()
+                    .map(|(l, cell)| HostGruCell::new(cell, split.filter(|_| l == 0)))
+                    .collect::<Result<_>>()?,
             )),
             (None, Some(ResidualMlp { input, blocks })) => Ok(HostCore::Mlp {
-                input: HostLinear::new(input)?,
+                input: HostInput::new(input, split)?,
                 blocks: blocks.iter().map(HostLinear::new).collect::<Result<_>>()?,
             }),
             (None, None) => Err(ModelError::Config(
@@ -497,8 +692,23 @@ impl HostCore {
         }
     }
 
-    /// Output `[B, H]`; a GRU's `states` (one per layer) are replaced by the new ones.
-    fn forward(&self, x: &[f32], states: &mut [Vec<f32>], batch: usize) -> Result<Vec<f32>> {
+    /// The first layer's `b + D W_D` of the observation rows `obs` (`None` unless split).
+    fn constant(&self, obs: &[f32], batch: usize) -> Option<Vec<f32>> {
+        match self {
+            HostCore::Gru(cells) => cells.first().and_then(|c| c.w.constant(obs, batch)),
+            HostCore::Mlp { input, .. } => input.constant(obs, batch),
+        }
+    }
+
+    /// Output `[B, H]`; a GRU's `states` (one per layer) are replaced by the new ones;
+    /// `constant`: the first layer's, see [`HostInput::forward`].
+    fn forward(
+        &self,
+        x: &[f32],
+        states: &mut [Vec<f32>],
+        batch: usize,
+        constant: Option<&[f32]>,
+    ) -> Result<Vec<f32>> {
         match self {
             HostCore::Gru(cells) => {
                 if states.len() != cells.len() {
@@ -518,14 +728,18 @@ impl HostCore {
                             got: h.len().to_string(),
                         });
                     }
-                    let next = cell.forward(if l == 0 { x } else { &input }, h, batch);
+                    let next = if l == 0 {
+                        cell.forward(x, h, batch, constant)
+                    } else {
+                        cell.forward(&input, h, batch, None)
+                    };
                     input.clone_from(&next);
                     *h = next;
                 }
                 Ok(input)
             }
             HostCore::Mlp { input, blocks } => {
-                let mut y = input.forward(x, batch);
+                let mut y = input.forward(x, batch, constant);
                 relu(&mut y);
                 for block in blocks {
                     let mut b = block.forward(&y, batch);
@@ -653,11 +867,11 @@ impl HostNet {
             .iter()
             .map(|s| {
                 Ok(HostStep {
-                    lambda_core: HostCore::new(&s.lambda_core)?,
+                    lambda_core: HostCore::new(&s.lambda_core, None)?,
                     lambda_head: HostLinear::new(&s.lambda_head)?,
                     gamma: match (&s.gamma_core, &s.gamma_head) {
                         (Some(core), Some(head)) => {
-                            Some((HostCore::new(core)?, HostLinear::new(head)?))
+                            Some((HostCore::new(core, None)?, HostLinear::new(head)?))
                         }
                         _ => None,
                     },
@@ -669,7 +883,11 @@ impl HostNet {
             stats,
             phi: HostInit::new(&net.phi)?,
             phi_h: net.phi_h.as_ref().map(HostInit::new).transpose()?,
-            cores: net.cores.iter().map(HostCore::new).collect::<Result<_>>()?,
+            cores: net
+                .cores
+                .iter()
+                .map(|f| HostCore::new(f, Some(c.core_inputs() - c.obs_features())))
+                .collect::<Result<_>>()?,
             delta_heads: net
                 .delta_heads
                 .iter()
@@ -803,7 +1021,14 @@ impl RowNetwork for &HostNet {
             }
             None => Vec::new(),
         };
-        Ok((theta0, RowState::zeros(c, batch, core)))
+        let mut state = RowState::zeros(c, batch, core);
+        // `b + D W_D` of each weight set's core, once per frame (see `HostInput`).
+        state.constant = self
+            .cores
+            .iter()
+            .map(|f| f.constant(obs, batch).unwrap_or_default())
+            .collect();
+        Ok((theta0, state))
     }
 
     fn propose(
@@ -818,7 +1043,9 @@ impl RowNetwork for &HostNet {
             return Err(shape("core inputs", batch * c.core_inputs(), core_in.len()));
         }
         let s = c.weight_set(n);
-        let h = self.cores[s].forward(core_in, &mut state.core, batch)?;
+        let constant = state.constant.get(s).filter(|k| !k.is_empty());
+        let h =
+            self.cores[s].forward(core_in, &mut state.core, batch, constant.map(Vec::as_slice))?;
         Ok(self.delta_heads[s].forward(&h, batch))
     }
 
@@ -851,14 +1078,18 @@ impl RowNetwork for &HostNet {
         let net = &self.steps[c.weight_set(n)];
         let (k, kg) = (c.step_outputs(), c.gamma_outputs());
         let out = net.lambda_head.forward(
-            &net.lambda_core.forward(step_in, &mut state.lambda, batch)?,
+            &net.lambda_core
+                .forward(step_in, &mut state.lambda, batch, None)?,
             batch,
         );
         // Raw λ and γ head outputs, `[B, k]` and `[B, kg]`.
         let (a, b): (Vec<f32>, Option<Vec<f32>>) = match &net.gamma {
             Some((core, head)) => (
                 out,
-                Some(head.forward(&core.forward(step_in, &mut state.gamma, batch)?, batch)),
+                Some(head.forward(
+                    &core.forward(step_in, &mut state.gamma, batch, None)?,
+                    batch,
+                )),
             ),
             None if c.learns_gamma() => {
                 let w = k + kg;
@@ -959,16 +1190,25 @@ mod tests {
                         if i % 5 == 0 { v * 1e3 } else { v }
                     })
                     .collect();
-                let mut wide = vec![0.0f32; batch * d_out];
-                l.forward_rows(&x, &mut wide);
-                let mut portable = vec![0.0f32; batch * d_out];
-                l.forward_rows_portable(&x, &mut portable);
                 let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
-                assert_eq!(
-                    bits(&wide),
-                    bits(&portable),
-                    "[{d_in}, {d_out}], batch {batch}"
-                );
+                // From the bias over rows of `in`; from a start over rows of `in + 3`.
+                let start: Vec<f32> = (0..batch * d_out).map(|i| (i % 13) as f32 - 6.5).collect();
+                let strided: Vec<f32> = x
+                    .chunks_exact(d_in)
+                    .flat_map(|r| r.iter().copied().chain([9e9, -9e9, 1.0]))
+                    .collect();
+                for (x, stride, start) in [(&x, d_in, None), (&strided, d_in + 3, Some(&start[..]))]
+                {
+                    let mut wide = vec![0.0f32; batch * d_out];
+                    l.forward_rows(x, stride, start, &mut wide);
+                    let mut portable = vec![0.0f32; batch * d_out];
+                    l.forward_rows_portable(Rows { x, stride, start }, &mut portable);
+                    assert_eq!(
+                        bits(&wide),
+                        bits(&portable),
+                        "[{d_in}, {d_out}], batch {batch}, stride {stride}"
+                    );
+                }
             }
             layer = Some(l);
         }
@@ -976,7 +1216,7 @@ mod tests {
         let l = layer.expect("layer");
         let x = vec![1.0 + f32::EPSILON; l.d_in];
         let mut y = vec![0.0f32; l.d_out];
-        l.forward_rows(&x, &mut y);
+        l.forward_rows(&x, l.d_in, None, &mut y);
         let want: Vec<f32> = (0..l.d_out)
             .map(|j| {
                 let mut acc = l.bias[j];
@@ -987,6 +1227,61 @@ mod tests {
             })
             .collect();
         assert_eq!(y, want);
+    }
+
+    /// A layer split at the observation features: `b + D W_D` first, then the rest from it
+    /// (given, or computed from the rows' own D columns) — the same outputs as the whole layer
+    /// to f32 rounding, and both ways of getting the start agree to the bit.
+    #[test]
+    fn a_split_layer_gives_the_whole_layers_outputs() {
+        let device = crate::tensor::ndarray_device();
+        let (d_in, at, d_out, batch) = (75, 40, 70, 5);
+        let linear = LinearConfig::new(d_in, d_out).init(&device);
+        let whole = HostInput::new(&linear, None).expect("whole");
+        let split = HostInput::new(&linear, Some(at)).expect("split");
+        split.expect("split", d_in, d_out).expect("shape");
+        assert!(split.expect("split", d_in + 1, d_out).is_err());
+        assert!(HostInput::new(&linear, Some(d_in + 1)).is_err());
+        let x: Vec<f32> = (0..batch * d_in)
+            .map(|i| ((i * 7919 % 1009) as f32 / 504.5 - 1.0) * 2.0)
+            .collect();
+        let d: Vec<f32> = x
+            .chunks_exact(d_in)
+            .flat_map(|r| &r[at..])
+            .copied()
+            .collect();
+        let constant = split.constant(&d, batch).expect("a split layer's constant");
+        assert!(whole.constant(&d, batch).is_none());
+        let given = split.forward(&x, batch, Some(&constant));
+        assert_eq!(given, split.forward(&x, batch, None));
+        let want = whole.forward(&x, batch, None);
+        for (g, w) in given.iter().zip(&want) {
+            assert!((g - w).abs() <= 1e-5 * (1.0 + w.abs()), "{g} against {w}");
+        }
+        // The start is used: another constant moves every output by its difference.
+        let shifted: Vec<f32> = constant.iter().map(|c| c + 1.0).collect();
+        for (s, g) in split.forward(&x, batch, Some(&shifted)).iter().zip(&given) {
+            assert!((s - g - 1.0).abs() < 1e-5);
+        }
+    }
+
+    /// The one-`exp` tanh against the standard library's over the range a GRU sees and past
+    /// where `e^{2x}` overflows: within 2.4·10⁻⁷, odd to within that, exactly ±1 far out.
+    #[test]
+    fn tanh_from_one_exp_matches_the_standard_tanh() {
+        let mut worst = 0.0f32;
+        for i in -200_000..=200_000 {
+            let x = i as f32 * 1e-4;
+            let (got, want) = (tanh(x), x.tanh());
+            worst = worst.max((got - want).abs());
+            assert!((tanh(-x) + got).abs() <= 2.4e-7, "odd at {x}");
+        }
+        assert!(worst <= 2.4e-7, "worst {worst}");
+        for x in [50.0f32, 1e4, f32::MAX, f32::INFINITY] {
+            assert_eq!(tanh(x), 1.0, "{x}");
+            assert_eq!(tanh(-x), -1.0, "{x}");
+        }
+        assert_eq!(tanh(0.0), 0.0);
     }
 
     /// A batch large enough to be split over threads gives every row exactly what that row gives

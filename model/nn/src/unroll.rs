@@ -821,6 +821,10 @@ pub struct RowState {
     pub core: Vec<Vec<f32>>,
     pub lambda: Vec<Vec<f32>>,
     pub gamma: Vec<Vec<f32>>,
+    /// Per weight set, what a runtime keeps of the rows' observation features for the whole
+    /// loop: the native forward's `b + D W_D` of the core's first layer (`[B, 3H]`, computed in
+    /// `initial`); empty where a runtime keeps nothing (ONNX Runtime).
+    pub constant: Vec<Vec<f32>>,
 }
 
 impl RowState {
@@ -842,6 +846,7 @@ impl RowState {
             core: rows(&self.core),
             lambda: rows(&self.lambda),
             gamma: rows(&self.gamma),
+            constant: rows(&self.constant),
         }
     }
 
@@ -860,6 +865,7 @@ impl RowState {
             core,
             lambda: zeros(config.has_step_network()),
             gamma: zeros(config.separate_gamma_network()),
+            constant: Vec::new(),
         }
     }
 }
