@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# The native forward (`--runtime native`) of two lfit builds back to back, alternated: the markers
+# networks `markers-makehuman` (Gauss-Newton direction) and `markers-makehuman-chord` on the
+# MocapBank clip's 454 local frames (./scripts/fetch-mocapbank.sh; an evaluation clip, never
+# training data; the seed of docs/results/learned-vs-classical.md) and 500 procedural held-out local
+# frames, `--neural-start given`, N = 5, at batch 1 on one thread and at --batch 256 on two
+# threads; REPS rounds (default 3). Prints ms per frame of every run and each build's V2V.
+#
+#   scripts/native-ab.sh BASE_BIN NEW_BIN [OUT]
+#
+# e.g. BASE_BIN a release build of an older commit (git checkout OLD && cargo build --release
+# --workspace && cp target/release/lfit /tmp/lfit-base && git checkout -), NEW_BIN this tree's.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if [ $# -lt 2 ] || [ $# -gt 3 ]; then
+    echo "usage: scripts/native-ab.sh BASE_BIN NEW_BIN [OUT]" >&2
+    exit 2
+fi
+BASE="$1"
+NEW="$2"
+OUT="${3:-target/native-ab}"
+for b in "$BASE" "$NEW"; do
+    [ -x "$b" ] || { echo "native-ab: no lfit binary at $b" >&2; exit 1; }
+done
+SEED=9103745171752751104
+LFIT="$NEW"
+source scripts/eval-common.sh
+eval_setup native-ab "$OUT"
+REPS="${REPS:-3}"
+[ -f "$OUT/clip.npz" ] || "$NEW" -q synth --modality markers --scenario local --frames 454 --seed "$SEED" \
+    --template "$MODEL" --motions "$OUT/clip-motion.npz" --out "$OUT/clip.npz" >/dev/null
+[ -f "$OUT/proc.npz" ] || "$NEW" -q synth --modality markers --scenario local --frames 500 --seed "$SEED" \
+    --template "$MODEL" --out "$OUT/proc.npz" >/dev/null
+for rep in $(seq "$REPS"); do
+    for d in clip proc; do
+        for cfg in "1 1" "256 2"; do
+            set -- $cfg
+            for ck in markers-makehuman markers-makehuman-chord; do
+                for which in base new; do
+                    bin="$BASE"; [ "$which" = new ] && bin="$NEW"
+                    RAYON_NUM_THREADS=$2 "$bin" -q fit --data "$OUT/$d.npz" --template "$MODEL" --method neural \
+                        --checkpoint "checkpoints/$ck" --neural-start given --runtime native --budget 10 \
+                        --batch "$1" --out "$OUT/r$rep-$d-$ck-b$1-$which.json" >/dev/null 2>&1
+                done
+            done
+        done
+    done
+done
+python3 - "$OUT" "$REPS" <<'PY'
+import json, sys
+out, reps = sys.argv[1], int(sys.argv[2])
+print("| frames | network, batch | V2V mm, base / new | ms per frame, base (each run) | new (each run) | new / base (medians) |")
+print("|---|---|---|---|---|---|")
+for d in ["clip", "proc"]:
+    for ck in ["markers-makehuman", "markers-makehuman-chord"]:
+        for b in [1, 256]:
+            s = {w: [json.load(open(f"{out}/r{r}-{d}-{ck}-b{b}-{w}.json"))["summary"] for r in range(1, reps + 1)]
+                 for w in ["base", "new"]}
+            t = {w: [x["mean_time_s"] * 1e3 for x in s[w]] for w in s}
+            med = {w: sorted(v)[len(v) // 2] for w, v in t.items()}
+            v2v = " / ".join(f"{s[w][0]['mean_v2v_mm']:.3f}" for w in ["base", "new"])
+            fmt = lambda v: ", ".join(f"{x:.3f}" for x in v)
+            print(f"| {d} | {ck}, {b} | {v2v} | {fmt(t['base'])} | {fmt(t['new'])} | {med['new'] / med['base']:.2f} |")
+PY
