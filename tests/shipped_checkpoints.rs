@@ -1,7 +1,8 @@
 //! Every checkpoint shipped in `checkpoints/`: one per sparse modality on the default template and
 //! on the committed MakeHuman body (its `hmd` fitter given β, papers/002 §3.2), the shape-estimating
 //! `markers-morphable`, the MakeHuman `face`, the two MakeHuman networks fine-tuned for
-//! sequences (`*-makehuman-sequence`) and the chord direction's MakeHuman markers fitter; each at most 10 MB, with config, weights,
+//! sequences (`*-makehuman-sequence`) and the chord direction's MakeHuman markers fitters (one and two
+//! factorisations per frame); each at most 10 MB, with config, weights,
 //! statistics and a metrics card, loading on its model and fitting held-out frames to the V2V
 //! that checkpoints/README.md documents (within a stated margin).
 
@@ -34,7 +35,7 @@ const MAKEHUMAN: &[&str] = &["--model", "models/makehuman-cmu_mb.npz"];
 /// other CPUs and BLAS-free kernels, not a weaker checkpoint.
 const MARGIN: f64 = 1.10;
 
-const CHECKPOINTS: [Shipped; 11] = [
+const CHECKPOINTS: [Shipped; 12] = [
     Shipped {
         name: "markers",
         modality: "markers",
@@ -92,6 +93,15 @@ const CHECKPOINTS: [Shipped; 11] = [
         synth: &[],
         fit: &[],
         documented: (121.256, 8.55),
+    },
+    // The same with two factorisations per frame (at θ0 and θ1).
+    Shipped {
+        name: "markers-makehuman-chord2",
+        modality: "markers",
+        model: MAKEHUMAN,
+        synth: &[],
+        fit: &[],
+        documented: (121.256, 7.312),
     },
     // The two fine-tuned on the temporal anchor (checkpoints/README.md): on single frames as
     // the networks they were tuned from.
