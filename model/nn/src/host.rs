@@ -223,9 +223,8 @@ impl HostLinear {
                 .enumerate()
             {
                 let init = rows.first(r, d_out, &cols, bias);
-                let mut acc: [f32x4; LANES / 4] = std::array::from_fn(|q| {
-                    f32x4::from(*init[4 * q..].first_chunk::<4>().unwrap())
-                });
+                let quads = init.as_chunks::<4>().0;
+                let mut acc: [f32x4; LANES / 4] = std::array::from_fn(|q| f32x4::from(quads[q]));
                 for (&xi, lanes) in xb[..d_in].iter().zip(weights) {
                     let xv = f32x4::splat(xi);
                     for (a, w) in acc.iter_mut().zip(lanes.as_chunks::<4>().0) {
