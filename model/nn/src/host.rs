@@ -710,6 +710,14 @@ impl HostCore {
         }
     }
 
+    /// Outputs of the first layer (a row of its `b + D W_D`).
+    fn first_width(&self) -> usize {
+        match self {
+            HostCore::Gru(cells) => cells.first().map_or(0, |c| c.w.head.d_out),
+            HostCore::Mlp { input, .. } => input.head.d_out,
+        }
+    }
+
     /// The first layer's `b + D W_D` of the observation rows `obs` (`None` unless split).
     fn constant(&self, obs: &[f32], batch: usize) -> Option<Vec<f32>> {
         match self {
@@ -1062,6 +1070,16 @@ impl RowNetwork for &HostNet {
         }
         let s = c.weight_set(n);
         let constant = state.constant.get(s).filter(|k| !k.is_empty());
+        if let Some(k) = constant {
+            let width = batch * self.cores[s].first_width();
+            if k.len() != width {
+                return Err(shape(
+                    "the core's per-frame observation term",
+                    width,
+                    k.len(),
+                ));
+            }
+        }
         let h =
             self.cores[s].forward(core_in, &mut state.core, batch, constant.map(Vec::as_slice))?;
         Ok(self.delta_heads[s].forward(&h, batch))

@@ -1312,6 +1312,53 @@ fn the_host_forward_refuses_weights_of_another_shape() {
     assert!(err.contains("Φ.l1"), "{err}");
 }
 
+/// The native forward's per-frame observation term (`RowState::constant`): `initial` fills one
+/// per weight set, `propose` gives the same Δθ with it as without it (computed from the rows' D
+/// columns then), and a term of another length is a one-line error, not a panic.
+#[test]
+fn the_native_forward_keeps_the_observation_term_for_the_frame() {
+    use crate::unroll::RowNetwork;
+    let config = small_config(Modality::Markers, 39 * 3);
+    let net = NeuralNet::new(&config, 3, &ndarray_device()).expect("net");
+    let host = crate::host::HostNet::new(&net, unit_stats_for(&config)).expect("host");
+    let batch = 3;
+    let obs: Vec<f32> = (0..batch * config.obs_features())
+        .map(|i| ((i * 37 % 101) as f32 / 50.0 - 1.0) * 0.7)
+        .collect();
+    let core_in: Vec<f32> = (0..batch)
+        .flat_map(|b| {
+            let head = config.core_inputs() - config.obs_features();
+            (0..head)
+                .map(move |i| (((b * 131 + i) * 53 % 97) as f32 / 48.0 - 1.0) * 0.5)
+                .chain(obs[b * config.obs_features()..(b + 1) * config.obs_features()].to_vec())
+        })
+        .collect();
+    let (_, state) = (&host).initial(&obs, batch).expect("initial");
+    assert_eq!(state.constant.len(), config.weight_sets());
+    assert_eq!(state.constant[0].len(), batch * 3 * config.hidden);
+    let with = (&host)
+        .propose(0, &core_in, batch, &mut state.clone())
+        .expect("with the term");
+    let mut without = state.clone();
+    without.constant.clear();
+    assert_eq!(
+        with,
+        (&host)
+            .propose(0, &core_in, batch, &mut without)
+            .expect("without")
+    );
+    let mut bad = state;
+    bad.constant[0].pop();
+    let err = (&host)
+        .propose(0, &core_in, batch, &mut bad)
+        .expect_err("a term of another length")
+        .to_string();
+    assert!(
+        err.contains("observation term") && !err.contains('\n'),
+        "{err}"
+    );
+}
+
 /// The energy rule reads θk's energy from its residuals alone where it can stop the loop
 /// (`Running::evaluate`), and from the Gauss-Newton evaluation elsewhere: the two must be the
 /// same number, or a frame would stop where the full evaluation would have gone on. Markers,
