@@ -20,10 +20,7 @@ eval_setup eval-chord "$OUT"
 eval_need_dir eval-chord "$CHORD"
 eval_need_dir eval-chord "$BASE"
 REPS="${REPS:-3}"
-[ -f "$OUT/clip.npz" ] || "$LFIT" -q synth --modality markers --scenario local --frames 454 --seed "$SEED" \
-    --template "$MODEL" --motions "$OUT/clip-motion.npz" --out "$OUT/clip.npz" >/dev/null
-[ -f "$OUT/proc.npz" ] || "$LFIT" -q synth --modality markers --scenario local --frames 500 --seed "$SEED" \
-    --template "$MODEL" --out "$OUT/proc.npz" >/dev/null
+eval_markers_sets "$OUT"
 for rep in $(seq "$REPS"); do
     for d in clip proc; do
         for cfg in "1 1" "256 2"; do

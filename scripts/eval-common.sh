@@ -139,6 +139,16 @@ eval_setup() {
         --model "$MODEL" --out "$out/clip-motion.npz" >/dev/null
 }
 
+# The markers frames of eval-chord.sh and native-ab.sh in OUT ($1), unless there: the clip's 454
+# local frames (clip.npz, from eval_setup's clip-motion.npz) and 500 procedural held-out local
+# frames (proc.npz), both at the seed SEED.
+eval_markers_sets() {
+    [ -f "$1/clip.npz" ] || "$LFIT" -q synth --modality markers --scenario local --frames 454 --seed "$SEED" \
+        --template "$MODEL" --motions "$1/clip-motion.npz" --out "$1/clip.npz" >/dev/null
+    [ -f "$1/proc.npz" ] || "$LFIT" -q synth --modality markers --scenario local --frames 500 --seed "$SEED" \
+        --template "$MODEL" --out "$1/proc.npz" >/dev/null
+}
+
 eval_run() {
     local name="$1" data="$2" method="$3"
     shift 3

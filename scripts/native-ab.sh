@@ -27,10 +27,7 @@ LFIT="$NEW"
 source scripts/eval-common.sh
 eval_setup native-ab "$OUT"
 REPS="${REPS:-3}"
-[ -f "$OUT/clip.npz" ] || "$NEW" -q synth --modality markers --scenario local --frames 454 --seed "$SEED" \
-    --template "$MODEL" --motions "$OUT/clip-motion.npz" --out "$OUT/clip.npz" >/dev/null
-[ -f "$OUT/proc.npz" ] || "$NEW" -q synth --modality markers --scenario local --frames 500 --seed "$SEED" \
-    --template "$MODEL" --out "$OUT/proc.npz" >/dev/null
+eval_markers_sets "$OUT"
 for rep in $(seq "$REPS"); do
     for d in clip proc; do
         for cfg in "1 1" "256 2"; do
