@@ -822,8 +822,9 @@ pub struct RowState {
     pub lambda: Vec<Vec<f32>>,
     pub gamma: Vec<Vec<f32>>,
     /// Per weight set, what a runtime keeps of the rows' observation features for the whole
-    /// loop: the native forward's `b + D W_D` of the core's first layer (`[B, 3H]`, computed in
-    /// `initial`); empty where a runtime keeps nothing (ONNX Runtime).
+    /// loop: the native forward's `b + D W_D` of the core's first layer (`[B, 3H]` for a GRU
+    /// core, `[B, H]` for a residual MLP; computed in `initial`); empty where a runtime keeps
+    /// nothing (ONNX Runtime).
     pub constant: Vec<Vec<f32>>,
 }
 
