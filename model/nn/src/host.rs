@@ -133,15 +133,7 @@ impl HostLinear {
 
     /// A one-line error unless this layer is `[d_in, d_out]`.
     fn expect(&self, what: &str, d_in: usize, d_out: usize) -> Result<()> {
-        if (self.d_in, self.d_out) == (d_in, d_out) {
-            Ok(())
-        } else {
-            Err(ModelError::Shape {
-                what: format!("network layer {what}"),
-                expected: format!("[{d_in}, {d_out}]"),
-                got: format!("[{}, {}]", self.d_in, self.d_out),
-            })
-        }
+        expect_layer(what, (d_in, d_out), (self.d_in, self.d_out))
     }
 
     /// `x` `[batch, in]` → `[batch, out]`; each output is `b_j + Σ_i x_i W_ij` summed in the
@@ -235,6 +227,19 @@ impl HostLinear {
                 yb[cols.clone()].copy_from_slice(&out[..cols.len()]);
             }
         }
+    }
+}
+
+/// A one-line error unless a layer of shape `got` (`[in, out]`) is `expected`.
+fn expect_layer(what: &str, expected: (usize, usize), got: (usize, usize)) -> Result<()> {
+    if expected == got {
+        Ok(())
+    } else {
+        Err(ModelError::Shape {
+            what: format!("network layer {what}"),
+            expected: format!("[{}, {}]", expected.0, expected.1),
+            got: format!("[{}, {}]", got.0, got.1),
+        })
     }
 }
 
@@ -531,17 +536,13 @@ impl HostInput {
         self.head.d_in + self.obs.as_ref().map_or(0, |o| o.d_in)
     }
 
-    /// A one-line error unless this layer is `[d_in, d_out]`.
+    /// A one-line error unless this layer is `[d_in, d_out]` (both halves of a split one
+    /// with `d_out` outputs).
     fn expect(&self, what: &str, d_in: usize, d_out: usize) -> Result<()> {
-        let d_out_ok = self.obs.as_ref().is_none_or(|o| o.d_out == self.head.d_out);
-        if self.d_in() == d_in && self.head.d_out == d_out && d_out_ok {
-            Ok(())
-        } else {
-            Err(ModelError::Shape {
-                what: format!("network layer {what}"),
-                expected: format!("[{d_in}, {d_out}]"),
-                got: format!("[{}, {}]", self.d_in(), self.head.d_out),
-            })
+        expect_layer(what, (d_in, d_out), (self.d_in(), self.head.d_out))?;
+        match &self.obs {
+            Some(o) => o.expect(what, o.d_in, d_out),
+            None => Ok(()),
         }
     }
 
@@ -710,20 +711,22 @@ impl HostCore {
         }
     }
 
+    /// The layer that reads the core's input (`None` for a GRU without layers).
+    fn first(&self) -> Option<&HostInput> {
+        match self {
+            HostCore::Gru(cells) => cells.first().map(|c| &c.w),
+            HostCore::Mlp { input, .. } => Some(input),
+        }
+    }
+
     /// Outputs of the first layer (a row of its `b + D W_D`).
     fn first_width(&self) -> usize {
-        match self {
-            HostCore::Gru(cells) => cells.first().map_or(0, |c| c.w.head.d_out),
-            HostCore::Mlp { input, .. } => input.head.d_out,
-        }
+        self.first().map_or(0, |l| l.head.d_out)
     }
 
     /// The first layer's `b + D W_D` of the observation rows `obs` (`None` unless split).
     fn constant(&self, obs: &[f32], batch: usize) -> Option<Vec<f32>> {
-        match self {
-            HostCore::Gru(cells) => cells.first().and_then(|c| c.w.constant(obs, batch)),
-            HostCore::Mlp { input, .. } => input.constant(obs, batch),
-        }
+        self.first().and_then(|l| l.constant(obs, batch))
     }
 
     /// Output `[B, H]`; a GRU's `states` (one per layer) are replaced by the new ones;
