@@ -522,7 +522,7 @@ struct FitCmd {
     /// anchored:DEG,MM both, MM wherever the start comes from; the energy reported is the
     /// energy, without the pull), or
     /// observed[:DEG]+anchored[:DEG[,MM]] (both: what observed holds stays, the rest is pulled).
-    /// With --method neural the network fits that energy and mask (the *-makehuman-sequence
+    /// With --method neural the network fits that energy and mask (the *-sequence
     /// checkpoints in a sequence: observed:30+anchored:4 on markers, :5 on keypoints2d).
     /// Default: anchored for neural+lm's LM stage on markers, anchored:10 on keypoints2d,
     /// anchored:1 on hmd; all for every other method and sensor.

@@ -246,14 +246,21 @@ fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
             "lm + pose prior (CMU train, weight W) @40",
             "neural+lm (checkpoints/MOD-makehuman, then LM) + pose prior (CMU train, weight W) @40",
             "lm anchored at the previous frame (--dofs anchored:D) @40",
-            "neural (checkpoints/MOD-makehuman-sequence, N = 5) anchored at the previous frame (--dofs observed:30+anchored:D)",
+            "neural (checkpoints/SEQ, N = 5) anchored at the previous frame (--dofs observed:30+anchored:D)",
         ] {
+            // The sequence network of each sensor (lfit::cli::commands::sequence_network).
+            let seq = if m == "markers" {
+                "markers-makehuman-chord2-sequence"
+            } else {
+                "keypoints2d-makehuman-sequence"
+            };
             let w = if m == "keypoints2d" { "0.001" } else { "0.01" };
             let d = if m == "keypoints2d" { "5" } else { "4" };
             let want = format!(
                 "| {m}, captured clip (4 frames) | {} |",
                 method
                     .replace("MOD", m)
+                    .replace("SEQ", seq)
                     .replace(" W)", &format!(" {w})"))
                     .replace(":D)", &format!(":{d})"))
             );
@@ -336,14 +343,16 @@ fn quickstart_repeats_markers_and_keypoints_on_a_captured_clip() {
     }
     // The network fine-tuned on the anchor: one part per clip, the network alone from the
     // previous frame's fit on the anchored energy with what the data leave held.
-    for (m, d) in [("markers", "4"), ("keypoints2d", "5")] {
+    for (m, d, seq) in [
+        ("markers", "4", "markers-makehuman-chord2-sequence"),
+        ("keypoints2d", "5", "keypoints2d-makehuman-sequence"),
+    ] {
         let dir = out_dir.join(format!("{m}-clip-anchored-sequence-net"));
         let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("csv");
         assert_eq!(csv.lines().count(), 1 + 4, "{m}");
         let config = std::fs::read_to_string(dir.join("bench.json")).expect("bench.json");
         assert!(
-            config.contains(&format!("observed:30+anchored:{d}"))
-                && config.contains(&format!("{m}-makehuman-sequence")),
+            config.contains(&format!("observed:30+anchored:{d}")) && config.contains(seq),
             "{config}"
         );
     }

@@ -172,7 +172,7 @@ const BOX_PEELS: usize = 4;
 const BOX_PEEL_ABOVE: usize = 8;
 
 /// Levenberg–Marquardt's step inside the box: the minimiser of the damped model
-/// `q(s) = 2gᵀs + sᵀKs`, `K = A + μD + 1e-12 max(D) I` ([`lfit_model::energy::damped_system`],
+/// `q(s) = 2gᵀs + sᵀKs`, `K = A + μD + 1e-12 max(D) I` ([`lfit_model::energy::Envelope::damped`],
 /// factorised as [`DampedFactor`]), over `lo ≤ s ≤ hi` (`lo ≤ 0 ≤ hi`; every slice indexed like
 /// `free`, the positions of `a` and `g` in elimination order), by the primal active-set method
 /// for convex quadratic programs (Nocedal & Wright, *Numerical Optimization*, 2nd ed., 2006,

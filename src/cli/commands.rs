@@ -569,7 +569,7 @@ pub fn quickstart(
             |f| f.to_string_lossy().into_owned(),
         );
     let text = format!(
-        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": on the same energy plus the Gaussian pose prior of lfit's CMU training clips (configs/pose-prior-cmu-<modality>.json, `lfit motion prior`; LM with it is SMPLify's classical baseline), whose final energy includes the prior's term. \"first {QUICKSTART_EARLY_EXIT} iterations\": the same network stopped early (`lfit fit --neural-iterations {QUICKSTART_EARLY_EXIT}`). \"anchored at the previous frame\" (captured clip): LM on the energy plus a Gaussian pull toward its own previous frame's result (`lfit fit --dofs anchored:DEG`; σ chosen on the validation subject's sequences, widened where the sequence moves fast), the classical temporal prior a learned fitter has to beat in a sequence. \"neural (checkpoints/<modality>-makehuman-sequence) anchored at the previous frame\": the network fine-tuned on that anchor (`lfit train --init`, `\"starts\": {{\"anchor_deg\": DEG}}`), from its previous frame's fit on the energy plus the same pull, the rotations the data leave beyond {observed}° held (`lfit fit --method neural --dofs observed:{observed}+anchored:DEG`). \"the subject's height as a prior\" (one phone camera): the same frames with each subject's true rest height as one more measurement in the energy (`lfit fit --height-prior truth`, standard deviation {std} m), β still estimated — one view trades the body's size against its depth, and a height is what a user of one camera can give. \"the floor as a measurement\" (one phone camera): the same frames with the lowest of the model's sole vertices held on the floor the subjects stand on (`lfit fit --floor {floor}`: the median over the frames of the truth's lowest sole, standard deviation {floor_std} m) — a foot on a known plane fixes where along its ray the camera sees it.\n\n{table}",
+        "Model: {model}. Shape RMS: RMS error of the shape coefficients β (\"given\": β known, papers/002 §3.2). \"+ pose prior\": on the same energy plus the Gaussian pose prior of lfit's CMU training clips (configs/pose-prior-cmu-<modality>.json, `lfit motion prior`; LM with it is SMPLify's classical baseline), whose final energy includes the prior's term. \"first {QUICKSTART_EARLY_EXIT} iterations\": the same network stopped early (`lfit fit --neural-iterations {QUICKSTART_EARLY_EXIT}`). \"anchored at the previous frame\" (captured clip): LM on the energy plus a Gaussian pull toward its own previous frame's result (`lfit fit --dofs anchored:DEG`; σ chosen on the validation subject's sequences, widened where the sequence moves fast), the classical temporal prior a learned fitter has to beat in a sequence. \"neural (checkpoints/markers-makehuman-chord2-sequence, keypoints2d-makehuman-sequence) anchored at the previous frame\": the network fine-tuned on that anchor (`lfit train --init`, `\"starts\": {{\"anchor_deg\": DEG}}`), from its previous frame's fit on the energy plus the same pull, the rotations the data leave beyond {observed}° held (`lfit fit --method neural --dofs observed:{observed}+anchored:DEG`). \"the subject's height as a prior\" (one phone camera): the same frames with each subject's true rest height as one more measurement in the energy (`lfit fit --height-prior truth`, standard deviation {std} m), β still estimated — one view trades the body's size against its depth, and a height is what a user of one camera can give. \"the floor as a measurement\" (one phone camera): the same frames with the lowest of the model's sole vertices held on the floor the subjects stand on (`lfit fit --floor {floor}`: the median over the frames of the truth's lowest sole, standard deviation {floor_std} m) — a foot on a known plane fixes where along its ray the camera sees it.\n\n{table}",
         observed = lfit_fitters::SEQUENCE_NETWORK_OBSERVED_DEG,
         std = crate::fitting::HEIGHT_PRIOR_STD_M,
         floor = QUICKSTART_FLOOR,
@@ -746,8 +746,21 @@ fn with_anchored_parts(parts: Vec<(String, BenchConfig)>) -> Result<Vec<(String,
 /// Suffix of the quickstart's parts with the network fine-tuned for sequences.
 const SEQUENCE_NETWORK_PART: &str = "-sequence-net";
 
+/// The network the main job fits each captured clip's sequence with, per modality: the one
+/// fine-tuned on the temporal anchor with the best V2V on the held-out CMU subject's and the
+/// clip's sequences (checkpoints/README.md). Markers: the chord direction's
+/// (`markers-makehuman-chord2-sequence`: 10.07 mm against the Gauss–Newton one's 10.56 on the
+/// clip, `joint:64`, at ~0.8 of its time).
+pub fn sequence_network(modality: &str) -> Option<&'static str> {
+    match modality {
+        "markers" => Some("checkpoints/markers-makehuman-chord2-sequence"),
+        "keypoints2d" => Some("checkpoints/keypoints2d-makehuman-sequence"),
+        _ => None,
+    }
+}
+
 /// After each LM-anchored twin ([`with_anchored_parts`]), a twin with the network fine-tuned on
-/// the temporal anchor (`checkpoints/<modality>-makehuman-sequence`,
+/// the temporal anchor ([`sequence_network`],
 /// [`lfit_fitters::sequence_network_dofs`]: the previous frame's pull and the entries the data
 /// leave held): the learned fitter's own temporal row (docs/results/captured-motion.md, round
 /// 31). A shipped checkpoint that is not found is an error naming it.
@@ -769,8 +782,10 @@ fn with_sequence_network_parts(
         else {
             return Ok(None);
         };
-        let name = format!("checkpoints/{}-makehuman-sequence", synth.modality);
-        let checkpoint = crate::shipped::locate(Path::new(&name))
+        let Some(name) = sequence_network(&synth.modality) else {
+            return Ok(None);
+        };
+        let checkpoint = crate::shipped::locate(Path::new(name))
             .with_context(|| format!("the main job's sequence network {name}"))?;
         let mut twin = config.clone();
         twin.methods = vec![crate::method::MethodKind::Neural.name().parse()?];

@@ -160,14 +160,13 @@ pub fn damped_step(
     factor.solve(&mut h).then(|| DVector::from_vec(h))
 }
 
-/// The damped system of [`damped_step`] on the entries `free` ([`damped_system`]), factorised
-/// once ([`envelope_cholesky`]) for every right-hand side a solve needs: `−g` ([`damped_step`]),
-/// the columns of Levenberg–Marquardt's box step, the sequence β solve's Schur complement.
+/// The damped system of [`damped_step`] on the entries `free`, `A + μ D + 1e-12 max(D) I` in
+/// their order ([`Envelope::damped`]), factorised once for every right-hand side a solve needs:
+/// `−g` ([`damped_step`]), the columns of Levenberg–Marquardt's box step, the sequence β solve's
+/// Schur complement.
 #[derive(Debug, Clone)]
 pub struct DampedFactor {
-    factor: Vec<f64>,
-    first: Vec<usize>,
-    m: usize,
+    factor: Envelope,
 }
 
 impl DampedFactor {
@@ -179,16 +178,14 @@ impl DampedFactor {
         damping: f64,
         max_diag: f64,
     ) -> Option<Self> {
-        let m = free.len();
-        let mut factor = damped_system(a, free, diag, damping, max_diag);
-        let first = envelope_cholesky(&mut factor, m)?;
-        Some(Self { factor, first, m })
+        let mut factor = Envelope::damped(a, free, diag, damping, max_diag);
+        factor.factorise().then_some(Self { factor })
     }
 
-    /// `b` becomes the system's inverse times `b` ([`envelope_solve`]); false when that is not
+    /// `b` becomes the system's inverse times `b` ([`Envelope::solve`]); false when that is not
     /// finite.
     pub fn solve(&self, b: &mut [f64]) -> bool {
-        envelope_solve(&self.factor, self.m, &self.first, b);
+        self.factor.solve(b);
         b.iter().all(|v| v.is_finite())
     }
 }
@@ -237,107 +234,146 @@ impl ChordSystem {
     }
 }
 
-/// The damped system of [`damped_step`], `A + μ D + 1e-12 max(D) I` on the entries `free` (in
-/// their order), as the row-major lower triangle [`envelope_cholesky`] reads (the upper one is
-/// left zero): for solves with other right-hand sides than `−g`.
-pub fn damped_system(
-    a: &DMatrix<f64>,
-    free: &[usize],
-    diag: &[f64],
-    damping: f64,
-    max_diag: f64,
-) -> Vec<f64> {
-    let m = free.len();
-    let mut sys = vec![0.0; m * m];
-    for (r, &pr) in free.iter().enumerate() {
-        let row = &mut sys[r * m..r * m + r + 1];
-        // Column pr of the symmetric a: contiguous.
-        let column = a.column(pr);
-        for (c, &pc) in free[..=r].iter().enumerate() {
-            row[c] = column[pc];
+/// The lower triangle of a symmetric `m × m` matrix in envelope (profile) storage, and its
+/// Cholesky factorisation in place (Jennings's profile method; George & Liu, *Computer Solution
+/// of Large Sparse Positive Definite Systems*, 1981, ch. 4): row `i` is stored from its first
+/// nonzero column `first[i]` to the diagonal, and the factor `L` has no entry before it, so a
+/// row whose earlier entries are zero costs nothing there, in work ([`envelope_work`] counts it)
+/// or memory. On a normal matrix `JᵀJ` ordered children before parents the rows of a joint's
+/// rotation reach back only to its own subtree: no fill, a fraction of the dense
+/// factorisation's work, and about a third of the dense triangle's memory on the MakeHuman body
+/// (one of these is kept per frame by the chord direction, [`ChordSystem`]).
+#[derive(Debug, Clone)]
+pub struct Envelope {
+    /// Row `i`'s entries, columns `first[i]..=i`, at `start[i]..start[i + 1]`.
+    values: Vec<f64>,
+    first: Vec<usize>,
+    start: Vec<usize>,
+}
+
+impl Envelope {
+    /// The lower triangle of an `m × m` matrix, row `r`'s entries `0..=r` written by
+    /// `row(r, buffer)` (the upper triangle is not read); a row's envelope starts at its first
+    /// nonzero entry before the diagonal.
+    pub fn from_lower(m: usize, mut row: impl FnMut(usize, &mut [f64])) -> Self {
+        let mut values = Vec::new();
+        let mut first = Vec::with_capacity(m);
+        let mut start = Vec::with_capacity(m + 1);
+        let mut buffer = vec![0.0; m];
+        for r in 0..m {
+            let entries = &mut buffer[..=r];
+            row(r, entries);
+            let f = entries[..r].iter().position(|&v| v != 0.0).unwrap_or(r);
+            start.push(values.len());
+            first.push(f);
+            values.extend_from_slice(&entries[f..]);
         }
-        row[r] += damping * diag[r] + 1e-12 * max_diag;
+        start.push(values.len());
+        Self {
+            values,
+            first,
+            start,
+        }
     }
-    sys
+
+    /// `S = A + μ D + 1e-12 max(D) I` on the entries `free` of the symmetric `a` (in their order),
+    /// `D = diag` ([`marquardt_scaling`]) and `μ = damping`: [`damped_step`]'s system.
+    pub fn damped(
+        a: &DMatrix<f64>,
+        free: &[usize],
+        diag: &[f64],
+        damping: f64,
+        max_diag: f64,
+    ) -> Self {
+        Self::from_lower(free.len(), |r, entries| {
+            // Column free[r] of the symmetric a: contiguous.
+            let column = a.column(free[r]);
+            for (e, &pc) in entries.iter_mut().zip(free) {
+                *e = column[pc];
+            }
+            entries[r] += damping * diag[r] + 1e-12 * max_diag;
+        })
+    }
+
+    /// The matrix's order `m`.
+    pub fn order(&self) -> usize {
+        self.first.len()
+    }
+
+    /// The entries stored (the envelope's size; the dense triangle has `m(m+1)/2`).
+    pub fn stored(&self) -> usize {
+        self.values.len()
+    }
+
+    /// Overwrites the matrix with its Cholesky factor `L` (`S = L Lᵀ`), column by column (the
+    /// entries of one column are independent of each other, so their dot products overlap in
+    /// the pipeline; row by row each waits on the one before). False (leaving the values
+    /// undefined) when a pivot is not positive and finite: `S` is not positive definite.
+    pub fn factorise(&mut self) -> bool {
+        let m = self.order();
+        for j in 0..m {
+            let fj = self.first[j];
+            let (head, tail) = self.values.split_at_mut(self.start[j + 1]);
+            let lj = &mut head[self.start[j]..];
+            let (below, diagonal) = lj.split_at_mut(j - fj);
+            let d = diagonal[0] - dot(below, below);
+            if !(d > 0.0 && d.is_finite()) {
+                return false;
+            }
+            diagonal[0] = d.sqrt();
+            let inv = 1.0 / diagonal[0];
+            let lj: &[f64] = below;
+            let offset = self.start[j + 1];
+            for i in j + 1..m {
+                let fi = self.first[i];
+                if fi > j {
+                    continue;
+                }
+                let k0 = fi.max(fj);
+                let row = &mut tail[self.start[i] - offset..self.start[i + 1] - offset];
+                row[j - fi] = (row[j - fi] - dot(&row[k0 - fi..j - fi], &lj[k0 - fj..])) * inv;
+            }
+        }
+        true
+    }
+
+    /// Solves `L Lᵀ x = b` with the factor [`Envelope::factorise`] left; `b` becomes `x`.
+    pub fn solve(&self, b: &mut [f64]) {
+        let m = self.order();
+        debug_assert_eq!(b.len(), m);
+        // L y = b, then Lᵀ x = y.
+        for i in 0..m {
+            let (row, fi) = (
+                &self.values[self.start[i]..self.start[i + 1]],
+                self.first[i],
+            );
+            b[i] = (b[i] - dot(&row[..i - fi], &b[fi..i])) / row[i - fi];
+        }
+        for i in (0..m).rev() {
+            let (row, fi) = (
+                &self.values[self.start[i]..self.start[i + 1]],
+                self.first[i],
+            );
+            let x = b[i] / row[i - fi];
+            b[i] = x;
+            for (bk, lk) in b[fi..i].iter_mut().zip(&row[..i - fi]) {
+                *bk -= lk * x;
+            }
+        }
+    }
 }
 
 /// Solves `S x = b` for a symmetric positive definite `S` (`m × m`, row-major; only the lower
-/// triangle is read) by the Cholesky factorisation of its envelope (Jennings's profile method;
-/// George & Liu, *Computer Solution of Large Sparse Positive Definite Systems*, 1981, ch. 4),
-/// computed column by column: row `i` of the factor `L` is nonzero only from the first nonzero
-/// of row `i` of `S`, so a row whose earlier entries are zero costs nothing there
-/// ([`envelope_work`] counts what it does). The factor overwrites the
-/// lower triangle of `s`; `b` becomes `x`. Returns false (leaving `s` and `b` undefined) when a
-/// pivot is not positive and finite: `S` is not positive definite. On a normal matrix `JᵀJ`
-/// ordered children before parents, the rows of a joint's rotation reach back only to its own
-/// subtree: no fill, and the work is a fraction of the dense factorisation's.
-pub fn envelope_cholesky_solve(s: &mut [f64], m: usize, b: &mut [f64]) -> bool {
+/// triangle is read) by the Cholesky factorisation of its envelope ([`Envelope`]); `b` becomes
+/// `x`. Returns false (leaving `b` undefined) when `S` is not positive definite.
+pub fn envelope_cholesky_solve(s: &[f64], m: usize, b: &mut [f64]) -> bool {
     debug_assert!(s.len() == m * m && b.len() == m);
-    match envelope_cholesky(s, m) {
-        Some(first) => {
-            envelope_solve(s, m, &first, b);
-            b.iter().all(|v| v.is_finite())
-        }
-        None => false,
+    let mut factor = Envelope::from_lower(m, |r, row| row.copy_from_slice(&s[r * m..=r * m + r]));
+    if !factor.factorise() {
+        return false;
     }
-}
-
-/// The factorisation of [`envelope_cholesky_solve`] alone, for systems with several right-hand
-/// sides ([`envelope_solve`] each): `L` overwrites the lower triangle of `s` (`m × m`,
-/// row-major), and the result is each row's first nonzero column, which the solves need. `None`
-/// (leaving `s` undefined) when a pivot is not positive and finite.
-pub fn envelope_cholesky(s: &mut [f64], m: usize) -> Option<Vec<usize>> {
-    debug_assert!(s.len() == m * m);
-    let first: Vec<usize> = (0..m)
-        .map(|i| {
-            s[i * m..i * m + i]
-                .iter()
-                .position(|&v| v != 0.0)
-                .unwrap_or(i)
-        })
-        .collect();
-    // Column by column (the entries of one column are independent of each other, so their dot
-    // products overlap in the pipeline; row by row each waits on the one before).
-    for j in 0..m {
-        let (head, tail) = s.split_at_mut((j + 1) * m);
-        let lj = &mut head[j * m..j * m + j + 1];
-        let fj = first[j];
-        let d = lj[j] - dot(&lj[fj..j], &lj[fj..j]);
-        if !(d > 0.0 && d.is_finite()) {
-            return None;
-        }
-        lj[j] = d.sqrt();
-        let inv = 1.0 / lj[j];
-        let lj = &head[j * m..j * m + j];
-        for (i, row) in tail.chunks_exact_mut(m).enumerate() {
-            let fi = first[j + 1 + i];
-            if fi > j {
-                continue;
-            }
-            let k0 = fi.max(fj);
-            row[j] = (row[j] - dot(&row[k0..j], &lj[k0..j])) * inv;
-        }
-    }
-    Some(first)
-}
-
-/// Solves `L Lᵀ x = b` with the factor [`envelope_cholesky`] left in `s` and its `first`
-/// columns; `b` becomes `x`.
-pub fn envelope_solve(s: &[f64], m: usize, first: &[usize], b: &mut [f64]) {
-    debug_assert!(s.len() == m * m && b.len() == m && first.len() == m);
-    // L y = b, then Lᵀ x = y.
-    for i in 0..m {
-        let row = &s[i * m..i * m + i + 1];
-        b[i] = (b[i] - dot(&row[first[i]..i], &b[first[i]..i])) / row[i];
-    }
-    for i in (0..m).rev() {
-        let row = &s[i * m..i * m + i + 1];
-        let x = b[i] / row[i];
-        b[i] = x;
-        for (bk, lk) in b[first[i]..i].iter_mut().zip(&row[first[i]..i]) {
-            *bk -= lk * x;
-        }
-    }
+    factor.solve(b);
+    b.iter().all(|v| v.is_finite())
 }
 
 /// The multiply-adds [`envelope_cholesky_solve`] does on the symmetric `a` with its entries

@@ -36,9 +36,8 @@ use serde::{Deserialize, Serialize};
 pub use crate::observe::Scales;
 pub use floor::{FloorForm, FloorPrior, SOLE_BAND_M, SOLE_CELL_M, sole_vertices};
 pub use least_squares::{
-    ChordSystem, DampedFactor, JacobianRows, LeastSquares, PointFactors, RobustForm, damped_step,
-    damped_system, envelope_cholesky, envelope_cholesky_solve, envelope_solve, envelope_work,
-    marquardt_scaling,
+    ChordSystem, DampedFactor, Envelope, JacobianRows, LeastSquares, PointFactors, RobustForm,
+    damped_step, envelope_cholesky_solve, envelope_work, marquardt_scaling,
 };
 pub use placement::{KEYPOINT_OFFSET_STEPS, keypoint_offsets, marker_offsets, point_offsets};
 pub use pose_prior::{
