@@ -456,11 +456,13 @@ fn residual_and_direction(
     chord: Option<&ChordSystem>,
 ) -> Result<(Vec<f64>, Vec<f64>, f64, Option<ChordSystem>)> {
     let mut system = None;
-    let residual = || {
+    // E(θ), ∇E and, where the features read it, R(θ), from one evaluation.
+    let evaluate = || {
         if with_residual {
-            energy.residual(pose)
+            energy.evaluate_with_gradient_and_residual(pose)
         } else {
-            Vec::new()
+            let (e, g) = energy.evaluate_with_gradient(pose);
+            (e, g, Vec::new())
         }
     };
     // A damped step `h` as the direction: `−h`, each entry clipped to `±gn_max_step`.
@@ -468,14 +470,14 @@ fn residual_and_direction(
     let negated = |h: Vec<f64>| -> Vec<f64> { h.iter().map(|v| -v.clamp(-cap, cap)).collect() };
     let (r, mut g, value) = match (config.direction, chord) {
         (Direction::Gradient, _) => {
-            let (e, g) = energy.evaluate_with_gradient(pose);
-            (residual(), g, e.total)
+            let (e, g, r) = evaluate();
+            (r, g, e.total)
         }
         (Direction::GaussNewtonChord, Some(chord)) => {
-            let (e, g) = energy.evaluate_with_gradient(pose);
+            let (e, g, r) = evaluate();
             // A system that cannot solve (only a non-finite gradient): no step.
             let h = chord.step(&g).unwrap_or_else(|| vec![0.0; pose.len()]);
-            (residual(), negated(h), e.total)
+            (r, negated(h), e.total)
         }
         (Direction::GaussNewton | Direction::GaussNewtonChord, _) => {
             // The normal equations read the data rows in factored form where there is one.

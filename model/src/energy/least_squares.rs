@@ -256,7 +256,9 @@ impl Envelope {
     /// `row(r, buffer)` (the upper triangle is not read); a row's envelope starts at its first
     /// nonzero entry before the diagonal.
     pub fn from_lower(m: usize, mut row: impl FnMut(usize, &mut [f64])) -> Self {
-        let mut values = Vec::new();
+        // The whole triangle reserved (not touched), the rest given back at the end: no
+        // reallocation on the way.
+        let mut values = Vec::with_capacity(m * (m + 1) / 2);
         let mut first = Vec::with_capacity(m);
         let mut start = Vec::with_capacity(m + 1);
         let mut buffer = vec![0.0; m];
@@ -268,6 +270,7 @@ impl Envelope {
             first.push(f);
             values.extend_from_slice(&entries[f..]);
         }
+        values.shrink_to_fit();
         start.push(values.len());
         Self {
             values,

@@ -1053,6 +1053,20 @@ impl Energy {
         (e, g.unwrap_or_else(|| vec![0.0; pose.len()]))
     }
 
+    /// [`Energy::evaluate_with_gradient`] and the residual R(θ) ([`Energy::residual`], not counted)
+    /// of the same evaluation: one pass of the body where the two calls take two (the neural
+    /// fitter's features at each iterate).
+    pub fn evaluate_with_gradient_and_residual(
+        &self,
+        pose: &[f64],
+    ) -> (Evaluation, Vec<f64>, Vec<f64>) {
+        self.evaluations.fetch_add(1, Ordering::Relaxed);
+        self.gradient_evaluations.fetch_add(1, Ordering::Relaxed);
+        let mut residual = Vec::new();
+        let (e, g) = self.compute_with(pose, true, Some(&mut residual));
+        (e, g.unwrap_or_else(|| vec![0.0; pose.len()]), residual)
+    }
+
     /// Value and terms for reporting a result, **not** counted: fitters never call it while
     /// searching, only to report the terms of the pose they return.
     pub fn inspect(&self, pose: &[f64]) -> Evaluation {
@@ -1100,6 +1114,18 @@ impl Energy {
     }
 
     fn compute(&self, pose: &[f64], want_grad: bool) -> (Evaluation, Option<Vec<f64>>) {
+        self.compute_with(pose, want_grad, None)
+    }
+
+    /// [`Energy::compute`], and with `residual` the residual R(θ) of the same evaluation's
+    /// prediction (a sparse target's; [`Energy::residual`] for the others).
+    fn compute_with(
+        &self,
+        pose: &[f64],
+        want_grad: bool,
+        residual: Option<&mut Vec<f64>>,
+    ) -> (Evaluation, Option<Vec<f64>>) {
+        let mut residual = residual;
         let mut kin = Kinematics::build(&self.template, pose, want_grad);
         if want_grad {
             kin.shape_vertices(&self.skin.rest, &self.observed);
@@ -1120,6 +1146,7 @@ impl Energy {
                     visible,
                     adj.as_mut()
                         .map(|a| (a, grad_direct.as_mut_slice(), w.data)),
+                    residual.take(),
                 );
                 terms.push(("data", data));
                 total += w.data * data;
@@ -1254,6 +1281,9 @@ impl Energy {
             }
             g
         });
+        if let Some(out) = residual {
+            *out = self.residual(pose);
+        }
         (Evaluation { total, terms }, grad)
     }
 
@@ -1265,10 +1295,14 @@ impl Energy {
         values: &[f64],
         visible: &[bool],
         grad: Option<(&mut Adjoint, &mut [f64], f64)>,
+        residual: Option<&mut Vec<f64>>,
     ) -> f64 {
         let model = self.observation_model();
         let view = self.view(kin);
         let pred = self.prediction(model, &view);
+        if let Some(out) = residual {
+            *out = Sensor::sparse_residual(&pred, values, visible);
+        }
         if let Some(value) = model.data_term(&pred, values) {
             // A data term of the model's own (no gradient: see `gradient_unsupported`).
             return value;

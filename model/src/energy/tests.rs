@@ -1215,7 +1215,8 @@ mod least_squares_form {
 
     /// The least-squares evaluation's observation residual is `Energy::residual`'s bit for bit,
     /// with and without the Jacobian, on the MakeHuman body's three sparse modalities (unseen
-    /// entries included: the truth's own visibility).
+    /// entries included: the truth's own visibility); so are the value, gradient and residual of
+    /// `evaluate_with_gradient_and_residual`, which counts one evaluation.
     #[test]
     fn the_least_squares_observation_residual_is_the_residual() {
         use rand::SeedableRng;
@@ -1225,6 +1226,18 @@ mod least_squares_form {
             let (e, x) = makehuman_energy(&t, modality, &mut rng);
             let r = e.residual(&x);
             assert!(r.iter().any(|v| *v != 0.0), "{modality}: R is zero");
+            let (value, gradient) = e.evaluate_with_gradient(&x);
+            let before = (e.evaluations(), e.gradient_evaluations());
+            let (value2, gradient2, r2) = e.evaluate_with_gradient_and_residual(&x);
+            assert_eq!(
+                (e.evaluations(), e.gradient_evaluations()),
+                (before.0 + 1, before.1 + 1),
+                "{modality}"
+            );
+            assert_eq!(value.total.to_bits(), value2.total.to_bits(), "{modality}");
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&gradient), bits(&gradient2), "{modality}");
+            assert_eq!(bits(&r), bits(&r2), "{modality}");
             for with_jacobian in [true, false] {
                 let ls = e.least_squares(&x, with_jacobian).unwrap();
                 assert_eq!(ls.observation_residual.len(), r.len(), "{modality}");
