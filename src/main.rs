@@ -524,7 +524,7 @@ struct FitCmd {
     /// observed[:DEG]+anchored[:DEG[,MM]] (both: what observed holds stays, the rest is pulled).
     /// With --method neural the network fits that energy and mask (the *-sequence
     /// checkpoints in a sequence: observed:30+anchored:4 on markers, :5 on keypoints2d).
-    /// Default: anchored for neural+lm's LM stage on markers, anchored:10 on keypoints2d,
+    /// Default: anchored:5 for neural+lm's LM stage on markers, anchored:3 on keypoints2d,
     /// anchored:1 on hmd; all for every other method and sensor.
     #[arg(long)]
     dofs: Option<String>,

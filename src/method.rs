@@ -139,10 +139,11 @@ impl MethodKind {
     /// standard deviation chosen per sensor on the validation subject:
     /// [`lfit_fitters::anchor_std_deg`], the translation's [`lfit_fitters::ANCHOR_TRANSLATION_STD_MM`]
     /// on its one-camera keypoints2d — the network's result is an estimate, not the previous
-    /// frame's fit, in a sequence too; on the validation subject's
-    /// markers 10.4 mm V2V against 11.5 for the earlier default `observed` and 12.3 for `all`,
-    /// on real markers level with LM with every marker on two of three captures and ahead of it
-    /// on the harder half of the markers of each: docs/results/captured-motion.md, round 28);
+    /// frame's fit, in a sequence too; on the validation subject's markers 8.2 mm V2V at 5°
+    /// against 8.6 at round 28's 15°, the network's 10.6 and LM's 11.7 (round 40; round 28:
+    /// 10.4 against 11.5 for the earlier default `observed` and 12.3 for `all`, and on real
+    /// markers level with LM with every marker on two of three captures and ahead of it on the
+    /// harder half of the markers of each: docs/results/captured-motion.md);
     /// every other method, and `neural+lm` on dense face landmarks (which determine every
     /// entry: 40 face frames 21.5 mm with `all` against 27.8 with `observed`) or a custom sensor,
     /// every free entry (the classical methods' published figures and the scipy parity are over

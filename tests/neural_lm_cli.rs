@@ -434,7 +434,7 @@ fn an_early_exit_runs_the_first_iterations_of_the_full_fit() {
         );
         assert_eq!(
             refined["method"],
-            format!("neural-given-n2{suffix}+lm-anchored")
+            format!("neural-given-n2{suffix}+lm-anchored-5deg")
         );
         for (a, b) in frames(&early).iter().zip(frames(&refined)) {
             assert!(num(&b["energy"]) <= num(&a["energy"]));
@@ -529,7 +529,7 @@ fn an_early_exit_runs_the_first_iterations_of_the_full_fit() {
 /// `neural+lm` spends the network's evaluations, then LM's from the network's result: its
 /// energy is never above the network's alone, its evaluations add up and stay within the budget,
 /// and its iterates are the network's followed by the final pose. By default (`--dofs
-/// anchored` on markers) LM moves every entry with the rotations pulled toward the network's
+/// anchored:5` on markers) LM moves every entry with the rotations pulled toward the network's
 /// values: less far from them than with `--dofs all`, the energy reported without the pull.
 /// With `--dofs observed` LM keeps the network's β and the rotations the markers do not
 /// determine (the thumbs) and spends one evaluation on the data's information; with `--dofs
@@ -563,8 +563,8 @@ fn neural_then_lm_refines_the_network_within_one_budget() {
         &tmp.path().join("all.json"),
         &[&["--method", "neural+lm", "--dofs", "all"][..], &common[..]].concat(),
     );
-    assert_eq!(anchored["method"], "neural-given+lm-anchored");
-    assert_eq!(anchored["dofs"], "anchored");
+    assert_eq!(anchored["method"], "neural-given+lm-anchored-5deg");
+    assert_eq!(anchored["dofs"], "anchored:5");
     assert_eq!(both["method"], "neural-given+lm-observed");
     assert_eq!(both["dofs"], "observed");
     assert_eq!(all["method"], "neural-given+lm");
