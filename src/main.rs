@@ -524,7 +524,8 @@ struct FitCmd {
     /// observed[:DEG]+anchored[:DEG[,MM]] (both: what observed holds stays, the rest is pulled).
     /// With --method neural the network fits that energy and mask (the *-sequence
     /// checkpoints in a sequence: observed:30+anchored:4 on markers, :5 on keypoints2d).
-    /// Default: anchored:5 for neural+lm's LM stage on markers, anchored:3 on keypoints2d,
+    /// Default for neural+lm's LM stage: anchored:5 on markers and anchored:3 on keypoints2d
+    /// with --neural-start given, anchored (15°) and anchored:10 from phi, best or both,
     /// anchored:1 on hmd; all for every other method and sensor.
     #[arg(long)]
     dofs: Option<String>,

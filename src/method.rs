@@ -139,17 +139,25 @@ impl MethodKind {
     /// standard deviation chosen per sensor on the validation subject:
     /// [`lfit_fitters::anchor_std_deg`], the translation's [`lfit_fitters::ANCHOR_TRANSLATION_STD_MM`]
     /// on its one-camera keypoints2d — the network's result is an estimate, not the previous
-    /// frame's fit, in a sequence too; on the validation subject's markers 8.2 mm V2V at 5°
-    /// against 8.6 at round 28's 15°, the network's 10.6 and LM's 11.7 (round 40; round 28:
-    /// 10.4 against 11.5 for the earlier default `observed` and 12.3 for `all`, and on real
-    /// markers level with LM with every marker on two of three captures and ahead of it on the
-    /// harder half of the markers of each: docs/results/captured-motion.md);
+    /// frame's fit, in a sequence too; on the validation subject's markers from Φ(D) 10.4 mm V2V
+    /// against 11.5 for the earlier default `observed` and 12.3 for `all`, on real markers
+    /// level with LM with every marker on two of three captures and ahead of it on the harder
+    /// half of the markers of each: docs/results/captured-motion.md, round 28; from a given
+    /// start 8.2 mm at 5° against 8.6 at 15°, the network's 10.6 and LM's 11.7, round 40);
     /// every other method, and `neural+lm` on dense face landmarks (which determine every
     /// entry: 40 face frames 21.5 mm with `all` against 27.8 with `observed`) or a custom sensor,
     /// every free entry (the classical methods' published figures and the scipy parity are over
     /// all entries).
-    pub fn default_dofs(self, modality: lfit_model::observe::Modality) -> lfit_fitters::Dofs {
-        match (self, lfit_fitters::anchor_std_deg(modality)) {
+    ///
+    /// `given_start`: the network starts from the request's given pose (`--neural-start
+    /// given`), where the tighter anchor of [`lfit_fitters::GIVEN_START_ANCHOR_STD_DEG`] is
+    /// chosen.
+    pub fn default_dofs(
+        self,
+        modality: lfit_model::observe::Modality,
+        given_start: bool,
+    ) -> lfit_fitters::Dofs {
+        match (self, lfit_fitters::anchor_std_deg(modality, given_start)) {
             (MethodKind::NeuralLm, Some(std_deg)) => lfit_fitters::Dofs::anchored(std_deg),
             _ => lfit_fitters::Dofs::All,
         }
@@ -278,17 +286,20 @@ pub fn build_classic(kind: MethodKind, options: ClassicOptions) -> Result<Box<dy
     Ok(options.dofs.wrap(fitter))
 }
 
-/// `--dofs` by name, or the method's default for the data's modality
-/// ([`MethodKind::default_dofs`]; `modality` is asked only then). Every method takes one, the
+/// `--dofs` by name, or the method's default for the data's modality and the network's start
+/// (`--neural-start`; [`MethodKind::default_dofs`]; `modality` is asked only then). Every method takes one, the
 /// network too (`anchored` adds the pull toward the start to the energy it fits, `observed`
 /// holds what the data leave open).
 pub fn dofs_for(
     kind: MethodKind,
     name: Option<&str>,
     modality: &mut dyn FnMut() -> Result<lfit_model::observe::Modality>,
+    neural_start: &str,
 ) -> Result<lfit_fitters::Dofs> {
     match name {
-        None if kind == MethodKind::NeuralLm => Ok(kind.default_dofs(modality()?)),
+        None if kind == MethodKind::NeuralLm => {
+            Ok(kind.default_dofs(modality()?, neural_start == "given"))
+        }
         None => Ok(lfit_fitters::Dofs::All),
         Some(n) => n.parse().map_err(anyhow::Error::msg),
     }

@@ -18,10 +18,11 @@ pub use lbfgs::LbfgsFitter;
 pub use least_squares::{LeastSquaresFitter, LeastSquaresMethod};
 pub use observed::{
     ANCHOR_MOTION_CAP, ANCHOR_MOTION_GAIN, ANCHOR_STD_DEG, ANCHOR_TRANSLATION_STD_MM, AnchoredDofs,
-    Dofs, HMD_ANCHOR_STD_DEG, KEYPOINTS2D_ANCHOR_STD_DEG, MARKERS_NEURAL_LM_ANCHOR_STD_DEG,
-    OBSERVED_MAX_STD_DEG, ObservedDofs, SEQUENCE_ANCHOR_TRANSLATION_STD_MM, SEQUENCE_MOTION_WEIGHT,
-    SEQUENCE_NETWORK_OBSERVED_DEG, SequenceMotion, anchor_std_deg, anchor_translation_std_mm,
-    anchored_energy, sequence_anchor_std_deg, sequence_network_dofs, widened_std,
+    Dofs, GIVEN_START_ANCHOR_STD_DEG, HMD_ANCHOR_STD_DEG, KEYPOINTS2D_ANCHOR_STD_DEG,
+    KEYPOINTS2D_GIVEN_START_ANCHOR_STD_DEG, OBSERVED_MAX_STD_DEG, ObservedDofs,
+    SEQUENCE_ANCHOR_TRANSLATION_STD_MM, SEQUENCE_MOTION_WEIGHT, SEQUENCE_NETWORK_OBSERVED_DEG,
+    SequenceMotion, anchor_std_deg, anchor_translation_std_mm, anchored_energy,
+    sequence_anchor_std_deg, sequence_network_dofs, widened_std,
 };
 pub use optim::{Method, Preset};
 pub use zeroth::ZerothOrderFitter;

@@ -360,7 +360,12 @@ fn prepare(
             .checkpoint
             .as_deref()
             .with_context(|| format!("--method {} needs --checkpoint DIR", args.method))?;
-        dofs = crate::method::dofs_for(args.method, args.dofs.as_deref(), modality)?;
+        dofs = crate::method::dofs_for(
+            args.method,
+            args.dofs.as_deref(),
+            modality,
+            &args.neural_start,
+        )?;
         crate::method::load_neural_named(
             args.method,
             dir,
@@ -385,7 +390,12 @@ fn prepare(
                 "--neural-iterations and --neural-tolerance are only for --method neural or neural+lm"
             );
         }
-        dofs = crate::method::dofs_for(args.method, args.dofs.as_deref(), modality)?;
+        dofs = crate::method::dofs_for(
+            args.method,
+            args.dofs.as_deref(),
+            modality,
+            &args.neural_start,
+        )?;
         crate::method::build_classic(
             args.method,
             crate::method::ClassicOptions {

@@ -385,7 +385,13 @@ impl BenchConfig {
         kind: MethodKind,
         modality: lfit_model::observe::Modality,
     ) -> Result<lfit_fitters::Dofs> {
-        crate::method::dofs_for(kind, self.dofs.as_deref(), &mut || Ok(modality)).context("dofs")
+        crate::method::dofs_for(
+            kind,
+            self.dofs.as_deref(),
+            &mut || Ok(modality),
+            self.neural_start.as_deref().unwrap_or("given"),
+        )
+        .context("dofs")
     }
 
     /// The sequence shape policy (`sequence_shape`, default per-frame).
