@@ -570,7 +570,14 @@ fn neural_then_lm_refines_the_network_within_one_budget() {
     let from_phi = fit(
         &data,
         &tmp.path().join("phi.json"),
-        &["--method", "neural+lm", "--neural-start", "phi", "--budget", "300"],
+        &[
+            "--method",
+            "neural+lm",
+            "--neural-start",
+            "phi",
+            "--budget",
+            "300",
+        ],
     );
     assert_eq!(from_phi["method"], "neural+lm-anchored");
     assert_eq!(from_phi["dofs"], "anchored");

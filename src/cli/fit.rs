@@ -345,8 +345,8 @@ fn prepare(
     if args.batch == 0 {
         bail!("--batch must be at least 1");
     }
-    let dofs;
-    let fitter: Box<dyn Fitter> = if args.method.is_neural() {
+    // The flags each kind of method refuses, before anything is read for the fit.
+    if args.method.is_neural() {
         if args.step_scale.is_some()
             || args.preset.as_deref() == Some("tuned")
             || args.cma != Default::default()
@@ -356,28 +356,9 @@ fn prepare(
                 args.method
             );
         }
-        let dir = args
-            .checkpoint
-            .as_deref()
-            .with_context(|| format!("--method {} needs --checkpoint DIR", args.method))?;
-        dofs = crate::method::dofs_for(
-            args.method,
-            args.dofs.as_deref(),
-            modality,
-            &args.neural_start,
-        )?;
-        crate::method::load_neural_named(
-            args.method,
-            dir,
-            &args.neural_start,
-            &args.neural_pick,
-            args.neural_iterations,
-            args.neural_tolerance,
-            &args.runtime,
-            &args.device,
-            args.ort_threads,
-            dofs,
-        )?
+        if args.checkpoint.is_none() {
+            bail!("--method {} needs --checkpoint DIR", args.method);
+        }
     } else {
         if args.checkpoint.is_some() {
             bail!("--checkpoint is only for --method neural or neural+lm");
@@ -390,13 +371,27 @@ fn prepare(
                 "--neural-iterations and --neural-tolerance are only for --method neural or neural+lm"
             );
         }
-        dofs = crate::method::dofs_for(
+    }
+    let dofs = crate::method::dofs_for(
+        args.method,
+        args.dofs.as_deref(),
+        modality,
+        &args.neural_start,
+    )?;
+    let fitter: Box<dyn Fitter> = match args.checkpoint.as_deref() {
+        Some(dir) if args.method.is_neural() => crate::method::load_neural_named(
             args.method,
-            args.dofs.as_deref(),
-            modality,
+            dir,
             &args.neural_start,
-        )?;
-        crate::method::build_classic(
+            &args.neural_pick,
+            args.neural_iterations,
+            args.neural_tolerance,
+            &args.runtime,
+            &args.device,
+            args.ort_threads,
+            dofs,
+        )?,
+        _ => crate::method::build_classic(
             args.method,
             crate::method::ClassicOptions {
                 preset,
@@ -405,7 +400,7 @@ fn prepare(
                 cma,
                 dofs,
             },
-        )?
+        )?,
     };
     let config = match config {
         Some(c) => {

@@ -1123,9 +1123,8 @@ impl Energy {
         &self,
         pose: &[f64],
         want_grad: bool,
-        residual: Option<&mut Vec<f64>>,
+        mut residual: Option<&mut Vec<f64>>,
     ) -> (Evaluation, Option<Vec<f64>>) {
-        let mut residual = residual;
         let mut kin = Kinematics::build(&self.template, pose, want_grad);
         if want_grad {
             kin.shape_vertices(&self.skin.rest, &self.observed);
