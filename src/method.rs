@@ -149,15 +149,14 @@ impl MethodKind {
     /// every free entry (the classical methods' published figures and the scipy parity are over
     /// all entries).
     ///
-    /// `given_start`: the network starts from the request's given pose (`--neural-start
-    /// given`), where the tighter anchor of [`lfit_fitters::GIVEN_START_ANCHOR_STD_DEG`] is
-    /// chosen.
+    /// `start`: where the network starts ([`lfit_fitters::AnchorStart`]); from a given start the
+    /// tighter anchor of [`lfit_fitters::GIVEN_START_ANCHOR_STD_DEG`] on markers.
     pub fn default_dofs(
         self,
         modality: lfit_model::observe::Modality,
-        given_start: bool,
+        start: lfit_fitters::AnchorStart,
     ) -> lfit_fitters::Dofs {
-        match (self, lfit_fitters::anchor_std_deg(modality, given_start)) {
+        match (self, lfit_fitters::anchor_std_deg(modality, start)) {
             (MethodKind::NeuralLm, Some(std_deg)) => lfit_fitters::Dofs::anchored(std_deg),
             _ => lfit_fitters::Dofs::All,
         }
@@ -286,19 +285,32 @@ pub fn build_classic(kind: MethodKind, options: ClassicOptions) -> Result<Box<dy
     Ok(options.dofs.wrap(fitter))
 }
 
+/// The data's modality and whether it is a sequence (each frame started from the previous
+/// frame's fit).
+pub type DataKind = (lfit_model::observe::Modality, bool);
+
 /// `--dofs` by name, or the method's default for the data's modality and the network's start
-/// (`--neural-start`; [`MethodKind::default_dofs`]; `modality` is asked only then). Every method takes one, the
+/// (`--neural-start`; a sequence's given start is the previous frame's fit;
+/// [`MethodKind::default_dofs`]). `data` gives the data's modality and whether it is a
+/// sequence, asked only then. Every method takes one, the
 /// network too (`anchored` adds the pull toward the start to the energy it fits, `observed`
 /// holds what the data leave open).
 pub fn dofs_for(
     kind: MethodKind,
     name: Option<&str>,
-    modality: &mut dyn FnMut() -> Result<lfit_model::observe::Modality>,
+    data: &mut dyn FnMut() -> Result<DataKind>,
     neural_start: &str,
 ) -> Result<lfit_fitters::Dofs> {
+    use lfit_fitters::AnchorStart;
     match name {
         None if kind == MethodKind::NeuralLm => {
-            Ok(kind.default_dofs(modality()?, neural_start == "given"))
+            let (modality, sequence) = data()?;
+            let start = match (neural_start, sequence) {
+                ("given", false) => AnchorStart::Given,
+                ("given", true) => AnchorStart::Previous,
+                _ => AnchorStart::Estimate,
+            };
+            Ok(kind.default_dofs(modality, start))
         }
         None => Ok(lfit_fitters::Dofs::All),
         Some(n) => n.parse().map_err(anyhow::Error::msg),
@@ -489,5 +501,62 @@ mod tests {
             )
             .is_err()
         );
+    }
+
+    /// `neural+lm`'s default anchor follows the sensor and where the network starts (round 40):
+    /// 5° on markers from a given start or the previous frame's fit, 15° (`anchored`) from
+    /// Φ(D); keypoints2d 3° only from a given start on single frames, 10° in a sequence and
+    /// from Φ(D); hmd 1° from anywhere. A name given wins, the data are not asked for it, and
+    /// the other methods move every entry.
+    #[test]
+    fn neural_lm_default_anchor_follows_the_start() {
+        use lfit_model::observe::Modality;
+        let default = |modality: Modality, sequence: bool, start: &str| {
+            dofs_for(
+                MethodKind::NeuralLm,
+                None,
+                &mut || Ok((modality, sequence)),
+                start,
+            )
+            .unwrap()
+            .name()
+        };
+        for (modality, sequence, start, want) in [
+            (Modality::Markers, false, "given", "anchored:5"),
+            (Modality::Markers, true, "given", "anchored:5"),
+            (Modality::Markers, false, "phi", "anchored"),
+            (Modality::Markers, true, "both", "anchored"),
+            (Modality::Keypoints2d, false, "given", "anchored:3"),
+            (Modality::Keypoints2d, true, "given", "anchored:10"),
+            (Modality::Keypoints2d, false, "best", "anchored:10"),
+            (Modality::Hmd, false, "given", "anchored:1"),
+            (Modality::Hmd, true, "phi", "anchored:1"),
+            (Modality::Landmarks2d, false, "given", "all"),
+        ] {
+            assert_eq!(
+                default(modality, sequence, start),
+                want,
+                "{modality:?}, sequence {sequence}, {start}"
+            );
+        }
+        let mut asked = false;
+        let named = dofs_for(
+            MethodKind::NeuralLm,
+            Some("observed"),
+            &mut || {
+                asked = true;
+                Ok((Modality::Markers, false))
+            },
+            "given",
+        )
+        .unwrap();
+        assert_eq!((named.name(), asked), ("observed".to_string(), false));
+        let lm = dofs_for(
+            MethodKind::Lm,
+            None,
+            &mut || Ok((Modality::Markers, false)),
+            "given",
+        );
+        assert_eq!(lm.unwrap().name(), "all");
     }
 }

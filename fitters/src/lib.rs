@@ -17,8 +17,8 @@ pub use fitter::{FitRequest, FitResult, Fitter, Strategy, split_budget};
 pub use lbfgs::LbfgsFitter;
 pub use least_squares::{LeastSquaresFitter, LeastSquaresMethod};
 pub use observed::{
-    ANCHOR_MOTION_CAP, ANCHOR_MOTION_GAIN, ANCHOR_STD_DEG, ANCHOR_TRANSLATION_STD_MM, AnchoredDofs,
-    Dofs, GIVEN_START_ANCHOR_STD_DEG, HMD_ANCHOR_STD_DEG, KEYPOINTS2D_ANCHOR_STD_DEG,
+    ANCHOR_MOTION_CAP, ANCHOR_MOTION_GAIN, ANCHOR_STD_DEG, ANCHOR_TRANSLATION_STD_MM, AnchorStart,
+    AnchoredDofs, Dofs, GIVEN_START_ANCHOR_STD_DEG, HMD_ANCHOR_STD_DEG, KEYPOINTS2D_ANCHOR_STD_DEG,
     KEYPOINTS2D_GIVEN_START_ANCHOR_STD_DEG, OBSERVED_MAX_STD_DEG, ObservedDofs,
     SEQUENCE_ANCHOR_TRANSLATION_STD_MM, SEQUENCE_MOTION_WEIGHT, SEQUENCE_NETWORK_OBSERVED_DEG,
     SequenceMotion, anchor_std_deg, anchor_translation_std_mm, anchored_energy,

@@ -467,17 +467,31 @@ pub fn anchor_translation_std_mm(chained: bool) -> f64 {
     }
 }
 
-/// The anchor chosen for `neural+lm` on a modality (the constants above), where one was
-/// measured: markers, keypoints2d, hmd; `given_start`: the network starts from a given pose
-/// near the target (`--neural-start given`), not from Φ(D) (or the better of the two), where a
-/// tighter pull was better on markers and keypoints2d.
-pub fn anchor_std_deg(modality: lfit_model::observe::Modality, given_start: bool) -> Option<f64> {
+/// Where `neural+lm`'s network starts, for the σ of its anchor ([`anchor_std_deg`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AnchorStart {
+    /// Φ(D), or the better of Φ(D) and the given start (`--neural-start phi`, `best`, `both`).
+    Estimate,
+    /// A given pose near the target (`--neural-start given` on single frames).
+    Given,
+    /// The previous frame's fit (`--neural-start given` in a sequence).
+    Previous,
+}
+
+/// The anchor chosen for `neural+lm` on a modality (the constants above) and where its network
+/// starts, where one was measured: markers, keypoints2d, hmd. From a given start near the target
+/// a tighter pull was better on markers and keypoints2d single frames; in a sequence, from the
+/// previous frame's fit, on markers too (the validation subject's 300-frame sequences: 11.20 mm
+/// at 5° against 14.60 at 15°) but not on keypoints2d (22.93 at 10° against 23.70 at 3°;
+/// docs/results/captured-motion.md, round 40).
+pub fn anchor_std_deg(modality: lfit_model::observe::Modality, start: AnchorStart) -> Option<f64> {
+    use AnchorStart::{Estimate, Given, Previous};
     use lfit_model::observe::Modality;
-    match (modality, given_start) {
-        (Modality::Markers, true) => Some(GIVEN_START_ANCHOR_STD_DEG),
-        (Modality::Markers, false) => Some(ANCHOR_STD_DEG),
-        (Modality::Keypoints2d, true) => Some(KEYPOINTS2D_GIVEN_START_ANCHOR_STD_DEG),
-        (Modality::Keypoints2d, false) => Some(KEYPOINTS2D_ANCHOR_STD_DEG),
+    match (modality, start) {
+        (Modality::Markers, Given | Previous) => Some(GIVEN_START_ANCHOR_STD_DEG),
+        (Modality::Markers, Estimate) => Some(ANCHOR_STD_DEG),
+        (Modality::Keypoints2d, Given) => Some(KEYPOINTS2D_GIVEN_START_ANCHOR_STD_DEG),
+        (Modality::Keypoints2d, Estimate | Previous) => Some(KEYPOINTS2D_ANCHOR_STD_DEG),
         (Modality::Hmd, _) => Some(HMD_ANCHOR_STD_DEG),
         _ => None,
     }

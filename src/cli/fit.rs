@@ -284,12 +284,13 @@ struct Prepared {
     dofs: lfit_fitters::Dofs,
 }
 
-/// Checks the settings of `args` and builds the fitter, before any frame is fitted. `modality`
-/// gives the data's modality, asked only when a recorded setting may apply (`--preset tuned`,
-/// or no preset); `config` replaces `--energy`.
+/// Checks the settings of `args` and builds the fitter, before any frame is fitted. `data`
+/// gives the data's modality and whether it is a sequence, asked only when a recorded setting
+/// or default may apply (`--preset tuned`, or no preset; `neural+lm` without `--dofs`);
+/// `config` replaces `--energy`.
 fn prepare(
     args: &FitArgs,
-    modality: &mut dyn FnMut() -> Result<lfit_model::observe::Modality>,
+    data: &mut dyn FnMut() -> Result<crate::method::DataKind>,
     config: Option<EnergyConfig>,
 ) -> Result<Prepared> {
     if args.budget == 0 {
@@ -333,7 +334,7 @@ fn prepare(
     };
     let tuned = if args.preset.is_some() || (!overridden && args.method.zeroth_order().is_some()) {
         crate::study::tuned::choose(args.preset.as_deref(), args.method.name(), &mut || {
-            Ok(modality()?.name().to_string())
+            Ok(data()?.0.name().to_string())
         })?
     } else {
         None
@@ -372,12 +373,8 @@ fn prepare(
             );
         }
     }
-    let dofs = crate::method::dofs_for(
-        args.method,
-        args.dofs.as_deref(),
-        modality,
-        &args.neural_start,
-    )?;
+    let dofs =
+        crate::method::dofs_for(args.method, args.dofs.as_deref(), data, &args.neural_start)?;
     let fitter: Box<dyn Fitter> = match args.checkpoint.as_deref() {
         Some(dir) if args.method.is_neural() => crate::method::load_neural_named(
             args.method,
@@ -465,17 +462,21 @@ pub fn read_offsets(path: &std::path::Path) -> Result<(Vec<[f64; 3]>, Option<&'s
     Ok((offsets, kind))
 }
 
+/// The dataset's modality and whether it is a sequence ([`crate::method::DataKind`]).
+fn data_kind(dataset: &Dataset) -> crate::method::DataKind {
+    (
+        dataset.sensor.modality(),
+        dataset.meta.config.scenario == lfit_synth::Scenario::Sequence,
+    )
+}
+
 /// `lfit fit`: fits every selected frame, writes the result JSON atomically and returns a summary.
 pub fn fit(args: &FitArgs, progress: &dyn Fn(usize, usize)) -> Result<Value> {
     let load =
         || Dataset::load(&args.data).with_context(|| format!("dataset {}", args.data.display()));
     // Settings first, before any work; a recorded setting's modality reads the dataset, once.
     let mut loaded = None;
-    let prepared = prepare(
-        args,
-        &mut || Ok(loaded.insert(load()?).sensor.modality()),
-        None,
-    )?;
+    let prepared = prepare(args, &mut || Ok(data_kind(loaded.insert(load()?))), None)?;
     let dataset = match loaded {
         Some(d) => d,
         None => load()?,
@@ -504,7 +505,7 @@ pub fn fit_dataset(
     config: Option<EnergyConfig>,
     progress: &dyn Fn(usize, usize) -> Result<()>,
 ) -> Result<Value> {
-    let prepared = prepare(args, &mut || Ok(dataset.sensor.modality()), config)?;
+    let prepared = prepare(args, &mut || Ok(data_kind(dataset)), config)?;
     let template = match template {
         Some(t) => {
             crate::fitting::check_model(dataset, &t)?;

@@ -379,16 +379,18 @@ impl BenchConfig {
             .map_err(|_| lfit_fitters::FitError::UnknownPreset(p.to_string()).into())
     }
 
-    /// `dofs` for one method on data of `modality` (`lfit fit --dofs`; the network too).
+    /// `dofs` for one method on data of `modality`, a sequence or not (`lfit fit --dofs`; the
+    /// network too).
     fn dofs_for(
         &self,
         kind: MethodKind,
         modality: lfit_model::observe::Modality,
+        sequence: bool,
     ) -> Result<lfit_fitters::Dofs> {
         crate::method::dofs_for(
             kind,
             self.dofs.as_deref(),
-            &mut || Ok(modality),
+            &mut || Ok((modality, sequence)),
             self.neural_start.as_deref().unwrap_or("given"),
         )
         .context("dofs")
@@ -866,6 +868,7 @@ pub fn run(
     let csv = out.join("runs.csv");
     let existing = read_runs(&csv)?;
     let scenario = dataset.meta.config.scenario;
+    let sequence = scenario == Scenario::Sequence;
     let entries = config.entries()?;
     let preset = config.preset()?;
     // One fitter per entry; the neural checkpoint is loaded once.
@@ -884,7 +887,7 @@ pub fn run(
                 config.runtime.as_deref().unwrap_or("burn"),
                 "flex",
                 None,
-                config.dofs_for(kind, dataset.modality())?,
+                config.dofs_for(kind, dataset.modality(), sequence)?,
             )?);
         } else {
             let (step_scale, cma) = if kind.zeroth_order().is_some() {
@@ -899,7 +902,7 @@ pub fn run(
                     strategy: s.parse()?,
                     step_scale,
                     cma,
-                    dofs: config.dofs_for(kind, dataset.modality())?,
+                    dofs: config.dofs_for(kind, dataset.modality(), sequence)?,
                 },
             )?);
         }
