@@ -27,9 +27,7 @@ for rep in $(seq "$REPS"); do
             set -- $cfg
             for name in gn chord; do
                 ck="$BASE"; [ "$name" = chord ] && ck="$CHORD"
-                RAYON_NUM_THREADS=$2 "$LFIT" -q fit --data "$OUT/$d.npz" --template "$MODEL" --method neural \
-                    --checkpoint "$ck" --neural-start given --runtime native --budget 10 --batch "$1" \
-                    --out "$OUT/r$rep-$d-$name-b$1.json" >/dev/null
+                eval_native_fit "$LFIT" "$OUT/$d.npz" "$ck" "$1" "$2" "$OUT/r$rep-$d-$name-b$1.json"
             done
         done
         RAYON_NUM_THREADS=1 "$LFIT" -q fit --data "$OUT/$d.npz" --template "$MODEL" --method lm --budget 4000 \

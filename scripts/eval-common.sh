@@ -7,6 +7,7 @@
 #   eval_binary NAME             # LFIT alone (eval_setup without the clip)
 #   eval_need_dir NAME DIR       # exits with a one-line error unless DIR is a directory
 #   eval_run NAME DATA METHOD ARG...  # lfit fit of DATA into OUT/NAME.json; NAME appended to rows
+#   eval_native_fit BIN DATA CK BATCH THREADS OUT [ARG...]  # one timed native network fit
 #   eval_table fits OUT ROW...   # V2V, MPJPE, PA-MPJPE, β RMS, shape V2V, energy, evaluations, time per frame
 #   eval_table c3d OUT ROW...    # share within 5 mm marker RMS, mean/median RMS, evaluations, time
 #   eval_table real OUT ROW...   # the same, and mean marker error, β RMS, β entries on the box
@@ -205,4 +206,16 @@ for n in names:
             print(f"| {n} | {len(fr)} | {s['mean_observation_error_mm']:.1f} | {cells} | {brms:.3f} | "
                   f"{bound:.1f} | {ev:.0f} | {ms:.2f} |")
 PY
+}
+
+# One timed fit of the neural fitter as the speed tables run it (eval-chord.sh, native-ab.sh,
+# eval-native-simd.sh): lfit binary BIN on DATA with CHECKPOINT, N = 5 from the given start,
+# `--runtime native`, BATCH frames per pass on THREADS threads, into OUT; more `lfit fit`
+# arguments after.
+eval_native_fit() {
+    local bin="$1" data="$2" ck="$3" batch="$4" threads="$5" out="$6"
+    shift 6
+    RAYON_NUM_THREADS=$threads "$bin" -q fit --data "$data" --template "$MODEL" --method neural \
+        --checkpoint "$ck" --neural-start given --runtime native --budget 10 --batch "$batch" \
+        "$@" --out "$out" >/dev/null
 }

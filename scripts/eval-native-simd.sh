@@ -24,9 +24,8 @@ for rep in $(seq "$REPS"); do
         for simd in auto portable; do
             for cfg in "1 1" "256 2"; do
                 set -- $cfg
-                LFIT_NATIVE_SIMD=$simd RAYON_NUM_THREADS=$2 "$LFIT" -q fit --data "$OUT/clip-$m.npz" --template "$MODEL" \
-                    --method neural --checkpoint "checkpoints/$m-makehuman" --neural-start given --runtime native \
-                    --budget 10 --batch "$1" "${k[@]}" --out "$OUT/r$rep-$m-$simd-b$1.json" >/dev/null
+                LFIT_NATIVE_SIMD=$simd eval_native_fit "$LFIT" "$OUT/clip-$m.npz" "checkpoints/$m-makehuman" \
+                    "$1" "$2" "$OUT/r$rep-$m-$simd-b$1.json" "${k[@]}"
             done
         done
     done

@@ -35,9 +35,8 @@ for rep in $(seq "$REPS"); do
             for ck in markers-makehuman markers-makehuman-chord; do
                 for which in base new; do
                     bin="$BASE"; [ "$which" = new ] && bin="$NEW"
-                    RAYON_NUM_THREADS=$2 "$bin" -q fit --data "$OUT/$d.npz" --template "$MODEL" --method neural \
-                        --checkpoint "checkpoints/$ck" --neural-start given --runtime native --budget 10 \
-                        --batch "$1" --out "$OUT/r$rep-$d-$ck-b$1-$which.json" >/dev/null 2>&1
+                    eval_native_fit "$bin" "$OUT/$d.npz" "checkpoints/$ck" "$1" "$2" \
+                        "$OUT/r$rep-$d-$ck-b$1-$which.json" 2>/dev/null
                 done
             done
         done

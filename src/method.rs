@@ -301,20 +301,34 @@ pub fn dofs_for(
     data: &mut dyn FnMut() -> Result<DataKind>,
     neural_start: &str,
 ) -> Result<lfit_fitters::Dofs> {
-    use lfit_fitters::AnchorStart;
     match name {
         None if kind == MethodKind::NeuralLm => {
             let (modality, sequence) = data()?;
-            let start = match (neural_start, sequence) {
-                ("given", false) => AnchorStart::Given,
-                ("given", true) => AnchorStart::Previous,
-                _ => AnchorStart::Estimate,
-            };
-            Ok(kind.default_dofs(modality, start))
+            Ok(kind.default_dofs(modality, anchor_start(neural_start, sequence)?))
         }
         None => Ok(lfit_fitters::Dofs::All),
         Some(n) => n.parse().map_err(anyhow::Error::msg),
     }
+}
+
+/// Where `neural+lm`'s network starts for its anchor ([`lfit_fitters::AnchorStart`]):
+/// `neural_start` as `--neural-start` names it ([`lfit_infer::Start`]'s names, refused as it
+/// refuses them), on a sequence's frames or on single ones.
+#[cfg(feature = "neural")]
+fn anchor_start(neural_start: &str, sequence: bool) -> Result<lfit_fitters::AnchorStart> {
+    use lfit_fitters::AnchorStart;
+    let start: lfit_infer::Start = neural_start.parse().map_err(anyhow::Error::msg)?;
+    Ok(match (start, sequence) {
+        (lfit_infer::Start::Given, false) => AnchorStart::Given,
+        (lfit_infer::Start::Given, true) => AnchorStart::Previous,
+        _ => AnchorStart::Estimate,
+    })
+}
+
+/// Without the neural fitter there is no network to start.
+#[cfg(not(feature = "neural"))]
+fn anchor_start(_neural_start: &str, _sequence: bool) -> Result<lfit_fitters::AnchorStart> {
+    anyhow::bail!(NO_NEURAL)
 }
 
 /// The error of a neural method in a build without the `neural` feature (no Burn).
@@ -527,6 +541,7 @@ mod tests {
             (Modality::Markers, false, "phi", "anchored"),
             (Modality::Markers, true, "both", "anchored"),
             (Modality::Keypoints2d, false, "given", "anchored:3"),
+            (Modality::Keypoints2d, false, "start", "anchored:3"),
             (Modality::Keypoints2d, true, "given", "anchored:10"),
             (Modality::Keypoints2d, false, "best", "anchored:10"),
             (Modality::Hmd, false, "given", "anchored:1"),
@@ -551,6 +566,18 @@ mod tests {
         )
         .unwrap();
         assert_eq!((named.name(), asked), ("observed".to_string(), false));
+        let unknown = dofs_for(
+            MethodKind::NeuralLm,
+            None,
+            &mut || Ok((Modality::Markers, false)),
+            "gvien",
+        );
+        assert!(
+            unknown
+                .unwrap_err()
+                .to_string()
+                .contains("unknown neural start 'gvien'")
+        );
         let lm = dofs_for(
             MethodKind::Lm,
             None,

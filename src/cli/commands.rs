@@ -751,10 +751,11 @@ const SEQUENCE_NETWORK_PART: &str = "-sequence-net";
 /// clip's sequences (checkpoints/README.md). Markers: the chord direction's
 /// (`markers-makehuman-chord2-sequence`: 10.07 mm against the Gauss–Newton one's 10.56 on the
 /// clip, `joint:64`, at ~0.8 of its time).
-pub fn sequence_network(modality: &str) -> Option<&'static str> {
+pub fn sequence_network(modality: lfit_model::observe::Modality) -> Option<&'static str> {
+    use lfit_model::observe::Modality;
     match modality {
-        "markers" => Some("checkpoints/markers-makehuman-chord2-sequence"),
-        "keypoints2d" => Some("checkpoints/keypoints2d-makehuman-sequence"),
+        Modality::Markers => Some("checkpoints/markers-makehuman-chord2-sequence"),
+        Modality::Keypoints2d => Some("checkpoints/keypoints2d-makehuman-sequence"),
         _ => None,
     }
 }
@@ -774,15 +775,13 @@ fn with_sequence_network_parts(
         let Some(synth) = config.synth.as_ref() else {
             return Ok(None);
         };
-        let Some(dofs) = synth
-            .modality
-            .parse()
-            .ok()
-            .and_then(lfit_fitters::sequence_network_dofs)
-        else {
+        let Ok(modality) = synth.modality.parse() else {
             return Ok(None);
         };
-        let Some(name) = sequence_network(&synth.modality) else {
+        let (Some(dofs), Some(name)) = (
+            lfit_fitters::sequence_network_dofs(modality),
+            sequence_network(modality),
+        ) else {
             return Ok(None);
         };
         let checkpoint = crate::shipped::locate(Path::new(name))

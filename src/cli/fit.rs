@@ -346,8 +346,9 @@ fn prepare(
     if args.batch == 0 {
         bail!("--batch must be at least 1");
     }
-    // The flags each kind of method refuses, before anything is read for the fit.
-    if args.method.is_neural() {
+    // The flags each kind of method refuses, before anything is read for the fit; a neural
+    // method's checkpoint.
+    let checkpoint = if args.method.is_neural() {
         if args.step_scale.is_some()
             || args.preset.as_deref() == Some("tuned")
             || args.cma != Default::default()
@@ -357,9 +358,11 @@ fn prepare(
                 args.method
             );
         }
-        if args.checkpoint.is_none() {
-            bail!("--method {} needs --checkpoint DIR", args.method);
-        }
+        Some(
+            args.checkpoint
+                .as_deref()
+                .with_context(|| format!("--method {} needs --checkpoint DIR", args.method))?,
+        )
     } else {
         if args.checkpoint.is_some() {
             bail!("--checkpoint is only for --method neural or neural+lm");
@@ -372,11 +375,12 @@ fn prepare(
                 "--neural-iterations and --neural-tolerance are only for --method neural or neural+lm"
             );
         }
-    }
+        None
+    };
     let dofs =
         crate::method::dofs_for(args.method, args.dofs.as_deref(), data, &args.neural_start)?;
-    let fitter: Box<dyn Fitter> = match args.checkpoint.as_deref() {
-        Some(dir) if args.method.is_neural() => crate::method::load_neural_named(
+    let fitter: Box<dyn Fitter> = match checkpoint {
+        Some(dir) => crate::method::load_neural_named(
             args.method,
             dir,
             &args.neural_start,
@@ -388,7 +392,7 @@ fn prepare(
             args.ort_threads,
             dofs,
         )?,
-        _ => crate::method::build_classic(
+        None => crate::method::build_classic(
             args.method,
             crate::method::ClassicOptions {
                 preset,
