@@ -700,15 +700,22 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
     // value is one line naming the variable, not a checkpoint's error).
     #[cfg(feature = "neural")]
     lfit::nn::host::wide_simd()?;
+    // rayon's pool: --threads threads (else RAYON_NUM_THREADS, else one per core), each with the
+    // main thread's usual stack (the command runs on one of them, below).
+    let mut pool = rayon::ThreadPoolBuilder::new().stack_size(8 << 20);
     if let Some(n) = cli.threads {
         if n == 0 {
             anyhow::bail!("--threads must be at least 1");
         }
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(n)
-            .build_global()?;
+        pool = pool.num_threads(n);
     }
-    match cli.command {
+    pool.build_global()?;
+    // The command runs on one of rayon's threads (this one waits): its parallel loops then
+    // share their work among the pool's threads from inside it, where from this thread each
+    // loop would be handed to the pool and waited for, a wake-up and a sleep each. The batched
+    // neural fit runs a few dozen such loops per batch: 0.80-0.89 of its time per frame,
+    // the same poses (docs/results/cost-model.md, thirtieth session).
+    rayon::scope(move |_| match cli.command {
         Command::Model(ModelCommand::Info { template }) => Ok(commands::model_info(
             &commands::load_model(template.template.as_deref(), &template.shape)?,
         )),
@@ -1089,7 +1096,7 @@ fn run(cli: Cli) -> Result<serde_json::Value> {
             fit::objective_server(&args, stdin.lock(), std::io::stdout().lock())
                 .map(|_| serde_json::Value::Null)
         }
-    }
+    })
 }
 
 /// A clap error on one line, with what its later lines add: the missing flags, the valid values
