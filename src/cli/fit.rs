@@ -12,6 +12,7 @@ use lfit_model::metrics::{TruthMesh, aligned_joint_error_mm, joint_error_mm, mpj
 use lfit_model::pose::DofMask;
 use lfit_model::template::{Template, write_atomic};
 use lfit_synth::Dataset;
+use rayon::prelude::*;
 use serde_json::{Map, Value, json};
 
 pub use crate::fitting::{
@@ -37,6 +38,52 @@ pub fn params_json(template: &Template, params: &[f64]) -> Map<String, Value> {
         );
     }
     m
+}
+
+/// A fit's errors against the truth: V2V, MPJPE, PA-MPJPE (after a similarity alignment of
+/// the joints: the monocular figure, a single view leaves scale and depth open), the fitted and
+/// true joints (for a sequence's acceleration error), β's coefficient RMS and shape V2V where
+/// the model has shape, the face's errors where it is a face, and the V2V and MPJPE of every
+/// iterate where the fitter kept them.
+struct TruthScore {
+    v2v: f64,
+    mpjpe: f64,
+    pa_mpjpe: f64,
+    joints: Vec<glam::DVec3>,
+    true_joints: Vec<glam::DVec3>,
+    coefficient_rms: Option<f64>,
+    shape_v2v: Option<f64>,
+    face: Option<lfit_model::metrics::FaceErrors>,
+    per_iteration: Option<(Vec<f64>, Vec<f64>)>,
+}
+
+impl TruthScore {
+    fn of(template: &Template, gt: &[f64], pose: &[f64], iterates: &[Vec<f64>]) -> Self {
+        let truth = TruthMesh::new(template, gt);
+        let v2v = truth.v2v_mm(template, pose);
+        // The fitted and true joints, posed once for MPJPE, PA-MPJPE and a sequence's
+        // acceleration error.
+        let (joints, true_joints) = (
+            lfit_model::metrics::joint_positions(template, pose),
+            lfit_model::metrics::joint_positions(template, gt),
+        );
+        Self {
+            v2v,
+            mpjpe: joint_error_mm(&joints, &true_joints),
+            pa_mpjpe: aligned_joint_error_mm(&joints, &true_joints),
+            joints,
+            true_joints,
+            coefficient_rms: coefficient_rms(template, pose, gt),
+            shape_v2v: lfit_model::metrics::shape_v2v_mm(template, pose, gt),
+            face: lfit_model::metrics::face_errors_mm(template, pose, gt),
+            per_iteration: (!iterates.is_empty()).then(|| {
+                (
+                    iterate_v2v(template, iterates, &truth, pose, v2v),
+                    iterate_errors(template, iterates, gt, mpjpe_mm),
+                )
+            }),
+        }
+    }
 }
 
 /// RMS difference of the shape and expression coefficients, `None` without them.
@@ -627,6 +674,10 @@ fn fit_prepared(
     let mut observed: Vec<(usize, usize, Vec<f64>)> = Vec::new();
     // With `--holdout`, every fitted frame (row, frame, pose), scored after the pass.
     let mut fitted_poses: Vec<(usize, usize, Vec<f64>)> = Vec::new();
+    // Every fitted frame with ground truth (row, frame, truth, pose, iterates), scored after the
+    // pass.
+    #[allow(clippy::type_complexity)]
+    let mut truth_scored: Vec<(usize, usize, &[f64], Vec<f64>, Vec<Vec<f64>>)> = Vec::new();
     // Frames go through the network `--batch` at a time (the plan keeps sequences one by one).
     let plan = crate::fitting::Plan {
         dataset: &dataset,
@@ -728,44 +779,8 @@ fn fit_prepared(
                 reference_joints.push((frame, joints));
             }
             if let Some(gt) = dataset.ground_truth(frame) {
-                let truth = TruthMesh::new(&template, gt);
-                let v2v = truth.v2v_mm(&template, pose);
-                // The fitted and true joints, posed once for MPJPE, PA-MPJPE and a sequence's
-                // acceleration error.
-                let (joints, true_joints) = (
-                    lfit_model::metrics::joint_positions(&template, pose),
-                    lfit_model::metrics::joint_positions(&template, gt),
-                );
-                let mpjpe = joint_error_mm(&joints, &true_joints);
-                // After a similarity alignment of the joints (the monocular figure: a single
-                // view leaves scale and depth open).
-                let pa_mpjpe = aligned_joint_error_mm(&joints, &true_joints);
-                sum_v2v += v2v;
-                sum_mpjpe += mpjpe;
-                sum_pa_mpjpe += pa_mpjpe;
-                row["v2v_mm"] = json!(v2v);
-                row["mpjpe_mm"] = json!(mpjpe);
-                row["pa_mpjpe_mm"] = json!(pa_mpjpe);
-                if scenario == lfit_synth::Scenario::Sequence {
-                    sequence_joints.push((frame, joints, true_joints));
-                }
-                if let Some(c) = coefficient_rms(&template, pose, gt) {
-                    row["shape_rms"] = json!(c);
-                    sum_coeff += c;
-                }
-                if let Some(d) = lfit_model::metrics::shape_v2v_mm(&template, pose, gt) {
-                    row["shape_v2v_mm"] = json!(d);
-                    sum_shape_v2v += d;
-                }
-                if let Some(f) = lfit_model::metrics::face_errors_mm(&template, pose, gt) {
-                    row["face"] = json!(f);
-                }
-                if !result.iterates.is_empty() {
-                    row["v2v_mm_per_iteration"] =
-                        json!(iterate_v2v(&template, &result.iterates, &truth, pose, v2v));
-                    row["mpjpe_mm_per_iteration"] =
-                        json!(iterate_errors(&template, &result.iterates, gt, mpjpe_mm));
-                }
+                // Scored against the truth after the pass, over rayon's threads (below).
+                truth_scored.push((rows.len(), frame, gt, pose.clone(), result.iterates));
             } else {
                 // The distances to the observations come after the pass, with the markers
                 // where it put them (a solved placement is known once the β pass is done).
@@ -785,6 +800,40 @@ fn fit_prepared(
             progress(done, frames.len())
         },
     )?;
+    // The errors against the truth (a dozen full meshes per frame with the iterates' V2V: more
+    // than the fit itself for the batched neural fitter), frames over rayon's threads, then
+    // written and summed in frame order: the same numbers as one frame at a time.
+    let scores: Vec<TruthScore> = truth_scored
+        .par_iter()
+        .map(|(_, _, gt, pose, iterates)| TruthScore::of(&template, gt, pose, iterates))
+        .collect();
+    for ((k, frame, _, _, _), score) in truth_scored.into_iter().zip(scores) {
+        let row = &mut rows[k];
+        sum_v2v += score.v2v;
+        sum_mpjpe += score.mpjpe;
+        sum_pa_mpjpe += score.pa_mpjpe;
+        row["v2v_mm"] = json!(score.v2v);
+        row["mpjpe_mm"] = json!(score.mpjpe);
+        row["pa_mpjpe_mm"] = json!(score.pa_mpjpe);
+        if scenario == lfit_synth::Scenario::Sequence {
+            sequence_joints.push((frame, score.joints, score.true_joints));
+        }
+        if let Some(c) = score.coefficient_rms {
+            row["shape_rms"] = json!(c);
+            sum_coeff += c;
+        }
+        if let Some(d) = score.shape_v2v {
+            row["shape_v2v_mm"] = json!(d);
+            sum_shape_v2v += d;
+        }
+        if let Some(f) = score.face {
+            row["face"] = json!(f);
+        }
+        if let Some((v2v, mpjpe)) = score.per_iteration {
+            row["v2v_mm_per_iteration"] = json!(v2v);
+            row["mpjpe_mm_per_iteration"] = json!(mpjpe);
+        }
+    }
     let sensor = match report
         .shape_pass
         .as_ref()
