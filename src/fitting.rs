@@ -886,13 +886,17 @@ fn request<'e>(
     }
 }
 
-/// One [`Fitter::fit_batch`] call, its error naming the frames.
+/// One [`Fitter::fit_batch`] call, its error naming the frames. The call runs on one of
+/// rayon's threads (inline where this is one already, as under `lfit`'s commands): a batch's
+/// parallel loops then share their work from inside the pool instead of each being handed to
+/// it from outside and waited for (a caller of the library, as the Python package, is not on
+/// one).
 fn fit_group(
     fitter: &dyn Fitter,
     requests: &[FitRequest<'_>],
     group: &[usize],
 ) -> Result<Vec<FitResult>> {
-    fitter.fit_batch(requests).with_context(|| match group {
+    rayon::scope(|_| fitter.fit_batch(requests)).with_context(|| match group {
         [frame] => format!("{} on frame {frame}", fitter.name()),
         _ => format!(
             "{} on frames {}–{}",
