@@ -86,6 +86,103 @@ impl TruthScore {
     }
 }
 
+/// Frames fitted with ground truth waiting to be scored ([`TruthScore`]) over rayon's threads,
+/// `chunk` at a time ([`TRUTH_CHUNK`]: their iterates are not kept for a whole long sequence),
+/// and the sums of their errors, added in frame order: the same numbers as one frame at a time.
+struct TruthScores<'a> {
+    chunk: usize,
+    /// (row, frame, truth, pose, iterates).
+    #[allow(clippy::type_complexity)]
+    pending: Vec<(usize, usize, &'a [f64], Vec<f64>, Vec<Vec<f64>>)>,
+    v2v: f64,
+    mpjpe: f64,
+    pa_mpjpe: f64,
+    coefficient_rms: f64,
+    shape_v2v: f64,
+    /// In a sequence: each frame's fitted and true joints, for the acceleration error.
+    joints: Vec<(usize, Vec<glam::DVec3>, Vec<glam::DVec3>)>,
+}
+
+/// Frames scored against the truth per parallel pass of [`TruthScores`].
+const TRUTH_CHUNK: usize = 512;
+
+impl<'a> TruthScores<'a> {
+    fn new(chunk: usize) -> Self {
+        Self {
+            chunk,
+            pending: Vec::new(),
+            v2v: 0.0,
+            mpjpe: 0.0,
+            pa_mpjpe: 0.0,
+            coefficient_rms: 0.0,
+            shape_v2v: 0.0,
+            joints: Vec::new(),
+        }
+    }
+
+    /// Queues a frame's result (its row, `row`, not yet in `rows`), scoring the queue first
+    /// when it is full.
+    #[allow(clippy::too_many_arguments)]
+    fn push(
+        &mut self,
+        row: usize,
+        frame: usize,
+        truth: &'a [f64],
+        result: &lfit_fitters::FitResult,
+        rows: &mut [Value],
+        template: &Template,
+        sequence: bool,
+    ) {
+        // The queued frames' rows are in `rows` already; this one's is not yet.
+        if self.pending.len() >= self.chunk {
+            self.flush(rows, template, sequence);
+        }
+        self.pending.push((
+            row,
+            frame,
+            truth,
+            result.pose.clone(),
+            result.iterates.clone(),
+        ));
+    }
+
+    /// Scores the queued frames over rayon's threads and writes each into its row.
+    fn flush(&mut self, rows: &mut [Value], template: &Template, sequence: bool) {
+        let scores: Vec<TruthScore> = self
+            .pending
+            .par_iter()
+            .map(|(_, _, gt, pose, iterates)| TruthScore::of(template, gt, pose, iterates))
+            .collect();
+        for ((k, frame, _, _, _), score) in self.pending.drain(..).zip(scores) {
+            let row = &mut rows[k];
+            self.v2v += score.v2v;
+            self.mpjpe += score.mpjpe;
+            self.pa_mpjpe += score.pa_mpjpe;
+            row["v2v_mm"] = json!(score.v2v);
+            row["mpjpe_mm"] = json!(score.mpjpe);
+            row["pa_mpjpe_mm"] = json!(score.pa_mpjpe);
+            if sequence {
+                self.joints.push((frame, score.joints, score.true_joints));
+            }
+            if let Some(c) = score.coefficient_rms {
+                row["shape_rms"] = json!(c);
+                self.coefficient_rms += c;
+            }
+            if let Some(d) = score.shape_v2v {
+                row["shape_v2v_mm"] = json!(d);
+                self.shape_v2v += d;
+            }
+            if let Some(f) = score.face {
+                row["face"] = json!(f);
+            }
+            if let Some((v2v, mpjpe)) = score.per_iteration {
+                row["v2v_mm_per_iteration"] = json!(v2v);
+                row["mpjpe_mm_per_iteration"] = json!(mpjpe);
+            }
+        }
+    }
+}
+
 /// RMS difference of the shape and expression coefficients, `None` without them.
 pub fn coefficient_rms(template: &Template, fitted: &[f64], truth: &[f64]) -> Option<f64> {
     let l = template.layout();
@@ -652,32 +749,25 @@ fn fit_prepared(
     let frames = parse_frames(args.frames.as_deref(), dataset.len())?;
     let scenario = dataset.meta.config.scenario;
     let mut rows = Vec::with_capacity(frames.len());
-    let mut sum_coeff = 0.0;
-    let mut sum_shape_v2v = 0.0;
     // With `--height-prior`: the fitted β's rest heights.
     let mut sum_rest_height = 0.0;
     // Frames whose estimated β ended at its box (none counted where β is given).
     let mut shape_at_bound_frames = 0usize;
-    let (mut sum_v2v, mut sum_mpjpe, mut sum_e, mut sum_t) = (0.0, 0.0, 0.0, 0.0);
-    let mut sum_pa_mpjpe = 0.0;
+    let (mut sum_e, mut sum_t) = (0.0, 0.0);
     // With a captured joint reference (`lfit data import --reference`): MPJPE and PA-MPJPE
     // against it, over the frames that hold some of it.
     let (mut sum_ref, mut ref_frames) = (0.0, 0usize);
     let (mut sum_ref_pa, mut ref_pa_frames) = (0.0, 0usize);
     // In a sequence: each fitted frame's joints, for the acceleration error against it.
     let mut reference_joints: Vec<(usize, Vec<glam::DVec3>)> = Vec::new();
-    // In a sequence with ground truth: each frame's fitted and true joints, for the
-    // acceleration error.
-    let mut sequence_joints: Vec<(usize, Vec<glam::DVec3>, Vec<glam::DVec3>)> = Vec::new();
     // Without ground truth (imported observations): how far the fit lies from the observations.
     let (mut sum_obs, mut obs_frames, mut obs_unit) = (0.0, 0usize, "");
     let mut observed: Vec<(usize, usize, Vec<f64>)> = Vec::new();
     // With `--holdout`, every fitted frame (row, frame, pose), scored after the pass.
     let mut fitted_poses: Vec<(usize, usize, Vec<f64>)> = Vec::new();
-    // Every fitted frame with ground truth (row, frame, truth, pose, iterates), scored after the
-    // pass.
-    #[allow(clippy::type_complexity)]
-    let mut truth_scored: Vec<(usize, usize, &[f64], Vec<f64>, Vec<Vec<f64>>)> = Vec::new();
+    // With ground truth: the errors against it.
+    let mut truth = TruthScores::new(TRUTH_CHUNK);
+    let sequence = scenario == lfit_synth::Scenario::Sequence;
     // Frames go through the network `--batch` at a time (the plan keeps sequences one by one).
     let plan = crate::fitting::Plan {
         dataset: &dataset,
@@ -774,13 +864,21 @@ fn fit_prepared(
                 }
             }
             if let Some(joints) = posed
-                && scenario == lfit_synth::Scenario::Sequence
+                && sequence
             {
                 reference_joints.push((frame, joints));
             }
             if let Some(gt) = dataset.ground_truth(frame) {
-                // Scored against the truth after the pass, over rayon's threads (below).
-                truth_scored.push((rows.len(), frame, gt, pose.clone(), result.iterates));
+                // Scored against the truth over rayon's threads, a chunk of frames at a time.
+                truth.push(
+                    rows.len(),
+                    frame,
+                    gt,
+                    &result,
+                    &mut rows,
+                    &template,
+                    sequence,
+                );
             } else {
                 // The distances to the observations come after the pass, with the markers
                 // where it put them (a solved placement is known once the β pass is done).
@@ -800,40 +898,9 @@ fn fit_prepared(
             progress(done, frames.len())
         },
     )?;
-    // The errors against the truth (a dozen full meshes per frame with the iterates' V2V: more
-    // than the fit itself for the batched neural fitter), frames over rayon's threads, then
-    // written and summed in frame order: the same numbers as one frame at a time.
-    let scores: Vec<TruthScore> = truth_scored
-        .par_iter()
-        .map(|(_, _, gt, pose, iterates)| TruthScore::of(&template, gt, pose, iterates))
-        .collect();
-    for ((k, frame, _, _, _), score) in truth_scored.into_iter().zip(scores) {
-        let row = &mut rows[k];
-        sum_v2v += score.v2v;
-        sum_mpjpe += score.mpjpe;
-        sum_pa_mpjpe += score.pa_mpjpe;
-        row["v2v_mm"] = json!(score.v2v);
-        row["mpjpe_mm"] = json!(score.mpjpe);
-        row["pa_mpjpe_mm"] = json!(score.pa_mpjpe);
-        if scenario == lfit_synth::Scenario::Sequence {
-            sequence_joints.push((frame, score.joints, score.true_joints));
-        }
-        if let Some(c) = score.coefficient_rms {
-            row["shape_rms"] = json!(c);
-            sum_coeff += c;
-        }
-        if let Some(d) = score.shape_v2v {
-            row["shape_v2v_mm"] = json!(d);
-            sum_shape_v2v += d;
-        }
-        if let Some(f) = score.face {
-            row["face"] = json!(f);
-        }
-        if let Some((v2v, mpjpe)) = score.per_iteration {
-            row["v2v_mm_per_iteration"] = json!(v2v);
-            row["mpjpe_mm_per_iteration"] = json!(mpjpe);
-        }
-    }
+    // The errors against the truth of the frames left (a dozen full meshes per frame with the
+    // iterates' V2V: more than the fit itself for the batched neural fitter).
+    truth.flush(&mut rows, &template, sequence);
     let sensor = match report
         .shape_pass
         .as_ref()
@@ -884,18 +951,18 @@ fn fit_prepared(
         summary["mean_lowest_sole_m"] = json!(sum_lowest_sole / n);
     }
     if dataset.has_ground_truth() {
-        summary["mean_v2v_mm"] = json!(sum_v2v / n);
-        summary["mean_mpjpe_mm"] = json!(sum_mpjpe / n);
-        summary["mean_pa_mpjpe_mm"] = json!(sum_pa_mpjpe / n);
+        summary["mean_v2v_mm"] = json!(truth.v2v / n);
+        summary["mean_mpjpe_mm"] = json!(truth.mpjpe / n);
+        summary["mean_pa_mpjpe_mm"] = json!(truth.pa_mpjpe / n);
         // A sequence's jitter against the truth's motion (mm per frame²).
-        if let Some(a) = lfit_model::metrics::accel_error_mm(&sequence_joints) {
+        if let Some(a) = lfit_model::metrics::accel_error_mm(&truth.joints) {
             summary["mean_accel_error_mm"] = json!(a);
         }
         if template.morph.coefficients() > 0 {
-            summary["mean_shape_rms"] = json!(sum_coeff / n);
+            summary["mean_shape_rms"] = json!(truth.coefficient_rms / n);
         }
         if template.layout().shape > 0 {
-            summary["mean_shape_v2v_mm"] = json!(sum_shape_v2v / n);
+            summary["mean_shape_v2v_mm"] = json!(truth.shape_v2v / n);
         }
     } else {
         // No V2V/MPJPE without ground truth: energies and distances to the observations.
@@ -954,7 +1021,6 @@ fn fit_prepared(
     }
     if known_shape.is_none() && template.layout().shape > 0 {
         summary["shape_at_bound_frames"] = json!(shape_at_bound_frames);
-        let sequence = scenario == lfit_synth::Scenario::Sequence;
         if let Some(hint) = shape_hint(
             shape_at_bound_frames,
             frames.len(),
@@ -1367,4 +1433,79 @@ pub fn optimize(args: &OptimizeArgs) -> Result<Value> {
         "evaluations": out.evaluations,
         "trace": out.trace,
     }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Scoring the frames a chunk at a time (2, 3: the queue flushed before a frame is added,
+    /// whose row is not in `rows` yet) writes every row and sums every error as scoring them all
+    /// at the end does, in frame order and to the bit; each row gets its V2V, MPJPE and the
+    /// iterates' V2V, and a sequence keeps every frame's joints. Breaks if a flush scores a
+    /// frame whose row is not there yet (out of bounds), skips or repeats one, or sums out of
+    /// order.
+    #[test]
+    fn chunked_truth_scores_are_the_scores_of_all_frames_at_once() {
+        let t = lfit_model::default_template();
+        let dim = t.layout().dim();
+        let pose = |k: usize| -> Vec<f64> {
+            (0..dim)
+                .map(|i| 0.01 * ((i * 7 + k * 13) % 11) as f64 - 0.05)
+                .collect()
+        };
+        let truths: Vec<Vec<f64>> = (0..7).map(|f| pose(f + 20)).collect();
+        let results: Vec<lfit_fitters::FitResult> = (0..7)
+            .map(|f| lfit_fitters::FitResult {
+                method: "test".into(),
+                pose: pose(f),
+                energy: 0.0,
+                terms: Vec::new(),
+                evaluations: 0,
+                gradient_evaluations: 0,
+                iterations: 0,
+                time_s: 0.0,
+                trace: Vec::new(),
+                iterates: if f % 2 == 0 {
+                    vec![pose(f + 40), pose(f)]
+                } else {
+                    Vec::new()
+                },
+            })
+            .collect();
+        let score = |chunk: usize| {
+            let mut scores = TruthScores::new(chunk);
+            let mut rows: Vec<Value> = Vec::new();
+            for (f, (truth, result)) in truths.iter().zip(&results).enumerate() {
+                scores.push(rows.len(), f, truth, result, &mut rows, &t, true);
+                rows.push(json!({ "frame": f }));
+            }
+            scores.flush(&mut rows, &t, true);
+            assert!(scores.pending.is_empty());
+            (rows, scores)
+        };
+        let (want_rows, want) = score(usize::MAX);
+        assert!(want.v2v > 0.0 && want.mpjpe > 0.0, "{}", want.v2v);
+        assert_eq!(want.joints.len(), 7);
+        for (f, row) in want_rows.iter().enumerate() {
+            assert!(row["v2v_mm"].as_f64().is_some_and(|v| v > 0.0), "{row}");
+            assert!(row["mpjpe_mm"].is_f64(), "{row}");
+            assert_eq!(row["v2v_mm_per_iteration"].is_array(), f % 2 == 0, "{row}");
+        }
+        for chunk in [1, 2, 3] {
+            let (rows, got) = score(chunk);
+            assert_eq!(rows, want_rows, "chunk {chunk}");
+            for (g, w) in [
+                (got.v2v, want.v2v),
+                (got.mpjpe, want.mpjpe),
+                (got.pa_mpjpe, want.pa_mpjpe),
+                (got.coefficient_rms, want.coefficient_rms),
+                (got.shape_v2v, want.shape_v2v),
+            ] {
+                assert_eq!(g.to_bits(), w.to_bits(), "chunk {chunk}");
+            }
+            let frames = |s: &TruthScores| s.joints.iter().map(|j| j.0).collect::<Vec<_>>();
+            assert_eq!(frames(&got), (0..7).collect::<Vec<_>>(), "chunk {chunk}");
+        }
+    }
 }
