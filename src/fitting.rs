@@ -1544,7 +1544,7 @@ pub fn iterate_v2v(
 
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use lfit_model::observe::{Modality, Sensor};
     use lfit_synth::{SynthConfig, synthesize};
@@ -1612,6 +1612,13 @@ mod tests {
         assert_eq!(e.height_prior().unwrap().height_m(), 1.7);
     }
 
+    /// A parameter vector of `dim` entries within ±0.05, a different one for each `k`.
+    pub(crate) fn varied_pose(dim: usize, k: usize) -> Vec<f64> {
+        (0..dim)
+            .map(|i| 0.01 * ((i * 7 + k * 13) % 11) as f64 - 0.05)
+            .collect()
+    }
+
     /// [`iterate_v2v`] gives [`iterate_errors`]'s V2V bit for bit, the iterate equal to the
     /// result included.
     #[test]
@@ -1619,11 +1626,7 @@ mod tests {
         use lfit_model::metrics::{TruthMesh, v2v_mm};
         let t = lfit_model::default_template();
         let dim = t.layout().dim();
-        let pose = |k: usize| -> Vec<f64> {
-            (0..dim)
-                .map(|i| 0.01 * ((i * 7 + k * 13) % 11) as f64 - 0.05)
-                .collect()
-        };
+        let pose = |k: usize| varied_pose(dim, k);
         let truth = pose(0);
         let iterates: Vec<Vec<f64>> = (1..5).map(pose).collect();
         let result = iterates[3].clone();

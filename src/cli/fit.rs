@@ -1448,12 +1448,7 @@ mod tests {
     #[test]
     fn chunked_truth_scores_are_the_scores_of_all_frames_at_once() {
         let t = lfit_model::default_template();
-        let dim = t.layout().dim();
-        let pose = |k: usize| -> Vec<f64> {
-            (0..dim)
-                .map(|i| 0.01 * ((i * 7 + k * 13) % 11) as f64 - 0.05)
-                .collect()
-        };
+        let pose = |k: usize| crate::fitting::tests::varied_pose(t.layout().dim(), k);
         let truths: Vec<Vec<f64>> = (0..7).map(|f| pose(f + 20)).collect();
         let results: Vec<lfit_fitters::FitResult> = (0..7)
             .map(|f| lfit_fitters::FitResult {
