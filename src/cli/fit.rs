@@ -86,14 +86,25 @@ impl TruthScore {
     }
 }
 
+/// A fitted frame with ground truth waiting to be scored: its row in the result, the frame, its
+/// truth, the fitted pose and the fitter's iterates.
+struct Queued<'a> {
+    row: usize,
+    frame: usize,
+    truth: &'a [f64],
+    pose: Vec<f64>,
+    iterates: Vec<Vec<f64>>,
+}
+
 /// Frames fitted with ground truth waiting to be scored ([`TruthScore`]) over rayon's threads,
 /// `chunk` at a time ([`TRUTH_CHUNK`]: their iterates are not kept for a whole long sequence),
 /// and the sums of their errors, added in frame order: the same numbers as one frame at a time.
 struct TruthScores<'a> {
+    template: &'a Template,
+    /// Whether the frames are a sequence (then each frame's joints are kept).
+    sequence: bool,
     chunk: usize,
-    /// (row, frame, truth, pose, iterates).
-    #[allow(clippy::type_complexity)]
-    pending: Vec<(usize, usize, &'a [f64], Vec<f64>, Vec<Vec<f64>>)>,
+    pending: Vec<Queued<'a>>,
     v2v: f64,
     mpjpe: f64,
     pa_mpjpe: f64,
@@ -107,8 +118,10 @@ struct TruthScores<'a> {
 const TRUTH_CHUNK: usize = 512;
 
 impl<'a> TruthScores<'a> {
-    fn new(chunk: usize) -> Self {
+    fn new(template: &'a Template, sequence: bool, chunk: usize) -> Self {
         Self {
+            template,
+            sequence,
             chunk,
             pending: Vec::new(),
             v2v: 0.0,
@@ -120,49 +133,34 @@ impl<'a> TruthScores<'a> {
         }
     }
 
-    /// Queues a frame's result (its row, `row`, not yet in `rows`), scoring the queue first
-    /// when it is full.
-    #[allow(clippy::too_many_arguments)]
-    fn push(
-        &mut self,
-        row: usize,
-        frame: usize,
-        truth: &'a [f64],
-        result: &lfit_fitters::FitResult,
-        rows: &mut [Value],
-        template: &Template,
-        sequence: bool,
-    ) {
+    /// Queues a frame (its row, `queued.row`, not yet in `rows`), scoring the queue first when
+    /// it is full.
+    fn push(&mut self, queued: Queued<'a>, rows: &mut [Value]) {
         // The queued frames' rows are in `rows` already; this one's is not yet.
         if self.pending.len() >= self.chunk {
-            self.flush(rows, template, sequence);
+            self.flush(rows);
         }
-        self.pending.push((
-            row,
-            frame,
-            truth,
-            result.pose.clone(),
-            result.iterates.clone(),
-        ));
+        self.pending.push(queued);
     }
 
     /// Scores the queued frames over rayon's threads and writes each into its row.
-    fn flush(&mut self, rows: &mut [Value], template: &Template, sequence: bool) {
+    fn flush(&mut self, rows: &mut [Value]) {
+        let template = self.template;
         let scores: Vec<TruthScore> = self
             .pending
             .par_iter()
-            .map(|(_, _, gt, pose, iterates)| TruthScore::of(template, gt, pose, iterates))
+            .map(|q| TruthScore::of(template, q.truth, &q.pose, &q.iterates))
             .collect();
-        for ((k, frame, _, _, _), score) in self.pending.drain(..).zip(scores) {
-            let row = &mut rows[k];
+        for (q, score) in self.pending.drain(..).zip(scores) {
+            let row = &mut rows[q.row];
             self.v2v += score.v2v;
             self.mpjpe += score.mpjpe;
             self.pa_mpjpe += score.pa_mpjpe;
             row["v2v_mm"] = json!(score.v2v);
             row["mpjpe_mm"] = json!(score.mpjpe);
             row["pa_mpjpe_mm"] = json!(score.pa_mpjpe);
-            if sequence {
-                self.joints.push((frame, score.joints, score.true_joints));
+            if self.sequence {
+                self.joints.push((q.frame, score.joints, score.true_joints));
             }
             if let Some(c) = score.coefficient_rms {
                 row["shape_rms"] = json!(c);
@@ -766,8 +764,8 @@ fn fit_prepared(
     // With `--holdout`, every fitted frame (row, frame, pose), scored after the pass.
     let mut fitted_poses: Vec<(usize, usize, Vec<f64>)> = Vec::new();
     // With ground truth: the errors against it.
-    let mut truth = TruthScores::new(TRUTH_CHUNK);
     let sequence = scenario == lfit_synth::Scenario::Sequence;
+    let mut truth = TruthScores::new(&template, sequence, TRUTH_CHUNK);
     // Frames go through the network `--batch` at a time (the plan keeps sequences one by one).
     let plan = crate::fitting::Plan {
         dataset: &dataset,
@@ -870,15 +868,14 @@ fn fit_prepared(
             }
             if let Some(gt) = dataset.ground_truth(frame) {
                 // Scored against the truth over rayon's threads, a chunk of frames at a time.
-                truth.push(
-                    rows.len(),
+                let queued = Queued {
+                    row: rows.len(),
                     frame,
-                    gt,
-                    &result,
-                    &mut rows,
-                    &template,
-                    sequence,
-                );
+                    truth: gt,
+                    pose: result.pose,
+                    iterates: result.iterates,
+                };
+                truth.push(queued, &mut rows);
             } else {
                 // The distances to the observations come after the pass, with the markers
                 // where it put them (a solved placement is known once the β pass is done).
@@ -900,7 +897,7 @@ fn fit_prepared(
     )?;
     // The errors against the truth of the frames left (a dozen full meshes per frame with the
     // iterates' V2V: more than the fit itself for the batched neural fitter).
-    truth.flush(&mut rows, &template, sequence);
+    truth.flush(&mut rows);
     let sensor = match report
         .shape_pass
         .as_ref()
@@ -1450,32 +1447,26 @@ mod tests {
         let t = lfit_model::default_template();
         let pose = |k: usize| crate::fitting::tests::varied_pose(t.layout().dim(), k);
         let truths: Vec<Vec<f64>> = (0..7).map(|f| pose(f + 20)).collect();
-        let results: Vec<lfit_fitters::FitResult> = (0..7)
-            .map(|f| lfit_fitters::FitResult {
-                method: "test".into(),
-                pose: pose(f),
-                energy: 0.0,
-                terms: Vec::new(),
-                evaluations: 0,
-                gradient_evaluations: 0,
-                iterations: 0,
-                time_s: 0.0,
-                trace: Vec::new(),
-                iterates: if f % 2 == 0 {
-                    vec![pose(f + 40), pose(f)]
-                } else {
-                    Vec::new()
-                },
-            })
-            .collect();
+        // Every other frame with the fitter's iterates.
+        let iterates = |f: usize| match f % 2 {
+            0 => vec![pose(f + 40), pose(f)],
+            _ => Vec::new(),
+        };
         let score = |chunk: usize| {
-            let mut scores = TruthScores::new(chunk);
+            let mut scores = TruthScores::new(&t, true, chunk);
             let mut rows: Vec<Value> = Vec::new();
-            for (f, (truth, result)) in truths.iter().zip(&results).enumerate() {
-                scores.push(rows.len(), f, truth, result, &mut rows, &t, true);
+            for (f, truth) in truths.iter().enumerate() {
+                let queued = Queued {
+                    row: rows.len(),
+                    frame: f,
+                    truth,
+                    pose: pose(f),
+                    iterates: iterates(f),
+                };
+                scores.push(queued, &mut rows);
                 rows.push(json!({ "frame": f }));
             }
-            scores.flush(&mut rows, &t, true);
+            scores.flush(&mut rows);
             assert!(scores.pending.is_empty());
             (rows, scores)
         };

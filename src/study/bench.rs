@@ -391,7 +391,7 @@ impl BenchConfig {
             kind,
             self.dofs.as_deref(),
             &mut || Ok((modality, sequence)),
-            self.neural_start.as_deref().unwrap_or("given"),
+            self.neural_start_name(),
         )
         .context("dofs")
     }
@@ -414,13 +414,14 @@ impl BenchConfig {
             .context("marker_placement")
     }
 
+    /// `neural_start` as named (default `given`): the network's start and its anchor's.
+    fn neural_start_name(&self) -> &str {
+        self.neural_start.as_deref().unwrap_or("given")
+    }
+
     #[cfg(feature = "neural")]
     fn neural_start(&self) -> Result<lfit_infer::Start> {
-        self.neural_start
-            .as_deref()
-            .unwrap_or("given")
-            .parse()
-            .map_err(anyhow::Error::msg)
+        self.neural_start_name().parse().map_err(anyhow::Error::msg)
     }
 
     #[cfg(feature = "neural")]
@@ -880,7 +881,7 @@ pub fn run(
             fitters.push(crate::method::load_neural_named(
                 kind,
                 dir,
-                config.neural_start.as_deref().unwrap_or("given"),
+                config.neural_start_name(),
                 config.neural_pick.as_deref().unwrap_or("last"),
                 config.neural_iterations,
                 config.neural_tolerance,
