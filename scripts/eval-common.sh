@@ -5,6 +5,7 @@
 #   source scripts/eval-common.sh
 #   eval_setup NAME OUT          # LFIT, MODEL; OUT created; OUT/clip-motion.npz written
 #   eval_binary NAME             # LFIT alone (eval_setup without the clip)
+#   eval_ab_args NAME DEFAULT_OUT BASE_BIN NEW_BIN [OUT]  # an A/B script's two binaries: BASE, NEW, OUT, LFIT=NEW
 #   eval_need_dir NAME DIR       # exits with a one-line error unless DIR is a directory
 #   eval_run NAME DATA METHOD ARG...  # lfit fit of DATA into OUT/NAME.json; NAME appended to rows
 #   eval_native_fit BIN DATA CK BATCH THREADS OUT [ARG...]  # one timed native network fit
@@ -128,6 +129,22 @@ eval_binary() {
         echo "$1: no lfit binary at $LFIT (cargo build --release --workspace)" >&2
         exit 1
     fi
+}
+
+eval_ab_args() {
+    local name="$1" default_out="$2"
+    shift 2
+    if [ $# -lt 2 ] || [ $# -gt 3 ]; then
+        echo "usage: scripts/$name.sh BASE_BIN NEW_BIN [OUT]" >&2
+        exit 2
+    fi
+    BASE="$1"
+    NEW="$2"
+    OUT="${3:-$default_out}"
+    for b in "$BASE" "$NEW"; do
+        [ -x "$b" ] || { echo "$name: no lfit binary at $b" >&2; exit 1; }
+    done
+    LFIT="$NEW"
 }
 
 eval_setup() {

@@ -12,19 +12,9 @@
 # --workspace && cp target/release/lfit /tmp/lfit-base && git checkout -), NEW_BIN this tree's.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-if [ $# -lt 2 ] || [ $# -gt 3 ]; then
-    echo "usage: scripts/native-ab.sh BASE_BIN NEW_BIN [OUT]" >&2
-    exit 2
-fi
-BASE="$1"
-NEW="$2"
-OUT="${3:-target/native-ab}"
-for b in "$BASE" "$NEW"; do
-    [ -x "$b" ] || { echo "native-ab: no lfit binary at $b" >&2; exit 1; }
-done
 SEED=9103745171752751104
-LFIT="$NEW"
 source scripts/eval-common.sh
+eval_ab_args native-ab target/native-ab "$@"
 eval_setup native-ab "$OUT"
 REPS="${REPS:-3}"
 eval_markers_sets "$OUT"
