@@ -1,8 +1,9 @@
 //! Every checkpoint shipped in `checkpoints/`: one per sparse modality on the default template and
 //! on the committed MakeHuman body (its `hmd` fitter given β, papers/002 §3.2), the shape-estimating
 //! `markers-morphable`, the MakeHuman `face`, the two MakeHuman networks fine-tuned for
-//! sequences (`*-makehuman-sequence`) and the chord direction's MakeHuman markers fitters (one and two
-//! factorisations per frame, the second also fine-tuned for sequences); each at most 10 MB, with config, weights,
+//! sequences (`*-makehuman-sequence`), the chord direction's MakeHuman markers fitters (one and two
+//! factorisations per frame, the second also fine-tuned for sequences) and its keypoints2d and hmd
+//! fitters (one); each at most 10 MB, with config, weights,
 //! statistics and a metrics card, loading on its model and fitting held-out frames to the V2V
 //! that checkpoints/README.md documents (within a stated margin).
 
@@ -35,7 +36,7 @@ const MAKEHUMAN: &[&str] = &["--model", "models/makehuman-cmu_mb.npz"];
 /// other CPUs and BLAS-free kernels, not a weaker checkpoint.
 const MARGIN: f64 = 1.10;
 
-const CHECKPOINTS: [Shipped; 13] = [
+const CHECKPOINTS: [Shipped; 15] = [
     Shipped {
         name: "markers",
         modality: "markers",
@@ -138,6 +139,24 @@ const CHECKPOINTS: [Shipped; 13] = [
         fit: &["--known-shape", "truth"],
         documented: (90.679, 16.564),
     },
+    // The chord direction's keypoints2d and hmd fitters (one factorisation per frame): the
+    // networks `neural+lm` starts LM from on those sensors.
+    Shipped {
+        name: "keypoints2d-makehuman-chord",
+        modality: "keypoints2d",
+        model: MAKEHUMAN,
+        synth: &[],
+        fit: &[],
+        documented: (121.256, 14.204),
+    },
+    Shipped {
+        name: "hmd-makehuman-chord",
+        modality: "hmd",
+        model: MAKEHUMAN,
+        synth: &[],
+        fit: &["--known-shape", "truth"],
+        documented: (90.679, 16.164),
+    },
     Shipped {
         name: "face",
         modality: "landmarks2d",
@@ -205,9 +224,9 @@ fn every_shipped_checkpoint_is_complete_small_and_fits_its_modality() {
         let config: serde_json::Value =
             serde_json::from_slice(&std::fs::read(dir.join("config.json")).expect("config"))
                 .expect("json");
-        // The MakeHuman hmd fitter is the one given β (the others estimate it, or have none).
+        // The MakeHuman hmd fitters are the ones given β (the others estimate it, or have none).
         let known = config["network"]["known_shape"] == true;
-        assert_eq!(known, m == "hmd-makehuman", "{m}: known_shape");
+        assert_eq!(known, m.starts_with("hmd-makehuman"), "{m}: known_shape");
         assert_eq!(config["network"]["modality"], c.modality, "{m}: modality");
 
         // Held-out frames (a seed no training run uses): the fit from the start pose ends far
