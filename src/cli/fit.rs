@@ -297,13 +297,16 @@ fn shape_at_bound(template: &Template, pose: &[f64]) -> bool {
 /// `floor` (it had `--floor`) the floor is not suggested again. In a
 /// sequence it adds one β over the sequence, `joint:64`: its first pass is a chain, where
 /// `first-pass` fits frames alone from their starts (one camera's sequences from starts 300 mm
-/// off in depth: 55 mm against 240; docs/results/captured-motion.md, round 34).
+/// off in depth: 55 mm against 240; docs/results/captured-motion.md, round 34). `one_camera`
+/// (the data are seen by one camera) names depth as the likely cause; other data (markers, a
+/// headset, several cameras) are not told about a camera.
 fn shape_hint(
     at_bound: usize,
     frames: usize,
     sequence: bool,
     height_prior: bool,
     floor: bool,
+    one_camera: bool,
 ) -> Option<String> {
     (at_bound > 0).then(|| {
         let give = match (height_prior, floor) {
@@ -316,8 +319,13 @@ fn shape_hint(
         } else {
             give.to_string()
         };
+        let cause = if one_camera {
+            "the observations leave the body's size open (one camera trades size against depth)"
+        } else {
+            "the observations did not hold the body's size inside the box"
+        };
         format!(
-            "β reached the ±{} bound of its box in {at_bound} of {frames} frames: the observations leave the body's size open (one camera trades size against depth), and those fits take the box's size, not the subject's; {fix}",
+            "β reached the ±{} bound of its box in {at_bound} of {frames} frames: {cause}, and those fits take the box's size, not the subject's; {fix}",
             lfit_model::pose::SHAPE_BOUND
         )
     })
@@ -1024,6 +1032,7 @@ fn fit_prepared(
             sequence,
             height_prior.is_some(),
             floor.is_some(),
+            dataset.sensor.cameras().len() == 1,
         ) {
             eprintln!("warning: {hint}");
             summary["shape_hint"] = json!(hint);
@@ -1435,6 +1444,25 @@ pub fn optimize(args: &OptimizeArgs) -> Result<Value> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// β at its box is blamed on depth only where one camera sees the data (a markers or
+    /// headset fit was told "one camera trades size against depth"); the count, the advice and
+    /// the sequence's β hold either way, and no frame at the box gives no hint.
+    #[test]
+    fn the_shape_hint_names_one_camera_only_for_one_camera() {
+        let phone = shape_hint(3, 30, true, false, false, true).expect("a hint");
+        let markers = shape_hint(1, 500, false, false, false, false).expect("a hint");
+        assert!(
+            phone.contains("one camera trades size against depth"),
+            "{phone}"
+        );
+        assert!(!markers.contains("camera"), "{markers}");
+        assert!(markers.contains("in 1 of 500 frames"), "{markers}");
+        assert!(markers.contains("--known-shape height:M"), "{markers}");
+        assert!(phone.contains("--sequence-shape joint:64"), "{phone}");
+        assert!(!markers.contains("--sequence-shape"), "{markers}");
+        assert!(shape_hint(0, 500, false, false, false, true).is_none());
+    }
 
     /// Scoring the frames a chunk at a time (2, 3: the queue flushed before a frame is added,
     /// whose row is not in `rows` yet) writes every row and sums every error as scoring them all
