@@ -7,7 +7,10 @@
 # docs/results/learned-vs-classical.md) and 500 procedural held-out local frames, start near the
 # target (`--neural-start given`, N = 5), `--runtime native`, batch 1, one thread; hmd with β
 # given. REPS rounds (default 3). Prints V2V, evaluations and ms per frame of every run, and each
-# method's median time over LM's.
+# method's median time over LM's. EARLY="K:B …" adds `neural+lm` from the chord network's first K
+# iterations within B evaluations (`--neural-iterations K --budget B`, rows chord+lm-K@B) and LM
+# pulled toward the scenario's start by `neural+lm`'s own σ (`--dofs anchored:σ`, σ = 5° markers,
+# 3° keypoints2d, 1° hmd; row lm-anchored): what the start alone gives without the network.
 #
 #   M=keypoints2d CHORD=checkpoints/keypoints2d-makehuman-chord scripts/eval-chord-sensors.sh [OUT]
 set -euo pipefail
@@ -25,6 +28,10 @@ REPS="${REPS:-3}"
 BUDGET="${BUDGET:-14}"
 known=()
 [ "$M" = hmd ] && known=(--known-shape truth)
+case "$M" in markers) sigma=5 ;; keypoints2d) sigma=3 ;; *) sigma=1 ;; esac
+rows="lm gn chord gn+lm chord+lm"
+[ -n "${EARLY:-}" ] && for e in $EARLY; do rows="$rows chord+lm-${e%%:*}@${e##*:}"; done
+[ -n "${EARLY:-}" ] && rows="$rows lm-anchored"
 [ -f "$OUT/clip.npz" ] || "$LFIT" -q synth --modality "$M" --scenario local --frames 454 --seed "$SEED" \
     --template "$MODEL" --motions "$OUT/clip-motion.npz" --out "$OUT/clip.npz" >/dev/null
 [ -f "$OUT/proc.npz" ] || "$LFIT" -q synth --modality "$M" --scenario local --frames 500 --seed "$SEED" \
@@ -44,18 +51,25 @@ for rep in $(seq "$REPS"); do
             fit "$OUT/$d.npz" "$OUT/r$rep-$d-$name+lm.json" --method neural+lm --checkpoint "$ck" \
                 --neural-start given --runtime native --budget "$BUDGET"
         done
+        for e in ${EARLY:-}; do
+            fit "$OUT/$d.npz" "$OUT/r$rep-$d-chord+lm-${e%%:*}@${e##*:}.json" --method neural+lm \
+                --checkpoint "$CHORD" --neural-start given --runtime native \
+                --neural-iterations "${e%%:*}" --budget "${e##*:}"
+        done
+        [ -n "${EARLY:-}" ] && fit "$OUT/$d.npz" "$OUT/r$rep-$d-lm-anchored.json" --method lm \
+            --dofs "anchored:$sigma" --budget 4000
     done
 done
-python3 - "$OUT" "$REPS" <<'PY'
+python3 - "$OUT" "$REPS" $rows <<'PY'
 import json, sys
-out, reps = sys.argv[1], int(sys.argv[2])
+out, reps, rows = sys.argv[1], int(sys.argv[2]), sys.argv[3:]
 def runs(d, n): return [json.load(open(f"{out}/r{r}-{d}-{n}.json")) for r in range(1, reps + 1)]
 def median(v): return sorted(v)[len(v) // 2]
 print("| frames | method | V2V mm | evaluations per frame | ms per frame (each run) | / LM (medians) |")
 print("|---|---|---|---|---|---|")
 for d in ["clip", "proc"]:
     lm = median([r["summary"]["mean_time_s"] for r in runs(d, "lm")])
-    for n in ["lm", "gn", "chord", "gn+lm", "chord+lm"]:
+    for n in rows:
         rs = runs(d, n)
         s = rs[0]["summary"]
         ev = sum(f["evaluations"] for f in rs[0]["frames"]) / len(rs[0]["frames"])
