@@ -18,7 +18,7 @@ source scripts/eval-common.sh
 eval_ab_args batch-ab target/batch-ab "$@"
 eval_setup batch-ab "$OUT"
 REPS="${REPS:-3}"
-eval_markers_sets "$OUT"
+eval_local_sets "$OUT"
 [ -f "$OUT/proc2k.npz" ] || "$LFIT" -q synth --modality markers --scenario local --frames 2000 \
     --seed "$SEED" --template "$MODEL" --out "$OUT/proc2k.npz" >/dev/null
 # timed NAME BIN THREADS ARG...: one `lfit fit`, its wall seconds in OUT/NAME.wall.

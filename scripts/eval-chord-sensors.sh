@@ -30,12 +30,9 @@ known=()
 [ "$M" = hmd ] && known=(--known-shape truth)
 case "$M" in markers) sigma=5 ;; keypoints2d) sigma=3 ;; *) sigma=1 ;; esac
 rows="lm gn chord gn+lm chord+lm"
-[ -n "${EARLY:-}" ] && for e in $EARLY; do rows="$rows chord+lm-${e%%:*}@${e##*:}"; done
-[ -n "${EARLY:-}" ] && rows="$rows lm-anchored"
-[ -f "$OUT/clip.npz" ] || "$LFIT" -q synth --modality "$M" --scenario local --frames 454 --seed "$SEED" \
-    --template "$MODEL" --motions "$OUT/clip-motion.npz" --out "$OUT/clip.npz" >/dev/null
-[ -f "$OUT/proc.npz" ] || "$LFIT" -q synth --modality "$M" --scenario local --frames 500 --seed "$SEED" \
-    --template "$MODEL" --out "$OUT/proc.npz" >/dev/null
+for e in ${EARLY:-}; do rows="$rows chord+lm-${e%%:*}@${e##*:}"; done
+if [ -n "${EARLY:-}" ]; then rows="$rows lm-anchored"; fi
+eval_local_sets "$OUT" "$M"
 fit() {
     local data="$1" out="$2"
     shift 2
@@ -56,8 +53,9 @@ for rep in $(seq "$REPS"); do
                 --checkpoint "$CHORD" --neural-start given --runtime native \
                 --neural-iterations "${e%%:*}" --budget "${e##*:}"
         done
-        [ -n "${EARLY:-}" ] && fit "$OUT/$d.npz" "$OUT/r$rep-$d-lm-anchored.json" --method lm \
-            --dofs "anchored:$sigma" --budget 4000
+        if [ -n "${EARLY:-}" ]; then
+            fit "$OUT/$d.npz" "$OUT/r$rep-$d-lm-anchored.json" --method lm --dofs "anchored:$sigma" --budget 4000
+        fi
     done
 done
 python3 - "$OUT" "$REPS" $rows <<'PY'

@@ -20,7 +20,7 @@ eval_setup eval-chord "$OUT"
 eval_need_dir eval-chord "$CHORD"
 eval_need_dir eval-chord "$BASE"
 REPS="${REPS:-3}"
-eval_markers_sets "$OUT"
+eval_local_sets "$OUT"
 for rep in $(seq "$REPS"); do
     for d in clip proc; do
         for cfg in "1 1" "256 2"; do

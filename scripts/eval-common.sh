@@ -7,6 +7,7 @@
 #   eval_binary NAME             # LFIT alone (eval_setup without the clip)
 #   eval_ab_args NAME DEFAULT_OUT BASE_BIN NEW_BIN [OUT]  # an A/B script's two binaries: BASE, NEW, OUT, LFIT=NEW
 #   eval_need_dir NAME DIR       # exits with a one-line error unless DIR is a directory
+#   eval_local_sets OUT [M]      # OUT/clip.npz, OUT/proc.npz: sensor M's local clip and procedural frames
 #   eval_run NAME DATA METHOD ARG...  # lfit fit of DATA into OUT/NAME.json; NAME appended to rows
 #   eval_native_fit BIN DATA CK BATCH THREADS OUT [ARG...]  # one timed native network fit
 #   eval_table fits OUT ROW...   # V2V, MPJPE, PA-MPJPE, β RMS, shape V2V, energy, evaluations, time per frame
@@ -157,13 +158,15 @@ eval_setup() {
         --model "$MODEL" --out "$out/clip-motion.npz" >/dev/null
 }
 
-# The markers frames of eval-chord.sh and native-ab.sh in OUT ($1), unless there: the clip's 454
-# local frames (clip.npz, from eval_setup's clip-motion.npz) and 500 procedural held-out local
-# frames (proc.npz), both at the seed SEED.
-eval_markers_sets() {
-    [ -f "$1/clip.npz" ] || "$LFIT" -q synth --modality markers --scenario local --frames 454 --seed "$SEED" \
+# The frames of eval-chord.sh, eval-chord-sensors.sh, native-ab.sh and batch-ab.sh in OUT ($1),
+# unless there: of sensor $2 (default markers) the clip's 454 local frames (clip.npz, from
+# eval_setup's clip-motion.npz) and 500 procedural held-out local frames (proc.npz), both at the
+# seed SEED.
+eval_local_sets() {
+    local m="${2:-markers}"
+    [ -f "$1/clip.npz" ] || "$LFIT" -q synth --modality "$m" --scenario local --frames 454 --seed "$SEED" \
         --template "$MODEL" --motions "$1/clip-motion.npz" --out "$1/clip.npz" >/dev/null
-    [ -f "$1/proc.npz" ] || "$LFIT" -q synth --modality markers --scenario local --frames 500 --seed "$SEED" \
+    [ -f "$1/proc.npz" ] || "$LFIT" -q synth --modality "$m" --scenario local --frames 500 --seed "$SEED" \
         --template "$MODEL" --out "$1/proc.npz" >/dev/null
 }
 

@@ -17,7 +17,7 @@ source scripts/eval-common.sh
 eval_ab_args native-ab target/native-ab "$@"
 eval_setup native-ab "$OUT"
 REPS="${REPS:-3}"
-eval_markers_sets "$OUT"
+eval_local_sets "$OUT"
 for rep in $(seq "$REPS"); do
     for d in clip proc; do
         for cfg in "1 1" "256 2"; do
